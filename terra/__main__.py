@@ -1,0 +1,3 @@
+from terra.cli import main
+
+main()

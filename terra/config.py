@@ -1,0 +1,90 @@
+"""Configuration: one pydantic section per pipeline stage, loaded from YAML.
+
+A config file holds any of the top-level keys `sim`, `mapping`, `build`, `tasks`, `eval`; missing
+keys take defaults. `terra config dump STAGE` prints a stage's defaults as YAML.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from terra.errors import TerraError
+
+
+class Section(BaseModel):
+    """Base of every config section: unknown keys are errors, values are validated on assignment."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+S = TypeVar("S", bound=BaseModel)
+
+
+def _sections() -> dict[str, type[BaseModel]]:
+    from terra.eval.config import EvalConfig
+    from terra.graph.config import BuildConfig
+    from terra.mapping.config import MappingConfig
+    from terra.sim.config import SimConfig
+    from terra.tasks.config import TasksConfig
+
+    return {"sim": SimConfig, "mapping": MappingConfig, "build": BuildConfig, "tasks": TasksConfig, "eval": EvalConfig}
+
+
+def stage_names() -> list[str]:
+    return list(_sections())
+
+
+def validation_message(source: str, exc: ValidationError) -> str:
+    """One line naming the first bad field and what was expected."""
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"]) or "(root)"
+    return f"{source}: field '{where}': {err['msg']}"
+
+
+def load_section(path: str | Path | None, stage: str, overrides: dict | None = None) -> BaseModel:
+    """The config section `stage` from a YAML file (defaults when `path` is None), with overrides."""
+    sections = _sections()
+    if stage not in sections:
+        raise TerraError(f"unknown config stage {stage!r}; expected one of: {', '.join(sections)}")
+    data: dict = {}
+    source = "defaults"
+    if path is not None:
+        path = Path(path)
+        source = str(path)
+        try:
+            raw = yaml.safe_load(path.read_text()) or {}
+        except OSError as exc:
+            raise TerraError(f"{path}: cannot read config ({exc.strerror})") from None
+        except yaml.YAMLError as exc:
+            raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        if not isinstance(raw, dict):
+            raise TerraError(f"{path}: expected a mapping with keys among {', '.join(sections)}")
+        unknown = set(raw) - set(sections)
+        if unknown:
+            raise TerraError(f"{path}: unknown top-level key {sorted(unknown)[0]!r}; expected keys among {', '.join(sections)}")
+        data = raw.get(stage) or {}
+    data = _deep_merge(data, overrides or {})
+    try:
+        return sections[stage].model_validate(data)
+    except ValidationError as exc:
+        raise TerraError(validation_message(f"{source} [{stage}]", exc)) from None
+
+
+def _deep_merge(base: dict, extra: dict) -> dict:
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def dump_section(stage: str) -> str:
+    """Defaults of one stage as YAML text, under its top-level key."""
+    section = load_section(None, stage)
+    return yaml.safe_dump({stage: section.model_dump(mode="json")}, sort_keys=False)

