@@ -1,0 +1,114 @@
+"""The metric-semantic map: sparse global points with terrain votes and embedding-bank counts.
+
+All positions are in the map frame, metres. Embeddings are float32 unit vectors of the map's
+embedder (`embedder`, dimension D). Per-point semantics are sparse (DESIGN.md decision 2): a query
+never builds an N x D array.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+
+@dataclass
+class ImageTable:
+    """Per image: stamp (s), camera index, camera pose T_map_cam (4x4), whole-image embedding (D,)."""
+
+    stamp: np.ndarray  # (M,) float64 seconds
+    camera: np.ndarray  # (M,) int16 camera index
+    T_map_cam: np.ndarray  # (M, 4, 4) float64
+    embedding: np.ndarray  # (M, D) float32 unit
+    camera_names: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(self.stamp.shape[0])
+
+    @property
+    def position(self) -> np.ndarray:
+        """(M, 3) camera centres in the map frame, metres."""
+        return self.T_map_cam[:, :3, 3]
+
+
+@dataclass
+class MetricSemanticMap:
+    """points: (N, 3) float32. terrain_votes: (N, T) uint16 votes per terrain class.
+    counts: (N, K) CSR int32 observations of bank entries (one image adds at most one per pair).
+    bank: (K, D) float32 unit embeddings. terrain_embeddings: (T, D) text embeddings of the terrain
+    class names. images: the image table (may be empty for LiDAR-only sources).
+    """
+
+    points: np.ndarray
+    terrain_classes: list[str]
+    terrain_votes: np.ndarray
+    terrain_embeddings: np.ndarray
+    counts: sp.csr_matrix
+    bank: np.ndarray
+    images: ImageTable
+    embedder: str
+    voxel_size: float = 0.4
+    _avg_norm: np.ndarray | None = field(default=None, repr=False)
+    _max_id: np.ndarray | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.bank.shape[1]) if self.bank.ndim == 2 else int(self.terrain_embeddings.shape[1])
+
+    def ms_avg_norms(self, chunk: int = 65536) -> np.ndarray:
+        """(N,) row norms of counts @ bank, computed in row chunks and cached (0 = no observation)."""
+        if self._avg_norm is None:
+            out = np.zeros(len(self), dtype=np.float32)
+            for start in range(0, len(self), chunk):
+                block = self.counts[start : start + chunk] @ self.bank
+                out[start : start + chunk] = np.linalg.norm(block, axis=1)
+            self._avg_norm = out
+        return self._avg_norm
+
+    def ms_max_ids(self) -> np.ndarray:
+        """(N,) bank id with the most observations per point (ties: lowest id); -1 = unobserved."""
+        if self._max_id is None:
+            counts = self.counts.tocsr()
+            out = np.full(len(self), -1, dtype=np.int64)
+            nnz = np.diff(counts.indptr)
+            rows = np.flatnonzero(nnz)
+            if rows.size:
+                # Sort each row's entries by (row, -count, id) and take the first per row.
+                row_of = np.repeat(np.arange(len(self)), nnz)
+                order = np.lexsort((counts.indices, -counts.data, row_of))
+                first = counts.indptr[rows]
+                out[rows] = counts.indices[order[first]]
+            self._max_id = out
+        return self._max_id
+
+    def ms_avg_similarity(self, queries: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(n, Q) cosine of each point's MS-Avg feature (count-weighted mean of bank vectors) with
+        unit query vectors (Q, D); 0 for unobserved points. `rows` restricts to a subset of points."""
+        s = self.bank @ np.asarray(queries, dtype=np.float32).T  # (K, Q)
+        counts = self.counts if rows is None else self.counts[rows]
+        norms = self.ms_avg_norms() if rows is None else self.ms_avg_norms()[rows]
+        num = np.asarray(counts @ s, dtype=np.float32)
+        return np.divide(num, norms[:, None], out=np.zeros_like(num), where=norms[:, None] > 0)
+
+    def ms_max_similarity(self, queries: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(n, Q) cosine of each point's MS-Max feature (its most observed bank vector) with the
+        queries; 0 for unobserved points."""
+        s = self.bank @ np.asarray(queries, dtype=np.float32).T
+        ids = self.ms_max_ids() if rows is None else self.ms_max_ids()[rows]
+        out = np.zeros((ids.shape[0], s.shape[1]), dtype=np.float32)
+        seen = ids >= 0
+        out[seen] = s[ids[seen]]
+        return out
+
+    def terrain_index(self, min_share: float = 0.5) -> np.ndarray:
+        """(N,) terrain class index by majority vote, -1 where no vote or the winner's share of the
+        point's votes is below `min_share`."""
+        votes = self.terrain_votes
+        total = votes.sum(axis=1)
+        best = votes.argmax(axis=1)
+        share = np.divide(votes[np.arange(len(votes)), best], total, out=np.zeros(len(votes)), where=total > 0)
+        return np.where((total > 0) & (share >= min_share), best, -1)
