@@ -1,5 +1,36 @@
+"""Session fixtures shared by every area: the text embedder and the simulated campuses.
+
+Expensive artefacts (simulated datasets, maps, graphs) are built once per test session; each
+area's fixtures live in tests/fixtures_<area>.py.
+"""
+
 import os
+
+import pytest
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
+
+pytest_plugins = ["tests.fixtures_mapping", "tests.fixtures_graph"]
+
+
+@pytest.fixture(scope="session")
+def text_embedder():
+    from terra.perception.text import get_text_embedder
+
+    return get_text_embedder()
+
+
+@pytest.fixture(scope="session")
+def tiny_campus():
+    from terra.sim import simulate
+
+    return simulate("tiny", seed=0)
+
+
+@pytest.fixture(scope="session")
+def small_campus():
+    from terra.sim import simulate
+
+    return simulate("small", seed=0)

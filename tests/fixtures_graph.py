@@ -1,0 +1,1 @@
+"""Session fixtures of the graph stage (see tests/conftest.py)."""

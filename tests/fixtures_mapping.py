@@ -1,0 +1,1 @@
+"""Session fixtures of the mapping stage (see tests/conftest.py)."""
