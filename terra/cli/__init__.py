@@ -35,26 +35,32 @@ def fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Console entry point."""
+def run(argv: list[str] | None = None) -> int:
+    """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path)."""
     _load_commands()
     try:
-        app(args=argv, standalone_mode=False)
+        result = app(args=argv, standalone_mode=False)
+        return result if isinstance(result, int) else 0
     except TerraError as exc:
         typer.echo(f"terra: error: {exc}", err=True)
-        sys.exit(exc.exit_code)
+        return exc.exit_code
     except typer.Exit as exc:
-        sys.exit(exc.exit_code)
+        return exc.exit_code
     except typer.Abort:
         typer.echo("terra: aborted", err=True)
-        sys.exit(130)
+        return 130
     except KeyboardInterrupt:
         typer.echo("terra: interrupted", err=True)
-        sys.exit(130)
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
+        return 130
+    except Exception as exc:
+        # Usage errors (unknown command or option, missing argument) from Typer's bundled click:
+        # they know how to show themselves and carry their exit code.
+        if hasattr(exc, "show") and hasattr(exc, "exit_code"):
             exc.show()
-            sys.exit(2)
+            return int(exc.exit_code)
         raise
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: exits with the code of `run`."""
+    sys.exit(run(argv))

@@ -1,0 +1,81 @@
+import json
+
+import numpy as np
+import pytest
+
+from terra.bundle import Bundle, BundleWriter
+from terra.errors import TerraError
+
+
+def _write(path, points):
+    with BundleWriter(path) as w:
+        w.manifest["components"] = {"map": {"points": len(points)}}
+        w.put_array("map/points", points)
+        w.put_json("map/meta.json", {"voxel_size": 0.4})
+    return Bundle(path)
+
+
+def test_roundtrip_and_manifest(tmp_path):
+    pts = np.arange(12, dtype=np.float32).reshape(4, 3)
+    b = _write(tmp_path / "b", pts)
+    np.testing.assert_array_equal(b.array("map/points"), pts)
+    assert b.json("map/meta.json") == {"voxel_size": 0.4}
+    assert b.has("map/points") and not b.has("graph/nodes")
+    b.verify()
+    sizes = b.component_bytes()
+    assert sizes["map"] == sum(e["bytes"] for e in b.files.values())
+
+
+def test_same_content_same_bytes(tmp_path):
+    pts = np.random.default_rng(0).normal(size=(100, 3)).astype(np.float32)
+    a, b = _write(tmp_path / "a", pts), _write(tmp_path / "b", pts)
+    for name in ["manifest.json", "map/points.npy", "map/meta.json"]:
+        assert (a.path / name).read_bytes() == (b.path / name).read_bytes()
+
+
+def test_failed_write_leaves_previous_bundle_untouched(tmp_path):
+    pts = np.ones((3, 3), dtype=np.float32)
+    _write(tmp_path / "b", pts)
+    before = (tmp_path / "b" / "manifest.json").read_bytes()
+    with pytest.raises(RuntimeError):
+        with BundleWriter(tmp_path / "b", base=Bundle(tmp_path / "b")) as w:
+            w.put_array("graph/x", np.zeros(3))
+            raise RuntimeError("crash mid-write")
+    assert (tmp_path / "b" / "manifest.json").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]  # no temporary folder left behind
+
+
+def test_add_component_keeps_base_and_drop_removes(tmp_path):
+    b = _write(tmp_path / "b", np.ones((3, 3), dtype=np.float32))
+    with BundleWriter(b.path, base=b) as w:
+        w.manifest.setdefault("components", {})["graph"] = {"places": 2}
+        w.put_array("graph/x", np.arange(2))
+    b2 = Bundle(tmp_path / "b")
+    assert b2.has("map/points") and b2.has("graph/x")
+    with BundleWriter(b2.path, base=b2, drop_components=("graph",)):
+        pass
+    b3 = Bundle(tmp_path / "b")
+    assert not b3.has("graph/x") and "graph" not in b3.manifest["components"]
+    b3.verify()
+
+
+def test_corruption_and_bad_schema_are_one_line_errors(tmp_path):
+    b = _write(tmp_path / "b", np.ones((3, 3), dtype=np.float32))
+    with open(b.path / "map/points.npy", "ab") as f:
+        f.write(b"x")
+    with pytest.raises(TerraError, match="points.npy: size"):
+        b.array("map/points")
+    manifest = json.loads((b.path / "manifest.json").read_text())
+    manifest["schema_version"] = 99
+    (b.path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(TerraError, match="schema_version 99"):
+        Bundle(b.path)
+    with pytest.raises(TerraError, match="not a Terra bundle"):
+        Bundle(tmp_path)
+
+
+def test_object_arrays_are_refused(tmp_path):
+    w = BundleWriter(tmp_path / "b")
+    with pytest.raises(TypeError):
+        w.put_array("map/bad", np.array([{"a": 1}], dtype=object))
+    w.abort()
