@@ -1,0 +1,2 @@
+"""Evaluation metrics as pure functions over arrays: boxes, retrieval, segmentation, regions,
+memory and navigation. Each module documents the definitions it implements."""

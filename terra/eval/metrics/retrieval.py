@@ -1,0 +1,160 @@
+"""Open-set object retrieval metrics (the paper's Table II), with Clio's definitions as the
+authors' evaluation implements them.
+
+For each query t with N_t ground-truth boxes:
+
+- Matching: a greedy one-to-one assignment of predictions to ground truth by decreasing 3D IoU,
+  pairs with IoU = 0 never match. A matched pair is a *relaxed* success when the predicted box
+  contains the ground-truth centre, a *strict* success when, in addition, the ground-truth box
+  contains the predicted centre.
+- Accuracy: the N_t predictions with the highest score for t (whichever query they were
+  assigned to) are matched to t's ground truth. IoU, SAcc and RAcc are the sums of matched IoU,
+  strict and relaxed successes over all queries, each divided by sum_t N_t.
+- Precision: the predictions assigned to t whose score is at least `precision_ratio` (0.9) times
+  the best score among them are matched to t's ground truth. SPrec and RPrec are the strict and
+  relaxed successes over all queries divided by the number of such predictions.
+- F1 = 2 RPrec RAcc / (RPrec + RAcc) (0 when both are 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from terra.eval.metrics.boxes import BoxSet, iou_matrix
+
+
+def greedy_match(iou: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one matches (pred indices, gt indices) by decreasing IoU; only IoU > 0 matches.
+
+    Ties are broken by (pred, gt) index order, so the result is deterministic.
+    """
+    iou = np.asarray(iou, dtype=np.float64)
+    rows, cols = np.nonzero(iou > 0)
+    order = np.lexsort((cols, rows, -iou[rows, cols]))
+    used_p: set[int] = set()
+    used_g: set[int] = set()
+    matched_p, matched_g = [], []
+    # Few boxes per query: a loop over candidate pairs is cheap and reads plainly.
+    for p, g in zip(rows[order].tolist(), cols[order].tolist()):
+        if p in used_p or g in used_g:
+            continue
+        used_p.add(p)
+        used_g.add(g)
+        matched_p.append(p)
+        matched_g.append(g)
+    return np.asarray(matched_p, dtype=np.int64), np.asarray(matched_g, dtype=np.int64)
+
+
+@dataclass
+class MatchCounts:
+    """Matched pairs between a selection of predictions and a query's ground truth."""
+
+    iou_sum: float = 0.0
+    strict: int = 0
+    relaxed: int = 0
+
+    def __iadd__(self, other: "MatchCounts") -> "MatchCounts":
+        self.iou_sum += other.iou_sum
+        self.strict += other.strict
+        self.relaxed += other.relaxed
+        return self
+
+
+def match_boxes(pred: BoxSet, gt: BoxSet) -> MatchCounts:
+    """Greedy IoU matching of `pred` to `gt`, counting relaxed and strict successes."""
+    iou = iou_matrix(pred, gt)
+    p, g = greedy_match(iou)
+    if p.size == 0:
+        return MatchCounts()
+    pred_has_gt_centre = pred.contains(gt.center)[p, g]
+    gt_has_pred_centre = gt.contains(pred.center)[g, p]
+    return MatchCounts(
+        iou_sum=float(iou[p, g].sum()),
+        strict=int(np.count_nonzero(pred_has_gt_centre & gt_has_pred_centre)),
+        relaxed=int(np.count_nonzero(pred_has_gt_centre)),
+    )
+
+
+@dataclass
+class RetrievalScores:
+    """Table II figures for one method. `per_query` holds the same counts for each query."""
+
+    iou: float
+    strict_accuracy: float
+    relaxed_accuracy: float
+    strict_precision: float
+    relaxed_precision: float
+    f1: float
+    num_gt: int
+    num_predictions: int
+    num_precision_predictions: int
+    per_query: list[dict] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def f1_score(precision: float, recall: float) -> float:
+    """Harmonic mean of precision and recall (0 when both are 0)."""
+    return 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+
+
+def evaluate_retrieval(
+    pred: BoxSet,
+    scores: np.ndarray,
+    assigned: np.ndarray,
+    gt: list[BoxSet],
+    precision_ratio: float = 0.9,
+    query_names: list[str] | None = None,
+) -> RetrievalScores:
+    """Retrieval metrics of predicted boxes against the ground truth of Q queries.
+
+    pred: the n predicted boxes. scores: (n, Q) score of each prediction for each query.
+    assigned: (n,) query index each prediction was retrieved for. gt: per query, its boxes.
+    """
+    scores = np.asarray(scores, dtype=np.float64).reshape(len(pred), len(gt))
+    assigned = np.asarray(assigned, dtype=np.int64).reshape(len(pred))
+    total_acc, total_prec = MatchCounts(), MatchCounts()
+    num_gt = num_sel = 0
+    per_query = []
+    for t, gt_t in enumerate(gt):
+        # Accuracy: the len(gt_t) best-scoring predictions for t, stable on ties.
+        top = np.argsort(-scores[:, t], kind="stable")[: len(gt_t)]
+        acc = match_boxes(pred[top], gt_t)
+        # Precision: predictions for t close to the best of them.
+        mine = np.flatnonzero(assigned == t)
+        if mine.size:
+            best = scores[mine, t].max()
+            mine = mine[scores[mine, t] >= precision_ratio * best]
+        prec = match_boxes(pred[mine], gt_t)
+        total_acc += acc
+        total_prec += prec
+        num_gt += len(gt_t)
+        num_sel += int(mine.size)
+        per_query.append({
+            "query": query_names[t] if query_names else str(t),
+            "num_gt": len(gt_t),
+            "num_predictions": int(np.count_nonzero(assigned == t)),
+            "iou_sum": acc.iou_sum,
+            "strict_hits": acc.strict,
+            "relaxed_hits": acc.relaxed,
+            "precision_predictions": int(mine.size),
+            "strict_precision_hits": prec.strict,
+            "relaxed_precision_hits": prec.relaxed,
+        })
+    racc = total_acc.relaxed / num_gt if num_gt else 0.0
+    rprec = total_prec.relaxed / num_sel if num_sel else 0.0
+    return RetrievalScores(
+        iou=total_acc.iou_sum / num_gt if num_gt else 0.0,
+        strict_accuracy=total_acc.strict / num_gt if num_gt else 0.0,
+        relaxed_accuracy=racc,
+        strict_precision=total_prec.strict / num_sel if num_sel else 0.0,
+        relaxed_precision=rprec,
+        f1=f1_score(rprec, racc),
+        num_gt=num_gt,
+        num_predictions=len(pred),
+        num_precision_predictions=num_sel,
+        per_query=per_query,
+    )
