@@ -1,0 +1,100 @@
+"""Figures: rasters colour the right cells, every report figure writes a valid, reproducible PNG."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from terra.datasets.ground_truth import GroundTruth, NamedRegion, ObjectBox, TerrainRaster
+from terra.eval.metrics.boxes import BoxSet
+from terra.graph.scene_graph import Places, RegionLevel, SceneGraph
+from terra.viz import figures
+from terra.viz.raster import rasterize_points, terrain_points_image, terrain_raster_image
+from terra.viz.style import OTHER_COLOUR, terrain_colour
+
+TERRAIN = ["sidewalk", "grass", "asphalt"]
+
+
+def grid_graph() -> SceneGraph:
+    """A 6 x 5 grid of places 4 m apart, terrain by column band, two region levels."""
+    xs, ys = np.meshgrid(np.arange(6) * 4.0, np.arange(5) * 4.0)
+    pos = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1)
+    idx = np.arange(len(pos)).reshape(xs.shape)
+    edges = np.concatenate([np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
+                            np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)])
+    terrain = (pos[:, 0] // 8).astype(np.int64)
+    level1 = terrain.copy()
+    level2 = np.array([0, 0, 1])
+    regions = [RegionLevel(1, np.stack([pos[level1 == r].mean(0) for r in range(3)]), np.zeros((3, 3), np.float32), level1),
+               RegionLevel(2, np.array([[4.0, 8, 0], [18, 8, 0]]), np.zeros((2, 3), np.float32), level2)]
+    places = Places(pos, terrain, np.ones(len(pos)), np.zeros((len(pos), 3), np.float32))
+    kind = np.zeros(len(edges), np.int64)
+    kind[0] = 2
+    return SceneGraph(TERRAIN, np.eye(3, dtype=np.float32), places, edges, np.full(len(edges), 4.0), kind, regions,
+                      embedder="test", region_method="agglomerative")
+
+
+def ground_truth() -> GroundTruth:
+    classes = np.array([[1, 2, 3], [1, 9, 3]], np.int32)
+    raster = TerrainRaster(classes, np.zeros((2, 3), np.float32), np.array([-1.0, -1.0]), 10.0,
+                           {1: "sidewalk", 2: "grass", 3: "asphalt", 9: "building"})
+    objects = [ObjectBox(1, 9, "car", np.array([5.0, 5, 0.75]), np.array([4.0, 2, 1.5]), 0.3)]
+    regions = [NamedRegion("lot", "Large parking lot", np.array([[0, 0], [10, 0], [10, 10], [0, 10.0]]))]
+    return GroundTruth(objects, raster, regions)
+
+
+def test_rasterize_keeps_the_highest_point_per_cell():
+    pts = np.array([[0.1, 0.1, 0.0], [0.2, 0.3, 2.0], [0.25, 0.05, 1.0], [1.1, 0.1, 0.0]])
+    colours = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]], float)
+    img = rasterize_points(pts, colours, cell=0.5)
+    assert img.rgba.shape == (1, 3, 4)
+    assert img.rgba[0, 0].tolist() == [0, 1, 0, 1]  # z = 2 wins its cell
+    assert img.rgba[0, 1, 3] == 0  # empty cell is transparent
+    assert img.rgba[0, 2].tolist() == [1, 1, 0, 1]
+    assert img.extent == pytest.approx((0.1, 1.6, 0.05, 0.55))
+
+
+def test_terrain_images_use_the_terrain_palette():
+    pts = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    img = terrain_points_image(pts, np.array([1, -1]), TERRAIN, cell=1.0)
+    assert tuple(img.rgba[0, 0, :3]) == pytest.approx(terrain_colour("grass"))
+    raster = terrain_raster_image(ground_truth().terrain, TERRAIN)
+    assert tuple(raster.rgba[0, 0, :3]) == pytest.approx(terrain_colour("sidewalk"))
+    assert tuple(raster.rgba[0, 2, :3]) == pytest.approx(terrain_colour("asphalt"))
+    from matplotlib.colors import to_rgb
+    assert tuple(raster.rgba[1, 1, :3]) == pytest.approx(to_rgb(OTHER_COLOUR))  # building: not terrain
+    assert raster.extent == (-1.0, 29.0, -1.0, 19.0)
+
+
+def draw_every_figure(out):
+    sg, gt = grid_graph(), ground_truth()
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(0, 20, 2000), rng.uniform(0, 16, 2000), rng.uniform(0, 1, 2000)]
+    background = terrain_points_image(pts, (pts[:, 0] // 8).astype(int), TERRAIN)
+    gt_boxes = BoxSet.from_objects(gt.objects)
+    pred = BoxSet([[5.5, 5, 0.7]], [[3, 2, 1.4]], [0.1])
+    return [
+        figures.terrain_map_figure(out / "terrain.png", TERRAIN, background, gt),
+        figures.places_figure(out / "places.png", sg, background),
+        figures.region_levels_figure(out / "regions.png", sg, background),
+        figures.boxes_figure(out / "boxes.png", gt_boxes, {"ms-avg": (pred, np.array([0]))}, ["Find the car"], np.array([0]), background),
+        figures.paths_figure(out / "paths.png", sg, 0, 29, [("shortest", np.array([0, 7, 14, 21, 28, 29]), 24.0),
+                                                            ("prefer sidewalk", np.array([0, 6, 12, 18, 24, 25, 26, 27, 28, 29]), 36.0)],
+                             "Get bike from the bicycle rack", background),
+        figures.monitoring_figure(out / "monitor.png", sg, gt.regions, [np.array([0, 1, 6, 7])], "mix", background),
+        figures.memory_figure(out / "memory.png", [("tiny", {"map": 300_000, "graph": 40_000, "manifest": 3000}, 2000.0)]),
+    ]
+
+
+def test_every_figure_writes_a_valid_reproducible_png(tmp_path):
+    first = draw_every_figure(tmp_path / "a")
+    second = draw_every_figure(tmp_path / "b")
+    for a, b in zip(first, second):
+        with Image.open(a) as im:
+            im.verify()
+        with Image.open(a) as im:
+            assert im.format == "PNG" and im.size[0] >= 400 and im.size[1] >= 300
+            assert "Software" not in im.info
+            # Not blank: a real drawing has many distinct colours.
+            rgb = np.asarray(im.convert("RGB")).astype(np.int64)
+            assert np.unique(rgb[..., 0] << 16 | rgb[..., 1] << 8 | rgb[..., 2]).size > 20
+        assert a.read_bytes() == b.read_bytes(), a.name
