@@ -1,1 +1,167 @@
-"""Session fixtures of the mapping stage (see tests/conftest.py)."""
+"""Session fixtures of the mapping stage (see tests/conftest.py), and a hand-built scene.
+
+`tiny_bundle` / `small_bundle`: noise-free maps of the simulated tiny / small campus, built once
+per session with the default MappingConfig via terra.mapping.pipeline.build_map.
+
+`BoxScene`: a scene small enough to reason about by hand (flat ground split into grass and
+asphalt, a few axis-aligned boxes), ray-cast exactly for a LiDAR and a pinhole camera, so the
+mapping tests do not depend on the simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass
+from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays, transform_points
+
+# ---------------------------------------------------------------------------- session bundles
+
+
+def _build_bundle(dataset, tmp_path_factory, name: str):
+    from terra.mapping.config import MappingConfig
+    from terra.mapping.pipeline import build_map
+
+    out = tmp_path_factory.mktemp(name) / "map.terra"
+    return build_map(dataset, MappingConfig(), out, progress=False)
+
+
+@pytest.fixture(scope="session")
+def tiny_bundle(tiny_campus, tmp_path_factory):
+    """Bundle (terra.bundle.Bundle) with the noise-free map of simulate('tiny', 0)."""
+    return _build_bundle(tiny_campus, tmp_path_factory, "tiny_bundle")
+
+
+@pytest.fixture(scope="session")
+def small_bundle(small_campus, tmp_path_factory):
+    """Bundle (terra.bundle.Bundle) with the noise-free map of simulate('small', 0)."""
+    return _build_bundle(small_campus, tmp_path_factory, "small_bundle")
+
+
+# ---------------------------------------------------------------------------- hand-built scene
+
+BOX_CLASSES = ClassTable(
+    [
+        SemanticClass(0, "unlabeled"),
+        SemanticClass(1, "grass", terrain=True),
+        SemanticClass(2, "asphalt", terrain=True),
+        SemanticClass(10, "car"),
+        SemanticClass(11, "bench"),
+        SemanticClass(12, "building"),
+    ]
+)
+
+
+@dataclass
+class Box:
+    """Axis-aligned box in the map frame: min and max corners (metres), class id, instance id."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+    class_id: int
+    instance: int
+
+
+def default_boxes() -> list[Box]:
+    return [
+        Box((9.0, -1.0, 0.0), (11.0, 0.8, 1.5), 10, 1),  # car, straddling grass / asphalt
+        Box((9.0, 3.0, 0.0), (10.0, 4.5, 0.8), 11, 2),  # bench on the grass
+        Box((24.0, -15.0, 0.0), (25.0, 15.0, 5.0), 12, 0),  # building wall (no instance)
+    ]
+
+
+def cast(origins: np.ndarray, dirs: np.ndarray, boxes: list[Box], max_range: float = 60.0):
+    """Exact ray casting: (hit distance, class id, instance id) per ray; inf / 0 / 0 on a miss.
+
+    Ground z = 0 is grass where y > 0 and asphalt elsewhere.
+    """
+    n = dirs.shape[0]
+    origins = np.broadcast_to(origins, (n, 3))
+    best = np.full(n, np.inf)
+    cls = np.zeros(n, dtype=np.int32)
+    inst = np.zeros(n, dtype=np.int32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_ground = np.where(dirs[:, 2] < 0, -origins[:, 2] / dirs[:, 2], np.inf)
+        for box in boxes:
+            t1 = (np.asarray(box.lo) - origins) / dirs
+            t2 = (np.asarray(box.hi) - origins) / dirs
+            t_near = np.nanmax(np.minimum(t1, t2), axis=1)
+            t_far = np.nanmin(np.maximum(t1, t2), axis=1)
+            hit = (t_near <= t_far) & (t_near > 0) & (t_near < best)
+            best[hit] = t_near[hit]
+            cls[hit] = box.class_id
+            inst[hit] = box.instance
+    ground = (t_ground < best) & np.isfinite(t_ground)
+    best[ground] = t_ground[ground]
+    y = origins[:, 1] + best * dirs[:, 1]
+    cls[ground] = np.where(y[ground] > 0, 1, 2)
+    inst[ground] = 0
+    far = best > max_range
+    best[far], cls[far], inst[far] = np.inf, 0, 0
+    return best, cls, inst
+
+
+def box_camera(width: int = 160, height: int = 120, focal: float = 100.0, dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> CameraCalibration:
+    """A forward-looking camera (optical z = LiDAR +x) 0.2 m above and 0.1 m ahead of the LiDAR."""
+    R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # rows: cam x, y, z in LiDAR axes
+    T_cam_lidar = make_pose(R, -R @ np.array([0.1, 0.0, 0.2]))
+    K = [[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1]]
+    return CameraCalibration("front", width, height, K, np.asarray(dist), T_cam_lidar)
+
+
+def lidar_directions(beams: int = 16, columns: int = 360, lo_deg: float = -20.0, hi_deg: float = 5.0) -> np.ndarray:
+    elev = np.deg2rad(np.linspace(lo_deg, hi_deg, beams))
+    azim = np.deg2rad(np.arange(columns) * 360.0 / columns)
+    e, a = np.meshgrid(elev, azim, indexing="ij")
+    return np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
+
+
+@dataclass
+class BoxScene:
+    """A Dataset: the LiDAR (1.8 m above ground) drives along +x from x = -6 m, looking +x."""
+
+    boxes: list[Box] = field(default_factory=default_boxes)
+    n_frames: int = 6
+    step: float = 1.5
+    camera: CameraCalibration = field(default_factory=box_camera)
+    with_cameras: bool = True
+    name: str = "box-scene"
+    classes: ClassTable = field(default_factory=lambda: BOX_CLASSES)
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def pose(self, i: int) -> np.ndarray:
+        return make_pose(np.eye(3), [-6.0 + self.step * i, 0.0, 1.8])
+
+    def __getitem__(self, i: int) -> Frame:
+        if not 0 <= i < self.n_frames:
+            raise IndexError(i)
+        T = self.pose(i)
+        dirs = lidar_directions()
+        dist, cls, inst = cast(T[:3, 3], dirs, self.boxes)
+        ok = np.isfinite(dist)
+        points = (dirs[ok] * dist[ok, None]).astype(np.float32)  # LiDAR frame (no rotation)
+        cameras = [self.render(T, float(i))] if self.with_cameras else []
+        return Frame(i, float(i), points, T, cameras, point_labels=cls[ok], point_instances=inst[ok])
+
+    def render(self, T_map_lidar: np.ndarray, stamp: float) -> CameraFrame:
+        cam = self.camera
+        T_map_cam = T_map_lidar @ invert_pose(cam.T_cam_lidar)
+        rays = pixel_rays(cam) @ T_map_cam[:3, :3].T
+        _, cls, inst = cast(T_map_cam[:3, 3], rays, self.boxes)
+        shape = (cam.height, cam.width)
+        image = np.zeros((*shape, 3), dtype=np.uint8)
+        image[..., 0] = (cls.reshape(shape) * 20) % 256
+        return CameraFrame(cam, stamp, image, cls.reshape(shape), inst.reshape(shape), "front")
+
+    def global_map(self):
+        return None
+
+    def points_map(self, i: int) -> np.ndarray:
+        """Scan i in the map frame (float64) and its labels, for reference computations."""
+        frame = self[i]
+        return transform_points(frame.T_map_lidar, frame.points.astype(np.float64))

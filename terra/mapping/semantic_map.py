@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from terra.mapping.visibility import VisibilityIndex
+
 
 @dataclass
 class ImageTable:
@@ -38,6 +40,7 @@ class MetricSemanticMap:
     counts: (N, K) CSR int32 observations of bank entries (one image adds at most one per pair).
     bank: (K, D) float32 unit embeddings. terrain_embeddings: (T, D) text embeddings of the terrain
     class names. images: the image table (may be empty for LiDAR-only sources).
+    visibility: which images saw which part of the map (None = unknown, e.g. LiDAR-only).
     """
 
     points: np.ndarray
@@ -49,6 +52,7 @@ class MetricSemanticMap:
     images: ImageTable
     embedder: str
     voxel_size: float = 0.4
+    visibility: VisibilityIndex | None = None
     _avg_norm: np.ndarray | None = field(default=None, repr=False)
     _max_id: np.ndarray | None = field(default=None, repr=False)
 
@@ -103,6 +107,16 @@ class MetricSemanticMap:
         seen = ids >= 0
         out[seen] = s[ids[seen]]
         return out
+
+    def images_observing(self, positions: np.ndarray, max_range: float = 20.0) -> tuple[list[np.ndarray], np.ndarray]:
+        """Per position (P, 3, metres, map frame): indices of the images whose camera centre was
+        within `max_range` metres of it and whose view contained it (not occluded), and (P,) the
+        index of the nearest image that saw it at any range (-1 if none). Resolution: the map's
+        visibility cells (`visibility.cell_size` metres, neighbouring cells included)."""
+        if self.visibility is None or len(self.images) == 0:
+            p = int(np.asarray(positions).reshape(-1, 3).shape[0])
+            return [np.zeros(0, dtype=np.int32) for _ in range(p)], np.full(p, -1, dtype=np.int64)
+        return self.visibility.images_observing(positions, max_range=max_range)
 
     def terrain_index(self, min_share: float = 0.5) -> np.ndarray:
         """(N,) terrain class index by majority vote, -1 where no vote or the winner's share of the

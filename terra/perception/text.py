@@ -85,8 +85,17 @@ def register_text_embedder(name: str, factory: Callable[[], TextEmbedder]) -> No
 
 
 @lru_cache(maxsize=None)
-def get_text_embedder(name: str = DEFAULT_TEXT_EMBEDDER) -> TextEmbedder:
-    """The named text embedder, loaded once per process."""
+def _load_text_embedder(name: str) -> TextEmbedder:
     if name not in _TEXT_EMBEDDERS:
         raise TerraError(f"unknown text embedder {name!r}; available: {', '.join(sorted(_TEXT_EMBEDDERS))}")
     return _TEXT_EMBEDDERS[name]()
+
+
+def get_text_embedder(name: str = DEFAULT_TEXT_EMBEDDER) -> TextEmbedder:
+    """The named text embedder, loaded once per process (whether or not the name is given)."""
+    return _load_text_embedder(name)
+
+
+# lru_cache keys get_text_embedder() and get_text_embedder(DEFAULT) apart, so the cache sits on
+# the inner loader; `get_text_embedder.cache_clear()` keeps working for register_text_embedder.
+get_text_embedder.cache_clear = _load_text_embedder.cache_clear  # type: ignore[attr-defined]

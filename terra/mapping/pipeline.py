@@ -1,0 +1,212 @@
+"""Phase 1 end to end: dataset frames -> perception -> fusion -> bundle component `map/`.
+
+Resumable: the fusion state is checkpointed every `checkpoint_every` frames in `OUT.partial/`;
+a rerun with the same dataset and config continues after the last checkpoint and produces the
+same bytes as an uninterrupted run (noise is seeded per frame and camera, not by a running
+stream). Per-frame faults (unreadable frame, bad pose, empty or non-finite scan, unmatched or
+mis-sized image) are skipped and counted; structural faults raise TerraError before the old
+bundle, if any, is touched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from terra.bundle import Bundle, BundleWriter
+from terra.datasets.base import CameraFrame, Dataset, Frame
+from terra.errors import TerraError
+from terra.mapping.checkpoint import Checkpoint, fingerprint
+from terra.mapping.config import MappingConfig
+from terra.mapping.fusion import FusionStats, MapFusion
+from terra.mapping.storage import MAP_FORMAT, write_map
+from terra.perception.base import Perception
+from terra.perception.registry import get_perception
+from terra.progress import StageTimer, progress as progress_bar
+
+POINTS_STREAM = 1 << 20  # noise stream number of per-point labels (camera streams are 0, 1, ...)
+
+
+@dataclass
+class MapRun:
+    """What `build_map` did: the bundle, the stage timings and the fault counters."""
+
+    bundle: Bundle
+    timer: StageTimer
+    stats: dict[str, int]
+    notes: dict[str, str]  # first message of each kind of skipped frame
+    resumed_from: int
+
+
+def build_map(dataset: Dataset, config: MappingConfig, out: Path, progress: bool = True) -> Bundle:
+    """Build the metric-semantic map of `dataset` into the bundle folder `out` (atomic, resumable)."""
+    return run_mapping(dataset, config, out, show_progress=progress).bundle
+
+
+def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progress: bool = True, perception: Perception | None = None) -> MapRun:
+    """`build_map` with its timings and counters (used by `terra map` for the summary)."""
+    out = Path(out)
+    timer = StageTimer()
+    _check_output(out)
+    n_frames = len(dataset)
+    if n_frames == 0:
+        raise TerraError(f"dataset {dataset.name!r} has no frames")
+    with timer.stage("setup"):
+        perception = perception or get_perception(config.perception, dataset.classes)
+        global_map, dropped = _global_map(dataset, config)
+        fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
+        fusion.stats.add("global_map_points_nonfinite", dropped)
+    key = fingerprint(
+        {
+            "format": MAP_FORMAT,
+            "config": config.model_dump(mode="json"),
+            "dataset": dataset.name,
+            "frames": n_frames,
+            "embedder": [perception.embedder, perception.dim],
+            "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
+        }
+    )
+    checkpoint = Checkpoint(out)
+    start = 0
+    saved = checkpoint.load(key)
+    if saved is not None:
+        start, arrays, meta = saved
+        fusion.restore(arrays, meta)
+    else:
+        checkpoint.discard()
+
+    for i in progress_bar(range(start, n_frames), desc="mapping", total=n_frames - start, enabled=show_progress):
+        with timer.stage("load"):
+            frame = _load_frame(dataset, i, fusion.stats)
+        if frame is not None:
+            _fuse_frame(frame, i, config, perception, fusion, timer)
+        done = i + 1
+        if done % config.checkpoint_every == 0 and done < n_frames:
+            with timer.stage("checkpoint"):
+                arrays, meta = fusion.state()
+                checkpoint.save(key, done, arrays, meta)
+
+    stats = fusion.stats.to_json()
+    if stats.get("frames_fused", 0) == 0:
+        first = next(iter(fusion.stats.notes.values()), "")
+        raise TerraError(f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)}){'; first: ' + first if first else ''}")
+    with timer.stage("finish"):
+        msm = fusion.finish(perception.embedder, perception.terrain_embeddings())
+    with timer.stage("write"):
+        writer = BundleWriter(out)
+        try:
+            write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name, classes=dataset.classes.to_json())
+            bundle = writer.commit()
+        except BaseException:
+            writer.abort()
+            raise
+    checkpoint.discard()
+    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start)
+
+
+def _check_output(out: Path) -> None:
+    """Refuse to replace something that is not a bundle (a user's folder or file)."""
+    if out.exists() and not (out / "manifest.json").is_file():
+        if out.is_file() or any(out.iterdir()):
+            raise TerraError(f"{out}: exists and is not a Terra bundle; choose another --out or remove it")
+
+
+def _global_map(dataset: Dataset, config: MappingConfig) -> tuple[np.ndarray | None, int]:
+    """The dataset's own global map (finite rows only) when configured and present."""
+    if not config.fusion.use_global_map:
+        return None, 0
+    points = dataset.global_map()
+    if points is None:
+        return None, 0
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] < 3 or not np.issubdtype(points.dtype, np.number):
+        raise TerraError(f"dataset {dataset.name!r}: global map must be an (M, 3) array of metres, got shape {points.shape}")
+    points = points[:, :3].astype(np.float32)
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.any():
+        raise TerraError(f"dataset {dataset.name!r}: global map has no finite point")
+    return points[finite], int(np.count_nonzero(~finite))
+
+
+def _load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
+    """Frame i with non-finite points dropped, or None (counted) for a per-frame fault."""
+    try:
+        frame = dataset[i]
+    except TerraError as exc:
+        stats.add("frames_skipped_unreadable")
+        stats.note("frames_skipped_unreadable", str(exc))
+        return None
+    points = np.asarray(frame.points)
+    if points.ndim != 2 or points.shape[1] < 3:
+        stats.add("frames_skipped_bad_points")
+        return None
+    pose = np.asarray(frame.T_map_lidar, dtype=np.float64)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        stats.add("frames_skipped_bad_pose")
+        return None
+    finite = np.isfinite(points[:, :3]).all(axis=1)
+    if not finite.all():
+        stats.add("points_dropped_nonfinite", int(np.count_nonzero(~finite)))
+        frame.points = points[finite, :3]
+        if frame.point_labels is not None:
+            frame.point_labels = np.asarray(frame.point_labels)[finite]
+        if frame.point_instances is not None:
+            frame.point_instances = np.asarray(frame.point_instances)[finite]
+        if frame.intensity is not None:
+            frame.intensity = np.asarray(frame.intensity)[finite]
+    frame.points = np.asarray(frame.points, dtype=np.float32)[:, :3]
+    if frame.points.shape[0] == 0:
+        stats.add("frames_skipped_empty")
+        return None
+    return frame
+
+
+def _image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> str | None:
+    """Why an image cannot be fused (a stats counter name), or None."""
+    calib = camera.calibration
+    if abs(float(camera.stamp) - float(frame.stamp)) > config.projection.max_time_offset:
+        return "images_skipped_unmatched_stamp"
+    shape = (calib.height, calib.width)
+    if camera.image is not None and np.asarray(camera.image).shape[:2] != shape:
+        return "images_skipped_bad_size"
+    for labels in (camera.semantic, camera.instance):
+        if labels is not None and np.asarray(labels).shape != shape:
+            return "images_skipped_bad_size"
+    return None
+
+
+def _fuse_frame(frame: Frame, i: int, config: MappingConfig, perception: Perception, fusion: MapFusion, timer: StageTimer) -> None:
+    seed = config.perception.noise.seed
+    source = config.perception.source
+    use_images = source == "images" or (source == "auto" and bool(frame.cameras))
+    with timer.stage("fusion"):
+        points_map, index = fusion.associate(frame.points, frame.T_map_lidar)
+    fusion.stats.add("frames_fused")
+    if use_images:
+        for c, camera in enumerate(frame.cameras):
+            fault = _image_fault(frame, camera, config)
+            if fault is not None:
+                fusion.stats.add(fault)
+                continue
+            with timer.stage("perception"):
+                try:
+                    seen = perception.perceive(camera, np.random.default_rng([seed, i, c]))
+                except ValueError:
+                    fusion.stats.add("images_skipped_no_labels")
+                    continue
+            with timer.stage("fusion"):
+                fusion.integrate_image(frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, seen)
+    elif source in ("auto", "points"):
+        with timer.stage("perception"):
+            seen_points = perception.perceive_points(frame, np.random.default_rng([seed, i, POINTS_STREAM]))
+        if seen_points is not None:
+            with timer.stage("fusion"):
+                fusion.integrate_points(points_map, index, seen_points)
+            fusion.stats.add("scans_fused_from_point_labels")
+
+
+def _fault_summary(stats: dict[str, int]) -> str:
+    faults = {k: v for k, v in stats.items() if "skipped" in k}
+    return ", ".join(f"{k}={v}" for k, v in faults.items()) or "no frames"

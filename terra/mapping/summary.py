@@ -1,0 +1,48 @@
+"""A bundle's map at a glance, for `terra info` (plain dict, JSON-ready)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from terra.bundle import Bundle
+
+
+def terrain_histogram(votes: np.ndarray, terrain_classes: list[str], min_share: float = 0.5) -> dict[str, int]:
+    """Points per terrain class by majority vote (share >= min_share), plus 'none'."""
+    votes = np.asarray(votes)
+    total = votes.sum(axis=1)
+    best = votes.argmax(axis=1) if votes.shape[1] else np.zeros(votes.shape[0], dtype=np.int64)
+    top = votes[np.arange(votes.shape[0]), best] if votes.shape[1] else np.zeros(votes.shape[0])
+    labelled = (total > 0) & (top >= min_share * total)
+    counts = np.bincount(best[labelled], minlength=len(terrain_classes))
+    out = {name: int(counts[i]) for i, name in enumerate(terrain_classes)}
+    out["none"] = int(np.count_nonzero(~labelled))
+    return out
+
+
+def map_summary(bundle: Bundle) -> dict[str, Any]:
+    """Counts, terrain histogram, skipped-frame counters and bytes per component of `bundle`."""
+    manifest = bundle.manifest
+    out: dict[str, Any] = {
+        "path": str(bundle.path),
+        "written_by": manifest.get("written_by"),
+        "schema_version": manifest.get("schema_version"),
+        "embedder": manifest.get("embedder"),
+        "terrain_classes": manifest.get("terrain_classes", []),
+        "bytes": bundle.component_bytes(),
+    }
+    info = manifest.get("components", {}).get("map")
+    if info is not None and bundle.has("map/terrain_votes"):
+        votes = bundle.array("map/terrain_votes", mmap=True)
+        out["map"] = {
+            "points": info.get("points"),
+            "bank_entries": info.get("bank"),
+            "images": info.get("images"),
+            "observations": info.get("observations"),
+            "observed_points": info.get("observed_points"),
+            "terrain_points": terrain_histogram(votes, out["terrain_classes"]),
+            "stats": info.get("stats", {}),
+        }
+    return out
