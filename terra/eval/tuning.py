@@ -1,0 +1,77 @@
+"""Parameters chosen on a validation scene and applied unchanged to the test scene.
+
+`terra eval --tune` grid-searches, on a validation bundle (another simulator seed) and its ground
+truth: alpha per retrieval method (best Table II F1), and alpha (with k for Terra's hierarchies)
+per monitoring method (best Table III F1). Ties keep the first grid point (smallest alpha, then
+smallest k). The result is a small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads;
+the test labels are never looked at while choosing.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from terra.bundle import atomic_write_bytes, dumps_json
+from terra.errors import TerraError
+from terra.eval.config import TuneEval
+
+TUNED_SCHEMA = "terra-tuned-parameters"
+
+
+@dataclass
+class TunedParameters:
+    """alpha per retrieval method; {alpha, k} per monitoring method; where they came from."""
+
+    embedder: str
+    retrieval: dict[str, dict] = field(default_factory=dict)
+    monitoring: dict[str, dict] = field(default_factory=dict)
+    validation: dict[str, str] = field(default_factory=dict)
+
+    def retrieval_alpha(self, method: str) -> float | None:
+        return self.retrieval.get(method, {}).get("alpha")
+
+    def monitoring_params(self, method: str) -> tuple[float | None, int | None]:
+        entry = self.monitoring.get(method, {})
+        return entry.get("alpha"), entry.get("k")
+
+    def to_json(self) -> dict:
+        return {"schema": TUNED_SCHEMA, "embedder": self.embedder, "retrieval": self.retrieval,
+                "monitoring": self.monitoring, "validation": self.validation}
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        atomic_write_bytes(path, dumps_json(self.to_json()).encode())
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TunedParameters":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise TerraError(f"{path}: cannot read tuned parameters ({exc})") from None
+        if not isinstance(data, dict) or data.get("schema") != TUNED_SCHEMA:
+            raise TerraError(f"{path}: field 'schema' is not {TUNED_SCHEMA!r}; write one with `terra eval --tune`")
+        try:
+            return cls(str(data["embedder"]), dict(data.get("retrieval", {})), dict(data.get("monitoring", {})),
+                       dict(data.get("validation", {})))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise TerraError(f"{path}: malformed tuned parameters ({exc})") from None
+
+    def check_embedder(self, embedder: str, source: str = "tuned parameters") -> None:
+        if self.embedder != embedder:
+            raise TerraError(f"{source} were tuned for embedder {self.embedder!r} but the map uses {embedder!r}; tune again")
+
+
+def alpha_grid(config: TuneEval) -> list[float]:
+    """The alphas searched, rounded to 4 decimals so the file reads cleanly."""
+    return [round(float(a), 4) for a in np.linspace(config.alpha_min, config.alpha_max, config.alpha_steps)]
+
+
+def best_point(points: list[dict], key: str = "f1") -> dict:
+    """The first grid point with the highest `key` (grid order breaks ties)."""
+    return points[int(np.argmax([p[key] for p in points]))] if points else {}

