@@ -4,7 +4,8 @@ Per image, following the paper with the reference's defects fixed:
 1. Visible scan points: projection with distortion, z > 0, bounds and a z-buffer.
 2. Terrain: each visible point inside a terrain mask votes once for that terrain class.
 3. Masks with more than `max_terrain_overlap` of their pixels on terrain are dropped.
-4. Each remaining mask's visible points: DBSCAN in 3D, only the largest cluster keeps the mask.
+4. Each remaining mask's visible points off terrain: DBSCAN in 3D, only the largest cluster keeps
+   the mask.
 5. The mask embedding is matched against the bank (>= 0.9 cosine reuses an entry, in order, so
    duplicates within one image share one) and the cluster's map points get one count each per
    (point, entry) per image, not per pixel.
@@ -139,7 +140,8 @@ class MapFusion:
         self._vis_cells.append(np.unique(voxel_keys(points_map[visible.index], self.config.visibility.cell_size)))
         self.stats.add("images_fused")
         rows = map_index[visible.index]
-        self._vote(rows, seen.terrain[visible.rows, visible.cols])
+        terrain = seen.terrain[visible.rows, visible.cols]
+        self._vote(rows, terrain)
 
         masks = seen.masks
         if len(masks) == 0:
@@ -149,7 +151,11 @@ class MapFusion:
         kept = np.flatnonzero((pixels > 0) & (on_terrain <= self.config.fusion.max_terrain_overlap * pixels))
         self.stats.add("masks", len(masks))
         self.stats.add("masks_dropped_terrain", len(masks) - kept.size)
-        pix, mask = masks.subset(kept).members(visible.rows, visible.cols)
+        # A mask's points exclude terrain pixels (the reference blacked terrain out before
+        # proposing masks), so the ground under an object keeps only its terrain vote.
+        off_terrain = np.flatnonzero(terrain < 0)
+        pix, mask = masks.subset(kept).members(visible.rows[off_terrain], visible.cols[off_terrain])
+        pix = off_terrain[pix]
         self._fuse_groups(points_map[visible.index[pix]], rows[pix], mask, seen.mask_embeddings[kept])
 
     def integrate_points(self, points_map: np.ndarray, map_index: np.ndarray, seen: PointPerception) -> None:
