@@ -1,7 +1,103 @@
-"""Configuration of this stage (placeholder section, filled in by the stage's issue)."""
+"""Configuration of the simulator: world preset, robot route, LiDAR and cameras.
+
+Frames: the robot base frame sits on the ground (x forward, y left, z up); sensors are mounted on
+it. Camera frames are optical (z forward, x right, y down). Lengths in metres, angles in degrees
+in the config (radians in code).
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, field_validator, model_validator
 
 from terra.config import Section
 
 
+class LidarConfig(Section):
+    """A spinning LiDAR: `beams` rows evenly spread over the vertical field of view, `columns`
+    azimuth steps per turn. Range noise is Gaussian along the ray (metres, 0 = exact)."""
+
+    beams: int = Field(32, ge=1, le=256)
+    columns: int = Field(1024, ge=16, le=8192)
+    vertical_fov_deg: tuple[float, float] = (-22.5, 22.5)
+    min_range: float = Field(0.5, ge=0.0)
+    max_range: float = Field(100.0, gt=0.0)
+    range_noise_m: float = Field(0.0, ge=0.0)
+    height: float = Field(1.8, gt=0.0, description="LiDAR origin above the ground, metres")
+
+    @model_validator(mode="after")
+    def _check(self) -> "LidarConfig":
+        lo, hi = self.vertical_fov_deg
+        if not (-90.0 <= lo < hi <= 90.0):
+            raise ValueError(f"vertical_fov_deg must satisfy -90 <= low < high <= 90, got {self.vertical_fov_deg}")
+        if self.max_range <= self.min_range:
+            raise ValueError("max_range must exceed min_range")
+        return self
+
+
+class CameraConfig(Section):
+    """A pinhole camera with OpenCV radial-tangential distortion [k1, k2, p1, p2, k3].
+
+    Mount: position (metres) in the robot base frame, then yaw (left-positive about z), pitch
+    (down-positive) and roll about the viewing axis, in degrees. cx/cy default to the image centre.
+    """
+
+    name: str = "cam0"
+    width: int = Field(640, ge=8, le=8192)
+    height: int = Field(480, ge=8, le=8192)
+    fx: float = Field(420.0, gt=0.0)
+    fy: float = Field(420.0, gt=0.0)
+    cx: float | None = None
+    cy: float | None = None
+    dist: list[float] = Field(default_factory=lambda: [-0.05, 0.01, 0.0, 0.0, 0.0])
+    position: tuple[float, float, float] = (0.2, 0.0, 1.5)
+    yaw_deg: float = 0.0
+    pitch_deg: float = 5.0
+    roll_deg: float = 0.0
+
+    @field_validator("dist")
+    @classmethod
+    def _dist_len(cls, v: list[float]) -> list[float]:
+        if len(v) not in (0, 4, 5):
+            raise ValueError(f"dist must have 0, 4 or 5 coefficients [k1, k2, p1, p2, k3], got {len(v)}")
+        return v
+
+    @field_validator("name")
+    @classmethod
+    def _name_ok(cls, v: str) -> str:
+        if not v or not v.replace("_", "").replace("-", "").isalnum():
+            raise ValueError(f"camera name must be a non-empty word (letters, digits, '-', '_'), got {v!r}")
+        return v
+
+
+class RouteConfig(Section):
+    """The robot route: frames every `frame_spacing` metres along it at `speed` m/s.
+
+    `length_m` caps the route (None = the preset's length). Odometry drift (0 = ground-truth poses
+    in the frames): random-walk standard deviations per metre travelled.
+    """
+
+    frame_spacing: float | None = Field(None, gt=0.0, description="metres between frames; None = preset")
+    length_m: float | None = Field(None, gt=0.0)
+    speed: float = Field(1.5, gt=0.0)
+    drift_xy_per_m: float = Field(0.0, ge=0.0)
+    drift_yaw_deg_per_m: float = Field(0.0, ge=0.0)
+    max_frames: int | None = Field(None, ge=1)
+
+
 class SimConfig(Section):
-    pass
+    """Everything `simulate` needs besides the preset name and seed."""
+
+    lidar: LidarConfig = Field(default_factory=LidarConfig)
+    cameras: list[CameraConfig] = Field(default_factory=lambda: [CameraConfig()])
+    route: RouteConfig = Field(default_factory=RouteConfig)
+    ground_relief_m: float = Field(1.0, ge=0.0, le=5.0, description="amplitude scale of the smooth height field")
+    terrain_resolution: float | None = Field(None, gt=0.0, description="ground-truth raster cell, metres; None = preset")
+    frame_cache: int = Field(4, ge=0, description="rendered frames kept in memory")
+
+    @field_validator("cameras")
+    @classmethod
+    def _unique_names(cls, v: list[CameraConfig]) -> list[CameraConfig]:
+        names = [c.name for c in v]
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names must be unique, got {names}")
+        return v

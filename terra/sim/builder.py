@@ -1,0 +1,184 @@
+"""WorldBuilder: paints terrain, places objects on the ground and records regions and walkways.
+
+Layout code (terra/sim/layout.py) calls it; `finish()` returns the World. Coordinates are map frame
+(metres); yaw in radians about +z.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon, box
+
+from terra.datasets.ground_truth import NamedRegion, ObjectBox
+from terra.geometry import yaw_rotation
+from terra.sim.classes import CLASS_COLORS, class_id
+from terra.sim.heightfield import Heightfield
+from terra.sim.objects import MODELS
+from terra.sim.primitives import CYLINDER, ELLIPSOID, Primitives
+from terra.sim.route import plan_route
+from terra.sim.world import TerrainGrid, World
+
+
+class WorldBuilder:
+    """Accumulates a world. Objects sit on the ground: the base of an object is the lowest ground
+    height under its footprint (parts with `conform` follow the ground piece by piece)."""
+
+    def __init__(self, name: str, seed: int, extent: tuple[float, float, float, float], resolution: float,
+                 ground: Heightfield, rng: np.random.Generator, fill: str = "grass") -> None:
+        self.name, self.seed, self.extent = name, seed, extent
+        self.rng = rng
+        self.ground = ground
+        x0, y0, x1, y1 = extent
+        w = int(round((x1 - x0) / resolution))
+        h = int(round((y1 - y0) / resolution))
+        self.terrain = TerrainGrid(np.full((h, w), class_id(fill), np.uint8), np.array([x0, y0], float), resolution)
+        self._rows: list[tuple] = []
+        self.objects: list[ObjectBox] = []
+        self.regions: list[NamedRegion] = []
+        self.walkways: list[np.ndarray] = []
+        self.waypoints: list[tuple[float, float]] = []
+        self._occupied: dict[tuple[int, int], list[tuple[float, float, float]]] = {}  # cell -> (x, y, radius)
+        self._next_instance = 1
+
+    # ----------------------------------------------------------------- terrain
+    def _window(self, bounds: tuple[float, float, float, float]) -> tuple[slice, slice, np.ndarray, np.ndarray]:
+        t = self.terrain
+        h, w = t.classes.shape
+        c0 = max(int(np.floor((bounds[0] - t.origin[0]) / t.resolution)), 0)
+        c1 = min(int(np.ceil((bounds[2] - t.origin[0]) / t.resolution)), w)
+        r0 = max(int(np.floor((bounds[1] - t.origin[1]) / t.resolution)), 0)
+        r1 = min(int(np.ceil((bounds[3] - t.origin[1]) / t.resolution)), h)
+        xs = t.origin[0] + (np.arange(c0, c1) + 0.5) * t.resolution
+        ys = t.origin[1] + (np.arange(r0, r1) + 0.5) * t.resolution
+        return slice(r0, r1), slice(c0, c1), xs, ys
+
+    def paint(self, geometry, cls: str) -> None:
+        """Set the terrain class of every cell whose centre lies in the shapely `geometry`."""
+        if geometry.is_empty:
+            return
+        rows, cols, xs, ys = self._window(geometry.bounds)
+        if xs.size == 0 or ys.size == 0:
+            return
+        gx, gy = np.meshgrid(xs, ys)
+        inside = shapely.contains_xy(geometry, gx, gy)
+        self.terrain.classes[rows, cols][inside] = class_id(cls)
+
+    def paint_rect(self, x0: float, y0: float, x1: float, y1: float, cls: str) -> None:
+        self.paint(box(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)), cls)
+
+    def terrain_at(self, xy: np.ndarray) -> np.ndarray:
+        return self.terrain.class_at(np.asarray(xy, float).reshape(-1, 2))
+
+    # ----------------------------------------------------------------- objects
+    def add(self, cls: str, x: float, y: float, yaw: float = 0.0, conform: bool = False, model: str | None = None,
+            **params) -> int:
+        """Place one object of class `cls` (model `model` or the class's own) at (x, y) facing `yaw`.
+
+        Returns its instance id. The ground-truth box is the box around all its parts, in the
+        object's yawed frame.
+        """
+        parts = MODELS[model or cls](self.rng, **params)
+        iid = self._next_instance
+        self._next_instance += 1
+        cid = class_id(cls)
+        R = yaw_rotation(yaw)
+        centres = np.array([p[1] for p in parts], float)
+        halves = np.array([p[2] for p in parts], float)
+        world_xy = centres[:, :2] @ R[:2, :2].T + [x, y]
+        if conform:
+            base = self.ground.height(world_xy)
+        else:
+            # Lowest ground under the footprint corners, so no object floats on a slope.
+            lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
+            hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
+            corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[:2, :2].T + [x, y]
+            base = np.full(len(parts), float(self.ground.height(corners).min()))
+        for (kind, c, h, pyaw, color), wxy, b in zip(parts, world_xy, base):
+            rgb = CLASS_COLORS[cid] if color is None else color
+            self._rows.append((kind, (wxy[0], wxy[1], b + c[2]), h, yaw + pyaw, cid, iid, tuple(int(v) for v in rgb)))
+        # Ground-truth box in the object's frame: part extents (yawed parts use |R| h).
+        ext = []
+        for kind, c, h, pyaw, _ in parts:
+            if kind in (CYLINDER, ELLIPSOID) and h[0] == h[1]:
+                e = np.array([h[0], h[1]])
+            else:
+                Rp = np.abs(yaw_rotation(pyaw)[:2, :2])
+                e = Rp @ np.array(h[:2])
+            ext.append(e)
+        ext = np.array(ext)
+        lo_xy = (centres[:, :2] - ext).min(axis=0)
+        hi_xy = (centres[:, :2] + ext).max(axis=0)
+        z_lo = (base + centres[:, 2] - halves[:, 2]).min()
+        z_hi = (base + centres[:, 2] + halves[:, 2]).max()
+        c_local = (lo_xy + hi_xy) / 2
+        c_world = R[:2, :2] @ c_local + [x, y]
+        self.objects.append(ObjectBox(iid, cid, cls, np.array([c_world[0], c_world[1], (z_lo + z_hi) / 2]),
+                                      np.array([hi_xy[0] - lo_xy[0], hi_xy[1] - lo_xy[1], z_hi - z_lo]), float(_wrap(yaw))))
+        disc = (float(c_world[0]), float(c_world[1]), float(np.linalg.norm(hi_xy - lo_xy) / 2))
+        for cell in _cells(*disc):
+            self._occupied.setdefault(cell, []).append(disc)
+        return iid
+
+    def is_free(self, x: float, y: float, radius: float, on: tuple[str, ...] = ("grass",)) -> bool:
+        """True when a disc of `radius` at (x, y) lies on the given terrain and clear of objects."""
+        ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+        probe = np.concatenate([[[x, y]], np.stack([x + radius * np.cos(ang), y + radius * np.sin(ang)], 1)])
+        allowed = np.isin(self.terrain_at(probe), [class_id(c) for c in on])
+        if not allowed.all():
+            return False
+        for cell in _cells(x, y, radius):
+            for ox, oy, r in self._occupied.get(cell, ()):
+                if (ox - x) ** 2 + (oy - y) ** 2 < (r + radius) ** 2:
+                    return False
+        return True
+
+    def scatter(self, cls: str, area, count: int, radius: float, on: tuple[str, ...] = ("grass",),
+                tries: int = 40, yaw: float | None = None, **params) -> list[int]:
+        """Place up to `count` objects at random free spots inside the shapely polygon `area`."""
+        ids = []
+        x0, y0, x1, y1 = area.bounds
+        for _ in range(count * tries):
+            if len(ids) >= count:
+                break
+            x, y = self.rng.uniform(x0, x1), self.rng.uniform(y0, y1)
+            if not shapely.contains_xy(area, x, y) or not self.is_free(x, y, radius, on):
+                continue
+            ids.append(self.add(cls, x, y, self.rng.uniform(0, 2 * np.pi) if yaw is None else yaw, **params))
+        return ids
+
+    # ----------------------------------------------------------------- regions and route
+    def region(self, name: str, description: str, polygon) -> None:
+        """A named region: a shapely polygon (or a list of (x, y) corners) and one sentence."""
+        poly = polygon if isinstance(polygon, Polygon) else Polygon(polygon)
+        coords = np.asarray(poly.exterior.coords)[:-1]
+        self.regions.append(NamedRegion(name, description, coords.astype(float)))
+
+    def walkway(self, *points: tuple[float, float]) -> None:
+        """A polyline the robot may drive along (it must lie on sidewalk, asphalt or dirt)."""
+        self.walkways.append(np.asarray(points, float))
+
+    def visit(self, *points: tuple[float, float]) -> None:
+        """Points the route passes through, in order (each on a walkway)."""
+        self.waypoints.extend((float(x), float(y)) for x, y in points)
+
+    def finish(self, route_length: float | None = None) -> World:
+        route = plan_route(self.walkways, self.waypoints, route_length)
+        return World(self.name, self.seed, self.extent, self.ground, self.terrain, Primitives.from_rows(self._rows),
+                     self.objects, self.regions, route)
+
+
+_CELL = 8.0  # metres; spatial hash of placed objects
+
+
+def _cells(x: float, y: float, r: float) -> list[tuple[int, int]]:
+    """Hash cells a disc's bounding square touches."""
+    i0, i1 = int(np.floor((x - r) / _CELL)), int(np.floor((x + r) / _CELL))
+    j0, j1 = int(np.floor((y - r) / _CELL)), int(np.floor((y + r) / _CELL))
+    return [(i, j) for i in range(i0, i1 + 1) for j in range(j0, j1 + 1)]
+
+
+def _wrap(angle: float) -> float:
+    """Angle in (-pi, pi]."""
+    a = (angle + np.pi) % (2 * np.pi) - np.pi
+    return np.pi if a == -np.pi else a

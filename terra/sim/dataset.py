@@ -1,0 +1,111 @@
+"""SimDataset: the simulated campus as a Dataset whose frames are rendered on demand."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from terra.datasets.base import CameraFrame, ClassTable, Frame
+from terra.datasets.ground_truth import GroundTruth
+from terra.errors import TerraError
+from terra.geometry import CameraCalibration, invert_pose
+from terra.sim.classes import SIM_CLASSES
+from terra.sim.config import SimConfig
+from terra.sim.presets import get_preset
+from terra.sim.sensors import Camera, Lidar
+from terra.sim.trajectory import Trajectory, sample_trajectory
+from terra.sim.world import World
+
+
+class SimDataset:
+    """Frames of a robot driving through a World, rendered lazily and deterministically.
+
+    Frame i: LiDAR scan (points in the LiDAR frame with per-point class and instance ids), one
+    image set per camera (RGB, semantic, instance) at the same stamp, and T_map_lidar: the
+    ground-truth pose, or the drifted odometry pose when drift is configured (ground truth stays
+    available from `gt_T_map_lidar`).
+    """
+
+    def __init__(self, world: World, config: SimConfig, preset: str, seed: int) -> None:
+        self.world = world
+        self.config = config
+        self.preset = preset
+        self.seed = int(seed)
+        self.name = world.name
+        self.classes: ClassTable = SIM_CLASSES
+        p = get_preset(preset)
+        self.lidar = Lidar(config.lidar)
+        self.cameras = [Camera(c, self.lidar.T_base_lidar) for c in config.cameras]
+        rng = np.random.default_rng([self.seed, 7])
+        spacing = config.route.frame_spacing or p.spacing
+        max_frames = config.route.max_frames or p.max_frames
+        self.trajectory: Trajectory = sample_trajectory(
+            world.route, world.ground, spacing, config.route.speed, rng, max_frames,
+            config.route.drift_xy_per_m, np.radians(config.route.drift_yaw_deg_per_m))
+        self._cache: OrderedDict[int, Frame] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self.trajectory)
+
+    @property
+    def calibrations(self) -> list[CameraCalibration]:
+        return [c.calibration for c in self.cameras]
+
+    def gt_T_map_lidar(self, index: int) -> np.ndarray:
+        """Ground-truth pose of the LiDAR at frame `index` (4x4, map <- lidar)."""
+        return self.trajectory.T_map_base[index] @ self.lidar.T_base_lidar
+
+    def __getitem__(self, index: int) -> Frame:
+        if not isinstance(index, (int, np.integer)):
+            raise TypeError("SimDataset indices are integers")
+        index = int(index)
+        if index < 0:
+            index += len(self)
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
+        if index in self._cache:
+            self._cache.move_to_end(index)
+            return self._cache[index]
+        frame = self.render(index)
+        if self.config.frame_cache > 0:
+            self._cache[index] = frame
+            while len(self._cache) > self.config.frame_cache:
+                self._cache.popitem(last=False)
+        return frame
+
+    def render(self, index: int) -> Frame:
+        """Render frame `index` (no caching)."""
+        stamp = float(self.trajectory.stamps[index])
+        T_true = self.gt_T_map_lidar(index)
+        rng = np.random.default_rng([self.seed, index, 1])
+        scan = self.lidar.render(self.world, T_true, rng)
+        cams = []
+        for cam in self.cameras:
+            T_map_cam = T_true @ invert_pose(cam.calibration.T_cam_lidar)
+            img = cam.render(self.world, T_map_cam)
+            cams.append(CameraFrame(cam.calibration, stamp, img["image"], img["semantic"], img["instance"], name=cam.config.name))
+        T_reported = self.trajectory.T_map_base_odom[index] @ self.lidar.T_base_lidar
+        return Frame(index, stamp, scan["points"], T_reported, cams, scan["intensity"], scan["labels"], scan["instances"])
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def ground_truth(self) -> GroundTruth:
+        return self.world.ground_truth()
+
+    def global_map(self) -> np.ndarray | None:
+        """The simulator ships no prebuilt global map (writers accumulate one from the scans)."""
+        return None
+
+
+def simulate(preset: str = "small", seed: int = 0, config: SimConfig | None = None) -> SimDataset:
+    """A simulated campus: `preset` in tiny, small, campus, large; same arguments, same data."""
+    from terra.sim.presets import generate_world
+
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise TerraError(f"seed must be a non-negative integer, got {seed!r}")
+    config = config or SimConfig()
+    world = generate_world(preset, int(seed), config)
+    return SimDataset(world, config, preset, int(seed))

@@ -1,0 +1,109 @@
+"""Ray casting against a World: first hit of every sensor ray, with its label and surface normal.
+
+Rays are grouped in small angular tiles (a cone each); per frame a shape is tested only against the
+rays of tiles whose cone meets the cone of its bounding sphere. The ground is intersected last, up
+to the nearest shape hit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from terra.sim.classes import CLASS_COLORS
+from terra.sim.kernels import cast_kernel
+from terra.sim.world import World
+
+
+@dataclass
+class RayTiles:
+    """Sensor rays (N, 3) unit, sensor frame, grouped in tiles: rays (G, M) indices (edge tiles
+    repeat a ray), axis (G, 3) unit cone axis, half_angle (G,) radians holding every ray of the tile."""
+
+    directions: np.ndarray
+    rays: np.ndarray
+    axis: np.ndarray
+    half_angle: np.ndarray
+
+    @classmethod
+    def from_grid(cls, directions: np.ndarray, rows: int, cols: int, tile_rows: int, tile_cols: int) -> "RayTiles":
+        """Tiles of tile_rows x tile_cols over rays stored row-major on a rows x cols grid."""
+        r0 = np.arange(0, rows, tile_rows)
+        c0 = np.arange(0, cols, tile_cols)
+        dr, dc = np.meshgrid(np.arange(tile_rows), np.arange(tile_cols), indexing="ij")
+        rr = np.minimum(r0[:, None, None, None] + dr[None, None], rows - 1)
+        cc = np.minimum(c0[None, :, None, None] + dc[None, None], cols - 1)
+        rays = (rr * cols + cc).reshape(len(r0) * len(c0), tile_rows * tile_cols)
+        d = directions[rays]  # (G, M, 3)
+        axis = d.sum(axis=1)
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        cos = np.clip(np.einsum("gmk,gk->gm", d, axis), -1.0, 1.0)
+        half = np.arccos(cos.min(axis=1)) + 1e-6
+        return cls(directions, rays.astype(np.int64), axis, half)
+
+
+@dataclass
+class Hits:
+    """First hit per ray: t (N,) metres (inf = nothing within range), class_id / instance_id (N,)
+    int32 (0 for no hit), normal (N, 3) map frame, color (N, 3) uint8 base colour, and the
+    world-frame ray directions (N, 3)."""
+
+    t: np.ndarray
+    class_id: np.ndarray
+    instance_id: np.ndarray
+    normal: np.ndarray
+    color: np.ndarray
+    directions: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        return np.isfinite(self.t)
+
+
+def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: float) -> Hits:
+    """Cast every ray of `tiles` from the sensor at pose T_map_sensor (4x4) up to `max_range` metres."""
+    R = T_map_sensor[:3, :3]
+    origin = np.ascontiguousarray(T_map_sensor[:3, 3], dtype=np.float64)
+    dirs = np.ascontiguousarray(tiles.directions @ R.T)
+    n = dirs.shape[0]
+    prims = world.prims
+
+    # Candidate shapes per tile (CSR): the cone of the tile meets the cone of the bounding sphere.
+    near = world.prims_near(origin, max_range)
+    g = p = np.zeros(0, np.int64)
+    if near.size:
+        rel = prims.center[near] - origin
+        dist = np.linalg.norm(rel, axis=1)
+        radius = world.bounding_radius[near]
+        ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / np.maximum(dist, 1e-9), 0.0, 1.0)))
+        u = rel / np.maximum(dist, 1e-9)[:, None]
+        cos = np.clip((tiles.axis @ R.T) @ u.T, -1.0, 1.0)  # (G, P)
+        g, p = np.nonzero(np.arccos(cos) <= tiles.half_angle[:, None] + ang[None, :])
+    tile_ptr = np.zeros(tiles.rays.shape[0] + 1, np.int64)
+    np.cumsum(np.bincount(g, minlength=tiles.rays.shape[0]), out=tile_ptr[1:])
+    tile_prims = near[p] if near.size else p
+
+    t = np.empty(n)
+    prim = np.empty(n, np.int64)
+    normal = np.empty((n, 3))
+    hf = world.ground
+    cast_kernel(origin, dirs, tiles.rays, tile_ptr, tile_prims, prims.kind, prims.center, prims.half,
+                world.cos_yaw, world.sin_yaw, hf.amplitude, np.ascontiguousarray(hf.wavevector[:, 0]),
+                np.ascontiguousarray(hf.wavevector[:, 1]), hf.phase, float(hf.base), hf.slope_bound,
+                float(max_range), 1e-3, t, prim, normal)
+
+    class_id = np.zeros(n, np.int32)
+    instance_id = np.zeros(n, np.int32)
+    color = np.zeros((n, 3), np.uint8)
+    shape = prim >= 0
+    ps = prim[shape]
+    class_id[shape] = prims.class_id[ps]
+    instance_id[shape] = prims.instance_id[ps]
+    color[shape] = prims.color[ps]
+    gi = np.flatnonzero(prim == -1)
+    if gi.size:
+        cls = world.terrain.class_at(origin[:2] + t[gi, None] * dirs[gi, :2])
+        class_id[gi] = cls
+        color[gi] = CLASS_COLORS[cls]
+    return Hits(t, class_id, instance_id, normal, color, dirs)
