@@ -46,3 +46,25 @@ def test_padding_and_degenerate_point_sets():
     with pytest.raises(ValueError):
         fit_oriented_box(np.zeros((0, 3)))
 
+
+
+def test_many_groups_in_one_call_equal_one_at_a_time():
+    from terra.tasks.boxes import fit_oriented_boxes
+
+    rng = np.random.default_rng(5)
+    sets = [rng.normal(size=(n, 3)) * [3, 1, 0.5] + rng.uniform(-20, 20, 3) for n in (3, 10, 57)]
+    sets.append(np.array([[1.0, 1.0, 0.0], [2.0, 2.0, 1.0]]))  # collinear
+    sets.append(np.array([[4.0, -1.0, 2.0]]))  # single point
+    points = np.vstack(sets)
+    groups = np.concatenate([np.full(len(s), g) for g, s in enumerate(sets)])
+    shuffle = rng.permutation(len(points))
+    boxes = fit_oriented_boxes(points[shuffle], groups[shuffle], padding=0.1)
+    for box, s in zip(boxes, sets):
+        one = fit_oriented_box(s, padding=0.1)
+        np.testing.assert_allclose(box.center, one.center, atol=1e-12)
+        np.testing.assert_allclose(box.size, one.size, atol=1e-12)
+        assert box.yaw == pytest.approx(one.yaw, abs=1e-12)
+        # Every point lies inside its box (up to rounding).
+        c, si = np.cos(box.yaw), np.sin(box.yaw)
+        local = (s[:, :2] - box.center[:2]) @ np.array([[c, -si], [si, c]])
+        assert np.all(np.abs(local) <= box.size[:2] / 2 + 1e-9)

@@ -177,3 +177,18 @@ def test_with_objects_replaces_same_label_and_keeps_others(scene, text_embedder)
     np.testing.assert_allclose(updated.objects.center[1:], [o.center for o in found])
     assert updated.objects.place.tolist() == [1] + [o.place for o in found]
     assert graph.objects is old  # the input graph is not modified
+
+
+@pytest.mark.parametrize("feature", ["avg", "max"])
+def test_point_scorer_equals_dense_features(scene, text_embedder, feature):
+    from terra.tasks.scoring import PointScorer
+
+    msm, _, _ = scene
+    vectors = text_embedder.embed_text(["find the dumpster", "grass", "a parked car"])
+    dense = dense_similarity(msm, vectors, feature)
+    scorer = PointScorer(msm)
+    np.testing.assert_allclose(scorer.similarity(vectors, feature), dense, atol=1e-5)
+    np.testing.assert_allclose(scorer.similarity(vectors[:1], feature), dense[:, :1], atol=1e-5)
+    rows = np.array([5, 1700, 1701, 2500, len(msm) - 1])
+    np.testing.assert_allclose(scorer.similarity(vectors, feature, rows), dense[rows], atol=1e-5)
+    assert np.all(scorer.similarity(vectors, feature)[-2:] == 0)  # unobserved points score 0

@@ -29,42 +29,64 @@ class OrientedBox:
         return local @ np.array([[c, s], [-s, c]]) + self.center[:2]
 
 
-def wrap_half_turn(yaw: float) -> float:
-    """An axis direction in radians, folded into [-pi/2, pi/2) (a box is symmetric under pi)."""
-    return float((yaw + np.pi / 2) % np.pi - np.pi / 2)
+def wrap_half_turn(yaw: float | np.ndarray) -> float | np.ndarray:
+    """Axis directions in radians, folded into [-pi/2, pi/2) (a box is symmetric under pi)."""
+    folded = (np.asarray(yaw, dtype=np.float64) + np.pi / 2) % np.pi - np.pi / 2
+    return float(folded) if folded.ndim == 0 else folded
+
+
+def fit_oriented_boxes(points: np.ndarray, groups: np.ndarray, padding: float = 0.0) -> list[OrientedBox]:
+    """One box per group of points, fitted in one vectorised shapely call: the footprint is the
+    minimum-area rectangle around the group's xy convex hull (rotating calipers) and the z extent
+    spans its points.
+
+    points: (n, 3) metres, map frame. groups: (n,) group ids 0..G-1, every id used at least once.
+    padding: metres added to every dimension. The x axis is the rectangle's longer side; collinear
+    points give a zero width and a single xy a zero footprint (before padding).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    groups = np.asarray(groups, dtype=np.int64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0 or groups.shape != (len(pts),):
+        raise ValueError(f"expected (n, 3) points with n >= 1 and (n,) groups, got {pts.shape} and {groups.shape}")
+    order = np.argsort(groups, kind="stable")
+    pts, groups = pts[order], groups[order]
+    n_groups = int(groups[-1]) + 1
+    starts = np.searchsorted(groups, np.arange(n_groups))
+    if np.any(np.diff(np.append(starts, len(groups))) == 0):
+        raise ValueError("every group id 0..G-1 needs at least one point")
+    z_lo, z_hi = np.minimum.reduceat(pts[:, 2], starts), np.maximum.reduceat(pts[:, 2], starts)
+    rects = shapely.minimum_rotated_rectangle(shapely.multipoints(pts[:, :2], indices=groups))
+    coords, owner = shapely.get_coordinates(rects, return_index=True)
+    counts = np.bincount(owner, minlength=n_groups)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    is_rect = (shapely.get_type_id(rects) == shapely.GeometryType.POLYGON) & (counts == 5)
+    # Rectangles: corners 0..3 of each closed ring; the first two edges are its two sides.
+    corners = coords[first[is_rect, None] + np.arange(4)]  # (R, 4, 2)
+    edges = corners[:, 1:3] - corners[:, 0:2]  # (R, 2, 2): side 0 = c1 - c0, side 1 = c2 - c1
+    lengths = np.linalg.norm(edges, axis=2)
+    long_side = np.argmax(lengths, axis=1)
+    r = np.arange(len(corners))
+    axis = np.zeros((n_groups, 2))
+    size_xy = np.zeros((n_groups, 2))
+    center_xy = np.zeros((n_groups, 2))
+    axis[is_rect] = edges[r, long_side]
+    size_xy[is_rect] = np.column_stack([lengths[r, long_side], lengths[r, 1 - long_side]])
+    center_xy[is_rect] = corners.mean(axis=1)
+    for g in np.flatnonzero(~is_rect):  # collinear or coincident footprints (rare)
+        ring = coords[first[g]:first[g] + counts[g]]
+        ends = ring[[0, -1]]
+        axis[g] = ends[1] - ends[0] if np.any(ends[1] != ends[0]) else (1.0, 0.0)
+        size_xy[g] = (np.linalg.norm(ends[1] - ends[0]), 0.0)
+        center_xy[g] = ends.mean(axis=0)
+    yaw = wrap_half_turn(np.arctan2(axis[:, 1], axis[:, 0]))
+    centers = np.column_stack([center_xy, (z_lo + z_hi) / 2])
+    sizes = np.column_stack([size_xy, z_hi - z_lo]) + padding
+    return [OrientedBox(center=centers[g], size=sizes[g], yaw=float(yaw[g])) for g in range(n_groups)]
 
 
 def fit_oriented_box(points: np.ndarray, padding: float = 0.0) -> OrientedBox:
-    """The box whose footprint is the minimum-area rectangle around the points' xy convex hull
-    (rotating calipers, via shapely) and whose z extent spans the points.
-
-    points: (n, 3) metres, map frame, n >= 1. padding: metres added to every dimension.
-    The x axis is the rectangle's longer side. Collinear points give a zero width, one point a
-    zero footprint (before padding).
-    """
+    """The box of one point set (n, 3), n >= 1: see fit_oriented_boxes."""
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise ValueError(f"expected (n, 3) points with n >= 1, got shape {pts.shape}")
-    z_lo, z_hi = pts[:, 2].min(), pts[:, 2].max()
-    rect = shapely.minimum_rotated_rectangle(shapely.multipoints(pts[:, :2]))
-    if isinstance(rect, shapely.Polygon):
-        corners = np.asarray(rect.exterior.coords)[:4]
-        edges = np.roll(corners, -1, axis=0)[:2] - corners[:2]
-        lengths = np.linalg.norm(edges, axis=1)
-        long_side = int(np.argmax(lengths))
-        axis = edges[long_side]
-        size_xy = (lengths[long_side], lengths[1 - long_side])
-        center_xy = corners.mean(axis=0)
-    elif isinstance(rect, shapely.LineString):
-        ends = np.asarray(rect.coords)[[0, -1]]
-        axis = ends[1] - ends[0]
-        size_xy = (float(np.linalg.norm(axis)), 0.0)
-        center_xy = ends.mean(axis=0)
-    else:  # all points share one xy
-        axis = np.array([1.0, 0.0])
-        size_xy = (0.0, 0.0)
-        center_xy = pts[0, :2]
-    yaw = wrap_half_turn(float(np.arctan2(axis[1], axis[0])))
-    center = np.array([center_xy[0], center_xy[1], (z_lo + z_hi) / 2])
-    size = np.array([size_xy[0], size_xy[1], z_hi - z_lo]) + padding
-    return OrientedBox(center=center, size=size, yaw=yaw)
+    return fit_oriented_boxes(pts, np.zeros(len(pts), dtype=np.int64), padding)[0]

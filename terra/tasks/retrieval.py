@@ -24,10 +24,11 @@ from terra.errors import TerraError
 from terra.graph.scene_graph import Objects, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
-from terra.tasks.boxes import fit_oriented_box
+from terra.tasks.boxes import fit_oriented_boxes
 from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
 from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
+from terra.tasks.scoring import PointScorer
 
 METHODS = ("ms-avg", "ms-max", "3dsg")
 
@@ -129,7 +130,9 @@ def cluster_matches(points: np.ndarray, eps: float, min_samples: int, min_points
     """DBSCAN clusters of (n, 3) points as arrays of row indices, largest first (ties: lowest row)."""
     if len(points) < max(min_samples, min_points):
         return []
-    labels = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(points)
+    # Ball tree: the same exact neighbourhoods as a k-d tree, measured 2-3x faster on the dense
+    # neighbourhoods of object points (eps 1 m on a 0.4 m voxel map: ~60 neighbours each).
+    labels = DBSCAN(eps=eps, min_samples=min_samples, algorithm="ball_tree").fit_predict(points)
     keep = labels >= 0
     rows = np.flatnonzero(keep)
     order = np.argsort(labels[keep], kind="stable")
@@ -147,12 +150,14 @@ def find_objects(
     alpha: float | None = None,
     config: TasksConfig | RetrievalConfig | None = None,
     embedder: TextEmbedder | None = None,
+    scorer: PointScorer | None = None,
 ) -> list[FoundObject]:
     """Objects matching any of `queries` (one embedding batch), sorted by query, then best score.
 
     alpha: cosine threshold; None takes the configured default for the map's embedder.
     graph: needed by "3dsg" and to link objects to places (place = -1 without it).
     embedder: defaults to the map's; one with another name or dimension is refused.
+    scorer: a PointScorer of `msm`, to reuse across calls on the same map.
     """
     cfg = _retrieval_config(config)
     queries = clean_queries(queries)
@@ -166,13 +171,14 @@ def find_objects(
     if alpha is None:
         alpha = alpha_for(cfg.alpha, cfg.default_alpha, msm.embedder)
     query_vectors = embed_queries(embedder, queries)
-    vectors = np.vstack([np.asarray(msm.terrain_embeddings, dtype=np.float32).reshape(-1, query_vectors.shape[1]), query_vectors])
-    n_terrain = len(vectors) - len(queries)
+    terrain_vectors = np.asarray(msm.terrain_embeddings, dtype=np.float32).reshape(-1, query_vectors.shape[1])
+    n_terrain = len(terrain_vectors)
+    scorer = scorer or PointScorer(msm)
 
     if method == "3dsg":
         if graph is None:
             raise TerraError("--method 3dsg needs a scene graph in the bundle; build one with `terra build`")
-        observed = np.flatnonzero(np.diff(msm.counts.indptr) > 0)
+        observed = scorer.observed()
         allowed = []
         for q in range(len(queries)):
             places = select_places_3dsg(graph, query_vectors[q], alpha)
@@ -182,26 +188,38 @@ def find_objects(
         feature = cfg.sg_point_feature
     else:
         rows, allowed, feature = None, None, method[3:]
-    similarity_of = msm.ms_avg_similarity if feature == "avg" else msm.ms_max_similarity
-    similarity = similarity_of(vectors, rows)
+    # Query columns over every searched point first; the terrain columns (distractors) are only
+    # needed where some query clears alpha.
+    query_sim = scorer.similarity(query_vectors, feature, rows)
+    above = np.flatnonzero((query_sim > alpha).any(axis=1))
+    cand_rows = above if rows is None else rows[above]
+    similarity = np.hstack([scorer.similarity(terrain_vectors, feature, cand_rows), query_sim[above]])
     matched = point_matches(similarity, n_terrain, alpha)
-    row_ids = np.arange(len(msm)) if rows is None else rows
 
-    place_tree = cKDTree(graph.places.position[:, :2]) if graph is not None and len(graph.places) else None
-    found: list[FoundObject] = []
-    for q, label in enumerate(queries):
+    # Clusters of every query, then all their boxes in one vectorised call.
+    clusters: list[tuple[int, np.ndarray]] = []  # (query, rows into the candidate arrays)
+    for q in range(len(queries)):
         mask = matched == q
         if allowed is not None:
-            mask &= np.isin(row_ids, allowed[q])
+            mask &= np.isin(cand_rows, allowed[q])
         local = np.flatnonzero(mask)
-        for group in cluster_matches(msm.points[row_ids[local]], cfg.dbscan_eps, cfg.dbscan_min_samples, cfg.min_points):
-            members = local[group]
-            point_rows = row_ids[members]
-            box = fit_oriented_box(msm.points[point_rows], cfg.box_padding)
-            scores = similarity[members, n_terrain:].mean(axis=0)
-            place = int(place_tree.query(box.center[:2])[1]) if place_tree is not None else -1
-            found.append(FoundObject(box.center, box.size, box.yaw, q, label, float(scores[q]), scores,
-                                     len(point_rows), place, np.sort(point_rows)))
+        groups = cluster_matches(msm.points[cand_rows[local]], cfg.dbscan_eps, cfg.dbscan_min_samples, cfg.min_points)
+        clusters += [(q, local[g]) for g in groups]
+    if not clusters:
+        return []
+    members = np.concatenate([m for _, m in clusters])
+    owner = np.repeat(np.arange(len(clusters)), [len(m) for _, m in clusters])
+    boxes = fit_oriented_boxes(msm.points[cand_rows[members]], owner, cfg.box_padding)
+    centres = np.array([b.center for b in boxes])
+    if graph is not None and len(graph.places):
+        places = cKDTree(graph.places.position[:, :2]).query(centres[:, :2])[1]
+    else:
+        places = np.full(len(boxes), -1)
+    found: list[FoundObject] = []
+    for (q, local), box, place in zip(clusters, boxes, places):
+        scores = similarity[local, n_terrain:].mean(axis=0)
+        found.append(FoundObject(box.center, box.size, box.yaw, q, queries[q], float(scores[q]), scores,
+                                 len(local), int(place), np.sort(cand_rows[local])))
     found.sort(key=lambda o: (o.query, -o.score, -o.point_count))
     return found
 

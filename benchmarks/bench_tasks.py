@@ -1,0 +1,215 @@
+"""Phase 3 speed: object query on a 2-million-point map, A* over 20,000 places, bundle loading.
+
+Targets (issue "Phase 3"): one object query after load <= 100 ms on a 2M-point map (no points x
+dimension array is built: the map is a sparse counts matrix); one plan over 20,000 places <= 50 ms;
+loading a campus bundle <= 2 s.
+
+Usage: python benchmarks/bench_tasks.py [--bundle PATH ...] [--points 2000000] [--places 20000]
+Writes benchmarks/results/tasks.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+OBJECT_NAMES = ["dumpster", "car", "bicycle rack", "bench", "trash can", "street lamp", "fire hydrant", "picnic table"]
+TERRAINS = ["sidewalk", "grass", "asphalt", "dirt", "water"]
+
+
+def timed(fn, repeat: int) -> tuple[list[float], object]:
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return times, out
+
+
+def synthetic_map(n_points: int, n_bank: int, embedder, seed: int = 0):
+    """A 2 km x 1 km map: ground points observed with random bank entries (far from any query),
+    plus planted objects (100 points in 2 x 2 x 1.6 m, about the density of a 0.4 m voxel map)
+    observed with object-name embeddings."""
+    from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
+    from terra.perception.text import normalize_rows
+
+    rng = np.random.default_rng(seed)
+    d = embedder.dim
+    bank = np.empty((n_bank, d), dtype=np.float32)
+    bank[: len(OBJECT_NAMES)] = embedder.embed_text(OBJECT_NAMES)
+    bank[len(OBJECT_NAMES):] = normalize_rows(rng.standard_normal((n_bank - len(OBJECT_NAMES), d)).astype(np.float32))
+    n_objects, per_object = 1000, 100
+    n_ground = n_points - n_objects * per_object
+    ground = np.column_stack([rng.uniform(0, 2000, n_ground), rng.uniform(0, 1000, n_ground), rng.normal(0, 0.05, n_ground)])
+    centres = np.column_stack([rng.uniform(0, 2000, n_objects), rng.uniform(0, 1000, n_objects), np.full(n_objects, 0.8)])
+    objects = (centres[:, None, :] + rng.uniform(-1.0, 1.0, (n_objects, per_object, 3)) * [1.0, 1.0, 0.8]).reshape(-1, 3)
+    points = np.vstack([ground, objects]).astype(np.float32)
+    # Observations: 60 % of ground points see 1-4 random bank entries; object points 1-3 hits
+    # of their class entry plus one random entry.
+    observed = np.flatnonzero(rng.random(n_ground) < 0.6)
+    per_row = rng.integers(1, 5, observed.size)
+    rows = [np.repeat(observed, per_row)]
+    cols = [rng.integers(len(OBJECT_NAMES), n_bank, int(per_row.sum()))]
+    vals = [rng.integers(1, 4, int(per_row.sum()))]
+    obj_rows = np.arange(n_ground, n_points)
+    obj_class = np.repeat(np.arange(n_objects) % len(OBJECT_NAMES), per_object)
+    rows += [obj_rows, obj_rows]
+    cols += [obj_class, rng.integers(len(OBJECT_NAMES), n_bank, obj_rows.size)]
+    vals += [rng.integers(2, 5, obj_rows.size), np.ones(obj_rows.size, dtype=np.int64)]
+    counts = sp.csr_matrix((np.concatenate(vals).astype(np.int32), (np.concatenate(rows), np.concatenate(cols))),
+                           shape=(n_points, n_bank))
+    counts.sum_duplicates()
+    images = ImageTable(stamp=np.zeros(0), camera=np.zeros(0, dtype=np.int16), T_map_cam=np.zeros((0, 4, 4)),
+                        embedding=np.zeros((0, d), dtype=np.float32))
+    return MetricSemanticMap(points=points, terrain_classes=TERRAINS,
+                             terrain_votes=np.zeros((n_points, len(TERRAINS)), dtype=np.uint16),
+                             terrain_embeddings=embedder.embed_text(TERRAINS), counts=counts, bank=bank,
+                             images=images, embedder=embedder.name)
+
+
+def bench_query(n_points: int, embedder) -> dict:
+    from terra.tasks.retrieval import find_objects
+    from terra.tasks.scoring import PointScorer
+
+    t0 = time.perf_counter()
+    msm = synthetic_map(n_points, 20000, embedder)
+    build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    scorer = PointScorer(msm)  # row norms of counts @ bank, float32 counts
+    scorer.max_ids  # most observed bank id per point
+    warm_s = time.perf_counter() - t0
+    embedder.embed_text(["find the dumpster"])  # the query text itself is cached after the first call
+    out = {"points": n_points, "bank": int(msm.bank.shape[0]), "nnz": int(msm.counts.nnz), "build_s": build_s,
+           "feature_cache_s": warm_s}
+    for method in ("ms-avg", "ms-max"):
+        times, found = timed(lambda: find_objects(msm, None, ["find the dumpster"], method=method, alpha=0.5, embedder=embedder,
+                                                      scorer=scorer), 7)
+        out[method] = {"median_ms": 1e3 * statistics.median(times), "max_ms": 1e3 * max(times), "objects": len(found)}
+    fresh = ["a green dumpster behind the building"]
+    times, _ = timed(lambda: find_objects(msm, None, fresh, method="ms-avg", alpha=0.5, embedder=embedder,
+                                              scorer=scorer), 1)
+    out["ms-avg_new_text_ms"] = 1e3 * times[0]
+    return out
+
+
+def grid_graph(n_places: int, seed: int = 0):
+    """A jittered grid of places 5 m apart (~n_places), 4-connected minus 15 % of the edges, with
+    random terrain patches."""
+    from terra.graph.scene_graph import EDGE_GVD, Places, SceneGraph
+
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(np.sqrt(n_places)))
+    ii, jj = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    pos = np.column_stack([ii.ravel() * 5.0, jj.ravel() * 5.0, np.zeros(side * side)])[:n_places]
+    pos[:, :2] += rng.uniform(-1, 1, (len(pos), 2))
+    idx = np.arange(side * side).reshape(side, side)
+    edges = np.vstack([np.column_stack([idx[:-1].ravel(), idx[1:].ravel()]), np.column_stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()])])
+    edges = edges[(edges < n_places).all(axis=1)]
+    edges = edges[rng.random(len(edges)) > 0.15]
+    # Terrain by coarse noise: patches of ~10 x 10 places.
+    coarse = rng.integers(0, 4, (side // 10 + 1, side // 10 + 1))
+    terrain = coarse[ii.ravel() // 10, jj.ravel() // 10][:n_places]
+    weight = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+    return SceneGraph(terrain_classes=TERRAINS, terrain_embeddings=np.zeros((5, 4), dtype=np.float32),
+                      places=Places(pos, terrain, np.ones(n_places), np.zeros((n_places, 4), dtype=np.float32)),
+                      place_edges=edges, place_edge_weight=weight, place_edge_kind=np.full(len(edges), EDGE_GVD))
+
+
+def bench_plan(n_places: int) -> dict:
+    from terra.errors import NoPathError
+    from terra.tasks.planning import CostGraph, TerrainCosts, plan_on, plan_path
+
+    graph = grid_graph(n_places)
+    rng = np.random.default_rng(1)
+    side = int(np.ceil(np.sqrt(n_places)))
+    pairs = [(0, n_places - 1), (side - 1, n_places - side)] + [tuple(rng.integers(0, n_places, 2)) for _ in range(8)]
+    out: dict = {"places": n_places, "edges": int(len(graph.place_edges))}
+    for label, kwargs in (("plain", {}), ("prefer_sidewalk_forbid_water", {"prefer": ["sidewalk"], "forbid": ["water"]})):
+        full, astar_only, lengths = [], [], []
+        costs = TerrainCosts.from_preferences(graph.terrain_classes, kwargs.get("prefer", ()), None, kwargs.get("forbid", ()))
+        cg = CostGraph.build(graph, costs)
+        for s, g in pairs:
+            try:
+                t0 = time.perf_counter()
+                plan = plan_path(graph, int(s), int(g), **kwargs)
+                full.append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                plan_on(graph, cg, int(s), int(g))
+                astar_only.append(time.perf_counter() - t0)
+                lengths.append(plan.length_m)
+            except NoPathError:
+                continue
+        out[label] = {"plans": len(full), "median_ms": 1e3 * statistics.median(full), "max_ms": 1e3 * max(full),
+                      "astar_only_max_ms": 1e3 * max(astar_only), "longest_path_m": max(lengths)}
+    return out
+
+
+def bench_load(bundle: Path) -> dict:
+    from terra.bundle import Bundle
+    from terra.graph.storage import load_scene_graph
+    from terra.mapping.storage import load_map
+
+    def load():
+        b = Bundle(bundle)
+        msm = load_map(b)
+        graph = load_scene_graph(b) if any(f.startswith("graph/") for f in b.files) else None
+        return msm, graph
+
+    times, (msm, graph) = timed(load, 3)
+    t0 = time.perf_counter()
+    msm.ms_avg_norms()
+    cache_s = time.perf_counter() - t0
+    return {"bundle": str(bundle), "points": len(msm), "places": len(graph.places) if graph else 0,
+            "load_median_s": statistics.median(times), "load_max_s": max(times), "feature_cache_s": cache_s,
+            "bytes": sum(Bundle(bundle).component_bytes().values())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bundle", type=Path, action="append", default=[], help="bundle(s) to time loading on")
+    parser.add_argument("--points", type=int, default=2_000_000)
+    parser.add_argument("--places", type=int, default=20_000)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "tasks.json")
+    args = parser.parse_args()
+
+    from terra.perception.text import get_text_embedder
+
+    t0 = time.perf_counter()
+    embedder = get_text_embedder()
+    embedder.embed_text(["warm up"])
+    embedder_s = time.perf_counter() - t0
+    result = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
+              "embedder_load_s": embedder_s, "query": bench_query(args.points, embedder), "plan": bench_plan(args.places),
+              "load": [bench_load(b) for b in args.bundle]}
+    q, p = result["query"], result["plan"]
+    rows = [
+        ("embedder load (once per process)", f"{embedder_s:.2f} s", "-"),
+        (f"feature cache, {q['points']:,} points (once per map)", f"{q['feature_cache_s']:.2f} s", "-"),
+        (f"object query ms-avg, {q['points']:,} points", f"{q['ms-avg']['median_ms']:.1f} ms (max {q['ms-avg']['max_ms']:.1f})", "<= 100 ms"),
+        (f"object query ms-max, {q['points']:,} points", f"{q['ms-max']['median_ms']:.1f} ms (max {q['ms-max']['max_ms']:.1f})", "<= 100 ms"),
+        ("object query ms-avg, new query text", f"{q['ms-avg_new_text_ms']:.1f} ms", "-"),
+        (f"plan, {p['places']:,} places", f"{p['plain']['median_ms']:.1f} ms (max {p['plain']['max_ms']:.1f})", "<= 50 ms"),
+        (f"plan with prefer/forbid, {p['places']:,} places",
+         f"{p['prefer_sidewalk_forbid_water']['median_ms']:.1f} ms (max {p['prefer_sidewalk_forbid_water']['max_ms']:.1f})", "<= 50 ms"),
+    ]
+    for load in result["load"]:
+        rows.append((f"load {Path(load['bundle']).name} ({load['points']:,} points, {load['places']:,} places)",
+                     f"{load['load_median_s']:.2f} s (+{load['feature_cache_s']:.2f} s feature cache)", "<= 2 s"))
+    width = max(len(r[0]) for r in rows)
+    print(f"{'measure':<{width}}  {'value':<28}  target")
+    for name, value, target in rows:
+        print(f"{name:<{width}}  {value:<28}  {target}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

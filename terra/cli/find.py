@@ -1,0 +1,36 @@
+"""`terra find`: open-vocabulary object retrieval on a bundle (Terra-MS or Terra-3DSG)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from terra.cli import app
+
+
+@app.command("find")
+def find_command(
+    bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map` (and `terra build` for 3dsg/--save)."),
+    queries: Optional[List[str]] = typer.Argument(None, help="Text queries, e.g. \"find the dumpster\"; several share one load."),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="ms-avg, ms-max or 3dsg (default from the config: ms-avg)."),
+    alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.retrieval.alpha)."),
+    tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (object_tasks, alpha, prediction_method)."),
+    save: bool = typer.Option(False, "--save", help="Add the objects to the bundle's scene graph (same-label objects are replaced)."),
+    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    as_json: bool = typer.Option(False, "--json", help="Print the objects as JSON."),
+) -> None:
+    """Find objects matching text QUERIES: oriented boxes with scores and their nearest place.
+
+    Example: terra find campus.terra "find the dumpster" "get bike from the bicycle rack" --method 3dsg --json
+    """
+    from terra.tasks.commands import find_report, format_find, load_tasks_config
+
+    if method is not None and method not in ("ms-avg", "ms-max", "3dsg"):
+        from terra.errors import TerraError
+
+        raise TerraError(f"--method {method!r}: expected one of ms-avg, ms-max, 3dsg")
+    report = find_report(bundle, queries or [], method=method, alpha=alpha, save=save, tasks=tasks, config=load_tasks_config(config))
+    typer.echo(json.dumps(report, indent=1) if as_json else format_find(report))

@@ -1,0 +1,36 @@
+"""`terra monitor`: which regions and places a monitoring task asks to watch."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from terra.cli import app
+
+
+@app.command("monitor")
+def monitor_command(
+    bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
+    queries: Optional[List[str]] = typer.Argument(None, help="Monitoring task text, e.g. \"large parking lot surrounded by buildings\"."),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="mix (paper), max, thresh or aib (Clio baseline); default mix."),
+    k: Optional[int] = typer.Option(None, "--k", "-k", help="Number of top regions for mix and max (default from the config: 1)."),
+    alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."),
+    tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (region_tasks, k, alpha, prediction_method)."),
+    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    as_json: bool = typer.Option(False, "--json", help="Print the chosen regions and places (with positions) as JSON."),
+) -> None:
+    """Choose the regions and places to monitor for each task in QUERIES.
+
+    Example: terra monitor campus.terra "large parking lot surrounded by buildings" --k 2 --json
+    """
+    from terra.tasks.commands import format_monitor, load_tasks_config, monitor_report
+
+    if method is not None and method not in ("mix", "max", "thresh", "aib"):
+        from terra.errors import TerraError
+
+        raise TerraError(f"--method {method!r}: expected one of mix, max, thresh, aib")
+    report = monitor_report(bundle, queries or [], method=method, k=k, alpha=alpha, tasks=tasks, config=load_tasks_config(config))
+    typer.echo(json.dumps(report, indent=1) if as_json else format_monitor(report))

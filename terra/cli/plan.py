@@ -1,0 +1,47 @@
+"""`terra plan`: terrain-aware A* on the places layer to the object a task names."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import typer
+
+from terra.cli import app
+
+
+@app.command("plan")
+def plan_command(
+    bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
+    to: Optional[str] = typer.Option(None, "--to", help="Destination task, e.g. \"get bike from the bicycle rack\"."),
+    to_node: Optional[int] = typer.Option(None, "--to-node", help="Destination place id instead of a query."),
+    from_query: Optional[str] = typer.Option(None, "--from", help="Start at the object a query names."),
+    from_node: Optional[int] = typer.Option(None, "--from-node", help="Start place id."),
+    from_xy: Optional[Tuple[float, float]] = typer.Option(None, "--from-xy", help="Start at the allowed place nearest X Y (metres, map frame)."),
+    prefer: Optional[List[str]] = typer.Option(None, "--prefer", help="Preferred terrain (repeatable); others get the default penalty."),
+    penalty: Optional[List[str]] = typer.Option(None, "--penalty", help="TERRAIN=W: cost per metre x (1 + W) on that terrain (repeatable)."),
+    forbid: Optional[List[str]] = typer.Option(None, "--forbid", help="Terrain never to enter (repeatable)."),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="Retrieval method for the queries (default 3dsg)."),
+    alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold for the queries."),
+    tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (terrain_preferences, queries: start/destination)."),
+    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON."),
+) -> None:
+    """Plan a path from a start to the place of the object a task names, honouring terrain
+    preferences. Edge cost = length x (1 + mean penalty of its two places' terrains); forbidden
+    terrain is removed. Without --from*, the start is the place nearest the first camera pose.
+    Exit code 3 when no path exists.
+
+    Example: terra plan campus.terra --to "get bike from the bicycle rack" --prefer sidewalk --forbid water --json
+    """
+    from terra.tasks.commands import format_plan, load_tasks_config, plan_report
+
+    if method is not None and method not in ("ms-avg", "ms-max", "3dsg"):
+        from terra.errors import TerraError
+
+        raise TerraError(f"--method {method!r}: expected one of ms-avg, ms-max, 3dsg")
+    report = plan_report(bundle, to=to, to_node=to_node, from_query=from_query, from_node=from_node, from_xy=from_xy,
+                         prefer=prefer or [], penalty=penalty or [], forbid=forbid or [], method=method, alpha=alpha,
+                         tasks=tasks, config=load_tasks_config(config))
+    typer.echo(json.dumps(report, indent=1) if as_json else format_plan(report))

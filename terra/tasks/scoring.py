@@ -1,0 +1,59 @@
+"""Per-point cosines with query vectors, one column at a time, for fast retrieval on large maps.
+
+The map's features are never materialised (no points x dimension array): with s = bank @ v for a
+unit vector v, the MS-Avg cosine of point i is (counts_i . s) / ||counts_i @ bank|| and the MS-Max
+cosine is s[most observed bank id of i]. A scorer keeps a float32 copy of the counts and the
+cached row norms, so each query column is one sparse matrix-vector product.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from terra.mapping.semantic_map import MetricSemanticMap
+
+Feature = Literal["avg", "max"]
+
+
+class PointScorer:
+    """Cosine similarity of a map's point features (MS-Avg or MS-Max) with unit vectors."""
+
+    def __init__(self, msm: MetricSemanticMap):
+        counts = msm.counts.tocsr()
+        # float32 data: scipy would otherwise upcast int counts x float32 vectors to float64.
+        self.counts = sp.csr_matrix((counts.data.astype(np.float32), counts.indices, counts.indptr), shape=counts.shape)
+        norms = msm.ms_avg_norms()
+        self.inv_norm = np.divide(1.0, norms, out=np.zeros_like(norms, dtype=np.float32), where=norms > 0).astype(np.float32)
+        self.bank = np.asarray(msm.bank, dtype=np.float32)
+        self._msm = msm
+        self._max_ids: np.ndarray | None = None
+
+    @property
+    def max_ids(self) -> np.ndarray:
+        if self._max_ids is None:
+            self._max_ids = self._msm.ms_max_ids()
+        return self._max_ids
+
+    def observed(self) -> np.ndarray:
+        """Indices of points with at least one observation."""
+        return np.flatnonzero(np.diff(self.counts.indptr) > 0)
+
+    def similarity(self, vectors: np.ndarray, feature: Feature = "avg", rows: np.ndarray | None = None) -> np.ndarray:
+        """(n, V) float32 cosines of the points' features with unit vectors (V, D); 0 for
+        unobserved points. rows: a subset of point indices (default all)."""
+        s = self.bank @ np.asarray(vectors, dtype=np.float32).reshape(-1, self.bank.shape[1]).T  # (K, V)
+        if feature == "avg":
+            counts = self.counts if rows is None else self.counts[rows]
+            inv = self.inv_norm if rows is None else self.inv_norm[rows]
+            # One column: a matrix-vector product, measurably faster than the multi-vector kernel.
+            num = (counts @ s[:, 0])[:, None] if s.shape[1] == 1 else counts @ s
+            return np.asarray(num, dtype=np.float32) * inv[:, None]
+        if feature != "max":
+            raise ValueError(f"feature must be 'avg' or 'max', got {feature!r}")
+        ids = self.max_ids if rows is None else self.max_ids[rows]
+        out = s[np.maximum(ids, 0)]
+        out[ids < 0] = 0.0
+        return out

@@ -1,0 +1,133 @@
+"""Task files: YAML task lists shaped like the reference implementation's, so its users can bring
+theirs to `terra find|monitor|plan --tasks FILE`.
+
+Keys (all optional; the commands' own options win over the file):
+- `object_tasks` (or `tasks`): [{task: "get bike from the bicycle rack"}, ...] for `terra find`.
+- `region_tasks`: [{task: "...", place_nodes: [...]}] for `terra monitor` (place_nodes, the
+  reference's hand labels, are kept for evaluation).
+- `alpha`, `k`, `prediction_method`: ms_avg | ms_max | 3dsg | 3dsg_avg | 3dsg_max (objects),
+  max | thresh | mix | aib (regions).
+- `terrain_preferences`: {preferred: [...], forbidden: [...], penalties: {terrain: w}}, terrains
+  by index into the terrain classes (as the reference writes them) or by name.
+- `queries`: {start: place id | text query | null, destination: text query | place id}.
+- `terra`, `trim`, `case`, `bounds`: reference settings with no meaning here; accepted, ignored.
+Items may also be plain strings. Anything else is refused with the file and field named.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from terra.config import validation_message
+from terra.errors import TerraError
+
+OBJECT_METHODS = {"ms_avg": ("ms-avg", None), "ms_max": ("ms-max", None), "3dsg": ("3dsg", None),
+                  "3dsg_avg": ("3dsg", "avg"), "3dsg_max": ("3dsg", "max"),
+                  "ms-avg": ("ms-avg", None), "ms-max": ("ms-max", None)}
+REGION_METHODS = ("max", "thresh", "mix", "aib")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class TaskItem(_Strict):
+    task: str
+    label: str | int | None = None
+    place_nodes: list[int] | None = None
+
+
+class TerrainPreferences(_Strict):
+    preferred: list[int | str] = Field(default_factory=list)
+    forbidden: list[int | str] = Field(default_factory=list)
+    penalties: dict[int | str, float] = Field(default_factory=dict)
+
+    @field_validator("preferred", "forbidden", mode="before")
+    @classmethod
+    def _no_list(cls, value: Any) -> Any:
+        return [] if value is None else value
+
+    @field_validator("penalties", mode="before")
+    @classmethod
+    def _no_mapping(cls, value: Any) -> Any:
+        return {} if value is None else value
+
+
+class PlanQueries(_Strict):
+    start: int | str | None = None
+    destination: int | str | None = None
+
+
+class TaskFile(_Strict):
+    terra: str | None = None
+    alpha: float | None = None
+    k: int | None = Field(None, ge=1)
+    prediction_method: str | None = None
+    trim: float | None = None
+    case: Any = None
+    bounds: Any = None
+    object_tasks: list[TaskItem] = Field(default_factory=list)
+    tasks: list[TaskItem] = Field(default_factory=list)
+    region_tasks: list[TaskItem] = Field(default_factory=list)
+    terrain_preferences: TerrainPreferences = Field(default_factory=TerrainPreferences)
+    queries: PlanQueries = Field(default_factory=PlanQueries)
+
+    @field_validator("object_tasks", "tasks", "region_tasks", mode="before")
+    @classmethod
+    def _items(cls, value: Any) -> Any:
+        if value is None:
+            return []
+        if isinstance(value, list):
+            return [{"task": v} if isinstance(v, str) else v for v in value]
+        return value
+
+    @field_validator("terrain_preferences", "queries", mode="before")
+    @classmethod
+    def _empty_section(cls, value: Any) -> Any:
+        return {} if value is None else value
+
+    def object_queries(self) -> list[str]:
+        return [t.task for t in self.object_tasks + self.tasks]
+
+    def region_queries(self) -> list[str]:
+        return [t.task for t in self.region_tasks]
+
+    def object_method(self, source: str) -> tuple[str | None, str | None]:
+        """(retrieval method, 3DSG point feature or None) from `prediction_method`."""
+        if self.prediction_method is None:
+            return None, None
+        if self.prediction_method not in OBJECT_METHODS:
+            raise TerraError(f"{source}: field 'prediction_method' is {self.prediction_method!r}; for objects expected one of: "
+                             "ms_avg, ms_max, 3dsg, 3dsg_avg, 3dsg_max")
+        return OBJECT_METHODS[self.prediction_method]
+
+    def region_method(self, source: str) -> str | None:
+        if self.prediction_method is None:
+            return None
+        if self.prediction_method not in REGION_METHODS:
+            raise TerraError(f"{source}: field 'prediction_method' is {self.prediction_method!r}; for regions expected one of: "
+                             f"{', '.join(REGION_METHODS)}")
+        return self.prediction_method
+
+
+def load_task_file(path: str | Path) -> TaskFile:
+    """Parse and validate a task file; TerraError (one line, file and field named) when malformed."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise TerraError(f"{path}: cannot read task file ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise TerraError(f"{path}: expected a mapping with keys such as object_tasks, region_tasks, terrain_preferences, queries")
+    try:
+        return TaskFile.model_validate(raw)
+    except ValidationError as exc:
+        raise TerraError(validation_message(str(path), exc)) from None
