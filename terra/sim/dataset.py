@@ -8,8 +8,10 @@ import numpy as np
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame
 from terra.datasets.ground_truth import GroundTruth
+from terra.datasets.terra_folder import image_name
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose
+from terra.progress import StageTimer
 from terra.sim.classes import SIM_CLASSES
 from terra.sim.config import SimConfig
 from terra.sim.presets import get_preset
@@ -44,6 +46,7 @@ class SimDataset:
             world.route, world.ground, spacing, config.route.speed, rng, max_frames,
             config.route.drift_xy_per_m, np.radians(config.route.drift_yaw_deg_per_m))
         self._cache: OrderedDict[int, Frame] = OrderedDict()
+        self.timer: StageTimer | None = None  # when set, rendering time is recorded per sensor
 
     def __len__(self) -> int:
         return len(self.trajectory)
@@ -79,12 +82,16 @@ class SimDataset:
         stamp = float(self.trajectory.stamps[index])
         T_true = self.gt_T_map_lidar(index)
         rng = np.random.default_rng([self.seed, index, 1])
-        scan = self.lidar.render(self.world, T_true, rng)
+        timer = self.timer or StageTimer()
+        with timer.stage("render lidar"):
+            scan = self.lidar.render(self.world, T_true, rng)
         cams = []
-        for cam in self.cameras:
-            T_map_cam = T_true @ invert_pose(cam.calibration.T_cam_lidar)
-            img = cam.render(self.world, T_map_cam)
-            cams.append(CameraFrame(cam.calibration, stamp, img["image"], img["semantic"], img["instance"], name=cam.config.name))
+        with timer.stage("render cameras"):
+            for n, cam in enumerate(self.cameras):
+                T_map_cam = T_true @ invert_pose(cam.calibration.T_cam_lidar)
+                img = cam.render(self.world, T_map_cam)
+                cams.append(CameraFrame(cam.calibration, stamp, img["image"], img["semantic"], img["instance"],
+                                        name=image_name(n, stamp)))
         T_reported = self.trajectory.T_map_base_odom[index] @ self.lidar.T_base_lidar
         return Frame(index, stamp, scan["points"], T_reported, cams, scan["intensity"], scan["labels"], scan["instances"])
 

@@ -1,0 +1,317 @@
+"""KITTI odometry / SemanticKITTI layout: reader and writer.
+
+A sequence folder `sequences/NN/` holds, with the real dataset's conventions:
+- velodyne/NNNNNN.bin: float32 (x, y, z, reflectance) per point, LiDAR frame;
+- labels/NNNNNN.label: uint32 per point, class = value & 0xFFFF (SemanticKITTI ids), instance = value >> 16;
+- poses.txt: one 3x4 row-major camera-0 pose per scan; the LiDAR pose is Tr^-1 P Tr with `Tr`
+  (LiDAR -> camera 0) from calib.txt;
+- calib.txt: P0..P3 projection matrices and Tr; times.txt: seconds per scan;
+- image_2/NNNNNN.png: the camera image (P2), image_3/ for a second camera.
+Terra's writer makes camera 0 its first camera (so P2 = [K | 0]) and writes `poses.txt` in the
+map frame (P = Tr T_map_lidar Tr^-1; the first pose is not forced to identity). Beside the real
+files it adds, ignored by SemanticKITTI tools: image_{2+n}_semantic/ and image_{2+n}_instance/
+(16-bit PNG in the same label ids), terra_cameras.json (exact calibrations with distortion), and
+at the dataset root classes.json, ground_truth/ and `semantic-kitti.yaml`, a legend in
+SemanticKITTI's yaml convention that names every id used, including ids 100+ for classes the
+real dataset does not have. Real sequences (no legend) read with the standard SemanticKITTI table.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from terra.datasets import register_loader
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
+from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_label_png, read_rgb,
+                                      write_label_png, write_rgb)
+from terra.errors import TerraError
+from terra.geometry import CameraCalibration, invert_pose, make_pose
+from terra.progress import progress
+
+LEGEND = "semantic-kitti.yaml"
+CAMERAS = "terra_cameras.json"
+FIRST_FREE_ID = 100  # SemanticKITTI leaves 100..251 unused
+
+# SemanticKITTI's own label table: id -> (name, BGR colour as in semantic-kitti.yaml).
+STANDARD_LABELS: dict[int, tuple[str, tuple[int, int, int]]] = {
+    0: ("unlabeled", (0, 0, 0)), 1: ("outlier", (0, 0, 255)), 10: ("car", (245, 150, 100)),
+    11: ("bicycle", (245, 230, 100)), 13: ("bus", (250, 80, 100)), 15: ("motorcycle", (150, 60, 30)),
+    16: ("on-rails", (255, 0, 0)), 18: ("truck", (180, 30, 80)), 20: ("other-vehicle", (255, 0, 0)),
+    30: ("person", (30, 30, 255)), 31: ("bicyclist", (200, 40, 255)), 32: ("motorcyclist", (90, 30, 150)),
+    40: ("road", (255, 0, 255)), 44: ("parking", (255, 150, 255)), 48: ("sidewalk", (75, 0, 75)),
+    49: ("other-ground", (75, 0, 175)), 50: ("building", (0, 200, 255)), 51: ("fence", (50, 120, 255)),
+    52: ("other-structure", (0, 150, 255)), 60: ("lane-marking", (170, 255, 150)), 70: ("vegetation", (0, 175, 0)),
+    71: ("trunk", (0, 60, 135)), 72: ("terrain", (80, 240, 150)), 80: ("pole", (150, 240, 255)),
+    81: ("traffic-sign", (0, 0, 255)), 99: ("other-object", (255, 255, 50)), 252: ("moving-car", (245, 150, 100)),
+    253: ("moving-bicyclist", (200, 40, 255)), 254: ("moving-person", (30, 30, 255)),
+    255: ("moving-motorcyclist", (90, 30, 150)), 256: ("moving-on-rails", (255, 0, 0)), 257: ("moving-bus", (250, 80, 100)),
+    258: ("moving-truck", (180, 30, 80)), 259: ("moving-other-vehicle", (255, 0, 0)),
+}
+STANDARD_TERRAIN = {40, 44, 48, 49, 72}
+# Velodyne -> camera-0 rotation of a KITTI-like rig, used when a dataset has no camera.
+_DEFAULT_TR = make_pose(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), np.zeros(3))
+
+
+def standard_classes() -> ClassTable:
+    """SemanticKITTI's own table (ids are SemanticKITTI ids; road, parking, sidewalk,
+    other-ground and terrain are terrain classes)."""
+    return ClassTable([SemanticClass(i, n, i in STANDARD_TERRAIN, i) for i, (n, _) in STANDARD_LABELS.items()])
+
+
+def kitti_ids(classes: ClassTable) -> dict[int, int]:
+    """Our class id -> the id written to .label files: its SemanticKITTI id, or a free id >= 100."""
+    used = {c.semantickitti_id for c in classes if c.semantickitti_id is not None}
+    out, free = {}, FIRST_FREE_ID
+    for c in classes:
+        if c.semantickitti_id is not None:
+            out[c.id] = int(c.semantickitti_id)
+        else:
+            while free in used:
+                free += 1
+            out[c.id] = free
+            used.add(free)
+    return out
+
+
+def _fmt(values: np.ndarray) -> str:
+    return " ".join(repr(float(v)) for v in np.ravel(values))
+
+
+def _lookup(mapping: dict[int, int], size: int | None = None) -> np.ndarray:
+    table = np.zeros((max(mapping) + 1) if size is None else size, np.int64)
+    for k, v in mapping.items():
+        table[k] = v
+    return table
+
+
+# ------------------------------------------------------------------------------------------ writer
+def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show_progress: bool = True) -> None:
+    """Write `dataset` under `root` (an empty folder) as `sequences/<sequence>/`."""
+    root = Path(root)
+    seq = root / "sequences" / sequence
+    for d in ("velodyne", "labels"):
+        (seq / d).mkdir(parents=True, exist_ok=True)
+    ids = kitti_ids(dataset.classes)
+    to_kitti = _lookup(ids)
+    poses, times, cameras = [], [], []
+    Tr = None
+    for frame in progress((dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress):
+        name = f"{len(times):06d}"
+        if Tr is None:
+            Tr = frame.cameras[0].calibration.T_cam_lidar if frame.cameras else _DEFAULT_TR
+        inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
+        np.concatenate([frame.points, inten[:, None]], axis=1).astype(np.float32).tofile(seq / "velodyne" / f"{name}.bin")
+        if frame.point_labels is not None:
+            inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
+            if inst.size and (inst.min() < 0 or inst.max() > 0xFFFF):
+                raise TerraError("instance ids must lie in 0..65535 for SemanticKITTI .label files")
+            value = to_kitti[frame.point_labels].astype(np.uint32) | (inst.astype(np.uint32) << np.uint32(16))
+            value.astype("<u4").tofile(seq / "labels" / f"{name}.label")
+        poses.append(Tr @ frame.T_map_lidar @ invert_pose(Tr))
+        times.append(float(frame.stamp))
+        for n, cam in enumerate(frame.cameras):
+            folder = f"image_{2 + n}"
+            if n >= len(cameras):
+                cameras.append(cam.calibration)
+                for d in (folder, f"{folder}_semantic", f"{folder}_instance"):
+                    (seq / d).mkdir(exist_ok=True)
+            write_rgb(seq / folder / f"{name}.png", cam.image)
+            if cam.semantic is not None:
+                write_label_png(seq / f"{folder}_semantic" / f"{name}.png", to_kitti[cam.semantic])
+            if cam.instance is not None:
+                write_label_png(seq / f"{folder}_instance" / f"{name}.png", cam.instance)
+    Tr = _DEFAULT_TR if Tr is None else Tr
+    (seq / "poses.txt").write_text("".join(_fmt(P[:3]) + "\n" for P in poses))
+    (seq / "times.txt").write_text("".join(repr(t) + "\n" for t in times))
+    lines = []
+    cam0 = cameras[0] if cameras else None
+    for k in range(max(4, 2 + len(cameras))):
+        n = k - 2
+        cal = cameras[n] if 0 <= n < len(cameras) else cam0
+        if cal is None:
+            P = np.hstack([np.eye(3), np.zeros((3, 1))])
+        else:
+            # Projection from camera-0 coordinates into camera n: K [R | t] with T_n0 = T_n_lidar Tr^-1.
+            P = cal.K @ (cal.T_cam_lidar @ invert_pose(Tr))[:3]
+        lines.append(f"P{k}: {_fmt(P)}\n")
+    lines.append(f"Tr: {_fmt(Tr[:3])}\n")
+    (seq / "calib.txt").write_text("".join(lines))
+    (seq / CAMERAS).write_text(json.dumps({"cameras": [calibration_to_json(c) for c in cameras]}, indent=1) + "\n")
+    (root / LEGEND).write_text(yaml.safe_dump(_legend(dataset.classes, ids), sort_keys=False))
+
+
+def _legend(classes: ClassTable, ids: dict[int, int]) -> dict:
+    """semantic-kitti.yaml-style legend for the ids this dataset writes."""
+    labels, colors, learning = {}, {}, {}
+    from_sim = _class_colors()
+    for train, c in enumerate(sorted(classes, key=lambda c: ids[c.id])):
+        k = ids[c.id]
+        labels[k] = c.name
+        if k in STANDARD_LABELS:
+            colors[k] = list(STANDARD_LABELS[k][1])
+        else:
+            rgb = from_sim.get(c.name, (128, 128, 128))
+            colors[k] = [int(rgb[2]), int(rgb[1]), int(rgb[0])]
+        learning[k] = train
+    return {"labels": labels, "color_map": colors, "learning_map": learning,
+            "learning_map_inv": {v: k for k, v in learning.items()},
+            "learning_ignore": {v: v == 0 for v in learning.values()}}
+
+
+def _class_colors() -> dict[str, tuple[int, int, int]]:
+    try:
+        from terra.sim.classes import CLASS_COLORS, SIM_CLASSES
+    except ImportError:  # the simulator is optional for this format
+        return {}
+    return {c.name: tuple(int(v) for v in CLASS_COLORS[c.id]) for c in SIM_CLASSES}
+
+
+# ------------------------------------------------------------------------------------------ reader
+def _read_matrix_lines(path: Path) -> dict[str, np.ndarray]:
+    out = {}
+    for line in path.read_text().splitlines():
+        if ":" in line:
+            key, vals = line.split(":", 1)
+            try:
+                out[key.strip()] = np.array([float(v) for v in vals.split()])
+            except ValueError:
+                raise TerraError(f"{path}: bad numbers on line {key.strip()!r}") from None
+    return out
+
+
+def _sequence_dir(path: Path) -> Path:
+    path = Path(path)
+    if (path / "velodyne").is_dir():
+        return path
+    seqs = sorted(p for p in (path / "sequences").iterdir() if (p / "velodyne").is_dir()) if (path / "sequences").is_dir() else []
+    if len(seqs) == 1:
+        return seqs[0]
+    if not seqs:
+        raise TerraError(f"{path}: no sequences/NN/velodyne/ folder (expected a SemanticKITTI layout)")
+    raise TerraError(f"{path}: {len(seqs)} sequences; open one of them, e.g. {seqs[0]}")
+
+
+class SemanticKittiDataset:
+    """Frames of one SemanticKITTI / KITTI odometry sequence."""
+
+    def __init__(self, path: Path) -> None:
+        self.seq = seq = _sequence_dir(path)
+        root = seq.parent.parent if seq.parent.name == "sequences" else seq
+        self.root = root
+        self.name = f"{root.name}/{seq.name}" if root != seq else seq.name
+        self.scans = sorted((seq / "velodyne").glob("*.bin"))
+        if not self.scans:
+            raise TerraError(f"{seq / 'velodyne'}: no .bin scans")
+        calib_path = seq / "calib.txt"
+        calib = _read_matrix_lines(calib_path) if calib_path.is_file() else {}
+        if "Tr" in calib:
+            self.Tr = np.vstack([calib["Tr"].reshape(3, 4), [0, 0, 0, 1]])
+        else:
+            self.Tr = np.eye(4)
+        poses_path = seq / "poses.txt"
+        if not poses_path.is_file():
+            raise TerraError(f"{seq}: no poses.txt (KITTI ground-truth poses are needed; run odometry first)")
+        rows = np.loadtxt(poses_path, ndmin=2)
+        if rows.shape != (len(self.scans), 12):
+            raise TerraError(f"{poses_path}: expected {len(self.scans)} lines of 12 numbers, got shape {rows.shape}")
+        Tr_inv = invert_pose(self.Tr)
+        self.poses = np.array([Tr_inv @ np.vstack([r.reshape(3, 4), [0, 0, 0, 1]]) @ self.Tr for r in rows])
+        times_path = seq / "times.txt"
+        self.stamps = np.loadtxt(times_path, ndmin=1) if times_path.is_file() else np.arange(len(self.scans), dtype=float)
+        self.cameras = self._cameras(calib)
+        self._ids_from_kitti, self.classes = self._class_mapping(root)
+
+    def _cameras(self, calib: dict[str, np.ndarray]) -> list[CameraCalibration]:
+        exact = self.seq / CAMERAS
+        if exact.is_file():
+            return [calibration_from_json(c, str(exact)) for c in json.loads(exact.read_text())["cameras"]]
+        cams = []
+        for k in (2, 3):
+            folder = self.seq / f"image_{k}"
+            first = sorted(folder.glob("*.png")) if folder.is_dir() else []
+            if f"P{k}" not in calib or not first:
+                continue
+            P = calib[f"P{k}"].reshape(3, 4)
+            K = P[:, :3]
+            offset = np.linalg.solve(K, P[:, 3])  # rectified camera k sits at -offset in camera 0
+            h, w = read_rgb(first[0]).shape[:2]
+            cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), make_pose(np.eye(3), offset) @ self.Tr))
+        return cams
+
+    def _class_mapping(self, root: Path) -> tuple[np.ndarray, ClassTable]:
+        legend_path = root / LEGEND
+        legend = None
+        if legend_path.is_file():
+            try:
+                legend = {int(k): str(v) for k, v in yaml.safe_load(legend_path.read_text())["labels"].items()}
+            except (KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
+                raise TerraError(f"{legend_path}: malformed legend ({exc}); expected a 'labels' mapping id -> name") from None
+        ours = read_classes(root)
+        if ours is not None and legend is not None:
+            mapping = {}
+            for kid, name in legend.items():
+                try:
+                    mapping[kid] = ours.by_name(name).id
+                except KeyError:
+                    raise TerraError(f"{legend_path}: label {kid} {name!r} is not in {root / 'classes.json'}") from None
+            return _lookup(mapping, 1 << 16), ours
+        if legend is not None:
+            table = ClassTable([SemanticClass(k, v, k in STANDARD_TERRAIN, k) for k, v in sorted(legend.items())])
+        else:
+            table = standard_classes()
+        return _lookup({c.id: c.id for c in table}, 1 << 16), table
+
+    def __len__(self) -> int:
+        return len(self.scans)
+
+    def __getitem__(self, index: int) -> Frame:
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
+        scan_path = self.scans[index]
+        raw = np.fromfile(scan_path, dtype="<f4")
+        if raw.size % 4:
+            raise TerraError(f"{scan_path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
+        raw = raw.reshape(-1, 4)
+        stem = scan_path.stem
+        labels = instances = None
+        label_path = self.seq / "labels" / f"{stem}.label"
+        if label_path.is_file():
+            value = np.fromfile(label_path, dtype="<u4")
+            if value.size != raw.shape[0]:
+                raise TerraError(f"{label_path}: {value.size} labels for {raw.shape[0]} points")
+            labels = self._ids_from_kitti[value & 0xFFFF].astype(np.int32)
+            instances = (value >> 16).astype(np.int32)
+        stamp = float(self.stamps[index])
+        cams = []
+        for n, cal in enumerate(self.cameras):
+            folder = f"image_{2 + n}"
+            img_path = self.seq / folder / f"{stem}.png"
+            if not img_path.is_file():
+                continue
+            sem_path = self.seq / f"{folder}_semantic" / f"{stem}.png"
+            inst_path = self.seq / f"{folder}_instance" / f"{stem}.png"
+            sem = self._ids_from_kitti[read_label_png(sem_path)].astype(np.int32) if sem_path.is_file() else None
+            inst = read_label_png(inst_path) if inst_path.is_file() else None
+            cams.append(CameraFrame(cal, stamp, read_rgb(img_path), sem, inst, name=str(img_path.relative_to(self.root))))
+        return Frame(index, stamp, np.ascontiguousarray(raw[:, :3]), self.poses[index], cams,
+                     np.ascontiguousarray(raw[:, 3]), labels, instances)
+
+    def global_map(self) -> np.ndarray | None:
+        return None
+
+    def ground_truth(self):
+        from terra.datasets.ground_truth import load_ground_truth
+
+        return load_ground_truth(self.root)
+
+
+def _detect(path: Path) -> bool:
+    path = Path(path)
+    return (path / "velodyne").is_dir() or (path / "sequences").is_dir()
+
+
+register_loader("semantickitti", _detect, SemanticKittiDataset)
