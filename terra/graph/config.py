@@ -1,7 +1,107 @@
-"""Configuration of this stage (placeholder section, filled in by the stage's issue)."""
+"""Configuration of Phase 2 (`terra build`): terrain places, links and regions.
+
+Defaults are the paper's simulation/campus values (0.4 m cells, max_deviation 3.75 m,
+max_distance 10 m, gamma 100, cuts 50/100/200/400, spectral 0.45 / 10,000 m^2).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator
 
 from terra.config import Section
 
 
+class TerrainSection(Section):
+    """Terrain class per map point from its terrain votes."""
+
+    min_share: float = Field(0.5, ge=0.0, le=1.0, description="a point's winning terrain needs this share of its votes")
+    include: list[str] | None = Field(None, description="terrain classes to build places for (None = all of the map's)")
+
+
+class GridSection(Section):
+    """One 2D occupancy grid per terrain class."""
+
+    cell_size: float = Field(0.4, gt=0.0, description="metres per grid cell")
+    support_radius: float = Field(1.6, ge=0.0, description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)")
+    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold terrain points (drops sparse distant scan rings)")
+    close_iterations: int = Field(1, ge=0, description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)")
+    open_iterations: int = Field(1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)")
+    obstacle_height: tuple[float, float] | None = Field((0.3, 2.0), description="non-terrain points this many metres above the local ground block a cell (None = never)")
+    obstacle_min_points: int = Field(2, ge=1, description="points in the height band needed to block a cell")
+    min_component_area: float = Field(2.0, ge=0.0, description="terrain patches smaller than this (m^2) get no place (reported as dropped)")
+
+    @field_validator("obstacle_height")
+    @classmethod
+    def _band(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        if v is not None and not v[0] < v[1]:
+            raise ValueError("obstacle_height must be (low, high) with low < high, metres above ground")
+        return v
+
+
+class GvdSection(Section):
+    """Per-terrain generalized Voronoi diagram and place extraction on it."""
+
+    min_clearance: float = Field(0.4, ge=0.0, description="GVD cells need at least this distance (m) to the terrain's boundary")
+    min_gap: float = Field(0.6, ge=0.0, description="metres; two nearest obstacle points of one obstacle component count as different walls only with this much clearance at their midpoint (rejects steps of one digitised wall)")
+    prune_ratio: float = Field(1.5, ge=0.0, description="dead-end branches shorter than prune_ratio * junction clearance + prune_length are removed (corner spurs)")
+    prune_length: float = Field(1.0, ge=0.0, description="metres, see prune_ratio")
+    junction_merge: float = Field(1.0, ge=0.0, description="junctions joined by a GVD path shorter than this times their clearance become one node")
+    max_deviation: float = Field(3.75, gt=0.0, description="metres; a GVD path is split where it strays further than this from its chord")
+    max_distance: float = Field(10.0, gt=0.0, description="metres; paths with a longer chord are split near their middle")
+
+
+class LinkingSection(Section):
+    """Cross-terrain links and bridges that make the places graph connected."""
+
+    max_link_distance: float = Field(20.0, gt=0.0, description="metres; a dead end links to the nearest place of another terrain within this range")
+    link_candidates: int = Field(8, ge=1, description="nearest other-terrain places tried per dead end (the first with a clear line wins)")
+    require_clear_line: bool = Field(True, description="links may only cross mapped terrain cells, never blocked or unmapped ones")
+    bridge_penalty: float = Field(100.0, ge=1.0, description="bridges between otherwise disconnected components cost their length times this")
+
+
+class EmbeddingSection(Section):
+    """Image embedding of each place (the paper's rule)."""
+
+    max_range: float = Field(20.0, gt=0.0, description="metres; images taken within this range whose camera saw the place are averaged")
+
+
+class SpectralSection(Section):
+    """Recursive two-way spectral splits of the places graph."""
+
+    max_semantic_diff: float = Field(0.45, ge=0.0, description="a cluster with a smaller semantic difference stops splitting")
+    min_area: float = Field(10000.0, ge=0.0, description="m^2; a cluster whose 2D bounding box is smaller stops splitting")
+    stop_rule: Literal["either", "both"] = Field("either", description="'either' (the paper): stop when one test holds; 'both' (the reference code): only when both hold")
+    sigma: float | None = Field(None, gt=0.0, description="affinity exp(-w / sigma) on place edges; None = median edge weight")
+    min_places: int = Field(4, ge=2, description="clusters with fewer places are not split")
+    max_depth: int = Field(24, ge=1, description="safety cap on the recursion depth")
+
+
+class RegionsSection(Section):
+    """Hierarchical region levels above the places."""
+
+    method: Literal["agglomerative", "spectral"] = "agglomerative"
+    gamma: float = Field(100.0, ge=0.0, description="weight w = |p_i - p_j| (m) + gamma * (1 - cos(e_i, e_j))")
+    cuts: list[float] = Field(default_factory=lambda: [50.0, 100.0, 200.0, 400.0], max_length=8, description="agglomerative cut heights, one region level each, increasing")
+    dense_max_places: int = Field(5000, ge=2, description="exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters")
+    micro_max_clusters: int = Field(5000, ge=2, description="micro-clusters (terrain x grid cell) used above dense_max_places, at most this many")
+    levels: int = Field(4, ge=1, le=8, description="spectral: region levels cut from the binary split tree")
+    seed: int = 0
+    spectral: SpectralSection = Field(default_factory=SpectralSection)
+
+    @field_validator("cuts")
+    @classmethod
+    def _increasing(cls, v: list[float]) -> list[float]:
+        if not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0:
+            raise ValueError("cuts must be a non-empty list of increasing positive numbers")
+        return v
+
+
 class BuildConfig(Section):
-    pass
+    terrain: TerrainSection = Field(default_factory=TerrainSection)
+    grid: GridSection = Field(default_factory=GridSection)
+    gvd: GvdSection = Field(default_factory=GvdSection)
+    linking: LinkingSection = Field(default_factory=LinkingSection)
+    embedding: EmbeddingSection = Field(default_factory=EmbeddingSection)
+    regions: RegionsSection = Field(default_factory=RegionsSection)

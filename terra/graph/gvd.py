@@ -1,0 +1,122 @@
+"""Generalized Voronoi diagram of one terrain's free cells, with brushfire semantics, vectorized.
+
+The brushfire of Lau et al. (2013), as Hydra adapts it for places, grows a distance field out of the
+obstacles and records for every free cell its nearest obstacle cell ("parent"). A free cell lies on
+the GVD where it and a 4-neighbour have parents that belong to different obstacle components, or to
+one component but far apart: the two parents are not 8-adjacent and the free space between them is
+not just a step of one digitised wall (their midpoint has clearance >= `min_gap`).
+Here the whole brushfire is one exact Euclidean distance transform with nearest-obstacle indices
+(scipy.ndimage.distance_transform_edt), the components come from ndimage.label, and the test runs
+on whole shifted arrays; the two-cell-thick result is thinned to one cell by Guo-Hall thinning
+(terra.graph.thinning; unlike Zhang-Suen skeletonization it keeps two-cell-thick diagonal bands).
+
+Grid convention: a boolean (H, W) array, True = free (a cell of this terrain). Everything outside
+the array counts as obstacle. Distances are in cells.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from terra.graph.thinning import thin
+
+EIGHT = np.ones((3, 3), dtype=bool)
+
+
+@dataclass
+class Brushfire:
+    """distance: (H, W) float32 cells to the nearest obstacle (0 on obstacles). parent: (2, H, W)
+    int32 row/col of that obstacle cell (-1 where there is no obstacle at all). component: (H, W)
+    int32 label of the parent's 8-connected obstacle component (0 = the outside of the grid)."""
+
+    distance: np.ndarray
+    parent: np.ndarray
+    component: np.ndarray
+
+
+def brushfire(free: np.ndarray) -> Brushfire:
+    """Distance field, nearest obstacle and its component for every cell of a free-space mask."""
+    free = np.asarray(free, dtype=bool)
+    # A one-cell obstacle frame makes the outside an obstacle; it is labelled with the components
+    # it touches, so a wall that reaches the border joins the outside component.
+    padded = np.pad(free, 1, constant_values=False)
+    distance, parent = ndimage.distance_transform_edt(padded, return_indices=True)
+    labels, _ = ndimage.label(~padded, structure=EIGHT)
+    component = labels[parent[0], parent[1]]
+    inner = (slice(1, -1), slice(1, -1))
+    return Brushfire(
+        distance=distance[inner].astype(np.float32),
+        parent=(parent[:, 1:-1, 1:-1] - 1).astype(np.int32),
+        component=component[inner].astype(np.int32),
+    )
+
+
+def voronoi_cells(free: np.ndarray, fire: Brushfire, min_clearance: float = 1.0, min_gap: float = 1.5) -> np.ndarray:
+    """(H, W) bool: free cells with clearance >= `min_clearance` (cells) where a 4-neighbour's
+    parent lies in another obstacle component, or in the same component but far apart: the two
+    parents are not 8-adjacent and free space of clearance >= `min_gap` cells lies between them
+    (at their midpoint). The midpoint test tells two walls of a corridor, or the two sides of a
+    corner, from neighbouring steps of one digitised wall, whose midpoint lies on the wall."""
+    free = np.asarray(free, dtype=bool)
+    H, W = free.shape
+    padded_distance = np.pad(fire.distance, 1)
+    marked = np.zeros(free.shape, dtype=bool)
+    for axis in (0, 1):
+        n = free.shape[axis]
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(0, n - 1), slice(1, n)
+        a, b = tuple(a), tuple(b)
+        ra, ca = fire.parent[0][a], fire.parent[1][a]
+        rb, cb = fire.parent[0][b], fire.parent[1][b]
+        chord2 = (ra - rb).astype(np.float32) ** 2 + (ca - cb).astype(np.float32) ** 2
+        # Parents may lie in the one-cell frame outside the grid (-1 or H / W): pad by one.
+        mid = padded_distance[np.clip((ra + rb + 1) // 2 + 1, 0, H + 1), np.clip((ca + cb + 1) // 2 + 1, 0, W + 1)]
+        far = (chord2 > 2.0) & (mid >= min_gap)
+        hit = free[a] & free[b] & ((fire.component[a] != fire.component[b]) | far)
+        marked[a] |= hit
+        marked[b] |= hit
+    return marked & free & (fire.distance >= min_clearance)
+
+
+def fill_empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Thin again after filling every hole of the skeleton that holds no obstacle cell.
+
+    A GVD loop always encloses an obstacle; loops around free cells only are thinning artefacts
+    where several GVD branches meet (e.g. in the middle of a room).
+    """
+    holes, n = ndimage.label(~skeleton)  # 4-connected complement
+    if n <= 1:
+        return skeleton
+    has_obstacle = np.bincount(holes.ravel(), weights=~free.ravel(), minlength=n + 1) > 0
+    touches_border = np.zeros(n + 1, dtype=bool)
+    touches_border[np.concatenate([holes[0], holes[-1], holes[:, 0], holes[:, -1]])] = True
+    empty = ~has_obstacle & ~touches_border
+    empty[0] = False
+    if not empty.any():
+        return skeleton
+    return thin(skeleton | empty[holes])
+
+
+def gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+    """One-cell-thin GVD of a free mask and the distance field: ((H, W) bool, (H, W) float32 cells).
+
+    Work is restricted to the bounding box of the free cells (plus a margin), so a terrain that
+    covers a small part of a large grid costs little.
+    """
+    free = np.asarray(free, dtype=bool)
+    skeleton = np.zeros(free.shape, dtype=bool)
+    distance = np.zeros(free.shape, dtype=np.float32)
+    rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
+    if rows.size == 0:
+        return skeleton, distance
+    box = (slice(max(rows[0] - 1, 0), rows[-1] + 2), slice(max(cols[0] - 1, 0), cols[-1] + 2))
+    sub = free[box]
+    fire = brushfire(sub)
+    marked = voronoi_cells(sub, fire, min_clearance, min_gap)
+    skeleton[box] = fill_empty_loops(thin(marked), sub)
+    distance[box] = fire.distance
+    return skeleton, distance

@@ -1,0 +1,282 @@
+"""A one-cell-thin skeleton (the GVD) as a graph: nodes at junctions and dead ends, edges along it.
+
+Cells are joined by m-adjacency (4-neighbours, and diagonal neighbours only where no shared
+4-neighbour is on the skeleton), so every cell inside a path has exactly two neighbours. Nodes are
+clusters of cells whose degree is not 2; a loop without any such cell gets a node at its first
+cell. Each remaining run of degree-2 cells is one edge, ordered from one end to the other by its
+geodesic distance (scipy.sparse.csgraph), so no step walks the grid cell by cell in Python.
+
+Cells are (row, col) integer pairs of the grid; lengths are in cells.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+_OFFSETS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, np.sqrt(2.0)), (1, -1, np.sqrt(2.0)))
+
+
+@dataclass
+class SkeletonGraph:
+    """node_cell: (n, 2) row/col of each node. edges: (e, 2) node pairs (a loop has u == v).
+    path_cells: all edge polylines concatenated, each from its u cell to its v cell inclusive;
+    path_start: (e + 1,) offsets into path_cells. cell_node: (H, W) int32 node of each node cell
+    (-1 elsewhere), used to remove a pruned tip with its whole cluster."""
+
+    node_cell: np.ndarray
+    edges: np.ndarray
+    path_cells: np.ndarray
+    path_start: np.ndarray
+    cell_node: np.ndarray
+
+    def path(self, e: int) -> np.ndarray:
+        return self.path_cells[self.path_start[e] : self.path_start[e + 1]]
+
+    def edge_length(self) -> np.ndarray:
+        """(e,) polyline length of each edge, cells."""
+        steps = np.linalg.norm(np.diff(self.path_cells, axis=0).astype(np.float64), axis=1)
+        csum = np.concatenate([[0.0], np.cumsum(steps)])
+        return csum[self.path_start[1:] - 1] - csum[self.path_start[:-1]]
+
+    def degree(self) -> np.ndarray:
+        """(n,) number of edge ends at each node (a loop counts twice)."""
+        return np.bincount(self.edges.ravel(), minlength=len(self.node_cell))
+
+
+def skeleton_adjacency(skeleton: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+    """Skeleton cells (K, 2) in raster order and their symmetric m-adjacency (K, K), weights 1 or
+    sqrt(2) cells."""
+    skeleton = np.asarray(skeleton, dtype=bool)
+    H, W = skeleton.shape
+    cells = np.argwhere(skeleton)
+    index = np.full((H + 2, W + 2), -1, dtype=np.int64)  # padded so shifted lookups stay inside
+    index[cells[:, 0] + 1, cells[:, 1] + 1] = np.arange(len(cells))
+    on = index >= 0
+    rows, cols, weights = [], [], []
+    r, c = cells[:, 0] + 1, cells[:, 1] + 1
+    for dr, dc, w in _OFFSETS:
+        other = index[r + dr, c + dc]
+        keep = other >= 0
+        if dr and dc:  # diagonal: only where neither shared 4-neighbour is on the skeleton
+            keep &= ~on[r + dr, c] & ~on[r, c + dc]
+        rows.append(np.flatnonzero(keep))
+        cols.append(other[keep])
+        weights.append(np.full(int(keep.sum()), w))
+    i, j, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    adjacency = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells)))
+    return cells, adjacency.tocsr()
+
+
+def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
+    """Nodes and edges of a thin skeleton. `distance` (H, W) picks each node cluster's cell: the
+    one with the largest clearance (ties: first in raster order)."""
+    cells, A = skeleton_adjacency(skeleton)
+    K = len(cells)
+    cell_node = np.full(np.shape(skeleton), -1, dtype=np.int32)
+    if K == 0:
+        return SkeletonGraph(np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros(1, np.int64), cell_node)
+    degree = np.diff(A.indptr)
+    is_node = degree != 2
+    # Cells of a 2x2 block (thinning can leave one where branches meet) form one node.
+    sk = np.zeros((skeleton.shape[0] + 1, skeleton.shape[1] + 1), dtype=bool)
+    sk[:-1, :-1] = skeleton
+    block = sk[:-1, :-1] & sk[1:, :-1] & sk[:-1, 1:] & sk[1:, 1:]
+    in_block = block.copy()
+    in_block[1:, :] |= block[:-1, :]
+    in_block[:, 1:] |= block[:, :-1]
+    in_block[1:, 1:] |= block[:-1, :-1]
+    is_node |= in_block[cells[:, 0], cells[:, 1]]
+    # A loop with no junction or end gets a node at its first cell.
+    _, comp = connected_components(A, directed=False)
+    has_node = np.bincount(comp, weights=is_node, minlength=comp.max() + 1) > 0
+    first_cell = np.full(comp.max() + 1, K)
+    np.minimum.at(first_cell, comp, np.arange(K))
+    is_node[first_cell[~has_node]] = True
+
+    node_idx = np.flatnonzero(is_node)
+    _, cluster = connected_components(A[node_idx][:, node_idx], directed=False)
+    clearance = distance[cells[node_idx, 0], cells[node_idx, 1]]
+    order = np.lexsort((node_idx, -clearance, cluster))  # per cluster: best clearance first
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = cluster[order][1:] != cluster[order][:-1]
+    n_nodes = int(cluster.max()) + 1 if len(cluster) else 0
+    node_cell = np.zeros((n_nodes, 2), dtype=np.int64)
+    node_cell[cluster[order][first]] = cells[node_idx[order][first]]
+    node_of_cell = np.full(K, -1, dtype=np.int64)
+    node_of_cell[node_idx] = cluster
+    cell_node[cells[node_idx, 0], cells[node_idx, 1]] = cluster
+
+    seg_idx = np.flatnonzero(~is_node)
+    if len(seg_idx) == 0:
+        return _assemble(node_cell, [], [], cell_node)
+    S = A[seg_idx][:, seg_idx]
+    n_seg, seg = connected_components(S, directed=False)
+    # Start of each run: its first end cell (degree <= 1 inside the run) in raster order; a run
+    # without ends cannot occur (loops got a node above), but fall back to its first cell.
+    start = np.full(n_seg, len(seg_idx))
+    np.minimum.at(start, seg[np.diff(S.indptr) <= 1], np.flatnonzero(np.diff(S.indptr) <= 1))
+    fallback = np.full(n_seg, len(seg_idx))
+    np.minimum.at(fallback, seg, np.arange(len(seg_idx)))
+    start = np.where(start == len(seg_idx), fallback, start)
+    along = dijkstra(S, directed=False, indices=start, min_only=True)
+    # Attachments (run cell, node) sorted along each run: the first names u, the last v.
+    A_sn = A[seg_idx][:, node_idx].tocoo()
+    att = np.unique(np.stack([A_sn.row, cluster[A_sn.col]], axis=1), axis=0)
+    att_seg = seg[att[:, 0]]
+    order = np.lexsort((att[:, 1], along[att[:, 0]], att_seg))
+    att, att_seg = att[order], att_seg[order]
+    bounds = np.searchsorted(att_seg, np.arange(n_seg + 1))
+    has = bounds[1:] > bounds[:-1]
+    u = att[bounds[:-1][has], 1]
+    v = att[bounds[1:][has] - 1, 1]
+    # Paths: u's cell, the run's cells in order, v's cell.
+    cell_order = np.lexsort((along, seg))
+    cell_order = cell_order[has[seg[cell_order]]]
+    run_len = np.bincount(seg[cell_order], minlength=n_seg)[has]
+    run_start = np.concatenate([[0], np.cumsum(run_len)[:-1]])
+    runs = cells[seg_idx[cell_order]]
+    at = np.stack([run_start, run_start + run_len], axis=1).ravel()
+    ends = np.stack([node_cell[u], node_cell[v]], axis=1).reshape(-1, 2)
+    path_cells = np.insert(runs, at, ends, axis=0)
+    path_start = np.concatenate([[0], np.cumsum(run_len + 2)])
+    edges = np.stack([u, v], axis=1)
+    # A run end touching a further node (rare pixel configurations): join that node as well.
+    extra_edges, extra_paths = [], []
+    for s in np.flatnonzero(bounds[1:] - bounds[:-1] > 2):
+        uu, vv = att[bounds[s], 1], att[bounds[s + 1] - 1, 1]
+        half = along[att[bounds[s] : bounds[s + 1], 0]].max() / 2
+        for k in range(bounds[s] + 1, bounds[s + 1] - 1):
+            w, x = att[k, 1], (uu if along[att[k, 0]] <= half else vv)
+            if w != x:
+                extra_edges.append((x, w))
+                extra_paths.append(np.vstack([node_cell[x], cells[seg_idx[att[k, 0]]], node_cell[w]]))
+    if extra_edges:
+        edges = np.vstack([edges, np.asarray(extra_edges)])
+        path_start = np.concatenate([path_start, path_start[-1] + 3 * np.arange(1, len(extra_edges) + 1)])
+        path_cells = np.vstack([path_cells] + extra_paths)
+    return SkeletonGraph(node_cell, edges.astype(np.int64), path_cells.astype(np.int64), path_start.astype(np.int64), cell_node)
+
+
+def _assemble(node_cell: np.ndarray, edges: list, paths: list, cell_node: np.ndarray) -> SkeletonGraph:
+    edges_arr = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    lengths = np.array([len(p) for p in paths], dtype=np.int64)
+    path_start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    path_cells = np.vstack(paths).astype(np.int64) if paths else np.zeros((0, 2), np.int64)
+    return SkeletonGraph(node_cell, edges_arr, path_cells, path_start, cell_node)
+
+
+def _path_rows(g: SkeletonGraph, edge_ids: np.ndarray, drop_ends: bool = False) -> np.ndarray:
+    """Rows of g.path_cells belonging to the given edges (without each path's two end cells)."""
+    lo = g.path_start[edge_ids] + (1 if drop_ends else 0)
+    hi = g.path_start[edge_ids + 1] - (1 if drop_ends else 0)
+    n = np.maximum(hi - lo, 0)
+    return np.repeat(lo - np.concatenate([[0], np.cumsum(n)[:-1]]), n) + np.arange(n.sum())
+
+
+def prune_spurs(skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_length: float, max_rounds: int = 8) -> np.ndarray:
+    """Remove dead-end branches shorter than ratio * (junction clearance) + min_length cells.
+
+    A 90-degree corner of the free space puts a branch of about sqrt(2) times the clearance into
+    the corner; real ends (a path that leaves the junction) are longer. Repeats until nothing
+    changes, so spurs left behind by a removal go too. Returns the pruned skeleton.
+    """
+    skeleton = np.array(skeleton, dtype=bool)
+    for _ in range(max_rounds):
+        g = skeleton_graph(skeleton, distance)
+        if len(g.edges) == 0:
+            break
+        deg = g.degree()
+        u, v = g.edges[:, 0], g.edges[:, 1]
+        tip_u = (deg[u] == 1) & (deg[v] >= 3)
+        tip_v = (deg[v] == 1) & (deg[u] >= 3)
+        junction = np.where(tip_u, v, u)
+        limit = ratio * distance[g.node_cell[junction, 0], g.node_cell[junction, 1]] + min_length
+        spur = (tip_u | tip_v) & (g.edge_length() < limit)
+        if not spur.any():
+            break
+        spur_idx = np.flatnonzero(spur)
+        inner = _path_rows(g, spur_idx, drop_ends=True)
+        skeleton[g.path_cells[inner, 0], g.path_cells[inner, 1]] = False
+        tips = np.where(tip_u, u, v)[spur_idx]
+        skeleton[np.isin(g.cell_node, tips)] = False
+    return skeleton
+
+
+def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> SkeletonGraph:
+    """Contract junction-to-junction edges shorter than `junction_merge` times the smaller
+    junction clearance (one crossing drawn as two nearby junctions; each junction merges at most
+    once), then dissolve nodes left with exactly two edges by joining those edges' paths."""
+    n = len(g.node_cell)
+    if len(g.edges) == 0:
+        return g
+    edges = g.edges.copy()
+    paths = [g.path(e) for e in range(len(edges))]
+    length = g.edge_length()
+    deg = g.degree()
+    clear = distance[g.node_cell[:, 0], g.node_cell[:, 1]]
+    u, v = edges[:, 0], edges[:, 1]
+    short = (u != v) & (deg[u] >= 3) & (deg[v] >= 3) & (length < junction_merge * np.minimum(clear[u], clear[v]))
+    node_cell = g.node_cell
+    cell_node = g.cell_node
+    if short.any():
+        # Pairs only, shortest first (a matching): chains of merges would pull whole networks
+        # of nearby junctions, e.g. the loops around a row of trees, into one node.
+        taken = np.zeros(n, dtype=bool)
+        for e in np.flatnonzero(short)[np.argsort(length[short], kind="stable")]:
+            if taken[u[e]] or taken[v[e]]:
+                short[e] = False
+            else:
+                taken[u[e]] = taken[v[e]] = True
+    if short.any():
+        merge = sp.coo_matrix((np.ones(int(short.sum())), (u[short], v[short])), shape=(n, n))
+        n_new, new_id = connected_components(merge, directed=False)
+        order = np.lexsort((np.arange(n), -clear, new_id))
+        first = np.ones(n, dtype=bool)
+        first[1:] = new_id[order][1:] != new_id[order][:-1]
+        rep = np.zeros(n_new, dtype=np.int64)
+        rep[new_id[order][first]] = order[first]
+        node_cell = g.node_cell[rep]
+        cell_node = np.where(g.cell_node >= 0, new_id[np.maximum(g.cell_node, 0)], -1).astype(np.int32)
+        keep = ~short
+        edges = new_id[edges[keep]]
+        paths = [p.copy() for p, k in zip(paths, keep) if k]
+        for p, (a, b) in zip(paths, edges):
+            p[0], p[-1] = node_cell[a], node_cell[b]
+        n = n_new
+    # Dissolve degree-2 nodes (not on a loop edge) by joining their two paths.
+    edge_list = [tuple(e) for e in edges]
+    alive = [True] * len(edge_list)
+    ends: dict[int, list[int]] = {}
+    for i, (a, b) in enumerate(edge_list):
+        ends.setdefault(int(a), []).append(i)
+        if b != a:
+            ends.setdefault(int(b), []).append(i)
+    removed = np.zeros(n, dtype=bool)
+    for node in sorted(ends):
+        live = [i for i in ends[node] if alive[i]]
+        if len(live) != 2 or any(edge_list[i][0] == edge_list[i][1] for i in live):
+            continue
+        i, j = live
+        pi = paths[i] if edge_list[i][1] == node else paths[i][::-1]
+        pj = paths[j] if edge_list[j][0] == node else paths[j][::-1]
+        a = edge_list[i][0] if edge_list[i][1] == node else edge_list[i][1]
+        b = edge_list[j][1] if edge_list[j][0] == node else edge_list[j][0]
+        alive[i] = alive[j] = False
+        edge_list.append((a, b))
+        paths.append(np.vstack([pi, pj[1:]]))
+        alive.append(True)
+        new = len(edge_list) - 1
+        for x in {int(a), int(b)}:
+            ends[x] = [k for k in ends[x] if k not in (i, j)] + [new]
+        removed[node] = True
+    kept_edges = [e for e, a in zip(edge_list, alive) if a]
+    kept_paths = [p for p, a in zip(paths, alive) if a]
+    # Renumber the surviving nodes in their old order.
+    new_index = np.cumsum(~removed) - 1
+    cell_node = np.where((cell_node >= 0) & ~removed[np.maximum(cell_node, 0)], new_index[np.maximum(cell_node, 0)], -1).astype(np.int32)
+    remapped = [(int(new_index[a]), int(new_index[b])) for a, b in kept_edges]
+    return _assemble(node_cell[~removed], remapped, kept_paths, cell_node)
