@@ -4,6 +4,10 @@
 their own clusters away from the object. All masks of an image are clustered in one scikit-learn
 DBSCAN call: each mask's points get a fourth coordinate, the mask number times 3 eps, so points of
 different masks are never neighbours and the result equals one DBSCAN per mask.
+
+With `voxel` > 0 a mask's points are first merged per voxel (edge `voxel` metres) into weighted
+samples (DBSCAN's sample_weight), which gives the same clusters up to the voxel size at a
+fraction of the cost: a close building wall puts thousands of points in one mask.
 """
 
 from __future__ import annotations
@@ -11,22 +15,33 @@ from __future__ import annotations
 import numpy as np
 from sklearn.cluster import DBSCAN
 
+from terra.geometry import voxel_keys
 
-def largest_clusters(points: np.ndarray, group: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+
+def largest_clusters(points: np.ndarray, group: np.ndarray, eps: float, min_samples: int, voxel: float = 0.0) -> np.ndarray:
     """Boolean (n,) keep-mask: True for points in the largest DBSCAN cluster of their group.
 
-    points: (n, 3) metres. group: (n,) non-negative group (mask) ids. Noise points and smaller
-    clusters are dropped; a group with no cluster keeps nothing. Ties keep the cluster found first.
+    points: (n, 3) metres. group: (n,) non-negative group (mask) ids. eps: metres. min_samples
+    counts points (the point itself included). Noise points and smaller clusters are dropped; a
+    group with no cluster keeps nothing; ties keep the cluster found first.
     """
     n = points.shape[0]
     keep = np.zeros(n, dtype=bool)
     if n == 0:
         return keep
+    points = np.asarray(points, dtype=np.float64)
     group = np.asarray(group, dtype=np.int64)
     # Compact group numbers keep the fourth coordinate small whatever the ids are.
     _, dense = np.unique(group, return_inverse=True)
-    lifted = np.column_stack([np.asarray(points, dtype=np.float64), dense * (3.0 * eps)])
-    labels = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(lifted)
+    if voxel > 0:
+        sample, weight = _voxel_samples(points, dense, voxel)
+        centres = np.stack([np.bincount(sample, weights=points[:, a]) for a in range(3)], axis=1) / weight[:, None]
+        sample_group = np.zeros(weight.size, dtype=np.int64)
+        sample_group[sample] = dense
+    else:
+        sample, weight, centres, sample_group = np.arange(n), np.ones(n), points, dense
+    lifted = np.column_stack([centres, sample_group * (3.0 * eps)])
+    labels = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(lifted, sample_weight=weight)[sample]
     clustered = np.flatnonzero(labels >= 0)
     if clustered.size == 0:
         return keep
@@ -42,3 +57,14 @@ def largest_clusters(points: np.ndarray, group: np.ndarray, eps: float, min_samp
     winners[order[first]] = True
     keep[clustered] = winners[labels[clustered]]
     return keep
+
+
+def _voxel_samples(points: np.ndarray, group: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sample number (n,) of each point, one sample per (group, voxel), and each sample's weight."""
+    keys = voxel_keys(points, voxel)
+    order = np.lexsort((keys, group))
+    new = np.ones(order.size, dtype=bool)
+    new[1:] = (keys[order[1:]] != keys[order[:-1]]) | (group[order[1:]] != group[order[:-1]])
+    sample = np.empty(order.size, dtype=np.int64)
+    sample[order] = np.cumsum(new) - 1
+    return sample, np.bincount(sample).astype(np.float64)

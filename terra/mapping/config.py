@@ -29,7 +29,8 @@ class FusionConfig(Section):
     no global map). gate: metres, largest scan-point to map-point distance for an association.
     use_global_map: use the dataset's own global map when it has one.
     dbscan_eps (metres) / dbscan_min_samples: the per-mask clustering; only the largest cluster
-    keeps the mask's embedding. match_threshold: cosine at or above which a mask reuses a bank
+    keeps the mask's embedding. dbscan_voxel: metres; a mask's points are merged per voxel of this
+    size into weighted samples before DBSCAN (0 = cluster every point). match_threshold: cosine at or above which a mask reuses a bank
     entry. max_terrain_overlap: masks with a larger share of terrain pixels are dropped."""
 
     voxel_size: float = Field(0.4, gt=0.0)
@@ -37,6 +38,7 @@ class FusionConfig(Section):
     use_global_map: bool = True
     dbscan_eps: float = Field(2.0, gt=0.0)
     dbscan_min_samples: int = Field(5, ge=1)
+    dbscan_voxel: float = Field(0.2, ge=0.0)
     match_threshold: float = Field(0.9, gt=-1.0, le=1.0)
     max_terrain_overlap: float = Field(0.5, ge=0.0, le=1.0)
 

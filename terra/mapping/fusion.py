@@ -171,7 +171,7 @@ class MapFusion:
     def _fuse_groups(self, points_map: np.ndarray, rows: np.ndarray, group: np.ndarray, embeddings: np.ndarray) -> None:
         """DBSCAN per group, bank matching of the surviving groups, one count per (point, entry)."""
         fusion = self.config.fusion
-        keep = largest_clusters(points_map, group, fusion.dbscan_eps, fusion.dbscan_min_samples)
+        keep = largest_clusters(points_map, group, fusion.dbscan_eps, fusion.dbscan_min_samples, fusion.dbscan_voxel)
         surviving = np.unique(group[keep])
         self.stats.add("masks_fused", surviving.size)
         self.stats.add("masks_dropped_dbscan", embeddings.shape[0] - surviving.size)
