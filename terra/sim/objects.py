@@ -35,10 +35,12 @@ def car(rng: np.random.Generator) -> list[Part]:
     length, width = rng.uniform(4.2, 4.8), rng.uniform(1.75, 1.9)
     color = CAR_COLORS[int(rng.integers(len(CAR_COLORS)))]
     cabin = rng.uniform(0.5, 0.6)
+    wheels = [_box(sx * (length / 2 - 0.8), sy * (width / 2 - 0.12), 0.3, 0.62, 0.22, 0.6, color=_DARK)
+              for sx in (-1, 1) for sy in (-1, 1)]
     return [
-        _box(0.0, 0.0, 0.2 + 0.85 / 2, length, width, 0.85, color=color),
+        _box(0.0, 0.0, 0.25 + 0.8 / 2, length, width, 0.8, color=color),
         _box(-0.15, 0.0, 1.05 + cabin / 2, length * 0.55, width * 0.9, cabin, color=(45, 55, 70)),
-    ]
+    ] + wheels
 
 
 def bicycle(rng: np.random.Generator) -> list[Part]:
@@ -82,7 +84,7 @@ def street_light(rng: np.random.Generator) -> list[Part]:
 
 
 def dumpster(rng: np.random.Generator) -> list[Part]:
-    return [_box(0.0, 0.0, 0.75, 1.9, 1.2, 1.3), _box(0.0, 0.0, 1.43, 2.0, 1.3, 0.06, color=_DARK)]
+    return [_box(0.0, 0.0, 0.7, 1.9, 1.2, 1.4), _box(0.0, 0.0, 1.43, 2.0, 1.3, 0.06, color=_DARK)]
 
 
 def stop_light(rng: np.random.Generator) -> list[Part]:
@@ -145,9 +147,9 @@ def bus_shelter(rng: np.random.Generator) -> list[Part]:
     """Open toward +y; the back wall is on the -y side."""
     return [
         _box(0.0, 0.0, 2.5, 3.6, 1.6, 0.1),
-        _box(0.0, -0.75, 1.3, 3.6, 0.06, 2.2, color=(150, 175, 190)),
-        _box(-1.77, 0.0, 1.3, 0.06, 1.5, 2.2, color=(150, 175, 190)),
-        _box(1.77, 0.0, 1.3, 0.06, 1.5, 2.2, color=(150, 175, 190)),
+        _box(0.0, -0.75, 1.225, 3.6, 0.06, 2.45, color=(150, 175, 190)),
+        _box(-1.77, 0.0, 1.225, 0.06, 1.5, 2.45, color=(150, 175, 190)),
+        _box(1.77, 0.0, 1.225, 0.06, 1.5, 2.45, color=(150, 175, 190)),
         _box(0.0, -0.45, 0.45, 2.5, 0.4, 0.06, color=_WOOD),
     ]
 
