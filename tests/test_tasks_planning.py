@@ -139,3 +139,33 @@ def test_cost_graph_never_goes_below_straight_line_and_keeps_cheapest_duplicate(
         for e in range(cg.indptr[u], cg.indptr[u + 1]):
             dense[u, cg.indices[e]] = cg.cost[e]
     np.testing.assert_allclose(dense, [[0, 3, 0], [3, 0, 4], [0, 4, 0]])
+
+
+def test_plans_under_penalties_are_optimal_against_dijkstra():
+    # Every terrain penalised (so the heuristic is scaled by 1 + the smallest penalty) and one
+    # forbidden: plan costs equal Dijkstra's on the same cost graph, built independently here.
+    pos, m = random_graph(7, n=200)
+    rng = np.random.default_rng(7)
+    terrain = rng.integers(0, 5, len(pos))
+    coo = sp.triu(m).tocoo()
+    g = make_graph(pos, terrain, np.column_stack([coo.row, coo.col]), weight=coo.data)
+    pen = np.array([0.5, 2.0, 1.0, 3.0, 0.0])
+    mult = 1 + (pen[terrain[coo.row]] + pen[terrain[coo.col]]) / 2
+    ok = (terrain[coo.row] != WATER) & (terrain[coo.col] != WATER)
+    ref = sp.coo_matrix((np.r_[coo.data * mult, coo.data * mult][np.r_[ok, ok]],
+                         (np.r_[coo.row, coo.col][np.r_[ok, ok]], np.r_[coo.col, coo.row][np.r_[ok, ok]])), shape=m.shape).tocsr()
+    dist = dijkstra(ref, directed=True)
+    penalties = {"sidewalk": 0.5, "grass": 2.0, "asphalt": 1.0, "dirt": 3.0}
+    checked = 0
+    for s, t in rng.integers(0, len(pos), (60, 2)):
+        if terrain[s] == WATER or terrain[t] == WATER:
+            continue
+        if not np.isfinite(dist[s, t]):
+            with pytest.raises(NoPathError):
+                plan_path(g, int(s), int(t), penalties=penalties, forbid=["water"])
+            continue
+        plan = plan_path(g, int(s), int(t), penalties=penalties, forbid=["water"])
+        assert plan.cost == pytest.approx(dist[s, t], rel=1e-9)
+        assert WATER not in terrain[plan.places]
+        checked += 1
+    assert checked > 20

@@ -10,15 +10,7 @@ from terra.graph.scene_graph import Objects
 from terra.perception.text import normalize_rows
 from terra.tasks.config import RetrievalConfig
 from terra.tasks.retrieval import best_object, find_objects, point_matches, points_near, with_objects
-from tests.test_tasks_synthetic import TERRAINS, box_points, make_graph, make_map, region_level
-
-BANK = ["grass", "sidewalk", "dumpster", "car", "bench", "dirt"]
-GRASS, SIDEWALK, DUMPSTER, CAR, BENCH, DIRT = range(6)
-OBJECTS = {  # name: (center, size, yaw, observations per point)
-    "dumpster_a": ((10.0, 10.0, 0.8), (2.0, 1.2, 1.6), 0.4, {DUMPSTER: 3, GRASS: 1}),
-    "dumpster_b": ((30.0, 30.0, 0.8), (2.0, 1.2, 1.6), -1.0, {DUMPSTER: 2}),
-    "car": ((30.0, 8.0, 0.8), (4.4, 1.8, 1.6), 0.1, {CAR: 4}),
-}
+from tests.test_tasks_synthetic import OBJECTS, TERRAINS, dumpster_lot
 
 
 class CountingEmbedder:
@@ -32,33 +24,7 @@ class CountingEmbedder:
 
 @pytest.fixture(scope="module")
 def scene(text_embedder):
-    """A 40 m x 40 m lot: grass west of x = 20, sidewalk east; a dirt patch; two dumpsters and a car.
-    Places every 5 m; two regions split at x = 20 (west one looks like "dumpster")."""
-    xs, ys = np.meshgrid(np.arange(0.0, 40.0, 1.0), np.arange(0.0, 40.0, 1.0), indexing="ij")
-    ground = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
-    obs = [{GRASS: 3} if x < 20 else {SIDEWALK: 3} for x in ground[:, 0]]
-    dirt = np.array([[4.0 + dx, 34.0 + dy, 0.0] for dx in np.arange(0, 2, 0.2) for dy in np.arange(0, 2, 0.2)])
-    points, observations, truth = [ground, dirt], obs + [{DIRT: 3}] * len(dirt), {}
-    start = len(ground) + len(dirt)
-    for name, (center, size, yaw, o) in OBJECTS.items():
-        pts = box_points(center, size, yaw)
-        truth[name] = np.arange(start, start + len(pts))
-        start += len(pts)
-        points.append(pts)
-        observations += [o] * len(pts)
-    unobserved = np.array([[20.0, 20.0, 3.0], [21.0, 20.0, 3.0]])
-    points.append(unobserved)
-    observations += [{}] * len(unobserved)
-    msm = make_map(np.vstack(points), observations, text_embedder.embed_text(BANK), text_embedder.embed_text(TERRAINS))
-    gx, gy = np.meshgrid(np.arange(0.0, 40.0, 5.0), np.arange(0.0, 40.0, 5.0), indexing="ij")
-    place_xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    west = (place_xy[:, 0] < 20).astype(np.int64)
-    region_emb = text_embedder.embed_text(["car", "dumpster"])  # region 0 = east, region 1 = west
-    edges = [[i, j] for i in range(len(place_xy)) for j in range(i + 1, len(place_xy))
-             if np.linalg.norm(place_xy[i] - place_xy[j]) == 5.0]
-    graph = make_graph(place_xy, np.where(west == 1, 1, 0), edges, embedding=region_emb[west],
-                       regions=[region_level(1, west, region_emb, position=[[30, 20, 0], [10, 20, 0]])])
-    return msm, graph, truth
+    return dumpster_lot(text_embedder)
 
 
 def dense_similarity(msm, vectors, feature="avg"):

@@ -201,7 +201,8 @@ def plan_report(bundle: Path, to: str | None = None, to_node: int | None = None,
     if object_queries:
         object_queries = clean_queries(object_queries)
     need_map = bool(object_queries) or (from_node is None and from_xy is None)
-    ctx = open_for_tasks(bundle, config, need_map=need_map, need_graph=True, embedder=embedder)
+    ctx = open_for_tasks(bundle, config, need_map=need_map, need_graph=True, embedder=embedder,
+                         need_embedder=bool(object_queries))
     graph = ctx.require_graph("terra plan")
 
     penalties: dict[Any, float] = {**prefs.penalties, **parse_penalties(penalty)}

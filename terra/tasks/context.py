@@ -15,15 +15,16 @@ from terra.graph.scene_graph import SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
 from terra.tasks.config import TasksConfig
-from terra.tasks.queries import check_embedder, resolve_embedder
+from terra.tasks.queries import check_configured_embedder, check_embedder, resolve_embedder
 
 
 @dataclass
 class TaskContext:
-    """A loaded bundle for Phase 3: msm is None unless asked for, graph None when absent."""
+    """A loaded bundle for Phase 3: msm is None unless asked for, graph None when absent,
+    embedder None when no text is to be embedded."""
 
     bundle: Bundle
-    embedder: TextEmbedder
+    embedder: TextEmbedder | None
     msm: MetricSemanticMap | None
     graph: SceneGraph | None
 
@@ -44,12 +45,13 @@ def has_component(bundle: Bundle, name: str) -> bool:
 
 
 def open_for_tasks(path: str | Path, config: TasksConfig, need_map: bool = True, need_graph: bool = True,
-                   embedder: TextEmbedder | None = None) -> TaskContext:
+                   embedder: TextEmbedder | None = None, need_embedder: bool = True) -> TaskContext:
     """Load a bundle for the task commands.
 
     need_map / need_graph: TerraError when that component is missing (a graph that is not needed
     is still loaded when present, to link objects to places). embedder: the query embedder,
-    default resolved from the manifest (and config.embedder).
+    default resolved from the manifest (and config.embedder); not loaded (it takes seconds)
+    without need_embedder, though a configured name that differs is still refused.
     """
     bundle = Bundle(path)
     recorded = bundle.manifest.get("embedder") or {}
@@ -60,9 +62,11 @@ def open_for_tasks(path: str | Path, config: TasksConfig, need_map: bool = True,
     with_graph = has_component(bundle, "graph")
     if need_graph and not with_graph:
         raise TerraError(f"{bundle.path}: the bundle has no scene graph; build one with `terra build {bundle.path}`")
-    if embedder is None:
+    check_configured_embedder(recorded["name"], config.embedder, source=str(bundle.path))
+    if embedder is None and need_embedder:
         embedder = resolve_embedder(recorded["name"], recorded.get("dim"), config.embedder, source=str(bundle.path))
-    check_embedder(embedder, recorded["name"], recorded.get("dim"), source=str(bundle.path))
+    if embedder is not None:
+        check_embedder(embedder, recorded["name"], recorded.get("dim"), source=str(bundle.path))
     msm = None
     if need_map:
         from terra.mapping.storage import load_map

@@ -91,6 +91,7 @@ class CostGraph:
     indices: np.ndarray
     cost: np.ndarray
     allowed: np.ndarray  # (P,) bool: place not on forbidden terrain
+    min_factor: float = 1.0  # every cost >= min_factor x straight-line length (A* heuristic scale)
 
     @classmethod
     def build(cls, graph: SceneGraph, costs: TerrainCosts) -> "CostGraph":
@@ -104,16 +105,24 @@ class CostGraph:
         length = np.maximum(np.asarray(graph.place_edge_weight, dtype=np.float64), straight)
         cost = length * (1.0 + (costs.penalty[terrain[i]] + costs.penalty[terrain[j]]) / 2)
         keep = allowed[i] & allowed[j] & (i != j)
-        src = np.concatenate([i[keep], j[keep]])
-        dst = np.concatenate([j[keep], i[keep]])
-        cost = np.concatenate([cost[keep], cost[keep]])
-        order = np.lexsort((cost, dst, src))
+        # One entry per undirected pair (the cheapest of duplicates), then both directions in
+        # CSR order: sorting packed int64 keys is much faster than a multi-key lexsort.
+        a, b, cost = np.minimum(i, j)[keep], np.maximum(i, j)[keep], cost[keep]
+        key = a * n + b
+        order = np.argsort(key, kind="stable")
+        key, a, b, cost = key[order], a[order], b[order], cost[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, dtype=np.int64)
+        a, b = a[starts], b[starts]
+        cost = np.minimum.reduceat(cost, starts) if len(starts) else cost
+        src, dst, cost = np.concatenate([a, b]), np.concatenate([b, a]), np.concatenate([cost, cost])
+        order = np.argsort(src * n + dst, kind="stable")
         src, dst, cost = src[order], dst[order], cost[order]
-        first = np.ones(len(src), dtype=bool)
-        first[1:] = (src[1:] != src[:-1]) | (dst[1:] != dst[:-1])
-        src, dst, cost = src[first], dst[first], cost[first]
         indptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n))]).astype(np.int64)
-        return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed)
+        # Every allowed edge costs at least (1 + smallest penalty among allowed terrains) x its
+        # straight-line length, which scales the A* heuristic without losing admissibility.
+        present = np.unique(terrain[allowed]) if n else np.zeros(0, dtype=np.int64)
+        min_factor = 1.0 + float(costs.penalty[present].min()) if present.size else 1.0
+        return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed, min_factor=min_factor)
 
 
 @dataclass
@@ -200,7 +209,8 @@ def plan_on(graph: SceneGraph, cost_graph: CostGraph, start: int, goal: int) -> 
     for place, role in ((start, "start"), (goal, "goal")):
         if not cost_graph.allowed[place]:
             raise NoPathError(f"no path: the {role} place {place} is on forbidden terrain {names[terrain[place]]!r}")
-    result = astar(cost_graph.indptr, cost_graph.indices, cost_graph.cost, graph.places.position, start, goal)
+    result = astar(cost_graph.indptr, cost_graph.indices, cost_graph.cost, graph.places.position, start, goal,
+                   heuristic_scale=cost_graph.min_factor)
     if result is None:
         forbidden = sorted({names[t] for t in terrain[~cost_graph.allowed]})
         why = f" without crossing forbidden terrain ({', '.join(forbidden)})" if forbidden else " (the places graph is disconnected)"

@@ -36,14 +36,19 @@ def check_embedder(embedder: TextEmbedder, map_embedder: str, map_dim: int | Non
         raise TerraError(f"{source} holds {map_dim}-d embeddings but embedder {embedder.name!r} gives {embedder.dim}-d vectors")
 
 
-def resolve_embedder(map_embedder: str, map_dim: int | None = None, configured: str | None = None,
-                     source: str = "map") -> TextEmbedder:
-    """The text embedder for queries: `configured` when set (it must match), else the map's."""
+def check_configured_embedder(map_embedder: str, configured: str | None, source: str = "map") -> None:
+    """TerraError when a configured embedder name differs from the map's (no model is loaded)."""
     if configured is not None and map_embedder and configured != map_embedder:
         raise TerraError(
             f"{source} was built with embedder {map_embedder!r} but tasks.embedder is {configured!r}; "
             "queries must use the map's embedder"
         )
+
+
+def resolve_embedder(map_embedder: str, map_dim: int | None = None, configured: str | None = None,
+                     source: str = "map") -> TextEmbedder:
+    """The text embedder for queries: `configured` when set (it must match), else the map's."""
+    check_configured_embedder(map_embedder, configured, source)
     name = configured or map_embedder
     if not name:
         raise TerraError(f"{source} records no embedder; rebuild it with `terra map`")
