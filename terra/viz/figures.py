@@ -18,39 +18,41 @@ from terra.eval.metrics.boxes import BoxSet
 from terra.graph.scene_graph import SceneGraph
 from terra.viz.places import draw_places, marker_size, region_colours
 from terra.viz.raster import TopDownImage, terrain_raster_image
-from terra.viz.style import (GOAL_COLOUR, PATH_COLOUR, START_COLOUR, new_figure, save_figure, terrain_legend,
+from terra.viz.style import (GOAL_COLOUR, PATH_COLOUR, START_COLOUR, Extent, new_figure, save_figure, terrain_legend,
                              topdown_axis)
 
 
 def terrain_map_figure(path: str | Path, terrain_classes: list[str], map_image: TopDownImage,
-                       gt: GroundTruth | None = None, dpi: int = 120) -> Path:
+                       gt: GroundTruth | None = None, dpi: int = 120, extent: Extent | None = None) -> Path:
     """Map points coloured by their fused terrain class, beside the ground-truth terrain."""
-    fig, axes = new_figure(2 if gt is not None else 1, title="Terrain: metric-semantic map" + (" vs ground truth" if gt else ""))
+    fig, axes = new_figure(2 if gt is not None else 1, title="Terrain: metric-semantic map" + (" vs ground truth" if gt else ""), extent=extent)
     map_image.show(axes[0])
-    topdown_axis(axes[0], "map points (top-down, highest point per cell)")
+    topdown_axis(axes[0], "map points (top-down, highest point per cell)", extent)
     terrain_legend(axes[0], terrain_classes, other="not terrain")
     if gt is not None:
         terrain_raster_image(gt.terrain, terrain_classes).show(axes[1])
-        topdown_axis(axes[1], "ground truth")
+        topdown_axis(axes[1], "ground truth", extent)
     return save_figure(fig, path, dpi)
 
 
-def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120) -> Path:
+def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
+                  extent: Extent | None = None) -> Path:
     """The places layer coloured by terrain, edges grey (bridges dashed)."""
-    fig, (ax,) = new_figure(1, panel_size=7.0, title=f"Places layer: {len(sg.places)} places, {len(sg.place_edges)} edges")
+    fig, (ax,) = new_figure(1, panel_size=7.0, title=f"Places layer: {len(sg.places)} places, {len(sg.place_edges)} edges", extent=extent)
     if background is not None:
         background.show(ax, alpha=0.25)
     draw_places(ax, sg)
-    topdown_axis(ax)
+    topdown_axis(ax, extent=extent)
     terrain_legend(ax, sg.terrain_classes, other=None)
     return save_figure(fig, path, dpi)
 
 
-def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120) -> Path:
+def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
+                         extent: Extent | None = None) -> Path:
     """One panel per region level: places coloured by the region containing them."""
     levels = max(len(sg.regions), 1)
     ncols = min(levels, 2)
-    fig, axes = new_figure(ncols, (levels + ncols - 1) // ncols, title=f"Region levels ({sg.region_method or 'regions'})")
+    fig, axes = new_figure(ncols, (levels + ncols - 1) // ncols, title=f"Region levels ({sg.region_method or 'regions'})", extent=extent)
     for ax in axes[levels:]:
         ax.set_visible(False)
     if not sg.regions:
@@ -62,7 +64,7 @@ def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownIm
         draw_places(ax, sg, colours=region_colours(assignment, seed=level), edges=False)
         centres = sg.regions[level - 1].position
         ax.scatter(centres[:, 0], centres[:, 1], marker="x", c="black", s=25, linewidths=1.0, zorder=3)
-        topdown_axis(ax, f"level {level}: {len(sg.regions[level - 1])} regions")
+        topdown_axis(ax, f"level {level}: {len(sg.regions[level - 1])} regions", extent)
     return save_figure(fig, path, dpi)
 
 
@@ -71,30 +73,29 @@ def _footprint(ax, corners: np.ndarray, **kwargs) -> None:
 
 
 def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxSet, np.ndarray]], queries: list[str],
-                 gt_query: np.ndarray, background: TopDownImage | None = None, dpi: int = 120) -> Path:
+                 gt_query: np.ndarray, background: TopDownImage | None = None, dpi: int = 120,
+                 extent: Extent | None = None) -> Path:
     """Retrieved boxes against ground truth, one panel per method. `predictions` maps a method to
     (boxes, query index per box); `gt_query` is the query index of each ground-truth box. Ground
     truth is drawn solid and black, predictions dashed in their query's colour."""
     from matplotlib import colormaps
 
-    colours = colormaps["tab10"](np.arange(max(len(queries), 1)) % 10)[:, :3]
+    colours = colormaps["tab20"](np.arange(max(len(queries), 1)) % 20)[:, :3]
     methods = list(predictions) or ["(no method)"]
-    fig, axes = new_figure(len(methods), panel_size=6.0, title="Object retrieval: predicted (dashed) vs ground-truth (solid) boxes")
+    fig, axes = new_figure(len(methods), panel_size=6.0, title="Object retrieval: predicted (dashed) vs ground-truth (solid) boxes", extent=extent)
     for method, ax in zip(methods, axes):
         if background is not None:
             background.show(ax, alpha=0.3)
         for corners, q in zip(gt.footprint_corners(), gt_query):
             _footprint(ax, corners, edgecolor="black", linewidth=1.2, zorder=3)
             ax.plot(*corners.mean(axis=0), marker="o", ms=2.5, color=colours[q], zorder=4)
-        if method in predictions:
-            boxes, query = predictions[method]
-            for corners, q in zip(boxes.footprint_corners(), query):
-                _footprint(ax, corners, edgecolor=colours[q], linewidth=1.2, linestyle="--", zorder=5)
-            topdown_axis(ax, f"{method}: {len(boxes)} boxes, {len(gt)} ground truth")
-        ax.autoscale_view()
+        boxes, query = predictions.get(method, (BoxSet.empty(), np.zeros(0, dtype=np.int64)))
+        for corners, q in zip(boxes.footprint_corners(), query):
+            _footprint(ax, corners, edgecolor=colours[q], linewidth=1.2, linestyle="--", zorder=5)
+        topdown_axis(ax, f"{method}: {len(boxes)} boxes, {len(gt)} ground truth", extent)
     handles = [Line2D([], [], color=colours[i], linestyle="--", label=q) for i, q in enumerate(queries)]
     handles.append(Line2D([], [], color="black", label="ground truth"))
-    axes[-1].legend(handles=handles, loc="upper right", fontsize=7, framealpha=0.85)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 5), fontsize=8, frameon=False)
     return save_figure(fig, path, dpi)
 
 
@@ -109,19 +110,19 @@ def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) ->
 
 
 def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans: Sequence[tuple[str, np.ndarray, float]],
-                 task: str, background: TopDownImage | None = None, dpi: int = 120) -> Path:
+                 task: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None) -> Path:
     """Like the paper's navigation figure: (a) terrain-coloured places, then one panel per plan
     given as (title, place indices, length in metres), start red, goal black, path cyan."""
-    fig, axes = new_figure(1 + len(plans), panel_size=5.5, title=f'Path planning for "{task}"')
+    fig, axes = new_figure(1 + len(plans), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
     for ax in axes:
         if background is not None:
             background.show(ax, alpha=0.2)
         draw_places(ax, sg)
-    topdown_axis(axes[0], "(a) terrain-coloured places")
+    topdown_axis(axes[0], "(a) terrain-coloured places", extent)
     terrain_legend(axes[0], sg.terrain_classes, other=None)
     for i, ((title, places, length), ax) in enumerate(zip(plans, axes[1:])):
         _draw_path(ax, sg, np.asarray(places, dtype=np.int64), start, goal)
-        topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m")
+        topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m", extent)
     handles = [Line2D([], [], marker="o", linestyle="", color=START_COLOUR, label="start"),
                Line2D([], [], marker="o", linestyle="", color=GOAL_COLOUR, label="goal"),
                Line2D([], [], color=PATH_COLOUR, label="path")]
@@ -130,12 +131,12 @@ def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans:
 
 
 def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegion], predicted: list[np.ndarray],
-                      method: str, background: TopDownImage | None = None, dpi: int = 120) -> Path:
+                      method: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None) -> Path:
     """Per named region: its polygon (black) and the places predicted for its description
     (highlighted), like the paper's region-monitoring figure."""
     n = max(len(regions), 1)
     ncols = min(n, 2)
-    fig, axes = new_figure(ncols, (n + ncols - 1) // ncols, title=f"Region monitoring ({method}): predicted places vs labelled regions")
+    fig, axes = new_figure(ncols, (n + ncols - 1) // ncols, title=f"Region monitoring ({method}): predicted places vs labelled regions", extent=extent)
     for ax in axes[len(regions):]:
         ax.set_visible(False)
     grey = np.full((len(sg.places), 3), 0.75)
@@ -146,7 +147,7 @@ def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegio
         xy = sg.places.position[np.asarray(places, dtype=np.int64)]
         ax.scatter(xy[:, 0], xy[:, 1], s=marker_size(len(sg.places)) * 1.5, c="#ff7f0e", edgecolors="black", linewidths=0.3, zorder=4)
         ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=5))
-        topdown_axis(ax, f'"{region.description}"' if len(region.description) < 60 else region.name)
+        topdown_axis(ax, f'"{region.description}"' if len(region.description) < 60 else region.name, extent)
     axes[0].legend(handles=[Patch(color="#ff7f0e", label="predicted places"), Line2D([], [], color="black", label="labelled region")],
                    loc="upper right", fontsize=7, framealpha=0.85)
     return save_figure(fig, path, dpi)

@@ -51,9 +51,18 @@ def terrain_legend(ax: Axes, terrain_classes: list[str], other: str | None = "ot
     ax.legend(handles=handles, loc=kwargs.pop("loc", "upper right"), fontsize=kwargs.pop("fontsize", 7), framealpha=0.85, **kwargs)
 
 
-def new_figure(ncols: int = 1, nrows: int = 1, panel_size: float = 5.0, title: str | None = None) -> tuple[Figure, list[Axes]]:
-    """A figure of ncols x nrows square-ish panels, detached from pyplot (no GUI, no global state)."""
-    fig = Figure(figsize=(panel_size * ncols, panel_size * nrows + (0.4 if title else 0.0)), layout="constrained")
+Extent = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax (metres, map frame)
+
+
+def new_figure(ncols: int = 1, nrows: int = 1, panel_size: float = 5.0, title: str | None = None,
+               extent: Extent | None = None) -> tuple[Figure, list[Axes]]:
+    """A figure of ncols x nrows panels `panel_size` inches wide, as tall as `extent`'s aspect
+    asks (square without one), detached from pyplot (no GUI, no global state)."""
+    aspect = 1.0
+    if extent is not None:
+        aspect = float(np.clip((extent[3] - extent[2]) / max(extent[1] - extent[0], 1e-9), 0.4, 2.0))
+    height = panel_size * aspect + 0.6  # room for the axis labels and panel title
+    fig = Figure(figsize=(panel_size * ncols, height * nrows + (0.4 if title else 0.0)), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel().tolist()
     if title:
@@ -61,14 +70,27 @@ def new_figure(ncols: int = 1, nrows: int = 1, panel_size: float = 5.0, title: s
     return fig, axes
 
 
-def topdown_axis(ax: Axes, title: str | None = None) -> None:
-    """Equal-aspect map-frame axes labelled in metres."""
-    ax.set_aspect("equal", adjustable="datalim")
+def topdown_axis(ax: Axes, title: str | None = None, extent: Extent | None = None) -> None:
+    """Equal-aspect map-frame axes labelled in metres, showing `extent` when given."""
+    if extent is not None:
+        ax.set_xlim(extent[0], extent[1])
+        ax.set_ylim(extent[2], extent[3])
+        ax.set_aspect("equal", adjustable="box")
+    else:
+        ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)", fontsize=8)
     ax.set_ylabel("y (m)", fontsize=8)
     ax.tick_params(labelsize=7)
     if title:
         ax.set_title(title, fontsize=10)
+
+
+def view_extent(*xy: np.ndarray, margin: float = 0.05) -> Extent:
+    """Extent covering all given point sets (n, >=2) with a relative margin on each side."""
+    pts = np.vstack([np.asarray(p, float)[:, :2] for p in xy if len(p)])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    pad = margin * max(float((hi - lo).max()), 1.0)
+    return (float(lo[0] - pad), float(hi[0] + pad), float(lo[1] - pad), float(hi[1] + pad))
 
 
 def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
