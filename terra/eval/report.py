@@ -170,6 +170,30 @@ def render_report(summary: dict) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
+def headline(summary: dict) -> list[str]:
+    """A few indented lines with the main figures of a summary (printed by `terra eval` and `terra demo`)."""
+    lines = []
+    seg = summary.get("segmentation", {}).get("methods", {})
+    for name, s in ordered(seg).items():
+        lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}, {s['fps']:.0f} FPS")
+    ret = summary.get("retrieval", {})
+    for name, s in ordered(ret.get("methods", {})).items():
+        lines.append(f"  retrieval {name:<7} ({ret['num_gt']} objects, {len(ret['queries'])} queries): IoU {s['iou']:.3f}, "
+                     f"RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
+    for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
+        lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, {s['runtime_ms']:.0f} ms/query")
+    mem = summary.get("memory")
+    if mem:
+        lines.append(f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² ({mem['bytes_per_m2']:.0f} B/m²)")
+    nav = summary.get("navigation", {})
+    for name, p in ordered(nav.get("plans", {})).items():
+        terr = ", ".join(f"{t} {100 * m / p['length_m']:.0f}%" for t, m in p["gt_terrain_m"].items() if p["length_m"] > 0 and m > 0)
+        lines.append(f"  path {name}: {p['length_m']:.1f} m ({terr})")
+    if nav.get("error"):
+        lines.append(f"  navigation: {nav['error']}")
+    return lines
+
+
 def write_report(out: str | Path, summary: dict) -> tuple[Path, Path]:
     """Write `out/summary.json` (canonical JSON) and `out/report.md` rendered from it."""
     out = Path(out)

@@ -1,9 +1,10 @@
 """Parameters chosen on a validation scene and applied unchanged to the test scene.
 
 `terra eval --tune` grid-searches, on a validation bundle (another simulator seed) and its ground
-truth: alpha per retrieval method (best Table II F1), and alpha (with k for Terra's hierarchies)
-per monitoring method (best Table III F1). Ties keep the first grid point (smallest alpha, then
-smallest k). The result is a small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads;
+truth: alpha per retrieval method (best Table II F1), and per monitoring method (best Table III
+F1) alpha (AIB's null-task score for "aib") with, for Terra's hierarchies, k and the number of
+region levels ranked. Ties keep the first grid point: all levels before a level cap, smallest k,
+smallest alpha. The result is a small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads;
 the test labels are never looked at while choosing.
 """
 
@@ -20,11 +21,13 @@ from terra.errors import TerraError
 from terra.eval.config import TuneEval
 
 TUNED_SCHEMA = "terra-tuned-parameters"
+TUNED = "tuned.json"  # file name written by `terra eval --tune`
 
 
 @dataclass
 class TunedParameters:
-    """alpha per retrieval method; {alpha, k} per monitoring method; where they came from."""
+    """alpha per retrieval method; {alpha, k, levels} per monitoring method; `validation`: the
+    dataset and bundle they were chosen on."""
 
     embedder: str
     retrieval: dict[str, dict] = field(default_factory=dict)
@@ -37,6 +40,10 @@ class TunedParameters:
     def monitoring_params(self, method: str) -> tuple[float | None, int | None]:
         entry = self.monitoring.get(method, {})
         return entry.get("alpha"), entry.get("k")
+
+    def monitoring_levels(self, method: str) -> int | None:
+        """Region levels ranked by `method` (None = all)."""
+        return self.monitoring.get(method, {}).get("levels")
 
     def to_json(self) -> dict:
         return {"schema": TUNED_SCHEMA, "embedder": self.embedder, "retrieval": self.retrieval,
@@ -61,6 +68,20 @@ class TunedParameters:
                        dict(data.get("validation", {})))
         except (KeyError, TypeError, ValueError) as exc:
             raise TerraError(f"{path}: malformed tuned parameters ({exc})") from None
+
+    @property
+    def validation_dataset(self) -> str:
+        """Name of the dataset the parameters were chosen on ("" when not recorded)."""
+        return str(self.validation.get("dataset", ""))
+
+    def check_not_tuned_on(self, test_dataset: str, source: str = "tuned parameters") -> None:
+        """TerraError unless the parameters record a validation scene other than `test_dataset`:
+        alpha and k must never be chosen on the labels they are scored against."""
+        if not self.validation_dataset:
+            raise TerraError(f"{source}: field 'validation.dataset' is missing; tune again with `terra eval --tune`")
+        if self.validation_dataset == test_dataset:
+            raise TerraError(f"{source} were tuned on {test_dataset!r}, the scene under test; "
+                             "tune on a validation scene (another seed) instead")
 
     def check_embedder(self, embedder: str, source: str = "tuned parameters") -> None:
         if self.embedder != embedder:

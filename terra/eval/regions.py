@@ -1,0 +1,128 @@
+"""Table III: region monitoring of the simulator's named regions, one query per region (its
+one-sentence description), scored over place sets (terra.eval.metrics.regions).
+
+Terra's methods query a region hierarchy (spectral or agglomerative, built on the bundle's
+places); AIB clusters the places layer per query. `runtime_ms` is the mean wall time of one
+query; for the hierarchies the one-off build time is reported separately as `build_ms`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from terra.datasets.ground_truth import NamedRegion
+from terra.eval.metrics.regions import SetScores, micro_scores, places_in_polygon, set_scores
+from terra.graph.scene_graph import SceneGraph
+from terra.perception.text import TextEmbedder
+
+
+def region_truth(graph: SceneGraph, regions: list[NamedRegion]) -> list[np.ndarray]:
+    """Per named region, the places whose xy lies inside its polygon."""
+    return [places_in_polygon(graph.places.position, r.polygon) for r in regions]
+
+
+@dataclass
+class MonitoringRun:
+    """One method over every region query: predicted places, scores and timing."""
+
+    predicted: list[np.ndarray]
+    scores: list[SetScores]
+    seconds: float
+    build_seconds: float | None = None
+    parameters: dict = field(default_factory=dict)
+
+    @property
+    def total(self) -> SetScores:
+        return micro_scores(self.scores)
+
+    def to_json(self, label: str) -> dict:
+        total = self.total
+        out = {
+            "label": label,
+            **total.to_json(),
+            "runtime_ms": 1000.0 * self.seconds / max(len(self.scores), 1),
+            "parameters": ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.parameters.items()),
+            "per_query": [s.to_json() for s in self.scores],
+        }
+        if self.build_seconds is not None:
+            out["build_ms"] = 1000.0 * self.build_seconds
+        return out
+
+
+@dataclass(frozen=True)
+class MonitorParams:
+    """Parameters of one monitoring method. alpha: place cosine threshold ("mix"/"thresh"), or the
+    null-task score for "aib"; k: regions kept; levels: only region levels 1..levels are ranked
+    (None = all), so the coarse top levels, which often span the whole map, can be left out."""
+
+    alpha: float | None = None
+    k: int | None = None
+    levels: int | None = None
+
+    def to_json(self) -> dict:
+        return {k: v for k, v in (("alpha", self.alpha), ("k", self.k), ("levels", self.levels)) if v is not None}
+
+
+def up_to_level(graph: SceneGraph, levels: int | None) -> SceneGraph:
+    """`graph` with only its region levels 1..levels (all when None)."""
+    from dataclasses import replace
+
+    if levels is None or levels >= len(graph.regions):
+        return graph
+    return replace(graph, regions=graph.regions[:levels])
+
+
+def aib_config(tasks_config, embedder: str, null_score: float):
+    """The tasks configuration with AIB's null-task score set to `null_score` for `embedder`
+    (monitor_region reads AIB's threshold from the configuration, not from alpha)."""
+    from terra.tasks.config import TasksConfig
+
+    cfg = tasks_config or TasksConfig()
+    aib = cfg.monitoring.aib.model_copy(update={"null_score": {**cfg.monitoring.aib.null_score, embedder: float(null_score)}})
+    return cfg.model_copy(update={"monitoring": cfg.monitoring.model_copy(update={"aib": aib})})
+
+
+def run_monitoring(graph: SceneGraph, regions: list[NamedRegion], truth: list[np.ndarray], method: str, params: MonitorParams,
+                   embedder: TextEmbedder, tasks_config=None) -> MonitoringRun:
+    """Monitor every region's description with `method` ("mix", "max", "thresh" or "aib")."""
+    from terra.tasks.monitoring import monitor_region
+
+    if method == "aib":
+        if params.alpha is not None:
+            tasks_config = aib_config(tasks_config, embedder.name, params.alpha)
+        params = MonitorParams(params.alpha)
+    else:
+        graph = up_to_level(graph, params.levels)
+    predicted = []
+    start = time.perf_counter()
+    for region in regions:
+        result = monitor_region(graph, region.description, method=method, k=params.k, alpha=params.alpha, embedder=embedder,
+                                config=tasks_config)
+        predicted.append(np.asarray(result.places, dtype=np.int64))
+    seconds = time.perf_counter() - start
+    scores = [set_scores(p, t) for p, t in zip(predicted, truth)]
+    return MonitoringRun(predicted, scores, seconds, parameters=params.to_json())
+
+
+def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph, float]:
+    """`graph` with its region levels rebuilt by `method` ("spectral" or "agglomerative") on the
+    same places, using the bundle's recorded build configuration otherwise; returns the graph and
+    the seconds the region construction took."""
+    from dataclasses import replace
+
+    from terra.graph.config import BuildConfig
+    from terra.graph.pipeline import region_assignments
+    from terra.graph.regions import build_levels
+
+    recorded = bundle.manifest.get("components", {}).get("graph", {}).get("config") or {}
+    config = BuildConfig.model_validate(recorded)
+    config = config.model_copy(update={"regions": config.regions.model_copy(update={"method": method})})
+    places = graph.places
+    start = time.perf_counter()
+    assignments = region_assignments(places.position, places.embedding, places.terrain, graph.place_edges, config)
+    levels = build_levels(assignments, places.position, places.embedding)
+    seconds = time.perf_counter() - start
+    return replace(graph, regions=levels, region_method=method), seconds

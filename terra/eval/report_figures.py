@@ -1,0 +1,68 @@
+"""The report's figures, drawn from the evaluation's inputs and results (terra.viz.figures)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from terra.eval.config import EvalConfig
+from terra.eval.regions import MonitoringRun
+from terra.eval.retrieval import RetrievalRun, RetrievalTask
+from terra.viz import figures
+from terra.viz.raster import terrain_points_image
+from terra.viz.style import view_extent
+
+if TYPE_CHECKING:
+    from terra.eval.runner import EvalInputs
+
+FIGURES = "figures"
+
+
+def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: RetrievalTask, retrieval: dict[str, RetrievalRun],
+                  monitoring: dict[str, MonitoringRun], config: EvalConfig) -> dict[str, str]:
+    """Write every figure under out/figures/; returns {title: path relative to out}."""
+    folder = Path(out) / FIGURES
+    dpi = config.dpi
+    msm, graph = inputs.msm, inputs.graph
+    background = terrain_points_image(msm.points, msm.terrain_index(), msm.terrain_classes, cell=msm.voxel_size)
+    # Show the evaluated world (the ground-truth raster), not every far LiDAR return.
+    raster = inputs.gt.terrain
+    extent = view_extent(raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution, margin=0.03)
+    written: dict[str, Path] = {}
+    written["Terrain map vs ground truth"] = figures.terrain_map_figure(folder / "1_terrain_map.png", msm.terrain_classes, background,
+                                                                        inputs.gt, dpi, extent)
+    written["Places layer by terrain"] = figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)
+    for method in ("spectral", "agglomerative"):
+        if method in inputs.hierarchies:
+            written[f"Region levels ({method})"] = figures.region_levels_figure(folder / f"3_regions_{method}.png", inputs.hierarchies[method][0],
+                                                                                background, dpi, extent)
+    if not any(t.startswith("Region levels") for t in written) and graph.regions:
+        written["Region levels"] = figures.region_levels_figure(folder / "3_regions.png", graph, background, dpi, extent)
+    if retrieval:
+        gt_boxes, gt_query = task.gt_boxes()
+        predictions = {m: (run.boxes, run.query) for m, run in retrieval.items()}
+        written["Retrieved boxes vs ground truth"] = figures.boxes_figure(folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query,
+                                                                          background, dpi, extent)
+    best = _best_terra_hierarchy(monitoring)
+    if best is not None:
+        graph_m = inputs.hierarchies[best][0] if best in inputs.hierarchies else graph
+        written[f"Region monitoring ({best})"] = figures.monitoring_figure(folder / "5_monitoring.png", graph_m, inputs.gt.regions,
+                                                                           monitoring[best].predicted, best, background, dpi, extent)
+    nav = summary.get("navigation", {})
+    if "plans" in nav:
+        plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in nav["plans"].items()]
+        written["Terrain-aware navigation"] = figures.paths_figure(folder / "6_paths.png", graph, nav["start_place"], nav["goal_place"],
+                                                                   plans, nav["task"], background, dpi, extent)
+    mem = summary["memory"]
+    written["Memory"] = figures.memory_figure(folder / "7_memory.png", [(inputs.bundle.path.name, mem["components_bytes"], mem["area_m2"])], dpi)
+    return {title: path.relative_to(out).as_posix() for title, path in written.items()}
+
+
+def _best_terra_hierarchy(monitoring: dict[str, MonitoringRun]) -> str | None:
+    """The Terra hierarchy with the best F1 (first on ties), else any monitoring method run."""
+    candidates = [m for m in ("spectral", "agglomerative") if m in monitoring] or list(monitoring)
+    if not candidates:
+        return None
+    return max(candidates, key=lambda m: (monitoring[m].total.f1, -candidates.index(m)))
