@@ -1,0 +1,379 @@
+"""`terra demo`: the whole system on a simulated campus, with every step cached so that a second
+run (or a run after an interruption) resumes where the last one stopped.
+
+Steps, each calling the library in-process: simulate the test scene (`preset`, `seed`) and a
+validation scene (same preset by default, seed + 1, frames twice as far apart to halve its cost;
+see DemoConfig), map both, build both scene graphs, choose alpha
+and k on the validation scene (`terra eval --tune`), run the demo tasks on the test scene with
+those parameters, and evaluate the test scene with them, unchanged (`terra eval --tuned`).
+
+Layout of the demo folder:
+
+    <preset>-seed<seed>/dataset/        the simulated test scene (as `terra sim` writes it)
+    <preset>-seed<seed>/map.terra/      its map and scene graph
+    validation-<preset>-seed<seed+1>/   the validation scene: dataset/, map.terra/, tuned.json
+    report/                             the evaluation report (report.md, summary.json, figures/)
+    demo.json                           the demo tasks' results (what `terra demo` prints)
+    .cache/<step>.json                  the key each finished step was made with
+
+A step's key holds Terra's version, the preset and seed, its configuration and the keys of the
+steps it reads; a step is redone when its key changed or its output is missing. Stamps are
+written after the output is complete, and every output is written atomically, so an interrupted
+step is simply redone (mapping itself resumes from its checkpoint).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from terra import __version__
+from terra.bundle import atomic_write_bytes, dumps_json
+from terra.config import Section
+from terra.datasets.ground_truth import GroundTruth, load_ground_truth
+from terra.errors import TerraError
+from terra.eval.config import EvalConfig
+from terra.eval.metrics.regions import places_in_polygon, set_scores
+from terra.eval.tuning import TUNED, TunedParameters
+from terra.graph.config import BuildConfig
+from terra.graph.scene_graph import SceneGraph
+from terra.mapping.config import MappingConfig
+from terra.progress import StageTimer
+from terra.sim.config import SimConfig
+from terra.tasks.config import TasksConfig
+
+FIND_QUERIES = ("Get bike from the bicycle rack", "Find the dumpster")
+MONITOR_QUERY = "Large parking lot surrounded by buildings"
+PLAN_TARGET = "Get bike from the bicycle rack"
+PLAN_PREFER = ("sidewalk",)
+DEMO_JSON = "demo.json"
+REPORT_DIR = "report"
+
+
+@dataclass
+class DemoConfig:
+    """What the demo runs: the test scene (preset, seed), the validation scene (validation_preset,
+    seed + 1, frames `validation_spacing` times further apart than the test scene's, which makes
+    it about that much cheaper to simulate and map while covering the same kind of campus), and
+    each stage's configuration section."""
+
+    preset: str = "small"
+    seed: int = 0
+    validation_preset: str | None = None  # None: the test scene's preset
+    validation_spacing: float = 2.0
+    sim: SimConfig = field(default_factory=SimConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    build: BuildConfig = field(default_factory=BuildConfig)
+    tasks: TasksConfig = field(default_factory=TasksConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    @classmethod
+    def load(cls, path: Path | None, preset: str, seed: int, validation_preset: str | None = None,
+             validation_spacing: float = 2.0) -> "DemoConfig":
+        """Sections from a YAML file (defaults without one); TerraError for a bad argument."""
+        from terra.config import load_section
+        from terra.sim.presets import get_preset
+
+        get_preset(preset)
+        get_preset(validation_preset or preset)
+        if seed < 0:
+            raise TerraError(f"--seed must be a non-negative integer, got {seed}")
+        if not validation_spacing >= 1.0:
+            raise TerraError(f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}")
+        sections = {s: load_section(path, s) for s in ("sim", "mapping", "build", "tasks", "eval")}
+        return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), **sections)
+
+    @property
+    def validation_seed(self) -> int:
+        return self.seed + 1
+
+    def validation_sim(self) -> SimConfig:
+        """The validation scene's simulator configuration: frames validation_spacing x further apart."""
+        from terra.sim.presets import get_preset
+
+        route = self.sim.route
+        spacing = (route.frame_spacing or get_preset(self.validation_preset).spacing) * self.validation_spacing
+        return self.sim.model_copy(update={"route": route.model_copy(update={"frame_spacing": spacing})})
+
+
+def _dump(section: Section) -> dict:
+    return section.model_dump(mode="json")
+
+
+class StepCache:
+    """Stamps of finished steps under `root/.cache`: a step is fresh when its stamp holds the same
+    key and its outputs exist."""
+
+    def __init__(self, root: Path) -> None:
+        self.folder = Path(root) / ".cache"
+
+    def _stamp(self, step: str) -> Path:
+        return self.folder / (re.sub(r"[^a-z0-9]+", "-", step.lower()).strip("-") + ".json")
+
+    def fresh(self, step: str, key: dict, *outputs: Path) -> bool:
+        stamp = self._stamp(step)
+        try:
+            return all(p.exists() for p in outputs) and stamp.read_text() == dumps_json(key)
+        except OSError:
+            return False
+
+    def done(self, step: str, key: dict) -> None:
+        atomic_write_bytes(self._stamp(step), dumps_json(key).encode())
+
+
+@dataclass
+class Scene:
+    """A simulated scene's dataset folder, its bundle, and the key of its last finished step."""
+
+    label: str
+    dataset: Path
+    bundle: Path
+    key: dict
+
+
+class DemoRun:
+    """Runs the demo's steps into `out`, recording each step's time (`timer`) and whether it ran
+    or came from the cache (`steps`)."""
+
+    def __init__(self, out: str | Path, config: DemoConfig, show_progress: bool = True,
+                 log: Callable[[str], None] | None = None) -> None:
+        self.out = Path(out)
+        self.config = config
+        self.show_progress = show_progress
+        self.log = log or (lambda line: None)
+        self.cache = StepCache(self.out)
+        self.timer = StageTimer()
+        self.steps: dict[str, str] = {}
+
+    def step(self, name: str, key: dict, outputs: tuple[Path, ...], work: Callable[[], None], timed: bool = True) -> None:
+        """Run `work` unless the step is fresh; stamp it when done. `timed=False` for work that
+        records its own stages in self.timer."""
+        if self.cache.fresh(name, key, *outputs):
+            self.steps[name] = "cached"
+            self.timer.add(f"{name} (cached)", 0.0)
+            return
+        self.log(f"{name} ...")
+        if timed:
+            with self.timer.stage(name):
+                work()
+        else:
+            work()
+        self.cache.done(name, key)
+        self.steps[name] = "ran"
+
+    # ------------------------------------------------------------------ scenes
+
+    def scene(self, label: str, folder: str, preset: str, seed: int, sim: SimConfig) -> Scene:
+        """Simulate, map and build the graph of one scene (each step cached)."""
+        from terra.datasets import open_dataset
+        from terra.graph.pipeline import build_graph
+        from terra.mapping.pipeline import build_map
+        from terra.sim import simulate
+        from terra.sim.writer import write_dataset
+
+        cfg = self.config
+        root = self.out / folder
+        dataset, bundle = root / "dataset", root / "map.terra"
+        root.mkdir(parents=True, exist_ok=True)
+        sim_key = {"terra": __version__, "preset": preset, "seed": seed, "sim": _dump(sim)}
+        self.step(f"{label}: simulate", sim_key, (dataset,),
+                  lambda: write_dataset(simulate(preset, seed, sim), dataset, overwrite=True, progress=self.show_progress))
+        map_key = {"dataset": sim_key, "mapping": _dump(cfg.mapping)}
+        self.step(f"{label}: map", map_key, (bundle,),
+                  lambda: build_map(open_dataset(dataset), cfg.mapping, bundle, progress=self.show_progress))
+        graph_key = {"map": map_key, "build": _dump(cfg.build)}
+        self.step(f"{label}: graph", graph_key, (bundle,), lambda: build_graph(bundle, cfg.build, progress=self.show_progress))
+        return Scene(label, dataset, bundle, graph_key)
+
+    # ------------------------------------------------------------------ the whole demo
+
+    def run(self) -> dict:
+        """Every step; returns the demo summary (demo.json) with the evaluation's summary under
+        `evaluation`."""
+        from terra.eval.report import SUMMARY
+
+        cfg = self.config
+        self.out.mkdir(parents=True, exist_ok=True)
+        test = self.scene("test", f"{cfg.preset}-seed{cfg.seed}", cfg.preset, cfg.seed, cfg.sim)
+        val = self.scene("validation", f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}",
+                         cfg.validation_preset, cfg.validation_seed, cfg.validation_sim())
+        tuned_path = val.bundle.parent / TUNED
+        tune_key = {"scene": val.key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks)}
+        self.step("validation: tune alpha and k", tune_key, (tuned_path,), lambda: self._tune(val, tuned_path))
+        tuned = TunedParameters.load(tuned_path)
+
+        report = self.out / REPORT_DIR
+        demo_json = self.out / DEMO_JSON
+        eval_key = {"scene": test.key, "tuned": tune_key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks),
+                    "queries": [list(FIND_QUERIES), MONITOR_QUERY, PLAN_TARGET, list(PLAN_PREFER)]}
+        self.step("test: tasks and evaluation", eval_key, (report / SUMMARY, demo_json),
+                  lambda: self._tasks_and_eval(test, tuned, report, demo_json), timed=False)
+        demo = json.loads(demo_json.read_text())
+        demo["evaluation"] = json.loads((report / SUMMARY).read_text())
+        return demo
+
+    def _tune(self, scene: Scene, path: Path) -> None:
+        from terra.eval.runner import EvalInputs, tune
+
+        tune(EvalInputs.load(scene.bundle, scene.dataset), self.config.eval, self.config.tasks).save(path)
+
+    def _tasks_and_eval(self, scene: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
+        from terra.eval.runner import evaluate
+
+        with self.timer.stage("test: tasks"):
+            tasks = run_tasks(scene.bundle, load_ground_truth(scene.dataset), tuned, self.config.tasks)
+        evaluate(scene.bundle, scene.dataset, report, self.config.eval, tuned, self.config.tasks,
+                 show_progress=self.show_progress, timer=self.timer)
+        cfg = self.config
+        demo = {
+            "test_scene": {"preset": cfg.preset, "seed": cfg.seed, "dataset": _rel(scene.dataset, self.out),
+                           "bundle": _rel(scene.bundle, self.out)},
+            "validation_scene": {"preset": cfg.validation_preset, "seed": cfg.validation_seed,
+                                 "frame_spacing_factor": cfg.validation_spacing, "dataset_name": tuned.validation_dataset},
+            "parameters": {"retrieval": tuned.retrieval, "monitoring": tuned.monitoring},
+            "tasks": tasks,
+            "report": _rel(report / "report.md", self.out),
+        }
+        atomic_write_bytes(demo_json, dumps_json(demo).encode())
+
+
+def _rel(path: Path, root: Path) -> str:
+    return Path(path).relative_to(root).as_posix()
+
+
+# ---------------------------------------------------------------------- the demo tasks
+
+
+def gt_class_of(query: str, gt: GroundTruth) -> str | None:
+    """The ground-truth object class a query names: the longest class name in its text."""
+    text = query.lower()
+    names = sorted({o.class_name for o in gt.objects}, key=lambda n: (-len(n), n))
+    return next((n for n in names if n.lower() in text), None)
+
+
+def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | None) -> dict | None:
+    """The ground-truth object of `class_name` nearest (2-D, metres) to `center`."""
+    objects = [o for o in gt.objects if o.class_name == class_name]
+    if not objects:
+        return None
+    xy = np.array([o.center[:2] for o in objects])
+    d = np.linalg.norm(xy - np.asarray(center, float)[:2], axis=1)
+    i = int(np.argmin(d))
+    return {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center], "distance_m": round(float(d[i]), 4)}
+
+
+def _find(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig, embedder) -> list[dict]:
+    from terra.tasks.commands import find_report
+
+    method = config.retrieval.method
+    report = find_report(bundle, FIND_QUERIES, method=method, alpha=tuned.retrieval_alpha(method), config=config, embedder=embedder)
+    out = []
+    for q, query in enumerate(report["queries"]):
+        mine = [o for o in report["objects"] if o["query"] == q]
+        best = max(mine, key=lambda o: o["score"], default=None)
+        entry: dict[str, Any] = {"query": query, "method": method, "alpha": report["alpha"], "objects": len(mine), "best": best}
+        if best is not None:
+            entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt))
+        out.append(entry)
+    return out
+
+
+def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig, embedder) -> dict:
+    from terra.eval.regions import MonitorParams, aib_config, up_to_level
+    from terra.tasks.monitoring import monitor_region
+
+    method = config.monitoring.method
+    if method == "aib":
+        alpha, _ = tuned.monitoring_params("aib")
+        params = MonitorParams(alpha)
+        if alpha is not None:
+            config = aib_config(config, embedder.name, alpha)
+    else:
+        alpha, k = tuned.monitoring_params(graph.region_method)
+        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method))
+        graph = up_to_level(graph, params.levels)
+    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config)
+    places = np.asarray(result.places, dtype=np.int64)
+    entry: dict[str, Any] = {"query": MONITOR_QUERY, "method": method, "parameters": params.to_json(),
+                             "regions": len(result.regions), "places": int(len(places))}
+    if gt.regions:
+        # Score against the labelled region whose description reads most like the query.
+        cos = embedder.embed_text([r.description for r in gt.regions]) @ embedder.embed_text([MONITOR_QUERY])[0]
+        region = gt.regions[int(np.argmax(cos))]
+        scores = set_scores(places, places_in_polygon(graph.places.position, region.polygon))
+        entry["labelled_region"] = {"name": region.name, "description": region.description,
+                                    "precision": scores.precision, "recall": scores.recall, "gt_places": scores.tp + scores.fn}
+    return entry
+
+
+def _plan(bundle: Path, tuned: TunedParameters, config: TasksConfig, embedder) -> dict:
+    from terra.tasks.commands import plan_report
+
+    method = config.planning.find_method
+    entry: dict[str, Any] = {"to": PLAN_TARGET, "prefer": list(PLAN_PREFER), "method": method}
+    try:
+        plan = plan_report(bundle, to=PLAN_TARGET, prefer=PLAN_PREFER, method=method, alpha=tuned.retrieval_alpha(method),
+                           config=config, embedder=embedder)
+    except TerraError as exc:  # no object or no path: the demo reports it and goes on
+        return {**entry, "error": str(exc)}
+    entry.update({"length_m": plan["length_m"], "places": len(plan["places"]),
+                  "length_by_terrain": plan["length_by_terrain"], "goal": plan["goal"]["object"]["center"]})
+    return entry
+
+
+def run_tasks(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> dict:
+    """The demo's tasks on `bundle` with the tuned parameters (as `terra find/monitor/plan` run them)."""
+    from terra.tasks.context import open_for_tasks
+
+    ctx = open_for_tasks(bundle, config, need_map=False, need_graph=True)
+    graph, embedder = ctx.require_graph("terra demo"), ctx.embedder
+    return {"find": _find(bundle, gt, tuned, config, embedder), "monitor": _monitor(graph, gt, tuned, config, embedder),
+            "plan": _plan(bundle, tuned, config, embedder)}
+
+
+# ---------------------------------------------------------------------- the printed summary
+
+
+def _shares(by_terrain: dict[str, float], length: float) -> str:
+    return ", ".join(f"{t} {100 * m / length:.0f}%" for t, m in sorted(by_terrain.items(), key=lambda kv: -kv[1])
+                     if length > 0 and m > 0)
+
+
+def format_demo(demo: dict, out: Path) -> list[str]:
+    """The lines `terra demo` prints: what was found and where, the plan, the key table figures."""
+    from terra.eval.report import headline
+
+    t, v = demo["test_scene"], demo["validation_scene"]
+    lines = [f"terra demo: {t['preset']} campus, seed {t['seed']} (parameters tuned on {v['preset']} campus, seed {v['seed']})"]
+    for f in demo["tasks"]["find"]:
+        if f["best"] is None:
+            lines.append(f"  find {f['query']!r}: nothing found ({f['method']}, alpha {f['alpha']:.2f})")
+            continue
+        c = f["best"]["center"]
+        line = f"  find {f['query']!r}: object at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) m, score {f['best']['score']:.2f}"
+        if f.get("nearest_gt"):
+            line += f"; nearest true {f['nearest_gt']['class']} {f['nearest_gt']['distance_m']:.1f} m away"
+        lines.append(line)
+    m = demo["tasks"]["monitor"]
+    params = ", ".join(f"{k} {v:g}" for k, v in m["parameters"].items())
+    line = f"  monitor {m['query']!r}: {m['places']} places in {m['regions']} regions ({m['method']}, {params})"
+    if "labelled_region" in m:
+        r = m["labelled_region"]
+        line += f"; against labelled region {r['name']!r}: precision {r['precision']:.2f}, recall {r['recall']:.2f}"
+    lines.append(line)
+    p = demo["tasks"]["plan"]
+    if "error" in p:
+        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['error']}")
+    else:
+        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {p['places']} places "
+                     f"({_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
+    ev = demo["evaluation"]
+    lines.append(f"  evaluation ({ev['parameters']['source']}):")
+    lines += ["  " + h for h in headline(ev)]
+    lines.append(f"report: {out / demo['report']}")
+    return lines
