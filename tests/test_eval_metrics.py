@@ -119,6 +119,8 @@ def test_region_precision_recall_on_a_square():
     xy = np.array([[1, 1], [5, 5], [9, 9], [11, 5], [-1, -1], [5, 12]])
     truth = places_in_polygon(xy, square)
     assert truth.tolist() == [0, 1, 2]
+    # The polygon is closed: places on an edge or a corner belong to the region.
+    assert places_in_polygon(np.array([[0.0, 5.0], [10.0, 10.0], [10.000001, 5.0]]), square).tolist() == [0, 1]
     s = set_scores([1, 2, 3, 4, 4], truth)
     assert (s.tp, s.fp, s.fn) == (2, 2, 1)
     assert (s.precision, s.recall, s.f1) == pytest.approx((0.5, 2 / 3, 4 / 7))

@@ -1,7 +1,8 @@
 """Region monitoring metrics (the paper's Table III): precision, recall and F1 over place sets.
 
-The ground-truth set of a named region is the places whose map-frame xy lies inside its polygon
-(boundary excluded). Scores are micro-averaged over queries: true positives, false positives and
+The ground-truth set of a named region is the places whose map-frame xy lies in its closed
+polygon: the boundary counts, because the simulator's region polygons and the places derived from
+its grid-aligned terrain often share coordinates, and a place on a region's edge belongs to it. Scores are micro-averaged over queries: true positives, false positives and
 false negatives are summed over all queries before the ratios are taken.
 """
 
@@ -17,11 +18,12 @@ from terra.eval.metrics.retrieval import f1_score
 
 
 def places_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside `polygon` (K, 2)."""
+    """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside or on the boundary
+    of `polygon` (K, 2)."""
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) == 0:
         return np.zeros(0, dtype=np.int64)
-    inside = shapely.contains_xy(shapely.Polygon(np.asarray(polygon, float)), xy[:, 0], xy[:, 1])
+    inside = shapely.intersects_xy(shapely.Polygon(np.asarray(polygon, float)), xy[:, 0], xy[:, 1])
     return np.flatnonzero(inside)
 
 
