@@ -41,7 +41,7 @@ def demo_command(
                   log=None if quiet or as_json else (lambda line: typer.echo(line, err=True)))
     demo = run.run()
     if as_json:
-        typer.echo(json.dumps({**demo, "steps": run.steps}, indent=1, sort_keys=True))
+        typer.echo(json.dumps({**demo, "steps": run.steps, "timing": run.timer.to_json()}, indent=1, sort_keys=True))
         return
     for line in format_demo(demo, Path(out)):
         typer.echo(line)

@@ -212,7 +212,7 @@ class DemoRun:
         eval_key = {"scene": test.key, "tuned": tune_key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks),
                     "queries": [list(FIND_QUERIES), MONITOR_QUERY, PLAN_TARGET, list(PLAN_PREFER)]}
         self.step("test: tasks and evaluation", eval_key, (report / SUMMARY, demo_json),
-                  lambda: self._tasks_and_eval(test, tuned, report, demo_json), timed=False)
+                  lambda: self._tasks_and_eval(test, val, tuned, report, demo_json), timed=False)
         demo = json.loads(demo_json.read_text())
         demo["evaluation"] = json.loads((report / SUMMARY).read_text())
         return demo
@@ -222,7 +222,7 @@ class DemoRun:
 
         tune(EvalInputs.load(scene.bundle, scene.dataset), self.config.eval, self.config.tasks).save(path)
 
-    def _tasks_and_eval(self, scene: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
+    def _tasks_and_eval(self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
         from terra.eval.runner import evaluate
 
         with self.timer.stage("test: tasks"):
@@ -231,15 +231,22 @@ class DemoRun:
                  show_progress=self.show_progress, timer=self.timer)
         cfg = self.config
         demo = {
-            "test_scene": {"preset": cfg.preset, "seed": cfg.seed, "dataset": _rel(scene.dataset, self.out),
+            "test_scene": {"preset": cfg.preset, "seed": cfg.seed, "frames": _frames(scene.dataset), "dataset": _rel(scene.dataset, self.out),
                            "bundle": _rel(scene.bundle, self.out)},
             "validation_scene": {"preset": cfg.validation_preset, "seed": cfg.validation_seed,
+                                 "frames": _frames(validation.dataset),
                                  "frame_spacing_factor": cfg.validation_spacing, "dataset_name": tuned.validation_dataset},
             "parameters": {"retrieval": tuned.retrieval, "monitoring": tuned.monitoring},
             "tasks": tasks,
             "report": _rel(report / "report.md", self.out),
         }
         atomic_write_bytes(demo_json, dumps_json(demo).encode())
+
+
+def _frames(dataset: Path) -> int:
+    from terra.datasets import open_dataset
+
+    return len(open_dataset(dataset))
 
 
 def _rel(path: Path, root: Path) -> str:
@@ -339,14 +346,9 @@ def run_tasks(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: Tas
 # ---------------------------------------------------------------------- the printed summary
 
 
-def _shares(by_terrain: dict[str, float], length: float) -> str:
-    return ", ".join(f"{t} {100 * m / length:.0f}%" for t, m in sorted(by_terrain.items(), key=lambda kv: -kv[1])
-                     if length > 0 and m > 0)
-
-
 def format_demo(demo: dict, out: Path) -> list[str]:
     """The lines `terra demo` prints: what was found and where, the plan, the key table figures."""
-    from terra.eval.report import headline
+    from terra.eval.report import headline, terrain_shares
 
     t, v = demo["test_scene"], demo["validation_scene"]
     lines = [f"terra demo: {t['preset']} campus, seed {t['seed']} (parameters tuned on {v['preset']} campus, seed {v['seed']})"]
@@ -371,7 +373,7 @@ def format_demo(demo: dict, out: Path) -> list[str]:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['error']}")
     else:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {p['places']} places "
-                     f"({_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
+                     f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
     ev = demo["evaluation"]
     lines.append(f"  evaluation ({ev['parameters']['source']}):")
     lines += ["  " + h for h in headline(ev)]

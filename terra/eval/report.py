@@ -170,6 +170,13 @@ def render_report(summary: dict) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
+def terrain_shares(by_terrain: dict[str, float], length: float) -> str:
+    """"sidewalk 60%, grass 40%": each terrain's share of a path's length (metres), largest first."""
+    if length <= 0:
+        return "no length"
+    return ", ".join(f"{t} {100 * m / length:.0f}%" for t, m in sorted(by_terrain.items(), key=lambda kv: (-kv[1], kv[0])) if m > 0)
+
+
 def headline(summary: dict) -> list[str]:
     """A few indented lines with the main figures of a summary (printed by `terra eval` and `terra demo`)."""
     lines = []
@@ -187,8 +194,7 @@ def headline(summary: dict) -> list[str]:
         lines.append(f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² ({mem['bytes_per_m2']:.0f} B/m²)")
     nav = summary.get("navigation", {})
     for name, p in ordered(nav.get("plans", {})).items():
-        terr = ", ".join(f"{t} {100 * m / p['length_m']:.0f}%" for t, m in p["gt_terrain_m"].items() if p["length_m"] > 0 and m > 0)
-        lines.append(f"  path {name}: {p['length_m']:.1f} m ({terr})")
+        lines.append(f"  path {name}: {p['length_m']:.1f} m ({terrain_shares(p['gt_terrain_m'], p['length_m'])})")
     if nav.get("error"):
         lines.append(f"  navigation: {nav['error']}")
     return lines

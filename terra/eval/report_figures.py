@@ -9,6 +9,7 @@ import numpy as np
 
 from terra.eval.config import EvalConfig
 from terra.eval.regions import MonitoringRun
+from terra.eval.report import ordered, terrain_shares
 from terra.eval.retrieval import RetrievalRun, RetrievalTask
 from terra.viz import figures
 from terra.viz.raster import terrain_points_image
@@ -52,9 +53,11 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
                                                                            monitoring[best].predicted, best, background, dpi, extent)
     nav = summary.get("navigation", {})
     if "plans" in nav:
-        plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in nav["plans"].items()]
+        ordered_plans = ordered(nav["plans"])
+        plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in ordered_plans.items()]
+        notes = ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in ordered_plans.values()]
         written["Terrain-aware navigation"] = figures.paths_figure(folder / "6_paths.png", graph, nav["start_place"], nav["goal_place"],
-                                                                   plans, nav["task"], background, dpi, extent)
+                                                                   plans, nav["task"], background, dpi, extent, notes)
     mem = summary["memory"]
     written["Memory"] = figures.memory_figure(folder / "7_memory.png", [(inputs.bundle.path.name, mem["components_bytes"], mem["area_m2"])], dpi)
     return {title: path.relative_to(out).as_posix() for title, path in written.items()}

@@ -64,7 +64,8 @@ def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownIm
         draw_places(ax, sg, colours=region_colours(assignment, seed=level), edges=False)
         centres = sg.regions[level - 1].position
         ax.scatter(centres[:, 0], centres[:, 1], marker="x", c="black", s=25, linewidths=1.0, zorder=3)
-        topdown_axis(ax, f"level {level}: {len(sg.regions[level - 1])} regions", extent)
+        n = len(sg.regions[level - 1])
+        topdown_axis(ax, f"level {level}: {n} region{'s' if n != 1 else ''}", extent)
     return save_figure(fig, path, dpi)
 
 
@@ -110,9 +111,11 @@ def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) ->
 
 
 def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans: Sequence[tuple[str, np.ndarray, float]],
-                 task: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None) -> Path:
+                 task: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None,
+                 notes: Sequence[str] | None = None) -> Path:
     """Like the paper's navigation figure: (a) terrain-coloured places, then one panel per plan
-    given as (title, place indices, length in metres), start red, goal black, path cyan."""
+    given as (title, place indices, length in metres), start red, goal black, path cyan.
+    `notes`: one line per plan shown under its title (e.g. its terrain shares)."""
     fig, axes = new_figure(1 + len(plans), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
     for ax in axes:
         if background is not None:
@@ -122,7 +125,8 @@ def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans:
     terrain_legend(axes[0], sg.terrain_classes, other=None)
     for i, ((title, places, length), ax) in enumerate(zip(plans, axes[1:])):
         _draw_path(ax, sg, np.asarray(places, dtype=np.int64), start, goal)
-        topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m", extent)
+        note = f"\n{notes[i]}" if notes is not None and notes[i] else ""
+        topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m{note}", extent)
     handles = [Line2D([], [], marker="o", linestyle="", color=START_COLOUR, label="start"),
                Line2D([], [], marker="o", linestyle="", color=GOAL_COLOUR, label="goal"),
                Line2D([], [], color=PATH_COLOUR, label="path")]
