@@ -28,7 +28,7 @@ def read_classes(root: Path) -> ClassTable | None:
     if not path.is_file():
         return None
     try:
-        return ClassTable.from_json(json.loads(path.read_text())["classes"])
+        return ClassTable.from_json(read_json(path)["classes"])
     except (ValueError, KeyError, TypeError) as exc:
         raise TerraError(f"{path}: malformed class table ({exc})") from None
 
@@ -56,8 +56,14 @@ def write_label_png(path: Path, labels: np.ndarray) -> None:
 
 def read_label_png(path: Path) -> np.ndarray:
     """(H, W) int32 ids from a 16-bit (or 8-bit) PNG."""
-    with Image.open(path) as im:
-        return np.asarray(im).astype(np.int32)
+    try:
+        with Image.open(path) as im:
+            labels = np.asarray(im)
+    except OSError as exc:
+        raise TerraError(f"{path}: unreadable label image ({exc})") from None
+    if labels.ndim != 2:
+        raise TerraError(f"{path}: expected a single-channel label image, got shape {labels.shape}")
+    return labels.astype(np.int32)
 
 
 def write_rgb(path: Path, image: np.ndarray, quality: int = 92) -> None:
@@ -92,8 +98,27 @@ def stamp_of(path: Path) -> float:
         raise TerraError(f"{path}: expected a name ending in _<seconds>, e.g. lidar_pc_12.000000.npy") from None
 
 
-def load_npy(path: Path) -> np.ndarray:
+def load_npy(path: Path, shape: tuple[int | None, ...] | None = None, what: str = "") -> np.ndarray:
+    """A .npy array (never pickled); with `shape`, TerraError unless it matches (None = any length)."""
     try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+        with open(path, "rb") as f:
+            if f.read(6) != b"\x93NUMPY":
+                raise TerraError(f"{path}: not a .npy file")
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
         raise TerraError(f"{path}: unreadable array ({exc})") from None
+    if shape is not None and (array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape))):
+        expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise TerraError(f"{path}: expected an array of shape {expected}{' ' + what if what else ''}, got {array.shape}")
+    return array
+
+
+def read_json(path: Path) -> dict:
+    """A JSON object from `path`; TerraError naming the file when it is unreadable or not an object."""
+    try:
+        value = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise TerraError(f"{path}: unreadable JSON ({exc})") from None
+    if not isinstance(value, dict):
+        raise TerraError(f"{path}: expected a JSON object")
+    return value

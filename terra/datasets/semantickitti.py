@@ -23,11 +23,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy.linalg import rq
 
 from terra.datasets import register_loader
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_label_png, read_rgb,
-                                      write_label_png, write_rgb)
+from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_json, read_label_png,
+                                      read_rgb, write_label_png, write_rgb)
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
 from terra.progress import progress
@@ -208,39 +209,48 @@ class SemanticKittiDataset:
             raise TerraError(f"{seq / 'velodyne'}: no .bin scans")
         calib_path = seq / "calib.txt"
         calib = _read_matrix_lines(calib_path) if calib_path.is_file() else {}
-        if "Tr" in calib:
-            self.Tr = np.vstack([calib["Tr"].reshape(3, 4), [0, 0, 0, 1]])
-        else:
-            self.Tr = np.eye(4)
+        for key, value in calib.items():
+            if value.size != 12:
+                raise TerraError(f"{calib_path}: {key} has {value.size} numbers, expected 12 (a 3x4 matrix, row-major)")
+        self.Tr = np.vstack([calib["Tr"].reshape(3, 4), [0, 0, 0, 1]]) if "Tr" in calib else np.eye(4)
         poses_path = seq / "poses.txt"
         if not poses_path.is_file():
             raise TerraError(f"{seq}: no poses.txt (KITTI ground-truth poses are needed; run odometry first)")
-        rows = np.loadtxt(poses_path, ndmin=2)
-        if rows.shape != (len(self.scans), 12):
-            raise TerraError(f"{poses_path}: expected {len(self.scans)} lines of 12 numbers, got shape {rows.shape}")
-        Tr_inv = invert_pose(self.Tr)
-        self.poses = np.array([Tr_inv @ np.vstack([r.reshape(3, 4), [0, 0, 0, 1]]) @ self.Tr for r in rows])
+        rows = _read_table(poses_path, 12, len(self.scans), "12 numbers (a 3x4 camera-0 pose, row-major)")
+        # poses.txt holds camera-0 poses P; the LiDAR pose is Tr^-1 P Tr.
+        P = np.zeros((len(rows), 4, 4))
+        P[:, :3, :] = rows.reshape(-1, 3, 4)
+        P[:, 3, 3] = 1.0
+        self.poses = invert_pose(self.Tr) @ P @ self.Tr
         times_path = seq / "times.txt"
-        self.stamps = np.loadtxt(times_path, ndmin=1) if times_path.is_file() else np.arange(len(self.scans), dtype=float)
-        self.cameras = self._cameras(calib)
+        if times_path.is_file():
+            self.stamps = _read_table(times_path, 1, len(self.scans), "one time in seconds")[:, 0]
+        else:
+            self.stamps = np.arange(len(self.scans), dtype=float)
+        self.cameras, self._camera_folders = self._cameras(calib)
         self._ids_from_kitti, self.classes = self._class_mapping(root)
 
-    def _cameras(self, calib: dict[str, np.ndarray]) -> list[CameraCalibration]:
+    def _cameras(self, calib: dict[str, np.ndarray]) -> tuple[list[CameraCalibration], list[str]]:
+        """Calibrations and image folders: exact ones from terra_cameras.json (ours, with
+        distortion), else from P2/P3 of calib.txt for the image folders present."""
         exact = self.seq / CAMERAS
         if exact.is_file():
-            return [calibration_from_json(c, str(exact)) for c in json.loads(exact.read_text())["cameras"]]
-        cams = []
+            rows = read_json(exact).get("cameras")
+            if not isinstance(rows, list):
+                raise TerraError(f"{exact}: expected {{\"cameras\": [calibration, ...]}}")
+            cams = [calibration_from_json(c, str(exact)) for c in rows]
+            return cams, [f"image_{2 + n}" for n in range(len(cams))]
+        cams, folders = [], []
         for k in (2, 3):
             folder = self.seq / f"image_{k}"
             first = sorted(folder.glob("*.png")) if folder.is_dir() else []
             if f"P{k}" not in calib or not first:
                 continue
-            P = calib[f"P{k}"].reshape(3, 4)
-            K = P[:, :3]
-            offset = np.linalg.solve(K, P[:, 3])  # rectified camera k sits at -offset in camera 0
+            K, T_k_0 = decompose_projection(calib[f"P{k}"].reshape(3, 4))
             h, w = read_rgb(first[0]).shape[:2]
-            cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), make_pose(np.eye(3), offset) @ self.Tr))
-        return cams
+            cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), T_k_0 @ self.Tr))
+            folders.append(f"image_{k}")
+        return cams, folders
 
     def _class_mapping(self, root: Path) -> tuple[np.ndarray, ClassTable]:
         legend_path = root / LEGEND
@@ -248,8 +258,9 @@ class SemanticKittiDataset:
         if legend_path.is_file():
             try:
                 legend = {int(k): str(v) for k, v in yaml.safe_load(legend_path.read_text())["labels"].items()}
-            except (KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
-                raise TerraError(f"{legend_path}: malformed legend ({exc}); expected a 'labels' mapping id -> name") from None
+            except (KeyError, TypeError, ValueError, AttributeError, yaml.YAMLError) as exc:
+                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                raise TerraError(f"{legend_path}: malformed legend ({reason}); expected a 'labels' mapping id -> name") from None
         ours = read_classes(root)
         if ours is not None and legend is not None:
             mapping = {}
@@ -287,8 +298,7 @@ class SemanticKittiDataset:
             instances = (value >> 16).astype(np.int32)
         stamp = float(self.stamps[index])
         cams = []
-        for n, cal in enumerate(self.cameras):
-            folder = f"image_{2 + n}"
+        for cal, folder in zip(self.cameras, self._camera_folders):
             img_path = self.seq / folder / f"{stem}.png"
             if not img_path.is_file():
                 continue
@@ -307,6 +317,30 @@ class SemanticKittiDataset:
         from terra.datasets.ground_truth import load_ground_truth
 
         return load_ground_truth(self.root)
+
+
+def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """K (3x3, positive diagonal) and T_cam_ref (4x4) with P = K [R | t] for a 3x4 projection
+    matrix that maps reference-frame points (metres) to pixels. KITTI's rectified P2/P3 give R = I."""
+    K, R = rq(P[:, :3])
+    signs = np.diag(np.sign(np.where(np.diag(K) == 0, 1.0, np.diag(K))))
+    K, R = K @ signs, signs @ R  # signs @ signs = I: flip so focal lengths are positive
+    if np.linalg.det(R) < 0:  # P is only defined up to scale: take the scale that makes R a rotation
+        K, R = -K, -R
+    t = np.linalg.solve(K, P[:, 3])
+    scale = K[2, 2]
+    return K / scale, make_pose(R, t)
+
+
+def _read_table(path: Path, columns: int, rows: int, what: str) -> np.ndarray:
+    """(rows, columns) numbers of a whitespace-separated text file; TerraError naming the file."""
+    try:
+        table = np.loadtxt(path, ndmin=2, dtype=np.float64)
+    except ValueError as exc:
+        raise TerraError(f"{path}: expected {rows} lines of {what} ({exc})") from None
+    if table.shape != (rows, columns):
+        raise TerraError(f"{path}: expected {rows} lines of {what}, got shape {table.shape}")
+    return table
 
 
 def _detect(path: Path) -> bool:

@@ -27,8 +27,8 @@ import yaml
 
 from terra.datasets import register_loader
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_label_png,
-                                      read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
+from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
+                                      read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, pose_from_xyz_quat, pose_to_xyz_quat, transform_points, voxel_keys
 from terra.progress import progress
@@ -172,12 +172,14 @@ class TerraFolderDataset:
         if not (root / POSES).is_dir():
             raise TerraError(f"{root}: not a terra-folder dataset (no {POSES}/ folder)")
         meta_path = root / META
-        meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+        meta = read_json(meta_path) if meta_path.is_file() else {}
         self.name = str(meta.get("name", root.name))
         # Our own folders carry exact calibrations; others get extrinsics from the per-scan files.
         self._exact_cameras = cameras is not None or "cameras" in meta
         if cameras is None:
             if "cameras" in meta:
+                if not isinstance(meta["cameras"], list):
+                    raise TerraError(f"{meta_path}: 'cameras' must be a list of calibrations")
                 cameras = [calibration_from_json(c, str(meta_path)) for c in meta["cameras"]]
             else:
                 cameras = _cameras_from_yaml(root)
@@ -211,19 +213,17 @@ class TerraFolderDataset:
         t, pose_file, scan_file, picks = self._frames[index]
         root = self.root
         text = stamp_text(t)
-        scan = load_npy(scan_file)
-        if scan.ndim != 2 or scan.shape[1] < 3:
-            raise TerraError(f"{scan_file}: expected an (M, 4) array x, y, z, intensity, got shape {scan.shape}")
+        scan = load_npy(scan_file, (None, 4), "x, y, z, intensity")
         labels = instances = None
         label_file = root / LABELS / f"lidar_labels_{text}.npy"
         if label_file.is_file():
-            li = load_npy(label_file)
+            li = load_npy(label_file, (len(scan), 2), "class id, instance id per point of its scan")
             labels, instances = li[:, 0].astype(np.int32), li[:, 1].astype(np.int32)
         cams = []
         for n, (img_file, tf_file) in enumerate(picks):
             cal = self.calibrations[n]
             if tf_file is not None and not self._exact_cameras:
-                cal = CameraCalibration(cal.name, cal.width, cal.height, cal.K, cal.dist, pose_from_xyz_quat(load_npy(tf_file)))
+                cal = CameraCalibration(cal.name, cal.width, cal.height, cal.K, cal.dist, _read_pose(tf_file))
             image = read_rgb(img_file)
             if image.shape[:2] != (cal.height, cal.width):
                 raise TerraError(f"{img_file}: image is {image.shape[1]}x{image.shape[0]}, calibration says {cal.width}x{cal.height}")
@@ -233,16 +233,15 @@ class TerraFolderDataset:
                                     read_label_png(sem_file) if sem_file.is_file() else None,
                                     read_label_png(inst_file) if inst_file.is_file() else None,
                                     name=str(img_file.relative_to(root))))
-        intensity = scan[:, 3].astype(np.float32) if scan.shape[1] >= 4 else None
-        return Frame(index, t, np.ascontiguousarray(scan[:, :3], dtype=np.float32), pose_from_xyz_quat(load_npy(pose_file)),
-                     cams, intensity, labels, instances)
+        return Frame(index, t, np.ascontiguousarray(scan[:, :3], dtype=np.float32), _read_pose(pose_file),
+                     cams, scan[:, 3].astype(np.float32), labels, instances)
 
     def global_map(self) -> np.ndarray | None:
         """[:, :3] of the global_pc file with the largest stamp (as the reference uses it)."""
         t, files = _stamped(self.root / GLOBAL, "global_pc_*.npy")
         if not files:
             return None
-        return np.ascontiguousarray(load_npy(files[-1])[:, :3], dtype=np.float32)
+        return np.ascontiguousarray(load_npy(files[-1], (None, 4), "x, y, z, intensity")[:, :3], dtype=np.float32)
 
     def ground_truth(self):
         from terra.datasets.ground_truth import load_ground_truth
@@ -250,12 +249,25 @@ class TerraFolderDataset:
         return load_ground_truth(self.root)
 
 
+def _read_pose(path: Path) -> np.ndarray:
+    """4x4 pose from a (7,) [tx ty tz qx qy qz qw] file (metres, scalar-last quaternion)."""
+    xyz_quat = load_npy(path, (7,), "[tx, ty, tz, qx, qy, qz, qw]")
+    if not np.all(np.isfinite(xyz_quat)) or abs(np.linalg.norm(xyz_quat[3:]) - 1.0) > 1e-3:
+        raise TerraError(f"{path}: expected finite values and a unit quaternion [qx, qy, qz, qw], got {xyz_quat.tolist()}")
+    return pose_from_xyz_quat(xyz_quat)
+
+
 def _cameras_from_yaml(root: Path) -> list[CameraCalibration]:
     """Calibrations from the reference config keys (for folders the authors' tools extracted)."""
     path = root / CAMERA_YAML
     if not path.is_file():
         raise TerraError(f"{root}: no {META} or {CAMERA_YAML} with camera intrinsics (cam0_K, cam0_dist, IMG_W, IMG_H)")
-    cfg = yaml.safe_load(path.read_text()) or {}
+    try:
+        cfg = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(cfg, dict):
+        raise TerraError(f"{path}: expected a mapping with cam0_K, cam0_dist, IMG_W, IMG_H")
     cams = []
     n = 0
     while f"cam{n}_K" in cfg:
