@@ -55,7 +55,10 @@ def sim(
                              title=f"{dataset.name}: {len(dataset)} frames")
 
     start = time.perf_counter()
-    folder = write_dataset(dataset, out, format=format, overwrite=overwrite, progress=not quiet, extra=picture)
+    try:
+        folder = write_dataset(dataset, out, format=format, overwrite=overwrite, progress=not quiet, extra=picture)
+    except OSError as exc:  # disk full, permissions: the partial folder is already gone
+        raise TerraError(f"{out}: could not write the dataset ({exc.strerror or exc}); nothing was written") from None
     elapsed = time.perf_counter() - start
     timer.add("encode and save", elapsed - sum(v for k, v in timer.seconds.items() if k != "world"))
     gt = dataset.ground_truth()

@@ -68,6 +68,36 @@ class CameraConfig(Section):
             raise ValueError(f"camera name must be a non-empty word (letters, digits, '-', '_'), got {v!r}")
         return v
 
+    @model_validator(mode="after")
+    def _lens_is_usable(self) -> "CameraConfig":
+        cx = (self.width - 1) / 2 if self.cx is None else self.cx
+        cy = (self.height - 1) / 2 if self.cy is None else self.cy
+        if not (0.0 <= cx < self.width and 0.0 <= cy < self.height):
+            raise ValueError(f"principal point ({cx}, {cy}) must lie inside the {self.width}x{self.height} image")
+        if len(self.dist) and any(self.dist):
+            _check_distortion_invertible(self.dist, self.width, self.height, self.fx, self.fy, cx, cy)
+        return self
+
+
+def _check_distortion_invertible(dist: list[float], width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> None:
+    """ValueError when the radial-tangential model folds over inside the image: then pixels have no
+    unique viewing ray and the rendered image would be wrong. Checked on a grid that includes the
+    image border: each pixel's undistorted ray must distort back onto the pixel."""
+    import numpy as np
+
+    from terra.geometry import distort_normalized, undistort_normalized
+
+    coeffs = np.zeros(5)
+    coeffs[: len(dist)] = dist
+    u, v = np.meshgrid(np.linspace(-0.5, width - 0.5, 17), np.linspace(-0.5, height - 0.5, 13))
+    xy = np.stack([(u.ravel() - cx) / fx, (v.ravel() - cy) / fy], axis=1)
+    with np.errstate(all="ignore"):  # a folding lens diverges: caught by the finiteness test below
+        back = distort_normalized(undistort_normalized(xy, coeffs, iterations=100), coeffs)
+    error_px = np.max(np.abs(back - xy) * [fx, fy])
+    if not np.isfinite(error_px) or error_px > 0.01:
+        raise ValueError(f"distortion {list(dist)} cannot be inverted over the {width}x{height} image "
+                         "(the lens model folds over; use smaller coefficients)")
+
 
 class RouteConfig(Section):
     """The robot route: frames every `frame_spacing` metres along it at `speed` m/s.
