@@ -118,3 +118,14 @@ def test_failure_while_writing_leaves_nothing(tmp_path, capsys, monkeypatch):
     assert sim(tmp_path / "out") == 2
     assert "out: could not write the dataset (No space left on device); nothing was written" in error_line(capsys)
     assert len(calls) == 2 and leftovers(tmp_path) == []
+
+
+def test_world_picture(first_runs):
+    from PIL import Image
+
+    from terra.viz.world import scale_bar_length
+
+    with Image.open(first_runs / "terra-folder" / "world.png") as im:
+        assert im.format == "PNG" and im.width > im.height > 600 and not im.info.get("Software")
+    # Round scale bars near a fifth of the width: tiny 60 m, small 150 m, campus 500 m, large 2 km.
+    assert [scale_bar_length(e) for e in (60.0, 150.0, 500.0, 2000.0)] == [10.0, 20.0, 100.0, 200.0]

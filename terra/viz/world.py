@@ -1,4 +1,5 @@
-"""Top-down picture of a simulated world: terrain colours, buildings, trees, objects, route, regions."""
+"""Top-down picture of a simulated world: terrain colours, buildings, trees, objects, the robot's
+route, named regions, a scale bar and a legend. Same input, same PNG bytes (Agg, no metadata)."""
 
 from __future__ import annotations
 
@@ -8,18 +9,38 @@ import numpy as np
 
 from terra.datasets.ground_truth import GroundTruth
 
+_ROUTE = "#ff00ff"
+_DETAILED_BELOW_M = 800.0  # larger worlds: thinner lines and no region names (they would overlap)
+
+
+def scale_bar_length(extent_m: float) -> float:
+    """A round length (1, 2 or 5 times a power of ten, metres) near a fifth of `extent_m`."""
+    target = max(extent_m, 1e-9) / 5.0
+    power = 10.0 ** np.floor(np.log10(target))
+    return float(max((m * power for m in (1.0, 2.0, 5.0) if m * power <= target), default=power))
+
+
+def _box_corners(center: np.ndarray, size: np.ndarray, yaw: float) -> np.ndarray:
+    """(4, 2) corners in the map frame of a box (centre and size in metres, yaw in radians about +z)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    hx, hy = size[0] / 2, size[1] / 2
+    return np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]]) @ np.array([[c, s], [-s, c]]) + center[:2]
+
 
 def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray | None = None,
                      colors: np.ndarray | None = None, title: str = "", dpi: int = 110) -> Path:
     """Write a top-down PNG (map frame, x right, y up, metres) of `gt` and the robot trajectory.
 
-    colors: RGB uint8 per class id (defaults to the simulator's). Returns the path written.
+    trajectory_xy: (M, 2) robot positions in the map frame, metres. colors: RGB uint8 per class id
+    (defaults to the simulator's). Returns the path written.
     """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Polygon as MplPolygon
+    from matplotlib.collections import PatchCollection
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Circle, Patch, Polygon, Rectangle
 
     if colors is None:
         from terra.sim.classes import CLASS_COLORS as colors
@@ -27,39 +48,73 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
     h, w = raster.classes.shape
     x0, y0 = raster.origin
     x1, y1 = x0 + w * raster.resolution, y0 + h * raster.resolution
-    ids = np.clip(raster.classes, 0, len(colors) - 1)
-    image = colors[ids]
-    side = 8.0
-    fig, ax = plt.subplots(figsize=(side, side * (y1 - y0) / max(x1 - x0, 1e-9) + 0.6))
-    ax.imshow(image, origin="lower", extent=(x0, x1, y0, y1), interpolation="nearest")
     big = max(x1 - x0, y1 - y0)
-    for o in sorted(gt.objects, key=lambda o: o.center[2] + o.size[2] / 2):
-        c, s = np.cos(o.yaw), np.sin(o.yaw)
-        hx, hy = o.size[0] / 2, o.size[1] / 2
-        corners = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]]) @ np.array([[c, s], [-s, c]]) + o.center[:2]
-        rgb = colors[o.class_id] / 255.0 if 0 <= o.class_id < len(colors) else (0.5, 0.5, 0.5)
+    detailed = big < _DETAILED_BELOW_M
+
+    def rgb(class_id: int) -> tuple[float, float, float]:
+        return tuple(colors[class_id] / 255.0) if 0 <= class_id < len(colors) else (0.5, 0.5, 0.5)
+
+    side = 8.0
+    fig = plt.figure(figsize=(side + 3.2, side * (y1 - y0) / max(x1 - x0, 1e-9) + 0.7))
+    ax = fig.add_axes((0.07, 0.06, side / (side + 3.2) * 0.93, 0.88))
+    ax.imshow(colors[np.clip(raster.classes, 0, len(colors) - 1)], origin="lower", extent=(x0, x1, y0, y1),
+              interpolation="nearest")
+
+    # Objects, lowest first so tall things (buildings, trees) stay on top; trees as crowns.
+    patches, faces, edges = [], [], []
+    for o in sorted(gt.objects, key=lambda o: (o.center[2] + o.size[2] / 2, o.instance_id)):
         if o.class_name == "tree":
-            ax.add_patch(plt.Circle(o.center[:2], max(hx, hy), color=rgb, alpha=0.55, lw=0))
+            patches.append(Circle(o.center[:2], max(o.size[0], o.size[1]) / 2))
+            faces.append((*rgb(o.class_id), 0.6))
+            edges.append((0, 0, 0, 0))
         else:
-            edge = "k" if o.class_name == "building" else "none"
-            ax.add_patch(MplPolygon(corners, closed=True, facecolor=rgb, edgecolor=edge, lw=0.4 if big < 800 else 0.1))
+            patches.append(Polygon(_box_corners(o.center, o.size, o.yaw), closed=True))
+            faces.append((*rgb(o.class_id), 1.0))
+            edges.append((0, 0, 0, 1) if o.class_name in ("building", "car") else (0, 0, 0, 0.6))
+    ax.add_collection(PatchCollection(patches, facecolors=faces, edgecolors=edges, linewidths=0.35 if detailed else 0.1))
+
     if trajectory_xy is not None and len(trajectory_xy):
-        ax.plot(trajectory_xy[:, 0], trajectory_xy[:, 1], color="#ff00ff", lw=1.2 if big < 800 else 0.5)
-        ax.plot(*trajectory_xy[0, :2], marker="o", color="#ff00ff", ms=5)
+        ax.plot(trajectory_xy[:, 0], trajectory_xy[:, 1], color=_ROUTE, lw=1.4 if detailed else 0.6, zorder=3)
+        ax.plot(*trajectory_xy[0, :2], marker="o", color=_ROUTE, mec="k", ms=7, zorder=4)
+        ax.plot(*trajectory_xy[-1, :2], marker="s", color=_ROUTE, mec="k", ms=6, zorder=4)
+        if len(trajectory_xy) > 1:  # direction of travel at the start
+            step = min(len(trajectory_xy) - 1, 3)
+            ax.annotate("", xy=trajectory_xy[step, :2], xytext=trajectory_xy[0, :2], zorder=4,
+                        arrowprops={"arrowstyle": "-|>", "color": _ROUTE, "lw": 1.5, "mutation_scale": 14})
+
     for r in gt.regions:
         poly = np.asarray(r.polygon)
-        ax.add_patch(MplPolygon(poly, closed=True, fill=False, edgecolor="#ffffff", lw=1.0, ls="--"))
-        if big < 800:
-            ax.text(*poly.mean(axis=0), r.name, color="white", fontsize=6, ha="center", va="center",
-                    bbox={"facecolor": "black", "alpha": 0.4, "pad": 1, "lw": 0})
+        ax.add_patch(Polygon(poly, closed=True, fill=False, edgecolor="white", lw=1.1 if detailed else 0.5, ls="--", zorder=5))
+        if detailed:
+            ax.text(*poly.mean(axis=0), r.name, color="white", fontsize=6.5, ha="center", va="center",
+                    zorder=6, bbox={"facecolor": "black", "alpha": 0.55, "pad": 1.2, "lw": 0})
+
+    # Scale bar in the lower-left corner, on a white backing so it reads on any terrain.
+    length = scale_bar_length(x1 - x0)
+    bx, by = x0 + 0.03 * (x1 - x0), y0 + 0.03 * (y1 - y0)
+    ax.add_patch(Rectangle((bx - 0.01 * big, by - 0.012 * big), length + 0.02 * big, 0.05 * big, facecolor="white",
+                           alpha=0.85, lw=0, zorder=6))
+    ax.plot([bx, bx + length], [by, by], color="black", lw=3, solid_capstyle="butt", zorder=7)
+    ax.text(bx + length / 2, by + 0.012 * big, f"{length:g} m", ha="center", va="bottom", fontsize=8, zorder=7)
+
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if title:
-        ax.set_title(title, fontsize=9)
-    fig.tight_layout()
+        ax.set_title(title, fontsize=10)
+
+    # Legend: terrain present in the raster, then structures and objects present in the world.
+    terrain_ids = [int(i) for i in np.unique(raster.classes) if int(i) in raster.legend]
+    object_ids = sorted({(o.class_id, o.class_name) for o in gt.objects})
+    handles = [Patch(facecolor=rgb(i), edgecolor="0.3", lw=0.4, label=raster.legend[i]) for i in terrain_ids]
+    handles += [Patch(facecolor=rgb(i), edgecolor="0.3", lw=0.4, label=name) for i, name in object_ids]
+    handles += [Line2D([], [], color=_ROUTE, lw=1.5, marker="o", mec="k", label="route (o start, \u25a1 end)"),
+                Line2D([], [], color="0.4", lw=1.1, ls="--", label="named region")]
+    fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(side / (side + 3.2) * 0.93 + 0.08, 0.94),
+               fontsize=7.5, frameon=False, title=f"terrain ({len(terrain_ids)}), objects ({len(object_ids)})",
+               title_fontsize=8, handlelength=1.6, labelspacing=0.35, ncols=1 if len(handles) <= 36 else 2)
     out = Path(out)
     fig.savefig(out, dpi=dpi, metadata={"Software": None})
     plt.close(fig)
