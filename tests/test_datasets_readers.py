@@ -175,3 +175,31 @@ def test_decompose_projection_recovers_scaled_and_rotated_cameras():
         got_K, got_T = decompose_projection(scale * K @ T[:3])
         np.testing.assert_allclose(got_K, K, atol=1e-9)
         np.testing.assert_allclose(got_T, T, atol=1e-12)
+
+
+def test_folder_extracted_by_the_authors_tools(copy):
+    """No Terra extras: intrinsics from the msmap config keys, extrinsics from the per-scan
+    lidar2cam files, and images matched to scans by the nearest stamp within 0.2 s."""
+    root = copy("terra-folder")
+    for extra in ("terra_dataset.json", "classes.json"):
+        (root / extra).unlink()
+    for extra in ("lidar_labels", "camera0_semantic", "camera0_instance", "camera1_semantic", "camera1_instance", "ground_truth"):
+        shutil.rmtree(root / extra)
+    # The camera driver stamps images a little after the scan: 0.05 s is matched, 0.3 s is not.
+    for n, delay in ((0, 0.05), (1, 0.05)):
+        for p in sorted((root / f"camera{n}_images").iterdir()):
+            t = float(p.stem.rsplit("_", 1)[-1])
+            p.rename(p.with_name(f"cam{n}_img_{t + delay + (0.25 if t == 100.625 else 0.0):.6f}.jpg"))
+    ds = open_dataset(root)
+    hand = HandDataset()
+    assert len(ds) == 2 and ds.classes.by_id(0).name == "unlabeled" and len(ds.classes) == 1
+    for i in range(2):
+        frame, expected = ds[i], hand.frames[i]
+        assert frame.point_labels is None and frame.cameras[0].semantic is None
+        np.testing.assert_array_equal(frame.points, expected.points)
+        assert frame.cameras[1].stamp == pytest.approx(expected.stamp + 0.05, abs=1e-9)
+        for cam, exp in zip(frame.cameras, expected.cameras):
+            np.testing.assert_array_equal(cam.calibration.K, exp.calibration.K)
+            np.testing.assert_array_equal(cam.calibration.dist, exp.calibration.dist)
+            np.testing.assert_allclose(cam.calibration.T_cam_lidar, exp.calibration.T_cam_lidar, atol=1e-12)
+    assert ds.global_map().shape[1] == 3
