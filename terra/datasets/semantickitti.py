@@ -13,7 +13,9 @@ files it adds, ignored by SemanticKITTI tools: image_{2+n}_semantic/ and image_{
 (16-bit PNG in the same label ids), terra_cameras.json (exact calibrations with distortion), and
 at the dataset root classes.json, ground_truth/ and `semantic-kitti.yaml`, a legend in
 SemanticKITTI's yaml convention that names every id used, including ids 100+ for classes the
-real dataset does not have. Real sequences (no legend) read with the standard SemanticKITTI table.
+real dataset does not have. Real sequences (no legend) read with the standard SemanticKITTI table,
+and their cameras come from P2/P3 (K and the pose relative to camera 0 by RQ decomposition; no
+distortion, as KITTI images are rectified).
 """
 
 from __future__ import annotations
