@@ -73,12 +73,20 @@ def voronoi_cells(free: np.ndarray, fire: Brushfire, min_clearance: float = 1.0,
         ra, ca = fire.parent[0][a], fire.parent[1][a]
         rb, cb = fire.parent[0][b], fire.parent[1][b]
         chord2 = (ra - rb).astype(np.float32) ** 2 + (ca - cb).astype(np.float32) ** 2
+        # Clearance at the parents' midpoint: the largest over the (up to four) cells that hold
+        # it, so the test is mirror-symmetric (rounding one way made one side of a symmetric
+        # corridor end pass and the other fail, bending the dead end off the centre line).
         # Parents may lie in the one-cell frame outside the grid (-1 or H / W): pad by one.
-        mid = padded_distance[np.clip((ra + rb + 1) // 2 + 1, 0, H + 1), np.clip((ca + cb + 1) // 2 + 1, 0, W + 1)]
+        mid = np.zeros(ra.shape, dtype=np.float32)
+        for rr in ((ra + rb) // 2, (ra + rb + 1) // 2):
+            for cc in ((ca + cb) // 2, (ca + cb + 1) // 2):
+                np.maximum(mid, padded_distance[np.clip(rr + 1, 0, H + 1), np.clip(cc + 1, 0, W + 1)], out=mid)
         far = (chord2 > 2.0) & (mid >= min_gap)
         hit = free[a] & free[b] & ((fire.component[a] != fire.component[b]) | far)
-        marked[a] |= hit
-        marked[b] |= hit
+        # Mark the cell of the pair nearer the true boundary between the parents (the one with
+        # the larger clearance; both on ties), so odd-width corridors give their centre line.
+        marked[a] |= hit & (fire.distance[a] >= fire.distance[b])
+        marked[b] |= hit & (fire.distance[b] >= fire.distance[a])
     return marked & free & (fire.distance >= min_clearance)
 
 

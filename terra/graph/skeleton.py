@@ -177,6 +177,21 @@ def _path_rows(g: SkeletonGraph, edge_ids: np.ndarray, drop_ends: bool = False) 
     return np.repeat(lo - np.concatenate([[0], np.cumsum(n)[:-1]]), n) + np.arange(n.sum())
 
 
+def _drop_stubs(skeleton: np.ndarray) -> np.ndarray:
+    """Remove one-cell spurs: end cells whose only neighbour is a junction cell. (They would join
+    the junction's node cluster and hide the spur from the pruning rule.)"""
+    cells, A = skeleton_adjacency(skeleton)
+    if len(cells) == 0:
+        return skeleton
+    degree = np.diff(A.indptr)
+    ends = np.flatnonzero(degree == 1)
+    neighbour = A.indices[A.indptr[ends]]
+    stub = ends[degree[neighbour] >= 3]
+    out = skeleton.copy()
+    out[cells[stub, 0], cells[stub, 1]] = False
+    return out
+
+
 def prune_spurs(skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_length: float, max_rounds: int = 8) -> np.ndarray:
     """Remove dead-end branches shorter than ratio * (junction clearance) + min_length cells.
 
@@ -186,6 +201,7 @@ def prune_spurs(skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_le
     """
     skeleton = np.array(skeleton, dtype=bool)
     for _ in range(max_rounds):
+        skeleton = _drop_stubs(skeleton)
         g = skeleton_graph(skeleton, distance)
         if len(g.edges) == 0:
             break
