@@ -1,0 +1,60 @@
+"""`terra build`: build the scene graph (Phase 2) of a bundle's map and add it to the bundle."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from terra.cli import app
+
+
+@app.command("build")
+def build_command(
+    bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map`."),
+    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `build` section is used."),
+    regions: Optional[str] = typer.Option(None, "--regions", help="Region method: agglomerative or spectral (overrides the config)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary (counts, stats, timings) as JSON."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
+) -> None:
+    """Build the terrain-aware places and hierarchical regions of BUNDLE's map and store them in
+    the bundle as component graph/ (spark_dsg JSON plus embedding arrays). The bundle is replaced
+    atomically: on any error it is left as it was.
+
+    Example: terra build campus.terra --regions spectral --config terra.yaml
+    """
+    from terra.config import load_section
+    from terra.graph.pipeline import run_build
+
+    overrides = {"regions": {"method": regions}} if regions is not None else None
+    if regions is not None and regions not in ("agglomerative", "spectral"):
+        from terra.errors import TerraError
+
+        raise TerraError(f"--regions must be 'agglomerative' or 'spectral', got {regions!r}")
+    section = load_section(config, "build", overrides)
+    result = run_build(bundle, section, show_progress=not quiet and not as_json)
+    graph = result.graph
+    summary = {
+        "bundle": str(bundle),
+        "places": len(graph.places),
+        "place_edges": int(len(graph.place_edges)),
+        "regions_per_level": [len(level) for level in graph.regions],
+        "region_method": graph.region_method,
+        "stats": result.stats,
+        "seconds": result.timer.to_json(),
+    }
+    if as_json:
+        typer.echo(json.dumps(summary, indent=1, sort_keys=True))
+        return
+    if quiet:
+        return
+    per_terrain = ", ".join(f"{k} {v}" for k, v in result.stats["places_per_terrain"].items())
+    edges = result.stats["edges"]
+    typer.echo(f"graph: {summary['places']} places ({per_terrain}) -> {bundle}")
+    typer.echo(f"  place edges: {summary['place_edges']} (gvd {edges['gvd']}, cross-terrain {edges['cross_terrain']}, bridge {edges['bridge']})")
+    typer.echo(f"  regions ({graph.region_method}): " + " / ".join(str(n) for n in summary["regions_per_level"]) + " per level")
+    src = result.stats["embedding_source"]
+    typer.echo(f"  place embeddings: {src['images']} from images, {src['points']} from points, {src['terrain_text']} from the terrain name")
+    typer.echo(result.timer.table())

@@ -1,0 +1,235 @@
+"""Phase 2: the metric-semantic map of a bundle -> terrain places, links, embeddings, regions.
+
+`build_scene_graph` works on a MetricSemanticMap in memory; `build_graph` reads the bundle, runs it
+and adds component `graph/` atomically (the bundle is unchanged when anything fails).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from terra.bundle import Bundle, BundleWriter
+from terra.errors import TerraError
+from terra.graph.agglomerative import agglomerative_assignments
+from terra.graph.config import BuildConfig
+from terra.graph.embedding import image_embeddings, point_embeddings
+from terra.graph.grid import TerrainGrid, build_terrain_grid
+from terra.graph.linking import bridge_components, grid_line_clear, link_dead_ends
+from terra.graph.places import extract_places, unique_edge_rows
+from terra.graph.regions import build_levels
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
+from terra.graph.spectral import spectral_assignments
+from terra.mapping.semantic_map import MetricSemanticMap
+from terra.progress import StageTimer, progress
+
+
+@dataclass
+class GraphBuild:
+    """A built scene graph with its counters (for the manifest) and stage timings."""
+
+    graph: SceneGraph
+    stats: dict[str, Any] = field(default_factory=dict)
+    timer: StageTimer = field(default_factory=StageTimer)
+
+
+@dataclass
+class TerrainPlaceSet:
+    """Places of all terrains before linking: positions (P, 3) m, terrain (P,), clearance (P,) m,
+    GVD edges (E, 2) with costs (E,) m, and whether each place is a dead end of its GVD."""
+
+    position: np.ndarray
+    terrain: np.ndarray
+    clearance: np.ndarray
+    edges: np.ndarray
+    weight: np.ndarray
+
+
+def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, show_progress: bool = False) -> tuple[TerrainPlaceSet, np.ndarray, dict[str, Any]]:
+    """Places and GVD edges of every terrain in `terrains`, the union of the cleaned terrain masks
+    (traversable cells), and per-terrain counters."""
+    g, s = config.gvd, grid.cell_size
+    positions, terrain_ids, clearances, edges, weights = [], [], [], [], []
+    traversable = np.zeros(grid.shape, dtype=bool)
+    stats: dict[str, Any] = {"places_per_terrain": {}, "patches_dropped": 0}
+    offset = 0
+    min_cells = int(np.ceil(config.grid.min_component_area / (s * s)))
+    for t in progress(terrains, "terrain GVDs", enabled=show_progress):
+        mask, dropped = grid.terrain_mask(t, config.grid.close_iterations, config.grid.open_iterations, min_cells)
+        stats["patches_dropped"] += dropped
+        traversable |= mask
+        if not mask.any():
+            stats["places_per_terrain"][t] = 0
+            continue
+        cp = extract_places(
+            mask,
+            min_clearance=g.min_clearance / s,
+            min_gap=g.min_gap / s,
+            prune_ratio=g.prune_ratio,
+            prune_length=g.prune_length / s,
+            junction_merge=g.junction_merge,
+            max_deviation=g.max_deviation / s,
+            max_distance=g.max_distance / s,
+        )
+        xy = grid.cell_centres(cp.cells)
+        z = grid.ground_at(cp.cells)
+        positions.append(np.column_stack([xy, z]))
+        terrain_ids.append(np.full(len(cp.cells), t, dtype=np.int64))
+        clearances.append(cp.clearance * s)
+        dz = z[cp.edges[:, 0]] - z[cp.edges[:, 1]] if len(cp.edges) else np.zeros(0)
+        edges.append(cp.edges + offset)
+        weights.append(np.hypot(cp.length * s, dz))
+        offset += len(cp.cells)
+        stats["places_per_terrain"][t] = int(len(cp.cells))
+    place_set = TerrainPlaceSet(
+        position=np.vstack(positions) if positions else np.zeros((0, 3)),
+        terrain=np.concatenate(terrain_ids) if terrain_ids else np.zeros(0, np.int64),
+        clearance=np.concatenate(clearances) if clearances else np.zeros(0),
+        edges=np.vstack(edges).astype(np.int64) if edges else np.zeros((0, 2), np.int64),
+        weight=np.concatenate(weights) if weights else np.zeros(0),
+    )
+    return place_set, traversable, stats
+
+
+def place_embeddings(msm: MetricSemanticMap, position: np.ndarray, terrain: np.ndarray, max_range: float) -> tuple[np.ndarray, dict[str, int]]:
+    """(P, D) unit image embeddings by the paper's rule, falling back to point embeddings and, for
+    places with nothing in range, the terrain's text embedding; counts per source."""
+    P, D = len(position), msm.dim
+    emb = np.zeros((P, D), np.float32)
+    from_images = np.zeros(P, dtype=bool)
+    if len(msm.images):
+        emb, from_images = image_embeddings(position, msm.images_observing, msm.images.embedding, max_range)
+    rest = np.flatnonzero(~from_images)
+    if rest.size:
+        emb[rest] = point_embeddings(position[rest], msm.points, msm.counts, msm.bank, msm.ms_avg_norms(), max_range)
+    from_points = ~from_images & (np.abs(emb).sum(axis=1) > 0)
+    none = ~from_images & ~from_points
+    emb[none] = np.asarray(msm.terrain_embeddings, np.float32)[terrain[none]]
+    return emb, {"images": int(from_images.sum()), "points": int(from_points.sum()), "terrain_text": int(none.sum())}
+
+
+def region_assignments(position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig) -> list[np.ndarray]:
+    r = config.regions
+    if r.method == "agglomerative":
+        return agglomerative_assignments(position, embedding, terrain, r.gamma, tuple(r.cuts), r.dense_max_places, r.micro_max_clusters)
+    sc = r.spectral
+    return spectral_assignments(
+        position, embedding, edges, gamma=r.gamma, levels=r.levels, max_semantic_diff=sc.max_semantic_diff, min_area=sc.min_area,
+        stop_rule=sc.stop_rule, sigma=sc.sigma, min_places=sc.min_places, max_depth=sc.max_depth, seed=r.seed,
+    )
+
+
+def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None, show_progress: bool = False) -> GraphBuild:
+    """The scene graph of a map. TerraError when the map gives nothing to build on."""
+    config = config or BuildConfig()
+    timer = StageTimer()
+    names = list(msm.terrain_classes)
+    if not names:
+        raise TerraError("the map lists no terrain classes (manifest 'terrain_classes' is empty); rebuild it with `terra map`")
+    terrains = list(range(len(names)))
+    if config.terrain.include is not None:
+        unknown = [n for n in config.terrain.include if n not in names]
+        if unknown:
+            raise TerraError(f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})")
+        terrains = [names.index(n) for n in config.terrain.include]
+    with timer.stage("terrain grid"):
+        point_terrain = msm.terrain_index(config.terrain.min_share)
+        point_terrain = np.where(np.isin(point_terrain, terrains), point_terrain, -1)
+        if not (point_terrain >= 0).any():
+            raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
+        grid = build_terrain_grid(
+            msm.points, point_terrain, config.grid.cell_size, config.grid.obstacle_height, config.grid.obstacle_min_points,
+            config.grid.support_radius, config.grid.min_support,
+        )
+    with timer.stage("GVD places"):
+        ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
+    if len(ps.position) == 0:
+        raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
+    with timer.stage("links"):
+        clear = grid_line_clear(traversable, grid.origin, grid.cell_size) if config.linking.require_clear_line else None
+        kwargs = {"clear": clear} if clear is not None else {}
+        links, link_len = link_dead_ends(ps.position, ps.terrain, ps.edges, config.linking.max_link_distance, config.linking.link_candidates, **kwargs)
+        edges = np.vstack([ps.edges, links])
+        weight = np.concatenate([ps.weight, link_len])
+        kind = np.concatenate([np.full(len(ps.edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
+        bridges, bridge_cost, bridge_clear = bridge_components(ps.position, edges, config.linking.bridge_penalty, config.linking.link_candidates, **kwargs)
+        edges = np.vstack([edges, bridges])
+        weight = np.concatenate([weight, bridge_cost])
+        kind = np.concatenate([kind, np.full(len(bridges), EDGE_BRIDGE)])
+        edges, weight, kind = _unique_typed_edges(edges, weight, kind)
+    with timer.stage("place embeddings"):
+        embedding, sources = place_embeddings(msm, ps.position, ps.terrain, config.embedding.max_range)
+    with timer.stage(f"regions ({config.regions.method})"):
+        assignments = region_assignments(ps.position, embedding, ps.terrain, edges, config)
+        levels = build_levels(assignments, ps.position, embedding)
+    graph = SceneGraph(
+        terrain_classes=names,
+        terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),
+        places=Places(ps.position.astype(np.float64), ps.terrain.astype(np.int64), ps.clearance.astype(np.float64), embedding.astype(np.float32)),
+        place_edges=edges,
+        place_edge_weight=weight,
+        place_edge_kind=kind,
+        regions=levels,
+        embedder=msm.embedder,
+        region_method=config.regions.method,
+    )
+    stats.update({
+        "places_per_terrain": {names[t]: n for t, n in stats["places_per_terrain"].items()},
+        "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],
+        "blocked_cells": int(grid.blocked.sum()),
+        "edges": {"gvd": int((kind == EDGE_GVD).sum()), "cross_terrain": int((kind == EDGE_CROSS_TERRAIN).sum()), "bridge": int((kind == EDGE_BRIDGE).sum())},
+        "bridges_not_clear": int((~bridge_clear).sum()),
+        "embedding_source": sources,
+    })
+    return GraphBuild(graph, stats, timer)
+
+
+def _unique_typed_edges(edges: np.ndarray, weight: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique (i < j) edges keeping the cheapest (lowest kind on ties), ordered by (i, j)."""
+    rows = unique_edge_rows(edges, weight, kind)
+    return np.sort(edges, axis=1)[rows].astype(np.int64), weight[rows].astype(np.float64), kind[rows].astype(np.int64)
+
+
+def _check_bundle(bundle: Bundle) -> None:
+    if "map" not in bundle.manifest.get("components", {}) or not bundle.has("map/points"):
+        raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
+    if not bundle.manifest.get("terrain_classes"):
+        raise TerraError(f"{bundle.path}/manifest.json: field 'terrain_classes' is missing or empty; the map has no terrain classes to build places on")
+
+
+def build_graph(bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, progress: bool = True) -> SceneGraph:
+    """Build the scene graph of the map in `bundle_path` and add it to the bundle (atomically)."""
+    return run_build(bundle_path, config, regions, progress).graph
+
+
+def run_build(bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, show_progress: bool = True) -> GraphBuild:
+    """`build_graph` with its counters and timings (used by `terra build` for the summary)."""
+    from terra.graph.storage import write_scene_graph
+    from terra.mapping.storage import load_map
+
+    config = config or BuildConfig()
+    if regions is not None:
+        if regions not in ("agglomerative", "spectral"):
+            raise TerraError(f"--regions must be 'agglomerative' or 'spectral', got {regions!r}")
+        config = config.model_copy(update={"regions": config.regions.model_copy(update={"method": regions})})
+    bundle = Bundle(bundle_path)
+    _check_bundle(bundle)
+    timer = StageTimer()
+    with timer.stage("load map"):
+        msm = load_map(bundle)
+    result = build_scene_graph(msm, config, show_progress)
+    for name, seconds in result.timer.seconds.items():
+        timer.add(name, seconds)
+    with timer.stage("write"):
+        writer = BundleWriter(bundle.path, base=bundle, drop_components=("graph",))
+        try:
+            write_scene_graph(writer, result.graph, {"config": config.model_dump(mode="json"), "stats": result.stats})
+            writer.commit()
+        except BaseException:
+            writer.abort()
+            raise
+    result.timer = timer
+    return result

@@ -1,0 +1,263 @@
+"""The scene graph in a bundle: component `graph/`, spark_dsg JSON plus embedding arrays.
+
+`graph/scene_graph.json` follows spark_dsg's JSON schema (the file `DynamicSceneGraph.save` writes,
+header version 1.1.3), so spark_dsg loads it as is:
+  layers  OBJECTS 2, PLACES 3, REGIONS 4 (level 1), REGIONS_k 3 + k (level k), ROOT 4 + L;
+  node ids NodeSymbol = ord(char) << 56 | index, chars 'O' objects, 'p' places, 'R', 'S', ... for
+  region levels 1, 2, ..., 'Z' the root;
+  places   PlaceNodeAttributes: position (metres, map frame, z = local ground), name = terrain
+           class, semantic_label = terrain index, distance = clearance (m);
+  regions  RoomNodeAttributes: position = centroid of the children;
+  objects  ObjectNodeAttributes with a RAABB bounding box (size, centre, yaw about +z);
+  edges    place-place with weight = traversal cost (m) and metadata kind gvd | cross_terrain |
+           bridge; parent -> child between layers (unweighted).
+Terra's own attributes sit in each node's `metadata.terra`. Embeddings are arrays beside it
+(float32): graph/place_embedding (P, D), graph/terrain_embedding (T, D), graph/region_embedding_<k>
+(R_k, D). `scene_graph_to_spark_json(..., include_features=True)` also writes them into the nodes'
+`semantic_feature` for tools that read only the JSON.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from terra.bundle import Bundle, BundleWriter
+from terra.errors import TerraError
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Objects, Places, RegionLevel, SceneGraph
+
+GRAPH_FORMAT = 1
+GRAPH_JSON = "graph/scene_graph.json"
+SPARK_HEADER = {"project_name": "main", "version": {"major": 1, "minor": 1, "patch": 3}}
+LAYER_OBJECTS, LAYER_PLACES, LAYER_REGIONS = 2, 3, 4
+MAX_LEVELS = 8  # region level chars 'R'..'Y'
+EDGE_KIND_NAMES = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge"}
+EDGE_KIND_CODES = {v: k for k, v in EDGE_KIND_NAMES.items()}
+_INDEX_MASK = (1 << 56) - 1
+
+
+def node_symbol(char: str, index: int) -> int:
+    """spark_dsg NodeSymbol value: ord(char) << 56 | index."""
+    return (ord(char) << 56) | int(index)
+
+
+def symbol_parts(node_id: int) -> tuple[str, int]:
+    return chr(node_id >> 56), node_id & _INDEX_MASK
+
+
+def level_char(level: int) -> str:
+    return chr(ord("R") + level - 1)
+
+
+def layer_names(levels: int) -> dict[str, int]:
+    names = {"OBJECTS": LAYER_OBJECTS, "PLACES": LAYER_PLACES, "REGIONS": LAYER_REGIONS}
+    names.update({f"REGIONS_{k}": LAYER_PLACES + k for k in range(2, levels + 1)})
+    names["ROOT"] = LAYER_PLACES + levels + 1
+    return names
+
+
+def _feature(vec: np.ndarray | None) -> dict[str, Any]:
+    if vec is None:
+        return {"rows": 0, "cols": 0, "data": None}
+    return {"rows": int(vec.shape[0]), "cols": 1, "data": [float(x) for x in vec]}
+
+
+def _node(node_id: int, layer: int, kind: str, position: np.ndarray, terra: dict, extra: dict | None = None, feature: np.ndarray | None = None) -> dict:
+    attributes = {
+        "type": kind,
+        "position": [float(v) for v in position],
+        "last_update_time_ns": 0,
+        "is_active": False,
+        "is_predicted": False,
+        "semantic_feature": _feature(feature),
+        "metadata": {"terra": terra},
+    }
+    attributes.update(extra or {})
+    return {"id": node_id, "layer": layer, "partition": 0, "attributes": attributes}
+
+
+def _edge(source: int, target: int, weight: float | None = None, kind: str | None = None) -> dict:
+    info: dict[str, Any] = {"type": "EdgeAttributes", "weight": 1.0 if weight is None else float(weight), "weighted": weight is not None, "metadata": {}}
+    if kind is not None:
+        info["metadata"] = {"terra": {"kind": kind}}
+    return {"source": source, "target": target, "info": info}
+
+
+def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) -> dict[str, Any]:
+    """The scene graph as a spark_dsg JSON document (a dict ready for json.dumps)."""
+    L = len(sg.regions)
+    if L > MAX_LEVELS:
+        raise ValueError(f"at most {MAX_LEVELS} region levels can be stored, got {L}")
+    names = layer_names(L)
+    nodes: list[dict] = []
+    edges: list[dict] = []
+    places = sg.places
+    feat = (lambda arr, i: arr[i]) if include_features else (lambda arr, i: None)
+
+    for i in range(len(sg.objects)):
+        o = sg.objects
+        yaw = float(o.yaw[i])
+        box = {
+            "type": "RAABB",
+            "dimensions": [float(v) for v in o.size[i]],
+            "world_P_center": [float(v) for v in o.center[i]],
+            "world_R_center": {"w": float(np.cos(yaw / 2)), "x": 0.0, "y": 0.0, "z": float(np.sin(yaw / 2))},
+        }
+        terra = {"index": i, "yaw": yaw, "score": float(o.score[i]), "point_count": int(o.point_count[i]), "place": int(o.place[i])}
+        nodes.append(_node(node_symbol("O", i), LAYER_OBJECTS, "ObjectNodeAttributes", o.center[i], terra, {"name": o.label[i], "bounding_box": box}))
+        edges.append(_edge(node_symbol("p", int(o.place[i])), node_symbol("O", i)))
+
+    for i in range(len(places)):
+        t = int(places.terrain[i])
+        terra = {"index": i, "terrain": sg.terrain_classes[t], "clearance": float(places.clearance[i])}
+        extra = {"name": sg.terrain_classes[t], "semantic_label": t, "distance": float(places.clearance[i]), "num_basis_points": 0, "real_place": True}
+        nodes.append(_node(node_symbol("p", i), LAYER_PLACES, "PlaceNodeAttributes", places.position[i], terra, extra, feat(places.embedding, i)))
+    for (i, j), w, k in zip(sg.place_edges, sg.place_edge_weight, sg.place_edge_kind):
+        edges.append(_edge(node_symbol("p", int(i)), node_symbol("p", int(j)), float(w), EDGE_KIND_NAMES[int(k)]))
+
+    child_char = "p"
+    for level in sg.regions:
+        char = level_char(level.level)
+        layer = LAYER_PLACES + level.level
+        for r in range(len(level)):
+            terra = {"index": r, "level": level.level}
+            nodes.append(_node(node_symbol(char, r), layer, "RoomNodeAttributes", level.position[r], terra, {"name": f"L{level.level}-{r}"}, feat(level.embedding, r)))
+        for c, r in enumerate(level.parent_of_child):
+            edges.append(_edge(node_symbol(char, int(r)), node_symbol(child_char, c)))
+        child_char = char
+    if L:
+        top = sg.regions[-1]
+        root_pos = top.position.mean(axis=0) if len(top) else np.zeros(3)
+        nodes.append(_node(node_symbol("Z", 0), names["ROOT"], "SemanticNodeAttributes", root_pos, {"index": 0, "level": L + 1}, {"name": "root"}))
+        for r in range(len(top)):
+            edges.append(_edge(node_symbol("Z", 0), node_symbol(child_char, r)))
+
+    meta = {
+        "schema": "terra-scene-graph",
+        "format": GRAPH_FORMAT,
+        "terrain_classes": list(sg.terrain_classes),
+        "embedder": sg.embedder,
+        "region_method": sg.region_method,
+        "region_levels": L,
+        "units": {"position": "m, map frame", "clearance": "m", "weight": "m (bridges: times their penalty)", "yaw": "rad about +z"},
+    }
+    return {
+        "SPARK_DSG_header": SPARK_HEADER,
+        "directed": False,
+        "multigraph": False,
+        "layer_keys": [{"layer": layer, "partition": 0} for layer in sorted(set(names.values()))],
+        "layer_names": {name: {"layer": layer, "partition": 0} for name, layer in names.items()},
+        "metadata": {"terra": meta},
+        "nodes": nodes,
+        "edges": edges,
+    }
+
+
+def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any] | None = None) -> None:
+    """Put `sg` into the bundle being written as component `graph/` (replacing any old one).
+    `info` (counts, config, stats) goes to manifest components.graph beside the format number."""
+    for name in [n for n in writer.manifest["files"] if n.startswith("graph/")]:
+        writer.remove(name[:-4] if name.endswith(".npy") else name)
+    writer.put_json(GRAPH_JSON, scene_graph_to_spark_json(sg))
+    dim = sg.terrain_embeddings.shape[1] if sg.terrain_embeddings.ndim == 2 else 0
+    writer.put_array("graph/place_embedding", np.asarray(sg.places.embedding, dtype=np.float32).reshape(-1, dim))
+    writer.put_array("graph/terrain_embedding", np.asarray(sg.terrain_embeddings, dtype=np.float32))
+    for level in sg.regions:
+        writer.put_array(f"graph/region_embedding_{level.level}", np.asarray(level.embedding, dtype=np.float32).reshape(-1, dim))
+    components = writer.manifest.setdefault("components", {})
+    previous = components.get("graph", {}) if isinstance(components.get("graph"), dict) else {}
+    entry = dict(info) if info is not None else {k: v for k, v in previous.items() if k not in ("format", "places", "place_edges", "regions", "objects")}
+    entry.update({
+        "format": GRAPH_FORMAT,
+        "places": len(sg.places),
+        "place_edges": int(len(sg.place_edges)),
+        "regions": [len(level) for level in sg.regions],
+        "objects": len(sg.objects),
+    })
+    components["graph"] = entry
+
+
+def load_scene_graph(bundle: Bundle) -> SceneGraph:
+    """The scene graph stored in `bundle`; TerraError (one line) when absent or incompatible."""
+    info = bundle.manifest.get("components", {}).get("graph")
+    if info is None or not bundle.has(GRAPH_JSON):
+        raise TerraError(f"{bundle.path}: the bundle has no scene graph; build one with `terra build {bundle.path}`")
+    if info.get("format") != GRAPH_FORMAT:
+        raise TerraError(f"{bundle.path}: scene graph format {info.get('format')!r} is not supported (expected {GRAPH_FORMAT}); rebuild it with `terra build {bundle.path}`")
+    doc = bundle.json(GRAPH_JSON)
+    try:
+        return _from_document(doc, bundle)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise TerraError(f"{bundle.path / GRAPH_JSON}: malformed scene graph ({type(exc).__name__}: {exc})") from None
+
+
+def _from_document(doc: dict, bundle: Bundle) -> SceneGraph:
+    meta = doc["metadata"]["terra"]
+    if meta.get("format") != GRAPH_FORMAT:
+        raise ValueError(f"format {meta.get('format')!r}, expected {GRAPH_FORMAT}")
+    L = int(meta["region_levels"])
+    terrain_classes = list(meta["terrain_classes"])
+    by_char: dict[str, list[tuple[int, dict]]] = {}
+    for node in doc["nodes"]:
+        char, index = symbol_parts(int(node["id"]))
+        by_char.setdefault(char, []).append((index, node["attributes"]))
+    for items in by_char.values():
+        items.sort(key=lambda item: item[0])
+
+    terrain_embeddings = bundle.array("graph/terrain_embedding")
+    dim = terrain_embeddings.shape[1]
+    place_items = by_char.get("p", [])
+    places = Places(
+        position=np.array([a["position"] for _, a in place_items], dtype=np.float64).reshape(-1, 3),
+        terrain=np.array([a["semantic_label"] for _, a in place_items], dtype=np.int64),
+        clearance=np.array([a["distance"] for _, a in place_items], dtype=np.float64),
+        embedding=bundle.array("graph/place_embedding").reshape(-1, dim),
+    )
+    object_items = by_char.get("O", [])
+    objects = Objects(
+        center=np.array([a["position"] for _, a in object_items], dtype=np.float64).reshape(-1, 3),
+        size=np.array([a["bounding_box"]["dimensions"] for _, a in object_items], dtype=np.float64).reshape(-1, 3),
+        yaw=np.array([a["metadata"]["terra"]["yaw"] for _, a in object_items], dtype=np.float64),
+        label=[a["name"] for _, a in object_items],
+        score=np.array([a["metadata"]["terra"]["score"] for _, a in object_items], dtype=np.float32),
+        point_count=np.array([a["metadata"]["terra"]["point_count"] for _, a in object_items], dtype=np.int64),
+        place=np.array([a["metadata"]["terra"]["place"] for _, a in object_items], dtype=np.int64),
+    )
+
+    place_edges, weights, kinds = [], [], []
+    parent_of: dict[str, dict[int, int]] = {}
+    for edge in doc["edges"]:
+        (sc, si), (tc, ti) = symbol_parts(int(edge["source"])), symbol_parts(int(edge["target"]))
+        if sc == "p" and tc == "p":
+            place_edges.append((si, ti))
+            weights.append(edge["info"]["weight"])
+            kinds.append(EDGE_KIND_CODES[edge["info"]["metadata"]["terra"]["kind"]])
+        elif tc != "O":
+            parent_of.setdefault(tc, {})[ti] = si
+    regions = []
+    child_char, n_children = "p", len(places)
+    for k in range(1, L + 1):
+        char = level_char(k)
+        items = by_char.get(char, [])
+        mapping = parent_of.get(child_char, {})
+        parent = np.array([mapping[c] for c in range(n_children)], dtype=np.int64)
+        regions.append(RegionLevel(
+            level=k,
+            position=np.array([a["position"] for _, a in items], dtype=np.float64).reshape(-1, 3),
+            embedding=bundle.array(f"graph/region_embedding_{k}").reshape(-1, dim),
+            parent_of_child=parent,
+        ))
+        child_char, n_children = char, len(items)
+    return SceneGraph(
+        terrain_classes=terrain_classes,
+        terrain_embeddings=terrain_embeddings,
+        places=places,
+        place_edges=np.array(place_edges, dtype=np.int64).reshape(-1, 2),
+        place_edge_weight=np.array(weights, dtype=np.float64),
+        place_edge_kind=np.array(kinds, dtype=np.int64),
+        regions=regions,
+        objects=objects,
+        embedder=meta.get("embedder", ""),
+        region_method=meta.get("region_method", ""),
+    )
