@@ -2,6 +2,8 @@
 
 `tiny_bundle` / `small_bundle`: noise-free maps of the simulated tiny / small campus, built once
 per session with the default MappingConfig via terra.mapping.pipeline.build_map.
+`tiny_mapped` / `small_mapped`: the same bundles with the simulator's truth recorded while they
+were built (TruthRecorder), so end-to-end checks need not render the frames again.
 
 `BoxScene`: a scene small enough to reason about by hand (flat ground split into grass and
 asphalt, a few axis-aligned boxes), ray-cast exactly for a LiDAR and a pinhole camera, so the
@@ -21,24 +23,98 @@ from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays
 # ---------------------------------------------------------------------------- session bundles
 
 
-def _build_bundle(dataset, tmp_path_factory, name: str):
+class TruthRecorder:
+    """Wraps a dataset and, while the mapping pipeline reads each frame once, records the
+    simulator's per-point labels per map voxel and, per image, the visible scan point nearest to
+    its camera. The end-to-end tests check the map against these without rendering again."""
+
+    def __init__(self, dataset, voxel_size: float):
+        self._dataset, self.voxel_size = dataset, float(voxel_size)
+        self.name, self.classes = dataset.name, dataset.classes
+        self.label_pairs: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # frame -> voxel keys, labels, counts
+        self.nearest_seen: dict[tuple[int, int], np.ndarray] = {}  # (frame, camera) -> (3,) map frame
+
+    def __len__(self) -> int:
+        return len(self._dataset)
+
+    def global_map(self):
+        return self._dataset.global_map()
+
+    def __getitem__(self, i: int) -> Frame:
+        from terra.geometry import voxel_keys
+        from terra.mapping.projection import visible_points
+
+        frame = self._dataset[i]
+        points_map = transform_points(frame.T_map_lidar, frame.points.astype(np.float64))
+        labels = np.asarray(frame.point_labels, np.int64)
+        self.label_pairs[i] = _count_pairs(voxel_keys(points_map, self.voxel_size), labels, np.ones(labels.size))
+        for c, camera in enumerate(frame.cameras):
+            seen = visible_points(frame.points, camera.calibration)
+            self.nearest_seen[(i, c)] = points_map[seen.index[np.argmin(seen.distance)]]
+        return frame
+
+    def point_truth(self) -> np.ndarray:
+        """Majority simulator label of the scan points in each occupied voxel, in voxel-key order
+        (the order in which an accumulated map stores its points)."""
+        frames = [self.label_pairs[i] for i in sorted(self.label_pairs)]
+        voxel, label, votes = _count_pairs(*(np.concatenate(column) for column in zip(*frames)))
+        # Per voxel, the label with the most votes (ties: lowest label).
+        order = np.lexsort((label, -votes, voxel))
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = voxel[order[1:]] != voxel[order[:-1]]
+        return label[order[first]]
+
+
+def _count_pairs(keys: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique (key, label) pairs, sorted, with their summed weights."""
+    if keys.size == 0:
+        return keys, labels, weights
+    order = np.lexsort((labels, keys))
+    keys, labels = keys[order], labels[order]
+    start = np.flatnonzero(np.r_[True, (keys[1:] != keys[:-1]) | (labels[1:] != labels[:-1])])
+    return keys[start], labels[start], np.add.reduceat(weights[order], start)
+
+
+@dataclass
+class MappedCampus:
+    """A session map of a simulated campus and what the simulator said while it was built."""
+
+    bundle: object  # terra.bundle.Bundle
+    truth: TruthRecorder
+
+
+def _build_bundle(dataset, tmp_path_factory, name: str) -> MappedCampus:
     from terra.mapping.config import MappingConfig
     from terra.mapping.pipeline import build_map
 
+    config = MappingConfig()
+    recorder = TruthRecorder(dataset, config.fusion.voxel_size)
     out = tmp_path_factory.mktemp(name) / "map.terra"
-    return build_map(dataset, MappingConfig(), out, progress=False)
+    return MappedCampus(build_map(recorder, config, out, progress=False), recorder)
 
 
 @pytest.fixture(scope="session")
-def tiny_bundle(tiny_campus, tmp_path_factory):
-    """Bundle (terra.bundle.Bundle) with the noise-free map of simulate('tiny', 0)."""
+def tiny_mapped(tiny_campus, tmp_path_factory) -> MappedCampus:
+    """The noise-free map of simulate('tiny', 0) (default MappingConfig) and its recorded truth."""
     return _build_bundle(tiny_campus, tmp_path_factory, "tiny_bundle")
 
 
 @pytest.fixture(scope="session")
-def small_bundle(small_campus, tmp_path_factory):
-    """Bundle (terra.bundle.Bundle) with the noise-free map of simulate('small', 0)."""
+def small_mapped(small_campus, tmp_path_factory) -> MappedCampus:
+    """The noise-free map of simulate('small', 0) (default MappingConfig) and its recorded truth."""
     return _build_bundle(small_campus, tmp_path_factory, "small_bundle")
+
+
+@pytest.fixture(scope="session")
+def tiny_bundle(tiny_mapped):
+    """Bundle (terra.bundle.Bundle) with the noise-free map of simulate('tiny', 0)."""
+    return tiny_mapped.bundle
+
+
+@pytest.fixture(scope="session")
+def small_bundle(small_mapped):
+    """Bundle (terra.bundle.Bundle) with the noise-free map of simulate('small', 0)."""
+    return small_mapped.bundle
 
 
 # ---------------------------------------------------------------------------- hand-built scene
