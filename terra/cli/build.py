@@ -57,4 +57,6 @@ def build_command(
     typer.echo(f"  regions ({graph.region_method}): " + " / ".join(str(n) for n in summary["regions_per_level"]) + " per level")
     src = result.stats["embedding_source"]
     typer.echo(f"  place embeddings: {src['images']} from images, {src['points']} from points, {src['terrain_text']} from the terrain name")
+    if src["images"] == 0 and src["points"]:
+        typer.echo("  (the map has no images: place embeddings come from the map points instead)")
     typer.echo(result.timer.table())

@@ -111,6 +111,13 @@ def place_embeddings(msm: MetricSemanticMap, position: np.ndarray, terrain: np.n
     return emb, {"images": int(from_images.sum()), "points": int(from_points.sum()), "terrain_text": int(none.sum())}
 
 
+def embedding_rule(msm: MetricSemanticMap, max_range: float) -> str:
+    """One line for the manifest saying which rule gave the place embeddings."""
+    if len(msm.images) == 0:
+        return f"points: the map has no images, so each place takes the mean MS-Avg feature of the map points within {max_range:g} m"
+    return f"images: mean whole-image embedding of the images within {max_range:g} m that saw the place (else the nearest that saw it; else points within {max_range:g} m)"
+
+
 def region_assignments(position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig) -> list[np.ndarray]:
     r = config.regions
     if r.method == "agglomerative":
@@ -183,6 +190,7 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         "edges": {"gvd": int((kind == EDGE_GVD).sum()), "cross_terrain": int((kind == EDGE_CROSS_TERRAIN).sum()), "bridge": int((kind == EDGE_BRIDGE).sum())},
         "bridges_not_clear": int((~bridge_clear).sum()),
         "embedding_source": sources,
+        "embedding_rule": embedding_rule(msm, config.embedding.max_range),
     })
     return GraphBuild(graph, stats, timer)
 

@@ -25,4 +25,5 @@ def graph_summary(bundle: Bundle) -> dict[str, Any]:
         "region_method": config.get("regions", {}).get("method"),
         "objects": info.get("objects"),
         "embedding_source": stats.get("embedding_source", {}),
+        "embedding_rule": stats.get("embedding_rule"),
     }
