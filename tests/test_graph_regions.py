@@ -1,0 +1,204 @@
+"""Region clustering: the paper's weight, average linkage and cuts against a naive reference, the
+micro-cluster form above the dense size limit, spectral splits and their stopping rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from terra.graph.agglomerative import agglomerative_assignments, weighted_average_linkage
+from terra.graph.regions import build_levels, paper_weight
+from terra.graph.spectral import semantic_difference, should_stop, spectral_assignments
+
+
+def partition(labels) -> set[frozenset[int]]:
+    groups: dict[int, set[int]] = {}
+    for i, label in enumerate(np.asarray(labels).tolist()):
+        groups.setdefault(label, set()).add(i)
+    return {frozenset(g) for g in groups.values()}
+
+
+def naive_average_linkage_cut(W: np.ndarray, height: float) -> set[frozenset[int]]:
+    """Textbook UPGMA on a full matrix: merge the two clusters with the smallest mean pairwise
+    weight while it is <= height."""
+    clusters = [[i] for i in range(len(W))]
+    while len(clusters) > 1:
+        best, pair = np.inf, None
+        for a in range(len(clusters)):
+            for b in range(a + 1, len(clusters)):
+                d = W[np.ix_(clusters[a], clusters[b])].mean()
+                if d < best:
+                    best, pair = d, (a, b)
+        if best > height:
+            break
+        a, b = pair
+        clusters[a] = clusters[a] + clusters[b]
+        del clusters[b]
+    return {frozenset(c) for c in clusters}
+
+
+def unit(rng, n, d=8):
+    v = rng.normal(size=(n, d))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def test_paper_weight_by_hand():
+    p_i, p_j = np.array([[0.0, 0.0, 0.0]]), np.array([[3.0, 4.0, 0.0]])
+    e_i, e_j = np.array([[1.0, 0.0]]), np.array([[2.0, 2.0]])  # any norm: cos = 1 / sqrt(2)
+    assert np.isclose(paper_weight(p_i, p_j, e_i, e_j, 100.0)[0], 5.0 + 100.0 * (1 - 1 / np.sqrt(2)))
+    assert np.isclose(paper_weight(p_i, p_j, e_i, e_i, 100.0)[0], 5.0)
+
+
+def test_dense_average_linkage_cuts_match_a_naive_reference():
+    rng = np.random.default_rng(1)
+    # Three spatial blobs 120 m apart, two embedding families mixed inside them.
+    centres = np.array([[0.0, 0.0], [120.0, 0.0], [0.0, 130.0]])
+    pos = np.column_stack([np.repeat(centres, 8, axis=0) + rng.normal(scale=12.0, size=(24, 2)), rng.normal(scale=0.5, size=24)])
+    base = unit(rng, 2)
+    emb = base[rng.integers(0, 2, 24)] + 0.2 * unit(rng, 24)
+    cuts = (20.0, 50.0, 100.0, 200.0)
+    out = agglomerative_assignments(pos, emb, np.zeros(24, int), gamma=100.0, cuts=cuts)
+    W = np.array([[paper_weight(pos[[i]], pos[[j]], emb[[i]], emb[[j]], 100.0)[0] for j in range(24)] for i in range(24)])
+    for labels, cut in zip(out, cuts):
+        assert partition(labels) == naive_average_linkage_cut(W, cut)
+    sizes = [len(partition(labels)) for labels in out]
+    assert sizes == sorted(sizes, reverse=True) and sizes[0] > sizes[-1]
+
+
+def test_the_semantic_term_separates_co_located_places():
+    rng = np.random.default_rng(2)
+    pos = np.column_stack([rng.uniform(0, 20, size=(30, 2)), np.zeros(30)])
+    family = np.arange(30) % 2
+    emb = np.eye(4)[family]  # orthogonal: 1 - cos = 1, weight >= gamma = 100 between families
+    labels = agglomerative_assignments(pos, emb, np.zeros(30, int), gamma=100.0, cuts=(50.0, 400.0))
+    assert partition(labels[0]) == partition(family)
+    assert len(partition(labels[1])) == 1
+    # gamma = 0: geometry only, and 20 m of spread is one region at a 50 m cut.
+    assert len(partition(agglomerative_assignments(pos, emb, np.zeros(30, int), gamma=0.0, cuts=(50.0,))[0])) == 1
+
+
+def test_weighted_average_linkage_equals_scipy_on_singletons():
+    from scipy.cluster.hierarchy import linkage
+    from scipy.spatial.distance import pdist, squareform
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(40, 2)) * 30
+    d = pdist(x)
+    ours = weighted_average_linkage(squareform(d), np.ones(40))
+    assert np.allclose(np.sort(ours[:, 2]), np.sort(linkage(d, "average")[:, 2]))
+
+
+def test_micro_cluster_form_agrees_with_the_dense_form_where_both_apply():
+    """Above dense_max the places are grouped per (terrain, cuts[0] / 10 m cell). With one place
+    per cell the micro-cluster linkage is exact, so the two forms give the same regions."""
+    rng = np.random.default_rng(4)
+    grid = np.stack(np.meshgrid(np.arange(18), np.arange(14)), -1).reshape(-1, 2) * 10.0
+    pos = np.column_stack([grid + rng.uniform(0.5, 4.5, size=grid.shape), np.zeros(len(grid))])  # one per 5 m cell
+    emb = unit(rng, 3)[(grid[:, 0] > 90).astype(int) + (grid[:, 1] > 70)] + 0.1 * unit(rng, len(grid), 8)[:, :8]
+    terrain = (grid[:, 0] > 60).astype(int)
+    dense = agglomerative_assignments(pos, emb, terrain, dense_max=10_000)
+    micro = agglomerative_assignments(pos, emb, terrain, dense_max=10, micro_max=10_000)
+    for a, b in zip(dense, micro):
+        assert partition(a) == partition(b)
+    assert len(partition(dense[0])) > 1
+
+
+def test_micro_clusters_bound_the_matrix_and_keep_a_hierarchy():
+    rng = np.random.default_rng(5)
+    pos = np.column_stack([rng.uniform(0, 600, size=(3000, 2)), np.zeros(3000)])
+    emb = unit(rng, 3000)
+    out = agglomerative_assignments(pos, emb, rng.integers(0, 3, 3000), dense_max=100, micro_max=400)
+    for fine, coarse in zip(out, out[1:]):  # nested: each fine region inside one coarse region
+        pairs = np.unique(np.column_stack([fine, coarse]), axis=0)
+        assert len(np.unique(pairs[:, 0])) == len(pairs)
+    # Places of one (terrain, cell) group share a region; at most micro_max groups.
+    assert len(np.unique(out[0])) <= 400
+
+
+def test_build_levels_centroids_and_normalised_mean_embeddings():
+    pos = np.array([[0.0, 0, 0], [2, 0, 0], [10, 0, 0], [12, 0, 1]])
+    emb = np.array([[1.0, 0], [0, 1], [1, 0], [1, 0]], dtype=np.float32)
+    levels = build_levels([np.array([5, 5, 7, 7]), np.array([1, 1, 1, 1])], pos, emb)
+    assert np.array_equal(levels[0].parent_of_child, [0, 0, 1, 1])
+    assert np.allclose(levels[0].position, [[1, 0, 0], [11, 0, 0.5]])
+    assert np.allclose(levels[0].embedding[0], np.array([1, 1]) / np.sqrt(2))
+    assert np.array_equal(levels[1].parent_of_child, [0, 0])
+    assert np.allclose(levels[1].position, [[6, 0, 0.25]])
+
+
+# ------------------------------------------------------------------------------------ spectral
+
+
+def test_semantic_difference_is_most_minus_least_similar_to_the_mean():
+    emb = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    mean = np.array([1.0, 1.0]) / np.sqrt(2)
+    sims = (emb / np.linalg.norm(emb, axis=1, keepdims=True)) @ mean
+    assert np.isclose(semantic_difference(emb), sims.max() - sims.min())
+    assert np.isclose(semantic_difference(emb), 1 - 1 / np.sqrt(2))
+
+
+def test_stop_rule_either_is_the_papers_and_both_is_the_references():
+    pos = np.array([[0.0, 0, 0], [200, 200, 0]])  # 40,000 m^2: too large to stop on area
+    same = np.array([[1.0, 0], [1.0, 0.01]])  # semantic difference ~0: small
+    assert should_stop(pos, same, 0.45, 10_000, "either")
+    assert not should_stop(pos, same, 0.45, 10_000, "both")
+    small = np.array([[0.0, 0, 0], [20, 20, 0]] * 3)  # 400 m^2
+    different = np.array([[1.0, 0]] * 5 + [[0.0, 1]])  # mean ~ (5, 1): 0.98 - 0.20 = 0.78
+    assert np.isclose(semantic_difference(different), (5 - 1) / np.sqrt(26))
+    assert should_stop(small, different, 0.45, 10_000, "either")
+    assert not should_stop(small, different, 0.45, 10_000, "both")
+    same = np.array([[1.0, 0]] * 6)
+    assert should_stop(small, same, 0.45, 10_000, "both")
+
+
+def chain_world(rng, n=30, m=12):
+    """Two chains 300 m long, side by side 150 m apart, of n and m places, each with its own
+    embedding, joined by one edge; each spans more than 10,000 m^2 with a ripple. (Unbalanced on
+    purpose: with two orthogonal families of equal size every member is equally similar to the
+    mean, so the paper's semantic difference of the whole would be 0.)"""
+    def chain(k, y):
+        x = np.linspace(0, 300, k)
+        return np.column_stack([x, y + 40 * np.sin(x / 40), np.zeros(k)])
+
+    pos = np.vstack([chain(n, 0.0), chain(m, 150.0)])
+    family = np.repeat([0, 1], [n, m])
+    emb = np.eye(6)[family] + 0.05 * unit(rng, n + m, 6)
+    edges = np.array([(i, i + 1) for i in range(n - 1)] + [(n + i, n + i + 1) for i in range(m - 1)] + [(n // 2, n + m // 2)])
+    return pos, emb, edges, family
+
+
+def test_spectral_splits_along_semantics_and_geometry_and_is_deterministic():
+    pos, emb, edges, family = chain_world(np.random.default_rng(6))
+    out = spectral_assignments(pos, emb, edges, levels=3, min_area=10_000.0, max_semantic_diff=0.45, seed=0)
+    # The root's semantic difference (0.59) is large, so it splits, at the weak link between the
+    # families; each chain is semantically uniform, so it stops there (the paper's 'either' rule).
+    assert semantic_difference(emb) > 0.45
+    assert partition(out[0]) == partition(family)
+    assert len(partition(out[-1])) == 1  # one split deep: the upper levels are the root
+    again = spectral_assignments(pos, emb, edges, levels=3, seed=0)
+    assert all(np.array_equal(a, b) for a, b in zip(out, again))
+    for fine, coarse in zip(out, out[1:]):
+        pairs = np.unique(np.column_stack([fine, coarse]), axis=0)
+        assert len(np.unique(pairs[:, 0])) == len(pairs)
+
+
+def test_spectral_stop_rules_differ_on_a_large_uniform_scene():
+    pos, emb, edges, _ = chain_world(np.random.default_rng(7))
+    emb = np.tile(np.eye(6)[0], (len(pos), 1)) + 0.01 * unit(np.random.default_rng(8), len(pos), 6)
+    either = spectral_assignments(pos, emb, edges, levels=2, stop_rule="either")
+    both = spectral_assignments(pos, emb, edges, levels=2, stop_rule="both")
+    assert len(partition(either[0])) == 1  # semantic difference below 0.45: the paper stops at once
+    # The reference's rule also needs the area below 10,000 m^2: it splits until every leaf is small.
+    leaves = partition(both[0])
+    assert len(leaves) > 2
+    for leaf in leaves:
+        idx = np.array(sorted(leaf))
+        span = np.ptp(pos[idx, :2], axis=0)
+        assert span[0] * span[1] < 10_000 or len(idx) < 4
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_spectral_is_a_partition_for_any_seed(seed):
+    pos, emb, edges, _ = chain_world(np.random.default_rng(9))
+    for labels in spectral_assignments(pos, emb, edges, levels=4, seed=seed):
+        assert labels.shape == (len(pos),)
