@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terra.graph.agglomerative import agglomerative_assignments, weighted_average_linkage
+from terra.graph.agglomerative import agglomerative_assignments, gap_cuts, weighted_average_linkage
 from terra.graph.regions import build_levels, paper_weight
 from terra.graph.spectral import semantic_difference, should_stop, spectral_assignments
 
@@ -75,6 +75,16 @@ def test_the_semantic_term_separates_co_located_places():
     assert len(partition(labels[1])) == 1
     # gamma = 0: geometry only, and 20 m of spread is one region at a 50 m cut.
     assert len(partition(agglomerative_assignments(pos, emb, np.zeros(30, int), gamma=0.0, cuts=(50.0,))[0])) == 1
+
+
+def test_gap_levels_cut_below_the_largest_merge_height_gaps():
+    assert gap_cuts(np.array([11.0, 1.0, 30.0, 2.0, 10.0]), 2) == (2.0, 11.0)  # gaps 19 and 8
+    # Places on a line in groups: {0, 1}, {10, 11} 10 m apart, and {60} far away (gamma 0).
+    x = np.array([0.0, 1.0, 10.0, 11.0, 60.0])
+    pos = np.column_stack([x, np.zeros(5), np.zeros(5)])
+    out = agglomerative_assignments(pos, np.ones((5, 2)), np.zeros(5, int), gamma=0.0, gap_levels=2)
+    # Merge heights 1, 1, 10, 54.5: the largest gaps are above 10 and above 1.
+    assert [partition(o) for o in out] == [partition([0, 0, 1, 1, 2]), partition([0, 0, 0, 0, 1])]
 
 
 def test_weighted_average_linkage_equals_scipy_on_singletons():

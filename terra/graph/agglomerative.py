@@ -12,6 +12,12 @@ average of w taken as |centroid_a - centroid_b| + gamma (1 - s_a . s_b / (n_a n_
 the sum of the group's unit embeddings: the semantic part is the exact pairwise average, the
 metric part the centroid distance, which differs from the mean pairwise distance by at most
 about the cell size. All places of a micro-cluster share their regions.
+
+Cuts: by default the paper's fixed heights (50/100/200/400, metres plus gamma times a cosine
+distance). They do not scale with the scene: on a map smaller than about twice the largest cut,
+the upper levels are one region each. `gap_levels=n` instead cuts just below the n largest gaps
+between successive merge heights (the reference code's integer `agg_params` option; not the paper's
+default, and only used when configured).
 """
 
 from __future__ import annotations
@@ -33,20 +39,24 @@ def agglomerative_assignments(
     cuts: tuple[float, ...] = (50.0, 100.0, 200.0, 400.0),
     dense_max: int = 5000,
     micro_max: int = 5000,
+    gap_levels: int | None = None,
 ) -> list[np.ndarray]:
-    """Per cut height, (P,) cluster label of every place (labels nest from cut to cut)."""
+    """Per cut height, (P,) cluster label of every place (labels nest from cut to cut). With
+    `gap_levels`, the cuts are the heights just below the largest merge-height gaps (see module)."""
     position = np.asarray(position, dtype=np.float64)
     unit = normalize_rows(embedding).astype(np.float64)
     P = len(position)
     if P == 0:
-        return [np.zeros(0, np.int64) for _ in cuts]
+        return [np.zeros(0, np.int64) for _ in range(gap_levels or len(cuts))]
     if P == 1:
-        return [np.zeros(1, np.int64) for _ in cuts]
+        return [np.zeros(1, np.int64) for _ in range(gap_levels or len(cuts))]
     if P <= dense_max:
         # For unit vectors 1 - cos = |e_i - e_j|^2 / 2.
         w = pdist(position)
         w += (0.5 * gamma) * pdist(unit, "sqeuclidean")
         Z = linkage(w, method="average")
+        if gap_levels:
+            cuts = gap_cuts(Z[:, 2], gap_levels)
         return [fcluster(Z, t, criterion="distance").astype(np.int64) - 1 for t in cuts]
     group = micro_clusters(position, terrain, cell=cuts[0] / 10.0, max_groups=micro_max)
     G = int(group.max()) + 1
@@ -59,7 +69,21 @@ def agglomerative_assignments(
         hi = min(lo + 1024, G)
         D[lo:hi] += gamma * (1.0 - (emb_sum[lo:hi] @ emb_sum.T) / np.outer(size[lo:hi], size))
     merges = weighted_average_linkage(D, size)
+    if gap_levels:
+        cuts = gap_cuts(merges[:, 2], gap_levels)
     return [group_labels(merges, G, t)[group] for t in cuts]
+
+
+def gap_cuts(heights: np.ndarray, n: int) -> tuple[float, ...]:
+    """n increasing cut heights, each the lower end of one of the n largest gaps between
+    successive merge heights (fewer merges than n: the last cut repeats)."""
+    h = np.sort(np.asarray(heights, dtype=np.float64))
+    if len(h) < 2:
+        return tuple([float(h[-1]) if len(h) else 0.0] * n)
+    gaps = np.diff(h)
+    top = np.sort(np.argsort(-gaps, kind="stable")[:n])
+    cuts = [float(h[i]) for i in top]
+    return tuple(cuts + [cuts[-1]] * (n - len(cuts)))
 
 
 def micro_clusters(position: np.ndarray, terrain: np.ndarray, cell: float, max_groups: int) -> np.ndarray:

@@ -84,6 +84,7 @@ class RegionsSection(Section):
     method: Literal["agglomerative", "spectral"] = "agglomerative"
     gamma: float = Field(100.0, ge=0.0, description="weight w = |p_i - p_j| (m) + gamma * (1 - cos(e_i, e_j))")
     cuts: list[float] = Field(default_factory=lambda: [50.0, 100.0, 200.0, 400.0], max_length=8, description="agglomerative cut heights, one region level each, increasing")
+    gap_levels: int | None = Field(None, ge=1, le=8, description="instead of `cuts`: this many levels cut just below the largest merge-height gaps (the reference's integer agg_params; not the paper's default)")
     dense_max_places: int = Field(5000, ge=2, description="exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters")
     micro_max_clusters: int = Field(5000, ge=2, description="micro-clusters (terrain x grid cell) used above dense_max_places, at most this many")
     levels: int = Field(4, ge=1, le=8, description="spectral: region levels cut from the binary split tree")

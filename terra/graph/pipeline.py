@@ -121,7 +121,7 @@ def embedding_rule(msm: MetricSemanticMap, max_range: float) -> str:
 def region_assignments(position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig) -> list[np.ndarray]:
     r = config.regions
     if r.method == "agglomerative":
-        return agglomerative_assignments(position, embedding, terrain, r.gamma, tuple(r.cuts), r.dense_max_places, r.micro_max_clusters)
+        return agglomerative_assignments(position, embedding, terrain, r.gamma, tuple(r.cuts), r.dense_max_places, r.micro_max_clusters, r.gap_levels)
     sc = r.spectral
     return spectral_assignments(
         position, embedding, edges, gamma=r.gamma, levels=r.levels, max_semantic_diff=sc.max_semantic_diff, min_area=sc.min_area,
