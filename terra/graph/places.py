@@ -132,5 +132,13 @@ def _lonely_patch_cells(free: np.ndarray, distance: np.ndarray, cells: np.ndarra
     missing = np.flatnonzero(~covered[1:]) + 1
     if missing.size == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    best = ndimage.maximum_position(distance, labels, missing)
-    return np.asarray(best, dtype=np.int64).reshape(-1, 2)
+    # Only the cells of the missing patches are sorted (ndimage.maximum_position sorts them all):
+    # per patch, the largest clearance, ties to the first cell in raster order.
+    is_missing = np.zeros(n + 1, dtype=bool)
+    is_missing[missing] = True
+    flat = np.flatnonzero(is_missing[labels.ravel()])
+    patch = labels.ravel()[flat]
+    order = np.lexsort((flat, -distance.ravel()[flat], patch))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = patch[order][1:] != patch[order][:-1]
+    return np.column_stack(np.unravel_index(flat[order][first], labels.shape)).astype(np.int64)
