@@ -1,14 +1,11 @@
-"""End to end on the simulated campus (noise-free labels): object classes and terrain against the
-simulator's ground truth, and resumption on the tiny preset."""
+"""End to end on the simulated campus (noise-free labels): object classes, terrain and image
+visibility against the simulator's ground truth. (Resumption after a killed process:
+tests/test_mapping_cli.py.)"""
 
-import hashlib
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from terra.mapping.config import MappingConfig
-from terra.mapping.pipeline import run_mapping
 from terra.mapping.storage import load_map
 
 pytestmark = pytest.mark.slow
@@ -68,46 +65,3 @@ def test_tiny_campus_map_matches_ground_truth(tiny_campus, tiny_mapped, text_emb
 
 def test_small_campus_map_matches_ground_truth(small_campus, small_mapped, text_embedder):
     check_against_ground_truth(small_mapped, small_campus, text_embedder)
-
-
-class Killed(Exception):
-    pass
-
-
-class KilledAfter:
-    """Wraps a dataset; loading frame `at` raises (as a killed process would stop there)."""
-
-    def __init__(self, dataset, at: int):
-        self._dataset, self._at = dataset, at
-        self.name, self.classes = dataset.name, dataset.classes
-
-    def __len__(self):
-        return len(self._dataset)
-
-    def __getitem__(self, i):
-        if i == self._at:
-            raise Killed(i)
-        return self._dataset[i]
-
-    def global_map(self):
-        return self._dataset.global_map()
-
-
-def digest(path: Path) -> dict[str, str]:
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.rglob("*")) if p.is_file()}
-
-
-def test_tiny_resume_equals_uninterrupted(tiny_campus, tiny_bundle, tmp_path):
-    config = MappingConfig(checkpoint_every=8)
-    assert config.model_dump(exclude={"checkpoint_every"}) == MappingConfig().model_dump(exclude={"checkpoint_every"})
-    out = tmp_path / "map.terra"
-    with pytest.raises(Killed):
-        run_mapping(KilledAfter(tiny_campus, 19), config, out, show_progress=False)
-    run = run_mapping(tiny_campus, config, out, show_progress=False)
-    assert run.resumed_from == 16
-    uninterrupted = digest(tiny_bundle.path)
-    resumed = digest(out)
-    # Only the recorded config (checkpoint_every) may differ: every array is byte-identical.
-    differing = {k for k in uninterrupted if uninterrupted[k] != resumed.get(k)}
-    assert differing <= {"manifest.json"}
-    assert set(uninterrupted) == set(resumed)

@@ -38,10 +38,30 @@ def _lines(summary: dict) -> list[str]:
         faults = {k: v for k, v in m.get("stats", {}).items() if "skipped" in k or "nonfinite" in k}
         if any(faults.values()):
             lines.append("  skipped: " + ", ".join(f"{k} {v}" for k, v in faults.items() if v))
-    if "graph" in summary:
-        lines.append("  graph: " + json.dumps(summary["graph"], sort_keys=True))
+    if summary.get("graph"):
+        lines.extend(_graph_lines(summary["graph"], summary.get("terrain_classes") or []))
     lines.append("  bytes: " + ", ".join(f"{k} {v:,}" for k, v in sorted(summary["bytes"].items())))
     return lines
+
+
+def _counts(counts: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counts.items()) or "none"
+
+
+def _graph_lines(g: dict, terrain_order: list[str]) -> list[str]:
+    """The scene graph part of the summary (terra.graph.summary.graph_summary) as readable lines;
+    terrains in the map's terrain-class order."""
+    places = g.get("places_per_terrain") or {}
+    places = {**{t: places[t] for t in terrain_order if t in places}, **places}
+    regions = g.get("regions_per_level") or []
+    method = f" ({g['region_method']})" if g.get("region_method") else ""
+    return [
+        f"  graph: {g.get('places')} places, {g.get('place_edges')} place edges, {g.get('objects') or 0} objects",
+        "    places per terrain: " + _counts(places),
+        "    edges by kind: " + _counts(g.get("edges_by_kind") or {}),
+        f"    regions per level{method}, lowest first: " + (", ".join(str(n) for n in regions) or "none"),
+        "    place embeddings from: " + _counts(g.get("embedding_source") or {}),
+    ]
 
 
 @app.command("info")

@@ -52,17 +52,28 @@ class SentenceTransformerEmbedder:
         self._model = model_loader(self.device)
         dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
         self.dim = int(dim_of())
-        self._cache: dict[str, np.ndarray] = {}
+        self._cache: dict[tuple[str, ...], np.ndarray] = {}  # per set of texts, see embed_text
 
     def embed_text(self, texts: list[str]) -> np.ndarray:
-        missing = sorted({t for t in texts if t not in self._cache})
-        if missing:
-            vectors = self._model.encode(missing, batch_size=64, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False)
-            for text, vec in zip(missing, normalize_rows(vectors)):
-                self._cache[text] = vec
+        """(n, dim) float32 unit vectors. The distinct texts are encoded together, in sorted order,
+        as one call: a text's vector depends only on the set of texts in this call (the model pads
+        a batch to its longest text, which moves the last bits), never on what the process
+        embedded before, so maps and query results are byte-reproducible."""
         if not texts:
             return np.zeros((0, self.dim), dtype=np.float32)
-        return np.stack([self._cache[t] for t in texts]).astype(np.float32)
+        unique = tuple(sorted(set(texts)))
+        vectors = self._cache.get(unique)
+        if vectors is None:
+            encoded = self._model.encode(list(unique), batch_size=64, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False)
+            vectors = normalize_rows(encoded)
+            if len(self._cache) >= _CACHED_SETS:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[unique] = vectors
+        row = {text: i for i, text in enumerate(unique)}
+        return vectors[[row[t] for t in texts]].astype(np.float32)
+
+
+_CACHED_SETS = 256  # text sets whose vectors each embedder keeps (oldest dropped first)
 
 
 def _load_minilm(device: str) -> object:
