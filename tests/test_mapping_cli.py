@@ -170,3 +170,18 @@ def test_killed_process_resumes_to_the_same_bytes(tiny_bundle, tmp_path, capsys)
     assert set(resumed) == set(uninterrupted)
     assert {k for k in resumed if resumed[k] != uninterrupted[k]} <= {"manifest.json"}
     assert not state.parent.parent.exists()
+
+
+def test_noise_preset_is_recorded_and_changes_the_map(box_folder, box_bundle, tmp_path, text_embedder):
+    from terra.perception.config import NOISE_PRESETS
+
+    out = tmp_path / "noisy.terra"
+    assert run(["map", str(box_folder), "--out", str(out), "--noise", "realistic", "-q"]) == 0
+    noisy = Bundle(out).manifest["components"]["map"]["config"]["perception"]["noise"]
+    clean = Bundle(box_bundle).manifest["components"]["map"]["config"]["perception"]["noise"]
+    assert {k: noisy[k] for k in NOISE_PRESETS["realistic"]} == NOISE_PRESETS["realistic"]
+    assert clean["dilate_px"] == 0 and clean["miss_rate"] == 0 and clean["confusion_rate"] == 0
+    # The noise reached the fusion: the observations differ from the noise-free map's.
+    changed = {k for k, v in digest(out).items() if k.startswith("map/counts") and v != digest(box_bundle).get(k)}
+    assert changed
+    assert Bundle(out).manifest["embedder"] == {"name": text_embedder.name, "dim": text_embedder.dim}

@@ -70,6 +70,18 @@ def test_storage_round_trip(tmp_path):
     assert not list(tmp_path.glob("m.terra/**/*.pkl"))
 
 
+def test_embedder_is_recorded_and_a_mismatched_dimension_is_refused(tmp_path):
+    from terra.errors import TerraError
+
+    msm = random_map(np.random.default_rng(3))
+    writer = BundleWriter(tmp_path / "m.terra")
+    write_map(writer, msm)
+    writer.manifest["embedder"]["dim"] = 4  # the arrays hold 5-d rows
+    bundle = writer.commit()
+    with pytest.raises(TerraError, match=r"map/bank.npy: expected rows of the embedder's dimension 4.*got shape \(7, 5\)"):
+        load_map(bundle)
+
+
 @pytest.fixture(scope="module")
 def box_map(tmp_path_factory, text_embedder):
     scene = BoxScene()

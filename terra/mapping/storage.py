@@ -97,7 +97,13 @@ def load_map(bundle: Bundle) -> MetricSemanticMap:
     meta = bundle.json("map/meta.json")
     points = bundle.array("map/points")
     n = points.shape[0]
-    bank = normalize_rows(bundle.array("map/bank").astype(np.float32)).reshape(-1, dim)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise TerraError(f"{bundle.path}/map/points.npy: expected (N, 3) metres, got shape {points.shape} (corrupt bundle)")
+    for name in ("map/bank", "map/terrain_embeddings", "map/images/embedding"):
+        shape = bundle.array(name, mmap=True).shape
+        if len(shape) != 2 or shape[1] != dim:
+            raise TerraError(f"{bundle.path}/{name}.npy: expected rows of the embedder's dimension {dim} (manifest.json 'embedder'), got shape {shape}")
+    bank = normalize_rows(bundle.array("map/bank").astype(np.float32))
     indptr = bundle.array("map/counts_indptr")
     indices = bundle.array("map/counts_indices")
     data = bundle.array("map/counts_data").astype(np.int32)
@@ -108,7 +114,7 @@ def load_map(bundle: Bundle) -> MetricSemanticMap:
         stamp=bundle.array("map/images/stamp"),
         camera=bundle.array("map/images/camera"),
         T_map_cam=bundle.array("map/images/T_map_cam"),
-        embedding=normalize_rows(bundle.array("map/images/embedding").astype(np.float32)).reshape(-1, dim),
+        embedding=normalize_rows(bundle.array("map/images/embedding").astype(np.float32)),
         camera_names=list(meta.get("camera_names", [])),
     )
     visibility = None
