@@ -119,7 +119,11 @@ def test_resume_after_interruption_is_byte_identical(tmp_path, box_run, text_emb
 
 
 class Faulty(BoxScene):
-    """Frame 1: NaN points; 2: empty scan; 3: unreadable; 4: image stamp 1 s off."""
+    """Frame 1: NaN points; 2: empty scan; 3: unreadable; 4: image stamp 1 s off; 6: non-finite
+    pose; 7: label image of another size than its calibration; 8: scan of (n, 2) points."""
+
+    def __init__(self):
+        super().__init__(n_frames=9)
 
     def __getitem__(self, i):
         frame = super().__getitem__(i)
@@ -132,6 +136,12 @@ class Faulty(BoxScene):
             raise TerraError(f"frame{i}.npy: unreadable scan")
         elif i == 4:
             frame.cameras[0].stamp += 1.0
+        elif i == 6:
+            frame.T_map_lidar = np.full((4, 4), np.nan)
+        elif i == 7:
+            frame.cameras[0].semantic = frame.cameras[0].semantic[:-1]
+        elif i == 8:
+            frame.points = frame.points[:, :2]
         return frame
 
 
@@ -142,9 +152,18 @@ def test_per_frame_faults_are_skipped_and_counted(tmp_path, text_embedder):
     assert stats["frames_skipped_empty"] == 1
     assert stats["frames_skipped_unreadable"] == 1
     assert stats["images_skipped_unmatched_stamp"] == 1
-    assert stats["frames_fused"] == 4 and stats["images_fused"] == 3
+    assert stats["frames_skipped_bad_pose"] == 1
+    assert stats["images_skipped_bad_size"] == 1
+    assert stats["frames_skipped_bad_points"] == 1
+    assert stats["frames_fused"] == 5 and stats["images_fused"] == 3
     assert run.notes["frames_skipped_unreadable"] == "frame3.npy: unreadable scan"
+    assert run.notes["frames_skipped_bad_pose"].startswith("frame 6 (t = 6.000 s): T_map_lidar must be a finite 4x4 pose")
+    n8 = len(BoxScene(n_frames=9)[8].points)
+    assert run.notes["frames_skipped_bad_points"] == f"frame 8 (t = 8.000 s): points must be (N, 3) metres, got shape ({n8}, 2)"
+    assert run.notes["images_skipped_unmatched_stamp"] == "front: image stamp 5.000 s is 1.000 s from its scan's 4.000 s (tolerance 0.1 s)"
+    assert run.notes["images_skipped_bad_size"] == "front: semantic labels of (119, 160) pixels, calibration says (height, width) (120, 160)"
     assert run.bundle.manifest["components"]["map"]["stats"] == stats
+    assert len(load_map(run.bundle).images) == 3
 
 
 class Broken(BoxScene):

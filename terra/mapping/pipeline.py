@@ -138,13 +138,16 @@ def _load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
         stats.add("frames_skipped_unreadable")
         stats.note("frames_skipped_unreadable", str(exc))
         return None
+    where = f"frame {i} (t = {float(frame.stamp):.3f} s)"
     points = np.asarray(frame.points)
     if points.ndim != 2 or points.shape[1] < 3:
         stats.add("frames_skipped_bad_points")
+        stats.note("frames_skipped_bad_points", f"{where}: points must be (N, 3) metres, got shape {points.shape}")
         return None
     pose = np.asarray(frame.T_map_lidar, dtype=np.float64)
     if pose.shape != (4, 4) or not np.isfinite(pose).all():
         stats.add("frames_skipped_bad_pose")
+        stats.note("frames_skipped_bad_pose", f"{where}: T_map_lidar must be a finite 4x4 pose, got shape {pose.shape}")
         return None
     finite = np.isfinite(points[:, :3]).all(axis=1)
     if not finite.all():
@@ -159,21 +162,24 @@ def _load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
     frame.points = np.asarray(frame.points, dtype=np.float32)[:, :3]
     if frame.points.shape[0] == 0:
         stats.add("frames_skipped_empty")
+        stats.note("frames_skipped_empty", f"{where}: no finite point in the scan")
         return None
     return frame
 
 
-def _image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> str | None:
-    """Why an image cannot be fused (a stats counter name), or None."""
+def _image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tuple[str, str] | None:
+    """Why an image cannot be fused: (stats counter name, one line naming the image), or None."""
     calib = camera.calibration
-    if abs(float(camera.stamp) - float(frame.stamp)) > config.projection.max_time_offset:
-        return "images_skipped_unmatched_stamp"
+    name = camera.name or f"frame {frame.index} camera {calib.name}"
+    offset = abs(float(camera.stamp) - float(frame.stamp))
+    if offset > config.projection.max_time_offset:
+        return "images_skipped_unmatched_stamp", (
+            f"{name}: image stamp {float(camera.stamp):.3f} s is {offset:.3f} s from its scan's {float(frame.stamp):.3f} s "
+            f"(tolerance {config.projection.max_time_offset} s)")
     shape = (calib.height, calib.width)
-    if camera.image is not None and np.asarray(camera.image).shape[:2] != shape:
-        return "images_skipped_bad_size"
-    for labels in (camera.semantic, camera.instance):
-        if labels is not None and np.asarray(labels).shape != shape:
-            return "images_skipped_bad_size"
+    for what, array in (("image", camera.image), ("semantic labels", camera.semantic), ("instance labels", camera.instance)):
+        if array is not None and np.asarray(array).shape[:2] != shape:
+            return "images_skipped_bad_size", f"{name}: {what} of {np.asarray(array).shape[:2]} pixels, calibration says (height, width) {shape}"
     return None
 
 
@@ -188,13 +194,15 @@ def _fuse_frame(frame: Frame, i: int, config: MappingConfig, perception: Percept
         for c, camera in enumerate(frame.cameras):
             fault = _image_fault(frame, camera, config)
             if fault is not None:
-                fusion.stats.add(fault)
+                fusion.stats.add(fault[0])
+                fusion.stats.note(*fault)
                 continue
             with timer.stage("perception"):
                 try:
                     seen = perception.perceive(camera, np.random.default_rng([seed, i, c]))
-                except ValueError:
+                except ValueError as exc:
                     fusion.stats.add("images_skipped_no_labels")
+                    fusion.stats.note("images_skipped_no_labels", f"{camera.name or f'frame {i} camera {c}'}: {exc}")
                     continue
             with timer.stage("fusion"):
                 fusion.integrate_image(frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, seen)
