@@ -20,6 +20,15 @@ import pytest
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass
 from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays, transform_points
 
+def folder_digest(path) -> dict[str, str]:
+    """SHA-256 per file of a folder (relative path -> hex), to compare bundles byte for byte."""
+    import hashlib
+    from pathlib import Path
+
+    path = Path(path)
+    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
 # ---------------------------------------------------------------------------- session bundles
 
 

@@ -2,9 +2,7 @@
 faults exit 2 with one line naming the file and leave the earlier bundle untouched, and a run
 killed with SIGKILL resumes to the same bytes as an uninterrupted one."""
 
-import hashlib
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -18,11 +16,7 @@ import pytest
 from terra.bundle import Bundle
 from terra.cli import run
 from terra.sim.writer import write_dataset
-from tests.fixtures_mapping import BoxScene
-
-
-def digest(path: Path) -> dict[str, str]:
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.rglob("*")) if p.is_file()}
+from tests.fixtures_mapping import BoxScene, folder_digest
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +84,7 @@ def one_error_line(captured) -> str:
 def test_structural_faults_exit_2_and_keep_the_old_bundle(damage, names, damaged, box_bundle, tmp_path, capsys):
     out = tmp_path / "m.terra"
     shutil.copytree(box_bundle, out)
-    before = digest(out)
+    before = folder_digest(out)
     source = damaged
     if damage == "calibration":  # K of the wrong shape
         meta = json.loads((damaged / "terra_dataset.json").read_text())
@@ -105,7 +99,7 @@ def test_structural_faults_exit_2_and_keep_the_old_bundle(damage, names, damaged
     assert run(["map", str(source), "--out", str(out), "-q"]) == 2
     line = one_error_line(capsys.readouterr())
     assert names in line
-    assert digest(out) == before
+    assert folder_digest(out) == before
     Bundle(out).verify()
 
 
@@ -159,14 +153,14 @@ def test_killed_process_resumes_to_the_same_bytes(tiny_bundle, tmp_path, capsys)
     deadline = time.monotonic() + 120
     while not state.is_file() and child.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
-    os.kill(child.pid, signal.SIGKILL)
+    child.send_signal(signal.SIGKILL)  # a no-op when the child has already exited
     child.wait()
     assert child.returncode == -signal.SIGKILL, child.stderr.read().decode()
     assert state.is_file() and not out.exists()
     capsys.readouterr()
     assert run(argv[:-1]) == 0  # not quiet: it says where it resumed
     assert "resumed after frame 8" in capsys.readouterr().out
-    resumed, uninterrupted = digest(out), digest(tiny_bundle.path)
+    resumed, uninterrupted = folder_digest(out), folder_digest(tiny_bundle.path)
     assert set(resumed) == set(uninterrupted)
     assert {k for k in resumed if resumed[k] != uninterrupted[k]} <= {"manifest.json"}
     assert not state.parent.parent.exists()
@@ -182,6 +176,6 @@ def test_noise_preset_is_recorded_and_changes_the_map(box_folder, box_bundle, tm
     assert {k: noisy[k] for k in NOISE_PRESETS["realistic"]} == NOISE_PRESETS["realistic"]
     assert clean["dilate_px"] == 0 and clean["miss_rate"] == 0 and clean["confusion_rate"] == 0
     # The noise reached the fusion: the observations differ from the noise-free map's.
-    changed = {k for k, v in digest(out).items() if k.startswith("map/counts") and v != digest(box_bundle).get(k)}
+    changed = {k for k, v in folder_digest(out).items() if k.startswith("map/counts") and v != folder_digest(box_bundle).get(k)}
     assert changed
     assert Bundle(out).manifest["embedder"] == {"name": text_embedder.name, "dim": text_embedder.dim}

@@ -2,7 +2,6 @@
 visibility against the simulator's ground truth. (Resumption after a killed process:
 tests/test_mapping_cli.py.)"""
 
-
 import numpy as np
 import pytest
 

@@ -1,8 +1,5 @@
 """build_map end to end on the hand-built box scene: semantics, LiDAR-only input, resume, bad input."""
 
-import hashlib
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -11,11 +8,7 @@ from terra.errors import TerraError
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import build_map, run_mapping
 from terra.mapping.storage import load_map
-from tests.fixtures_mapping import BoxScene, default_boxes
-
-
-def folder_digest(path: Path) -> dict[str, str]:
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.rglob("*")) if p.is_file()}
+from tests.fixtures_mapping import BoxScene, default_boxes, folder_digest
 
 
 def inside(points: np.ndarray, box, margin: float = 0.05) -> np.ndarray:
