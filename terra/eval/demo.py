@@ -85,7 +85,10 @@ class DemoConfig:
             raise TerraError(f"--seed must be a non-negative integer, got {seed}")
         if not validation_spacing >= 1.0:
             raise TerraError(f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}")
-        sections = {s: load_section(path, s) for s in ("sim", "mapping", "build", "tasks", "eval")}
+        sections = {s: load_section(path, s) for s in ("sim", "build", "tasks", "eval")}
+        # The demo shows the method under realistic perception noise (bleeding masks, missed
+        # instances, look-alike confusions) unless the user's file sets the noise itself.
+        sections["mapping"] = load_section(path, "mapping", None if _sets_noise(path) else {"perception": {"noise": "realistic"}})
         return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), **sections)
 
     @property
@@ -379,3 +382,14 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     lines += ["  " + h for h in headline(ev)]
     lines.append(f"report: {out / demo['report']}")
     return lines
+
+
+def _sets_noise(path: Path | None) -> bool:
+    """Whether the YAML config at `path` sets mapping.perception.noise."""
+    if path is None:
+        return False
+    import yaml
+
+    raw = yaml.safe_load(Path(path).read_text()) or {}
+    perception = ((raw.get("mapping") or {}).get("perception") or {}) if isinstance(raw, dict) else {}
+    return isinstance(perception, dict) and "noise" in perception
