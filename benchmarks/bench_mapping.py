@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchtable import report
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -156,14 +158,7 @@ def main() -> None:
                  (f"peak memory of terra map, {label}", f"{m['peak_rss_mb']:.0f} MB", "<= 4096 MB")]
         if args.quick:
             shutil.rmtree(out.parent, ignore_errors=True)
-    width = max(len(r[0]) for r in rows)
-    print(f"{'measure':<{width}}  {'value':<58}  target   (load average at start "
-          f"{result['load_average_1min_at_start']:.1f} on {result['cpus']} cpus)")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value:<58}  {target}")
-    args.result.parent.mkdir(parents=True, exist_ok=True)
-    args.result.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
-    print(f"wrote {args.result}")
+    report(rows, result, args.result)
 
 
 if __name__ == "__main__":

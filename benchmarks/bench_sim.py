@@ -19,7 +19,6 @@ Writes benchmarks/results/sim.json (or --out) and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import resource
@@ -30,6 +29,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from benchtable import report
 
 TARGETS = {"frame": 0.5, "small": 120.0, "campus": 900.0}
 
@@ -131,13 +132,7 @@ def main() -> None:
                      f"{p['wall_s']:.1f} s wall, {p['cpu_s']:.0f} s CPU, {p['peak_rss_mb']:.0f} MB, {p['output_mb']:.0f} MB out",
                      f"<= {target:.0f} s" if target else ""))
         rows.append((f"  read back all frames ({p['format']} reader)", f"{p['read_back_s']:.1f} s ({p['frames'] / max(p['read_back_s'], 1e-9):.0f} frames/s)", ""))
-    width = max(len(r[0]) for r in rows)
-    print(f"{'measure':<{width}}  {'value':<48}  target   (load average at start {result['load_average_1min_at_start']:.1f}, {result['cpus']} CPUs)")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value:<48}  {target}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
-    print(f"wrote {args.out}")
+    report(rows, result, args.out)
 
 
 if __name__ == "__main__":

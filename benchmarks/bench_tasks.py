@@ -11,7 +11,6 @@ Writes benchmarks/results/tasks.json and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import time
@@ -19,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+
+from benchtable import report
 
 OBJECT_NAMES = ["dumpster", "car", "bicycle rack", "bench", "trash can", "street lamp", "fire hydrant", "picnic table"]
 TERRAINS = ["sidewalk", "grass", "asphalt", "dirt", "water"]
@@ -217,14 +218,7 @@ def main() -> None:
     for load in result["load"]:
         rows.append((f"load {Path(load['bundle']).name} ({load['points']:,} points, {load['places']:,} places)",
                      f"{load['load_median_s']:.2f} s (+{load['feature_cache_s']:.2f} s feature cache)", "<= 2 s"))
-    width = max(len(r[0]) for r in rows)
-    print(f"{'measure':<{width}}  {'value':<40}  target   (load average at start {result['load_average_1min_at_start']:.1f}"
-          f" on {result['cpus']} cpus)")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value:<40}  {target}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
-    print(f"wrote {args.out}")
+    report(rows, result, args.out)
 
 
 if __name__ == "__main__":
