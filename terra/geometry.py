@@ -1,4 +1,4 @@
-"""Poses, camera projection and voxel keys.
+"""Poses, camera projection and voxel keys (lens distortion models live in `terra.lens`).
 
 Conventions: a pose `T_a_b` is a 4x4 homogeneous matrix taking points from frame b to frame a
 (p_a = T_a_b @ p_b). Lengths are metres, angles radians. Camera frames are optical frames:
@@ -9,9 +9,12 @@ top-left pixel.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from terra import lens
 
 
 def make_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -59,66 +62,89 @@ def yaw_rotation(yaw: float) -> np.ndarray:
 
 @dataclass
 class CameraCalibration:
-    """A pinhole camera with OpenCV radial-tangential distortion, rigidly mounted on the LiDAR.
+    """A camera with a real lens model, rigidly mounted on the LiDAR.
 
-    K: 3x3 intrinsics in pixels. dist: [k1, k2, p1, p2, k3] (OpenCV order; zeros = none).
-    T_cam_lidar: extrinsics, LiDAR frame -> camera optical frame.
+    K: 3x3 intrinsics in pixels. dist: distortion coefficients in OpenCV order, as many as the
+    calibration states (see `terra.lens`): for `model` 'pinhole' 0, 4, 5, 8, 12 or 14
+    [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y]; for 'fisheye' (equidistant)
+    4 [k1, k2, k3, k4]. T_cam_lidar: extrinsics, LiDAR frame -> camera optical frame (metres).
     """
 
     name: str
     width: int
     height: int
     K: np.ndarray
-    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     T_cam_lidar: np.ndarray = field(default_factory=lambda: np.eye(4))
+    model: str = lens.PINHOLE
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, dtype=np.float64)
-        self.dist = np.asarray(self.dist, dtype=np.float64).ravel()
         self.T_cam_lidar = np.asarray(self.T_cam_lidar, dtype=np.float64)
         if self.K.shape != (3, 3):
             raise ValueError(f"camera {self.name}: K must be 3x3, got {self.K.shape}")
-        if self.dist.size not in (0, 4, 5):
-            raise ValueError(f"camera {self.name}: dist must have 0, 4 or 5 coefficients, got {self.dist.size}")
-        self.dist = np.pad(self.dist, (0, 5 - self.dist.size))
+        if not np.all(np.isfinite(self.K)) or self.K[0, 0] <= 0 or self.K[1, 1] <= 0 or self.K[2, 2] != 1.0:
+            raise ValueError(f"camera {self.name}: K must be finite with positive focal lengths and K[2, 2] = 1, got {self.K.tolist()}")
+        try:
+            self.dist = lens.check_coefficients(self.model, self.dist)
+        except ValueError as exc:
+            raise ValueError(f"camera {self.name}: {exc}") from None
         if self.T_cam_lidar.shape != (4, 4):
             raise ValueError(f"camera {self.name}: T_cam_lidar must be 4x4, got {self.T_cam_lidar.shape}")
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"camera {self.name}: image size must be positive, got {self.width}x{self.height}")
 
+    @property
+    def distorted(self) -> bool:
+        """Whether the lens model differs from an ideal pinhole."""
+        return self.model != lens.PINHOLE or lens.has_distortion(self.dist)
 
-def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Apply OpenCV radial-tangential distortion to normalised coordinates (N, 2) = (x/z, y/z)."""
-    k1, k2, p1, p2, k3 = dist
-    x, y = xy[:, 0], xy[:, 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([xd, yd], axis=1)
+    @cached_property
+    def max_radius2(self) -> float:
+        """Largest squared undistorted normalised radius (x/z)^2 + (y/z)^2 that the image covers.
+
+        Polynomial lens models fold back beyond the field of view: a ray far outside it can
+        distort onto a pixel inside the image. Projection refuses rays beyond this radius."""
+        if not self.distorted:
+            return np.inf
+        xy = lens.undistort(self.pixels_to_normalized(_border_pixels(self.width, self.height)), self.dist, self.model)
+        r2 = np.sum(xy * xy, axis=1)
+        r2 = r2[np.isfinite(r2)]
+        return float(r2.max() * (1.0 + 1e-9)) if r2.size else np.inf
+
+    def pixels_to_normalized(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels (N, 2) -> distorted normalised coordinates (N, 2) through K^-1 (skew included)."""
+        K = self.K
+        y = (uv[:, 1] - K[1, 2]) / K[1, 1]
+        x = (uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+        return np.stack([x, y], axis=1)
 
 
-def undistort_normalized(xy_distorted: np.ndarray, dist: np.ndarray, iterations: int = 20) -> np.ndarray:
-    """Invert `distort_normalized` by fixed-point iteration (accurate for the mild lenses we model)."""
-    xy = xy_distorted.copy()
-    for _ in range(iterations):
-        err = distort_normalized(xy, dist) - xy_distorted
-        xy = xy - err
-    return xy
+def _border_pixels(width: int, height: int, step: int = 4) -> np.ndarray:
+    """Pixel positions along the image's outer edge (pixel edges at -0.5 and size - 0.5)."""
+    us = np.append(np.arange(-0.5, width - 0.5, step), width - 0.5)
+    vs = np.append(np.arange(-0.5, height - 0.5, step), height - 0.5)
+    top = np.stack([us, np.full_like(us, -0.5)], 1)
+    bottom = np.stack([us, np.full_like(us, height - 0.5)], 1)
+    left = np.stack([np.full_like(vs, -0.5), vs], 1)
+    right = np.stack([np.full_like(vs, width - 0.5), vs], 1)
+    return np.concatenate([top, bottom, left, right])
 
 
 def project_points(points_cam: np.ndarray, camera: CameraCalibration, min_depth: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    """Project camera-frame points (N, 3, metres) to pixels.
+    """Project camera-frame points (N, 3, metres) to pixels through the camera's lens model.
 
-    Returns (uv (N, 2) float pixels, valid (N,) bool): valid means depth z > min_depth and the pixel
-    lies inside the image. Rays behind the camera are never valid.
+    Returns (uv (N, 2) float pixels, valid (N,) bool): valid means depth z > min_depth, the ray
+    lies within the lens's field of view (see `CameraCalibration.max_radius2`) and the pixel lies
+    inside the image. Rays behind the camera are never valid.
     """
     z = points_cam[:, 2]
     in_front = z > min_depth
     safe_z = np.where(in_front, z, 1.0)
     xy = points_cam[:, :2] / safe_z[:, None]
-    if np.any(camera.dist):
-        xy = distort_normalized(xy, camera.dist)
+    if camera.distorted:
+        in_front &= np.sum(xy * xy, axis=1) <= camera.max_radius2
+        xy = lens.distort(xy, camera.dist, camera.model)
     K = camera.K
     u = K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2]
     v = K[1, 1] * xy[:, 1] + K[1, 2]
@@ -129,12 +155,9 @@ def project_points(points_cam: np.ndarray, camera: CameraCalibration, min_depth:
 def pixel_rays(camera: CameraCalibration) -> np.ndarray:
     """Unit ray directions (H*W, 3) in the camera frame through every pixel centre, row-major."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width]
-    K = camera.K
-    y = (v.ravel() - K[1, 2]) / K[1, 1]
-    x = (u.ravel() - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    xy = np.stack([x, y], axis=1)
-    if np.any(camera.dist):
-        xy = undistort_normalized(xy, camera.dist)
+    xy = camera.pixels_to_normalized(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64))
+    if camera.distorted:
+        xy = lens.undistort(xy, camera.dist, camera.model)
     rays = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
     return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 

@@ -84,7 +84,7 @@ def test_non_empty_output_needs_overwrite(tmp_path, capsys):
     ("sim:\n  lidar:\n    beams: 0\n", "lidar.beams"),
     ("sim:\n  lidar:\n    vertical_fov_deg: [10, -10]\n", "vertical_fov_deg must satisfy"),
     ("sim:\n  lidar:\n    min_range: 50\n    max_range: 20\n", "max_range must exceed min_range"),
-    ("sim:\n  cameras:\n    - dist: [0.1, 0.2, 0.3]\n", "dist must have 0, 4 or 5 coefficients"),
+    ("sim:\n  cameras:\n    - dist: [0.1, 0.2, 0.3]\n", "supported lengths: 0, 4, 5, 8, 12, 14"),
     ("sim:\n  cameras:\n    - dist: [-0.5, 0, 0, 0, 0]\n", "cannot be inverted over the 640x480 image"),
     ("sim:\n  cameras:\n    - cx: 700\n", "principal point (700.0, 239.5) must lie inside"),
     ("sim:\n  cameras:\n    - name: a\n    - name: a\n", "camera names must be unique"),

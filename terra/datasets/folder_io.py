@@ -36,13 +36,14 @@ def read_classes(root: Path) -> ClassTable | None:
 def calibration_to_json(cal: CameraCalibration) -> dict:
     """Exact JSON form of a calibration (floats keep full precision through repr)."""
     return {"name": cal.name, "width": int(cal.width), "height": int(cal.height), "K": cal.K.tolist(),
-            "dist": cal.dist.tolist(), "T_cam_lidar": cal.T_cam_lidar.tolist()}
+            "model": cal.model, "dist": cal.dist.tolist(), "T_cam_lidar": cal.T_cam_lidar.tolist()}
 
 
 def calibration_from_json(d: dict, source: str) -> CameraCalibration:
     try:
         return CameraCalibration(str(d["name"]), int(d["width"]), int(d["height"]), np.asarray(d["K"], float),
-                                 np.asarray(d["dist"], float), np.asarray(d["T_cam_lidar"], float))
+                                 np.asarray(d["dist"], float), np.asarray(d["T_cam_lidar"], float),
+                                 str(d.get("model", "pinhole")))
     except (KeyError, TypeError, ValueError) as exc:
         raise TerraError(f"{source}: malformed camera calibration ({exc})") from None
 

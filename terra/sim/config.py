@@ -7,7 +7,7 @@ in the config (radians in code).
 
 from __future__ import annotations
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from terra.config import Section
 
@@ -35,7 +35,9 @@ class LidarConfig(Section):
 
 
 class CameraConfig(Section):
-    """A pinhole camera with OpenCV radial-tangential distortion [k1, k2, p1, p2, k3].
+    """A camera with a real lens model (`terra.lens`): `model` pinhole with 0, 4, 5, 8, 12 or 14
+    OpenCV coefficients [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y], or fisheye
+    (equidistant) with 4 [k1, k2, k3, k4].
 
     Mount: position (metres) in the robot base frame, then yaw (left-positive about z), pitch
     (down-positive) and roll about the viewing axis, in degrees. cx/cy default to the image centre.
@@ -48,6 +50,7 @@ class CameraConfig(Section):
     fy: float = Field(420.0, gt=0.0)
     cx: float | None = None
     cy: float | None = None
+    model: str = Field("pinhole", description="lens model: pinhole (OpenCV) or fisheye (equidistant)")
     dist: list[float] = Field(default_factory=lambda: [-0.05, 0.01, 0.0, 0.0, 0.0])
     position: tuple[float, float, float] = (0.2, 0.0, 1.5)
     yaw_deg: float = 0.0
@@ -56,9 +59,10 @@ class CameraConfig(Section):
 
     @field_validator("dist")
     @classmethod
-    def _dist_len(cls, v: list[float]) -> list[float]:
-        if len(v) not in (0, 4, 5):
-            raise ValueError(f"dist must have 0, 4 or 5 coefficients [k1, k2, p1, p2, k3], got {len(v)}")
+    def _dist_len(cls, v: list[float], info: ValidationInfo) -> list[float]:
+        from terra import lens
+
+        lens.check_coefficients(info.data.get("model", lens.PINHOLE), v)
         return v
 
     @field_validator("name")
@@ -74,27 +78,31 @@ class CameraConfig(Section):
         cy = (self.height - 1) / 2 if self.cy is None else self.cy
         if not (0.0 <= cx < self.width and 0.0 <= cy < self.height):
             raise ValueError(f"principal point ({cx}, {cy}) must lie inside the {self.width}x{self.height} image")
-        if len(self.dist) and any(self.dist):
-            _check_distortion_invertible(self.dist, self.width, self.height, self.fx, self.fy, cx, cy)
+        from terra import lens
+
+        if self.model != lens.PINHOLE or lens.has_distortion(self.dist):
+            _check_distortion_invertible(self.dist, self.model, self.width, self.height, self.fx, self.fy, cx, cy)
         return self
 
 
-def _check_distortion_invertible(dist: list[float], width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> None:
-    """ValueError when the radial-tangential model folds over inside the image: then pixels have no
-    unique viewing ray and the rendered image would be wrong. Checked on a grid that includes the
-    image border: each pixel's undistorted ray must distort back onto the pixel."""
+def _check_distortion_invertible(dist: list[float], model: str, width: int, height: int, fx: float, fy: float,
+                                 cx: float, cy: float) -> None:
+    """ValueError when the lens model folds over inside the image: then pixels have no unique
+    viewing ray and the rendered image would be wrong. Checked on a grid that includes the image
+    border: on straight lines from the principal point to grid pixels, every pixel must have an
+    undistorted ray and the undistorted radius must grow with the distorted one."""
     import numpy as np
 
-    from terra.geometry import distort_normalized, undistort_normalized
+    from terra import lens
 
-    coeffs = np.zeros(5)
-    coeffs[: len(dist)] = dist
     u, v = np.meshgrid(np.linspace(-0.5, width - 0.5, 17), np.linspace(-0.5, height - 0.5, 13))
-    xy = np.stack([(u.ravel() - cx) / fx, (v.ravel() - cy) / fy], axis=1)
-    with np.errstate(all="ignore"):  # a folding lens diverges: caught by the finiteness test below
-        back = distort_normalized(undistort_normalized(xy, coeffs, iterations=100), coeffs)
-    error_px = np.max(np.abs(back - xy) * [fx, fy])
-    if not np.isfinite(error_px) or error_px > 0.01:
+    ends = np.stack([(u.ravel() - cx) / fx, (v.ravel() - cy) / fy], axis=1)
+    ends = ends[np.hypot(*ends.T) > 0]
+    steps = np.linspace(0.0, 1.0, 65)[1:]
+    lines = (ends[:, None, :] * steps[None, :, None]).reshape(-1, 2)  # rays out from the principal point
+    with np.errstate(all="ignore"):
+        radius = np.hypot(*lens.undistort(lines, dist, model).T).reshape(len(ends), len(steps))
+    if not (np.all(np.isfinite(radius)) and np.all(np.diff(radius, axis=1) > 0)):
         raise ValueError(f"distortion {list(dist)} cannot be inverted over the {width}x{height} image "
                          "(the lens model folds over; use smaller coefficients)")
 

@@ -65,7 +65,7 @@ class Camera:
         cy = (config.height - 1) / 2 if config.cy is None else config.cy
         K = np.array([[config.fx, 0.0, cx], [0.0, config.fy, cy], [0.0, 0.0, 1.0]])
         self.calibration = CameraCalibration(config.name, config.width, config.height, K, np.asarray(config.dist, float),
-                                             invert_pose(self.T_base_cam) @ T_base_lidar)
+                                             invert_pose(self.T_base_cam) @ T_base_lidar, config.model)
         self.tiles = RayTiles.from_grid(pixel_rays(self.calibration), config.height, config.width, 16, 16)
 
     def render(self, world: World, T_map_cam: np.ndarray, max_range: float = 150.0) -> dict[str, np.ndarray]:
