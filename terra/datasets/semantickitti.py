@@ -27,10 +27,10 @@ import numpy as np
 import yaml
 from scipy.linalg import rq
 
-from terra.datasets import register_loader
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_json, read_label_png,
                                       read_rgb, write_label_png, write_rgb)
+from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
 from terra.progress import progress
@@ -350,4 +350,5 @@ def _detect(path: Path) -> bool:
     return (path / "velodyne").is_dir() or (path / "sequences").is_dir()
 
 
-register_loader("semantickitti", _detect, SemanticKittiDataset)
+LOADER = Loader("semantickitti", _detect, lambda path, _options: SemanticKittiDataset(path),
+                description="KITTI odometry / SemanticKITTI sequences (velodyne/, labels/, poses.txt, calib.txt)")

