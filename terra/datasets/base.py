@@ -124,3 +124,34 @@ class Dataset(Protocol):
     def global_map(self) -> np.ndarray | None:
         """The source's own global map (M, 3) in the map frame, metres, if it ships one."""
         ...
+
+
+@dataclass
+class SourceInfo:
+    """What a source holds, as `terra inspect` reports it, without reading every frame.
+
+    format: loader name. path: the file or folder. frames: scans that will be mapped.
+    time_span: (first, last) scan stamp, seconds. cameras: the calibrations as read (intrinsics,
+    lens model and coefficients, T_cam_lidar). pose_source: where T_map_lidar comes from, in
+    words ("poses.txt", "tf map -> os_lidar", "odometry (KISS-ICP)", "OXTS", ...).
+    skipped / skipped_notes: what will not be used, counted by reason, with a first example line.
+    details: format-specific facts (bag topics, TF tree, a ready-to-edit dataset section, ...),
+    plain JSON-able data.
+    """
+
+    format: str
+    path: str
+    frames: int
+    time_span: tuple[float, float] | None
+    cameras: list[CameraCalibration]
+    pose_source: str
+    skipped: dict[str, int] = field(default_factory=dict)
+    skipped_notes: dict[str, str] = field(default_factory=dict)
+    details: dict = field(default_factory=dict)
+
+
+@runtime_checkable
+class InspectableDataset(Dataset, Protocol):
+    """A source that can describe itself cheaply (every built-in loader)."""
+
+    def info(self) -> SourceInfo: ...
