@@ -38,7 +38,8 @@ def test_reference_folder_as_the_authors_scripts_read_it(hand, folders):
     cfg = yaml.safe_load((root / "msmap_camera_config.yaml").read_text())
     assert (cfg["IMG_W"], cfg["IMG_H"]) == (WIDTH, HEIGHT)
     assert cfg["cam_axis"] == ["+x", "+y"]  # forward camera, then the one looking left
-    for n, cal in enumerate(calibrations()):
+    assert cfg["num_cams"] == 2  # cameras are numbered from 1, as in the authors' configs
+    for n, cal in enumerate(calibrations(), start=1):
         assert cfg[f"cam{n}_K"] == cal.K.ravel().tolist()  # 9 floats, row-major
         assert cfg[f"cam{n}_dist"] == cal.dist.tolist()
     # The scan list is the pose folder sorted by the number after the last '_'; every other file's
@@ -57,7 +58,7 @@ def test_reference_folder_as_the_authors_scripts_read_it(hand, folders):
         np.testing.assert_array_equal(scan[:, 3], frame.intensity)
         labels = np.load(root / "lidar_labels" / f"lidar_labels_{t:.6f}.npy")
         np.testing.assert_array_equal(labels, np.stack([frame.point_labels, frame.point_instances], 1))
-        for n, cam in enumerate(frame.cameras):
+        for n, cam in enumerate(frame.cameras, start=1):
             with Image.open(root / f"camera{n}_images" / f"cam{n}_img_{t:.6f}.jpg") as im:
                 assert im.format == "JPEG" and im.size == (cfg["IMG_W"], cfg["IMG_H"])
             tf = np.load(root / f"transformations_lidar2cam{n}" / f"transform_lidar_to_cam{n}_{t:.6f}.npy")

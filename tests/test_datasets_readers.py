@@ -80,10 +80,10 @@ def damage_terra_folder(root, what):
         path = first(root / "lidar_pc", "*.npy")
         path.write_text("hello")
     elif what == "image":
-        path = first(root / "camera1_images", "*.jpg")
+        path = first(root / "camera2_images", "*.jpg")
         path.write_bytes(b"\xff\xd8\xff garbage")
     elif what == "label image":
-        path = first(root / "camera0_instance", "*.png")
+        path = first(root / "camera1_instance", "*.png")
         path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"x" * 20)
     elif what == "meta":
         path = root / "terra_dataset.json"
@@ -109,12 +109,19 @@ def test_terra_folder_corrupt_file_names_the_file(copy, what):
 
 def test_terra_folder_missing_images_skip_scans_like_the_reference(copy):
     root = copy("terra-folder")
-    first(root / "camera0_images", "*.jpg").unlink()  # the first scan has no image within 0.2 s
+    first(root / "camera1_images", "*.jpg").unlink()  # the first scan has no image within 0.2 s
     ds = open_dataset(root)
     assert [ds[i].stamp for i in range(len(ds))] == [100.25, 100.625]
-    for p in (root / "camera0_images").iterdir():
-        p.unlink()
+    assert ds.skipped == {"scans_unaligned": 1}
+    assert ds.skipped_notes["scans_unaligned"].endswith("nearest camera 1 image is 0.250 s away (tolerance 0.2 s)")
+    for p in (root / "camera2_images").iterdir():
+        p.rename(p.with_name(p.name.replace("_100.", "_103.")))  # every image 3 s late
     with pytest.raises(TerraError, match="no scan with a pose, a LiDAR file and every camera image within 0.2 s"):
+        open_dataset(root)
+    for p in (root / "camera1_images").iterdir():
+        p.unlink()  # a calibrated camera without images is an error, not a silent LiDAR-only run
+    with pytest.raises(TerraError, match=r"terra_dataset.json: calibrates cameras 1, 2 but .* has image folders "
+                                         r"camera2_images/: no images for camera 1$"):
         open_dataset(root)
 
 
@@ -183,10 +190,10 @@ def test_folder_extracted_by_the_authors_tools(copy):
     root = copy("terra-folder")
     for extra in ("terra_dataset.json", "classes.json"):
         (root / extra).unlink()
-    for extra in ("lidar_labels", "camera0_semantic", "camera0_instance", "camera1_semantic", "camera1_instance", "ground_truth"):
+    for extra in ("lidar_labels", "camera1_semantic", "camera1_instance", "camera2_semantic", "camera2_instance", "ground_truth"):
         shutil.rmtree(root / extra)
     # The camera driver stamps images a little after the scan: 0.05 s is matched, 0.3 s is not.
-    for n, delay in ((0, 0.05), (1, 0.05)):
+    for n, delay in ((1, 0.05), (2, 0.05)):
         for p in sorted((root / f"camera{n}_images").iterdir()):
             t = float(p.stem.rsplit("_", 1)[-1])
             p.rename(p.with_name(f"cam{n}_img_{t + delay + (0.25 if t == 100.625 else 0.0):.6f}.jpg"))

@@ -49,7 +49,7 @@ def test_per_frame_faults_in_a_folder_are_skipped_and_counted(damaged, tmp_path,
     np.save(labels, np.zeros((0, 2), np.int32))
     # Frame 4's image is 0.15 s late: the folder reader still pairs it (its gap is 0.2 s), the
     # mapper's tolerance (0.1 s) rejects it.
-    for folder, stem, ext in (("camera0_images", "cam0_img", "jpg"), ("camera0_semantic", "cam0_sem", "png"), ("camera0_instance", "cam0_inst", "png")):
+    for folder, stem, ext in (("camera1_images", "cam1_img", "jpg"), ("camera1_semantic", "cam1_sem", "png"), ("camera1_instance", "cam1_inst", "png")):
         (damaged / folder / f"{stem}_4.000000.{ext}").rename(damaged / folder / f"{stem}_4.150000.{ext}")
     out = tmp_path / "m.terra"
     assert run(["map", str(damaged), "--out", str(out)]) == 0

@@ -17,7 +17,7 @@ from terra.eval.report import headline
 @app.command("eval")
 def eval_command(
     bundle: Path = typer.Argument(..., help="Bundle with a map and a scene graph (`terra map`, `terra build`)."),
-    gt: Path = typer.Option(..., "--gt", help="Dataset folder written by `terra sim` (its ground_truth/ is read)."),
+    gt: Path = typer.Option(..., "--gt", help="Dataset folder written by `terra sim` (its ground_truth/ is read), or a KITTI raw drive with labels (retrieval only)."),
     out: Path = typer.Option(..., "--out", "-o", help="Report folder (report.md, summary.json, figures/); with --tune, where tuned.json goes."),
     tuned: Optional[Path] = typer.Option(None, "--tuned", help="alpha/k chosen on a validation scene (tuned.json from `terra eval --tune`)."),
     tune: bool = typer.Option(False, "--tune", help="Grid-search alpha/k on this (validation!) bundle and write OUT/tuned.json."),
@@ -28,6 +28,9 @@ def eval_command(
     """Evaluate BUNDLE against the ground truth of the simulated dataset --gt, like the paper's
     Tables I-III, memory and navigation figures: writes OUT/report.md, OUT/summary.json and
     OUT/figures/*.png.
+
+    A KITTI raw drive with object or tracking labels (label_2/, label_02/) has objects only: its
+    report gives Table II and memory, and says that terrain and region metrics are not evaluated.
 
     Choose thresholds on a validation scene (another seed), never on the test scene: run
     `terra eval val.terra --gt val-data --tune --out val-report`, then evaluate the test bundle

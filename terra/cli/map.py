@@ -25,10 +25,11 @@ def _sim_dataset(spec: str):
 
 @app.command("map")
 def map_command(
-    dataset: Optional[Path] = typer.Argument(None, help="Dataset folder (terra-folder or SemanticKITTI sequence)."),
+    dataset: Optional[Path] = typer.Argument(None, help="Dataset folder (terra-folder, SemanticKITTI sequence, KITTI raw drive)."),
     out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write (replaced atomically)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `mapping` section is used."),
-    format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder or semantickitti."),
+    format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti or kitti-raw."),
+    camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
     sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
     noise: Optional[str] = typer.Option(None, "--noise", help="Perception noise preset (none, realistic); overrides the config."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
@@ -39,6 +40,8 @@ def map_command(
     arguments.
 
     Example: terra map campus-data --out campus.terra --config terra.yaml
+
+    Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
     """
     from terra.config import load_section
     from terra.datasets import open_dataset
@@ -48,7 +51,12 @@ def map_command(
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
     overrides = {"perception": {"noise": noise}} if noise is not None else None
     mapping = load_section(config, "mapping", overrides)
-    source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format)
+    options = None
+    if camera_config is not None:
+        if sim is not None or format not in ("auto", "terra-folder"):
+            raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
+        format, options = "terra-folder", {"camera_config": camera_config}
+    source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
     run = run_mapping(source, mapping, out, show_progress=not quiet)
     if quiet:
         return

@@ -14,7 +14,7 @@ Files (all in the map frame, metres, radians):
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -75,13 +75,28 @@ class TerrainRaster:
 
 @dataclass
 class GroundTruth:
+    """Objects, terrain and named regions of a dataset (map frame). Real datasets may lack some:
+    `terrain` None and no regions (KITTI labels hold objects only); `notes` says what and why."""
+
     objects: list[ObjectBox]
-    terrain: TerrainRaster
+    terrain: TerrainRaster | None
     regions: list[NamedRegion]
+    notes: list[str] = field(default_factory=list)
+
+    def translated(self, offset: np.ndarray) -> "GroundTruth":
+        """The same ground truth in a frame shifted by `offset` (3,) metres: p_new = p + offset."""
+        offset = np.asarray(offset, np.float64).reshape(3)
+        objects = [replace(o, center=np.asarray(o.center, np.float64) + offset) for o in self.objects]
+        terrain = None if self.terrain is None else replace(
+            self.terrain, origin=self.terrain.origin + offset[:2], ground_height=(self.terrain.ground_height + offset[2]).astype(np.float32))
+        regions = [replace(r, polygon=np.asarray(r.polygon, np.float64) + offset[:2]) for r in self.regions]
+        return GroundTruth(objects, terrain, regions, list(self.notes))
 
 
 def write_ground_truth(root: Path, gt: GroundTruth) -> None:
     """Write `gt` under `root/ground_truth/` (plain files; the caller makes the whole folder atomic)."""
+    if gt.terrain is None:
+        raise ValueError("ground truth without a terrain raster cannot be written as ground_truth/")
     out = Path(root) / GROUND_TRUTH_DIR
     out.mkdir(parents=True, exist_ok=True)
     rows = [
@@ -122,7 +137,8 @@ def load_ground_truth(root: str | Path) -> GroundTruth:
     """Read `root/ground_truth/`; TerraError naming the file when something is missing or malformed."""
     gt_dir = Path(root) / GROUND_TRUTH_DIR
     if not gt_dir.is_dir():
-        raise TerraError(f"{gt_dir}: no ground truth folder (expected a dataset written by `terra sim`)")
+        raise TerraError(f"{gt_dir}: no ground truth folder (expected a dataset written by `terra sim`, "
+                         "or a KITTI raw drive with label_02/ or label_2/ labels)")
 
     def read_json(name: str) -> dict:
         path = gt_dir / name

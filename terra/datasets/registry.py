@@ -42,6 +42,7 @@ LOADERS: Registry[Loader] = Registry(
     {
         "terra-folder": "terra.datasets.terra_folder:LOADER",
         "semantickitti": "terra.datasets.semantickitti:LOADER",
+        "kitti-raw": "terra.datasets.kitti_raw:LOADER",
     },
 )
 
@@ -57,6 +58,11 @@ def loader_options(loader: Loader, options: Mapping[str, Any] | None, source: st
         return loader.config.model_validate(dict(options or {}))
     except ValidationError as exc:
         raise TerraError(validation_message(f"{source} [{loader.name}]", exc)) from None
+
+
+def detect_format(path: str | Path) -> str | None:
+    """The name of the first loader that recognises `path`, or None."""
+    return next((name for name, loader in LOADERS.items() if loader.detect(Path(path))), None)
 
 
 def open_dataset(path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None) -> Dataset:

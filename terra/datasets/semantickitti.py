@@ -25,11 +25,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from scipy.linalg import rq
 
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_json, read_label_png,
                                       read_rgb, write_label_png, write_rgb)
+from terra.datasets.kitti_common import (STANDARD_LABELS, STANDARD_TERRAIN, decompose_projection, read_calib_file,
+                                         standard_classes)
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
@@ -39,30 +40,8 @@ LEGEND = "semantic-kitti.yaml"
 CAMERAS = "terra_cameras.json"
 FIRST_FREE_ID = 100  # SemanticKITTI leaves 100..251 unused
 
-# SemanticKITTI's own label table: id -> (name, BGR colour as in semantic-kitti.yaml).
-STANDARD_LABELS: dict[int, tuple[str, tuple[int, int, int]]] = {
-    0: ("unlabeled", (0, 0, 0)), 1: ("outlier", (0, 0, 255)), 10: ("car", (245, 150, 100)),
-    11: ("bicycle", (245, 230, 100)), 13: ("bus", (250, 80, 100)), 15: ("motorcycle", (150, 60, 30)),
-    16: ("on-rails", (255, 0, 0)), 18: ("truck", (180, 30, 80)), 20: ("other-vehicle", (255, 0, 0)),
-    30: ("person", (30, 30, 255)), 31: ("bicyclist", (200, 40, 255)), 32: ("motorcyclist", (90, 30, 150)),
-    40: ("road", (255, 0, 255)), 44: ("parking", (255, 150, 255)), 48: ("sidewalk", (75, 0, 75)),
-    49: ("other-ground", (75, 0, 175)), 50: ("building", (0, 200, 255)), 51: ("fence", (50, 120, 255)),
-    52: ("other-structure", (0, 150, 255)), 60: ("lane-marking", (170, 255, 150)), 70: ("vegetation", (0, 175, 0)),
-    71: ("trunk", (0, 60, 135)), 72: ("terrain", (80, 240, 150)), 80: ("pole", (150, 240, 255)),
-    81: ("traffic-sign", (0, 0, 255)), 99: ("other-object", (255, 255, 50)), 252: ("moving-car", (245, 150, 100)),
-    253: ("moving-bicyclist", (200, 40, 255)), 254: ("moving-person", (30, 30, 255)),
-    255: ("moving-motorcyclist", (90, 30, 150)), 256: ("moving-on-rails", (255, 0, 0)), 257: ("moving-bus", (250, 80, 100)),
-    258: ("moving-truck", (180, 30, 80)), 259: ("moving-other-vehicle", (255, 0, 0)),
-}
-STANDARD_TERRAIN = {40, 44, 48, 49, 72}
 # Velodyne -> camera-0 rotation of a KITTI-like rig, used when a dataset has no camera.
 _DEFAULT_TR = make_pose(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), np.zeros(3))
-
-
-def standard_classes() -> ClassTable:
-    """SemanticKITTI's own table (ids are SemanticKITTI ids; road, parking, sidewalk,
-    other-ground and terrain are terrain classes)."""
-    return ClassTable([SemanticClass(i, n, i in STANDARD_TERRAIN, i) for i, (n, _) in STANDARD_LABELS.items()])
 
 
 def kitti_ids(classes: ClassTable) -> dict[int, int]:
@@ -174,18 +153,6 @@ def _class_colors() -> dict[str, tuple[int, int, int]]:
 
 
 # ------------------------------------------------------------------------------------------ reader
-def _read_matrix_lines(path: Path) -> dict[str, np.ndarray]:
-    out = {}
-    for line in path.read_text().splitlines():
-        if ":" in line:
-            key, vals = line.split(":", 1)
-            try:
-                out[key.strip()] = np.array([float(v) for v in vals.split()])
-            except ValueError:
-                raise TerraError(f"{path}: bad numbers on line {key.strip()!r}") from None
-    return out
-
-
 def _sequence_dir(path: Path) -> Path:
     path = Path(path)
     if (path / "velodyne").is_dir():
@@ -210,11 +177,9 @@ class SemanticKittiDataset:
         if not self.scans:
             raise TerraError(f"{seq / 'velodyne'}: no .bin scans")
         calib_path = seq / "calib.txt"
-        calib = _read_matrix_lines(calib_path) if calib_path.is_file() else {}
-        for key, value in calib.items():
-            if value.size != 12:
-                raise TerraError(f"{calib_path}: {key} has {value.size} numbers, expected 12 (a 3x4 matrix, row-major)")
-        self.Tr = np.vstack([calib["Tr"].reshape(3, 4), [0, 0, 0, 1]]) if "Tr" in calib else np.eye(4)
+        calib_file = read_calib_file(calib_path) if calib_path.is_file() else None
+        calib = {key: calib_file.matrix(key, (3, 4), "a 3x4 matrix, row-major") for key in calib_file.keys()} if calib_file else {}
+        self.Tr = np.vstack([calib["Tr"], [0, 0, 0, 1]]) if "Tr" in calib else np.eye(4)
         poses_path = seq / "poses.txt"
         if not poses_path.is_file():
             raise TerraError(f"{seq}: no poses.txt (KITTI ground-truth poses are needed; run odometry first)")
@@ -319,19 +284,6 @@ class SemanticKittiDataset:
         from terra.datasets.ground_truth import load_ground_truth
 
         return load_ground_truth(self.root)
-
-
-def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """K (3x3, positive diagonal) and T_cam_ref (4x4) with P = K [R | t] for a 3x4 projection
-    matrix that maps reference-frame points (metres) to pixels. KITTI's rectified P2/P3 give R = I."""
-    K, R = rq(P[:, :3])
-    signs = np.diag(np.sign(np.where(np.diag(K) == 0, 1.0, np.diag(K))))
-    K, R = K @ signs, signs @ R  # signs @ signs = I: flip so focal lengths are positive
-    if np.linalg.det(R) < 0:  # P is only defined up to scale: take the scale that makes R a rotation
-        K, R = -K, -R
-    t = np.linalg.solve(K, P[:, 3])
-    scale = K[2, 2]
-    return K / scale, make_pose(R, t)
 
 
 def _read_table(path: Path, columns: int, rows: int, what: str) -> np.ndarray:

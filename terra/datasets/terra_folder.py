@@ -1,37 +1,49 @@
 """The reference implementation's extracted folder layout ("terra-folder"): reader and writer.
 
-Layout (stamps t written as {t:.6f} seconds; camera n counts from 0):
+Layout, as the authors' extraction tools write it (stamps t as {t:.6f} seconds; cameras numbered
+n = 1..num_cams, like their config keys):
 - transformations_lidar2global/transform_lidar_to_map_{t}.npy   (7,) T_map_lidar [tx ty tz qx qy qz qw]
 - lidar_pc/lidar_pc_{t}.npy                                     (M, 4) x y z intensity, LiDAR frame
 - global_pc/global_pc_{t}.npy                                   (N, 4) map frame, 0.4 m voxel centroids
 - camera{n}_images/cam{n}_img_{t}.jpg                           RGB image, JPEG as the reference has it
   (quality 92, no chroma subsampling: lossy, mean error under 1 grey level on simulated images;
   the label images below are exact)
-- transformations_lidar2cam{n}/transform_lidar_to_cam{n}_{t}.npy (7,) T_cam_lidar
-- msmap_camera_config.yaml: the reference config keys for the cameras (IMG_W, IMG_H, cam{n}_K as 9
-  row-major floats, cam{n}_dist, cam_axis) to paste into the authors' msmap config.
+- transformations_lidar2cam{n}/transform_lidar_to_cam{n}_{t}.npy (7,) T_cam_lidar, one per scan
+- msmap_camera_config.yaml: the authors' msmap camera keys (num_cams, IMG_W, IMG_H, cam{n}_K,
+  cam{n}_dist, cam_axis; terra.datasets.msmap_config) to paste into their msmap config.
 Terra's additions, which the authors' scripts ignore:
 - lidar_labels/lidar_labels_{t}.npy (M, 2) int32 class id, instance id per point;
 - camera{n}_semantic/cam{n}_sem_{t}.png, camera{n}_instance/cam{n}_inst_{t}.png: 16-bit label images;
-- terra_dataset.json: name, stamps, exact camera calibrations; classes.json; ground_truth/.
+- terra_dataset.json: name, stamps, exact camera calibrations (lens model and every coefficient);
+  classes.json; ground_truth/.
+Folders written by Terra before it numbered cameras from 1 (camera0_images, cam0_K) read as well.
+
+Cameras: the exact calibrations of terra_dataset.json, or the intrinsics of an msmap config (the
+folder's own msmap_camera_config.yaml, or the authors' config given as `camera_config`, which wins)
+with extrinsics from the per-scan lidar2cam files. The cameras a config calibrates and the image
+folders present must agree: a camera without images or images without a calibration is an error,
+so a folder with images never maps from its LiDAR alone.
 
 The reader pairs each pose file with the nearest LiDAR scan, image and camera transform by stamp
-(binary search) and skips a scan when any gap exceeds `max_gap` seconds, as the reference does.
+(binary search) and skips a scan when any gap exceeds `max_gap` seconds (the config's
+`unaligned_threshold` when it has one), as the reference does.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import yaml
 from pydantic import Field
 
-from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
 from terra.config import Section
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
                                       read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
+from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
 from terra.errors import TerraError
@@ -45,15 +57,37 @@ LABELS = "lidar_labels"
 META = "terra_dataset.json"
 CAMERA_YAML = "msmap_camera_config.yaml"
 GLOBAL_LEAF = 0.4
+FIRST_CAMERA = 1  # the authors' numbering; Terra's first folders started at 0
+DEFAULT_MAX_GAP = 0.2  # seconds, the authors' simulation configs' unaligned_threshold
+_IMAGE_FOLDER = re.compile(r"^camera(\d+)_images$")
 
 
-def _image_path(n: int, t: float) -> str:
-    return f"camera{n}_images/cam{n}_img_{stamp_text(t)}.jpg"
+class CameraFiles:
+    """The file names of camera number `n` (1-based in the authors' layout) at a stamp."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.images = f"camera{n}_images"
+        self.transforms = f"transformations_lidar2cam{n}"
+        self.semantic = f"camera{n}_semantic"
+        self.instance = f"camera{n}_instance"
+
+    def image(self, t: float) -> str:
+        return f"{self.images}/cam{self.n}_img_{stamp_text(t)}.jpg"
+
+    def transform(self, t: float) -> str:
+        return f"{self.transforms}/transform_lidar_to_cam{self.n}_{stamp_text(t)}.npy"
+
+    def semantic_image(self, t: float) -> str:
+        return f"{self.semantic}/cam{self.n}_sem_{stamp_text(t)}.png"
+
+    def instance_image(self, t: float) -> str:
+        return f"{self.instance}/cam{self.n}_inst_{stamp_text(t)}.png"
 
 
 def image_name(camera_index: int, stamp: float) -> str:
-    """Relative file name of camera `camera_index`'s image at `stamp` in this layout."""
-    return _image_path(camera_index, stamp)
+    """Relative file name of the image of the `camera_index`-th camera (0-based) at `stamp`."""
+    return CameraFiles(camera_index + FIRST_CAMERA).image(stamp)
 
 
 # ------------------------------------------------------------------------------------------ writer
@@ -114,83 +148,127 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
             inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
             np.save(root / LABELS / f"lidar_labels_{t}.npy", np.stack([frame.point_labels, inst], 1).astype(np.int32), allow_pickle=False)
         acc.add(transform_points(frame.T_map_lidar, frame.points.astype(np.float64)), inten)
-        for n, cam in enumerate(frame.cameras):
-            if n >= len(cameras):
+        for index, cam in enumerate(frame.cameras):
+            files = CameraFiles(index + FIRST_CAMERA)
+            if index >= len(cameras):
                 cameras.append(cam.calibration)
-                for d in (f"camera{n}_images", f"transformations_lidar2cam{n}", f"camera{n}_semantic", f"camera{n}_instance"):
+                for d in (files.images, files.transforms, files.semantic, files.instance):
                     (root / d).mkdir(exist_ok=True)
-            write_rgb(root / _image_path(n, frame.stamp), cam.image)
-            np.save(root / f"transformations_lidar2cam{n}" / f"transform_lidar_to_cam{n}_{t}.npy",
-                    pose_to_xyz_quat(cam.calibration.T_cam_lidar), allow_pickle=False)
+            write_rgb(root / files.image(frame.stamp), cam.image)
+            np.save(root / files.transform(frame.stamp), pose_to_xyz_quat(cam.calibration.T_cam_lidar), allow_pickle=False)
             if cam.semantic is not None:
-                write_label_png(root / f"camera{n}_semantic" / f"cam{n}_sem_{t}.png", cam.semantic)
+                write_label_png(root / files.semantic_image(frame.stamp), cam.semantic)
             if cam.instance is not None:
-                write_label_png(root / f"camera{n}_instance" / f"cam{n}_inst_{t}.png", cam.instance)
+                write_label_png(root / files.instance_image(frame.stamp), cam.instance)
+        if len(stamps) == 1:
+            msmap_camera_keys(cameras)  # refuse what the authors' layout cannot hold before writing more
     last = stamp_text(max(stamps)) if stamps else stamp_text(0.0)
     np.save(root / GLOBAL / f"global_pc_{last}.npy", acc.result(), allow_pickle=False)
-    meta = {"format": "terra-folder", "version": 1, "name": dataset.name, "frames": len(stamps),
+    meta = {"format": "terra-folder", "version": 2, "name": dataset.name, "frames": len(stamps), "first_camera": FIRST_CAMERA,
             "cameras": [calibration_to_json(c) for c in cameras]}
     (root / META).write_text(json.dumps(meta, indent=1) + "\n")
-    (root / CAMERA_YAML).write_text(yaml.safe_dump(_reference_camera_keys(cameras), sort_keys=False))
-
-
-def _reference_camera_keys(cameras: list[CameraCalibration]) -> dict:
-    """The authors' msmap config keys for these cameras (their IMG_W / IMG_H are global)."""
-    out: dict = {}
-    if cameras:
-        out["IMG_W"], out["IMG_H"] = int(cameras[0].width), int(cameras[0].height)
-    axes = []
-    for n, c in enumerate(cameras):
-        out[f"cam{n}_K"] = [float(v) for v in c.K.ravel()]
-        out[f"cam{n}_dist"] = [float(v) for v in c.dist] if np.any(c.dist) else []
-        # The LiDAR half-space the camera looks into: the LiDAR axis closest to the optical axis.
-        z_in_lidar = c.T_cam_lidar[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-        a = int(np.argmax(np.abs(z_in_lidar[:2])))
-        axes.append(("+" if z_in_lidar[a] >= 0 else "-") + "xy"[a])
-    out["cam_axis"] = axes if len(axes) != 1 else axes[0]
-    return out
+    (root / CAMERA_YAML).write_text(yaml.safe_dump(msmap_camera_keys(cameras), sort_keys=False))
 
 
 # ------------------------------------------------------------------------------------------ reader
 class TerraFolderDataset:
-    """Frames of a folder in the reference layout (ours or the authors' own extraction)."""
+    """Frames of a folder in the reference layout (ours or the authors' own extraction).
 
-    def __init__(self, root: Path, max_gap: float = 0.2, cameras: list[CameraCalibration] | None = None) -> None:
+    `cameras` (exact calibrations) or `camera_config` (an msmap YAML, the authors' own) replace the
+    folder's calibration. `max_gap` None takes the config's unaligned_threshold, else 0.2 s.
+    After opening, `skipped` / `skipped_notes` count the scans left out and why, `camera_source`
+    names where the intrinsics came from and `camera_numbers` the cameras' numbers in the layout.
+    """
+
+    def __init__(self, root: Path, max_gap: float | None = None, cameras: list[CameraCalibration] | None = None,
+                 camera_config: Path | None = None) -> None:
         self.root = root = Path(root)
         if not (root / POSES).is_dir():
             raise TerraError(f"{root}: not a terra-folder dataset (no {POSES}/ folder)")
         meta_path = root / META
         meta = read_json(meta_path) if meta_path.is_file() else {}
         self.name = str(meta.get("name", root.name))
-        # Our own folders carry exact calibrations; others get extrinsics from the per-scan files.
-        self._exact_cameras = cameras is not None or "cameras" in meta
-        if cameras is None:
-            if "cameras" in meta:
-                if not isinstance(meta["cameras"], list):
-                    raise TerraError(f"{meta_path}: 'cameras' must be a list of calibrations")
-                cameras = [calibration_from_json(c, str(meta_path)) for c in meta["cameras"]]
-            else:
-                cameras = _cameras_from_yaml(root)
-        self.calibrations = cameras
+        numbers, calibrations, exact, threshold = self._calibration(meta, cameras, camera_config)
+        self.calibrations, self.camera_numbers, self._exact_cameras = calibrations, numbers, exact
+        _check_image_folders(root, numbers, self.camera_source)
+        self.max_gap = float(max_gap if max_gap is not None else threshold if threshold is not None else DEFAULT_MAX_GAP)
         self.classes: ClassTable = read_classes(root) or ClassTable([SemanticClass(0, "unlabeled")])
+        self.skipped: dict[str, int] = {}
+        self.skipped_notes: dict[str, str] = {}
+        self._frames = self._pair_streams()
+        if not self._frames:
+            raise TerraError(f"{root}: no scan with a pose, a LiDAR file and every camera image within {self.max_gap} s")
+        self._check_image_sizes()
+
+    def _calibration(self, meta: dict, cameras: list[CameraCalibration] | None, camera_config: Path | None
+                     ) -> tuple[list[int], list[CameraCalibration], bool, float | None]:
+        """(camera numbers, calibrations, whether extrinsics are exact, unaligned_threshold)."""
+        root = self.root
+        if cameras is not None:
+            self.camera_source = "given calibrations"
+            return [_first_camera(root, meta) + i for i in range(len(cameras))], list(cameras), True, None
+        if camera_config is not None:
+            config = read_msmap_config(Path(camera_config))
+            self.camera_source = str(camera_config)
+            return config.numbers, config.cameras, False, config.unaligned_threshold
+        if "cameras" in meta:
+            if not isinstance(meta["cameras"], list):
+                raise TerraError(f"{root / META}: 'cameras' must be a list of calibrations")
+            self.camera_source = str(root / META)
+            first = int(meta.get("first_camera", 0))
+            return ([first + i for i in range(len(meta["cameras"]))],
+                    [calibration_from_json(c, str(root / META)) for c in meta["cameras"]], True, None)
+        if (root / CAMERA_YAML).is_file():
+            config = read_msmap_config(root / CAMERA_YAML)
+            self.camera_source = str(root / CAMERA_YAML)
+            return config.numbers, config.cameras, False, config.unaligned_threshold
+        self.camera_source = ""
+        return [], [], True, None
+
+    def _pair_streams(self) -> list[tuple[float, Path, Path, list[tuple[Path, Path | None]]]]:
+        """Each pose file with its nearest scan, image and transform per camera, within max_gap."""
+        root = self.root
         pose_t, pose_f = stamped_files(root / POSES, "transform_lidar_to_map_*.npy")
         scan_t, scan_f = stamped_files(root / SCANS, "lidar_pc_*.npy")
-        cam_files = [(stamped_files(root / f"camera{n}_images", f"cam{n}_img_*.jpg"),
-                      stamped_files(root / f"transformations_lidar2cam{n}", f"transform_lidar_to_cam{n}_*.npy"))
-                     for n in range(len(cameras))]
-        self._frames = []
-        for t, pf in zip(pose_t, pose_f):
+        streams = []
+        for n in self.camera_numbers:
+            files = CameraFiles(n)
+            transforms = stamped_files(root / files.transforms, f"transform_lidar_to_cam{n}_*.npy")
+            if not self._exact_cameras and not transforms[1]:
+                raise TerraError(f"{root / files.transforms}: no lidar -> camera {n} transforms "
+                                 f"(transform_lidar_to_cam{n}_<t>.npy); camera {n}'s extrinsics are unknown")
+            streams.append((stamped_files(root / files.images, f"cam{n}_img_*.jpg"), transforms))
+        frames = []
+        for t, pose_file in zip(pose_t, pose_f):
             s, gap = nearest(scan_t, t)
-            picks, gaps = [], [gap]
-            for (img_t, img_f), (tf_t, tf_f) in cam_files:
+            picks, gaps = [], [("LiDAR scan", gap)]
+            for n, ((img_t, img_f), (tf_t, tf_f)) in zip(self.camera_numbers, streams):
                 i, gi = nearest(img_t, t)
                 k, gk = nearest(tf_t, t)
-                gaps += [gi, gk if tf_t.size else 0.0]
+                gaps += [(f"camera {n} image", gi)] + ([(f"camera {n} transform", gk)] if tf_t.size else [])
                 picks.append((img_f[i] if i >= 0 else None, tf_f[k] if k >= 0 else None))
-            if max(gaps) <= max_gap:
-                self._frames.append((float(t), pf, scan_f[s], picks))
-        if not self._frames:
-            raise TerraError(f"{root}: no scan with a pose, a LiDAR file and every camera image within {max_gap} s")
+            worst = max(gaps, key=lambda g: g[1])
+            if worst[1] <= self.max_gap:
+                frames.append((float(t), pose_file, scan_f[s], picks))
+            else:
+                self.skipped["scans_unaligned"] = self.skipped.get("scans_unaligned", 0) + 1
+                self.skipped_notes.setdefault("scans_unaligned", f"{pose_file}: nearest {worst[0]} is "
+                                              f"{'missing' if np.isinf(worst[1]) else f'{worst[1]:.3f} s away'} (tolerance {self.max_gap} s)")
+        return frames
+
+    def _check_image_sizes(self) -> None:
+        """The first image of every camera has the calibrated size (the reference asserts it)."""
+        from PIL import Image
+
+        for cal, (image_file, _) in zip(self.calibrations, self._frames[0][3]):
+            try:
+                with Image.open(image_file) as im:
+                    size = im.size
+            except OSError as exc:
+                raise TerraError(f"{image_file}: unreadable image ({exc})") from None
+            if size != (cal.width, cal.height):
+                raise TerraError(f"{image_file}: image is {size[0]}x{size[1]}, but {self.camera_source or 'the calibration'} "
+                                 f"says {cal.width}x{cal.height} (IMG_W x IMG_H)")
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -199,30 +277,28 @@ class TerraFolderDataset:
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
         t, pose_file, scan_file, picks = self._frames[index]
-        root = self.root
-        text = stamp_text(t)
         scan = load_npy(scan_file, (None, 4), "x, y, z, intensity")
         labels = instances = None
-        label_file = root / LABELS / f"lidar_labels_{text}.npy"
+        label_file = self.root / LABELS / f"lidar_labels_{stamp_text(t)}.npy"
         if label_file.is_file():
             li = load_npy(label_file, (len(scan), 2), "class id, instance id per point of its scan")
             labels, instances = li[:, 0].astype(np.int32), li[:, 1].astype(np.int32)
-        cams = []
-        for n, (img_file, tf_file) in enumerate(picks):
-            cal = self.calibrations[n]
-            if tf_file is not None and not self._exact_cameras:
-                cal = CameraCalibration(cal.name, cal.width, cal.height, cal.K, cal.dist, _read_pose(tf_file))
-            image = read_rgb(img_file)
-            if image.shape[:2] != (cal.height, cal.width):
-                raise TerraError(f"{img_file}: image is {image.shape[1]}x{image.shape[0]}, calibration says {cal.width}x{cal.height}")
-            sem_file = root / f"camera{n}_semantic" / f"cam{n}_sem_{stamp_text(stamp_of(img_file))}.png"
-            inst_file = root / f"camera{n}_instance" / f"cam{n}_inst_{stamp_text(stamp_of(img_file))}.png"
-            cams.append(CameraFrame(cal, stamp_of(img_file), image,
-                                    read_label_png(sem_file) if sem_file.is_file() else None,
-                                    read_label_png(inst_file) if inst_file.is_file() else None,
-                                    name=str(img_file.relative_to(root))))
+        cams = [self._camera_frame(n, cal, image_file, tf_file)
+                for n, cal, (image_file, tf_file) in zip(self.camera_numbers, self.calibrations, picks)]
         return Frame(index, t, np.ascontiguousarray(scan[:, :3], dtype=np.float32), _read_pose(pose_file),
                      cams, scan[:, 3].astype(np.float32), labels, instances)
+
+    def _camera_frame(self, n: int, cal: CameraCalibration, image_file: Path, tf_file: Path | None) -> CameraFrame:
+        if tf_file is not None and not self._exact_cameras:
+            cal = CameraCalibration(cal.name, cal.width, cal.height, cal.K, cal.dist, _read_pose(tf_file), cal.model)
+        image = read_rgb(image_file)
+        if image.shape[:2] != (cal.height, cal.width):
+            raise TerraError(f"{image_file}: image is {image.shape[1]}x{image.shape[0]}, calibration says {cal.width}x{cal.height}")
+        stamp = stamp_of(image_file)
+        files = CameraFiles(n)
+        sem_file, inst_file = self.root / files.semantic_image(stamp), self.root / files.instance_image(stamp)
+        return CameraFrame(cal, stamp, image, read_label_png(sem_file) if sem_file.is_file() else None,
+                           read_label_png(inst_file) if inst_file.is_file() else None, name=str(image_file.relative_to(self.root)))
 
     def global_map(self) -> np.ndarray | None:
         """[:, :3] of the global_pc file with the largest stamp (as the reference uses it)."""
@@ -237,6 +313,40 @@ class TerraFolderDataset:
         return load_ground_truth(self.root)
 
 
+def _first_camera(root: Path, meta: dict) -> int:
+    """1 for the authors' numbering, 0 for folders Terra wrote before it followed it."""
+    if "first_camera" in meta:
+        return int(meta["first_camera"])
+    return 0 if (root / "camera0_images").is_dir() else FIRST_CAMERA
+
+
+def image_folders(root: Path) -> dict[int, Path]:
+    """Camera number -> its `camera{n}_images/` folder, for folders holding at least one image."""
+    out = {}
+    for path in Path(root).iterdir():
+        match = _IMAGE_FOLDER.match(path.name)
+        if match and path.is_dir() and any(path.glob(f"cam{match.group(1)}_img_*.jpg")):
+            out[int(match.group(1))] = path
+    return dict(sorted(out.items()))
+
+
+def _check_image_folders(root: Path, numbers: list[int], source: str) -> None:
+    """TerraError naming both sides when the calibrated cameras and the image folders disagree."""
+    folders = image_folders(root)
+    if not numbers and folders:
+        names = ", ".join(f"{p.name}/" for p in folders.values())
+        raise TerraError(f"{root}: has images ({names}) but no camera calibration (no {META} or {CAMERA_YAML}); "
+                         f"pass the authors' msmap config with --camera-config MSMAP.yaml")
+    missing = [n for n in numbers if n not in folders]
+    extra = [n for n in folders if n not in numbers]
+    if missing or extra:
+        calibrated = ", ".join(str(n) for n in numbers)
+        found = ", ".join(f"{p.name}/" for p in folders.values()) or "none"
+        problems = ([f"no images for camera{'s' if len(missing) > 1 else ''} {', '.join(str(n) for n in missing)}"] if missing else []) + \
+                   ([f"no calibration for {', '.join(folders[n].name + '/' for n in extra)}"] if extra else [])
+        raise TerraError(f"{source}: calibrates cameras {calibrated} but {root} has image folders {found}: {'; '.join(problems)}")
+
+
 def _read_pose(path: Path) -> np.ndarray:
     """4x4 pose from a (7,) [tx ty tz qx qy qz qw] file (metres, scalar-last quaternion)."""
     xyz_quat = load_npy(path, (7,), "[tx, ty, tz, qx, qy, qz, qw]")
@@ -245,34 +355,13 @@ def _read_pose(path: Path) -> np.ndarray:
     return pose_from_xyz_quat(xyz_quat)
 
 
-def _cameras_from_yaml(root: Path) -> list[CameraCalibration]:
-    """Calibrations from the reference config keys (for folders the authors' tools extracted)."""
-    path = root / CAMERA_YAML
-    if not path.is_file():
-        raise TerraError(f"{root}: no {META} or {CAMERA_YAML} with camera intrinsics (cam0_K, cam0_dist, IMG_W, IMG_H)")
-    try:
-        cfg = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(cfg, dict):
-        raise TerraError(f"{path}: expected a mapping with cam0_K, cam0_dist, IMG_W, IMG_H")
-    cams = []
-    n = 0
-    while f"cam{n}_K" in cfg:
-        try:
-            K = np.asarray(cfg[f"cam{n}_K"], float).reshape(3, 3)
-            dist = np.asarray(cfg.get(f"cam{n}_dist") or [], float)
-            cams.append(CameraCalibration(f"cam{n}", int(cfg["IMG_W"]), int(cfg["IMG_H"]), K, dist))
-        except (KeyError, ValueError, TypeError) as exc:
-            raise TerraError(f"{path}: bad camera {n} keys ({exc}); expected cam{n}_K (9 floats), cam{n}_dist, IMG_W, IMG_H") from None
-        n += 1
-    return cams
-
-
 class TerraFolderConfig(Section):
     """Options of the reference folder layout."""
 
-    max_gap: float = Field(0.2, gt=0.0, description="seconds a scan's LiDAR file, images and camera transforms may lie from its pose stamp")
+    max_gap: float | None = Field(None, gt=0.0, description="seconds a scan's LiDAR file, images and camera transforms may lie "
+                                  "from its pose stamp; None = the camera config's unaligned_threshold, else 0.2")
+    camera_config: Path | None = Field(None, description="the authors' msmap YAML (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, "
+                                       "cam_axis; other keys ignored): replaces the folder's own calibration")
 
 
 def _detect(path: Path) -> bool:
@@ -280,7 +369,7 @@ def _detect(path: Path) -> bool:
 
 
 def _open(path: Path, config: TerraFolderConfig) -> TerraFolderDataset:
-    return TerraFolderDataset(path, max_gap=config.max_gap)
+    return TerraFolderDataset(path, max_gap=config.max_gap, camera_config=config.camera_config)
 
 
 LOADER = Loader("terra-folder", _detect, _open, TerraFolderConfig, "the authors' extracted folder layout (Terra's own simulator output too)")

@@ -29,7 +29,7 @@ class RetrievalEval(Section):
     methods: list[Literal["ms-avg", "ms-max", "3dsg"]] = Field(default_factory=lambda: ["ms-avg", "ms-max", "3dsg"])
     template: str = "Find the {object}"
     classes: list[str] | None = None
-    exclude: list[str] = Field(default_factory=lambda: ["building", "tree", "crosswalk"])
+    exclude: list[str] = Field(default_factory=lambda: ["building", "tree", "crosswalk", "misc"])
     precision_ratio: float = Field(0.9, gt=0.0, le=1.0)
 
     @field_validator("template")

@@ -149,6 +149,15 @@ def _navigation(nav: dict) -> list[str]:
     return out
 
 
+def _not_evaluated(skipped: dict) -> list[str]:
+    titles = {"segmentation": "Table I, terrain segmentation", "regions": "Table III, region monitoring", "navigation": "Navigation"}
+    out = ["## Not evaluated", "", "The ground truth of this dataset holds objects only (KITTI labels): only Table II and the "
+           "memory figures are computed. No number is given for what it cannot score:", ""]
+    out += [f"- {title}: {skipped[key]}." for key, title in titles.items() if key in skipped]
+    out += [f"- {note}." for note in skipped.get("notes", [])]
+    return out + [""]
+
+
 def render_report(summary: dict) -> str:
     """report.md text from a summary dict (see `write_report`)."""
     params = summary.get("parameters", {})
@@ -158,8 +167,8 @@ def render_report(summary: dict) -> str:
         f"- embedder: `{summary.get('embedder', '')}`; parameters: {params.get('source', 'defaults')}",
         "- runtimes and FPS are measurements on this machine; every other figure is deterministic.", "",
     ]
-    for key, section in (("segmentation", _segmentation), ("retrieval", _retrieval), ("regions", _regions),
-                         ("memory", _memory), ("navigation", _navigation)):
+    for key, section in (("not_evaluated", _not_evaluated), ("segmentation", _segmentation), ("retrieval", _retrieval),
+                         ("regions", _regions), ("memory", _memory), ("navigation", _navigation)):
         if key in summary:
             lines += section(summary[key])
     figures = dict(sorted(summary.get("figures", {}).items(), key=lambda kv: kv[1]))
@@ -197,6 +206,9 @@ def headline(summary: dict) -> list[str]:
         lines.append(f"  path {name}: {p['length_m']:.1f} m ({terrain_shares(p['gt_terrain_m'], p['length_m'])})")
     if nav.get("error"):
         lines.append(f"  navigation: {nav['error']}")
+    skipped = [key for key in summary.get("not_evaluated", {}) if key != "notes"]
+    if skipped:
+        lines.append(f"  not evaluated ({', '.join(skipped)}): the ground truth has objects only (see the report)")
     return lines
 
 

@@ -28,12 +28,15 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
     dpi = config.dpi
     msm, graph = inputs.msm, inputs.graph
     background = terrain_points_image(msm.points, msm.terrain_index(), msm.terrain_classes, cell=msm.voxel_size)
-    # Show the evaluated world (the ground-truth raster), not every far LiDAR return.
+    # Show the evaluated world (the ground-truth raster, else the map), not every far LiDAR return.
     raster = inputs.gt.terrain
-    extent = view_extent(raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution, margin=0.03)
     written: dict[str, Path] = {}
-    written["Terrain map vs ground truth"] = figures.terrain_map_figure(folder / "1_terrain_map.png", msm.terrain_classes, background,
-                                                                        inputs.gt, dpi, extent)
+    if raster is not None:
+        extent = view_extent(raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution, margin=0.03)
+        written["Terrain map vs ground truth"] = figures.terrain_map_figure(folder / "1_terrain_map.png", msm.terrain_classes,
+                                                                            background, inputs.gt, dpi, extent)
+    else:
+        extent = view_extent(msm.points, margin=0.03)
     written["Places layer by terrain"] = figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)
     for method in ("spectral", "agglomerative"):
         if method in inputs.hierarchies:

@@ -61,14 +61,18 @@ class EvalInputs:
 
         bundle = Bundle(bundle_path)
         graph = load_scene_graph(bundle)
-        gt = load_ground_truth(gt_root)
-        dataset = open_dataset(gt_root)
+        dataset, gt = dataset_ground_truth(Path(gt_root))
         mapped = mapped_dataset_name(bundle)
         if mapped and mapped != dataset.name:
             raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from ({mapped!r})")
         msm = load_map(bundle)
         embedder = resolve_embedder(msm.embedder, msm.dim)
         return cls(bundle, msm, graph, gt, Path(gt_root), embedder, dataset=dataset, dataset_name=dataset.name)
+
+    @property
+    def objects_only(self) -> bool:
+        """Whether the ground truth has objects alone (real datasets such as KITTI)."""
+        return self.gt.terrain is None
 
     def hierarchy(self, method: str) -> tuple[SceneGraph, float | None]:
         """The scene graph with `method` region levels on the bundle's places, and the seconds
@@ -78,6 +82,36 @@ class EvalInputs:
 
             self.hierarchies[method] = rebuild_regions(self.bundle, self.graph, method)
         return self.hierarchies[method]
+
+
+def dataset_ground_truth(gt_root: Path) -> tuple[Dataset, GroundTruth]:
+    """The dataset at `gt_root` and its ground truth: the simulator's ground_truth/ folder, or the
+    dataset's own (KITTI labels: objects only)."""
+    from terra.datasets import open_dataset
+    from terra.datasets.ground_truth import GROUND_TRUTH_DIR
+    from terra.datasets.registry import detect_format
+
+    if (gt_root / GROUND_TRUTH_DIR).is_dir() or detect_format(gt_root) is None:
+        gt = load_ground_truth(gt_root)  # names the missing folder when there is neither
+        return open_dataset(gt_root), gt
+    dataset = open_dataset(gt_root)
+    if not hasattr(dataset, "ground_truth"):
+        raise TerraError(f"{gt_root}: no ground truth ({GROUND_TRUTH_DIR}/ or labels) in this dataset")
+    return dataset, dataset.ground_truth()
+
+
+NOT_IN_KITTI = {
+    "segmentation": "needs images labelled with terrain classes",
+    "regions": "needs named regions with their descriptions",
+    "navigation": "needs the ground-truth terrain along the path",
+}
+
+
+def not_evaluated(inputs: EvalInputs) -> dict[str, str]:
+    """Sections the ground truth cannot score, each with the reason in words (never numbers)."""
+    if not inputs.objects_only:
+        return {}
+    return {key: f"{reason}, which this dataset's labels do not have; not evaluated" for key, reason in NOT_IN_KITTI.items()}
 
 
 # ---------------------------------------------------------------------------- Table II
@@ -291,19 +325,27 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
         "parameters": parameter_source(tuned),
     }
 
+    skipped = not_evaluated(inputs)
+    if skipped:
+        summary["not_evaluated"] = {**skipped, "notes": list(inputs.gt.notes)}
+
     def fill(folder: Path) -> None:
-        with timer.stage("eval: segmentation"):
-            seg = segmentation_section(inputs, config, show_progress)
-        if seg is not None:
-            summary["segmentation"] = seg
+        monitoring: dict[str, MonitoringRun] = {}
+        if "segmentation" not in skipped:
+            with timer.stage("eval: segmentation"):
+                seg = segmentation_section(inputs, config, show_progress)
+            if seg is not None:
+                summary["segmentation"] = seg
         with timer.stage("eval: retrieval"):
             summary["retrieval"], task, retrieval = retrieval_section(inputs, config, tuned, tasks_config)
-        with timer.stage("eval: regions"):
-            summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks_config)
+        if "regions" not in skipped:
+            with timer.stage("eval: regions"):
+                summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks_config)
         with timer.stage("eval: memory"):
             summary["memory"] = memory_summary(inputs.bundle, mapped_area(inputs.msm.points, config.map_cell))
-        with timer.stage("eval: navigation"):
-            summary["navigation"] = navigation_section(inputs, config, tuned, tasks_config)
+        if "navigation" not in skipped:
+            with timer.stage("eval: navigation"):
+                summary["navigation"] = navigation_section(inputs, config, tuned, tasks_config)
         if config.figures:
             with timer.stage("eval: figures"):
                 from terra.eval.report_figures import write_figures

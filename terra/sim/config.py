@@ -139,3 +139,9 @@ class SimConfig(Section):
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must be unique, got {names}")
         return v
+
+
+def without_distortion(config: SimConfig) -> SimConfig:
+    """`config` with ideal pinhole lenses (rectified images, as KITTI raw ships them)."""
+    cameras = [c.model_copy(update={"model": "pinhole", "dist": []}) for c in config.cameras]
+    return config.model_copy(update={"cameras": cameras})

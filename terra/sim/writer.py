@@ -13,7 +13,7 @@ from terra.datasets.folder_io import write_classes
 from terra.datasets.ground_truth import write_ground_truth
 from terra.errors import TerraError
 
-FORMATS = ("terra-folder", "semantickitti")
+FORMATS = ("terra-folder", "semantickitti", "kitti-raw")
 
 
 def check_output(out: Path, overwrite: bool) -> None:
@@ -58,17 +58,23 @@ def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder
         raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
 
     def fill(root: Path) -> None:
+        shift = None  # from the dataset's map frame to the written one, when a format moves it
         if format == "terra-folder":
             from terra.datasets.terra_folder import write_terra_folder
 
             write_terra_folder(dataset, root, show_progress=progress)
+        elif format == "kitti-raw":
+            from terra.datasets.kitti_raw_writer import write_kitti_raw
+
+            shift = write_kitti_raw(dataset, root, show_progress=progress)
         else:
             from terra.datasets.semantickitti import write_semantickitti
 
             write_semantickitti(dataset, root, show_progress=progress)
         write_classes(root, dataset.classes)
         if hasattr(dataset, "ground_truth"):
-            write_ground_truth(root, dataset.ground_truth())
+            gt = dataset.ground_truth()
+            write_ground_truth(root, gt if shift is None else gt.translated(shift))
         if extra is not None:
             extra(root)
 
