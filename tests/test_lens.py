@@ -25,6 +25,24 @@ PINHOLE_LENSES = {
 FISHEYE = [0.0215, -0.0087, 0.0031, -0.0008]
 
 
+def _authors_lenses() -> dict[str, tuple[np.ndarray, list[float]]]:
+    """The six real 768 x 480 lenses of the authors' configs: three with 4 coefficients, three
+    with 14 (rational + thin prism + tilt; k1 up to 16 with a nearly cancelling denominator)."""
+    import yaml
+
+    from tests.fixtures_authors import NUNNS_PARK_YAML, SSP_YAML
+
+    out = {}
+    for rig, text in (("ssp", SSP_YAML), ("nunns-park", NUNNS_PARK_YAML)):
+        cfg = yaml.safe_load(text)
+        for n in (1, 2, 3):
+            out[f"{rig}-cam{n}"] = (np.reshape(cfg[f"cam{n}_K"], (3, 3)), cfg[f"cam{n}_dist"])
+    return out
+
+
+AUTHORS_LENSES = _authors_lenses()
+
+
 def _pixels(step: int = 8) -> np.ndarray:
     u, v = np.meshgrid(np.arange(-0.5, W, step, dtype=float), np.arange(-0.5, H, step, dtype=float))
     return np.stack([u.ravel(), v.ravel()], axis=1)
@@ -106,3 +124,26 @@ def test_rays_beyond_the_field_of_view_never_fold_into_the_image():
 def test_unsupported_coefficients_are_named(model, dist, message):
     with pytest.raises(ValueError, match=message):
         CameraCalibration("c", W, H, K, dist, model=model)
+
+
+@pytest.mark.parametrize("name", sorted(AUTHORS_LENSES))
+def test_the_authors_lenses_match_opencv_over_the_whole_image(name):
+    K_real, dist = AUTHORS_LENSES[name]
+    cam = CameraCalibration(name, W, H, K_real, dist)
+    rays = pixel_rays(cam)  # the inverse at every pixel centre
+    uv, valid = project_points(rays * 7.0, cam)
+    assert valid.all()
+    v, u = np.mgrid[0:H, 0:W]
+    np.testing.assert_allclose(uv, np.stack([u.ravel(), v.ravel()], 1), atol=1e-6)
+    sample = rays[::53] * 7.0
+    theirs, _ = cv2.projectPoints(sample, np.zeros(3), np.zeros(3), K_real, np.asarray(dist))
+    np.testing.assert_allclose(project_points(sample, cam)[0], theirs.reshape(-1, 2), atol=1e-6)
+    pixels = _pixels()
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-15)
+    undistorted = cv2.undistortPoints(pixels[:, None, :], K_real, np.asarray(dist), criteria=criteria).reshape(-1, 2)
+    back, _ = cv2.projectPoints(np.concatenate([undistorted, np.ones((len(pixels), 1))], 1), np.zeros(3), np.zeros(3), K_real,
+                                np.asarray(dist))
+    converged = np.abs(back.reshape(-1, 2) - pixels).max(axis=1) < 1e-7
+    assert converged.mean() > 0.9
+    ours = lens.undistort(cam.pixels_to_normalized(pixels), dist)
+    np.testing.assert_allclose(ours[converged] * K_real[0, 0], undistorted[converged] * K_real[0, 0], atol=1e-6)
