@@ -60,7 +60,7 @@ def error_line(capsys):
 
 @pytest.mark.parametrize("args, message", [
     (["--preset", "huge"], "unknown preset 'huge'; expected one of: tiny, small, campus, large"),
-    (["--format", "kitti360"], "unknown format 'kitti360'; expected one of: terra-folder, semantickitti"),
+    (["--format", "kitti360"], "unknown format 'kitti360'; expected one of: terra-folder, semantickitti, kitti-raw"),
 ])
 def test_unknown_preset_or_format(tmp_path, capsys, args, message):
     code = run(["sim", "--out", str(tmp_path / "out"), "--quiet", *args])

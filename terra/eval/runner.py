@@ -292,6 +292,20 @@ def parameter_source(tuned: TunedParameters | None) -> dict:
             "tuned": tuned.to_json()}
 
 
+def summary_header(inputs: EvalInputs, tuned: TunedParameters | None) -> dict:
+    """What was evaluated with what, and the sections the ground truth cannot score (and why)."""
+    summary: dict = {
+        "bundle": inputs.bundle.path.name,
+        "dataset": inputs.dataset_name or inputs.gt_root.name,
+        "embedder": inputs.embedder.name,
+        "parameters": parameter_source(tuned),
+    }
+    skipped = not_evaluated(inputs)
+    if skipped:
+        summary["not_evaluated"] = {**skipped, "notes": list(inputs.gt.notes)}
+    return summary
+
+
 def check_report_folder(out: Path) -> None:
     """TerraError unless `out` may be (re)placed by a report: absent, empty, or an earlier report."""
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / SUMMARY).is_file())):
@@ -318,16 +332,8 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
     if tuned is not None:
         tuned.check_embedder(inputs.embedder.name)
         tuned.check_not_tuned_on(inputs.dataset_name)
-    summary: dict = {
-        "bundle": inputs.bundle.path.name,
-        "dataset": inputs.dataset_name or inputs.gt_root.name,
-        "embedder": inputs.embedder.name,
-        "parameters": parameter_source(tuned),
-    }
-
-    skipped = not_evaluated(inputs)
-    if skipped:
-        summary["not_evaluated"] = {**skipped, "notes": list(inputs.gt.notes)}
+    summary = summary_header(inputs, tuned)
+    skipped = summary.get("not_evaluated", {})
 
     def fill(folder: Path) -> None:
         monitoring: dict[str, MonitoringRun] = {}
