@@ -218,3 +218,20 @@ def test_cameras_of_different_sizes_are_refused_by_the_authors_layout(tmp_path):
 
 def test_folder_dataset_class_is_the_reader(written):
     assert isinstance(open_dataset(written["two cameras, 4 coefficients"][0]), TerraFolderDataset)
+
+
+def test_fisheye_lenses_keep_their_model_in_the_authors_config(tmp_path):
+    """Their keys cannot name a lens model: Terra adds cam<n>_model (ignored by their scripts), so a
+    folder read from its YAML alone keeps the equidistant model and its four coefficients."""
+    from dataclasses import replace
+
+    ds = AuthorsRig(SSP_YAML, 2)
+    fisheye = [0.0215, -0.0087, 0.0031, -0.0008]
+    for frame in ds.frames:
+        frame.cameras[1] = replace(frame.cameras[1], calibration=replace(frame.cameras[1].calibration, model="fisheye", dist=fisheye))
+    folder = write_dataset(ds, tmp_path / "fish", progress=False)
+    cfg = yaml.safe_load((folder / "msmap_camera_config.yaml").read_text())
+    assert cfg["cam2_model"] == "fisheye" and "cam1_model" not in cfg and cfg["cam2_dist"] == fisheye
+    (folder / "terra_dataset.json").unlink()
+    cams = open_dataset(folder)[0].cameras
+    assert [c.calibration.model for c in cams] == ["pinhole", "fisheye"] and cams[1].calibration.dist.tolist() == fisheye

@@ -166,8 +166,10 @@ def test_frames_stamps_and_info(drive):
 
 def test_scans_without_a_packet_are_skipped_and_counted(copy):
     (copy / "oxts" / "data" / "0000000000.txt").unlink()
+    (copy / "image_02" / "data" / "0000000002.png").unlink()
     ds = open_dataset(copy)
-    assert len(ds) == 2 and ds.info().skipped == {"scans_without_oxts": 1}
+    assert len(ds) == 2 and ds.info().skipped == {"scans_without_oxts": 1, "images_missing": 1}
+    assert len(ds[0].cameras) == 1 and ds[1].cameras == []
     assert ds.info().skipped_notes["scans_without_oxts"].endswith("0000000000.txt")
     # The map's origin is the IMU of the first frame that has a packet (heading north: yaw 90 deg).
     x, y, z = np.linalg.inv(ds.calibration.T_velo_imu)[:3, 3]

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Callable, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from terra.config import Section
 from terra.datasets import oxts
@@ -54,11 +54,19 @@ COLOUR_CAMERAS = ("image_02", "image_03")
 class KittiRawConfig(Section):
     """Options of the KITTI raw loader."""
 
-    poses: Literal["oxts"] = Field("oxts", description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion)")
+    poses: str = Field("oxts", description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion), or another "
+                       "source registered in terra.datasets.kitti_raw.POSE_SOURCES")
     normalise: oxts.Normalise = Field("first-position", description="map origin: 'first-position' (east, north, up axes "
                                       "at the first IMU position) or 'first-pose' (the first IMU pose is the identity)")
     cameras: list[Literal["image_00", "image_01", "image_02", "image_03"]] = Field(
         default_factory=lambda: list(COLOUR_CAMERAS), description="camera folders to use, when present (00/01 are greyscale)")
+
+    @field_validator("poses")
+    @classmethod
+    def _known_source(cls, value: str) -> str:
+        if value not in POSE_SOURCES:
+            raise ValueError(f"unknown pose source {value!r}; expected one of: {', '.join(sorted(POSE_SOURCES))}")
+        return value
 
 
 @dataclass(frozen=True)
@@ -154,7 +162,9 @@ def oxts_poses(drive: "KittiRawDataset", config: KittiRawConfig) -> np.ndarray:
     return T_world_imu @ invert_pose(drive.calibration.T_velo_imu)
 
 
-# Where poses come from: more sources (odometry) register here.
+# Where poses come from, by the name `KittiRawConfig.poses` takes: a source is a function of the
+# opened drive (its scans, packets, calibration) and the options returning (F, 4, 4) T_map_lidar.
+# Odometry registers here as another source.
 POSE_SOURCES: dict[str, PoseSource] = {"oxts": oxts_poses}
 
 
@@ -225,6 +235,9 @@ class KittiRawDataset:
                                  f"{key} says {width}x{height}")
             cams.append(self.calibration.camera(folder, width, height))
             names.append(folder)
+            for index in self.indices:
+                if int(index) not in images:
+                    self._skip("images_missing", f"{self.drive / folder / 'data' / f'{int(index):010d}.png'}: missing")
             path = self.drive / folder / "timestamps.txt"
             stamps.append(read_timestamps(path) if path.is_file() else None)
         return cams, names, stamps
