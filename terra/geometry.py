@@ -136,7 +136,8 @@ def project_points(points_cam: np.ndarray, camera: CameraCalibration, min_depth:
 
     Returns (uv (N, 2) float pixels, valid (N,) bool): valid means depth z > min_depth, the ray
     lies within the lens's field of view (see `CameraCalibration.max_radius2`) and the pixel lies
-    inside the image. Rays behind the camera are never valid.
+    inside the image. Rays behind the camera are never valid; uv means nothing where not valid
+    (the lens model is only evaluated for rays in its field of view).
     """
     z = points_cam[:, 2]
     in_front = z > min_depth
@@ -144,7 +145,8 @@ def project_points(points_cam: np.ndarray, camera: CameraCalibration, min_depth:
     xy = points_cam[:, :2] / safe_z[:, None]
     if camera.distorted:
         in_front &= np.sum(xy * xy, axis=1) <= camera.max_radius2
-        xy = lens.distort(xy, camera.dist, camera.model)
+        seen = np.flatnonzero(in_front)
+        xy[seen] = lens.distort(xy[seen], camera.dist, camera.model)
     K = camera.K
     u = K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2]
     v = K[1, 1] * xy[:, 1] + K[1, 2]

@@ -142,6 +142,17 @@ def _one_drive(path: Path) -> Path:
     return drives[0]
 
 
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file from its header (no decoding)."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except OSError as exc:
+        raise TerraError(f"{path}: unreadable image ({exc})") from None
+
+
 def _indexed_files(folder: Path, suffix: str) -> dict[int, Path]:
     """index -> file for the `NNNNNNNNNN{suffix}` files of a data folder."""
     out = {}
@@ -228,10 +239,10 @@ class KittiRawDataset:
                 continue
             width, height = self.calibration.image_size(folder)
             first = next(iter(images.values()))
-            shape = read_rgb(first).shape
-            if shape[:2] != (height, width):
+            size = image_size(first)
+            if size != (width, height):
                 key = f"S_rect_{folder[-2:]}"
-                raise TerraError(f"{first}: image is {shape[1]}x{shape[0]}, but {self.calibration.cam_to_cam.where(key)} "
+                raise TerraError(f"{first}: image is {size[0]}x{size[1]}, but {self.calibration.cam_to_cam.where(key)} "
                                  f"{key} says {width}x{height}")
             cams.append(self.calibration.camera(folder, width, height))
             names.append(folder)
