@@ -143,3 +143,17 @@ def test_eval_on_labels_alone_scores_retrieval_and_says_what_it_cannot(bundle, d
     text = (report / "report.md").read_text()
     assert "## Not evaluated" in text and "Table III" not in text.split("## Not evaluated")[1].split("## Table II")[1]
     assert "not evaluated (segmentation, regions, navigation)" in out
+
+
+def test_eval_with_a_bad_label_line_is_one_line_and_writes_nothing(bundle, drive, tmp_path):
+    labelled = shutil.copytree(drive, tmp_path / "labels-only")
+    shutil.rmtree(labelled / "ground_truth")
+    path = labelled / "2011_09_26" / "2011_09_26_drive_0001_sync" / "label_02" / "0001.txt"
+    lines = path.read_text().splitlines()
+    lines[2] = " ".join(lines[2].split()[:-1])  # rotation_y dropped: 16 fields
+    path.write_text("\n".join(lines) + "\n")
+    report = tmp_path / "report"
+    code, _, err = run_cli(["eval", str(bundle), "--gt", str(labelled), "--out", str(report), "-q"])
+    assert code == 2 and err.strip().count("\n") == 0
+    assert f"{path}:3: a KITTI tracking label has 17 fields (18 with a score), got 16" in err
+    assert not report.exists()
