@@ -50,8 +50,14 @@ class Synthetic:
             image = np.repeat(np.repeat(base, 8, 0), 8, 1)[: cal.height, : cal.width]
             cams.append(CameraFrame(cal, 10.0 + 0.1 * i, image))
         pose = make_pose(np.eye(3), [1.5 * i, 0.1 * i, 0.0])
-        return Frame(i, 10.0 + 0.1 * i, rng.uniform(-50, 50, (self.points, 3)).astype(np.float32), pose, cams,
-                     rng.uniform(0, 1, self.points).astype(np.float32))
+        return Frame(
+            i,
+            10.0 + 0.1 * i,
+            rng.uniform(-50, 50, (self.points, 3)).astype(np.float32),
+            pose,
+            cams,
+            rng.uniform(0, 1, self.points).astype(np.float32),
+        )
 
     def global_map(self):
         return None
@@ -66,8 +72,12 @@ def time_reads(path: Path, options: dict | None = None) -> dict:
         t = time.perf_counter()
         ds[i]
         per_frame.append(time.perf_counter() - t)
-    return {"open_s": opened, "frame_ms_median": 1000 * statistics.median(per_frame), "frame_ms_max": 1000 * max(per_frame),
-            "frames": len(ds)}
+    return {
+        "open_s": opened,
+        "frame_ms_median": 1000 * statistics.median(per_frame),
+        "frame_ms_max": 1000 * max(per_frame),
+        "frames": len(ds),
+    }
 
 
 def authors_layout(root: Path, frames: int) -> tuple[Path, Path]:
@@ -90,8 +100,10 @@ def kitti_drive(root: Path, frames: int) -> Path:
 
     K = np.array([[721.5377, 0.0, 609.5593], [0.0, 721.5377, 172.854], [0.0, 0.0, 1.0]])
     R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
-    cams = [CameraCalibration("left", 1242, 375, K, [], make_pose(R, [0.0, -0.08, -0.27])),
-            CameraCalibration("right", 1242, 375, K, [], make_pose(R, [-0.54, -0.08, -0.27]))]
+    cams = [
+        CameraCalibration("left", 1242, 375, K, [], make_pose(R, [0.0, -0.08, -0.27])),
+        CameraCalibration("right", 1242, 375, K, [], make_pose(R, [-0.54, -0.08, -0.27])),
+    ]
     write_kitti_raw(Synthetic("drive", frames, 120_000, cams), root / "kitti", show_progress=False)
     return root / "kitti"
 
@@ -111,11 +123,17 @@ def lens_costs() -> dict:
     azimuth = np.repeat(np.linspace(-np.pi, np.pi, 1024, endpoint=False), 128)
     elevation = np.tile(np.radians(np.linspace(-22.5, 22.5, 128)), 1024)
     rng_m = rng.uniform(3.0, 60.0, azimuth.size)
-    points = np.stack([np.sin(azimuth) * np.cos(elevation), -np.sin(elevation), np.cos(azimuth) * np.cos(elevation)], 1) * rng_m[:, None]
+    points = (
+        np.stack([np.sin(azimuth) * np.cos(elevation), -np.sin(elevation), np.cos(azimuth) * np.cos(elevation)], 1)
+        * rng_m[:, None]
+    )
     project_points(points, cam)
     start = time.perf_counter()
     project_points(points, cam)
-    return {"inverse_whole_image_s_median": statistics.median(seconds), "project_131k_points_ms": 1000 * (time.perf_counter() - start)}
+    return {
+        "inverse_whole_image_s_median": statistics.median(seconds),
+        "project_131k_points_ms": 1000 * (time.perf_counter() - start),
+    }
 
 
 def oxts_cost(packets: int = 5000) -> float:
@@ -134,8 +152,13 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "datasets.json")
     args = parser.parse_args()
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(), "load_average_1min_at_start": os.getloadavg()[0],
-              "python": platform.python_version(), "date": time.strftime("%Y-%m-%d")}
+    result = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "python": platform.python_version(),
+        "date": time.strftime("%Y-%m-%d"),
+    }
     with tempfile.TemporaryDirectory() as tmp:
         folder, config = authors_layout(Path(tmp), args.frames)
         result["authors_layout"] = time_reads(folder, {"camera_config": config})
@@ -145,9 +168,17 @@ def main() -> None:
     a, k, lens = result["authors_layout"], result["kitti_raw"], result["lens_14_coefficients"]
     rows = [
         ("authors' layout: open (YAML + pairing)", f"{a['open_s']:.2f} s for {a['frames']} scans", "-"),
-        ("authors' layout: one frame (131k pts, 3 JPEG)", f"{a['frame_ms_median']:.1f} ms (max {a['frame_ms_max']:.1f})", "<= 50 ms"),
+        (
+            "authors' layout: one frame (131k pts, 3 JPEG)",
+            f"{a['frame_ms_median']:.1f} ms (max {a['frame_ms_max']:.1f})",
+            "<= 50 ms",
+        ),
         ("KITTI raw: open (calib, OXTS)", f"{k['open_s']:.2f} s for {k['frames']} scans", "-"),
-        ("KITTI raw: one frame (120k pts, 2 PNG)", f"{k['frame_ms_median']:.1f} ms (max {k['frame_ms_max']:.1f})", "<= 50 ms"),
+        (
+            "KITTI raw: one frame (120k pts, 2 PNG)",
+            f"{k['frame_ms_median']:.1f} ms (max {k['frame_ms_max']:.1f})",
+            "<= 50 ms",
+        ),
         ("OXTS -> poses, 5000 packets", f"{result['oxts_5000_packets_ms']:.1f} ms", "-"),
         ("14-coef lens inverse, 768 x 480", f"{lens['inverse_whole_image_s_median']:.2f} s", "once per camera"),
         ("14-coef projection, one 360-degree OS1-128 scan", f"{lens['project_131k_points_ms']:.1f} ms", "-"),

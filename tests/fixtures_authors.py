@@ -125,8 +125,16 @@ def rig(config_text: str, count: int = 3) -> list[CameraCalibration]:
     for n in range(1, count + 1):
         yaw = _YAW_OF_AXIS[cfg["cam_axis"][n - 1]]
         R = _LIDAR_TO_OPTICAL @ Rotation.from_euler("z", -yaw, degrees=True).as_matrix()
-        cams.append(CameraCalibration(f"cam{n}", WIDTH, HEIGHT, np.reshape(cfg[f"cam{n}_K"], (3, 3)), cfg[f"cam{n}_dist"],
-                                      make_pose(R, [0.05 * n, -0.1, 0.2])))
+        cams.append(
+            CameraCalibration(
+                f"cam{n}",
+                WIDTH,
+                HEIGHT,
+                np.reshape(cfg[f"cam{n}_K"], (3, 3)),
+                cfg[f"cam{n}_dist"],
+                make_pose(R, [0.05 * n, -0.1, 0.2]),
+            )
+        )
     return cams
 
 
@@ -145,7 +153,17 @@ class AuthorsRig(HandDataset):
                 semantic = np.repeat(np.repeat(rng.choice(ids, size=(6, 8)), 80, 0), 96, 1).astype(np.int32)
                 image = (rng.integers(30, 220, size=(ids.max() + 1, 3))[semantic]).astype(np.uint8)
                 cams.append(CameraFrame(cal, frame.stamp, image, semantic, np.zeros_like(semantic)))
-            frames.append(Frame(frame.index, frame.stamp, frame.points, frame.T_map_lidar, cams, frame.intensity,
-                                frame.point_labels, frame.point_instances))
+            frames.append(
+                Frame(
+                    frame.index,
+                    frame.stamp,
+                    frame.points,
+                    frame.T_map_lidar,
+                    cams,
+                    frame.intensity,
+                    frame.point_labels,
+                    frame.point_instances,
+                )
+            )
         self.frames = frames
         self.gt = hand_ground_truth()

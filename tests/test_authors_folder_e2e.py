@@ -33,9 +33,21 @@ def extracted(tmp_path_factory):
     cameras = []
     for n in (1, 2, 3):
         K = np.reshape(cfg[f"cam{n}_K"], (3, 3))
-        cameras.append(CameraConfig(name=f"cam{n}", width=cfg["IMG_W"], height=cfg["IMG_H"], fx=K[0, 0], fy=K[1, 1], cx=K[0, 2],
-                                    cy=K[1, 2], dist=cfg[f"cam{n}_dist"], position=(0.1 * n, 0.0, 1.5),
-                                    yaw_deg=yaw[cfg["cam_axis"][n - 1]], pitch_deg=5.0))
+        cameras.append(
+            CameraConfig(
+                name=f"cam{n}",
+                width=cfg["IMG_W"],
+                height=cfg["IMG_H"],
+                fx=K[0, 0],
+                fy=K[1, 1],
+                cx=K[0, 2],
+                cy=K[1, 2],
+                dist=cfg[f"cam{n}_dist"],
+                position=(0.1 * n, 0.0, 1.5),
+                yaw_deg=yaw[cfg["cam_axis"][n - 1]],
+                pitch_deg=5.0,
+            )
+        )
     dataset = simulate("tiny", 0, SimConfig(cameras=cameras, route=RouteConfig(max_frames=FRAMES)))
     root = tmp_path_factory.mktemp("authors-e2e")
     folder = write_dataset(dataset, root / "hope_campground", progress=False)
@@ -50,7 +62,11 @@ def extracted(tmp_path_factory):
 
 def test_their_folder_and_config_map_with_every_camera(extracted, text_embedder, tmp_path):
     folder, config, gt = extracted
-    assert sorted(p.name for p in folder.glob("camera*_images")) == ["camera1_images", "camera2_images", "camera3_images"]
+    assert sorted(p.name for p in folder.glob("camera*_images")) == [
+        "camera1_images",
+        "camera2_images",
+        "camera3_images",
+    ]
     out = tmp_path / "field.terra"
     assert run(["map", str(folder), "--camera-config", str(config), "--out", str(out), "-q"]) == 0
     bundle = Bundle(out)

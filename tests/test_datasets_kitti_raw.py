@@ -45,7 +45,11 @@ STAMPS = ["2011-09-26 13:02:25.964389445", "2011-09-26 13:02:26.068424730", "201
 IMAGE_STAMPS = ["2011-09-26 13:02:25.951199337", "2011-09-26 13:02:26.054421066", "2011-09-26 13:02:26.157975347"]
 # Hand-chosen packets: at rest heading east; 0.001 degrees of longitude further, 1.5 m higher, heading
 # north; 0.001 degrees of latitude further north, rolled and pitched.
-PACKETS = [(49.0, 8.4, 100.0, 0.0, 0.0, 0.0), (49.0, 8.401, 101.5, 0.0, 0.0, math.pi / 2), (49.001, 8.4, 100.0, 0.1, -0.2, 0.0)]
+PACKETS = [
+    (49.0, 8.4, 100.0, 0.0, 0.0, 0.0),
+    (49.0, 8.401, 101.5, 0.0, 0.0, math.pi / 2),
+    (49.001, 8.4, 100.0, 0.1, -0.2, 0.0),
+]
 REST = "0.1 0.2 0.3 0.4 0.5 0.01 0.02 9.81 0.01 0.02 9.81 0.001 0.002 0.003 0.001 0.002 0.003 0.05 0.05 4 10 4 4 0"
 
 
@@ -69,7 +73,9 @@ def write_drive(root, points_per_scan=50, seed=0):
         name = f"{i:010d}"
         scan = np.c_[rng.uniform(-20, 20, (points_per_scan, 3)), rng.uniform(0, 1, points_per_scan)].astype(np.float32)
         scan.tofile(drive / "velodyne_points" / "data" / f"{name}.bin")
-        Image.fromarray(rng.integers(0, 255, (375, 1242, 3), dtype=np.uint8)).save(drive / "image_02" / "data" / f"{name}.png")
+        Image.fromarray(rng.integers(0, 255, (375, 1242, 3), dtype=np.uint8)).save(
+            drive / "image_02" / "data" / f"{name}.png"
+        )
         (drive / "oxts" / "data" / f"{name}.txt").write_text(" ".join(repr(v) for v in packet) + " " + REST + "\n")
     for folder, stamps in (("velodyne_points", STAMPS), ("image_02", IMAGE_STAMPS), ("oxts", STAMPS)):
         (drive / folder / "timestamps.txt").write_text("\n".join(stamps) + "\n")
@@ -91,7 +97,12 @@ def test_stamps_as_kitti_writes_them():
     # 2011-09-26 13:02:25 UTC is 1317042145 s after 1970; the nine decimals are nanoseconds.
     assert parse_timestamp("2011-09-26 13:02:25.964389445") == pytest.approx(1317042145.964389445, abs=1e-6)
     assert parse_timestamp("2011-09-26 13:02:25") == 1317042145.0
-    for bad in ("2011-09-26T13:02:25.9", "26.09.2011 13:02:25", "2011-09-26 13:02:25.12345678901", "2011-09-26 25:02:25.1"):
+    for bad in (
+        "2011-09-26T13:02:25.9",
+        "26.09.2011 13:02:25",
+        "2011-09-26 13:02:25.12345678901",
+        "2011-09-26 25:02:25.1",
+    ):
         with pytest.raises(ValueError):
             parse_timestamp(bad)
 
@@ -102,9 +113,13 @@ def test_calibration_files_parse_with_their_text_keys(drive):
     assert calib.lines["P_rect_02"] == 13 and calib.matrix("S_rect_02", (2,)).tolist() == [1242.0, 375.0]
     # The tracking benchmark writes some keys without a colon.
     tracking = drive.parent / "tracking_calib.txt"
-    tracking.write_text("P2: 1 0 0 0 0 1 0 0 0 0 1 0\nR_rect 1 0 0 0 1 0 0 0 1\nTr_velo_cam 0 -1 0 0 0 0 -1 0 1 0 0 0\n")
+    tracking.write_text(
+        "P2: 1 0 0 0 0 1 0 0 0 0 1 0\nR_rect 1 0 0 0 1 0 0 0 1\nTr_velo_cam 0 -1 0 0 0 0 -1 0 1 0 0 0\n"
+    )
     parsed = read_calib_file(tracking)
-    assert parsed.matrix("R_rect", (3, 3)).tolist() == np.eye(3).tolist() and parsed.pose_3x4("Tr_velo_cam")[2, 0] == 1.0
+    assert (
+        parsed.matrix("R_rect", (3, 3)).tolist() == np.eye(3).tolist() and parsed.pose_3x4("Tr_velo_cam")[2, 0] == 1.0
+    )
 
 
 def test_cameras_project_like_the_devkit(drive):
@@ -213,8 +228,19 @@ def damage(drive, what):
     raise AssertionError(what)
 
 
-@pytest.mark.parametrize("what", ["calib number", "P_rect length", "velo rotation", "missing calib", "stamp", "oxts fields",
-                                  "oxts text", "image size"])
+@pytest.mark.parametrize(
+    "what",
+    [
+        "calib number",
+        "P_rect length",
+        "velo rotation",
+        "missing calib",
+        "stamp",
+        "oxts fields",
+        "oxts text",
+        "image size",
+    ],
+)
 def test_bad_files_are_one_line_with_exit_2_and_nothing_written(copy, tmp_path, capsys, what):
     message = damage(copy, what)
     with pytest.raises(TerraError, match=f"^{message}"):

@@ -8,8 +8,13 @@ import numpy as np
 import pytest
 
 from terra.datasets import open_dataset
-from terra.datasets.kitti_labels import (box_in_frame, ground_truth_from_labels, objects_from_labels, parse_label_line,
-                                         read_label_file)
+from terra.datasets.kitti_labels import (
+    box_in_frame,
+    ground_truth_from_labels,
+    objects_from_labels,
+    parse_label_line,
+    read_label_file,
+)
 from terra.errors import TerraError
 from terra.geometry import invert_pose, make_pose
 from tests.test_datasets_kitti_raw import CAM_TO_CAM, VELO_TO_CAM, matrix, write_drive
@@ -32,9 +37,18 @@ def box_points(center, size, yaw, count=300, seed=0):
 # (6, -4, -0.9) heading 30 degrees left of +x: bottom (6, -4, -1.625) -> (4, 1.625, 6); its length
 # axis (cos 30, sin 30, 0) -> (-0.5, 0, 0.866) = (cos ry, 0, -sin ry) with ry = -120 degrees.
 HAND = [
-    ("Car 0.00 0 -1.37 500.0 150.0 600.0 250.0 1.50 1.80 4.00 -2.00 1.75 10.00 -1.570796", (10.0, 2.0, -1.0), (4.0, 1.8, 1.5), 0.0),
-    ("Car 0.00 1 -2.68 700.0 160.0 900.0 240.0 1.45 1.60 3.90 4.00 1.625 6.00 -2.094395", (6.0, -4.0, -0.9), (3.9, 1.6, 1.45),
-     math.radians(30)),
+    (
+        "Car 0.00 0 -1.37 500.0 150.0 600.0 250.0 1.50 1.80 4.00 -2.00 1.75 10.00 -1.570796",
+        (10.0, 2.0, -1.0),
+        (4.0, 1.8, 1.5),
+        0.0,
+    ),
+    (
+        "Car 0.00 1 -2.68 700.0 160.0 900.0 240.0 1.45 1.60 3.90 4.00 1.625 6.00 -2.094395",
+        (6.0, -4.0, -0.9),
+        (3.9, 1.6, 1.45),
+        math.radians(30),
+    ),
 ]
 
 
@@ -62,8 +76,10 @@ def test_label_box_with_kittis_own_calibration():
     T_rect_velo = R_rect @ T
     center, size, yaw = np.array([14.0, -3.0, -0.8]), np.array([4.2, 1.7, 1.55]), math.radians(-40)
     bottom = T_rect_velo[:3, :3] @ (center - [0, 0, size[2] / 2]) + T_rect_velo[:3, 3]
-    line = (f"Car 0.00 0 0.0 1.0 1.0 2.0 2.0 {size[2]} {size[1]} {size[0]} {bottom[0]} {bottom[1]} {bottom[2]} "
-            f"{-yaw - math.pi / 2}")
+    line = (
+        f"Car 0.00 0 0.0 1.0 1.0 2.0 2.0 {size[2]} {size[1]} {size[0]} {bottom[0]} {bottom[1]} {bottom[2]} "
+        f"{-yaw - math.pi / 2}"
+    )
     box = box_in_frame(parse_label_line(line, "hand:1", tracking=False), np.linalg.inv(T_rect_velo))
     assert box.contains(box_points(center, size, yaw), margin=0.06).all()
     assert np.linalg.norm(box.center - center) < 0.03
@@ -71,8 +87,13 @@ def test_label_box_with_kittis_own_calibration():
 
 def test_malformed_label_lines_name_file_and_line(tmp_path):
     path = tmp_path / "000042.txt"
-    path.write_text("Car 0.00 0 -1.37 500 150 600 250 1.5 1.8 4.0 -2.0 1.75 10.0 -1.57\nPedestrian 0.00 0 0.2 1 2 3 4 1.7 0.6 0.8 1 1.6 8\n")
-    with pytest.raises(TerraError, match=rf"^{path}:2: a KITTI object label has 15 fields \(16 with a score\), got 14$"):
+    path.write_text(
+        "Car 0.00 0 -1.37 500 150 600 250 1.5 1.8 4.0 -2.0 1.75 10.0 -1.57\n"
+        "Pedestrian 0.00 0 0.2 1 2 3 4 1.7 0.6 0.8 1 1.6 8\n"
+    )
+    with pytest.raises(
+        TerraError, match=rf"^{path}:2: a KITTI object label has 15 fields \(16 with a score\), got 14$"
+    ):
         read_label_file(path, tracking=False)
     path.write_text("3 7 Car 0 0 -1.37 500 150 600 250 1.5 1.8 4.0 -2.0 1.75 10.0\n")
     with pytest.raises(TerraError, match=r":1: a KITTI tracking label has 17 fields \(18 with a score\), got 16$"):
@@ -84,8 +105,10 @@ def test_malformed_label_lines_name_file_and_line(tmp_path):
     with pytest.raises(TerraError, match=r":1: expected numbers after the type 'Car'"):
         read_label_file(path, tracking=False)
     # DontCare regions are skipped; a trailing score (detector output) is accepted.
-    path.write_text("DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10\n"
-                    "Person_sitting 0.00 0 0.2 1 2 3 4 1.2 0.6 0.8 1 1.6 8 0.1 0.93\n")
+    path.write_text(
+        "DontCare -1 -1 -10 503.89 169.71 590.61 190.13 -1 -1 -1 -1000 -1000 -1000 -10\n"
+        "Person_sitting 0.00 0 0.2 1 2 3 4 1.2 0.6 0.8 1 1.6 8 0.1 0.93\n"
+    )
     labels = read_label_file(path, tracking=False, frame=42)
     assert len(labels) == 1 and labels[0].class_name == "person sitting" and labels[0].frame == 42
 
@@ -94,10 +117,19 @@ def test_sightings_merge_and_moving_tracks_are_left_out():
     car = "Car 0.00 0 0.0 1 1 2 2 1.5 1.8 4.0 {x} 1.75 {z} -1.570796"
     # A parked car seen from two ego poses 5 m apart: the same map position.
     T_map_rect = {0: invert_pose(T_RECT_VELO), 1: make_pose(np.eye(3), [5.0, 0.0, 0.0]) @ invert_pose(T_RECT_VELO)}
-    parked = [parse_label_line(car.format(x=-2.0, z=10.0), "a:1", False), parse_label_line(car.format(x=-2.0, z=5.0), "b:1", False)]
+    parked = [
+        parse_label_line(car.format(x=-2.0, z=10.0), "a:1", False),
+        parse_label_line(car.format(x=-2.0, z=5.0), "b:1", False),
+    ]
     parked = [p.__class__(**{**p.__dict__, "frame": f}) for p, f in zip(parked, (0, 1))]
-    moving = [parse_label_line(f"{f} 9 Van 0 0 0 1 1 2 2 2.0 1.9 5.0 3.0 1.9 {12.0 + 3 * f} -1.570796", "t:1", True) for f in (0, 1)]
-    static = [parse_label_line(f"{f} 4 Cyclist 0 0 0 1 1 2 2 1.7 0.6 1.8 1.0 1.6 {20.0 - 5 * f} 0.0", "t:2", True) for f in (0, 1)]
+    moving = [
+        parse_label_line(f"{f} 9 Van 0 0 0 1 1 2 2 2.0 1.9 5.0 3.0 1.9 {12.0 + 3 * f} -1.570796", "t:1", True)
+        for f in (0, 1)
+    ]
+    static = [
+        parse_label_line(f"{f} 4 Cyclist 0 0 0 1 1 2 2 1.7 0.6 1.8 1.0 1.6 {20.0 - 5 * f} 0.0", "t:2", True)
+        for f in (0, 1)
+    ]
     boxes = [(label, box_in_frame(label, T_map_rect[label.frame])) for label in parked + moving + static]
     objects, left_out = objects_from_labels(boxes)
     assert left_out == {"moving": 1} and [o.class_name for o in objects] == ["car", "cyclist"]

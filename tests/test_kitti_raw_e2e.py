@@ -26,14 +26,22 @@ def simulated():
     from terra.sim import simulate
     from terra.sim.config import SimConfig, without_distortion
 
-    return simulate("tiny", 0, without_distortion(SimConfig()).model_copy(
-        update={"route": SimConfig().route.model_copy(update={"max_frames": FRAMES})}))
+    return simulate(
+        "tiny",
+        0,
+        without_distortion(SimConfig()).model_copy(
+            update={"route": SimConfig().route.model_copy(update={"max_frames": FRAMES})}
+        ),
+    )
 
 
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
     out = tmp_path_factory.mktemp("kitti-e2e") / "drive"
-    assert run(["sim", "--preset", "tiny", "--max-frames", str(FRAMES), "--format", "kitti-raw", "--out", str(out), "-q"]) == 0
+    assert (
+        run(["sim", "--preset", "tiny", "--max-frames", str(FRAMES), "--format", "kitti-raw", "--out", str(out), "-q"])
+        == 0
+    )
     return out
 
 
@@ -54,25 +62,51 @@ def shift_of(simulated) -> np.ndarray:
 def test_the_drive_is_laid_out_as_kitti_ships_it(drive):
     date = drive / "2011_09_26"
     folder = date / "2011_09_26_drive_0001_sync"
-    assert sorted(p.name for p in date.iterdir()) == ["2011_09_26_drive_0001_sync", "calib_cam_to_cam.txt",
-                                                       "calib_imu_to_velo.txt", "calib_velo_to_cam.txt"]
+    assert sorted(p.name for p in date.iterdir()) == [
+        "2011_09_26_drive_0001_sync",
+        "calib_cam_to_cam.txt",
+        "calib_imu_to_velo.txt",
+        "calib_velo_to_cam.txt",
+    ]
     for sub, suffix in (("velodyne_points/data", ".bin"), ("image_02/data", ".png"), ("oxts/data", ".txt")):
         assert [p.name for p in sorted((folder / sub).iterdir())] == [f"{i:010d}{suffix}" for i in range(FRAMES)]
     stamps = (folder / "velodyne_points" / "timestamps.txt").read_text().splitlines()
     assert len(stamps) == FRAMES and stamps[0] == "2011-09-26 12:00:00.000000000"
     keys = [line.split(":")[0] for line in (date / "calib_cam_to_cam.txt").read_text().splitlines()]
-    assert keys[:10] == ["calib_time", "corner_dist", "S_00", "K_00", "D_00", "R_00", "T_00", "S_rect_00", "R_rect_00", "P_rect_00"]
+    assert keys[:10] == [
+        "calib_time",
+        "corner_dist",
+        "S_00",
+        "K_00",
+        "D_00",
+        "R_00",
+        "T_00",
+        "S_rect_00",
+        "R_rect_00",
+        "P_rect_00",
+    ]
     assert {"P_rect_02", "P_rect_03", "R_rect_03", "S_rect_03"} <= set(keys)
-    assert [len(line.split()) for line in (folder / "oxts" / "data" / "0000000003.txt").read_text().splitlines()] == [30]
+    assert [len(line.split()) for line in (folder / "oxts" / "data" / "0000000003.txt").read_text().splitlines()] == [
+        30
+    ]
     assert (folder / "label_02" / "0001.txt").is_file()
 
 
 def test_same_seed_same_bytes(drive, tmp_path):
     again = tmp_path / "again"
-    assert run(["sim", "--preset", "tiny", "--max-frames", str(FRAMES), "--format", "kitti-raw", "--out", str(again), "-q"]) == 0
+    assert (
+        run(
+            ["sim", "--preset", "tiny", "--max-frames", str(FRAMES), "--format", "kitti-raw", "--out", str(again), "-q"]
+        )
+        == 0
+    )
 
     def digest(root):
-        return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
+        return {
+            str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*"))
+            if p.is_file()
+        }
 
     assert digest(drive) == digest(again)
 

@@ -87,8 +87,10 @@ class GroundTruth:
         """The same ground truth in a frame shifted by `offset` (3,) metres: p_new = p + offset."""
         offset = np.asarray(offset, np.float64).reshape(3)
         objects = [replace(o, center=np.asarray(o.center, np.float64) + offset) for o in self.objects]
-        terrain = None if self.terrain is None else replace(
-            self.terrain, origin=self.terrain.origin + offset[:2], ground_height=(self.terrain.ground_height + offset[2]).astype(np.float32))
+        terrain = None
+        if self.terrain is not None:
+            heights = (self.terrain.ground_height + offset[2]).astype(np.float32)
+            terrain = replace(self.terrain, origin=self.terrain.origin + offset[:2], ground_height=heights)
         regions = [replace(r, polygon=np.asarray(r.polygon, np.float64) + offset[:2]) for r in self.regions]
         return GroundTruth(objects, terrain, regions, list(self.notes))
 

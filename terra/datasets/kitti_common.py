@@ -24,18 +24,40 @@ TEXT_KEYS = frozenset({"calib_time"})
 
 # SemanticKITTI's own label table: id -> (name, BGR colour as in semantic-kitti.yaml).
 STANDARD_LABELS: dict[int, tuple[str, tuple[int, int, int]]] = {
-    0: ("unlabeled", (0, 0, 0)), 1: ("outlier", (0, 0, 255)), 10: ("car", (245, 150, 100)),
-    11: ("bicycle", (245, 230, 100)), 13: ("bus", (250, 80, 100)), 15: ("motorcycle", (150, 60, 30)),
-    16: ("on-rails", (255, 0, 0)), 18: ("truck", (180, 30, 80)), 20: ("other-vehicle", (255, 0, 0)),
-    30: ("person", (30, 30, 255)), 31: ("bicyclist", (200, 40, 255)), 32: ("motorcyclist", (90, 30, 150)),
-    40: ("road", (255, 0, 255)), 44: ("parking", (255, 150, 255)), 48: ("sidewalk", (75, 0, 75)),
-    49: ("other-ground", (75, 0, 175)), 50: ("building", (0, 200, 255)), 51: ("fence", (50, 120, 255)),
-    52: ("other-structure", (0, 150, 255)), 60: ("lane-marking", (170, 255, 150)), 70: ("vegetation", (0, 175, 0)),
-    71: ("trunk", (0, 60, 135)), 72: ("terrain", (80, 240, 150)), 80: ("pole", (150, 240, 255)),
-    81: ("traffic-sign", (0, 0, 255)), 99: ("other-object", (255, 255, 50)), 252: ("moving-car", (245, 150, 100)),
-    253: ("moving-bicyclist", (200, 40, 255)), 254: ("moving-person", (30, 30, 255)),
-    255: ("moving-motorcyclist", (90, 30, 150)), 256: ("moving-on-rails", (255, 0, 0)), 257: ("moving-bus", (250, 80, 100)),
-    258: ("moving-truck", (180, 30, 80)), 259: ("moving-other-vehicle", (255, 0, 0)),
+    0: ("unlabeled", (0, 0, 0)),
+    1: ("outlier", (0, 0, 255)),
+    10: ("car", (245, 150, 100)),
+    11: ("bicycle", (245, 230, 100)),
+    13: ("bus", (250, 80, 100)),
+    15: ("motorcycle", (150, 60, 30)),
+    16: ("on-rails", (255, 0, 0)),
+    18: ("truck", (180, 30, 80)),
+    20: ("other-vehicle", (255, 0, 0)),
+    30: ("person", (30, 30, 255)),
+    31: ("bicyclist", (200, 40, 255)),
+    32: ("motorcyclist", (90, 30, 150)),
+    40: ("road", (255, 0, 255)),
+    44: ("parking", (255, 150, 255)),
+    48: ("sidewalk", (75, 0, 75)),
+    49: ("other-ground", (75, 0, 175)),
+    50: ("building", (0, 200, 255)),
+    51: ("fence", (50, 120, 255)),
+    52: ("other-structure", (0, 150, 255)),
+    60: ("lane-marking", (170, 255, 150)),
+    70: ("vegetation", (0, 175, 0)),
+    71: ("trunk", (0, 60, 135)),
+    72: ("terrain", (80, 240, 150)),
+    80: ("pole", (150, 240, 255)),
+    81: ("traffic-sign", (0, 0, 255)),
+    99: ("other-object", (255, 255, 50)),
+    252: ("moving-car", (245, 150, 100)),
+    253: ("moving-bicyclist", (200, 40, 255)),
+    254: ("moving-person", (30, 30, 255)),
+    255: ("moving-motorcyclist", (90, 30, 150)),
+    256: ("moving-on-rails", (255, 0, 0)),
+    257: ("moving-bus", (250, 80, 100)),
+    258: ("moving-truck", (180, 30, 80)),
+    259: ("moving-other-vehicle", (255, 0, 0)),
 }
 STANDARD_TERRAIN = {40, 44, 48, 49, 72}
 
@@ -63,7 +85,7 @@ class CalibFile:
         return list(self.values)
 
     def where(self, key: str) -> str:
-        """"file:line" of `key` (the file alone when the key is absent)."""
+        """ "file:line" of `key` (the file alone when the key is absent)."""
         return f"{self.path}:{self.lines[key]}" if key in self.lines else str(self.path)
 
     def matrix(self, key: str, shape: tuple[int, ...], what: str = "") -> np.ndarray:
@@ -126,7 +148,9 @@ def read_calib_file(path: Path) -> CalibFile:
         try:
             calib.values[key] = np.array([float(v) for v in rest.split()], dtype=np.float64)
         except ValueError:
-            raise TerraError(f"{path}:{number}: {key} has a value that is not a number ({rest.strip()[:60]!r})") from None
+            raise TerraError(
+                f"{path}:{number}: {key} has a value that is not a number ({rest.strip()[:60]!r})"
+            ) from None
         calib.lines[key] = number
     return calib
 
@@ -181,5 +205,7 @@ def read_timestamps(path: Path) -> np.ndarray:
         try:
             stamps[number - 1] = parse_timestamp(line)
         except ValueError:
-            raise TerraError(f"{path}:{number}: expected a stamp like 2011-09-26 13:02:25.964389445, got {line.strip()[:40]!r}") from None
+            raise TerraError(
+                f"{path}:{number}: expected a stamp like 2011-09-26 13:02:25.964389445, got {line.strip()[:40]!r}"
+            ) from None
     return stamps

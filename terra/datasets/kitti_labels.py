@@ -72,22 +72,36 @@ def parse_label_line(text: str, where: str, tracking: bool) -> KittiLabel | None
     count = TRACKING_FIELDS if tracking else OBJECT_FIELDS
     kind = "tracking" if tracking else "object"
     if len(words) not in (count, count + 1):
-        raise TerraError(f"{where}: a KITTI {kind} label has {count} fields ({count + 1} with a score), got {len(words)}")
+        raise TerraError(
+            f"{where}: a KITTI {kind} label has {count} fields ({count + 1} with a score), got {len(words)}"
+        )
     head = 2 if tracking else 0
     if words[head] in IGNORED_TYPES:
         return None
     try:
-        numbers = [float(w) for w in words[head + 1:head + 15]]
+        numbers = [float(w) for w in words[head + 1 : head + 15]]
         frame, track = (int(words[0]), int(words[1])) if tracking else (-1, None)
     except ValueError:
-        raise TerraError(f"{where}: expected numbers after the type {words[head]!r}, got {' '.join(words[head + 1:])[:60]!r}") from None
+        raise TerraError(
+            f"{where}: expected numbers after the type {words[head]!r}, got {' '.join(words[head + 1 :])[:60]!r}"
+        ) from None
     if not np.all(np.isfinite(numbers)):
         raise TerraError(f"{where}: non-finite number in the label")
     h, w, length = numbers[7:10]
     if min(h, w, length) <= 0:
         raise TerraError(f"{where}: dimensions h w l must be positive, got {h} {w} {length}")
-    return KittiLabel(frame, track, words[head], numbers[0], int(numbers[1]), numbers[2], tuple(numbers[3:7]),
-                      (h, w, length), tuple(numbers[10:13]), numbers[13])
+    return KittiLabel(
+        frame,
+        track,
+        words[head],
+        numbers[0],
+        int(numbers[1]),
+        numbers[2],
+        tuple(numbers[3:7]),
+        (h, w, length),
+        tuple(numbers[10:13]),
+        numbers[13],
+    )
 
 
 def read_label_file(path: Path, tracking: bool, frame: int = -1) -> list[KittiLabel]:
@@ -129,8 +143,9 @@ def rotation_y_of(heading_rect: np.ndarray) -> float:
     return float(np.arctan2(-heading_rect[2], heading_rect[0]))
 
 
-def objects_from_labels(boxes: list[tuple[KittiLabel, OrientedBox]], merge_radius: float = 1.0,
-                        moving_spread: float = 1.0) -> tuple[list[ObjectBox], dict[str, int]]:
+def objects_from_labels(
+    boxes: list[tuple[KittiLabel, OrientedBox]], merge_radius: float = 1.0, moving_spread: float = 1.0
+) -> tuple[list[ObjectBox], dict[str, int]]:
     """One map-frame ObjectBox per physical object seen in several frames.
 
     `boxes` pairs each label with its box in the map frame. Tracking labels group by track id;
@@ -150,12 +165,22 @@ def objects_from_labels(boxes: list[tuple[KittiLabel, OrientedBox]], merge_radiu
         doubled = np.array([2.0 * b.yaw() for _, b in members])
         yaw = 0.5 * float(np.arctan2(np.sin(doubled).mean(), np.cos(doubled).mean()))
         first = members[0][0]
-        objects.append(ObjectBox(first.track if first.track is not None else number, -1, first.class_name, center,
-                                 np.median([b.size for _, b in members], axis=0), yaw))
+        objects.append(
+            ObjectBox(
+                first.track if first.track is not None else number,
+                -1,
+                first.class_name,
+                center,
+                np.median([b.size for _, b in members], axis=0),
+                yaw,
+            )
+        )
     return objects, left_out
 
 
-def _group(boxes: list[tuple[KittiLabel, OrientedBox]], merge_radius: float) -> list[list[tuple[KittiLabel, OrientedBox]]]:
+def _group(
+    boxes: list[tuple[KittiLabel, OrientedBox]], merge_radius: float
+) -> list[list[tuple[KittiLabel, OrientedBox]]]:
     """Sightings of the same object: by (type, track id), or for untracked labels by type and
     distance to the running mean centre of a group (greedy, in the given order)."""
     groups: list[list[tuple[KittiLabel, OrientedBox]]] = []
@@ -197,7 +222,9 @@ def label_files(drive: Path) -> list[Path]:
         number = drive.name.split("_drive_")[-1][:4]
         named = [p for p in tracking if p.stem == number]
         if not named:
-            raise TerraError(f"{drive / 'label_02'}: {len(tracking)} tracking files and none named {number}.txt after the drive")
+            raise TerraError(
+                f"{drive / 'label_02'}: {len(tracking)} tracking files and none named {number}.txt after the drive"
+            )
         tracking = named
     return tracking or objects
 
@@ -215,8 +242,13 @@ def read_drive_labels(drive: Path) -> list[KittiLabel]:
     return out
 
 
-def ground_truth_from_labels(labels: list[KittiLabel], T_map_rect: dict[int, np.ndarray], source: str,
-                             merge_radius: float = 1.0, moving_spread: float = 1.0):
+def ground_truth_from_labels(
+    labels: list[KittiLabel],
+    T_map_rect: dict[int, np.ndarray],
+    source: str,
+    merge_radius: float = 1.0,
+    moving_spread: float = 1.0,
+):
     """Ground truth (objects only) in the map frame from labels and, per frame index, T_map_rect
     (rectified camera 0 -> map). Labels of frames without a pose are left out and counted."""
     from terra.datasets.ground_truth import GroundTruth
@@ -225,7 +257,10 @@ def ground_truth_from_labels(labels: list[KittiLabel], T_map_rect: dict[int, np.
     objects, left_out = objects_from_labels(boxes, merge_radius, moving_spread)
     notes = [f"{source}: KITTI labels hold objects only; terrain and named regions are not labelled"]
     if left_out["moving"]:
-        notes.append(f"{left_out['moving']} objects moved while labelled (centres spread over {moving_spread} m) and are left out")
+        notes.append(
+            f"{left_out['moving']} objects moved while labelled (centres spread over {moving_spread} m) "
+            "and are left out"
+        )
     if len(boxes) < len(labels):
         notes.append(f"{len(labels) - len(boxes)} labels belong to frames without a pose and are left out")
     return GroundTruth(objects, None, [], notes)

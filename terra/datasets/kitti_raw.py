@@ -54,12 +54,20 @@ COLOUR_CAMERAS = ("image_02", "image_03")
 class KittiRawConfig(Section):
     """Options of the KITTI raw loader."""
 
-    poses: str = Field("oxts", description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion), or another "
-                       "source registered in terra.datasets.kitti_raw.POSE_SOURCES")
-    normalise: oxts.Normalise = Field("first-position", description="map origin: 'first-position' (east, north, up axes "
-                                      "at the first IMU position) or 'first-pose' (the first IMU pose is the identity)")
+    poses: str = Field(
+        "oxts",
+        description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion), or another "
+        "source registered in terra.datasets.kitti_raw.POSE_SOURCES",
+    )
+    normalise: oxts.Normalise = Field(
+        "first-position",
+        description="map origin: 'first-position' (east, north, up axes "
+        "at the first IMU position) or 'first-pose' (the first IMU pose is the identity)",
+    )
     cameras: list[Literal["image_00", "image_01", "image_02", "image_03"]] = Field(
-        default_factory=lambda: list(COLOUR_CAMERAS), description="camera folders to use, when present (00/01 are greyscale)")
+        default_factory=lambda: list(COLOUR_CAMERAS),
+        description="camera folders to use, when present (00/01 are greyscale)",
+    )
 
     @field_validator("poses")
     @classmethod
@@ -90,8 +98,10 @@ class DriveCalibration:
         P = self.cam_to_cam.matrix(f"P_rect_{k}", (3, 4), "the rectified 3x4 projection matrix, row-major")
         K = P[:, :3]
         if abs(K[1, 0]) + abs(K[2, 0]) + abs(K[2, 1]) > 1e-9 or K[2, 2] != 1.0:
-            raise TerraError(f"{self.cam_to_cam.where(f'P_rect_{k}')}: P_rect_{k} must be [K | K t] with K upper triangular "
-                             "and K[2, 2] = 1 (a rectified camera)")
+            raise TerraError(
+                f"{self.cam_to_cam.where(f'P_rect_{k}')}: P_rect_{k} must be [K | K t] with K upper triangular "
+                "and K[2, 2] = 1 (a rectified camera)"
+            )
         T_cam_rect = make_pose(np.eye(3), np.linalg.solve(K, P[:, 3]))
         try:
             return CameraCalibration(folder, width, height, K, np.zeros(0), T_cam_rect @ self.T_rect_velo)
@@ -103,7 +113,9 @@ class DriveCalibration:
         key = f"S_rect_{folder[-2:]}"
         size = self.cam_to_cam.matrix(key, (2,), "rectified image width and height, pixels")
         if np.any(size <= 0) or np.any(size != np.round(size)):
-            raise TerraError(f"{self.cam_to_cam.where(key)}: {key} must be two positive whole numbers, got {size.tolist()}")
+            raise TerraError(
+                f"{self.cam_to_cam.where(key)}: {key} must be two positive whole numbers, got {size.tolist()}"
+            )
         return int(size[0]), int(size[1])
 
 
@@ -129,7 +141,9 @@ def find_drives(path: Path) -> list[Path]:
         return []
     drives = sorted(p for p in path.iterdir() if (p / VELODYNE / "data").is_dir())
     if not drives:
-        drives = sorted(d for date in path.iterdir() if date.is_dir() for d in date.iterdir() if (d / VELODYNE / "data").is_dir())
+        drives = sorted(
+            d for date in path.iterdir() if date.is_dir() for d in date.iterdir() if (d / VELODYNE / "data").is_dir()
+        )
     return drives
 
 
@@ -187,14 +201,18 @@ class KittiRawDataset:
         self.drive = drive = _one_drive(path)
         self.date_folder = drive.parent
         self.name = drive.name
-        self.calibration = read_drive_calibration(self.date_folder if (self.date_folder / CAM_TO_CAM).is_file() else drive)
+        self.calibration = read_drive_calibration(
+            self.date_folder if (self.date_folder / CAM_TO_CAM).is_file() else drive
+        )
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
         self.indices, self.scans, self.stamps = self._scans()
         self.packets = self._packets()
         self.cameras, self._camera_folders, self._camera_stamps = self._cameras(config.cameras)
-        self.root = next((d for d in (drive, self.date_folder, self.date_folder.parent) if (d / "classes.json").is_file()),
-                         self.date_folder.parent)
+        self.root = next(
+            (d for d in (drive, self.date_folder, self.date_folder.parent) if (d / "classes.json").is_file()),
+            self.date_folder.parent,
+        )
         self.classes: ClassTable = read_classes(self.root) or standard_classes()
         self.pose_source = config.poses
         self.normalise = config.normalise
@@ -215,7 +233,9 @@ class KittiRawDataset:
             raise TerraError(f"{velodyne / 'timestamps.txt'}: missing (one stamp per scan)")
         last = max(scans)
         if last >= len(stamps):
-            raise TerraError(f"{velodyne / 'timestamps.txt'}: {len(stamps)} stamps, but there is a scan {scans[last].name}")
+            raise TerraError(
+                f"{velodyne / 'timestamps.txt'}: {len(stamps)} stamps, but there is a scan {scans[last].name}"
+            )
         packets = _indexed_files(self.drive / OXTS / "data", ".txt")
         keep = []
         for index, scan in scans.items():
@@ -242,8 +262,10 @@ class KittiRawDataset:
             size = image_size(first)
             if size != (width, height):
                 key = f"S_rect_{folder[-2:]}"
-                raise TerraError(f"{first}: image is {size[0]}x{size[1]}, but {self.calibration.cam_to_cam.where(key)} "
-                                 f"{key} says {width}x{height}")
+                raise TerraError(
+                    f"{first}: image is {size[0]}x{size[1]}, but {self.calibration.cam_to_cam.where(key)} "
+                    f"{key} says {width}x{height}"
+                )
             cams.append(self.calibration.camera(folder, width, height))
             names.append(folder)
             for index in self.indices:
@@ -272,9 +294,19 @@ class KittiRawDataset:
                 raise TerraError(f"{label_path}: {value.size} labels for {raw.shape[0]} points")
             labels, instances = (value & 0xFFFF).astype(np.int32), (value >> 16).astype(np.int32)
         stamp = float(self.stamps[index])
-        cams = [cam for cam in (self._camera_frame(c, number, stamp) for c in range(len(self.cameras))) if cam is not None]
-        return Frame(index, stamp, np.ascontiguousarray(raw[:, :3]), self.poses[index], cams, np.ascontiguousarray(raw[:, 3]),
-                     labels, instances)
+        cams = [
+            cam for cam in (self._camera_frame(c, number, stamp) for c in range(len(self.cameras))) if cam is not None
+        ]
+        return Frame(
+            index,
+            stamp,
+            np.ascontiguousarray(raw[:, :3]),
+            self.poses[index],
+            cams,
+            np.ascontiguousarray(raw[:, 3]),
+            labels,
+            instances,
+        )
 
     def _camera_frame(self, c: int, number: int, scan_stamp: float) -> CameraFrame | None:
         folder = self.drive / self._camera_folders[c]
@@ -284,8 +316,14 @@ class KittiRawDataset:
         stamps = self._camera_stamps[c]
         stamp = float(stamps[number]) if stamps is not None and number < len(stamps) else scan_stamp
         sem, inst = folder / "semantic" / path.name, folder / "instance" / path.name
-        return CameraFrame(self.cameras[c], stamp, read_rgb(path), read_label_png(sem) if sem.is_file() else None,
-                           read_label_png(inst) if inst.is_file() else None, name=str(path.relative_to(self.date_folder.parent)))
+        return CameraFrame(
+            self.cameras[c],
+            stamp,
+            read_rgb(path),
+            read_label_png(sem) if sem.is_file() else None,
+            read_label_png(inst) if inst.is_file() else None,
+            name=str(path.relative_to(self.date_folder.parent)),
+        )
 
     def global_map(self) -> np.ndarray | None:
         return None
@@ -300,25 +338,45 @@ class KittiRawDataset:
 
         labels = read_drive_labels(self.drive)
         if not labels:
-            raise TerraError(f"{self.drive}: no ground truth (no {GROUND_TRUTH_DIR}/ beside it and no KITTI labels: "
-                             "label_02/NNNN.txt or label_2/NNNNNNNNNN.txt)")
+            raise TerraError(
+                f"{self.drive}: no ground truth (no {GROUND_TRUTH_DIR}/ beside it and no KITTI labels: "
+                "label_02/NNNN.txt or label_2/NNNNNNNNNN.txt)"
+            )
         T_map_rect = {int(i): T @ invert_pose(self.calibration.T_rect_velo) for i, T in zip(self.indices, self.poses)}
         return ground_truth_from_labels(labels, T_map_rect, str(self.drive))
 
     def info(self) -> SourceInfo:
         """What the drive holds (no scan is read)."""
         lat, lon, alt = (float(v) for v in self.packets[0, :3])
-        details = {"date": self.date_folder.name, "drive": self.drive.name, "calib_time": self.calibration.cam_to_cam.text.get("calib_time", ""),
-                   "camera_folders": list(self._camera_folders), "oxts_origin": {"lat": lat, "lon": lon, "alt": alt},
-                   "mercator_scale": oxts.mercator_scale(lat), "normalise": self.normalise}
+        details = {
+            "date": self.date_folder.name,
+            "drive": self.drive.name,
+            "calib_time": self.calibration.cam_to_cam.text.get("calib_time", ""),
+            "camera_folders": list(self._camera_folders),
+            "oxts_origin": {"lat": lat, "lon": lon, "alt": alt},
+            "mercator_scale": oxts.mercator_scale(lat),
+            "normalise": self.normalise,
+        }
         from terra.datasets.kitti_labels import label_files
 
         labels = label_files(self.drive)
         if labels:
-            details["labels"] = [str(p.relative_to(self.drive)) for p in labels[:3]] + (["..."] if len(labels) > 3 else [])
-        pose = {"oxts": f"OXTS (Mercator, scale cos({lat:.6f} deg) = {oxts.mercator_scale(lat):.6f}; origin {self.normalise})"}
-        return SourceInfo("kitti-raw", str(self.drive), len(self), (float(self.stamps[0]), float(self.stamps[-1])), list(self.cameras),
-                          pose.get(self.pose_source, self.pose_source), dict(self.skipped), dict(self.skipped_notes), details)
+            details["labels"] = [str(p.relative_to(self.drive)) for p in labels[:3]] + (
+                ["..."] if len(labels) > 3 else []
+            )
+        scale = oxts.mercator_scale(lat)
+        pose = {"oxts": f"OXTS (Mercator, scale cos({lat:.6f} deg) = {scale:.6f}; origin {self.normalise})"}
+        return SourceInfo(
+            "kitti-raw",
+            str(self.drive),
+            len(self),
+            (float(self.stamps[0]), float(self.stamps[-1])),
+            list(self.cameras),
+            pose.get(self.pose_source, self.pose_source),
+            dict(self.skipped),
+            dict(self.skipped_notes),
+            details,
+        )
 
 
 def _detect(path: Path) -> bool:
@@ -330,5 +388,10 @@ def _open(path: Path, config: KittiRawConfig) -> KittiRawDataset:
     return KittiRawDataset(path, config)
 
 
-LOADER = Loader("kitti-raw", _detect, _open, KittiRawConfig,
-                "KITTI raw drives (DATE/DATE_drive_NNNN_sync/ with velodyne_points, image_02/03, oxts; calib_*.txt in DATE/)")
+LOADER = Loader(
+    "kitti-raw",
+    _detect,
+    _open,
+    KittiRawConfig,
+    "KITTI raw drives (DATE/DATE_drive_NNNN_sync/ with velodyne_points, image_02/03, oxts; calib_*.txt in DATE/)",
+)

@@ -37,10 +37,20 @@ from terra.progress import progress
 DATE = "2011_09_26"
 GEODETIC_ORIGIN = (49.011, 8.424, 112.0)  # lat, lon (degrees), alt (metres): Karlsruhe, where KITTI drove
 # KITTI's calibration of 2011_09_26 (calib_cam_to_cam.txt R_rect_00, calib_imu_to_velo.txt R and T).
-R_RECT_00 = np.array([[9.999239e-01, 9.837760e-03, -7.445048e-03], [-9.869795e-03, 9.999421e-01, -4.278459e-03],
-                      [7.402527e-03, 4.351614e-03, 9.999631e-01]])
-R_VELO_IMU = np.array([[9.999976e-01, 7.553071e-04, -2.035826e-03], [-7.854027e-04, 9.998898e-01, -1.482298e-02],
-                       [2.024406e-03, 1.482454e-02, 9.998881e-01]])
+R_RECT_00 = np.array(
+    [
+        [9.999239e-01, 9.837760e-03, -7.445048e-03],
+        [-9.869795e-03, 9.999421e-01, -4.278459e-03],
+        [7.402527e-03, 4.351614e-03, 9.999631e-01],
+    ]
+)
+R_VELO_IMU = np.array(
+    [
+        [9.999976e-01, 7.553071e-04, -2.035826e-03],
+        [-7.854027e-04, 9.998898e-01, -1.482298e-02],
+        [2.024406e-03, 1.482454e-02, 9.998881e-01],
+    ]
+)
 T_VELO_IMU = np.array([-8.086759e-01, 3.195559e-01, -7.997231e-01])
 LABEL_MIN_PIXELS = 20
 SWEEP = 0.1  # seconds per Velodyne turn: timestamps_start / _end lie half a sweep around the stamp
@@ -66,8 +76,14 @@ def _fmt(values) -> str:
 
 
 # ------------------------------------------------------------------------------------ the writer
-def write_kitti_raw(dataset: Dataset, root: Path, date: str = DATE, drive: int = 1,
-                    origin: tuple[float, float, float] = GEODETIC_ORIGIN, show_progress: bool = True) -> np.ndarray:
+def write_kitti_raw(
+    dataset: Dataset,
+    root: Path,
+    date: str = DATE,
+    drive: int = 1,
+    origin: tuple[float, float, float] = GEODETIC_ORIGIN,
+    show_progress: bool = True,
+) -> np.ndarray:
     """Write `dataset` under `root` (an empty folder) as one KITTI raw drive; returns the (3,)
     shift from the dataset's map frame to the drive's (p_drive = p_map + shift)."""
     folder = Path(root) / date / f"{date}_drive_{drive:04d}_sync"
@@ -105,26 +121,39 @@ def write_kitti_raw(dataset: Dataset, root: Path, date: str = DATE, drive: int =
 def _check_rig(cameras: list[CameraCalibration]) -> list[CameraCalibration]:
     """The cameras, if KITTI's rectified layout can hold them (TerraError otherwise)."""
     if len(cameras) > 2:
-        raise TerraError(f"a KITTI raw drive holds two colour cameras (image_02, image_03), the dataset has {len(cameras)}")
+        raise TerraError(
+            f"a KITTI raw drive holds two colour cameras (image_02, image_03), the dataset has {len(cameras)}"
+        )
     for cam in cameras:
         if cam.distorted:
-            raise TerraError(f"camera {cam.name}: KITTI raw images are rectified; this camera has lens distortion "
-                             f"({cam.model}, {cam.dist.tolist()}): simulate it without distortion for kitti-raw")
+            raise TerraError(
+                f"camera {cam.name}: KITTI raw images are rectified; this camera has lens distortion "
+                f"({cam.model}, {cam.dist.tolist()}): simulate it without distortion for kitti-raw"
+            )
     if len(cameras) == 2:
         relative = cameras[1].T_cam_lidar[:3, :3] @ cameras[0].T_cam_lidar[:3, :3].T
         if np.abs(relative - np.eye(3)).max() > 1e-6:
-            raise TerraError(f"cameras {cameras[0].name} and {cameras[1].name} look different ways; KITTI's rectified "
-                             "cameras share one orientation (a stereo pair)")
+            raise TerraError(
+                f"cameras {cameras[0].name} and {cameras[1].name} look different ways; KITTI's rectified "
+                "cameras share one orientation (a stereo pair)"
+            )
     return list(cameras)
 
 
 def _write_scan(folder: Path, i: int, frame: Frame) -> None:
     name = f"{i:010d}"
     inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
-    np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tofile(folder / VELODYNE / "data" / f"{name}.bin")
+    np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tofile(
+        folder / VELODYNE / "data" / f"{name}.bin"
+    )
     if frame.point_labels is not None:
         inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
-        if np.any(frame.point_labels < 0) or np.any(frame.point_labels > 0xFFFF) or np.any(inst < 0) or np.any(inst > 0xFFFF):
+        if (
+            np.any(frame.point_labels < 0)
+            or np.any(frame.point_labels > 0xFFFF)
+            or np.any(inst < 0)
+            or np.any(inst > 0xFFFF)
+        ):
             raise TerraError(f"frame {i}: class and instance ids must lie in 0..65535 for .label files")
         (folder / VELODYNE / "labels").mkdir(exist_ok=True)
         value = frame.point_labels.astype(np.uint32) | (inst.astype(np.uint32) << np.uint32(16))
@@ -165,12 +194,16 @@ def _write_stamps(folder: Path, date: str, stamps: np.ndarray, camera_stamps: li
         write(folder / f"image_0{2 + k}" / "timestamps.txt", [s[k] for s in camera_stamps])
 
 
-def _write_calibration(date_folder: Path, date: str, cameras: list[CameraCalibration], R_rect: np.ndarray,
-                       T_velo_imu: np.ndarray) -> None:
+def _write_calibration(
+    date_folder: Path, date: str, cameras: list[CameraCalibration], R_rect: np.ndarray, T_velo_imu: np.ndarray
+) -> None:
     """calib_cam_to_cam.txt, calib_velo_to_cam.txt and calib_imu_to_velo.txt of the date folder."""
     stamp = time.strftime("%d-%b-%Y %H:%M:%S", time.strptime(date, "%Y_%m_%d"))
-    T_rect_velo = cameras[0].T_cam_lidar if cameras else make_pose(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]),
-                                                                   np.zeros(3))
+    T_rect_velo = (
+        cameras[0].T_cam_lidar
+        if cameras
+        else make_pose(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), np.zeros(3))
+    )
     T_cam0_velo = invert_pose(R_rect) @ T_rect_velo
     lines = [f"calib_time: {stamp}", "corner_dist: 9.950000e-02"]
     for k in range(4):
@@ -178,13 +211,24 @@ def _write_calibration(date_folder: Path, date: str, cameras: list[CameraCalibra
         K = cam.K if cam is not None else np.array([[700.0, 0.0, 600.0], [0.0, 700.0, 180.0], [0.0, 0.0, 1.0]])
         size = (cam.width, cam.height) if cam is not None else (1242, 375)
         t_rect = (cam.T_cam_lidar @ invert_pose(T_rect_velo))[:3, 3] if cam is not None else np.zeros(3)
-        lines += [f"S_0{k}: {_fmt(size)}", f"K_0{k}: {_fmt(K)}", f"D_0{k}: {_fmt(np.zeros(5))}", f"R_0{k}: {_fmt(np.eye(3))}",
-                  f"T_0{k}: {_fmt(R_rect[:3, :3].T @ t_rect)}", f"S_rect_0{k}: {_fmt(size)}", f"R_rect_0{k}: {_fmt(R_rect[:3, :3])}",
-                  f"P_rect_0{k}: {_fmt(np.hstack([K, (K @ t_rect)[:, None]]))}"]
+        lines += [
+            f"S_0{k}: {_fmt(size)}",
+            f"K_0{k}: {_fmt(K)}",
+            f"D_0{k}: {_fmt(np.zeros(5))}",
+            f"R_0{k}: {_fmt(np.eye(3))}",
+            f"T_0{k}: {_fmt(R_rect[:3, :3].T @ t_rect)}",
+            f"S_rect_0{k}: {_fmt(size)}",
+            f"R_rect_0{k}: {_fmt(R_rect[:3, :3])}",
+            f"P_rect_0{k}: {_fmt(np.hstack([K, (K @ t_rect)[:, None]]))}",
+        ]
     (date_folder / CAM_TO_CAM).write_text("\n".join(lines) + "\n")
-    (date_folder / VELO_TO_CAM).write_text(f"calib_time: {stamp}\nR: {_fmt(T_cam0_velo[:3, :3])}\nT: {_fmt(T_cam0_velo[:3, 3])}\n"
-                                           f"delta_f: {_fmt(np.zeros(2))}\ndelta_c: {_fmt(np.zeros(2))}\n")
-    (date_folder / IMU_TO_VELO).write_text(f"calib_time: {stamp}\nR: {_fmt(T_velo_imu[:3, :3])}\nT: {_fmt(T_velo_imu[:3, 3])}\n")
+    (date_folder / VELO_TO_CAM).write_text(
+        f"calib_time: {stamp}\nR: {_fmt(T_cam0_velo[:3, :3])}\nT: {_fmt(T_cam0_velo[:3, 3])}\n"
+        f"delta_f: {_fmt(np.zeros(2))}\ndelta_c: {_fmt(np.zeros(2))}\n"
+    )
+    (date_folder / IMU_TO_VELO).write_text(
+        f"calib_time: {stamp}\nR: {_fmt(T_velo_imu[:3, :3])}\nT: {_fmt(T_velo_imu[:3, 3])}\n"
+    )
 
 
 # ------------------------------------------------------------------------------------ the labels
@@ -210,9 +254,16 @@ def _label_lines(i: int, camera, T_map_lidar: np.ndarray, objects) -> list[str]:
         alpha = (ry - np.arctan2(bottom[0], bottom[2]) + np.pi) % (2 * np.pi) - np.pi
         rows, cols = np.nonzero(camera.instance == obj.instance_id)
         truncated = _truncation(obj, T_rect_map, camera.calibration)
-        fields = [i, obj.instance_id, label_type(obj.class_name), f"{truncated:.2f}", 3, f"{alpha:.6f}",
-                  *(f"{v:.2f}" for v in (cols.min(), rows.min(), cols.max(), rows.max())),
-                  *(f"{v:.6f}" for v in (height, width, length, *bottom, ry))]
+        fields = [
+            i,
+            obj.instance_id,
+            label_type(obj.class_name),
+            f"{truncated:.2f}",
+            3,
+            f"{alpha:.6f}",
+            *(f"{v:.2f}" for v in (cols.min(), rows.min(), cols.max(), rows.max())),
+            *(f"{v:.6f}" for v in (height, width, length, *bottom, ry)),
+        ]
         lines.append(" ".join(str(f) for f in fields))
     return lines
 

@@ -60,13 +60,18 @@ def read_msmap_config(path: Path) -> MsmapCameras:
         cameras = [_camera(cfg, n, width, height, where) for n in numbers]
     axes = _axes(cfg.get("cam_axis"), len(numbers), where)
     threshold = cfg.get("unaligned_threshold")
-    if threshold is not None and (isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or threshold <= 0):
-        raise TerraError(f"{where('unaligned_threshold')}: unaligned_threshold must be a positive number of seconds, got {threshold!r}")
+    if threshold is not None and (
+        isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or threshold <= 0
+    ):
+        raise TerraError(
+            f"{where('unaligned_threshold')}: unaligned_threshold must be a positive number of seconds, "
+            f"got {threshold!r}"
+        )
     return MsmapCameras(path, cameras, numbers, axes, None if threshold is None else float(threshold))
 
 
 class _Where:
-    """"file:line" of a top-level key of a YAML file (the file alone for a missing key)."""
+    """ "file:line" of a top-level key of a YAML file (the file alone for a missing key)."""
 
     def __init__(self, path: Path, text: str) -> None:
         self.path = path
@@ -102,7 +107,9 @@ def _camera_numbers(cfg: dict, where: _Where) -> list[int]:
 def _positive_int(cfg: dict, key: str, where: _Where) -> int:
     value = cfg.get(key)
     if value is None:
-        raise TerraError(f"{where()}: no {key} (image {'width' if key == 'IMG_W' else 'height'} in pixels, one for every camera)")
+        raise TerraError(
+            f"{where()}: no {key} (image {'width' if key == 'IMG_W' else 'height'} in pixels, one for every camera)"
+        )
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
         raise TerraError(f"{where(key)}: {key} must be a positive integer (pixels), got {value!r}")
     return value
@@ -129,7 +136,9 @@ def _camera(cfg: dict, n: int, width: int, height: int, where: _Where) -> Camera
 
 
 def _numbers(value, key: str, where: _Where) -> np.ndarray:
-    if not isinstance(value, (list, tuple)) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+    if not isinstance(value, (list, tuple)) or not all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+    ):
         raise TerraError(f"{where(key)}: {key} must be a list of numbers, got {str(value)[:60]!r}")
     return np.asarray(value, dtype=np.float64)
 
@@ -152,7 +161,9 @@ def msmap_camera_keys(cameras: list[CameraCalibration]) -> dict:
     if cameras:
         sizes = {(c.width, c.height) for c in cameras}
         if len(sizes) > 1:
-            raise TerraError(f"the authors' layout has one image size (IMG_W x IMG_H) for all cameras, got {sorted(sizes)}")
+            raise TerraError(
+                f"the authors' layout has one image size (IMG_W x IMG_H) for all cameras, got {sorted(sizes)}"
+            )
         out["IMG_W"], out["IMG_H"] = int(cameras[0].width), int(cameras[0].height)
     for n, cam in enumerate(cameras, start=1):
         out[f"cam{n}_K"] = [float(v) for v in cam.K.ravel()]
@@ -169,4 +180,3 @@ def camera_axis(T_cam_lidar: np.ndarray) -> str:
     z_in_lidar = np.asarray(T_cam_lidar)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
     a = int(np.argmax(np.abs(z_in_lidar[:2])))
     return ("+" if z_in_lidar[a] >= 0 else "-") + "xy"[a]
-

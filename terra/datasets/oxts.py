@@ -25,9 +25,38 @@ import numpy as np
 
 from terra.errors import TerraError
 
-FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
-          "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy", "navstat", "numsats", "posmode", "velmode",
-          "orimode")
+FIELDS = (
+    "lat",
+    "lon",
+    "alt",
+    "roll",
+    "pitch",
+    "yaw",
+    "vn",
+    "ve",
+    "vf",
+    "vl",
+    "vu",
+    "ax",
+    "ay",
+    "az",
+    "af",
+    "al",
+    "au",
+    "wx",
+    "wy",
+    "wz",
+    "wf",
+    "wl",
+    "wu",
+    "pos_accuracy",
+    "vel_accuracy",
+    "navstat",
+    "numsats",
+    "posmode",
+    "velmode",
+    "orimode",
+)
 FIELD = {name: i for i, name in enumerate(FIELDS)}
 INTEGER_FIELDS = FIELDS[-5:]
 EARTH_RADIUS = 6378137.0  # metres, the devkit's (WGS84 equatorial radius)
@@ -40,7 +69,9 @@ def parse_packet(text: str, where: str) -> np.ndarray:
     """(30,) float64 of one packet's text; TerraError naming `where` unless it has 30 finite numbers."""
     words = text.split()
     if len(words) != len(FIELDS):
-        raise TerraError(f"{where}: expected {len(FIELDS)} numbers ({', '.join(FIELDS[:6])}, ... {FIELDS[-1]}), got {len(words)}")
+        raise TerraError(
+            f"{where}: expected {len(FIELDS)} numbers ({', '.join(FIELDS[:6])}, ... {FIELDS[-1]}), got {len(words)}"
+        )
     try:
         packet = np.array([float(w) for w in words])
     except ValueError:

@@ -178,7 +178,8 @@ class SemanticKittiDataset:
             raise TerraError(f"{seq / 'velodyne'}: no .bin scans")
         calib_path = seq / "calib.txt"
         calib_file = read_calib_file(calib_path) if calib_path.is_file() else None
-        calib = {key: calib_file.matrix(key, (3, 4), "a 3x4 matrix, row-major") for key in calib_file.keys()} if calib_file else {}
+        keys = calib_file.keys() if calib_file else []
+        calib = {key: calib_file.matrix(key, (3, 4), "a 3x4 matrix, row-major") for key in keys}
         self.Tr = np.vstack([calib["Tr"], [0, 0, 0, 1]]) if "Tr" in calib else np.eye(4)
         poses_path = seq / "poses.txt"
         if not poses_path.is_file():

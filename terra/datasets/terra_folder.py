@@ -155,7 +155,8 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
                 for d in (files.images, files.transforms, files.semantic, files.instance):
                     (root / d).mkdir(exist_ok=True)
             write_rgb(root / files.image(frame.stamp), cam.image)
-            np.save(root / files.transform(frame.stamp), pose_to_xyz_quat(cam.calibration.T_cam_lidar), allow_pickle=False)
+            T_cam_lidar = pose_to_xyz_quat(cam.calibration.T_cam_lidar)
+            np.save(root / files.transform(frame.stamp), T_cam_lidar, allow_pickle=False)
             if cam.semantic is not None:
                 write_label_png(root / files.semantic_image(frame.stamp), cam.semantic)
             if cam.instance is not None:
@@ -164,8 +165,8 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
             msmap_camera_keys(cameras)  # refuse what the authors' layout cannot hold before writing more
     last = stamp_text(max(stamps)) if stamps else stamp_text(0.0)
     np.save(root / GLOBAL / f"global_pc_{last}.npy", acc.result(), allow_pickle=False)
-    meta = {"format": "terra-folder", "version": 2, "name": dataset.name, "frames": len(stamps), "first_camera": FIRST_CAMERA,
-            "cameras": [calibration_to_json(c) for c in cameras]}
+    meta = {"format": "terra-folder", "version": 2, "name": dataset.name, "frames": len(stamps),
+            "first_camera": FIRST_CAMERA, "cameras": [calibration_to_json(c) for c in cameras]}
     (root / META).write_text(json.dumps(meta, indent=1) + "\n")
     (root / CAMERA_YAML).write_text(yaml.safe_dump(msmap_camera_keys(cameras), sort_keys=False))
 
@@ -191,13 +192,15 @@ class TerraFolderDataset:
         numbers, calibrations, exact, threshold = self._calibration(meta, cameras, camera_config)
         self.calibrations, self.camera_numbers, self._exact_cameras = calibrations, numbers, exact
         _check_image_folders(root, numbers, self.camera_source)
-        self.max_gap = float(max_gap if max_gap is not None else threshold if threshold is not None else DEFAULT_MAX_GAP)
+        tolerance = max_gap if max_gap is not None else threshold
+        self.max_gap = float(tolerance if tolerance is not None else DEFAULT_MAX_GAP)
         self.classes: ClassTable = read_classes(root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
         self._frames = self._pair_streams()
         if not self._frames:
-            raise TerraError(f"{root}: no scan with a pose, a LiDAR file and every camera image within {self.max_gap} s")
+            raise TerraError(f"{root}: no scan with a pose, a LiDAR file and every camera image "
+                             f"within {self.max_gap} s")
         self._check_image_sizes()
 
     def _calibration(self, meta: dict, cameras: list[CameraCalibration] | None, camera_config: Path | None
@@ -247,13 +250,14 @@ class TerraFolderDataset:
                 k, gk = nearest(tf_t, t)
                 gaps += [(f"camera {n} image", gi)] + ([(f"camera {n} transform", gk)] if tf_t.size else [])
                 picks.append((img_f[i] if i >= 0 else None, tf_f[k] if k >= 0 else None))
-            worst = max(gaps, key=lambda g: g[1])
-            if worst[1] <= self.max_gap:
+            what, gap = max(gaps, key=lambda g: g[1])
+            if gap <= self.max_gap:
                 frames.append((float(t), pose_file, scan_f[s], picks))
             else:
                 self.skipped["scans_unaligned"] = self.skipped.get("scans_unaligned", 0) + 1
-                self.skipped_notes.setdefault("scans_unaligned", f"{pose_file}: nearest {worst[0]} is "
-                                              f"{'missing' if np.isinf(worst[1]) else f'{worst[1]:.3f} s away'} (tolerance {self.max_gap} s)")
+                where = "missing" if np.isinf(gap) else f"{gap:.3f} s away"
+                self.skipped_notes.setdefault("scans_unaligned",
+                                              f"{pose_file}: nearest {what} is {where} (tolerance {self.max_gap} s)")
         return frames
 
     def _check_image_sizes(self) -> None:
@@ -267,8 +271,9 @@ class TerraFolderDataset:
             except OSError as exc:
                 raise TerraError(f"{image_file}: unreadable image ({exc})") from None
             if size != (cal.width, cal.height):
-                raise TerraError(f"{image_file}: image is {size[0]}x{size[1]}, but {self.camera_source or 'the calibration'} "
-                                 f"says {cal.width}x{cal.height} (IMG_W x IMG_H)")
+                source = self.camera_source or "the calibration"
+                raise TerraError(f"{image_file}: image is {size[0]}x{size[1]}, but {source} says "
+                                 f"{cal.width}x{cal.height} (IMG_W x IMG_H)")
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -293,12 +298,14 @@ class TerraFolderDataset:
             cal = CameraCalibration(cal.name, cal.width, cal.height, cal.K, cal.dist, _read_pose(tf_file), cal.model)
         image = read_rgb(image_file)
         if image.shape[:2] != (cal.height, cal.width):
-            raise TerraError(f"{image_file}: image is {image.shape[1]}x{image.shape[0]}, calibration says {cal.width}x{cal.height}")
+            raise TerraError(f"{image_file}: image is {image.shape[1]}x{image.shape[0]}, "
+                             f"calibration says {cal.width}x{cal.height}")
         stamp = stamp_of(image_file)
         files = CameraFiles(n)
         sem_file, inst_file = self.root / files.semantic_image(stamp), self.root / files.instance_image(stamp)
-        return CameraFrame(cal, stamp, image, read_label_png(sem_file) if sem_file.is_file() else None,
-                           read_label_png(inst_file) if inst_file.is_file() else None, name=str(image_file.relative_to(self.root)))
+        semantic = read_label_png(sem_file) if sem_file.is_file() else None
+        instance = read_label_png(inst_file) if inst_file.is_file() else None
+        return CameraFrame(cal, stamp, image, semantic, instance, name=str(image_file.relative_to(self.root)))
 
     def global_map(self) -> np.ndarray | None:
         """[:, :3] of the global_pc file with the largest stamp (as the reference uses it)."""
@@ -342,9 +349,13 @@ def _check_image_folders(root: Path, numbers: list[int], source: str) -> None:
     if missing or extra:
         calibrated = ", ".join(str(n) for n in numbers)
         found = ", ".join(f"{p.name}/" for p in folders.values()) or "none"
-        problems = ([f"no images for camera{'s' if len(missing) > 1 else ''} {', '.join(str(n) for n in missing)}"] if missing else []) + \
-                   ([f"no calibration for {', '.join(folders[n].name + '/' for n in extra)}"] if extra else [])
-        raise TerraError(f"{source}: calibrates cameras {calibrated} but {root} has image folders {found}: {'; '.join(problems)}")
+        problems = []
+        if missing:
+            problems.append(f"no images for camera{'s' if len(missing) > 1 else ''} {', '.join(str(n) for n in missing)}")
+        if extra:
+            problems.append(f"no calibration for {', '.join(folders[n].name + '/' for n in extra)}")
+        raise TerraError(f"{source}: calibrates cameras {calibrated} but {root} has image folders {found}: "
+                         f"{'; '.join(problems)}")
 
 
 def _read_pose(path: Path) -> np.ndarray:
@@ -358,10 +369,10 @@ def _read_pose(path: Path) -> np.ndarray:
 class TerraFolderConfig(Section):
     """Options of the reference folder layout."""
 
-    max_gap: float | None = Field(None, gt=0.0, description="seconds a scan's LiDAR file, images and camera transforms may lie "
-                                  "from its pose stamp; None = the camera config's unaligned_threshold, else 0.2")
-    camera_config: Path | None = Field(None, description="the authors' msmap YAML (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, "
-                                       "cam_axis; other keys ignored): replaces the folder's own calibration")
+    max_gap: float | None = Field(None, gt=0.0, description="seconds a scan's LiDAR file, images and camera transforms "
+                                  "may lie from its pose stamp; None = the camera config's unaligned_threshold, else 0.2")
+    camera_config: Path | None = Field(None, description="the authors' msmap YAML (num_cams, IMG_W, IMG_H, cam{n}_K, "
+                                       "cam{n}_dist, cam_axis; other keys ignored): replaces the folder's own calibration")
 
 
 def _detect(path: Path) -> bool:

@@ -150,9 +150,10 @@ def _navigation(nav: dict) -> list[str]:
 
 
 def _not_evaluated(skipped: dict) -> list[str]:
-    titles = {"segmentation": "Table I, terrain segmentation", "regions": "Table III, region monitoring", "navigation": "Navigation"}
-    out = ["## Not evaluated", "", "The ground truth of this dataset holds objects only (KITTI labels): only Table II and the "
-           "memory figures are computed. No number is given for what it cannot score:", ""]
+    titles = {"segmentation": "Table I, terrain segmentation", "regions": "Table III, region monitoring",
+              "navigation": "Navigation"}
+    out = ["## Not evaluated", "", "The ground truth of this dataset holds objects only (KITTI labels): only Table II "
+           "and the memory figures are computed. No number is given for what it cannot score:", ""]
     out += [f"- {title}: {skipped[key]}." for key, title in titles.items() if key in skipped]
     out += [f"- {note}." for note in skipped.get("notes", [])]
     return out + [""]

@@ -32,9 +32,10 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
     raster = inputs.gt.terrain
     written: dict[str, Path] = {}
     if raster is not None:
-        extent = view_extent(raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution, margin=0.03)
-        written["Terrain map vs ground truth"] = figures.terrain_map_figure(folder / "1_terrain_map.png", msm.terrain_classes,
-                                                                            background, inputs.gt, dpi, extent)
+        corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
+        extent = view_extent(corners, margin=0.03)
+        written["Terrain map vs ground truth"] = figures.terrain_map_figure(
+            folder / "1_terrain_map.png", msm.terrain_classes, background, inputs.gt, dpi, extent)
     else:
         extent = view_extent(msm.points, margin=0.03)
     written["Places layer by terrain"] = figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)

@@ -111,7 +111,8 @@ def not_evaluated(inputs: EvalInputs) -> dict[str, str]:
     """Sections the ground truth cannot score, each with the reason in words (never numbers)."""
     if not inputs.objects_only:
         return {}
-    return {key: f"{reason}, which this dataset's labels do not have; not evaluated" for key, reason in NOT_IN_KITTI.items()}
+    return {key: f"{reason}, which this dataset's labels do not have; not evaluated"
+            for key, reason in NOT_IN_KITTI.items()}
 
 
 # ---------------------------------------------------------------------------- Table II
