@@ -38,7 +38,7 @@ from terra.config import Section
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
 from terra.datasets.folder_io import read_classes, read_label_png, read_rgb
-from terra.datasets.kitti_common import CalibFile, read_calib_file, read_timestamps, standard_classes
+from terra.datasets.kitti_common import CalibFile, check_rotation, read_calib_file, read_timestamps, standard_classes
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
@@ -79,8 +79,9 @@ class KittiRawConfig(Section):
 
 @dataclass(frozen=True)
 class DriveCalibration:
-    """The date folder's calibration: T_cam0_velo (Velodyne -> unrectified camera 0), R_rect_00
-    (4x4), T_velo_imu, and the three files' paths (cam_to_cam first)."""
+    """The date folder's calibration: T_cam0_velo (Velodyne -> unrectified camera 0, metres),
+    R_rect_00 (4x4, unrectified -> rectified camera 0), T_velo_imu (IMU -> Velodyne) and the parsed
+    calib_cam_to_cam.txt (projections and image sizes per camera)."""
 
     T_cam0_velo: np.ndarray
     R_rect_00: np.ndarray
@@ -128,6 +129,7 @@ def read_drive_calibration(date_folder: Path) -> DriveCalibration:
     cam_to_cam, velo_to_cam, imu_to_velo = (read_calib_file(p) for p in paths)
     R_rect = np.eye(4)
     R_rect[:3, :3] = cam_to_cam.matrix("R_rect_00", (3, 3), "the rectifying rotation of camera 0, row-major")
+    check_rotation(R_rect[:3, :3], f"{cam_to_cam.where('R_rect_00')}: R_rect_00")
     return DriveCalibration(velo_to_cam.rigid("R", "T"), R_rect, imu_to_velo.rigid("R", "T"), cam_to_cam)
 
 
@@ -156,7 +158,7 @@ def _one_drive(path: Path) -> Path:
     return drives[0]
 
 
-def image_size(path: Path) -> tuple[int, int]:
+def _header_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file from its header (no decoding)."""
     from PIL import Image
 
@@ -259,7 +261,7 @@ class KittiRawDataset:
                 continue
             width, height = self.calibration.image_size(folder)
             first = next(iter(images.values()))
-            size = image_size(first)
+            size = _header_size(first)
             if size != (width, height):
                 key = f"S_rect_{folder[-2:]}"
                 raise TerraError(
