@@ -266,3 +266,10 @@ def test_two_drives_need_one_chosen(drive, tmp_path):
     with pytest.raises(TerraError, match=r"2 drives; open one of them, e.g. .*drive_0005_sync"):
         open_dataset(date)
     assert len(open_dataset(date / "2011_09_26_drive_0009_sync")) == 3
+
+
+def test_unsynced_extract_drives_are_refused_with_a_reason(drive, tmp_path):
+    date = shutil.copytree(drive.parent, tmp_path / "2011_09_26")
+    (date / drive.name).rename(date / "2011_09_26_drive_0005_extract")
+    with pytest.raises(TerraError, match=r"drive_0005_extract: an unsynced '_extract' drive .* reads the synced and rectified"):
+        open_dataset(date)

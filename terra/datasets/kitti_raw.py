@@ -155,6 +155,9 @@ def _one_drive(path: Path) -> Path:
         raise TerraError(f"{path}: no KITTI raw drive (DATE/DATE_drive_NNNN_sync/velodyne_points/data/)")
     if len(drives) > 1:
         raise TerraError(f"{path}: {len(drives)} drives; open one of them, e.g. {drives[0]}")
+    if drives[0].name.endswith("_extract"):
+        raise TerraError(f"{drives[0]}: an unsynced '_extract' drive (unrectified images, sensor clocks apart); "
+                         "Terra reads the synced and rectified '_sync' drives")
     return drives[0]
 
 
