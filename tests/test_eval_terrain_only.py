@@ -41,7 +41,19 @@ def test_table_one_for_labels_and_a_model(box_folder, tiny_models, tmp_path, cap
     labels_cfg, model_cfg = tmp_path / "labels.yaml", tmp_path / "yolo.yaml"
     labels_cfg.write_text(yaml.safe_dump({"mapping": {"perception": {"backend": "labels"}}}))
     model_cfg.write_text(yaml.safe_dump({"mapping": {"perception": models_section(tiny_models)}}))
-    code = run(["eval", "--terrain-only", str(box_folder), "--config", str(labels_cfg), "--config", str(model_cfg), "--json", "-q"])
+    code = run(
+        [
+            "eval",
+            "--terrain-only",
+            str(box_folder),
+            "--config",
+            str(labels_cfg),
+            "--config",
+            str(model_cfg),
+            "--json",
+            "-q",
+        ]
+    )
     assert code == 0
     table = json.loads(capsys.readouterr().out)
     assert table["images"] == 6
@@ -51,7 +63,9 @@ def test_table_one_for_labels_and_a_model(box_folder, tiny_models, tmp_path, cap
     # The same scores from scikit-learn on the same pixels.
     dataset = open_dataset(box_folder)
     index = {c.id: {"grass": 0, "asphalt": 1}.get(c.name, 2) for c in dataset.classes}
-    truth = np.concatenate([[index.get(int(v), 2) for v in dataset[i].cameras[0].semantic.ravel()] for i in range(len(dataset))])
+    truth = np.concatenate(
+        [[index.get(int(v), 2) for v in dataset[i].cameras[0].semantic.ravel()] for i in range(len(dataset))]
+    )
     predicted = np.tile(_expected_prediction().ravel(), len(dataset))
     iou = jaccard_score(truth, predicted, labels=[0, 1], average=None)
     f1 = f1_score(truth, predicted, labels=[0, 1], average=None)

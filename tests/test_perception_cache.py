@@ -41,8 +41,9 @@ def _sample(seed: int = 0, with_ids: bool = True) -> ImagePerception:
     labels[11, 30] = 3
     masks = MaskSet.from_label_image(labels, np.array([5, 6, 7]) if with_ids else None)
     vectors = rng.normal(size=(3, 8)).astype(np.float32)
-    return ImagePerception(terrain, masks, vectors / np.linalg.norm(vectors, axis=1, keepdims=True),
-                           rng.normal(size=8).astype(np.float32))
+    return ImagePerception(
+        terrain, masks, vectors / np.linalg.norm(vectors, axis=1, keepdims=True), rng.normal(size=8).astype(np.float32)
+    )
 
 
 def test_run_length_by_hand():
@@ -52,7 +53,9 @@ def test_run_length_by_hand():
 
 
 def test_mask_bits_by_hand():
-    masks = MaskSet((4, 4), np.array([[0, 0, 1, 3], [1, 1, 3, 3]]), [np.array([[1, 0, 1]], bool), np.ones((2, 2), bool)])
+    masks = MaskSet(
+        (4, 4), np.array([[0, 0, 1, 3], [1, 1, 3, 3]]), [np.array([[1, 0, 1]], bool), np.ones((2, 2), bool)]
+    )
     bits = pack_masks(masks)
     # 1 0 1 | 1 1 1 1, padded to a byte: 0b10111110
     np.testing.assert_array_equal(bits, [0b10111110])
@@ -79,8 +82,16 @@ class Counting(Perception):
     """A perception that counts its inferences and returns `_sample` (shifted by the image's mean)."""
 
     def __init__(self, random: bool = False):
-        super().__init__(None, None, None, None, backend="counting", identity={"backend": "counting"}, random=random,
-                         uses_labels=False)
+        super().__init__(
+            None,
+            None,
+            None,
+            None,
+            backend="counting",
+            identity={"backend": "counting"},
+            random=random,
+            uses_labels=False,
+        )
         self.calls = 0
 
     @property
@@ -171,7 +182,9 @@ def test_map_twice_second_run_does_no_inference_and_gives_the_same_bytes(tmp_pat
     assert first.calls == 6 and run1.cache["computed"] == 6 and run1.cache["hits"] == 0
     assert (tmp_path / "a.terra.work" / "perception").is_dir()
     second = CountingBackend(config)
-    shared = MappingConfig.model_validate({"perception": {"cache": {"mode": "on", "folder": str(tmp_path / "a.terra.work" / "perception")}}})
+    shared = MappingConfig.model_validate(
+        {"perception": {"cache": {"mode": "on", "folder": str(tmp_path / "a.terra.work" / "perception")}}}
+    )
     run2 = run_mapping(BoxScene(), shared, tmp_path / "b.terra", show_progress=False, perception=second.perception)
     assert second.calls == 0 and run2.cache == {"folder": run1.cache["folder"], "hits": 6, "computed": 0}
     a, b = folder_digest(run1.bundle.path), folder_digest(run2.bundle.path)
@@ -183,7 +196,9 @@ def test_map_twice_second_run_does_no_inference_and_gives_the_same_bytes(tmp_pat
     run_mapping(BoxScene(), refuse, tmp_path / "c.terra", show_progress=False, perception=third.perception)
     assert third.calls == 0
     # A changed perception setting (noise) invalidates.
-    noisy = MappingConfig.model_validate({"perception": {"noise": "realistic", "cache": shared.perception.cache.model_dump()}})
+    noisy = MappingConfig.model_validate(
+        {"perception": {"noise": "realistic", "cache": shared.perception.cache.model_dump()}}
+    )
     fourth = CountingBackend(noisy)
     run_mapping(BoxScene(), noisy, tmp_path / "d.terra", show_progress=False, perception=fourth.perception)
     assert fourth.calls == 6
@@ -204,5 +219,9 @@ def test_perception_only_needs_the_cache(tmp_path, text_embedder):
     from terra.errors import TerraError
 
     with pytest.raises(TerraError, match="cache.mode: off"):
-        run_perception(BoxScene(), MappingConfig.model_validate({"perception": {"cache": {"mode": "off"}}}), tmp_path / "x.terra",
-                       show_progress=False)
+        run_perception(
+            BoxScene(),
+            MappingConfig.model_validate({"perception": {"cache": {"mode": "off"}}}),
+            tmp_path / "x.terra",
+            show_progress=False,
+        )

@@ -36,7 +36,9 @@ def _image(h: int = 48, w: int = 64, seed: int = 0) -> np.ndarray:
 
 def _camera(image: np.ndarray) -> CameraFrame:
     h, w = image.shape[:2]
-    calib = CameraCalibration("cam0", w, h, np.array([[50.0, 0, w / 2], [0, 50.0, h / 2], [0, 0, 1]]), T_cam_lidar=np.eye(4))
+    calib = CameraCalibration(
+        "cam0", w, h, np.array([[50.0, 0, w / 2], [0, 50.0, h / 2], [0, 0, 1]]), T_cam_lidar=np.eye(4)
+    )
     return CameraFrame(calib, 0.0, image)
 
 

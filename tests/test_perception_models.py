@@ -5,7 +5,6 @@ runtime's offline guard, and an end-to-end `terra map` on the tiny simulated cam
 from __future__ import annotations
 
 import hashlib
-import json
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from terra.bundle import Bundle
 from terra.cli import run
 from terra.datasets.base import CameraFrame
 from terra.errors import TerraError
-from terra.mapping.config import MappingConfig
 from terra.perception.config import PerceptionConfig
 from terra.perception.models import blank_terrain, map_terrain_classes, paint_terrain
 from terra.perception.registry import get_perception, get_terrain_segmenter
@@ -78,16 +76,25 @@ def test_the_best_terrain_mask_wins_overlaps(tiny_models, tmp_path):
     from tests.fixtures_perception import all_on_protos, terrain_detections
     from tests.perception_models import raw_output, save_seg_onnx
 
-    path = save_seg_onnx(tmp_path / "t.onnx", raw_output(terrain_detections(0.95), 5, 2, 32), all_on_protos(), (64, 64), SIM_TERRAIN)
+    path = save_seg_onnx(
+        tmp_path / "t.onnx", raw_output(terrain_detections(0.95), 5, 2, 32), all_on_protos(), (64, 64), SIM_TERRAIN
+    )
     segmenter = get_terrain_segmenter(_config({**tiny_models, "terrain": path}), SIM_CLASSES)
     terrain = segmenter.segment_terrain(_camera(_image()), np.random.default_rng(0))
-    assert np.all(terrain[320:, 160:480] == 2) and np.all(terrain[240:320, 160:320] == 0) and np.all(terrain[:240] == -1)
+    assert (
+        np.all(terrain[320:, 160:480] == 2) and np.all(terrain[240:320, 160:320] == 0) and np.all(terrain[:240] == -1)
+    )
 
 
 def test_paint_terrain_by_hand():
-    found = Detections((4, 5), np.zeros((3, 4)), np.array([0.2, 0.9, 0.5], np.float32), np.array([0, 1, 7]),
-                       np.array([[0, 0, 2, 3], [1, 1, 3, 4], [0, 0, 4, 5]]),
-                       [np.ones((2, 3), bool), np.array([[1, 1, 1], [0, 1, 0]], bool), np.ones((4, 5), bool)])
+    found = Detections(
+        (4, 5),
+        np.zeros((3, 4)),
+        np.array([0.2, 0.9, 0.5], np.float32),
+        np.array([0, 1, 7]),
+        np.array([[0, 0, 2, 3], [1, 1, 3, 4], [0, 0, 4, 5]]),
+        [np.ones((2, 3), bool), np.array([[1, 1, 1], [0, 1, 0]], bool), np.ones((4, 5), bool)],
+    )
     class_to_terrain = np.array([2, 0, -1, -1, -1, -1, -1, 1], np.int16)  # model class 7 is terrain 1
     # By score: class 0 (terrain 2) at 0.2 is painted first and covered by class 7 (terrain 1, the whole
     # image) at 0.5; class 1 (terrain 0) at 0.9 comes last and keeps its four pixels.
@@ -109,10 +116,15 @@ def test_blank_terrain_keeps_a_margin_at_object_edges():
 
 def test_terrain_classes_map_onto_model_names():
     names = ["Sidewalk", "lawn", "road", "person"]
-    np.testing.assert_array_equal(map_terrain_classes(names, ["sidewalk", "grass", "asphalt"], {"grass": "lawn", "asphalt": "Road"}, "m"),
-                                  [0, 1, 2, -1])
-    with pytest.raises(TerraError, match=r"do not cover the terrain classes 'grass', 'asphalt'; map each to a model class with "
-                                         r"perception.models.terrain.classes \(e.g. \{grass: <model class>\}\)"):
+    np.testing.assert_array_equal(
+        map_terrain_classes(names, ["sidewalk", "grass", "asphalt"], {"grass": "lawn", "asphalt": "Road"}, "m"),
+        [0, 1, 2, -1],
+    )
+    with pytest.raises(
+        TerraError,
+        match=r"do not cover the terrain classes 'grass', 'asphalt'; map each to a model class with "
+        r"perception.models.terrain.classes \(e.g. \{grass: <model class>\}\)",
+    ):
         map_terrain_classes(names, ["sidewalk", "grass", "asphalt"], {}, "m.onnx")
     with pytest.raises(TerraError, match="'gravel' is not a terrain class of the map"):
         map_terrain_classes(names, ["sidewalk"], {"gravel": "road"}, "m")
@@ -124,13 +136,19 @@ def test_terrain_classes_map_onto_model_names():
 
 def test_missing_files_and_bad_settings_say_what_to_provide(tiny_models, tmp_path):
     cases = [
-        (dict(terrain={"model": str(tmp_path / "nope.onnx")}), r"perception.models.terrain.model: weight file .*nope.onnx not found; "
-                                                              r"give the path of a YOLO segmentation model"),
+        (
+            dict(terrain={"model": str(tmp_path / "nope.onnx")}),
+            r"perception.models.terrain.model: weight file .*nope.onnx not found; "
+            r"give the path of a YOLO segmentation model",
+        ),
         (dict(masks={"model": None}), r"perception.models.masks.model is not set: give the path of a FastSAM model"),
         (dict(clip={"model": None}), r"perception.models.clip.model is not set"),
         (dict(terrain={"terrain_classes": ["sidewalk", "gravel"]}), r"do not cover the terrain classes 'gravel'"),
         (dict(terrain={"prompts": True}), r"prompts needs runtime ultralytics and a YOLOE .pt model"),
     ]
+    checkpoint = tmp_path / "terrain.pt"
+    checkpoint.write_bytes(b"not onnx")
+    cases.append((dict(terrain={"model": str(checkpoint), "runtime": "yolo-onnx"}), r"terrain.pt is not a .onnx file"))
     for extra, message in cases:
         with pytest.raises(TerraError, match=message):
             get_perception(_config(tiny_models, **extra), SIM_CLASSES)
@@ -153,7 +171,9 @@ def test_pt_weights_need_the_ultralytics_extra(tiny_models, tmp_path):
         pass
     weights = tmp_path / "yolo11n-seg.pt"
     weights.write_bytes(b"weights")
-    with pytest.raises(TerraError, match=r"ultralytics runtime is not usable here .*terra-3dsg\[ultralytics\].*runtime onnx"):
+    with pytest.raises(
+        TerraError, match=r"ultralytics runtime is not usable here .*terra-3dsg\[ultralytics\].*runtime yolo-onnx"
+    ):
         get_perception(_config(tiny_models, terrain={"model": str(weights)}), SIM_CLASSES)
     with pytest.raises(TerraError, match=r"weight file .*missing.pt not found"):
         get_perception(_config(tiny_models, terrain={"model": str(tmp_path / "missing.pt")}), SIM_CLASSES)
@@ -178,10 +198,15 @@ def test_terra_map_on_the_tiny_campus_with_tiny_models(tiny_models, tmp_path, ca
     name = manifest["embedder"]["name"]
     assert name.startswith("clip:tiny-clip@") and manifest["embedder"]["dim"] == 16
     recorded = {(m["role"], m["name"]): m for m in manifest["perception"]["models"]}
-    for role, path in (("terrain", tiny_models["terrain"]), ("masks", tiny_models["masks"]),
-                       ("clip", tiny_models["clip"] / "model.safetensors")):
+    for role, path in (
+        ("terrain", tiny_models["terrain"]),
+        ("masks", tiny_models["masks"]),
+        ("clip", tiny_models["clip"] / "model.safetensors"),
+    ):
         entry = recorded[(role, path.name)]
-        assert entry["bytes"] == path.stat().st_size and entry["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+        assert (
+            entry["bytes"] == path.stat().st_size and entry["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+        )
     assert manifest["perception"]["backend"] == "models" and manifest["perception"]["embedder"] == manifest["embedder"]
     info = manifest["components"]["map"]
     assert info["images"] == 40 and info["stats"]["masks"] == 120 and info["stats"]["masks_fused"] > 0
@@ -189,7 +214,9 @@ def test_terra_map_on_the_tiny_campus_with_tiny_models(tiny_models, tmp_path, ca
 
     msm = load_map(bundle)
     assert msm.terrain_votes[:, 2:].sum() == 0 and msm.terrain_votes[:, :2].sum() > 0  # only sidewalk and grass painted
-    np.testing.assert_allclose(msm.terrain_embeddings, get_perception(_config(tiny_models), SIM_CLASSES).terrain_embeddings(), atol=1e-6)
+    np.testing.assert_allclose(
+        msm.terrain_embeddings, get_perception(_config(tiny_models), SIM_CLASSES).terrain_embeddings(), atol=1e-6
+    )
     # Queries resolve the map's embedder by its name in this process.
     from terra.tasks.queries import resolve_embedder
 

@@ -56,7 +56,9 @@ def test_letterbox_image_matches_opencv():
     resized = cv2.resize(image, (64, 24), interpolation=cv2.INTER_LINEAR)
     expected = cv2.copyMakeBorder(resized, 20, 20, 0, 0, cv2.BORDER_CONSTANT, value=(114, 114, 114)).astype(np.float32)
     assert ours.shape == expected.shape
-    assert np.abs(ours - expected).max() <= 1.0 + 1e-4  # OpenCV's fixed-point weights round differently by at most one level
+    assert (
+        np.abs(ours - expected).max() <= 1.0 + 1e-4
+    )  # OpenCV's fixed-point weights round differently by at most one level
     assert np.all(ours[:20] == 114) and np.all(ours[44:] == 114)
 
 
@@ -78,7 +80,9 @@ def _detections_48x64() -> np.ndarray:
             ((20, 28, 24, 16), 1, 0.6, coef_all),  # D: A's box, another class: kept by class-aware NMS
             ((50, 10, 4, 4), 0, 0.1, coef_all),  # E: below the confidence threshold
         ],
-        nc=2, nm=NM, anchors=20,
+        nc=2,
+        nm=NM,
+        anchors=20,
     )
 
 
@@ -161,8 +165,13 @@ def test_fp16_and_dynamic_exports(tmp_path):
     output0 = raw_output([((24, 32, 32, 8), 1, 0.7, np.array([1.0, 0.0]))], nc=2, nm=NM, anchors=8)
     half = _model(tmp_path, output0, _protos(), half=True)
     assert half.half and len(half.predict(np.zeros((30, 80, 3), np.uint8), DecodeSettings())) == 1
-    dynamic = save_seg_onnx(tmp_path / "d.onnx", output0, _protos(), (64, 64), ["a", "b"], dynamic=True, imgsz_meta=False)
-    assert OnnxSegmentationModel(dynamic, CPU, "masks", "f").input_shape == (640, 640)  # no metadata: ultralytics' default
+    dynamic = save_seg_onnx(
+        tmp_path / "d.onnx", output0, _protos(), (64, 64), ["a", "b"], dynamic=True, imgsz_meta=False
+    )
+    assert OnnxSegmentationModel(dynamic, CPU, "masks", "f").input_shape == (
+        640,
+        640,
+    )  # no metadata: ultralytics' default
     assert OnnxSegmentationModel(dynamic, CPU, "masks", "f", imgsz=[64, 64]).input_shape == (64, 64)
 
 

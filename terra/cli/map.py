@@ -75,7 +75,10 @@ def map_command(
         f"{info['bank']} bank entries, {info['images']} images -> {run.bundle.path}"
     )
     if run.cache is not None:
-        typer.echo(f"perception cache: {run.cache['hits']} images read back, {run.cache['computed']} computed ({run.cache['folder']})")
+        cache = run.cache
+        typer.echo(
+            f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({cache['folder']})"
+        )
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
 

@@ -23,7 +23,8 @@ from terra.mapping.fusion import FusionStats
 from terra.mapping.pipeline import image_fault, load_frame, open_perception
 from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception
-from terra.progress import StageTimer, progress as progress_bar
+from terra.progress import StageTimer
+from terra.progress import progress as progress_bar
 
 
 @dataclass
@@ -41,8 +42,9 @@ class PerceptionRun:
     timer: StageTimer = field(default_factory=StageTimer)
 
 
-def perceive_frame(dataset: Dataset, index: int, perception: CachedPerception, config: MappingConfig,
-                   stats: FusionStats | None = None) -> int:
+def perceive_frame(
+    dataset: Dataset, index: int, perception: CachedPerception, config: MappingConfig, stats: FusionStats | None = None
+) -> int:
     """Perceive every usable image of frame `index` into `perception`'s cache; returns how many images
     were perceived (read back or computed). Faults are counted in `stats` when given."""
     stats = stats if stats is not None else FusionStats()
@@ -65,8 +67,9 @@ def perceive_frame(dataset: Dataset, index: int, perception: CachedPerception, c
     return done
 
 
-def run_perception(dataset: Dataset, config: MappingConfig, out: Path, show_progress: bool = True,
-                   perception: Perception | None = None) -> PerceptionRun:
+def run_perception(
+    dataset: Dataset, config: MappingConfig, out: Path, show_progress: bool = True, perception: Perception | None = None
+) -> PerceptionRun:
     """Fill the perception cache of the bundle `out` (or of `perception.cache.folder`) for every frame."""
     timer = StageTimer()
     if len(dataset) == 0:
@@ -74,12 +77,22 @@ def run_perception(dataset: Dataset, config: MappingConfig, out: Path, show_prog
     with timer.stage("setup"):
         cached = open_perception(config, dataset, Path(out), perception)
     if not isinstance(cached, CachedPerception):
-        raise TerraError("--perception-only fills the perception cache, which mapping.perception.cache.mode: off "
-                         "switches off (use on, or auto with a model backend)")
+        raise TerraError(
+            "--perception-only fills the perception cache, which mapping.perception.cache.mode: off "
+            "switches off (use on, or auto with a model backend)"
+        )
     stats = FusionStats()
     images = 0
     for i in progress_bar(range(len(dataset)), desc="perception", total=len(dataset), enabled=show_progress):
         with timer.stage("perception"):
             images += perceive_frame(dataset, i, cached, config, stats)
-    return PerceptionRun(cached.cache.folder, len(dataset), images, cached.counts.hits, cached.counts.computed,
-                         stats.to_json(), dict(stats.notes), timer)
+    return PerceptionRun(
+        cached.cache.folder,
+        len(dataset),
+        images,
+        cached.counts.hits,
+        cached.counts.computed,
+        stats.to_json(),
+        dict(stats.notes),
+        timer,
+    )

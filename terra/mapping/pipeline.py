@@ -66,7 +66,8 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
     key = fingerprint(
         {
             "format": MAP_FORMAT,
-            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),  # where the cache lives changes no output
+            # Where the perception cache lives changes no output.
+            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
             "dataset": dataset.name,
             "frames": n_frames,
             "embedder": [perception.embedder, perception.dim],
@@ -112,7 +113,8 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
     return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
 
 
-def open_perception(config: MappingConfig, dataset: Dataset, out: Path, perception: Perception | None = None) -> Perception:
+def open_perception(config: MappingConfig, dataset: Dataset, out: Path,
+                    perception: Perception | None = None) -> Perception:
     """The configured perception backend (or `perception`), behind the perception cache when it is on."""
     perception = perception or get_perception(config.perception, dataset.classes)
     if isinstance(perception, CachedPerception):

@@ -145,7 +145,9 @@ def decode(arrays: dict[str, np.ndarray], meta: dict, dim: int) -> ImagePercepti
     runs, boxes = arrays["terrain_runs"], arrays["mask_boxes"]
     if len(shape) != 2 or runs.ndim != 2 or runs.shape[1:] != (2,) or int(runs[:, 1].sum()) != shape[0] * shape[1]:
         raise CorruptEntry("terrain runs do not cover the image")
-    if boxes.shape != (m, 4) or (m and (boxes.min() < 0 or boxes[:, 2].max() > shape[0] or boxes[:, 3].max() > shape[1])):
+    if boxes.shape != (m, 4) or (
+        m and (boxes.min() < 0 or boxes[:, 2].max() > shape[0] or boxes[:, 3].max() > shape[1])
+    ):
         raise CorruptEntry("mask boxes do not fit the image")
     if np.any(boxes[:, 2] < boxes[:, 0]) or np.any(boxes[:, 3] < boxes[:, 1]):
         raise CorruptEntry("mask boxes are inverted")
@@ -178,8 +180,15 @@ class PerceptionCache:
 
     def key(self, camera: CameraFrame, rng_state: dict | None, with_labels: bool) -> str:
         """The frame key of one image (see the module docstring)."""
-        return fingerprint({"format": CACHE_FORMAT, "backend": self.backend_key, "camera": camera.calibration.name,
-                            "content": content_digest(camera, with_labels), "rng": rng_state})
+        return fingerprint(
+            {
+                "format": CACHE_FORMAT,
+                "backend": self.backend_key,
+                "camera": camera.calibration.name,
+                "content": content_digest(camera, with_labels),
+                "rng": rng_state,
+            }
+        )
 
     def entry(self, key: str) -> Path:
         return self.folder / "entries" / key[:2] / key
@@ -210,9 +219,14 @@ class PerceptionCache:
                 data = array_bytes(array)
                 (tmp / f"{name}.npy").write_bytes(data)
                 files[f"{name}.npy"] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-            meta = {"format": CACHE_FORMAT, "shape": list(seen.terrain.shape), "masks": len(seen.masks),
-                    "dim": int(np.asarray(seen.image_embedding).shape[0]), "class_ids": seen.masks.class_ids is not None,
-                    "files": files}
+            meta = {
+                "format": CACHE_FORMAT,
+                "shape": list(seen.terrain.shape),
+                "masks": len(seen.masks),
+                "dim": int(np.asarray(seen.image_embedding).shape[0]),
+                "class_ids": seen.masks.class_ids is not None,
+                "files": files,
+            }
             atomic_write_bytes(tmp / "entry.json", dumps_json(meta).encode())
             if final.exists() and not (final / "entry.json").is_file():
                 shutil.rmtree(final, ignore_errors=True)  # a leftover without its entry.json
@@ -264,8 +278,15 @@ class CachedPerception(Perception):
 
     def __init__(self, inner: Perception, cache: PerceptionCache):
         super().__init__(
-            inner.terrain, inner.proposer, inner.mask_embedder, inner.image_embedder, inner.point_labeler,
-            backend=inner.backend, identity=inner.identity, models=inner.models, random=inner.random,
+            inner.terrain,
+            inner.proposer,
+            inner.mask_embedder,
+            inner.image_embedder,
+            inner.point_labeler,
+            backend=inner.backend,
+            identity=inner.identity,
+            models=inner.models,
+            random=inner.random,
             uses_labels=inner.uses_labels,
         )
         self.inner = inner

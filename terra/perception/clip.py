@@ -52,7 +52,9 @@ def masked_crop(image: np.ndarray, box: np.ndarray, crop: np.ndarray, margin: in
     if crop.size:
         keep[r0 - top : r1 - top, c0 - left : c1 - left] = crop
         if dilation > 0:  # a square dilation is a separable maximum filter: two 1-D passes
-            keep = ndimage.maximum_filter(keep.view(np.uint8), size=2 * dilation + 1, mode="constant", cval=0).view(bool)
+            keep = ndimage.maximum_filter(keep.view(np.uint8), size=2 * dilation + 1, mode="constant", cval=0).view(
+                bool
+            )
     window[~keep] = 0
     return window
 
@@ -69,9 +71,13 @@ class ClipPreprocess:
         self.crop = (int(crop.get("height", self.shortest)), int(crop.get("width", self.shortest)))
         self.do_resize = bool(getattr(processor, "do_resize", True))
         self.do_center_crop = bool(getattr(processor, "do_center_crop", True))
-        self.scale = float(getattr(processor, "rescale_factor", 1 / 255)) if getattr(processor, "do_rescale", True) else 1.0
+        self.scale = (
+            float(getattr(processor, "rescale_factor", 1 / 255)) if getattr(processor, "do_rescale", True) else 1.0
+        )
         self.normalize = bool(getattr(processor, "do_normalize", True))
-        self.mean = np.asarray(getattr(processor, "image_mean", None) or [0.48145466, 0.4578275, 0.40821073], np.float32)
+        self.mean = np.asarray(
+            getattr(processor, "image_mean", None) or [0.48145466, 0.4578275, 0.40821073], np.float32
+        )
         self.std = np.asarray(getattr(processor, "image_std", None) or [0.26862954, 0.26130258, 0.27577711], np.float32)
 
     def resized_shape(self, height: int, width: int) -> tuple[int, int]:
@@ -89,10 +95,16 @@ class ClipPreprocess:
 
         out = []
         for image in images:
-            t = torch.tensor(np.asarray(image)[..., :3], device=device).permute(2, 0, 1)[None].float()  # a copy: frames may be read-only
+            t = (
+                torch.tensor(np.asarray(image)[..., :3], device=device).permute(2, 0, 1)[None].float()
+            )  # a copy: frames may be read-only
             size = self.resized_shape(*image.shape[:2])
             if size != tuple(image.shape[:2]):
-                t = F.interpolate(t, size=size, mode="bicubic", antialias=True, align_corners=False).round().clamp(0, 255)
+                t = (
+                    F.interpolate(t, size=size, mode="bicubic", antialias=True, align_corners=False)
+                    .round()
+                    .clamp(0, 255)
+                )
             if self.do_center_crop:
                 t = _center_crop(t, self.crop)
             out.append(t)
@@ -141,12 +153,16 @@ class ClipEmbedder:
         self.dilation = int(dilation)
         self.files: list[ModelFile] = folder_files(self.folder, "clip")
         if not any(f.name.endswith((".safetensors", ".bin")) for f in self.files):
-            raise TerraError(f"perception.models.clip.model: {self.folder} holds no weights (model.safetensors or "
-                             "pytorch_model.bin); give the folder of a CLIP model saved with save_pretrained")
+            raise TerraError(
+                f"perception.models.clip.model: {self.folder} holds no weights (model.safetensors or "
+                "pytorch_model.bin); give the folder of a CLIP model saved with save_pretrained"
+            )
         try:
             self.dim = int(CLIPConfig.from_pretrained(str(self.folder), local_files_only=True).projection_dim)
         except (OSError, ValueError) as exc:
-            raise TerraError(f"perception.models.clip.model: {self.folder} is not a CLIP model folder ({exc})") from None
+            raise TerraError(
+                f"perception.models.clip.model: {self.folder} is not a CLIP model folder ({exc})"
+            ) from None
         self.digest = combined_digest(self.files)
         self.name = f"{NAME_PREFIX}{self.folder.name.lower()}@{self.digest[:12]}"
         self._model = None
@@ -196,7 +212,9 @@ class ClipEmbedder:
 
     def mask_crops(self, image: np.ndarray, masks: MaskSet) -> list[np.ndarray]:
         """The masked, widened crops of every mask of an (H, W, 3) uint8 RGB image (before preprocessing)."""
-        return [masked_crop(image, box, crop, self.margin, self.dilation) for box, crop in zip(masks.boxes, masks.crops)]
+        return [
+            masked_crop(image, box, crop, self.margin, self.dilation) for box, crop in zip(masks.boxes, masks.crops)
+        ]
 
     def embed_masks(self, camera: CameraFrame, masks: MaskSet) -> np.ndarray:
         """(M, dim) float32 unit vectors, one per mask of the camera's image."""
@@ -217,7 +235,9 @@ class ClipEmbedder:
             self._load()
             with torch.inference_mode():
                 for text in missing:
-                    tokens = self._tokenizer([text], truncation=True, max_length=_context_length(self._model), return_tensors="pt")
+                    tokens = self._tokenizer(
+                        [text], truncation=True, max_length=_context_length(self._model), return_tensors="pt"
+                    )
                     tokens = {k: v.to(self.device.torch) for k, v in tokens.items()}
                     vector = _features(self._model.get_text_features(**tokens)).float().cpu().numpy()
                     self._text_cache[text] = normalize_rows(vector)[0]
@@ -256,16 +276,20 @@ def _quiet_transformers() -> Iterator[None]:
 def resolve_clip_folder(model: str | None, allow_download: bool, field: str = "perception.models.clip.model") -> Path:
     """The local folder of the configured CLIP model; a hub id is fetched only with allow_download."""
     if not model:
-        raise TerraError(f"{field} is not set: give the folder of a CLIP model saved with save_pretrained "
-                         "(e.g. a local copy of openai/clip-vit-base-patch16)")
+        raise TerraError(
+            f"{field} is not set: give the folder of a CLIP model saved with save_pretrained "
+            "(e.g. a local copy of openai/clip-vit-base-patch16)"
+        )
     folder = Path(model).expanduser()
     if folder.is_dir():
         return folder
     if folder.exists():
         raise TerraError(f"{field}: {folder} is a file; give the folder of a CLIP model saved with save_pretrained")
     if not allow_download:
-        raise TerraError(f"{field}: folder {folder} not found; give the folder of a CLIP model saved with save_pretrained "
-                         "(or set perception.models.allow_download: true to fetch a hub id)")
+        raise TerraError(
+            f"{field}: folder {folder} not found; give the folder of a CLIP model saved with save_pretrained "
+            "(or set perception.models.allow_download: true to fetch a hub id)"
+        )
     try:
         from huggingface_hub import snapshot_download
 
@@ -277,7 +301,9 @@ def resolve_clip_folder(model: str | None, allow_download: bool, field: str = "p
 def clip_embedder(config: ClipConfig, device: Device | None = None, allow_download: bool = False) -> ClipEmbedder:
     """The CLIP embedder of a `clip` config section (the factory of the `models` backend's embedder)."""
     folder = resolve_clip_folder(config.model, allow_download)
-    return ClipEmbedder(folder, device or resolve_device("auto"), config.batch_size, config.bbox_margin_px, config.mask_dilation_px)
+    return ClipEmbedder(
+        folder, device or resolve_device("auto"), config.batch_size, config.bbox_margin_px, config.mask_dilation_px
+    )
 
 
 def _candidate_folders(label: str) -> list[Path]:

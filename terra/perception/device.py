@@ -47,7 +47,9 @@ def resolve_device(device: str = "auto", fp16: bool = True, field: str = "percep
     if count == 0:
         raise TerraError(f"{field} is {device!r} but torch sees no CUDA GPU on this machine; use auto or cpu")
     if index >= count:
-        raise TerraError(f"{field} is {device!r} but this machine has {count} CUDA device(s) (cuda:0..cuda:{count - 1})")
+        raise TerraError(
+            f"{field} is {device!r} but this machine has {count} CUDA device(s) (cuda:0..cuda:{count - 1})"
+        )
     return Device(f"cuda:{index}", bool(fp16))
 
 

@@ -171,8 +171,12 @@ def labels_backend(config: PerceptionConfig, classes: ClassTable, text: TextEmbe
     lookup = ClassLookup(classes)
     noise = PerceptionNoise(config.noise, classes)
     embedder = LabelEmbedder(lookup, text if text is not None else get_text_embedder(config.embedder))
-    identity = {"backend": "labels", "embedder": [embedder.name, embedder.dim], "noise": config.noise.model_dump(mode="json"),
-                "classes": classes.to_json()}
+    identity = {
+        "backend": "labels",
+        "embedder": [embedder.name, embedder.dim],
+        "noise": config.noise.model_dump(mode="json"),
+        "classes": classes.to_json(),
+    }
     return Perception(
         terrain=LabelTerrainSegmenter(lookup, noise),
         proposer=LabelMaskProposer(lookup, noise),

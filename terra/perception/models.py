@@ -52,19 +52,24 @@ def decode_settings(config: SegmenterConfig, agnostic: bool) -> DecodeSettings:
     return DecodeSettings(config.conf, config.iou, config.max_det, config.mask_threshold, config.min_pixels, agnostic)
 
 
-def load_segmentation_model(config: SegmenterConfig, role: str, device: Device, allow_download: bool,
-                            prompts: list[str] | None = None) -> SegmentationModel:
+def load_segmentation_model(
+    config: SegmenterConfig, role: str, device: Device, allow_download: bool, prompts: list[str] | None = None
+) -> SegmentationModel:
     """The network of a terrain or masks section, on the runtime its file (or `runtime`) asks for."""
     field = f"{FIELD}.{role}.model"
-    what = {"terrain": "a YOLO segmentation model of the terrain classes (.onnx export or .pt)",
-            "masks": "a FastSAM model (.onnx export or FastSAM-s.pt)"}[role]
+    what = {
+        "terrain": "a YOLO segmentation model of the terrain classes (.onnx export or .pt)",
+        "masks": "a FastSAM model (.onnx export or FastSAM-s.pt)",
+    }[role]
     runtime = config.resolved_runtime()
-    if runtime == "onnx":
+    if runtime == "yolo-onnx":
         from terra.perception.onnx_yolo import OnnxSegmentationModel
 
         if prompts:
-            raise TerraError(f"{FIELD}.{role}.prompts needs runtime ultralytics and a YOLOE .pt model; for ONNX, export "
-                             "the YOLOE model after set_classes and map its names with perception.models.terrain.classes")
+            raise TerraError(
+                f"{FIELD}.{role}.prompts needs runtime ultralytics and a YOLOE .pt model; for ONNX, export "
+                "the YOLOE model after set_classes and map its names with perception.models.terrain.classes"
+            )
         path = require_file(config.model, field, what, (".onnx",))
         return OnnxSegmentationModel(path, device, role, field, config.names, config.imgsz)
     from terra.perception.ultralytics_yolo import UltralyticsSegmentationModel
@@ -73,7 +78,11 @@ def load_segmentation_model(config: SegmenterConfig, role: str, device: Device, 
     if isinstance(config, TerrainModelConfig) and prompts:
         for key in ("prompt_embeddings", "text_encoder"):
             value = getattr(config, key)
-            extra[key] = None if value is None else require_file(value, f"{FIELD}.{role}.{key}", f"the YOLOE {key.replace('_', ' ')} file")
+            extra[key] = (
+                None
+                if value is None
+                else require_file(value, f"{FIELD}.{role}.{key}", f"the YOLOE {key.replace('_', ' ')} file")
+            )
     if config.model and allow_download and not Path(config.model).expanduser().is_file():
         path = Path(config.model)  # a model name ultralytics may download (allow_download only)
     else:
@@ -86,8 +95,13 @@ class ModelTerrainSegmenter:
 
     timed = True
 
-    def __init__(self, model: SegmentationModel, class_to_terrain: np.ndarray, terrain_classes: list[str],
-                 settings: DecodeSettings):
+    def __init__(
+        self,
+        model: SegmentationModel,
+        class_to_terrain: np.ndarray,
+        terrain_classes: list[str],
+        settings: DecodeSettings,
+    ):
         self.model = model
         self.class_to_terrain = np.asarray(class_to_terrain, dtype=np.int16)
         self.terrain_classes = list(terrain_classes)
@@ -133,7 +147,9 @@ def blank_terrain(image: np.ndarray, terrain: np.ndarray, margin_px: int) -> np.
     non-terrain pixel (object boundaries stay intact)."""
     ground = np.asarray(terrain) >= 0
     if margin_px > 0:  # square erosion as a separable minimum filter; beyond the image counts as terrain
-        ground = ndimage.minimum_filter(ground.view(np.uint8), size=2 * margin_px + 1, mode="constant", cval=1).view(bool)
+        ground = ndimage.minimum_filter(ground.view(np.uint8), size=2 * margin_px + 1, mode="constant", cval=1).view(
+            bool
+        )
     out = np.array(image, copy=True)
     out[ground] = 0
     return out
@@ -142,8 +158,14 @@ def blank_terrain(image: np.ndarray, terrain: np.ndarray, margin_px: int) -> np.
 class ModelPerception(Perception):
     """Perception whose object masks are proposed and embedded on the terrain-removed image."""
 
-    def __init__(self, *args, remove_terrain: bool = True, terrain_margin_px: int = 3, terrain_templates: list[str] | None = None,
-                 **kwargs):
+    def __init__(
+        self,
+        *args,
+        remove_terrain: bool = True,
+        terrain_margin_px: int = 3,
+        terrain_templates: list[str] | None = None,
+        **kwargs,
+    ):
         super().__init__(*args, **kwargs)
         self.remove_terrain = remove_terrain
         self.terrain_margin_px = terrain_margin_px
@@ -165,7 +187,9 @@ class ModelPerception(Perception):
         return super().terrain_embeddings()
 
 
-def map_terrain_classes(model_names: list[str] | None, terrain: list[str], wanted: dict[str, str], source: str) -> np.ndarray:
+def map_terrain_classes(
+    model_names: list[str] | None, terrain: list[str], wanted: dict[str, str], source: str
+) -> np.ndarray:
     """(nc,) terrain index per model class (-1 = not terrain): terrain class t is the model class named
     wanted.get(t, t), compared case-insensitively. TerraError naming what is missing."""
     field = f"{FIELD}.terrain"
@@ -185,8 +209,10 @@ def map_terrain_classes(model_names: list[str] | None, terrain: list[str], wante
             missing.append(name)
             continue
         if out[index[target]] >= 0:
-            raise TerraError(f"{field}.classes: terrain classes {terrain[out[index[target]]]!r} and {name!r} both map to "
-                             f"the model class {model_names[index[target]]!r}; give each its own class")
+            raise TerraError(
+                f"{field}.classes: terrain classes {terrain[out[index[target]]]!r} and {name!r} both map to "
+                f"the model class {model_names[index[target]]!r}; give each its own class"
+            )
         out[index[target]] = t
     if missing:
         raise TerraError(
@@ -200,7 +226,9 @@ def map_terrain_classes(model_names: list[str] | None, terrain: list[str], wante
 def terrain_class_names(config: TerrainModelConfig, classes: ClassTable) -> list[str]:
     names = list(config.terrain_classes) if config.terrain_classes else [c.name for c in classes.terrain_classes]
     if not names:
-        raise TerraError(f"{FIELD}.terrain.terrain_classes: the dataset has no terrain classes; list the map's terrain classes")
+        raise TerraError(
+            f"{FIELD}.terrain.terrain_classes: the dataset has no terrain classes; list the map's terrain classes"
+        )
     return names
 
 
@@ -210,13 +238,17 @@ def build_terrain_segmenter(models: ModelsConfig, classes: ClassTable, device: D
     terrain = terrain_class_names(config, classes)
     prompts = [config.classes.get(t, t) for t in terrain] if config.prompts else None
     model = load_segmentation_model(config, "terrain", device, models.allow_download, prompts)
-    class_to_terrain = map_terrain_classes(model.names, terrain, config.classes if not prompts else {}, str(config.model)) \
-        if not prompts else np.arange(len(terrain), dtype=np.int16)
+    class_to_terrain = (
+        map_terrain_classes(model.names, terrain, config.classes if not prompts else {}, str(config.model))
+        if not prompts
+        else np.arange(len(terrain), dtype=np.int16)
+    )
     return ModelTerrainSegmenter(model, class_to_terrain, terrain, decode_settings(config, agnostic=False))
 
 
-def _identity(models: ModelsConfig, device: Device, parts: list[ModelFile], embedder: ClipEmbedder,
-              terrain: list[str]) -> dict:
+def _identity(
+    models: ModelsConfig, device: Device, parts: list[ModelFile], embedder: ClipEmbedder, terrain: list[str]
+) -> dict:
     """Everything the outputs depend on besides the image: settings (paths replaced by file hashes),
     precision, and the terrain vocabulary."""
     settings = models.model_dump(mode="json", exclude={"device", "allow_download"})
@@ -224,8 +256,14 @@ def _identity(models: ModelsConfig, device: Device, parts: list[ModelFile], embe
         settings[section].pop("model", None)
     settings["terrain"].pop("prompt_embeddings", None)
     settings["terrain"].pop("text_encoder", None)
-    return {"backend": "models", "settings": settings, "fp16": device.fp16, "embedder": [embedder.name, embedder.dim],
-            "terrain_classes": terrain, "models": [[m.role, m.name, m.sha256] for m in parts]}
+    return {
+        "backend": "models",
+        "settings": settings,
+        "fp16": device.fp16,
+        "embedder": [embedder.name, embedder.dim],
+        "terrain_classes": terrain,
+        "models": [[m.role, m.name, m.sha256] for m in parts],
+    }
 
 
 def _check_embedder_field(config: PerceptionConfig) -> None:
@@ -245,14 +283,23 @@ def models_backend(config: PerceptionConfig, classes: ClassTable) -> Perception:
     embedder = clip_embedder(models.clip, device, models.allow_download)
     terrain = build_terrain_segmenter(models, classes, device)
     masks_config: MaskModelConfig = models.masks
-    proposer = ModelMaskProposer(load_segmentation_model(masks_config, "masks", device, models.allow_download),
-                                 decode_settings(masks_config, agnostic=True))
+    proposer = ModelMaskProposer(
+        load_segmentation_model(masks_config, "masks", device, models.allow_download),
+        decode_settings(masks_config, agnostic=True),
+    )
     files = [*terrain.files, *proposer.files, *embedder.files]
     perception = ModelPerception(
-        terrain, proposer, embedder, embedder,
-        backend="models", identity=_identity(models, device, files, embedder, terrain.terrain_classes), models=files,
-        random=False, uses_labels=False,
-        remove_terrain=models.remove_terrain, terrain_margin_px=models.terrain_margin_px,
+        terrain,
+        proposer,
+        embedder,
+        embedder,
+        backend="models",
+        identity=_identity(models, device, files, embedder, terrain.terrain_classes),
+        models=files,
+        random=False,
+        uses_labels=False,
+        remove_terrain=models.remove_terrain,
+        terrain_margin_px=models.terrain_margin_px,
         terrain_templates=models.clip.terrain_templates,
     )
     # Queries in this process (terra demo, tests) find the embedder by the name the map records.

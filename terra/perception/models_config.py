@@ -16,7 +16,7 @@ from pydantic import Field, field_validator
 
 from terra.config import Section
 
-Runtime = Literal["auto", "onnx", "ultralytics"]
+Runtime = Literal["auto", "yolo-onnx", "ultralytics"]
 
 
 class ClipConfig(Section):
@@ -28,9 +28,13 @@ class ClipConfig(Section):
         "preprocessor files), e.g. a local copy of openai/clip-vit-base-patch16; a hub id only with allow_download",
     )
     batch_size: int = Field(32, ge=1, le=1024, description="mask crops per forward pass")
-    bbox_margin_px: int = Field(10, ge=0, le=200, description="pixels the mask's bounding box is widened by on every side (paper: 10)")
+    bbox_margin_px: int = Field(
+        10, ge=0, le=200, description="pixels the mask's bounding box is widened by on every side (paper: 10)"
+    )
     mask_dilation_px: int = Field(
-        6, ge=0, le=100,
+        6,
+        ge=0,
+        le=100,
         description="pixels the mask is dilated by (square) before everything outside it is blacked out "
         "(the reference dilates 3 times with a 5 x 5 kernel: 6 px)",
     )
@@ -52,19 +56,29 @@ class ClipConfig(Section):
 class SegmenterConfig(Section):
     """A YOLO segmentation model (ultralytics export) used for terrain or for class-agnostic masks."""
 
-    model: str | None = Field(None, description="weight file: an ultralytics segmentation export (.onnx) or checkpoint (.pt)")
+    model: str | None = Field(
+        None, description="weight file: an ultralytics segmentation export (.onnx) or checkpoint (.pt)"
+    )
     names: list[str] | None = Field(
         None, description="the model's class names in index order, for exports without `names` metadata"
     )
-    runtime: Runtime = Field("auto", description="onnx (onnxruntime), ultralytics (the [ultralytics] extra), auto = by file suffix")
+    runtime: Runtime = Field(
+        "auto", description="yolo-onnx (onnxruntime), ultralytics (the [ultralytics] extra), auto = by file suffix"
+    )
     imgsz: list[int] | None = Field(
-        None, description="network input [height, width] for exports with dynamic input size (default: the export's "
-        "own imgsz metadata, else 640 x 640)"
+        None,
+        description="network input [height, width] for exports with dynamic input size (default: the export's "
+        "own imgsz metadata, else 640 x 640)",
     )
     conf: float = Field(0.25, ge=0.0, le=1.0, description="minimum class score of a detection")
     iou: float = Field(0.7, gt=0.0, le=1.0, description="IoU above which non-maximum suppression drops the weaker box")
     max_det: int = Field(100, ge=1, le=10000, description="detections kept per image after NMS")
-    mask_threshold: float = Field(0.5, gt=0.0, lt=1.0, description="mask probability at or below which a pixel is off")
+    mask_threshold: float = Field(
+        0.5,
+        gt=0.0,
+        lt=1.0,
+        description="mask probability at or below which a pixel is off (yolo-onnx; ultralytics uses 0.5)",
+    )
     min_pixels: int = Field(1, ge=1, description="masks with fewer pixels in the original image are dropped")
 
     @field_validator("imgsz")
@@ -79,10 +93,10 @@ class SegmenterConfig(Section):
         return value
 
     def resolved_runtime(self) -> str:
-        """onnx or ultralytics (auto: .onnx files run on onnxruntime, anything else on ultralytics)."""
+        """yolo-onnx or ultralytics (auto: .onnx files run on onnxruntime, anything else on ultralytics)."""
         if self.runtime != "auto":
             return self.runtime
-        return "onnx" if str(self.model or "").lower().endswith(".onnx") else "ultralytics"
+        return "yolo-onnx" if str(self.model or "").lower().endswith(".onnx") else "ultralytics"
 
 
 class TerrainModelConfig(SegmenterConfig):
@@ -100,8 +114,9 @@ class TerrainModelConfig(SegmenterConfig):
         False, description="YOLOE: set the model's vocabulary to the prompts of `classes` (runtime ultralytics)"
     )
     prompt_embeddings: str | None = Field(
-        None, description="YOLOE: .npz of prompt embeddings saved by ultralytics' save_prompt_embeddings (offline "
-        "alternative to the MobileCLIP text encoder)"
+        None,
+        description="YOLOE: .npz of prompt embeddings saved by ultralytics' save_prompt_embeddings (offline "
+        "alternative to the MobileCLIP text encoder)",
     )
     text_encoder: str | None = Field(
         None, description="YOLOE: the MobileCLIP text encoder file ultralytics embeds prompts with (mobileclip_blt.ts)"
@@ -122,10 +137,13 @@ class ModelsConfig(Section):
 
     device: str = Field("auto", description="auto (CUDA when available), cpu, cuda or cuda:N")
     fp16: bool = Field(True, description="half precision on a GPU (ignored on the CPU)")
-    allow_download: bool = Field(False, description="let a model name that is not a local path download (never by default)")
+    allow_download: bool = Field(
+        False, description="let a model name that is not a local path download (never by default)"
+    )
     remove_terrain: bool = Field(
-        True, description="black out terrain (eroded by terrain_margin_px) before proposing and embedding object "
-        "masks, as the reference does, so FastSAM and CLIP see the objects rather than the ground"
+        True,
+        description="black out terrain (eroded by terrain_margin_px) before proposing and embedding object "
+        "masks, as the reference does, so FastSAM and CLIP see the objects rather than the ground",
     )
     terrain_margin_px: int = Field(3, ge=0, le=100, description="terrain pixels this close to non-terrain stay visible")
     clip: ClipConfig = Field(default_factory=ClipConfig)

@@ -53,8 +53,15 @@ class OnnxSegmentationModel:
     None); `input_shape`: (H, W) the images are letterboxed to; `files`: the weight file's identity.
     The onnxruntime session is created on first use."""
 
-    def __init__(self, path: Path, device: Device, role: str, field: str, names: list[str] | None = None,
-                 imgsz: list[int] | None = None):
+    def __init__(
+        self,
+        path: Path,
+        device: Device,
+        role: str,
+        field: str,
+        names: list[str] | None = None,
+        imgsz: list[int] | None = None,
+    ):
         import onnx
 
         self.path = Path(path)
@@ -63,15 +70,19 @@ class OnnxSegmentationModel:
         try:
             proto = onnx.load(str(self.path), load_external_data=False)
         except Exception as exc:  # a truncated or foreign file: protobuf raises its own errors
-            raise TerraError(f"{field}: {self.path} is not a readable ONNX model ({type(exc).__name__}: {exc})") from None
+            raise TerraError(
+                f"{field}: {self.path} is not a readable ONNX model ({type(exc).__name__}: {exc})"
+            ) from None
         meta = {p.key: p.value for p in proto.metadata_props}
         self.metadata = meta
         self.names = list(names) if names else parse_names(meta.get("names"))
         inputs = [i for i in proto.graph.input if i.name not in {t.name for t in proto.graph.initializer}]
         outputs = [o.name for o in proto.graph.output]
         if len(inputs) != 1 or len(outputs) < 2:
-            raise TerraError(f"{field}: {self.path} has {len(inputs)} input(s) and {len(outputs)} output(s); an "
-                             "ultralytics segmentation export has one input (images) and two outputs (output0, output1)")
+            raise TerraError(
+                f"{field}: {self.path} has {len(inputs)} input(s) and {len(outputs)} output(s); an "
+                "ultralytics segmentation export has one input (images) and two outputs (output0, output1)"
+            )
         self.input_name = inputs[0].name
         self.output_names = outputs[:2]
         dims = _dims(inputs[0])
@@ -93,7 +104,9 @@ class OnnxSegmentationModel:
 
     def _input_shape(self, dims: list[int | None], meta: dict[str, str], imgsz: list[int] | None) -> tuple[int, int]:
         if len(dims) != 4 or (dims[1] not in (None, 3)):
-            raise TerraError(f"{self.field}: {self.path} takes input of shape {dims}; expected (1, 3, height, width) images")
+            raise TerraError(
+                f"{self.field}: {self.path} takes input of shape {dims}; expected (1, 3, height, width) images"
+            )
         if dims[2] and dims[3]:
             return int(dims[2]), int(dims[3])
         if imgsz:
@@ -113,11 +126,15 @@ class OnnxSegmentationModel:
             options = ort.SessionOptions()
             options.log_severity_level = 3  # errors only: the library never prints
             try:
-                self._session = ort.InferenceSession(str(self.path), sess_options=options, providers=onnx_providers(self.device, self.field))
+                self._session = ort.InferenceSession(
+                    str(self.path), sess_options=options, providers=onnx_providers(self.device, self.field)
+                )
             except TerraError:
                 raise
             except Exception as exc:  # onnxruntime reports graph faults as its own exception types
-                raise TerraError(f"{self.field}: onnxruntime cannot load {self.path} ({type(exc).__name__}: {exc})") from None
+                raise TerraError(
+                    f"{self.field}: onnxruntime cannot load {self.path} ({type(exc).__name__}: {exc})"
+                ) from None
         return self._session
 
     def run(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:

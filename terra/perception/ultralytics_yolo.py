@@ -40,8 +40,10 @@ def import_ultralytics(field: str, allow_download: bool = False) -> object:
         import ultralytics
         from ultralytics import settings
     except Exception as exc:  # ImportError, or torchvision failing to import inside it
-        raise TerraError(f"{field}: the ultralytics runtime is not usable here ({type(exc).__name__}: {exc}); "
-                         f"{INSTALL_HINT}, or export the model to ONNX and use runtime onnx") from None
+        raise TerraError(
+            f"{field}: the ultralytics runtime is not usable here ({type(exc).__name__}: {exc}); "
+            f"{INSTALL_HINT}, or export the model to ONNX and use runtime yolo-onnx"
+        ) from None
     settings.update({"sync": False})
     return ultralytics
 
@@ -51,8 +53,17 @@ class UltralyticsSegmentationModel:
     model's vocabulary is set to those texts (embedded by its own text encoder, or taken from a
     saved prompt-embedding file)."""
 
-    def __init__(self, path: Path, device: Device, role: str, field: str, prompts: list[str] | None = None,
-                 prompt_embeddings: Path | None = None, text_encoder: Path | None = None, allow_download: bool = False):
+    def __init__(
+        self,
+        path: Path,
+        device: Device,
+        role: str,
+        field: str,
+        prompts: list[str] | None = None,
+        prompt_embeddings: Path | None = None,
+        text_encoder: Path | None = None,
+        allow_download: bool = False,
+    ):
         ultralytics = import_ultralytics(field, allow_download)
         self.path, self.device, self.field = Path(path), device, field
         self.files: list[ModelFile] = [weight_file(self.path, role)] if self.path.is_file() else []
@@ -75,7 +86,9 @@ class UltralyticsSegmentationModel:
             if not hasattr(self.model, "load_prompt_embeddings"):
                 raise TerraError(f"{self.field}: this ultralytics version cannot load prompt_embeddings; upgrade it")
             self.model.load_prompt_embeddings(str(embeddings))
-            if list(self.model.names.values() if isinstance(self.model.names, dict) else self.model.names) != list(prompts):
+            if list(self.model.names.values() if isinstance(self.model.names, dict) else self.model.names) != list(
+                prompts
+            ):
                 raise TerraError(f"{self.field}: prompt_embeddings {embeddings} hold other prompts than {prompts}")
             return
         if text_encoder is not None:
@@ -88,9 +101,15 @@ class UltralyticsSegmentationModel:
         """Detections with masks on the original image (ultralytics' own NMS and mask placement)."""
         image = np.asarray(image)
         results = self.model.predict(
-            np.ascontiguousarray(image[..., 2::-1]), conf=settings.conf, iou=settings.iou, max_det=settings.max_det,
-            agnostic_nms=settings.agnostic, retina_masks=True, verbose=False,
-            device=self.device.torch if self.device.is_cuda else "cpu", half=self.device.fp16,
+            np.ascontiguousarray(image[..., 2::-1]),
+            conf=settings.conf,
+            iou=settings.iou,
+            max_det=settings.max_det,
+            agnostic_nms=settings.agnostic,
+            retina_masks=True,
+            verbose=False,
+            device=self.device.torch if self.device.is_cuda else "cpu",
+            half=self.device.fp16,
         )
         return _detections(results[0], image.shape[:2], settings)
 
@@ -113,5 +132,11 @@ def _detections(result: object, shape: tuple[int, int], settings: DecodeSettings
         mask_boxes.append((r0, c0, r1, c1))
         crops.append(mask[r0:r1, c0:c1].copy())
     order = np.asarray(keep, dtype=np.int64)
-    return Detections(shape, boxes[order].reshape(-1, 4), scores[order], classes[order],
-                      np.asarray(mask_boxes, dtype=np.int64).reshape(-1, 4), crops)
+    return Detections(
+        shape,
+        boxes[order].reshape(-1, 4),
+        scores[order],
+        classes[order],
+        np.asarray(mask_boxes, dtype=np.int64).reshape(-1, 4),
+        crops,
+    )

@@ -104,7 +104,12 @@ def _end2end_candidates(pred: np.ndarray, nm: int, settings: DecodeSettings) -> 
     pred = np.asarray(pred, dtype=np.float32)
     keep = np.flatnonzero(pred[:, 4] > settings.conf)
     keep = keep[np.argsort(-pred[keep, 4], kind="stable")][: settings.max_det]
-    return pred[keep, :4].astype(np.float64), pred[keep, 4], pred[keep, 5].round().astype(np.int64), pred[keep, 6 : 6 + nm]
+    return (
+        pred[keep, :4].astype(np.float64),
+        pred[keep, 4],
+        pred[keep, 5].round().astype(np.int64),
+        pred[keep, 6 : 6 + nm],
+    )
 
 
 def output_layout(output0_shape: tuple[int, ...], nc: int, nm: int) -> str:
@@ -159,8 +164,9 @@ def _axis_samples(coord: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray,
     return lower, upper, coord - lower
 
 
-def _mask_in_box(protos: np.ndarray, coeff: np.ndarray, box_xyxy: np.ndarray, box: Letterbox,
-                 logit: float) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+def _mask_in_box(
+    protos: np.ndarray, coeff: np.ndarray, box_xyxy: np.ndarray, box: Letterbox, logit: float
+) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
     """(tight row0, col0, row1, col1; boolean crop) of one detection's mask, or None when empty."""
     h, w = box.image_shape
     x1, y1, x2, y2 = box_xyxy
