@@ -238,11 +238,10 @@ def build_terrain_segmenter(models: ModelsConfig, classes: ClassTable, device: D
     terrain = terrain_class_names(config, classes)
     prompts = [config.classes.get(t, t) for t in terrain] if config.prompts else None
     model = load_segmentation_model(config, "terrain", device, models.allow_download, prompts)
-    class_to_terrain = (
-        map_terrain_classes(model.names, terrain, config.classes if not prompts else {}, str(config.model))
-        if not prompts
-        else np.arange(len(terrain), dtype=np.int16)
-    )
+    if prompts:  # YOLOE's vocabulary is the prompts themselves, in terrain order
+        class_to_terrain = np.arange(len(terrain), dtype=np.int16)
+    else:
+        class_to_terrain = map_terrain_classes(model.names, terrain, config.classes, str(config.model))
     return ModelTerrainSegmenter(model, class_to_terrain, terrain, decode_settings(config, agnostic=False))
 
 

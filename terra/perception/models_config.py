@@ -136,7 +136,11 @@ class ModelsConfig(Section):
     """The `models` backend: YOLO terrain segmentation, FastSAM masks and CLIP embeddings, by path."""
 
     device: str = Field("auto", description="auto (CUDA when available), cpu, cuda or cuda:N")
-    fp16: bool = Field(True, description="half precision on a GPU (ignored on the CPU)")
+    fp16: bool = Field(
+        True,
+        description="CLIP (and ultralytics models) in half precision on a GPU, ignored on the CPU; ONNX exports "
+        "run in the precision they were exported in (export with half=True for fp16)",
+    )
     allow_download: bool = Field(
         False, description="let a model name that is not a local path download (never by default)"
     )
