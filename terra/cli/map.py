@@ -32,12 +32,19 @@ def map_command(
     camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
     sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
     noise: Optional[str] = typer.Option(None, "--noise", help="Perception noise preset (none, realistic); overrides the config."),
+    perception_only: bool = typer.Option(
+        False, "--perception-only", help="Only fill the per-frame perception cache (no fusion, no bundle written)."
+    ),
+    cache: Optional[Path] = typer.Option(
+        None, "--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
 
     An interrupted run resumes from its last checkpoint (OUT.partial/) when rerun with the same
-    arguments.
+    arguments. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
+    --cache), so later runs never repeat inference; --perception-only just fills that cache.
 
     Example: terra map campus-data --out campus.terra --config terra.yaml
 
@@ -45,11 +52,14 @@ def map_command(
     """
     from terra.config import load_section
     from terra.datasets import open_dataset
-    from terra.mapping.pipeline import run_mapping
 
     if (dataset is None) == (sim is None):
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
-    overrides = {"perception": {"noise": noise}} if noise is not None else None
+    overrides: dict = {"perception": {}}
+    if noise is not None:
+        overrides["perception"]["noise"] = noise
+    if cache is not None:
+        overrides["perception"]["cache"] = {"folder": str(cache)}
     mapping = load_section(config, "mapping", overrides)
     options = None
     if camera_config is not None:
@@ -57,6 +67,11 @@ def map_command(
             raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
         format, options = "terra-folder", {"camera_config": camera_config}
     source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
+    if perception_only:
+        _perceive(source, mapping, out, quiet)
+        return
+    from terra.mapping.pipeline import run_mapping
+
     run = run_mapping(source, mapping, out, show_progress=not quiet)
     if quiet:
         return
@@ -67,8 +82,29 @@ def map_command(
         f"map: {info['points']} points ({info['observed_points']} with object observations), "
         f"{info['bank']} bank entries, {info['images']} images -> {run.bundle.path}"
     )
-    faults = {k: v for k, v in run.stats.items() if ("skipped" in k or "dropped_nonfinite" in k) and v}
-    for name, count in faults.items():
-        note = run.notes.get(name)
-        typer.echo(f"  {name}: {count}" + (f" (first: {note})" if note else ""))
+    if run.cache is not None:
+        cache = run.cache
+        typer.echo(
+            f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({cache['folder']})"
+        )
+    _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
+
+
+def _perceive(source, mapping, out: Path, quiet: bool) -> None:
+    from terra.mapping.perceive import run_perception
+
+    run = run_perception(source, mapping, out, show_progress=not quiet)
+    if quiet:
+        return
+    typer.echo(f"perception cache: {run.images} images of {run.frames} frames, {run.hits} already cached, "
+               f"{run.computed} computed -> {run.folder}")
+    _faults(run.stats, run.notes)
+    typer.echo(run.timer.table())
+
+
+def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
+    faults = {k: v for k, v in stats.items() if ("skipped" in k or "dropped_nonfinite" in k) and v}
+    for name, count in faults.items():
+        note = notes.get(name)
+        typer.echo(f"  {name}: {count}" + (f" (first: {note})" if note else ""))

@@ -192,7 +192,8 @@ def headline(summary: dict) -> list[str]:
     lines = []
     seg = summary.get("segmentation", {}).get("methods", {})
     for name, s in ordered(seg).items():
-        lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}, {s['fps']:.0f} FPS")
+        fps = "" if s.get("fps") is None else f", {s['fps']:.0f} FPS"  # no frame rate for a label lookup
+        lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}{fps}")
     ret = summary.get("retrieval", {})
     for name, s in ordered(ret.get("methods", {})).items():
         lines.append(f"  retrieval {name:<7} ({ret['num_gt']} objects, {len(ret['queries'])} queries): IoU {s['iou']:.3f}, "

@@ -273,14 +273,14 @@ def segmentation_section(inputs: EvalInputs, config: EvalConfig, show_progress: 
     from terra.datasets import open_dataset
     from terra.eval.segmentation import evaluate_segmenter
     from terra.mapping.config import MappingConfig
-    from terra.perception.registry import get_perception
+    from terra.perception.registry import get_terrain_segmenter
 
     dataset = inputs.dataset or open_dataset(inputs.gt_root)
     mapping = MappingConfig.model_validate(inputs.bundle.manifest.get("components", {}).get("map", {}).get("config") or {})
-    perception = get_perception(mapping.perception, dataset.classes)
     if not any(c.semantic is not None for c in dataset[0].cameras):
         return None
-    scores = evaluate_segmenter(perception.terrain, dataset, config.segmentation.max_images, mapping.perception.noise.seed, show_progress)
+    segmenter = get_terrain_segmenter(mapping.perception, dataset.classes)  # no mask or embedding model is loaded
+    scores = evaluate_segmenter(segmenter, dataset, config.segmentation.max_images, mapping.perception.noise.seed, show_progress)
     label = f"{mapping.perception.backend} (noise: " + ("on" if mapping.perception.noise.enabled else "none") + ")"
     return {"images": scores.images, "methods": {label: scores.to_json()}}
 

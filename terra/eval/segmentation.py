@@ -39,19 +39,26 @@ def sample_frames(n_frames: int, max_images: int, cameras: int) -> np.ndarray:
 
 def evaluate_segmenter(segmenter: TerrainSegmenter, dataset: Dataset, max_images: int = 40, seed: int = 0,
                        show_progress: bool = True) -> SegmentationScores:
-    """Confusion of `segmenter` against ground truth on up to `max_images` labelled images."""
+    """Confusion of `segmenter` against ground truth on up to `max_images` labelled images.
+
+    FPS counts segmenter wall time only, after one untimed warm-up image (models load lazily); a
+    segmenter whose `timed` attribute is False (the labels lookup) gets no FPS."""
     names = [c.name for c in dataset.classes.terrain_classes]
     if list(segmenter.terrain_classes) != names:
         raise TerraError(f"segmenter terrain classes {list(segmenter.terrain_classes)} differ from the dataset's {names}")
+    timed = bool(getattr(segmenter, "timed", True))
     n_labels = len(names) + 1
     total = np.zeros((n_labels, n_labels), dtype=np.int64)
-    seconds, images = 0.0, 0
+    seconds, images, warm = 0.0, 0, not timed
     first = dataset[0]
     for i in progress(sample_frames(len(dataset), max_images, len(first.cameras)), desc="segmentation", enabled=show_progress):
         frame = dataset[int(i)]
         for c, camera in enumerate(frame.cameras):
             if camera.semantic is None or images >= max_images:
                 continue
+            if not warm:
+                segmenter.segment_terrain(camera, np.random.default_rng([seed, int(i), c]))
+                warm = True
             rng = np.random.default_rng([seed, int(i), c])
             start = time.perf_counter()
             predicted = np.asarray(segmenter.segment_terrain(camera, rng), dtype=np.int64)
@@ -61,4 +68,15 @@ def evaluate_segmenter(segmenter: TerrainSegmenter, dataset: Dataset, max_images
             images += 1
     if images == 0:
         raise TerraError(f"dataset {dataset.name!r} has no labelled camera images to evaluate terrain segmentation on")
-    return segmentation_scores(total, names, seconds, images)
+    return segmentation_scores(total, names, seconds, images, timed)
+
+
+def terrain_table(dataset: Dataset, segmenters: dict[str, tuple[TerrainSegmenter, int]], max_images: int = 40,
+                  show_progress: bool = True) -> dict:
+    """Table I for several segmenters on the same labelled images: {"dataset", "images", "methods":
+    {label: scores}}; `segmenters` maps a row label to (segmenter, noise seed)."""
+    methods = {}
+    for label, (segmenter, seed) in segmenters.items():
+        methods[label] = evaluate_segmenter(segmenter, dataset, max_images, seed, show_progress).to_json()
+    images = next(iter(methods.values()))["images"] if methods else 0
+    return {"dataset": dataset.name, "images": images, "methods": methods}

@@ -1,5 +1,7 @@
 """Phase 1 end to end: dataset frames -> perception -> fusion -> bundle component `map/`.
 
+Perception runs behind the per-frame perception cache (OUT.work/perception/ by default, on for
+model backends; terra/perception/cache.py), so model inference is never repeated.
 Resumable: the fusion state is checkpointed every `checkpoint_every` frames in `OUT.partial/`;
 a rerun with the same dataset and config continues after the last checkpoint and produces the
 same bytes as an uninterrupted run (noise is seeded per frame and camera, not by a running
@@ -23,6 +25,7 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.storage import MAP_FORMAT, write_map
 from terra.perception.base import Perception
+from terra.perception.cache import CachedPerception, cached
 from terra.perception.registry import get_perception
 from terra.progress import StageTimer, progress as progress_bar
 
@@ -31,13 +34,15 @@ POINTS_STREAM = 1 << 20  # noise stream number of per-point labels (camera strea
 
 @dataclass
 class MapRun:
-    """What `build_map` did: the bundle, the stage timings and the fault counters."""
+    """What `build_map` did: the bundle, the stage timings and the fault counters; `cache`: the
+    perception cache's folder, hits and computed images (None when the cache is off)."""
 
     bundle: Bundle
     timer: StageTimer
     stats: dict[str, int]
     notes: dict[str, str]  # first message of each kind of skipped frame
     resumed_from: int
+    cache: dict | None = None
 
 
 def build_map(dataset: Dataset, config: MappingConfig, out: Path, progress: bool = True) -> Bundle:
@@ -54,14 +59,15 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
     if n_frames == 0:
         raise TerraError(f"dataset {dataset.name!r} has no frames")
     with timer.stage("setup"):
-        perception = perception or get_perception(config.perception, dataset.classes)
+        perception = open_perception(config, dataset, out, perception)
         global_map, dropped = _global_map(dataset, config)
         fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
         fusion.stats.add("global_map_points_nonfinite", dropped)
     key = fingerprint(
         {
             "format": MAP_FORMAT,
-            "config": config.model_dump(mode="json"),
+            # Where the perception cache lives changes no output.
+            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
             "dataset": dataset.name,
             "frames": n_frames,
             "embedder": [perception.embedder, perception.dim],
@@ -79,7 +85,7 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
 
     for i in progress_bar(range(start, n_frames), desc="mapping", total=n_frames - start, enabled=show_progress):
         with timer.stage("load"):
-            frame = _load_frame(dataset, i, fusion.stats)
+            frame = load_frame(dataset, i, fusion.stats)
         if frame is not None:
             _fuse_frame(frame, i, config, perception, fusion, timer)
         done = i + 1
@@ -98,12 +104,29 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
         writer = BundleWriter(out)
         try:
             write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name, classes=dataset.classes.to_json())
+            writer.manifest["perception"] = perception.describe()
             bundle = writer.commit()
         except BaseException:
             writer.abort()
             raise
     checkpoint.discard()
-    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start)
+    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
+
+
+def open_perception(config: MappingConfig, dataset: Dataset, out: Path,
+                    perception: Perception | None = None) -> Perception:
+    """The configured perception backend (or `perception`), behind the perception cache when it is on."""
+    perception = perception or get_perception(config.perception, dataset.classes)
+    if isinstance(perception, CachedPerception):
+        return perception
+    return cached(perception, config.perception.cache, out)
+
+
+def cache_summary(perception: Perception) -> dict | None:
+    """Folder, hits and computed images of a cached perception (None when uncached)."""
+    if not isinstance(perception, CachedPerception):
+        return None
+    return {"folder": str(perception.cache.folder), **perception.counts.to_json()}
 
 
 def _check_output(out: Path) -> None:
@@ -130,7 +153,7 @@ def _global_map(dataset: Dataset, config: MappingConfig) -> tuple[np.ndarray | N
     return points[finite], int(np.count_nonzero(~finite))
 
 
-def _load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
+def load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
     """Frame i with non-finite points dropped, or None (counted) for a per-frame fault."""
     try:
         frame = dataset[i]
@@ -167,7 +190,7 @@ def _load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
     return frame
 
 
-def _image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tuple[str, str] | None:
+def image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tuple[str, str] | None:
     """Why an image cannot be fused: (stats counter name, one line naming the image), or None."""
     calib = camera.calibration
     name = camera.name or f"frame {frame.index} camera {calib.name}"
@@ -192,7 +215,7 @@ def _fuse_frame(frame: Frame, i: int, config: MappingConfig, perception: Percept
     fusion.stats.add("frames_fused")
     if use_images:
         for c, camera in enumerate(frame.cameras):
-            fault = _image_fault(frame, camera, config)
+            fault = image_fault(frame, camera, config)
             if fault is not None:
                 fusion.stats.add(fault[0])
                 fusion.stats.note(*fault)

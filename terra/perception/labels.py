@@ -73,7 +73,11 @@ class ClassLookup:
 
 
 class LabelTerrainSegmenter:
-    """Terrain index per pixel from the semantic image, with optional look-alike confusion."""
+    """Terrain index per pixel from the semantic image, with optional look-alike confusion.
+
+    A table lookup, not a model: `timed` is False so evaluation reports no frame rate for it."""
+
+    timed = False
 
     def __init__(self, lookup: ClassLookup, noise: PerceptionNoise):
         self.lookup = lookup
@@ -167,10 +171,20 @@ def labels_backend(config: PerceptionConfig, classes: ClassTable, text: TextEmbe
     lookup = ClassLookup(classes)
     noise = PerceptionNoise(config.noise, classes)
     embedder = LabelEmbedder(lookup, text if text is not None else get_text_embedder(config.embedder))
+    identity = {
+        "backend": "labels",
+        "embedder": [embedder.name, embedder.dim],
+        "noise": config.noise.model_dump(mode="json"),
+        "classes": classes.to_json(),
+    }
     return Perception(
         terrain=LabelTerrainSegmenter(lookup, noise),
         proposer=LabelMaskProposer(lookup, noise),
         mask_embedder=embedder,
         image_embedder=embedder,
         point_labeler=LabelPointLabeler(lookup, embedder, noise),
+        backend="labels",
+        identity=identity,
+        random=noise.enabled,
+        uses_labels=True,
     )

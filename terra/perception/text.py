@@ -3,6 +3,7 @@ queries must be embedded by the same one (DESIGN.md decision 12)."""
 
 from __future__ import annotations
 
+import importlib
 import os
 from functools import lru_cache
 from typing import Callable, Protocol, runtime_checkable
@@ -102,8 +103,18 @@ def register_text_embedder(name: str, factory: Callable[[], TextEmbedder] | str)
     get_text_embedder.cache_clear()
 
 
+# Families of embedders whose names carry their identity (model and weights hash), resolved by a
+# function of the name rather than listed one by one: prefix -> "module:function(name)".
+TEXT_EMBEDDER_FAMILIES: dict[str, str] = {"clip:": "terra.perception.clip:clip_text_embedder"}
+
+
 @lru_cache(maxsize=None)
 def _load_text_embedder(name: str) -> TextEmbedder:
+    if name not in TEXT_EMBEDDERS:
+        for prefix, reference in TEXT_EMBEDDER_FAMILIES.items():
+            if name.startswith(prefix):
+                module, _, function = reference.partition(":")
+                return getattr(importlib.import_module(module), function)(name)
     return TEXT_EMBEDDERS.get(name)()
 
 

@@ -9,7 +9,8 @@ for each terrain class c:
   or the prediction (a class absent from both has no defined IoU and is skipped).
 - F-mIoU (frequency-weighted mIoU) = sum_c f_c IoU_c with f_c = row_c / sum of rows over terrain
   classes: each class weighs as much as its share of ground-truth terrain pixels.
-- FPS = images segmented per second of segmenter wall time.
+- FPS = images segmented per second of segmenter wall time (None for a label lookup, which is not a
+  segmenter whose speed means anything).
 
 "Not terrain" is a label so that terrain predicted on a car counts as a false positive, but it
 is not itself averaged in: the table is about terrain.
@@ -44,7 +45,7 @@ class SegmentationScores:
     miou: float
     fw_miou: float
     f1: float
-    fps: float
+    fps: float | None
     images: int
 
     def to_json(self) -> dict:
@@ -54,9 +55,11 @@ class SegmentationScores:
         return out
 
 
-def segmentation_scores(confusion: np.ndarray, classes: list[str], seconds: float = 0.0, images: int = 0) -> SegmentationScores:
+def segmentation_scores(confusion: np.ndarray, classes: list[str], seconds: float = 0.0, images: int = 0,
+                        timed: bool = True) -> SegmentationScores:
     """Scores from a confusion matrix over len(classes) terrain labels plus a last 'not terrain'
-    label (shape (T+1, T+1)); `seconds` of segmenter time over `images` images give the FPS."""
+    label (shape (T+1, T+1)); `seconds` of segmenter time over `images` images give the FPS (None
+    when not `timed`)."""
     confusion = np.asarray(confusion, dtype=np.float64)
     t = len(classes)
     if confusion.shape != (t + 1, t + 1):
@@ -76,6 +79,6 @@ def segmentation_scores(confusion: np.ndarray, classes: list[str], seconds: floa
         miou=float(np.mean(iou[present])) if present.any() else 0.0,
         fw_miou=float(np.sum(weights[present] * iou[present])),
         f1=float(np.mean(f1[present])) if present.any() else 0.0,
-        fps=images / seconds if seconds > 0 else 0.0,
+        fps=(images / seconds if seconds > 0 else 0.0) if timed else None,
         images=int(images),
     )
