@@ -186,6 +186,11 @@ class Guard:
             if len(body) > self.max_body_bytes:
                 await _send(send, 413, "too_large", f"request body over {self.max_body_bytes} bytes")
                 return
+        if body and not headers.get(b"content-type", b"").startswith(b"application/json"):
+            # Every body here is JSON: `curl -d '{...}'` (form content type) or a bare client
+            # should get the JSON parsed, not a form error.
+            scope = dict(scope, headers=[(k, v) for k, v in scope["headers"] if k.lower() != b"content-type"]
+                         + [(b"content-type", b"application/json")])
         replayed = False
 
         async def replay() -> dict:
@@ -199,7 +204,7 @@ class Guard:
 
 
 async def _send(send: Callable, status: int, kind: str, message: str, extra: list | None = None) -> None:
-    data = json.dumps({"error": message, "kind": kind}).encode()
+    data = json.dumps({"error": message, "kind": kind}, separators=(",", ":")).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())] + (extra or [])
     await send({"type": "http.response.start", "status": status, "headers": headers})
     await send({"type": "http.response.body", "body": data})
