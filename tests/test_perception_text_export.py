@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from terra.perception import text_export
-from terra.perception.text_export import ExportUnavailable, prepare_export, read_export
+from terra.perception.text_export import ExportUnavailable, read_export
+from terra.perception.text_onnx import prepare_export
 
 pytestmark = pytest.mark.slow  # torch and sentence-transformers are imported to export
 

@@ -12,7 +12,7 @@ takes several. So the text model runs through onnxruntime and the `tokenizers` p
   embeddings -> mean pooling over the attention mask -> L2 normalisation, exactly as its modules
   do. Before the folder is published, onnxruntime's vectors for PROBE_TEXTS must equal
   sentence-transformers' to EXPORT_TOLERANCE; the probe vectors are recorded in export.json.
-- Concurrency: the export is assembled in a temporary sibling folder and renamed into place, so a
+- Concurrency (terra.perception.text_onnx.prepare_export): the export is assembled in a temporary sibling folder and renamed into place, so a
   reader never sees half an export; a file lock beside the folder makes concurrent first uses
   (several CLI processes, a service and a CLI) export once while the others wait for it.
 - Integrity: every load checks each file against export.json: one whose size, modification time
@@ -27,7 +27,6 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -134,54 +133,11 @@ def read_export(folder: Path) -> ExportedTextModel:
     return ExportedTextModel(folder, folder / MODEL_FILE, folder / TOKENIZER_FILE, info)
 
 
-def prepare_export(name: str, source_dir: Path, package: str | None = None, root: Path | None = None,
-                   force: bool = False) -> ExportedTextModel:
-    """The checked export of `name`, made first when absent or corrupt (once across processes).
-    force: export again even when the folder passes its checks (e.g. its probe vectors no longer
-    match under this onnxruntime)."""
-    folder = export_folder(name, Path(source_dir), package, root)
-    if not force:
-        try:
-            return read_export(folder)
-        except ExportUnavailable:
-            pass
-    try:
-        from filelock import FileLock, Timeout
-
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(str(folder) + ".lock", timeout=LOCK_TIMEOUT_S)
-        with lock:
-            try:
-                if not force:
-                    return read_export(folder)  # another process finished it while we waited
-            except ExportUnavailable:
-                pass
-            _export_into(folder, name, Path(source_dir))
-    except Timeout:
-        raise ExportUnavailable(f"{folder}: another process held the export lock for over {LOCK_TIMEOUT_S:g} s") from None
-    except OSError as exc:
-        raise ExportUnavailable(f"{folder}: cannot write the export ({exc})") from None
-    return read_export(folder)
-
-
-def _export_into(folder: Path, name: str, source_dir: Path) -> None:
-    """Export into a temporary sibling, then swap it in place of `folder` (caller holds the lock)."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    try:
-        export_sentence_model(name, source_dir, tmp)
-        if folder.exists():
-            stale = folder.with_name(f".{folder.name}.stale-{os.getpid()}")
-            os.replace(folder, stale)
-            shutil.rmtree(stale, ignore_errors=True)
-        os.replace(tmp, folder)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, Any]:
     """Export the sentence-transformers model in `source_dir` to `out` (model.onnx,
-    tokenizer.json, export.json) and check it against sentence-transformers on PROBE_TEXTS.
-    Returns export.json's content. Needs torch and sentence-transformers (imported here only)."""
+    tokenizer.json, export.json with sentence-transformers' vectors of PROBE_TEXTS, which the
+    runtime checks before the folder is published). Returns export.json's content. Needs torch
+    and sentence-transformers (imported here only)."""
     try:
         import torch
         from sentence_transformers import SentenceTransformer
@@ -221,11 +177,6 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
     }
     for file_name in (MODEL_FILE, TOKENIZER_FILE):
         info["files"][file_name] = _file_entry(out / file_name, (out / file_name).read_bytes())
-    from terra.perception.text_onnx import OnnxTextEmbedder
-
-    # onnxruntime + tokenizers must give sentence-transformers' vectors for every probe text
-    # (on load, the runtime repeats this for the first one).
-    OnnxTextEmbedder(name, ExportedTextModel(out, out / MODEL_FILE, out / TOKENIZER_FILE, info), probes=len(PROBE_TEXTS))
     (out / EXPORT_JSON).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
     return info
 
