@@ -60,6 +60,7 @@ class LoadedBundle:
         self._graph_loaded = False
         self._scorer: PointScorer | None = None
         self._cost_graphs: OrderedDict[tuple, CostGraph] = OrderedDict()
+        self._searched: set[tuple] = set()  # cost graphs fetched more than once (see cost_graph)
         self._lock = threading.RLock()  # lazy loads and the cost-graph cache
         self.write_lock = threading.Lock()  # one writer at a time (update_graph)
 
@@ -141,12 +142,19 @@ class LoadedBundle:
             cached = self._cost_graphs.get(key)
             if cached is not None:
                 self._cost_graphs.move_to_end(key)
-                return cached
+                reused = key in self._searched
+                self._searched.add(key)
+        if cached is not None:
+            if not reused:  # asked for twice: worth A*'s adjacency lists from now on
+                from terra.tasks.astar import prepare_adjacency
+
+                prepare_adjacency(cached.indptr, cached.indices, cached.cost)
+            return cached
         built = CostGraph.build(graph, costs)
         with self._lock:
             self._cost_graphs[key] = built
             while len(self._cost_graphs) > COST_GRAPHS:
-                self._cost_graphs.popitem(last=False)
+                self._searched.discard(self._cost_graphs.popitem(last=False)[0])
         return built
 
     def warm(self) -> None:
@@ -170,4 +178,5 @@ class LoadedBundle:
                 self.bundle = Bundle(self.path)
                 self._graph = graph
                 self._cost_graphs.clear()
+                self._searched.clear()
         return graph
