@@ -61,7 +61,8 @@ class LoadedBundle:
         self._scorer: PointScorer | None = None
         self._cost_graphs: OrderedDict[tuple, CostGraph] = OrderedDict()
         self._searched: set[tuple] = set()  # cost graphs fetched more than once (see cost_graph)
-        self._lock = threading.RLock()  # lazy loads and the cost-graph cache
+        self._lock = threading.RLock()  # the cost-graph cache and graph swaps
+        self._load_locks = {name: threading.Lock() for name in ("_msm", "_graph", "_embedder", "_scorer")}
         self.write_lock = threading.Lock()  # one writer at a time (update_graph)
 
     @property
@@ -79,7 +80,7 @@ class LoadedBundle:
     def _load_once(self, attribute: str, load: Callable[[], Any]) -> Any:
         value = getattr(self, attribute)
         if value is None:
-            with self._lock:
+            with self._load_locks[attribute]:  # one lock per part: parts load in parallel
                 value = getattr(self, attribute)
                 if value is None:
                     value = load()
@@ -102,7 +103,7 @@ class LoadedBundle:
     def graph(self) -> SceneGraph | None:
         """The scene graph, None when the bundle has none."""
         if not self._graph_loaded:
-            with self._lock:
+            with self._load_locks["_graph"]:
                 if not self._graph_loaded:
                     if self.has_graph:
                         from terra.graph.storage import load_scene_graph
@@ -157,6 +158,15 @@ class LoadedBundle:
                 self._searched.discard(self._cost_graphs.popitem(last=False)[0])
         return built
 
+    def prefetch(self, *parts: str) -> None:
+        """Start loading `parts` ("embedder", "map", "graph") in background threads, so a cold
+        query overlaps the text model's start (onnxruntime releases the GIL) with its imports
+        and the map load. A later access waits for the load; a load that failed there is simply
+        tried again (and raises) where it is needed."""
+        getters = {"embedder": lambda: self.embedder, "map": lambda: self.msm, "graph": lambda: self.graph}
+        for part in parts:
+            threading.Thread(target=_quietly, args=(getters[part],), name=f"terra-load-{part}", daemon=True).start()
+
     def warm(self) -> None:
         """Load everything a query may need now (a service does this before it listens)."""
         if self.has_map:
@@ -180,3 +190,10 @@ class LoadedBundle:
                 self._cost_graphs.clear()
                 self._searched.clear()
         return graph
+
+
+def _quietly(load: Callable[[], Any]) -> None:
+    try:
+        load()
+    except Exception:  # noqa: BLE001 (re-raised by the caller's own access)
+        pass

@@ -25,11 +25,14 @@ def find_command(
 
     Example: terra find campus.terra "find the dumpster" "get bike from the bicycle rack" --method 3dsg --json
     """
-    from terra.cli.render import render_find, render_json
     from terra.cli.task_options import find_request, load_tasks_config, open_bundle
-    from terra.tasks.commands import find
 
     request = find_request(queries or [], method, alpha, save, tasks)
     cfg = load_tasks_config(config)
-    result = find(open_bundle(bundle, cfg), request, cfg)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch("embedder")  # the text model starts while the query modules import
+    from terra.cli.render import render_find, render_json
+    from terra.tasks.commands import find
+
+    result = find(loaded, request, cfg)
     typer.echo(render_json(result) if as_json else render_find(result))

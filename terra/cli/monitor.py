@@ -25,11 +25,14 @@ def monitor_command(
 
     Example: terra monitor campus.terra "large parking lot surrounded by buildings" --k 2 --json
     """
-    from terra.cli.render import render_json, render_monitor
     from terra.cli.task_options import load_tasks_config, monitor_request, open_bundle
-    from terra.tasks.commands import monitor
 
     request = monitor_request(queries or [], method, k, alpha, tasks)
     cfg = load_tasks_config(config)
-    result = monitor(open_bundle(bundle, cfg), request, cfg)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch("embedder")  # the text model starts while the query modules import
+    from terra.cli.render import render_json, render_monitor
+    from terra.tasks.commands import monitor
+
+    result = monitor(loaded, request, cfg)
     typer.echo(render_json(result) if as_json else render_monitor(result))
