@@ -62,8 +62,13 @@ def main() -> None:
     port = free_port()
     root = Path(__file__).resolve().parents[1]
     t0 = time.perf_counter()
-    server = subprocess.Popen([sys.executable, "-m", "terra", "serve", str(args.bundle), "--port", str(port)], cwd=root,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    server = subprocess.Popen(
+        [sys.executable, "-m", "terra", "serve", str(args.bundle), "--port", str(port)],
+        cwd=root,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     base = f"http://127.0.0.1:{port}"
     try:
         while True:
@@ -81,7 +86,10 @@ def main() -> None:
             post(url, {"queries": [q], "method": args.method})
 
         def client(c: int) -> list[float]:
-            return [post(url, {"queries": [QUERIES[(c + i) % len(QUERIES)]], "method": args.method})[1] for i in range(args.requests)]
+            return [
+                post(url, {"queries": [QUERIES[(c + i) % len(QUERIES)]], "method": args.method})[1]
+                for i in range(args.requests)
+            ]
 
         t0 = time.perf_counter()
         with ThreadPoolExecutor(args.clients) as pool:
@@ -92,16 +100,35 @@ def main() -> None:
         server.terminate()
         server.wait(30)
     total = len(latencies)
-    result = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "bundle": str(args.bundle), "clients": args.clients,
-              "requests": total, "method": args.method, "startup_s": startup_s, "elapsed_s": elapsed,
-              "throughput_rps": total / elapsed, "p50_ms": 1e3 * percentile(latencies, 50), "p99_ms": 1e3 * percentile(latencies, 99),
-              "max_ms": 1e3 * max(latencies), "single_client_median_ms": 1e3 * statistics.median(single)}
+    result = {
+        "machine": platform.processor() or platform.machine(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "bundle": str(args.bundle),
+        "clients": args.clients,
+        "requests": total,
+        "method": args.method,
+        "startup_s": startup_s,
+        "elapsed_s": elapsed,
+        "throughput_rps": total / elapsed,
+        "p50_ms": 1e3 * percentile(latencies, 50),
+        "p99_ms": 1e3 * percentile(latencies, 99),
+        "max_ms": 1e3 * max(latencies),
+        "single_client_median_ms": 1e3 * statistics.median(single),
+    }
     rows = [
         ("server start to first /health (load bundle, text model)", f"{startup_s:.2f} s", "-"),
-        (f"POST /find ({args.method}), {args.clients} concurrent clients, {total} requests",
-         f"{result['throughput_rps']:.1f} requests/s", "-"),
-        ("latency p50 / p99 / max", f"{result['p50_ms']:.1f} / {result['p99_ms']:.1f} / {result['max_ms']:.1f} ms", "-"),
+        (
+            f"POST /find ({args.method}), {args.clients} concurrent clients, {total} requests",
+            f"{result['throughput_rps']:.1f} requests/s",
+            "-",
+        ),
+        (
+            "latency p50 / p99 / max",
+            f"{result['p50_ms']:.1f} / {result['p99_ms']:.1f} / {result['max_ms']:.1f} ms",
+            "-",
+        ),
         ("latency, one client at a time (median)", f"{result['single_client_median_ms']:.1f} ms", "-"),
     ]
     report(rows, result, args.out)

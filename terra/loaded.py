@@ -48,7 +48,10 @@ class LoadedBundle:
         self.bundle = Bundle(path)
         recorded = self.bundle.manifest.get("embedder") or {}
         if not recorded.get("name"):
-            raise TerraError(f"{self.bundle.path / 'manifest.json'}: field 'embedder' is missing; rebuild the bundle with `terra map`")
+            raise TerraError(
+                f"{self.bundle.path / 'manifest.json'}: field 'embedder' is missing; "
+                "rebuild the bundle with `terra map`"
+            )
         self.embedder_name: str = str(recorded["name"])
         self.embedder_dim: int | None = int(recorded["dim"]) if recorded.get("dim") is not None else None
         check_configured_embedder(self.embedder_name, embedder_name, source=str(self.path))
@@ -116,7 +119,10 @@ class LoadedBundle:
         """The scene graph; TerraError naming `what` needs it when the bundle has none."""
         graph = self.graph
         if graph is None:
-            raise TerraError(f"{self.path}: the bundle has no scene graph, which {what} needs; build one with `terra build {self.path}`")
+            raise TerraError(
+                f"{self.path}: the bundle has no scene graph, which {what} needs; "
+                f"build one with `terra build {self.path}`"
+            )
         return graph
 
     @property
@@ -124,7 +130,9 @@ class LoadedBundle:
         """The map's text embedder, loaded on first use (warm afterwards, with its text cache)."""
         from terra.tasks.queries import resolve_embedder
 
-        return self._load_once("_embedder", lambda: resolve_embedder(self.embedder_name, self.embedder_dim, source=str(self.path)))
+        return self._load_once(
+            "_embedder", lambda: resolve_embedder(self.embedder_name, self.embedder_dim, source=str(self.path))
+        )
 
     @property
     def scorer(self) -> PointScorer:

@@ -7,9 +7,17 @@ import pytest
 
 from terra.perception.text import SentenceTransformerEmbedder, _load_minilm, normalize_rows
 
-TEXTS = ["car", "picnic table", "trash can", "a parking lot next to the tall office building", "grass",
-         "  Get bike from the BICYCLE rack!  ", "Café au lait près du bâtiment 🚲", "",
-         " ".join(["a long description of a sidewalk that runs between the library and the parking lot"] * 20)]
+TEXTS = [
+    "car",
+    "picnic table",
+    "trash can",
+    "a parking lot next to the tall office building",
+    "grass",
+    "  Get bike from the BICYCLE rack!  ",
+    "Café au lait près du bâtiment 🚲",
+    "",
+    " ".join(["a long description of a sidewalk that runs between the library and the parking lot"] * 20),
+]
 
 
 def test_a_vector_depends_only_on_its_text(text_embedder):
@@ -42,5 +50,7 @@ def test_light_runtime_vectors_equal_sentence_transformers(text_embedder):
     np.testing.assert_allclose(light, torch_vectors, atol=1e-5, rtol=0)
     # And the reference runtime on the texts in one padded batch, as sentence-transformers' own
     # encode would run them: the same vectors to 1e-5.
-    batch = normalize_rows(reference._model.encode(TEXTS, batch_size=64, normalize_embeddings=True, convert_to_numpy=True))
+    batch = normalize_rows(
+        reference._model.encode(TEXTS, batch_size=64, normalize_embeddings=True, convert_to_numpy=True)
+    )
     np.testing.assert_allclose(light, batch, atol=1e-5, rtol=0)

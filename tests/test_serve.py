@@ -39,8 +39,14 @@ class Client:
     def __init__(self, url: str, token: str | None = TOKEN):
         self.url, self.token = url, token
 
-    def call(self, method: str, path: str, body: bytes | dict | None = None, token: str | None = "default",
-             headers: dict | None = None) -> tuple[int, dict, dict]:
+    def call(
+        self,
+        method: str,
+        path: str,
+        body: bytes | dict | None = None,
+        token: str | None = "default",
+        headers: dict | None = None,
+    ) -> tuple[int, dict, dict]:
         data = json.dumps(body).encode() if isinstance(body, dict) else body
         request = urllib.request.Request(self.url + path, data=data, method=method, headers=dict(headers or {}))
         token = self.token if token == "default" else token
@@ -71,8 +77,12 @@ def served(text_embedder, tmp_path_factory):
         write_scene_graph(w, graph)
     port = free_port()
     log = open(path.parent / "serve.log", "w")
-    process = subprocess.Popen([sys.executable, "-m", "terra", "serve", str(path), "--port", str(port), "--token", TOKEN],
-                               cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "terra", "serve", str(path), "--port", str(port), "--token", TOKEN],
+        cwd=ROOT,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     client = Client(f"http://127.0.0.1:{port}")
     deadline = time.monotonic() + 180
     while True:
@@ -102,18 +112,60 @@ def test_the_service_answers_with_the_cli_json(served, capsys):
     client, path, _ = served
     b = str(path)
     pairs = [
-        (["find", b, "find the dumpster", "a car", "--alpha", "0.4"], "POST", "/find",
-         {"queries": ["find the dumpster", "a car"], "alpha": 0.4}),
-        (["find", b, "dumpster", "--method", "3dsg", "--alpha", "0.4"], "POST", "/find",
-         {"queries": ["dumpster"], "method": "3dsg", "alpha": 0.4}),
-        (["monitor", b, "dumpster", "--k", "1", "--alpha", "0.5"], "POST", "/monitor", {"queries": ["dumpster"], "k": 1, "alpha": 0.5}),
+        (
+            ["find", b, "find the dumpster", "a car", "--alpha", "0.4"],
+            "POST",
+            "/find",
+            {"queries": ["find the dumpster", "a car"], "alpha": 0.4},
+        ),
+        (
+            ["find", b, "dumpster", "--method", "3dsg", "--alpha", "0.4"],
+            "POST",
+            "/find",
+            {"queries": ["dumpster"], "method": "3dsg", "alpha": 0.4},
+        ),
+        (
+            ["monitor", b, "dumpster", "--k", "1", "--alpha", "0.5"],
+            "POST",
+            "/monitor",
+            {"queries": ["dumpster"], "k": 1, "alpha": 0.5},
+        ),
         (["monitor", b, "dumpster", "--method", "aib"], "POST", "/monitor", {"queries": ["dumpster"], "method": "aib"}),
-        (["plan", b, "--to", "find the dumpster", "--alpha", "0.4", "--method", "ms-avg", "--from-xy", "5", "35", "--prefer",
-          "sidewalk", "--penalty", "grass=2"], "POST", "/plan",
-         {"to": "find the dumpster", "alpha": 0.4, "method": "ms-avg", "from_xy": [5, 35], "prefer": ["sidewalk"],
-          "penalty": {"grass": 2}}),
-        (["plan", b, "--to-node", "0", "--from-node", "63", "--forbid", "asphalt"], "POST", "/plan",
-         {"to_node": 0, "from_node": 63, "forbid": ["asphalt"]}),
+        (
+            [
+                "plan",
+                b,
+                "--to",
+                "find the dumpster",
+                "--alpha",
+                "0.4",
+                "--method",
+                "ms-avg",
+                "--from-xy",
+                "5",
+                "35",
+                "--prefer",
+                "sidewalk",
+                "--penalty",
+                "grass=2",
+            ],
+            "POST",
+            "/plan",
+            {
+                "to": "find the dumpster",
+                "alpha": 0.4,
+                "method": "ms-avg",
+                "from_xy": [5, 35],
+                "prefer": ["sidewalk"],
+                "penalty": {"grass": 2},
+            },
+        ),
+        (
+            ["plan", b, "--to-node", "0", "--from-node", "63", "--forbid", "asphalt"],
+            "POST",
+            "/plan",
+            {"to_node": 0, "from_node": 63, "forbid": ["asphalt"]},
+        ),
         (["node", b, "p9"], "GET", "/nodes/p9", None),
         (["node", b, "R0"], "GET", "/regions/1/0", None),
         (["node", b, "--at", "12.4", "7.6"], "GET", "/locate?x=12.4&y=7.6", None),
@@ -123,8 +175,9 @@ def test_the_service_answers_with_the_cli_json(served, capsys):
         assert status == 200 and answer == cli_json(args, capsys), route
     # The start query of a plan, by its JSON name "from".
     status, answer, _ = client.call("POST", "/plan", {"to_node": 0, "from": "a car", "alpha": 0.4, "method": "ms-avg"})
-    assert status == 200 and answer == cli_json(["plan", b, "--to-node", "0", "--from", "a car", "--alpha", "0.4",
-                                                 "--method", "ms-avg"], capsys)
+    assert status == 200 and answer == cli_json(
+        ["plan", b, "--to-node", "0", "--from", "a car", "--alpha", "0.4", "--method", "ms-avg"], capsys
+    )
 
 
 def test_the_token_is_required(served):
@@ -137,31 +190,34 @@ def test_the_token_is_required(served):
     assert client.call("GET", "/openapi.json")[0] == 200
 
 
-@pytest.mark.parametrize("method, route, body, status, kind, message", [
-    ("POST", "/find", b'{"queries": ["find the dumpster"', 400, "bad_request", "malformed JSON body"),
-    ("POST", "/find", b"", 422, "invalid", "body"),
-    ("POST", "/find", b"[1, 2]", 422, "invalid", "body"),
-    ("POST", "/find", {"queries": "dumpster"}, 422, "invalid", "body.queries"),
-    ("POST", "/find", {"queries": ["dumpster"], "colour": "red"}, 422, "invalid", "body.colour"),
-    ("POST", "/find", {"queries": ["dumpster"], "method": "ms_trim"}, 422, "invalid", "body.method"),
-    ("POST", "/find", {"queries": ["dumpster"], "alpha": 3}, 422, "invalid", "body.alpha"),
-    ("POST", "/find", {"queries": ["  "]}, 400, "bad_request", "query 1 is empty"),
-    ("POST", "/find", {"queries": []}, 400, "bad_request", "no query given"),
-    ("POST", "/find", {"queries": ["dumpster"] * 33}, 413, "too_large", "at most 32 queries"),
-    ("POST", "/find", {"queries": ["x" * 1001]}, 413, "too_large", "1001 characters"),
-    ("POST", "/find", b'{"queries": ["' + b"a" * 70000 + b'"]}', 413, "too_large", "at most 65536"),
-    ("POST", "/monitor", {"queries": ["dumpster"], "k": 0}, 422, "invalid", "body.k"),
-    ("POST", "/plan", {"to": "dumpster", "forbid": ["gras"]}, 400, "bad_request", "unknown terrain 'gras'"),
-    ("POST", "/plan", {"from_node": 0}, 400, "bad_request", "give a destination"),
-    ("POST", "/plan", {"to_node": 0, "from_node": 63, "forbid": ["sidewalk"]}, 422, "no_path", "no path"),
-    ("POST", "/plan", {"to_node": 500, "from_node": 0}, 400, "bad_request", "goal place 500 does not exist"),
-    ("GET", "/nodes/p64", None, 404, "not_found", "place 64 does not exist"),
-    ("GET", "/nodes/banana", None, 400, "bad_request", "expected a short name"),
-    ("GET", "/regions/3/0", None, 404, "not_found", "region level 3"),
-    ("GET", "/locate?x=abc&y=1", None, 422, "invalid", "query.x"),
-    ("GET", "/no/such/endpoint", None, 404, "not_found", "no endpoint GET /no/such/endpoint"),
-    ("GET", "/find", None, 405, "method_not_allowed", "GET is not allowed"),
-])
+@pytest.mark.parametrize(
+    "method, route, body, status, kind, message",
+    [
+        ("POST", "/find", b'{"queries": ["find the dumpster"', 400, "bad_request", "malformed JSON body"),
+        ("POST", "/find", b"", 422, "invalid", "body"),
+        ("POST", "/find", b"[1, 2]", 422, "invalid", "body"),
+        ("POST", "/find", {"queries": "dumpster"}, 422, "invalid", "body.queries"),
+        ("POST", "/find", {"queries": ["dumpster"], "colour": "red"}, 422, "invalid", "body.colour"),
+        ("POST", "/find", {"queries": ["dumpster"], "method": "ms_trim"}, 422, "invalid", "body.method"),
+        ("POST", "/find", {"queries": ["dumpster"], "alpha": 3}, 422, "invalid", "body.alpha"),
+        ("POST", "/find", {"queries": ["  "]}, 400, "bad_request", "query 1 is empty"),
+        ("POST", "/find", {"queries": []}, 400, "bad_request", "no query given"),
+        ("POST", "/find", {"queries": ["dumpster"] * 33}, 413, "too_large", "at most 32 queries"),
+        ("POST", "/find", {"queries": ["x" * 1001]}, 413, "too_large", "1001 characters"),
+        ("POST", "/find", b'{"queries": ["' + b"a" * 70000 + b'"]}', 413, "too_large", "at most 65536"),
+        ("POST", "/monitor", {"queries": ["dumpster"], "k": 0}, 422, "invalid", "body.k"),
+        ("POST", "/plan", {"to": "dumpster", "forbid": ["gras"]}, 400, "bad_request", "unknown terrain 'gras'"),
+        ("POST", "/plan", {"from_node": 0}, 400, "bad_request", "give a destination"),
+        ("POST", "/plan", {"to_node": 0, "from_node": 63, "forbid": ["sidewalk"]}, 422, "no_path", "no path"),
+        ("POST", "/plan", {"to_node": 500, "from_node": 0}, 400, "bad_request", "goal place 500 does not exist"),
+        ("GET", "/nodes/p64", None, 404, "not_found", "place 64 does not exist"),
+        ("GET", "/nodes/banana", None, 400, "bad_request", "expected a short name"),
+        ("GET", "/regions/3/0", None, 404, "not_found", "region level 3"),
+        ("GET", "/locate?x=abc&y=1", None, 422, "invalid", "query.x"),
+        ("GET", "/no/such/endpoint", None, 404, "not_found", "no endpoint GET /no/such/endpoint"),
+        ("GET", "/find", None, 405, "method_not_allowed", "GET is not allowed"),
+    ],
+)
 def test_bad_requests_get_one_line_json_errors(served, method, route, body, status, kind, message):
     client, _, process = served
     got_status, answer, _ = client.call(method, route, body)
@@ -177,7 +233,11 @@ def test_100_concurrent_requests_equal_the_sequential_answers(served):
         ("POST", "/find", {"queries": ["dumpster"], "method": "3dsg", "alpha": 0.4}),
         ("POST", "/find", {"queries": ["a bench"], "method": "ms-max"}),
         ("POST", "/monitor", {"queries": ["dumpster", "car"], "k": 1, "alpha": 0.5}),
-        ("POST", "/plan", {"to": "find the dumpster", "alpha": 0.4, "method": "ms-avg", "from_xy": [5, 35], "prefer": ["sidewalk"]}),
+        (
+            "POST",
+            "/plan",
+            {"to": "find the dumpster", "alpha": 0.4, "method": "ms-avg", "from_xy": [5, 35], "prefer": ["sidewalk"]},
+        ),
         ("POST", "/plan", {"to_node": 0, "from_node": 63, "forbid": ["asphalt"]}),
         ("GET", "/nodes/p9", None),
         ("GET", "/locate?x=12.4&y=7.6", None),
@@ -194,7 +254,9 @@ def test_concurrent_saves_are_serialised_and_atomic(served, tmp_path):
     client, path, _ = served
     labels = ["find the dumpster", "a car", "dumpster", "car", "the green dumpster", "a parked car"]
     with ThreadPoolExecutor(max_workers=len(labels)) as pool:
-        results = list(pool.map(lambda q: client.call("POST", "/find", {"queries": [q], "alpha": 0.4, "save": True}), labels))
+        results = list(
+            pool.map(lambda q: client.call("POST", "/find", {"queries": [q], "alpha": 0.4, "save": True}), labels)
+        )
     assert all(status == 200 and body["saved"] for status, body, _ in results)
     from terra.graph.storage import load_scene_graph
 
@@ -202,10 +264,14 @@ def test_concurrent_saves_are_serialised_and_atomic(served, tmp_path):
     bundle.verify()  # every file matches the manifest: no write interleaved with another
     saved = load_scene_graph(bundle)
     expected = sum(len(body["objects"]) for _, body, _ in results)
-    assert len(saved.objects) == expected and set(saved.objects.label) == {q for q, (_, b, _) in zip(labels, results) if b["objects"]}
+    assert len(saved.objects) == expected and set(saved.objects.label) == {
+        q for q, (_, b, _) in zip(labels, results) if b["objects"]
+    }
     status, first, _ = client.call("GET", "/nodes/O0")
     assert status == 200 and first["label"] in labels
     # The served graph is the saved one, and queries go on working on it.
-    assert client.call("GET", f"/nodes/O{expected - 1}")[0] == 200 and client.call("GET", f"/nodes/O{expected}")[0] == 404
+    assert (
+        client.call("GET", f"/nodes/O{expected - 1}")[0] == 200 and client.call("GET", f"/nodes/O{expected}")[0] == 404
+    )
     assert client.call("POST", "/monitor", {"queries": ["dumpster"]})[0] == 200
     shutil.rmtree(tmp_path, ignore_errors=True)

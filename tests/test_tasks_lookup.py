@@ -55,8 +55,17 @@ def test_locate_finds_the_nearest_place(lot):
     assert where["place"]["id"] == "p18" and where["distance_m"] == pytest.approx(np.hypot(2.4, 2.4), abs=1e-4)
 
 
-@pytest.mark.parametrize("ref, error", [("p64", UnknownNode), ("R2", UnknownNode), ("S0", UnknownNode), ("O0", UnknownNode),
-                                        ("Q1", UnknownNode), ("place9", Exception)])
+@pytest.mark.parametrize(
+    "ref, error",
+    [
+        ("p64", UnknownNode),
+        ("R2", UnknownNode),
+        ("S0", UnknownNode),
+        ("O0", UnknownNode),
+        ("Q1", UnknownNode),
+        ("place9", Exception),
+    ],
+)
 def test_unknown_nodes_are_refused(lot, ref, error):
     _, graph = lot
     with pytest.raises(error):

@@ -19,7 +19,7 @@ def find_command(
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (object_tasks, alpha, prediction_method)."),
     save: bool = typer.Option(False, "--save", help="Add the objects to the bundle's scene graph (same-label objects are replaced)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the objects as JSON (the body `terra serve` answers POST /find with)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /find answers)."),
 ) -> None:
     """Find objects matching text QUERIES: oriented boxes with scores and their nearest place.
 

@@ -19,7 +19,7 @@ def monitor_command(
     alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."),
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (region_tasks, k, alpha, prediction_method)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the regions and places (with positions) as JSON (as POST /monitor)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /monitor answers)."),
 ) -> None:
     """Choose the regions and places to monitor for each task in QUERIES.
 

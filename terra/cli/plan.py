@@ -36,7 +36,8 @@ def plan_command(
     """
     from terra.cli.task_options import load_tasks_config, open_bundle, plan_request
 
-    request = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [], method, alpha, tasks)
+    request = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [],
+                           method, alpha, tasks)
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
     if request.to is not None or request.from_query is not None:

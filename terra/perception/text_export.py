@@ -12,9 +12,10 @@ takes several. So the text model runs through onnxruntime and the `tokenizers` p
   embeddings -> mean pooling over the attention mask -> L2 normalisation, exactly as its modules
   do. Before the folder is published, onnxruntime's vectors for PROBE_TEXTS must equal
   sentence-transformers' to EXPORT_TOLERANCE; the probe vectors are recorded in export.json.
-- Concurrency (terra.perception.text_onnx.prepare_export): the export is assembled in a temporary sibling folder and renamed into place, so a
-  reader never sees half an export; a file lock beside the folder makes concurrent first uses
-  (several CLI processes, a service and a CLI) export once while the others wait for it.
+- Concurrency (terra.perception.text_onnx.prepare_export): the export is assembled in a
+  temporary sibling folder and renamed into place, so a reader never sees half an export; a
+  file lock beside the folder makes concurrent first uses (several CLI processes, a service and
+  a CLI) export once while the others wait for it.
 - Integrity: every load checks each file against export.json: one whose size, modification time
   and inode are those recorded at export is the file written then; any other is hashed and must
   match its SHA-256 (about 50 ms for the 90 MB model). A folder that fails is exported again.
@@ -39,8 +40,13 @@ EXPORT_TOLERANCE = 1e-5  # max |ONNX - sentence-transformers| per vector compone
 EXPORT_JSON = "export.json"
 MODEL_FILE = "model.onnx"
 TOKENIZER_FILE = "tokenizer.json"
-PROBE_TEXTS = ("find the dumpster", "  Get bike from the BICYCLE rack!  ", "grass", "a large parking lot surrounded by buildings "
-               "next to the tall office block, with trees along its northern edge and two rows of parked cars")
+PROBE_TEXTS = (
+    "find the dumpster",
+    "  Get bike from the BICYCLE rack!  ",
+    "grass",
+    "a large parking lot surrounded by buildings "
+    "next to the tall office block, with trees along its northern edge and two rows of parked cars",
+)
 LOCK_TIMEOUT_S = 900.0  # how long a process waits for another one's export
 
 
@@ -108,7 +114,11 @@ def _unchanged(path: Path, entry: dict[str, Any]) -> bool:
         stat = path.stat()
     except OSError:
         return False
-    return (stat.st_size, stat.st_mtime_ns, stat.st_ino) == (entry.get("bytes"), entry.get("mtime_ns"), entry.get("inode"))
+    return (stat.st_size, stat.st_mtime_ns, stat.st_ino) == (
+        entry.get("bytes"),
+        entry.get("mtime_ns"),
+        entry.get("inode"),
+    )
 
 
 def read_export(folder: Path) -> ExportedTextModel:
@@ -127,7 +137,9 @@ def read_export(folder: Path) -> ExportedTextModel:
                 continue
             data = (folder / file_name).read_bytes()
             if entry.get("bytes") != len(data) or entry.get("sha256") != _sha256(data):
-                raise ExportUnavailable(f"{folder / file_name}: size or checksum differs from {EXPORT_JSON} (corrupt export)")
+                raise ExportUnavailable(
+                    f"{folder / file_name}: size or checksum differs from {EXPORT_JSON} (corrupt export)"
+                )
     except (OSError, ValueError, AttributeError) as exc:
         raise ExportUnavailable(f"{folder}: no complete export ({exc})") from None
     return ExportedTextModel(folder, folder / MODEL_FILE, folder / TOKENIZER_FILE, info)
@@ -152,19 +164,30 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
     model = SentenceTransformer(str(source_dir), device="cpu").eval()
     wrapper, normalize = _pooled_encoder(model, torch)
     example = Tokenizer.from_file(str(source_dir / TOKENIZER_FILE)).encode(PROBE_TEXTS[0])
-    inputs = tuple(torch.tensor([ids], dtype=torch.int64) for ids in (example.ids, example.attention_mask, example.type_ids))
+    inputs = tuple(
+        torch.tensor([ids], dtype=torch.int64) for ids in (example.ids, example.attention_mask, example.type_ids)
+    )
     dynamic = {k: {0: "batch", 1: "tokens"} for k in ("input_ids", "attention_mask", "token_type_ids")}
     dynamic["sentence_embedding"] = {0: "batch"}
     import warnings
 
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notes
-        torch.onnx.export(wrapper, inputs, str(out / MODEL_FILE), input_names=["input_ids", "attention_mask", "token_type_ids"],
-                          output_names=["sentence_embedding"], dynamic_axes=dynamic, opset_version=17, dynamo=False,
-                          do_constant_folding=True)
+        torch.onnx.export(
+            wrapper,
+            inputs,
+            str(out / MODEL_FILE),
+            input_names=["input_ids", "attention_mask", "token_type_ids"],
+            output_names=["sentence_embedding"],
+            dynamic_axes=dynamic,
+            opset_version=17,
+            dynamo=False,
+            do_constant_folding=True,
+        )
     shutil.copyfile(source_dir / TOKENIZER_FILE, out / TOKENIZER_FILE)
-    reference = np.vstack([model.encode([t], batch_size=1, normalize_embeddings=normalize, convert_to_numpy=True)
-                           for t in PROBE_TEXTS]).astype(np.float32)
+    reference = np.vstack(
+        [model.encode([t], batch_size=1, normalize_embeddings=normalize, convert_to_numpy=True) for t in PROBE_TEXTS]
+    ).astype(np.float32)
     info: dict[str, Any] = {
         "format": EXPORT_FORMAT,
         "name": name,
@@ -186,10 +209,19 @@ def _pooled_encoder(model: Any, torch: Any) -> tuple[Any, bool]:
     normalisation), and whether it normalises. ExportUnavailable for other module stacks."""
     modules = list(model)
     kinds = [type(m).__name__ for m in modules]
-    if len(modules) < 2 or kinds[1] != "Pooling" or kinds[0] != "Transformer" or any(k != "Normalize" for k in kinds[2:]):
-        raise ExportUnavailable(f"only Transformer -> Pooling [-> Normalize] models can be exported, got {' -> '.join(kinds)}")
+    if (
+        len(modules) < 2
+        or kinds[1] != "Pooling"
+        or kinds[0] != "Transformer"
+        or any(k != "Normalize" for k in kinds[2:])
+    ):
+        raise ExportUnavailable(
+            f"only Transformer -> Pooling [-> Normalize] models can be exported, got {' -> '.join(kinds)}"
+        )
     pooling = modules[1]
-    mode = getattr(pooling, "pooling_mode", None) or ("mean" if getattr(pooling, "pooling_mode_mean_tokens", False) else None)
+    mode = getattr(pooling, "pooling_mode", None) or (
+        "mean" if getattr(pooling, "pooling_mode_mean_tokens", False) else None
+    )
     if mode not in ("mean", ["mean"], ("mean",)):
         raise ExportUnavailable(f"only mean pooling can be exported, got {mode!r}")
     normalize = "Normalize" in kinds[2:]

@@ -59,7 +59,9 @@ class OnnxTextEmbedder:
         options.inter_op_num_threads = 1
         options.log_severity_level = 3
         try:
-            self._session = onnxruntime.InferenceSession(str(model.model_path), options, providers=["CPUExecutionProvider"])
+            self._session = onnxruntime.InferenceSession(
+                str(model.model_path), options, providers=["CPUExecutionProvider"]
+            )
             self._tokenizer = Tokenizer.from_file(str(model.tokenizer_path))
         except Exception as exc:  # onnxruntime and tokenizers raise their own types for unreadable files
             raise ExportUnavailable(f"{model.folder}: cannot load the export ({type(exc).__name__}: {exc})") from None
@@ -80,8 +82,10 @@ class OnnxTextEmbedder:
         got = np.vstack([self._encode(t) for t in texts])
         error = float(np.abs(got - expected).max())
         if not error <= EXPORT_TOLERANCE:
-            raise ExportUnavailable(f"{model.folder}: onnxruntime vectors differ from sentence-transformers' by {error:.2e} "
-                                    f"(> {EXPORT_TOLERANCE:g})")
+            raise ExportUnavailable(
+                f"{model.folder}: onnxruntime vectors differ from sentence-transformers' by {error:.2e} "
+                f"(> {EXPORT_TOLERANCE:g})"
+            )
 
     def _encode(self, text: str) -> np.ndarray:
         """(dim,) float32 unit vector of one text, alone (no padding)."""
@@ -118,8 +122,9 @@ class OnnxTextEmbedder:
         return vector
 
 
-def prepare_export(name: str, source_dir: Path, package: str | None = None, root: Path | None = None,
-                   force: bool = False) -> ExportedTextModel:
+def prepare_export(
+    name: str, source_dir: Path, package: str | None = None, root: Path | None = None, force: bool = False
+) -> ExportedTextModel:
     """The checked export of `name`, made first when absent or corrupt (once across processes).
     force: export again even when the folder passes its checks (e.g. its probe vectors no longer
     match under this onnxruntime)."""
@@ -142,7 +147,9 @@ def prepare_export(name: str, source_dir: Path, package: str | None = None, root
                 pass
             _export_into(folder, name, Path(source_dir))
     except Timeout:
-        raise ExportUnavailable(f"{folder}: another process held the export lock for over {LOCK_TIMEOUT_S:g} s") from None
+        raise ExportUnavailable(
+            f"{folder}: another process held the export lock for over {LOCK_TIMEOUT_S:g} s"
+        ) from None
     except OSError as exc:
         raise ExportUnavailable(f"{folder}: cannot write the export ({exc})") from None
     return read_export(folder)
@@ -155,7 +162,9 @@ def _export_into(folder: Path, name: str, source_dir: Path) -> None:
         info = export_sentence_model(name, source_dir, tmp)
         # onnxruntime + tokenizers must give sentence-transformers' vectors for every probe text
         # before the folder is published (on load, only the first one is checked again).
-        OnnxTextEmbedder(name, ExportedTextModel(tmp, tmp / MODEL_FILE, tmp / TOKENIZER_FILE, info), probes=len(PROBE_TEXTS))
+        OnnxTextEmbedder(
+            name, ExportedTextModel(tmp, tmp / MODEL_FILE, tmp / TOKENIZER_FILE, info), probes=len(PROBE_TEXTS)
+        )
         if folder.exists():
             stale = folder.with_name(f".{folder.name}.stale-{os.getpid()}")
             os.replace(folder, stale)
