@@ -59,6 +59,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "serve.json")
     args = parser.parse_args()
 
+    load_at_start = os.getloadavg()[0]
     port = free_port()
     root = Path(__file__).resolve().parents[1]
     t0 = time.perf_counter()
@@ -104,7 +105,7 @@ def main() -> None:
         "machine": platform.processor() or platform.machine(),
         "python": platform.python_version(),
         "cpus": os.cpu_count(),
-        "load_average_1min_at_start": os.getloadavg()[0],
+        "load_average_1min_at_start": load_at_start,
         "bundle": str(args.bundle),
         "clients": args.clients,
         "requests": total,

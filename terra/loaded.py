@@ -166,20 +166,24 @@ class LoadedBundle:
                 self._searched.discard(self._cost_graphs.popitem(last=False)[0])
         return built
 
-    def prefetch(self, *parts: str) -> None:
-        """Start loading `parts` ("embedder", "map", "graph") in background threads, so a cold
-        query overlaps the text model's start (onnxruntime releases the GIL) with its imports
-        and the map load. A later access waits for the load; a load that failed there is simply
-        tried again (and raises) where it is needed."""
-        getters = {"embedder": lambda: self.embedder, "map": lambda: self.msm, "graph": lambda: self.graph}
-        for part in parts:
-            threading.Thread(target=_quietly, args=(getters[part],), name=f"terra-load-{part}", daemon=True).start()
+    def prefetch(self, texts: list[str]) -> None:
+        """Start embedding `texts` in a background thread, so a cold query overlaps the text
+        runtime's start (onnxruntime releases the GIL) with its imports and the map load; the
+        vectors then come from the embedder's cache. A failure there is simply met again, and
+        raised, where the query embeds them."""
+        texts = [str(t).strip() for t in texts if str(t).strip()]
+        if texts:
+            threading.Thread(target=_quietly, args=(lambda: self.embedder.embed_text(texts),), name="terra-embed",
+                             daemon=True).start()
 
     def warm(self) -> None:
         """Load everything a query may need now (a service does this before it listens)."""
         if self.has_map:
             self.scorer.max_ids  # noqa: B018 (loads the map and its per-point data)
         self.graph  # noqa: B018
+        load = getattr(self.embedder, "load", None)
+        if load is not None:
+            load()  # the text runtime's session, which a stored vector would otherwise skip
         self.embedder.embed_text(["warm up"])
 
     def update_graph(self, change: Callable[[SceneGraph], SceneGraph]) -> SceneGraph:

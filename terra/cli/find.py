@@ -30,7 +30,7 @@ def find_command(
     request = find_request(queries or [], method, alpha, save, tasks)
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
-    loaded.prefetch("embedder")  # the text model starts while the query modules import
+    loaded.prefetch(list(request.queries))  # the text model runs while the query modules import
     from terra.cli.render import render_find, render_json
     from terra.tasks.commands import find
 

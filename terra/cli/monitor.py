@@ -30,7 +30,7 @@ def monitor_command(
     request = monitor_request(queries or [], method, k, alpha, tasks)
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
-    loaded.prefetch("embedder")  # the text model starts while the query modules import
+    loaded.prefetch(list(request.queries))  # the text model runs while the query modules import
     from terra.cli.render import render_json, render_monitor
     from terra.tasks.commands import monitor
 

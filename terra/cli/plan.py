@@ -40,8 +40,7 @@ def plan_command(
                            method, alpha, tasks)
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
-    if request.to is not None or request.from_query is not None:
-        loaded.prefetch("embedder")  # the text model starts while the query modules import
+    loaded.prefetch([q for q in (request.to, request.from_query) if q])  # embeds while the query modules import
     from terra.cli.render import render_json, render_plan
     from terra.tasks.commands import plan
 

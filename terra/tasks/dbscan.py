@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 
 def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
@@ -29,6 +28,8 @@ def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarra
     labels = np.full(n, -1, dtype=np.int64)
     if n == 0:
         return labels
+    from scipy.spatial import cKDTree  # imported on use (about 0.2 s): only object queries cluster
+
     pairs = cKDTree(points).query_pairs(eps, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
     degree = np.bincount(i, minlength=n) + np.bincount(j, minlength=n) + 1

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from terra.errors import TerraError
 from terra.graph.scene_graph import Objects, SceneGraph
@@ -108,6 +107,8 @@ def points_near(points_xy: np.ndarray, centres_xy: np.ndarray, radius: float) ->
     near_keys = np.unique(packed((cells(centres_xy)[:, None, :] + offsets[None]).reshape(-1, 2)))
     point_keys = packed(cells(points_xy))
     candidates = np.flatnonzero(np.isin(point_keys, near_keys))
+    from scipy.spatial import cKDTree  # imported on use: monitor and plan-by-id never need it
+
     dist, _ = cKDTree(centres_xy).query(points_xy[candidates], k=1, distance_upper_bound=radius)
     return candidates[dist <= radius]
 
@@ -211,6 +212,8 @@ def find_objects(
     boxes = fit_oriented_boxes(msm.points[cand_rows[members]], owner, cfg.box_padding)
     centres = np.array([b.center for b in boxes])
     if graph is not None and len(graph.places):
+        from scipy.spatial import cKDTree
+
         places = cKDTree(graph.places.position[:, :2]).query(centres[:, :2])[1]
     else:
         places = np.full(len(boxes), -1)
