@@ -4,6 +4,8 @@ with a shared LoadedBundle, so a warm process answers from memory."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from terra.errors import NoPathError, TerraError
@@ -15,7 +17,9 @@ from terra.tasks.planning import CostGraph, TerrainCosts, plan_on
 from terra.tasks.queries import clean_queries
 from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest, PointFeature
 from terra.tasks.results import FindResult, MonitorResults, PlanEnd, PlanResult
-from terra.tasks.retrieval import FoundObject, best_object, find_objects, with_objects
+
+if TYPE_CHECKING:  # retrieval (SciPy, shapely) is imported by the queries that find objects
+    from terra.tasks.retrieval import FoundObject
 
 
 def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksConfig:
@@ -27,6 +31,8 @@ def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksCon
 def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None = None) -> FindResult:
     """Objects for every query of the request, from one embedding batch. With `save`, they replace
     same-label objects in the bundle's scene graph (serialised, atomic: LoadedBundle.update_graph)."""
+    from terra.tasks.retrieval import find_objects, with_objects
+
     config = _with_feature(config or TasksConfig(), request.point_feature)
     queries = clean_queries(list(request.queries))
     method = request.method or config.retrieval.method
@@ -115,6 +121,8 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     )
     found: list[FoundObject] = []
     if object_queries:
+        from terra.tasks.retrieval import find_objects
+
         method = request.method or config.planning.find_method
         alpha = request.alpha
         if alpha is None:
@@ -143,6 +151,8 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
 
 
 def _object_for(found: list[FoundObject], queries: list[str], q: int, role: str) -> FoundObject:
+    from terra.tasks.retrieval import best_object
+
     obj = best_object(found, q)
     if obj is None:
         raise TerraError(f"no object matches the {role} query {queries[q]!r}; lower --alpha or rephrase it")

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from terra.graph.scene_graph import SceneGraph
-from terra.tasks.monitoring import MonitorResult
-from terra.tasks.planning import PathPlan
-from terra.tasks.retrieval import FoundObject
+if TYPE_CHECKING:  # a monitor query must not import retrieval (and with it SciPy) to build its result
+    from terra.graph.scene_graph import SceneGraph
+    from terra.tasks.monitoring import MonitorResult
+    from terra.tasks.planning import PathPlan
+    from terra.tasks.retrieval import FoundObject
 
 
 @dataclass
