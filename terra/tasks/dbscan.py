@@ -1,8 +1,8 @@
 """DBSCAN on SciPy alone, with scikit-learn's labels, for the query path.
 
 Importing scikit-learn's cluster package takes about a second, most of a cold query's budget, and
-its radius search dominated a warm object query. This is the same algorithm on a k-d tree's
-neighbour pairs: a point is core when at least `min_samples` points (itself included) lie within
+its radius search dominated a warm object query. This is the same algorithm on neighbour pairs
+(terra.tasks.neighbours: direct for small sets, SciPy's k-d tree for large ones): a point is core when at least `min_samples` points (itself included) lie within
 `eps` (inclusive); clusters are the connected components of core points; a border point joins the
 cluster found first. scikit-learn expands clusters in order of their lowest-index core point and a
 border point takes the first cluster that reaches it, so "first" is the adjacent cluster with the
@@ -16,6 +16,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from terra.tasks.neighbours import pairs_within
+
 
 def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
     """(n,) int64 cluster labels 0..C-1 (numbered by lowest core index), -1 for noise.
@@ -28,9 +30,7 @@ def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarra
     labels = np.full(n, -1, dtype=np.int64)
     if n == 0:
         return labels
-    from scipy.spatial import cKDTree  # imported on use (about 0.2 s): only object queries cluster
-
-    pairs = cKDTree(points).query_pairs(eps, output_type="ndarray")
+    pairs = pairs_within(points, eps)
     i, j = pairs[:, 0], pairs[:, 1]
     degree = np.bincount(i, minlength=n) + np.bincount(j, minlength=n) + 1
     core = degree >= min_samples

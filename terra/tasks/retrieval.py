@@ -24,6 +24,7 @@ from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
 from terra.tasks.boxes import fit_oriented_boxes
 from terra.tasks.dbscan import dbscan_labels
+from terra.tasks.neighbours import nearest
 from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
 from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
@@ -107,9 +108,7 @@ def points_near(points_xy: np.ndarray, centres_xy: np.ndarray, radius: float) ->
     near_keys = np.unique(packed((cells(centres_xy)[:, None, :] + offsets[None]).reshape(-1, 2)))
     point_keys = packed(cells(points_xy))
     candidates = np.flatnonzero(np.isin(point_keys, near_keys))
-    from scipy.spatial import cKDTree  # imported on use: monitor and plan-by-id never need it
-
-    dist, _ = cKDTree(centres_xy).query(points_xy[candidates], k=1, distance_upper_bound=radius)
+    dist, _ = nearest(centres_xy, points_xy[candidates], radius)
     return candidates[dist <= radius]
 
 
@@ -212,9 +211,7 @@ def find_objects(
     boxes = fit_oriented_boxes(msm.points[cand_rows[members]], owner, cfg.box_padding)
     centres = np.array([b.center for b in boxes])
     if graph is not None and len(graph.places):
-        from scipy.spatial import cKDTree
-
-        places = cKDTree(graph.places.position[:, :2]).query(centres[:, :2])[1]
+        places = nearest(graph.places.position[:, :2], centres[:, :2])[1]
     else:
         places = np.full(len(boxes), -1)
     found: list[FoundObject] = []
