@@ -278,6 +278,7 @@ def main() -> None:
 
     t0 = time.perf_counter()
     embedder = get_text_embedder()
+    getattr(embedder, "load", lambda: None)()  # the runtime's session (stored vectors would skip it)
     embedder.embed_text(["warm up"])
     embedder_s = time.perf_counter() - t0
     result = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
