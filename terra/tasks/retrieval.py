@@ -17,14 +17,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
-from sklearn.cluster import DBSCAN
 
 from terra.errors import TerraError
 from terra.graph.scene_graph import Objects, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
 from terra.tasks.boxes import fit_oriented_boxes
+from terra.tasks.dbscan import dbscan_labels
+from terra.tasks.neighbours import nearest
 from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
 from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
@@ -108,7 +108,7 @@ def points_near(points_xy: np.ndarray, centres_xy: np.ndarray, radius: float) ->
     near_keys = np.unique(packed((cells(centres_xy)[:, None, :] + offsets[None]).reshape(-1, 2)))
     point_keys = packed(cells(points_xy))
     candidates = np.flatnonzero(np.isin(point_keys, near_keys))
-    dist, _ = cKDTree(centres_xy).query(points_xy[candidates], k=1, distance_upper_bound=radius)
+    dist, _ = nearest(centres_xy, points_xy[candidates], radius)
     return candidates[dist <= radius]
 
 
@@ -130,9 +130,8 @@ def cluster_matches(points: np.ndarray, eps: float, min_samples: int, min_points
     """DBSCAN clusters of (n, 3) points as arrays of row indices, largest first (ties: lowest row)."""
     if len(points) < max(min_samples, min_points):
         return []
-    # Ball tree: the same exact neighbourhoods as a k-d tree, measured 2-3x faster on the dense
-    # neighbourhoods of object points (eps 1 m on a 0.4 m voxel map: ~60 neighbours each).
-    labels = DBSCAN(eps=eps, min_samples=min_samples, algorithm="ball_tree").fit_predict(points)
+    # scikit-learn's labels without importing it (about a second of a cold query): terra.tasks.dbscan.
+    labels = dbscan_labels(points, eps, min_samples)
     keep = labels >= 0
     rows = np.flatnonzero(keep)
     order = np.argsort(labels[keep], kind="stable")
@@ -212,7 +211,7 @@ def find_objects(
     boxes = fit_oriented_boxes(msm.points[cand_rows[members]], owner, cfg.box_padding)
     centres = np.array([b.center for b in boxes])
     if graph is not None and len(graph.places):
-        places = cKDTree(graph.places.position[:, :2]).query(centres[:, :2])[1]
+        places = nearest(graph.places.position[:, :2], centres[:, :2])[1]
     else:
         places = np.full(len(boxes), -1)
     found: list[FoundObject] = []
