@@ -10,7 +10,9 @@ import pytest
 from PIL import Image
 
 from terra.cli import run
-from terra.tasks.commands import plan_report
+from terra.loaded import LoadedBundle
+from terra.tasks.commands import plan
+from terra.tasks.requests import PlanRequest
 
 
 def _pixels(path) -> np.ndarray:
@@ -38,7 +40,7 @@ def test_path_figure_reports_the_plan_of_terra_plan(interop_bundle, tmp_path, ca
     args = ["--from-node", "2", "--to-node", "30", "--prefer", "sidewalk"]
     assert run(["render", str(interop_bundle.path), "--what", "path", "--out", str(out), "--json", *args]) == 0
     summary = json.loads(capsys.readouterr().out)
-    report = plan_report(interop_bundle.path, from_node=2, to_node=30, prefer=["sidewalk"])
+    report = plan(LoadedBundle(interop_bundle.path), PlanRequest(from_node=2, to_node=30, prefer=["sidewalk"])).to_json()
     assert summary["length_m"] == report["length_m"] and summary["length_by_terrain"] == report["length_by_terrain"]
     assert summary["places"] == len(report["places"]) and out.is_file()
 

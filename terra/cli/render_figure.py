@@ -33,11 +33,14 @@ def render_command(
 
     Example: terra render campus.terra --what path --to "get bike from the bicycle rack" --prefer sidewalk --out path.png
     """
+    from terra.cli.task_options import open_bundle, plan_request
+    from terra.tasks.config import TasksConfig
     from terra.viz.render import render_bundle
 
-    plan = {"to": to, "to_node": to_node, "from_query": from_query, "from_node": from_node, "from_xy": from_xy,
-            "prefer": prefer or [], "penalty": penalty or [], "forbid": forbid or []}
-    summary = render_bundle(bundle, what, out, dpi, query or [], plan)
+    plan = None
+    if what == "path":
+        plan = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [])
+    summary = render_bundle(open_bundle(bundle, TasksConfig()), what, out, dpi, query or [], plan)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
     else:
