@@ -147,7 +147,7 @@ class TerraViewer:
         x0, x1, y0, y1 = mapped_extent(self.msm, self.graph)
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, float(np.median(self.msm.points[self.rows, 2]))])
         span = max(x1 - x0, y1 - y0)
-        self.server.initial_camera.position = tuple(centre + np.array([0.0, -0.55 * span, 0.85 * span]))
+        self.server.initial_camera.position = tuple(centre + np.array([0.0, -0.4 * span, 0.55 * span]))
         self.server.initial_camera.look_at = tuple(centre)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
