@@ -24,18 +24,26 @@ class Section(BaseModel):
 S = TypeVar("S", bound=BaseModel)
 
 
-def _sections() -> dict[str, type[BaseModel]]:
-    from terra.eval.config import EvalConfig
-    from terra.graph.config import BuildConfig
-    from terra.mapping.config import MappingConfig
-    from terra.sim.config import SimConfig
-    from terra.tasks.config import TasksConfig
+# Stage -> "module:Class", imported only when that stage is loaded: the query commands read the
+# `tasks` section and must not import the simulator's (numba) or mapping's modules to do so.
+_SECTIONS = {
+    "sim": "terra.sim.config:SimConfig",
+    "mapping": "terra.mapping.config:MappingConfig",
+    "build": "terra.graph.config:BuildConfig",
+    "tasks": "terra.tasks.config:TasksConfig",
+    "eval": "terra.eval.config:EvalConfig",
+}
 
-    return {"sim": SimConfig, "mapping": MappingConfig, "build": BuildConfig, "tasks": TasksConfig, "eval": EvalConfig}
+
+def _section(stage: str) -> type[BaseModel]:
+    import importlib
+
+    module, _, name = _SECTIONS[stage].partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def stage_names() -> list[str]:
-    return list(_sections())
+    return list(_SECTIONS)
 
 
 def validation_message(source: str, exc: ValidationError) -> str:
@@ -47,7 +55,7 @@ def validation_message(source: str, exc: ValidationError) -> str:
 
 def load_section(path: str | Path | None, stage: str, overrides: dict | None = None) -> BaseModel:
     """The config section `stage` from a YAML file (defaults when `path` is None), with overrides."""
-    sections = _sections()
+    sections = _SECTIONS
     if stage not in sections:
         raise TerraError(f"unknown config stage {stage!r}; expected one of: {', '.join(sections)}")
     data: dict = {}
@@ -69,7 +77,7 @@ def load_section(path: str | Path | None, stage: str, overrides: dict | None = N
         data = raw.get(stage) or {}
     data = _deep_merge(data, overrides or {})
     try:
-        return sections[stage].model_validate(data)
+        return _section(stage).model_validate(data)
     except ValidationError as exc:
         raise TerraError(validation_message(f"{source} [{stage}]", exc)) from None
 

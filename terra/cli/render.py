@@ -4,12 +4,12 @@ is the result's `to_json()`, the same JSON `terra serve` answers with)."""
 from __future__ import annotations
 
 import json
-from typing import Any
+import math
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from terra.tasks.lookup import Location, NodeInfo
-from terra.tasks.results import FindResult, MonitorResults, PlanResult
+if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
+    from terra.tasks.lookup import Location, NodeInfo
+    from terra.tasks.results import FindResult, MonitorResults, PlanResult
 
 
 def render_json(result: Any) -> str:
@@ -24,7 +24,7 @@ def render_find(result: FindResult) -> str:
         for i, o in mine:
             c, s = o.center, o.size
             lines.append(f"  #{i:<3d} score {o.score:.3f}  centre ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m  "
-                         f"size {s[0]:.2f} x {s[1]:.2f} x {s[2]:.2f} m  yaw {np.degrees(o.yaw):6.1f} deg  "
+                         f"size {s[0]:.2f} x {s[1]:.2f} x {s[2]:.2f} m  yaw {math.degrees(o.yaw):6.1f} deg  "
                          f"{o.point_count} points  place {o.place}")
     if result.saved:
         lines.append(f"saved {len(result.objects)} objects to the scene graph of {result.bundle}")
@@ -32,6 +32,8 @@ def render_find(result: FindResult) -> str:
 
 
 def render_monitor(result: MonitorResults) -> str:
+    import numpy as np
+
     graph = result.graph
     lines = []
     for r in result.results:

@@ -5,16 +5,19 @@ with the flags' names in the messages, TERRAIN=WEIGHT parsing, and the reference
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence, TypeVar
-
-from pydantic import BaseModel, ValidationError
+from typing import TYPE_CHECKING, Any, Sequence, TypeVar
 
 from terra.errors import TerraError
-from terra.tasks.config import TasksConfig
-from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest
-from terra.tasks.task_file import TaskFile, load_task_file
 
-R = TypeVar("R", bound=BaseModel)
+if TYPE_CHECKING:  # every cli module is imported for `terra --help`: pydantic models load on use
+    from pydantic import BaseModel
+
+    from terra.loaded import LoadedBundle
+    from terra.tasks.config import TasksConfig
+    from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest
+    from terra.tasks.task_file import TaskFile
+
+R = TypeVar("R", bound="BaseModel")
 
 
 def load_tasks_config(path: Path | None) -> TasksConfig:
@@ -23,7 +26,7 @@ def load_tasks_config(path: Path | None) -> TasksConfig:
     return load_section(path, "tasks")  # type: ignore[return-value]
 
 
-def open_bundle(path: Path, config: TasksConfig):  # -> LoadedBundle (imported lazily)
+def open_bundle(path: Path, config: TasksConfig) -> LoadedBundle:
     from terra.loaded import LoadedBundle
 
     return LoadedBundle(path, embedder_name=config.embedder)
@@ -56,6 +59,8 @@ def parse_penalties(items: Sequence[str]) -> dict[str, float]:
 
 def build(model: type[R], source: str, values: dict[str, Any]) -> R:
     """`model` from `values`; TerraError (one line naming the field) when they do not fit."""
+    from pydantic import ValidationError
+
     from terra.config import validation_message
 
     try:
@@ -65,11 +70,15 @@ def build(model: type[R], source: str, values: dict[str, Any]) -> R:
 
 
 def _task_file(path: Path | None) -> TaskFile:
+    from terra.tasks.task_file import TaskFile, load_task_file
+
     return load_task_file(path) if path is not None else TaskFile()
 
 
 def find_request(queries: Sequence[str], method: str | None, alpha: float | None, save: bool, tasks: Path | None) -> FindRequest:
     """Command-line queries first, then the task file's; flags win over the file's values."""
+    from terra.tasks.requests import FindRequest
+
     check_choice("--method", method, ("ms-avg", "ms-max", "3dsg"))
     task_file = _task_file(tasks)
     file_method, feature = task_file.object_method(str(tasks))
@@ -81,6 +90,8 @@ def find_request(queries: Sequence[str], method: str | None, alpha: float | None
 
 def monitor_request(queries: Sequence[str], method: str | None, k: int | None, alpha: float | None,
                     tasks: Path | None) -> MonitorRequest:
+    from terra.tasks.requests import MonitorRequest
+
     check_choice("--method", method, ("mix", "max", "thresh", "aib"))
     task_file = _task_file(tasks)
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
@@ -95,6 +106,8 @@ def plan_request(to: str | None = None, to_node: int | None = None, from_query: 
                  tasks: Path | None = None) -> PlanRequest:
     """Flags first; the task file's terrain preferences are merged under them and its start and
     destination fill what the flags leave unset."""
+    from terra.tasks.requests import PlanRequest
+
     check_choice("--method", method, ("ms-avg", "ms-max", "3dsg"))
     task_file = _task_file(tasks)
     prefs = task_file.terrain_preferences

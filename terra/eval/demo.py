@@ -42,6 +42,7 @@ from terra.eval.metrics.regions import places_in_polygon, set_scores
 from terra.eval.tuning import TUNED, TunedParameters
 from terra.graph.config import BuildConfig
 from terra.graph.scene_graph import SceneGraph
+from terra.loaded import LoadedBundle
 from terra.mapping.config import MappingConfig
 from terra.progress import StageTimer
 from terra.sim.config import SimConfig
@@ -227,11 +228,13 @@ class DemoRun:
 
     def _tasks_and_eval(self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
         from terra.eval.runner import evaluate
+        from terra.loaded import LoadedBundle
 
+        loaded = LoadedBundle(scene.bundle, embedder_name=self.config.tasks.embedder)  # one load for tasks and evaluation
         with self.timer.stage("test: tasks"):
-            tasks = run_tasks(scene.bundle, load_ground_truth(scene.dataset), tuned, self.config.tasks)
+            tasks = run_tasks(loaded, load_ground_truth(scene.dataset), tuned, self.config.tasks)
         evaluate(scene.bundle, scene.dataset, report, self.config.eval, tuned, self.config.tasks,
-                 show_progress=self.show_progress, timer=self.timer)
+                 show_progress=self.show_progress, timer=self.timer, loaded=loaded)
         cfg = self.config
         demo = {
             "test_scene": {"preset": cfg.preset, "seed": cfg.seed, "frames": _frames(scene.dataset), "dataset": _rel(scene.dataset, self.out),
@@ -277,16 +280,18 @@ def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | Non
     return {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center], "distance_m": round(float(d[i]), 4)}
 
 
-def _find(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig, embedder) -> list[dict]:
-    from terra.tasks.commands import find_report
+def _find(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> list[dict]:
+    from terra.tasks.commands import find
+    from terra.tasks.requests import FindRequest
 
     method = config.retrieval.method
-    report = find_report(bundle, FIND_QUERIES, method=method, alpha=tuned.retrieval_alpha(method), config=config, embedder=embedder)
+    result = find(loaded, FindRequest(queries=list(FIND_QUERIES), method=method, alpha=tuned.retrieval_alpha(method)), config)
     out = []
-    for q, query in enumerate(report["queries"]):
-        mine = [o for o in report["objects"] if o["query"] == q]
-        best = max(mine, key=lambda o: o["score"], default=None)
-        entry: dict[str, Any] = {"query": query, "method": method, "alpha": report["alpha"], "objects": len(mine), "best": best}
+    for q, query in enumerate(result.queries):
+        mine = [(i, o) for i, o in enumerate(result.objects) if o.query == q]
+        rows = [dict(id=i, **o.to_json()) for i, o in mine]
+        best = max(rows, key=lambda o: o["score"], default=None)
+        entry: dict[str, Any] = {"query": query, "method": method, "alpha": result.alpha, "objects": len(mine), "best": best}
         if best is not None:
             entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt))
         out.append(entry)
@@ -321,29 +326,28 @@ def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config:
     return entry
 
 
-def _plan(bundle: Path, tuned: TunedParameters, config: TasksConfig, embedder) -> dict:
-    from terra.tasks.commands import plan_report
+def _plan(loaded: LoadedBundle, tuned: TunedParameters, config: TasksConfig) -> dict:
+    from terra.tasks.commands import plan
+    from terra.tasks.requests import PlanRequest
 
     method = config.planning.find_method
     entry: dict[str, Any] = {"to": PLAN_TARGET, "prefer": list(PLAN_PREFER), "method": method}
     try:
-        plan = plan_report(bundle, to=PLAN_TARGET, prefer=PLAN_PREFER, method=method, alpha=tuned.retrieval_alpha(method),
-                           config=config, embedder=embedder)
+        result = plan(loaded, PlanRequest(to=PLAN_TARGET, prefer=list(PLAN_PREFER), method=method,
+                                          alpha=tuned.retrieval_alpha(method)), config)
     except TerraError as exc:  # no object or no path: the demo reports it and goes on
         return {**entry, "error": str(exc)}
-    entry.update({"length_m": plan["length_m"], "places": len(plan["places"]),
-                  "length_by_terrain": plan["length_by_terrain"], "goal": plan["goal"]["object"]["center"]})
+    path = result.plan.to_json()
+    entry.update({"length_m": path["length_m"], "places": len(path["places"]), "length_by_terrain": path["length_by_terrain"],
+                  "goal": result.goal.object.to_json()["center"]})
     return entry
 
 
-def run_tasks(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> dict:
-    """The demo's tasks on `bundle` with the tuned parameters (as `terra find/monitor/plan` run them)."""
-    from terra.tasks.context import open_for_tasks
-
-    ctx = open_for_tasks(bundle, config, need_map=False, need_graph=True)
-    graph, embedder = ctx.require_graph("terra demo"), ctx.embedder
-    return {"find": _find(bundle, gt, tuned, config, embedder), "monitor": _monitor(graph, gt, tuned, config, embedder),
-            "plan": _plan(bundle, tuned, config, embedder)}
+def run_tasks(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> dict:
+    """The demo's tasks on the loaded bundle with the tuned parameters (as `terra find/monitor/plan` run them)."""
+    graph = loaded.require_graph("terra demo")
+    return {"find": _find(loaded, gt, tuned, config), "monitor": _monitor(graph, gt, tuned, config, loaded.embedder),
+            "plan": _plan(loaded, tuned, config)}
 
 
 # ---------------------------------------------------------------------- the printed summary

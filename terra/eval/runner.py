@@ -22,6 +22,7 @@ from terra.eval.report import SUMMARY, write_report
 from terra.eval.retrieval import RetrievalRun, RetrievalTask, retrieval_task, run_retrieval
 from terra.eval.tuning import TUNED, TunedParameters, alpha_grid, best_point
 from terra.graph.scene_graph import SceneGraph
+from terra.loaded import LoadedBundle
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
 from terra.progress import StageTimer
@@ -36,39 +37,50 @@ def mapped_dataset_name(bundle: Bundle) -> str:
 
 @dataclass
 class EvalInputs:
-    """What evaluation reads: the bundle's map and graph, the ground truth, the query embedder."""
+    """What evaluation reads: the loaded bundle (map, graph, query embedder) and the ground truth."""
 
-    bundle: Bundle
-    msm: MetricSemanticMap
-    graph: SceneGraph
+    loaded: LoadedBundle
     gt: GroundTruth
     gt_root: Path
-    embedder: TextEmbedder
     hierarchies: dict[str, tuple[SceneGraph, float | None]] = field(default_factory=dict)
 
     dataset: Dataset | None = None
     dataset_name: str = ""
 
+    @property
+    def bundle(self) -> Bundle:
+        return self.loaded.bundle
+
+    @property
+    def msm(self) -> MetricSemanticMap:
+        return self.loaded.msm
+
+    @property
+    def graph(self) -> SceneGraph:
+        return self.loaded.require_graph("evaluation")
+
+    @property
+    def embedder(self) -> TextEmbedder:
+        return self.loaded.embedder
+
     @classmethod
-    def load(cls, bundle_path: str | Path, gt_root: str | Path) -> "EvalInputs":
+    def load(cls, bundle_path: str | Path, gt_root: str | Path, loaded: LoadedBundle | None = None) -> "EvalInputs":
         """Open everything, cheapest checks first, so bad input fails before any work: the bundle
         must hold a scene graph, `gt_root` must be a dataset written by `terra sim`, and it must
-        be the dataset the bundle was mapped from (by its recorded name)."""
+        be the dataset the bundle was mapped from (by its recorded name). `loaded`: an already
+        opened bundle to share (its map, graph and embedder are not loaded again)."""
         from terra.datasets import open_dataset
-        from terra.graph.storage import load_scene_graph
-        from terra.mapping.storage import load_map
-        from terra.tasks.queries import resolve_embedder
 
-        bundle = Bundle(bundle_path)
-        graph = load_scene_graph(bundle)
+        loaded = loaded or LoadedBundle(bundle_path)
+        loaded.require_graph("evaluation")
         gt = load_ground_truth(gt_root)
         dataset = open_dataset(gt_root)
-        mapped = mapped_dataset_name(bundle)
+        mapped = mapped_dataset_name(loaded.bundle)
         if mapped and mapped != dataset.name:
-            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from ({mapped!r})")
-        msm = load_map(bundle)
-        embedder = resolve_embedder(msm.embedder, msm.dim)
-        return cls(bundle, msm, graph, gt, Path(gt_root), embedder, dataset=dataset, dataset_name=dataset.name)
+            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {loaded.path} was mapped from ({mapped!r})")
+        loaded.require_map("evaluation")
+        loaded.embedder  # noqa: B018 (loaded now: evaluation embeds many texts)
+        return cls(loaded, gt, Path(gt_root), dataset=dataset, dataset_name=dataset.name)
 
     def hierarchy(self, method: str) -> tuple[SceneGraph, float | None]:
         """The scene graph with `method` region levels on the bundle's places, and the seconds
@@ -266,7 +278,7 @@ def check_report_folder(out: Path) -> None:
 
 def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, config: EvalConfig | None = None,
              tuned: TunedParameters | None = None, tasks_config=None, show_progress: bool = True,
-             timer: StageTimer | None = None) -> dict:
+             timer: StageTimer | None = None, loaded: LoadedBundle | None = None) -> dict:
     """Evaluate a bundle against a simulated dataset's ground truth; write the report to `out`.
 
     The report is written into a temporary sibling folder that replaces `out` at the end, so a
@@ -280,7 +292,7 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
     out = Path(out)
     check_report_folder(out)
     with timer.stage("eval: load"):
-        inputs = EvalInputs.load(bundle_path, gt_root)
+        inputs = EvalInputs.load(bundle_path, gt_root, loaded)
     if tuned is not None:
         tuned.check_embedder(inputs.embedder.name)
         tuned.check_not_tuned_on(inputs.dataset_name)

@@ -15,9 +15,10 @@ takes several. So the text model runs through onnxruntime and the `tokenizers` p
 - Concurrency: the export is assembled in a temporary sibling folder and renamed into place, so a
   reader never sees half an export; a file lock beside the folder makes concurrent first uses
   (several CLI processes, a service and a CLI) export once while the others wait for it.
-- Integrity: every load checks each file's size and SHA-256 against export.json (about 50 ms for
-  the 90 MB model); a folder that fails is exported again. The runtime also re-checks the probe
-  vectors on load (terra.perception.text_onnx).
+- Integrity: every load checks each file against export.json: one whose size, modification time
+  and inode are those recorded at export is the file written then; any other is hashed and must
+  match its SHA-256 (about 50 ms for the 90 MB model). A folder that fails is exported again.
+  The runtime also re-checks the first probe vector on load (terra.perception.text_onnx).
 """
 
 from __future__ import annotations
@@ -51,10 +52,10 @@ class ExportUnavailable(Exception):
 
 @dataclass(frozen=True)
 class ExportedTextModel:
-    """A checked export: the ONNX model's bytes, its tokenizer file and export.json's content."""
+    """A checked export: the ONNX model file, its tokenizer file and export.json's content."""
 
     folder: Path
-    model_bytes: bytes
+    model_path: Path
     tokenizer_path: Path
     info: dict[str, Any]
 
@@ -96,22 +97,41 @@ def _sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def _file_entry(path: Path, data: bytes) -> dict[str, Any]:
+    stat = path.stat()
+    return {"bytes": len(data), "sha256": _sha256(data), "mtime_ns": stat.st_mtime_ns, "inode": stat.st_ino}
+
+
+def _unchanged(path: Path, entry: dict[str, Any]) -> bool:
+    """Whether `path` is the very file export.json describes: same size, modification time and
+    inode as when it was written (the folder appears by an atomic rename, which keeps them)."""
+    try:
+        stat = path.stat()
+    except OSError:
+        return False
+    return (stat.st_size, stat.st_mtime_ns, stat.st_ino) == (entry.get("bytes"), entry.get("mtime_ns"), entry.get("inode"))
+
+
 def read_export(folder: Path) -> ExportedTextModel:
     """The export in `folder`, every file checked against export.json; ExportUnavailable when the
-    folder is missing, incomplete or corrupt (the caller exports again)."""
+    folder is missing, incomplete or corrupt (the caller exports again). A file whose size,
+    modification time and inode are those recorded is trusted without re-hashing; any other
+    (copied, touched, truncated, rewritten) is hashed and must match its SHA-256."""
     try:
         info = json.loads((folder / EXPORT_JSON).read_text())
         if info.get("format") != EXPORT_FORMAT:
             raise ExportUnavailable(f"{folder / EXPORT_JSON}: format {info.get('format')!r}, expected {EXPORT_FORMAT}")
-        model_bytes = (folder / MODEL_FILE).read_bytes()
-        tokenizer_bytes = (folder / TOKENIZER_FILE).read_bytes()
+        files = info.get("files", {})
+        for file_name in (MODEL_FILE, TOKENIZER_FILE):
+            entry = files.get(file_name, {})
+            if _unchanged(folder / file_name, entry):
+                continue
+            data = (folder / file_name).read_bytes()
+            if entry.get("bytes") != len(data) or entry.get("sha256") != _sha256(data):
+                raise ExportUnavailable(f"{folder / file_name}: size or checksum differs from {EXPORT_JSON} (corrupt export)")
     except (OSError, ValueError, AttributeError) as exc:
         raise ExportUnavailable(f"{folder}: no complete export ({exc})") from None
-    for file_name, data in ((MODEL_FILE, model_bytes), (TOKENIZER_FILE, tokenizer_bytes)):
-        entry = info.get("files", {}).get(file_name, {})
-        if entry.get("bytes") != len(data) or entry.get("sha256") != _sha256(data):
-            raise ExportUnavailable(f"{folder / file_name}: size or checksum differs from {EXPORT_JSON} (corrupt export)")
-    return ExportedTextModel(folder, model_bytes, folder / TOKENIZER_FILE, info)
+    return ExportedTextModel(folder, folder / MODEL_FILE, folder / TOKENIZER_FILE, info)
 
 
 def prepare_export(name: str, source_dir: Path, package: str | None = None, root: Path | None = None,
@@ -200,12 +220,12 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
         "files": {},
     }
     for file_name in (MODEL_FILE, TOKENIZER_FILE):
-        data = (out / file_name).read_bytes()
-        info["files"][file_name] = {"bytes": len(data), "sha256": _sha256(data)}
+        info["files"][file_name] = _file_entry(out / file_name, (out / file_name).read_bytes())
     from terra.perception.text_onnx import OnnxTextEmbedder
 
-    # The check the runtime repeats on load: onnxruntime + tokenizers give the same vectors.
-    OnnxTextEmbedder(name, ExportedTextModel(out, (out / MODEL_FILE).read_bytes(), out / TOKENIZER_FILE, info))
+    # onnxruntime + tokenizers must give sentence-transformers' vectors for every probe text
+    # (on load, the runtime repeats this for the first one).
+    OnnxTextEmbedder(name, ExportedTextModel(out, out / MODEL_FILE, out / TOKENIZER_FILE, info), probes=len(PROBE_TEXTS))
     (out / EXPORT_JSON).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
     return info
 

@@ -27,7 +27,7 @@ class OnnxTextEmbedder:
     around the cache). `threads`: onnxruntime intra-op threads (1: a query is ~4 ms anyway, and
     a single thread keeps the bits independent of the machine's core count)."""
 
-    def __init__(self, name: str, model: ExportedTextModel, threads: int = 1):
+    def __init__(self, name: str, model: ExportedTextModel, threads: int = 1, probes: int = 1):
         try:
             import onnxruntime
             from tokenizers import Tokenizer
@@ -41,7 +41,7 @@ class OnnxTextEmbedder:
         options.inter_op_num_threads = 1
         options.log_severity_level = 3
         try:
-            self._session = onnxruntime.InferenceSession(model.model_bytes, options, providers=["CPUExecutionProvider"])
+            self._session = onnxruntime.InferenceSession(str(model.model_path), options, providers=["CPUExecutionProvider"])
             self._tokenizer = Tokenizer.from_file(str(model.tokenizer_path))
         except Exception as exc:  # onnxruntime and tokenizers raise their own types for unreadable files
             raise ExportUnavailable(f"{model.folder}: cannot load the export ({type(exc).__name__}: {exc})") from None
@@ -50,13 +50,15 @@ class OnnxTextEmbedder:
         self._tokenizer.enable_truncation(model.max_seq_length)
         self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
         self._lock = threading.Lock()
-        self._check_probe(model)
+        self._check_probe(model, probes)
 
-    def _check_probe(self, model: ExportedTextModel) -> None:
+    def _check_probe(self, model: ExportedTextModel, probes: int) -> None:
+        """The first `probes` probe texts must give export.json's vectors (sentence-transformers')."""
         probe = model.info.get("probe") or {}
         texts, expected = probe.get("texts") or [], np.asarray(probe.get("vectors") or [], dtype=np.float32)
         if not texts or expected.shape != (len(texts), self.dim):
             raise ExportUnavailable(f"{model.folder}: export.json holds no probe vectors")
+        texts, expected = texts[:probes], expected[:probes]
         got = np.vstack([self._encode(t) for t in texts])
         error = float(np.abs(got - expected).max())
         if not error <= EXPORT_TOLERANCE:

@@ -17,6 +17,10 @@ import numpy as np
 from terra.errors import TerraError
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
 
+class UnknownNode(TerraError):
+    """A node, region or place that the scene graph does not hold."""
+
+
 _KIND = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge"}
 _SHORT = re.compile(r"^([A-Za-z])(\d+)$")
 
@@ -69,7 +73,7 @@ class NodeInfo:
 
 def place_info(graph: SceneGraph, place: int) -> NodeInfo:
     if not 0 <= place < len(graph.places):
-        raise TerraError(f"place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+        raise UnknownNode(f"place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
     edges = graph.place_edges
     mine = np.flatnonzero((edges[:, 0] == place) | (edges[:, 1] == place)) if len(edges) else np.zeros(0, dtype=np.int64)
     neighbours = [{"place": int(edges[e, 1] if edges[e, 0] == place else edges[e, 0]),
@@ -89,10 +93,10 @@ def place_info(graph: SceneGraph, place: int) -> NodeInfo:
 
 def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
     if not 1 <= level <= len(graph.regions):
-        raise TerraError(f"region level {level} does not exist; the graph has levels 1..{len(graph.regions)}")
+        raise UnknownNode(f"region level {level} does not exist; the graph has levels 1..{len(graph.regions)}")
     layer = graph.regions[level - 1]
     if not 0 <= index < len(layer):
-        raise TerraError(f"region {index} of level {level} does not exist; that level has regions 0..{len(layer) - 1}")
+        raise UnknownNode(f"region {index} of level {level} does not exist; that level has regions 0..{len(layer) - 1}")
     below = "p" if level == 1 else chr(ord("R") + level - 2)
     children = [node_name(below, c) for c in np.flatnonzero(layer.parent_of_child == index)]
     parent = None
@@ -108,7 +112,7 @@ def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
 def object_info(graph: SceneGraph, index: int) -> NodeInfo:
     o = graph.objects
     if not 0 <= index < len(o):
-        raise TerraError(f"object {index} does not exist; the graph has {len(o)} objects (save some with `terra find --save`)")
+        raise UnknownNode(f"object {index} does not exist; the graph has {len(o)} objects (save some with `terra find --save`)")
     return NodeInfo(node_name("O", index), "object", {
         "index": index, "label": o.label[index], "center": _r(o.center[index]), "size": _r(o.size[index]),
         "yaw": round(float(o.yaw[index]), 6), "score": round(float(o.score[index]), 6),
@@ -128,7 +132,7 @@ def node_info(graph: SceneGraph, ref: str | int) -> NodeInfo:
         return NodeInfo("Z0", "root", {"children": [region_name(top, r) for r in range(len(graph.regions[-1]))]})
     if "R" <= char <= "Y":
         return region_info(graph, ord(char) - ord("R") + 1, index)
-    raise TerraError(f"node {ref!r} does not exist in this scene graph")
+    raise UnknownNode(f"node {ref!r} does not exist in this scene graph")
 
 
 @dataclass
