@@ -79,9 +79,14 @@ def test_spark_dsg_region_boxes_hold_their_places_and_objects_keep_their_boxes(s
         for r in range(len(level)):
             members = graph.places.position[assignment == r]
             box = g.get_node(dsg.NodeSymbol(chr(ord("R") + k - 1), r).value).attributes.bounding_box
-            assert np.allclose(box.min, members.min(axis=0), atol=1e-4) and np.allclose(box.max, members.max(axis=0), atol=1e-4)
-            assert np.allclose(g.get_node(dsg.NodeSymbol(chr(ord("R") + k - 1), r).value).attributes.semantic_feature.ravel(),
-                               level.embedding[r], atol=1e-6)
+            assert np.allclose(box.min, members.min(axis=0), atol=1e-4) and np.allclose(
+                box.max, members.max(axis=0), atol=1e-4
+            )
+            assert np.allclose(
+                g.get_node(dsg.NodeSymbol(chr(ord("R") + k - 1), r).value).attributes.semantic_feature.ravel(),
+                level.embedding[r],
+                atol=1e-6,
+            )
     labels = g.get_labelspace(2, 0).labels_to_names
     assert labels == {0: "bench", 1: "trash can"}
     for i in range(len(graph.objects)):
@@ -100,7 +105,9 @@ def test_networkx_node_link_round_trip_gives_the_same_shortest_paths(interop_bun
     out = tmp_path / "g.nx.json"
     assert run(["export", str(interop_bundle.path), "-f", "networkx", "-o", str(out), "--no-features"]) == 0
     g = nx.node_link_graph(json.loads(out.read_text()), edges="edges")
-    assert g.number_of_nodes() == len(graph.places) + sum(len(level) for level in graph.regions) + 1 + len(graph.objects)
+    assert g.number_of_nodes() == len(graph.places) + sum(len(level) for level in graph.regions) + 1 + len(
+        graph.objects
+    )
     assert g.nodes["p7"]["terrain"] == graph.terrain_classes[graph.places.terrain[7]]
     assert g.nodes["p7"]["level"] == 1 and g.nodes["O1"]["level"] == 0 and g.nodes["R0"]["level"] == 2
     assert "embedding" not in g.nodes["p7"]

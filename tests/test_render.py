@@ -40,7 +40,9 @@ def test_path_figure_reports_the_plan_of_terra_plan(interop_bundle, tmp_path, ca
     args = ["--from-node", "2", "--to-node", "30", "--prefer", "sidewalk"]
     assert run(["render", str(interop_bundle.path), "--what", "path", "--out", str(out), "--json", *args]) == 0
     summary = json.loads(capsys.readouterr().out)
-    report = plan(LoadedBundle(interop_bundle.path), PlanRequest(from_node=2, to_node=30, prefer=["sidewalk"])).to_json()
+    report = plan(
+        LoadedBundle(interop_bundle.path), PlanRequest(from_node=2, to_node=30, prefer=["sidewalk"])
+    ).to_json()
     assert summary["length_m"] == report["length_m"] and summary["length_by_terrain"] == report["length_by_terrain"]
     assert summary["places"] == len(report["places"]) and out.is_file()
 

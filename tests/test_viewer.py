@@ -83,7 +83,9 @@ def test_colour_modes_colour_the_drawn_points(viewer):
     viewer.recolour()
     ids = viewer.loaded.scorer.max_ids[viewer.rows]
     colours = np.asarray(viewer.points.colors)
-    assert (colours[ids < 0] == scene.UNOBSERVED).all() and not (colours[ids >= 0] == scene.UNOBSERVED).all(axis=1).all()
+    assert (colours[ids < 0] == scene.UNOBSERVED).all() and not (colours[ids >= 0] == scene.UNOBSERVED).all(
+        axis=1
+    ).all()
     viewer.colour_mode.value = "similarity"
     viewer.similarity_text.value = "bench"
     viewer.recolour()

@@ -15,11 +15,19 @@ from terra.cli import app
 def export_command(
     bundle: Path = typer.Argument(..., help="Bundle folder (`terra map`, and `terra build` for the graph formats)."),
     fmt: str = typer.Option(..., "--format", "-f", help="spark-dsg | networkx | ply | terra-reference."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output file (folder for terra-reference); default beside the bundle."),
+    out: Optional[Path] = typer.Option(
+        None, "--out", "-o", help="Output file (folder for terra-reference); default beside the bundle."
+    ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output."),
-    no_features: bool = typer.Option(False, "--no-features", help="spark-dsg/networkx: leave out the embedding vectors."),
-    color: str = typer.Option("terrain", "--color", help="ply: colour points by 'terrain' or 'ms-max' (most observed bank entry)."),
-    image_range: float = typer.Option(20.0, "--image-range", help="terra-reference: metres for gidx2imgs_{range}m (the paper's 20 m)."),
+    no_features: bool = typer.Option(
+        False, "--no-features", help="spark-dsg/networkx: leave out the embedding vectors."
+    ),
+    color: str = typer.Option(
+        "terrain", "--color", help="ply: colour points by 'terrain' or 'ms-max' (most observed bank entry)."
+    ),
+    image_range: float = typer.Option(
+        20.0, "--image-range", help="terra-reference: metres for gidx2imgs_{range}m (the paper's 20 m)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Export BUNDLE for other tools: the scene graph as spark_dsg JSON (Hydra, Clio) or networkx

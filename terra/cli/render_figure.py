@@ -17,12 +17,16 @@ def render_command(
     what: str = typer.Option(..., "--what", "-w", help="terrain | places | regions | objects | path."),
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write (replaced)."),
     dpi: int = typer.Option(120, "--dpi", help="Resolution of the PNG."),
-    query: Optional[List[str]] = typer.Option(None, "--query", "-q", help="objects: find these objects and draw them (repeatable)."),
+    query: Optional[List[str]] = typer.Option(
+        None, "--query", "-q", help="objects: find these objects and draw them (repeatable)."
+    ),
     to: Optional[str] = typer.Option(None, "--to", help="path: destination query, as in `terra plan`."),
     to_node: Optional[int] = typer.Option(None, "--to-node", help="path: destination place id."),
     from_query: Optional[str] = typer.Option(None, "--from", help="path: start at the object a query names."),
     from_node: Optional[int] = typer.Option(None, "--from-node", help="path: start place id."),
-    from_xy: Optional[Tuple[float, float]] = typer.Option(None, "--from-xy", help="path: start nearest X Y (metres, map frame)."),
+    from_xy: Optional[Tuple[float, float]] = typer.Option(
+        None, "--from-xy", help="path: start nearest X Y (metres, map frame)."
+    ),
     prefer: Optional[List[str]] = typer.Option(None, "--prefer", help="path: preferred terrain (repeatable)."),
     penalty: Optional[List[str]] = typer.Option(None, "--penalty", help="path: TERRAIN=W cost factor (repeatable)."),
     forbid: Optional[List[str]] = typer.Option(None, "--forbid", help="path: terrain never to enter (repeatable)."),
@@ -31,7 +35,7 @@ def render_command(
     """Draw one top-down figure of BUNDLE (the ones `terra eval` puts in its report): map terrain,
     the places layer, the region levels, the objects, or a terrain-aware path.
 
-    Example: terra render campus.terra --what path --to "get bike from the bicycle rack" --prefer sidewalk --out path.png
+    Example: terra render campus.terra --what path --to "get bike from the bicycle rack" --out path.png
     """
     from terra.cli.task_options import open_bundle, plan_request
     from terra.tasks.config import TasksConfig

@@ -12,11 +12,19 @@ from terra.cli import app
 
 @app.command("view")
 def view_command(
-    bundle: Path = typer.Argument(..., help="Bundle folder (`terra map`; `terra build` for the graph layers and planning)."),
+    bundle: Path = typer.Argument(
+        ..., help="Bundle folder (`terra map`; `terra build` for the graph layers and planning)."
+    ),
     port: int = typer.Option(8080, "--port", "-p", help="Port to listen on."),
-    host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (loopback by default; 0.0.0.0 shares the map on the network)."),
-    max_points: int = typer.Option(400_000, "--max-points", help="Points drawn at most (a fixed subset; queries use every point)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used for the queries."),
+    host: str = typer.Option(
+        "127.0.0.1", "--host", help="Address to listen on (loopback by default; 0.0.0.0 shares the map on the network)."
+    ),
+    max_points: int = typer.Option(
+        200_000, "--max-points", help="Points drawn at most (a fixed subset; queries use every point)."
+    ),
+    config: Optional[Path] = typer.Option(
+        None, "--config", "-c", help="YAML config; its `tasks` section is used for the queries."
+    ),
 ) -> None:
     """Open BUNDLE in a web viewer: points coloured by terrain, MS-Max class or similarity to a
     text; places, each region level and the objects as layers; find and monitor queries that

@@ -25,8 +25,15 @@ def check_format(fmt: str) -> str:
     return fmt
 
 
-def export_bundle(bundle: str | Path, fmt: str, out: str | Path | None = None, overwrite: bool = False, features: bool = True,
-                  color: str = "terrain", image_range: float = 20.0) -> dict[str, Any]:
+def export_bundle(
+    bundle: str | Path,
+    fmt: str,
+    out: str | Path | None = None,
+    overwrite: bool = False,
+    features: bool = True,
+    color: str = "terrain",
+    image_range: float = 20.0,
+) -> dict[str, Any]:
     """Write bundle `bundle` in format `fmt` to `out` (default: `default_output`); returns a summary.
     TerraError (nothing written) for an unknown format, a bundle of another schema version, a
     missing component, or an existing target without `overwrite`."""

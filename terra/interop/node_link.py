@@ -31,8 +31,15 @@ def _floats(values: np.ndarray) -> list[float]:
 
 
 def _node(name: str, layer: int, level: int, index: int, position: np.ndarray, **attributes: Any) -> dict[str, Any]:
-    return {"id": name, "layer": layer, "level": level, "index": index, "position": _floats(position),
-            "pos": _floats(position[:2]), **attributes}
+    return {
+        "id": name,
+        "layer": layer,
+        "level": level,
+        "index": index,
+        "position": _floats(position),
+        "pos": _floats(position[:2]),
+        **attributes,
+    }
 
 
 def _place_nodes(sg: SceneGraph, features: bool) -> list[dict[str, Any]]:
@@ -41,8 +48,20 @@ def _place_nodes(sg: SceneGraph, features: bool) -> list[dict[str, Any]]:
     for i in range(len(places)):
         t = int(places.terrain[i])
         extra = {"embedding": _floats(places.embedding[i])} if features else {}
-        out.append(_node(f"p{i}", LAYER_PLACES, 1, i, places.position[i], kind="place", terrain=sg.terrain_classes[t],
-                         terrain_id=t, clearance=float(places.clearance[i]), **extra))
+        out.append(
+            _node(
+                f"p{i}",
+                LAYER_PLACES,
+                1,
+                i,
+                places.position[i],
+                kind="place",
+                terrain=sg.terrain_classes[t],
+                terrain_id=t,
+                clearance=float(places.clearance[i]),
+                **extra,
+            )
+        )
     return out
 
 
@@ -53,23 +72,60 @@ def _region_nodes(sg: SceneGraph, features: bool) -> tuple[list[dict[str, Any]],
         char = level_char(level.level)
         for r in range(len(level)):
             extra = {"embedding": _floats(level.embedding[r])} if features else {}
-            nodes.append(_node(f"{char}{r}", LAYER_PLACES + level.level, level.level + 1, r, level.position[r], kind="region",
-                               region_level=level.level, terrain_id=-1, **extra))
-        edges.extend({"source": f"{char}{int(r)}", "target": f"{child}{c}", "kind": "child"} for c, r in enumerate(level.parent_of_child))
+            nodes.append(
+                _node(
+                    f"{char}{r}",
+                    LAYER_PLACES + level.level,
+                    level.level + 1,
+                    r,
+                    level.position[r],
+                    kind="region",
+                    region_level=level.level,
+                    terrain_id=-1,
+                    **extra,
+                )
+            )
+        edges.extend(
+            {"source": f"{char}{int(r)}", "target": f"{child}{c}", "kind": "child"}
+            for c, r in enumerate(level.parent_of_child)
+        )
         child = char
     if sg.regions:
         top = sg.regions[-1]
         levels = len(sg.regions)
-        nodes.append(_node("Z0", layer_names(levels)["ROOT"], levels + 2, 0, top.position.mean(axis=0) if len(top) else np.zeros(3),
-                           kind="root", terrain_id=-1))
+        nodes.append(
+            _node(
+                "Z0",
+                layer_names(levels)["ROOT"],
+                levels + 2,
+                0,
+                top.position.mean(axis=0) if len(top) else np.zeros(3),
+                kind="root",
+                terrain_id=-1,
+            )
+        )
         edges.extend({"source": "Z0", "target": f"{child}{r}", "kind": "child"} for r in range(len(top)))
     return nodes, edges
 
 
 def _object_nodes(sg: SceneGraph) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     o = sg.objects
-    nodes = [_node(f"O{i}", LAYER_OBJECTS, 0, i, o.center[i], kind="object", label=o.label[i], score=float(o.score[i]),
-                   size=_floats(o.size[i]), yaw=float(o.yaw[i]), point_count=int(o.point_count[i])) for i in range(len(o))]
+    nodes = [
+        _node(
+            f"O{i}",
+            LAYER_OBJECTS,
+            0,
+            i,
+            o.center[i],
+            kind="object",
+            label=o.label[i],
+            score=float(o.score[i]),
+            size=_floats(o.size[i]),
+            yaw=float(o.yaw[i]),
+            point_count=int(o.point_count[i]),
+        )
+        for i in range(len(o))
+    ]
     edges = [{"source": f"p{int(o.place[i])}", "target": f"O{i}", "kind": "object"} for i in range(len(o))]
     return nodes, edges
 
@@ -77,15 +133,31 @@ def _object_nodes(sg: SceneGraph) -> tuple[list[dict[str, Any]], list[dict[str, 
 def node_link_document(sg: SceneGraph, features: bool = True) -> dict[str, Any]:
     """The node-link dict of `sg` (see the module docstring)."""
     nodes = _place_nodes(sg, features)
-    edges = [{"source": f"p{int(i)}", "target": f"p{int(j)}", "kind": EDGE_KIND_NAMES[int(k)], "weight": float(w)}
-             for (i, j), w, k in zip(sg.place_edges, sg.place_edge_weight, sg.place_edge_kind)]
+    edges = [
+        {"source": f"p{int(i)}", "target": f"p{int(j)}", "kind": EDGE_KIND_NAMES[int(k)], "weight": float(w)}
+        for (i, j), w, k in zip(sg.place_edges, sg.place_edge_weight, sg.place_edge_kind)
+    ]
     region_nodes, region_edges = _region_nodes(sg, features)
     object_nodes, object_edges = _object_nodes(sg)
-    graph = {"terrain_classes": list(sg.terrain_classes), "embedder": sg.embedder, "region_method": sg.region_method,
-             "region_levels": len(sg.regions),
-             "units": {"position": "m, map frame", "clearance": "m", "weight": "m (bridges: times their penalty)", "yaw": "rad about +z"}}
-    return {"directed": False, "multigraph": False, "graph": graph, "nodes": nodes + region_nodes + object_nodes,
-            "edges": edges + region_edges + object_edges}
+    graph = {
+        "terrain_classes": list(sg.terrain_classes),
+        "embedder": sg.embedder,
+        "region_method": sg.region_method,
+        "region_levels": len(sg.regions),
+        "units": {
+            "position": "m, map frame",
+            "clearance": "m",
+            "weight": "m (bridges: times their penalty)",
+            "yaw": "rad about +z",
+        },
+    }
+    return {
+        "directed": False,
+        "multigraph": False,
+        "graph": graph,
+        "nodes": nodes + region_nodes + object_nodes,
+        "edges": edges + region_edges + object_edges,
+    }
 
 
 def export_node_link(bundle: Bundle, out: Path, overwrite: bool = False, features: bool = True) -> dict[str, Any]:

@@ -45,20 +45,44 @@ def point_colours(msm: MetricSemanticMap, color: str) -> np.ndarray:
     raise TerraError(f"--color {color!r}: expected one of {', '.join(PLY_COLOURS)}")
 
 
-def ply_bytes(points: np.ndarray, rgb: np.ndarray, terrain: np.ndarray, ms_max: np.ndarray, comments: list[str]) -> bytes:
+def ply_bytes(
+    points: np.ndarray, rgb: np.ndarray, terrain: np.ndarray, ms_max: np.ndarray, comments: list[str]
+) -> bytes:
     """A binary little-endian PLY of N vertices (see the module docstring)."""
     n = int(points.shape[0])
-    vertex = np.zeros(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-                                ("terrain", "<i4"), ("ms_max", "<i4")])
+    vertex = np.zeros(
+        n,
+        dtype=[
+            ("x", "<f4"),
+            ("y", "<f4"),
+            ("z", "<f4"),
+            ("red", "u1"),
+            ("green", "u1"),
+            ("blue", "u1"),
+            ("terrain", "<i4"),
+            ("ms_max", "<i4"),
+        ],
+    )
     for axis, name in enumerate("xyz"):
         vertex[name] = points[:, axis]
     rgb8 = np.clip(np.round(np.asarray(rgb) * 255), 0, 255).astype(np.uint8)
     vertex["red"], vertex["green"], vertex["blue"] = rgb8[:, 0], rgb8[:, 1], rgb8[:, 2]
     vertex["terrain"], vertex["ms_max"] = terrain, ms_max
-    header = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments), f"element vertex {n}",
-              "property float x", "property float y", "property float z",
-              "property uchar red", "property uchar green", "property uchar blue",
-              "property int terrain", "property int ms_max", "end_header"]
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        *(f"comment {c}" for c in comments),
+        f"element vertex {n}",
+        "property float x",
+        "property float y",
+        "property float z",
+        "property uchar red",
+        "property uchar green",
+        "property uchar blue",
+        "property int terrain",
+        "property int ms_max",
+        "end_header",
+    ]
     return ("\n".join(header) + "\n").encode("ascii") + vertex.tobytes()
 
 
@@ -69,9 +93,13 @@ def export_ply(bundle: Bundle, out: Path, overwrite: bool = False, color: str = 
     if color not in PLY_COLOURS:
         raise TerraError(f"--color {color!r}: expected one of {', '.join(PLY_COLOURS)}")
     msm = load_map(bundle)
-    comments = [f"written by terra {__version__}", "frame map, metres", f"colour {color}",
-                *(f"terrain {i} {name}" for i, name in enumerate(msm.terrain_classes)),
-                "terrain -1 none; ms_max = most observed bank entry, -1 none"]
+    comments = [
+        f"written by terra {__version__}",
+        "frame map, metres",
+        f"colour {color}",
+        *(f"terrain {i} {name}" for i, name in enumerate(msm.terrain_classes)),
+        "terrain -1 none; ms_max = most observed bank entry, -1 none",
+    ]
     data = ply_bytes(msm.points, point_colours(msm, color), msm.terrain_index(), msm.ms_max_ids(), comments)
     write_file(out, data, overwrite)
     return {"format": "ply", "out": str(out), "points": len(msm), "color": color}

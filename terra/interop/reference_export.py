@@ -54,7 +54,9 @@ def reference_counts(msm: MetricSemanticMap) -> dict[int, dict[int, int]]:
     return out
 
 
-def image_maps(msm: MetricSemanticMap, image_range: float) -> tuple[dict[int, set[int]], dict[int, set[int]], dict[int, float]]:
+def image_maps(
+    msm: MetricSemanticMap, image_range: float
+) -> tuple[dict[int, set[int]], dict[int, set[int]], dict[int, float]]:
     """Per point seen by an image: images within `image_range` metres, {closest image}, its distance (m)."""
     within: dict[int, set[int]] = {}
     closest: dict[int, set[int]] = {}
@@ -142,9 +144,15 @@ def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_r
         (root / rf.SIDECAR).write_text(dumps_json(sidecar(msm, bundle, image_range)))
 
     atomic_folder(Path(out), overwrite, fill)
-    return {"format": "terra-reference", "out": str(out), "itr": scan_index(msm), "points": len(msm),
-            "bank_rows": len(msm.terrain_classes) + int(msm.bank.shape[0]), "images": len(msm.images),
-            "files": sorted([*files, rf.SIDECAR])}
+    return {
+        "format": "terra-reference",
+        "out": str(out),
+        "itr": scan_index(msm),
+        "points": len(msm),
+        "bank_rows": len(msm.terrain_classes) + int(msm.bank.shape[0]),
+        "images": len(msm.images),
+        "files": sorted([*files, rf.SIDECAR]),
+    }
 
 
 __all__ = ["export_reference", "reference_files", "reference_counts", "image_maps", "scan_index"]

@@ -133,8 +133,10 @@ class PlainDataUnpickler(pickle.Unpickler):
         module = "builtins" if module == "__builtin__" else module  # protocol-2 pickles name Python 2's module
         factory = self._allowed.get((module, name))
         if factory is None:
-            raise TerraError(f"{self._path}: holds an object of type {module}.{name}; only plain data (dict, list, tuple, set, "
-                             "numbers, strings, numpy or torch arrays) is read from the reference's files")
+            raise TerraError(
+                f"{self._path}: holds an object of type {module}.{name}; only plain data (dict, list, tuple, set, "
+                "numbers, strings, numpy or torch arrays) is read from the reference's files"
+            )
         return factory()
 
     def persistent_load(self, pid: Any) -> Any:
@@ -151,8 +153,18 @@ def load_pickle(path: Path) -> Any:
         raise
     except FileNotFoundError:
         raise TerraError(f"{path}: file not found") from None
-    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError,
-            UnicodeDecodeError, OSError, RuntimeError) as exc:
+    except (
+        pickle.UnpicklingError,
+        EOFError,
+        ValueError,
+        TypeError,
+        AttributeError,
+        IndexError,
+        KeyError,
+        UnicodeDecodeError,
+        OSError,
+        RuntimeError,
+    ) as exc:
         raise TerraError(f"{path}: not a readable pickle of plain data ({type(exc).__name__}: {exc})") from None
 
 
@@ -166,13 +178,17 @@ def load_tensor(path: Path) -> np.ndarray:
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
-        raise TerraError(f"{path}: holds {_unsafe_globals(path, exc)}; only tensors are read from the reference's torch files") from None
+        raise TerraError(
+            f"{path}: holds {_unsafe_globals(path, exc)}; only tensors are read from the reference's torch files"
+        ) from None
     except (RuntimeError, EOFError, OSError, ValueError, KeyError, AttributeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise TerraError(f"{path}: unreadable torch file ({first})") from None
     if not isinstance(obj, torch.Tensor):
         raise TerraError(f"{path}: holds a {type(obj).__module__}.{type(obj).__qualname__}, expected one tensor")
-    if not (obj.dtype.is_floating_point or obj.dtype in (torch.int8, torch.int16, torch.int32, torch.int64, torch.uint8)):
+    if not (
+        obj.dtype.is_floating_point or obj.dtype in (torch.int8, torch.int16, torch.int32, torch.int64, torch.uint8)
+    ):
         raise TerraError(f"{path}: tensor of dtype {obj.dtype}, expected a real-valued tensor")
     return obj.detach().to(torch.float32).numpy()
 

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from terra.bundle import Bundle, BundleWriter
+from terra.bundle import BundleWriter
 from terra.errors import TerraError
 from terra.geometry import voxel_keys
 from terra.interop import reference_files as rf
@@ -64,10 +64,15 @@ class ReferenceFiles:
 
 def latest_itr(folder: Path) -> int:
     """The largest N of gidx2clipcounts_dict_itr{N}.pkl (the save their Phase 2 uses)."""
-    found = [int(m.group(1)) for p in folder.glob("gidx2clipcounts_dict_itr*.pkl")
-             if (m := re.fullmatch(r"gidx2clipcounts_dict_itr(\d+)\.pkl", p.name))]
+    found = [
+        int(m.group(1))
+        for p in folder.glob("gidx2clipcounts_dict_itr*.pkl")
+        if (m := re.fullmatch(r"gidx2clipcounts_dict_itr(\d+)\.pkl", p.name))
+    ]
     if not found:
-        raise TerraError(f"{folder}: no gidx2clipcounts_dict_itr{{N}}.pkl; not an output folder of the reference's ms_map")
+        raise TerraError(
+            f"{folder}: no gidx2clipcounts_dict_itr{{N}}.pkl; not an output folder of the reference's ms_map"
+        )
     return max(found)
 
 
@@ -118,7 +123,10 @@ def _counts(path: Path, n_points: int, n_rows: int) -> sp.csr_matrix:
             values.append(rf.as_index(c, path, "counts"))
     rows_a, cols_a = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     if rows_a.size and rows_a.max() >= n_points:
-        raise TerraError(f"{path}: global index {int(rows_a.max())} is past the global map's {n_points} points (another dataset's map?)")
+        raise TerraError(
+            f"{path}: global index {int(rows_a.max())} is past the global map's {n_points} points "
+            "(another dataset's map?)"
+        )
     if cols_a.size and cols_a.max() >= n_rows:
         raise TerraError(f"{path}: clip id {int(cols_a.max())} is past the bank's {n_rows} rows")
     return sp.csr_matrix((np.asarray(values, np.int64), (rows_a, cols_a)), shape=(n_points, n_rows))
@@ -128,12 +136,16 @@ def _image_names(path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
     names = rf.load_pickle(path)
     if not isinstance(names, list) or len(names) != count:
         size = len(names) if isinstance(names, list) else type(names).__name__
-        raise TerraError(f"{path}: expected a list of {count} image names (one per row of the image embeddings), got {size}")
+        raise TerraError(
+            f"{path}: expected a list of {count} image names (one per row of the image embeddings), got {size}"
+        )
     camera, stamp = np.zeros(count, np.int16), np.zeros(count, np.float64)
     for i, name in enumerate(names):
         match = rf.IMAGE_NAME.search(str(name)) if isinstance(name, str) else None
         if match is None or match.group(1) != match.group(2) or int(match.group(1)) < 1:
-            raise TerraError(f"{path}: image name {i} is {name!r}, expected 'camera{{n}}_images/cam{{n}}_img_{{t}}.jpg' (n from 1)")
+            raise TerraError(
+                f"{path}: image name {i} is {name!r}, expected 'camera{{n}}_images/cam{{n}}_img_{{t}}.jpg' (n from 1)"
+            )
         camera[i], stamp[i] = int(match.group(1)) - 1, float(match.group(3))
     return camera, stamp
 
@@ -170,8 +182,16 @@ def _closest(folder: Path, itr: int, n_points: int, n_images: int) -> tuple[np.n
     ranges = rf.as_dict(rf.load_pickle(dist_path), dist_path, "{global_idx: range_m}")
     for g, d in ranges.items():
         g = rf.as_index(g, dist_path, "global indices")
-        if g >= n_points or isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) or not np.isfinite(d) or d < 0:
-            raise TerraError(f"{dist_path}: entry {g!r}: expected a range in metres >= 0 for a point of the global map, got {d!r}")
+        if (
+            g >= n_points
+            or isinstance(d, bool)
+            or not isinstance(d, (int, float, np.integer, np.floating))
+            or not np.isfinite(d)
+            or d < 0
+        ):
+            raise TerraError(
+                f"{dist_path}: entry {g!r}: expected a range in metres >= 0 for a point of the global map, got {d!r}"
+            )
         distance[g] = float(d)
     return closest, distance
 
@@ -209,7 +229,9 @@ def read_reference(folder: Path, itr: int | None = None, global_pc: Path | None 
     camera, stamp = _image_names(folder / rf.IMAGE_NAMES.format(n=itr), images.shape[0])
     within, image_range = _within(folder, itr, len(points), images.shape[0])
     closest, distance = _closest(folder, itr, len(points), images.shape[0])
-    return ReferenceFiles(folder, itr, points, counts, bank, images, camera, stamp, within, closest, distance, image_range, sidecar)
+    return ReferenceFiles(
+        folder, itr, points, counts, bank, images, camera, stamp, within, closest, distance, image_range, sidecar
+    )
 
 
 def _sidecar(folder: Path) -> dict[str, Any]:
@@ -280,7 +302,9 @@ def _fill_from_scan(ref: ReferenceFiles, position: np.ndarray, source: dict[str,
 
 def _fill_from_seen(ref: ReferenceFiles, position: np.ndarray, source: dict[str, int]) -> None:
     """Still missing: the centroid of the points the image saw (within range, or as closest)."""
-    pairs = np.vstack([ref.within_pairs, np.column_stack([np.flatnonzero(ref.closest >= 0), ref.closest[ref.closest >= 0]])])
+    pairs = np.vstack(
+        [ref.within_pairs, np.column_stack([np.flatnonzero(ref.closest >= 0), ref.closest[ref.closest >= 0]])]
+    )
     centre = ref.points.mean(axis=0) if len(ref.points) else np.zeros(3)
     for i in np.flatnonzero(np.isnan(position[:, 0])):
         seen = pairs[pairs[:, 1] == i, 0]
@@ -295,13 +319,16 @@ def _fill_from_seen(ref: ReferenceFiles, position: np.ndarray, source: dict[str,
 # ------------------------------------------------------------------------------ the bundle
 
 
-def to_map(ref: ReferenceFiles, terrain_classes: list[str], embedder: str, cell_size: float, voxel_size: float
-           ) -> tuple[MetricSemanticMap, dict[str, int]]:
+def to_map(
+    ref: ReferenceFiles, terrain_classes: list[str], embedder: str, cell_size: float, voxel_size: float
+) -> tuple[MetricSemanticMap, dict[str, int]]:
     """The MetricSemanticMap of parsed reference files (see the module docstring)."""
     c = len(terrain_classes)
     if c == 0 or c >= ref.bank.shape[0]:
-        raise TerraError(f"{ref.folder}: {c} terrain classes for a bank of {ref.bank.shape[0]} rows; the first C rows embed the "
-                         "C class names of the segmentation model, so give between 1 and K-1 classes")
+        raise TerraError(
+            f"{ref.folder}: {c} terrain classes for a bank of {ref.bank.shape[0]} rows; the first C rows embed the "
+            "C class names of the segmentation model, so give between 1 and K-1 classes"
+        )
     counts = ref.counts.tocsc()
     votes = np.minimum(counts[:, :c].toarray(), np.iinfo(np.uint16).max).astype(np.uint16)
     objects = counts[:, c:].tocsr()
@@ -313,22 +340,63 @@ def to_map(ref: ReferenceFiles, terrain_classes: list[str], embedder: str, cell_
     n_cameras = int(ref.image_camera.max()) + 1 if len(ref.image_camera) else 0
     if len(names) != n_cameras:
         names = [f"camera{n + 1}" for n in range(n_cameras)]
-    images = ImageTable(stamp=ref.image_stamp, camera=ref.image_camera, T_map_cam=pose,
-                        embedding=normalize_rows(ref.image_embedding), camera_names=list(names))
+    images = ImageTable(
+        stamp=ref.image_stamp,
+        camera=ref.image_camera,
+        T_map_cam=pose,
+        embedding=normalize_rows(ref.image_embedding),
+        camera_names=list(names),
+    )
     seen = np.flatnonzero(ref.closest >= 0)
     pairs = np.vstack([ref.within_pairs, np.column_stack([seen, ref.closest[seen]])])
-    visibility = VisibilityIndex.from_pairs(voxel_keys(ref.points[pairs[:, 0]], cell_size), pairs[:, 1], cell_size, position)
+    visibility = VisibilityIndex.from_pairs(
+        voxel_keys(ref.points[pairs[:, 0]], cell_size), pairs[:, 1], cell_size, position
+    )
     msm = MetricSemanticMap(
-        points=ref.points, terrain_classes=list(terrain_classes), terrain_votes=votes,
-        terrain_embeddings=normalize_rows(ref.bank[:c]), counts=objects.astype(np.int32),
-        bank=normalize_rows(ref.bank[c:]), images=images, embedder=embedder, voxel_size=voxel_size, visibility=visibility,
+        points=ref.points,
+        terrain_classes=list(terrain_classes),
+        terrain_votes=votes,
+        terrain_embeddings=normalize_rows(ref.bank[:c]),
+        counts=objects.astype(np.int32),
+        bank=normalize_rows(ref.bank[c:]),
+        images=images,
+        embedder=embedder,
+        voxel_size=voxel_size,
+        visibility=visibility,
     )
     return msm, source
 
 
-def import_reference(folder: Path, out: Path, terrain_classes: list[str] | None = None, embedder: str | None = None,
-                     global_pc: Path | None = None, itr: int | None = None, overwrite: bool = False,
-                     cell_size: float = 2.0, voxel_size: float | None = None) -> dict[str, Any]:
+def _write_bundle(out: Path, msm: MetricSemanticMap, ref: ReferenceFiles, source: dict[str, int]) -> None:
+    """The map as bundle `out`, recording where it came from and how image positions were found."""
+    from terra.mapping.storage import write_map
+
+    config = {
+        "import": {
+            "format": "terra-reference",
+            "folder": ref.folder.name,
+            "itr": ref.itr,
+            "image_range_m": ref.image_range,
+            "pose_source": "image positions estimated (see stats); orientation unknown",
+        }
+    }
+    classes = [{"id": i, "name": n, "terrain": True} for i, n in enumerate(msm.terrain_classes)]
+    stats = {f"image_position_{k}": v for k, v in source.items()}
+    with BundleWriter(out) as writer:
+        write_map(writer, msm, config=config, stats=stats, dataset=ref.folder.name, classes=classes)
+
+
+def import_reference(
+    folder: Path,
+    out: Path,
+    terrain_classes: list[str] | None = None,
+    embedder: str | None = None,
+    global_pc: Path | None = None,
+    itr: int | None = None,
+    overwrite: bool = False,
+    cell_size: float = 2.0,
+    voxel_size: float | None = None,
+) -> dict[str, Any]:
     """Turn reference output folder `folder` into the bundle `out` (written atomically)."""
     out = Path(out)
     if out.exists() and not overwrite:
@@ -336,22 +404,25 @@ def import_reference(folder: Path, out: Path, terrain_classes: list[str] | None 
     ref = read_reference(Path(folder), itr, global_pc)
     classes = list(terrain_classes or ref.sidecar.get("terrain_classes") or [])
     if not classes:
-        raise TerraError(f"{folder}: the reference's files do not name the terrain classes; give them with --terrain-classes "
-                         "(the segmentation model's class names, in order, e.g. sidewalk,grass,asphalt)")
+        raise TerraError(
+            f"{folder}: the reference's files do not name the terrain classes; give them with --terrain-classes "
+            "(the segmentation model's class names, in order, e.g. sidewalk,grass,asphalt)"
+        )
     recorded = ref.sidecar.get("embedder") or {}
     name = embedder or recorded.get("name") or DEFAULT_EMBEDDER
     cell = float(ref.sidecar.get("visibility_cell_size") or cell_size)
     voxel = float(voxel_size or ref.sidecar.get("voxel_size") or 1.0)
     msm, source = to_map(ref, classes, name, cell, voxel)
-    config = {"import": {"format": "terra-reference", "folder": Path(folder).name, "itr": ref.itr,
-                         "image_range_m": ref.image_range, "pose_source": "image positions estimated (see stats); orientation unknown"}}
-    classes_json = [{"id": i, "name": n, "terrain": True} for i, n in enumerate(classes)]
-    from terra.mapping.storage import write_map
-
-    with BundleWriter(out) as writer:
-        write_map(writer, msm, config=config, stats={f"image_position_{k}": v for k, v in source.items()},
-                  dataset=Path(folder).name, classes=classes_json)
-    Bundle(out)
-    return {"format": "terra-reference", "bundle": str(out), "itr": ref.itr, "points": len(msm), "bank": int(msm.bank.shape[0]),
-            "terrain_classes": classes, "embedder": name, "images": len(msm.images), "image_positions": source,
-            "observed_points": int(np.count_nonzero(np.diff(msm.counts.indptr)))}
+    _write_bundle(out, msm, ref, source)
+    return {
+        "format": "terra-reference",
+        "bundle": str(out),
+        "itr": ref.itr,
+        "points": len(msm),
+        "bank": int(msm.bank.shape[0]),
+        "terrain_classes": classes,
+        "embedder": name,
+        "images": len(msm.images),
+        "image_positions": source,
+        "observed_points": int(np.count_nonzero(np.diff(msm.counts.indptr))),
+    }

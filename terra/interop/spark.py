@@ -33,8 +33,12 @@ def _rgba(rgb: np.ndarray) -> dict[str, int]:
 
 def _aabb(points: np.ndarray) -> dict[str, Any]:
     lo, hi = points.min(axis=0), points.max(axis=0)
-    return {"type": "AABB", "dimensions": [float(v) for v in hi - lo], "world_P_center": [float(v) for v in (lo + hi) / 2],
-            "world_R_center": {"w": 1.0, "x": 0.0, "y": 0.0, "z": 0.0}}
+    return {
+        "type": "AABB",
+        "dimensions": [float(v) for v in hi - lo],
+        "world_P_center": [float(v) for v in (lo + hi) / 2],
+        "world_R_center": {"w": 1.0, "x": 0.0, "y": 0.0, "z": 0.0},
+    }
 
 
 def _labelspace_key(layer: int, partition: int = 0) -> str:
@@ -98,5 +102,10 @@ def export_spark_dsg(bundle: Bundle, out: Path, overwrite: bool = False, feature
     sg = load_scene_graph(bundle)
     doc = spark_document(sg, features)
     write_file(out, dumps_json(doc).encode(), overwrite)
-    return {"format": "spark-dsg", "out": str(out), "nodes": len(doc["nodes"]), "edges": len(doc["edges"]),
-            "layers": {name: key["layer"] for name, key in sorted(doc["layer_names"].items())}}
+    return {
+        "format": "spark-dsg",
+        "out": str(out),
+        "nodes": len(doc["nodes"]),
+        "edges": len(doc["edges"]),
+        "layers": {name: key["layer"] for name, key in sorted(doc["layer_names"].items())},
+    }

@@ -58,8 +58,14 @@ def check_port(host: str, port: int) -> None:
 class TerraViewer:
     """A running viewer of one LoadedBundle. `max_points` bounds the points drawn (not used)."""
 
-    def __init__(self, loaded: LoadedBundle, host: str = "127.0.0.1", port: int = 8080, max_points: int = 400_000,
-                 config: TasksConfig | None = None):
+    def __init__(
+        self,
+        loaded: LoadedBundle,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        max_points: int = 200_000,
+        config: TasksConfig | None = None,
+    ):
         from terra.tasks.config import TasksConfig
 
         self.loaded = loaded
@@ -102,8 +108,13 @@ class TerraViewer:
     def _build(self) -> None:
         self.server.scene.set_up_direction("+z")
         self.points = self.server.scene.add_point_cloud(
-            "/map/points", self.msm.points[self.rows], scene.terrain_point_colours(self.msm, self.rows),
-            point_size=self._point_size(), precision="float32", point_shape="square")
+            "/map/points",
+            self.msm.points[self.rows],
+            scene.terrain_point_colours(self.msm, self.rows),
+            point_size=self._point_size(),
+            precision="float32",
+            point_shape="square",
+        )
         if self.graph is not None:
             self._add_graph_layers()
         self._gui_points()
@@ -116,29 +127,72 @@ class TerraViewer:
     def _add_graph_layers(self) -> None:
         graph = self.graph
         lifted = (graph.places.position + np.array([0.0, 0.0, 1.0])).astype(np.float32)
-        self.layers: dict[str, list] = {"places": [
-            self.server.scene.add_point_cloud("/graph/places", lifted, scene.place_colours(graph), point_size=1.6,
-                                              point_shape="circle", precision="float32"),
-            self.server.scene.add_line_segments("/graph/place_edges", scene.place_edge_segments(graph, lift=1.0), (60, 60, 60), thickness=2.5,
-                                                thickness_units="screen"),
-        ]}
+        self.layers: dict[str, list] = {
+            "places": [
+                self.server.scene.add_point_cloud(
+                    "/graph/places",
+                    lifted,
+                    scene.place_colours(graph),
+                    point_size=1.6,
+                    point_shape="circle",
+                    precision="float32",
+                ),
+                self.server.scene.add_line_segments(
+                    "/graph/place_edges",
+                    scene.place_edge_segments(graph, lift=1.0),
+                    (60, 60, 60),
+                    thickness=2.5,
+                    thickness_units="screen",
+                ),
+            ]
+        }
         for layer in scene.region_layers(graph):
             self.layers[f"regions level {layer.level}"] = [
-                self.server.scene.add_point_cloud(f"/graph/regions_{layer.level}/nodes", layer.position.astype(np.float32),
-                                                  layer.colours, point_size=2.5, point_shape="circle", precision="float32",
-                                                  visible=False),
-                self.server.scene.add_line_segments(f"/graph/regions_{layer.level}/children", layer.segments, layer.segment_colours,
-                                                    thickness=1.5, thickness_units="screen", visible=False),
+                self.server.scene.add_point_cloud(
+                    f"/graph/regions_{layer.level}/nodes",
+                    layer.position.astype(np.float32),
+                    layer.colours,
+                    point_size=2.5,
+                    point_shape="circle",
+                    precision="float32",
+                    visible=False,
+                ),
+                self.server.scene.add_line_segments(
+                    f"/graph/regions_{layer.level}/children",
+                    layer.segments,
+                    layer.segment_colours,
+                    thickness=1.5,
+                    thickness_units="screen",
+                    visible=False,
+                ),
             ]
-        self.layers["objects"] = self._draw_objects("/graph/objects", graph.objects.center, graph.objects.size, graph.objects.yaw,
-                                                    [f"{lb}" for lb in graph.objects.label], (230, 60, 200))
+        self.layers["objects"] = self._draw_objects(
+            "/graph/objects",
+            graph.objects.center,
+            graph.objects.size,
+            graph.objects.yaw,
+            [f"{lb}" for lb in graph.objects.label],
+            (230, 60, 200),
+        )
 
     def _draw_objects(self, prefix: str, center, size, yaw, labels: list[str], colour) -> list:
         handles = []
         for i, (c, s, y, text) in enumerate(zip(center, size, yaw, labels)):
-            handles.append(self.server.scene.add_box(f"{prefix}/{i}/box", colour, tuple(float(v) for v in s), wireframe=True,
-                                                     wxyz=scene.yaw_wxyz(float(y)), position=tuple(float(v) for v in c)))
-            handles.append(self.server.scene.add_label(f"{prefix}/{i}/label", text, position=tuple(float(v) for v in c + [0, 0, s[2] / 2 + 0.5])))
+            handles.append(
+                self.server.scene.add_box(
+                    f"{prefix}/{i}/box",
+                    colour,
+                    tuple(float(v) for v in s),
+                    wireframe=True,
+                    wxyz=scene.yaw_wxyz(float(y)),
+                    position=tuple(float(v) for v in c),
+                )
+            )
+            handles.append(
+                self.server.scene.add_label(
+                    f"{prefix}/{i}/label", text, position=tuple(float(v) for v in c + [0, 0, s[2] / 2 + 0.5])
+                )
+            )
         return handles
 
     def _set_camera(self) -> None:
@@ -155,15 +209,19 @@ class TerraViewer:
 
     def _gui_points(self) -> None:
         gui = self.server.gui
-        gui.add_markdown(f"**Terra** · `{self.loaded.path.name}` · {len(self.msm):,} points"
-                         f" ({len(self.rows):,} drawn)" + (f" · {len(self.graph.places)} places" if self.graph is not None else ""))
+        gui.add_markdown(
+            f"**Terra** · `{self.loaded.path.name}` · {len(self.msm):,} points"
+            f" ({len(self.rows):,} drawn)" + (f" · {len(self.graph.places)} places" if self.graph is not None else "")
+        )
         with gui.add_folder("Points"):
             self.colour_mode = gui.add_dropdown("colour by", COLOUR_MODES, initial_value="terrain")
             self.similarity_text = gui.add_text("similar to", "")
             self.point_size = gui.add_slider("point size", 0.05, 2.0, 0.05, self._point_size())
             self.legend = gui.add_html(self._terrain_legend())
         self.colour_mode.on_update(lambda _: self._guarded(self.recolour))
-        self.similarity_text.on_update(lambda _: self._guarded(self.recolour) if self.colour_mode.value == "similarity" else None)
+        self.similarity_text.on_update(
+            lambda _: self._guarded(self.recolour) if self.colour_mode.value == "similarity" else None
+        )
         self.point_size.on_update(lambda _: setattr(self.points, "point_size", float(self.point_size.value)))
 
     def _gui_layers(self) -> None:
@@ -177,11 +235,15 @@ class TerraViewer:
     def _gui_ask(self) -> None:
         gui = self.server.gui
         with gui.add_folder("Ask"):
-            self.task = gui.add_dropdown("task", ("find", "monitor") if self.graph is not None else ("find",), initial_value="find")
+            self.task = gui.add_dropdown(
+                "task", ("find", "monitor") if self.graph is not None else ("find",), initial_value="find"
+            )
             self.query = gui.add_text("query", "")
             self.ask_button = gui.add_button("Run query")
             self.answer = gui.add_markdown("Type a query, e.g. *find the dumpster*, and run it.")
-        self.ask_button.on_click(lambda _: self._guarded(lambda: self._show(self.answer, self.run_query(self.task.value, self.query.value))))
+        self.ask_button.on_click(
+            lambda _: self._guarded(lambda: self._show(self.answer, self.run_query(self.task.value, self.query.value)))
+        )
 
     def _gui_plan(self) -> None:
         gui = self.server.gui
@@ -195,8 +257,14 @@ class TerraViewer:
             self.plan_answer = gui.add_markdown(f"Terrains: {', '.join(self.graph.terrain_classes)}")
         pick_start.on_click(lambda _: self._pick("start"))
         pick_goal.on_click(lambda _: self._pick("goal"))
-        self.plan_button.on_click(lambda _: self._guarded(lambda: self._show(
-            self.plan_answer, self.run_plan(self.start.value, self.goal.value, self.prefer.value, self.forbid.value))))
+        self.plan_button.on_click(
+            lambda _: self._guarded(
+                lambda: self._show(
+                    self.plan_answer,
+                    self.run_plan(self.start.value, self.goal.value, self.prefer.value, self.forbid.value),
+                )
+            )
+        )
 
     def _pick(self, which: str) -> None:
         """The next click on the map sets `which` to the nearest place."""
@@ -243,8 +311,9 @@ class TerraViewer:
             max_ids = self.loaded.scorer.max_ids[self.rows]
             self.points.colors = scene.class_point_colours(max_ids, class_of_bank, palette)
             shown = np.unique(class_of_bank[max_ids[max_ids >= 0]])
-            self.legend.content = _legend_html([names[i] for i in shown] + ["unobserved"],
-                                               np.vstack([palette[shown], scene.UNOBSERVED]))
+            self.legend.content = _legend_html(
+                [names[i] for i in shown] + ["unobserved"], np.vstack([palette[shown], scene.UNOBSERVED])
+            )
         else:
             text = self.similarity_text.value.strip()
             if not text:
@@ -277,10 +346,18 @@ class TerraViewer:
             result = find(self.loaded, FindRequest(queries=[text]), self.config)
             self.last_result = result
             objects = result.objects
-            self._draw_objects("/results/query/objects", [o.center for o in objects], [o.size for o in objects],
-                               [o.yaw for o in objects], [f"{o.label} {o.score:.2f}" for o in objects], HIGHLIGHT)
+            self._draw_objects(
+                "/results/query/objects",
+                [o.center for o in objects],
+                [o.size for o in objects],
+                [o.yaw for o in objects],
+                [f"{o.label} {o.score:.2f}" for o in objects],
+                HIGHLIGHT,
+            )
             lines = [f"**{len(objects)} objects** for “{_escape(text)}” ({result.method}, alpha {result.alpha:.2f})"]
-            lines += [f"- {o.score:.2f} at ({o.center[0]:.1f}, {o.center[1]:.1f}) m, place {o.place}" for o in objects[:8]]
+            lines += [
+                f"- {o.score:.2f} at ({o.center[0]:.1f}, {o.center[1]:.1f}) m, place {o.place}" for o in objects[:8]
+            ]
             return "\n".join(lines)
         result = monitor(self.loaded, MonitorRequest(queries=[text]), self.config)
         self.last_result = result
@@ -288,10 +365,12 @@ class TerraViewer:
         places = np.asarray(answer.places, dtype=np.int64)
         if places.size:
             pos = (self.graph.places.position[places] + np.array([0.0, 0.0, 0.6])).astype(np.float32)
-            self.server.scene.add_point_cloud("/results/query/places", pos, HIGHLIGHT, point_size=2.0, point_shape="circle",
-                                              precision="float32")
+            self.server.scene.add_point_cloud(
+                "/results/query/places", pos, HIGHLIGHT, point_size=2.0, point_shape="circle", precision="float32"
+            )
         regions = ", ".join(f"L{lv}#{ix} {s:.2f}" for (lv, ix), s in zip(answer.regions, answer.region_scores))
-        return f"**{places.size} places** to monitor for “{_escape(text)}” ({result.method}, k {result.k}); regions: {regions or 'none'}"
+        head = f"**{places.size} places** to monitor for “{_escape(text)}” ({result.method}, k {result.k})"
+        return f"{head}; regions: {regions or 'none'}"
 
     def run_plan(self, start: str, goal: str, prefer: str = "", forbid: str = "") -> str:
         """Plan from `start` to `goal` (place ids or queries), draw the path, return its summary."""
@@ -304,8 +383,11 @@ class TerraViewer:
         kind_start, start_value = scene.parse_end(start)
         if kind_goal == "default":
             raise TerraError("give a goal: a place id or a query")
-        values: dict[str, Any] = {"to" if kind_goal == "query" else "to_node": goal_value,
-                                  "prefer": scene.terrain_list(prefer), "forbid": scene.terrain_list(forbid)}
+        values: dict[str, Any] = {
+            "to" if kind_goal == "query" else "to_node": goal_value,
+            "prefer": scene.terrain_list(prefer),
+            "forbid": scene.terrain_list(forbid),
+        }
         if kind_start != "default":
             values["from" if kind_start == "query" else "from_node"] = start_value
         try:
@@ -314,11 +396,20 @@ class TerraViewer:
             return f"**No path:** {exc}"
         self.last_result = result
         path = result.plan
-        self.server.scene.add_line_segments("/results/plan/path", scene.path_segments(path.waypoints), PATH_COLOUR, thickness=6.0,
-                                            thickness_units="screen")
+        self.server.scene.add_line_segments(
+            "/results/plan/path",
+            scene.path_segments(path.waypoints),
+            PATH_COLOUR,
+            thickness=6.0,
+            thickness_units="screen",
+        )
         for name, place, colour in (("start", path.start, (227, 26, 28)), ("goal", path.goal, (0, 0, 0))):
-            self.server.scene.add_icosphere(f"/results/plan/{name}", radius=1.2, color=colour,
-                                            position=tuple(float(v) for v in self.graph.places.position[place] + [0, 0, 0.6]))
+            self.server.scene.add_icosphere(
+                f"/results/plan/{name}",
+                radius=1.2,
+                color=colour,
+                position=tuple(float(v) for v in self.graph.places.position[place] + [0, 0, 0.6]),
+            )
         shares = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
         return f"**Path** {path.length_m:.1f} m over {len(path.places)} places ({shares}); cost {path.cost:.1f}"
 
@@ -333,6 +424,10 @@ def _escape(text: str) -> str:
 
 
 def _legend_html(names: list[str], colours: np.ndarray) -> str:
-    items = "".join(f'<span style="display:inline-block;margin:1px 6px 1px 0"><span style="display:inline-block;width:10px;height:10px;'
-                    f'background:rgb({c[0]},{c[1]},{c[2]});margin-right:3px"></span>{_escape(n)}</span>' for n, c in zip(names, colours))
+    items = "".join(
+        '<span style="display:inline-block;margin:1px 6px 1px 0">'
+        f'<span style="display:inline-block;width:10px;height:10px;'
+        f'background:rgb({c[0]},{c[1]},{c[2]});margin-right:3px"></span>{_escape(n)}</span>'
+        for n, c in zip(names, colours)
+    )
     return f'<div style="font-size:12px;line-height:1.4">{items}</div>'

@@ -13,9 +13,18 @@ import tempfile
 import time
 from pathlib import Path
 
-HEADLESS_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--enable-unsafe-swiftshader", "--use-angle=swiftshader")
+HEADLESS_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+)
 
 
 def browser_missing() -> str | None:
@@ -26,7 +35,9 @@ def browser_missing() -> str | None:
         return "selenium is not installed (pip install selenium; it is in the test extra)"
     for program in ("chromium", "chromedriver"):
         if shutil.which(program) is None:
-            return f"{program} is not installed (scripts/setup-test-browser.sh installs Debian's chromium and chromium-driver)"
+            return (
+                f"{program} is not installed (scripts/setup-test-browser.sh installs Debian's chromium and its driver)"
+            )
     return None
 
 
@@ -43,7 +54,9 @@ class HeadlessPage:
         options.binary_location = shutil.which("chromium") or "/usr/bin/chromium"
         for flag in (*HEADLESS_FLAGS, f"--user-data-dir={self._profile}", f"--window-size={size[0]},{size[1]}"):
             options.add_argument(flag)
-        self.driver = webdriver.Chrome(service=Service(shutil.which("chromedriver") or "/usr/bin/chromedriver"), options=options)
+        self.driver = webdriver.Chrome(
+            service=Service(shutil.which("chromedriver") or "/usr/bin/chromedriver"), options=options
+        )
         self.driver.get(url)
 
     def text(self) -> str:
@@ -79,7 +92,8 @@ class HeadlessPage:
         """Close toasts (e.g. viser's note that WebGL runs in software)."""
         self.driver.execute_script(
             "document.querySelectorAll('.mantine-Notification-closeButton, [class*=Notification] button')"
-            ".forEach(b => b.click());")
+            ".forEach(b => b.click());"
+        )
 
     def screenshot(self, path: str | Path) -> Path:
         path = Path(path)

@@ -108,7 +108,11 @@ def region_layers(graph: SceneGraph, lift: float = REGION_LIFT) -> list[RegionLa
         pos[:, 2] = top + lift * level.level
         colours = to_uint8(region_colours(np.arange(len(level)), seed=level.level))
         segments = np.stack([pos[level.parent_of_child], below], axis=1).astype(np.float32)
-        layers.append(RegionLayer(level.level, pos, colours, segments, np.repeat(colours[level.parent_of_child][:, None], 2, axis=1)))
+        layers.append(
+            RegionLayer(
+                level.level, pos, colours, segments, np.repeat(colours[level.parent_of_child][:, None], 2, axis=1)
+            )
+        )
         below = pos
     return layers
 

@@ -27,8 +27,14 @@ if TYPE_CHECKING:
 WHAT = ("terrain", "places", "regions", "objects", "path")
 
 
-def render_bundle(loaded: "LoadedBundle", what: str, out: str | Path, dpi: int = 120, queries: Sequence[str] = (),
-                  plan: "PlanRequest | None" = None) -> dict[str, Any]:
+def render_bundle(
+    loaded: "LoadedBundle",
+    what: str,
+    out: str | Path,
+    dpi: int = 120,
+    queries: Sequence[str] = (),
+    plan: "PlanRequest | None" = None,
+) -> dict[str, Any]:
     """Draw figure `what` of the bundle into PNG `out` (replaced atomically); returns a summary.
     `queries`: objects to find for "objects"; `plan`: the plan request for "path"."""
     from terra.viz import figures
@@ -73,8 +79,17 @@ def mapped_extent(msm: "MetricSemanticMap", graph: "SceneGraph | None", reach: f
     return view_extent(np.vstack([lo, hi]))
 
 
-def _graph_figure(what: str, loaded: "LoadedBundle", graph: "SceneGraph", tmp: Path, background, dpi: int, extent: Extent,
-                  queries: Sequence[str], plan: "PlanRequest | None") -> dict[str, Any]:
+def _graph_figure(
+    what: str,
+    loaded: "LoadedBundle",
+    graph: "SceneGraph",
+    tmp: Path,
+    background,
+    dpi: int,
+    extent: Extent,
+    queries: Sequence[str],
+    plan: "PlanRequest | None",
+) -> dict[str, Any]:
     from terra.viz import figures
 
     if what == "places":
@@ -101,7 +116,20 @@ def _graph_figure(what: str, loaded: "LoadedBundle", graph: "SceneGraph", tmp: P
     path = result.plan
     shares = ", ".join(f"{k} {v:.0f} m" for k, v in path.length_by_terrain.items())
     task = result.goal.query or f"to place {result.goal.place}"
-    figures.paths_figure(tmp, graph, path.start, path.goal, [("plan", path.places, path.length_m)], task, background, dpi, extent,
-                         [shares])
-    return {"length_m": round(path.length_m, 4), "length_by_terrain": {k: round(v, 4) for k, v in path.length_by_terrain.items()},
-            "places": len(path.places)}
+    figures.paths_figure(
+        tmp,
+        graph,
+        path.start,
+        path.goal,
+        [("plan", path.places, path.length_m)],
+        task,
+        background,
+        dpi,
+        extent,
+        [shares],
+    )
+    return {
+        "length_m": round(path.length_m, 4),
+        "length_by_terrain": {k: round(v, 4) for k, v in path.length_by_terrain.items()},
+        "places": len(path.places),
+    }
