@@ -76,6 +76,9 @@ def test_viewer_queries_equal_the_task_api_on_a_fresh_load(viewer, interop_bundl
     expected = plan(LoadedBundle(interop_bundle.path), PlanRequest(from_node=2, to_node=30, prefer=["sidewalk"])).plan
     assert f"{expected.length_m:.1f} m over {len(expected.places)} places" in summary
     assert "No path" in viewer.run_plan("2", "30", forbid="sidewalk,grass,asphalt")
+    # A user error in the GUI is shown in its panel (one line), never raised into viser's thread.
+    viewer._guarded(lambda: viewer.run_plan("2", "30", prefer="lava"), viewer.plan_answer)
+    assert viewer.plan_answer.content.startswith("**Error:** unknown terrain &#x27;lava&#x27;")
 
 
 def test_colour_modes_colour_the_drawn_points(viewer):

@@ -218,9 +218,9 @@ class TerraViewer:
             self.similarity_text = gui.add_text("similar to", "")
             self.point_size = gui.add_slider("point size", 0.05, 2.0, 0.05, self._point_size())
             self.legend = gui.add_html(self._terrain_legend())
-        self.colour_mode.on_update(lambda _: self._guarded(self.recolour))
+        self.colour_mode.on_update(lambda _: self._guarded(self.recolour, self.legend))
         self.similarity_text.on_update(
-            lambda _: self._guarded(self.recolour) if self.colour_mode.value == "similarity" else None
+            lambda _: self._guarded(self.recolour, self.legend) if self.colour_mode.value == "similarity" else None
         )
         self.point_size.on_update(lambda _: setattr(self.points, "point_size", float(self.point_size.value)))
 
@@ -242,7 +242,7 @@ class TerraViewer:
             self.ask_button = gui.add_button("Run query")
             self.answer = gui.add_markdown("Type a query, e.g. *find the dumpster*, and run it.")
         self.ask_button.on_click(
-            lambda _: self._guarded(lambda: self._show(self.answer, self.run_query(self.task.value, self.query.value)))
+            lambda _: self._guarded(lambda: self.run_query(self.task.value, self.query.value), self.answer)
         )
 
     def _gui_plan(self) -> None:
@@ -259,10 +259,8 @@ class TerraViewer:
         pick_goal.on_click(lambda _: self._pick("goal"))
         self.plan_button.on_click(
             lambda _: self._guarded(
-                lambda: self._show(
-                    self.plan_answer,
-                    self.run_plan(self.start.value, self.goal.value, self.prefer.value, self.forbid.value),
-                )
+                lambda: self.run_plan(self.start.value, self.goal.value, self.prefer.value, self.forbid.value),
+                self.plan_answer,
             )
         )
 
@@ -278,17 +276,16 @@ class TerraViewer:
                 (self.start if self._picking == "start" else self.goal).value = str(place)
             self._picking = None
 
-    def _guarded(self, action) -> None:
-        """Run a GUI action; a user error is shown, not raised into viser's thread."""
+    def _guarded(self, action, target) -> None:
+        """Run a GUI action, one at a time, and show its text (if any) in the GUI element
+        `target`; a user error is shown there too, not raised into viser's thread."""
         try:
             with self._lock:
-                action()
+                text = action()
         except TerraError as exc:
-            self.answer.content = f"**Error:** {exc}"
-
-    @staticmethod
-    def _show(target, text: str) -> None:
-        target.content = text
+            text = f"**Error:** {_escape(str(exc))}"
+        if text is not None:
+            target.content = text
 
     def _terrain_legend(self) -> str:
         from terra.viz.style import terrain_palette
