@@ -48,7 +48,10 @@ class LoadedBundle:
         self.bundle = Bundle(path)
         recorded = self.bundle.manifest.get("embedder") or {}
         if not recorded.get("name"):
-            raise TerraError(f"{self.bundle.path / 'manifest.json'}: field 'embedder' is missing; rebuild the bundle with `terra map`")
+            raise TerraError(
+                f"{self.bundle.path / 'manifest.json'}: field 'embedder' is missing; "
+                "rebuild the bundle with `terra map`"
+            )
         self.embedder_name: str = str(recorded["name"])
         self.embedder_dim: int | None = int(recorded["dim"]) if recorded.get("dim") is not None else None
         check_configured_embedder(self.embedder_name, embedder_name, source=str(self.path))
@@ -60,7 +63,9 @@ class LoadedBundle:
         self._graph_loaded = False
         self._scorer: PointScorer | None = None
         self._cost_graphs: OrderedDict[tuple, CostGraph] = OrderedDict()
-        self._lock = threading.RLock()  # lazy loads and the cost-graph cache
+        self._searched: set[tuple] = set()  # cost graphs fetched more than once (see cost_graph)
+        self._lock = threading.RLock()  # the cost-graph cache and graph swaps
+        self._load_locks = {name: threading.Lock() for name in ("_msm", "_graph", "_embedder", "_scorer")}
         self.write_lock = threading.Lock()  # one writer at a time (update_graph)
 
     @property
@@ -78,7 +83,7 @@ class LoadedBundle:
     def _load_once(self, attribute: str, load: Callable[[], Any]) -> Any:
         value = getattr(self, attribute)
         if value is None:
-            with self._lock:
+            with self._load_locks[attribute]:  # one lock per part: parts load in parallel
                 value = getattr(self, attribute)
                 if value is None:
                     value = load()
@@ -101,7 +106,7 @@ class LoadedBundle:
     def graph(self) -> SceneGraph | None:
         """The scene graph, None when the bundle has none."""
         if not self._graph_loaded:
-            with self._lock:
+            with self._load_locks["_graph"]:
                 if not self._graph_loaded:
                     if self.has_graph:
                         from terra.graph.storage import load_scene_graph
@@ -114,7 +119,10 @@ class LoadedBundle:
         """The scene graph; TerraError naming `what` needs it when the bundle has none."""
         graph = self.graph
         if graph is None:
-            raise TerraError(f"{self.path}: the bundle has no scene graph, which {what} needs; build one with `terra build {self.path}`")
+            raise TerraError(
+                f"{self.path}: the bundle has no scene graph, which {what} needs; "
+                f"build one with `terra build {self.path}`"
+            )
         return graph
 
     @property
@@ -122,7 +130,9 @@ class LoadedBundle:
         """The map's text embedder, loaded on first use (warm afterwards, with its text cache)."""
         from terra.tasks.queries import resolve_embedder
 
-        return self._load_once("_embedder", lambda: resolve_embedder(self.embedder_name, self.embedder_dim, source=str(self.path)))
+        return self._load_once(
+            "_embedder", lambda: resolve_embedder(self.embedder_name, self.embedder_dim, source=str(self.path))
+        )
 
     @property
     def scorer(self) -> PointScorer:
@@ -141,13 +151,29 @@ class LoadedBundle:
             cached = self._cost_graphs.get(key)
             if cached is not None:
                 self._cost_graphs.move_to_end(key)
-                return cached
+                reused = key in self._searched
+                self._searched.add(key)
+        if cached is not None:
+            if not reused:  # asked for twice: worth A*'s adjacency lists from now on
+                from terra.tasks.astar import prepare_adjacency
+
+                prepare_adjacency(cached.indptr, cached.indices, cached.cost)
+            return cached
         built = CostGraph.build(graph, costs)
         with self._lock:
             self._cost_graphs[key] = built
             while len(self._cost_graphs) > COST_GRAPHS:
-                self._cost_graphs.popitem(last=False)
+                self._searched.discard(self._cost_graphs.popitem(last=False)[0])
         return built
+
+    def prefetch(self, *parts: str) -> None:
+        """Start loading `parts` ("embedder", "map", "graph") in background threads, so a cold
+        query overlaps the text model's start (onnxruntime releases the GIL) with its imports
+        and the map load. A later access waits for the load; a load that failed there is simply
+        tried again (and raises) where it is needed."""
+        getters = {"embedder": lambda: self.embedder, "map": lambda: self.msm, "graph": lambda: self.graph}
+        for part in parts:
+            threading.Thread(target=_quietly, args=(getters[part],), name=f"terra-load-{part}", daemon=True).start()
 
     def warm(self) -> None:
         """Load everything a query may need now (a service does this before it listens)."""
@@ -170,4 +196,12 @@ class LoadedBundle:
                 self.bundle = Bundle(self.path)
                 self._graph = graph
                 self._cost_graphs.clear()
+                self._searched.clear()
         return graph
+
+
+def _quietly(load: Callable[[], Any]) -> None:
+    try:
+        load()
+    except Exception:  # noqa: BLE001 (re-raised by the caller's own access)
+        pass

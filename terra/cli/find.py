@@ -19,17 +19,20 @@ def find_command(
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (object_tasks, alpha, prediction_method)."),
     save: bool = typer.Option(False, "--save", help="Add the objects to the bundle's scene graph (same-label objects are replaced)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the objects as JSON (the body `terra serve` answers POST /find with)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /find answers)."),
 ) -> None:
     """Find objects matching text QUERIES: oriented boxes with scores and their nearest place.
 
     Example: terra find campus.terra "find the dumpster" "get bike from the bicycle rack" --method 3dsg --json
     """
-    from terra.cli.render import render_find, render_json
     from terra.cli.task_options import find_request, load_tasks_config, open_bundle
-    from terra.tasks.commands import find
 
     request = find_request(queries or [], method, alpha, save, tasks)
     cfg = load_tasks_config(config)
-    result = find(open_bundle(bundle, cfg), request, cfg)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch("embedder")  # the text model starts while the query modules import
+    from terra.cli.render import render_find, render_json
+    from terra.tasks.commands import find
+
+    result = find(loaded, request, cfg)
     typer.echo(render_json(result) if as_json else render_find(result))

@@ -19,17 +19,20 @@ def monitor_command(
     alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."),
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (region_tasks, k, alpha, prediction_method)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the regions and places (with positions) as JSON (as POST /monitor)."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /monitor answers)."),
 ) -> None:
     """Choose the regions and places to monitor for each task in QUERIES.
 
     Example: terra monitor campus.terra "large parking lot surrounded by buildings" --k 2 --json
     """
-    from terra.cli.render import render_json, render_monitor
     from terra.cli.task_options import load_tasks_config, monitor_request, open_bundle
-    from terra.tasks.commands import monitor
 
     request = monitor_request(queries or [], method, k, alpha, tasks)
     cfg = load_tasks_config(config)
-    result = monitor(open_bundle(bundle, cfg), request, cfg)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch("embedder")  # the text model starts while the query modules import
+    from terra.cli.render import render_json, render_monitor
+    from terra.tasks.commands import monitor
+
+    result = monitor(loaded, request, cfg)
     typer.echo(render_json(result) if as_json else render_monitor(result))

@@ -13,11 +13,17 @@ from terra.cli import app
 @app.command("node")
 def node_command(
     bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
-    node: Optional[str] = typer.Argument(None, help="Node: p12 (place), R3 (region of level 1; S, T, ... above), O0 (object), "
-                                                    "Z0 (root) or a numeric spark_dsg id."),
-    at: Optional[Tuple[float, float]] = typer.Option(None, "--at", help="Instead of NODE: the place nearest X Y (metres, map "
-                                                                        "frame) and its regions."),
-    as_json: bool = typer.Option(False, "--json", help="Print JSON (the body of GET /nodes/NODE or GET /locate?x=X&y=Y)."),
+    node: Optional[str] = typer.Argument(
+        None,
+        help="Node: p12 (place), R3 (region of level 1; S, T, ... above), O0 (object), "
+        "Z0 (root) or a numeric spark_dsg id.",
+    ),
+    at: Optional[Tuple[float, float]] = typer.Option(
+        None, "--at", help="Instead of NODE: the place nearest X Y (metres, map frame) and its regions."
+    ),
+    as_json: bool = typer.Option(
+        False, "--json", help="Print JSON (the body of GET /nodes/NODE or GET /locate?x=X&y=Y)."
+    ),
 ) -> None:
     """Look up a scene-graph node: a place's terrain, neighbours, regions and objects; a region's
     level, parent, children and places; an object's box. With --at, the place nearest a point.

@@ -34,11 +34,16 @@ def plan_command(
 
     Example: terra plan campus.terra --to "get bike from the bicycle rack" --prefer sidewalk --forbid water --json
     """
-    from terra.cli.render import render_json, render_plan
     from terra.cli.task_options import load_tasks_config, open_bundle, plan_request
+
+    request = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [],
+                           method, alpha, tasks)
+    cfg = load_tasks_config(config)
+    loaded = open_bundle(bundle, cfg)
+    if request.to is not None or request.from_query is not None:
+        loaded.prefetch("embedder")  # the text model starts while the query modules import
+    from terra.cli.render import render_json, render_plan
     from terra.tasks.commands import plan
 
-    request = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [], method, alpha, tasks)
-    cfg = load_tasks_config(config)
-    result = plan(open_bundle(bundle, cfg), request, cfg)
+    result = plan(loaded, request, cfg)
     typer.echo(render_json(result) if as_json else render_plan(result))

@@ -75,7 +75,9 @@ def _task_file(path: Path | None) -> TaskFile:
     return load_task_file(path) if path is not None else TaskFile()
 
 
-def find_request(queries: Sequence[str], method: str | None, alpha: float | None, save: bool, tasks: Path | None) -> FindRequest:
+def find_request(
+    queries: Sequence[str], method: str | None, alpha: float | None, save: bool, tasks: Path | None
+) -> FindRequest:
     """Command-line queries first, then the task file's; flags win over the file's values."""
     from terra.tasks.requests import FindRequest
 
@@ -83,27 +85,52 @@ def find_request(queries: Sequence[str], method: str | None, alpha: float | None
     task_file = _task_file(tasks)
     file_method, feature = task_file.object_method(str(tasks))
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
-    return build(FindRequest, "command line", {"queries": list(queries) + task_file.object_queries(),
-                                               "method": method or file_method, "alpha": alpha, "point_feature": feature,
-                                               "save": save})
+    return build(
+        FindRequest,
+        "command line",
+        {
+            "queries": list(queries) + task_file.object_queries(),
+            "method": method or file_method,
+            "alpha": alpha,
+            "point_feature": feature,
+            "save": save,
+        },
+    )
 
 
-def monitor_request(queries: Sequence[str], method: str | None, k: int | None, alpha: float | None,
-                    tasks: Path | None) -> MonitorRequest:
+def monitor_request(
+    queries: Sequence[str], method: str | None, k: int | None, alpha: float | None, tasks: Path | None
+) -> MonitorRequest:
     from terra.tasks.requests import MonitorRequest
 
     check_choice("--method", method, ("mix", "max", "thresh", "aib"))
     task_file = _task_file(tasks)
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
-    return build(MonitorRequest, "command line", {"queries": list(queries) + task_file.region_queries(),
-                                                  "method": method or task_file.region_method(str(tasks)),
-                                                  "k": k if k is not None else task_file.k, "alpha": alpha})
+    return build(
+        MonitorRequest,
+        "command line",
+        {
+            "queries": list(queries) + task_file.region_queries(),
+            "method": method or task_file.region_method(str(tasks)),
+            "k": k if k is not None else task_file.k,
+            "alpha": alpha,
+        },
+    )
 
 
-def plan_request(to: str | None = None, to_node: int | None = None, from_query: str | None = None, from_node: int | None = None,
-                 from_xy: tuple[float, float] | None = None, prefer: Sequence[str] = (), penalty: Sequence[str] = (),
-                 forbid: Sequence[str] = (), method: str | None = None, alpha: float | None = None,
-                 tasks: Path | None = None) -> PlanRequest:
+def plan_request(
+    to: str | None = None,
+    to_node: int | None = None,
+    from_query: str | None = None,
+    from_node: int | None = None,
+    from_xy: tuple[float, float] | None = None,
+    prefer: Sequence[str] = (),
+    penalty: Sequence[str] = (),
+    forbid: Sequence[str] = (),
+    method: str | None = None,
+    alpha: float | None = None,
+    tasks: Path | None = None,
+) -> PlanRequest:
     """Flags first; the task file's terrain preferences are merged under them and its start and
     destination fill what the flags leave unset."""
     from terra.tasks.requests import PlanRequest
@@ -119,9 +146,20 @@ def plan_request(to: str | None = None, to_node: int | None = None, from_query: 
     file_method, feature = task_file.object_method(str(tasks))
     penalties = {str(k): float(v) for k, v in prefs.penalties.items()}
     penalties.update(parse_penalties(penalty))
-    return build(PlanRequest, "command line", {
-        "to": to, "to_node": to_node, "from": from_query, "from_node": from_node, "from_xy": from_xy,
-        "prefer": [str(t) for t in prefs.preferred] + list(prefer), "penalty": penalties,
-        "forbid": [str(t) for t in prefs.forbidden] + list(forbid), "method": method or file_method,
-        "alpha": check_alpha(alpha if alpha is not None else task_file.alpha), "point_feature": feature,
-    })
+    return build(
+        PlanRequest,
+        "command line",
+        {
+            "to": to,
+            "to_node": to_node,
+            "from": from_query,
+            "from_node": from_node,
+            "from_xy": from_xy,
+            "prefer": [str(t) for t in prefs.preferred] + list(prefer),
+            "penalty": penalties,
+            "forbid": [str(t) for t in prefs.forbidden] + list(forbid),
+            "method": method or file_method,
+            "alpha": check_alpha(alpha if alpha is not None else task_file.alpha),
+            "point_feature": feature,
+        },
+    )

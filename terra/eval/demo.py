@@ -230,7 +230,8 @@ class DemoRun:
         from terra.eval.runner import evaluate
         from terra.loaded import LoadedBundle
 
-        loaded = LoadedBundle(scene.bundle, embedder_name=self.config.tasks.embedder)  # one load for tasks and evaluation
+        # One load of the bundle for the tasks and the evaluation.
+        loaded = LoadedBundle(scene.bundle, embedder_name=self.config.tasks.embedder)
         with self.timer.stage("test: tasks"):
             tasks = run_tasks(loaded, load_ground_truth(scene.dataset), tuned, self.config.tasks)
         evaluate(scene.bundle, scene.dataset, report, self.config.eval, tuned, self.config.tasks,
@@ -285,13 +286,15 @@ def _find(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config:
     from terra.tasks.requests import FindRequest
 
     method = config.retrieval.method
-    result = find(loaded, FindRequest(queries=list(FIND_QUERIES), method=method, alpha=tuned.retrieval_alpha(method)), config)
+    request = FindRequest(queries=list(FIND_QUERIES), method=method, alpha=tuned.retrieval_alpha(method))
+    result = find(loaded, request, config)
     out = []
     for q, query in enumerate(result.queries):
         mine = [(i, o) for i, o in enumerate(result.objects) if o.query == q]
         rows = [dict(id=i, **o.to_json()) for i, o in mine]
         best = max(rows, key=lambda o: o["score"], default=None)
-        entry: dict[str, Any] = {"query": query, "method": method, "alpha": result.alpha, "objects": len(mine), "best": best}
+        entry: dict[str, Any] = {"query": query, "method": method, "alpha": result.alpha, "objects": len(mine),
+                                 "best": best}
         if best is not None:
             entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt))
         out.append(entry)
@@ -338,8 +341,8 @@ def _plan(loaded: LoadedBundle, tuned: TunedParameters, config: TasksConfig) -> 
     except TerraError as exc:  # no object or no path: the demo reports it and goes on
         return {**entry, "error": str(exc)}
     path = result.plan.to_json()
-    entry.update({"length_m": path["length_m"], "places": len(path["places"]), "length_by_terrain": path["length_by_terrain"],
-                  "goal": result.goal.object.to_json()["center"]})
+    entry.update({"length_m": path["length_m"], "places": len(path["places"]),
+                  "length_by_terrain": path["length_by_terrain"], "goal": result.goal.object.to_json()["center"]})
     return entry
 
 

@@ -77,7 +77,8 @@ class EvalInputs:
         dataset = open_dataset(gt_root)
         mapped = mapped_dataset_name(loaded.bundle)
         if mapped and mapped != dataset.name:
-            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {loaded.path} was mapped from ({mapped!r})")
+            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {loaded.path} was mapped from "
+                             f"({mapped!r})")
         loaded.require_map("evaluation")
         loaded.embedder  # noqa: B018 (loaded now: evaluation embeds many texts)
         return cls(loaded, gt, Path(gt_root), dataset=dataset, dataset_name=dataset.name)

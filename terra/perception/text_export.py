@@ -12,9 +12,10 @@ takes several. So the text model runs through onnxruntime and the `tokenizers` p
   embeddings -> mean pooling over the attention mask -> L2 normalisation, exactly as its modules
   do. Before the folder is published, onnxruntime's vectors for PROBE_TEXTS must equal
   sentence-transformers' to EXPORT_TOLERANCE; the probe vectors are recorded in export.json.
-- Concurrency: the export is assembled in a temporary sibling folder and renamed into place, so a
-  reader never sees half an export; a file lock beside the folder makes concurrent first uses
-  (several CLI processes, a service and a CLI) export once while the others wait for it.
+- Concurrency (terra.perception.text_onnx.prepare_export): the export is assembled in a
+  temporary sibling folder and renamed into place, so a reader never sees half an export; a
+  file lock beside the folder makes concurrent first uses (several CLI processes, a service and
+  a CLI) export once while the others wait for it.
 - Integrity: every load checks each file against export.json: one whose size, modification time
   and inode are those recorded at export is the file written then; any other is hashed and must
   match its SHA-256 (about 50 ms for the 90 MB model). A folder that fails is exported again.
@@ -27,7 +28,6 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -40,8 +40,13 @@ EXPORT_TOLERANCE = 1e-5  # max |ONNX - sentence-transformers| per vector compone
 EXPORT_JSON = "export.json"
 MODEL_FILE = "model.onnx"
 TOKENIZER_FILE = "tokenizer.json"
-PROBE_TEXTS = ("find the dumpster", "  Get bike from the BICYCLE rack!  ", "grass", "a large parking lot surrounded by buildings "
-               "next to the tall office block, with trees along its northern edge and two rows of parked cars")
+PROBE_TEXTS = (
+    "find the dumpster",
+    "  Get bike from the BICYCLE rack!  ",
+    "grass",
+    "a large parking lot surrounded by buildings "
+    "next to the tall office block, with trees along its northern edge and two rows of parked cars",
+)
 LOCK_TIMEOUT_S = 900.0  # how long a process waits for another one's export
 
 
@@ -109,7 +114,11 @@ def _unchanged(path: Path, entry: dict[str, Any]) -> bool:
         stat = path.stat()
     except OSError:
         return False
-    return (stat.st_size, stat.st_mtime_ns, stat.st_ino) == (entry.get("bytes"), entry.get("mtime_ns"), entry.get("inode"))
+    return (stat.st_size, stat.st_mtime_ns, stat.st_ino) == (
+        entry.get("bytes"),
+        entry.get("mtime_ns"),
+        entry.get("inode"),
+    )
 
 
 def read_export(folder: Path) -> ExportedTextModel:
@@ -128,60 +137,19 @@ def read_export(folder: Path) -> ExportedTextModel:
                 continue
             data = (folder / file_name).read_bytes()
             if entry.get("bytes") != len(data) or entry.get("sha256") != _sha256(data):
-                raise ExportUnavailable(f"{folder / file_name}: size or checksum differs from {EXPORT_JSON} (corrupt export)")
+                raise ExportUnavailable(
+                    f"{folder / file_name}: size or checksum differs from {EXPORT_JSON} (corrupt export)"
+                )
     except (OSError, ValueError, AttributeError) as exc:
         raise ExportUnavailable(f"{folder}: no complete export ({exc})") from None
     return ExportedTextModel(folder, folder / MODEL_FILE, folder / TOKENIZER_FILE, info)
 
 
-def prepare_export(name: str, source_dir: Path, package: str | None = None, root: Path | None = None,
-                   force: bool = False) -> ExportedTextModel:
-    """The checked export of `name`, made first when absent or corrupt (once across processes).
-    force: export again even when the folder passes its checks (e.g. its probe vectors no longer
-    match under this onnxruntime)."""
-    folder = export_folder(name, Path(source_dir), package, root)
-    if not force:
-        try:
-            return read_export(folder)
-        except ExportUnavailable:
-            pass
-    try:
-        from filelock import FileLock, Timeout
-
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(str(folder) + ".lock", timeout=LOCK_TIMEOUT_S)
-        with lock:
-            try:
-                if not force:
-                    return read_export(folder)  # another process finished it while we waited
-            except ExportUnavailable:
-                pass
-            _export_into(folder, name, Path(source_dir))
-    except Timeout:
-        raise ExportUnavailable(f"{folder}: another process held the export lock for over {LOCK_TIMEOUT_S:g} s") from None
-    except OSError as exc:
-        raise ExportUnavailable(f"{folder}: cannot write the export ({exc})") from None
-    return read_export(folder)
-
-
-def _export_into(folder: Path, name: str, source_dir: Path) -> None:
-    """Export into a temporary sibling, then swap it in place of `folder` (caller holds the lock)."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    try:
-        export_sentence_model(name, source_dir, tmp)
-        if folder.exists():
-            stale = folder.with_name(f".{folder.name}.stale-{os.getpid()}")
-            os.replace(folder, stale)
-            shutil.rmtree(stale, ignore_errors=True)
-        os.replace(tmp, folder)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, Any]:
     """Export the sentence-transformers model in `source_dir` to `out` (model.onnx,
-    tokenizer.json, export.json) and check it against sentence-transformers on PROBE_TEXTS.
-    Returns export.json's content. Needs torch and sentence-transformers (imported here only)."""
+    tokenizer.json, export.json with sentence-transformers' vectors of PROBE_TEXTS, which the
+    runtime checks before the folder is published). Returns export.json's content. Needs torch
+    and sentence-transformers (imported here only)."""
     try:
         import torch
         from sentence_transformers import SentenceTransformer
@@ -196,19 +164,30 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
     model = SentenceTransformer(str(source_dir), device="cpu").eval()
     wrapper, normalize = _pooled_encoder(model, torch)
     example = Tokenizer.from_file(str(source_dir / TOKENIZER_FILE)).encode(PROBE_TEXTS[0])
-    inputs = tuple(torch.tensor([ids], dtype=torch.int64) for ids in (example.ids, example.attention_mask, example.type_ids))
+    inputs = tuple(
+        torch.tensor([ids], dtype=torch.int64) for ids in (example.ids, example.attention_mask, example.type_ids)
+    )
     dynamic = {k: {0: "batch", 1: "tokens"} for k in ("input_ids", "attention_mask", "token_type_ids")}
     dynamic["sentence_embedding"] = {0: "batch"}
     import warnings
 
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notes
-        torch.onnx.export(wrapper, inputs, str(out / MODEL_FILE), input_names=["input_ids", "attention_mask", "token_type_ids"],
-                          output_names=["sentence_embedding"], dynamic_axes=dynamic, opset_version=17, dynamo=False,
-                          do_constant_folding=True)
+        torch.onnx.export(
+            wrapper,
+            inputs,
+            str(out / MODEL_FILE),
+            input_names=["input_ids", "attention_mask", "token_type_ids"],
+            output_names=["sentence_embedding"],
+            dynamic_axes=dynamic,
+            opset_version=17,
+            dynamo=False,
+            do_constant_folding=True,
+        )
     shutil.copyfile(source_dir / TOKENIZER_FILE, out / TOKENIZER_FILE)
-    reference = np.vstack([model.encode([t], batch_size=1, normalize_embeddings=normalize, convert_to_numpy=True)
-                           for t in PROBE_TEXTS]).astype(np.float32)
+    reference = np.vstack(
+        [model.encode([t], batch_size=1, normalize_embeddings=normalize, convert_to_numpy=True) for t in PROBE_TEXTS]
+    ).astype(np.float32)
     info: dict[str, Any] = {
         "format": EXPORT_FORMAT,
         "name": name,
@@ -221,11 +200,6 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
     }
     for file_name in (MODEL_FILE, TOKENIZER_FILE):
         info["files"][file_name] = _file_entry(out / file_name, (out / file_name).read_bytes())
-    from terra.perception.text_onnx import OnnxTextEmbedder
-
-    # onnxruntime + tokenizers must give sentence-transformers' vectors for every probe text
-    # (on load, the runtime repeats this for the first one).
-    OnnxTextEmbedder(name, ExportedTextModel(out, out / MODEL_FILE, out / TOKENIZER_FILE, info), probes=len(PROBE_TEXTS))
     (out / EXPORT_JSON).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
     return info
 
@@ -235,10 +209,19 @@ def _pooled_encoder(model: Any, torch: Any) -> tuple[Any, bool]:
     normalisation), and whether it normalises. ExportUnavailable for other module stacks."""
     modules = list(model)
     kinds = [type(m).__name__ for m in modules]
-    if len(modules) < 2 or kinds[1] != "Pooling" or kinds[0] != "Transformer" or any(k != "Normalize" for k in kinds[2:]):
-        raise ExportUnavailable(f"only Transformer -> Pooling [-> Normalize] models can be exported, got {' -> '.join(kinds)}")
+    if (
+        len(modules) < 2
+        or kinds[1] != "Pooling"
+        or kinds[0] != "Transformer"
+        or any(k != "Normalize" for k in kinds[2:])
+    ):
+        raise ExportUnavailable(
+            f"only Transformer -> Pooling [-> Normalize] models can be exported, got {' -> '.join(kinds)}"
+        )
     pooling = modules[1]
-    mode = getattr(pooling, "pooling_mode", None) or ("mean" if getattr(pooling, "pooling_mode_mean_tokens", False) else None)
+    mode = getattr(pooling, "pooling_mode", None) or (
+        "mean" if getattr(pooling, "pooling_mode_mean_tokens", False) else None
+    )
     if mode not in ("mean", ["mean"], ("mean",)):
         raise ExportUnavailable(f"only mean pooling can be exported, got {mode!r}")
     normalize = "Normalize" in kinds[2:]

@@ -7,17 +7,35 @@ without importing torch: a fresh process embeds its first query in tens of milli
 Determinism: every distinct text is encoded alone, with no padding, so its vector depends only on
 the text itself, never on the other texts of the call or on what the process embedded before.
 That makes a per-text cache exact: repeated texts (a robot asking again) cost a dictionary lookup.
+
+`prepare_export` finds or makes the export (terra.perception.text_export describes the folder):
+under a file lock, into a temporary sibling that is published by rename only after this runtime
+gave sentence-transformers' vectors for every probe text.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import threading
 from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
 
-from terra.perception.text_export import EXPORT_TOLERANCE, ExportedTextModel, ExportUnavailable, prepare_export
+from terra.perception.text_export import (
+    EXPORT_TOLERANCE,
+    LOCK_TIMEOUT_S,
+    MODEL_FILE,
+    PROBE_TEXTS,
+    TOKENIZER_FILE,
+    ExportedTextModel,
+    ExportUnavailable,
+    export_folder,
+    export_sentence_model,
+    read_export,
+)
 
 CACHED_TEXTS = 4096  # vectors kept per embedder (least recently used dropped first)
 
@@ -41,7 +59,9 @@ class OnnxTextEmbedder:
         options.inter_op_num_threads = 1
         options.log_severity_level = 3
         try:
-            self._session = onnxruntime.InferenceSession(str(model.model_path), options, providers=["CPUExecutionProvider"])
+            self._session = onnxruntime.InferenceSession(
+                str(model.model_path), options, providers=["CPUExecutionProvider"]
+            )
             self._tokenizer = Tokenizer.from_file(str(model.tokenizer_path))
         except Exception as exc:  # onnxruntime and tokenizers raise their own types for unreadable files
             raise ExportUnavailable(f"{model.folder}: cannot load the export ({type(exc).__name__}: {exc})") from None
@@ -62,8 +82,10 @@ class OnnxTextEmbedder:
         got = np.vstack([self._encode(t) for t in texts])
         error = float(np.abs(got - expected).max())
         if not error <= EXPORT_TOLERANCE:
-            raise ExportUnavailable(f"{model.folder}: onnxruntime vectors differ from sentence-transformers' by {error:.2e} "
-                                    f"(> {EXPORT_TOLERANCE:g})")
+            raise ExportUnavailable(
+                f"{model.folder}: onnxruntime vectors differ from sentence-transformers' by {error:.2e} "
+                f"(> {EXPORT_TOLERANCE:g})"
+            )
 
     def _encode(self, text: str) -> np.ndarray:
         """(dim,) float32 unit vector of one text, alone (no padding)."""
@@ -98,6 +120,58 @@ class OnnxTextEmbedder:
             if len(self._cache) > CACHED_TEXTS:
                 self._cache.popitem(last=False)
         return vector
+
+
+def prepare_export(
+    name: str, source_dir: Path, package: str | None = None, root: Path | None = None, force: bool = False
+) -> ExportedTextModel:
+    """The checked export of `name`, made first when absent or corrupt (once across processes).
+    force: export again even when the folder passes its checks (e.g. its probe vectors no longer
+    match under this onnxruntime)."""
+    folder = export_folder(name, Path(source_dir), package, root)
+    if not force:
+        try:
+            return read_export(folder)
+        except ExportUnavailable:
+            pass
+    try:
+        from filelock import FileLock, Timeout
+
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(str(folder) + ".lock", timeout=LOCK_TIMEOUT_S)
+        with lock:
+            try:
+                if not force:
+                    return read_export(folder)  # another process finished it while we waited
+            except ExportUnavailable:
+                pass
+            _export_into(folder, name, Path(source_dir))
+    except Timeout:
+        raise ExportUnavailable(
+            f"{folder}: another process held the export lock for over {LOCK_TIMEOUT_S:g} s"
+        ) from None
+    except OSError as exc:
+        raise ExportUnavailable(f"{folder}: cannot write the export ({exc})") from None
+    return read_export(folder)
+
+
+def _export_into(folder: Path, name: str, source_dir: Path) -> None:
+    """Export into a temporary sibling, then swap it in place of `folder` (caller holds the lock)."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    try:
+        info = export_sentence_model(name, source_dir, tmp)
+        # onnxruntime + tokenizers must give sentence-transformers' vectors for every probe text
+        # before the folder is published (on load, only the first one is checked again).
+        OnnxTextEmbedder(
+            name, ExportedTextModel(tmp, tmp / MODEL_FILE, tmp / TOKENIZER_FILE, info), probes=len(PROBE_TEXTS)
+        )
+        if folder.exists():
+            stale = folder.with_name(f".{folder.name}.stale-{os.getpid()}")
+            os.replace(folder, stale)
+            shutil.rmtree(stale, ignore_errors=True)
+        os.replace(tmp, folder)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def onnx_text_embedder(name: str, source_dir: Path, package: str | None = None) -> OnnxTextEmbedder:

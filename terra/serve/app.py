@@ -59,8 +59,12 @@ def create_app(loaded: LoadedBundle, tasks: TasksConfig | None = None, settings:
     """The service for `loaded` (loading happens lazily unless the caller warmed it)."""
     tasks = tasks or TasksConfig()
     settings = settings or ServeConfig()
-    app = FastAPI(title="Terra", version=__version__, summary="Task queries on a terrain-aware 3D scene graph",
-                  description=__doc__)
+    app = FastAPI(
+        title="Terra",
+        version=__version__,
+        summary="Task queries on a terrain-aware 3D scene graph",
+        description=__doc__,
+    )
     app.state.loaded = loaded
     _errors(app)
     _routes(app, loaded, tasks, settings)
@@ -85,10 +89,17 @@ def _routes(app: FastAPI, loaded: LoadedBundle, tasks: TasksConfig, settings: Se
     def health() -> JSONResponse:
         graph = loaded.graph
         components = loaded.bundle.manifest.get("components", {})
-        return JSONResponse({"status": "ok", "terra": __version__, "bundle": str(loaded.path), "embedder": loaded.embedder_name,
-                             "points": (components.get("map") or {}).get("points", 0),
-                             "places": len(graph.places) if graph is not None else 0,
-                             "regions": [len(level) for level in graph.regions] if graph is not None else []})
+        return JSONResponse(
+            {
+                "status": "ok",
+                "terra": __version__,
+                "bundle": str(loaded.path),
+                "embedder": loaded.embedder_name,
+                "points": (components.get("map") or {}).get("points", 0),
+                "places": len(graph.places) if graph is not None else 0,
+                "regions": [len(level) for level in graph.regions] if graph is not None else [],
+            }
+        )
 
     @app.post("/find", summary="Objects for text queries (terra find --json)")
     def find(request: FindRequest) -> JSONResponse:
@@ -114,8 +125,9 @@ def _routes(app: FastAPI, loaded: LoadedBundle, tasks: TasksConfig, settings: Se
         return answer(region_info(loaded.require_graph("region lookups"), level, index))
 
     @app.get("/locate", summary="The place nearest (x, y) and its regions (terra node BUNDLE --at X Y --json)")
-    def where(x: float = Query(..., description="metres, map frame"), y: float = Query(..., description="metres, map frame")
-              ) -> JSONResponse:
+    def where(
+        x: float = Query(..., description="metres, map frame"), y: float = Query(..., description="metres, map frame")
+    ) -> JSONResponse:
         return answer(locate(loaded.require_graph("locating points"), x, y))
 
 
@@ -135,7 +147,9 @@ def _errors(app: FastAPI) -> None:
         err = exc.errors()[0] if exc.errors() else {"loc": (), "msg": "invalid request", "type": ""}
         where = ".".join(str(p) for p in err.get("loc", ()))
         if err.get("type") == "json_invalid":
-            return error_response(400, "bad_request", f"malformed JSON body: {err.get('ctx', {}).get('error', err['msg'])}")
+            return error_response(
+                400, "bad_request", f"malformed JSON body: {err.get('ctx', {}).get('error', err['msg'])}"
+            )
         return error_response(422, "invalid", f"{where}: {err['msg']}")
 
     @app.exception_handler(StarletteHTTPException)
@@ -169,8 +183,13 @@ class Guard:
         if self.token is not None:
             scheme, _, given = headers.get(b"authorization", b"").partition(b" ")
             if scheme.lower() != b"bearer" or not hmac.compare_digest(given.strip(), self.token):
-                await _send(send, 401, "unauthorized", "missing or wrong bearer token (Authorization: Bearer TOKEN)",
-                            [(b"www-authenticate", b"Bearer")])
+                await _send(
+                    send,
+                    401,
+                    "unauthorized",
+                    "missing or wrong bearer token (Authorization: Bearer TOKEN)",
+                    [(b"www-authenticate", b"Bearer")],
+                )
                 return
         declared = headers.get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > self.max_body_bytes:
@@ -186,6 +205,14 @@ class Guard:
             if len(body) > self.max_body_bytes:
                 await _send(send, 413, "too_large", f"request body over {self.max_body_bytes} bytes")
                 return
+        if body and not headers.get(b"content-type", b"").startswith(b"application/json"):
+            # Every body here is JSON: `curl -d '{...}'` (form content type) or a bare client
+            # should get the JSON parsed, not a form error.
+            scope = dict(
+                scope,
+                headers=[(k, v) for k, v in scope["headers"] if k.lower() != b"content-type"]
+                + [(b"content-type", b"application/json")],
+            )
         replayed = False
 
         async def replay() -> dict:
@@ -199,7 +226,7 @@ class Guard:
 
 
 async def _send(send: Callable, status: int, kind: str, message: str, extra: list | None = None) -> None:
-    data = json.dumps({"error": message, "kind": kind}).encode()
+    data = json.dumps({"error": message, "kind": kind}, separators=(",", ":")).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(data)).encode())] + (extra or [])
     await send({"type": "http.response.start", "status": status, "headers": headers})
     await send({"type": "http.response.body", "body": data})

@@ -36,8 +36,16 @@ def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None 
     alpha = request.alpha
     if alpha is None:
         alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
-    found = find_objects(loaded.msm, graph, queries, method=method, alpha=alpha, config=config, embedder=loaded.embedder,
-                         scorer=loaded.scorer)
+    found = find_objects(
+        loaded.msm,
+        graph,
+        queries,
+        method=method,
+        alpha=alpha,
+        config=config,
+        embedder=loaded.embedder,
+        scorer=loaded.scorer,
+    )
     if request.save:
         loaded.update_graph(lambda current: with_objects(current, found))
     return FindResult(loaded.path, method, float(alpha), queries, found, saved=request.save)
@@ -53,7 +61,10 @@ def monitor(loaded: LoadedBundle, request: MonitorRequest, config: TasksConfig |
     alpha = request.alpha
     if alpha is None:
         alpha = alpha_for(config.monitoring.alpha, config.monitoring.default_alpha, loaded.embedder_name)
-    results = [monitor_region(graph, q, method=method, k=k, alpha=alpha, embedder=loaded.embedder, config=config) for q in queries]
+    results = [
+        monitor_region(graph, q, method=method, k=k, alpha=alpha, embedder=loaded.embedder, config=config)
+        for q in queries
+    ]
     return MonitorResults(loaded.path, method, int(k), float(alpha), results, graph)
 
 
@@ -77,8 +88,10 @@ def _object_place(graph: SceneGraph, obj: FoundObject, allowed: np.ndarray, radi
     place = nearest_allowed_place(graph, obj.center, allowed, radius)
     if place < 0:
         terrain = graph.terrain_classes[int(graph.places.terrain[obj.place])]
-        raise NoPathError(f"no path: the {role} object {obj.label!r} is at place {obj.place} on forbidden terrain "
-                          f"{terrain!r} and no allowed place lies within {radius:g} m of it")
+        raise NoPathError(
+            f"no path: the {role} object {obj.label!r} is at place {obj.place} on forbidden terrain "
+            f"{terrain!r} and no allowed place lies within {radius:g} m of it"
+        )
     return place
 
 
@@ -91,24 +104,38 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     if sum(x is not None for x in (request.from_query, request.from_node, request.from_xy)) > 1:
         raise TerraError("give at most one of --from, --from-node and --from-xy")
     graph = loaded.require_graph("terra plan")
-    costs = TerrainCosts.from_preferences(graph.terrain_classes, request.prefer, request.penalty, request.forbid,
-                                          config.planning.default_penalty)
+    costs = TerrainCosts.from_preferences(
+        graph.terrain_classes, request.prefer, request.penalty, request.forbid, config.planning.default_penalty
+    )
     cost_graph = loaded.cost_graph(costs)
-    object_queries = clean_queries([q for q in (request.to, request.from_query) if q is not None]) \
-        if (request.to is not None or request.from_query is not None) else []
+    object_queries = (
+        clean_queries([q for q in (request.to, request.from_query) if q is not None])
+        if (request.to is not None or request.from_query is not None)
+        else []
+    )
     found: list[FoundObject] = []
     if object_queries:
         method = request.method or config.planning.find_method
         alpha = request.alpha
         if alpha is None:
             alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
-        found = find_objects(loaded.msm, graph, object_queries, method=method, alpha=alpha, config=config,
-                             embedder=loaded.embedder, scorer=loaded.scorer)
+        found = find_objects(
+            loaded.msm,
+            graph,
+            object_queries,
+            method=method,
+            alpha=alpha,
+            config=config,
+            embedder=loaded.embedder,
+            scorer=loaded.scorer,
+        )
     goal = _goal(graph, request, found, object_queries, cost_graph, config)
     start = _start(loaded, graph, request, found, object_queries, cost_graph, config)
     for end, role in ((start, "start"), (goal, "goal")):
         if not 0 <= end.place < len(graph.places):
-            raise TerraError(f"{role} place {end.place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+            raise TerraError(
+                f"{role} place {end.place} does not exist; the graph has places 0..{len(graph.places) - 1}"
+            )
     path = plan_on(graph, cost_graph, start.place, goal.place)
     penalty = {graph.terrain_classes[t]: float(costs.penalty[t]) for t in range(len(graph.terrain_classes))}
     forbidden = [graph.terrain_classes[t] for t in np.flatnonzero(costs.forbidden)]
@@ -122,16 +149,31 @@ def _object_for(found: list[FoundObject], queries: list[str], q: int, role: str)
     return obj
 
 
-def _goal(graph: SceneGraph, request: PlanRequest, found: list[FoundObject], queries: list[str], cost_graph: CostGraph,
-          config: TasksConfig) -> PlanEnd:
+def _goal(
+    graph: SceneGraph,
+    request: PlanRequest,
+    found: list[FoundObject],
+    queries: list[str],
+    cost_graph: CostGraph,
+    config: TasksConfig,
+) -> PlanEnd:
     if request.to is None:
         return PlanEnd(int(request.to_node))
     obj = _object_for(found, queries, 0, "destination")
-    return PlanEnd(_object_place(graph, obj, cost_graph.allowed, config.planning.goal_radius, "goal"), query=request.to, object=obj)
+    return PlanEnd(
+        _object_place(graph, obj, cost_graph.allowed, config.planning.goal_radius, "goal"), query=request.to, object=obj
+    )
 
 
-def _start(loaded: LoadedBundle, graph: SceneGraph, request: PlanRequest, found: list[FoundObject], queries: list[str],
-           cost_graph: CostGraph, config: TasksConfig) -> PlanEnd:
+def _start(
+    loaded: LoadedBundle,
+    graph: SceneGraph,
+    request: PlanRequest,
+    found: list[FoundObject],
+    queries: list[str],
+    cost_graph: CostGraph,
+    config: TasksConfig,
+) -> PlanEnd:
     allowed = cost_graph.allowed
     if request.from_query is not None:
         obj = _object_for(found, queries, len(queries) - 1, "start")
@@ -140,7 +182,10 @@ def _start(loaded: LoadedBundle, graph: SceneGraph, request: PlanRequest, found:
     if request.from_node is not None:
         return PlanEnd(int(request.from_node), "given place")
     if request.from_xy is not None:
-        xy, how = np.asarray(request.from_xy, dtype=np.float64), f"nearest allowed place to ({request.from_xy[0]:g}, {request.from_xy[1]:g})"
+        xy, how = (
+            np.asarray(request.from_xy, dtype=np.float64),
+            f"nearest allowed place to ({request.from_xy[0]:g}, {request.from_xy[1]:g})",
+        )
     elif loaded.has_map and len(loaded.msm.images):
         xy, how = loaded.msm.images.position[0, :2], "nearest allowed place to the first camera pose"
     else:

@@ -40,8 +40,10 @@ def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarra
     both = core[i] & core[j]
     position = np.full(n, -1, dtype=np.int64)
     position[cores] = np.arange(cores.size)
-    graph = sp.coo_matrix((np.ones(int(both.sum()), dtype=np.int8), (position[i[both]], position[j[both]])),
-                          shape=(cores.size, cores.size))
+    graph = sp.coo_matrix(
+        (np.ones(int(both.sum()), dtype=np.int8), (position[i[both]], position[j[both]])),
+        shape=(cores.size, cores.size),
+    )
     _, component = connected_components(graph, directed=False)
     first_core = np.full(component.max() + 1, n, dtype=np.int64)
     np.minimum.at(first_core, component, cores)

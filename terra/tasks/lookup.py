@@ -17,6 +17,7 @@ import numpy as np
 from terra.errors import TerraError
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
 
+
 class UnknownNode(TerraError):
     """A node, region or place that the scene graph does not hold."""
 
@@ -47,7 +48,9 @@ def parse_node(ref: str | int) -> tuple[str, int]:
     if text.isdigit():
         value = int(text)
         return chr(value >> 56), value & ((1 << 56) - 1)
-    raise TerraError(f"node {text!r}: expected a short name such as p12 (place), R3 (region), O0 (object) or a numeric spark_dsg id")
+    raise TerraError(
+        f"node {text!r}: expected a short name such as p12 (place), R3 (region), O0 (object) or a numeric spark_dsg id"
+    )
 
 
 def _ancestors(graph: SceneGraph, place: int) -> list[dict[str, Any]]:
@@ -75,20 +78,31 @@ def place_info(graph: SceneGraph, place: int) -> NodeInfo:
     if not 0 <= place < len(graph.places):
         raise UnknownNode(f"place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
     edges = graph.place_edges
-    mine = np.flatnonzero((edges[:, 0] == place) | (edges[:, 1] == place)) if len(edges) else np.zeros(0, dtype=np.int64)
-    neighbours = [{"place": int(edges[e, 1] if edges[e, 0] == place else edges[e, 0]),
-                   "weight": round(float(graph.place_edge_weight[e]), 4), "kind": _KIND.get(int(graph.place_edge_kind[e]), "")}
-                  for e in mine]
+    mine = (
+        np.flatnonzero((edges[:, 0] == place) | (edges[:, 1] == place)) if len(edges) else np.zeros(0, dtype=np.int64)
+    )
+    neighbours = [
+        {
+            "place": int(edges[e, 1] if edges[e, 0] == place else edges[e, 0]),
+            "weight": round(float(graph.place_edge_weight[e]), 4),
+            "kind": _KIND.get(int(graph.place_edge_kind[e]), ""),
+        }
+        for e in mine
+    ]
     objects = [node_name("O", o) for o in np.flatnonzero(np.asarray(graph.objects.place) == place)]
-    return NodeInfo(node_name("p", place), "place", {
-        "index": place,
-        "position": _r(graph.places.position[place]),
-        "terrain": graph.terrain_classes[int(graph.places.terrain[place])],
-        "clearance": round(float(graph.places.clearance[place]), 4),
-        "neighbors": neighbours,
-        "regions": _ancestors(graph, place),
-        "objects": objects,
-    })
+    return NodeInfo(
+        node_name("p", place),
+        "place",
+        {
+            "index": place,
+            "position": _r(graph.places.position[place]),
+            "terrain": graph.terrain_classes[int(graph.places.terrain[place])],
+            "clearance": round(float(graph.places.clearance[place]), 4),
+            "neighbors": neighbours,
+            "regions": _ancestors(graph, place),
+            "objects": objects,
+        },
+    )
 
 
 def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
@@ -103,21 +117,40 @@ def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
     if level < len(graph.regions):
         parent = region_name(level + 1, int(graph.regions[level].parent_of_child[index]))
     places = [int(p) for p in np.flatnonzero(graph.place_region(level) == index)]
-    return NodeInfo(region_name(level, index), "region", {
-        "level": level, "index": index, "position": _r(layer.position[index]),
-        "parent": parent or ("Z0" if graph.regions else None), "children": children, "places": places,
-    })
+    return NodeInfo(
+        region_name(level, index),
+        "region",
+        {
+            "level": level,
+            "index": index,
+            "position": _r(layer.position[index]),
+            "parent": parent or ("Z0" if graph.regions else None),
+            "children": children,
+            "places": places,
+        },
+    )
 
 
 def object_info(graph: SceneGraph, index: int) -> NodeInfo:
     o = graph.objects
     if not 0 <= index < len(o):
-        raise UnknownNode(f"object {index} does not exist; the graph has {len(o)} objects (save some with `terra find --save`)")
-    return NodeInfo(node_name("O", index), "object", {
-        "index": index, "label": o.label[index], "center": _r(o.center[index]), "size": _r(o.size[index]),
-        "yaw": round(float(o.yaw[index]), 6), "score": round(float(o.score[index]), 6),
-        "point_count": int(o.point_count[index]), "place": node_name("p", int(o.place[index])),
-    })
+        raise UnknownNode(
+            f"object {index} does not exist; the graph has {len(o)} objects (save some with `terra find --save`)"
+        )
+    return NodeInfo(
+        node_name("O", index),
+        "object",
+        {
+            "index": index,
+            "label": o.label[index],
+            "center": _r(o.center[index]),
+            "size": _r(o.size[index]),
+            "yaw": round(float(o.yaw[index]), 6),
+            "score": round(float(o.score[index]), 6),
+            "point_count": int(o.point_count[index]),
+            "place": node_name("p", int(o.place[index])),
+        },
+    )
 
 
 def node_info(graph: SceneGraph, ref: str | int) -> NodeInfo:

@@ -48,8 +48,13 @@ class MonitorResults:
     graph: SceneGraph = field(repr=False)
 
     def to_json(self) -> dict[str, Any]:
-        return {"bundle": str(self.bundle), "method": self.method, "k": self.k, "alpha": self.alpha,
-                "results": [r.to_json(self.graph) for r in self.results]}
+        return {
+            "bundle": str(self.bundle),
+            "method": self.method,
+            "k": self.k,
+            "alpha": self.alpha,
+            "results": [r.to_json(self.graph) for r in self.results],
+        }
 
 
 @dataclass
@@ -74,7 +79,7 @@ class PlanResult:
     forbidden: list[str]
 
     def to_json(self) -> dict[str, Any]:
-        obj = (lambda end: end.object.to_json() if end.object is not None else None)
+        obj = lambda end: end.object.to_json() if end.object is not None else None
         return {
             "bundle": str(self.bundle),
             **self.plan.to_json(),
