@@ -42,6 +42,7 @@ LOADERS: Registry[Loader] = Registry(
     {
         "terra-folder": "terra.datasets.terra_folder:LOADER",
         "semantickitti": "terra.datasets.semantickitti:LOADER",
+        "rosbag": "terra.datasets.rosbag:LOADER",
     },
 )
 

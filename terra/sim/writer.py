@@ -13,7 +13,7 @@ from terra.datasets.folder_io import write_classes
 from terra.datasets.ground_truth import write_ground_truth
 from terra.errors import TerraError
 
-FORMATS = ("terra-folder", "semantickitti")
+FORMATS = ("terra-folder", "semantickitti", "rosbag1", "rosbag2")
 
 
 def check_output(out: Path, overwrite: bool) -> None:
@@ -62,6 +62,10 @@ def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder
             from terra.datasets.terra_folder import write_terra_folder
 
             write_terra_folder(dataset, root, show_progress=progress)
+        elif format in ("rosbag1", "rosbag2"):
+            from terra.sim.bag_writer import write_bag
+
+            write_bag(dataset, root, version=int(format[-1]), show_progress=progress)
         else:
             from terra.datasets.semantickitti import write_semantickitti
 
