@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 from pydantic import Field
 
-from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
 from terra.config import Section
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
                                       read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
@@ -235,6 +235,18 @@ class TerraFolderDataset:
         from terra.datasets.ground_truth import load_ground_truth
 
         return load_ground_truth(self.root)
+
+    def info(self) -> SourceInfo:
+        """What `terra inspect` reports: frames, cameras as read, and pose files left unpaired."""
+        poses = len(stamped_files(self.root / POSES, "transform_lidar_to_map_*.npy")[0])
+        unpaired = poses - len(self._frames)
+        skipped = {"poses_without_scan_or_image": unpaired} if unpaired else {}
+        notes = {"poses_without_scan_or_image": f"{unpaired} of {poses} pose files have no LiDAR scan, image or camera "
+                 f"transform within max_gap of their stamp"} if unpaired else {}
+        return SourceInfo("terra-folder", str(self.root), len(self._frames), (self._frames[0][0], self._frames[-1][0]),
+                          list(self.calibrations), f"{POSES}/ (one T_map_lidar file per scan)", skipped, notes,
+                          {"calibrations_from": META if self._exact_cameras else CAMERA_YAML,
+                           "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1])})
 
 
 def _read_pose(path: Path) -> np.ndarray:

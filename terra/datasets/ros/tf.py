@@ -119,7 +119,8 @@ class TfTree:
         naming both frames and listing the known ones when the tree does not connect them."""
         for name in (target, source):
             if name not in self.frames():
-                raise TerraError(f"TF has no frame '{name}'; frames: {', '.join(self.frames()) or 'none'}")
+                raise TerraError(f"TF does not connect '{target}' and '{source}': no transform has frame '{name}'; "
+                                 f"frames: {', '.join(self.frames()) or 'none'}")
         up_t, up_s = self._up(target), self._up(source)
         common = next((f for f in up_s if f in up_t), None)
         if common is None:

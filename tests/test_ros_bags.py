@@ -1,0 +1,206 @@
+"""The bag loader on real bag files written by the simulator (ROS 1 .bag, ROS 2 mcap) and on small
+hand-made bags: what `terra inspect` reads, an independent reader's view of the same files, random
+access, the map equal to the folder's, and bad input as one line with exit code 2."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from terra.cli import run
+from terra.datasets import open_dataset
+from tests.fixtures_ros import FRAMES, factory_for, scan, write_test_bag
+
+
+def _inspect(capsys, source) -> dict:
+    assert run(["inspect", str(source), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("fmt", ["rosbag1", "rosbag2"])
+def test_inspect_reads_the_calibration_topics_and_tf_as_written(capsys, sim_sources, fmt):
+    info = _inspect(capsys, sim_sources[fmt])
+    truth = sim_sources["dataset"].calibrations[0]
+    cam = info["cameras"][0]
+    assert info["format"] == "rosbag" and info["frames"] == FRAMES and info["pose_source"] == "tf map -> lidar"
+    assert (cam["width"], cam["height"], cam["model"]) == (truth.width, truth.height, "pinhole")
+    np.testing.assert_array_equal(cam["K"], truth.K)
+    np.testing.assert_array_equal(cam["dist"], truth.dist)
+    np.testing.assert_allclose(cam["T_cam_lidar"], truth.T_cam_lidar, atol=1e-12)
+    topics = {t["topic"]: t for t in info["details"]["topics"]}
+    assert topics["/lidar/points"]["count"] == FRAMES and topics["/lidar/points"]["type"] == "sensor_msgs/msg/PointCloud2"
+    stamps = sim_sources["dataset"].trajectory.stamps[:FRAMES]
+    assert topics["/lidar/points"]["rate_hz"] == pytest.approx((FRAMES - 1) / (stamps[-1] - stamps[0]), rel=1e-6)
+    edges = {(e["parent"], e["child"]): e["static"] for e in info["details"]["tf"]}
+    assert edges == {("base_link", "lidar"): True, ("base_link", "cam0_optical"): True, ("map", "base_link"): False}
+    section = info["details"]["dataset"]
+    assert section["lidar_topic"] == "/lidar/points" and section["poses"] == "tf"
+    assert section["cameras"][0]["image_topic"] == "/cam0/image_raw/compressed"
+    assert run(["inspect", str(sim_sources[fmt])]) == 0
+    assert "dataset section" in capsys.readouterr().out
+
+
+def test_mcap_bag_reads_with_the_mcap_package(sim_sources):
+    """Our writer checked by a reader that is not ours: the `mcap` package lists the messages and
+    rosbags' CDR deserializer (not our loader) decodes a cloud whose points equal the frame's."""
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = next(Path(sim_sources["rosbag2"]).glob("*.mcap"))
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    counts: dict[str, int] = {}
+    first_cloud = None
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            if channel.topic == "/lidar/points" and first_cloud is None:
+                assert schema.name == "sensor_msgs/msg/PointCloud2" and channel.message_encoding == "cdr"
+                first_cloud = store.deserialize_cdr(message.data, schema.name)
+                assert message.log_time == 0
+    assert counts["/lidar/points"] == FRAMES and counts["/cam0/camera_info"] == FRAMES and counts["/tf_static"] == 1
+    xyz = np.frombuffer(first_cloud.data.tobytes(), np.float32).reshape(-1, 7)[:, :3]
+    np.testing.assert_array_equal(xyz, sim_sources["dataset"][0].points)
+
+
+def test_random_access_equals_sequential_reading(sim_sources):
+    dataset = open_dataset(sim_sources["rosbag1"])
+    forward = [dataset[i] for i in range(len(dataset))]
+    again = dataset[2]
+    np.testing.assert_array_equal(again.points, forward[2].points)
+    np.testing.assert_array_equal(again.cameras[0].image, forward[2].cameras[0].image)
+    np.testing.assert_array_equal(again.T_map_lidar, forward[2].T_map_lidar)
+    truth = sim_sources["dataset"]
+    for i in range(len(dataset)):
+        np.testing.assert_allclose(forward[i].T_map_lidar, truth[i].T_map_lidar, atol=1e-12)
+        np.testing.assert_array_equal(forward[i].point_labels, truth[i].point_labels)
+
+
+@pytest.mark.slow
+def test_map_from_the_bag_equals_the_map_from_the_folder(sim_sources, tmp_path):
+    """Same counts, bank, points, terrain votes, image embeddings. What differs: T_map_cam by at
+    most ~1e-15 m (the camera mount goes through a /tf_static quaternion), and the dataset name.
+    JPEG does not make the images differ: the bag and the folder hold the same JPEG bytes (same
+    encoder and settings), which decode to the same pixels. The folder's own global map is not
+    used, as a bag has none (with it, association differs)."""
+    from terra.bundle import Bundle
+
+    config = tmp_path / "c.yaml"
+    config.write_text("mapping:\n  fusion:\n    use_global_map: false\n")
+    bundles = {}
+    for fmt in ("terra-folder", "rosbag2"):
+        assert run(["map", str(sim_sources[fmt]), "--out", str(tmp_path / f"{fmt}.terra"), "--config", str(config), "-q"]) == 0
+        bundles[fmt] = Bundle(tmp_path / f"{fmt}.terra")
+    folder, bag = bundles["terra-folder"], bundles["rosbag2"]
+    differ = sorted(n for n, e in folder.files.items() if bag.files[n]["sha256"] != e["sha256"])
+    assert differ == ["map/images/T_map_cam.npy", "map/meta.json"]
+    np.testing.assert_allclose(folder.array("map/images/T_map_cam"), bag.array("map/images/T_map_cam"), atol=1e-12)
+    meta_f, meta_b = folder.json("map/meta.json"), bag.json("map/meta.json")
+    assert {k for k in meta_f if meta_f[k] != meta_b[k]} == {"dataset"}
+
+
+# ------------------------------------------------------------------------------ bad input
+def _assert_one_line_exit_2(capsys, argv, fragment, out: Path | None = None):
+    assert run(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and fragment in err, err
+    if out is not None:
+        assert not out.exists() and not list(out.parent.glob(f".{out.name}*"))
+
+
+def test_truncated_and_corrupt_bags(capsys, sim_sources, tmp_path):
+    bag1 = next(Path(sim_sources["rosbag1"]).glob("*.bag"))
+    data = bag1.read_bytes()
+    (tmp_path / "cut.bag").write_bytes(data[: len(data) // 2])
+    _assert_one_line_exit_2(capsys, ["map", str(tmp_path / "cut.bag"), "--out", str(tmp_path / "a.terra")], "cut.bag", tmp_path / "a.terra")
+    mcap = next(Path(sim_sources["rosbag2"]).glob("*.mcap"))
+    data = mcap.read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: len(data) // 2])
+    _assert_one_line_exit_2(capsys, ["map", str(tmp_path / "cut.mcap"), "--out", str(tmp_path / "b.terra")], "cut.mcap", tmp_path / "b.terra")
+    (tmp_path / "bad.mcap").write_bytes(b"\x89GARBAGE" + data[8:])  # not an mcap file at all
+    _assert_one_line_exit_2(capsys, ["inspect", str(tmp_path / "bad.mcap")], "bad.mcap")
+
+
+def test_missing_topic_lists_the_topics_that_exist(capsys, sim_sources, tmp_path):
+    config = tmp_path / "c.yaml"
+    config.write_text("dataset:\n  lidar_topic: /os_cloud_node/points\n")
+    _assert_one_line_exit_2(capsys, ["map", str(sim_sources["rosbag2"]), "--out", str(tmp_path / "m.terra"), "--config", str(config)],
+                            "no topic '/os_cloud_node/points' for the LiDAR; sensor_msgs/PointCloud2 topics: /lidar/points",
+                            tmp_path / "m.terra")
+
+
+def test_tf_that_does_not_connect_names_both_frames(capsys, tmp_path):
+    f = factory_for()
+    bag = write_test_bag(tmp_path / "bag", [
+        ("/tf", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "map", "base_link", np.eye(4))])),
+        ("/points", "sensor_msgs/msg/PointCloud2", 0, f.pointcloud2(0, "velodyne", scan())),
+    ])
+    config = tmp_path / "c.yaml"
+    config.write_text("dataset:\n  poses: tf\n  map_frame: map\n")
+    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra"), "--config", str(config)],
+                            "TF does not connect 'map' and 'velodyne'", tmp_path / "m.terra")
+
+
+def _camera_bag(tmp_path, encoding="rgb8", with_info=True):
+    from terra.geometry import CameraCalibration
+
+    f = factory_for(ros1=True)
+    cal = CameraCalibration("cam", 8, 6, np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]]))
+    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.eye(4))]))]
+    for k in range(3):
+        ns = k * 100_000_000
+        rows.append(("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "odom", "base", np.eye(4))])))
+        rows.append(("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k))))
+        image = f.image(ns, "cam", np.full((6, 8, 3), 40 * k, np.uint8))
+        image.encoding = encoding
+        rows.append(("/cam/image", "sensor_msgs/msg/Image", ns, image))
+        if with_info:
+            rows.append(("/cam/camera_info", "sensor_msgs/msg/CameraInfo", ns, f.camera_info(ns, "cam", cal)))
+    return write_test_bag(tmp_path / "cam.bag", rows, ros1=True)
+
+
+def test_unsupported_encoding_and_missing_camera_info(capsys, tmp_path):
+    bag = _camera_bag(tmp_path, encoding="yuv422")
+    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra")], "image encoding 'yuv422'", tmp_path / "m.terra")
+    (tmp_path / "nocam").mkdir()
+    bag = _camera_bag(tmp_path / "nocam", with_info=False)
+    config = tmp_path / "c.yaml"
+    config.write_text("dataset:\n  cameras:\n  - image_topic: /cam/image\n")
+    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "n.terra"), "--config", str(config)],
+                            "no camera_info topic '/cam/camera_info'", tmp_path / "n.terra")
+
+
+def test_ros1_bag_with_odometry_frame_poses_and_camera(tmp_path):
+    """A hand-made ROS 1 bag: poses through odom -> base -> lidar, images paired, info as stated."""
+    dataset = open_dataset(_camera_bag(tmp_path))
+    assert len(dataset) == 3 and dataset.pose_source == "tf odom -> lidar"
+    frame = dataset[2]
+    assert frame.cameras[0].image.shape == (6, 8, 3) and frame.cameras[0].image[0, 0, 0] == 80
+    np.testing.assert_array_equal(frame.points, scan(seed=2))
+    assert dataset.calibrations[0].K[0, 0] == 5.0
+
+
+def test_one_corrupt_image_is_skipped_and_counted(tmp_path):
+    """The second of three JPEG images is cut short: that frame keeps its scan, loses its image."""
+    f = factory_for()
+    from terra.geometry import CameraCalibration
+
+    cal = CameraCalibration("cam", 8, 6, np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]]))
+    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.eye(4))]))]
+    for k in range(3):
+        ns = k * 100_000_000
+        image = f.compressed_image(ns, "cam", np.full((6, 8, 3), 50, np.uint8))
+        if k == 1:
+            image.data = image.data[:30]
+        rows += [("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", np.eye(4))])),
+                 ("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k))),
+                 ("/cam/image_raw/compressed", "sensor_msgs/msg/CompressedImage", ns, image),
+                 ("/cam/camera_info", "sensor_msgs/msg/CameraInfo", ns, f.camera_info(ns, "cam", cal))]
+    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
+    frames = [dataset[i] for i in range(len(dataset))]
+    assert [len(fr.cameras) for fr in frames] == [1, 0, 1]
+    assert dataset.skipped["images_skipped_undecodable"] == 1
+    assert "0.100 s" in dataset.skipped_notes["images_skipped_undecodable"]
