@@ -29,7 +29,7 @@ from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import read_classes
 from terra.datasets.registry import Loader
-from terra.datasets.ros.bag import Bag, bag_paths, is_bag
+from terra.datasets.ros.bag import Bag, bag_paths, is_bag, recording_name
 from terra.datasets.ros.camera_info import camera_from_info
 from terra.datasets.ros.images import decode_compressed, decode_image, decode_labels
 from terra.datasets.ros.index import BagIndex, Stream, index_bag
@@ -84,7 +84,7 @@ class RosbagDataset:
         self.path = Path(path)
         self.config = config = config or RosbagConfig()
         self.root = self.path if self.path.is_dir() else self.path.parent
-        self.name = self.path.stem if self.path.is_file() else self.path.name
+        self.name = recording_name(bag_paths(self.path))
         self.classes: ClassTable = read_classes(self.root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}

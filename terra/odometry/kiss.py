@@ -76,9 +76,19 @@ def deskew(points: np.ndarray, times: np.ndarray | None, velocity: np.ndarray) -
     return moved.astype(points.dtype)
 
 
-def _velocity(delta: np.ndarray, dt: float) -> np.ndarray:
+def _recent_velocity(poses: np.ndarray, stamps: np.ndarray, window: float) -> np.ndarray:
+    """Body-frame velocity [rotvec rad/s, translation m/s] over the last `window` seconds of the
+    estimated poses (at least the last step). A one-step estimate feeds its own error back: a
+    velocity error skews the next scan, which biases its registration, which errs the velocity
+    again, and the loop oscillates; averaging over a few scans damps it."""
+    last = len(poses) - 1
+    if last < 1:
+        return np.zeros(6)
+    first = min(int(np.searchsorted(stamps, stamps[last] - window)), last - 1)
+    dt = stamps[last] - stamps[first]
     if dt <= 0:
         return np.zeros(6)
+    delta = np.linalg.inv(poses[first]) @ poses[last]
     return np.concatenate([Rotation.from_matrix(delta[:3, :3]).as_rotvec(), delta[:3, 3]]) / dt
 
 
@@ -97,7 +107,7 @@ def run_odometry(dataset: Dataset, config: OdometryConfig, show_progress: bool =
         stamps[i], reference[i] = frame.stamp, frame.T_map_lidar
         start = time.perf_counter()
         if i > 0 and config.deskew and frame.point_times is not None:
-            velocity[i] = _velocity(odometry.last_delta, stamps[i] - stamps[i - 1])
+            velocity[i] = _recent_velocity(poses[:i], stamps[:i], config.velocity_window_s)
             deskewed += int(np.any(frame.point_times))
         points = deskew(np.asarray(frame.points, np.float64), frame.point_times, velocity[i])
         points = points[np.isfinite(points).all(axis=1)]

@@ -49,6 +49,17 @@ def is_bag(path: Path) -> bool:
         return False
 
 
+def recording_name(paths: list[Path]) -> str:
+    """The recording's name: its (first) storage file's stem, e.g. `drive` for drive.bag,
+    drive/drive_0.mcap or a folder holding drive.bag (a folder may be called anything)."""
+    first = paths[0]
+    if first.is_dir():
+        files = sorted(p for p in first.iterdir() if p.suffix in ROS2_SUFFIXES)
+        first = files[0] if files else first
+    stem = first.stem
+    return stem[:-2] if stem.endswith("_0") else stem
+
+
 def storage_name(paths: list[Path]) -> str:
     """'rosbag1', 'rosbag2 (mcap)' or 'rosbag2 (sqlite3)'."""
     first = paths[0]

@@ -70,7 +70,7 @@ def decode_compressed(msg, where: str = "CompressedImage") -> np.ndarray:
         with Image.open(io.BytesIO(data)) as im:
             if im.format not in ("JPEG", "PNG"):
                 raise TerraError(f"{where}: compressed data is {im.format}, the message says '{msg.format}'")
-            return np.asarray(im.convert("RGB"))
+            return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
     except (OSError, UnidentifiedImageError, ValueError) as exc:
         raise TerraError(f"{where}: undecodable {msg.format} data ({exc})") from None
 
