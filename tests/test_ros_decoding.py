@@ -56,9 +56,11 @@ def test_ouster_layout_with_padding_and_ns_time(big):
     assert cloud.points.dtype == np.float32 and cloud.labels is None
 
 
-def test_velodyne_layout_seconds_and_nan_points_dropped():
+def test_velodyne_layout_seconds_and_nan_or_no_return_points_dropped():
     xyz, inten, rows = _rows(30, lambda k: (k % 32, np.float32(-0.1 + k * 1e-3)))
-    xyz[[3, 17]] = np.nan
+    xyz[3, 1] = np.nan
+    xyz[17] = 0.0  # an organized cloud's "no return"
+    xyz[20, :2] = 0.0  # on the z axis: a real point
     rows = [tuple(p) + r[3:] for p, r in zip(xyz, rows)]
     cloud = decode_pointcloud2(_cloud(VELODYNE, rows, 22))
     keep = np.ones(30, bool)
