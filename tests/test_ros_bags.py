@@ -204,3 +204,85 @@ def test_one_corrupt_image_is_skipped_and_counted(tmp_path):
     assert [len(fr.cameras) for fr in frames] == [1, 0, 1]
     assert dataset.skipped["images_skipped_undecodable"] == 1
     assert "0.100 s" in dataset.skipped_notes["images_skipped_undecodable"]
+
+
+def _two_camera_rows(f, late_right_at: int):
+    """Three scans; cameras left and right at each scan's stamp, except right's image `late_right_at`,
+    which comes 0.2 s late (no scan within max_gap)."""
+    from terra.geometry import CameraCalibration
+
+    K = np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]])
+    cams = {"left": CameraCalibration("left", 8, 6, K), "right": CameraCalibration("right", 8, 6, K, np.array([0.1, 0.01, 0, 0]), model="fisheye")}
+    mount = {"left": make_pose_y(0.3), "right": make_pose_y(-0.3)}
+    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0,
+             f.tf([(0, "base", "lidar", np.eye(4))] + [(0, "base", f"{c}_optical", mount[c]) for c in cams]))]
+    for k in range(3):
+        ns = k * 100_000_000
+        rows += [("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", np.eye(4))])),
+                 ("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k)))]
+        for c, cal in cams.items():
+            t = ns + (200_000_000 if c == "right" and k == late_right_at else 0)
+            rows += [(f"/{c}/image_raw", "sensor_msgs/msg/Image", t, f.image(t, f"{c}_optical", np.full((6, 8, 3), 10 * k, np.uint8))),
+                     (f"/{c}/camera_info", "sensor_msgs/msg/CameraInfo", t, f.camera_info(t, f"{c}_optical", cal))]
+    return rows, cams, mount
+
+
+def make_pose_y(y: float) -> np.ndarray:
+    T = np.eye(4)
+    T[1, 3] = y
+    return T
+
+
+def test_two_cameras_sqlite3_storage_and_unpaired_images_counted(tmp_path):
+    from terra.geometry import invert_pose
+
+    rows, cams, mount = _two_camera_rows(factory_for(), late_right_at=1)
+    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows, sqlite=True))
+    assert dataset.bag.storage == "rosbag2 (sqlite3)" and len(dataset) == 3
+    assert [c.name for c in dataset.calibrations] == ["left", "right"]
+    right = dataset.calibrations[1]
+    assert right.model == "fisheye" and right.dist.tolist() == [0.1, 0.01, 0.0, 0.0]
+    np.testing.assert_allclose(right.T_cam_lidar, invert_pose(mount["right"]), atol=1e-12)
+    assert [len(dataset[i].cameras) for i in range(3)] == [2, 1, 2]
+    assert dataset.skipped == {"scans_without_image_right": 1, "images_unpaired_right": 1}
+    assert "0.100 s" in dataset.skipped_notes["scans_without_image_right"]
+
+
+def test_poses_from_a_nav_msgs_odometry_topic(tmp_path):
+    """No /tf: poses come from /odom (odom -> base) and the static base -> lidar mount."""
+    from rosbags.typesys import Stores, get_typestore
+    from scipy.spatial.transform import Rotation
+
+    from terra.geometry import make_pose
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    f, t = factory_for(store), store.types
+    T_base_lidar = make_pose(Rotation.from_euler("z", 0.2).as_matrix(), [0.4, 0.0, 1.1])
+    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", T_base_lidar)]))]
+    for k in range(4):
+        ns = k * 100_000_000
+        q = Rotation.from_euler("z", 0.3 * k).as_quat()
+        pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=1.0 * k, y=0.5, z=0.0),
+                                          orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+        odom = t["nav_msgs/msg/Odometry"](
+            header=f.header(ns, "odom"), child_frame_id="base",
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                                                   angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)),
+                covariance=np.zeros(36)))
+        rows.append(("/odom", "nav_msgs/msg/Odometry", ns, odom))
+        if k < 3:  # scans halfway between odometry messages: interpolated
+            rows.append(("/points", "sensor_msgs/msg/PointCloud2", ns + 50_000_000, f.pointcloud2(ns + 50_000_000, "lidar", scan(seed=k))))
+    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
+    assert dataset.pose_source == "odometry topic /odom (odom -> lidar)" and len(dataset) == 3
+    expected = make_pose(Rotation.from_euler("z", 0.3 * 1.5).as_matrix(), [1.5, 0.5, 0.0]) @ T_base_lidar
+    np.testing.assert_allclose(dataset[1].T_map_lidar, expected, atol=1e-12)
+
+
+def test_a_bag_without_poses_maps_with_odometry(tmp_path):
+    f = factory_for()
+    rows = [("/points", "sensor_msgs/msg/PointCloud2", k * 100_000_000, f.pointcloud2(k * 100_000_000, "lidar", scan(seed=0)))
+            for k in range(3)]
+    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
+    assert dataset.needs_odometry and not dataset.has_poses and dataset.pose_source == "odometry (KISS-ICP)"

@@ -157,3 +157,32 @@ def test_corrupt_and_unknown_compressed_data():
         decode_compressed(NS(format="jpeg", data=np.frombuffer(b"\xff\xd8 not really", np.uint8)))
     with pytest.raises(TerraError, match="'tiff'"):
         decode_compressed(NS(format="tiff", data=np.zeros(4, np.uint8)))
+
+
+@pytest.mark.parametrize("model, d, ours, count", [
+    ("plumb_bob", [0.1, -0.02, 0.001, 0.002, 0.003], "pinhole", 5),
+    ("rational_polynomial", [0.1, -0.02, 0.001, 0.002, 0.003, 0.01, 0.0, 0.02], "pinhole", 8),
+    ("equidistant", [0.01, -0.002, 0.0003, 0.0], "fisheye", 4),
+    ("plumb_bob", [], "pinhole", 0),
+])
+def test_camera_info_models(model, d, ours, count):
+    from terra.datasets.ros.camera_info import camera_from_info
+
+    K = [400.0, 0.0, 320.0, 0.0, 410.0, 240.0, 0.0, 0.0, 1.0]
+    cal = camera_from_info(NS(k=K, d=d, distortion_model=model, width=640, height=480), "cam", np.eye(4))
+    assert cal.model == ours and cal.dist.size == count and (cal.width, cal.height) == (640, 480)
+    np.testing.assert_array_equal(cal.K.ravel(), K)
+    ros1 = camera_from_info(NS(K=K, D=d, distortion_model=model, width=0, height=0), "cam", np.eye(4), image_size=(640, 480))
+    np.testing.assert_array_equal(ros1.dist, cal.dist)
+
+
+def test_camera_info_errors_name_the_field():
+    from terra.datasets.ros.camera_info import camera_from_info
+
+    K = [400.0, 0.0, 320.0, 0.0, 410.0, 240.0, 0.0, 0.0, 1.0]
+    with pytest.raises(TerraError, match="distortion_model 'kannala'"):
+        camera_from_info(NS(k=K, d=[0.1], distortion_model="kannala", width=640, height=480), "cam", np.eye(4))
+    with pytest.raises(TerraError, match="field 'k'"):
+        camera_from_info(NS(k=[0.0] * 9, d=[], distortion_model="plumb_bob", width=640, height=480), "cam", np.eye(4))
+    with pytest.raises(TerraError, match="images are 320x240"):
+        camera_from_info(NS(k=K, d=[], distortion_model="plumb_bob", width=640, height=480), "cam", np.eye(4), image_size=(320, 240))
