@@ -286,3 +286,18 @@ def test_a_bag_without_poses_maps_with_odometry(tmp_path):
             for k in range(3)]
     dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
     assert dataset.needs_odometry and not dataset.has_poses and dataset.pose_source == "odometry (KISS-ICP)"
+
+
+def test_two_lidar_topics_inspect_still_describes_and_map_asks_which(capsys, tmp_path):
+    f = factory_for()
+    rows = []
+    for k in range(2):
+        ns = k * 100_000_000
+        rows += [("/front/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "front", scan(seed=k))),
+                 ("/rear/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "rear", scan(seed=k)))]
+    bag = write_test_bag(tmp_path / "bag", rows)
+    info = _inspect(capsys, bag)
+    assert {t["topic"] for t in info["details"]["topics"]} == {"/front/points", "/rear/points"}
+    assert "set dataset.lidar_topic" in info["details"]["problem"]
+    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra")],
+                            "2 PointCloud2 topics (/front/points, /rear/points)", tmp_path / "m.terra")

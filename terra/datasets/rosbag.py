@@ -137,7 +137,7 @@ class RosbagDataset:
         root of its tree; None when no moving transform lies above the LiDAR."""
         if self.lidar_frame not in tree.frames():
             return None
-        chain = tree._up(self.lidar_frame)
+        chain = tree.ancestors(self.lidar_frame)
         moving = [k for k, f in enumerate(chain[:-1]) if f in tree.dynamic]
         if not moving:
             return None

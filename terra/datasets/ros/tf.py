@@ -108,7 +108,8 @@ class TfTree:
                          "last": float(t.stamps[-1]) if len(t.stamps) else None})
         return sorted(rows, key=lambda r: (r["parent"], r["child"]))
 
-    def _up(self, frame: str) -> list[str]:
+    def ancestors(self, frame: str) -> list[str]:
+        """`frame`, its parent, its parent's parent, ... up to the root of its tree."""
         chain = [frame]
         while (p := self.parent(chain[-1])) is not None and p not in chain:
             chain.append(p)
@@ -121,7 +122,7 @@ class TfTree:
             if name not in self.frames():
                 raise TerraError(f"TF does not connect '{target}' and '{source}': no transform has frame '{name}'; "
                                  f"frames: {', '.join(self.frames()) or 'none'}")
-        up_t, up_s = self._up(target), self._up(source)
+        up_t, up_s = self.ancestors(target), self.ancestors(source)
         common = next((f for f in up_s if f in up_t), None)
         if common is None:
             raise TerraError(f"TF does not connect '{target}' and '{source}' (their trees have roots '{up_t[-1]}' and "
