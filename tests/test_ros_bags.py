@@ -301,3 +301,39 @@ def test_two_lidar_topics_inspect_still_describes_and_map_asks_which(capsys, tmp
     assert "set dataset.lidar_topic" in info["details"]["problem"]
     _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra")],
                             "2 PointCloud2 topics (/front/points, /rear/points)", tmp_path / "m.terra")
+
+
+def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sources, tmp_path):
+    """Random access is what resume needs: an interrupted run continues at its checkpoint, reading
+    only the frames after it, and ends with the bytes of an uninterrupted run."""
+    from terra.mapping.config import MappingConfig
+    from terra.mapping.pipeline import run_mapping
+    from tests.fixtures_mapping import folder_digest
+
+    config = MappingConfig(checkpoint_every=2)
+    reference = run_mapping(open_dataset(sim_sources["rosbag1"]), config, tmp_path / "ref.terra", show_progress=False).bundle
+
+    class Stopping:
+        def __init__(self, source, stop_at=None):
+            self.source, self.stop_at, self.loaded = source, stop_at, []
+            self.name, self.classes = source.name, source.classes
+
+        def __len__(self):
+            return len(self.source)
+
+        def __getitem__(self, i):
+            if i == self.stop_at:
+                raise KeyboardInterrupt
+            self.loaded.append(i)
+            return self.source[i]
+
+        def global_map(self):
+            return None
+
+    out = tmp_path / "map.terra"
+    with pytest.raises(KeyboardInterrupt):
+        run_mapping(Stopping(open_dataset(sim_sources["rosbag1"]), stop_at=3), config, out, show_progress=False)
+    again = Stopping(open_dataset(sim_sources["rosbag1"]))
+    assert run_mapping(again, config, out, show_progress=False).resumed_from == 2
+    assert again.loaded == [2, 3, 4]
+    assert folder_digest(out) == folder_digest(reference.path)
