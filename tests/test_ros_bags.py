@@ -337,3 +337,15 @@ def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sourc
     assert run_mapping(again, config, out, show_progress=False).resumed_from == 2
     assert again.loaded == [2, 3, 4]
     assert folder_digest(out) == folder_digest(reference.path)
+
+
+def test_raw_image_bag_gives_the_simulator_pixels_and_jpeg_differs_by_under_one_level(sim_sources, tmp_path):
+    from terra.sim.writer import write_dataset
+
+    raw = open_dataset(write_dataset(sim_sources["dataset"], tmp_path / "raw", format="rosbag1", progress=False, bag_images="raw"))
+    jpeg = open_dataset(sim_sources["rosbag2"])
+    assert raw.camera_topics[0].image == "/cam0/image_raw"
+    exact = raw[1].cameras[0].image
+    np.testing.assert_array_equal(exact, sim_sources["dataset"][1].cameras[0].image)
+    lossy = jpeg[1].cameras[0].image.astype(int)
+    assert 0 < np.abs(lossy - exact).mean() < 1.0

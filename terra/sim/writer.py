@@ -50,12 +50,15 @@ def atomic_folder(out: Path, overwrite: bool, fill: Callable[[Path], None]) -> P
 
 
 def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder", overwrite: bool = False,
-                  progress: bool = True, extra: Callable[[Path], None] | None = None) -> Path:
+                  progress: bool = True, extra: Callable[[Path], None] | None = None, bag_images: str = "jpeg") -> Path:
     """Write all frames of `dataset`, its class table (classes.json) and, when it has one, its
     ground truth (ground_truth/) to folder `out` in `format`. `extra(tmp_root)` may add files
-    before the folder is moved into place. Returns the folder."""
+    before the folder is moved into place. `bag_images`: jpeg (CompressedImage) or raw (Image
+    rgb8) for the bag formats. Returns the folder."""
     if format not in FORMATS:
         raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
+    if bag_images not in ("jpeg", "raw"):
+        raise TerraError(f"unknown bag image format {bag_images!r}; expected jpeg or raw")
 
     def fill(root: Path) -> None:
         if format == "terra-folder":
@@ -65,7 +68,7 @@ def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder
         elif format in ("rosbag1", "rosbag2"):
             from terra.sim.bag_writer import write_bag
 
-            write_bag(dataset, root, version=int(format[-1]), show_progress=progress)
+            write_bag(dataset, root, version=int(format[-1]), image_format=bag_images, show_progress=progress)
         else:
             from terra.datasets.semantickitti import write_semantickitti
 
