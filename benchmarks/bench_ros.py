@@ -27,23 +27,45 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchtable import report  # noqa: E402
 
-OUSTER = [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 16, 7), ("t", 20, 6), ("reflectivity", 24, 4),
-          ("ring", 26, 4), ("ambient", 28, 4), ("range", 32, 6)]
+OUSTER = [
+    ("x", 0, 7),
+    ("y", 4, 7),
+    ("z", 8, 7),
+    ("intensity", 16, 7),
+    ("t", 20, 6),
+    ("reflectivity", 24, 4),
+    ("ring", 26, 4),
+    ("ambient", 28, 4),
+    ("range", 32, 6),
+]
 
 
 def ouster_cloud(rows: int = 128, cols: int = 1024) -> NS:
     """An organized Ouster-style cloud: x y z at 0, intensity at 16, t (ns) at 20, ..., 48-byte points."""
     rng = np.random.default_rng(0)
-    dtype = np.dtype({"names": [f[0] for f in OUSTER], "formats": ["<f4", "<f4", "<f4", "<f4", "<u4", "<u2", "<u2", "<u2", "<u4"],
-                      "offsets": [f[1] for f in OUSTER], "itemsize": 48})
+    dtype = np.dtype(
+        {
+            "names": [f[0] for f in OUSTER],
+            "formats": ["<f4", "<f4", "<f4", "<f4", "<u4", "<u2", "<u2", "<u2", "<u4"],
+            "offsets": [f[1] for f in OUSTER],
+            "itemsize": 48,
+        }
+    )
     cloud = np.zeros(rows * cols, dtype)
     for name in ("x", "y", "z"):
         cloud[name] = rng.normal(0, 20, rows * cols)
-    cloud["x"][:: 17] = np.nan  # no-return pixels, as an organized cloud has them
+    cloud["x"][::17] = np.nan  # no-return pixels, as an organized cloud has them
     cloud["t"] = np.tile(np.arange(cols) * 97_656, rows)
     fields = [NS(name=n, offset=o, datatype=d, count=1) for n, o, d in OUSTER]
-    return NS(height=rows, width=cols, fields=fields, is_bigendian=False, point_step=48, row_step=48 * cols,
-              data=np.frombuffer(cloud.tobytes(), np.uint8))
+    return NS(
+        height=rows,
+        width=cols,
+        fields=fields,
+        is_bigendian=False,
+        point_step=48,
+        row_step=48 * cols,
+        data=np.frombuffer(cloud.tobytes(), np.uint8),
+    )
 
 
 def bench_decode(repeat: int) -> tuple[list[float], float]:
@@ -79,17 +101,30 @@ def write_drive_bag(root: Path, seconds: float) -> tuple[Path, int]:
     times = (np.arange(len(frame.points)) % 1024 * 97_656).astype(np.uint32)
     path = root / "drive"
     with Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP) as writer:
-        types = {"/tf_static": "tf2_msgs/msg/TFMessage", "/tf": "tf2_msgs/msg/TFMessage", "/points": "sensor_msgs/msg/PointCloud2",
-                 "/cam/image_raw/compressed": "sensor_msgs/msg/CompressedImage", "/cam/camera_info": "sensor_msgs/msg/CameraInfo"}
+        types = {
+            "/tf_static": "tf2_msgs/msg/TFMessage",
+            "/tf": "tf2_msgs/msg/TFMessage",
+            "/points": "sensor_msgs/msg/PointCloud2",
+            "/cam/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+            "/cam/camera_info": "sensor_msgs/msg/CameraInfo",
+        }
         conns = {t: writer.add_connection(t, m, typestore=store) for t, m in types.items()}
         jpeg = f.compressed_image(0, "cam", frame.cameras[0].image)
-        writer.write(conns["/tf_static"], 0, f.serialize(f.tf([(0, "base", "lidar", np.eye(4)),
-                                                                 (0, "base", "cam", np.linalg.inv(cal.T_cam_lidar))]), types["/tf_static"]))
+        writer.write(
+            conns["/tf_static"],
+            0,
+            f.serialize(
+                f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.linalg.inv(cal.T_cam_lidar))]),
+                types["/tf_static"],
+            ),
+        )
         for k in range(n):
             ns = 1_700_000_000_000_000_000 + k * 100_000_000
-            msgs = {"/tf": f.tf([(ns, "map", "base", make_pose(np.eye(3), [0.15 * k, 0, 0]))]),
-                    "/points": f.pointcloud2(ns, "lidar", frame.points, frame.intensity, times),
-                    "/cam/camera_info": f.camera_info(ns, "cam", cal)}
+            msgs = {
+                "/tf": f.tf([(ns, "map", "base", make_pose(np.eye(3), [0.15 * k, 0, 0]))]),
+                "/points": f.pointcloud2(ns, "lidar", frame.points, frame.intensity, times),
+                "/cam/camera_info": f.camera_info(ns, "cam", cal),
+            }
             jpeg.header = f.header(ns, "cam")
             msgs["/cam/image_raw/compressed"] = jpeg
             for topic, msg in msgs.items():
@@ -112,9 +147,17 @@ def bench_bag(seconds: float) -> dict:
             points += len(frame.points)
         total, cpu = time.perf_counter() - start, time.process_time() - cpu
     recorded = (n - 1) * 0.1
-    return {"frames": n, "recorded_s": recorded, "index_s": indexed, "read_s": total, "speedup": recorded / total,
-            "cpu_s": cpu, "speedup_cpu": recorded / cpu,
-            "bag_mb": size / 1e6, "points": points}
+    return {
+        "frames": n,
+        "recorded_s": recorded,
+        "index_s": indexed,
+        "read_s": total,
+        "speedup": recorded / total,
+        "cpu_s": cpu,
+        "speedup_cpu": recorded / cpu,
+        "bag_mb": size / 1e6,
+        "points": points,
+    }
 
 
 def bench_odometry(scans: int) -> dict:
@@ -123,7 +166,9 @@ def bench_odometry(scans: int) -> dict:
     from terra.sim import simulate
     from terra.sim.config import SimConfig
 
-    config = SimConfig.model_validate({"cameras": [], "route": {"frame_spacing": 0.15, "max_frames": scans}, "frame_cache": 0})
+    config = SimConfig.model_validate(
+        {"cameras": [], "route": {"frame_spacing": 0.15, "max_frames": scans}, "frame_cache": 0}
+    )
     sim = simulate("small", 0, config)
     frames = [sim[i] for i in range(len(sim))]
 
@@ -154,22 +199,40 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.seconds, args.scans = 2.0, 10
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-              "load_average_1min_at_start": os.getloadavg()[0], "quick": args.quick}
+    result = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "quick": args.quick,
+    }
     decode, decode_cpu = bench_decode(5 if args.quick else 50)
-    result["decode_ms"] = {"median": 1e3 * statistics.median(decode), "min": 1e3 * min(decode), "max": 1e3 * max(decode),
-                           "cpu": 1e3 * decode_cpu}
+    result["decode_ms"] = {
+        "median": 1e3 * statistics.median(decode),
+        "min": 1e3 * min(decode),
+        "max": 1e3 * max(decode),
+        "cpu": 1e3 * decode_cpu,
+    }
     result["bag"] = bench_bag(args.seconds)
     result["odometry"] = bench_odometry(args.scans)
     bag, odo = result["bag"], result["odometry"]
     rows = [
-        ("PointCloud2 128x1024 decode, median (min; CPU)",
-         f"{result['decode_ms']['median']:.2f} ms ({result['decode_ms']['min']:.2f}; {result['decode_ms']['cpu']:.2f})", "<= 10 ms"),
-        (f"bag read, {bag['frames']} scans + JPEG images, {bag['bag_mb']:.0f} MB mcap",
-         f"{bag['read_s']:.2f} s (index {bag['index_s']:.2f} s) = {bag['speedup']:.1f}x real time "
-         f"(CPU {bag['cpu_s']:.2f} s = {bag['speedup_cpu']:.1f}x)", ">= 5x"),
-        (f"odometry, 32x1024 sim, {odo['scans']} scans, 1 thread",
-         f"{odo['scans_per_s_threads1']:.1f} scans/s (CPU {1 / odo['cpu_s_per_scan_threads1']:.1f}/s)", ">= 20"),
+        (
+            "PointCloud2 128x1024 decode, median (min; CPU)",
+            "{median:.2f} ms ({min:.2f}; {cpu:.2f})".format(**result["decode_ms"]),
+            "<= 10 ms",
+        ),
+        (
+            f"bag read, {bag['frames']} scans + JPEG images, {bag['bag_mb']:.0f} MB mcap",
+            f"{bag['read_s']:.2f} s (index {bag['index_s']:.2f} s) = {bag['speedup']:.1f}x real time "
+            f"(CPU {bag['cpu_s']:.2f} s = {bag['speedup_cpu']:.1f}x)",
+            ">= 5x",
+        ),
+        (
+            f"odometry, 32x1024 sim, {odo['scans']} scans, 1 thread",
+            f"{odo['scans_per_s_threads1']:.1f} scans/s (CPU {1 / odo['cpu_s_per_scan_threads1']:.1f}/s)",
+            ">= 20",
+        ),
         ("odometry, all threads", f"{odo['scans_per_s_threads0']:.1f} scans/s", "-"),
     ]
     report(rows, result, Path(__file__).parent / "results" / "ros.json")

@@ -35,8 +35,8 @@ def _sections() -> dict[str, type[BaseModel]]:
     from terra.sim.config import SimConfig
     from terra.tasks.config import TasksConfig
 
-    return {"sim": SimConfig, "odometry": OdometryConfig, "mapping": MappingConfig, "build": BuildConfig, "tasks": TasksConfig,
-            "eval": EvalConfig}
+    return {"sim": SimConfig, "odometry": OdometryConfig, "mapping": MappingConfig, "build": BuildConfig,
+            "tasks": TasksConfig, "eval": EvalConfig}
 
 
 DATASET_KEY = "dataset"  # loader options, validated by the loader (terra.datasets.registry.open_dataset)

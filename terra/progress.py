@@ -56,7 +56,8 @@ class TimeProgress:
     def __init__(self, start: float, end: float, desc: str, enabled: bool = True) -> None:
         self.start, self.done = float(start), 0.0
         self.bar = tqdm(total=max(float(end) - float(start), 0.0), desc=desc, unit="s", leave=False, dynamic_ncols=True,
-                        disable=not enabled or not sys.stderr.isatty(), bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s")
+                        disable=not enabled or not sys.stderr.isatty(),
+                        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s")
 
     def update(self, t: float) -> None:
         """Advance to message time `t` (seconds)."""

@@ -28,7 +28,9 @@ def sim_sources(tmp_path_factory) -> dict[str, Path]:
     return out
 
 
-def write_test_bag(path: Path, messages: list[tuple[str, str, int, object]], ros1: bool = False, sqlite: bool = False) -> Path:
+def write_test_bag(
+    path: Path, messages: list[tuple[str, str, int, object]], ros1: bool = False, sqlite: bool = False
+) -> Path:
     """A bag of (topic, msgtype, stamp ns, message built by MessageFactory) rows: `path` is a .bag
     file (ros1) or a ROS 2 bag folder (mcap, or sqlite3 with `sqlite`)."""
     from rosbags.typesys import Stores, get_typestore
@@ -42,7 +44,9 @@ def write_test_bag(path: Path, messages: list[tuple[str, str, int, object]], ros
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP)
+        writer = Writer(
+            path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP
+        )
     with writer:
         conns = {}
         for topic, msgtype, ns, msg in messages:

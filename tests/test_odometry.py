@@ -16,7 +16,12 @@ from terra.odometry.trajectory import kitti_text, read_kitti, tum_text
 
 
 def _poses(n=6):
-    return np.stack([make_pose(Rotation.from_euler("zyx", [0.1 * k, 0.01, -0.02 * k]).as_matrix(), [k, 0.5 * k, 0.1]) for k in range(n)])
+    return np.stack(
+        [
+            make_pose(Rotation.from_euler("zyx", [0.1 * k, 0.01, -0.02 * k]).as_matrix(), [k, 0.5 * k, 0.1])
+            for k in range(n)
+        ]
+    )
 
 
 def test_kitti_and_tum_text():
@@ -51,7 +56,7 @@ def test_deskew_undoes_constant_velocity(velocity):
     seen = np.empty_like(scene)
     for i, tau in enumerate(times):
         T_stamp_sensor = make_pose(Rotation.from_rotvec(tau * v[:3]).as_matrix(), tau * v[3:])
-        seen[i] = transform_points(invert_pose(T_stamp_sensor), scene[i:i + 1])[0]
+        seen[i] = transform_points(invert_pose(T_stamp_sensor), scene[i : i + 1])[0]
     np.testing.assert_allclose(deskew(seen, times, v), scene, atol=1e-9)
     np.testing.assert_array_equal(deskew(seen, None, v), seen)
 

@@ -5,7 +5,6 @@ access, the map equal to the folder's, and bad input as one line with exit code 
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +31,9 @@ def test_inspect_reads_the_calibration_topics_and_tf_as_written(capsys, sim_sour
     np.testing.assert_array_equal(cam["dist"], truth.dist)
     np.testing.assert_allclose(cam["T_cam_lidar"], truth.T_cam_lidar, atol=1e-12)
     topics = {t["topic"]: t for t in info["details"]["topics"]}
-    assert topics["/lidar/points"]["count"] == FRAMES and topics["/lidar/points"]["type"] == "sensor_msgs/msg/PointCloud2"
+    assert (
+        topics["/lidar/points"]["count"] == FRAMES and topics["/lidar/points"]["type"] == "sensor_msgs/msg/PointCloud2"
+    )
     stamps = sim_sources["dataset"].trajectory.stamps[:FRAMES]
     assert topics["/lidar/points"]["rate_hz"] == pytest.approx((FRAMES - 1) / (stamps[-1] - stamps[0]), rel=1e-6)
     edges = {(e["parent"], e["child"]): e["static"] for e in info["details"]["tf"]}
@@ -92,7 +93,10 @@ def test_map_from_the_bag_equals_the_map_from_the_folder(sim_sources, tmp_path):
     config.write_text("mapping:\n  fusion:\n    use_global_map: false\n")
     bundles = {}
     for fmt in ("terra-folder", "rosbag2"):
-        assert run(["map", str(sim_sources[fmt]), "--out", str(tmp_path / f"{fmt}.terra"), "--config", str(config), "-q"]) == 0
+        assert (
+            run(["map", str(sim_sources[fmt]), "--out", str(tmp_path / f"{fmt}.terra"), "--config", str(config), "-q"])
+            == 0
+        )
         bundles[fmt] = Bundle(tmp_path / f"{fmt}.terra")
     folder, bag = bundles["terra-folder"], bundles["rosbag2"]
     differ = sorted(n for n, e in folder.files.items() if bag.files[n]["sha256"] != e["sha256"])
@@ -115,11 +119,18 @@ def test_truncated_and_corrupt_bags(capsys, sim_sources, tmp_path):
     bag1 = next(Path(sim_sources["rosbag1"]).glob("*.bag"))
     data = bag1.read_bytes()
     (tmp_path / "cut.bag").write_bytes(data[: len(data) // 2])
-    _assert_one_line_exit_2(capsys, ["map", str(tmp_path / "cut.bag"), "--out", str(tmp_path / "a.terra")], "cut.bag", tmp_path / "a.terra")
+    _assert_one_line_exit_2(
+        capsys, ["map", str(tmp_path / "cut.bag"), "--out", str(tmp_path / "a.terra")], "cut.bag", tmp_path / "a.terra"
+    )
     mcap = next(Path(sim_sources["rosbag2"]).glob("*.mcap"))
     data = mcap.read_bytes()
     (tmp_path / "cut.mcap").write_bytes(data[: len(data) // 2])
-    _assert_one_line_exit_2(capsys, ["map", str(tmp_path / "cut.mcap"), "--out", str(tmp_path / "b.terra")], "cut.mcap", tmp_path / "b.terra")
+    _assert_one_line_exit_2(
+        capsys,
+        ["map", str(tmp_path / "cut.mcap"), "--out", str(tmp_path / "b.terra")],
+        "cut.mcap",
+        tmp_path / "b.terra",
+    )
     (tmp_path / "bad.mcap").write_bytes(b"\x89GARBAGE" + data[8:])  # not an mcap file at all
     _assert_one_line_exit_2(capsys, ["inspect", str(tmp_path / "bad.mcap")], "bad.mcap")
 
@@ -127,21 +138,31 @@ def test_truncated_and_corrupt_bags(capsys, sim_sources, tmp_path):
 def test_missing_topic_lists_the_topics_that_exist(capsys, sim_sources, tmp_path):
     config = tmp_path / "c.yaml"
     config.write_text("dataset:\n  lidar_topic: /os_cloud_node/points\n")
-    _assert_one_line_exit_2(capsys, ["map", str(sim_sources["rosbag2"]), "--out", str(tmp_path / "m.terra"), "--config", str(config)],
-                            "no topic '/os_cloud_node/points' for the LiDAR; sensor_msgs/PointCloud2 topics: /lidar/points",
-                            tmp_path / "m.terra")
+    _assert_one_line_exit_2(
+        capsys,
+        ["map", str(sim_sources["rosbag2"]), "--out", str(tmp_path / "m.terra"), "--config", str(config)],
+        "no topic '/os_cloud_node/points' for the LiDAR; sensor_msgs/PointCloud2 topics: /lidar/points",
+        tmp_path / "m.terra",
+    )
 
 
 def test_tf_that_does_not_connect_names_both_frames(capsys, tmp_path):
     f = factory_for()
-    bag = write_test_bag(tmp_path / "bag", [
-        ("/tf", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "map", "base_link", np.eye(4))])),
-        ("/points", "sensor_msgs/msg/PointCloud2", 0, f.pointcloud2(0, "velodyne", scan())),
-    ])
+    bag = write_test_bag(
+        tmp_path / "bag",
+        [
+            ("/tf", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "map", "base_link", np.eye(4))])),
+            ("/points", "sensor_msgs/msg/PointCloud2", 0, f.pointcloud2(0, "velodyne", scan())),
+        ],
+    )
     config = tmp_path / "c.yaml"
     config.write_text("dataset:\n  poses: tf\n  map_frame: map\n")
-    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra"), "--config", str(config)],
-                            "TF does not connect 'map' and 'velodyne'", tmp_path / "m.terra")
+    _assert_one_line_exit_2(
+        capsys,
+        ["map", str(bag), "--out", str(tmp_path / "m.terra"), "--config", str(config)],
+        "TF does not connect 'map' and 'velodyne'",
+        tmp_path / "m.terra",
+    )
 
 
 def _camera_bag(tmp_path, encoding="rgb8", with_info=True):
@@ -149,7 +170,14 @@ def _camera_bag(tmp_path, encoding="rgb8", with_info=True):
 
     f = factory_for(ros1=True)
     cal = CameraCalibration("cam", 8, 6, np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]]))
-    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.eye(4))]))]
+    rows = [
+        (
+            "/tf_static",
+            "tf2_msgs/msg/TFMessage",
+            0,
+            f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.eye(4))]),
+        )
+    ]
     for k in range(3):
         ns = k * 100_000_000
         rows.append(("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "odom", "base", np.eye(4))])))
@@ -164,13 +192,19 @@ def _camera_bag(tmp_path, encoding="rgb8", with_info=True):
 
 def test_unsupported_encoding_and_missing_camera_info(capsys, tmp_path):
     bag = _camera_bag(tmp_path, encoding="yuv422")
-    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra")], "image encoding 'yuv422'", tmp_path / "m.terra")
+    _assert_one_line_exit_2(
+        capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra")], "image encoding 'yuv422'", tmp_path / "m.terra"
+    )
     (tmp_path / "nocam").mkdir()
     bag = _camera_bag(tmp_path / "nocam", with_info=False)
     config = tmp_path / "c.yaml"
     config.write_text("dataset:\n  cameras:\n  - image_topic: /cam/image\n")
-    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "n.terra"), "--config", str(config)],
-                            "no camera_info topic '/cam/camera_info'", tmp_path / "n.terra")
+    _assert_one_line_exit_2(
+        capsys,
+        ["map", str(bag), "--out", str(tmp_path / "n.terra"), "--config", str(config)],
+        "no camera_info topic '/cam/camera_info'",
+        tmp_path / "n.terra",
+    )
 
 
 def test_ros1_bag_with_odometry_frame_poses_and_camera(tmp_path):
@@ -189,16 +223,25 @@ def test_one_corrupt_image_is_skipped_and_counted(tmp_path):
     from terra.geometry import CameraCalibration
 
     cal = CameraCalibration("cam", 8, 6, np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]]))
-    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.eye(4))]))]
+    rows = [
+        (
+            "/tf_static",
+            "tf2_msgs/msg/TFMessage",
+            0,
+            f.tf([(0, "base", "lidar", np.eye(4)), (0, "base", "cam", np.eye(4))]),
+        )
+    ]
     for k in range(3):
         ns = k * 100_000_000
         image = f.compressed_image(ns, "cam", np.full((6, 8, 3), 50, np.uint8))
         if k == 1:
             image.data = image.data[:30]
-        rows += [("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", np.eye(4))])),
-                 ("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k))),
-                 ("/cam/image_raw/compressed", "sensor_msgs/msg/CompressedImage", ns, image),
-                 ("/cam/camera_info", "sensor_msgs/msg/CameraInfo", ns, f.camera_info(ns, "cam", cal))]
+        rows += [
+            ("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", np.eye(4))])),
+            ("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k))),
+            ("/cam/image_raw/compressed", "sensor_msgs/msg/CompressedImage", ns, image),
+            ("/cam/camera_info", "sensor_msgs/msg/CameraInfo", ns, f.camera_info(ns, "cam", cal)),
+        ]
     dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
     frames = [dataset[i] for i in range(len(dataset))]
     assert [len(fr.cameras) for fr in frames] == [1, 0, 1]
@@ -212,18 +255,36 @@ def _two_camera_rows(f, late_right_at: int):
     from terra.geometry import CameraCalibration
 
     K = np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]])
-    cams = {"left": CameraCalibration("left", 8, 6, K), "right": CameraCalibration("right", 8, 6, K, np.array([0.1, 0.01, 0, 0]), model="fisheye")}
+    cams = {
+        "left": CameraCalibration("left", 8, 6, K),
+        "right": CameraCalibration("right", 8, 6, K, np.array([0.1, 0.01, 0, 0]), model="fisheye"),
+    }
     mount = {"left": make_pose_y(0.3), "right": make_pose_y(-0.3)}
-    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0,
-             f.tf([(0, "base", "lidar", np.eye(4))] + [(0, "base", f"{c}_optical", mount[c]) for c in cams]))]
+    rows = [
+        (
+            "/tf_static",
+            "tf2_msgs/msg/TFMessage",
+            0,
+            f.tf([(0, "base", "lidar", np.eye(4))] + [(0, "base", f"{c}_optical", mount[c]) for c in cams]),
+        )
+    ]
     for k in range(3):
         ns = k * 100_000_000
-        rows += [("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", np.eye(4))])),
-                 ("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k)))]
+        rows += [
+            ("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", np.eye(4))])),
+            ("/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "lidar", scan(seed=k))),
+        ]
         for c, cal in cams.items():
             t = ns + (200_000_000 if c == "right" and k == late_right_at else 0)
-            rows += [(f"/{c}/image_raw", "sensor_msgs/msg/Image", t, f.image(t, f"{c}_optical", np.full((6, 8, 3), 10 * k, np.uint8))),
-                     (f"/{c}/camera_info", "sensor_msgs/msg/CameraInfo", t, f.camera_info(t, f"{c}_optical", cal))]
+            rows += [
+                (
+                    f"/{c}/image_raw",
+                    "sensor_msgs/msg/Image",
+                    t,
+                    f.image(t, f"{c}_optical", np.full((6, 8, 3), 10 * k, np.uint8)),
+                ),
+                (f"/{c}/camera_info", "sensor_msgs/msg/CameraInfo", t, f.camera_info(t, f"{c}_optical", cal)),
+            ]
     return rows, cams, mount
 
 
@@ -262,18 +323,32 @@ def test_poses_from_a_nav_msgs_odometry_topic(tmp_path):
     for k in range(4):
         ns = k * 100_000_000
         q = Rotation.from_euler("z", 0.3 * k).as_quat()
-        pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=1.0 * k, y=0.5, z=0.0),
-                                          orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=1.0 * k, y=0.5, z=0.0),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
         odom = t["nav_msgs/msg/Odometry"](
-            header=f.header(ns, "odom"), child_frame_id="base",
+            header=f.header(ns, "odom"),
+            child_frame_id="base",
             pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
             twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                twist=t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                                                   angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)),
-                covariance=np.zeros(36)))
+                twist=t["geometry_msgs/msg/Twist"](
+                    linear=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                    angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                ),
+                covariance=np.zeros(36),
+            ),
+        )
         rows.append(("/odom", "nav_msgs/msg/Odometry", ns, odom))
         if k < 3:  # scans halfway between odometry messages: interpolated
-            rows.append(("/points", "sensor_msgs/msg/PointCloud2", ns + 50_000_000, f.pointcloud2(ns + 50_000_000, "lidar", scan(seed=k))))
+            rows.append(
+                (
+                    "/points",
+                    "sensor_msgs/msg/PointCloud2",
+                    ns + 50_000_000,
+                    f.pointcloud2(ns + 50_000_000, "lidar", scan(seed=k)),
+                )
+            )
     dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
     assert dataset.pose_source == "odometry topic /odom (odom -> lidar)" and len(dataset) == 3
     expected = make_pose(Rotation.from_euler("z", 0.3 * 1.5).as_matrix(), [1.5, 0.5, 0.0]) @ T_base_lidar
@@ -282,8 +357,15 @@ def test_poses_from_a_nav_msgs_odometry_topic(tmp_path):
 
 def test_a_bag_without_poses_maps_with_odometry(tmp_path):
     f = factory_for()
-    rows = [("/points", "sensor_msgs/msg/PointCloud2", k * 100_000_000, f.pointcloud2(k * 100_000_000, "lidar", scan(seed=0)))
-            for k in range(3)]
+    rows = [
+        (
+            "/points",
+            "sensor_msgs/msg/PointCloud2",
+            k * 100_000_000,
+            f.pointcloud2(k * 100_000_000, "lidar", scan(seed=0)),
+        )
+        for k in range(3)
+    ]
     dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
     assert dataset.needs_odometry and not dataset.has_poses and dataset.pose_source == "odometry (KISS-ICP)"
 
@@ -293,14 +375,20 @@ def test_two_lidar_topics_inspect_still_describes_and_map_asks_which(capsys, tmp
     rows = []
     for k in range(2):
         ns = k * 100_000_000
-        rows += [("/front/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "front", scan(seed=k))),
-                 ("/rear/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "rear", scan(seed=k)))]
+        rows += [
+            ("/front/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "front", scan(seed=k))),
+            ("/rear/points", "sensor_msgs/msg/PointCloud2", ns, f.pointcloud2(ns, "rear", scan(seed=k))),
+        ]
     bag = write_test_bag(tmp_path / "bag", rows)
     info = _inspect(capsys, bag)
     assert {t["topic"] for t in info["details"]["topics"]} == {"/front/points", "/rear/points"}
     assert "set dataset.lidar_topic" in info["details"]["problem"]
-    _assert_one_line_exit_2(capsys, ["map", str(bag), "--out", str(tmp_path / "m.terra")],
-                            "2 PointCloud2 topics (/front/points, /rear/points)", tmp_path / "m.terra")
+    _assert_one_line_exit_2(
+        capsys,
+        ["map", str(bag), "--out", str(tmp_path / "m.terra")],
+        "2 PointCloud2 topics (/front/points, /rear/points)",
+        tmp_path / "m.terra",
+    )
 
 
 def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sources, tmp_path):
@@ -311,7 +399,9 @@ def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sourc
     from tests.fixtures_mapping import folder_digest
 
     config = MappingConfig(checkpoint_every=2)
-    reference = run_mapping(open_dataset(sim_sources["rosbag1"]), config, tmp_path / "ref.terra", show_progress=False).bundle
+    reference = run_mapping(
+        open_dataset(sim_sources["rosbag1"]), config, tmp_path / "ref.terra", show_progress=False
+    ).bundle
 
     class Stopping:
         def __init__(self, source, stop_at=None):
@@ -342,7 +432,9 @@ def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sourc
 def test_raw_image_bag_gives_the_simulator_pixels_and_jpeg_differs_by_under_one_level(sim_sources, tmp_path):
     from terra.sim.writer import write_dataset
 
-    raw = open_dataset(write_dataset(sim_sources["dataset"], tmp_path / "raw", format="rosbag1", progress=False, bag_images="raw"))
+    raw = open_dataset(
+        write_dataset(sim_sources["dataset"], tmp_path / "raw", format="rosbag1", progress=False, bag_images="raw")
+    )
     jpeg = open_dataset(sim_sources["rosbag2"])
     assert raw.camera_topics[0].image == "/cam0/image_raw"
     exact = raw[1].cameras[0].image

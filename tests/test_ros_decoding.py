@@ -28,15 +28,36 @@ def _cloud(fields, rows, point_step, big=False, height=1, row_pad=0):
         r, c = divmod(k, width)
         base = r * row_step + c * point_step
         for (name, offset, _, kind), v in zip(fields, values):
-            data[base + offset: base + offset + np.dtype(kind).itemsize] = np.array([v], order + kind).tobytes()
-    return NS(height=height, width=width, fields=[NS(name=n, offset=o, datatype=d, count=1) for n, o, d, _ in fields],
-              is_bigendian=big, point_step=point_step, row_step=row_step, data=np.frombuffer(bytes(data), np.uint8))
+            data[base + offset : base + offset + np.dtype(kind).itemsize] = np.array([v], order + kind).tobytes()
+    return NS(
+        height=height,
+        width=width,
+        fields=[NS(name=n, offset=o, datatype=d, count=1) for n, o, d, _ in fields],
+        is_bigendian=big,
+        point_step=point_step,
+        row_step=row_step,
+        data=np.frombuffer(bytes(data), np.uint8),
+    )
 
 
-OUSTER = [("x", 0, 7, "f4"), ("y", 4, 7, "f4"), ("z", 8, 7, "f4"), ("intensity", 16, 7, "f4"), ("t", 20, 6, "u4"),
-          ("reflectivity", 24, 4, "u2"), ("ring", 26, 4, "u2"), ("range", 32, 6, "u4")]
-VELODYNE = [("x", 0, 7, "f4"), ("y", 4, 7, "f4"), ("z", 8, 7, "f4"), ("intensity", 12, 7, "f4"), ("ring", 16, 4, "u2"),
-            ("time", 18, 7, "f4")]
+OUSTER = [
+    ("x", 0, 7, "f4"),
+    ("y", 4, 7, "f4"),
+    ("z", 8, 7, "f4"),
+    ("intensity", 16, 7, "f4"),
+    ("t", 20, 6, "u4"),
+    ("reflectivity", 24, 4, "u2"),
+    ("ring", 26, 4, "u2"),
+    ("range", 32, 6, "u4"),
+]
+VELODYNE = [
+    ("x", 0, 7, "f4"),
+    ("y", 4, 7, "f4"),
+    ("z", 8, 7, "f4"),
+    ("intensity", 12, 7, "f4"),
+    ("ring", 16, 4, "u2"),
+    ("time", 18, 7, "f4"),
+]
 
 
 def _rows(n, with_time):
@@ -67,7 +88,9 @@ def test_velodyne_layout_seconds_and_nan_or_no_return_points_dropped():
     keep[[3, 17]] = False
     np.testing.assert_array_equal(cloud.points, xyz[keep])
     np.testing.assert_array_equal(cloud.intensity, inten[keep])
-    np.testing.assert_allclose(cloud.times, (np.float32(-0.1) + np.arange(30, dtype=np.float32) * np.float32(1e-3))[keep].astype(np.float64))
+    np.testing.assert_allclose(
+        cloud.times, (np.float32(-0.1) + np.arange(30, dtype=np.float32) * np.float32(1e-3))[keep].astype(np.float64)
+    )
 
 
 def test_missing_intensity_float64_coordinates_and_labels():
@@ -80,14 +103,24 @@ def test_missing_intensity_float64_coordinates_and_labels():
     np.testing.assert_array_equal(cloud.labels, np.arange(12))
 
 
-@pytest.mark.parametrize("fields, step, fragment", [
-    ([("x", 0, 7, "f4"), ("y", 4, 7, "f4")], 12, "no field 'z'"),
-    ([("x", 0, 7, "f4"), ("y", 4, 7, "f4"), ("z", 8, 9, "f4")], 12, "field 'z' has datatype 9"),
-    ([("x", 0, 7, "f4"), ("y", 4, 7, "f4"), ("z", 10, 7, "f4")], 12, "field 'z' at offset 10"),
-])
+@pytest.mark.parametrize(
+    "fields, step, fragment",
+    [
+        ([("x", 0, 7, "f4"), ("y", 4, 7, "f4")], 12, "no field 'z'"),
+        ([("x", 0, 7, "f4"), ("y", 4, 7, "f4"), ("z", 8, 9, "f4")], 12, "field 'z' has datatype 9"),
+        ([("x", 0, 7, "f4"), ("y", 4, 7, "f4"), ("z", 10, 7, "f4")], 12, "field 'z' at offset 10"),
+    ],
+)
 def test_unsupported_layouts_name_the_field(fields, step, fragment):
-    msg = NS(height=1, width=2, fields=[NS(name=n, offset=o, datatype=d, count=1) for n, o, d, _ in fields],
-             is_bigendian=False, point_step=step, row_step=2 * step, data=np.zeros(2 * step, np.uint8))
+    msg = NS(
+        height=1,
+        width=2,
+        fields=[NS(name=n, offset=o, datatype=d, count=1) for n, o, d, _ in fields],
+        is_bigendian=False,
+        point_step=step,
+        row_step=2 * step,
+        data=np.zeros(2 * step, np.uint8),
+    )
     with pytest.raises(TerraError, match=fragment):
         decode_pointcloud2(msg, "bag /points")
 
@@ -107,17 +140,26 @@ RGB = RNG.integers(0, 256, (5, 7, 3), dtype=np.uint8)
 def _image(encoding, pixels, pad=0, big=0):
     h = pixels.shape[0]
     flat = [np.ascontiguousarray(pixels[r]).tobytes() + bytes(pad) for r in range(h)]
-    return NS(height=h, width=pixels.shape[1], encoding=encoding, is_bigendian=big, step=len(flat[0]),
-              data=np.frombuffer(b"".join(flat), np.uint8))
+    return NS(
+        height=h,
+        width=pixels.shape[1],
+        encoding=encoding,
+        is_bigendian=big,
+        step=len(flat[0]),
+        data=np.frombuffer(b"".join(flat), np.uint8),
+    )
 
 
-@pytest.mark.parametrize("encoding, pixels, expected", [
-    ("rgb8", RGB, RGB),
-    ("bgr8", RGB[:, :, ::-1], RGB),
-    ("rgba8", np.dstack([RGB, np.full((5, 7), 9, np.uint8)]), RGB),
-    ("bgra8", np.dstack([RGB[:, :, ::-1], np.full((5, 7), 9, np.uint8)]), RGB),
-    ("mono8", RGB[:, :, 0], np.repeat(RGB[:, :, :1], 3, axis=2)),
-])
+@pytest.mark.parametrize(
+    "encoding, pixels, expected",
+    [
+        ("rgb8", RGB, RGB),
+        ("bgr8", RGB[:, :, ::-1], RGB),
+        ("rgba8", np.dstack([RGB, np.full((5, 7), 9, np.uint8)]), RGB),
+        ("bgra8", np.dstack([RGB[:, :, ::-1], np.full((5, 7), 9, np.uint8)]), RGB),
+        ("mono8", RGB[:, :, 0], np.repeat(RGB[:, :, :1], 3, axis=2)),
+    ],
+)
 def test_image_encodings_become_rgb_with_row_padding(encoding, pixels, expected):
     out = decode_image(_image(encoding, pixels, pad=3))
     np.testing.assert_array_equal(out, expected)
@@ -135,7 +177,9 @@ def test_mono16_takes_the_high_byte_in_both_byte_orders(big):
 
 def test_unsupported_encoding_names_it():
     with pytest.raises(TerraError, match="encoding 'yuv422'"):
-        decode_image(NS(height=1, width=2, encoding="yuv422", is_bigendian=0, step=4, data=np.zeros(4, np.uint8)), "bag /cam")
+        decode_image(
+            NS(height=1, width=2, encoding="yuv422", is_bigendian=0, step=4, data=np.zeros(4, np.uint8)), "bag /cam"
+        )
 
 
 @pytest.mark.parametrize("fmt", ["png", "jpeg"])
@@ -159,12 +203,15 @@ def test_corrupt_and_unknown_compressed_data():
         decode_compressed(NS(format="tiff", data=np.zeros(4, np.uint8)))
 
 
-@pytest.mark.parametrize("model, d, ours, count", [
-    ("plumb_bob", [0.1, -0.02, 0.001, 0.002, 0.003], "pinhole", 5),
-    ("rational_polynomial", [0.1, -0.02, 0.001, 0.002, 0.003, 0.01, 0.0, 0.02], "pinhole", 8),
-    ("equidistant", [0.01, -0.002, 0.0003, 0.0], "fisheye", 4),
-    ("plumb_bob", [], "pinhole", 0),
-])
+@pytest.mark.parametrize(
+    "model, d, ours, count",
+    [
+        ("plumb_bob", [0.1, -0.02, 0.001, 0.002, 0.003], "pinhole", 5),
+        ("rational_polynomial", [0.1, -0.02, 0.001, 0.002, 0.003, 0.01, 0.0, 0.02], "pinhole", 8),
+        ("equidistant", [0.01, -0.002, 0.0003, 0.0], "fisheye", 4),
+        ("plumb_bob", [], "pinhole", 0),
+    ],
+)
 def test_camera_info_models(model, d, ours, count):
     from terra.datasets.ros.camera_info import camera_from_info
 
@@ -172,7 +219,9 @@ def test_camera_info_models(model, d, ours, count):
     cal = camera_from_info(NS(k=K, d=d, distortion_model=model, width=640, height=480), "cam", np.eye(4))
     assert cal.model == ours and cal.dist.size == count and (cal.width, cal.height) == (640, 480)
     np.testing.assert_array_equal(cal.K.ravel(), K)
-    ros1 = camera_from_info(NS(K=K, D=d, distortion_model=model, width=0, height=0), "cam", np.eye(4), image_size=(640, 480))
+    ros1 = camera_from_info(
+        NS(K=K, D=d, distortion_model=model, width=0, height=0), "cam", np.eye(4), image_size=(640, 480)
+    )
     np.testing.assert_array_equal(ros1.dist, cal.dist)
 
 
@@ -185,4 +234,6 @@ def test_camera_info_errors_name_the_field():
     with pytest.raises(TerraError, match="field 'k'"):
         camera_from_info(NS(k=[0.0] * 9, d=[], distortion_model="plumb_bob", width=640, height=480), "cam", np.eye(4))
     with pytest.raises(TerraError, match="images are 320x240"):
-        camera_from_info(NS(k=K, d=[], distortion_model="plumb_bob", width=640, height=480), "cam", np.eye(4), image_size=(320, 240))
+        camera_from_info(
+            NS(k=K, d=[], distortion_model="plumb_bob", width=640, height=480), "cam", np.eye(4), image_size=(320, 240)
+        )

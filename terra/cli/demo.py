@@ -19,7 +19,9 @@ def demo_command(
     seed: int = typer.Option(0, "--seed", "-s", min=0, help="Seed of the test scene; the validation scene uses seed + 1."),
     validation_preset: Optional[str] = typer.Option(None, "--validation-preset", help="Preset of the validation scene, where alpha and k are tuned (default: --preset)."),
     validation_spacing: float = typer.Option(2.0, "--validation-spacing", help="The validation scene's frames are this many times further apart than the test scene's (cheaper; 1 = same)."),
-    format: str = typer.Option("terra-folder", "--format", help="How the scenes are written and read back: terra-folder, rosbag2 (a ROS 2 mcap bag) or rosbag1."),
+    format: str = typer.Option("terra-folder", "--format",
+                               help="How the scenes are written and read back: terra-folder, "
+                                    "rosbag2 (a ROS 2 mcap bag) or rosbag1."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."),
     as_json: bool = typer.Option(False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, step log or timing table."),

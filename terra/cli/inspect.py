@@ -15,15 +15,20 @@ from terra.cli import app
 def _camera_lines(cam: dict) -> list[str]:
     K = cam["K"]
     T = cam["T_cam_lidar"]
-    return [f"  camera {cam['name']}: {cam['width']} x {cam['height']}, fx {K[0][0]:.3f} fy {K[1][1]:.3f} "
-            f"cx {K[0][2]:.3f} cy {K[1][2]:.3f}, {cam['model']} lens, dist {cam['dist']}",
-            "    T_cam_lidar: " + " | ".join(" ".join(f"{v:.6f}" for v in row) for row in T[:3])]
+    return [
+        f"  camera {cam['name']}: {cam['width']} x {cam['height']}, fx {K[0][0]:.3f} fy {K[1][1]:.3f} "
+        f"cx {K[0][2]:.3f} cy {K[1][2]:.3f}, {cam['model']} lens, dist {cam['dist']}",
+        "    T_cam_lidar: " + " | ".join(" ".join(f"{v:.6f}" for v in row) for row in T[:3]),
+    ]
 
 
 def _bag_lines(d: dict) -> list[str]:
     import yaml
 
-    lines = [f"  storage: {d['storage']}, {d['duration_s']:.3f} s recorded ({d['start']:.3f} .. {d['end']:.3f})", "  topics:"]
+    lines = [
+        f"  storage: {d['storage']}, {d['duration_s']:.3f} s recorded ({d['start']:.3f} .. {d['end']:.3f})",
+        "  topics:",
+    ]
     width = max([len(r["topic"]) for r in d["topics"]] + [5])
     for r in d["topics"]:
         rate = f"{r['rate_hz']:.2f} Hz" if r["rate_hz"] else "-"
@@ -46,9 +51,11 @@ def _bag_lines(d: dict) -> list[str]:
 
 def render(info: dict) -> list[str]:
     span = info["time_span"]
-    lines = [f"{info['path']} ({info['format']}): {info['frames']} frames"
-             + (f", {span[0]:.3f} .. {span[1]:.3f} s ({span[1] - span[0]:.3f} s)" if span else ""),
-             f"  poses: {info['pose_source']}"]
+    lines = [
+        f"{info['path']} ({info['format']}): {info['frames']} frames"
+        + (f", {span[0]:.3f} .. {span[1]:.3f} s ({span[1] - span[0]:.3f} s)" if span else ""),
+        f"  poses: {info['pose_source']}",
+    ]
     for cam in info["cameras"]:
         lines += _camera_lines(cam)
     if not info["cameras"]:
@@ -68,7 +75,9 @@ def render(info: dict) -> list[str]:
 def inspect_command(
     source: Path = typer.Argument(..., help="A dataset folder, a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
     format: str = typer.Option("auto", "--format", help="auto, terra-folder, semantickitti or rosbag."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config whose `dataset` section sets the loader's options."),
+    config: Optional[Path] = typer.Option(
+        None, "--config", "-c", help="YAML config whose `dataset` section sets the loader's options."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print everything as one JSON document."),
 ) -> None:
     """Show what SOURCE holds before mapping it: frames and time span, each camera's size,

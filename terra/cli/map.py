@@ -25,11 +25,14 @@ def _sim_dataset(spec: str):
 
 @app.command("map")
 def map_command(
-    dataset: Optional[Path] = typer.Argument(None, help="Dataset: a folder (terra-folder, SemanticKITTI) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
+    dataset: Optional[Path] = typer.Argument(
+        None, help="Dataset: a folder (terra-folder, SemanticKITTI) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
     out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write (replaced atomically)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
+    config: Optional[Path] = typer.Option(
+        None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
     format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti or rosbag."),
-    poses: str = typer.Option("auto", "--poses", help="auto: the source's poses (LiDAR odometry when it has none); odometry: KISS-ICP on the scans."),
+    poses: str = typer.Option("auto", "--poses", help="auto: the source's poses (LiDAR odometry when it has none); "
+                                                    "odometry: KISS-ICP on the scans."),
     sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
     noise: Optional[str] = typer.Option(None, "--noise", help="Perception noise preset (none, realistic); overrides the config."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),

@@ -16,10 +16,13 @@ def sim(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist or be empty, unless --overwrite)."),
     preset: str = typer.Option("small", "--preset", "-p", help="World size: tiny, small, campus or large."),
     seed: int = typer.Option(0, "--seed", "-s", min=0, help="Random seed; same preset and seed give the same bytes."),
-    format: str = typer.Option("terra-folder", "--format", "-f", help="terra-folder (the reference layout), semantickitti, rosbag1 (a ROS 1 .bag) or rosbag2 (a ROS 2 mcap bag)."),
+    format: str = typer.Option("terra-folder", "--format", "-f",
+                               help="terra-folder (the reference layout), semantickitti, rosbag1 (a ROS 1 .bag) or "
+                                    "rosbag2 (a ROS 2 mcap bag)."),
     config: Path | None = typer.Option(None, "--config", "-c", help="YAML file with a `sim:` section (see `terra config dump sim`)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output folder."),
-    bag_images: str = typer.Option("jpeg", "--bag-images", help="Images in a bag: jpeg (sensor_msgs/CompressedImage) or raw (sensor_msgs/Image rgb8)."),
+    bag_images: str = typer.Option(
+        "jpeg", "--bag-images", help="Images in a bag: jpeg (sensor_msgs/CompressedImage) or raw (Image rgb8)."),
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or timing table."),
 ) -> None:

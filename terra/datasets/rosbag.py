@@ -47,8 +47,12 @@ class CameraTopicsConfig(Section):
 
     name: str | None = Field(None, description="camera name (default: the image topic's namespace)")
     image_topic: str = Field(..., description="sensor_msgs/Image or CompressedImage topic")
-    info_topic: str | None = Field(None, description="sensor_msgs/CameraInfo topic (default: camera_info beside the image)")
-    semantic_topic: str | None = Field(None, description="optional label image (mono16 class ids) for the labels backend")
+    info_topic: str | None = Field(
+        None, description="sensor_msgs/CameraInfo topic (default: camera_info beside the image)"
+    )
+    semantic_topic: str | None = Field(
+        None, description="optional label image (mono16 class ids) for the labels backend"
+    )
     instance_topic: str | None = Field(None, description="optional label image (mono16 instance ids)")
 
 
@@ -57,14 +61,23 @@ class RosbagConfig(Section):
     are found in the bag when that is unambiguous."""
 
     lidar_topic: str | None = Field(None, description="sensor_msgs/PointCloud2 topic of the LiDAR")
-    cameras: list[CameraTopicsConfig] | None = Field(None, description="cameras to use (default: every image topic with a camera_info beside it)")
+    cameras: list[CameraTopicsConfig] | None = Field(
+        None, description="cameras to use (default: every image topic with a camera_info beside it)"
+    )
     lidar_frame: str | None = Field(None, description="TF frame of the LiDAR (default: the clouds' header.frame_id)")
-    map_frame: str | None = Field(None, description="TF frame the poses are in (default: map, odom or world above the LiDAR)")
+    map_frame: str | None = Field(
+        None, description="TF frame the poses are in (default: map, odom or world above the LiDAR)"
+    )
     poses: Literal["auto", "tf", "topic", "odometry"] = Field(
-        "auto", description="pose source: tf (/tf), topic (nav_msgs/Odometry), odometry (KISS-ICP on the scans), auto (first that exists)")
+        "auto",
+        description="pose source: tf (/tf), topic (nav_msgs/Odometry), odometry (KISS-ICP on the scans), "
+        "auto (the first that exists)",
+    )
     odometry_topic: str | None = Field(None, description="nav_msgs/Odometry topic for poses: topic")
     max_gap: float = Field(0.05, gt=0.0, description="seconds an image may lie from its scan's stamp")
-    max_pose_gap: float = Field(0.5, gt=0.0, description="seconds between the two TF samples a scan's pose is interpolated from")
+    max_pose_gap: float = Field(
+        0.5, gt=0.0, description="seconds between the two TF samples a scan's pose is interpolated from"
+    )
 
 
 @dataclass
@@ -94,7 +107,9 @@ class RosbagDataset:
         odom_topic = choose_odometry(self.bag, config.odometry_topic) if config.poses in ("auto", "topic") else None
         if config.poses == "topic" and odom_topic is None:
             found = ", ".join(self.bag.topics_of_type("nav_msgs/msg/Odometry")) or "none"
-            raise TerraError(f"{self.path}: poses: topic needs dataset.odometry_topic (nav_msgs/Odometry topics: {found})")
+            raise TerraError(
+                f"{self.path}: poses: topic needs dataset.odometry_topic (nav_msgs/Odometry topics: {found})"
+            )
         stamped = [self.lidar_topic] + [t for c in self.camera_topics for t in (c.image, c.semantic, c.instance) if t]
         self.index: BagIndex = index_bag(self.bag, stamped, odom_topic, show_progress)
         scans = self.index.streams[self.lidar_topic]
@@ -103,15 +118,19 @@ class RosbagDataset:
         first_cloud = self.bag.deserialize(self.index.first[self.lidar_topic], self.lidar_topic)
         decode_pointcloud2(first_cloud, f"{self.path} {self.lidar_topic}")  # an unsupported layout fails here
         self.lidar_frame = (config.lidar_frame or first_cloud.header.frame_id).lstrip("/")
-        self.cloud_fields = [{"name": f.name, "offset": int(f.offset), "datatype": int(f.datatype), "count": int(f.count)}
-                             for f in first_cloud.fields]
+        self.cloud_fields = [
+            {"name": f.name, "offset": int(f.offset), "datatype": int(f.datatype), "count": int(f.count)}
+            for f in first_cloud.fields
+        ]
         poses, valid, self.pose_source, self.needs_odometry, self.map_frame = self._poses(scans.stamps, odom_topic)
         self.has_poses = bool(np.isfinite(poses).all()) if len(poses) else False
         self.calibrations = [self._calibration(cam) for cam in self.camera_topics]
         self._frames = self._pair(scans, poses, valid)
         if not self._frames:
-            raise TerraError(f"{self.path}: no scan of {self.lidar_topic} has a pose ({self.pose_source}); "
-                             f"first: {self.skipped_notes.get('scans_without_pose', '')}")
+            raise TerraError(
+                f"{self.path}: no scan of {self.lidar_topic} has a pose ({self.pose_source}); "
+                f"first: {self.skipped_notes.get('scans_without_pose', '')}"
+            )
 
     # ------------------------------------------------------------------ setup
     def _poses(self, stamps: np.ndarray, odom_topic: str | None):
@@ -120,8 +139,10 @@ class RosbagDataset:
         map_frame = self.config.map_frame or self._auto_map_frame(tree)
         use_tf = mode in ("tf", "odometry") or (mode == "auto" and map_frame is not None)
         if mode == "tf" and map_frame is None:
-            raise TerraError(f"{self.path}: no moving TF transform above LiDAR frame '{self.lidar_frame}' gives poses "
-                             f"(frames: {', '.join(tree.frames()) or 'none'}); set dataset.map_frame or another dataset.poses")
+            raise TerraError(
+                f"{self.path}: no moving TF transform above LiDAR frame '{self.lidar_frame}' gives poses "
+                f"(frames: {', '.join(tree.frames()) or 'none'}); set dataset.map_frame or another dataset.poses"
+            )
         if use_tf and map_frame is not None:
             poses, valid = tree.lookup(map_frame, self.lidar_frame, stamps, self.config.max_pose_gap)
             return poses, valid, f"tf {map_frame} -> {self.lidar_frame}", mode == "odometry", map_frame
@@ -141,7 +162,7 @@ class RosbagDataset:
         moving = [k for k, f in enumerate(chain[:-1]) if f in tree.dynamic]
         if not moving:
             return None
-        above = chain[moving[0] + 1:]
+        above = chain[moving[0] + 1 :]
         return next((f for f in PREFERRED_MAP_FRAMES if f in above), above[-1])
 
     def _calibration(self, cam: CameraTopics) -> CameraCalibration:
@@ -155,8 +176,10 @@ class RosbagDataset:
         where = f"{self.path} {cam.info}"
         tree = self.index.tf
         if not tree.is_static(frame, self.lidar_frame):
-            raise TerraError(f"{where}: TF between camera frame '{frame}' and LiDAR frame '{self.lidar_frame}' moves; "
-                             "expected a fixed mount in /tf_static")
+            raise TerraError(
+                f"{where}: TF between camera frame '{frame}' and LiDAR frame '{self.lidar_frame}' moves; "
+                "expected a fixed mount in /tf_static"
+            )
         T_cam_lidar = tree.lookup(frame, self.lidar_frame, np.zeros(1))[0][0]
         size = None
         first = self.index.first.get(cam.image)
@@ -173,27 +196,42 @@ class RosbagDataset:
         for k in range(len(scans)):
             t = float(scans.stamps[k])
             if not valid[k]:
-                self._skip("scans_without_pose", f"scan at {t:.3f} s: no {self.pose_source} pose within "
-                           f"{self.config.max_pose_gap} s samples")
+                self._skip(
+                    "scans_without_pose",
+                    f"scan at {t:.3f} s: no {self.pose_source} pose within {self.config.max_pose_gap} s samples",
+                )
                 continue
             ref = _FrameRef(t, scans.key(self.lidar_topic, k), poses[k])
             for c, cam in enumerate(self.camera_topics):
                 images = streams[cam.image]
                 j, gap = nearest(images.stamps, t)
                 if gap > self.config.max_gap:
-                    self._skip(f"scans_without_image_{cam.name}", f"scan at {t:.3f} s: nearest {cam.image} image is "
-                               f"{gap:.3f} s away (max_gap {self.config.max_gap} s)")
+                    self._skip(
+                        f"scans_without_image_{cam.name}",
+                        f"scan at {t:.3f} s: nearest {cam.image} image is "
+                        f"{gap:.3f} s away (max_gap {self.config.max_gap} s)",
+                    )
                     continue
                 used[c][j] = True
                 stamp = float(images.stamps[j])
-                ref.cameras.append((c, images.key(cam.image, j), stamp, self._label_key(cam.semantic, stamp),
-                                    self._label_key(cam.instance, stamp)))
+                ref.cameras.append(
+                    (
+                        c,
+                        images.key(cam.image, j),
+                        stamp,
+                        self._label_key(cam.semantic, stamp),
+                        self._label_key(cam.instance, stamp),
+                    )
+                )
             frames.append(ref)
         for c, cam in enumerate(self.camera_topics):
             unused = np.flatnonzero(~used[c])
             if unused.size:
-                self._skip(f"images_unpaired_{cam.name}", f"{cam.image} image at {streams[cam.image].stamps[unused[0]]:.3f} s "
-                           "is no scan's nearest image", int(unused.size))
+                self._skip(
+                    f"images_unpaired_{cam.name}",
+                    f"{cam.image} image at {streams[cam.image].stamps[unused[0]]:.3f} s is no scan's nearest image",
+                    int(unused.size),
+                )
         return frames
 
     def _label_key(self, topic: str | None, stamp: float) -> tuple | None:
@@ -226,18 +264,33 @@ class RosbagDataset:
             camera = self._camera_frame(c, key, stamp, sem, inst, raws)
             if camera is not None:
                 cams.append(camera)
-        return Frame(index, ref.stamp, cloud.points, ref.T_map_lidar.copy(), cams, cloud.intensity, cloud.labels,
-                     cloud.instances, point_times=cloud.times)
+        return Frame(
+            index,
+            ref.stamp,
+            cloud.points,
+            ref.T_map_lidar.copy(),
+            cams,
+            cloud.intensity,
+            cloud.labels,
+            cloud.instances,
+            point_times=cloud.times,
+        )
 
-    def _camera_frame(self, c: int, key: tuple, stamp: float, sem: tuple | None, inst: tuple | None, raws: dict) -> CameraFrame | None:
+    def _camera_frame(
+        self, c: int, key: tuple, stamp: float, sem: tuple | None, inst: tuple | None, raws: dict
+    ) -> CameraFrame | None:
         """Camera c's image of a frame, or None (counted) when it cannot be decoded."""
         cam, cal = self.camera_topics[c], self.calibrations[c]
         try:
             if key not in raws:
                 raise TerraError(f"{self.path} {cam.image} at {stamp:.3f} s: message could not be read back")
             image = self._decode_image(cam.image, raws[key], stamp)
-            labels = [decode_labels(self.bag.deserialize(raws[k], k[0]), f"{self.path} {k[0]} at {stamp:.3f} s")
-                      if k is not None and k in raws else None for k in (sem, inst)]
+            labels = [
+                decode_labels(self.bag.deserialize(raws[k], k[0]), f"{self.path} {k[0]} at {stamp:.3f} s")
+                if k is not None and k in raws
+                else None
+                for k in (sem, inst)
+            ]
         except TerraError as exc:
             self._skip("images_skipped_undecodable", str(exc))
             return None
@@ -275,5 +328,10 @@ def _open(path: Path, config: RosbagConfig) -> RosbagDataset:
     return RosbagDataset(path, config)
 
 
-LOADER = Loader("rosbag", _detect, _open, RosbagConfig,
-                "ROS 1 .bag, ROS 2 bag folder (sqlite3 or mcap) or .mcap file: PointCloud2, images, CameraInfo, TF")
+LOADER = Loader(
+    "rosbag",
+    _detect,
+    _open,
+    RosbagConfig,
+    "ROS 1 .bag, ROS 2 bag folder (sqlite3 or mcap) or .mcap file: PointCloud2, images, CameraInfo, TF",
+)

@@ -323,8 +323,9 @@ class SemanticKittiDataset:
     def info(self) -> SourceInfo:
         """What `terra inspect` reports: scans, cameras (exact or from P2/P3), label files present."""
         labels = len(list((self.seq / "labels").glob("*.label"))) if (self.seq / "labels").is_dir() else 0
-        return SourceInfo("semantickitti", str(self.seq), len(self.scans), (float(self.stamps[0]), float(self.stamps[-1])),
-                          list(self.cameras), "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)", {}, {},
+        span = (float(self.stamps[0]), float(self.stamps[-1]))
+        return SourceInfo("semantickitti", str(self.seq), len(self.scans), span, list(self.cameras),
+                          "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)", {}, {},
                           {"sequence": self.name, "label_files": labels, "camera_folders": list(self._camera_folders),
                            "calibrations_from": CAMERAS if (self.seq / CAMERAS).is_file() else "calib.txt"})
 

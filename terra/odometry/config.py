@@ -20,5 +20,9 @@ class OdometryConfig(Section):
     max_num_iterations: int = Field(500, ge=1, description="ICP iterations per scan")
     convergence_criterion: float = Field(1e-4, gt=0.0, description="ICP stops when the update is smaller")
     deskew: bool = Field(True, description="correct each scan's motion during the sweep when points carry times")
-    velocity_window_s: float = Field(0.5, gt=0.0, description="seconds of past poses the deskewing velocity is averaged over")
-    threads: int = Field(1, ge=0, description="registration threads; 0 = all cores (faster, not bit-for-bit repeatable)")
+    velocity_window_s: float = Field(
+        0.5, gt=0.0, description="seconds of past poses the deskewing velocity is averaged over"
+    )
+    threads: int = Field(
+        1, ge=0, description="registration threads; 0 = all cores (faster, not bit-for-bit repeatable)"
+    )

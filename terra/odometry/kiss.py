@@ -58,11 +58,17 @@ def kiss_config(config: OdometryConfig):
     return KISSConfig(
         out_dir="unused",
         data=DataConfig(max_range=config.max_range, min_range=config.min_range, deskew=False),
-        registration=RegistrationConfig(max_num_iterations=config.max_num_iterations,
-                                        convergence_criterion=config.convergence_criterion, max_num_threads=config.threads),
-        mapping=MappingConfig(voxel_size=config.voxel_size or config.max_range / 100.0,
-                              max_points_per_voxel=config.max_points_per_voxel),
-        adaptive_threshold=AdaptiveThresholdConfig(initial_threshold=config.initial_threshold, min_motion_th=config.min_motion_th),
+        registration=RegistrationConfig(
+            max_num_iterations=config.max_num_iterations,
+            convergence_criterion=config.convergence_criterion,
+            max_num_threads=config.threads,
+        ),
+        mapping=MappingConfig(
+            voxel_size=config.voxel_size or config.max_range / 100.0, max_points_per_voxel=config.max_points_per_voxel
+        ),
+        adaptive_threshold=AdaptiveThresholdConfig(
+            initial_threshold=config.initial_threshold, min_motion_th=config.min_motion_th
+        ),
     )
 
 

@@ -26,5 +26,9 @@ def trajectory_errors(estimate: np.ndarray, reference: np.ndarray) -> dict[str, 
     ate = float(np.sqrt(np.mean(np.sum((aligned - ref) ** 2, axis=1))))
     distance = float(np.sum(np.linalg.norm(np.diff(ref, axis=0), axis=1)))
     final = float(np.linalg.norm(est[-1] - ref[-1]))
-    return {"ate_rmse_m": ate, "final_error_m": final, "distance_m": distance,
-            "drift_percent": 100.0 * final / distance if distance > 0 else 0.0}
+    return {
+        "ate_rmse_m": ate,
+        "final_error_m": final,
+        "distance_m": distance,
+        "drift_percent": 100.0 * final / distance if distance > 0 else 0.0,
+    }

@@ -21,7 +21,9 @@ def kitti_text(poses: np.ndarray) -> str:
 
 def tum_text(stamps: np.ndarray, poses: np.ndarray) -> str:
     """(F,) stamps and (F, 4, 4) poses as TUM lines."""
-    return "".join(f"{t:.9f} " + " ".join(f"{v:.9f}" for v in pose_to_xyz_quat(T)) + "\n" for t, T in zip(stamps, poses))
+    return "".join(
+        f"{t:.9f} " + " ".join(f"{v:.9f}" for v in pose_to_xyz_quat(T)) + "\n" for t, T in zip(stamps, poses)
+    )
 
 
 def read_kitti(text: str) -> np.ndarray:

@@ -33,7 +33,9 @@ def optical_frame(camera: str) -> str:
     return f"{camera}_optical"
 
 
-def write_bag(dataset: Dataset, root: Path, version: int, image_format: str = "jpeg", show_progress: bool = True) -> Path:
+def write_bag(
+    dataset: Dataset, root: Path, version: int, image_format: str = "jpeg", show_progress: bool = True
+) -> Path:
     """Write every frame of `dataset` (a SimDataset: it needs `lidar.T_base_lidar`) as a bag in
     the existing folder `root`: ROS 1 `<name>.bag` (version 1) or a ROS 2 mcap bag whose
     metadata.yaml and .mcap sit directly in `root` (version 2). Returns the bag path."""
@@ -52,12 +54,22 @@ def write_bag(dataset: Dataset, root: Path, version: int, image_format: str = "j
             ns = int(round(float(frame.stamp) * 1e9))
             if i == 0:
                 mounts = [(ns, BASE, LIDAR, T_base_lidar)]
-                mounts += [(ns, BASE, optical_frame(c.calibration.name), T_base_lidar @ invert_pose(c.calibration.T_cam_lidar))
-                           for c in frame.cameras]
+                mounts += [
+                    (ns, BASE, optical_frame(c.calibration.name), T_base_lidar @ invert_pose(c.calibration.T_cam_lidar))
+                    for c in frame.cameras
+                ]
                 topics.write("/tf_static", "tf2_msgs/msg/TFMessage", ns, factory.tf(mounts), factory)
-            topics.write("/tf", "tf2_msgs/msg/TFMessage", ns, factory.tf([(ns, MAP, BASE, frame.T_map_lidar @ T_lidar_base)]), factory)
+            topics.write(
+                "/tf",
+                "tf2_msgs/msg/TFMessage",
+                ns,
+                factory.tf([(ns, MAP, BASE, frame.T_map_lidar @ T_lidar_base)]),
+                factory,
+            )
             times = np.zeros(len(frame.points), np.uint32)
-            cloud = factory.pointcloud2(ns, LIDAR, frame.points, frame.intensity, times, frame.point_labels, frame.point_instances)
+            cloud = factory.pointcloud2(
+                ns, LIDAR, frame.points, frame.intensity, times, frame.point_labels, frame.point_instances
+            )
             topics.write(LIDAR_TOPIC, "sensor_msgs/msg/PointCloud2", ns, cloud, factory)
             for cam in frame.cameras:
                 _write_camera(topics, factory, cam, int(round(float(cam.stamp) * 1e9)), image_format)
@@ -70,15 +82,29 @@ def _write_camera(topics: "_Topics", factory: MessageFactory, cam, ns: int, imag
     cal = cam.calibration
     ns_topic, frame_id = f"/{cal.name}", optical_frame(cal.name)
     if image_format == "jpeg":
-        topics.write(f"{ns_topic}/image_raw/compressed", "sensor_msgs/msg/CompressedImage", ns,
-                     factory.compressed_image(ns, frame_id, cam.image), factory)
+        topics.write(
+            f"{ns_topic}/image_raw/compressed",
+            "sensor_msgs/msg/CompressedImage",
+            ns,
+            factory.compressed_image(ns, frame_id, cam.image),
+            factory,
+        )
     else:
-        topics.write(f"{ns_topic}/image_raw", "sensor_msgs/msg/Image", ns, factory.image(ns, frame_id, cam.image), factory)
-    topics.write(f"{ns_topic}/camera_info", "sensor_msgs/msg/CameraInfo", ns, factory.camera_info(ns, frame_id, cal), factory)
+        topics.write(
+            f"{ns_topic}/image_raw", "sensor_msgs/msg/Image", ns, factory.image(ns, frame_id, cam.image), factory
+        )
+    topics.write(
+        f"{ns_topic}/camera_info", "sensor_msgs/msg/CameraInfo", ns, factory.camera_info(ns, frame_id, cal), factory
+    )
     for kind, labels in (("semantic", cam.semantic), ("instance", cam.instance)):
         if labels is not None:
-            topics.write(f"{ns_topic}/{kind}", "sensor_msgs/msg/Image", ns,
-                         factory.image(ns, frame_id, np.asarray(labels, np.uint16), "mono16"), factory)
+            topics.write(
+                f"{ns_topic}/{kind}",
+                "sensor_msgs/msg/Image",
+                ns,
+                factory.image(ns, frame_id, np.asarray(labels, np.uint16), "mono16"),
+                factory,
+            )
 
 
 class _Topics:
@@ -108,7 +134,9 @@ class _open_writer:
         else:
             from rosbags.rosbag2 import StoragePlugin, Writer
 
-            self.writer = Writer(self.root / self.name, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+            self.writer = Writer(
+                self.root / self.name, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP
+            )
         self.writer.open()
         return self.writer
 

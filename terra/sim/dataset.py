@@ -113,7 +113,8 @@ class SimDataset:
         stamps = self.trajectory.stamps
         lidar = self.config.lidar
         return SourceInfo("sim", f"sim:{self.preset}:{self.seed}", len(self), (float(stamps[0]), float(stamps[-1])),
-                          list(self.calibrations), "simulated odometry with drift" if drift else "simulator ground truth",
+                          list(self.calibrations),
+                          "simulated odometry with drift" if drift else "simulator ground truth",
                           details={"preset": self.preset, "seed": self.seed, "world": self.name,
                                    "lidar": f"{lidar.beams} x {lidar.columns}, {lidar.min_range}-{lidar.max_range} m"})
 

@@ -36,8 +36,10 @@ def bag_paths(path: Path) -> list[Path]:
         bags = sorted(path.glob("*.bag"))
         if bags:
             return bags
-    raise TerraError(f"{path}: not a ROS bag (expected a .bag or .mcap file, a ROS 2 bag folder with metadata.yaml, "
-                     "or a folder of .bag files)")
+    raise TerraError(
+        f"{path}: not a ROS bag (expected a .bag or .mcap file, a ROS 2 bag folder with metadata.yaml, "
+        "or a folder of .bag files)"
+    )
 
 
 def is_bag(path: Path) -> bool:
@@ -79,8 +81,21 @@ def _reader_errors() -> tuple[type[BaseException], ...]:
     from rosbags.typesys import TypesysError
 
     # Corrupt bytes surface from the decoders as these too (short reads, bad lengths, bad UTF-8).
-    return (AnyReaderError, Reader1Error, Reader2Error, SerdeError, TypesysError, struct.error, EOFError,
-            UnicodeDecodeError, OSError, IndexError, KeyError, ValueError, AssertionError)
+    return (
+        AnyReaderError,
+        Reader1Error,
+        Reader2Error,
+        SerdeError,
+        TypesysError,
+        struct.error,
+        EOFError,
+        UnicodeDecodeError,
+        OSError,
+        IndexError,
+        KeyError,
+        ValueError,
+        AssertionError,
+    )
 
 
 @contextmanager
@@ -135,8 +150,10 @@ class Bag:
         for conn in self.reader.connections:
             self._connections.setdefault(conn.topic, []).append(conn)
         with bag_errors(str(self.path)):
-            self.topics = {name: TopicSummary(name, info.msgtype or "?", int(info.msgcount))
-                           for name, info in sorted(self.reader.topics.items())}
+            self.topics = {
+                name: TopicSummary(name, info.msgtype or "?", int(info.msgcount))
+                for name, info in sorted(self.reader.topics.items())
+            }
             self.start_ns, self.end_ns = int(self.reader.start_time), int(self.reader.end_time)
 
     def close(self) -> None:
@@ -153,14 +170,22 @@ class Bag:
         candidates = self.topics_of_type(*msgtypes)
         short = " or ".join(m.replace("/msg/", "/") for m in msgtypes)
         if have is None:
-            listed = ", ".join(candidates) if candidates else f"none of type {short}; topics: {', '.join(self.topics) or 'none'}"
+            listed = (
+                ", ".join(candidates)
+                if candidates
+                else f"none of type {short}; topics: {', '.join(self.topics) or 'none'}"
+            )
             raise TerraError(f"{self.path}: no topic '{topic}' for the {role}; {short} topics: {listed}")
         if have.msgtype not in msgtypes:
-            raise TerraError(f"{self.path}: topic '{topic}' ({role}) has type {have.msgtype}, expected {short}; "
-                             f"{short} topics: {', '.join(candidates) or 'none'}")
+            raise TerraError(
+                f"{self.path}: topic '{topic}' ({role}) has type {have.msgtype}, expected {short}; "
+                f"{short} topics: {', '.join(candidates) or 'none'}"
+            )
         return topic
 
-    def read(self, topics: list[str], start_ns: int | None = None, stop_ns: int | None = None) -> Iterator[tuple[str, int, bytes]]:
+    def read(
+        self, topics: list[str], start_ns: int | None = None, stop_ns: int | None = None
+    ) -> Iterator[tuple[str, int, bytes]]:
         """(topic, log time ns, raw bytes) of every message of `topics` in [start_ns, stop_ns)."""
         connections = [c for t in topics for c in self._connections.get(t, [])]
         if not connections:

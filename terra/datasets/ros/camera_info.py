@@ -21,8 +21,9 @@ def _array(msg, name: str) -> np.ndarray:
     return np.asarray(value, dtype=np.float64).ravel()
 
 
-def camera_from_info(msg, name: str, T_cam_lidar: np.ndarray, where: str = "CameraInfo",
-                     image_size: tuple[int, int] | None = None) -> CameraCalibration:
+def camera_from_info(
+    msg, name: str, T_cam_lidar: np.ndarray, where: str = "CameraInfo", image_size: tuple[int, int] | None = None
+) -> CameraCalibration:
     """The calibration a CameraInfo states, with extrinsics T_cam_lidar (4x4, LiDAR -> optical
     frame, metres). `image_size` (width, height) of the camera's images, when known: it fills a
     CameraInfo that leaves the size 0 and must match one that states it. TerraError naming the
@@ -37,21 +38,26 @@ def camera_from_info(msg, name: str, T_cam_lidar: np.ndarray, where: str = "Came
     elif model_name in lens.ROS_DISTORTION_MODELS:
         model, counts = lens.ROS_DISTORTION_MODELS[model_name]
         if dist.size not in counts and dist.size not in lens.COEFFICIENT_COUNTS[model]:
-            raise TerraError(f"{where}: distortion_model '{model_name}' with {dist.size} coefficients in 'd'; expected "
-                             f"{' or '.join(str(c) for c in counts)}")
+            raise TerraError(
+                f"{where}: distortion_model '{model_name}' with {dist.size} coefficients in 'd'; expected "
+                f"{' or '.join(str(c) for c in counts)}"
+            )
     else:
-        raise TerraError(f"{where}: distortion_model '{model_name}' is not supported; expected one of: "
-                         f"{', '.join(lens.ROS_DISTORTION_MODELS)}")
+        raise TerraError(
+            f"{where}: distortion_model '{model_name}' is not supported; expected one of: "
+            f"{', '.join(lens.ROS_DISTORTION_MODELS)}"
+        )
     width, height = int(msg.width), int(msg.height)
     if image_size is not None:
         if (width, height) == (0, 0):
             width, height = image_size
         elif (width, height) != tuple(image_size):
-            raise TerraError(f"{where}: width x height {width}x{height}, but the camera's images are "
-                             f"{image_size[0]}x{image_size[1]}")
+            raise TerraError(
+                f"{where}: width x height {width}x{height}, but the camera's images are {image_size[0]}x{image_size[1]}"
+            )
     try:
-        return CameraCalibration(name, width, height, K.reshape(3, 3) / K[8] if K[8] else K.reshape(3, 3), dist,
-                                 T_cam_lidar, model)
+        return CameraCalibration(
+            name, width, height, K.reshape(3, 3) / K[8] if K[8] else K.reshape(3, 3), dist, T_cam_lidar, model
+        )
     except ValueError as exc:
         raise TerraError(f"{where}: {exc}") from None
-

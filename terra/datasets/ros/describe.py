@@ -21,15 +21,26 @@ def topic_table(bag: Bag) -> list[dict]:
     for name, t in bag.topics.items():
         first, last = span.get(name, (None, None))
         duration = (last - first) * 1e-9 if first is not None else 0.0
-        rows.append({"topic": name, "type": t.msgtype, "count": t.count,
-                     "first": None if first is None else first * 1e-9, "last": None if last is None else last * 1e-9,
-                     "rate_hz": round((t.count - 1) / duration, 3) if duration > 0 else None})
+        rows.append(
+            {
+                "topic": name,
+                "type": t.msgtype,
+                "count": t.count,
+                "first": None if first is None else first * 1e-9,
+                "last": None if last is None else last * 1e-9,
+                "rate_hz": round((t.count - 1) / duration, 3) if duration > 0 else None,
+            }
+        )
     return rows
 
 
 def dataset_section(dataset) -> dict:
     """The `dataset:` config section that reproduces what the loader chose (ready to edit)."""
-    poses = "odometry" if dataset.needs_odometry else ("topic" if dataset.pose_source.startswith("odometry topic") else "tf")
+    poses = (
+        "odometry"
+        if dataset.needs_odometry
+        else ("topic" if dataset.pose_source.startswith("odometry topic") else "tf")
+    )
     section = {"lidar_topic": dataset.lidar_topic, "lidar_frame": dataset.lidar_frame, "poses": poses}
     if dataset.map_frame and poses == "tf":
         section["map_frame"] = dataset.map_frame
@@ -46,22 +57,41 @@ def dataset_section(dataset) -> dict:
 
 
 def bag_details(bag: Bag, tf_edges: list[dict]) -> dict:
-    return {"storage": bag.storage, "files": [str(p) for p in bag.paths], "start": bag.start_ns * 1e-9,
-            "end": bag.end_ns * 1e-9, "duration_s": max(bag.end_ns - bag.start_ns, 0) * 1e-9,
-            "topics": topic_table(bag), "tf": tf_edges}
+    return {
+        "storage": bag.storage,
+        "files": [str(p) for p in bag.paths],
+        "start": bag.start_ns * 1e-9,
+        "end": bag.end_ns * 1e-9,
+        "duration_s": max(bag.end_ns - bag.start_ns, 0) * 1e-9,
+        "topics": topic_table(bag),
+        "tf": tf_edges,
+    }
 
 
 def describe_dataset(dataset) -> SourceInfo:
     """SourceInfo of an opened RosbagDataset."""
     frames = dataset._frames
     details = bag_details(dataset.bag, dataset.index.tf.edges())
-    details["lidar"] = {"topic": dataset.lidar_topic, "frame": dataset.lidar_frame, "fields": dataset.cloud_fields,
-                        "scans": len(dataset.index.streams[dataset.lidar_topic])}
+    details["lidar"] = {
+        "topic": dataset.lidar_topic,
+        "frame": dataset.lidar_frame,
+        "fields": dataset.cloud_fields,
+        "scans": len(dataset.index.streams[dataset.lidar_topic]),
+    }
     if dataset.index.tf.conflicts:
         details["tf_conflicts"] = dataset.index.tf.conflicts
     details.update(dataset_section(dataset))
-    return SourceInfo("rosbag", str(dataset.path), len(frames), (frames[0].stamp, frames[-1].stamp) if frames else None,
-                      list(dataset.calibrations), dataset.pose_source, dict(dataset.skipped), dict(dataset.skipped_notes), details)
+    return SourceInfo(
+        "rosbag",
+        str(dataset.path),
+        len(frames),
+        (frames[0].stamp, frames[-1].stamp) if frames else None,
+        list(dataset.calibrations),
+        dataset.pose_source,
+        dict(dataset.skipped),
+        dict(dataset.skipped_notes),
+        details,
+    )
 
 
 def describe_unopened(path: Path, reason: str) -> SourceInfo:

@@ -28,8 +28,10 @@ def _pixels(msg, encoding: str, where: str) -> np.ndarray:
     row = width * channels * item
     data = np.frombuffer(msg.data, np.uint8) if not isinstance(msg.data, np.ndarray) else msg.data.view(np.uint8)
     if height <= 0 or width <= 0 or step < row or data.size < step * height:
-        raise TerraError(f"{where}: {width}x{height} {encoding} image with step {step} needs {step * height} bytes "
-                         f"and step >= {row}, got {data.size} bytes")
+        raise TerraError(
+            f"{where}: {width}x{height} {encoding} image with step {step} needs {step * height} bytes "
+            f"and step >= {row}, got {data.size} bytes"
+        )
     rows = data[: step * height].reshape(height, step)[:, :row]
     if item == 1:
         return rows.reshape(height, width, channels)
@@ -42,7 +44,9 @@ def decode_image(msg, where: str = "Image") -> np.ndarray:
     """(H, W, 3) uint8 RGB of a sensor_msgs/Image; TerraError naming the encoding if unsupported."""
     encoding = str(msg.encoding)
     if encoding not in CHANNELS:
-        raise TerraError(f"{where}: image encoding '{encoding}' is not supported; expected one of: {', '.join(CHANNELS)}")
+        raise TerraError(
+            f"{where}: image encoding '{encoding}' is not supported; expected one of: {', '.join(CHANNELS)}"
+        )
     px = _pixels(msg, encoding, where)
     if encoding == "rgb8":
         return np.ascontiguousarray(px)
@@ -79,5 +83,8 @@ def decode_labels(msg, where: str = "Image") -> np.ndarray:
     """(H, W) int32 ids of a label image (mono16 / 16UC1 / mono8 / 8UC1 / 32SC1 sensor_msgs/Image)."""
     encoding = str(msg.encoding)
     if encoding not in LABEL_ENCODINGS:
-        raise TerraError(f"{where}: label image encoding '{encoding}' is not supported; expected one of: {', '.join(LABEL_ENCODINGS)}")
+        raise TerraError(
+            f"{where}: label image encoding '{encoding}' is not supported; "
+            f"expected one of: {', '.join(LABEL_ENCODINGS)}"
+        )
     return _pixels(msg, encoding, where)[:, :, 0].astype(np.int32)

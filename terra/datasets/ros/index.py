@@ -61,12 +61,21 @@ def index_bag(bag: Bag, stamped: list[str], odometry_topic: str | None, show_pro
             elif topic == odometry_topic:
                 msg = bag.deserialize(raw, topic)
                 odom_frames = odom_frames or (msg.header.frame_id.lstrip("/"), msg.child_frame_id.lstrip("/"))
-                odom.add(msg.header.frame_id, msg.child_frame_id, xyz_quat_of(msg.pose.pose), stamps_seconds(msg.header.stamp))
+                odom.add(
+                    msg.header.frame_id,
+                    msg.child_frame_id,
+                    xyz_quat_of(msg.pose.pose),
+                    stamps_seconds(msg.header.stamp),
+                )
             else:
                 static = topic.lstrip("/") == "tf_static"
                 for tr in bag.deserialize(raw, topic).transforms:
-                    tree.add(tr.header.frame_id, tr.child_frame_id, xyz_quat_of(tr.transform),
-                             None if static else stamps_seconds(tr.header.stamp))
+                    tree.add(
+                        tr.header.frame_id,
+                        tr.child_frame_id,
+                        xyz_quat_of(tr.transform),
+                        None if static else stamps_seconds(tr.header.stamp),
+                    )
     finally:
         bar.close()
     tree.freeze()

@@ -44,14 +44,18 @@ def cloud_dtype(fields, point_step: int, big_endian: bool, names: list[str], whe
         field = by_name[name]
         kind = DATATYPES.get(int(field.datatype))
         if kind is None:
-            raise TerraError(f"{where}: field '{name}' has datatype {int(field.datatype)}; "
-                             "supported: 1..8 (int8, uint8, int16, uint16, int32, uint32, float32, float64)")
+            raise TerraError(
+                f"{where}: field '{name}' has datatype {int(field.datatype)}; "
+                "supported: 1..8 (int8, uint8, int16, uint16, int32, uint32, float32, float64)"
+            )
         if int(field.count) != 1:
             raise TerraError(f"{where}: field '{name}' has count {int(field.count)}; expected 1 value per point")
         size = int(kind[1])
         if int(field.offset) + size > point_step:
-            raise TerraError(f"{where}: field '{name}' at offset {int(field.offset)} ({size} bytes) "
-                             f"runs past point_step {point_step}")
+            raise TerraError(
+                f"{where}: field '{name}' at offset {int(field.offset)} ({size} bytes) "
+                f"runs past point_step {point_step}"
+            )
         spec_names.append(name)
         formats.append(order + kind)
         offsets.append(int(field.offset))

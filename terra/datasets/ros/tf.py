@@ -103,9 +103,16 @@ class TfTree:
         """Every edge as plain data: parent, child, static, samples, first/last stamp."""
         rows = [{"parent": p, "child": c, "static": True, "samples": 1} for c, (p, _) in self.static.items()]
         for child, t in self.dynamic.items():
-            rows.append({"parent": t.parent, "child": child, "static": False, "samples": int(len(t.stamps)),
-                         "first": float(t.stamps[0]) if len(t.stamps) else None,
-                         "last": float(t.stamps[-1]) if len(t.stamps) else None})
+            rows.append(
+                {
+                    "parent": t.parent,
+                    "child": child,
+                    "static": False,
+                    "samples": int(len(t.stamps)),
+                    "first": float(t.stamps[0]) if len(t.stamps) else None,
+                    "last": float(t.stamps[-1]) if len(t.stamps) else None,
+                }
+            )
         return sorted(rows, key=lambda r: (r["parent"], r["child"]))
 
     def ancestors(self, frame: str) -> list[str]:
@@ -120,13 +127,17 @@ class TfTree:
         naming both frames and listing the known ones when the tree does not connect them."""
         for name in (target, source):
             if name not in self.frames():
-                raise TerraError(f"TF does not connect '{target}' and '{source}': no transform has frame '{name}'; "
-                                 f"frames: {', '.join(self.frames()) or 'none'}")
+                raise TerraError(
+                    f"TF does not connect '{target}' and '{source}': no transform has frame '{name}'; "
+                    f"frames: {', '.join(self.frames()) or 'none'}"
+                )
         up_t, up_s = self.ancestors(target), self.ancestors(source)
         common = next((f for f in up_s if f in up_t), None)
         if common is None:
-            raise TerraError(f"TF does not connect '{target}' and '{source}' (their trees have roots '{up_t[-1]}' and "
-                             f"'{up_s[-1]}'); frames: {', '.join(self.frames())}")
+            raise TerraError(
+                f"TF does not connect '{target}' and '{source}' (their trees have roots '{up_t[-1]}' and "
+                f"'{up_s[-1]}'); frames: {', '.join(self.frames())}"
+            )
         return up_s[: up_s.index(common) + 1], up_t[: up_t.index(common) + 1]
 
     def is_static(self, target: str, source: str) -> bool:
@@ -134,7 +145,9 @@ class TfTree:
         from_source, from_target = self.path(target, source)
         return not any(f in self.dynamic for f in from_source[:-1] + from_target[:-1])
 
-    def lookup(self, target: str, source: str, times: np.ndarray, max_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    def lookup(
+        self, target: str, source: str, times: np.ndarray, max_gap: float = 0.5
+    ) -> tuple[np.ndarray, np.ndarray]:
         """T_target_source (M, 4, 4) at `times` (seconds) and (M,) whether every dynamic edge of
         the chain covers each time (see _Track.at)."""
         times = np.atleast_1d(np.asarray(times, float))

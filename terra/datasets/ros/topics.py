@@ -17,8 +17,16 @@ ODOMETRY = ("nav_msgs/msg/Odometry",)
 TF = ("tf2_msgs/msg/TFMessage",)
 NOT_COLOUR = ("semantic", "instance", "label", "labels", "depth", "mask")  # image names that are no colour image
 # Preferred colour image names under a camera namespace, best first (raw before compressed: exact pixels).
-PREFERRED = ("image_raw", "image_color", "image_rect_color", "image", "image_raw/compressed", "image_color/compressed",
-             "image_rect_color/compressed", "image/compressed")
+PREFERRED = (
+    "image_raw",
+    "image_color",
+    "image_rect_color",
+    "image",
+    "image_raw/compressed",
+    "image_color/compressed",
+    "image_rect_color/compressed",
+    "image/compressed",
+)
 
 
 @dataclass
@@ -51,7 +59,9 @@ def choose_lidar(bag: Bag, topic: str | None) -> str:
         return clouds[0]
     if not clouds:
         raise TerraError(f"{bag.path}: no sensor_msgs/PointCloud2 topic; topics: {', '.join(bag.topics) or 'none'}")
-    raise TerraError(f"{bag.path}: {len(clouds)} PointCloud2 topics ({', '.join(clouds)}); set dataset.lidar_topic to one of them")
+    raise TerraError(
+        f"{bag.path}: {len(clouds)} PointCloud2 topics ({', '.join(clouds)}); set dataset.lidar_topic to one of them"
+    )
 
 
 def camera_for_info(bag: Bag, info: str, name: str | None = None, image: str | None = None) -> CameraTopics:
@@ -61,19 +71,26 @@ def camera_for_info(bag: Bag, info: str, name: str | None = None, image: str | N
     name = name or ns.strip("/").replace("/", "_") or "camera"
     beside = [t for t in bag.topics_of_type(*IMAGE) if t.startswith(ns + "/")]
     if image is None:
-        colour = [t for t in beside if t[len(ns) + 1:].split("/")[0] not in NOT_COLOUR]
-        ranked = sorted(colour, key=lambda t: PREFERRED.index(t[len(ns) + 1:]) if t[len(ns) + 1:] in PREFERRED else len(PREFERRED))
-        known = [t for t in ranked if t[len(ns) + 1:] in PREFERRED]
+        colour = [t for t in beside if t[len(ns) + 1 :].split("/")[0] not in NOT_COLOUR]
+        ranked = sorted(
+            colour, key=lambda t: PREFERRED.index(t[len(ns) + 1 :]) if t[len(ns) + 1 :] in PREFERRED else len(PREFERRED)
+        )
+        known = [t for t in ranked if t[len(ns) + 1 :] in PREFERRED]
         if len(colour) == 1 or known:
             image = (known or colour)[0]
         else:
             choices = ", ".join(colour) or "none"
-            raise TerraError(f"{bag.path}: camera_info {info}: cannot tell which image topic is its colour image "
-                             f"(candidates: {choices}); set dataset.cameras[].image_topic")
+            raise TerraError(
+                f"{bag.path}: camera_info {info}: cannot tell which image topic is its colour image "
+                f"(candidates: {choices}); set dataset.cameras[].image_topic"
+            )
     else:
         bag.require(image, IMAGE, f"camera {name} image")
-    labels = {kind: f"{ns}/{kind}" for kind in ("semantic", "instance") if bag.topics.get(f"{ns}/{kind}") and
-              bag.topics[f"{ns}/{kind}"].msgtype in RAW_IMAGE}
+    labels = {
+        kind: f"{ns}/{kind}"
+        for kind in ("semantic", "instance")
+        if bag.topics.get(f"{ns}/{kind}") and bag.topics[f"{ns}/{kind}"].msgtype in RAW_IMAGE
+    }
     return CameraTopics(name, image, info, labels.get("semantic"), labels.get("instance"))
 
 
@@ -86,8 +103,10 @@ def choose_cameras(bag: Bag, configured: list | None) -> list[CameraTopics]:
             info = cam.info_topic or f"{namespace(image.removesuffix('/compressed'))}/camera_info"
             if info not in bag.topics:
                 infos = ", ".join(bag.topics_of_type(*INFO)) or "none"
-                raise TerraError(f"{bag.path}: camera {cam.name or n}: no camera_info topic '{info}' for image {image} "
-                                 f"(CameraInfo topics: {infos}); set dataset.cameras[{n}].info_topic")
+                raise TerraError(
+                    f"{bag.path}: camera {cam.name or n}: no camera_info topic '{info}' for image {image} "
+                    f"(CameraInfo topics: {infos}); set dataset.cameras[{n}].info_topic"
+                )
             bag.require(info, INFO, f"camera {n} camera_info")
             chosen = camera_for_info(bag, info, cam.name, image)
             if cam.semantic_topic:
