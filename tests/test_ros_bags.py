@@ -441,3 +441,55 @@ def test_raw_image_bag_gives_the_simulator_pixels_and_jpeg_differs_by_under_one_
     np.testing.assert_array_equal(exact, sim_sources["dataset"][1].cameras[0].image)
     lossy = jpeg[1].cameras[0].image.astype(int)
     assert 0 < np.abs(lossy - exact).mean() < 1.0
+
+
+def _ros1_records(data: bytes, start: int, end: int):
+    """(header fields, data bytes) of each ROS bag v2.0 record in data[start:end]: a record is a
+    4-byte header length, `name=value` fields each with a 4-byte length, a 4-byte data length, data."""
+    import struct
+
+    pos = start
+    while pos < end:
+        (hlen,) = struct.unpack_from("<I", data, pos)
+        fields, p = {}, pos + 4
+        while p < pos + 4 + hlen:
+            (flen,) = struct.unpack_from("<I", data, p)
+            name, _, value = data[p + 4 : p + 4 + flen].partition(b"=")
+            fields[name.decode()] = value
+            p += 4 + flen
+        (dlen,) = struct.unpack_from("<I", data, p)
+        yield fields, data[p + 4 : p + 4 + dlen]
+        pos = p + 4 + dlen
+
+
+def test_ros1_bag_reads_with_a_hand_written_parser(sim_sources):
+    """The ROS 1 bag checked without rosbags: the bag v2.0 record layout and the ROS 1 wire format
+    of PointCloud2 parsed by hand (uncompressed chunks, as the simulator writes them)."""
+    import struct
+
+    data = next(Path(sim_sources["rosbag1"]).glob("*.bag")).read_bytes()
+    assert data.startswith(b"#ROSBAG V2.0\n")
+    topics, clouds = {}, []
+    for fields, chunk in _ros1_records(data, 13, len(data)):
+        if fields["op"] != b"\x05":  # chunks only (they hold the connections and messages)
+            continue
+        assert fields["compression"] == b"none"
+        for inner, body in _ros1_records(chunk, 0, len(chunk)):
+            if inner["op"] == b"\x07":  # connection: its topic
+                topics[inner["conn"]] = inner["topic"].decode()
+            elif inner["op"] == b"\x02" and topics.get(inner["conn"]) == "/lidar/points":
+                clouds.append(body)
+    assert len(clouds) == FRAMES
+    body = clouds[3]
+    _seq, sec, nsec, n = struct.unpack_from("<IIII", body, 0)
+    p = 16 + n  # after the frame_id string
+    height, width, nfields = struct.unpack_from("<III", body, p)
+    p += 12
+    for _ in range(nfields):
+        (n,) = struct.unpack_from("<I", body, p)
+        p += 4 + n + 9  # name, offset u32, datatype u8, count u32
+    _big, point_step, _row_step, size = struct.unpack_from("<?III", body, p)
+    points = np.frombuffer(body, np.uint8, size, p + 13).reshape(-1, point_step)[:, :12].copy().view("<f4")
+    truth = sim_sources["dataset"][3]
+    assert sec + nsec * 1e-9 == pytest.approx(truth.stamp, abs=1e-9) and height * width == len(truth.points)
+    np.testing.assert_array_equal(points, truth.points)
