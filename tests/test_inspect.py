@@ -17,7 +17,10 @@ from tests.fixtures_datasets import STAMPS, HandDataset, calibrations
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
     root = tmp_path_factory.mktemp("inspect")
-    return {fmt: write_dataset(HandDataset(), root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")}
+    return {
+        fmt: write_dataset(HandDataset(), root / fmt, format=fmt, progress=False)
+        for fmt in ("terra-folder", "semantickitti")
+    }
 
 
 @pytest.mark.parametrize("fmt", ["terra-folder", "semantickitti"])
@@ -27,7 +30,12 @@ def test_inspect_json_states_the_calibrations_as_written(capsys, written, fmt):
     assert info["format"] == fmt and info["frames"] == len(STAMPS)
     assert info["time_span"] == pytest.approx([STAMPS[0], STAMPS[-1]])
     for cam, truth in zip(info["cameras"], calibrations()):
-        assert (cam["name"], cam["width"], cam["height"], cam["model"]) == (truth.name, truth.width, truth.height, truth.model)
+        assert (cam["name"], cam["width"], cam["height"], cam["model"]) == (
+            truth.name,
+            truth.width,
+            truth.height,
+            truth.model,
+        )
         np.testing.assert_array_equal(cam["K"], truth.K)
         np.testing.assert_array_equal(cam["dist"], truth.dist)
         np.testing.assert_array_equal(cam["T_cam_lidar"], truth.T_cam_lidar)
