@@ -493,3 +493,47 @@ def test_ros1_bag_reads_with_a_hand_written_parser(sim_sources):
     truth = sim_sources["dataset"][3]
     assert sec + nsec * 1e-9 == pytest.approx(truth.stamp, abs=1e-9) and height * width == len(truth.points)
     np.testing.assert_array_equal(points, truth.points)
+
+
+def test_scans_are_deskewed_with_the_tf_poses_at_each_point_time(tmp_path):
+    """The robot turns at 0.3 rad/s while moving at (1, -0.5, 0.1) m/s (TF every 10 ms); each
+    point is measured at its column's time in a 0.1 s sweep. Deskewed, the scan is the scene in
+    the LiDAR frame at the stamp."""
+    from scipy.spatial.transform import Rotation
+
+    from terra.geometry import invert_pose, make_pose, transform_points
+
+    def T_map_lidar(t):
+        return make_pose(Rotation.from_rotvec([0, 0, 0.3 * t]).as_matrix(), np.array([1.0, -0.5, 0.1]) * t)
+
+    f = factory_for()
+    stamp_ns = 1_000_000_000
+    rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", np.eye(4))]))]
+    for k in range(0, 131):
+        ns = stamp_ns - 100_000_000 + k * 10_000_000
+        rows.append(("/tf", "tf2_msgs/msg/TFMessage", ns, f.tf([(ns, "map", "base", T_map_lidar(ns * 1e-9))])))
+    world = np.random.default_rng(4).normal(0, 15, (1024, 3))
+    times_ns = (np.arange(1024) * 97_656).astype(np.uint32)  # 1024 columns over 0.1 s
+    seen = np.stack(
+        [
+            transform_points(invert_pose(T_map_lidar(1.0 + tn * 1e-9)), world[i : i + 1])[0]
+            for i, tn in enumerate(times_ns)
+        ]
+    )
+    rows.append(
+        (
+            "/points",
+            "sensor_msgs/msg/PointCloud2",
+            stamp_ns,
+            f.pointcloud2(stamp_ns, "lidar", seen.astype(np.float32), times_ns=times_ns),
+        )
+    )
+    dataset = open_dataset(write_test_bag(tmp_path / "bag", sorted(rows, key=lambda r: r[2])))
+    frame = dataset[0]
+    expected = transform_points(invert_pose(T_map_lidar(1.0)), world)
+    assert frame.point_times is None
+    assert np.abs(seen - expected).max() > 0.1  # the skew is real
+    np.testing.assert_allclose(frame.points, expected, atol=2e-5)  # float32 points
+    raw = open_dataset(tmp_path / "bag", options={"deskew": False})[0]
+    np.testing.assert_allclose(raw.points, seen, atol=1e-5)
+    np.testing.assert_allclose(raw.point_times, times_ns * 1e-9)

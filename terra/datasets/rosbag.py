@@ -7,7 +7,9 @@ Reads through `rosbags` (ROS 1 .bag, ROS 2 sqlite3 and mcap). One frame per LiDA
   `terra map` runs LiDAR odometry (terra.odometry) over the scans;
 - each camera's nearest image (sensor_msgs/Image or CompressedImage, delivered RGB) within
   `max_gap` seconds, its CameraInfo intrinsics and lens model, and T_cam_lidar from /tf_static;
-- per-point time, intensity and, when the cloud carries them, per-point labels.
+- per-point time, intensity and, when the cloud carries them, per-point labels. With poses from
+  /tf or an odometry topic, a scan whose points carry times is deskewed: every point is moved to
+  the LiDAR frame at the scan stamp with the pose at its own time (the frame then has no times).
 
 The bag is indexed once when opened (where each message is, not the messages), so memory does
 not grow with the bag's length and `dataset[i]` reads frame i directly (resume needs that).
@@ -78,6 +80,11 @@ class RosbagConfig(Section):
     max_pose_gap: float = Field(
         0.5, gt=0.0, description="seconds between the two TF samples a scan's pose is interpolated from"
     )
+    deskew: bool = Field(
+        True,
+        description="with per-point times and poses from /tf or an odometry topic: move every point into the "
+        "LiDAR frame at the scan stamp, with the pose at its own time",
+    )
 
 
 @dataclass
@@ -101,6 +108,7 @@ class RosbagDataset:
         self.classes: ClassTable = read_classes(self.root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
+        self._pose_lookup = None  # (TF tree, map frame) when poses come from TF or an odometry topic: deskewing
         self.bag = Bag(self.path)
         self.lidar_topic = choose_lidar(self.bag, config.lidar_topic)
         self.camera_topics = choose_cameras(self.bag, config.cameras)
@@ -145,10 +153,12 @@ class RosbagDataset:
             )
         if use_tf and map_frame is not None:
             poses, valid = tree.lookup(map_frame, self.lidar_frame, stamps, self.config.max_pose_gap)
+            self._pose_lookup = None if mode == "odometry" else (tree, map_frame)
             return poses, valid, f"tf {map_frame} -> {self.lidar_frame}", mode == "odometry", map_frame
         if mode in ("auto", "topic") and odom_topic is not None and self.index.odometry_frames is not None:
             parent, _ = self.index.odometry_frames
             poses, valid = self.index.odometry.lookup(parent, self.lidar_frame, stamps, self.config.max_pose_gap)
+            self._pose_lookup = (self.index.odometry, parent)
             return poses, valid, f"odometry topic {odom_topic} ({parent} -> {self.lidar_frame})", False, parent
         nan = np.full((len(stamps), 4, 4), np.nan)
         return nan, np.ones(len(stamps), bool), "odometry (KISS-ICP)", True, None
@@ -259,6 +269,8 @@ class RosbagDataset:
             raise TerraError(f"{self.path}: scan at {ref.stamp:.3f} s could not be read back from {self.lidar_topic}")
         where = f"{self.path} {self.lidar_topic} at {ref.stamp:.3f} s"
         cloud = decode_pointcloud2(self.bag.deserialize(raws[ref.cloud], self.lidar_topic, where), where)
+        if self.config.deskew and self._pose_lookup is not None and cloud.times is not None and np.any(cloud.times):
+            cloud.points, cloud.times = self._deskew(cloud.points, cloud.times, ref), None
         cams = []
         for c, key, stamp, sem, inst in ref.cameras:
             camera = self._camera_frame(c, key, stamp, sem, inst, raws)
@@ -275,6 +287,17 @@ class RosbagDataset:
             cloud.instances,
             point_times=cloud.times,
         )
+
+    def _deskew(self, points: np.ndarray, times: np.ndarray, ref: _FrameRef) -> np.ndarray:
+        """Points measured at stamp + times (s) -> the LiDAR frame at the stamp: p' = T_lidar(stamp)^-1
+        T_map_lidar(stamp + t) p, poses interpolated per distinct time (a spinning LiDAR's columns).
+        Times past the pose data hold the last pose."""
+        tree, target = self._pose_lookup
+        unique, inverse = np.unique(times, return_inverse=True)
+        T, _ = tree.lookup(target, self.lidar_frame, ref.stamp + unique, self.config.max_pose_gap)
+        rel = np.linalg.inv(ref.T_map_lidar) @ T
+        moved = np.einsum("nij,nj->ni", rel[inverse, :3, :3], points.astype(np.float64)) + rel[inverse, :3, 3]
+        return moved.astype(np.float32)
 
     def _camera_frame(
         self, c: int, key: tuple, stamp: float, sem: tuple | None, inst: tuple | None, raws: dict
