@@ -9,6 +9,7 @@ up to their common ancestor and composes the edges at each requested time.
 
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,9 +24,10 @@ class _Track:
     """A dynamic edge: stamps (K,) seconds, increasing; xyz (K, 3) metres; quat (K, 4) [x, y, z, w]."""
 
     parent: str
-    stamps: list | np.ndarray = field(default_factory=list)
-    xyz: list | np.ndarray = field(default_factory=list)
-    quat: list | np.ndarray = field(default_factory=list)
+    # Filled as flat arrays of doubles while a bag is read (8 bytes a number, not a Python object).
+    stamps: array | np.ndarray = field(default_factory=lambda: array("d"))
+    xyz: array | np.ndarray = field(default_factory=lambda: array("d"))
+    quat: array | np.ndarray = field(default_factory=lambda: array("d"))
 
     def freeze(self) -> None:
         stamps = np.asarray(self.stamps, float)
@@ -81,8 +83,8 @@ class TfTree:
             return
         track = self.dynamic.setdefault(child, _Track(parent))
         track.stamps.append(float(stamp))
-        track.xyz.append(np.asarray(xyz_quat[:3], float))
-        track.quat.append(np.asarray(xyz_quat[3:], float))
+        track.xyz.extend(float(v) for v in xyz_quat[:3])
+        track.quat.extend(float(v) for v in xyz_quat[3:])
 
     def freeze(self) -> None:
         """Sort the time series (call once every transform is added)."""
