@@ -12,6 +12,7 @@ import pytest
 
 from terra.cli import run
 from terra.datasets import open_dataset
+from terra.errors import TerraError
 from tests.fixtures_ros import FRAMES, factory_for, scan, write_test_bag
 
 
@@ -537,3 +538,19 @@ def test_scans_are_deskewed_with_the_tf_poses_at_each_point_time(tmp_path):
     raw = open_dataset(tmp_path / "bag", options={"deskew": False})[0]
     np.testing.assert_allclose(raw.points, seen, atol=1e-5)
     np.testing.assert_allclose(raw.point_times, times_ns * 1e-9)
+
+
+def test_the_printed_dataset_section_is_a_valid_config_that_opens_the_same_bag(capsys, sim_sources, tmp_path):
+    import yaml
+
+    from terra.config import load_dataset_options
+
+    info = _inspect(capsys, sim_sources["rosbag1"])
+    config = tmp_path / "terra.yaml"
+    config.write_text(yaml.safe_dump({"dataset": info["details"]["dataset"]}))
+    dataset = open_dataset(sim_sources["rosbag1"], "rosbag", load_dataset_options(config))
+    assert dataset.lidar_topic == "/lidar/points" and dataset.pose_source == info["pose_source"]
+    assert [c.semantic for c in dataset.camera_topics] == ["/cam0/semantic"] and len(dataset) == FRAMES
+    config.write_text("dataset:\n  lidar_topc: /lidar/points\n")
+    with pytest.raises(TerraError, match=r"\[rosbag\]: field 'lidar_topc'"):
+        open_dataset(sim_sources["rosbag1"], "rosbag", load_dataset_options(config))
