@@ -76,6 +76,8 @@ def map_command(
         f"map: {info['points']} points ({info['observed_points']} with object observations), "
         f"{info['bank']} bank entries, {info['images']} images -> {run.bundle.path}"
     )
+    if getattr(source, "pose_source", None):
+        typer.echo(f"  poses: {source.pose_source}")
     faults = {k: v for k, v in run.stats.items() if ("skipped" in k or "dropped_nonfinite" in k) and v}
     notes = dict(run.notes)
     faults.update(getattr(source, "skipped", {}))  # the source's own: scans without pose or image, undecodable images
