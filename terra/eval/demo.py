@@ -67,6 +67,7 @@ class DemoConfig:
     seed: int = 0
     validation_preset: str | None = None  # None: the test scene's preset
     validation_spacing: float = 2.0
+    format: str = "terra-folder"  # how the scenes are written and read back: terra-folder, rosbag2 (mcap), rosbag1
     sim: SimConfig = field(default_factory=SimConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     build: BuildConfig = field(default_factory=BuildConfig)
@@ -75,7 +76,7 @@ class DemoConfig:
 
     @classmethod
     def load(cls, path: Path | None, preset: str, seed: int, validation_preset: str | None = None,
-             validation_spacing: float = 2.0) -> "DemoConfig":
+             validation_spacing: float = 2.0, format: str = "terra-folder") -> "DemoConfig":
         """Sections from a YAML file (defaults without one); TerraError for a bad argument."""
         from terra.config import load_section
         from terra.sim.presets import get_preset
@@ -84,13 +85,17 @@ class DemoConfig:
         get_preset(validation_preset or preset)
         if seed < 0:
             raise TerraError(f"--seed must be a non-negative integer, got {seed}")
+        from terra.sim.writer import FORMATS
+
+        if format not in FORMATS:
+            raise TerraError(f"--format {format!r}: expected one of: {', '.join(FORMATS)}")
         if not validation_spacing >= 1.0:
             raise TerraError(f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}")
         sections = {s: load_section(path, s) for s in ("sim", "build", "tasks", "eval")}
         # The demo shows the method under realistic perception noise (bleeding masks, missed
         # instances, look-alike confusions) unless the user's file sets the noise itself.
         sections["mapping"] = load_section(path, "mapping", None if _sets_noise(path) else {"perception": {"noise": "realistic"}})
-        return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), **sections)
+        return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), format, **sections)
 
     @property
     def validation_seed(self) -> int:
@@ -184,9 +189,10 @@ class DemoRun:
         root = self.out / folder
         dataset, bundle = root / "dataset", root / "map.terra"
         root.mkdir(parents=True, exist_ok=True)
-        sim_key = {"terra": __version__, "preset": preset, "seed": seed, "sim": _dump(sim)}
+        sim_key = {"terra": __version__, "preset": preset, "seed": seed, "sim": _dump(sim), "format": cfg.format}
         self.step(f"{label}: simulate", sim_key, (dataset,),
-                  lambda: write_dataset(simulate(preset, seed, sim), dataset, overwrite=True, progress=self.show_progress))
+                  lambda: write_dataset(simulate(preset, seed, sim), dataset, format=cfg.format, overwrite=True,
+                                        progress=self.show_progress))
         map_key = {"dataset": sim_key, "mapping": _dump(cfg.mapping)}
         self.step(f"{label}: map", map_key, (bundle,),
                   lambda: build_map(open_dataset(dataset), cfg.mapping, bundle, progress=self.show_progress))
