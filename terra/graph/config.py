@@ -25,7 +25,8 @@ class GridSection(Section):
 
     cell_size: float = Field(0.4, gt=0.0, description="metres per grid cell")
     support_radius: float = Field(1.6, ge=0.0, description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)")
-    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold terrain points (drops sparse distant scan rings)")
+    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold ground points, labelled or not (drops sparse distant scan rings)")
+    fill_radius: float = Field(4.0, ge=0.0, description="metres; ground the LiDAR scanned but no camera labelled takes the class of the nearest labelled cell within this distance (0 = never)")
     close_iterations: int = Field(1, ge=0, description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)")
     open_iterations: int = Field(1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)")
     obstacle_height: tuple[float, float] | None = Field((0.3, 2.0), description="non-terrain points this many metres above the local ground block a cell (None = never)")
@@ -50,6 +51,7 @@ class GvdSection(Section):
     junction_merge: float = Field(1.0, ge=0.0, description="junctions joined by a GVD path shorter than this times their clearance become one node")
     max_deviation: float = Field(3.75, gt=0.0, description="metres; a GVD path is split where it strays further than this from its chord")
     max_distance: float = Field(10.0, gt=0.0, description="metres; paths with a longer chord are split near their middle")
+    cover_radius: float | None = Field(5.0, gt=0.0, description="metres; a pruned GVD branch reaching farther than this from the kept GVD (into a pocket: a service pad, a plaza) is restored so the pocket gets a place (None = never)")
 
 
 class LinkingSection(Section):
@@ -59,6 +61,9 @@ class LinkingSection(Section):
     link_candidates: int = Field(8, ge=1, description="nearest other-terrain places tried per dead end (the first with a clear line wins)")
     require_clear_line: bool = Field(True, description="links may only cross mapped terrain cells, never blocked or unmapped ones")
     bridge_penalty: float = Field(100.0, ge=1.0, description="bridges between otherwise disconnected components cost their length times this")
+    strip_link_distance: float | None = Field(12.0, gt=0.0, description="metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within this range, across a gap (None = never)")
+    strip_max_gap: float = Field(4.0, ge=0.0, description="metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the cameras missed or took for something else, not a road between two sidewalks)")
+    strip_max_blocked: float = Field(0.8, ge=0.0, description="metres; and at most this much of blocked cells (a post or a trunk standing on the strip)")
 
 
 class EmbeddingSection(Section):
