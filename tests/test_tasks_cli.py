@@ -96,9 +96,15 @@ def test_plan_reaches_the_object_and_respects_forbidden_terrain(lot, capsys):
     # Grass forbidden: the start snaps to the nearest sidewalk place and no step is on grass.
     no_grass = call_json(common + ["--from-xy", "5", "35", "--forbid", "grass"], capsys)
     assert no_grass["waypoints"][0][:2] == [20.0, 35.0] and "grass" not in no_grass["terrain"]
-    # Sidewalk forbidden: the dumpster's place is on sidewalk and no grass place lies within 5 m.
-    code, _, err = call(common + ["--from-xy", "5", "35", "--forbid", "sidewalk"], capsys)
-    assert code == 3 and "forbidden terrain 'sidewalk'" in err and err.count("\n") == 1
+    # Sidewalk forbidden: the best dumpster's place is on sidewalk and no grass place lies within
+    # 5 m, so the plan goes to the other dumpster (on the grass) and says why it skipped the first.
+    fallback = call_json(common + ["--from-xy", "5", "35", "--forbid", "sidewalk"], capsys)
+    assert fallback["goal"]["object"]["center"][:2] == [10.0, 10.0] and fallback["goal"]["candidates"] == 2
+    (skipped,) = fallback["goal"]["skipped"]
+    assert skipped["center"][:2] == [30.0, 30.0] and "forbidden terrain 'sidewalk'" in skipped["reason"]
+    assert "sidewalk" not in fallback["terrain"] and fallback["waypoints"][-1][:2] == [10.0, 10.0]
+    code, out, _ = call(common + ["--from-xy", "5", "35", "--forbid", "sidewalk"], capsys)
+    assert code == 0 and "skipped 'find the dumpster' at (30.00, 30.00) m" in out
     # A start on forbidden terrain given as a node: no path, exit code 3.
     code, _, err = call(common + ["--from-node", "0", "--forbid", "grass"], capsys)
     assert code == 3 and "start place 0 is on forbidden terrain 'grass'" in err

@@ -14,7 +14,7 @@ from terra.perception.text import TextEmbedder
 from terra.tasks.config import TasksConfig, alpha_for
 from terra.tasks.context import open_for_tasks
 from terra.tasks.monitoring import monitor_region
-from terra.tasks.planning import CostGraph, TerrainCosts, plan_on
+from terra.tasks.planning import CostGraph, TerrainCosts, approach_place, nearest_allowed_place, plan_on, plan_to_objects
 from terra.tasks.queries import clean_queries
 from terra.tasks.retrieval import FoundObject, best_object, find_objects, with_objects
 from terra.tasks.task_file import TaskFile, load_task_file
@@ -151,25 +151,11 @@ def parse_penalties(items: Sequence[str]) -> dict[str, float]:
     return out
 
 
-def nearest_allowed_place(graph: SceneGraph, xy: np.ndarray, allowed: np.ndarray, max_distance: float = np.inf) -> int:
-    """The allowed place nearest (2-D) to xy (metres), or -1 when none lies within max_distance."""
-    candidates = np.flatnonzero(allowed)
-    if candidates.size == 0:
-        return -1
-    d = np.linalg.norm(graph.places.position[candidates, :2] - np.asarray(xy, dtype=np.float64)[:2], axis=1)
-    best = int(np.argmin(d))
-    return int(candidates[best]) if d[best] <= max_distance else -1
-
-
 def _object_place(graph: SceneGraph, obj: FoundObject, allowed: np.ndarray, radius: float, role: str) -> int:
-    """The object's linked place, or the nearest allowed place within `radius` when it is forbidden."""
-    if allowed[obj.place]:
-        return obj.place
-    place = nearest_allowed_place(graph, obj.center, allowed, radius)
+    """The approach place of the object (terra.tasks.planning.approach_place); NoPathError without one."""
+    place, why = approach_place(graph, obj, allowed, radius)
     if place < 0:
-        terrain = graph.terrain_classes[int(graph.places.terrain[obj.place])]
-        raise NoPathError(f"no path: the {role} object {obj.label!r} is at place {obj.place} on forbidden terrain "
-                          f"{terrain!r} and no allowed place lies within {radius:g} m of it")
+        raise NoPathError(f"no path: the {role} object {obj.label!r} is at place {obj.place}: {why}")
     return place
 
 
@@ -221,10 +207,7 @@ def plan_report(bundle: Path, to: str | None = None, to_node: int | None = None,
         return obj
 
     goal_object = start_object = None
-    if to is not None:
-        goal_object = object_for(0, "destination")
-        goal = _object_place(graph, goal_object, allowed, config.planning.goal_radius, "goal")
-    else:
+    if to is None:
         goal = int(to_node)
     if from_query is not None:
         start_object = object_for(len(object_queries) - 1, "start")
@@ -242,13 +225,23 @@ def plan_report(bundle: Path, to: str | None = None, to_node: int | None = None,
         start = nearest_allowed_place(graph, xy, allowed)
         if start < 0:
             raise NoPathError("no path: every place is on forbidden terrain")
-    for place, role in ((start, "start"), (goal, "goal")):
-        if not 0 <= place < len(graph.places):
+    for place, role in ((start, "start"), (None if to is not None else goal, "goal")):
+        if place is not None and not 0 <= place < len(graph.places):
             raise TerraError(f"{role} place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
-    plan = plan_on(graph, cost_graph, start, goal)
+    skipped: list = []
+    if to is not None:
+        # Every object retrieved for the destination is a candidate, best score first.
+        candidates = [o for o in found if o.query == 0]
+        outcome = plan_to_objects(graph, cost_graph, start, candidates, config.planning.goal_radius,
+                                  f"the destination query {object_queries[0]!r}")
+        plan, goal_object, goal, skipped = outcome.plan, outcome.goal_object, outcome.goal_place, outcome.skipped
+    else:
+        plan = plan_on(graph, cost_graph, start, goal)
     report: dict[str, Any] = {"bundle": str(ctx.path), **plan.to_json()}
     report["start"] = {"place": start, "how": start_how, "object": start_object.to_json() if start_object else None}
-    report["goal"] = {"place": goal, "query": to, "object": goal_object.to_json() if goal_object else None}
+    report["goal"] = {"place": goal, "query": to, "object": goal_object.to_json() if goal_object else None,
+                      "candidates": len([o for o in found if o.query == 0]) if to is not None else 0,
+                      "skipped": [s.to_json() for s in skipped]}
     report["preferences"] = {
         "penalty": {graph.terrain_classes[t]: float(costs.penalty[t]) for t in range(len(graph.terrain_classes))},
         "forbidden": [graph.terrain_classes[t] for t in np.flatnonzero(costs.forbidden)],
@@ -266,6 +259,9 @@ def format_plan(report: dict[str, Any]) -> str:
                      f"place {goal['place']}")
     else:
         lines.append(f"goal: place {goal['place']}")
+    for sk in goal.get("skipped", []):
+        c = sk["center"]
+        lines.append(f"  skipped {sk['label']!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {sk['score']:.3f}: {sk['reason']}")
     lines.append(f"start: place {start['place']} ({start['how']})")
     forbidden = report["preferences"]["forbidden"]
     penalised = {k: v for k, v in report["preferences"]["penalty"].items() if v > 0}
