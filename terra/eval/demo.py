@@ -332,7 +332,8 @@ def _plan(bundle: Path, tuned: TunedParameters, config: TasksConfig, embedder) -
     except TerraError as exc:  # no object or no path: the demo reports it and goes on
         return {**entry, "error": str(exc)}
     entry.update({"length_m": plan["length_m"], "places": len(plan["places"]),
-                  "length_by_terrain": plan["length_by_terrain"], "goal": plan["goal"]["object"]["center"]})
+                  "length_by_terrain": plan["length_by_terrain"], "goal": plan["goal"]["object"]["center"],
+                  "skipped": [f"{s['label']!r} at ({s['center'][0]:.1f}, {s['center'][1]:.1f}): {s['reason']}" for s in plan["goal"]["skipped"]]})
     return entry
 
 
@@ -377,6 +378,7 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     else:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {p['places']} places "
                      f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
+        lines += [f"    skipped {s}" for s in p.get("skipped", [])]
     ev = demo["evaluation"]
     lines.append(f"  evaluation ({ev['parameters']['source']}):")
     lines += ["  " + h for h in headline(ev)]

@@ -95,9 +95,9 @@ def build_terrain_grid(
     distant, sparsely scanned ground, on which no place should sit.
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
-    than `obstacle_height[0]` above the local ground) take the class of the nearest labelled cell
-    within `fill_radius` metres (0 = never): a sidewalk the cameras missed for a few metres stays
-    one sidewalk instead of breaking in two.
+    than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
+    `fill_radius` metres when those all agree (0 = never): a road the cameras missed for a few
+    metres stays one road instead of breaking in two, and no boundary is guessed.
     """
     points = np.asarray(points, dtype=np.float64)
     terrain = np.asarray(terrain)
@@ -135,8 +135,11 @@ def build_terrain_grid(
     low = obstacle_height[0] if obstacle_height is not None else 0.3
     unlabelled_ground = np.zeros((H, W), dtype=bool)
     unlabelled_ground[orow[inside & (height < low)], ocol[inside & (height < low)]] = True
+    window = 2 * int(round(support_radius / cell_size)) + 1
+    # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
+    # distant scan rings are not, and are never filled).
+    dense = ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant") >= min_support - 1e-6
     if support_radius > 0:
-        window = 2 * int(round(support_radius / cell_size)) + 1
         grid.label[:] = _window_majority(grid.label, n_classes, window, min_support)
     if obstacle_height is not None:
         hit = inside & (height >= obstacle_height[0]) & (height <= obstacle_height[1])
@@ -144,19 +147,24 @@ def build_terrain_grid(
         grid.blocked[:] = counts >= obstacle_min_points
         grid.label[grid.blocked] = -1
     if fill_radius > 0:
-        _fill_from_nearest_label(grid.label, unlabelled_ground & ~grid.blocked, fill_radius / cell_size)
+        _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
 
 
 def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: float) -> None:
-    """In place: `fillable` cells without a label (-1) take the label of the nearest labelled cell
-    within `radius` cells (exact Euclidean nearest, ties as scipy's distance transform breaks them)."""
+    """In place: `fillable` cells without a label (-1) take the class of the labelled cells within
+    `radius` cells when they all have one class (a hole inside one terrain); cells near two
+    classes stay unlabelled, since which side of the boundary they are on is unknown."""
     todo = fillable & (label < 0)
-    if not todo.any() or not (label >= 0).any():
+    classes = [int(t) for t in np.unique(label[label >= 0])]
+    if not todo.any() or not classes:
         return
-    distance, (nr, nc) = ndimage.distance_transform_edt(label < 0, return_indices=True)
-    take = todo & (distance <= radius)
-    label[take] = label[nr[take], nc[take]]
+    rows, cols = np.nonzero(todo)
+    near = np.zeros((len(classes), len(rows)), dtype=bool)
+    for k, t in enumerate(classes):
+        near[k] = ndimage.distance_transform_edt(label != t)[rows, cols] <= radius
+    one = near.sum(axis=0) == 1
+    label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
 
 
 def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:

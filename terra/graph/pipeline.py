@@ -14,7 +14,7 @@ import numpy as np
 
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
-from terra.graph.agglomerative import agglomerative_assignments
+from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid
@@ -22,7 +22,7 @@ from terra.graph.linking import bridge_components, grid_gap_length, grid_line_cl
 from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
-from terra.graph.spectral import spectral_assignments
+from terra.graph.spectral import SpectralStop, spectral_assignments
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.progress import StageTimer, progress
 
@@ -133,14 +133,19 @@ def embedding_rule(msm: MetricSemanticMap, max_range: float) -> str:
 
 
 def region_assignments(position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig) -> list[np.ndarray]:
+    """Per region level (1 = finest), (P,) region label of every place, by the configured method."""
     r = config.regions
     if r.method == "agglomerative":
-        return agglomerative_assignments(position, embedding, terrain, r.gamma, tuple(r.cuts), r.dense_max_places, r.micro_max_clusters, r.gap_levels)
+        adaptive = AdaptiveCuts(r.levels, r.first_level_size, r.top_regions, r.snap)
+        cuts = tuple(r.cuts) if r.cuts is not None else None
+        return agglomerative_assignments(position, embedding, terrain, r.gamma, cuts, r.dense_max_places, r.micro_max_clusters,
+                                         r.gap_levels, adaptive)
     sc = r.spectral
-    return spectral_assignments(
-        position, embedding, edges, gamma=r.gamma, levels=r.levels, max_semantic_diff=sc.max_semantic_diff, min_area=sc.min_area,
-        stop_rule=sc.stop_rule, sigma=sc.sigma, min_places=sc.min_places, max_depth=sc.max_depth, seed=r.seed,
-    )
+    relative = sc.thresholds == "relative"
+    stop = SpectralStop(sc.semantic_fraction if relative else sc.max_semantic_diff, sc.area_fraction if relative else sc.min_area,
+                        sc.stop_rule, relative)
+    return spectral_assignments(position, embedding, edges, gamma=r.gamma, levels=r.levels, stop=stop, sigma=sc.sigma,
+                                min_places=sc.min_places, max_depth=sc.max_depth, seed=r.seed, top=r.top_regions)
 
 
 def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None, show_progress: bool = False) -> GraphBuild:

@@ -11,6 +11,7 @@ Methods, for one query with unit embedding q:
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +32,8 @@ METHODS = ("mix", "max", "thresh", "aib")
 class MonitorResult:
     """regions: chosen (level, index) pairs, best first (empty for "aib"); region_scores: their
     cosines. places: sorted indices of the chosen places; place_scores: their cosines.
-    clusters: for "aib", the chosen clusters' member places."""
+    clusters: for "aib", the chosen clusters' member places. cluster_seconds: for "aib", the time
+    its task-driven clustering took (the regions Terra builds once, AIB builds per query)."""
 
     query: str
     method: str
@@ -40,6 +42,7 @@ class MonitorResult:
     places: np.ndarray
     place_scores: np.ndarray
     clusters: list[np.ndarray] = field(default_factory=list)
+    cluster_seconds: float = 0.0
 
     def to_json(self, graph: SceneGraph) -> dict[str, Any]:
         """JSON-ready dict with region and place positions (metres, map frame)."""
@@ -105,12 +108,14 @@ def monitor_region(
 
     if method == "aib":
         null = alpha_for(cfg.aib.null_score, cfg.aib.default_null_score, embedder.name)
+        start = time.perf_counter()
         pyx = task_relevance(graph.places.embedding, q[None], null, cfg.aib.top_k, cfg.aib.cumulative)
         labels, relevant = aib_clusters(pyx, graph.place_edges, cfg.aib.delta)
+        seconds = time.perf_counter() - start
         places = np.flatnonzero(relevant == 1)
         roots = np.unique(labels[places])
         clusters = [np.flatnonzero(labels == r) for r in roots]
-        return MonitorResult(query, method, [], [], places, place_scores[places], clusters)
+        return MonitorResult(query, method, [], [], places, place_scores[places], clusters, seconds)
 
     check_has_regions(graph, f"--method {method}")
     ranked = ranked_regions(graph, region_similarities(graph, q))
