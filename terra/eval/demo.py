@@ -305,9 +305,10 @@ def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config:
             config = aib_config(config, embedder.name, alpha)
     else:
         alpha, k = tuned.monitoring_params(graph.region_method)
-        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method))
+        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method), tuned.monitoring_min_level(graph.region_method))
         graph = up_to_level(graph, params.levels)
-    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config)
+    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config,
+                            min_level=params.min_level)
     places = np.asarray(result.places, dtype=np.int64)
     entry: dict[str, Any] = {"query": MONITOR_QUERY, "method": method, "parameters": params.to_json(),
                              "regions": len(result.regions), "places": int(len(places))}

@@ -65,14 +65,17 @@ class MonitoringRun:
 class MonitorParams:
     """Parameters of one monitoring method. alpha: place cosine threshold ("mix"/"thresh"), or the
     null-task score for "aib"; k: regions kept; levels: only region levels 1..levels are ranked
-    (None = all), so the coarse top levels, which often span the whole map, can be left out."""
+    (None = all), so the coarse top levels, which often span the whole map, can be left out;
+    min_level: nor those below it (None = from level 1), so can the smallest regions."""
 
     alpha: float | None = None
     k: int | None = None
     levels: int | None = None
+    min_level: int | None = None
 
     def to_json(self) -> dict:
-        return {k: v for k, v in (("alpha", self.alpha), ("k", self.k), ("levels", self.levels)) if v is not None}
+        items = (("alpha", self.alpha), ("k", self.k), ("levels", self.levels), ("min_level", self.min_level))
+        return {k: v for k, v in items if v is not None}
 
 
 def up_to_level(graph: SceneGraph, levels: int | None) -> SceneGraph:
@@ -110,7 +113,7 @@ def run_monitoring(graph: SceneGraph, regions: list[NamedRegion], truth: list[np
     start = time.perf_counter()
     for region in regions:
         result = monitor_region(graph, region.description, method=method, k=params.k, alpha=params.alpha, embedder=embedder,
-                                config=tasks_config)
+                                config=tasks_config, min_level=params.min_level)
         predicted.append(np.asarray(result.places, dtype=np.int64))
         cluster_seconds += result.cluster_seconds
     seconds = time.perf_counter() - start

@@ -148,7 +148,8 @@ def monitoring_params(method: str, embedder: str, tuned: TunedParameters | None,
         default = alpha_for(cfg.aib.null_score, cfg.aib.default_null_score, embedder)
         return MonitorParams(float(alpha) if alpha is not None else default)
     return MonitorParams(float(alpha) if alpha is not None else alpha_for(cfg.alpha, cfg.default_alpha, embedder),
-                         int(k) if k is not None else cfg.k, tuned.monitoring_levels(method) if tuned is not None else None)
+                         int(k) if k is not None else cfg.k, tuned.monitoring_levels(method) if tuned is not None else None,
+                         tuned.monitoring_min_level(method) if tuned is not None else None)
 
 
 def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
@@ -268,13 +269,16 @@ def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None) -> TunedPara
 
 
 def _monitor_grid(method: str, alphas: list[float], config: EvalConfig, inputs: EvalInputs) -> list[MonitorParams]:
-    """Grid points in tie-breaking order: all levels first, then caps 1, 2, ... (so a cap is chosen
-    only when it scores strictly better), within each the smallest k, then the smallest alpha."""
+    """Grid points in tie-breaking order: ranking from level 1 before from level 2, all levels
+    before caps 1, 2, ... (so a restriction is chosen only when it scores strictly better), within
+    each the smallest k, then the smallest alpha."""
     if method == "aib":
         return [MonitorParams(a) for a in alphas]
     n_levels = len(inputs.hierarchy(method)[0].regions)
     levels = [None] + list(range(1, n_levels))
-    return [MonitorParams(a, k, lv) for lv in levels for k in range(1, config.tune.k_max + 1) for a in alphas]
+    lows = [None] + ([2] if n_levels >= 2 else [])
+    return [MonitorParams(a, k, lv, lo) for lo in lows for lv in levels if (lv or n_levels) >= (lo or 1)
+            for k in range(1, config.tune.k_max + 1) for a in alphas]
 
 
 # ---------------------------------------------------------------------------- the report

