@@ -145,4 +145,4 @@ def preference_case(routes: PreferenceRoutes, min_share: float = 0.8) -> int | N
     ok = (routes.share(routes.preferred) >= min_share) & (off_short > 0.5) & (gain > 0)
     if not ok.any():
         return None
-    return int(np.flatnonzero(ok)[np.argmax(gain[ok])])
+    return int(np.flatnonzero(ok & (gain >= gain[ok].max() - 1e-6))[0])  # millimetre ties: the first pair

@@ -4,8 +4,9 @@
 truth: alpha per retrieval method (best Table II F1), and per monitoring method (best Table III
 F1) alpha (AIB's null-task score for "aib") with, for Terra's hierarchies, k and the number of
 region levels ranked (from level 1 or 2 up to a cap). Ties keep the first grid point: from level 1
-before from level 2, all levels before a level cap, smallest k, smallest alpha. The result is a small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads;
-the test labels are never looked at while choosing.
+before from level 2, all levels before a level cap, smallest k, smallest alpha. The result is a
+small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads; the test labels are never
+looked at while choosing.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ class GridSection(Section):
     cell_size: float = Field(0.4, gt=0.0, description="metres per grid cell")
     support_radius: float = Field(1.6, ge=0.0, description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)")
     min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold ground points, labelled or not (drops sparse distant scan rings)")
-    fill_radius: float = Field(2.0, ge=0.0, description="metres; ground the LiDAR scanned but no camera labelled takes the class of the nearest labelled cell within this distance (0 = never)")
+    fill_radius: float = Field(2.0, ge=0.0, description="metres; densely scanned ground no camera labelled takes the class of the labelled cells within this distance when they all agree (0 = never)")
     close_iterations: int = Field(1, ge=0, description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)")
     open_iterations: int = Field(1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)")
     obstacle_height: tuple[float, float] | None = Field((0.3, 2.0), description="non-terrain points this many metres above the local ground block a cell (None = never)")
