@@ -75,6 +75,10 @@ def render_plan(result: PlanResult) -> str:
         )
     else:
         lines.append(f"goal: place {goal.place}")
+    for skipped in goal.skipped:
+        c = skipped.object.center
+        lines.append(f"  skipped {skipped.object.label!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {skipped.object.score:.3f}: "
+                     f"{skipped.reason}")
     lines.append(f"start: place {start.place} ({start.how})")
     penalised = {k: v for k, v in result.penalty.items() if v > 0}
     if penalised or result.forbidden:

@@ -319,9 +319,10 @@ def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config:
             config = aib_config(config, embedder.name, alpha)
     else:
         alpha, k = tuned.monitoring_params(graph.region_method)
-        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method))
+        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method), tuned.monitoring_min_level(graph.region_method))
         graph = up_to_level(graph, params.levels)
-    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config)
+    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config,
+                            min_level=params.min_level)
     places = np.asarray(result.places, dtype=np.int64)
     entry: dict[str, Any] = {"query": MONITOR_QUERY, "method": method, "parameters": params.to_json(),
                              "regions": len(result.regions), "places": int(len(places))}
@@ -348,7 +349,9 @@ def _plan(loaded: LoadedBundle, tuned: TunedParameters, config: TasksConfig) -> 
         return {**entry, "error": str(exc)}
     path = result.plan.to_json()
     entry.update({"length_m": path["length_m"], "places": len(path["places"]),
-                  "length_by_terrain": path["length_by_terrain"], "goal": result.goal.object.to_json()["center"]})
+                  "length_by_terrain": path["length_by_terrain"], "goal": result.goal.object.to_json()["center"],
+                  "skipped": [f"{s.object.label!r} at ({s.object.center[0]:.1f}, {s.object.center[1]:.1f}): {s.reason}"
+                              for s in result.goal.skipped]})
     return entry
 
 
@@ -390,6 +393,7 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     else:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {p['places']} places "
                      f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
+        lines += [f"    skipped {s}" for s in p.get("skipped", [])]
     ev = demo["evaluation"]
     lines.append(f"  evaluation ({ev['parameters']['source']}):")
     lines += ["  " + h for h in headline(ev)]

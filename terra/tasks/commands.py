@@ -13,7 +13,8 @@ from terra.graph.scene_graph import SceneGraph
 from terra.loaded import LoadedBundle
 from terra.tasks.config import TasksConfig, alpha_for
 from terra.tasks.monitoring import monitor_region
-from terra.tasks.planning import CostGraph, TerrainCosts, plan_on
+from terra.tasks.planning import (CostGraph, PathPlan, TerrainCosts, approach_place, nearest_allowed_place, plan_on,
+                                  plan_to_objects)
 from terra.tasks.queries import clean_queries
 from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest, PointFeature
 from terra.tasks.results import FindResult, MonitorResults, PlanEnd, PlanResult
@@ -77,27 +78,13 @@ def monitor(loaded: LoadedBundle, request: MonitorRequest, config: TasksConfig |
 # ---------------------------------------------------------------- plan
 
 
-def nearest_allowed_place(graph: SceneGraph, xy: np.ndarray, allowed: np.ndarray, max_distance: float = np.inf) -> int:
-    """The allowed place nearest (2-D) to xy (metres), or -1 when none lies within max_distance."""
-    candidates = np.flatnonzero(allowed)
-    if candidates.size == 0:
-        return -1
-    d = np.linalg.norm(graph.places.position[candidates, :2] - np.asarray(xy, dtype=np.float64)[:2], axis=1)
-    best = int(np.argmin(d))
-    return int(candidates[best]) if d[best] <= max_distance else -1
 
 
 def _object_place(graph: SceneGraph, obj: FoundObject, allowed: np.ndarray, radius: float, role: str) -> int:
-    """The object's linked place, or the nearest allowed place within `radius` when it is forbidden."""
-    if allowed[obj.place]:
-        return obj.place
-    place = nearest_allowed_place(graph, obj.center, allowed, radius)
+    """The approach place of the object (terra.tasks.planning.approach_place); NoPathError without one."""
+    place, why = approach_place(graph, obj, allowed, radius)
     if place < 0:
-        terrain = graph.terrain_classes[int(graph.places.terrain[obj.place])]
-        raise NoPathError(
-            f"no path: the {role} object {obj.label!r} is at place {obj.place} on forbidden terrain "
-            f"{terrain!r} and no allowed place lies within {radius:g} m of it"
-        )
+        raise NoPathError(f"no path: the {role} object {obj.label!r} is at place {obj.place}: {why}")
     return place
 
 
@@ -137,14 +124,10 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
             embedder=loaded.embedder,
             scorer=loaded.scorer,
         )
-    goal = _goal(graph, request, found, object_queries, cost_graph, config)
     start = _start(loaded, graph, request, found, object_queries, cost_graph, config)
-    for end, role in ((start, "start"), (goal, "goal")):
-        if not 0 <= end.place < len(graph.places):
-            raise TerraError(
-                f"{role} place {end.place} does not exist; the graph has places 0..{len(graph.places) - 1}"
-            )
-    path = plan_on(graph, cost_graph, start.place, goal.place)
+    if not 0 <= start.place < len(graph.places):
+        raise TerraError(f"start place {start.place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+    path, goal = _plan_to_goal(graph, request, found, object_queries, cost_graph, start.place, config)
     penalty = {graph.terrain_classes[t]: float(costs.penalty[t]) for t in range(len(graph.terrain_classes))}
     forbidden = [graph.terrain_classes[t] for t in np.flatnonzero(costs.forbidden)]
     return PlanResult(loaded.path, path, start, goal, penalty, forbidden)
@@ -159,20 +142,28 @@ def _object_for(found: list[FoundObject], queries: list[str], q: int, role: str)
     return obj
 
 
-def _goal(
+def _plan_to_goal(
     graph: SceneGraph,
     request: PlanRequest,
     found: list[FoundObject],
     queries: list[str],
     cost_graph: CostGraph,
+    start: int,
     config: TasksConfig,
-) -> PlanEnd:
+) -> tuple[PathPlan, PlanEnd]:
+    """The path and its goal: `to_node` as given, or every object retrieved for `to`, best score
+    first, skipping those with no reachable approach place (terra.tasks.planning.plan_to_objects)."""
     if request.to is None:
-        return PlanEnd(int(request.to_node))
-    obj = _object_for(found, queries, 0, "destination")
-    return PlanEnd(
-        _object_place(graph, obj, cost_graph.allowed, config.planning.goal_radius, "goal"), query=request.to, object=obj
-    )
+        goal = int(request.to_node)
+        if not 0 <= goal < len(graph.places):
+            raise TerraError(f"goal place {goal} does not exist; the graph has places 0..{len(graph.places) - 1}")
+        return plan_on(graph, cost_graph, start, goal), PlanEnd(goal)
+    candidates = [o for o in found if o.query == 0]
+    outcome = plan_to_objects(graph, cost_graph, start, candidates, config.planning.goal_radius,
+                              f"the destination query {queries[0]!r}")
+    goal = PlanEnd(outcome.goal_place, query=request.to, object=outcome.goal_object, candidates=len(candidates),
+                   skipped=outcome.skipped)
+    return outcome.plan, goal
 
 
 def _start(

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # a monitor query must not import retrieval (and with it SciPy) to build its result
     from terra.graph.scene_graph import SceneGraph
     from terra.tasks.monitoring import MonitorResult
-    from terra.tasks.planning import PathPlan
+    from terra.tasks.planning import PathPlan, SkippedGoal
     from terra.tasks.retrieval import FoundObject
 
 
@@ -60,12 +60,15 @@ class MonitorResults:
 
 @dataclass
 class PlanEnd:
-    """A plan's start or goal: the place, how it was chosen, and the object when a query chose it."""
+    """A plan's start or goal: the place, how it was chosen, and the object when a query chose it.
+    For a goal query: how many objects were candidates, and the better-scored ones skipped (why)."""
 
     place: int
     how: str = ""
     query: str | None = None
     object: FoundObject | None = None
+    candidates: int = 0
+    skipped: list[SkippedGoal] = field(default_factory=list)
 
 
 @dataclass
@@ -85,6 +88,7 @@ class PlanResult:
             "bundle": str(self.bundle),
             **self.plan.to_json(),
             "start": {"place": self.start.place, "how": self.start.how, "object": obj(self.start)},
-            "goal": {"place": self.goal.place, "query": self.goal.query, "object": obj(self.goal)},
+            "goal": {"place": self.goal.place, "query": self.goal.query, "object": obj(self.goal),
+                     "candidates": self.goal.candidates, "skipped": [s.to_json() for s in self.goal.skipped]},
             "preferences": {"penalty": dict(self.penalty), "forbidden": list(self.forbidden)},
         }
