@@ -35,6 +35,30 @@ def mapped_dataset_name(bundle: Bundle) -> str:
     return str(meta.get("dataset", "")) if isinstance(meta, dict) else ""
 
 
+def mapped_dataset_fingerprint(bundle: Bundle) -> str:
+    """Content fingerprint of the dataset a bundle's map was built from (terra.datasets.fingerprint;
+    "" for bundles made before it was recorded)."""
+    source = bundle.manifest.get("components", {}).get("map", {}).get("dataset")
+    return str(source.get("fingerprint") or "") if isinstance(source, dict) else ""
+
+
+def check_same_dataset(bundle: Bundle, dataset: Dataset, gt_root: Path) -> str:
+    """The fingerprint of `dataset` when it is the one `bundle` was mapped from; TerraError when
+    it is not. Recognised by content (a copied or renamed dataset is the same one); bundles
+    without a recorded fingerprint fall back on the recorded name."""
+    from terra.datasets.fingerprint import dataset_fingerprint
+
+    recorded = mapped_dataset_fingerprint(bundle)
+    found = dataset_fingerprint(dataset)
+    if recorded and recorded != found:
+        raise TerraError(f"{gt_root}: not the dataset {bundle.path} was mapped from (its frames differ from those of "
+                         f"{mapped_dataset_name(bundle) or 'the mapped dataset'!r})")
+    mapped = mapped_dataset_name(bundle)
+    if not recorded and mapped and mapped != dataset.name:
+        raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from ({mapped!r})")
+    return found
+
+
 @dataclass
 class EvalInputs:
     """What evaluation reads: the loaded bundle (map, graph, query embedder) and the ground truth."""
@@ -46,6 +70,11 @@ class EvalInputs:
 
     dataset: Dataset | None = None
     dataset_name: str = ""
+    dataset_fingerprint: str = ""
+
+    def fingerprint_record(self) -> dict[str, str]:
+        """{"fingerprint": ...} of the evaluated dataset, for files that name it (tuned.json)."""
+        return {"fingerprint": self.dataset_fingerprint} if self.dataset_fingerprint else {}
 
     @property
     def bundle(self) -> Bundle:
@@ -67,18 +96,15 @@ class EvalInputs:
     def load(cls, bundle_path: str | Path, gt_root: str | Path, loaded: LoadedBundle | None = None) -> "EvalInputs":
         """Open everything, cheapest checks first, so bad input fails before any work: the bundle
         must hold a scene graph, `gt_root` must be a dataset written by `terra sim`, and it must
-        be the dataset the bundle was mapped from (by its recorded name). `loaded`: an already
-        opened bundle to share (its map, graph and embedder are not loaded again)."""
+        be the dataset the bundle was mapped from (by its content, check_same_dataset). `loaded`:
+        an already opened bundle to share (its map, graph and embedder are not loaded again)."""
         loaded = loaded or LoadedBundle(bundle_path)
         loaded.require_graph("evaluation")
         dataset, gt = dataset_ground_truth(Path(gt_root))
-        mapped = mapped_dataset_name(loaded.bundle)
-        if mapped and mapped != dataset.name:
-            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {loaded.path} was mapped from "
-                             f"({mapped!r})")
+        found = check_same_dataset(loaded.bundle, dataset, Path(gt_root))
         loaded.require_map("evaluation")
         loaded.embedder  # noqa: B018 (loaded now: evaluation embeds many texts)
-        return cls(loaded, gt, Path(gt_root), dataset=dataset, dataset_name=dataset.name)
+        return cls(loaded, gt, Path(gt_root), dataset=dataset, dataset_name=dataset.name, dataset_fingerprint=found)
 
     @property
     def objects_only(self) -> bool:
@@ -173,9 +199,10 @@ METHOD_LABELS = {"aib": "AIB (Clio) on Terra places", "spectral": "Terra spectra
 
 
 def monitoring_run(inputs: EvalInputs, method: str, truth: list[np.ndarray], params: MonitorParams, monitor_method: str,
-                   tasks_config=None) -> MonitoringRun:
-    """One Table III row: AIB on the places layer, or `monitor_method` on a rebuilt hierarchy."""
-    regions = inputs.gt.regions
+                   tasks_config=None, regions: list | None = None) -> MonitoringRun:
+    """One Table III row: AIB on the places layer, or `monitor_method` on a rebuilt hierarchy.
+    `regions` and `truth`: the evaluable labelled regions and their places (evaluable_regions)."""
+    regions = inputs.gt.regions if regions is None else regions
     if method == "aib":
         return run_monitoring(inputs.graph, regions, truth, "aib", params, inputs.embedder, tasks_config)
     graph, build_seconds = inputs.hierarchy(method)
@@ -198,16 +225,35 @@ def monitoring_params(method: str, embedder: str, tuned: TunedParameters | None,
                          tuned.monitoring_min_level(method) if tuned is not None else None)
 
 
+NOT_EVALUABLE = "no place of the scene graph lies inside it, so no prediction can be right or wrong there"
+
+
+def evaluable_regions(inputs: EvalInputs) -> tuple[list, list[np.ndarray], list[dict]]:
+    """The labelled regions that can be scored (at least one place inside), their places, and
+    the others with the reason: a region with no place has no recall, and every place predicted
+    for it would count against the method, so it is listed as not evaluable and left out of the
+    averages (and of tuning) instead."""
+    regions, truth, skipped = [], [], []
+    for region, places in zip(inputs.gt.regions, region_truth(inputs.graph, inputs.gt.regions)):
+        if len(places):
+            regions.append(region)
+            truth.append(places)
+        else:
+            skipped.append({"name": region.name, "description": region.description, "reason": NOT_EVALUABLE})
+    return regions, truth, skipped
+
+
 def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
                     ) -> tuple[dict, dict[str, MonitoringRun]]:
-    truth = region_truth(inputs.graph, inputs.gt.regions)
+    regions, truth, skipped = evaluable_regions(inputs)
     runs = {}
     for method in config.regions.methods:
         params = monitoring_params(method, inputs.embedder.name, tuned, tasks_config)
-        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config)
+        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config, regions)
     section = {
+        "not_evaluable": skipped,
         "queries": [{"name": r.name, "description": r.description, "num_gt_places": int(len(t))}
-                    for r, t in zip(inputs.gt.regions, truth)],
+                    for r, t in zip(regions, truth)],
         "monitor_method": config.regions.monitor_method,
         "methods": {m: run.to_json(METHOD_LABELS[m]) for m, run in runs.items()},
         "regions_per_level": {m: [len(level) for level in inputs.hierarchy(m)[0].regions] for m in runs if m != "aib"},
@@ -290,25 +336,29 @@ def places_section(inputs: EvalInputs) -> dict:
 # ---------------------------------------------------------------------------- tuning
 
 
-def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None) -> TunedParameters:
+def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None, show_progress: bool = False) -> TunedParameters:
     """Grid-search alpha (and k and levels) on a validation bundle: see terra.eval.tuning."""
+    from terra.progress import progress
+
     grid = alpha_grid(config.tune)
     tuned = TunedParameters(inputs.embedder.name, validation={"bundle": inputs.bundle.path.name,
-                                                              "dataset": inputs.dataset_name or inputs.gt_root.name})
+                                                              "dataset": inputs.dataset_name or inputs.gt_root.name,
+                                                              **inputs.fingerprint_record()})
     task = retrieval_task(inputs.gt, config.retrieval)
     if task.queries:
         for method in config.retrieval.methods:
             points = []
-            for alpha in grid:
+            for alpha in progress(grid, f"tuning {method} retrieval", enabled=show_progress, unit="alphas"):
                 run = run_retrieval(inputs.msm, inputs.graph, task.queries, method, alpha, inputs.embedder, tasks_config)
                 points.append({"alpha": alpha, "f1": run.evaluate(task, config.retrieval.precision_ratio).f1})
             tuned.retrieval[method] = best_point(points)
-    truth = region_truth(inputs.graph, inputs.gt.regions)
-    if inputs.gt.regions:
+    regions, truth, _ = evaluable_regions(inputs)
+    if regions:
         for method in config.regions.methods:
             points = []
-            for params in _monitor_grid(method, grid, config, inputs):
-                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config)
+            grid_points = _monitor_grid(method, grid, config, inputs)
+            for params in progress(grid_points, f"tuning {method} monitoring", enabled=show_progress, unit="settings"):
+                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config, regions)
                 points.append({**params.to_json(), "f1": run.total.f1})
             tuned.monitoring[method] = best_point(points)
     return tuned
@@ -358,12 +408,30 @@ def parameter_source(tuned: TunedParameters | None) -> dict:
             "tuned": tuned.to_json()}
 
 
+def perception_section(bundle: Bundle) -> dict:
+    """Which perception produced the map, from the bundle: the backend, its noise (labels) or its
+    model files (models), and whether its masks come from the ground truth itself (the labels
+    backend reads the dataset's label images, so Tables I and II then grade ground-truth masks)."""
+    map_info = bundle.manifest.get("components", {}).get("map", {})
+    perception = (map_info.get("config") or {}).get("perception") or {}
+    recorded = bundle.manifest.get("perception") or {}
+    backend = str(recorded.get("backend") or perception.get("backend") or "unknown")
+    section: dict = {"backend": backend, "ground_truth_masks": backend == "labels",
+                     "models": [{k: m.get(k) for k in ("role", "name", "sha256") if k in m} for m in recorded.get("models", [])
+                                if isinstance(m, dict)]}
+    noise = perception.get("noise")
+    if backend == "labels" and isinstance(noise, dict):
+        section["noise"] = {k: noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")}
+    return section
+
+
 def summary_header(inputs: EvalInputs, tuned: TunedParameters | None) -> dict:
     """What was evaluated with what, and the sections the ground truth cannot score (and why)."""
     summary: dict = {
         "bundle": inputs.bundle.path.name,
         "dataset": inputs.dataset_name or inputs.gt_root.name,
         "embedder": inputs.embedder.name,
+        "perception": perception_section(inputs.bundle),
         "parameters": parameter_source(tuned),
     }
     skipped = not_evaluated(inputs)
@@ -397,7 +465,7 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
         inputs = EvalInputs.load(bundle_path, gt_root, loaded)
     if tuned is not None:
         tuned.check_embedder(inputs.embedder.name)
-        tuned.check_not_tuned_on(inputs.dataset_name)
+        tuned.check_not_tuned_on(inputs.dataset_name, fingerprint=inputs.dataset_fingerprint)
     summary = summary_header(inputs, tuned)
     skipped = summary.get("not_evaluated", {})
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from terra.bundle import Bundle, BundleWriter
 from terra.datasets.base import CameraFrame, Dataset, Frame
+from terra.datasets.fingerprint import dataset_fingerprint
 from terra.errors import TerraError
 from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
@@ -63,12 +64,14 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
         global_map, dropped = _global_map(dataset, config)
         fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
         fusion.stats.add("global_map_points_nonfinite", dropped)
+        source = {"name": dataset.name, "fingerprint": dataset_fingerprint(dataset), "frames": n_frames}
     key = fingerprint(
         {
             "format": MAP_FORMAT,
             # Where the perception cache lives changes no output.
             "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
-            "dataset": dataset.name,
+            # What the dataset holds, not where it lives: a renamed copy resumes the checkpoint.
+            "dataset": source["fingerprint"],
             "frames": n_frames,
             "embedder": [perception.embedder, perception.dim],
             "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
@@ -104,6 +107,7 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
         writer = BundleWriter(out)
         try:
             write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name, classes=dataset.classes.to_json())
+            writer.manifest["components"]["map"]["dataset"] = source
             writer.manifest["perception"] = perception.describe()
             bundle = writer.commit()
         except BaseException:
