@@ -38,6 +38,7 @@ class MonitoringRun:
     build_seconds: float | None = None
     parameters: dict = field(default_factory=dict)
     cluster_seconds: float = 0.0
+    regions: list[NamedRegion] = field(default_factory=list)  # the regions queried, in the order of `predicted`
 
     def timing_ms(self) -> dict[str, float]:
         """regions_ms, query_ms and runtime_ms (see the module docstring)."""
@@ -118,7 +119,8 @@ def run_monitoring(graph: SceneGraph, regions: list[NamedRegion], truth: list[np
         cluster_seconds += result.cluster_seconds
     seconds = time.perf_counter() - start
     scores = [set_scores(p, t) for p, t in zip(predicted, truth)]
-    return MonitoringRun(predicted, scores, seconds, parameters=params.to_json(), cluster_seconds=cluster_seconds)
+    return MonitoringRun(predicted, scores, seconds, parameters=params.to_json(), cluster_seconds=cluster_seconds,
+                         regions=list(regions))
 
 
 def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph, float]:
