@@ -51,7 +51,7 @@ def test_report_has_the_papers_tables_with_best_values_in_bold():
     assert "## Table I: terrain segmentation (10 labelled images)" in text
     assert "| labels | 0.900 | 0.900 | 0.950 | 120.0 |" in text
     assert "| sidewalk | grass |" in text and "| labels | 0.900 | - |" in text  # absent class shown as '-'
-    assert "## Table II: open-set object retrieval (\"Find the {object}\": 2 objects in 1 queries)" in text
+    assert "## Table II: open-set object retrieval (\"Find the {object}\": 2 objects in 1 query)" in text
     # IoU is best for ms-max, F1 best for ms-avg; equal SAcc values are bold for both.
     assert "| ms-avg | 0.123 | **0.500** | **0.500** | **0.250** | **0.500** | **0.400** | 0.246 | 0.400 |" in text
     assert "| 0-5 m | 2 | 1 / 0.25 | 1 / 0.40 |" in text and "| >= 5 m | 0 | 0 / - | 0 / - |" in text
