@@ -9,6 +9,19 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.cli.interrupts import on_interrupt
+
+
+def _check_graph(bundle: Path, overwrite: bool) -> None:
+    """The common rule for existing outputs (terra.cli.outputs): a scene graph is replaced only
+    with --overwrite."""
+    from terra.bundle import Bundle
+    from terra.errors import TerraError
+
+    if overwrite or not (Path(bundle) / "manifest.json").is_file():
+        return  # a missing or damaged bundle is reported by the build itself
+    if "graph" in Bundle(bundle).manifest.get("components", {}):
+        raise TerraError(f"{bundle}: the bundle already has a scene graph; pass --overwrite to replace it")
 
 
 @app.command("build")
@@ -17,12 +30,16 @@ def build_command(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `build` section is used."),
     regions: Optional[str] = typer.Option(None, "--regions", help="Region method: agglomerative or spectral (overrides the config)."),
     cuts: Optional[str] = typer.Option(None, "--cuts", help="Agglomerative cut heights, e.g. 50,100,200,400 (the paper's); default: levels adapted to the map."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the scene graph the bundle already has."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary (counts, stats, timings) as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
-    """Build the terrain-aware places and hierarchical regions of BUNDLE's map and store them in
-    the bundle as component graph/ (spark_dsg JSON plus embedding arrays). The bundle is replaced
-    atomically: on any error it is left as it was.
+    """Build the scene graph of a bundle's map (Phase 2).
+
+    Build the terrain-aware places and hierarchical regions of BUNDLE's map and store them in
+    the bundle as component graph/ (spark_dsg JSON plus embedding arrays). A bundle that already
+    has a scene graph is refused unless --overwrite. The bundle is replaced atomically: on any
+    error or Ctrl-C it is left as it was.
 
     Example: terra build campus.terra --regions spectral --config terra.yaml
     (the paper's fixed agglomerative levels: terra build campus.terra --cuts 50,100,200,400)
@@ -44,6 +61,8 @@ def build_command(
             raise TerraError(f"--cuts expects comma-separated numbers such as 50,100,200,400, got {cuts!r}") from None
     overrides = overrides if overrides["regions"] else None
     section = load_section(config, "build", overrides)
+    _check_graph(bundle, overwrite)
+    on_interrupt(f"{bundle} is unchanged; run the same command again")
     result = run_build(bundle, section, show_progress=not quiet and not as_json)
     graph = result.graph
     summary = {

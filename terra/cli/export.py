@@ -30,7 +30,9 @@ def export_command(
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Export BUNDLE for other tools: the scene graph as spark_dsg JSON (Hydra, Clio) or networkx
+    """Export a bundle for other tools (spark-dsg, PLY, ...).
+
+    Export BUNDLE for other tools: the scene graph as spark_dsg JSON (Hydra, Clio) or networkx
     node-link JSON, the map's points as PLY (CloudCompare, Open3D), or the metric-semantic map
     files of the authors' Phase 1 (their Phase 2 scripts build on them). Written atomically; an
     existing output is kept unless --overwrite.

@@ -35,7 +35,9 @@ def import_command(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Import the reference's MS-map files as a Terra bundle (then `terra build`, `terra find`).
+    """Import the authors' metric-semantic map files as a bundle.
+
+    Import the reference's MS-map files as a Terra bundle (then `terra build`, `terra find`).
     Their pickles are read without running code: only plain data is accepted, and torch files load
     with weights only on the CPU (GPU-saved tensors included). Image positions are recovered from
     the files' ranges; see the summary for how.

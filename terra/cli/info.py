@@ -69,7 +69,9 @@ def info_command(
     bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map` / `terra build`."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Summarise BUNDLE: points, bank size, images, terrain histogram, bytes per component, and
+    """Summarise a bundle.
+
+    Summarise BUNDLE: points, bank size, images, terrain histogram, bytes per component, and
     the scene graph when there is one.
 
     Example: terra info campus.terra --json

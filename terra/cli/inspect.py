@@ -80,7 +80,9 @@ def inspect_command(
     ),
     as_json: bool = typer.Option(False, "--json", help="Print everything as one JSON document."),
 ) -> None:
-    """Show what SOURCE holds before mapping it: frames and time span, each camera's size,
+    """Show what a dataset or ROS bag holds before mapping it.
+
+    Show what SOURCE holds before mapping it: frames and time span, each camera's size,
     intrinsics, lens model and coefficients and T_cam_lidar as read, the pose source, and what
     would be skipped and why. For a bag also every topic (type, count, rate, span), the TF tree,
     and a ready-to-edit `dataset` config section.

@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.cli.interrupts import on_interrupt
 from terra.errors import TerraError
 
 
@@ -27,7 +28,7 @@ def _sim_dataset(spec: str):
 def map_command(
     dataset: Optional[Path] = typer.Argument(
         None, help="Dataset: a folder (terra-folder, SemanticKITTI, KITTI raw drive) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write (replaced atomically)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write; an existing bundle is kept unless --overwrite."),
     config: Optional[Path] = typer.Option(
         None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
     format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."),
@@ -42,12 +43,15 @@ def map_command(
     cache: Optional[Path] = typer.Option(
         None, "--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."
     ),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle at --out (atomically)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
-    """Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
+    """Build the metric-semantic map of a dataset (Phase 1).
 
-    An interrupted run resumes from its last checkpoint (OUT.partial/) when rerun with the same
-    arguments. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
+    Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
+
+    An existing bundle at --out is refused unless --overwrite. An interrupted run (Ctrl-C, a
+    crash) resumes from its last checkpoint (OUT.partial/) when the same command is run again. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
     --cache), so later runs never repeat inference; --perception-only just fills that cache.
 
     With a bag, topics and frames need no configuration when the bag makes them unambiguous
@@ -67,6 +71,8 @@ def map_command(
 
     if (dataset is None) == (sim is None):
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
+    if not perception_only:
+        _check_out(out, overwrite)
     overrides: dict = {"perception": {}}
     if noise is not None:
         overrides["perception"]["noise"] = noise
@@ -82,9 +88,13 @@ def map_command(
     source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
     source = with_poses(source, poses, odometry, show_progress=not quiet)
     if perception_only:
+        on_interrupt(f"the images perceived so far are cached in {mapping.perception.cache.folder or str(out) + '.work/perception'}; "
+                     "run the same command again to go on")
         _perceive(source, mapping, out, quiet)
         return
     from terra.mapping.pipeline import run_mapping
+
+    on_interrupt(lambda: _kept(out))
 
     run = run_mapping(source, mapping, out, show_progress=not quiet)
     trajectory = None
@@ -113,6 +123,27 @@ def map_command(
     if trajectory is not None:
         typer.echo(_odometry_line(source.run, trajectory))
     typer.echo(run.timer.table())
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    """The common rule (terra.cli.outputs): an existing bundle needs --overwrite; an unfinished run
+    (OUT.partial/) resumes."""
+    from terra.cli.outputs import refuse_existing
+
+    refuse_existing(out, overwrite, "a bundle")
+
+
+def _kept(out: Path) -> str:
+    """What an interrupted `terra map` leaves: its last checkpoint, to resume from."""
+    from terra.bundle import Bundle
+    from terra.mapping.checkpoint import Checkpoint
+
+    checkpoint = Checkpoint(out)
+    try:
+        done = int(Bundle(checkpoint.path).json("state/meta.json")["next_frame"])
+    except Exception:  # no checkpoint yet (or an unreadable one, which the next run ignores)
+        return f"no checkpoint was reached, {out} is unchanged; run the same command again to start over"
+    return f"the map up to frame {done} is checkpointed in {checkpoint.folder}; run the same command again to resume"
 
 
 def _perceive(source, mapping, out: Path, quiet: bool) -> None:

@@ -32,7 +32,9 @@ def render_command(
     forbid: Optional[List[str]] = typer.Option(None, "--forbid", help="path: terrain never to enter (repeatable)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Draw one top-down figure of BUNDLE (the ones `terra eval` puts in its report): map terrain,
+    """Draw one top-down figure of a bundle as a PNG.
+
+    Draw one top-down figure of BUNDLE (the ones `terra eval` puts in its report): map terrain,
     the places layer, the region levels, the objects, or a terrain-aware path.
 
     Example: terra render campus.terra --what path --to "get bike from the bicycle rack" --out path.png

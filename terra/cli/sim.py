@@ -26,7 +26,9 @@ def sim(
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or timing table."),
 ) -> None:
-    """Simulate a robot driving through a generated campus and write the dataset.
+    """Simulate a campus drive and write it as a dataset.
+
+    Simulate a robot driving through a generated campus and write the dataset.
 
     Writes the frames (LiDAR scans with per-point labels, camera images with label images, poses, calibration), ground_truth/ (objects, terrain raster, named regions), classes.json and world.png, a top-down picture of the world and the route.
 

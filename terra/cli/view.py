@@ -26,7 +26,9 @@ def view_command(
         None, "--config", "-c", help="YAML config; its `tasks` section is used for the queries."
     ),
 ) -> None:
-    """Open BUNDLE in a web viewer: points coloured by terrain, MS-Max class or similarity to a
+    """Open a bundle in the web viewer.
+
+    Open BUNDLE in a web viewer: points coloured by terrain, MS-Max class or similarity to a
     text; places, each region level and the objects as layers; find and monitor queries that
     highlight their answers; terrain-aware plans between typed or picked places. Ctrl-C stops it.
 
