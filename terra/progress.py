@@ -114,18 +114,19 @@ class Progress:
             count += f"/{self.count_format.format(self.total)}{unit} ({100 * self.done / self.total:.0f}%)"
         else:
             count += unit
-        text = f"{self.desc} {count}, {rate:.3g}{unit or ' steps'}/s"
+        text = f"{self.desc} {count}, {rate:.3g}{unit}/s"
         if not self.total:
             return text + f" ({duration(elapsed)} so far)"
         if rate > 0:
             text += f", about {duration((self.total - self.done) / rate)} left"
         return text
 
-    def close(self) -> None:
+    def close(self, finished: bool = True) -> None:
+        """End the stage; the closing line only when it `finished` (not on an error or Ctrl-C)."""
         if self.bar is not None:
             self.bar.close()
             self.bar = None
-        elif self.printed:
+        elif self.printed and finished:
             self.printed = False
             unit = f" {self.unit}" if self.unit else ""
             _emit(f"{self.desc} {self.count_format.format(self.done)}{unit} done in {duration(time.monotonic() - self.start)}")
@@ -136,12 +137,14 @@ def progress(iterable: Iterable[T], desc: str, total: int | None = None, enabled
     if total is None and hasattr(iterable, "__len__"):
         total = len(iterable)  # type: ignore[arg-type]
     bar = Progress(desc, total, unit, enabled)
+    finished = False
     try:
         for item in iterable:
             yield item
             bar.update(1)
+        finished = True
     finally:
-        bar.close()
+        bar.close(finished)
 
 
 @contextmanager

@@ -96,7 +96,7 @@ def test_structural_faults_exit_2_and_keep_the_old_bundle(damage, names, damaged
     else:
         source = tmp_path / "no-such-folder"
     capsys.readouterr()
-    assert run(["map", str(source), "--out", str(out), "-q"]) == 2
+    assert run(["map", str(source), "--out", str(out), "-q", "--overwrite"]) == 2  # replacing it fails: it stays
     line = one_error_line(capsys.readouterr())
     assert names in line
     assert folder_digest(out) == before

@@ -58,11 +58,12 @@ def run(argv: list[str] | None = None) -> int:
     """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path)."""
     _load_commands()
     from terra.cli.helptext import tidy_help
-    from terra.cli.interrupts import clear, interrupted_message
+    from terra.cli.interrupts import Interrupted, catch_interrupts, clear, interrupted_message
 
     clear()
+    command = catch_interrupts(tidy_help(typer.main.get_command(app)))
     try:
-        result = tidy_help(typer.main.get_command(app)).main(args=argv, prog_name="terra", standalone_mode=False)
+        result = command.main(args=argv, prog_name="terra", standalone_mode=False)
         return result if isinstance(result, int) else 0
     except TerraError as exc:
         typer.echo(f"terra: error: {exc}", err=True)
@@ -72,7 +73,7 @@ def run(argv: list[str] | None = None) -> int:
     except typer.Abort:
         typer.echo("terra: aborted", err=True)
         return 130
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Interrupted):
         typer.echo(interrupted_message(), err=True)
         return 130
     except Exception as exc:

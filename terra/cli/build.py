@@ -10,6 +10,7 @@ import typer
 
 from terra.cli import app
 from terra.cli.interrupts import on_interrupt
+from terra.words import counted
 
 
 def _check_graph(bundle: Path, overwrite: bool) -> None:
@@ -21,7 +22,7 @@ def _check_graph(bundle: Path, overwrite: bool) -> None:
     if overwrite or not (Path(bundle) / "manifest.json").is_file():
         return  # a missing or damaged bundle is reported by the build itself
     if "graph" in Bundle(bundle).manifest.get("components", {}):
-        raise TerraError(f"{bundle}: the bundle already has a scene graph; pass --overwrite to replace it")
+        raise TerraError(f"{bundle}: has a scene graph already (pass --overwrite to replace it)")
 
 
 @app.command("build")
@@ -63,7 +64,10 @@ def build_command(
     section = load_section(config, "build", overrides)
     _check_graph(bundle, overwrite)
     on_interrupt(f"{bundle} is unchanged; run the same command again")
-    result = run_build(bundle, section, show_progress=not quiet and not as_json)
+    from terra.progress import working
+
+    with working("building the scene graph", not quiet and not as_json):
+        result = run_build(bundle, section, show_progress=not quiet and not as_json)
     graph = result.graph
     summary = {
         "bundle": str(bundle),
@@ -81,7 +85,7 @@ def build_command(
         return
     per_terrain = ", ".join(f"{k} {v}" for k, v in result.stats["places_per_terrain"].items())
     edges = result.stats["edges"]
-    typer.echo(f"graph: {summary['places']} places ({per_terrain}) -> {bundle}")
+    typer.echo(f"graph: {counted(summary['places'], 'place')} ({per_terrain}) -> {bundle}")
     typer.echo(f"  place edges: {summary['place_edges']} (gvd {edges['gvd']}, cross-terrain {edges['cross_terrain']}, bridge {edges['bridge']})")
     typer.echo(f"  regions ({graph.region_method}): " + " / ".join(str(n) for n in summary["regions_per_level"]) + " per level")
     src = result.stats["embedding_source"]

@@ -12,6 +12,7 @@ import typer
 
 from terra.cli import app
 from terra.errors import TerraError
+from terra.words import counted
 
 
 @app.command("eval")
@@ -107,7 +108,7 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
     tasks_cfg = load_section(config, "tasks")
     timer = StageTimer()
     if tune:
-        refuse_existing(Path(out) / TUNED, overwrite, "tuned parameters")
+        refuse_existing(Path(out) / TUNED, overwrite)
         on_interrupt(f"nothing was written ({Path(out) / TUNED} is unchanged); run the same command again")
         with timer.stage("tune"):
             params = tune_parameters(EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg, show_progress=not quiet and not as_json)
@@ -125,7 +126,7 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
             typer.echo(timer.table())
         return
     params = TunedParameters.load(tuned) if tuned is not None else None
-    refuse_existing(Path(out), overwrite, "a report folder")
+    refuse_existing(Path(out), overwrite)
     on_interrupt(f"no report was written ({out} is unchanged); run the same command again")
     summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json, timer=timer)
     if as_json:
@@ -176,7 +177,7 @@ def _terrain_lines(table: dict) -> list[str]:
     methods = table["methods"]
     width = max([len(m) for m in methods] + [6])
     lines = [
-        f"terrain segmentation of {table['dataset']} ({table['images']} labelled images):",
+        f"terrain segmentation of {table['dataset']} ({counted(table['images'], 'labelled image')}):",
         f"  {'method':<{width}}  {'mIoU':>6}  {'F-mIoU':>6}  {'F1':>6}  {'FPS':>7}",
     ]
     for name, s in methods.items():

@@ -39,9 +39,15 @@ def export_command(
 
     Example: terra export campus.terra --format spark-dsg --out campus.dsg.json
     """
+    from terra.cli.interrupts import on_interrupt
     from terra.interop.export import export_bundle
 
-    summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range)
+    on_interrupt("nothing was written (an existing output is unchanged); run the same command again")
+
+    from terra.progress import working
+
+    with working(f"exporting {fmt}", not as_json):
+        summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return

@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.words import counted
 
 
 @app.command("import")
@@ -44,23 +45,29 @@ def import_command(
 
     Example: terra import ms_map_out -f terra-reference -o field.terra --terrain-classes sidewalk,grass,asphalt
     """
+    from terra.cli.interrupts import on_interrupt
     from terra.errors import TerraError
     from terra.interop.reference_import import import_reference
+
+    on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
 
     if fmt != "terra-reference":
         raise TerraError(f"--format {fmt!r}: expected terra-reference")
     classes = [c.strip() for c in terrain_classes.split(",") if c.strip()] if terrain_classes is not None else None
     if terrain_classes is not None and not classes:
         raise TerraError("--terrain-classes: give at least one class name, e.g. sidewalk,grass,asphalt")
-    summary = import_reference(folder, out, classes, embedder, global_pc, itr, overwrite)
+    from terra.progress import working
+
+    with working("importing", not as_json):
+        summary = import_reference(folder, out, classes, embedder, global_pc, itr, overwrite)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return
     pos = summary["image_positions"]
     typer.echo(
-        f"imported {folder} (itr {summary['itr']}) -> {out}: {summary['points']} points, "
+        f"imported {folder} (itr {summary['itr']}) -> {out}: {counted(summary['points'], 'point')}, "
         f"{summary['observed_points']} with "
-        f"object observations, bank {summary['bank']}, {summary['images']} images, embedder {summary['embedder']}"
+        f"object observations, bank {summary['bank']}, {counted(summary['images'], 'image')}, embedder {summary['embedder']}"
     )
     typer.echo(f"  terrain classes: {', '.join(summary['terrain_classes'])}")
     typer.echo(

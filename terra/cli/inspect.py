@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.words import counted
 
 
 def _camera_lines(cam: dict) -> list[str]:
@@ -52,7 +53,7 @@ def _bag_lines(d: dict) -> list[str]:
 def render(info: dict) -> list[str]:
     span = info["time_span"]
     lines = [
-        f"{info['path']} ({info['format']}): {info['frames']} frames"
+        f"{info['path']} ({info['format']}): {counted(info['frames'], 'frame')}"
         + (f", {span[0]:.3f} .. {span[1]:.3f} s ({span[1] - span[0]:.3f} s)" if span else ""),
         f"  poses: {info['pose_source']}",
     ]

@@ -8,7 +8,8 @@ work got (e.g. the frame of `terra map`'s last checkpoint).
 
 from __future__ import annotations
 
-from typing import Callable
+import functools
+from typing import Any, Callable
 
 NOTHING_WRITTEN = "nothing was written; run the same command again"
 _note: dict[str, Callable[[], str] | None] = {"note": None}
@@ -31,3 +32,25 @@ def interrupted_message() -> str:
     except Exception:  # the note describes files; never let it hide the interruption itself
         text = NOTHING_WRITTEN
     return f"terra: interrupted; {text}"
+
+
+class Interrupted(Exception):
+    """Ctrl-C inside a command (Typer would otherwise turn it into a silent exit code 130)."""
+
+
+def catch_interrupts(command: Any) -> Any:
+    """Every command of the tree raises Interrupted on Ctrl-C, for `terra.cli.run` to report."""
+    callback = getattr(command, "callback", None)
+    if callback is not None and not getattr(callback, "_terra_interruptible", False):
+        @functools.wraps(callback)
+        def interruptible(*args: Any, **kwargs: Any) -> Any:
+            try:
+                return callback(*args, **kwargs)
+            except KeyboardInterrupt as exc:
+                raise Interrupted() from exc
+
+        interruptible._terra_interruptible = True  # type: ignore[attr-defined]
+        command.callback = interruptible
+    for sub in getattr(command, "commands", {}).values():
+        catch_interrupts(sub)
+    return command

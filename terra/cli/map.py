@@ -10,6 +10,7 @@ import typer
 from terra.cli import app
 from terra.cli.interrupts import on_interrupt
 from terra.errors import TerraError
+from terra.words import counted
 
 
 def _sim_dataset(spec: str):
@@ -108,13 +109,13 @@ def map_command(
     if run.resumed_from:
         typer.echo(f"resumed after frame {run.resumed_from}")
     typer.echo(
-        f"map: {info['points']} points ({info['observed_points']} with object observations), "
-        f"{info['bank']} bank entries, {info['images']} images -> {run.bundle.path}"
+        f"map: {counted(info['points'], 'point')} ({info['observed_points']} with object observations), "
+        f"{counted(info['bank'], 'bank entry', 'bank entries')}, {counted(info['images'], 'image')} -> {run.bundle.path}"
     )
     if run.cache is not None:
         cache = run.cache
         typer.echo(
-            f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({cache['folder']})"
+            f"perception cache: {counted(cache['hits'], 'image')} read back, {cache['computed']} computed ({cache['folder']})"
         )
     if getattr(source, "pose_source", None):
         typer.echo(f"  poses: {source.pose_source}")
@@ -130,7 +131,7 @@ def _check_out(out: Path, overwrite: bool) -> None:
     (OUT.partial/) resumes."""
     from terra.cli.outputs import refuse_existing
 
-    refuse_existing(out, overwrite, "a bundle")
+    refuse_existing(out, overwrite)
 
 
 def _kept(out: Path) -> str:
@@ -152,7 +153,7 @@ def _perceive(source, mapping, out: Path, quiet: bool) -> None:
     run = run_perception(source, mapping, out, show_progress=not quiet)
     if quiet:
         return
-    typer.echo(f"perception cache: {run.images} images of {run.frames} frames, {run.hits} already cached, "
+    typer.echo(f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, {run.hits} already cached, "
                f"{run.computed} computed -> {run.folder}")
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
@@ -166,7 +167,7 @@ def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
 
 
 def _odometry_line(run, files) -> str:
-    line = (f"odometry: KISS-ICP over {len(run.stamps)} scans ({run.scans_per_second:.1f} scans/s, "
+    line = (f"odometry: KISS-ICP over {counted(len(run.stamps), 'scan')} ({run.scans_per_second:.1f} scans/s, "
             f"{run.deskewed} deskewed), trajectory -> {files[0]}, {files[1].name}")
     if run.errors:
         e = run.errors

@@ -26,8 +26,8 @@ def exists(path: Path) -> bool:
     return path.exists()
 
 
-def refuse_existing(path: Path, overwrite: bool, what: str) -> None:
-    """TerraError when `path` holds something and --overwrite was not given. `what` names it
-    ("bundle", "report folder", "file")."""
+def refuse_existing(path: Path, overwrite: bool) -> None:
+    """TerraError when `path` holds something and --overwrite was not given (the same words as
+    every other command that refuses an existing output)."""
     if not overwrite and exists(path):
-        raise TerraError(f"{path}: {what} already exists; pass --overwrite to replace it")
+        raise TerraError(f"{path}: exists (pass --overwrite to replace it)")

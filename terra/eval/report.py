@@ -155,7 +155,7 @@ def _places(places: dict) -> list[str]:
             rows.append([label, f"{c['joined']:,} / {c['pairs']:,}", f"{c['joined_share']:.3f}", per])
     regions = ", ".join(f"{k} {v}" for k, v in places.get("places_per_region", {}).items())
     return ["## Places against the ground-truth terrain", "",
-            f"{places.get('places', 0)} places. Pairs of places of one terrain on one connected component of that terrain "
+            f"{counted(places.get('places', 0), 'place')}. Pairs of places of one terrain on one connected component of that terrain "
             "in the ground-truth raster, joined by a path on that terrain alone:", "",
             table(["Components over", "Joined pairs", "Share", "per terrain"], rows, "lrrl"), "",
             f"Places inside each labelled region: {regions}.", ""]
@@ -221,7 +221,7 @@ def _navigation(nav: dict) -> list[str]:
     else:
         skipped = nav.get("skipped", [])
         out += [f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
-                f"(the approach place of the best reachable of {nav.get('candidates', 1)} objects for the task"
+                f"(the approach place of the best reachable of {counted(nav.get('candidates', 1), 'object')} for the task"
                 + (f"; {len(skipped)} skipped" if skipped else "") + "). Terrain lengths read from the ground-truth raster.", "",
                 table(header, rows), ""]
         out += [f"- skipped {s['label']!r} (score {s['score']:.3f}) at place {s['place']}: {s['reason']}" for s in skipped]
@@ -311,14 +311,14 @@ def headline(summary: dict) -> list[str]:
         lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}{fps}")
     ret = summary.get("retrieval", {})
     for name, s in ordered(ret.get("methods", {})).items():
-        lines.append(f"  retrieval {name:<7} ({ret['num_gt']} objects, {len(ret['queries'])} queries): IoU {s['iou']:.3f} "
+        lines.append(f"  retrieval {name:<7} ({counted(ret['num_gt'], 'object')}, {counted(len(ret['queries']), 'query', 'queries')}): IoU {s['iou']:.3f} "
                      f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
     for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
         lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "
                      f"{s['runtime_ms']:.0f} ms (regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})")
     skipped_regions = summary.get("regions", {}).get("not_evaluable", [])
     if skipped_regions:
-        lines.append(f"  regions not evaluable (no place inside, left out of the averages): "
+        lines.append("  regions not evaluable (no place inside, left out of the averages): "
                      + ", ".join(r["name"] for r in skipped_regions))
     places = summary.get("places", {}).get("connectivity_seen")
     if places:

@@ -5,8 +5,10 @@ ground truth, written as report.md, summary.json and figures (terra.eval.report)
 from __future__ import annotations
 
 import shutil
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -440,6 +442,15 @@ def summary_header(inputs: EvalInputs, tuned: TunedParameters | None) -> dict:
     return summary
 
 
+@contextmanager
+def _stage(timer: StageTimer, name: str, show_progress: bool) -> Iterator[None]:
+    """A timed evaluation stage that reports it is still working in long runs (terra.progress)."""
+    from terra.progress import working
+
+    with timer.stage(name), working(name, show_progress):
+        yield
+
+
 def check_report_folder(out: Path) -> None:
     """TerraError unless `out` may be (re)placed by a report: absent, empty, or an earlier report."""
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / SUMMARY).is_file())):
@@ -469,28 +480,31 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
     summary = summary_header(inputs, tuned)
     skipped = summary.get("not_evaluated", {})
 
+    def stage(name: str):
+        return _stage(timer, name, show_progress)
+
     def fill(folder: Path) -> None:
         monitoring: dict[str, MonitoringRun] = {}
         if "segmentation" not in skipped:
-            with timer.stage("eval: segmentation"):
+            with stage("eval: segmentation"):
                 seg = segmentation_section(inputs, config, show_progress)
             if seg is not None:
                 summary["segmentation"] = seg
-        with timer.stage("eval: retrieval"):
+        with stage("eval: retrieval"):
             summary["retrieval"], task, retrieval = retrieval_section(inputs, config, tuned, tasks_config)
         if "regions" not in skipped:
-            with timer.stage("eval: regions"):
+            with stage("eval: regions"):
                 summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks_config)
-        with timer.stage("eval: memory"):
+        with stage("eval: memory"):
             summary["memory"] = memory_summary(inputs.bundle, mapped_area(inputs.msm.points, config.map_cell))
         if not inputs.objects_only:  # place connectivity is judged on the ground-truth terrain raster
-            with timer.stage("eval: places"):
+            with stage("eval: places"):
                 summary["places"] = places_section(inputs)
         if "navigation" not in skipped:
-            with timer.stage("eval: navigation"):
+            with stage("eval: navigation"):
                 summary["navigation"] = navigation_section(inputs, config, tuned, tasks_config)
         if config.figures:
-            with timer.stage("eval: figures"):
+            with stage("eval: figures"):
                 from terra.eval.report_figures import write_figures
 
                 summary["figures"] = write_figures(folder, inputs, summary, task, retrieval, monitoring, config)

@@ -109,7 +109,8 @@ class TaskFile(_Strict):
         """Keys set in the file that `command` (find, monitor or plan) does not use, in file order."""
         used = set(COMMAND_KEYS[command])
         method = self.prediction_method
-        if method is not None and method not in (REGION_METHODS if command == "monitor" else OBJECT_METHODS):
+        mine, theirs = (REGION_METHODS, OBJECT_METHODS) if command == "monitor" else (OBJECT_METHODS, REGION_METHODS)
+        if method is not None and method not in mine and method in theirs:
             used.discard("prediction_method")  # a method of the other kind: the other command's
         return [k for k in type(self).model_fields if k in self.model_fields_set and k not in used]
 
