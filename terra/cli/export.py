@@ -26,7 +26,7 @@ def export_command(
         "terrain", "--color", help="ply: colour points by 'terrain' or 'ms-max' (most observed bank entry)."
     ),
     image_range: float = typer.Option(
-        20.0, "--image-range", help="terra-reference: metres for gidx2imgs_{range}m (the paper's 20 m)."
+        20.0, "--image-range", help="terra-reference: metres for gidx2imgs_RANGEm_dict (the paper's 20 m)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:

@@ -15,7 +15,7 @@ from terra.words import counted
 @app.command("import")
 def import_command(
     folder: Path = typer.Argument(
-        ..., help="Output folder of the reference's ms_map (gidx2clipcounts_dict_itr{N}.pkl, ...)."
+        ..., help="Output folder of the reference's ms_map (gidx2clipcounts_dict_itrN.pkl, ...)."
     ),
     fmt: str = typer.Option(..., "--format", "-f", help="terra-reference (the only format read)."),
     out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write."),
@@ -28,10 +28,10 @@ def import_command(
     global_pc: Optional[Path] = typer.Option(
         None,
         "--global-pc",
-        help="The dataset's global map (global_pc_{t}.npy or its folder); default FOLDER/global_pc.",
+        help="The dataset's global map (global_pc_T.npy or its folder); default FOLDER/global_pc.",
     ),
     itr: Optional[int] = typer.Option(
-        None, "--itr", help="Which save _itr{N} to read (default the largest, as their Phase 2)."
+        None, "--itr", help="Which save (_itrN) to read (default the largest, as their Phase 2)."
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),

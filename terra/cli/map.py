@@ -33,7 +33,7 @@ def map_command(
     config: Optional[Path] = typer.Option(
         None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
     format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."),
-    camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
+    camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, camN_K, camN_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
     poses: str = typer.Option("auto", "--poses", help="auto: the source's poses (LiDAR odometry when it has none); "
                                                     "odometry: KISS-ICP on the scans."),
     sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),

@@ -82,7 +82,7 @@ def render_plan(result: PlanResult) -> str:
         lines.append(f"  skipped {skipped.object.label!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {skipped.object.score:.3f}: "
                      f"{skipped.reason}")
     lines.append(f"start: place {start.place} ({start.how})")
-    penalised = {k: v for k, v in result.penalty.items() if v > 0}
+    penalised = {k: v for k, v in result.penalty.items() if v > 0 and k not in result.forbidden}
     if penalised or result.forbidden:
         lines.append(
             "terrain: "

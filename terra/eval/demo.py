@@ -418,8 +418,8 @@ def format_demo(demo: dict, out: Path) -> list[str]:
             line += "; " + _judged(f["nearest_gt"])
         row = _table_ii_row(demo.get("evaluation", {}), f["query"], f["method"])
         if row is not None:
-            line += (f" (Table II, {f['method']}: {row['num_predictions']} found, {row['relaxed_hits']} of {row['num_gt']} "
-                     f"{f['nearest_gt']['class'] if f.get('nearest_gt') else 'objects'} hit)")
+            noun = f["nearest_gt"]["class"] if f.get("nearest_gt") else "object"
+            line += f" (Table II, {f['method']}: {row['num_predictions']} found, {row['relaxed_hits']} of {counted(row['num_gt'], noun)} hit)"
         lines.append(line)
     m = demo["tasks"]["monitor"]
     params = ", ".join(f"{k} {v:g}" for k, v in m["parameters"].items())
