@@ -26,7 +26,7 @@ T = TypeVar("T")
 
 MODES = ("auto", "bars", "lines", "off")
 DEFAULT_INTERVAL_S = 5.0
-_state = {"last_line": 0.0}  # when any reporter last printed a line (monotonic seconds)
+_state = {"last_line": 0.0, "active": 0}  # when a line was last printed (monotonic s); counted stages running
 _lock = threading.Lock()
 
 
@@ -88,6 +88,8 @@ class Progress:
         self.start = self.last = time.monotonic()
         self.printed = False
         self.bar = None
+        if self.mode == "lines":
+            _state["active"] += 1
         if self.mode == "bars":
             from tqdm.auto import tqdm
 
@@ -123,16 +125,21 @@ class Progress:
 
     def close(self, finished: bool = True) -> None:
         """End the stage; the closing line only when it `finished` (not on an error or Ctrl-C)."""
+        if self.mode == "lines":
+            self.mode = "closed"
+            _state["active"] -= 1
         if self.bar is not None:
             self.bar.close()
             self.bar = None
         elif self.printed and finished:
             self.printed = False
             unit = f" {self.unit}" if self.unit else ""
-            _emit(f"{self.desc} {self.count_format.format(self.done)}{unit} done in {duration(time.monotonic() - self.start)}")
+            took = duration(time.monotonic() - self.start)
+            _emit(f"{self.desc} {self.count_format.format(self.done)}{unit} done in {took}")
 
 
-def progress(iterable: Iterable[T], desc: str, total: int | None = None, enabled: bool = True, unit: str = "") -> Iterator[T]:
+def progress(iterable: Iterable[T], desc: str, total: int | None = None, enabled: bool = True,
+             unit: str = "") -> Iterator[T]:
     """Iterate `iterable`, reporting progress (see Progress); nothing when disabled."""
     if total is None and hasattr(iterable, "__len__"):
         total = len(iterable)  # type: ignore[arg-type]
@@ -168,8 +175,11 @@ def working(desc: str, enabled: bool = True) -> Iterator[None]:
         while not stop.wait(1.0 if bar is not None else min(max(line_interval(), 0.05), 1.0)):
             if bar is not None:
                 bar.refresh()
-            elif time.monotonic() - max(_state["last_line"], start) >= line_interval():
+            elif quiet_for() >= line_interval() * (2 if _state["active"] else 1):
                 _emit(f"{desc}: still working ({duration(time.monotonic() - start)} so far)")
+
+    def quiet_for() -> float:  # seconds since the last line (of any reporter) or the start
+        return time.monotonic() - max(_state["last_line"], start)
 
     thread = threading.Thread(target=beat, name="terra-progress", daemon=True)
     thread.start()

@@ -109,7 +109,8 @@ def test_render_refuses_an_existing_picture_unless_overwrite(interop_bundle, tmp
     out.write_bytes(b"mine")
     code, _, err = call(["render", str(interop_bundle.path), "--what", "places", "--out", str(out)], capsys)
     assert code == 2 and "exists (pass --overwrite to replace it)" in err and out.read_bytes() == b"mine"
-    code, _, _ = call(["render", str(interop_bundle.path), "--what", "places", "--out", str(out), "--overwrite"], capsys)
+    argv = ["render", str(interop_bundle.path), "--what", "places", "--out", str(out), "--overwrite"]
+    code, _, _ = call(argv, capsys)
     assert code == 0 and out.read_bytes()[:4] == b"\x89PNG"
 
 
@@ -143,8 +144,8 @@ def test_ctrl_c_during_map_prints_the_resume_line_and_exits_130(tmp_path):
     config = tmp_path / "terra.yaml"
     config.write_text("mapping:\n  checkpoint_every: 1\n")
     env = {**os.environ, "TERRA_PROGRESS": "lines", "TERRA_PROGRESS_INTERVAL": "0", "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-m", "terra", "map", "--sim", "tiny", "--out", str(out), "--config", str(config)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    argv = [sys.executable, "-m", "terra", "map", "--sim", "tiny", "--out", str(out), "--config", str(config)]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
     seen = []
     for line in proc.stderr:
         seen.append(line)
@@ -155,8 +156,8 @@ def test_ctrl_c_during_map_prints_the_resume_line_and_exits_130(tmp_path):
     proc.wait(timeout=120)
     last = (seen + rest.splitlines(keepends=True))[-1].strip()
     assert proc.returncode == 130, "".join(seen) + rest
-    match = re.fullmatch(rf"terra: interrupted; the map up to frame (\d+) is checkpointed in {re.escape(str(out))}\.partial; "
-                         r"run the same command again to resume", last)
+    match = re.fullmatch(rf"terra: interrupted; the map up to frame (\d+) is checkpointed in "
+                         rf"{re.escape(str(out))}\.partial; run the same command again to resume", last)
     assert match and int(match.group(1)) >= 3, last
     assert "Traceback" not in rest and not out.exists() and (tmp_path / "campus.terra.partial").is_dir()
     state = json.loads((tmp_path / "campus.terra.partial" / "state" / "state" / "meta.json").read_text())

@@ -68,7 +68,8 @@ def test_work_without_a_count_says_it_is_still_working(monkeypatch, capsys):
     with working("building regions"):
         time.sleep(0.4)
     lines = capsys.readouterr().err.splitlines()
-    assert lines and all(re.fullmatch(r"terra: building regions: still working \(\d+ s so far\)", x) for x in lines), lines
+    pattern = r"terra: building regions: still working \(\d+ s so far\)"
+    assert lines and all(re.fullmatch(pattern, x) for x in lines), lines
 
 
 def test_time_progress_counts_seconds_of_log(every_update, capsys):

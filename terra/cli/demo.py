@@ -24,7 +24,8 @@ def demo_command(
                                help="How the scenes are written and read back: terra-folder, "
                                     "rosbag2 (a ROS 2 mcap bag) or rosbag1."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Redo every step instead of resuming from the finished ones."),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Redo every step instead of resuming from the finished ones."),
     as_json: bool = typer.Option(False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, step log or timing table."),
 ) -> None:

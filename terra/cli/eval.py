@@ -56,7 +56,8 @@ def eval_command(
         min=1,
         help="With --terrain-only: images evaluated (default: eval.segmentation.max_images).",
     ),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing report (or tuned.json with --tune)."),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Replace an existing report (or tuned.json with --tune)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary (or the tuned parameters) as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars or timing table."),
 ) -> None:
@@ -111,7 +112,8 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
         refuse_existing(Path(out) / TUNED, overwrite)
         on_interrupt(f"nothing was written ({Path(out) / TUNED} is unchanged); run the same command again")
         with timer.stage("tune"):
-            params = tune_parameters(EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg, show_progress=not quiet and not as_json)
+            params = tune_parameters(EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg,
+                                     show_progress=not quiet and not as_json)
         path = params.save(Path(out) / TUNED)
         if as_json:
             typer.echo(json.dumps(params.to_json(), indent=1, sort_keys=True))
@@ -128,7 +130,8 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
     params = TunedParameters.load(tuned) if tuned is not None else None
     refuse_existing(Path(out), overwrite)
     on_interrupt(f"no report was written ({out} is unchanged); run the same command again")
-    summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json, timer=timer)
+    summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json,
+                       timer=timer)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return

@@ -47,7 +47,8 @@ def export_command(
     from terra.progress import working
 
     with working(f"exporting {fmt}", not as_json):
-        summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range)
+        summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color,
+                                image_range=image_range)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return

@@ -67,7 +67,8 @@ def import_command(
     typer.echo(
         f"imported {folder} (itr {summary['itr']}) -> {out}: {counted(summary['points'], 'point')}, "
         f"{summary['observed_points']} with "
-        f"object observations, bank {summary['bank']}, {counted(summary['images'], 'image')}, embedder {summary['embedder']}"
+        f"object observations, bank {summary['bank']}, {counted(summary['images'], 'image')}, "
+        f"embedder {summary['embedder']}"
     )
     typer.echo(f"  terrain classes: {', '.join(summary['terrain_classes'])}")
     typer.echo(

@@ -29,7 +29,8 @@ def _sim_dataset(spec: str):
 def map_command(
     dataset: Optional[Path] = typer.Argument(
         None, help="Dataset: a folder (terra-folder, SemanticKITTI, KITTI raw drive) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write; an existing bundle is kept unless --overwrite."),
+    out: Path = typer.Option(..., "--out", "-o",
+                             help="Bundle folder to write; an existing bundle is kept unless --overwrite."),
     config: Optional[Path] = typer.Option(
         None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
     format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."),
@@ -52,8 +53,9 @@ def map_command(
     Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
 
     An existing bundle at --out is refused unless --overwrite. An interrupted run (Ctrl-C, a
-    crash) resumes from its last checkpoint (OUT.partial/) when the same command is run again. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
-    --cache), so later runs never repeat inference; --perception-only just fills that cache.
+    crash) resumes from its last checkpoint (OUT.partial/) when the same command is run again.
+    Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or --cache),
+    so later runs never repeat inference; --perception-only just fills that cache.
 
     With a bag, topics and frames need no configuration when the bag makes them unambiguous
     (`terra inspect BAG` prints the `dataset` section it would use). Without poses in the source,
@@ -89,7 +91,8 @@ def map_command(
     source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
     source = with_poses(source, poses, odometry, show_progress=not quiet)
     if perception_only:
-        on_interrupt(f"the images perceived so far are cached in {mapping.perception.cache.folder or str(out) + '.work/perception'}; "
+        folder = mapping.perception.cache.folder or f"{out}.work/perception"
+        on_interrupt(f"the images perceived so far are cached in {folder}; "
                      "run the same command again to go on")
         _perceive(source, mapping, out, quiet)
         return
@@ -110,12 +113,14 @@ def map_command(
         typer.echo(f"resumed after frame {run.resumed_from}")
     typer.echo(
         f"map: {counted(info['points'], 'point')} ({info['observed_points']} with object observations), "
-        f"{counted(info['bank'], 'bank entry', 'bank entries')}, {counted(info['images'], 'image')} -> {run.bundle.path}"
+        f"{counted(info['bank'], 'bank entry', 'bank entries')}, {counted(info['images'], 'image')} "
+        f"-> {run.bundle.path}"
     )
     if run.cache is not None:
         cache = run.cache
         typer.echo(
-            f"perception cache: {counted(cache['hits'], 'image')} read back, {cache['computed']} computed ({cache['folder']})"
+            f"perception cache: {counted(cache['hits'], 'image')} read back, {cache['computed']} computed "
+            f"({cache['folder']})"
         )
     if getattr(source, "pose_source", None):
         typer.echo(f"  poses: {source.pose_source}")
@@ -153,7 +158,8 @@ def _perceive(source, mapping, out: Path, quiet: bool) -> None:
     run = run_perception(source, mapping, out, show_progress=not quiet)
     if quiet:
         return
-    typer.echo(f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, {run.hits} already cached, "
+    typer.echo(f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, "
+               f"{run.hits} already cached, "
                f"{run.computed} computed -> {run.folder}")
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())

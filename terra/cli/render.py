@@ -52,7 +52,8 @@ def render_monitor(result: MonitorResults) -> str:
             p = graph.regions[level - 1].position[index]
             count = int(np.count_nonzero(graph.place_region(level) == index))
             lines.append(
-                f"  region level {level} #{index}  score {score:.3f}  centre ({p[0]:.1f}, {p[1]:.1f}) m  {counted(count, 'place')}"
+                f"  region level {level} #{index}  score {score:.3f}  centre ({p[0]:.1f}, {p[1]:.1f}) m  "
+                f"{counted(count, 'place')}"
             )
         for c, members in enumerate(r.clusters):
             lines.append(f"  cluster {c}: {counted(len(members), 'place')}")
@@ -91,7 +92,8 @@ def render_plan(result: PlanResult) -> str:
             )
         )
     by_terrain = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
-    lines.append(f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m ({by_terrain}), cost {path.cost:.1f}")
+    lines.append(f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m ({by_terrain}), "
+                 f"cost {path.cost:.1f}")
     for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
         lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
     return "\n".join(lines)
@@ -116,7 +118,8 @@ def render_node(info: NodeInfo) -> str:
         p = f["position"]
         return "\n".join(
             [
-                f"region {info.id}: level {f['level']} at ({p[0]:.1f}, {p[1]:.1f}) m, {counted(len(f['places']), 'place')}, "
+                f"region {info.id}: level {f['level']} at ({p[0]:.1f}, {p[1]:.1f}) m, "
+                f"{counted(len(f['places']), 'place')}, "
                 f"parent {f['parent']}",
                 f"  children: {' '.join(f['children'])}",
             ]

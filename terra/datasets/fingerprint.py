@@ -52,7 +52,8 @@ def _frame_bytes(source: Dataset, index: int) -> bytes:
     try:
         frame = source[index]
         points = np.asarray(frame.points, dtype=np.float32)
-        points = np.ascontiguousarray(points[:, :3] if points.ndim == 2 and points.shape[1] >= 3 else points.reshape(-1))
+        xyz = points[:, :3] if points.ndim == 2 and points.shape[1] >= 3 else points.reshape(-1)
+        points = np.ascontiguousarray(xyz)
     except TerraError:
         return f"{index}:unreadable".encode()
     return f"{index}:{float(frame.stamp):.6f}:{points.shape}".encode() + points.tobytes()

@@ -256,7 +256,8 @@ class DemoRun:
     def _tune(self, scene: Scene, path: Path) -> None:
         from terra.eval.runner import EvalInputs, tune
 
-        tune(EvalInputs.load(scene.bundle, scene.dataset), self.config.eval, self.config.tasks, self.show_progress).save(path)
+        inputs = EvalInputs.load(scene.bundle, scene.dataset)
+        tune(inputs, self.config.eval, self.config.tasks, self.show_progress).save(path)
 
     def _tasks_and_eval(self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
         from terra.eval.runner import evaluate
@@ -302,7 +303,8 @@ def gt_class_of(query: str, gt: GroundTruth) -> str | None:
     return next((n for n in names if n.lower() in text), None)
 
 
-def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | None, box: dict | None = None) -> dict | None:
+def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | None,
+                      box: dict | None = None) -> dict | None:
     """The ground-truth object of `class_name` nearest (2-D, metres) to `center`. With the found
     object's `box` (center, size, yaw), also its 3-D IoU with that object and whether it is a hit
     by Table II's relaxed rule (the boxes overlap and the found box holds the object's centre), so
@@ -315,7 +317,8 @@ def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | Non
     xy = np.array([o.center[:2] for o in objects])
     d = np.linalg.norm(xy - np.asarray(center, float)[:2], axis=1)
     i = int(np.argmin(d))
-    out = {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center], "distance_m": round(float(d[i]), 4)}
+    out = {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center],
+           "distance_m": round(float(d[i]), 4)}
     if box is not None:
         found = BoxSet(np.asarray([box["center"]]), np.asarray([box["size"]]), np.asarray([box["yaw"]]))
         truth = BoxSet.from_objects([objects[i]])
@@ -419,7 +422,8 @@ def format_demo(demo: dict, out: Path) -> list[str]:
         row = _table_ii_row(demo.get("evaluation", {}), f["query"], f["method"])
         if row is not None:
             noun = f["nearest_gt"]["class"] if f.get("nearest_gt") else "object"
-            line += f" (Table II, {f['method']}: {row['num_predictions']} found, {row['relaxed_hits']} of {counted(row['num_gt'], noun)} hit)"
+            line += (f" (Table II, {f['method']}: {row['num_predictions']} found, "
+                     f"{row['relaxed_hits']} of {counted(row['num_gt'], noun)} hit)")
         lines.append(line)
     m = demo["tasks"]["monitor"]
     params = ", ".join(f"{k} {v:g}" for k, v in m["parameters"].items())
@@ -437,7 +441,8 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     if "error" in p:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['error']}")
     else:
-        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {counted(p['places'], 'place')} "
+        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over "
+                     f"{counted(p['places'], 'place')} "
                      f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
         lines += [f"    skipped {s}" for s in p.get("skipped", [])]
     ev = demo["evaluation"]

@@ -69,12 +69,14 @@ def perception_statement(perception: dict | None, embedder: str = "") -> str:
     if perception.get("ground_truth_masks"):
         noise = perception.get("noise") or {}
         if any(noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")):
-            how = (f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, {100 * (noise.get('miss_rate') or 0):.0f}% "
-                   f"of objects missed, {100 * (noise.get('confusion_rate') or 0):.0f}% of labels swapped for a look-alike)")
+            missed, swapped = 100 * (noise.get("miss_rate") or 0), 100 * (noise.get("confusion_rate") or 0)
+            how = (f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, {missed:.0f}% of objects missed, "
+                   f"{swapped:.0f}% of labels swapped for a look-alike)")
         else:
             how = "exactly, without noise"
         return (f"Perception: the `labels` backend. Terrain and object masks are the dataset's own ground-truth label "
-                f"images, {how}, and class names are embedded as text" + (f" by `{embedder}`" if embedder else "") + ". "
+                f"images, {how}, and class names are embedded as text"
+                + (f" by `{embedder}`" if embedder else "") + ". "
                 "Tables I and II therefore grade masks derived from the ground truth itself: they measure the mapping, "
                 "fusion and retrieval stages, not a segmenter, and are not comparable with the paper's CLIP/YOLO "
                 "numbers. A label lookup has no frame rate, so no FPS is given.")
@@ -155,7 +157,8 @@ def _places(places: dict) -> list[str]:
             rows.append([label, f"{c['joined']:,} / {c['pairs']:,}", f"{c['joined_share']:.3f}", per])
     regions = ", ".join(f"{k} {v}" for k, v in places.get("places_per_region", {}).items())
     return ["## Places against the ground-truth terrain", "",
-            f"{counted(places.get('places', 0), 'place')}. Pairs of places of one terrain on one connected component of that terrain "
+            f"{counted(places.get('places', 0), 'place')}. Pairs of places of one terrain on one connected component of "
+            "that terrain "
             "in the ground-truth raster, joined by a path on that terrain alone:", "",
             table(["Components over", "Joined pairs", "Share", "per terrain"], rows, "lrrl"), "",
             f"Places inside each labelled region: {regions}.", ""]
@@ -198,11 +201,13 @@ def _regions(reg: dict) -> list[str]:
 def _memory(mem: dict) -> list[str]:
     parts = mem.get("parts_bytes") or mem.get("components_bytes", {})
     area, total = mem.get("area_m2", 0), mem.get("total_bytes", 0)
-    rows = [[c, f"{b:,}", f"{b / 2**20:.3f}", f"{b / area:,.1f}" if area else "-", f"{100 * b / total:.1f}%" if total else "-"]
+    rows = [[c, f"{b:,}", f"{b / 2**20:.3f}", f"{b / area:,.1f}" if area else "-",
+             f"{100 * b / total:.1f}%" if total else "-"]
             for c, b in sorted(parts.items(), key=lambda kv: (-kv[1], kv[0]))]
     rows.append(["**total**", f"{total:,}", f"{total / 2**20:.3f}", f"{total / area:,.1f}" if area else "-", "100%"])
     return ["## Memory of the saved map and graph", "",
-            f"Mapped area {area:,.0f} m² (occupied 0.4 m cells); {mem.get('bytes_per_m2', 0):,.0f} bytes per m² in all.", "",
+            f"Mapped area {area:,.0f} m² (occupied 0.4 m cells); {mem.get('bytes_per_m2', 0):,.0f} bytes per m² "
+            "in all.", "",
             table(["Part", "Bytes", "MiB", "Bytes per m²", "Share"], rows), ""]
 
 
@@ -221,7 +226,8 @@ def _navigation(nav: dict) -> list[str]:
     else:
         skipped = nav.get("skipped", [])
         out += [f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
-                f"(the approach place of the best reachable of {counted(nav.get('candidates', 1), 'object')} for the task"
+                "(the approach place of the best reachable of "
+                f"{counted(nav.get('candidates', 1), 'object')} for the task"
                 + (f"; {len(skipped)} skipped" if skipped else "") + "). Terrain lengths read from the ground-truth raster.", "",
                 table(header, rows), ""]
         out += [f"- skipped {s['label']!r} (score {s['score']:.3f}) at place {s['place']}: {s['reason']}" for s in skipped]
@@ -302,7 +308,8 @@ def headline(summary: dict) -> list[str]:
     if perception and perception.get("ground_truth_masks"):
         noise = " with simulated noise" if any((perception.get("noise") or {}).values()) else ""
         lines.append(f"  perception: labels backend (the ground-truth label images{noise}); terrain segmentation and "
-                     "retrieval grade masks derived from the ground truth, not comparable with the paper's CLIP/YOLO figures")
+                     "retrieval grade masks derived from the ground truth, not comparable with the paper's CLIP/YOLO "
+                     "figures")
     elif perception:
         lines.append(f"  perception: {perception.get('backend')} backend")
     seg = summary.get("segmentation", {}).get("methods", {})
@@ -311,7 +318,8 @@ def headline(summary: dict) -> list[str]:
         lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}{fps}")
     ret = summary.get("retrieval", {})
     for name, s in ordered(ret.get("methods", {})).items():
-        lines.append(f"  retrieval {name:<7} ({counted(ret['num_gt'], 'object')}, {counted(len(ret['queries']), 'query', 'queries')}): IoU {s['iou']:.3f} "
+        counts = f"{counted(ret['num_gt'], 'object')}, {counted(len(ret['queries']), 'query', 'queries')}"
+        lines.append(f"  retrieval {name:<7} ({counts}): IoU {s['iou']:.3f} "
                      f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
     for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
         lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "

@@ -51,15 +51,15 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
         predictions = {m: (run.boxes, run.query) for m, run in retrieval.items()}
         counts = {m: [(r["num_predictions"], r["relaxed_hits"]) for r in s["per_query"]]
                   for m, s in summary.get("retrieval", {}).get("methods", {}).items()}
-        written["Retrieved boxes vs ground truth"] = figures.boxes_figure(folder / "4_boxes.png", gt_boxes, predictions, task.queries,
-                                                                          gt_query, background, dpi, extent, counts)
+        written["Retrieved boxes vs ground truth"] = figures.boxes_figure(
+            folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts)
     best = _best_terra_hierarchy(monitoring)
     if best is not None:
         graph_m = inputs.hierarchies[best][0] if best in inputs.hierarchies else graph
         run = monitoring[best]
         written[f"Region monitoring ({best})"] = figures.monitoring_figure(
-            folder / "5_monitoring.png", graph_m, run.regions or inputs.gt.regions, run.predicted, best, background, dpi, extent,
-            [(sc.precision, sc.recall) for sc in run.scores])
+            folder / "5_monitoring.png", graph_m, run.regions or inputs.gt.regions, run.predicted, best, background, dpi,
+            extent, [(sc.precision, sc.recall) for sc in run.scores])
     nav = summary.get("navigation", {})
     if "plans" in nav:
         ordered_plans = ordered(nav["plans"])
@@ -68,8 +68,9 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
         written["Terrain-aware navigation"] = figures.paths_figure(folder / "6_paths.png", graph, nav["start_place"], nav["goal_place"],
                                                                    plans, nav["task"], background, dpi, extent, notes)
     mem = summary["memory"]
-    written["Memory"] = figures.memory_figure(folder / "7_memory.png", mem.get("parts_bytes") or mem["components_bytes"],
-                                              mem["area_m2"], inputs.bundle.path.name, dpi)
+    parts = mem.get("parts_bytes") or mem["components_bytes"]
+    written["Memory"] = figures.memory_figure(folder / "7_memory.png", parts, mem["area_m2"], inputs.bundle.path.name,
+                                              dpi)
     return {title: path.relative_to(out).as_posix() for title, path in written.items()}
 
 

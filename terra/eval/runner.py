@@ -57,7 +57,8 @@ def check_same_dataset(bundle: Bundle, dataset: Dataset, gt_root: Path) -> str:
                          f"{mapped_dataset_name(bundle) or 'the mapped dataset'!r})")
     mapped = mapped_dataset_name(bundle)
     if not recorded and mapped and mapped != dataset.name:
-        raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from ({mapped!r})")
+        raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from "
+                         f"({mapped!r})")
     return found
 
 
@@ -251,7 +252,8 @@ def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParamete
     runs = {}
     for method in config.regions.methods:
         params = monitoring_params(method, inputs.embedder.name, tuned, tasks_config)
-        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config, regions)
+        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
+                                      regions)
     section = {
         "not_evaluable": skipped,
         "queries": [{"name": r.name, "description": r.description, "num_gt_places": int(len(t))}
@@ -360,7 +362,8 @@ def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None, show_progres
             points = []
             grid_points = _monitor_grid(method, grid, config, inputs)
             for params in progress(grid_points, f"tuning {method} monitoring", enabled=show_progress, unit="settings"):
-                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config, regions)
+                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
+                                     regions)
                 points.append({**params.to_json(), "f1": run.total.f1})
             tuned.monitoring[method] = best_point(points)
     return tuned
@@ -418,9 +421,9 @@ def perception_section(bundle: Bundle) -> dict:
     perception = (map_info.get("config") or {}).get("perception") or {}
     recorded = bundle.manifest.get("perception") or {}
     backend = str(recorded.get("backend") or perception.get("backend") or "unknown")
-    section: dict = {"backend": backend, "ground_truth_masks": backend == "labels",
-                     "models": [{k: m.get(k) for k in ("role", "name", "sha256") if k in m} for m in recorded.get("models", [])
-                                if isinstance(m, dict)]}
+    models = [{k: m.get(k) for k in ("role", "name", "sha256") if k in m} for m in recorded.get("models", [])
+              if isinstance(m, dict)]
+    section: dict = {"backend": backend, "ground_truth_masks": backend == "labels", "models": models}
     noise = perception.get("noise")
     if backend == "labels" and isinstance(noise, dict):
         section["noise"] = {k: noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")}

@@ -86,7 +86,8 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
     else:
         checkpoint.discard()
 
-    for i in progress_bar(range(start, n_frames), desc="mapping", total=n_frames - start, enabled=show_progress, unit="frames"):
+    for i in progress_bar(range(start, n_frames), desc="mapping", total=n_frames - start, enabled=show_progress,
+                          unit="frames"):
         with timer.stage("load"):
             frame = load_frame(dataset, i, fusion.stats)
         if frame is not None:

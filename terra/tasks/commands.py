@@ -174,8 +174,8 @@ def _check_start_distance(graph: SceneGraph, xy: np.ndarray, place: int, radius:
     nearest = graph.places.position[place, :2]
     distance = float(np.linalg.norm(nearest - xy[:2]))
     if distance > radius:
-        raise TerraError(f"start ({xy[0]:g}, {xy[1]:g}) is {distance:.1f} m from the nearest allowed place, p{place} at "
-                         f"({nearest[0]:.1f}, {nearest[1]:.1f}); starts farther than {radius:g} m "
+        raise TerraError(f"start ({xy[0]:g}, {xy[1]:g}) is {distance:.1f} m from the nearest allowed place, "
+                         f"p{place} at ({nearest[0]:.1f}, {nearest[1]:.1f}); starts farther than {radius:g} m "
                          "(tasks.planning.start_radius) are refused")
 
 

@@ -50,7 +50,8 @@ class ClassGrid:
         return out
 
 
-def map_class_grid(points: np.ndarray, terrain_index: np.ndarray, terrain_count: int, extent: Extent, cell: float) -> ClassGrid:
+def map_class_grid(points: np.ndarray, terrain_index: np.ndarray, terrain_count: int, extent: Extent,
+                   cell: float) -> ClassGrid:
     """The map's points (N, 3 metres) with their class (terra.viz.raster.point_classes: terrain
     index, T not terrain, T + 1 no camera label; -1 also not terrain) on a grid: each cell takes
     its highest point."""
@@ -89,7 +90,9 @@ def gt_class_grid(gt: GroundTruth, terrain_classes: list[str], extent: Extent, c
         ids = raster.class_at(np.column_stack([gx.ravel(), gy.ravel()]))
         lut = {int(k): by_name.get(v, count) for k, v in raster.legend.items()}
         lut[0] = -1  # unlabelled: nothing
-        grid.index = np.array([lut.get(int(i), -1) for i in range(int(ids.max(initial=0)) + 1)] + [-1])[ids].reshape(gx.shape)
+        # One row per raster id, and a last one for -1 (outside the raster): nothing.
+        table = np.array([lut.get(int(i), -1) for i in range(int(ids.max(initial=0)) + 1)] + [-1])
+        grid.index = table[ids].reshape(gx.shape)
     if gt.objects:
         corners = BoxSet.from_objects(gt.objects).footprint_corners()
         for quad in corners:

@@ -52,7 +52,8 @@ def terrain_map_figure(path: str | Path, terrain_classes: list[str], points: np.
                            title="Terrain: the map" + (" against the ground truth" if panels == 3 else ""))
     axes[0].imshow(map_grid.rgba(terrain_classes), origin="lower", extent=map_grid.extent, interpolation="nearest")
     topdown_axis(axes[0], "(a) map: highest point per cell" if panels == 3 else "map: highest point per cell", extent)
-    handles = terrain_handles(terrain_classes, "not terrain") + [Patch(color=UNSEEN_COLOUR, label="no camera label (LiDAR only)")]
+    handles = terrain_handles(terrain_classes, "not terrain")
+    handles.append(Patch(color=UNSEEN_COLOUR, label="no camera label (LiDAR only)"))
     if panels == 3:
         gt_grid = gt_class_grid(gt, terrain_classes, map_grid.extent, cell)
         axes[1].imshow(gt_grid.rgba(terrain_classes), origin="lower", extent=gt_grid.extent, interpolation="nearest")
@@ -74,7 +75,8 @@ def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | N
     """The places layer coloured by terrain; edges along one terrain grey, cross-terrain links
     black, bridges dashed."""
     fig, (ax,) = new_figure(1, panel_size=7.5, extent=extent,
-                            title=f"Places layer: {counted(len(sg.places), 'place')}, {counted(len(sg.place_edges), 'edge')}")
+                            title=f"Places layer: {counted(len(sg.places), 'place')}, "
+                                  f"{counted(len(sg.place_edges), 'edge')}")
     if background is not None:
         background.show(ax, alpha=0.25)
     counts = draw_place_edges(ax, sg)
@@ -91,7 +93,8 @@ def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownIm
     levels = max(len(sg.regions), 1)
     ncols = min(levels, 2)
     fig, axes = new_figure(ncols, (levels + ncols - 1) // ncols, extent=extent,
-                           title=f"Region levels ({sg.region_method or 'regions'}): places by region, x = region centre")
+                           title=f"Region levels ({sg.region_method or 'regions'}): places by region, "
+                                 "x = region centre")
     for ax in axes[levels:]:
         ax.set_visible(False)
     if not sg.regions:
@@ -119,7 +122,8 @@ def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | 
 
     labels = list(dict.fromkeys(sg.objects.label))
     colours = colormaps["tab10"](np.arange(max(len(labels), 1)) % 10)[:, :3]
-    fig, (ax,) = new_figure(1, panel_size=7.0, title=title or f"Objects: {counted(len(sg.objects), 'object')} in the scene graph",
+    title = title or f"Objects: {counted(len(sg.objects), 'object')} in the scene graph"
+    fig, (ax,) = new_figure(1, panel_size=7.0, title=title,
                             extent=extent)
     if background is not None:
         background.show(ax, alpha=0.3)
@@ -194,7 +198,8 @@ def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegio
             background.show(ax, alpha=0.2)
         draw_places(ax, sg, colours=grey, edges=False)
         truth = sg.places.position[places_in_polygon(sg.places.position, region.polygon)]
-        ax.scatter(truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8, zorder=4)
+        ax.scatter(truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8,
+                   zorder=4)
         xy = sg.places.position[np.asarray(places, dtype=np.int64)]
         ax.scatter(xy[:, 0], xy[:, 1], s=size * 1.4, c=HIGHLIGHT_COLOUR, edgecolors="black", linewidths=0.3, zorder=5)
         ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=6))
@@ -218,11 +223,14 @@ def memory_figure(path: str | Path, parts: dict[str, int], area_m2: float, label
     names = sorted(parts, key=lambda n: (-parts[n], n))  # largest first (summary.json sorts keys by name)
     mib = np.array([parts[n] / 2**20 for n in names])
     total = max(sum(parts.values()), 1)
-    fig, (ax,) = new_figure(1, panel_size=7.5, title=f"Saved map and graph{' of ' + label if label else ''}: "
-                                                     f"{total / 2**20:.2f} MiB for {area_m2:,.0f} m² ({total / max(area_m2, 1e-9):,.0f} B/m²)")
+    per_m2 = total / max(area_m2, 1e-9)
+    title = (f"Saved map and graph{' of ' + label if label else ''}: {total / 2**20:.2f} MiB for {area_m2:,.0f} m² "
+             f"({per_m2:,.0f} B/m²)")
+    fig, (ax,) = new_figure(1, panel_size=7.5, title=title)
     fig.set_size_inches(7.5, max(0.42 * len(names) + 1.2, 3.0))
     y = np.arange(len(names))[::-1]
-    colours = ["#6a3d9a" if n.startswith("map") else HIGHLIGHT_COLOUR if n.startswith("graph") else "#9e9e9e" for n in names]
+    colours = ["#6a3d9a" if n.startswith("map") else HIGHLIGHT_COLOUR if n.startswith("graph") else "#9e9e9e"
+               for n in names]
     ax.barh(y, mib, color=colours, height=0.65)
     for yi, name, value in zip(y, names, mib):
         ax.annotate(f"{parts[name] / max(area_m2, 1e-9):,.1f} B/m², {100 * parts[name] / total:.0f}%", (value, yi),

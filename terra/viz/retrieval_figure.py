@@ -33,7 +33,8 @@ def _short(query: str) -> str:
     return " ".join(words[2:]) if len(words) > 2 and words[0].lower() == "find" and words[1].lower() == "the" else query
 
 
-def inset_centre(q: int, gt: BoxSet, gt_query: np.ndarray, predictions: dict[str, tuple[BoxSet, np.ndarray]]) -> np.ndarray:
+def inset_centre(q: int, gt: BoxSet, gt_query: np.ndarray,
+                 predictions: dict[str, tuple[BoxSet, np.ndarray]]) -> np.ndarray:
     """xy (metres) of the ground-truth object of query q that a prediction for q came nearest to
     (its first object when nothing was predicted for q)."""
     mine = np.flatnonzero(gt_query == q)
@@ -59,8 +60,9 @@ def _layout(n: int) -> tuple[int, int]:
 
 
 def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxSet, np.ndarray]], queries: list[str],
-                 gt_query: np.ndarray, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None,
-                 counts: dict[str, list[tuple[int, int]]] | None = None, max_insets: int = 16) -> Path:
+                 gt_query: np.ndarray, background: TopDownImage | None = None, dpi: int = 120,
+                 extent: Extent | None = None, counts: dict[str, list[tuple[int, int]]] | None = None,
+                 max_insets: int = 16) -> Path:
     """Retrieved boxes against ground truth (see the module docstring). `predictions` maps a
     method to (boxes, query index per box); `gt_query` is the query index of each ground-truth
     box; `counts` maps a method to (found, hits) per query, as Table II counts them."""
@@ -112,12 +114,13 @@ def _draw(ax, background, corners, highlight, predictions, colour, style, thin: 
         background.show(ax, alpha=0.35 if thin else 0.25)
     for i, quad in enumerate(corners):
         strong = thin or bool(highlight[i])
-        _outline(ax, quad, edgecolor="black" if strong else "#9a9a9a", linewidth=0.6 if thin else (1.8 if strong else 0.8),
-                 zorder=4)
+        width = 0.6 if thin else (1.8 if strong else 0.8)
+        _outline(ax, quad, edgecolor="black" if strong else "#9a9a9a", linewidth=width, zorder=4)
     for method, (boxes, assigned) in predictions.items():
         for quad, q in zip(boxes.footprint_corners(), assigned):
             if query is None or q == query:
-                _outline(ax, quad, edgecolor=colour[method], linestyle=style[method], linewidth=0.7 if thin else 1.6, zorder=5)
+                _outline(ax, quad, edgecolor=colour[method], linestyle=style[method], linewidth=0.7 if thin else 1.6,
+                         zorder=5)
 
 
 def _inset_axis(ax, title: str, window: Extent) -> None:

@@ -69,7 +69,8 @@ def terrain_legend(ax: Axes, terrain_classes: list[str], other: str | None = "ot
     figure_legend(ax.figure, terrain_handles(terrain_classes, other), **kwargs)
 
 
-def figure_legend(fig: Figure, handles: list, ncols: int | None = None, fontsize: float = 8, title: str | None = None) -> None:
+def figure_legend(fig: Figure, handles: list, ncols: int | None = None, fontsize: float = 8,
+                  title: str | None = None) -> None:
     """One legend for the whole figure, below the panels (never over data)."""
     if not handles:
         return

@@ -75,8 +75,8 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
     side = 8.0
     fig = plt.figure(figsize=(side + 3.2, side * (y1 - y0) / max(x1 - x0, 1e-9) + 0.7))
     ax = fig.add_axes((0.07, 0.06, side / (side + 3.2) * 0.93, 0.88))
-    ax.imshow(colors[np.clip(raster.classes, 0, len(colors) - 1)].astype(np.uint8), origin="lower", extent=(x0, x1, y0, y1),
-              interpolation="nearest")
+    ax.imshow(colors[np.clip(raster.classes, 0, len(colors) - 1)].astype(np.uint8), origin="lower",
+              extent=(x0, x1, y0, y1), interpolation="nearest")
 
     # Objects, lowest first so tall things (buildings, trees) stay on top; trees as crowns.
     patches, faces, edges = [], [], []
