@@ -121,7 +121,7 @@ def test_report_and_headline_say_the_labels_backend_grades_ground_truth_masks():
 def test_table_two_explains_found_and_hits():
     text = render_report(summary())
     assert "| Find the car | 2 | 3 / 1 | 3 / 1 |" in text
-    assert "*Found*: the boxes retrieved for the query" in text and "*Hits*: its ground-truth objects" in text
+    assert "*Found*: the boxes retrieved for the query (clusters of map points that match it better" in text and "*Hits*: its ground-truth objects" in text
     assert "a query can have hits with nothing found" in text
 
 

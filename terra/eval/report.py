@@ -127,8 +127,8 @@ def _retrieval(ret: dict) -> list[str]:
                 pq = m["per_query"][i]
                 row.append(f"{pq['num_predictions']} / {pq['relaxed_hits']}")
             per_rows.append(row)
-        out += ["Per query. *Found*: the boxes retrieved for the query (scoring above its alpha and higher for it than "
-                "for any other query). *Hits*: its ground-truth objects counted as found by the relaxed-accuracy rule: "
+        out += ["Per query. *Found*: the boxes retrieved for the query (clusters of map points that match it better "
+                "than any other query or terrain name, above alpha). *Hits*: its ground-truth objects counted as found by the relaxed-accuracy rule: "
                 "the query's best-scoring boxes, as many as it has objects and whichever query they were retrieved "
                 "for, are matched one to one to its objects, and a matched box that overlaps its object and holds "
                 "its centre is a hit. So a query can have hits with nothing found (its best boxes went to another "

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.lines import Line2D
-from matplotlib.patches import Polygon, Rectangle
+from matplotlib.patches import Rectangle
 
 from terra.eval.metrics.boxes import BoxSet
 from terra.viz.raster import TopDownImage
@@ -21,10 +21,6 @@ from terra.viz.style import METHOD_COLOURS, Extent, figure_legend, save_figure, 
 
 LINE_STYLES = ["--", ":", "-.", (0, (5, 1, 1, 1)), (0, (1, 2))]
 INSET_MIN_HALF_M = 3.0  # half the side of an inset, metres (larger for large objects)
-
-
-def _outline(ax, corners: np.ndarray, **kwargs) -> None:
-    ax.add_patch(Polygon(corners, closed=True, fill=False, **kwargs))
 
 
 def _short(query: str) -> str:
@@ -87,8 +83,7 @@ def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxS
     for k, q in enumerate(shown):
         ax = fig.add_subplot(grid[k % rows, rows + k // rows])
         window = _inset_extent(inset_centre(q, gt, gt_query, predictions), q, gt, gt_query)
-        _draw(ax, background, corners, gt_query == q, {m: (b, i) for m, (b, i) in predictions.items()}, colour, style,
-              thin=False, query=q)
+        _draw(ax, background, corners, gt_query == q, predictions, colour, style, thin=False, query=q, window=window)
         letter = chr(ord("a") + k)
         overview.add_patch(Rectangle((window[0], window[2]), window[1] - window[0], window[3] - window[2], fill=False,
                                      edgecolor="black", linewidth=0.9, zorder=7))
@@ -107,20 +102,37 @@ def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxS
     return save_figure(fig, path, dpi)
 
 
-def _draw(ax, background, corners, highlight, predictions, colour, style, thin: bool, query: int | None = None) -> None:
+def _in_window(quads: np.ndarray, window: Extent | None) -> np.ndarray:
+    """(n,) whether each footprint (n, 4, 2) reaches into `window` (all when None)."""
+    if window is None or len(quads) == 0:
+        return np.ones(len(quads), dtype=bool)
+    lo, hi = quads.min(axis=1), quads.max(axis=1)
+    return (hi[:, 0] >= window[0]) & (lo[:, 0] <= window[1]) & (hi[:, 1] >= window[2]) & (lo[:, 1] <= window[3])
+
+
+def _outlines(ax, quads: np.ndarray, **kwargs) -> None:
+    """Footprints as one collection (one artist, not one per box: a figure has thousands)."""
+    from matplotlib.collections import PolyCollection
+
+    if len(quads):
+        ax.add_collection(PolyCollection(list(quads), closed=True, facecolors="none", **kwargs))
+
+
+def _draw(ax, background, corners, highlight, predictions, colour, style, thin: bool, query: int | None = None,
+          window: Extent | None = None) -> None:
     """Ground truth (highlighted ones thick black, the rest grey; all black on the overview) and
-    the predictions (all, or those of `query`)."""
+    the predictions (all, or those of `query`), only what reaches into `window`."""
     if background is not None:
-        background.show(ax, alpha=0.35 if thin else 0.25)
-    for i, quad in enumerate(corners):
-        strong = thin or bool(highlight[i])
-        width = 0.6 if thin else (1.8 if strong else 0.8)
-        _outline(ax, quad, edgecolor="black" if strong else "#9a9a9a", linewidth=width, zorder=4)
+        (background if window is None else background.crop(window)).show(ax, alpha=0.35 if thin else 0.25)
+    seen = _in_window(corners, window)
+    strong = np.ones(len(corners), dtype=bool) if thin else np.asarray(highlight, dtype=bool)
+    _outlines(ax, corners[seen & strong], edgecolors="black", linewidths=0.6 if thin else 1.8, zorder=4)
+    _outlines(ax, corners[seen & ~strong], edgecolors="#9a9a9a", linewidths=0.8, zorder=4)
     for method, (boxes, assigned) in predictions.items():
-        for quad, q in zip(boxes.footprint_corners(), assigned):
-            if query is None or q == query:
-                _outline(ax, quad, edgecolor=colour[method], linestyle=style[method], linewidth=0.7 if thin else 1.6,
-                         zorder=5)
+        quads = boxes.footprint_corners()
+        keep = _in_window(quads, window) & ((np.asarray(assigned) == query) if query is not None else True)
+        _outlines(ax, quads[keep], edgecolors=colour[method], linestyles=[style[method]], linewidths=0.7 if thin else 1.6,
+                  zorder=5)
 
 
 def _inset_axis(ax, title: str, window: Extent) -> None:
