@@ -156,7 +156,7 @@ def test_eval_bad_input_one_line_exit_2_and_no_report(tiny_demo, tmp_path):
     empty.mkdir()
     cases = [
         (["--gt", str(empty)], "no ground truth folder"),
-        (["--gt", str(tiny_demo.validation / "dataset")], "is not the one"),
+        (["--gt", str(tiny_demo.validation / "dataset")], "not the dataset"),  # its frames differ
     ]
     no_graph = tmp_path / "map-only.terra"
     writer = BundleWriter(no_graph, base=Bundle(tiny_demo.bundle), drop_components=("graph",))
@@ -174,9 +174,12 @@ def test_eval_bad_input_one_line_exit_2_and_no_report(tiny_demo, tmp_path):
     _assert_one_line_error(code, stderr, "the scene under test")
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map-only.terra", "not-a-dataset", "tuned-on-test.json"]
-    # A folder that is not a report is never replaced.
+    # A folder that is not a report is never replaced, even with --overwrite.
     (empty / "notes.txt").write_text("mine")
     code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q"])
+    _assert_one_line_error(code, stderr, "exists (pass --overwrite to replace it)")
+    code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q",
+                               "--overwrite"])
     _assert_one_line_error(code, stderr, "is not an evaluation report folder")
     assert [p.name for p in empty.iterdir()] == ["notes.txt"]
 
