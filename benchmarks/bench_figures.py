@@ -32,7 +32,8 @@ def main() -> None:
     import terra
     from terra.eval.config import EvalConfig
     from terra.eval.report_figures import write_figures
-    from terra.eval.runner import EvalInputs, regions_section, retrieval_section
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import regions_section, retrieval_section
     from terra.eval.tuning import TunedParameters
 
     scene = args.demo / f"{args.preset}-seed{args.seed}"

@@ -27,8 +27,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 from benchmarks.benchtable import report  # noqa: E402
@@ -113,7 +111,8 @@ def main() -> None:
     parser.add_argument("--no-campus", action="store_true")
     args = parser.parse_args()
     from terra.eval.config import EvalConfig
-    from terra.eval.runner import EvalInputs, evaluate, tune
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import evaluate, tune
 
     result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
               "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "targets": TARGETS}

@@ -13,7 +13,7 @@ from terra.bundle import Bundle
 from terra.datasets import open_dataset
 from terra.datasets.fingerprint import dataset_fingerprint, sample_frames
 from terra.errors import TerraError
-from terra.eval.runner import check_same_dataset, mapped_dataset_fingerprint
+from terra.eval.inputs import check_same_dataset, mapped_dataset_fingerprint
 from terra.sim.writer import write_dataset
 from tests.fixtures_datasets import HandDataset
 

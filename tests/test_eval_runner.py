@@ -97,7 +97,8 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
     from terra.eval.config import EvalConfig
     from terra.eval.regions import MonitorParams, region_truth
     from terra.eval.retrieval import retrieval_task, run_retrieval
-    from terra.eval.runner import EvalInputs, monitoring_run
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import monitoring_run
     from terra.eval.tuning import TunedParameters, alpha_grid
 
     tuned = TunedParameters.load(tiny_demo.validation / "tuned.json")
@@ -117,7 +118,8 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
 
 def test_aib_null_score_changes_what_aib_returns(tiny_demo):
     from terra.eval.regions import MonitorParams, region_truth
-    from terra.eval.runner import EvalInputs, monitoring_run
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import monitoring_run
 
     val = EvalInputs.load(tiny_demo.validation / "map.terra", tiny_demo.validation / "dataset")
     truth = region_truth(val.graph, val.gt.regions)

@@ -101,7 +101,8 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
     from terra.cli.interrupts import on_interrupt
     from terra.cli.outputs import refuse_existing
     from terra.config import load_section
-    from terra.eval.runner import EvalInputs, evaluate, tune as tune_parameters
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import evaluate, tune as tune_parameters
     from terra.eval.tuning import TUNED, TunedParameters
     from terra.progress import StageTimer
 

@@ -254,7 +254,8 @@ class DemoRun:
         return demo
 
     def _tune(self, scene: Scene, path: Path) -> None:
-        from terra.eval.runner import EvalInputs, tune
+        from terra.eval.inputs import EvalInputs
+        from terra.eval.runner import tune
 
         inputs = EvalInputs.load(scene.bundle, scene.dataset)
         tune(inputs, self.config.eval, self.config.tasks, self.show_progress).save(path)

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from terra.eval.config import EvalConfig
+from terra.eval.inputs import EvalInputs
 from terra.eval.regions import MonitoringRun
 from terra.eval.report import ordered, terrain_shares
 from terra.eval.retrieval import RetrievalRun, RetrievalTask
@@ -15,13 +15,10 @@ from terra.viz import figures
 from terra.viz.raster import point_classes, terrain_points_image
 from terra.viz.style import view_extent
 
-if TYPE_CHECKING:
-    from terra.eval.runner import EvalInputs
-
 FIGURES = "figures"
 
 
-def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: RetrievalTask, retrieval: dict[str, RetrievalRun],
+def write_figures(out: Path, inputs: EvalInputs, summary: dict, task: RetrievalTask, retrieval: dict[str, RetrievalRun],
                   monitoring: dict[str, MonitoringRun], config: EvalConfig) -> dict[str, str]:
     """Write every figure under out/figures/; returns {title: path relative to out}."""
     folder = Path(out) / FIGURES
