@@ -42,14 +42,13 @@ import io
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from terra.bundle import array_bytes, atomic_write_bytes, dumps_json
+from terra.bundle import array_bytes, atomic_write_bytes, dumps_json, sibling_tmp_dir
 from terra.datasets.base import CameraFrame, Frame
 from terra.perception.base import ImagePerception, Perception, PointPerception
 from terra.perception.config import CacheConfig
@@ -212,7 +211,7 @@ class PerceptionCache:
         if (final / "entry.json").is_file():
             return
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=final.parent))
+        tmp = sibling_tmp_dir(final)
         try:
             files = {}
             for name, array in encode(seen).items():
