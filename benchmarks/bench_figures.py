@@ -3,7 +3,8 @@ folder's test scene, for the Terra tree on PYTHONPATH; run it once per tree to c
 side by side on the same machine and scene.
 
 Usage: PYTHONPATH=. python benchmarks/bench_figures.py --demo terra-demo [--preset small --seed 0] [--repeat 2]
-Writes benchmarks/results/figures.json and prints a table (wall and CPU seconds per run, PNG bytes).
+                                                      [--json benchmarks/results/figures.json]
+Writes the JSON and prints a table (wall and CPU seconds per run, PNG bytes).
 """
 
 from __future__ import annotations
@@ -27,13 +28,19 @@ def main() -> None:
     parser.add_argument("--preset", default="small")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--json", type=Path, default=Path(__file__).resolve().parent / "results" / "figures.json",
+                        help="where to write the JSON (one file per tree when comparing two)")
     args = parser.parse_args()
     load = os.getloadavg()[0]
     import terra
     from terra.eval.config import EvalConfig
     from terra.eval.report_figures import write_figures
-    from terra.eval.inputs import EvalInputs
     from terra.eval.runner import regions_section, retrieval_section
+
+    try:
+        from terra.eval.inputs import EvalInputs
+    except ImportError:  # trees from before it moved out of the runner
+        from terra.eval.runner import EvalInputs
     from terra.eval.tuning import TunedParameters
 
     scene = args.demo / f"{args.preset}-seed{args.seed}"
@@ -50,11 +57,11 @@ def main() -> None:
             figures = write_figures(Path(out), inputs, summary, task, retrieval, monitoring, config)
             runs.append({"wall_s": round(time.perf_counter() - wall, 2), "cpu_s": round(time.process_time() - cpu, 2),
                          "figures": len(figures), "bytes": sum(p.stat().st_size for p in Path(out).rglob("*.png"))})
-    result = {"terra": str(Path(terra.__file__).parent), "scene": str(scene), "runs": runs,
+    result = {"tree": Path(terra.__file__).resolve().parents[1].name, "scene": scene.name, "runs": runs,
               "load_average_1min_at_start": load, "cpus": os.cpu_count(), "machine": platform.platform()}
     rows = [(f"write_figures, run {i + 1}", f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU, {r['figures']} PNGs, "
              f"{r['bytes'] / 2**20:.2f} MiB", "-") for i, r in enumerate(runs)]
-    report(rows, result, Path(__file__).resolve().parent / "results" / "figures.json")
+    report(rows, result, args.json)
 
 
 if __name__ == "__main__":
