@@ -11,18 +11,6 @@ from terra.cli import app
 from terra.errors import TerraError
 
 
-def _sim_dataset(spec: str):
-    preset, _, seed = spec.partition(":")
-    try:
-        from terra.sim import simulate
-    except ImportError:
-        raise TerraError("--sim needs the simulator (terra.sim), which is not available") from None
-    try:
-        return simulate(preset, seed=int(seed) if seed else 0)
-    except ValueError as exc:
-        raise TerraError(f"--sim {spec!r}: {exc}") from None
-
-
 @app.command("map")
 def map_command(
     dataset: Optional[Path] = typer.Argument(None, help="Dataset folder (terra-folder, SemanticKITTI sequence, KITTI raw drive)."),
@@ -38,6 +26,17 @@ def map_command(
     cache: Optional[Path] = typer.Option(
         None, "--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."
     ),
+    workers: Optional[int] = typer.Option(
+        None, "--workers", "-w", min=1,
+        help="Perceive frames on a local Dask cluster of N worker processes (loopback only); needs the pip extra 'dask'.",
+    ),
+    scheduler: Optional[str] = typer.Option(
+        None, "--scheduler",
+        help="Perceive frames on a running Dask cluster: tcp://HOST:PORT or a scheduler file (default: $TERRA_DASK_SCHEDULER).",
+    ),
+    in_flight: Optional[int] = typer.Option(
+        None, "--in-flight", min=1, help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4)."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
@@ -46,15 +45,25 @@ def map_command(
     arguments. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
     --cache), so later runs never repeat inference; --perception-only just fills that cache.
 
+    With --workers or --scheduler, Dask workers perceive the frames (each reads them from the same
+    path, or renders the same --sim) into the cache, and this process fuses them in order: the same
+    bundle, byte for byte. The cache folder must be shared by this process and the workers.
+
     Example: terra map campus-data --out campus.terra --config terra.yaml
+
+    Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
 
     Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
     """
     from terra.config import load_section
-    from terra.datasets import open_dataset
+    from terra.distributed.cluster import cluster_config
+    from terra.distributed.source import SourceSpec
 
     if (dataset is None) == (sim is None):
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
+    cluster = cluster_config(workers, scheduler, in_flight)
+    if in_flight is not None and not cluster.enabled:
+        raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
     overrides: dict = {"perception": {}}
     if noise is not None:
         overrides["perception"]["noise"] = noise
@@ -66,13 +75,19 @@ def map_command(
         if sim is not None or format not in ("auto", "terra-folder"):
             raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
         format, options = "terra-folder", {"camera_config": camera_config}
-    source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
+    spec = SourceSpec.from_cli(dataset, sim, format, options)
+    source = spec.open()
     if perception_only:
-        _perceive(source, mapping, out, quiet)
+        _perceive(spec, source, mapping, out, cluster, quiet)
         return
-    from terra.mapping.pipeline import run_mapping
+    if cluster.enabled:
+        from terra.distributed.phase1 import map_on_cluster
 
-    run = run_mapping(source, mapping, out, show_progress=not quiet)
+        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress=not quiet)
+    else:
+        from terra.mapping.pipeline import run_mapping
+
+        run, on_cluster = run_mapping(source, mapping, out, show_progress=not quiet), None
     if quiet:
         return
     info = run.bundle.manifest["components"]["map"]
@@ -82,25 +97,43 @@ def map_command(
         f"map: {info['points']} points ({info['observed_points']} with object observations), "
         f"{info['bank']} bank entries, {info['images']} images -> {run.bundle.path}"
     )
+    if on_cluster is not None:
+        _cluster_summary(on_cluster)
     if run.cache is not None:
         cache = run.cache
-        typer.echo(
-            f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({cache['folder']})"
-        )
+        where = "removed: the config keeps no cache" if cache.get("removed") else cache["folder"]
+        typer.echo(f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({where})")
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
 
 
-def _perceive(source, mapping, out: Path, quiet: bool) -> None:
-    from terra.mapping.perceive import run_perception
+def _perceive(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
+    if cluster.enabled:
+        from terra.distributed.phase1 import perceive_on_cluster
 
-    run = run_perception(source, mapping, out, show_progress=not quiet)
+        run, on_cluster = perceive_on_cluster(spec, source, mapping, out, cluster, show_progress=not quiet)
+    else:
+        from terra.mapping.perceive import run_perception
+
+        run, on_cluster = run_perception(source, mapping, out, show_progress=not quiet), None
     if quiet:
         return
+    if on_cluster is not None:
+        _cluster_summary(on_cluster)
     typer.echo(f"perception cache: {run.images} images of {run.frames} frames, {run.hits} already cached, "
                f"{run.computed} computed -> {run.folder}")
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
+
+
+def _cluster_summary(run) -> None:
+    tally = run.tally
+    used = len(tally.by_worker)
+    typer.echo(
+        f"perception on {run.cluster}: {tally.frames} frames by {used} worker{'s' if used != 1 else ''} "
+        f"(up to {run.in_flight} in flight), {tally.computed} images computed, {tally.hits} read back, "
+        f"{tally.seconds:.1f} s of worker time"
+    )
 
 
 def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:

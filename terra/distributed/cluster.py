@@ -1,0 +1,177 @@
+"""Which Dask cluster a run uses, and a client connected to it.
+
+`--workers N` starts a local cluster: a scheduler and N single-threaded worker processes (each under a
+Dask nanny, which restarts it if it dies), every one listening on 127.0.0.1 only; its HTTP endpoint
+(health, metrics, and the dashboard when bokeh is installed) takes a free loopback port. `--scheduler`
+(or the TERRA_DASK_SCHEDULER environment variable) connects to a cluster someone started, by address
+(`tcp://HOST:PORT`) or by the JSON scheduler file `dask scheduler --scheduler-file` writes: reaching
+beyond this machine is the user's explicit choice. A cluster Terra started is stopped when the run
+ends, however it ends (Ctrl-C included); a cluster it joined is left running.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+from pydantic import Field, ValidationError, field_validator
+
+from terra.config import Section
+from terra.errors import TerraError
+
+SCHEDULER_ENV = "TERRA_DASK_SCHEDULER"
+# Loggers that report a cluster's shutdown (closed connections, cancelled tasks) as warnings.
+_NOISY_LOGGERS = ("distributed", "asyncio", "tornado")
+
+
+class ClusterConfig(Section):
+    """Where Phase 1 perception runs: `workers` local processes, or the cluster at `scheduler`."""
+
+    workers: int | None = Field(None, ge=1, le=1024, description="start a local cluster of this many worker processes")
+    scheduler: str | None = Field(
+        None, description="address (tcp://HOST:PORT) or scheduler file (JSON) of a running Dask cluster"
+    )
+    in_flight: int | None = Field(
+        None, ge=1, le=100_000,
+        description="frames handed to the workers and not yet fused (default: 2 per worker, at least 4)",
+    )
+    connect_timeout: float = Field(30.0, gt=0.0, description="seconds to wait for the scheduler and a first worker")
+
+    @field_validator("scheduler")
+    @classmethod
+    def _address_or_file(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        value = value.strip()
+        if "://" not in value and not Path(value).is_file():
+            raise ValueError("expected tcp://HOST:PORT or the path of a scheduler file")
+        return value
+
+    @property
+    def enabled(self) -> bool:
+        return self.workers is not None or self.scheduler is not None
+
+
+def cluster_config(
+    workers: int | None, scheduler: str | None, in_flight: int | None = None, environ: dict[str, str] | None = None
+) -> ClusterConfig:
+    """The cluster `terra map` options ask for; TERRA_DASK_SCHEDULER applies when neither option is given."""
+    environ = os.environ if environ is None else environ
+    if workers is not None and scheduler is not None:
+        raise TerraError("give --workers (a local cluster) or --scheduler (a running one), not both")
+    source = "--scheduler"
+    if workers is None and scheduler is None and environ.get(SCHEDULER_ENV):
+        scheduler, source = environ[SCHEDULER_ENV], SCHEDULER_ENV
+    try:
+        return ClusterConfig(workers=workers, scheduler=scheduler, in_flight=in_flight)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        option = {"workers": "--workers", "scheduler": source, "in_flight": "--in-flight"}.get(str(error["loc"][0]), "cluster")
+        raise TerraError(f"{option}: {error['msg'].removeprefix('Value error, ')}") from None
+
+
+@dataclass
+class Cluster:
+    """A connected client; `started` is True when Terra started the cluster (and will stop it)."""
+
+    client: Any  # distributed.Client
+    started: bool
+    description: str
+
+    def worker_addresses(self) -> list[str]:
+        return sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+
+
+@contextmanager
+def connect(config: ClusterConfig) -> Iterator[Cluster]:
+    """A client of the configured cluster, closed on exit (with the cluster, when Terra started it)."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise TerraError("--workers / --scheduler need Dask: pip install 'terra-3dsg[dask]'") from None
+    if config.workers is not None:
+        with _local_cluster(config.workers) as cluster:
+            yield cluster
+    else:
+        with _remote_cluster(config) as cluster:
+            yield cluster
+
+
+@contextmanager
+def _local_cluster(workers: int) -> Iterator[Cluster]:
+    from distributed import Client, LocalCluster
+
+    with _closing_quietly():
+        local = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            silence_logs=logging.ERROR,
+            # Ctrl-C in a terminal reaches every process of the group: the workers ignore it and the
+            # client stops them, so an interrupted run ends with one line, not a traceback per worker.
+            preload=["terra.distributed.preload"],
+        )
+    try:
+        client = Client(local, set_as_default=False)
+        try:
+            yield Cluster(client, True, f"a local cluster of {workers} worker process{'es' if workers > 1 else ''}")
+        finally:
+            with _closing_quietly():
+                client.close()
+    finally:
+        with _closing_quietly():
+            local.close()
+
+
+@contextmanager
+def _remote_cluster(config: ClusterConfig) -> Iterator[Cluster]:
+    from distributed import Client
+
+    address = config.scheduler
+    by_file = "://" not in address
+    try:
+        client = Client(
+            None if by_file else address,
+            scheduler_file=address if by_file else None,
+            timeout=config.connect_timeout,
+            set_as_default=False,
+        )
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise TerraError(f"cannot reach the Dask scheduler {address}: {_first_line(exc)}") from None
+    try:
+        try:
+            client.wait_for_workers(1, timeout=config.connect_timeout)
+        except (TimeoutError, OSError):
+            raise TerraError(
+                f"the Dask scheduler {address} has no worker (waited {config.connect_timeout:g} s)"
+            ) from None
+        yield Cluster(client, False, f"the Dask cluster at {client.scheduler.address}")
+    finally:
+        with _closing_quietly():
+            client.close()
+
+
+@contextmanager
+def _closing_quietly() -> Iterator[None]:
+    """Raise Dask's loggers to ERROR while a cluster starts or stops: closed connections and cancelled
+    tasks are expected then, and are not the user's business."""
+    loggers = [logging.getLogger(name) for name in _NOISY_LOGGERS]
+    levels = [log.level for log in loggers]
+    for log in loggers:
+        log.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for log, level in zip(loggers, levels):
+            log.setLevel(level)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0]

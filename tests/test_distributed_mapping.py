@@ -1,0 +1,296 @@
+"""Phase 1 on a Dask cluster (terra/distributed): the bundle of `terra map --workers 2` and of
+`--scheduler` equals the serial bundle byte for byte; a worker killed mid-run costs only its frames;
+a worker that cannot open the source stops the run with one line (exit 2); Ctrl-C stops the cluster
+Terra started and leaves a checkpoint that resumes to the same bytes; and the checks each worker makes
+of its view of the run (source, frame count, backend, shared cache folder).
+
+The source is the simulated tiny campus cut to 8 frames and written as a terra-folder, so workers
+read frames as they would on a cluster; perception is the labels backend (the cache, off for it by
+default, is the hand-over from the workers and is removed after a successful run).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from terra.cli import run
+from terra.distributed.cluster import ClusterConfig, cluster_config, connect
+from terra.distributed.job import PerceptionJob
+from terra.distributed.source import SourceSpec
+from terra.distributed.worker import prepare_task
+from terra.errors import TerraError
+from terra.mapping.config import MappingConfig
+from terra.perception.cache import CachedPerception, PerceptionCache, cache_identity
+from terra.perception.registry import get_perception
+from tests.fixtures_mapping import folder_digest
+
+pytest.importorskip("distributed")
+
+ROOT = Path(__file__).resolve().parents[1]
+FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def tiny_folder(tmp_path_factory) -> Path:
+    """simulate('tiny', 0) cut to 8 frames, written as a terra-folder dataset."""
+    from terra.sim import SimConfig, simulate
+    from terra.sim.writer import write_dataset
+
+    config = SimConfig()
+    config = config.model_copy(update={"route": config.route.model_copy(update={"max_frames": FRAMES})})
+    return write_dataset(simulate("tiny", 0, config), tmp_path_factory.mktemp("tinydata") / "tiny", progress=False)
+
+
+@pytest.fixture(scope="module")
+def serial_digest(tiny_folder, tmp_path_factory, text_embedder) -> dict[str, str]:
+    out = tmp_path_factory.mktemp("serial") / "map.terra"
+    assert run(["map", str(tiny_folder), "--out", str(out), "-q"]) == 0
+    return folder_digest(out)
+
+
+@pytest.fixture(scope="module")
+def dask_cluster():
+    """A 2-worker local cluster started by the test, as a user would start one for --scheduler."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
+        silence_logs=logging.ERROR,
+    ) as cluster, Client(cluster, set_as_default=False) as client:
+        yield client
+
+
+def _children() -> set[int]:
+    """Live child processes, but multiprocessing's resource tracker (it lives as long as this process)."""
+    import psutil
+
+    return {
+        p.pid
+        for p in psutil.Process().children(recursive=True)
+        if p.status() != psutil.STATUS_ZOMBIE and "resource_tracker" not in " ".join(p.cmdline())
+    }
+
+
+# -------------------------------------------------------------------------------- whole runs
+
+
+def test_two_local_workers_give_the_serial_bundle(tiny_folder, serial_digest, tmp_path, capsys):
+    before = _children()
+    out = tmp_path / "map.terra"
+    assert run(["map", str(tiny_folder), "--out", str(out), "--workers", "2"]) == 0
+    text = capsys.readouterr().out
+    assert folder_digest(out) == serial_digest
+    assert f"perception on a local cluster of 2 worker processes: {FRAMES} frames by" in text
+    # The client computed nothing: every image came back from the workers' cache entries, which were
+    # then removed (the labels backend keeps no cache by default).
+    assert f"perception cache: {FRAMES} images read back, 0 computed (removed" in text
+    assert not (tmp_path / "map.terra.work").exists() and not (tmp_path / "map.terra.partial").exists()
+    assert _children() <= before  # the cluster Terra started is gone
+
+
+def test_scheduler_option_uses_a_running_cluster(tiny_folder, serial_digest, dask_cluster, tmp_path, capsys):
+    address = dask_cluster.scheduler.address
+    out = tmp_path / "map.terra"
+    assert run(["map", str(tiny_folder), "--out", str(out), "--scheduler", address, "--in-flight", "3"]) == 0
+    text = capsys.readouterr().out
+    assert folder_digest(out) == serial_digest
+    assert f"perception on the Dask cluster at {address}: {FRAMES} frames" in text and "up to 3 in flight" in text
+    assert len(dask_cluster.scheduler_info(n_workers=-1)["workers"]) == 2  # a cluster Terra joined keeps running
+
+
+def test_perception_only_on_the_cluster_named_by_the_environment(tiny_folder, dask_cluster, tmp_path, monkeypatch, capsys):
+    config = tmp_path / "terra.yaml"
+    config.write_text("mapping:\n  perception:\n    cache:\n      mode: 'on'\n")
+    monkeypatch.setenv("TERRA_DASK_SCHEDULER", dask_cluster.scheduler.address)
+    out = tmp_path / "map.terra"
+    assert run(["map", str(tiny_folder), "--out", str(out), "--config", str(config), "--perception-only"]) == 0
+    text = capsys.readouterr().out
+    assert f"perception cache: {FRAMES} images of {FRAMES} frames, 0 already cached, {FRAMES} computed" in text
+    assert not out.exists()
+    monkeypatch.delenv("TERRA_DASK_SCHEDULER")
+    assert run(["map", str(tiny_folder), "--out", str(out), "--config", str(config)]) == 0  # serial: reads them back
+    assert f"perception cache: {FRAMES} images read back, 0 computed" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc/self/fd (Linux)")
+def test_a_worker_that_cannot_open_the_source_stops_the_run_with_one_line(tiny_folder, dask_cluster, tmp_path, capsys):
+    # /proc/self/fd/N names this process's open folder: a path the client can read and no worker can.
+    fd = os.open(tiny_folder, os.O_RDONLY)
+    private = os.dup2(fd, 987)
+    os.close(fd)
+    try:
+        out = tmp_path / "map.terra"
+        code = run(["map", f"/proc/self/fd/{private}", "--out", str(out), "--scheduler", dask_cluster.scheduler.address])
+    finally:
+        os.close(private)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith("terra: error: worker tcp://127.0.0.1:")
+    assert f"cannot open the source /proc/self/fd/{private}" in err and "same path on every worker" in err
+    assert not out.exists() and not (tmp_path / "map.terra.partial").exists()
+
+
+def _slow_down(seconds: float) -> None:
+    """Run in each worker process: sleep before every frame, so that a test can kill a worker mid-frame."""
+    import terra.distributed.worker as worker
+    from terra.mapping.perceive import perceive_frame
+
+    def slow(*args, **kwargs):
+        time.sleep(seconds)
+        return perceive_frame(*args, **kwargs)
+
+    worker.perceive_frame = slow
+
+
+def _kill_a_busy_worker(client, pids: dict[str, int], cache: Path, killed: dict) -> None:
+    """Once the first frame is in the cache, SIGKILL a worker that is perceiving a frame."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if any(cache.rglob("entry.json")):
+            busy = {w: [k for k in keys if str(k).startswith("terra-perceive")] for w, keys in client.processing().items()}
+            for address, keys in busy.items():
+                if keys and address in pids:
+                    os.kill(pids[address], signal.SIGKILL)
+                    killed.update(address=address, pid=pids[address], keys=keys)
+                    return
+        time.sleep(0.01)
+
+
+def test_a_killed_worker_costs_only_its_frames(tiny_folder, serial_digest, dask_cluster, tmp_path, capsys):
+    import psutil
+
+    dask_cluster.run(_slow_down, 0.4)
+    pids = dask_cluster.run(os.getpid)
+    out = tmp_path / "map.terra"
+    killed: dict = {}
+    killer = threading.Thread(target=_kill_a_busy_worker, args=(dask_cluster, pids, tmp_path / "map.terra.work", killed))
+    killer.start()
+    try:
+        code = run(["map", str(tiny_folder), "--out", str(out), "--scheduler", dask_cluster.scheduler.address])
+    finally:
+        killer.join()
+    text = capsys.readouterr().out
+    assert code == 0 and killed["keys"], killed
+    assert not psutil.pid_exists(killed["pid"]) or psutil.Process(killed["pid"]).status() == psutil.STATUS_ZOMBIE
+    assert folder_digest(out) == serial_digest
+    assert f"{FRAMES} frames by" in text and f"perception cache: {FRAMES} images read back, 0 computed" in text
+    dask_cluster.wait_for_workers(2, timeout=60)  # the nanny restarted it
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_cluster_and_resumes_to_the_same_bytes(tiny_folder, dask_cluster, tmp_path, capsys):
+    config = tmp_path / "terra.yaml"
+    config.write_text("mapping:\n  checkpoint_every: 1\n")
+    out = tmp_path / "map.terra"
+    argv = ["map", str(tiny_folder), "--out", str(out), "--config", str(config)]
+    # A terminal's Ctrl-C: SIGINT to the whole process group, the worker processes included.
+    child = subprocess.Popen(
+        [sys.executable, "-m", "terra", *argv, "--workers", "2", "--in-flight", "1", "-q"], cwd=ROOT,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
+    )
+    import psutil
+
+    state = tmp_path / "map.terra.partial" / "state" / "manifest.json"
+    deadline = time.monotonic() + 240
+    workers: list = []
+    while not state.is_file() and child.poll() is None and time.monotonic() < deadline:
+        workers = psutil.Process(child.pid).children(recursive=True) or workers
+        time.sleep(0.01)
+    os.killpg(child.pid, signal.SIGINT)
+    _, err = child.communicate(timeout=120)
+    err = err.decode()
+    assert child.returncode == 130, err  # as a serial run exits on Ctrl-C
+    # No traceback from the client or the workers (the text embedder's loading bars are all there is).
+    assert not [line for line in err.splitlines() if line.strip() and not line.startswith("Loading weights")], err
+    assert workers and not any(w.is_running() and w.status() != psutil.STATUS_ZOMBIE for w in workers)
+    assert state.is_file() and not out.exists()
+    # Resume on a running cluster; the reference is a serial run with the same config.
+    assert run([*argv, "--scheduler", dask_cluster.scheduler.address]) == 0
+    assert "resumed after frame" in capsys.readouterr().out
+    assert run([*argv[:3], str(tmp_path / "serial.terra"), *argv[4:], "-q"]) == 0
+    assert folder_digest(out) == folder_digest(tmp_path / "serial.terra")
+
+
+# -------------------------------------------------------------------------------- the pieces
+
+
+def test_cluster_options():
+    assert not cluster_config(None, None, environ={}).enabled
+    assert cluster_config(None, None, environ={"TERRA_DASK_SCHEDULER": "tcp://10.0.0.5:8786"}).scheduler == "tcp://10.0.0.5:8786"
+    # An option wins over the environment.
+    assert cluster_config(3, None, environ={"TERRA_DASK_SCHEDULER": "tcp://10.0.0.5:8786"}).workers == 3
+    with pytest.raises(TerraError, match="not both"):
+        cluster_config(2, "tcp://127.0.0.1:8786", environ={})
+    with pytest.raises(TerraError, match="TERRA_DASK_SCHEDULER.*tcp://HOST:PORT"):
+        cluster_config(None, None, environ={"TERRA_DASK_SCHEDULER": "no-such-scheduler-file.json"})
+    with pytest.raises(TerraError, match="--workers"):
+        cluster_config(0, None, environ={})
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path):
+    import socket
+
+    with socket.socket() as sock:  # a loopback port nobody listens on
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    with pytest.raises(TerraError, match=f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}"):
+        with connect(ClusterConfig(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=1.0)):
+            pass
+
+
+def test_source_spec_round_trip(tiny_folder, tmp_path, monkeypatch):
+    monkeypatch.chdir(tiny_folder.parent)
+    spec = SourceSpec.from_cli(Path(tiny_folder.name), None, "auto", {"camera_config": Path("cams.yaml")})
+    assert spec.path == str(tiny_folder) and spec.format == "terra-folder"  # absolute, format fixed for workers
+    assert spec.options == {"camera_config": str(tiny_folder.parent / "cams.yaml")}
+    assert SourceSpec.from_json(spec.to_json()) == spec
+    assert SourceSpec.from_cli(None, "tiny", "auto").sim == "tiny:0"
+    with pytest.raises(TerraError, match="seed"):
+        SourceSpec.from_cli(None, "tiny:x", "auto")
+    with pytest.raises(TerraError, match="either"):
+        SourceSpec.from_cli(tiny_folder, "tiny", "auto")
+
+
+@pytest.fixture(scope="module")
+def job_parts(tiny_folder, tmp_path_factory, text_embedder):
+    """A job for the tiny folder as a client would send it, and the cache root the client created."""
+    spec = SourceSpec.from_cli(tiny_folder, None)
+    dataset = spec.open()
+    config = MappingConfig()
+    inner = get_perception(config.perception, dataset.classes)
+    root = tmp_path_factory.mktemp("cache")
+    perception = CachedPerception(inner, PerceptionCache(root, cache_identity(inner)))
+    return PerceptionJob.for_run(spec, dataset, config, perception), root
+
+
+def _variant(job: PerceptionJob, **changes) -> str:
+    fields = {"source": job.source, "config": job.config, "cache_root": job.cache_root, "expect": dict(job.expect)}
+    expect = changes.pop("expect", {})
+    fields.update(changes)
+    fields["expect"].update(expect)
+    return PerceptionJob(**fields).to_text()
+
+
+def test_each_worker_checks_its_view_of_the_run(job_parts, tmp_path):
+    job, root = job_parts
+    assert prepare_task(job.to_text())["worker"].startswith("process ")  # outside Dask: this process
+    with pytest.raises(TerraError, match=f"found frames {FRAMES}, the client's {FRAMES + 1}; workers read frames"):
+        prepare_task(_variant(job, expect={"frames": FRAMES + 1}))
+    with pytest.raises(TerraError, match="another class table"):
+        prepare_task(_variant(job, expect={"classes": "0" * 64}))
+    with pytest.raises(TerraError, match="another perception backend .* same model files"):
+        prepare_task(_variant(job, expect={"backend": "f" * 64}))
+    with pytest.raises(TerraError, match="does not see the perception cache .* every worker share"):
+        prepare_task(_variant(job, cache_root=str(tmp_path / "elsewhere")))
+    missing = SourceSpec(path=str(tmp_path / "gone"), format="terra-folder")
+    with pytest.raises(TerraError, match=f"cannot open the source {tmp_path / 'gone'} .*does not exist"):
+        prepare_task(_variant(job, source=missing))
