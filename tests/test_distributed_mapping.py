@@ -32,6 +32,7 @@ from terra.mapping.config import MappingConfig
 from terra.perception.cache import CachedPerception, PerceptionCache, cache_identity
 from terra.perception.registry import get_perception
 from tests.fixtures_mapping import folder_digest
+from tests.fixtures_perception import models_section
 
 pytest.importorskip("distributed")
 
@@ -64,7 +65,7 @@ def dask_cluster():
 
     with LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
-        silence_logs=logging.ERROR,
+        silence_logs=logging.CRITICAL,
     ) as cluster, Client(cluster, set_as_default=False) as client:
         yield client
 
@@ -104,10 +105,12 @@ def test_scheduler_option_uses_a_running_cluster(tiny_folder, serial_digest, das
     text = capsys.readouterr().out
     assert folder_digest(out) == serial_digest
     assert f"perception on the Dask cluster at {address}: {FRAMES} frames" in text and "up to 3 in flight" in text
-    assert len(dask_cluster.scheduler_info(n_workers=-1)["workers"]) == 2  # a cluster Terra joined keeps running
+    assert len(dask_cluster.nthreads()) == 2  # a cluster Terra joined keeps running
 
 
-def test_perception_only_on_the_cluster_named_by_the_environment(tiny_folder, dask_cluster, tmp_path, monkeypatch, capsys):
+def test_perception_only_on_the_cluster_named_by_the_environment(
+    tiny_folder, dask_cluster, tmp_path, monkeypatch, capsys
+):
     config = tmp_path / "terra.yaml"
     config.write_text("mapping:\n  perception:\n    cache:\n      mode: 'on'\n")
     monkeypatch.setenv("TERRA_DASK_SCHEDULER", dask_cluster.scheduler.address)
@@ -121,6 +124,25 @@ def test_perception_only_on_the_cluster_named_by_the_environment(tiny_folder, da
     assert f"perception cache: {FRAMES} images read back, 0 computed" in capsys.readouterr().out
 
 
+def test_a_model_backend_on_the_cluster_gives_the_serial_bundle(
+    tiny_folder, tiny_models, dask_cluster, tmp_path, capsys
+):
+    """The `models` backend (tiny CLIP, constant-output ONNX segmenters): workers load the weight files
+    themselves, agree with the client on its backend key (file contents), and fill the cache it keeps."""
+    import yaml
+
+    config = tmp_path / "terra.yaml"
+    config.write_text(yaml.safe_dump({"mapping": {"perception": models_section(tiny_models)}}))
+    serial, clustered = tmp_path / "serial.terra", tmp_path / "cluster.terra"
+    assert run(["map", str(tiny_folder), "--out", str(serial), "--config", str(config), "-q"]) == 0
+    address = dask_cluster.scheduler.address
+    assert run(["map", str(tiny_folder), "--out", str(clustered), "--config", str(config), "--scheduler", address]) == 0
+    text = capsys.readouterr().out
+    assert f"{FRAMES} images computed, 0 read back" in text
+    assert f"perception cache: {FRAMES} images read back, 0 computed ({tmp_path / 'cluster.terra.work'}" in text
+    assert folder_digest(clustered) == folder_digest(serial)
+
+
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc/self/fd (Linux)")
 def test_a_worker_that_cannot_open_the_source_stops_the_run_with_one_line(tiny_folder, dask_cluster, tmp_path, capsys):
     # /proc/self/fd/N names this process's open folder: a path the client can read and no worker can.
@@ -129,7 +151,8 @@ def test_a_worker_that_cannot_open_the_source_stops_the_run_with_one_line(tiny_f
     os.close(fd)
     try:
         out = tmp_path / "map.terra"
-        code = run(["map", f"/proc/self/fd/{private}", "--out", str(out), "--scheduler", dask_cluster.scheduler.address])
+        address = dask_cluster.scheduler.address
+        code = run(["map", f"/proc/self/fd/{private}", "--out", str(out), "--scheduler", address])
     finally:
         os.close(private)
     err = capsys.readouterr().err.strip()
@@ -156,8 +179,8 @@ def _kill_a_busy_worker(client, pids: dict[str, int], cache: Path, killed: dict)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         if any(cache.rglob("entry.json")):
-            busy = {w: [k for k in keys if str(k).startswith("terra-perceive")] for w, keys in client.processing().items()}
-            for address, keys in busy.items():
+            for address, keys in client.processing().items():
+                keys = [key for key in keys if str(key).startswith("terra-perceive")]
                 if keys and address in pids:
                     os.kill(pids[address], signal.SIGKILL)
                     killed.update(address=address, pid=pids[address], keys=keys)
@@ -172,7 +195,8 @@ def test_a_killed_worker_costs_only_its_frames(tiny_folder, serial_digest, dask_
     pids = dask_cluster.run(os.getpid)
     out = tmp_path / "map.terra"
     killed: dict = {}
-    killer = threading.Thread(target=_kill_a_busy_worker, args=(dask_cluster, pids, tmp_path / "map.terra.work", killed))
+    cache = tmp_path / "map.terra.work"
+    killer = threading.Thread(target=_kill_a_busy_worker, args=(dask_cluster, pids, cache, killed))
     killer.start()
     try:
         code = run(["map", str(tiny_folder), "--out", str(out), "--scheduler", dask_cluster.scheduler.address])
@@ -201,9 +225,14 @@ def test_ctrl_c_stops_the_cluster_and_resumes_to_the_same_bytes(tiny_folder, das
 
     state = tmp_path / "map.terra.partial" / "state" / "manifest.json"
     deadline = time.monotonic() + 240
-    workers: list = []
+    workers: dict[int, psutil.Process] = {}  # the cluster's processes (not multiprocessing's resource tracker)
     while not state.is_file() and child.poll() is None and time.monotonic() < deadline:
-        workers = psutil.Process(child.pid).children(recursive=True) or workers
+        for process in psutil.Process(child.pid).children(recursive=True):
+            try:
+                if "resource_tracker" not in " ".join(process.cmdline()):
+                    workers.setdefault(process.pid, process)
+            except psutil.NoSuchProcess:
+                pass
         time.sleep(0.01)
     os.killpg(child.pid, signal.SIGINT)
     _, err = child.communicate(timeout=120)
@@ -211,7 +240,9 @@ def test_ctrl_c_stops_the_cluster_and_resumes_to_the_same_bytes(tiny_folder, das
     assert child.returncode == 130, err  # as a serial run exits on Ctrl-C
     # No traceback from the client or the workers (the text embedder's loading bars are all there is).
     assert not [line for line in err.splitlines() if line.strip() and not line.startswith("Loading weights")], err
-    assert workers and not any(w.is_running() and w.status() != psutil.STATUS_ZOMBIE for w in workers)
+    assert len(workers) >= 2
+    _, alive = psutil.wait_procs(list(workers.values()), timeout=30)
+    assert not alive
     assert state.is_file() and not out.exists()
     # Resume on a running cluster; the reference is a serial run with the same config.
     assert run([*argv, "--scheduler", dask_cluster.scheduler.address]) == 0
@@ -225,9 +256,9 @@ def test_ctrl_c_stops_the_cluster_and_resumes_to_the_same_bytes(tiny_folder, das
 
 def test_cluster_options():
     assert not cluster_config(None, None, environ={}).enabled
-    assert cluster_config(None, None, environ={"TERRA_DASK_SCHEDULER": "tcp://10.0.0.5:8786"}).scheduler == "tcp://10.0.0.5:8786"
-    # An option wins over the environment.
-    assert cluster_config(3, None, environ={"TERRA_DASK_SCHEDULER": "tcp://10.0.0.5:8786"}).workers == 3
+    remote = {"TERRA_DASK_SCHEDULER": "tcp://10.0.0.5:8786"}
+    assert cluster_config(None, None, environ=remote).scheduler == "tcp://10.0.0.5:8786"
+    assert cluster_config(3, None, environ=remote).workers == 3  # an option wins over the environment
     with pytest.raises(TerraError, match="not both"):
         cluster_config(2, "tcp://127.0.0.1:8786", environ={})
     with pytest.raises(TerraError, match="TERRA_DASK_SCHEDULER.*tcp://HOST:PORT"):

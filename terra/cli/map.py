@@ -28,14 +28,17 @@ def map_command(
     ),
     workers: Optional[int] = typer.Option(
         None, "--workers", "-w", min=1,
-        help="Perceive frames on a local Dask cluster of N worker processes (loopback only); needs the pip extra 'dask'.",
+        help="Perceive frames on a local Dask cluster of N worker processes (loopback only); "
+        "needs the pip extra 'dask'.",
     ),
     scheduler: Optional[str] = typer.Option(
         None, "--scheduler",
-        help="Perceive frames on a running Dask cluster: tcp://HOST:PORT or a scheduler file (default: $TERRA_DASK_SCHEDULER).",
+        help="Perceive frames on a running Dask cluster: tcp://HOST:PORT or a scheduler file "
+        "(default: $TERRA_DASK_SCHEDULER).",
     ),
     in_flight: Optional[int] = typer.Option(
-        None, "--in-flight", min=1, help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4)."
+        None, "--in-flight", min=1,
+        help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
@@ -57,10 +60,8 @@ def map_command(
     """
     from terra.config import load_section
     from terra.distributed.cluster import cluster_config
-    from terra.distributed.source import SourceSpec
 
-    if (dataset is None) == (sim is None):
-        raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
+    spec = _source_spec(dataset, sim, format, camera_config)
     cluster = cluster_config(workers, scheduler, in_flight)
     if in_flight is not None and not cluster.enabled:
         raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
@@ -70,16 +71,25 @@ def map_command(
     if cache is not None:
         overrides["perception"]["cache"] = {"folder": str(cache)}
     mapping = load_section(config, "mapping", overrides)
+    source = spec.open()
+    if perception_only:
+        _perceive(spec, source, mapping, out, cluster, quiet)
+    else:
+        _map(spec, source, mapping, out, cluster, quiet)
+
+
+def _source_spec(dataset: Optional[Path], sim: Optional[str], format: str, camera_config: Optional[Path]):
+    from terra.distributed.source import SourceSpec
+
     options = None
     if camera_config is not None:
         if sim is not None or format not in ("auto", "terra-folder"):
             raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
         format, options = "terra-folder", {"camera_config": camera_config}
-    spec = SourceSpec.from_cli(dataset, sim, format, options)
-    source = spec.open()
-    if perception_only:
-        _perceive(spec, source, mapping, out, cluster, quiet)
-        return
+    return SourceSpec.from_cli(dataset, sim, format, options)
+
+
+def _map(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
     if cluster.enabled:
         from terra.distributed.phase1 import map_on_cluster
 

@@ -1,7 +1,8 @@
 """Which Dask cluster a run uses, and a client connected to it.
 
 `--workers N` starts a local cluster: a scheduler and N single-threaded worker processes (each under a
-Dask nanny, which restarts it if it dies), every one listening on 127.0.0.1 only; its HTTP endpoint
+Dask nanny, which restarts it if it dies, and each with the machine's cores / N threads for the math
+libraries its models use), every one listening on 127.0.0.1 only; its HTTP endpoint
 (health, metrics, and the dashboard when bokeh is installed) takes a free loopback port. `--scheduler`
 (or the TERRA_DASK_SCHEDULER environment variable) connects to a cluster someone started, by address
 (`tcp://HOST:PORT`) or by the JSON scheduler file `dask scheduler --scheduler-file` writes: reaching
@@ -70,7 +71,8 @@ def cluster_config(
         return ClusterConfig(workers=workers, scheduler=scheduler, in_flight=in_flight)
     except ValidationError as exc:
         error = exc.errors()[0]
-        option = {"workers": "--workers", "scheduler": source, "in_flight": "--in-flight"}.get(str(error["loc"][0]), "cluster")
+        options = {"workers": "--workers", "scheduler": source, "in_flight": "--in-flight"}
+        option = options.get(str(error["loc"][0]), "cluster")
         raise TerraError(f"{option}: {error['msg'].removeprefix('Value error, ')}") from None
 
 
@@ -83,7 +85,7 @@ class Cluster:
     description: str
 
     def worker_addresses(self) -> list[str]:
-        return sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+        return sorted(self.client.nthreads())
 
 
 @contextmanager
@@ -112,10 +114,13 @@ def _local_cluster(workers: int) -> Iterator[Cluster]:
             processes=True,
             host="127.0.0.1",
             dashboard_address="127.0.0.1:0",
-            silence_logs=logging.ERROR,
+            # Workers report shutdown races (a heartbeat to a scheduler already closed) as errors; task
+            # failures reach the client anyway, as exceptions or KilledWorker.
+            silence_logs=logging.CRITICAL,
             # Ctrl-C in a terminal reaches every process of the group: the workers ignore it and the
             # client stops them, so an interrupted run ends with one line, not a traceback per worker.
             preload=["terra.distributed.preload"],
+            env=_thread_env(workers),
         )
     try:
         client = Client(local, set_as_default=False)
@@ -127,6 +132,17 @@ def _local_cluster(workers: int) -> Iterator[Cluster]:
     finally:
         with _closing_quietly():
             local.close()
+
+
+def _thread_env(workers: int) -> dict[str, str]:
+    """Math library threads per worker: this machine's cores shared out (Dask's default is one each,
+    which leaves most cores idle when there are fewer workers than cores)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    threads = str(max(1, cores // workers))
+    return {"OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads}
 
 
 @contextmanager

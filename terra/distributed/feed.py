@@ -23,7 +23,8 @@ from terra.errors import TerraError
 @dataclass
 class WorkerTally:
     """What the workers reported: frames perceived, images (computed and read back from the cache),
-    seconds of perception summed over workers, frames per worker, fault counters and first notes."""
+    seconds of perception summed over workers, frames per worker, fault counters and first notes, and
+    when each frame finished (Unix time, in the order the client collected them)."""
 
     frames: int = 0
     images: int = 0
@@ -33,6 +34,7 @@ class WorkerTally:
     by_worker: dict[str, int] = field(default_factory=dict)
     stats: dict[str, int] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)
+    finished: list[float] = field(default_factory=list)
 
     def add(self, result: dict[str, Any]) -> None:
         self.frames += 1
@@ -40,6 +42,7 @@ class WorkerTally:
         self.computed += int(result["computed"])
         self.hits += int(result["hits"])
         self.seconds += float(result["seconds"])
+        self.finished.append(float(result["finished"]))
         self.by_worker[result["worker"]] = self.by_worker.get(result["worker"], 0) + 1
         for name, count in result["stats"].items():
             self.stats[name] = self.stats.get(name, 0) + int(count)

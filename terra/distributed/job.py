@@ -51,9 +51,8 @@ class PerceptionJob:
         )
 
     def to_text(self) -> str:
-        return dumps_json(
-            {"source": self.source.to_json(), "config": self.config, "cache_root": self.cache_root, "expect": self.expect}
-        )
+        fields = {"source": self.source.to_json(), "config": self.config, "cache_root": self.cache_root}
+        return dumps_json({**fields, "expect": self.expect})
 
     @classmethod
     def from_text(cls, text: str) -> "PerceptionJob":

@@ -122,11 +122,14 @@ def perceive_on_cluster(
     return run, summary
 
 
-def _start(cluster: Cluster, job: PerceptionJob, config: ClusterConfig, show_progress: bool) -> tuple[ClusterFeed, ClusterRun]:
-    """Prepare every worker (source opened, models loaded, views checked), then a feed of `job`."""
+def _start(
+    cluster: Cluster, job: PerceptionJob, config: ClusterConfig, show_progress: bool
+) -> tuple[ClusterFeed, ClusterRun]:
+    """Prepare every worker (source opened, backend built, views checked), then a feed of `job`."""
     workers = prepare_workers(cluster, job)
     in_flight = config.in_flight or max(4, 2 * len(workers))
-    return ClusterFeed(cluster.client, job, in_flight, show_progress), ClusterRun(cluster.description, len(workers), in_flight)
+    summary = ClusterRun(cluster.description, len(workers), in_flight)
+    return ClusterFeed(cluster.client, job, in_flight, show_progress), summary
 
 
 def prepare_workers(cluster: Cluster, job: PerceptionJob) -> list[str]:

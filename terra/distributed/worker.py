@@ -37,7 +37,9 @@ from terra.perception.registry import get_perception
 _LOCK = threading.Lock()
 _SLOTS: dict[str, tuple[str, Any]] = {}  # "dataset" / "backend" -> (key, object): one of each per process
 
-SAME_SOURCE = "workers read frames themselves: the source must be at the same path on every worker (or on a shared file system)"
+SAME_SOURCE = (
+    "workers read frames themselves: the source must be at the same path on every worker (or on a shared file system)"
+)
 
 
 @dataclass
@@ -59,7 +61,7 @@ def prepare_task(job_text: str) -> dict:
 
 def perceive_task(job_text: str, index: int) -> dict:
     """Perceive frame `index` into the shared cache; returns counts (images, computed, hits), the fault
-    counters and first notes, the seconds it took and the worker's name."""
+    counters and first notes, the seconds it took, when it finished (Unix time) and the worker's name."""
     job = PerceptionJob.from_text(job_text)
     with _LOCK:
         state = _state(job)
@@ -74,6 +76,7 @@ def perceive_task(job_text: str, index: int) -> dict:
         "computed": after["computed"] - before["computed"],
         "hits": after["hits"] - before["hits"],
         "seconds": time.perf_counter() - start,
+        "finished": time.time(),
         "worker": worker_name(),
         "stats": stats.to_json(),
         "notes": dict(stats.notes),
@@ -114,7 +117,8 @@ def _open_source(job: PerceptionJob) -> Dataset:
     try:
         return job.source.open()
     except TerraError as exc:
-        raise TerraError(f"{worker_name()} cannot open the source {job.source.describe()} ({exc}); {SAME_SOURCE}") from None
+        where = job.source.describe()
+        raise TerraError(f"{worker_name()} cannot open the source {where} ({exc}); {SAME_SOURCE}") from None
 
 
 def _check_dataset(job: PerceptionJob, dataset: Dataset) -> None:
@@ -122,7 +126,8 @@ def _check_dataset(job: PerceptionJob, dataset: Dataset) -> None:
     seen = {"dataset": dataset.name, "frames": len(dataset), "classes": classes_fingerprint(dataset)}
     for what in ("dataset", "frames", "classes"):
         if seen[what] != expect[what]:
-            found = "another class table" if what == "classes" else f"{what} {seen[what]!r}, the client's {expect[what]!r}"
+            found = "another class table" if what == "classes" else f"{what} {seen[what]!r}"
+            found += "" if what == "classes" else f", the client's {expect[what]!r}"
             raise TerraError(f"{worker_name()} opened {job.source.describe()} and found {found}; {SAME_SOURCE}")
 
 

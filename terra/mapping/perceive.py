@@ -49,7 +49,8 @@ def perceive_frame(
     frame = load_frame(dataset, index, stats)
     if frame is None or not uses_images(frame, config):
         return 0  # scans mapped from per-point labels: nothing to cache
-    return sum(perceive_image(perception, frame, index, c, config, stats) is not None for c in range(len(frame.cameras)))
+    seen = (perceive_image(perception, frame, index, c, config, stats) for c in range(len(frame.cameras)))
+    return sum(image is not None for image in seen)
 
 
 def run_perception(

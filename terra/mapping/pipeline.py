@@ -94,25 +94,9 @@ def run_mapping(
         global_map, dropped = _global_map(dataset, config)
         fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
         fusion.stats.add("global_map_points_nonfinite", dropped)
-    key = fingerprint(
-        {
-            "format": MAP_FORMAT,
-            # Where the perception cache lives changes no output.
-            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
-            "dataset": dataset.name,
-            "frames": n_frames,
-            "embedder": [perception.embedder, perception.dim],
-            "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
-        }
-    )
+    key = _run_key(config, dataset, perception, global_map)
     checkpoint = Checkpoint(out)
-    start = 0
-    saved = checkpoint.load(key)
-    if saved is not None:
-        start, arrays, meta = saved
-        fusion.restore(arrays, meta)
-    else:
-        checkpoint.discard()
+    start = _resume(checkpoint, key, fusion)
 
     for i in feed.frames(start, n_frames):
         with timer.stage("load"):
@@ -142,6 +126,33 @@ def run_mapping(
             raise
     checkpoint.discard()
     return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
+
+
+def _run_key(config: MappingConfig, dataset: Dataset, perception: Perception, global_map: np.ndarray | None) -> str:
+    """What a checkpoint must match to be resumed: everything that changes the map's bytes."""
+    return fingerprint(
+        {
+            "format": MAP_FORMAT,
+            # Where the perception cache lives changes no output.
+            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
+            "dataset": dataset.name,
+            "frames": len(dataset),
+            "embedder": [perception.embedder, perception.dim],
+            "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
+        }
+    )
+
+
+def _resume(checkpoint: Checkpoint, key: str, fusion: MapFusion) -> int:
+    """The first frame to fuse: after a matching checkpoint (restored into `fusion`), else 0 (any stale
+    checkpoint removed)."""
+    saved = checkpoint.load(key)
+    if saved is None:
+        checkpoint.discard()
+        return 0
+    start, arrays, meta = saved
+    fusion.restore(arrays, meta)
+    return start
 
 
 def open_perception(config: MappingConfig, dataset: Dataset, out: Path,
