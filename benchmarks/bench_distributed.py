@@ -1,9 +1,9 @@
 """Phase 1 perception throughput on a local Dask cluster (terra/distributed) against one process.
 
-Backend: the real `models` backend, whose per-frame cost dominates: CLIP with the ViT-B/32
-architecture (224 px, patch 32, 12 x 768 vision layers, 512-d; random weights saved with
+Backend: the real `models` backend, whose per-frame cost dominates: a CLIP of the ViT-B/32 family
+(224 px, patch 32, 768 wide, 6 vision layers, half of ViT-B/32's 12; 512-d; random weights saved with
 save_pretrained, as no real weights exist here) embeds each frame's 3 object masks and the whole
-image (4 forward passes, about 4.4 GFLOPs each); the terrain and mask segmenters are ONNX graphs with
+image (4 forward passes, about 2.2 GFLOPs each); the terrain and mask segmenters are ONNX graphs with
 constant outputs (tests/perception_models.py), so their inference costs nothing and their decoding is
 the real code. Frames: the simulated tiny campus (640 x 480 camera, ~20 k points per scan) written as a
 terra-folder, which the workers read themselves.
@@ -16,10 +16,12 @@ Measured, each with a fresh cache so every image is computed:
 - the client's ceiling: `terra map` with every image already in the cache (read frame, hash image,
   read entry, fuse), the rate no number of workers can exceed;
 - `terra map` end to end, serial and with 2 workers (wall time, bundles compared byte for byte).
-Runs alternate (one process, 1 worker, 2 workers, then again in reverse) so load drift hits all.
+Three rounds alternate the order (one process, 1 worker, 2 workers; then reversed; then as first) so
+load drift from other users of the machine hits all three; the table gives medians, the JSON every run
+with the load average before it.
 
 Usage:
-  python benchmarks/bench_distributed.py               # 18 frames (about 10 minutes on 2 shared cores)
+  python benchmarks/bench_distributed.py               # 12 frames (about 10 minutes on 2 shared cores)
   python benchmarks/bench_distributed.py --quick       # tiny CLIP, 6 frames: checks the script runs
 Writes benchmarks/results/distributed.json (distributed-quick.json with --quick) and prints a table.
 """
@@ -50,9 +52,9 @@ def build_models(folder: Path, quick: bool) -> dict:
     from tests.perception_models import raw_output, save_clip, save_seg_onnx
 
     folder.mkdir(parents=True, exist_ok=True)
-    clip = folder / ("clip-tiny" if quick else "clip-vit-b-32-random")
+    clip = folder / ("clip-tiny" if quick else "clip-vit-b-32-6-layers-random")
     if not (clip / "model.safetensors").is_file():
-        sizes = {} if quick else dict(image_size=224, patch_size=32, hidden=768, layers=12, heads=12,
+        sizes = {} if quick else dict(image_size=224, patch_size=32, hidden=768, layers=6, heads=12,
                                       projection_dim=512, text_hidden=512, text_heads=8)
         save_clip(clip, **sizes)
     terrain, masks = folder / "terrain-seg.onnx", folder / "fastsam.onnx"
@@ -102,8 +104,8 @@ def perceive(spec, dataset, models: dict, work: Path, workers: int | None, warm:
     start = time.perf_counter()
     perception = open_perception(config, dataset, work / "unused.terra")
     if workers is None:
-        begin = time.time()
-        finished, startup = perceive_here(dataset, perception, config), time.perf_counter() - start
+        begin, startup = time.time(), time.perf_counter() - start
+        finished = perceive_here(dataset, perception, config)
     else:
         finished, startup, begin = perceive_on_workers(spec, dataset, perception, config, workers)
     return {"frames": len(dataset), "startup_s": startup, "perception_s": max(finished) - begin,
@@ -190,7 +192,8 @@ def expected_scaling(one_core_fps: float, ceiling_fps: float, startup_s: float) 
     return rows
 
 
-ORDER = [("process", None), ("1 worker", 1), ("2 workers", 2), ("2 workers", 2), ("1 worker", 1), ("process", None)]
+ROUND = [("process", None), ("1 worker", 1), ("2 workers", 2)]
+ORDER = ROUND + ROUND[::-1] + ROUND
 
 
 def table(frames: int, rate: dict, startup: dict, ceiling: dict, maps: dict, identical: bool, model: list) -> list:
@@ -218,12 +221,12 @@ def table(frames: int, rate: dict, startup: dict, ceiling: dict, maps: dict, ide
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny CLIP and 6 frames (checks the script)")
-    parser.add_argument("--frames", type=int, default=None, help="frames of the tiny campus (default 18; 6 quick)")
+    parser.add_argument("--frames", type=int, default=None, help="frames of the tiny campus (default 12; 6 quick)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/terra-bench-distributed"), help="models, data, caches")
     args = parser.parse_args()
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-    frames = args.frames or (6 if args.quick else 18)
+    frames = args.frames or (6 if args.quick else 12)
     load_start = os.getloadavg()[0]
     models = build_models(args.work / "models", args.quick)
     from terra.distributed.source import SourceSpec
@@ -232,7 +235,8 @@ def main() -> None:
     dataset = spec.open()
     runs: dict[str, list[dict]] = {name: [] for name, _ in ORDER}
     for name, workers in ORDER:
-        runs[name].append(perceive(spec, dataset, models, args.work, workers, warm=2))
+        load = os.getloadavg()[0]
+        runs[name].append({**perceive(spec, dataset, models, args.work, workers, warm=2), "load_average_before": load})
         print(f"{name}: {runs[name][-1]['frames_per_s']:.3f} frames/s", flush=True)
     serial = map_end_to_end(spec, dataset, models, args.work, None)
     two = map_end_to_end(spec, dataset, models, args.work, 2)

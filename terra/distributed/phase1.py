@@ -4,8 +4,8 @@
 byte for byte, as a serial run (perception is keyed and seeded per frame and camera, and fusion reads
 every image back from the cache in frame order). The cache is the hand-over, so it is on for a
 distributed run even where the config turns it off (the labels backend by default); it then lives in
-the default place and is removed when the run succeeds (an interrupted run keeps it, and its resume
-reads it back). `perceive_on_cluster` is `--perception-only` on the cluster.
+OUT.work/cluster-perception, which only Terra writes, and is removed when the run succeeds (an
+interrupted run keeps it, and its resume reads it back). `perceive_on_cluster` is `--perception-only` on the cluster.
 
 What the workers need: the source at the same path (or the same `--sim` preset and seed), the model
 files the config names at the same paths, the cache folder on a file system they share with the client,
@@ -70,8 +70,8 @@ def map_on_cluster(
         raise TerraError(f"dataset {dataset.name!r} has no frames")
     with timer.stage("setup"):
         inner = get_perception(config.perception, dataset.classes)
-        root = cache_root(config.perception.cache, out).absolute()
         temporary = not cache_enabled(inner, config.perception.cache)
+        root = (transient_cache_folder(out) if temporary else cache_root(config.perception.cache, out)).absolute()
         perception = CachedPerception(inner, PerceptionCache(root, cache_identity(inner)))
     job = PerceptionJob.for_run(source, dataset, config, perception)
     with ExitStack() as stack:
@@ -81,7 +81,7 @@ def map_on_cluster(
             feed, summary = _start(connected, job, cluster, show_progress)
         run = run_mapping(dataset, config, out, show_progress, perception=perception, feed=feed, timer=timer)
     if temporary:
-        _remove_cache(perception.cache.folder, root)
+        _remove_transient_cache(root)
         run.cache = {**(run.cache or {}), "removed": True}
     summary.tally = feed.tally
     return run, summary
@@ -153,12 +153,16 @@ def prepare_workers(cluster: Cluster, job: PerceptionJob) -> list[str]:
     return addresses
 
 
-def _remove_cache(folder: Path, root: Path) -> None:
-    """Remove a cache the config did not ask for, and the folders above it that it leaves empty."""
-    shutil.rmtree(folder, ignore_errors=True)
-    for parent in (root, root.parent):
-        if parent.name.endswith(".work") or parent == root:
-            try:
-                parent.rmdir()  # only when empty
-            except OSError:
-                break
+def transient_cache_folder(out: Path) -> Path:
+    """Where a cluster run keeps the cache that its config does not ask for: OUT.work/cluster-perception,
+    a folder only Terra writes, removed when the run succeeds."""
+    out = Path(out)
+    return out.with_name(out.name + ".work") / "cluster-perception"
+
+
+def _remove_transient_cache(root: Path) -> None:
+    shutil.rmtree(root, ignore_errors=True)
+    try:
+        root.parent.rmdir()  # OUT.work, when nothing else is in it
+    except OSError:
+        pass

@@ -98,7 +98,11 @@ def _state(job: PerceptionJob) -> WorkerState:
     dataset = _slot("dataset", fingerprint(job.source.to_json()), lambda: _open_source(job))
     _check_dataset(job, dataset)
     perception_json = config.perception.model_dump(mode="json", exclude={"cache"})
-    backend_id = fingerprint({"perception": perception_json, "classes": dataset.classes.to_json()})
+    # The client's backend key covers the weight files' contents: files replaced since this process
+    # loaded them give another key, hence a fresh backend.
+    backend_id = fingerprint(
+        {"perception": perception_json, "classes": dataset.classes.to_json(), "expect": job.expect["backend"]}
+    )
     inner = _slot("backend", backend_id, lambda: get_perception(config.perception, dataset.classes))
     return WorkerState(dataset, _cached(job, inner), config)
 
