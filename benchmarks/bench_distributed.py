@@ -9,16 +9,16 @@ the real code. Frames: the simulated tiny campus (640 x 480 camera, ~20 k points
 terra-folder, which the workers read themselves.
 
 Measured, each with a fresh cache so every image is computed:
-- perception throughput (frames/s) in one process (torch on every core, `perceive_frame` per frame as
-  `--perception-only` runs it) and on local clusters of 1 and 2 worker processes (cores / workers
-  threads each; the pieces `--perception-only --workers N` runs): frames perceived per second after
-  the first 2 (which load the models), cluster start and worker preparation reported apart;
+- perception throughput (frames/s) in one process (`perceive_frame` per frame, as `--perception-only`
+  runs it) with torch on 2 threads (its default here) and on 1, and on local clusters (the pieces
+  `--perception-only --workers N` runs) of 1 worker with 2 threads (the default for `--workers 1` on 2
+  cores) or 1, and of 2 workers with 1 thread each (the default for `--workers 2`): frames perceived
+  per second after the first 2 (which load the models); cluster start and worker preparation apart;
 - the client's ceiling: `terra map` with every image already in the cache (read frame, hash image,
   read entry, fuse), the rate no number of workers can exceed;
 - `terra map` end to end, serial and with 2 workers (wall time, bundles compared byte for byte).
-Three rounds alternate the order (one process, 1 worker, 2 workers; then reversed; then as first) so
-load drift from other users of the machine hits all three; the table gives medians, the JSON every run
-with the load average before it.
+Two rounds run the five configurations in opposite orders, so load drift from other users of the
+machine hits all of them; the table gives medians, the JSON every run with the load average before it.
 
 Usage:
   python benchmarks/bench_distributed.py               # 12 frames (about 10 minutes on 2 shared cores)
@@ -93,9 +93,10 @@ def steady_rate(finished: list[float], warm: int) -> float:
     return (len(finished) - warm) / (finished[-1] - finished[warm - 1])
 
 
-def perceive(spec, dataset, models: dict, work: Path, workers: int | None, warm: int) -> dict:
+def perceive(spec, dataset, models: dict, work: Path, workers: int | None, threads: int, warm: int) -> dict:
     """Every frame perceived into a fresh cache, in this process (workers None) or on a local cluster of
-    `workers` processes; the steady rate excludes the first `warm` frames (model loading)."""
+    `workers` processes, with `threads` math threads per process; the steady rate excludes the first
+    `warm` frames (model loading)."""
     from terra.mapping.pipeline import open_perception
 
     cache = work / "cache"
@@ -105,25 +106,33 @@ def perceive(spec, dataset, models: dict, work: Path, workers: int | None, warm:
     perception = open_perception(config, dataset, work / "unused.terra")
     if workers is None:
         begin, startup = time.time(), time.perf_counter() - start
-        finished = perceive_here(dataset, perception, config)
+        finished = perceive_here(dataset, perception, config, threads)
     else:
-        finished, startup, begin = perceive_on_workers(spec, dataset, perception, config, workers)
+        finished, startup, begin = perceive_on_workers(spec, dataset, perception, config, workers, threads)
     return {"frames": len(dataset), "startup_s": startup, "perception_s": max(finished) - begin,
             "frames_per_s": steady_rate(finished, warm), "wall_s": time.perf_counter() - start}
 
 
-def perceive_here(dataset, perception, config) -> list[float]:
+def perceive_here(dataset, perception, config, threads: int) -> list[float]:
+    import torch
+
     from terra.mapping.perceive import perceive_frame
 
-    finished = []
-    for i in range(len(dataset)):
-        perceive_frame(dataset, i, perception, config)
-        finished.append(time.time())
+    finished, before = [], torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        for i in range(len(dataset)):
+            perceive_frame(dataset, i, perception, config)
+            finished.append(time.time())
+    finally:
+        torch.set_num_threads(before)
     assert perception.counts.computed >= len(dataset) and perception.counts.hits == 0
     return finished
 
 
-def perceive_on_workers(spec, dataset, perception, config, workers: int) -> tuple[list[float], float, float]:
+def perceive_on_workers(
+    spec, dataset, perception, config, workers: int, threads: int
+) -> tuple[list[float], float, float]:
     from terra.distributed.cluster import ClusterConfig, connect
     from terra.distributed.feed import ClusterFeed
     from terra.distributed.job import PerceptionJob
@@ -131,7 +140,7 @@ def perceive_on_workers(spec, dataset, perception, config, workers: int) -> tupl
 
     start = time.perf_counter()
     job = PerceptionJob.for_run(spec, dataset, config, perception)
-    with connect(ClusterConfig(workers=workers)) as cluster:
+    with connect(ClusterConfig(workers=workers, threads=threads)) as cluster:
         prepare_workers(cluster, job)
         startup = time.perf_counter() - start
         feed = ClusterFeed(cluster.client, job, in_flight=2 * workers + 2, show_progress=False)
@@ -192,21 +201,27 @@ def expected_scaling(one_core_fps: float, ceiling_fps: float, startup_s: float) 
     return rows
 
 
-ROUND = [("process", None), ("1 worker", 1), ("2 workers", 2)]
-ORDER = ROUND + ROUND[::-1] + ROUND
+# (name, workers (None: this process), math threads per process)
+ROUND = [
+    ("process, 2 threads", None, 2),
+    ("process, 1 thread", None, 1),
+    ("1 worker, 2 threads", 1, 2),
+    ("1 worker, 1 thread", 1, 1),
+    ("2 workers, 1 thread each", 2, 1),
+]
+ORDER = ROUND + ROUND[::-1]
 
 
 def table(frames: int, rate: dict, startup: dict, ceiling: dict, maps: dict, identical: bool, model: list) -> list:
-    def perception(name: str) -> str:
-        return f"{rate[name]:.3f} frames/s (start-up {startup[name]:.1f} s)"
-
-    ms = 1000 * ceiling["client_s_per_frame"]
+    two, one = rate["2 workers, 1 thread each"], rate["1 worker, 1 thread"]
     rows = [
-        (f"perception, one process ({frames} frames)", perception("process"), "-"),
-        ("perception, local cluster of 1 worker", perception("1 worker"), "-"),
-        ("perception, local cluster of 2 workers", perception("2 workers"), "-"),
-        ("2 workers vs 1 worker", f"{rate['2 workers'] / rate['1 worker']:.2f}x", "~2x on 2 free cores"),
-        ("2 workers vs one process", f"{rate['2 workers'] / rate['process']:.2f}x", "-"),
+        (f"perception: {name} ({frames} frames)", f"{rate[name]:.3f} frames/s (start-up {startup[name]:.1f} s)", "-")
+        for name, _, _ in ROUND
+    ]
+    ms = 1000 * ceiling["client_s_per_frame"]
+    rows += [
+        ("2 workers vs 1 worker, 1 thread each", f"{two / one:.2f}x", "~2x on 2 free cores"),
+        ("2 workers vs one process, 2 threads", f"{two / rate['process, 2 threads']:.2f}x", "-"),
         ("client ceiling (all images cached)", f"{ceiling['frames_per_s']:.1f} frames/s ({ms:.0f} ms/frame)", "-"),
         ("terra map end to end, one process", f"{maps['process']:.1f} s", "-"),
         ("terra map end to end, 2 workers", f"{maps['2 workers']:.1f} s", "-"),
@@ -233,10 +248,11 @@ def main() -> None:
 
     spec = SourceSpec.from_cli(build_dataset(args.work / f"tiny-{frames}", frames), None)
     dataset = spec.open()
-    runs: dict[str, list[dict]] = {name: [] for name, _ in ORDER}
-    for name, workers in ORDER:
+    runs: dict[str, list[dict]] = {name: [] for name, _, _ in ROUND}
+    for name, workers, threads in ORDER:
         load = os.getloadavg()[0]
-        runs[name].append({**perceive(spec, dataset, models, args.work, workers, warm=2), "load_average_before": load})
+        measured = perceive(spec, dataset, models, args.work, workers, threads, warm=2)
+        runs[name].append({**measured, "load_average_before": load})
         print(f"{name}: {runs[name][-1]['frames_per_s']:.3f} frames/s", flush=True)
     serial = map_end_to_end(spec, dataset, models, args.work, None)
     two = map_end_to_end(spec, dataset, models, args.work, 2)
@@ -245,7 +261,9 @@ def main() -> None:
 
     rate = {name: statistics.median(r["frames_per_s"] for r in rs) for name, rs in runs.items()}
     startup = {name: statistics.median(r["startup_s"] for r in rs) for name, rs in runs.items()}
-    model = expected_scaling(rate["2 workers"] / 2, ceiling["frames_per_s"], startup["2 workers"])
+    # r1: one single-thread worker's rate, from the 2-worker runs (the two shared the machine alike).
+    pair = "2 workers, 1 thread each"
+    model = expected_scaling(rate[pair] / 2, ceiling["frames_per_s"], startup[pair])
     maps = {"process": serial["wall_s"], "2 workers": two["wall_s"]}
     result = {
         "machine": platform.platform(), "cpus": os.cpu_count(), "load_average_1min_at_start": load_start,

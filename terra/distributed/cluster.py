@@ -40,6 +40,10 @@ class ClusterConfig(Section):
         None, ge=1, le=100_000,
         description="frames handed to the workers and not yet fused (default: 2 per worker, at least 4)",
     )
+    threads: int | None = Field(
+        None, ge=1, le=1024,
+        description="math library threads per local worker (OMP/MKL/OpenBLAS; default: this machine's cores / workers)",
+    )
     connect_timeout: float = Field(30.0, gt=0.0, description="seconds to wait for the scheduler and a first worker")
 
     @field_validator("scheduler")
@@ -96,7 +100,7 @@ def connect(config: ClusterConfig) -> Iterator[Cluster]:
     except ImportError:
         raise TerraError("--workers / --scheduler need Dask: pip install 'terra-3dsg[dask]'") from None
     if config.workers is not None:
-        with _local_cluster(config.workers) as cluster:
+        with _local_cluster(config.workers, config.threads) as cluster:
             yield cluster
     else:
         with _remote_cluster(config) as cluster:
@@ -104,7 +108,7 @@ def connect(config: ClusterConfig) -> Iterator[Cluster]:
 
 
 @contextmanager
-def _local_cluster(workers: int) -> Iterator[Cluster]:
+def _local_cluster(workers: int, threads: int | None) -> Iterator[Cluster]:
     from distributed import Client, LocalCluster
 
     with _closing_quietly():
@@ -120,7 +124,7 @@ def _local_cluster(workers: int) -> Iterator[Cluster]:
             # Ctrl-C in a terminal reaches every process of the group: the workers ignore it and the
             # client stops them, so an interrupted run ends with one line, not a traceback per worker.
             preload=["terra.distributed.preload"],
-            env=_thread_env(workers),
+            env=_thread_env(workers, threads),
         )
     try:
         client = Client(local, set_as_default=False)
@@ -134,15 +138,16 @@ def _local_cluster(workers: int) -> Iterator[Cluster]:
             local.close()
 
 
-def _thread_env(workers: int) -> dict[str, str]:
-    """Math library threads per worker: this machine's cores shared out (Dask's default is one each,
-    which leaves most cores idle when there are fewer workers than cores)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    threads = str(max(1, cores // workers))
-    return {"OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads}
+def _thread_env(workers: int, threads: int | None = None) -> dict[str, str]:
+    """Math library threads per worker: `threads`, or this machine's cores shared out (Dask's default is
+    one each, which leaves most cores idle when there are fewer workers than cores)."""
+    if threads is None:
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except AttributeError:  # not on Linux
+            cores = os.cpu_count() or 1
+        threads = max(1, cores // workers)
+    return {name: str(threads) for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
 
 
 @contextmanager
