@@ -19,6 +19,8 @@ Measured, each with a fresh cache so every image is computed:
 - `terra map` end to end, serial and with 2 workers (wall time, bundles compared byte for byte).
 Two rounds run the five configurations in opposite orders, so load drift from other users of the
 machine hits all of them; the table gives medians, the JSON every run with the load average before it.
+Before each round, a probe measures how much CPU two busy processes get together against one alone:
+on a machine shared with other sessions that is well under 2x, and it bounds what a second worker can add.
 
 Usage:
   python benchmarks/bench_distributed.py               # 12 frames (about 10 minutes on 2 shared cores)
@@ -187,6 +189,33 @@ def digest(path: Path) -> dict[str, str]:
     return folder_digest(path)
 
 
+def _spin(seconds: float) -> int:
+    """Busy single-threaded NumPy work for `seconds`; returns how many rounds it did."""
+    import numpy as np
+
+    start, rounds = np.random.default_rng(0).random((300, 300)), 0
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        x = start
+        for _ in range(10):
+            x = np.tanh(x)
+        rounds += 1
+    return rounds
+
+
+def cpu_capacity(seconds: float = 4.0) -> float:
+    """How much CPU two busy processes get together, relative to one alone (2.0 on two free cores): the
+    machine is shared, and this is the most any 2-worker run can gain over a 1-worker one."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(1) as pool:
+        one = pool.apply(_spin, (seconds,))
+    with context.Pool(2) as pool:
+        two = sum(pool.map(_spin, [seconds, seconds]))
+    return two / one
+
+
 def expected_scaling(one_core_fps: float, ceiling_fps: float, startup_s: float) -> list[dict]:
     """Throughput model for N single-core workers on machines with at least N free cores:
     rate(N) = min(N * r1, c), r1 one worker's rate on one core, c the client's ceiling (it reads, hashes
@@ -249,7 +278,11 @@ def main() -> None:
     spec = SourceSpec.from_cli(build_dataset(args.work / f"tiny-{frames}", frames), None)
     dataset = spec.open()
     runs: dict[str, list[dict]] = {name: [] for name, _, _ in ROUND}
-    for name, workers, threads in ORDER:
+    capacity = []
+    for n, (name, workers, threads) in enumerate(ORDER):
+        if n % len(ROUND) == 0:
+            capacity.append(cpu_capacity())
+            print(f"CPU for 2 processes vs 1: {capacity[-1]:.2f}", flush=True)
         load = os.getloadavg()[0]
         measured = perceive(spec, dataset, models, args.work, workers, threads, warm=2)
         runs[name].append({**measured, "load_average_before": load})
@@ -272,7 +305,10 @@ def main() -> None:
         "map_timers": {"process": serial["timer"], "2 workers": two["timer"]}, "identical": identical,
         "expected_scaling": model,
     }
+    result["cpu_capacity_2_vs_1"] = capacity
     rows = table(frames, rate, startup, ceiling, maps, identical, model)
+    probes = ", ".join(f"{c:.2f}x" for c in capacity)
+    rows.insert(len(ROUND), ("CPU that 2 busy processes get vs 1 (per round)", probes, "2x when free"))
     report(rows, result, ROOT / "benchmarks" / "results" / f"distributed{'-quick' if args.quick else ''}.json")
 
 

@@ -11,6 +11,7 @@ default, is the hand-over from the workers and is removed after a successful run
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import signal
@@ -23,7 +24,7 @@ from pathlib import Path
 import pytest
 
 from terra.cli import run
-from terra.distributed.cluster import ClusterConfig, cluster_config, connect
+from terra.distributed.cluster import ClusterConfig, cluster_config, connect, worker_environment
 from terra.distributed.job import PerceptionJob
 from terra.distributed.source import SourceSpec
 from terra.distributed.worker import prepare_task
@@ -85,9 +86,10 @@ def _children() -> set[int]:
 
 
 def test_two_local_workers_give_the_serial_bundle(tiny_folder, serial_digest, tmp_path, capsys):
-    before = _children()
+    before, environ = _children(), dict(os.environ)
     out = tmp_path / "map.terra"
     assert run(["map", str(tiny_folder), "--out", str(out), "--workers", "2"]) == 0
+    assert dict(os.environ) == environ  # the workers' environment did not leak into this process
     text = capsys.readouterr().out
     assert folder_digest(out) == serial_digest
     assert f"perception on a local cluster of 2 worker processes: {FRAMES} frames by" in text
@@ -106,6 +108,12 @@ def test_scheduler_option_uses_a_running_cluster(tiny_folder, serial_digest, das
     assert folder_digest(out) == serial_digest
     assert f"perception on the Dask cluster at {address}: {FRAMES} frames" in text and "up to 3 in flight" in text
     assert len(dask_cluster.nthreads()) == 2  # a cluster Terra joined keeps running
+    # A scheduler file (what `dask scheduler --scheduler-file` writes; Dask reads its "address") names it too.
+    scheduler_file = tmp_path / "scheduler.json"
+    scheduler_file.write_text(json.dumps({"type": "Scheduler", "address": address}))
+    with connect(cluster_config(None, str(scheduler_file), environ={})) as joined:
+        assert not joined.started and joined.worker_addresses() == sorted(dask_cluster.nthreads())
+        assert joined.description == f"the Dask cluster at {address}"
 
 
 def test_perception_only_on_the_cluster_named_by_the_environment(
@@ -265,6 +273,11 @@ def test_cluster_options():
         cluster_config(None, None, environ={"TERRA_DASK_SCHEDULER": "no-such-scheduler-file.json"})
     with pytest.raises(TerraError, match="--workers"):
         cluster_config(0, None, environ={})
+    # Local workers share the cores out for their math libraries and keep glibc's own trimming.
+    environment = worker_environment(4, threads=3)
+    assert environment["OMP_NUM_THREADS"] == environment["OPENBLAS_NUM_THREADS"] == "3"
+    assert environment["MALLOC_TRIM_THRESHOLD_"] is None
+    assert worker_environment(len(os.sched_getaffinity(0)) * 2)["OMP_NUM_THREADS"] == "1"
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path):
@@ -325,3 +338,18 @@ def test_each_worker_checks_its_view_of_the_run(job_parts, tmp_path):
     missing = SourceSpec(path=str(tmp_path / "gone"), format="terra-folder")
     with pytest.raises(TerraError, match=f"cannot open the source {tmp_path / 'gone'} .*does not exist"):
         prepare_task(_variant(job, source=missing))
+
+
+def test_the_feed_hands_frames_over_in_order_within_its_window(job_parts, dask_cluster):
+    from terra.distributed.feed import ClusterFeed
+
+    job, _ = job_parts
+    feed = ClusterFeed(dask_cluster, job, in_flight=3, show_progress=False)
+    order, outstanding = [], []
+    for i in feed.frames(2, FRAMES):
+        order.append(i)
+        outstanding.append(feed.outstanding)
+    assert order == list(range(2, FRAMES))
+    assert max(outstanding) == 3 and outstanding[-1] == 1  # never more than 3 frames out; the last alone
+    assert feed.tally.frames == FRAMES - 2 and feed.tally.images == FRAMES - 2
+    assert sum(feed.tally.by_worker.values()) == FRAMES - 2

@@ -2,7 +2,7 @@
 
 `--workers N` starts a local cluster: a scheduler and N single-threaded worker processes (each under a
 Dask nanny, which restarts it if it dies, and each with the machine's cores / N threads for the math
-libraries its models use), every one listening on 127.0.0.1 only; its HTTP endpoint
+libraries its models use; see `worker_environment`), every one listening on 127.0.0.1 only; its HTTP endpoint
 (health, metrics, and the dashboard when bokeh is installed) takes a free loopback port. `--scheduler`
 (or the TERRA_DASK_SCHEDULER environment variable) connects to a cluster someone started, by address
 (`tcp://HOST:PORT`) or by the JSON scheduler file `dask scheduler --scheduler-file` writes: reaching
@@ -109,9 +109,14 @@ def connect(config: ClusterConfig) -> Iterator[Cluster]:
 
 @contextmanager
 def _local_cluster(workers: int, threads: int | None) -> Iterator[Cluster]:
+    import dask
     from distributed import Client, LocalCluster
 
-    with _closing_quietly():
+    # A Dask nanny writes its workers' environment into this process's os.environ before each spawn;
+    # the client is given its own back once the workers are up, and again when they are gone.
+    environ = dict(os.environ)
+    spawn_environ = {"distributed.nanny.pre-spawn-environ": worker_environment(workers, threads)}
+    with _closing_quietly(), dask.config.set(spawn_environ):
         local = LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
@@ -124,8 +129,8 @@ def _local_cluster(workers: int, threads: int | None) -> Iterator[Cluster]:
             # Ctrl-C in a terminal reaches every process of the group: the workers ignore it and the
             # client stops them, so an interrupted run ends with one line, not a traceback per worker.
             preload=["terra.distributed.preload"],
-            env=_thread_env(workers, threads),
         )
+    _restore(environ)
     try:
         client = Client(local, set_as_default=False)
         try:
@@ -136,18 +141,32 @@ def _local_cluster(workers: int, threads: int | None) -> Iterator[Cluster]:
     finally:
         with _closing_quietly():
             local.close()
+        _restore(environ)
 
 
-def _thread_env(workers: int, threads: int | None = None) -> dict[str, str]:
-    """Math library threads per worker: `threads`, or this machine's cores shared out (Dask's default is
-    one each, which leaves most cores idle when there are fewer workers than cores)."""
+def worker_environment(workers: int, threads: int | None = None) -> dict[str, str | None]:
+    """What a local worker process gets in its environment (None: left unset), before it imports anything.
+
+    Math library threads: `threads`, or this machine's cores shared out (Dask's default is one each,
+    which leaves most cores idle when there are fewer workers than cores). MALLOC_TRIM_THRESHOLD_ is
+    left unset: Dask's 65536 makes glibc hand every freed block above 64 KiB back to the system and fixes
+    its mmap threshold, so each frame's large tensors are mapped and unmapped anew, which cost CLIP
+    30-40 % of its throughput here (benchmarks/RESULTS.md, issue 18). Variables set in this process's
+    own environment win, as Dask has it."""
     if threads is None:
         try:
             cores = len(os.sched_getaffinity(0))
         except AttributeError:  # not on Linux
             cores = os.cpu_count() or 1
         threads = max(1, cores // workers)
-    return {name: str(threads) for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    math = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+    return {**{name: str(threads) for name in math}, "MALLOC_TRIM_THRESHOLD_": None}
+
+
+def _restore(environ: dict[str, str]) -> None:
+    for name in set(os.environ) - set(environ):
+        del os.environ[name]
+    os.environ.update(environ)
 
 
 @contextmanager

@@ -77,9 +77,8 @@ class ClusterFeed:
     def frames(self, start: int, stop: int) -> Iterator[int]:
         from distributed import as_completed
 
-        pending: dict[str, int] = {}  # task key -> frame index
-        futures: dict[str, Any] = {}
-        perceived: set[int] = set()
+        held: dict[str, tuple[int, Any]] = {}  # task key -> (frame index, future), until its result is in
+        perceived: set[int] = set()  # frames whose result is in and which fusion has not taken yet
         completed = as_completed(loop=self.client.loop)
         submitted = start
         bars = _Bars(stop - start, self.show_progress)
@@ -87,14 +86,13 @@ class ClusterFeed:
             for i in range(start, stop):
                 while submitted < stop and submitted - i < self.in_flight:
                     future = self._submit(submitted)
-                    pending[future.key], futures[future.key] = submitted, future
+                    held[future.key] = (submitted, future)
                     completed.add(future)
                     submitted += 1
                 self.outstanding = submitted - i
                 while i not in perceived:
                     future = next(completed)
-                    index = pending.pop(future.key)
-                    futures.pop(future.key)
+                    index, _ = held.pop(future.key)
                     self.tally.add(_result(future, index))
                     future.release()
                     perceived.add(index)
@@ -104,8 +102,8 @@ class ClusterFeed:
                 bars.fused()
         finally:
             bars.close()
-            if futures:
-                self.client.cancel(list(futures.values()))
+            if held:
+                self.client.cancel([future for _, future in held.values()])
 
     def _submit(self, index: int) -> Any:
         # Earlier frames first: fusion waits for them, later ones can wait in the queue.
