@@ -329,6 +329,8 @@ def test_each_worker_checks_its_view_of_the_run(job_parts, tmp_path):
     assert prepare_task(job.to_text())["worker"].startswith("process ")  # outside Dask: this process
     with pytest.raises(TerraError, match=f"found frames {FRAMES}, the client's {FRAMES + 1}; workers read frames"):
         prepare_task(_variant(job, expect={"frames": FRAMES + 1}))
+    with pytest.raises(TerraError, match="runs Terra .*, the client 0.0.1: install the same Terra"):
+        prepare_task(_variant(job, expect={"terra": "0.0.1"}))
     with pytest.raises(TerraError, match="another class table"):
         prepare_task(_variant(job, expect={"classes": "0" * 64}))
     with pytest.raises(TerraError, match="another perception backend .* same model files"):

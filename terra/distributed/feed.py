@@ -23,14 +23,15 @@ from terra.errors import TerraError
 @dataclass
 class WorkerTally:
     """What the workers reported: frames perceived, images (computed and read back from the cache),
-    seconds of perception summed over workers, frames per worker, fault counters and first notes, and
-    when each frame finished (Unix time, in the order the client collected them)."""
+    seconds of perception summed over workers (wall and CPU), frames per worker, fault counters and
+    first notes, and when each frame finished (Unix time, in the order the client collected them)."""
 
     frames: int = 0
     images: int = 0
     computed: int = 0
     hits: int = 0
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     by_worker: dict[str, int] = field(default_factory=dict)
     stats: dict[str, int] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)
@@ -42,6 +43,7 @@ class WorkerTally:
         self.computed += int(result["computed"])
         self.hits += int(result["hits"])
         self.seconds += float(result["seconds"])
+        self.cpu_seconds += float(result["cpu_seconds"])
         self.finished.append(float(result["finished"]))
         self.by_worker[result["worker"]] = self.by_worker.get(result["worker"], 0) + 1
         for name, count in result["stats"].items():
@@ -56,6 +58,7 @@ class WorkerTally:
             "computed": self.computed,
             "hits": self.hits,
             "seconds": round(self.seconds, 6),
+            "cpu_seconds": round(self.cpu_seconds, 6),
             "by_worker": dict(sorted(self.by_worker.items())),
         }
 

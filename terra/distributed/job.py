@@ -2,7 +2,7 @@
 
 The client sends the job's text with every task (a few kilobytes), so a worker that joins late or is
 restarted after a crash needs nothing else. `expect` holds what the client saw, and a worker refuses
-to work when its own view differs: another dataset at that path, another frame count or class table,
+to work when its own view differs: another Terra version, another dataset at that path, another frame count or class table,
 or another perception backend key (other model files or settings), since its cache entries would then
 never be read by the client.
 """
@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
+import terra
 from terra.bundle import dumps_json
 from terra.datasets.base import Dataset
 from terra.distributed.source import SourceSpec
@@ -26,7 +27,8 @@ from terra.perception.cache import CachedPerception
 class PerceptionJob:
     """source: how to open the frames. config: the mapping config (JSON) whose `perception` section and
     image checks apply. cache_root: absolute cache folder shared by the client and the workers.
-    expect: {"dataset", "frames", "classes" (fingerprint of the class table), "backend" (backend key)}."""
+    expect: {"terra" (version), "dataset", "frames", "classes" (fingerprint of the class table), "backend"
+    (backend key)}."""
 
     source: SourceSpec
     config: dict[str, Any]
@@ -43,6 +45,7 @@ class PerceptionJob:
             config.model_dump(mode="json"),
             str(perception.cache.root.absolute()),
             {
+                "terra": terra.__version__,
                 "dataset": dataset.name,
                 "frames": len(dataset),
                 "classes": classes_fingerprint(dataset),

@@ -148,6 +148,9 @@ def prepare_workers(cluster: Cluster, job: PerceptionJob) -> list[str]:
     try:
         for future in futures:
             future.result()
+    except ImportError as exc:  # the task itself, or a backend's dependency, cannot be loaded there
+        raise TerraError(f"a worker cannot load what Terra needs ({exc}); install the same Terra, with the "
+                         "extras the config uses, on every worker") from None
     finally:
         cluster.client.cancel(futures)
     return addresses

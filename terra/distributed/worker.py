@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import terra
 from terra.datasets.base import Dataset
 from terra.distributed.job import PerceptionJob, classes_fingerprint
 from terra.errors import TerraError
@@ -61,21 +62,24 @@ def prepare_task(job_text: str) -> dict:
 
 def perceive_task(job_text: str, index: int) -> dict:
     """Perceive frame `index` into the shared cache; returns counts (images, computed, hits), the fault
-    counters and first notes, the seconds it took, when it finished (Unix time) and the worker's name."""
+    counters and first notes, the seconds it took (wall, and CPU of this process), when it finished (Unix
+    time) and the worker's name."""
     job = PerceptionJob.from_text(job_text)
     with _LOCK:
         state = _state(job)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         before = state.perception.counts.to_json()
         stats = FusionStats()
         images = perceive_frame(state.dataset, int(index), state.perception, state.config, stats)
         after = state.perception.counts.to_json()
+        cpu = time.process_time() - cpu
     return {
         "frame": int(index),
         "images": images,
         "computed": after["computed"] - before["computed"],
         "hits": after["hits"] - before["hits"],
         "seconds": time.perf_counter() - start,
+        "cpu_seconds": cpu,
         "finished": time.time(),
         "worker": worker_name(),
         "stats": stats.to_json(),
@@ -94,6 +98,11 @@ def worker_name() -> str:
 
 
 def _state(job: PerceptionJob) -> WorkerState:
+    if job.expect["terra"] != terra.__version__:
+        raise TerraError(
+            f"{worker_name()} runs Terra {terra.__version__}, the client {job.expect['terra']}: install the same "
+            "Terra on every worker"
+        )
     config = job.mapping_config()
     dataset = _slot("dataset", fingerprint(job.source.to_json()), lambda: _open_source(job))
     _check_dataset(job, dataset)
