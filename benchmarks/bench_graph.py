@@ -88,7 +88,7 @@ def child(case: str, n: int) -> dict:
     import tracemalloc
 
     from terra.graph.agglomerative import agglomerative_assignments
-    from terra.graph.spectral import spectral_assignments
+    from terra.graph.spectral import SpectralStop, spectral_assignments
 
     if case == "gvd":
         from terra.graph.gvd import gvd
@@ -115,7 +115,7 @@ def child(case: str, n: int) -> dict:
     else:
         # The paper's rule stops at once on these places (a balanced mix of zones has a small
         # semantic difference), so time the reference's rule, which splits down to 10,000 m^2.
-        labels = spectral_assignments(pos, emb, edges, stop_rule="both")
+        labels = spectral_assignments(pos, emb, edges, stop=SpectralStop(0.45, 10000.0, "both"))
     seconds = time.perf_counter() - t0
     peak = tracemalloc.get_traced_memory()[1] / 2**20
     name = case if case == "agglomerative" else "spectral (stop_rule both)"

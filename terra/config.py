@@ -1,7 +1,10 @@
 """Configuration: one pydantic section per pipeline stage, loaded from YAML.
 
-A config file holds any of the top-level keys `sim`, `mapping`, `build`, `tasks`, `eval`; missing
-keys take defaults. `terra config dump STAGE` prints a stage's defaults as YAML.
+A config file holds any of the top-level keys `sim`, `odometry`, `mapping`, `build`, `tasks`,
+`eval`, and `dataset`; missing keys take defaults. `terra config dump STAGE` prints a stage's
+defaults as YAML. The `dataset` section holds the options of the source's loader (topics,
+frames, tolerances; see the loader's config section), so it is validated by the loader that
+opens the source, not here (`load_dataset_options`).
 """
 
 from __future__ import annotations
@@ -24,18 +27,30 @@ class Section(BaseModel):
 S = TypeVar("S", bound=BaseModel)
 
 
-def _sections() -> dict[str, type[BaseModel]]:
-    from terra.eval.config import EvalConfig
-    from terra.graph.config import BuildConfig
-    from terra.mapping.config import MappingConfig
-    from terra.sim.config import SimConfig
-    from terra.tasks.config import TasksConfig
+# Stage -> "module:Class", imported only when that stage is loaded: the query commands read the
+# `tasks` section and must not import the simulator's (numba) or mapping's modules to do so.
+_SECTIONS = {
+    "sim": "terra.sim.config:SimConfig",
+    "odometry": "terra.odometry.config:OdometryConfig",
+    "mapping": "terra.mapping.config:MappingConfig",
+    "build": "terra.graph.config:BuildConfig",
+    "tasks": "terra.tasks.config:TasksConfig",
+    "eval": "terra.eval.config:EvalConfig",
+}
 
-    return {"sim": SimConfig, "mapping": MappingConfig, "build": BuildConfig, "tasks": TasksConfig, "eval": EvalConfig}
+
+def _section(stage: str) -> type[BaseModel]:
+    import importlib
+
+    module, _, name = _SECTIONS[stage].partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+DATASET_KEY = "dataset"  # loader options, validated by the loader (terra.datasets.registry.open_dataset)
 
 
 def stage_names() -> list[str]:
-    return list(_sections())
+    return list(_SECTIONS)
 
 
 def validation_message(source: str, exc: ValidationError) -> str:
@@ -47,31 +62,47 @@ def validation_message(source: str, exc: ValidationError) -> str:
 
 def load_section(path: str | Path | None, stage: str, overrides: dict | None = None) -> BaseModel:
     """The config section `stage` from a YAML file (defaults when `path` is None), with overrides."""
-    sections = _sections()
+    sections = _SECTIONS
     if stage not in sections:
         raise TerraError(f"unknown config stage {stage!r}; expected one of: {', '.join(sections)}")
     data: dict = {}
     source = "defaults"
     if path is not None:
-        path = Path(path)
         source = str(path)
-        try:
-            raw = yaml.safe_load(path.read_text()) or {}
-        except OSError as exc:
-            raise TerraError(f"{path}: cannot read config ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-        if not isinstance(raw, dict):
-            raise TerraError(f"{path}: expected a mapping with keys among {', '.join(sections)}")
-        unknown = set(raw) - set(sections)
-        if unknown:
-            raise TerraError(f"{path}: unknown top-level key {sorted(unknown)[0]!r}; expected keys among {', '.join(sections)}")
-        data = raw.get(stage) or {}
+        data = _read_config(Path(path), sections).get(stage) or {}
     data = _deep_merge(data, overrides or {})
     try:
-        return sections[stage].model_validate(data)
+        return _section(stage).model_validate(data)
     except ValidationError as exc:
         raise TerraError(validation_message(f"{source} [{stage}]", exc)) from None
+
+
+def _read_config(path: Path, sections: dict) -> dict:
+    """The top-level mapping of a config file; TerraError for unreadable YAML or an unknown key."""
+    keys = [*sections, DATASET_KEY]
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+    except OSError as exc:
+        raise TerraError(f"{path}: cannot read config ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(raw, dict):
+        raise TerraError(f"{path}: expected a mapping with keys among {', '.join(keys)}")
+    unknown = set(raw) - set(keys)
+    if unknown:
+        raise TerraError(f"{path}: unknown top-level key {sorted(unknown)[0]!r}; expected keys among {', '.join(keys)}")
+    return raw
+
+
+def load_dataset_options(path: str | Path | None) -> dict:
+    """The `dataset` section of a config file as a plain mapping ({} without one); the loader
+    that opens the source validates it against its own options section."""
+    if path is None:
+        return {}
+    options = _read_config(Path(path), _SECTIONS).get(DATASET_KEY) or {}
+    if not isinstance(options, dict):
+        raise TerraError(f"{path}: field 'dataset' must be a mapping of the loader's options")
+    return options
 
 
 def _deep_merge(base: dict, extra: dict) -> dict:

@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from terra import lens
 
@@ -43,11 +42,15 @@ def pose_from_xyz_quat(xyz_quat: np.ndarray) -> np.ndarray:
     xyz_quat = np.asarray(xyz_quat, dtype=np.float64)
     if xyz_quat.shape != (7,):
         raise ValueError(f"expected 7 values [tx, ty, tz, qx, qy, qz, qw], got shape {xyz_quat.shape}")
+    from scipy.spatial.transform import Rotation  # here: scipy.spatial costs a query command ~0.2 s
+
     return make_pose(Rotation.from_quat(xyz_quat[3:]).as_matrix(), xyz_quat[:3])
 
 
 def pose_to_xyz_quat(T: np.ndarray) -> np.ndarray:
     """[tx, ty, tz, qx, qy, qz, qw] of a pose (scalar-last quaternion, qw >= 0)."""
+    from scipy.spatial.transform import Rotation
+
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     if q[3] < 0:
         q = -q

@@ -48,3 +48,23 @@ class StageTimer:
 
     def to_json(self) -> dict[str, float]:
         return {k: round(v, 6) for k, v in self.seconds.items()}
+
+
+class TimeProgress:
+    """A progress bar over a span of message time (seconds), for streams read in time order."""
+
+    def __init__(self, start: float, end: float, desc: str, enabled: bool = True) -> None:
+        self.start, self.done = float(start), 0.0
+        self.bar = tqdm(total=max(float(end) - float(start), 0.0), desc=desc, unit="s", leave=False, dynamic_ncols=True,
+                        disable=not enabled or not sys.stderr.isatty(),
+                        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s")
+
+    def update(self, t: float) -> None:
+        """Advance to message time `t` (seconds)."""
+        now = min(max(float(t) - self.start, self.done), self.bar.total)
+        if now > self.done:
+            self.bar.update(now - self.done)
+            self.done = now
+
+    def close(self) -> None:
+        self.bar.close()

@@ -41,7 +41,7 @@ def test_registry_detects_both_formats(originals):
 def test_registry_errors(originals, tmp_path):
     (tmp_path / "photos").mkdir()
     (tmp_path / "photos" / "a.txt").write_text("x")
-    with pytest.raises(TerraError, match=r"photos: not a recognised dataset \(expected one of: kitti-raw, .*semantickitti, terra-folder"):
+    with pytest.raises(TerraError, match=r"photos: not a recognised dataset \(expected one of: kitti-raw, rosbag, semantickitti, terra-folder"):
         open_dataset(tmp_path / "photos")
     with pytest.raises(TerraError, match="does not exist"):
         open_dataset(tmp_path / "missing")

@@ -23,12 +23,14 @@ def test_demo_writes_the_report_and_prints_its_figures(tiny_demo):
     printed = tiny_demo.stdout
     assert f"report: {tiny_demo.out / 'report' / 'report.md'}" in printed
     # Every retrieval / region figure printed is the one in summary.json.
-    rows = re.findall(r"retrieval (\S+)\s+\((\d+) objects, (\d+) queries\): IoU ([\d.]+), RAcc ([\d.]+), RPrec ([\d.]+), F1 ([\d.]+)", printed)
+    rows = re.findall(r"retrieval (\S+)\s+\((\d+) objects, (\d+) queries\): IoU ([\d.]+) \(matched ([\d.]+)\), RAcc ([\d.]+), "
+                      r"RPrec ([\d.]+), F1 ([\d.]+)", printed)
     assert {r[0] for r in rows} == set(summary["retrieval"]["methods"])
-    for name, n_obj, n_q, iou, racc, rprec, f1 in rows:
+    for name, n_obj, n_q, iou, matched, racc, rprec, f1 in rows:
         m = summary["retrieval"]["methods"][name]
         assert int(n_obj) == summary["retrieval"]["num_gt"] and int(n_q) == len(summary["retrieval"]["queries"])
-        assert (iou, racc, rprec, f1) == tuple(f"{m[k]:.3f}" for k in ("iou", "relaxed_accuracy", "relaxed_precision", "f1"))
+        keys = ("iou", "matched_iou", "relaxed_accuracy", "relaxed_precision", "f1")
+        assert (iou, matched, racc, rprec, f1) == tuple(f"{m[k]:.3f}" for k in keys)
     regions = re.findall(r"regions (\S+)\s*: P ([\d.]+), R ([\d.]+), F1 ([\d.]+)", printed)
     assert {r[0] for r in regions} == {"aib", "spectral", "agglomerative"}
     for name, p, r, f1 in regions:

@@ -154,3 +154,66 @@ def test_mapped_area_and_memory_summary(tmp_path):
     assert m["components_bytes"]["graph"] == (tmp_path / "b/graph/g.json").stat().st_size
     assert m["total_bytes"] == sum(m["components_bytes"].values())
     assert m["bytes_per_m2"] == pytest.approx(m["total_bytes"] / 10.0)
+
+
+# ---------------------------------------------------------------- issue 14: places, distances, timing
+
+
+def test_same_terrain_connectivity_counts_pairs_per_ground_truth_component():
+    """Two sidewalk strips (rows 0 and 4 of a 1 m raster, split by grass) and a sidewalk graph:
+    places 0, 1, 2 on the first strip with 0-1 linked and 2 cut off; places 3, 4 on the second,
+    linked only through a grass place (5), which a sidewalk-only path may not use; place 6 sits on
+    grass although the graph calls it sidewalk (not counted)."""
+    from terra.eval.metrics.places import observed_cells, same_terrain_connectivity
+    from tests.test_tasks_synthetic import make_graph
+
+    classes = np.full((5, 10), 1, dtype=np.int32)  # grass
+    classes[0, :] = 0
+    classes[4, :] = 0  # sidewalk strips along y = 0.5 and y = 4.5
+    raster = TerrainRaster(classes, np.zeros((5, 10), np.float32), np.zeros(2), 1.0, {0: "sidewalk", 1: "grass"})
+    position = [[0.5, 0.5], [3.5, 0.5], [8.5, 0.5], [1.5, 4.5], [7.5, 4.5], [4.5, 2.5], [2.5, 2.5]]
+    terrain = [0, 0, 0, 0, 0, 1, 0]
+    graph = make_graph(position, terrain, [[0, 1], [3, 5], [5, 4], [2, 6]])
+    result = same_terrain_connectivity(graph, raster)
+    side = result.per_terrain["sidewalk"]
+    assert (side.places, side.off_terrain, side.pairs, side.joined) == (6, 1, 3 + 1, 1)
+    assert result.per_terrain["grass"].pairs == 0 and result.joined_share == pytest.approx(1 / 4)
+    # Only the first strip's left half seen (points at x 0.5 and 3.5, within 1 m), all of the second:
+    # place 2 drops out, leaving the pairs 0-1 (joined) and 3-4 (not).
+    points = np.array([[0.5, 0.5, 0.0], [3.5, 0.5, 0.0]] + [[x + 0.5, 4.5, 0.0] for x in range(10)])
+    seen = observed_cells(raster, points, reach=1.0)
+    assert seen[0, :5].all() and not seen[0, 6:].any() and seen[4].all()
+    side = same_terrain_connectivity(graph, raster, seen).per_terrain["sidewalk"]
+    assert (side.pairs, side.joined) == (2, 1)
+
+
+def test_distance_to_path_and_iou_by_distance_band():
+    from terra.eval.metrics.retrieval import accuracy_matches, distance_to_path, iou_by_distance
+
+    path = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
+    d = distance_to_path(np.array([[5.0, 3.0], [12.0, 5.0], [-4.0, 3.0], [20.0, 20.0]]), path)
+    np.testing.assert_allclose(d, [3.0, 2.0, 5.0, np.hypot(10.0, 10.0)])
+    gt = [BoxSet([[5, 2, 0], [5, 30, 0]], [[1, 1, 1], [1, 1, 1]], [0, 0])]  # 2 m and 20.6 m from the path
+    pred = BoxSet([[5.5, 2, 0]], [[1, 1, 1]], [0])  # overlaps the near one by half: IoU 1/3
+    matched = accuracy_matches(pred, np.array([[0.9]]), gt)
+    np.testing.assert_allclose(matched[0], [1 / 3, np.nan])
+    bands = iou_by_distance(matched, gt, path, bands=(5.0, 10.0))
+    assert [(b["objects"], b["matched"]) for b in bands] == [(1, 1), (0, 0), (1, 0)]
+    assert bands[0]["matched_iou"] == pytest.approx(1 / 3) and bands[2]["matched_iou"] is None and bands[2]["to_m"] is None
+
+
+def test_matched_iou_is_the_mean_over_matches_only():
+    gt = [BoxSet([[0, 0, 0], [10, 0, 0]], [[1, 1, 1], [1, 1, 1]], [0, 0])]
+    pred = BoxSet([[0, 0, 0], [40, 0, 0]], [[1, 1, 1], [1, 1, 1]], [0, 0])  # one exact, one far off
+    scores = evaluate_retrieval(pred, np.array([[0.9], [0.8]]), np.array([0, 0]), gt)
+    assert scores.iou == pytest.approx(0.5) and scores.matched_iou == pytest.approx(1.0) and scores.matches == 1
+
+
+def test_table_iii_runtime_is_building_the_regions_plus_one_query():
+    from terra.eval.regions import MonitoringRun
+    from terra.eval.metrics.regions import SetScores
+
+    hierarchy = MonitoringRun([], [SetScores(1, 0, 0)] * 4, seconds=0.4, build_seconds=0.06)
+    assert hierarchy.timing_ms() == pytest.approx({"regions_ms": 60.0, "query_ms": 100.0, "runtime_ms": 160.0})
+    aib = MonitoringRun([], [SetScores(1, 0, 0)] * 4, seconds=4.0, cluster_seconds=3.6)  # clusters per query
+    assert aib.timing_ms() == pytest.approx({"regions_ms": 900.0, "query_ms": 100.0, "runtime_ms": 1000.0})

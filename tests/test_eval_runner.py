@@ -12,7 +12,7 @@ from PIL import Image
 from tests.fixtures_eval import run_cli
 
 FAST = "eval:\n  figures: false\n  segmentation:\n    max_images: 0\n"
-MEASURED = {"runtime_ms", "build_ms", "fps", "timing"}
+MEASURED = {"runtime_ms", "regions_ms", "query_ms", "build_ms", "fps", "timing"}
 
 
 def _summary(tiny_demo):

@@ -101,3 +101,25 @@ def test_a_graph_of_another_format_is_refused_on_load(tiny_graph_bundle, tmp_pat
     (path / MANIFEST).write_text(json.dumps(manifest))
     with pytest.raises(TerraError, match="scene graph format 0 is not supported"):
         load_scene_graph(Bundle(path))
+
+
+def test_build_cuts_reproduces_the_papers_fixed_levels(tiny_copy, capsys):
+    """--cuts 50,100,200,400: the levels are scipy's average linkage on the paper's weight cut at
+    those heights, computed independently here from the stored places."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial.distance import pdist
+
+    assert run(["build", str(tiny_copy), "--cuts", "50,100,200,400", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    graph = load_scene_graph(Bundle(tiny_copy))
+    unit = graph.places.embedding / np.linalg.norm(graph.places.embedding, axis=1, keepdims=True)
+    weight = pdist(graph.places.position) + 100.0 * (1.0 - (unit @ unit.T)[np.triu_indices(len(unit), 1)])
+    tree = linkage(weight, "average")
+    for k, cut in enumerate((50.0, 100.0, 200.0, 400.0), start=1):
+        expected = fcluster(tree, cut, "distance")
+        got = graph.place_region(k)
+        pairs = np.unique(np.column_stack([expected, got]), axis=0)
+        assert len(pairs) == len(np.unique(expected)) == len(np.unique(got))  # the same partition
+    assert summary["regions_per_level"] == [len(level) for level in graph.regions]
+    fails_cleanly(["build", str(tiny_copy), "--cuts", "50,x"], tiny_copy, capsys, "--cuts expects comma-separated numbers")
+    fails_cleanly(["build", str(tiny_copy), "--cuts", "100,50"], tiny_copy, capsys, "cuts must be a non-empty list of increasing")

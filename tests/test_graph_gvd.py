@@ -145,3 +145,45 @@ def test_split_path_follows_the_max_distance_and_max_deviation_rules():
     ell = np.vstack([np.stack([np.arange(40), np.zeros(40, int)], 1), np.stack([np.full(41, 40), np.arange(41)], 1)])
     cuts = split_path(ell, max_deviation=3.0, max_distance=1000.0)
     assert cuts == [40]
+
+
+def test_a_small_plaza_off_a_road_gets_a_place():
+    """A 10 m road (25 cells) with a 12 m x 5.6 m pad beside it, like a service yard off a street:
+    the GVD branches into the pad are pruned as corner spurs, so without the pocket rule no place
+    lies in it; with it (5 m = 12.5 cells) the pad holds a place joined to the road's places, and
+    only the branches reaching beyond 5 m from the kept GVD come back."""
+    from scipy.sparse.csgraph import connected_components
+    import scipy.sparse as sp
+
+    free = np.zeros((60, 130), bool)
+    free[30:55, 5:125] = True
+    free[16:30, 50:80] = True
+    in_pad = lambda cells: (cells[:, 0] < 30) & (cells[:, 1] >= 50) & (cells[:, 1] < 80)  # noqa: E731
+    plain = extract_places(free, **PARAMS)
+    assert not in_pad(plain.cells).any()
+    covered = extract_places(free, **PARAMS, cover_radius=12.5)
+    assert in_pad(covered.cells).any()
+    assert all(free[r, c] for r, c in covered.cells)
+    n = len(covered.cells)
+    graph = sp.coo_matrix((np.ones(len(covered.edges)), (covered.edges[:, 0], covered.edges[:, 1])), shape=(n, n))
+    assert connected_components(graph, directed=False)[0] == 1
+    # Sparse elsewhere: a few pocket and corner places, not a grid of them.
+    assert n <= len(plain.cells) + 6
+
+
+def test_pieces_of_one_patch_are_joined_through_it():
+    """A corridor with a one-cell neck (narrower than the minimum clearance): its GVD breaks in two
+    pieces, which are joined along the shortest path through the neck."""
+    free = corridor(width=11, length=80)
+    free[5:16, 45] = False
+    free[10, 45] = True  # the neck
+    places = extract_places(free, **PARAMS)
+    n = len(places.cells)
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    graph = sp.coo_matrix((np.ones(len(places.edges)), (places.edges[:, 0], places.edges[:, 1])), shape=(n, n))
+    assert connected_components(graph, directed=False)[0] == 1
+    # The join runs through the neck: its length is at least the straight distance between its ends.
+    gap = np.linalg.norm(np.diff(places.cells[places.edges].astype(float), axis=1)[:, 0], axis=1)
+    assert np.all(places.length >= gap - 1e-9)

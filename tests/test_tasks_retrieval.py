@@ -44,16 +44,19 @@ def test_ms_retrieval_finds_each_object_with_its_box_score_and_place(scene, text
     queries = ["find the dumpster", "a car"]
     found = find_objects(msm, graph, queries, method=method, alpha=0.4, embedder=spy)
     assert spy.calls == [queries]  # one embedding batch for all queries
-    got = {(o.label, tuple(np.round(o.center, 6))) for o in found}
+    # Boxes stand on the ground under their place (z = 0) and are padded by box_padding (0.2 m) on
+    # the footprint's sides and 0.1 m above the top: centre z 0.85, sizes + (0.2, 0.2, 0.1).
+    lift = np.array([0.0, 0.0, 0.05])
+    got = {(o.label, tuple(np.round(o.center - lift, 6))) for o in found}
     expected = {("find the dumpster", OBJECTS["dumpster_a"][0]), ("find the dumpster", OBJECTS["dumpster_b"][0]),
                 ("a car", OBJECTS["car"][0])}
     assert got == expected
     vectors = np.vstack([msm.terrain_embeddings, text_embedder.embed_text(queries)])
     sim = dense_similarity(msm, vectors, method[3:])
     for o in found:
-        name = next(n for n, (c, *_rest) in OBJECTS.items() if np.allclose(o.center, c))
+        name = next(n for n, (c, *_rest) in OBJECTS.items() if np.allclose(o.center - lift, c))
         center, size, yaw, _ = OBJECTS[name]
-        np.testing.assert_allclose(o.size, size, atol=1e-5)  # float32 points
+        np.testing.assert_allclose(o.size, np.asarray(size) + [0.2, 0.2, 0.1], atol=1e-5)  # float32 points
         assert o.yaw == pytest.approx(yaw, abs=1e-5)
         np.testing.assert_array_equal(o.point_indices, truth[name])
         assert o.point_count == len(truth[name])
@@ -74,9 +77,9 @@ def test_3dsg_searches_only_near_places_of_matching_regions(scene, text_embedder
     found = find_objects(msm, graph, ["find the dumpster"], method="3dsg", alpha=0.4, embedder=text_embedder)
     # Only the west region ("dumpster") is above alpha; its places reach x <= 15 + 10 m, so the
     # east dumpster at x = 30 is not searched.
-    assert [tuple(np.round(o.center, 6)) for o in found] == [OBJECTS["dumpster_a"][0]]
+    assert [tuple(np.round(o.center[:2], 6)) for o in found] == [OBJECTS["dumpster_a"][0][:2]]
     found = find_objects(msm, graph, ["a car"], method="3dsg", alpha=0.4, embedder=text_embedder)
-    assert [tuple(np.round(o.center, 6)) for o in found] == [OBJECTS["car"][0]]
+    assert [tuple(np.round(o.center[:2], 6)) for o in found] == [OBJECTS["car"][0][:2]]
 
 
 def test_point_matches_rules():

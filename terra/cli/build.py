@@ -16,6 +16,7 @@ def build_command(
     bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map`."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `build` section is used."),
     regions: Optional[str] = typer.Option(None, "--regions", help="Region method: agglomerative or spectral (overrides the config)."),
+    cuts: Optional[str] = typer.Option(None, "--cuts", help="Agglomerative cut heights, e.g. 50,100,200,400 (the paper's); default: levels adapted to the map."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary (counts, stats, timings) as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
@@ -24,15 +25,24 @@ def build_command(
     atomically: on any error it is left as it was.
 
     Example: terra build campus.terra --regions spectral --config terra.yaml
+    (the paper's fixed agglomerative levels: terra build campus.terra --cuts 50,100,200,400)
     """
     from terra.config import load_section
     from terra.graph.pipeline import run_build
 
-    overrides = {"regions": {"method": regions}} if regions is not None else None
-    if regions is not None and regions not in ("agglomerative", "spectral"):
-        from terra.errors import TerraError
+    from terra.errors import TerraError
 
-        raise TerraError(f"--regions must be 'agglomerative' or 'spectral', got {regions!r}")
+    overrides: dict = {"regions": {}}
+    if regions is not None:
+        if regions not in ("agglomerative", "spectral"):
+            raise TerraError(f"--regions must be 'agglomerative' or 'spectral', got {regions!r}")
+        overrides["regions"]["method"] = regions
+    if cuts is not None:
+        try:
+            overrides["regions"]["cuts"] = [float(v) for v in cuts.split(",")]
+        except ValueError:
+            raise TerraError(f"--cuts expects comma-separated numbers such as 50,100,200,400, got {cuts!r}") from None
+    overrides = overrides if overrides["regions"] else None
     section = load_section(config, "build", overrides)
     result = run_build(bundle, section, show_progress=not quiet and not as_json)
     graph = result.graph

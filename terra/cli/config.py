@@ -5,7 +5,6 @@ from __future__ import annotations
 import typer
 
 from terra.cli import app
-from terra.config import dump_section, stage_names
 
 config_app = typer.Typer(help="Inspect configuration.\n\nExample: terra config dump mapping > mapping.yaml", no_args_is_help=True)
 app.add_typer(config_app, name="config")
@@ -17,6 +16,8 @@ def dump(stage: str = typer.Argument(..., help="Stage: sim, mapping, build, task
 
     Example: terra config dump build > build.yaml
     """
+    from terra.config import dump_section, stage_names
+
     if stage not in stage_names():
         from terra.errors import TerraError
 

@@ -19,6 +19,9 @@ def demo_command(
     seed: int = typer.Option(0, "--seed", "-s", min=0, help="Seed of the test scene; the validation scene uses seed + 1."),
     validation_preset: Optional[str] = typer.Option(None, "--validation-preset", help="Preset of the validation scene, where alpha and k are tuned (default: --preset)."),
     validation_spacing: float = typer.Option(2.0, "--validation-spacing", help="The validation scene's frames are this many times further apart than the test scene's (cheaper; 1 = same)."),
+    format: str = typer.Option("terra-folder", "--format",
+                               help="How the scenes are written and read back: terra-folder, "
+                                    "rosbag2 (a ROS 2 mcap bag) or rosbag1."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."),
     as_json: bool = typer.Option(False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, step log or timing table."),
@@ -32,11 +35,14 @@ def demo_command(
     Every step is cached under OUT with the configuration it was made with: a second run, or a
     run after Ctrl-C, reuses the finished steps and redoes only what changed.
 
+    With --format rosbag2 the simulated drives are written as ROS 2 bags and mapped from them, as a
+    robot's own log would be.
+
     Example: terra demo --out terra-demo --preset small
     """
     from terra.eval.demo import DemoConfig, DemoRun, format_demo
 
-    cfg = DemoConfig.load(config, preset, seed, validation_preset, validation_spacing)
+    cfg = DemoConfig.load(config, preset, seed, validation_preset, validation_spacing, format)
     run = DemoRun(out, cfg, show_progress=not quiet and not as_json,
                   log=None if quiet or as_json else (lambda line: typer.echo(line, err=True)))
     demo = run.run()

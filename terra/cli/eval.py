@@ -12,7 +12,6 @@ import typer
 
 from terra.cli import app
 from terra.errors import TerraError
-from terra.eval.report import headline
 
 
 @app.command("eval")
@@ -125,6 +124,8 @@ def _evaluate(
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return
     typer.echo(f"evaluation of {bundle} against {gt} (parameters: {summary['parameters']['source']}):")
+    from terra.eval.report import headline
+
     for line in headline(summary):
         typer.echo(line)
     typer.echo(f"report: {Path(out) / 'report.md'}")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import List, Optional
 
@@ -20,17 +19,20 @@ def find_command(
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (object_tasks, alpha, prediction_method)."),
     save: bool = typer.Option(False, "--save", help="Add the objects to the bundle's scene graph (same-label objects are replaced)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the objects as JSON."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /find answers)."),
 ) -> None:
     """Find objects matching text QUERIES: oriented boxes with scores and their nearest place.
 
     Example: terra find campus.terra "find the dumpster" "get bike from the bicycle rack" --method 3dsg --json
     """
-    from terra.tasks.commands import find_report, format_find, load_tasks_config
+    from terra.cli.task_options import find_request, load_tasks_config, open_bundle
 
-    if method is not None and method not in ("ms-avg", "ms-max", "3dsg"):
-        from terra.errors import TerraError
+    request = find_request(queries or [], method, alpha, save, tasks)
+    cfg = load_tasks_config(config)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch(list(request.queries))  # the text model runs while the query modules import
+    from terra.cli.render import render_find, render_json
+    from terra.tasks.commands import find
 
-        raise TerraError(f"--method {method!r}: expected one of ms-avg, ms-max, 3dsg")
-    report = find_report(bundle, queries or [], method=method, alpha=alpha, save=save, tasks=tasks, config=load_tasks_config(config))
-    typer.echo(json.dumps(report, indent=1) if as_json else format_find(report))
+    result = find(loaded, request, cfg)
+    typer.echo(render_json(result) if as_json else render_find(result))

@@ -13,11 +13,15 @@ from terra.errors import TerraError
 
 @app.command("map")
 def map_command(
-    dataset: Optional[Path] = typer.Argument(None, help="Dataset folder (terra-folder, SemanticKITTI sequence, KITTI raw drive)."),
+    dataset: Optional[Path] = typer.Argument(
+        None, help="Dataset: a folder (terra-folder, SemanticKITTI, KITTI raw drive) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
     out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write (replaced atomically)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `mapping` section is used."),
-    format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti or kitti-raw."),
+    config: Optional[Path] = typer.Option(
+        None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
+    format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."),
     camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
+    poses: str = typer.Option("auto", "--poses", help="auto: the source's poses (LiDAR odometry when it has none); "
+                                                    "odometry: KISS-ICP on the scans."),
     sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
     noise: Optional[str] = typer.Option(None, "--noise", help="Perception noise preset (none, realistic); overrides the config."),
     perception_only: bool = typer.Option(
@@ -48,20 +52,27 @@ def map_command(
     arguments. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
     --cache), so later runs never repeat inference; --perception-only just fills that cache.
 
+    With a bag, topics and frames need no configuration when the bag makes them unambiguous
+    (`terra inspect BAG` prints the `dataset` section it would use). Without poses in the source,
+    or with --poses odometry, KISS-ICP computes them and the trajectory is written beside the
+    bundle (<name>_poses_kitti.txt, <name>_poses_tum.txt).
+
     With --workers or --scheduler, Dask workers perceive the frames (each reads them from the same
     path, or renders the same --sim) into the cache, and this process fuses them in order: the same
     bundle, byte for byte. The cache folder must be shared by this process and the workers.
 
     Example: terra map campus-data --out campus.terra --config terra.yaml
 
+    Example (a ROS bag): terra map drive.bag --out drive.terra
+
     Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
 
     Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
     """
-    from terra.config import load_section
+    from terra.config import load_dataset_options, load_section
     from terra.distributed.cluster import cluster_config
+    from terra.odometry.kiss import OdometryDataset, with_poses
 
-    spec = _source_spec(dataset, sim, format, camera_config)
     cluster = cluster_config(workers, scheduler, in_flight)
     if in_flight is not None and not cluster.enabled:
         raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
@@ -71,25 +82,32 @@ def map_command(
     if cache is not None:
         overrides["perception"]["cache"] = {"folder": str(cache)}
     mapping = load_section(config, "mapping", overrides)
-    source = spec.open()
+    odometry = load_section(config, "odometry")
+    spec = _source_spec(dataset, sim, format, camera_config, load_dataset_options(config))
+    source = with_poses(spec.open(), poses, odometry, show_progress=not quiet)
+    if isinstance(source, OdometryDataset):
+        spec = spec.with_odometry()  # the workers perceive images, which need no poses
     if perception_only:
         _perceive(spec, source, mapping, out, cluster, quiet)
     else:
         _map(spec, source, mapping, out, cluster, quiet)
 
 
-def _source_spec(dataset: Optional[Path], sim: Optional[str], format: str, camera_config: Optional[Path]):
+def _source_spec(
+    dataset: Optional[Path], sim: Optional[str], format: str, camera_config: Optional[Path], options: dict
+):
     from terra.distributed.source import SourceSpec
 
-    options = None
     if camera_config is not None:
         if sim is not None or format not in ("auto", "terra-folder"):
             raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
-        format, options = "terra-folder", {"camera_config": camera_config}
+        format, options = "terra-folder", {**options, "camera_config": camera_config}
     return SourceSpec.from_cli(dataset, sim, format, options)
 
 
 def _map(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
+    from terra.odometry.kiss import OdometryDataset
+
     if cluster.enabled:
         from terra.distributed.phase1 import map_on_cluster
 
@@ -98,6 +116,11 @@ def _map(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
         from terra.mapping.pipeline import run_mapping
 
         run, on_cluster = run_mapping(source, mapping, out, show_progress=not quiet), None
+    trajectory = None
+    if isinstance(source, OdometryDataset):
+        from terra.odometry.trajectory import write_trajectory
+
+        trajectory = write_trajectory(out, source.run.stamps, source.run.poses)
     if quiet:
         return
     info = run.bundle.manifest["components"]["map"]
@@ -113,7 +136,12 @@ def _map(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
         cache = run.cache
         where = "removed: the config keeps no cache" if cache.get("removed") else cache["folder"]
         typer.echo(f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({where})")
-    _faults(run.stats, run.notes)
+    if getattr(source, "pose_source", None):
+        typer.echo(f"  poses: {source.pose_source}")
+    # The source's own faults too: scans without pose or image, undecodable images.
+    _faults({**run.stats, **getattr(source, "skipped", {})}, {**run.notes, **getattr(source, "skipped_notes", {})})
+    if trajectory is not None:
+        typer.echo(_odometry_line(source.run, trajectory))
     typer.echo(run.timer.table())
 
 
@@ -151,3 +179,13 @@ def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
     for name, count in faults.items():
         note = notes.get(name)
         typer.echo(f"  {name}: {count}" + (f" (first: {note})" if note else ""))
+
+
+def _odometry_line(run, files) -> str:
+    line = (f"odometry: KISS-ICP over {len(run.stamps)} scans ({run.scans_per_second:.1f} scans/s, "
+            f"{run.deskewed} deskewed), trajectory -> {files[0]}, {files[1].name}")
+    if run.errors:
+        e = run.errors
+        line += (f"\n  vs the source's poses: ATE {e['ate_rmse_m']:.3f} m RMSE, final error {e['final_error_m']:.3f} m "
+                 f"= {e['drift_percent']:.2f} % of {e['distance_m']:.1f} m travelled")
+    return line

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import List, Optional
 
@@ -20,17 +19,20 @@ def monitor_command(
     alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."),
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (region_tasks, k, alpha, prediction_method)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the chosen regions and places (with positions) as JSON."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /monitor answers)."),
 ) -> None:
     """Choose the regions and places to monitor for each task in QUERIES.
 
     Example: terra monitor campus.terra "large parking lot surrounded by buildings" --k 2 --json
     """
-    from terra.tasks.commands import format_monitor, load_tasks_config, monitor_report
+    from terra.cli.task_options import load_tasks_config, monitor_request, open_bundle
 
-    if method is not None and method not in ("mix", "max", "thresh", "aib"):
-        from terra.errors import TerraError
+    request = monitor_request(queries or [], method, k, alpha, tasks)
+    cfg = load_tasks_config(config)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch(list(request.queries))  # the text model runs while the query modules import
+    from terra.cli.render import render_json, render_monitor
+    from terra.tasks.commands import monitor
 
-        raise TerraError(f"--method {method!r}: expected one of mix, max, thresh, aib")
-    report = monitor_report(bundle, queries or [], method=method, k=k, alpha=alpha, tasks=tasks, config=load_tasks_config(config))
-    typer.echo(json.dumps(report, indent=1) if as_json else format_monitor(report))
+    result = monitor(loaded, request, cfg)
+    typer.echo(render_json(result) if as_json else render_monitor(result))

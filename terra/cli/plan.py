@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import List, Optional, Tuple
 
@@ -26,7 +25,7 @@ def plan_command(
     alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold for the queries."),
     tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (terrain_preferences, queries: start/destination)."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
-    as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON."),
+    as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON (as POST /plan)."),
 ) -> None:
     """Plan a path from a start to the place of the object a task names, honouring terrain
     preferences. Edge cost = length x (1 + mean penalty of its two places' terrains); forbidden
@@ -35,13 +34,15 @@ def plan_command(
 
     Example: terra plan campus.terra --to "get bike from the bicycle rack" --prefer sidewalk --forbid water --json
     """
-    from terra.tasks.commands import format_plan, load_tasks_config, plan_report
+    from terra.cli.task_options import load_tasks_config, open_bundle, plan_request
 
-    if method is not None and method not in ("ms-avg", "ms-max", "3dsg"):
-        from terra.errors import TerraError
+    request = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [],
+                           method, alpha, tasks)
+    cfg = load_tasks_config(config)
+    loaded = open_bundle(bundle, cfg)
+    loaded.prefetch([q for q in (request.to, request.from_query) if q])  # embeds while the query modules import
+    from terra.cli.render import render_json, render_plan
+    from terra.tasks.commands import plan
 
-        raise TerraError(f"--method {method!r}: expected one of ms-avg, ms-max, 3dsg")
-    report = plan_report(bundle, to=to, to_node=to_node, from_query=from_query, from_node=from_node, from_xy=from_xy,
-                         prefer=prefer or [], penalty=penalty or [], forbid=forbid or [], method=method, alpha=alpha,
-                         tasks=tasks, config=load_tasks_config(config))
-    typer.echo(json.dumps(report, indent=1) if as_json else format_plan(report))
+    result = plan(loaded, request, cfg)
+    typer.echo(render_json(result) if as_json else render_plan(result))

@@ -16,9 +16,13 @@ def sim(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist or be empty, unless --overwrite)."),
     preset: str = typer.Option("small", "--preset", "-p", help="World size: tiny, small, campus or large."),
     seed: int = typer.Option(0, "--seed", "-s", min=0, help="Random seed; same preset and seed give the same bytes."),
-    format: str = typer.Option("terra-folder", "--format", "-f", help="terra-folder (the reference layout), semantickitti or kitti-raw (a raw drive with OXTS; cameras render undistorted)."),
+    format: str = typer.Option("terra-folder", "--format", "-f",
+                               help="terra-folder (the reference layout), semantickitti, kitti-raw (a raw drive with "
+                                    "OXTS; cameras render undistorted), rosbag1 (a ROS 1 .bag) or rosbag2 (a ROS 2 mcap bag)."),
     config: Path | None = typer.Option(None, "--config", "-c", help="YAML file with a `sim:` section (see `terra config dump sim`)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output folder."),
+    bag_images: str = typer.Option(
+        "jpeg", "--bag-images", help="Images in a bag: jpeg (sensor_msgs/CompressedImage) or raw (Image rgb8)."),
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or timing table."),
 ) -> None:
@@ -60,7 +64,8 @@ def sim(
 
     start = time.perf_counter()
     try:
-        folder = write_dataset(dataset, out, format=format, overwrite=overwrite, progress=not quiet, extra=picture)
+        folder = write_dataset(dataset, out, format=format, overwrite=overwrite, progress=not quiet, extra=picture,
+                               bag_images=bag_images)
     except OSError as exc:  # disk full, permissions: the partial folder is already gone
         raise TerraError(f"{out}: could not write the dataset ({exc.strerror or exc}); nothing was written") from None
     elapsed = time.perf_counter() - start

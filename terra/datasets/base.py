@@ -98,6 +98,8 @@ class Frame:
     points: (N, 3) float32, metres, LiDAR frame. intensity: (N,) float32 or None.
     T_map_lidar: 4x4 pose of the LiDAR in the map frame. point_labels / point_instances: (N,) int32
     per-point class and instance ids when the source has them (simulator, SemanticKITTI).
+    point_times: (N,) float64 seconds from `stamp` at which each point was measured (a spinning
+    LiDAR's sweep), when the source records it (bags); odometry deskews the scan with it.
     """
 
     index: int
@@ -108,6 +110,7 @@ class Frame:
     intensity: np.ndarray | None = None
     point_labels: np.ndarray | None = None
     point_instances: np.ndarray | None = None
+    point_times: np.ndarray | None = None
 
 
 @runtime_checkable

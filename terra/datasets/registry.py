@@ -43,6 +43,7 @@ LOADERS: Registry[Loader] = Registry(
         "terra-folder": "terra.datasets.terra_folder:LOADER",
         "semantickitti": "terra.datasets.semantickitti:LOADER",
         "kitti-raw": "terra.datasets.kitti_raw:LOADER",
+        "rosbag": "terra.datasets.rosbag:LOADER",
     },
 )
 

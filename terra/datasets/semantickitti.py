@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_json, read_label_png,
                                       read_rgb, write_label_png, write_rgb)
 from terra.datasets.kitti_common import (STANDARD_LABELS, STANDARD_TERRAIN, decompose_projection, read_calib_file,
@@ -285,6 +285,15 @@ class SemanticKittiDataset:
         from terra.datasets.ground_truth import load_ground_truth
 
         return load_ground_truth(self.root)
+
+    def info(self) -> SourceInfo:
+        """What `terra inspect` reports: scans, cameras (exact or from P2/P3), label files present."""
+        labels = len(list((self.seq / "labels").glob("*.label"))) if (self.seq / "labels").is_dir() else 0
+        span = (float(self.stamps[0]), float(self.stamps[-1]))
+        return SourceInfo("semantickitti", str(self.seq), len(self.scans), span, list(self.cameras),
+                          "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)", {}, {},
+                          {"sequence": self.name, "label_files": labels, "camera_folders": list(self._camera_folders),
+                           "calibrations_from": CAMERAS if (self.seq / CAMERAS).is_file() else "calib.txt"})
 
 
 def _read_table(path: Path, columns: int, rows: int, what: str) -> np.ndarray:

@@ -40,7 +40,7 @@ import yaml
 from pydantic import Field
 
 from terra.config import Section
-from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
                                       read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
@@ -318,6 +318,15 @@ class TerraFolderDataset:
         from terra.datasets.ground_truth import load_ground_truth
 
         return load_ground_truth(self.root)
+
+    def info(self) -> SourceInfo:
+        """What `terra inspect` reports: frames, cameras as read, and the scans left out and why."""
+        return SourceInfo("terra-folder", str(self.root), len(self._frames), (self._frames[0][0], self._frames[-1][0]),
+                          list(self.calibrations), f"{POSES}/ (one T_map_lidar file per scan)", dict(self.skipped),
+                          dict(self.skipped_notes),
+                          {"calibrations_from": self.camera_source or "none (LiDAR only)",
+                           "camera_numbers": list(self.camera_numbers), "max_gap_s": self.max_gap,
+                           "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1])})
 
 
 def _first_camera(root: Path, meta: dict) -> int:

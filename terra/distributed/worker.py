@@ -128,7 +128,7 @@ def _slot(name: str, key: str, build) -> Any:
 
 def _open_source(job: PerceptionJob) -> Dataset:
     try:
-        return job.source.open()
+        return job.source.open_for_perception()
     except TerraError as exc:
         where = job.source.describe()
         raise TerraError(f"{worker_name()} cannot open the source {where} ({exc}); {SAME_SOURCE}") from None

@@ -59,6 +59,8 @@ class NavigationEval(Section):
     task: str = "Get bike from the bicycle rack"
     prefer: list[str] = Field(default_factory=lambda: ["sidewalk"])
     step: float = Field(0.1, gt=0.0, description="metres; path pieces read against the ground-truth terrain")
+    route_pairs: int = Field(200, ge=0, description="place pairs joined by a route on the first preferred terrain, planned both ways (drawn with a fixed seed)")
+    min_share: float = Field(0.8, ge=0.0, le=1.0, description="a preferred plan should keep at least this share of its length on the preferred terrain")
 
 
 class TuneEval(Section):
@@ -67,7 +69,7 @@ class TuneEval(Section):
     alpha_min: float = 0.15
     alpha_max: float = 0.75
     alpha_steps: int = Field(13, ge=1)
-    k_max: int = Field(6, ge=1)
+    k_max: int = Field(8, ge=1)
 
 
 class EvalConfig(Section):

@@ -42,6 +42,7 @@ from terra.eval.metrics.regions import places_in_polygon, set_scores
 from terra.eval.tuning import TUNED, TunedParameters
 from terra.graph.config import BuildConfig
 from terra.graph.scene_graph import SceneGraph
+from terra.loaded import LoadedBundle
 from terra.mapping.config import MappingConfig
 from terra.progress import StageTimer
 from terra.sim.config import SimConfig
@@ -66,6 +67,7 @@ class DemoConfig:
     seed: int = 0
     validation_preset: str | None = None  # None: the test scene's preset
     validation_spacing: float = 2.0
+    format: str = "terra-folder"  # how the scenes are written and read back: terra-folder, rosbag2 (mcap), rosbag1
     sim: SimConfig = field(default_factory=SimConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     build: BuildConfig = field(default_factory=BuildConfig)
@@ -74,7 +76,7 @@ class DemoConfig:
 
     @classmethod
     def load(cls, path: Path | None, preset: str, seed: int, validation_preset: str | None = None,
-             validation_spacing: float = 2.0) -> "DemoConfig":
+             validation_spacing: float = 2.0, format: str = "terra-folder") -> "DemoConfig":
         """Sections from a YAML file (defaults without one); TerraError for a bad argument."""
         from terra.config import load_section
         from terra.sim.presets import get_preset
@@ -83,13 +85,17 @@ class DemoConfig:
         get_preset(validation_preset or preset)
         if seed < 0:
             raise TerraError(f"--seed must be a non-negative integer, got {seed}")
+        from terra.sim.writer import FORMATS
+
+        if format not in FORMATS:
+            raise TerraError(f"--format {format!r}: expected one of: {', '.join(FORMATS)}")
         if not validation_spacing >= 1.0:
             raise TerraError(f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}")
         sections = {s: load_section(path, s) for s in ("sim", "build", "tasks", "eval")}
         # The demo shows the method under realistic perception noise (bleeding masks, missed
         # instances, look-alike confusions) unless the user's file sets the noise itself.
         sections["mapping"] = load_section(path, "mapping", None if _sets_noise(path) else {"perception": {"noise": "realistic"}})
-        return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), **sections)
+        return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), format, **sections)
 
     @property
     def validation_seed(self) -> int:
@@ -183,9 +189,10 @@ class DemoRun:
         root = self.out / folder
         dataset, bundle = root / "dataset", root / "map.terra"
         root.mkdir(parents=True, exist_ok=True)
-        sim_key = {"terra": __version__, "preset": preset, "seed": seed, "sim": _dump(sim)}
+        sim_key = {"terra": __version__, "preset": preset, "seed": seed, "sim": _dump(sim), "format": cfg.format}
         self.step(f"{label}: simulate", sim_key, (dataset,),
-                  lambda: write_dataset(simulate(preset, seed, sim), dataset, overwrite=True, progress=self.show_progress))
+                  lambda: write_dataset(simulate(preset, seed, sim), dataset, format=cfg.format, overwrite=True,
+                                        progress=self.show_progress))
         map_key = {"dataset": sim_key, "mapping": _dump(cfg.mapping)}
         self.step(f"{label}: map", map_key, (bundle,),
                   lambda: build_map(open_dataset(dataset), cfg.mapping, bundle, progress=self.show_progress))
@@ -227,11 +234,14 @@ class DemoRun:
 
     def _tasks_and_eval(self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
         from terra.eval.runner import evaluate
+        from terra.loaded import LoadedBundle
 
+        # One load of the bundle for the tasks and the evaluation.
+        loaded = LoadedBundle(scene.bundle, embedder_name=self.config.tasks.embedder)
         with self.timer.stage("test: tasks"):
-            tasks = run_tasks(scene.bundle, load_ground_truth(scene.dataset), tuned, self.config.tasks)
+            tasks = run_tasks(loaded, load_ground_truth(scene.dataset), tuned, self.config.tasks)
         evaluate(scene.bundle, scene.dataset, report, self.config.eval, tuned, self.config.tasks,
-                 show_progress=self.show_progress, timer=self.timer)
+                 show_progress=self.show_progress, timer=self.timer, loaded=loaded)
         cfg = self.config
         demo = {
             "test_scene": {"preset": cfg.preset, "seed": cfg.seed, "frames": _frames(scene.dataset), "dataset": _rel(scene.dataset, self.out),
@@ -277,16 +287,20 @@ def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | Non
     return {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center], "distance_m": round(float(d[i]), 4)}
 
 
-def _find(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig, embedder) -> list[dict]:
-    from terra.tasks.commands import find_report
+def _find(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> list[dict]:
+    from terra.tasks.commands import find
+    from terra.tasks.requests import FindRequest
 
     method = config.retrieval.method
-    report = find_report(bundle, FIND_QUERIES, method=method, alpha=tuned.retrieval_alpha(method), config=config, embedder=embedder)
+    request = FindRequest(queries=list(FIND_QUERIES), method=method, alpha=tuned.retrieval_alpha(method))
+    result = find(loaded, request, config)
     out = []
-    for q, query in enumerate(report["queries"]):
-        mine = [o for o in report["objects"] if o["query"] == q]
-        best = max(mine, key=lambda o: o["score"], default=None)
-        entry: dict[str, Any] = {"query": query, "method": method, "alpha": report["alpha"], "objects": len(mine), "best": best}
+    for q, query in enumerate(result.queries):
+        mine = [(i, o) for i, o in enumerate(result.objects) if o.query == q]
+        rows = [dict(id=i, **o.to_json()) for i, o in mine]
+        best = max(rows, key=lambda o: o["score"], default=None)
+        entry: dict[str, Any] = {"query": query, "method": method, "alpha": result.alpha, "objects": len(mine),
+                                 "best": best}
         if best is not None:
             entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt))
         out.append(entry)
@@ -305,9 +319,10 @@ def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config:
             config = aib_config(config, embedder.name, alpha)
     else:
         alpha, k = tuned.monitoring_params(graph.region_method)
-        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method))
+        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method), tuned.monitoring_min_level(graph.region_method))
         graph = up_to_level(graph, params.levels)
-    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config)
+    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config,
+                            min_level=params.min_level)
     places = np.asarray(result.places, dtype=np.int64)
     entry: dict[str, Any] = {"query": MONITOR_QUERY, "method": method, "parameters": params.to_json(),
                              "regions": len(result.regions), "places": int(len(places))}
@@ -321,29 +336,30 @@ def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config:
     return entry
 
 
-def _plan(bundle: Path, tuned: TunedParameters, config: TasksConfig, embedder) -> dict:
-    from terra.tasks.commands import plan_report
+def _plan(loaded: LoadedBundle, tuned: TunedParameters, config: TasksConfig) -> dict:
+    from terra.tasks.commands import plan
+    from terra.tasks.requests import PlanRequest
 
     method = config.planning.find_method
     entry: dict[str, Any] = {"to": PLAN_TARGET, "prefer": list(PLAN_PREFER), "method": method}
     try:
-        plan = plan_report(bundle, to=PLAN_TARGET, prefer=PLAN_PREFER, method=method, alpha=tuned.retrieval_alpha(method),
-                           config=config, embedder=embedder)
+        result = plan(loaded, PlanRequest(to=PLAN_TARGET, prefer=list(PLAN_PREFER), method=method,
+                                          alpha=tuned.retrieval_alpha(method)), config)
     except TerraError as exc:  # no object or no path: the demo reports it and goes on
         return {**entry, "error": str(exc)}
-    entry.update({"length_m": plan["length_m"], "places": len(plan["places"]),
-                  "length_by_terrain": plan["length_by_terrain"], "goal": plan["goal"]["object"]["center"]})
+    path = result.plan.to_json()
+    entry.update({"length_m": path["length_m"], "places": len(path["places"]),
+                  "length_by_terrain": path["length_by_terrain"], "goal": result.goal.object.to_json()["center"],
+                  "skipped": [f"{s.object.label!r} at ({s.object.center[0]:.1f}, {s.object.center[1]:.1f}): {s.reason}"
+                              for s in result.goal.skipped]})
     return entry
 
 
-def run_tasks(bundle: Path, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> dict:
-    """The demo's tasks on `bundle` with the tuned parameters (as `terra find/monitor/plan` run them)."""
-    from terra.tasks.context import open_for_tasks
-
-    ctx = open_for_tasks(bundle, config, need_map=False, need_graph=True)
-    graph, embedder = ctx.require_graph("terra demo"), ctx.embedder
-    return {"find": _find(bundle, gt, tuned, config, embedder), "monitor": _monitor(graph, gt, tuned, config, embedder),
-            "plan": _plan(bundle, tuned, config, embedder)}
+def run_tasks(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> dict:
+    """The demo's tasks on the loaded bundle with the tuned parameters (as `terra find/monitor/plan` run them)."""
+    graph = loaded.require_graph("terra demo")
+    return {"find": _find(loaded, gt, tuned, config), "monitor": _monitor(graph, gt, tuned, config, loaded.embedder),
+            "plan": _plan(loaded, tuned, config)}
 
 
 # ---------------------------------------------------------------------- the printed summary
@@ -377,6 +393,7 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     else:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {p['places']} places "
                      f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
+        lines += [f"    skipped {s}" for s in p.get("skipped", [])]
     ev = demo["evaluation"]
     lines.append(f"  evaluation ({ev['parameters']['source']}):")
     lines += ["  " + h for h in headline(ev)]

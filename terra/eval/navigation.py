@@ -62,3 +62,87 @@ def plan_with(graph: SceneGraph, start: int, goal: int, name: str, raster: Terra
     plan = plan_path(graph, start, goal, prefer=list(prefer), default_penalty=default_penalty)
     return PlanResult(name, np.asarray(plan.places), np.asarray(plan.waypoints), float(plan.cost),
                       dict(plan.length_by_terrain), path_terrain_lengths(plan.waypoints, raster, step))
+
+
+# ---------------------------------------------------------------- preferring a terrain where it runs
+
+
+def robot_path(msm: MetricSemanticMap) -> np.ndarray:
+    """(n, 2) xy (metres, map frame) of the camera poses in capture order: the robot's path."""
+    if len(msm.images) == 0:
+        return np.zeros((0, 2))
+    return np.asarray(msm.images.T_map_cam, dtype=np.float64)[:, :2, 3]
+
+
+def terrain_route_pairs(graph: SceneGraph, raster: TerrainRaster, terrain: str, seen: np.ndarray | None = None,
+                        max_pairs: int = 200, seed: int = 0) -> np.ndarray:
+    """(k, 2) place pairs (i < j) between which a route on `terrain` exists in the world: both
+    places are of that terrain in the graph and on one 8-connected component of its cells in the
+    ground-truth raster (over the `seen` cells only, when given). All pairs, or `max_pairs` of
+    them drawn with a fixed seed."""
+    from scipy import ndimage
+
+    if terrain not in graph.terrain_classes or terrain not in raster.legend.values():
+        return np.zeros((0, 2), dtype=np.int64)
+    cid = next(k for k, v in raster.legend.items() if v == terrain)
+    cells = raster.classes == cid
+    labels, _ = ndimage.label(cells if seen is None else cells & seen, structure=np.ones((3, 3), bool))
+    mine = np.flatnonzero(graph.places.terrain == graph.terrain_classes.index(terrain))
+    rows, cols, inside = raster.cell_of(graph.places.position[mine, :2])
+    component = np.where(inside, labels[rows, cols], 0)
+    i, j = np.triu_indices(len(mine), 1)
+    same = (component[i] == component[j]) & (component[i] > 0)
+    pairs = np.column_stack([mine[i[same]], mine[j[same]]])
+    if len(pairs) > max_pairs:
+        pairs = pairs[np.sort(np.random.default_rng(seed).choice(len(pairs), max_pairs, replace=False))]
+    return pairs.astype(np.int64)
+
+
+@dataclass
+class PreferenceRoutes:
+    """Shortest and preferred plans between place pairs, with the ground-truth metres of each on
+    the preferred terrain and in total."""
+
+    pairs: np.ndarray
+    shortest: list[PlanResult]
+    preferred: list[PlanResult]
+    terrain: str
+
+    def share(self, plans: list[PlanResult]) -> np.ndarray:
+        """(k,) share of each plan's length on the preferred terrain (1 for zero-length plans)."""
+        return np.array([p.gt_terrain_m.get(self.terrain, 0.0) / p.length_m if p.length_m > 0 else 1.0 for p in plans])
+
+    def to_json(self, min_share: float) -> dict:
+        share = self.share(self.preferred)
+        return {"terrain": self.terrain, "pairs": int(len(self.pairs)), "min_share": min_share,
+                "preferred_mean_share": float(share.mean()) if len(share) else None,
+                "preferred_lowest_share": float(share.min()) if len(share) else None,
+                "shortest_mean_share": float(self.share(self.shortest).mean()) if len(share) else None,
+                "pairs_meeting": int((share >= min_share).sum()),
+                "fraction_meeting": float((share >= min_share).mean()) if len(share) else None}
+
+
+def preference_routes(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, terrain: str, step: float = 0.1,
+                      default_penalty: float = 1.0) -> PreferenceRoutes:
+    """Both plans (shortest; preferring `terrain`) for every pair, measured on the raster."""
+    shortest, preferred = [], []
+    for a, b in np.asarray(pairs, dtype=np.int64).reshape(-1, 2).tolist():
+        shortest.append(plan_with(graph, a, b, "shortest", raster, (), step, default_penalty))
+        preferred.append(plan_with(graph, a, b, f"prefer {terrain}", raster, (terrain,), step, default_penalty))
+    return PreferenceRoutes(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), shortest, preferred, terrain)
+
+
+def preference_case(routes: PreferenceRoutes, min_share: float = 0.8) -> int | None:
+    """Index of the pair that shows the preference best: among pairs whose preferred plan keeps at
+    least `min_share` of its length on the terrain and whose shortest plan leaves it, the one whose
+    preference moves the most metres onto it (first on ties); None when no pair qualifies."""
+    if len(routes.pairs) == 0:
+        return None
+    on_short = np.array([p.gt_terrain_m.get(routes.terrain, 0.0) for p in routes.shortest])
+    off_short = np.array([p.length_m for p in routes.shortest]) - on_short
+    off_pref = np.array([p.length_m - p.gt_terrain_m.get(routes.terrain, 0.0) for p in routes.preferred])
+    gain = off_short - off_pref
+    ok = (routes.share(routes.preferred) >= min_share) & (off_short > 0.5) & (gain > 0)
+    if not ok.any():
+        return None
+    return int(np.flatnonzero(ok & (gain >= gain[ok].max() - 1e-6))[0])  # millimetre ties: the first pair

@@ -77,14 +77,16 @@ def _segmentation(seg: dict) -> list[str]:
 
 def _retrieval(ret: dict) -> list[str]:
     methods = ordered(ret.get("methods", {}))
-    header = ["Method", "IoU ↑", "SAcc ↑", "RAcc ↑", "SPrec ↑", "RPrec ↑", "F1 ↑", "alpha"]
-    keys = ["iou", "strict_accuracy", "relaxed_accuracy", "strict_precision", "relaxed_precision", "f1"]
+    header = ["Method", "IoU ↑", "SAcc ↑", "RAcc ↑", "SPrec ↑", "RPrec ↑", "F1 ↑", "matched IoU ↑", "alpha"]
+    keys = ["iou", "strict_accuracy", "relaxed_accuracy", "strict_precision", "relaxed_precision", "f1", "matched_iou"]
     values = [[m.get(k) for k in keys] for m in methods.values()]
     rows = [[name] + [_f(m.get(k)) for k in keys] + [_f(m.get("alpha"), 3)] for name, m in methods.items()]
     queries = ret.get("queries", [])
     out = [f"## Table II: open-set object retrieval (\"{ret.get('template', 'Find the {object}')}\": "
            f"{ret.get('num_gt', 0)} objects in {len(queries)} queries)", "",
-           table(header, _bold_best(rows, values, [True] * 6)), ""]
+           table(header, _bold_best(rows, values, [True] * 7)), "",
+           "IoU divides the matched boxes' IoU by the number of objects; matched IoU is their mean.", ""]
+    out += _iou_by_distance(methods)
     if methods:
         per = ["Query", "GT"] + [f"{n} found / hits" for n in methods]
         per_rows = []
@@ -98,16 +100,48 @@ def _retrieval(ret: dict) -> list[str]:
     return out
 
 
+def _iou_by_distance(methods: dict) -> list[str]:
+    bands = next((m.get("iou_by_distance") for m in methods.values() if m.get("iou_by_distance")), None)
+    if not bands:
+        return []
+    names = [f"{b['from_m']:g}-{b['to_m']:g} m" if b["to_m"] is not None else f">= {b['from_m']:g} m" for b in bands]
+    rows = [[n, str(b["objects"])] + [f"{m['iou_by_distance'][i]['matched']} / {_f(m['iou_by_distance'][i]['matched_iou'], 2)}"
+                                     for m in methods.values()] for i, (n, b) in enumerate(zip(names, bands))]
+    return ["Matched boxes by the objects' distance from the robot's path (matched / their mean IoU):", "",
+            table(["Distance", "Objects"] + list(methods), rows), ""]
+
+
+def _places(places: dict) -> list[str]:
+    rows = []
+    for key, label in (("connectivity", "whole raster"), ("connectivity_seen", "ground the cameras labelled")):
+        c = places.get(key)
+        if c:
+            per = ", ".join(f"{t} {v['share']:.3f}" for t, v in c["per_terrain"].items())
+            rows.append([label, f"{c['joined']:,} / {c['pairs']:,}", f"{c['joined_share']:.3f}", per])
+    regions = ", ".join(f"{k} {v}" for k, v in places.get("places_per_region", {}).items())
+    return ["## Places against the ground-truth terrain", "",
+            f"{places.get('places', 0)} places. Pairs of places of one terrain on one connected component of that terrain "
+            "in the ground-truth raster, joined by a path on that terrain alone:", "",
+            table(["Components over", "Joined pairs", "Share", "per terrain"], rows, "lrrl"), "",
+            f"Places inside each labelled region: {regions}.", ""]
+
+
 def _regions(reg: dict) -> list[str]:
     methods = ordered(reg.get("methods", {}))
-    header = ["Method", "Precision ↑", "Recall ↑", "F1 ↑", "Runtime (ms) ↓", "parameters"]
-    keys = ["precision", "recall", "f1", "runtime_ms"]
+    header = ["Method", "Precision ↑", "Recall ↑", "F1 ↑", "Regions (ms)", "Query (ms)", "Runtime (ms) ↓", "parameters"]
+    keys = ["precision", "recall", "f1", "regions_ms", "query_ms", "runtime_ms"]
     values = [[m.get(k) for k in keys] for m in methods.values()]
-    rows = [[m.get("label", name)] + [_f(m.get(k), 1 if k == "runtime_ms" else 3) for k in keys] + [m.get("parameters", "")]
+    rows = [[m.get("label", name)] + [_f(m.get(k), 1 if k.endswith("_ms") else 3) for k in keys] + [m.get("parameters", "")]
             for name, m in methods.items()]
     queries = reg.get("queries", [])
+    better = [True, True, True, False, False, False]
     out = [f"## Table III: region monitoring ({len(queries)} labelled regions)", "",
-           table(header, _bold_best(rows, values, [True, True, True, False]), "lrrrrl"), ""]
+           table(header, _bold_best(rows, [v[:3] + [None, None] + v[5:] for v in values], better), "lrrrrrrl"), "",
+           "Runtime = building the regions (Terra's hierarchy once; AIB's clustering, for every query) + answering one "
+           "query, on the same places.", ""]
+    levels = reg.get("regions_per_level", {})
+    if levels:
+        out += ["Regions per level, level 1 first: " + "; ".join(f"{m} {' / '.join(map(str, c))}" for m, c in ordered(levels).items()), ""]
     if methods and queries:
         per = ["Region (query)", "GT places"] + [f"{n} P / R" for n in methods]
         per_rows = []
@@ -142,10 +176,42 @@ def _navigation(nav: dict) -> list[str]:
         rows.append([name, f"{length:.1f}", str(p.get("places", 0))] + cells)
     out = [f"## Navigation: \"{nav.get('task', '')}\"", ""]
     if nav.get("error"):
-        return out + [f"Not evaluated: {nav['error']}", ""]
-    out += [f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
-            f"(nearest the best object for the task). Terrain lengths read from the ground-truth raster.", "",
-            table(header, rows), ""]
+        out += [f"Not evaluated: {nav['error']}", ""]
+    else:
+        skipped = nav.get("skipped", [])
+        out += [f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
+                f"(the approach place of the best reachable of {nav.get('candidates', 1)} objects for the task"
+                + (f"; {len(skipped)} skipped" if skipped else "") + "). Terrain lengths read from the ground-truth raster.", "",
+                table(header, rows), ""]
+        out += [f"- skipped {s['label']!r} (score {s['score']:.3f}) at place {s['place']}: {s['reason']}" for s in skipped]
+        out += [""] if skipped else []
+    return out + _preference(nav)
+
+
+def _plan_rows(plans: dict, terrains: list[str]) -> list[list[str]]:
+    rows = []
+    for name, p in ordered(plans).items():
+        length = p.get("length_m", 0.0)
+        rows.append([name, f"{length:.1f}", str(p.get("places", 0))]
+                    + [f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)" for t in terrains])
+    return rows
+
+
+def _preference(nav: dict) -> list[str]:
+    out = []
+    case = nav.get("preference_case")
+    if case:
+        terrains = sorted({t for p in case["plans"].values() for t in p.get("gt_terrain_m", {})})
+        out += [f"Terrain preference case: from place {case['start_place']} at ({case['start_xy'][0]:.1f}, {case['start_xy'][1]:.1f}) "
+                f"to place {case['goal_place']} at ({case['goal_xy'][0]:.1f}, {case['goal_xy'][1]:.1f}) m, the pair of "
+                f"{', '.join(nav.get('prefer', []))} places where the preference moves the path most onto it:", "",
+                table(["Plan", "Length (m)", "Places"] + [f"{t} (m, %)" for t in terrains], _plan_rows(case["plans"], terrains)), ""]
+    routes = nav.get("preference_routes")
+    if routes and routes.get("pairs"):
+        out += [f"Preferring {routes['terrain']} between {routes['pairs']} place pairs joined by a {routes['terrain']} route in the world: "
+                f"mean {100 * routes['preferred_mean_share']:.1f}% of the path on {routes['terrain']} (shortest: "
+                f"{100 * routes['shortest_mean_share']:.1f}%), lowest {100 * routes['preferred_lowest_share']:.1f}%, "
+                f"{routes['pairs_meeting']} pairs ({100 * routes['fraction_meeting']:.1f}%) at {100 * routes['min_share']:.0f}% or more.", ""]
     return out
 
 
@@ -169,7 +235,7 @@ def render_report(summary: dict) -> str:
         "- runtimes and FPS are measurements on this machine; every other figure is deterministic.", "",
     ]
     for key, section in (("not_evaluated", _not_evaluated), ("segmentation", _segmentation), ("retrieval", _retrieval),
-                         ("regions", _regions), ("memory", _memory), ("navigation", _navigation)):
+                         ("regions", _regions), ("memory", _memory), ("places", _places), ("navigation", _navigation)):
         if key in summary:
             lines += section(summary[key])
     figures = dict(sorted(summary.get("figures", {}).items(), key=lambda kv: kv[1]))
@@ -196,10 +262,15 @@ def headline(summary: dict) -> list[str]:
         lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}{fps}")
     ret = summary.get("retrieval", {})
     for name, s in ordered(ret.get("methods", {})).items():
-        lines.append(f"  retrieval {name:<7} ({ret['num_gt']} objects, {len(ret['queries'])} queries): IoU {s['iou']:.3f}, "
-                     f"RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
+        lines.append(f"  retrieval {name:<7} ({ret['num_gt']} objects, {len(ret['queries'])} queries): IoU {s['iou']:.3f} "
+                     f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
     for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
-        lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, {s['runtime_ms']:.0f} ms/query")
+        lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "
+                     f"{s['runtime_ms']:.0f} ms (regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})")
+    places = summary.get("places", {}).get("connectivity_seen")
+    if places:
+        lines.append(f"  places: {summary['places']['places']}, same-terrain pairs joined {100 * places['joined_share']:.1f}% "
+                     "(ground the cameras labelled)")
     mem = summary.get("memory")
     if mem:
         lines.append(f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² ({mem['bytes_per_m2']:.0f} B/m²)")
@@ -211,6 +282,16 @@ def headline(summary: dict) -> list[str]:
     skipped = [key for key in summary.get("not_evaluated", {}) if key != "notes"]
     if skipped:
         lines.append(f"  not evaluated ({', '.join(skipped)}): the ground truth has objects only (see the report)")
+    case = nav.get("preference_case")
+    if case:
+        for name, p in ordered(case["plans"]).items():
+            lines.append(f"  case {case['start_place']} -> {case['goal_place']} {name}: {p['length_m']:.1f} m "
+                         f"({terrain_shares(p['gt_terrain_m'], p['length_m'])})")
+    routes = nav.get("preference_routes")
+    if routes and routes.get("pairs"):
+        lines.append(f"  preferring {routes['terrain']} over {routes['pairs']} {routes['terrain']} routes: mean "
+                     f"{100 * routes['preferred_mean_share']:.1f}% on it, {100 * routes['fraction_meeting']:.1f}% of pairs >= "
+                     f"{100 * routes['min_share']:.0f}%")
     return lines
 
 

@@ -16,12 +16,13 @@ from terra.datasets.ground_truth import GroundTruth, load_ground_truth
 from terra.errors import TerraError
 from terra.eval.config import EvalConfig
 from terra.eval.metrics.memory import mapped_area, memory_summary
-from terra.eval.navigation import plan_with, start_place
+from terra.eval.navigation import plan_with, preference_case, preference_routes, start_place, terrain_route_pairs
 from terra.eval.regions import MonitoringRun, MonitorParams, region_truth, run_monitoring
 from terra.eval.report import SUMMARY, write_report
 from terra.eval.retrieval import RetrievalRun, RetrievalTask, retrieval_task, run_retrieval
 from terra.eval.tuning import TUNED, TunedParameters, alpha_grid, best_point
 from terra.graph.scene_graph import SceneGraph
+from terra.loaded import LoadedBundle
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
 from terra.progress import StageTimer
@@ -36,38 +37,48 @@ def mapped_dataset_name(bundle: Bundle) -> str:
 
 @dataclass
 class EvalInputs:
-    """What evaluation reads: the bundle's map and graph, the ground truth, the query embedder."""
+    """What evaluation reads: the loaded bundle (map, graph, query embedder) and the ground truth."""
 
-    bundle: Bundle
-    msm: MetricSemanticMap
-    graph: SceneGraph
+    loaded: LoadedBundle
     gt: GroundTruth
     gt_root: Path
-    embedder: TextEmbedder
     hierarchies: dict[str, tuple[SceneGraph, float | None]] = field(default_factory=dict)
 
     dataset: Dataset | None = None
     dataset_name: str = ""
 
+    @property
+    def bundle(self) -> Bundle:
+        return self.loaded.bundle
+
+    @property
+    def msm(self) -> MetricSemanticMap:
+        return self.loaded.msm
+
+    @property
+    def graph(self) -> SceneGraph:
+        return self.loaded.require_graph("evaluation")
+
+    @property
+    def embedder(self) -> TextEmbedder:
+        return self.loaded.embedder
+
     @classmethod
-    def load(cls, bundle_path: str | Path, gt_root: str | Path) -> "EvalInputs":
+    def load(cls, bundle_path: str | Path, gt_root: str | Path, loaded: LoadedBundle | None = None) -> "EvalInputs":
         """Open everything, cheapest checks first, so bad input fails before any work: the bundle
         must hold a scene graph, `gt_root` must be a dataset written by `terra sim`, and it must
-        be the dataset the bundle was mapped from (by its recorded name)."""
-        from terra.datasets import open_dataset
-        from terra.graph.storage import load_scene_graph
-        from terra.mapping.storage import load_map
-        from terra.tasks.queries import resolve_embedder
-
-        bundle = Bundle(bundle_path)
-        graph = load_scene_graph(bundle)
+        be the dataset the bundle was mapped from (by its recorded name). `loaded`: an already
+        opened bundle to share (its map, graph and embedder are not loaded again)."""
+        loaded = loaded or LoadedBundle(bundle_path)
+        loaded.require_graph("evaluation")
         dataset, gt = dataset_ground_truth(Path(gt_root))
-        mapped = mapped_dataset_name(bundle)
+        mapped = mapped_dataset_name(loaded.bundle)
         if mapped and mapped != dataset.name:
-            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from ({mapped!r})")
-        msm = load_map(bundle)
-        embedder = resolve_embedder(msm.embedder, msm.dim)
-        return cls(bundle, msm, graph, gt, Path(gt_root), embedder, dataset=dataset, dataset_name=dataset.name)
+            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {loaded.path} was mapped from "
+                             f"({mapped!r})")
+        loaded.require_map("evaluation")
+        loaded.embedder  # noqa: B018 (loaded now: evaluation embeds many texts)
+        return cls(loaded, gt, Path(gt_root), dataset=dataset, dataset_name=dataset.name)
 
     @property
     def objects_only(self) -> bool:
@@ -130,12 +141,19 @@ def retrieval_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParame
     methods = config.retrieval.methods
     alphas = {m: _retrieval_alpha(m, inputs, tuned, tasks_config) for m in methods}
     runs = retrieval_runs(inputs, task, methods, alphas, tasks_config) if task.queries else {}
+    from terra.eval.metrics.retrieval import accuracy_matches, iou_by_distance
+    from terra.eval.navigation import robot_path
+
+    path = robot_path(inputs.msm)
     section = {
         "template": config.retrieval.template,
         "queries": task.queries,
         "num_gt": task.num_gt,
         "methods": {m: {**run.evaluate(task, config.retrieval.precision_ratio).to_json(), "alpha": alphas[m],
-                        "runtime_ms": 1000.0 * run.seconds} for m, run in runs.items()},
+                        "runtime_ms": 1000.0 * run.seconds,
+                        "smallest_box_side_m": float(run.boxes.size.min()) if len(run.boxes) else None,
+                        "iou_by_distance": iou_by_distance(accuracy_matches(run.boxes, run.scores, task.gt), task.gt, path)}
+                    for m, run in runs.items()},
     }
     return section, task, runs
 
@@ -176,7 +194,8 @@ def monitoring_params(method: str, embedder: str, tuned: TunedParameters | None,
         default = alpha_for(cfg.aib.null_score, cfg.aib.default_null_score, embedder)
         return MonitorParams(float(alpha) if alpha is not None else default)
     return MonitorParams(float(alpha) if alpha is not None else alpha_for(cfg.alpha, cfg.default_alpha, embedder),
-                         int(k) if k is not None else cfg.k, tuned.monitoring_levels(method) if tuned is not None else None)
+                         int(k) if k is not None else cfg.k, tuned.monitoring_levels(method) if tuned is not None else None,
+                         tuned.monitoring_min_level(method) if tuned is not None else None)
 
 
 def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
@@ -191,6 +210,7 @@ def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParamete
                     for r, t in zip(inputs.gt.regions, truth)],
         "monitor_method": config.regions.monitor_method,
         "methods": {m: run.to_json(METHOD_LABELS[m]) for m, run in runs.items()},
+        "regions_per_level": {m: [len(level) for level in inputs.hierarchy(m)[0].regions] for m in runs if m != "aib"},
     }
     return section, runs
 
@@ -199,30 +219,72 @@ def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParamete
 
 
 def navigation_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None) -> dict:
+    """The task's plan (goal: the best reachable object for it) shortest and with the preferred
+    terrains, the preference measured over place pairs joined by a route on the first preferred
+    terrain, and the pair that shows the preference best (eval/navigation.py)."""
     from terra.tasks.config import TasksConfig
-    from terra.tasks.retrieval import best_object, find_objects
 
     cfg = config.navigation
     tasks = tasks_config or TasksConfig()
+    section: dict = {"task": cfg.task, "prefer": list(cfg.prefer), "find_method": tasks.planning.find_method}
+    section.update(_task_plans(inputs, cfg, tuned, tasks, tasks_config))
+    if cfg.prefer:
+        from terra.eval.metrics.places import observed_cells
+
+        seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+        pairs = terrain_route_pairs(inputs.graph, inputs.gt.terrain, cfg.prefer[0], seen, cfg.route_pairs)
+        routes = preference_routes(inputs.graph, inputs.gt.terrain, pairs, cfg.prefer[0], cfg.step, tasks.planning.default_penalty)
+        section["preference_routes"] = routes.to_json(cfg.min_share)
+        case = preference_case(routes, cfg.min_share)
+        if case is not None:
+            a, b = (int(v) for v in routes.pairs[case])
+            section["preference_case"] = {
+                "start_place": a, "goal_place": b,
+                "start_xy": [round(float(v), 3) for v in inputs.graph.places.position[a, :2]],
+                "goal_xy": [round(float(v), 3) for v in inputs.graph.places.position[b, :2]],
+                "plans": {"shortest": routes.shortest[case].to_json(), routes.preferred[case].name: routes.preferred[case].to_json()},
+            }
+    return section
+
+
+def _task_plans(inputs: EvalInputs, cfg, tuned: TunedParameters | None, tasks, tasks_config) -> dict:
+    """Plans for the navigation task: its candidates tried best first (terra.tasks.planning)."""
+    from terra.errors import NoPathError
+    from terra.tasks.planning import CostGraph, TerrainCosts, plan_to_objects
+    from terra.tasks.retrieval import find_objects
+
     method = tasks.planning.find_method
     alpha = _retrieval_alpha(method, inputs, tuned, tasks_config)
-    found = find_objects(inputs.msm, inputs.graph, [cfg.task], method=method, alpha=alpha, config=tasks, embedder=inputs.embedder)
-    target = best_object(found)
-    section: dict = {"task": cfg.task, "prefer": list(cfg.prefer), "find_method": method, "alpha": alpha}
-    if target is None:
-        section["error"] = f"no object found for {cfg.task!r} with {method} at alpha {alpha:g}"
-        return section
+    found = [o for o in find_objects(inputs.msm, inputs.graph, [cfg.task], method=method, alpha=alpha, config=tasks,
+                                     embedder=inputs.embedder) if o.query == 0]
+    out: dict = {"alpha": alpha, "candidates": len(found)}
+    if not found:
+        return {**out, "error": f"no object found for {cfg.task!r} with {method} at alpha {alpha:g}"}
     start = start_place(inputs.msm, inputs.graph)
-    plans = [plan_with(inputs.graph, start, target.place, "shortest", inputs.gt.terrain, (), cfg.step, tasks.planning.default_penalty),
-             plan_with(inputs.graph, start, target.place, f"prefer {', '.join(cfg.prefer)}", inputs.gt.terrain, cfg.prefer,
+    costs = TerrainCosts.from_preferences(inputs.graph.terrain_classes)
+    try:
+        goal = plan_to_objects(inputs.graph, CostGraph.build(inputs.graph, costs), start, found, tasks.planning.goal_radius)
+    except NoPathError as exc:
+        return {**out, "error": str(exc)}
+    plans = [plan_with(inputs.graph, start, goal.goal_place, "shortest", inputs.gt.terrain, (), cfg.step, tasks.planning.default_penalty),
+             plan_with(inputs.graph, start, goal.goal_place, f"prefer {', '.join(cfg.prefer)}", inputs.gt.terrain, cfg.prefer,
                        cfg.step, tasks.planning.default_penalty)]
-    section.update({
-        "start_place": start,
-        "goal_place": int(target.place),
-        "goal_object": {"center": [float(v) for v in target.center], "score": float(target.score)},
-        "plans": {p.name: p.to_json() for p in plans},
-    })
-    return section
+    return {**out, "start_place": start, "goal_place": goal.goal_place,
+            "goal_object": {"center": [float(v) for v in goal.goal_object.center], "score": float(goal.goal_object.score)},
+            "skipped": [s.to_json() for s in goal.skipped], "plans": {p.name: p.to_json() for p in plans}}
+
+
+def places_section(inputs: EvalInputs) -> dict:
+    """Same-terrain connectivity of the places against the ground-truth raster
+    (terra.eval.metrics.places): over the whole raster, and over the ground the cameras labelled."""
+    from terra.eval.metrics.places import observed_cells, same_terrain_connectivity
+    from terra.eval.regions import region_truth
+
+    seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+    return {"places": len(inputs.graph.places),
+            "connectivity": same_terrain_connectivity(inputs.graph, inputs.gt.terrain).to_json(),
+            "connectivity_seen": same_terrain_connectivity(inputs.graph, inputs.gt.terrain, seen).to_json(),
+            "places_per_region": {r.name: int(len(t)) for r, t in zip(inputs.gt.regions, region_truth(inputs.graph, inputs.gt.regions))}}
 
 
 # ---------------------------------------------------------------------------- tuning
@@ -253,13 +315,16 @@ def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None) -> TunedPara
 
 
 def _monitor_grid(method: str, alphas: list[float], config: EvalConfig, inputs: EvalInputs) -> list[MonitorParams]:
-    """Grid points in tie-breaking order: all levels first, then caps 1, 2, ... (so a cap is chosen
-    only when it scores strictly better), within each the smallest k, then the smallest alpha."""
+    """Grid points in tie-breaking order: ranking from level 1 before from level 2, all levels
+    before caps 1, 2, ... (so a restriction is chosen only when it scores strictly better), within
+    each the smallest k, then the smallest alpha."""
     if method == "aib":
         return [MonitorParams(a) for a in alphas]
     n_levels = len(inputs.hierarchy(method)[0].regions)
     levels = [None] + list(range(1, n_levels))
-    return [MonitorParams(a, k, lv) for lv in levels for k in range(1, config.tune.k_max + 1) for a in alphas]
+    lows = [None] + ([2] if n_levels >= 2 else [])
+    return [MonitorParams(a, k, lv, lo) for lo in lows for lv in levels if (lv or n_levels) >= (lo or 1)
+            for k in range(1, config.tune.k_max + 1) for a in alphas]
 
 
 # ---------------------------------------------------------------------------- the report
@@ -315,7 +380,7 @@ def check_report_folder(out: Path) -> None:
 
 def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, config: EvalConfig | None = None,
              tuned: TunedParameters | None = None, tasks_config=None, show_progress: bool = True,
-             timer: StageTimer | None = None) -> dict:
+             timer: StageTimer | None = None, loaded: LoadedBundle | None = None) -> dict:
     """Evaluate a bundle against a simulated dataset's ground truth; write the report to `out`.
 
     The report is written into a temporary sibling folder that replaces `out` at the end, so a
@@ -329,7 +394,7 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
     out = Path(out)
     check_report_folder(out)
     with timer.stage("eval: load"):
-        inputs = EvalInputs.load(bundle_path, gt_root)
+        inputs = EvalInputs.load(bundle_path, gt_root, loaded)
     if tuned is not None:
         tuned.check_embedder(inputs.embedder.name)
         tuned.check_not_tuned_on(inputs.dataset_name)
@@ -350,6 +415,9 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
                 summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks_config)
         with timer.stage("eval: memory"):
             summary["memory"] = memory_summary(inputs.bundle, mapped_area(inputs.msm.points, config.map_cell))
+        if not inputs.objects_only:  # place connectivity is judged on the ground-truth terrain raster
+            with timer.stage("eval: places"):
+                summary["places"] = places_section(inputs)
         if "navigation" not in skipped:
             with timer.stage("eval: navigation"):
                 summary["navigation"] = navigation_section(inputs, config, tuned, tasks_config)

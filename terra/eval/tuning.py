@@ -3,9 +3,10 @@
 `terra eval --tune` grid-searches, on a validation bundle (another simulator seed) and its ground
 truth: alpha per retrieval method (best Table II F1), and per monitoring method (best Table III
 F1) alpha (AIB's null-task score for "aib") with, for Terra's hierarchies, k and the number of
-region levels ranked. Ties keep the first grid point: all levels before a level cap, smallest k,
-smallest alpha. The result is a small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads;
-the test labels are never looked at while choosing.
+region levels ranked (from level 1 or 2 up to a cap). Ties keep the first grid point: from level 1
+before from level 2, all levels before a level cap, smallest k, smallest alpha. The result is a
+small JSON file (`tuned.json`) that `terra eval --tuned FILE` reads; the test labels are never
+looked at while choosing.
 """
 
 from __future__ import annotations
@@ -44,6 +45,10 @@ class TunedParameters:
     def monitoring_levels(self, method: str) -> int | None:
         """Region levels ranked by `method` (None = all)."""
         return self.monitoring.get(method, {}).get("levels")
+
+    def monitoring_min_level(self, method: str) -> int | None:
+        """Lowest region level ranked by `method` (None = level 1)."""
+        return self.monitoring.get(method, {}).get("min_level")
 
     def to_json(self) -> dict:
         return {"schema": TUNED_SCHEMA, "embedder": self.embedder, "retrieval": self.retrieval,

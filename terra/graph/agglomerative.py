@@ -13,14 +13,23 @@ the sum of the group's unit embeddings: the semantic part is the exact pairwise 
 metric part the centroid distance, which differs from the mean pairwise distance by at most
 about the cell size. All places of a micro-cluster share their regions.
 
-Cuts: by default the paper's fixed heights (50/100/200/400, metres plus gamma times a cosine
-distance). They do not scale with the scene: on a map smaller than about twice the largest cut,
-the upper levels are one region each. `gap_levels=n` instead cuts just below the n largest gaps
-between successive merge heights (the reference code's integer `agg_params` option; not the paper's
-default, and only used when configured).
+Cuts, three ways:
+- Adaptive (the default, `cuts=None`): the cut heights come from the tree's own merge heights, so
+  every level carries information on any map. Level 1 has about P / `first_size` regions, the top
+  level `top` regions, the levels between a geometric progression; each level cuts the tree at
+  the merge height that leaves that many regions, moved within `snap` times that count to the
+  largest relative gap between successive merge heights (a natural break). Counts strictly
+  decrease upward whenever the map has places enough.
+- Fixed heights (`cuts=(50, 100, 200, 400)`, the paper's, in metres plus gamma times a cosine
+  distance). They do not scale with the scene: on a map smaller than about twice the largest cut,
+  the upper levels are one region each.
+- `gap_levels=n`: just below the n largest gaps between successive merge heights (the reference
+  code's integer `agg_params` option).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -31,34 +40,48 @@ from scipy.spatial.distance import cdist, pdist
 from terra.perception.text import normalize_rows
 
 
+@dataclass(frozen=True)
+class AdaptiveCuts:
+    """How adaptive cuts are chosen (see the module docstring): `levels` region levels, about
+    `first_size` places per level-1 region, `top` regions at the top level, and natural breaks
+    searched within counts between c / snap and c * snap (snap 1 = exact counts)."""
+
+    levels: int = 4
+    first_size: float = 8.0
+    top: int = 3
+    snap: float = 1.25
+
+
 def agglomerative_assignments(
     position: np.ndarray,
     embedding: np.ndarray,
     terrain: np.ndarray,
     gamma: float = 100.0,
-    cuts: tuple[float, ...] = (50.0, 100.0, 200.0, 400.0),
+    cuts: tuple[float, ...] | None = (50.0, 100.0, 200.0, 400.0),
     dense_max: int = 5000,
     micro_max: int = 5000,
     gap_levels: int | None = None,
+    adaptive: AdaptiveCuts | None = None,
 ) -> list[np.ndarray]:
-    """Per cut height, (P,) cluster label of every place (labels nest from cut to cut). With
-    `gap_levels`, the cuts are the heights just below the largest merge-height gaps (see module)."""
+    """Per level, (P,) cluster label of every place (labels nest from level to level). Levels come
+    from `cuts` (fixed heights), or with `gap_levels` from the largest merge-height gaps, or with
+    `cuts=None` adaptively (`adaptive`, default AdaptiveCuts()); see the module docstring."""
     position = np.asarray(position, dtype=np.float64)
     unit = normalize_rows(embedding).astype(np.float64)
+    adaptive = adaptive or AdaptiveCuts()
+    n_levels = gap_levels or (len(cuts) if cuts is not None else adaptive.levels)
     P = len(position)
-    if P == 0:
-        return [np.zeros(0, np.int64) for _ in range(gap_levels or len(cuts))]
-    if P == 1:
-        return [np.zeros(1, np.int64) for _ in range(gap_levels or len(cuts))]
+    if P <= 1:
+        return [np.zeros(P, np.int64) for _ in range(n_levels)]
     if P <= dense_max:
         # For unit vectors 1 - cos = |e_i - e_j|^2 / 2.
         w = pdist(position)
         w += (0.5 * gamma) * pdist(unit, "sqeuclidean")
         Z = linkage(w, method="average")
-        if gap_levels:
-            cuts = gap_cuts(Z[:, 2], gap_levels)
-        return [fcluster(Z, t, criterion="distance").astype(np.int64) - 1 for t in cuts]
-    group = micro_clusters(position, terrain, cell=cuts[0] / 10.0, max_groups=micro_max)
+        heights = _level_heights(Z[:, 2], P, P, cuts, gap_levels, adaptive)
+        return [fcluster(Z, t, criterion="distance").astype(np.int64) - 1 for t in heights]
+    first_cut = cuts[0] if cuts is not None else 50.0
+    group = micro_clusters(position, terrain, cell=first_cut / 10.0, max_groups=micro_max)
     G = int(group.max()) + 1
     size = np.bincount(group, minlength=G).astype(np.float64)
     centroid = np.stack([np.bincount(group, weights=position[:, d], minlength=G) for d in range(3)], axis=1) / size[:, None]
@@ -69,9 +92,66 @@ def agglomerative_assignments(
         hi = min(lo + 1024, G)
         D[lo:hi] += gamma * (1.0 - (emb_sum[lo:hi] @ emb_sum.T) / np.outer(size[lo:hi], size))
     merges = weighted_average_linkage(D, size)
+    heights = _level_heights(merges[:, 2], G, P, cuts, gap_levels, adaptive)
+    return [group_labels(merges, G, t)[group] for t in heights]
+
+
+def _level_heights(heights: np.ndarray, items: int, places: int, cuts: tuple[float, ...] | None, gap_levels: int | None,
+                   adaptive: AdaptiveCuts) -> tuple[float, ...]:
+    """Cut heights of the levels: fixed `cuts`, gap cuts, or adaptive ones for a tree over `items`
+    leaves (places, or micro-clusters standing for `places` places)."""
     if gap_levels:
-        cuts = gap_cuts(merges[:, 2], gap_levels)
-    return [group_labels(merges, G, t)[group] for t in cuts]
+        return gap_cuts(heights, gap_levels)
+    if cuts is not None:
+        return tuple(cuts)
+    counts = level_counts(places, adaptive.levels, adaptive.first_size, adaptive.top, max_count=items)
+    return count_cuts(heights, items, counts, adaptive.snap)
+
+
+def level_counts(places: int, levels: int, first_size: float, top: int, max_count: int | None = None) -> list[int]:
+    """Region counts per level, fine to coarse: about places / first_size at level 1 (at most
+    max_count), `top` at the top, a geometric progression between, strictly decreasing while
+    counts above 1 allow it."""
+    n1 = int(np.clip(round(places / first_size), 1, max_count or places))
+    top = int(np.clip(top, 1, n1))
+    if levels == 1:
+        return [n1]
+    counts = [int(round(n1 * (top / n1) ** (k / (levels - 1)))) for k in range(levels)]
+    for k in range(1, levels):
+        counts[k] = max(1, min(counts[k], counts[k - 1] - 1))
+    return counts
+
+
+def count_cuts(heights: np.ndarray, items: int, counts: list[int], snap: float = 1.0) -> tuple[float, ...]:
+    """Increasing cut heights giving about `counts` clusters (decreasing) from a tree over `items`
+    leaves with merge heights `heights` (items - 1 values; cutting at h applies every merge <= h).
+
+    Each cut sits at a merge height: for c clusters, the (items - c)-th smallest. With snap > 1, the
+    count may move within [c / snap, c * snap] (and strictly between the neighbouring levels'
+    counts) to where the next merge height is relatively furthest above: a natural break.
+    """
+    h = np.sort(np.asarray(heights, dtype=np.float64))
+    if len(h) == 0:
+        return tuple(0.0 for _ in counts)
+    # cut_after[m] = cutting after the m smallest merges (m = 1..items-1) leaves items - m clusters.
+    gap = np.append((h[1:] - h[:-1]) / np.maximum(h[1:], 1e-12), np.inf)  # above merge m (1-based: gap[m-1])
+    out: list[float] = []
+    upper = items + 1  # the level below has fewer than this many clusters
+    for c in counts:
+        c = int(np.clip(c, 1, items))
+        lo = max(1, int(np.ceil(c / snap)))
+        hi = min(items, int(np.floor(c * snap)), upper - 1)
+        options = np.arange(max(lo, 1), max(hi, lo) + 1)
+        options = options[(options >= 1) & (options <= items) & (options < upper)]
+        if options.size == 0:
+            options = np.array([max(1, min(c, upper - 1))])
+        merges = items - options  # merges applied for each option
+        score = np.where(merges >= 1, gap[np.maximum(merges - 1, 0)], -np.inf)
+        best = int(options[np.lexsort((np.abs(options - c), -score))[0]])
+        m = items - best
+        out.append(float(h[m - 1]) if m >= 1 else float(h[0]) - 1.0)
+        upper = best
+    return tuple(out)
 
 
 def gap_cuts(heights: np.ndarray, n: int) -> tuple[float, ...]:

@@ -1,7 +1,9 @@
 """Configuration of Phase 2 (`terra build`): terrain places, links and regions.
 
 Defaults are the paper's simulation/campus values (0.4 m cells, max_deviation 3.75 m,
-max_distance 10 m, gamma 100, cuts 50/100/200/400, spectral 0.45 / 10,000 m^2).
+max_distance 10 m, gamma 100), except where they do not carry over to other maps and embedders:
+region levels adapt to the map (the paper's cuts 50/100/200/400 and spectral 0.45 / 10,000 m^2
+remain one setting away: `regions.cuts`, `regions.spectral.thresholds: absolute`).
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ class GridSection(Section):
 
     cell_size: float = Field(0.4, gt=0.0, description="metres per grid cell")
     support_radius: float = Field(1.6, ge=0.0, description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)")
-    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold terrain points (drops sparse distant scan rings)")
+    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold ground points, labelled or not (drops sparse distant scan rings)")
+    fill_radius: float = Field(2.0, ge=0.0, description="metres; densely scanned ground no camera labelled takes the class of the labelled cells within this distance when they all agree (0 = never)")
     close_iterations: int = Field(1, ge=0, description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)")
     open_iterations: int = Field(1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)")
     obstacle_height: tuple[float, float] | None = Field((0.3, 2.0), description="non-terrain points this many metres above the local ground block a cell (None = never)")
@@ -50,6 +53,7 @@ class GvdSection(Section):
     junction_merge: float = Field(1.0, ge=0.0, description="junctions joined by a GVD path shorter than this times their clearance become one node")
     max_deviation: float = Field(3.75, gt=0.0, description="metres; a GVD path is split where it strays further than this from its chord")
     max_distance: float = Field(10.0, gt=0.0, description="metres; paths with a longer chord are split near their middle")
+    cover_radius: float | None = Field(5.0, gt=0.0, description="metres; a pruned GVD branch reaching farther than this from the kept GVD (into a pocket: a service pad, a plaza) is restored so the pocket gets a place (None = never)")
 
 
 class LinkingSection(Section):
@@ -59,6 +63,9 @@ class LinkingSection(Section):
     link_candidates: int = Field(8, ge=1, description="nearest other-terrain places tried per dead end (the first with a clear line wins)")
     require_clear_line: bool = Field(True, description="links may only cross mapped terrain cells, never blocked or unmapped ones")
     bridge_penalty: float = Field(100.0, ge=1.0, description="bridges between otherwise disconnected components cost their length times this")
+    strip_link_distance: float | None = Field(12.0, gt=0.0, description="metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within this range, across a gap (None = never)")
+    strip_max_gap: float = Field(4.0, ge=0.0, description="metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the cameras missed or took for something else, not a road between two sidewalks)")
+    strip_max_blocked: float = Field(0.8, ge=0.0, description="metres; and at most this much of blocked cells (a post or a trunk standing on the strip)")
 
 
 class EmbeddingSection(Section):
@@ -68,10 +75,21 @@ class EmbeddingSection(Section):
 
 
 class SpectralSection(Section):
-    """Recursive two-way spectral splits of the places graph."""
+    """Recursive two-way spectral splits of the places graph.
 
-    max_semantic_diff: float = Field(0.45, ge=0.0, description="a cluster with a smaller semantic difference stops splitting")
-    min_area: float = Field(10000.0, ge=0.0, description="m^2; a cluster whose 2D bounding box is smaller stops splitting")
+    Stopping thresholds are relative to the map by default (`thresholds: relative`): a cluster
+    stops splitting once its semantic difference is below `semantic_fraction` times the whole
+    map's, or its 2D bounding box below `area_fraction` times the map's. The semantic difference
+    of the same places is about 0.45 with CLIP image embeddings and 0.18 with the text embedder, so
+    the paper's absolute values (`thresholds: absolute`: `max_semantic_diff`, `min_area`) only
+    split maps built with the embedder and at the size they were chosen for.
+    """
+
+    thresholds: Literal["relative", "absolute"] = Field("relative", description="'relative' to the map's own semantic difference and area, or the paper's 'absolute' values")
+    semantic_fraction: float = Field(0.3, gt=0.0, le=1.0, description="relative: stop below this share of the whole map's semantic difference")
+    area_fraction: float = Field(0.01, gt=0.0, le=1.0, description="relative: stop below this share of the whole map's 2D bounding-box area")
+    max_semantic_diff: float = Field(0.45, ge=0.0, description="absolute: a cluster with a smaller semantic difference stops splitting (the paper's CLIP value)")
+    min_area: float = Field(10000.0, ge=0.0, description="absolute: m^2; a cluster whose 2D bounding box is smaller stops splitting")
     stop_rule: Literal["either", "both"] = Field("either", description="'either' (the paper): stop when one test holds; 'both' (the reference code): only when both hold")
     sigma: float | None = Field(None, gt=0.0, description="affinity exp(-w / sigma) on place edges; None = median edge weight")
     min_places: int = Field(4, ge=2, description="clusters with fewer places are not split")
@@ -79,23 +97,34 @@ class SpectralSection(Section):
 
 
 class RegionsSection(Section):
-    """Hierarchical region levels above the places."""
+    """Hierarchical region levels above the places.
+
+    Agglomerative levels are adaptive by default (`cuts: null`): level 1 has about
+    places / `first_level_size` regions, the top level `top_regions`, the levels between a
+    geometric progression, each cut at a natural break of the tree's merge heights, so every level
+    carries information on any map (terra.graph.agglomerative). `cuts: [50, 100, 200, 400]` gives
+    the paper's fixed heights exactly. Spectral levels: the leaves of the split tree, then the
+    clusters after fewer and fewer splits (largest first), with the same counts rule above them.
+    """
 
     method: Literal["agglomerative", "spectral"] = "agglomerative"
     gamma: float = Field(100.0, ge=0.0, description="weight w = |p_i - p_j| (m) + gamma * (1 - cos(e_i, e_j))")
-    cuts: list[float] = Field(default_factory=lambda: [50.0, 100.0, 200.0, 400.0], max_length=8, description="agglomerative cut heights, one region level each, increasing")
+    cuts: list[float] | None = Field(None, max_length=8, description="agglomerative cut heights, one region level each, increasing (the paper: 50, 100, 200, 400); None = adaptive levels")
     gap_levels: int | None = Field(None, ge=1, le=8, description="instead of `cuts`: this many levels cut just below the largest merge-height gaps (the reference's integer agg_params; not the paper's default)")
+    levels: int = Field(4, ge=1, le=8, description="region levels of the adaptive agglomerative cuts and of spectral regions")
+    first_level_size: float = Field(12.0, gt=1.0, description="adaptive levels: about this many places per level-1 region")
+    top_regions: int = Field(3, ge=1, description="adaptive levels: regions of the top level (fewer on maps too small for them)")
+    snap: float = Field(1.25, ge=1.0, description="adaptive agglomerative cuts move within this factor of each level's count to a natural break of the merge heights (1 = exact counts)")
     dense_max_places: int = Field(5000, ge=2, description="exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters")
     micro_max_clusters: int = Field(5000, ge=2, description="micro-clusters (terrain x grid cell) used above dense_max_places, at most this many")
-    levels: int = Field(4, ge=1, le=8, description="spectral: region levels cut from the binary split tree")
     seed: int = 0
     spectral: SpectralSection = Field(default_factory=SpectralSection)
 
     @field_validator("cuts")
     @classmethod
-    def _increasing(cls, v: list[float]) -> list[float]:
-        if not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0:
-            raise ValueError("cuts must be a non-empty list of increasing positive numbers")
+    def _increasing(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and (not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0):
+            raise ValueError("cuts must be a non-empty list of increasing positive numbers (or null for adaptive levels)")
         return v
 
 

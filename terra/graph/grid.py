@@ -84,6 +84,7 @@ def build_terrain_grid(
     support_radius: float = 1.6,
     min_support: float = 0.6,
     margin_cells: int = 4,
+    fill_radius: float = 0.0,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
@@ -92,6 +93,11 @@ def build_terrain_grid(
     side `support_radius` metres, kept where at least `min_support` of the window's cells have
     terrain points: this fills the gaps between nearby scan lines and drops the isolated rings of
     distant, sparsely scanned ground, on which no place should sit.
+
+    Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
+    than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
+    `fill_radius` metres when those all agree (0 = never): a road the cameras missed for a few
+    metres stays one road instead of breaking in two, and no boundary is guessed.
     """
     points = np.asarray(points, dtype=np.float64)
     terrain = np.asarray(terrain)
@@ -114,8 +120,6 @@ def build_terrain_grid(
     first = np.ones(len(order), dtype=bool)
     first[1:] = cell[order][1:] != cell[order][:-1]
     grid.label.ravel()[cell[order][first]] = cls[order][first]
-    if support_radius > 0:
-        grid.label[:] = _window_majority(grid.label, n_classes, 2 * int(round(support_radius / cell_size)) + 1, min_support)
 
     # Ground: mean height of the terrain points per cell, then nearest filled cell elsewhere.
     total = np.bincount(flat, weights=tp[:, 2], minlength=H * W)
@@ -125,15 +129,42 @@ def build_terrain_grid(
     _, (nr, nc) = ndimage.distance_transform_edt(~has, return_indices=True)
     grid.ground[:] = mean[nr, nc]
 
+    other = points[~is_terrain]
+    orow, ocol, inside = grid.cell_of(other)
+    height = other[:, 2] - grid.ground[orow, ocol]
+    low = obstacle_height[0] if obstacle_height is not None else 0.3
+    unlabelled_ground = np.zeros((H, W), dtype=bool)
+    unlabelled_ground[orow[inside & (height < low)], ocol[inside & (height < low)]] = True
+    window = 2 * int(round(support_radius / cell_size)) + 1
+    # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
+    # distant scan rings are not, and are never filled).
+    dense = ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant") >= min_support - 1e-6
+    if support_radius > 0:
+        grid.label[:] = _window_majority(grid.label, n_classes, window, min_support)
     if obstacle_height is not None:
-        other = points[~is_terrain]
-        orow, ocol, inside = grid.cell_of(other)
-        height = other[:, 2] - grid.ground[orow, ocol]
         hit = inside & (height >= obstacle_height[0]) & (height <= obstacle_height[1])
         counts = np.bincount(orow[hit] * W + ocol[hit], minlength=H * W).reshape(H, W)
         grid.blocked[:] = counts >= obstacle_min_points
         grid.label[grid.blocked] = -1
+    if fill_radius > 0:
+        _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
+
+
+def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: float) -> None:
+    """In place: `fillable` cells without a label (-1) take the class of the labelled cells within
+    `radius` cells when they all have one class (a hole inside one terrain); cells near two
+    classes stay unlabelled, since which side of the boundary they are on is unknown."""
+    todo = fillable & (label < 0)
+    classes = [int(t) for t in np.unique(label[label >= 0])]
+    if not todo.any() or not classes:
+        return
+    rows, cols = np.nonzero(todo)
+    near = np.zeros((len(classes), len(rows)), dtype=bool)
+    for k, t in enumerate(classes):
+        near[k] = ndimage.distance_transform_edt(label != t)[rows, cols] <= radius
+    one = near.sum(axis=0) == 1
+    label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
 
 
 def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:

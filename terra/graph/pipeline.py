@@ -14,15 +14,15 @@ import numpy as np
 
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
-from terra.graph.agglomerative import agglomerative_assignments
+from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid
-from terra.graph.linking import bridge_components, grid_line_clear, link_dead_ends
+from terra.graph.linking import bridge_components, grid_gap_length, grid_line_clear, grid_line_passable, link_dead_ends, link_strip_gaps
 from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
-from terra.graph.spectral import spectral_assignments
+from terra.graph.spectral import SpectralStop, spectral_assignments
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.progress import StageTimer, progress
 
@@ -73,6 +73,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
             junction_merge=g.junction_merge,
             max_deviation=g.max_deviation / s,
             max_distance=g.max_distance / s,
+            cover_radius=g.cover_radius / s if g.cover_radius is not None else np.inf,
         )
         xy = grid.cell_centres(cp.cells)
         z = grid.ground_at(cp.cells)
@@ -92,6 +93,19 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         weight=np.concatenate(weights) if weights else np.zeros(0),
     )
     return place_set, traversable, stats
+
+
+def strip_links(ps: TerrainPlaceSet, grid: TerrainGrid, config: BuildConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Same-terrain links across short gaps between pieces of one terrain strip (linking.py): the
+    line may cross at most `strip_max_blocked` metres of blocked cells and `strip_max_gap` metres
+    not labelled with the strip's terrain (unlabelled cells count)."""
+    lk = config.linking
+    if lk.strip_link_distance is None:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    clear = grid_line_passable(grid.blocked, grid.origin, grid.cell_size, lk.strip_max_blocked)
+    gap = grid_gap_length(grid.label, grid.origin, grid.cell_size)
+    return link_strip_gaps(ps.position, ps.terrain, ps.edges, lk.strip_link_distance, lk.link_candidates, clear=clear,
+                           gap=gap, max_gap=lk.strip_max_gap)
 
 
 def place_embeddings(msm: MetricSemanticMap, position: np.ndarray, terrain: np.ndarray, max_range: float) -> tuple[np.ndarray, dict[str, int]]:
@@ -119,14 +133,19 @@ def embedding_rule(msm: MetricSemanticMap, max_range: float) -> str:
 
 
 def region_assignments(position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig) -> list[np.ndarray]:
+    """Per region level (1 = finest), (P,) region label of every place, by the configured method."""
     r = config.regions
     if r.method == "agglomerative":
-        return agglomerative_assignments(position, embedding, terrain, r.gamma, tuple(r.cuts), r.dense_max_places, r.micro_max_clusters, r.gap_levels)
+        adaptive = AdaptiveCuts(r.levels, r.first_level_size, r.top_regions, r.snap)
+        cuts = tuple(r.cuts) if r.cuts is not None else None
+        return agglomerative_assignments(position, embedding, terrain, r.gamma, cuts, r.dense_max_places, r.micro_max_clusters,
+                                         r.gap_levels, adaptive)
     sc = r.spectral
-    return spectral_assignments(
-        position, embedding, edges, gamma=r.gamma, levels=r.levels, max_semantic_diff=sc.max_semantic_diff, min_area=sc.min_area,
-        stop_rule=sc.stop_rule, sigma=sc.sigma, min_places=sc.min_places, max_depth=sc.max_depth, seed=r.seed,
-    )
+    relative = sc.thresholds == "relative"
+    stop = SpectralStop(sc.semantic_fraction if relative else sc.max_semantic_diff, sc.area_fraction if relative else sc.min_area,
+                        sc.stop_rule, relative)
+    return spectral_assignments(position, embedding, edges, gamma=r.gamma, levels=r.levels, stop=stop, sigma=sc.sigma,
+                                min_places=sc.min_places, max_depth=sc.max_depth, seed=r.seed, top=r.top_regions)
 
 
 def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None, show_progress: bool = False) -> GraphBuild:
@@ -149,7 +168,7 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
             raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
         grid = build_terrain_grid(
             msm.points, point_terrain, config.grid.cell_size, config.grid.obstacle_height, config.grid.obstacle_min_points,
-            config.grid.support_radius, config.grid.min_support,
+            config.grid.support_radius, config.grid.min_support, fill_radius=config.grid.fill_radius,
         )
     with timer.stage("GVD places"):
         ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
@@ -158,10 +177,12 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
     with timer.stage("links"):
         clear = grid_line_clear(traversable, grid.origin, grid.cell_size) if config.linking.require_clear_line else None
         kwargs = {"clear": clear} if clear is not None else {}
-        links, link_len = link_dead_ends(ps.position, ps.terrain, ps.edges, config.linking.max_link_distance, config.linking.link_candidates, **kwargs)
-        edges = np.vstack([ps.edges, links])
-        weight = np.concatenate([ps.weight, link_len])
-        kind = np.concatenate([np.full(len(ps.edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
+        strips, strip_len = strip_links(ps, grid, config)
+        gvd_edges, gvd_weight = np.vstack([ps.edges, strips]), np.concatenate([ps.weight, strip_len])
+        links, link_len = link_dead_ends(ps.position, ps.terrain, gvd_edges, config.linking.max_link_distance, config.linking.link_candidates, **kwargs)
+        edges = np.vstack([gvd_edges, links])
+        weight = np.concatenate([gvd_weight, link_len])
+        kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
         bridges, bridge_cost, bridge_clear = bridge_components(ps.position, edges, config.linking.bridge_penalty, config.linking.link_candidates, **kwargs)
         edges = np.vstack([edges, bridges])
         weight = np.concatenate([weight, bridge_cost])

@@ -6,6 +6,16 @@ than `max_distance` (the reference's max_deviation / max_distance rule). Every p
 terrain that has no GVD node gets one place at its cell of largest clearance, so no patch is
 dropped silently.
 
+Two rules keep the places where the terrain is:
+- Pockets: spur pruning removes the short GVD branches that run into corners, but also the branch
+  into a pocket of the terrain (a service pad off a driveway, a plaza at the end of a walk). A
+  pruned branch that reaches farther than `cover_radius` from the kept GVD is restored (farthest
+  first, only its path back to the kept GVD), so such a pocket gets a place and the rest stays
+  sparse.
+- Pieces: where the GVD of one connected patch falls apart (a neck narrower than the minimum
+  clearance), its pieces are joined along the shortest path through the patch, so places on one
+  patch are always connected on that terrain.
+
 Everything here is in grid cells; the caller converts to metres.
 """
 
@@ -14,10 +24,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from scipy import ndimage
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 
 from terra.graph.gvd import EIGHT, gvd
-from terra.graph.skeleton import SkeletonGraph, prune_spurs, simplify, skeleton_graph
+from terra.graph.skeleton import SkeletonGraph, prune_spurs, simplify, skeleton_adjacency, skeleton_graph
 
 
 @dataclass
@@ -112,14 +125,138 @@ def extract_places(
     junction_merge: float,
     max_deviation: float,
     max_distance: float,
+    cover_radius: float = np.inf,
 ) -> CellPlaces:
     """Places and GVD edges of one terrain's free mask (H, W); every length here is in cells."""
-    skeleton, distance = gvd(free, min_clearance, min_gap)
-    skeleton = prune_spurs(skeleton, distance, prune_ratio, prune_length)
+    full, distance = gvd(free, min_clearance, min_gap)
+    skeleton = prune_spurs(full, distance, prune_ratio, prune_length)
+    skeleton = restore_far_branches(full, skeleton, cover_radius)
     graph = simplify(skeleton_graph(skeleton, distance), distance, junction_merge)
     cells, edges, length = split_graph(graph, max_deviation, max_distance)
     cells = np.vstack([cells, _lonely_patch_cells(free, distance, cells)])
+    joins, join_length = join_patch_pieces(free, cells, edges)
+    edges, length = unique_edges(np.vstack([edges, joins]), np.concatenate([length, join_length]))
     return CellPlaces(cells, edges, length, distance[cells[:, 0], cells[:, 1]].astype(np.float64))
+
+
+def restore_far_branches(full: np.ndarray, kept: np.ndarray, radius: float) -> np.ndarray:
+    """`kept` plus the pruned branches of `full` that reach farther than `radius` cells from it.
+
+    Greedy, farthest first: the pruned cell farthest from the kept skeleton is joined back by its
+    shortest path along `full`, distances are updated, and so on until every pruned cell lies
+    within `radius` of the kept skeleton (or cannot reach it). Both are (H, W) bool, thin.
+    """
+    kept = np.array(kept, dtype=bool)
+    if not np.isfinite(radius) or not kept.any():
+        return kept
+    cells, adjacency = skeleton_adjacency(full)
+    on_kept = kept[cells[:, 0], cells[:, 1]]
+    pruned = np.flatnonzero(~on_kept)
+    if pruned.size == 0:
+        return kept
+    far = cKDTree(cells[on_kept]).query(cells[pruned])[0]
+    while True:
+        candidates = np.flatnonzero(far > radius)
+        if candidates.size == 0:
+            return kept
+        tip = int(pruned[candidates[np.argmax(far[candidates])]])
+        dist, pred = dijkstra(adjacency, directed=False, indices=tip, return_predecessors=True)
+        reach = np.flatnonzero(on_kept & np.isfinite(dist))
+        if reach.size == 0:  # a branch cut off from the kept skeleton: leave it
+            far[candidates[np.argmax(far[candidates])]] = 0.0
+            continue
+        node, path = int(reach[np.argmin(dist[reach])]), []
+        while node != tip:
+            node = int(pred[node])
+            path.append(node)
+        path = np.asarray(path, dtype=np.int64)
+        kept[cells[path, 0], cells[path, 1]] = True
+        on_kept[path] = True
+        far = np.minimum(far, cKDTree(cells[path]).query(cells[pruned])[0])
+
+
+def join_patch_pieces(free: np.ndarray, cells: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Edges (k, 2) and their lengths (k,) in cells that join places of one 8-connected patch of
+    `free` that the GVD edges leave in separate pieces, each along the shortest path through the
+    patch (a minimum spanning tree over the pieces, from a geodesic Voronoi partition of the patch
+    by its places)."""
+    none = np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    n = len(cells)
+    if n < 2:
+        return none
+    patch, _ = ndimage.label(free, structure=EIGHT)
+    place_patch = patch[cells[:, 0], cells[:, 1]]
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, piece = connected_components(graph, directed=False)
+    split = [p for p in np.unique(place_patch) if p > 0 and len(np.unique(piece[place_patch == p])) > 1]
+    pairs, lengths = [], []
+    for p in split:
+        a, b, length = _geodesic_joins(patch == p, cells, np.flatnonzero(place_patch == p), piece)
+        pairs.append(np.column_stack([a, b]))
+        lengths.append(length)
+    if not pairs:
+        return none
+    return np.vstack(pairs).astype(np.int64), np.concatenate(lengths)
+
+
+def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimum spanning joins (place a, place b, length in cells) between the pieces of `places`
+    inside one connected `region` (H, W) bool: every cell takes its geodesically nearest place;
+    neighbouring cells owned by places of different pieces offer a join of d_a + step + d_b."""
+    rows, cols = np.nonzero(region)
+    lo, hi = np.array([rows.min(), cols.min()]), np.array([rows.max(), cols.max()]) + 1
+    sub = region[lo[0]:hi[0], lo[1]:hi[1]]
+    region_cells, adjacency = grid_adjacency(sub)
+    index = np.full(sub.shape, -1, dtype=np.int64)
+    index[region_cells[:, 0], region_cells[:, 1]] = np.arange(len(region_cells))
+    sources = index[cells[places, 0] - lo[0], cells[places, 1] - lo[1]]
+    dist, _, origin = dijkstra(adjacency, directed=False, indices=sources, min_only=True, return_predecessors=True)
+    owner = np.full(len(region_cells), -1, dtype=np.int64)
+    owner[sources] = places
+    owner = owner[origin]
+    coo = sp.triu(adjacency).tocoo()
+    u, v, step = coo.row, coo.col, coo.data
+    a, b = owner[u], owner[v]
+    cross = piece[a] != piece[b]
+    a, b, cost = a[cross], b[cross], (dist[u] + step + dist[v])[cross]
+    # Kruskal over pieces: cheapest candidate first, ties by place indices.
+    order = np.lexsort((b, a, cost))
+    parent = {int(c): int(c) for c in np.unique(piece[places])}
+
+    def root(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    out_a, out_b, out_len = [], [], []
+    for i in order.tolist():
+        ra, rb = root(int(piece[a[i]])), root(int(piece[b[i]]))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+            out_a.append(int(a[i]))
+            out_b.append(int(b[i]))
+            out_len.append(float(cost[i]))
+    return np.asarray(out_a, np.int64), np.asarray(out_b, np.int64), np.asarray(out_len)
+
+
+def grid_adjacency(region: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+    """Cells (K, 2) of a bool grid in raster order and their symmetric 8-adjacency (K, K), weights
+    1 (4-neighbours) or sqrt(2) (diagonal), in cells."""
+    cells = np.argwhere(region)
+    H, W = region.shape
+    index = np.full((H + 2, W + 2), -1, dtype=np.int64)
+    index[cells[:, 0] + 1, cells[:, 1] + 1] = np.arange(len(cells))
+    rows, cols, weights = [], [], []
+    for dr, dc, w in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, np.sqrt(2.0)), (1, -1, np.sqrt(2.0))):
+        other = index[cells[:, 0] + 1 + dr, cells[:, 1] + 1 + dc]
+        keep = other >= 0
+        rows.append(np.flatnonzero(keep))
+        cols.append(other[keep])
+        weights.append(np.full(int(keep.sum()), w))
+    i, j, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    adjacency = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells)))
+    return cells, adjacency.tocsr()
 
 
 def _lonely_patch_cells(free: np.ndarray, distance: np.ndarray, cells: np.ndarray) -> np.ndarray:

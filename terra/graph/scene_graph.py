@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 EDGE_GVD = 0  # along one terrain's GVD
 EDGE_CROSS_TERRAIN = 1  # dead end linked to the nearest node of another terrain
@@ -93,8 +92,10 @@ class SceneGraph:
     embedder: str = ""
     region_method: str = ""
 
-    def place_adjacency(self) -> sp.csr_matrix:
+    def place_adjacency(self) -> "sp.csr_matrix":  # noqa: F821 (imported in the body)
         """Symmetric (P, P) sparse matrix of place edge weights."""
+        import scipy.sparse as sp  # here: monitoring and lookups load the graph without SciPy
+
         n = len(self.places)
         i, j = self.place_edges[:, 0], self.place_edges[:, 1]
         w = self.place_edge_weight.astype(np.float64)

@@ -1,23 +1,31 @@
-"""Spectral regions: recursive two-way splits of the places graph, cut into fixed levels.
+"""Spectral regions: recursive two-way splits of the places graph, cut into levels.
 
 Affinity on each place edge: exp(-w / sigma), w the paper's weight, so similar neighbours attract
 (the reference fed the distance-like weight itself as the affinity). Each split is
 scikit-learn's SpectralClustering(2, affinity="precomputed") with a fixed seed; a cluster whose
-subgraph is disconnected is split into its largest component and the rest instead.
+subgraph is disconnected is split into its largest component and the rest instead. The largest
+cluster (most places; ties: created first) is split next, so the order of the splits is a
+divisive hierarchy.
 
 Stopping (the paper's rule, `stop_rule="either"`): a cluster stops splitting once its semantic
 difference is below `max_semantic_diff` or its 2D bounding-box area is below `min_area` m^2. The
 semantic difference is the cosine of the member most similar to the cluster's mean embedding minus
 that of the least similar one. `stop_rule="both"` stops only when both hold (the reference code).
+The thresholds are absolute (the paper's 0.45 and 10,000 m^2, chosen for CLIP on a large campus)
+or, with `relative_thresholds`, fractions of the whole map's semantic difference and area: the
+same places have a semantic difference of about 0.45 with CLIP and 0.18 with a text embedder, and
+a 150 m map is a quarter of 10,000 m^2 four times over.
 
-Levels: leaves are level 1. With the leaves' maximum depth d_max and L levels, level k >= 2 is
-each leaf's ancestor at depth min(depth, floor(d_max (L - k + 1) / L)), so every level coarsens
-the one below and all places sit in exactly one region per level.
+Levels: level 1 is the leaves. Level k >= 2 is the set of clusters after the first n_k - 1 splits,
+n_k falling geometrically from the number of leaves to `top` (terra.graph.agglomerative's
+`level_counts` rule), so every level coarsens the one below, counts strictly decrease upward
+when the tree has leaves enough, and all places sit in exactly one region per level.
 """
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -65,71 +73,100 @@ def two_way_split(affinity: sp.csr_matrix, seed: int) -> np.ndarray:
     return labels == labels[0]
 
 
+@dataclass(frozen=True)
+class SpectralStop:
+    """When a cluster stops splitting: semantic difference below `semantic` or 2D bounding-box
+    area (m^2) below `area` ("either"), or both ("both"); `relative`: the two are fractions of the
+    whole map's semantic difference and area."""
+
+    semantic: float = 0.45
+    area: float = 10000.0
+    rule: str = "either"
+    relative: bool = False
+
+
 def spectral_assignments(
     position: np.ndarray,
     embedding: np.ndarray,
     edges: np.ndarray,
     gamma: float = 100.0,
     levels: int = 4,
-    max_semantic_diff: float = 0.45,
-    min_area: float = 10000.0,
-    stop_rule: str = "either",
+    stop: SpectralStop | None = None,
     sigma: float | None = None,
     min_places: int = 4,
     max_depth: int = 24,
     seed: int = 0,
+    top: int = 3,
 ) -> list[np.ndarray]:
     """Per level (1 = leaves), (P,) region label of each place."""
     position = np.asarray(position, dtype=np.float64)
     embedding = np.asarray(embedding, dtype=np.float32)
+    stop = stop or SpectralStop()
+    P = len(position)
+    if P == 0:
+        return [np.zeros(0, np.int64) for _ in range(levels)]
+    affinity = edge_affinity(position, embedding, edges, gamma, sigma)
+    semantic, area = stop.semantic, stop.area
+    if stop.relative:
+        semantic, area = stop.semantic * semantic_difference(embedding), stop.area * bbox_area(position)
+    members, parent = split_tree(position, embedding, affinity, semantic, area, stop.rule, min_places, max_depth, seed)
+    return split_levels(members, parent, P, levels, top)
+
+
+def edge_affinity(position: np.ndarray, embedding: np.ndarray, edges: np.ndarray, gamma: float, sigma: float | None) -> sp.csr_matrix:
+    """Symmetric (P, P) affinity exp(-w / sigma) on the place edges (sigma None: median w)."""
     P = len(position)
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     w = paper_weight(position[edges[:, 0]], position[edges[:, 1]], embedding[edges[:, 0]], embedding[edges[:, 1]], gamma)
     if sigma is None:
         sigma = float(np.median(w)) if len(w) else 1.0
     sim = np.exp(-w / max(sigma, 1e-9))
-    A = sp.coo_matrix((np.concatenate([sim, sim]), (np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(P, P)).tocsr()
+    rows, cols = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate([edges[:, 1], edges[:, 0]])
+    return sp.coo_matrix((np.concatenate([sim, sim]), (rows, cols)), shape=(P, P)).tocsr()
 
-    # Tree nodes: (members, depth, parent); children are appended in a fixed order.
-    members: list[np.ndarray] = [np.arange(P)]
-    depth = [0]
-    parent = [-1]
-    leaf = []
-    queue = [0]
-    while queue:
-        node = queue.pop(0)
+
+def split_tree(position: np.ndarray, embedding: np.ndarray, affinity: sp.csr_matrix, max_semantic_diff: float, min_area: float,
+               stop_rule: str, min_places: int, max_depth: int, seed: int) -> tuple[list[np.ndarray], list[int]]:
+    """The divisive tree: node members (node 0 = all places) and parents, nodes numbered in the
+    order they were created; the largest unstopped cluster is split first."""
+    import heapq
+
+    members: list[np.ndarray] = [np.arange(len(position))]
+    parent, depth = [-1], [0]
+    heap = [(-len(position), 0)]
+    while heap:
+        _, node = heapq.heappop(heap)
         idx = members[node]
-        stop = (
-            len(idx) < min_places
-            or depth[node] >= max_depth
-            or should_stop(position[idx], embedding[idx], max_semantic_diff, min_area, stop_rule)
-        )
-        if not stop:
-            side = two_way_split(A[idx][:, idx], seed)
-            if side.all() or not side.any():
-                stop = True
-        if stop:
-            leaf.append(node)
+        if (len(idx) < min_places or depth[node] >= max_depth
+                or should_stop(position[idx], embedding[idx], max_semantic_diff, min_area, stop_rule)):
+            continue
+        side = two_way_split(affinity[idx][:, idx], seed)
+        if side.all() or not side.any():
             continue
         for part in (idx[side], idx[~side]):
             members.append(part)
-            depth.append(depth[node] + 1)
             parent.append(node)
-            queue.append(len(members) - 1)
+            depth.append(depth[node] + 1)
+            heapq.heappush(heap, (-len(part), len(members) - 1))
+    return members, parent
 
-    leaf_of_place = np.zeros(P, dtype=np.int64)
-    for node in leaf:
-        leaf_of_place[members[node]] = node
-    d_max = max((depth[n] for n in leaf), default=0)
-    depth_arr, parent_arr = np.asarray(depth), np.asarray(parent)
-    out = [leaf_of_place]
-    for k in range(2, levels + 1):
-        cut = (d_max * (levels - k + 1)) // levels
-        node = leaf_of_place.copy()
-        for _ in range(d_max):
-            up = depth_arr[node] > cut
-            if not up.any():
-                break
-            node[up] = parent_arr[node[up]]
-        out.append(node)
+
+def split_levels(members: list[np.ndarray], parent: list[int], P: int, levels: int, top: int) -> list[np.ndarray]:
+    """Per level, (P,) cluster of each place: level 1 the leaves, level k the clusters after the
+    first n_k - 1 splits (children are created in split order, two per split)."""
+    from terra.graph.agglomerative import level_counts
+
+    n_splits = (len(members) - 1) // 2
+    counts = level_counts(n_splits + 1, levels, 1.0, top)  # leaves = splits + 1
+    out = []
+    for count in counts:
+        # After s splits, the clusters are the nodes created so far that were not split within them.
+        s = count - 1
+        alive = 1 + 2 * s
+        split_parents = {parent[c] for c in range(1, alive)}
+        label = np.zeros(P, dtype=np.int64)
+        for node in range(alive):
+            if node not in split_parents:
+                label[members[node]] = node
+        out.append(label)
     return out

@@ -224,6 +224,8 @@ def load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
             frame.point_instances = np.asarray(frame.point_instances)[finite]
         if frame.intensity is not None:
             frame.intensity = np.asarray(frame.intensity)[finite]
+        if frame.point_times is not None:
+            frame.point_times = np.asarray(frame.point_times)[finite]
     frame.points = np.asarray(frame.points, dtype=np.float32)[:, :3]
     if frame.points.shape[0] == 0:
         stats.add("frames_skipped_empty")

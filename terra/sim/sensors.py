@@ -38,12 +38,19 @@ class Lidar:
         """One scan: points (N, 3) float32 LiDAR frame, intensity (N,) float32 0..1, labels and
         instances (N,) int32. Rays with no return within [min_range, max_range] give no point."""
         cfg = self.config
-        hits = cast(world, T_map_lidar, self.tiles, cfg.max_range)
+        wobble = np.eye(3)  # beam directions of this scan, in the LiDAR frame
+        if cfg.wobble_deg > 0 and rng is not None:
+            angles = rng.uniform(-cfg.wobble_deg, cfg.wobble_deg, 3)
+            wobble = Rotation.from_euler("xyz", angles, degrees=True).as_matrix()
+        T_cast = T_map_lidar.copy()
+        T_cast[:3, :3] = T_map_lidar[:3, :3] @ wobble
+        hits = cast(world, T_cast, self.tiles, cfg.max_range)
         t = hits.t
         if cfg.range_noise_m > 0 and rng is not None:
             t = t + rng.normal(0.0, cfg.range_noise_m, t.shape)
         keep = np.isfinite(t) & (t >= cfg.min_range) & (t <= cfg.max_range)
-        points = (self.tiles.directions[keep] * t[keep, None]).astype(np.float32)
+        directions = self.tiles.directions[keep] @ wobble.T if cfg.wobble_deg > 0 else self.tiles.directions[keep]
+        points = (directions * t[keep, None]).astype(np.float32)
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal[keep], hits.directions[keep]))
         intensity = (CLASS_REFLECTANCE[hits.class_id[keep]] * np.clip(cos_inc, 0.1, 1.0)).astype(np.float32)
         return {"points": points, "intensity": intensity, "labels": hits.class_id[keep], "instances": hits.instance_id[keep]}

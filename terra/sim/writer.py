@@ -13,7 +13,7 @@ from terra.datasets.folder_io import write_classes
 from terra.datasets.ground_truth import write_ground_truth
 from terra.errors import TerraError
 
-FORMATS = ("terra-folder", "semantickitti", "kitti-raw")
+FORMATS = ("terra-folder", "semantickitti", "kitti-raw", "rosbag1", "rosbag2")
 
 
 def check_output(out: Path, overwrite: bool) -> None:
@@ -50,12 +50,15 @@ def atomic_folder(out: Path, overwrite: bool, fill: Callable[[Path], None]) -> P
 
 
 def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder", overwrite: bool = False,
-                  progress: bool = True, extra: Callable[[Path], None] | None = None) -> Path:
+                  progress: bool = True, extra: Callable[[Path], None] | None = None, bag_images: str = "jpeg") -> Path:
     """Write all frames of `dataset`, its class table (classes.json) and, when it has one, its
     ground truth (ground_truth/) to folder `out` in `format`. `extra(tmp_root)` may add files
-    before the folder is moved into place. Returns the folder."""
+    before the folder is moved into place. `bag_images`: jpeg (CompressedImage) or raw (Image
+    rgb8) for the bag formats. Returns the folder."""
     if format not in FORMATS:
         raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
+    if bag_images not in ("jpeg", "raw"):
+        raise TerraError(f"unknown bag image format {bag_images!r}; expected jpeg or raw")
 
     def fill(root: Path) -> None:
         shift = None  # from the dataset's map frame to the written one, when a format moves it
@@ -67,6 +70,10 @@ def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder
             from terra.datasets.kitti_raw_writer import write_kitti_raw
 
             shift = write_kitti_raw(dataset, root, show_progress=progress)
+        elif format in ("rosbag1", "rosbag2"):
+            from terra.sim.bag_writer import write_bag
+
+            write_bag(dataset, root, version=int(format[-1]), image_format=bag_images, show_progress=progress)
         else:
             from terra.datasets.semantickitti import write_semantickitti
 

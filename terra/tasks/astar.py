@@ -9,8 +9,40 @@ from __future__ import annotations
 
 import heapq
 import math
+import threading
+import weakref
 
 import numpy as np
+
+# Adjacency lists of graphs searched many times (a long-lived process keeps its cost graphs):
+# id(indptr) -> (weak reference to indptr, id(indices), id(cost), per-node [(neighbour, cost)]).
+# CSR arrays handed to astar are never changed in place, so their identity names their content.
+_ADJACENCY: dict[int, tuple[weakref.ref, int, int, list]] = {}
+_ADJACENCY_LOCK = threading.Lock()
+
+
+def prepare_adjacency(indptr: np.ndarray, indices: np.ndarray, cost: np.ndarray) -> None:
+    """Remember per-node (neighbour, cost) lists for this CSR graph, so later astar calls on the
+    same arrays skip the list conversions and slicing (about twice as fast on 20,000 places).
+    Worth it for a graph searched repeatedly; the memo goes when `indptr` is garbage-collected."""
+    ptr, nbr, w = indptr.tolist(), indices.tolist(), cost.tolist()
+    adjacency = [list(zip(nbr[ptr[u]:ptr[u + 1]], w[ptr[u]:ptr[u + 1]])) for u in range(len(ptr) - 1)]
+    key = id(indptr)
+
+    def forget(_ref: weakref.ref, key: int = key) -> None:
+        with _ADJACENCY_LOCK:
+            _ADJACENCY.pop(key, None)
+
+    with _ADJACENCY_LOCK:
+        _ADJACENCY[key] = (weakref.ref(indptr, forget), id(indices), id(cost), adjacency)
+
+
+def _prepared(indptr: np.ndarray, indices: np.ndarray, cost: np.ndarray) -> list | None:
+    with _ADJACENCY_LOCK:
+        entry = _ADJACENCY.get(id(indptr))
+    if entry is not None and entry[0]() is indptr and entry[1:3] == (id(indices), id(cost)):
+        return entry[3]
+    return None
 
 
 def astar(
@@ -36,8 +68,11 @@ def astar(
         return [start], 0.0
     offset = np.asarray(position, dtype=np.float64) - np.asarray(position[goal], dtype=np.float64)
     h = (heuristic_scale * np.linalg.norm(offset, axis=1)).tolist()
-    # Plain lists: element access and slicing on them are several times faster than on arrays.
-    ptr, nbr, w = indptr.tolist(), indices.tolist(), cost.tolist()
+    adjacency = _prepared(indptr, indices, cost)
+    if adjacency is None:
+        # Plain lists: element access and slicing on them are several times faster than on arrays.
+        ptr, nbr, w = indptr.tolist(), indices.tolist(), cost.tolist()
+        adjacency = _LazyAdjacency(ptr, nbr, w)
     g = [math.inf] * n
     parent = [-1] * n
     closed = bytearray(n)
@@ -52,8 +87,7 @@ def astar(
             break
         closed[u] = 1
         gu = -neg_g
-        lo, hi = ptr[u], ptr[u + 1]
-        for v, c in zip(nbr[lo:hi], w[lo:hi]):
+        for v, c in adjacency[u]:
             gv = gu + c
             if gv < g[v] and not closed[v]:
                 g[v] = gv
@@ -66,3 +100,16 @@ def astar(
         path.append(parent[path[-1]])
     path.reverse()
     return path, g[goal]
+
+
+class _LazyAdjacency:
+    """adjacency[u] as zip slices of the CSR lists (a one-off search builds no per-node lists)."""
+
+    __slots__ = ("ptr", "nbr", "w")
+
+    def __init__(self, ptr: list, nbr: list, w: list):
+        self.ptr, self.nbr, self.w = ptr, nbr, w
+
+    def __getitem__(self, u: int):  # noqa: ANN204
+        lo, hi = self.ptr[u], self.ptr[u + 1]
+        return zip(self.nbr[lo:hi], self.w[lo:hi])

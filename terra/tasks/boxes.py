@@ -90,3 +90,66 @@ def fit_oriented_box(points: np.ndarray, padding: float = 0.0) -> OrientedBox:
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise ValueError(f"expected (n, 3) points with n >= 1, got shape {pts.shape}")
     return fit_oriented_boxes(pts, np.zeros(len(pts), dtype=np.int64), padding)[0]
+
+
+def _extents_at_yaw(points: np.ndarray, groups: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per group, the centre (G, 2) and size (G, 2) of the rectangle with axes at `yaw` (G,)
+    radians that bounds its xy points; points sorted by group, every group present."""
+    starts = np.searchsorted(groups, np.arange(len(yaw)))
+    c, s = np.cos(yaw)[groups], np.sin(yaw)[groups]
+    u = c * points[:, 0] + s * points[:, 1]
+    v = -s * points[:, 0] + c * points[:, 1]
+    lo = np.column_stack([np.minimum.reduceat(u, starts), np.minimum.reduceat(v, starts)])
+    hi = np.column_stack([np.maximum.reduceat(u, starts), np.maximum.reduceat(v, starts)])
+    mid = (lo + hi) / 2
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    centre = np.column_stack([cy * mid[:, 0] - sy * mid[:, 1], sy * mid[:, 0] + cy * mid[:, 1]])
+    return centre, hi - lo
+
+
+def fit_object_boxes(points: np.ndarray, groups: np.ndarray, ground_z: np.ndarray | None = None,
+                     context_yaw: np.ndarray | None = None, padding: float = 0.0, min_size: float = 0.05,
+                     lift: float = 0.15, prefer_context: float = 1.2) -> list[OrientedBox]:
+    """Boxes of objects standing on the ground, robust to partial views and to masks that bleed
+    onto the ground. points: (n, 3) metres, map frame; groups: (n,) ids 0..G-1.
+
+    - Footprint: from the points at least `lift` metres above the group's ground height
+      `ground_z` (G,) (mask bleeding labels ground around an object as the object), unless fewer
+      than three are; then from all of them.
+    - Yaw: the minimum-area rectangle's, unless `context_yaw` (G,) (radians; NaN = none: the
+      direction of the terrain strips around the object) gives a rectangle at most
+      `prefer_context` times larger; a partial view often makes the minimum-area rectangle turn.
+    - Height: from the ground (when below the lowest point) to the highest point.
+    - `padding` (metres) is added to the footprint's sides and above the top (below the bottom
+      too where the ground is unknown); then every size is at least `min_size` metres.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    groups = np.asarray(groups, dtype=np.int64)
+    order = np.argsort(groups, kind="stable")
+    pts, groups = pts[order], groups[order]
+    n_groups = int(groups[-1]) + 1 if len(groups) else 0
+    ground = np.full(n_groups, -np.inf) if ground_z is None else np.asarray(ground_z, dtype=np.float64)
+    high = pts[:, 2] >= ground[groups] + lift
+    enough = np.bincount(groups[high], minlength=n_groups) >= 3
+    foot = high | ~enough[groups]
+    rect = fit_oriented_boxes(pts[foot], groups[foot])
+    yaw = np.array([b.yaw for b in rect])
+    centre = np.array([b.center[:2] for b in rect]).reshape(-1, 2)
+    size_xy = np.array([b.size[:2] for b in rect]).reshape(-1, 2)
+    if context_yaw is not None:
+        context = np.asarray(context_yaw, dtype=np.float64)
+        has = np.isfinite(context)
+        c_centre, c_size = _extents_at_yaw(pts[foot, :2], groups[foot], np.where(has, context, 0.0))
+        take = has & (np.prod(c_size, axis=1) <= prefer_context * np.prod(size_xy, axis=1) + 1e-9)
+        swap = c_size[:, 1] > c_size[:, 0]
+        c_yaw = wrap_half_turn(np.where(swap, context + np.pi / 2, context))
+        c_size = np.where(swap[:, None], c_size[:, ::-1], c_size)
+        yaw, centre, size_xy = np.where(take, c_yaw, yaw), np.where(take[:, None], c_centre, centre), np.where(take[:, None], c_size, size_xy)
+    starts = np.searchsorted(groups, np.arange(n_groups))
+    z_hi = np.maximum.reduceat(pts[:, 2], starts) + padding / 2
+    on_ground = np.isfinite(ground)
+    z_lo = np.where(on_ground, np.minimum(np.minimum.reduceat(pts[:, 2], starts), np.where(on_ground, ground, 0.0)),
+                    np.minimum.reduceat(pts[:, 2], starts) - padding / 2)
+    sizes = np.maximum(np.column_stack([size_xy + padding, z_hi - z_lo]), min_size)
+    centres = np.column_stack([centre, (z_lo + z_hi) / 2])
+    return [OrientedBox(center=centres[g], size=sizes[g], yaw=float(yaw[g])) for g in range(n_groups)]

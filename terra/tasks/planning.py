@@ -15,12 +15,17 @@ Terrain preferences as edge costs, in metres-equivalent:
 
 Penalties are non-negative, so every cost is at least the straight-line length and the A*
 straight-line heuristic is admissible: the plan is the cheapest path under these costs.
+
+Goals named by a task: every object retrieved for it is a candidate, tried best score first; a
+candidate is skipped when no allowed place lies near it or no path reaches that place, and the
+plan says which were skipped and why (`plan_to_objects`). No path exists only when every
+candidate fails.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -217,3 +222,95 @@ def plan_on(graph: SceneGraph, cost_graph: CostGraph, start: int, goal: int) -> 
         raise NoPathError(f"no path from place {start} ({names[terrain[start]]}) to place {goal} ({names[terrain[goal]]}){why}")
     places, cost = result
     return path_from_places(graph, places, cost)
+
+
+# ---------------------------------------------------------------- goals from retrieved objects
+
+
+class GoalObject(Protocol):
+    """What planning reads from a retrieved object (terra.tasks.retrieval.FoundObject): its label,
+    score, centre (3,) metres in the map frame and linked (nearest) place."""
+
+    label: str
+    score: float
+    center: np.ndarray
+    place: int
+
+
+def nearest_allowed_place(graph: SceneGraph, xy: np.ndarray, allowed: np.ndarray, max_distance: float = np.inf) -> int:
+    """The allowed place nearest (2-D) to xy (metres, map frame), or -1 when none lies within
+    max_distance metres."""
+    candidates = np.flatnonzero(allowed)
+    if candidates.size == 0:
+        return -1
+    d = np.linalg.norm(graph.places.position[candidates, :2] - np.asarray(xy, dtype=np.float64)[:2], axis=1)
+    best = int(np.argmin(d))
+    return int(candidates[best]) if d[best] <= max_distance else -1
+
+
+def approach_place(graph: SceneGraph, obj: GoalObject, allowed: np.ndarray, radius: float) -> tuple[int, str]:
+    """(place, "") where the robot approaches `obj`: its own place when allowed, else the nearest
+    allowed place within `radius` metres of its centre; (-1, why) when there is none."""
+    if 0 <= obj.place < len(allowed) and allowed[obj.place]:
+        return int(obj.place), ""
+    place = nearest_allowed_place(graph, obj.center, allowed, radius)
+    if place >= 0:
+        return place, ""
+    if 0 <= obj.place < len(allowed):
+        terrain = graph.terrain_classes[int(graph.places.terrain[obj.place])]
+        return -1, f"its place {obj.place} is on forbidden terrain {terrain!r} and no allowed place lies within {radius:g} m"
+    return -1, f"no allowed place lies within {radius:g} m"
+
+
+@dataclass
+class SkippedGoal:
+    """A goal candidate that was not planned to, and why."""
+
+    object: GoalObject
+    approach_place: int
+    reason: str
+
+    def to_json(self) -> dict[str, Any]:
+        o = self.object
+        return {"label": o.label, "score": round(float(o.score), 6), "center": [round(float(v), 4) for v in o.center],
+                "place": int(o.place), "approach_place": int(self.approach_place), "reason": self.reason}
+
+
+@dataclass
+class GoalPlan:
+    """The plan to the first reachable candidate: its object, its approach place, and the
+    better-scored candidates that were skipped (best first)."""
+
+    plan: PathPlan
+    goal_object: GoalObject
+    goal_place: int
+    skipped: list[SkippedGoal]
+
+
+def plan_to_objects(graph: SceneGraph, cost_graph: CostGraph, start: int, candidates: Sequence[GoalObject],
+                    radius: float, what: str = "the destination") -> GoalPlan:
+    """Plan from `start` to the best-scored candidate object that can be reached.
+
+    Candidates are tried by decreasing score; one is skipped when it has no approach place (see
+    `approach_place`, `radius` metres) or A* finds no path to it under the terrain constraints.
+    Raises NoPathError, listing why each candidate failed, only when none can be reached.
+    """
+    if not candidates:
+        raise TerraError(f"no object matches {what}; lower --alpha or rephrase it")
+    order = sorted(range(len(candidates)), key=lambda i: (-float(candidates[i].score), i))
+    skipped: list[SkippedGoal] = []
+    for i in order:
+        obj = candidates[i]
+        place, why = approach_place(graph, obj, cost_graph.allowed, radius)
+        if place < 0:
+            skipped.append(SkippedGoal(obj, -1, why))
+            continue
+        try:
+            plan = plan_on(graph, cost_graph, start, place)
+        except NoPathError as exc:
+            skipped.append(SkippedGoal(obj, place, str(exc).removeprefix("no path: ")))
+            continue
+        return GoalPlan(plan, obj, place, skipped)
+    reasons = "; ".join(f"{s.object.label!r} (score {s.object.score:.3f}) at place {s.object.place}: {s.reason}" for s in skipped[:3])
+    more = f"; and {len(skipped) - 3} more" if len(skipped) > 3 else ""
+    raise NoPathError(f"no path to any of the {len(skipped)} objects for {what}: {reasons}{more}")

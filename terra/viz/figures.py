@@ -100,6 +100,34 @@ def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxS
     return save_figure(fig, path, dpi)
 
 
+def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
+                   extent: Extent | None = None, title: str | None = None) -> Path:
+    """The object layer: each object's footprint (its yawed box seen from above) in its label's
+    colour over grey places, with a line to the place it is linked to."""
+    from matplotlib import colormaps
+
+    labels = list(dict.fromkeys(sg.objects.label))
+    colours = colormaps["tab10"](np.arange(max(len(labels), 1)) % 10)[:, :3]
+    fig, (ax,) = new_figure(1, panel_size=7.0, title=title or f"Objects: {len(sg.objects)} in the scene graph", extent=extent)
+    if background is not None:
+        background.show(ax, alpha=0.3)
+    draw_places(ax, sg, colours=np.full((len(sg.places), 3), 0.7), edges=True)
+    boxes = BoxSet(sg.objects.center, sg.objects.size, sg.objects.yaw)
+    for corners, label, place, centre in zip(boxes.footprint_corners(), sg.objects.label, sg.objects.place, boxes.center):
+        colour = colours[labels.index(label)]
+        _footprint(ax, corners, edgecolor=colour, linewidth=1.8, zorder=5)
+        if 0 <= place < len(sg.places):
+            ax.plot([centre[0], sg.places.position[place, 0]], [centre[1], sg.places.position[place, 1]], color=colour,
+                    linewidth=0.8, linestyle=":", zorder=4)
+    topdown_axis(ax, extent=extent)
+    if labels:
+        ax.legend(handles=[Line2D([], [], color=colours[i], label=lb) for i, lb in enumerate(labels)], loc="upper right",
+                  fontsize=7, framealpha=0.85)
+    else:
+        ax.text(0.5, 0.5, "no objects (run terra find --save, or give --query)", ha="center", va="center", transform=ax.transAxes)
+    return save_figure(fig, path, dpi)
+
+
 def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) -> None:
     xy = sg.places.position[:, :2]
     if len(places):

@@ -14,6 +14,11 @@ For each query t with N_t ground-truth boxes:
   the best score among them are matched to t's ground truth. SPrec and RPrec are the strict and
   relaxed successes over all queries divided by the number of such predictions.
 - F1 = 2 RPrec RAcc / (RPrec + RAcc) (0 when both are 0).
+- Matched IoU: the mean IoU of the accuracy matches themselves (IoU divides by sum_t N_t, so a
+  missed object counts as 0 there; here only the boxes that were matched count).
+- By distance from the robot's path: the accuracy matches of the ground-truth objects whose centre
+  lies in each distance band from the path (a polyline, metres, 2-D), so partial views from far
+  away show apart from close ones.
 """
 
 from __future__ import annotations
@@ -54,11 +59,13 @@ class MatchCounts:
     iou_sum: float = 0.0
     strict: int = 0
     relaxed: int = 0
+    matches: int = 0
 
     def __iadd__(self, other: "MatchCounts") -> "MatchCounts":
         self.iou_sum += other.iou_sum
         self.strict += other.strict
         self.relaxed += other.relaxed
+        self.matches += other.matches
         return self
 
 
@@ -74,6 +81,7 @@ def match_boxes(pred: BoxSet, gt: BoxSet) -> MatchCounts:
         iou_sum=float(iou[p, g].sum()),
         strict=int(np.count_nonzero(pred_has_gt_centre & gt_has_pred_centre)),
         relaxed=int(np.count_nonzero(pred_has_gt_centre)),
+        matches=int(p.size),
     )
 
 
@@ -91,6 +99,8 @@ class RetrievalScores:
     num_predictions: int
     num_precision_predictions: int
     per_query: list[dict] = field(default_factory=list)
+    matched_iou: float = 0.0
+    matches: int = 0
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -138,6 +148,7 @@ def evaluate_retrieval(
             "num_gt": len(gt_t),
             "num_predictions": int(np.count_nonzero(assigned == t)),
             "iou_sum": acc.iou_sum,
+            "matches": acc.matches,
             "strict_hits": acc.strict,
             "relaxed_hits": acc.relaxed,
             "precision_predictions": int(mine.size),
@@ -157,4 +168,55 @@ def evaluate_retrieval(
         num_predictions=len(pred),
         num_precision_predictions=num_sel,
         per_query=per_query,
+        matched_iou=total_acc.iou_sum / total_acc.matches if total_acc.matches else 0.0,
+        matches=total_acc.matches,
     )
+
+
+def accuracy_matches(pred: BoxSet, scores: np.ndarray, gt: list[BoxSet]) -> list[np.ndarray]:
+    """Per query, (N_t,) IoU of each ground-truth box with the prediction matched to it in the
+    accuracy matching (NaN where none is)."""
+    scores = np.asarray(scores, dtype=np.float64).reshape(len(pred), len(gt))
+    out = []
+    for t, gt_t in enumerate(gt):
+        top = np.argsort(-scores[:, t], kind="stable")[: len(gt_t)]
+        iou = iou_matrix(pred[top], gt_t)
+        p, g = greedy_match(iou)
+        matched = np.full(len(gt_t), np.nan)
+        matched[g] = iou[p, g]
+        out.append(matched)
+    return out
+
+
+def distance_to_path(xy: np.ndarray, path_xy: np.ndarray) -> np.ndarray:
+    """(n,) 2-D distance (metres) of points (n, 2) to a polyline (m, 2) (a single point if m = 1)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    path = np.asarray(path_xy, dtype=np.float64).reshape(-1, 2)
+    if len(path) == 0:
+        return np.full(len(xy), np.inf)
+    if len(path) == 1:
+        return np.linalg.norm(xy - path[0], axis=1)
+    a, b = path[:-1], path[1:]
+    ab = b - a
+    t = np.clip(np.einsum("nsk,sk->ns", xy[:, None, :] - a[None], ab) / np.maximum((ab**2).sum(axis=1), 1e-12), 0.0, 1.0)
+    closest = a[None] + t[..., None] * ab[None]
+    return np.linalg.norm(xy[:, None, :] - closest, axis=2).min(axis=1)
+
+
+def iou_by_distance(matched: list[np.ndarray], gt: list[BoxSet], path_xy: np.ndarray,
+                    bands: tuple[float, ...] = (5.0, 10.0, 20.0)) -> list[dict]:
+    """Per distance band from the path ([0, 5), [5, 10), [10, 20), [20, inf) metres by default):
+    ground-truth objects, how many were matched, and the mean IoU of those matches."""
+    centres = [b.center[:, :2] for b in gt if len(b)]
+    if not centres:
+        return []
+    distance = distance_to_path(np.vstack(centres), path_xy)
+    iou = np.concatenate([m for m, b in zip(matched, gt) if len(b)])
+    edges = (0.0,) + tuple(bands) + (np.inf,)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        inside = (distance >= lo) & (distance < hi)
+        hit = inside & np.isfinite(iou)
+        out.append({"from_m": lo, "to_m": None if np.isinf(hi) else hi, "objects": int(inside.sum()), "matched": int(hit.sum()),
+                    "matched_iou": float(iou[hit].mean()) if hit.any() else None})
+    return out

@@ -1,0 +1,47 @@
+"""`terra export`: a bundle out to spark_dsg, networkx, PLY or the authors' map files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from terra.cli import app
+
+
+@app.command("export")
+def export_command(
+    bundle: Path = typer.Argument(..., help="Bundle folder (`terra map`, and `terra build` for the graph formats)."),
+    fmt: str = typer.Option(..., "--format", "-f", help="spark-dsg | networkx | ply | terra-reference."),
+    out: Optional[Path] = typer.Option(
+        None, "--out", "-o", help="Output file (folder for terra-reference); default beside the bundle."
+    ),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output."),
+    no_features: bool = typer.Option(
+        False, "--no-features", help="spark-dsg/networkx: leave out the embedding vectors."
+    ),
+    color: str = typer.Option(
+        "terrain", "--color", help="ply: colour points by 'terrain' or 'ms-max' (most observed bank entry)."
+    ),
+    image_range: float = typer.Option(
+        20.0, "--image-range", help="terra-reference: metres for gidx2imgs_{range}m (the paper's 20 m)."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Export BUNDLE for other tools: the scene graph as spark_dsg JSON (Hydra, Clio) or networkx
+    node-link JSON, the map's points as PLY (CloudCompare, Open3D), or the metric-semantic map
+    files of the authors' Phase 1 (their Phase 2 scripts build on them). Written atomically; an
+    existing output is kept unless --overwrite.
+
+    Example: terra export campus.terra --format spark-dsg --out campus.dsg.json
+    """
+    from terra.interop.export import export_bundle
+
+    summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range)
+    if as_json:
+        typer.echo(json.dumps(summary, indent=1, sort_keys=True))
+        return
+    counts = {k: v for k, v in summary.items() if k not in ("format", "out", "files", "layers")}
+    typer.echo(f"{summary['format']} -> {summary['out']} (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")

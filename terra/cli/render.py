@@ -1,0 +1,135 @@
+"""Text renderings of the typed task results for `terra find/monitor/plan/node` (their `--json`
+is the result's `to_json()`, the same JSON `terra serve` answers with)."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
+    from terra.tasks.lookup import Location, NodeInfo
+    from terra.tasks.results import FindResult, MonitorResults, PlanResult
+
+
+def render_json(result: Any) -> str:
+    return json.dumps(result.to_json(), indent=1)
+
+
+def render_find(result: FindResult) -> str:
+    lines = [
+        f"{len(result.objects)} objects for {len(result.queries)} queries "
+        f"(method {result.method}, alpha {result.alpha:.3f})"
+    ]
+    for q, query in enumerate(result.queries):
+        mine = [(i, o) for i, o in enumerate(result.objects) if o.query == q]
+        lines.append(f"{query!r}: {len(mine)} objects")
+        for i, o in mine:
+            c, s = o.center, o.size
+            lines.append(
+                f"  #{i:<3d} score {o.score:.3f}  centre ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m  "
+                f"size {s[0]:.2f} x {s[1]:.2f} x {s[2]:.2f} m  yaw {math.degrees(o.yaw):6.1f} deg  "
+                f"{o.point_count} points  place {o.place}"
+            )
+    if result.saved:
+        lines.append(f"saved {len(result.objects)} objects to the scene graph of {result.bundle}")
+    return "\n".join(lines)
+
+
+def render_monitor(result: MonitorResults) -> str:
+    import numpy as np
+
+    graph = result.graph
+    lines = []
+    for r in result.results:
+        lines.append(
+            f"{r.query!r} (method {result.method}, k {result.k}, alpha {result.alpha:.3f}): "
+            f"{len(r.regions)} regions, {len(r.places)} places"
+        )
+        for (level, index), score in zip(r.regions, r.region_scores):
+            p = graph.regions[level - 1].position[index]
+            count = int(np.count_nonzero(graph.place_region(level) == index))
+            lines.append(
+                f"  region level {level} #{index}  score {score:.3f}  centre ({p[0]:.1f}, {p[1]:.1f}) m  {count} places"
+            )
+        for c, members in enumerate(r.clusters):
+            lines.append(f"  cluster {c}: {len(members)} places")
+        if len(r.places):
+            xy = graph.places.position[np.asarray(r.places, dtype=np.int64), :2]
+            lines.append(f"  places: {' '.join(str(int(p)) for p in r.places)}")
+            lines.append(
+                f"  extent x {xy[:, 0].min():.1f}..{xy[:, 0].max():.1f} m, "
+                f"y {xy[:, 1].min():.1f}..{xy[:, 1].max():.1f} m"
+            )
+    return "\n".join(lines)
+
+
+def render_plan(result: PlanResult) -> str:
+    goal, start, path = result.goal, result.start, result.plan
+    lines = []
+    if goal.object is not None:
+        c = goal.object.center
+        lines.append(
+            f"goal: {goal.query!r} -> object at ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m, score {goal.object.score:.3f}, "
+            f"place {goal.place}"
+        )
+    else:
+        lines.append(f"goal: place {goal.place}")
+    for skipped in goal.skipped:
+        c = skipped.object.center
+        lines.append(f"  skipped {skipped.object.label!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {skipped.object.score:.3f}: "
+                     f"{skipped.reason}")
+    lines.append(f"start: place {start.place} ({start.how})")
+    penalised = {k: v for k, v in result.penalty.items() if v > 0}
+    if penalised or result.forbidden:
+        lines.append(
+            "terrain: "
+            + ", ".join(
+                [f"{k} penalty {v:g}" for k, v in penalised.items()] + [f"{k} forbidden" for k in result.forbidden]
+            )
+        )
+    by_terrain = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
+    lines.append(f"path: {len(path.places)} places, {path.length_m:.1f} m ({by_terrain}), cost {path.cost:.1f}")
+    for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
+        lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
+    return "\n".join(lines)
+
+
+def render_node(info: NodeInfo) -> str:
+    f = info.fields
+    if info.kind == "place":
+        p = f["position"]
+        regions = " < ".join(r["id"] for r in f["regions"]) or "none"
+        lines = [
+            f"place {info.id}: {f['terrain']} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) m, "
+            f"clearance {f['clearance']:.2f} m",
+            f"  regions: {regions}",
+            "  neighbours: "
+            + (", ".join(f"p{n['place']} ({n['weight']:.1f} m, {n['kind']})" for n in f["neighbors"]) or "none"),
+        ]
+        if f["objects"]:
+            lines.append(f"  objects: {' '.join(f['objects'])}")
+        return "\n".join(lines)
+    if info.kind == "region":
+        p = f["position"]
+        return "\n".join(
+            [
+                f"region {info.id}: level {f['level']} at ({p[0]:.1f}, {p[1]:.1f}) m, {len(f['places'])} places, "
+                f"parent {f['parent']}",
+                f"  children: {' '.join(f['children'])}",
+            ]
+        )
+    if info.kind == "object":
+        c, s = f["center"], f["size"]
+        return (
+            f"object {info.id}: {f['label']!r} at ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m, "
+            f"size {s[0]:.2f} x {s[1]:.2f} x "
+            f"{s[2]:.2f} m, score {f['score']:.3f}, place {f['place']}"
+        )
+    return f"{info.kind} {info.id}: children {' '.join(f.get('children', []))}"
+
+
+def render_location(location: Location) -> str:
+    return f"({location.xy[0]:g}, {location.xy[1]:g}) m is {location.distance_m:.2f} m from\n" + render_node(
+        location.place
+    )

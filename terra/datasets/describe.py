@@ -1,0 +1,44 @@
+"""`terra inspect`'s library side: a source's SourceInfo, as plain JSON-able data."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Mapping
+
+from terra.datasets.base import SourceInfo
+from terra.datasets.folder_io import calibration_to_json
+from terra.datasets.registry import LOADERS, open_dataset
+from terra.errors import TerraError
+
+
+def describe_source(path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None) -> SourceInfo:
+    """What the source at `path` holds. A bag whose topics the loader cannot choose by itself
+    (two LiDAR topics, an image with no camera_info) is still described: its topics and TF tree,
+    with the reason under details['problem']."""
+    path = Path(path)
+    try:
+        dataset = open_dataset(path, format, options)
+    except TerraError as exc:
+        from terra.datasets.ros.bag import is_bag
+
+        if format in ("auto", "rosbag") and is_bag(path) and "unreadable bag" not in str(exc):
+            from terra.datasets.ros.describe import describe_unopened
+
+            return describe_unopened(path, str(exc))
+        raise
+    if not hasattr(dataset, "info"):
+        raise TerraError(f"{path}: the {format} loader cannot describe its source (no info())")
+    return dataset.info()
+
+
+def source_json(info: SourceInfo) -> dict:
+    """SourceInfo as one JSON document (calibrations with K, lens model, coefficients, T_cam_lidar)."""
+    out = asdict(info)
+    out["cameras"] = [calibration_to_json(c) for c in info.cameras]
+    out["time_span"] = list(info.time_span) if info.time_span else None
+    return out
+
+
+def loader_descriptions() -> dict[str, str]:
+    return {name: loader.description for name, loader in LOADERS.items()}

@@ -1,0 +1,23 @@
+"""Settings of `terra serve`: where it listens, who may ask, and how much one request may carry."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from terra.config import Section
+
+LOOPBACK = "127.0.0.1"
+TOKEN_ENV = "TERRA_SERVE_TOKEN"
+
+
+class ServeConfig(Section):
+    """HTTP service limits. A request over a limit is refused with 413 before any work is done."""
+
+    host: str = Field(LOOPBACK, description="Address to bind; loopback by default (other machines cannot connect).")
+    port: int = Field(8765, ge=0, le=65535, description="TCP port.")
+    token: str | None = Field(
+        None, min_length=8, description=f"Bearer token every request must carry (also ${TOKEN_ENV})."
+    )
+    max_body_bytes: int = Field(65536, ge=256, description="Largest request body accepted, bytes.")
+    max_queries: int = Field(32, ge=1, description="Most text queries in one request.")
+    max_query_chars: int = Field(1000, ge=1, description="Longest text query, characters.")

@@ -1,0 +1,191 @@
+"""Node and region lookups on the scene graph: what a place, region or object is, and where a point
+of the map falls (its nearest place and the regions above it).
+
+Nodes are named as spark_dsg NodeSymbols, either numerically (ord(char) << 56 | index, as in
+graph/scene_graph.json) or in short form: "p12" place 12, "R3" region 3 of level 1, "S0" region 0
+of level 2 (then "T", "U", ...), "O4" object 4, "Z0" the root. Positions are metres, map frame.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from terra.errors import TerraError
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
+
+
+class UnknownNode(TerraError):
+    """A node, region or place that the scene graph does not hold."""
+
+
+_KIND = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge"}
+_SHORT = re.compile(r"^([A-Za-z])(\d+)$")
+
+
+def _r(values: Any) -> list[float]:
+    return [round(float(v), 4) for v in values]
+
+
+def node_name(char: str, index: int) -> str:
+    return f"{char}{int(index)}"
+
+
+def region_name(level: int, index: int) -> str:
+    """Short name of region `index` of `level` (1-based): 'R', 'S', ... as in graph/storage.py."""
+    return node_name(chr(ord("R") + level - 1), index)
+
+
+def parse_node(ref: str | int) -> tuple[str, int]:
+    """(char, index) of a node reference: short form ("p12") or a numeric NodeSymbol."""
+    text = str(ref).strip()
+    match = _SHORT.match(text)
+    if match:
+        return match.group(1), int(match.group(2))
+    if text.isdigit():
+        value = int(text)
+        return chr(value >> 56), value & ((1 << 56) - 1)
+    raise TerraError(
+        f"node {text!r}: expected a short name such as p12 (place), R3 (region), O0 (object) or a numeric spark_dsg id"
+    )
+
+
+def _ancestors(graph: SceneGraph, place: int) -> list[dict[str, Any]]:
+    """The regions above a place, level 1 upwards."""
+    out = []
+    for level in range(1, len(graph.regions) + 1):
+        index = int(graph.place_region(level)[place])
+        out.append({"id": region_name(level, index), "level": level, "index": index})
+    return out
+
+
+@dataclass
+class NodeInfo:
+    """One scene-graph node as JSON-ready facts (`fields` depend on the kind)."""
+
+    id: str
+    kind: str
+    fields: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"id": self.id, "kind": self.kind, **self.fields}
+
+
+def place_info(graph: SceneGraph, place: int) -> NodeInfo:
+    if not 0 <= place < len(graph.places):
+        raise UnknownNode(f"place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+    edges = graph.place_edges
+    mine = (
+        np.flatnonzero((edges[:, 0] == place) | (edges[:, 1] == place)) if len(edges) else np.zeros(0, dtype=np.int64)
+    )
+    neighbours = [
+        {
+            "place": int(edges[e, 1] if edges[e, 0] == place else edges[e, 0]),
+            "weight": round(float(graph.place_edge_weight[e]), 4),
+            "kind": _KIND.get(int(graph.place_edge_kind[e]), ""),
+        }
+        for e in mine
+    ]
+    objects = [node_name("O", o) for o in np.flatnonzero(np.asarray(graph.objects.place) == place)]
+    return NodeInfo(
+        node_name("p", place),
+        "place",
+        {
+            "index": place,
+            "position": _r(graph.places.position[place]),
+            "terrain": graph.terrain_classes[int(graph.places.terrain[place])],
+            "clearance": round(float(graph.places.clearance[place]), 4),
+            "neighbors": neighbours,
+            "regions": _ancestors(graph, place),
+            "objects": objects,
+        },
+    )
+
+
+def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
+    if not 1 <= level <= len(graph.regions):
+        raise UnknownNode(f"region level {level} does not exist; the graph has levels 1..{len(graph.regions)}")
+    layer = graph.regions[level - 1]
+    if not 0 <= index < len(layer):
+        raise UnknownNode(f"region {index} of level {level} does not exist; that level has regions 0..{len(layer) - 1}")
+    below = "p" if level == 1 else chr(ord("R") + level - 2)
+    children = [node_name(below, c) for c in np.flatnonzero(layer.parent_of_child == index)]
+    parent = None
+    if level < len(graph.regions):
+        parent = region_name(level + 1, int(graph.regions[level].parent_of_child[index]))
+    places = [int(p) for p in np.flatnonzero(graph.place_region(level) == index)]
+    return NodeInfo(
+        region_name(level, index),
+        "region",
+        {
+            "level": level,
+            "index": index,
+            "position": _r(layer.position[index]),
+            "parent": parent or ("Z0" if graph.regions else None),
+            "children": children,
+            "places": places,
+        },
+    )
+
+
+def object_info(graph: SceneGraph, index: int) -> NodeInfo:
+    o = graph.objects
+    if not 0 <= index < len(o):
+        raise UnknownNode(
+            f"object {index} does not exist; the graph has {len(o)} objects (save some with `terra find --save`)"
+        )
+    return NodeInfo(
+        node_name("O", index),
+        "object",
+        {
+            "index": index,
+            "label": o.label[index],
+            "center": _r(o.center[index]),
+            "size": _r(o.size[index]),
+            "yaw": round(float(o.yaw[index]), 6),
+            "score": round(float(o.score[index]), 6),
+            "point_count": int(o.point_count[index]),
+            "place": node_name("p", int(o.place[index])),
+        },
+    )
+
+
+def node_info(graph: SceneGraph, ref: str | int) -> NodeInfo:
+    """Facts about the node `ref` names (see the module docstring); TerraError when it does not exist."""
+    char, index = parse_node(ref)
+    if char == "p":
+        return place_info(graph, index)
+    if char == "O":
+        return object_info(graph, index)
+    if char == "Z" and index == 0 and graph.regions:
+        top = len(graph.regions)
+        return NodeInfo("Z0", "root", {"children": [region_name(top, r) for r in range(len(graph.regions[-1]))]})
+    if "R" <= char <= "Y":
+        return region_info(graph, ord(char) - ord("R") + 1, index)
+    raise UnknownNode(f"node {ref!r} does not exist in this scene graph")
+
+
+@dataclass
+class Location:
+    """Where a map point (x, y) falls: its nearest place (2-D) and that place's regions."""
+
+    xy: tuple[float, float]
+    place: NodeInfo
+    distance_m: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {"xy": _r(self.xy), "distance_m": round(self.distance_m, 4), "place": self.place.to_json()}
+
+
+def locate(graph: SceneGraph, x: float, y: float) -> Location:
+    """The place nearest to (x, y) metres in the map frame, with its regions."""
+    if len(graph.places) == 0:
+        raise TerraError("the scene graph has no places")
+    if not (np.isfinite(x) and np.isfinite(y)):
+        raise TerraError(f"x and y must be finite numbers (metres), got {x}, {y}")
+    d = np.linalg.norm(graph.places.position[:, :2] - np.array([x, y]), axis=1)
+    place = int(np.argmin(d))
+    return Location((float(x), float(y)), place_info(graph, place), float(d[place]))
