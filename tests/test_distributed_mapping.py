@@ -21,6 +21,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from terra.cli import run
@@ -114,6 +115,21 @@ def test_scheduler_option_uses_a_running_cluster(tiny_folder, serial_digest, das
     with connect(cluster_config(None, str(scheduler_file), environ={})) as joined:
         assert not joined.started and joined.worker_addresses() == sorted(dask_cluster.nthreads())
         assert joined.description == f"the Dask cluster at {address}"
+
+
+def test_odometry_poses_on_the_cluster_give_the_serial_bundle(tiny_folder, dask_cluster, tmp_path, capsys):
+    """With --poses odometry the client registers the scans (KISS-ICP) and the workers perceive the frames
+    without poses: the same bundle and trajectory as a serial run, every image perceived by a worker."""
+    pytest.importorskip("kiss_icp")
+    serial, clustered = tmp_path / "serial" / "map.terra", tmp_path / "cluster" / "map.terra"
+    assert run(["map", str(tiny_folder), "--out", str(serial), "--poses", "odometry", "-q"]) == 0
+    address = dask_cluster.scheduler.address
+    assert run(["map", str(tiny_folder), "--out", str(clustered), "--poses", "odometry", "--scheduler", address]) == 0
+    text = capsys.readouterr().out
+    assert folder_digest(clustered) == folder_digest(serial)
+    for name in ("map_poses_kitti.txt", "map_poses_tum.txt"):
+        assert (clustered.parent / name).read_bytes() == (serial.parent / name).read_bytes()
+    assert f"perception cache: {FRAMES} images read back, 0 computed" in text and "poses: odometry" in text
 
 
 def test_perception_only_on_the_cluster_named_by_the_environment(
@@ -302,6 +318,19 @@ def test_source_spec_round_trip(tiny_folder, tmp_path, monkeypatch):
         SourceSpec.from_cli(None, "tiny:x", "auto")
     with pytest.raises(TerraError, match="either"):
         SourceSpec.from_cli(tiny_folder, "tiny", "auto")
+
+
+def test_workers_perceive_an_odometry_source_without_its_poses(tiny_folder):
+    spec = SourceSpec.from_cli(tiny_folder, None).with_odometry()
+    assert spec.poses == "odometry" and SourceSpec.from_json(spec.to_json()) == spec
+    source, view = spec.open(), spec.open_for_perception()
+    assert (view.name, len(view), view.classes) == (source.name, len(source), source.classes)
+    frame, original = view[3], source[3]
+    assert (frame.T_map_lidar == np.eye(4)).all() and not (original.T_map_lidar == np.eye(4)).all()
+    assert (frame.cameras[0].semantic == original.cameras[0].semantic).all()  # what perception reads is untouched
+    assert SourceSpec.from_cli(tiny_folder, None).open_for_perception()[3].T_map_lidar.tolist() == (
+        original.T_map_lidar.tolist()
+    )
 
 
 @pytest.fixture(scope="module")
