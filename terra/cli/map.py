@@ -13,18 +13,6 @@ from terra.errors import TerraError
 from terra.words import counted
 
 
-def _sim_dataset(spec: str):
-    preset, _, seed = spec.partition(":")
-    try:
-        from terra.sim import simulate
-    except ImportError:
-        raise TerraError("--sim needs the simulator (terra.sim), which is not available") from None
-    try:
-        return simulate(preset, seed=int(seed) if seed else 0)
-    except ValueError as exc:
-        raise TerraError(f"--sim {spec!r}: {exc}") from None
-
-
 @app.command("map")
 def map_command(
     dataset: Optional[Path] = typer.Argument(
@@ -46,6 +34,20 @@ def map_command(
         None, "--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle at --out (atomically)."),
+    workers: Optional[int] = typer.Option(
+        None, "--workers", "-w", min=1,
+        help="Perceive frames on a local Dask cluster of N worker processes (loopback only); "
+        "needs the pip extra 'dask'.",
+    ),
+    scheduler: Optional[str] = typer.Option(
+        None, "--scheduler",
+        help="Perceive frames on a running Dask cluster: tcp://HOST:PORT or a scheduler file "
+        "(default: $TERRA_DASK_SCHEDULER).",
+    ),
+    in_flight: Optional[int] = typer.Option(
+        None, "--in-flight", min=1,
+        help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Build the metric-semantic map of a dataset (Phase 1).
@@ -62,16 +64,25 @@ def map_command(
     or with --poses odometry, KISS-ICP computes them and the trajectory is written beside the
     bundle (<name>_poses_kitti.txt, <name>_poses_tum.txt).
 
+    With --workers or --scheduler, Dask workers perceive the frames (each reads them from the same
+    path, or renders the same --sim) into the cache, and this process fuses them in order: the same
+    bundle, byte for byte. The cache folder must be shared by this process and the workers.
+
     Example: terra map campus-data --out campus.terra --config terra.yaml
 
     Example (a ROS bag): terra map drive.bag --out drive.terra
 
+    Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
+
     Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
     """
     from terra.config import load_dataset_options, load_section
-    from terra.datasets import open_dataset
+    from terra.distributed.cluster import cluster_config
     from terra.odometry.kiss import OdometryDataset, with_poses
 
+    cluster = cluster_config(workers, scheduler, in_flight)
+    if in_flight is not None and not cluster.enabled:
+        raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
     if (dataset is None) == (sim is None):
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
     if not perception_only:
@@ -83,24 +94,43 @@ def map_command(
         overrides["perception"]["cache"] = {"folder": str(cache)}
     mapping = load_section(config, "mapping", overrides)
     odometry = load_section(config, "odometry")
-    options = load_dataset_options(config)
-    if camera_config is not None:
-        if sim is not None or format not in ("auto", "terra-folder"):
-            raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
-        format, options = "terra-folder", {**options, "camera_config": camera_config}
-    source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
-    source = with_poses(source, poses, odometry, show_progress=not quiet)
+    spec = _source_spec(dataset, sim, format, camera_config, load_dataset_options(config))
+    source = with_poses(spec.open(), poses, odometry, show_progress=not quiet)
+    if isinstance(source, OdometryDataset):
+        spec = spec.with_odometry()  # the workers perceive images, which need no poses
     if perception_only:
         folder = mapping.perception.cache.folder or f"{out}.work/perception"
         on_interrupt(f"the images perceived so far are cached in {folder}; "
                      "run the same command again to go on")
-        _perceive(source, mapping, out, quiet)
-        return
-    from terra.mapping.pipeline import run_mapping
+        _perceive(spec, source, mapping, out, cluster, quiet)
+    else:
+        on_interrupt(lambda: _kept(out))
+        _map(spec, source, mapping, out, cluster, quiet)
 
-    on_interrupt(lambda: _kept(out))
 
-    run = run_mapping(source, mapping, out, show_progress=not quiet)
+def _source_spec(
+    dataset: Optional[Path], sim: Optional[str], format: str, camera_config: Optional[Path], options: dict
+):
+    from terra.distributed.source import SourceSpec
+
+    if camera_config is not None:
+        if sim is not None or format not in ("auto", "terra-folder"):
+            raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
+        format, options = "terra-folder", {**options, "camera_config": camera_config}
+    return SourceSpec.from_cli(dataset, sim, format, options)
+
+
+def _map(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
+    from terra.odometry.kiss import OdometryDataset
+
+    if cluster.enabled:
+        from terra.distributed.phase1 import map_on_cluster
+
+        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress=not quiet)
+    else:
+        from terra.mapping.pipeline import run_mapping
+
+        run, on_cluster = run_mapping(source, mapping, out, show_progress=not quiet), None
     trajectory = None
     if isinstance(source, OdometryDataset):
         from terra.odometry.trajectory import write_trajectory
@@ -116,11 +146,13 @@ def map_command(
         f"{counted(info['bank'], 'bank entry', 'bank entries')}, {counted(info['images'], 'image')} "
         f"-> {run.bundle.path}"
     )
+    if on_cluster is not None:
+        _cluster_summary(on_cluster)
     if run.cache is not None:
         cache = run.cache
+        where = "removed: the config keeps no cache" if cache.get("removed") else cache["folder"]
         typer.echo(
-            f"perception cache: {counted(cache['hits'], 'image')} read back, {cache['computed']} computed "
-            f"({cache['folder']})"
+            f"perception cache: {counted(cache['hits'], 'image')} read back, {cache['computed']} computed ({where})"
         )
     if getattr(source, "pose_source", None):
         typer.echo(f"  poses: {source.pose_source}")
@@ -152,17 +184,34 @@ def _kept(out: Path) -> str:
     return f"the map up to frame {done} is checkpointed in {checkpoint.folder}; run the same command again to resume"
 
 
-def _perceive(source, mapping, out: Path, quiet: bool) -> None:
-    from terra.mapping.perceive import run_perception
+def _perceive(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
+    if cluster.enabled:
+        from terra.distributed.phase1 import perceive_on_cluster
 
-    run = run_perception(source, mapping, out, show_progress=not quiet)
+        run, on_cluster = perceive_on_cluster(spec, source, mapping, out, cluster, show_progress=not quiet)
+    else:
+        from terra.mapping.perceive import run_perception
+
+        run, on_cluster = run_perception(source, mapping, out, show_progress=not quiet), None
     if quiet:
         return
+    if on_cluster is not None:
+        _cluster_summary(on_cluster)
     typer.echo(f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, "
                f"{run.hits} already cached, "
                f"{run.computed} computed -> {run.folder}")
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
+
+
+def _cluster_summary(run) -> None:
+    tally = run.tally
+    used = len(tally.by_worker)
+    typer.echo(
+        f"perception on {run.cluster}: {counted(tally.frames, 'frame')} by {counted(used, 'worker')} "
+        f"(up to {run.in_flight} in flight), {counted(tally.computed, 'image')} computed, {tally.hits} read back, "
+        f"{tally.seconds:.1f} s of worker time"
+    )
 
 
 def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
