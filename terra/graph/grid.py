@@ -85,6 +85,7 @@ def build_terrain_grid(
     min_support: float = 0.6,
     margin_cells: int = 4,
     fill_radius: float = 0.0,
+    weak_support: float | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
@@ -93,6 +94,14 @@ def build_terrain_grid(
     side `support_radius` metres, kept where at least `min_support` of the window's cells have
     terrain points: this fills the gaps between nearby scan lines and drops the isolated rings of
     distant, sparsely scanned ground, on which no place should sit.
+
+    Where the cameras labelled the ground only sparsely (a road seen at a glancing angle, the far
+    side of a block), a window with at least `weak_support` (< min_support) of its cells labelled
+    also takes its majority (a labelled cell in a sparser window keeps its own class), on densely
+    scanned ground, but only where it continues a patch of that class that meets `min_support`
+    (hysteresis, connected through such cells): a strip keeps
+    its class through a sparsely labelled stretch, while an isolated patch that one mislabelled
+    image left stays unlabelled (None = never).
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
     than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
@@ -139,13 +148,18 @@ def build_terrain_grid(
     # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
     # distant scan rings are not, and are never filled).
     dense = ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant") >= min_support - 1e-6
+    raw = grid.label.copy()
     if support_radius > 0:
-        grid.label[:] = _window_majority(grid.label, n_classes, window, min_support)
+        grid.label[:] = _window_majority(raw, n_classes, window, min_support)
     if obstacle_height is not None:
         hit = inside & (height >= obstacle_height[0]) & (height <= obstacle_height[1])
         counts = np.bincount(orow[hit] * W + ocol[hit], minlength=H * W).reshape(H, W)
         grid.blocked[:] = counts >= obstacle_min_points
         grid.label[grid.blocked] = -1
+    if weak_support is not None and support_radius > 0 and weak_support < min_support:
+        weak = _window_majority(raw, n_classes, window, weak_support)
+        weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
+        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1))
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
@@ -165,6 +179,17 @@ def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: fl
         near[k] = ndimage.distance_transform_edt(label != t)[rows, cols] <= radius
     one = near.sum(axis=0) == 1
     label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
+
+
+def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray) -> None:
+    """In place: unlabelled cells take their `weak` class (-1 = none) where they are 8-connected,
+    through cells of that class (strong or weak), to a cell already labelled with it."""
+    for t in np.unique(weak[weak >= 0]):
+        components, n = ndimage.label((weak == t) | (label == t), structure=EIGHT)
+        anchored = np.zeros(n + 1, dtype=bool)
+        anchored[np.unique(components[label == t])] = True
+        anchored[0] = False
+        label[anchored[components] & (label < 0)] = t
 
 
 def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:
