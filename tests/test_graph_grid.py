@@ -88,3 +88,16 @@ def test_hysteresis_does_not_cross_a_blocked_cell_band():
     assert label_at(grid, 22.2, 1.5) == -1
     assert label_at(grid, 18.0, 1.5) == SIDEWALK and label_at(grid, 27.0, 1.5) == SIDEWALK
     assert sidewalk_pieces(grid) == 2
+
+
+def test_weak_reach_bounds_how_far_a_strip_is_carried_into_sparse_ground():
+    # The sparse stretch [15, 30) is 15 m long; carried at most 4 m from each densely labelled
+    # end (8-connected steps of one 0.4 m cell), its middle stays unlabelled.
+    points, terrain = strip_scene()
+    grid = build_terrain_grid(points, terrain, fill_radius=0.0, obstacle_height=None, weak_support=0.1, weak_reach=4.0)
+    assert label_at(grid, 17.0, 1.5) == SIDEWALK and label_at(grid, 28.0, 1.5) == SIDEWALK
+    assert label_at(grid, 22.5, 1.5) == -1
+    assert sidewalk_pieces(grid) == 2
+    # 8 m from each end covers it.
+    grid = build_terrain_grid(points, terrain, fill_radius=0.0, obstacle_height=None, weak_support=0.1, weak_reach=8.0)
+    assert sidewalk_pieces(grid) == 1

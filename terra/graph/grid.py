@@ -86,6 +86,7 @@ def build_terrain_grid(
     margin_cells: int = 4,
     fill_radius: float = 0.0,
     weak_support: float | None = None,
+    weak_reach: float | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
@@ -99,9 +100,10 @@ def build_terrain_grid(
     side of a block), a window with at least `weak_support` (< min_support) of its cells labelled
     also takes its majority (a labelled cell in a sparser window keeps its own class), on densely
     scanned ground, but only where it continues a patch of that class that meets `min_support`
-    (hysteresis, connected through such cells): a strip keeps
-    its class through a sparsely labelled stretch, while an isolated patch that one mislabelled
-    image left stays unlabelled (None = never).
+    (hysteresis, connected through such cells): a strip keeps its class through a sparsely
+    labelled stretch, while an isolated patch that one mislabelled image left stays unlabelled
+    (None = never), reaching at most `weak_reach` metres from it along the chain (None = any
+    distance: the connection is then global).
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
     than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
@@ -159,7 +161,8 @@ def build_terrain_grid(
     if weak_support is not None and support_radius > 0 and weak_support < min_support:
         weak = _window_majority(raw, n_classes, window, weak_support)
         weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
-        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1))
+        steps = 0 if weak_reach is None else max(int(round(weak_reach / cell_size)), 1)
+        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps)
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
@@ -181,15 +184,14 @@ def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: fl
     label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
 
 
-def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray) -> None:
+def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray, max_steps: int = 0) -> None:
     """In place: unlabelled cells take their `weak` class (-1 = none) where they are 8-connected,
-    through cells of that class (strong or weak), to a cell already labelled with it."""
+    through cells of that class (strong or weak), to a cell already labelled with it, within
+    `max_steps` cells along that chain (0 = any number)."""
     for t in np.unique(weak[weak >= 0]):
-        components, n = ndimage.label((weak == t) | (label == t), structure=EIGHT)
-        anchored = np.zeros(n + 1, dtype=bool)
-        anchored[np.unique(components[label == t])] = True
-        anchored[0] = False
-        label[anchored[components] & (label < 0)] = t
+        strong = label == t
+        reached = ndimage.binary_dilation(strong, structure=EIGHT, iterations=max_steps, mask=(weak == t) | strong)
+        label[reached & (label < 0)] = t
 
 
 def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:
