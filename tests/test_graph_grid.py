@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import ndimage
 
 from terra.graph.grid import build_terrain_grid
@@ -101,3 +102,18 @@ def test_weak_reach_bounds_how_far_a_strip_is_carried_into_sparse_ground():
     # 8 m from each end covers it.
     grid = build_terrain_grid(points, terrain, fill_radius=0.0, obstacle_height=None, weak_support=0.1, weak_reach=8.0)
     assert sidewalk_pieces(grid) == 1
+
+
+def test_ground_only_the_lidar_saw_keeps_its_own_height():
+    # A densely labelled sidewalk at 0 m on [0, 15) continues on [15, 17) as ground only the LiDAR
+    # saw, 0.25 m lower (a ramp down the camera missed); filling labels it sidewalk. Its ground is
+    # the mean of its own points, not the height of the nearest labelled cell (0 m at x = 15).
+    labelled, lidar_only = lattice(0, 15, 0, 6), lattice(15, 17, 0, 6)
+    lidar_only[:, 2] = -0.25
+    points = np.vstack([labelled, lidar_only])
+    terrain = np.concatenate([np.full(len(labelled), SIDEWALK), np.full(len(lidar_only), -1)])
+    grid = build_terrain_grid(points, terrain, fill_radius=2.0, obstacle_height=(0.3, 2.0))
+    assert label_at(grid, 15.6, 3.0) == SIDEWALK and label_at(grid, 16.0, 3.0) == SIDEWALK
+    rows, cols, _ = grid.cell_of(np.array([[16.0, 3.0], [5.0, 3.0], [16.0, 6.8]]))
+    # The last cell (beyond y = 6 m) holds no point: it takes the nearest scanned cell's height.
+    assert grid.ground[rows, cols] == pytest.approx([-0.25, 0.0, -0.25], abs=1e-6)

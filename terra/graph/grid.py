@@ -145,7 +145,12 @@ def build_terrain_grid(
     height = other[:, 2] - grid.ground[orow, ocol]
     low = obstacle_height[0] if obstacle_height is not None else 0.3
     unlabelled_ground = np.zeros((H, W), dtype=bool)
-    unlabelled_ground[orow[inside & (height < low)], ocol[inside & (height < low)]] = True
+    low_point = inside & (height < low)
+    unlabelled_ground[orow[low_point], ocol[low_point]] = True
+    # Cells scanned only by such points take their own mean height rather than that of the nearest
+    # terrain cell, which can lie metres away on other ground (a bank, a field beyond a road): the
+    # support window, hysteresis and filling below can label these cells, and places sit on them.
+    _ground_from_unlabelled(grid.ground, has, other[low_point, 2], orow[low_point] * W + ocol[low_point])
     window = 2 * int(round(support_radius / cell_size)) + 1
     # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
     # distant scan rings are not, and are never filled).
@@ -166,6 +171,21 @@ def build_terrain_grid(
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
+
+
+def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, flat: np.ndarray) -> None:
+    """In place: `ground` (H, W) metres where `has` (cells with terrain points) is False and ground
+    points without a terrain class (heights `z` (n,) in flat cells `flat` (n,)) fall: their mean
+    height, then, for cells with neither, the nearest cell with either."""
+    H, W = ground.shape
+    total = np.bincount(flat, weights=z, minlength=H * W).reshape(H, W)
+    count = np.bincount(flat, minlength=H * W).reshape(H, W)
+    own = ~has & (count > 0)
+    if not own.any():
+        return
+    ground[own] = (total[own] / count[own]).astype(ground.dtype)
+    _, (nr, nc) = ndimage.distance_transform_edt(~(has | own), return_indices=True)
+    ground[:] = ground[nr, nc]
 
 
 def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: float) -> None:
