@@ -40,7 +40,7 @@ def main() -> None:
     try:
         from terra.eval.inputs import EvalInputs
     except ImportError:  # trees from before it moved out of the runner
-        from terra.eval.runner import EvalInputs
+        from terra.eval.inputs import EvalInputs
     from terra.eval.tuning import TunedParameters
 
     scene = args.demo / f"{args.preset}-seed{args.seed}"

@@ -85,6 +85,8 @@ def build_terrain_grid(
     min_support: float = 0.6,
     margin_cells: int = 4,
     fill_radius: float = 0.0,
+    weak_support: float | None = None,
+    weak_reach: float | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
@@ -93,6 +95,15 @@ def build_terrain_grid(
     side `support_radius` metres, kept where at least `min_support` of the window's cells have
     terrain points: this fills the gaps between nearby scan lines and drops the isolated rings of
     distant, sparsely scanned ground, on which no place should sit.
+
+    Where the cameras labelled the ground only sparsely (a road seen at a glancing angle, the far
+    side of a block), a window with at least `weak_support` (< min_support) of its cells labelled
+    also takes its majority (a labelled cell in a sparser window keeps its own class), on densely
+    scanned ground, but only where it continues a patch of that class that meets `min_support`
+    (hysteresis, connected through such cells): a strip keeps its class through a sparsely
+    labelled stretch, while an isolated patch that one mislabelled image left stays unlabelled
+    (None = never), reaching at most `weak_reach` metres from it along the chain (None = any
+    distance: the connection is then global).
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
     than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
@@ -134,21 +145,47 @@ def build_terrain_grid(
     height = other[:, 2] - grid.ground[orow, ocol]
     low = obstacle_height[0] if obstacle_height is not None else 0.3
     unlabelled_ground = np.zeros((H, W), dtype=bool)
-    unlabelled_ground[orow[inside & (height < low)], ocol[inside & (height < low)]] = True
+    low_point = inside & (height < low)
+    unlabelled_ground[orow[low_point], ocol[low_point]] = True
+    # Cells scanned only by such points take their own mean height rather than that of the nearest
+    # terrain cell, which can lie metres away on other ground (a bank, a field beyond a road): the
+    # support window, hysteresis and filling below can label these cells, and places sit on them.
+    _ground_from_unlabelled(grid.ground, has, other[low_point, 2], orow[low_point] * W + ocol[low_point])
     window = 2 * int(round(support_radius / cell_size)) + 1
     # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
     # distant scan rings are not, and are never filled).
     dense = ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant") >= min_support - 1e-6
+    raw = grid.label.copy()
     if support_radius > 0:
-        grid.label[:] = _window_majority(grid.label, n_classes, window, min_support)
+        grid.label[:] = _window_majority(raw, n_classes, window, min_support)
     if obstacle_height is not None:
         hit = inside & (height >= obstacle_height[0]) & (height <= obstacle_height[1])
         counts = np.bincount(orow[hit] * W + ocol[hit], minlength=H * W).reshape(H, W)
         grid.blocked[:] = counts >= obstacle_min_points
         grid.label[grid.blocked] = -1
+    if weak_support is not None and support_radius > 0 and weak_support < min_support:
+        weak = _window_majority(raw, n_classes, window, weak_support)
+        weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
+        steps = 0 if weak_reach is None else max(int(round(weak_reach / cell_size)), 1)
+        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps)
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
+
+
+def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, flat: np.ndarray) -> None:
+    """In place: `ground` (H, W) metres where `has` (cells with terrain points) is False and ground
+    points without a terrain class (heights `z` (n,) in flat cells `flat` (n,)) fall: their mean
+    height, then, for cells with neither, the nearest cell with either."""
+    H, W = ground.shape
+    total = np.bincount(flat, weights=z, minlength=H * W).reshape(H, W)
+    count = np.bincount(flat, minlength=H * W).reshape(H, W)
+    own = ~has & (count > 0)
+    if not own.any():
+        return
+    ground[own] = (total[own] / count[own]).astype(ground.dtype)
+    _, (nr, nc) = ndimage.distance_transform_edt(~(has | own), return_indices=True)
+    ground[:] = ground[nr, nc]
 
 
 def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: float) -> None:
@@ -165,6 +202,16 @@ def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: fl
         near[k] = ndimage.distance_transform_edt(label != t)[rows, cols] <= radius
     one = near.sum(axis=0) == 1
     label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
+
+
+def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray, max_steps: int = 0) -> None:
+    """In place: unlabelled cells take their `weak` class (-1 = none) where they are 8-connected,
+    through cells of that class (strong or weak), to a cell already labelled with it, within
+    `max_steps` cells along that chain (0 = any number)."""
+    for t in np.unique(weak[weak >= 0]):
+        strong = label == t
+        reached = ndimage.binary_dilation(strong, structure=EIGHT, iterations=max_steps, mask=(weak == t) | strong)
+        label[reached & (label < 0)] = t
 
 
 def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:

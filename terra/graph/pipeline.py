@@ -169,6 +169,7 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         grid = build_terrain_grid(
             msm.points, point_terrain, config.grid.cell_size, config.grid.obstacle_height, config.grid.obstacle_min_points,
             config.grid.support_radius, config.grid.min_support, fill_radius=config.grid.fill_radius,
+            weak_support=config.grid.weak_support, weak_reach=config.grid.weak_reach,
         )
     with timer.stage("GVD places"):
         ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
