@@ -42,14 +42,11 @@ class MsmapCameras:
 
 def read_msmap_config(path: Path) -> MsmapCameras:
     """The cameras of an msmap YAML file (any of the authors' msmap configs, as it is)."""
+    from terra.fileio import parse_yaml, read_text
+
     path = Path(path)
-    try:
-        text = path.read_text()
-        cfg = yaml.safe_load(text)
-    except OSError as exc:
-        raise TerraError(f"{path}: cannot read camera config ({exc.strerror or exc})") from None
-    except yaml.YAMLError as exc:
-        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    text = read_text(path, "camera config")
+    cfg = parse_yaml(text, path, "camera config")
     if not isinstance(cfg, dict):
         raise TerraError(f"{path}: expected a mapping with num_cams, IMG_W, IMG_H, cam1_K, cam1_dist, cam_axis")
     where = _Where(path, text)

@@ -41,8 +41,8 @@ from pydantic import Field
 
 from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
-                                      read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
+from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes,
+                                      image_size, read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
@@ -186,9 +186,8 @@ class TerraFolderDataset:
         self.root = root = Path(root)
         if not (root / POSES).is_dir():
             raise TerraError(f"{root}: not a terra-folder dataset (no {POSES}/ folder)")
-        meta_path = root / META
-        meta = read_json(meta_path) if meta_path.is_file() else {}
-        self.name = str(meta.get("name", root.name))
+        meta = _read_meta(root / META)
+        self.name = str(meta.get("name") or root.name)
         numbers, calibrations, exact, threshold = self._calibration(meta, cameras, camera_config)
         self.calibrations, self.camera_numbers, self._exact_cameras = calibrations, numbers, exact
         _check_image_folders(root, numbers, self.camera_source)
@@ -214,11 +213,9 @@ class TerraFolderDataset:
             config = read_msmap_config(Path(camera_config))
             self.camera_source = str(camera_config)
             return config.numbers, config.cameras, False, config.unaligned_threshold
-        if "cameras" in meta:
-            if not isinstance(meta["cameras"], list):
-                raise TerraError(f"{root / META}: 'cameras' must be a list of calibrations")
+        if meta.get("cameras") is not None:
             self.camera_source = str(root / META)
-            first = int(meta.get("first_camera", 0))
+            first = int(meta.get("first_camera") or 0)
             return ([first + i for i in range(len(meta["cameras"]))],
                     [calibration_from_json(c, str(root / META)) for c in meta["cameras"]], True, None)
         if (root / CAMERA_YAML).is_file():
@@ -262,14 +259,8 @@ class TerraFolderDataset:
 
     def _check_image_sizes(self) -> None:
         """The first image of every camera has the calibrated size (the reference asserts it)."""
-        from PIL import Image
-
         for cal, (image_file, _) in zip(self.calibrations, self._frames[0][3]):
-            try:
-                with Image.open(image_file) as im:
-                    size = im.size
-            except OSError as exc:
-                raise TerraError(f"{image_file}: unreadable image ({exc})") from None
+            size = image_size(image_file)
             if size != (cal.width, cal.height):
                 source = self.camera_source or "the calibration"
                 raise TerraError(f"{image_file}: image is {size[0]}x{size[1]}, but {source} says "
@@ -329,9 +320,18 @@ class TerraFolderDataset:
                            "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1])})
 
 
+def _read_meta(path: Path) -> dict:
+    """terra_dataset.json as a plain dict of validated values ({} when the folder has none)."""
+    from terra.schemas import TerraDatasetFile, read_model
+
+    if not path.exists():
+        return {}
+    return read_model(path, TerraDatasetFile, "dataset description").model_dump()
+
+
 def _first_camera(root: Path, meta: dict) -> int:
     """1 for the authors' numbering, 0 for folders Terra wrote before it followed it."""
-    if "first_camera" in meta:
+    if meta.get("first_camera") is not None:
         return int(meta["first_camera"])
     return 0 if (root / "camera0_images").is_dir() else FIRST_CAMERA
 
