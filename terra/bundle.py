@@ -429,11 +429,13 @@ class BundleWriter:
     `drop_components` removes stale components (e.g. `graph` when the map is rebuilt).
     """
 
-    def __init__(self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = ()):
+    def __init__(self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = (),
+                 what: str = "bundle"):
         self.path = Path(path)
+        self.what = what  # for messages: "bundle", "mapping checkpoint"
         self.manifest: dict[str, Any] = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}}
         self._done = False
-        with writing(self.path, "bundle"):
+        with writing(self.path, what):
             self._staging = Staging(self.path)
             self._tmp = self._staging.folder
             try:
@@ -463,7 +465,7 @@ class BundleWriter:
 
     def _put(self, file_name: str, data: bytes) -> None:
         dst = self._tmp / file_name
-        with writing(self.path, "bundle"):
+        with writing(self.path, self.what):
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
@@ -489,7 +491,7 @@ class BundleWriter:
         """Write the manifest and swap the new version into place."""
         self.manifest["files"] = dict(sorted(self.manifest["files"].items()))
         text = dumps_json(self.manifest).encode()
-        with writing(self.path, "bundle"):
+        with writing(self.path, self.what):
             _write_new_file(self._tmp / MANIFEST, text)
             self._staging.commit()
         self._done = True

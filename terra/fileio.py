@@ -39,24 +39,34 @@ _WHAT_TO_DO = {
 
 
 # ------------------------------------------------------------------------------------- errors
+def _a(what: str) -> str:
+    """`what` with its indefinite article: "a JSON file", "an image", "a .npy array"."""
+    return ("an " if what[:1].lower() in "aeiou" else "a ") + what
+
+
+class OutputError(TerraError):
+    """An output could not be written (full disk, read-only folder, permissions): what a long run
+    that checkpoints can resume from once the cause is fixed."""
+
+
 def read_error(path: str | Path, exc: OSError, what: str = "file") -> TerraError:
     """One line for an OSError met reading `path` (a `what`)."""
     reason = exc.strerror or type(exc).__name__
     if isinstance(exc, IsADirectoryError):
-        return TerraError(f"{path}: is a folder, expected a {what}")
+        return TerraError(f"{path}: is a folder, expected {_a(what)}")
     if isinstance(exc, FileNotFoundError):
         return TerraError(f"{path}: no such {what}")
     return TerraError(f"{path}: cannot read the {what} ({reason})")
 
 
-def write_error(path: str | Path, exc: OSError, what: str = "output") -> TerraError:
+def write_error(path: str | Path, exc: OSError, what: str = "output") -> OutputError:
     """One line for an OSError met writing `path` (a `what`): the path, the system's reason and,
     for a full disk, a read-only file system or a permission problem, what to do."""
     where = exc.filename or path
     reason = exc.strerror or type(exc).__name__
     advice = _WHAT_TO_DO.get(exc.errno or 0)
     tail = f"; {advice}" if advice else ""
-    return TerraError(f"{where}: cannot write the {what} ({reason}){tail}; nothing was replaced")
+    return OutputError(f"{where}: cannot write the {what} ({reason}){tail}; nothing was replaced")
 
 
 @contextmanager
@@ -88,7 +98,7 @@ def open_regular(path: str | Path, what: str = "file") -> int:
     if not stat.S_ISREG(mode):
         os.close(fd)
         kind = "a folder" if stat.S_ISDIR(mode) else "not a regular file (a pipe, socket or device)"
-        raise TerraError(f"{path}: is {kind}, expected a {what}")
+        raise TerraError(f"{path}: is {kind}, expected {_a(what)}")
     if hasattr(os, "set_blocking"):
         os.set_blocking(fd, True)
     return fd
@@ -102,7 +112,7 @@ def read_bytes(path: str | Path, what: str = "file", limit: int | None = None) -
         try:
             size = os.fstat(f.fileno()).st_size
             if limit is not None and size > limit:
-                raise TerraError(f"{path}: {size:,} bytes, more than the {limit:,} a {what} may hold")
+                raise TerraError(f"{path}: {size:,} bytes, more than the {limit:,} {_a(what)} may hold")
             return f.read()
         except OSError as exc:
             raise read_error(path, exc, what) from None
@@ -116,7 +126,7 @@ def decode_text(data: bytes, source: str | Path, what: str = "text file") -> str
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise TerraError(
-            f"{source}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); expected a {what}"
+            f"{source}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); expected {_a(what)}"
         ) from None
 
 
@@ -143,7 +153,7 @@ def parse_json(text: str, source: str | Path, what: str = "JSON file", max_depth
     try:
         value = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float)
     except RecursionError:
-        raise TerraError(f"{source}: nested too deeply to be a {what}") from None
+        raise TerraError(f"{source}: nested too deeply to be {_a(what)}") from None
     except ValueError as exc:  # json.JSONDecodeError, our number checks, int digits limit
         raise TerraError(f"{source}: not valid JSON ({str(exc).splitlines()[0]})") from None
     except MemoryError:
@@ -179,10 +189,10 @@ def check_depth(value: Any, source: str | Path, what: str, max_depth: int = MAX_
             height[key] = 1 + max((height[id(c)] for c in children), default=0)
             size[key] = 1 + len(item) - len(children) + sum(size[id(c)] for c in children)
             if height[key] > max_depth:
-                raise TerraError(f"{source}: nested more than {max_depth} levels deep; expected a {what}")
+                raise TerraError(f"{source}: nested more than {max_depth} levels deep; expected {_a(what)}")
             if max_nodes is not None and size[key] > max_nodes:
                 raise TerraError(f"{source}: holds more than {max_nodes:,} values once its aliases are expanded; "
-                                 f"expected a {what}")
+                                 f"expected {_a(what)}")
             continue
         if key in height:
             continue
@@ -190,7 +200,7 @@ def check_depth(value: Any, source: str | Path, what: str, max_depth: int = MAX_
         stack.append((item, True))
         for child in children:
             if id(child) in active:
-                raise TerraError(f"{source}: refers to itself (a recursive alias); expected a {what}")
+                raise TerraError(f"{source}: refers to itself (a recursive alias); expected {_a(what)}")
             if id(child) not in height:
                 stack.append((child, False))
 
@@ -204,7 +214,7 @@ def parse_yaml(text: str, source: str | Path, what: str = "YAML file") -> Any:
     try:
         value = yaml.safe_load(text)
     except RecursionError:
-        raise TerraError(f"{source}: nested too deeply to be a {what}") from None
+        raise TerraError(f"{source}: nested too deeply to be {_a(what)}") from None
     except yaml.YAMLError as exc:
         raise TerraError(f"{source}: not valid YAML ({str(exc).splitlines()[0]})") from None
     except (ValueError, OverflowError) as exc:  # a value the safe constructor cannot build (a date of year 0, ...)

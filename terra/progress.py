@@ -17,6 +17,16 @@ def progress(iterable: Iterable[T], desc: str, total: int | None = None, enabled
     return iter(tqdm(iterable, desc=desc, total=total, disable=not enabled or not sys.stderr.isatty(), leave=False, dynamic_ncols=True))
 
 
+def close_bars() -> None:
+    """Close every open progress bar, ours and libraries' (Terra's bars do not stay on screen): an
+    error printed next starts on a clean line and stays one line."""
+    for bar in list(getattr(tqdm, "_instances", ())):
+        try:
+            bar.close()
+        except Exception:  # noqa: BLE001 - a bar that cannot be closed must not hide the error being reported
+            pass
+
+
 class StageTimer:
     """Accumulates wall time per named stage; `table()` renders the summary printed at the end."""
 

@@ -129,6 +129,15 @@ class MapComponent(_Written):
     stats: dict[str, Any] = Field(default_factory=dict)
 
 
+class GraphStats(_Written):
+    """The parts of components.graph.stats that `terra info` shows."""
+
+    places_per_terrain: dict[str, Count] = Field(default_factory=dict)
+    edges: dict[str, Count] = Field(default_factory=dict)
+    embedding_source: dict[str, Count] = Field(default_factory=dict)
+    embedding_rule: str | None = None
+
+
 class GraphComponent(_Written):
     """components.graph: format, counts of the stored scene graph, config and stats."""
 
@@ -138,7 +147,7 @@ class GraphComponent(_Written):
     regions: Annotated[list[Count], Field(max_length=MAX_REGION_LEVELS)] | None = None
     objects: Count | None = None
     config: dict[str, Any] = Field(default_factory=dict)
-    stats: dict[str, Any] = Field(default_factory=dict)
+    stats: GraphStats = Field(default_factory=GraphStats)
 
 
 class Components(_Written):
@@ -337,3 +346,53 @@ class GroundTruthRegions(_Written):
     """ground_truth/regions.json."""
 
     regions: list[GroundTruthRegion]
+
+
+# ------------------------------------------------------------------------------- ROS 2 bag folders
+class _Nanoseconds(_Written):
+    nanoseconds: Count
+
+
+class _StartTime(_Written):
+    nanoseconds_since_epoch: Annotated[int, Field(ge=-(2**62), le=2**62)]
+
+
+class RosbagTopicMetadata(_Written):
+    name: NonEmptyStr
+    type: NonEmptyStr
+    serialization_format: str
+    offered_qos_profiles: str | list[Any] = ""
+
+
+class RosbagTopicCount(_Written):
+    topic_metadata: RosbagTopicMetadata
+    message_count: Count
+
+
+class RosbagFileInfo(_Written):
+    path: NonEmptyStr
+    starting_time: _StartTime
+    duration: _Nanoseconds
+    message_count: Count
+
+
+class RosbagInfo(_Written):
+    version: Annotated[int, Field(ge=1, le=1000)]
+    storage_identifier: NonEmptyStr
+    relative_file_paths: Annotated[list[NonEmptyStr], Field(min_length=1)]
+    duration: _Nanoseconds
+    starting_time: _StartTime
+    message_count: Count
+    topics_with_message_count: list[RosbagTopicCount]
+    compression_format: str = ""
+    compression_mode: str = ""
+    files: list[RosbagFileInfo] | None = None
+    custom_data: dict[str, str] | None = None
+    ros_distro: str | None = None
+
+
+class RosbagMetadata(_Written):
+    """metadata.yaml of a ROS 2 bag folder (rosbag2's format, versions 1 and up), checked before
+    the bag reader trusts it."""
+
+    rosbag2_bagfile_information: RosbagInfo

@@ -1,7 +1,8 @@
 """The `terra` command line: one Typer app; each module in this package adds its commands.
 
 Every user error (TerraError) becomes one line on stderr and its exit code (2, or 3 for an
-unreachable plan goal); never a traceback for bad input.
+unreachable plan goal); never a traceback for bad input. Any other exception is a defect in Terra:
+`main` shows its traceback and asks for a report (exit code 1); `run` lets it propagate.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ def run(argv: list[str] | None = None) -> int:
         result = app(args=argv, standalone_mode=False)
         return result if isinstance(result, int) else 0
     except TerraError as exc:
+        _close_bars()
         typer.echo(f"terra: error: {exc}", err=True)
         return exc.exit_code
     except typer.Exit as exc:
@@ -61,6 +63,25 @@ def run(argv: list[str] | None = None) -> int:
         raise
 
 
+def _close_bars() -> None:
+    from terra.progress import close_bars
+
+    close_bars()
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: exits with the code of `run`."""
-    sys.exit(run(argv))
+    """Console entry point: exits with the code of `run`. An unexpected exception is a bug: its
+    traceback is shown, with a line asking to report it, and the exit code is 1."""
+    try:
+        code = run(argv)
+    except Exception:  # noqa: BLE001 - not a catch-all: the traceback is printed in full
+        import traceback
+
+        from terra import __version__
+
+        _close_bars()
+        traceback.print_exc()
+        typer.echo(f"terra: internal error: this is a bug in terra {__version__}, not a problem with your input; "
+                   "please report it with the command line and the traceback above", err=True)
+        code = 1
+    sys.exit(code)

@@ -10,11 +10,19 @@ import typer
 from terra.cli import app
 
 
-def bundle_summary(path: Path) -> dict:
+def bundle_summary(path: Path, verify: bool = True) -> dict:
+    """The summary `terra info` prints; with `verify`, after checking every file's size and SHA-256
+    against the manifest and the map metadata's types (TerraError naming the first damaged file)."""
     from terra.bundle import Bundle
     from terra.mapping.summary import map_summary
 
     bundle = Bundle(path)
+    if verify:
+        bundle.verify()
+        if bundle.has("map/meta.json"):
+            from terra.schemas import MapMeta
+
+            bundle.document("map/meta.json", MapMeta)
     summary = map_summary(bundle)
     if "graph" in bundle.manifest.get("components", {}):
         try:
@@ -68,13 +76,15 @@ def _graph_lines(g: dict, terrain_order: list[str]) -> list[str]:
 def info_command(
     bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map` / `terra build`."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+    no_verify: bool = typer.Option(False, "--no-verify", help="Skip the checksum check of every file (faster on big maps)."),
 ) -> None:
     """Summarise BUNDLE: points, bank size, images, terrain histogram, bytes per component, and
-    the scene graph when there is one.
+    the scene graph when there is one. Every file is first checked against the manifest's size and
+    SHA-256: a damaged file is named, with exit code 2.
 
     Example: terra info campus.terra --json
     """
-    summary = bundle_summary(bundle)
+    summary = bundle_summary(bundle, verify=not no_verify)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
     else:

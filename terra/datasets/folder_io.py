@@ -12,10 +12,11 @@ from __future__ import annotations
 import io
 import json
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from terra.datasets.base import ClassTable, SemanticClass
 from terra.errors import TerraError
@@ -79,10 +80,18 @@ def open_image(path: Path, what: str = "image", formats: tuple[str, ...] = ("JPE
     """The image in file `path`, opened (header read, pixels not yet decoded) after checking its
     format and pixel count; TerraError naming the file otherwise."""
     data = read_bytes(path, what, MAX_IMAGE_BYTES)
+    expected = " or ".join(formats)
     try:
-        im = Image.open(io.BytesIO(data), formats=list(formats))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # refused below, with its size
+            im = Image.open(io.BytesIO(data), formats=list(formats))
+    except UnidentifiedImageError:
+        raise TerraError(f"{path}: not a {expected} image (unrecognised data)") from None
+    except Image.DecompressionBombError:
+        raise TerraError(f"{path}: {what} declares more pixels than the {MAX_IMAGE_PIXELS:,} Terra decodes "
+                         "(a damaged or hostile file)") from None
     except IMAGE_ERRORS as exc:
-        raise TerraError(f"{path}: unreadable {what} ({_reason(exc)}); expected {' or '.join(formats)}") from None
+        raise TerraError(f"{path}: unreadable {what} ({_reason(exc)}); expected {expected}") from None
     width, height = im.size
     if width * height > MAX_IMAGE_PIXELS:
         raise TerraError(f"{path}: {what} declares {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS:,} "

@@ -157,7 +157,8 @@ def read_calib_file(path: Path) -> CalibFile:
 def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """K (3x3, positive diagonal) and T_cam_ref (4x4) with P = K [R | t] for a 3x4 projection
     matrix that maps reference-frame points (metres) to pixels. KITTI's rectified P2/P3 give R = I."""
-    if not np.all(np.isfinite(P)) or abs(np.linalg.det(P[:, :3])) < 1e-12 * max(np.abs(P[:, :3]).max(), 1e-300) ** 3:
+    scale = np.abs(P[:, :3]).max() if np.all(np.isfinite(P)) else 0.0
+    if not scale or abs(np.linalg.det(P[:, :3] / scale)) < 1e-12:
         raise ValueError("is not a camera projection (its left 3x3 block must be finite and invertible)")
     K, R = rq(P[:, :3])
     signs = np.diag(np.sign(np.where(np.diag(K) == 0, 1.0, np.diag(K))))

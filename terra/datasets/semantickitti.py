@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -300,7 +301,9 @@ def _read_table(path: Path, columns: int, rows: int, what: str) -> np.ndarray:
     """(rows, columns) finite numbers of a whitespace-separated text file; TerraError naming the file."""
     text = read_text(path, what)
     try:
-        table = np.loadtxt(io.StringIO(text), ndmin=2, dtype=np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data": the shape check below says it
+            table = np.loadtxt(io.StringIO(text), ndmin=2, dtype=np.float64)
     except ValueError as exc:
         raise TerraError(f"{path}: expected {rows} lines of {what} ({str(exc).splitlines()[0][:100]})") from None
     if table.shape != (rows, columns):

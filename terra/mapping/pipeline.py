@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from terra.bundle import Bundle, BundleWriter
+from terra.bundle import Bundle, BundleWriter, recover
 from terra.datasets.base import CameraFrame, Dataset, Frame
 from terra.errors import TerraError
+from terra.fileio import OutputError
 from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
@@ -54,6 +55,7 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
     """`build_map` with its timings and counters (used by `terra map` for the summary)."""
     out = Path(out)
     timer = StageTimer()
+    recover(out)  # leftovers of an interrupted run: a killed final write, a swap cut short
     _check_output(out)
     n_frames = len(dataset)
     if n_frames == 0:
@@ -82,7 +84,20 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
         fusion.restore(arrays, meta)
     else:
         checkpoint.discard()
+    try:
+        msm, stats = _fuse_all(dataset, config, perception, fusion, checkpoint, key, start, timer, show_progress)
+        with timer.stage("write"):
+            bundle = _write(out, msm, config, stats, dataset, perception)
+    except OutputError as exc:
+        raise OutputError(f"{exc}{_resume_hint(checkpoint)}") from None
+    checkpoint.discard()
+    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
 
+
+def _fuse_all(dataset: Dataset, config: MappingConfig, perception: Perception, fusion: MapFusion,
+              checkpoint: Checkpoint, key: str, start: int, timer: StageTimer, show_progress: bool):
+    """Frames `start`.. fused (checkpointed every `checkpoint_every`), then the finished map and stats."""
+    n_frames = len(dataset)
     for i in progress_bar(range(start, n_frames), desc="mapping", total=n_frames - start, enabled=show_progress):
         with timer.stage("load"):
             frame = load_frame(dataset, i, fusion.stats)
@@ -96,21 +111,27 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
 
     stats = fusion.stats.to_json()
     if stats.get("frames_fused", 0) == 0:
+        checkpoint.discard()  # nothing to resume: a rerun would meet the same frames
         first = next(iter(fusion.stats.notes.values()), "")
         raise TerraError(f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)}){'; first: ' + first if first else ''}")
     with timer.stage("finish"):
         msm = fusion.finish(perception.embedder, perception.terrain_embeddings())
-    with timer.stage("write"):
-        writer = BundleWriter(out)
-        try:
-            write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name, classes=dataset.classes.to_json())
-            writer.manifest["perception"] = perception.describe()
-            bundle = writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
-    checkpoint.discard()
-    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
+    return msm, stats
+
+
+def _write(out: Path, msm, config: MappingConfig, stats: dict, dataset: Dataset, perception: Perception) -> Bundle:
+    with BundleWriter(out) as writer:
+        write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name,
+                  classes=dataset.classes.to_json())
+        writer.manifest["perception"] = perception.describe()
+    return Bundle(out)
+
+
+def _resume_hint(checkpoint: Checkpoint) -> str:
+    """What a rerun will do after a write failure: resume from the last checkpoint, if there is one."""
+    if (checkpoint.path / "manifest.json").is_file():
+        return f"; rerun the same command to resume from the checkpoint in {checkpoint.folder}"
+    return ""
 
 
 def open_perception(config: MappingConfig, dataset: Dataset, out: Path,

@@ -42,7 +42,7 @@ import io
 import json
 import os
 import shutil
-import tempfile
+import secrets
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -51,6 +51,7 @@ import numpy as np
 
 from terra.bundle import array_bytes, atomic_write_bytes, dumps_json
 from terra.datasets.base import CameraFrame, Frame
+from terra.fileio import writing
 from terra.perception.base import ImagePerception, Perception, PointPerception
 from terra.perception.config import CacheConfig
 from terra.perception.masks import MaskSet
@@ -211,8 +212,13 @@ class PerceptionCache:
         final = self.entry(key)
         if (final / "entry.json").is_file():
             return
+        with writing(final, "perception cache entry"):
+            self._store(key, seen, final)
+
+    def _store(self, key: str, seen: ImagePerception, final: Path) -> None:
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=final.parent))
+        tmp = final.parent / f".{key[:16]}.{secrets.token_hex(6)}.tmp"
+        os.mkdir(tmp, 0o777)  # the user's umask, like every folder Terra writes
         try:
             files = {}
             for name, array in encode(seen).items():

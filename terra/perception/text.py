@@ -55,6 +55,7 @@ class SentenceTransformerEmbedder:
         os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
         self.name = name
         self.device = device or default_device()
+        _quiet_model_loading()
         self._model = model_loader(self.device)
         dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
         self.dim = int(dim_of())
@@ -77,6 +78,16 @@ class SentenceTransformerEmbedder:
                 self._cache[text] = vector
             out[i] = vector
         return out
+
+
+def _quiet_model_loading() -> None:
+    """No "Loading weights" bar from transformers: a command's stderr holds its own lines only (an
+    error reported after the model loaded stays one line)."""
+    try:
+        from transformers.utils import logging as hf_logging
+    except ImportError:
+        return
+    hf_logging.disable_progress_bar()
 
 
 _CACHED_TEXTS = 4096  # texts whose vectors each embedder keeps (oldest dropped first)

@@ -77,15 +77,12 @@ def check_ros2_folder(folder: Path) -> str:
     """The text of a ROS 2 bag folder's metadata.yaml, after checking that every storage file it
     lists is a regular file inside the folder (the reader would block on a FIFO); TerraError otherwise."""
     from terra.fileio import decode_text, parse_yaml, read_bytes
+    from terra.schemas import RosbagMetadata, validate_model
 
     path = folder / "metadata.yaml"
     text = decode_text(read_bytes(path, "bag metadata file", 16 << 20), path, "bag metadata file")
-    meta = parse_yaml(text, path, "bag metadata file")
-    info = meta.get("rosbag2_bagfile_information") if isinstance(meta, dict) else None
-    files = info.get("relative_file_paths") if isinstance(info, dict) else None
-    if not isinstance(files, list) or not all(isinstance(f, str) and f for f in files):
-        raise TerraError(f"{path}: expected rosbag2_bagfile_information.relative_file_paths, a list of file names")
-    for name in files:
+    info = validate_model(parse_yaml(text, path, "bag metadata file"), RosbagMetadata, path).rosbag2_bagfile_information
+    for name in info.relative_file_paths + [f.path for f in info.files or []]:
         storage = folder / name
         if ".." in Path(name).parts or Path(name).is_absolute() or not storage.is_file():
             raise TerraError(f"{path}: lists storage file {name[:80]!r}, which is not a file in {folder}")
@@ -114,6 +111,11 @@ def _reader_errors() -> tuple[type[BaseException], ...]:
         KeyError,
         ValueError,
         AssertionError,
+        # A record or message length field that claims more bytes than any bag holds: the reader
+        # asks for a buffer of that size before it finds the data short.
+        MemoryError,
+        OverflowError,
+        RecursionError,
     )
 
 
