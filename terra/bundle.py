@@ -83,22 +83,28 @@ def _write_new_file(path: Path, data: bytes, mode: int = 0o666) -> None:
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write a file through a temporary sibling and a rename (TerraError with what to do when the
-    disk is full or read-only). A replaced file keeps its permissions; a new one gets the umask's."""
+    """Write a file through a locked temporary sibling and a rename (TerraError with what to do when
+    the disk is full or read-only). A replaced file keeps its permissions; a new one gets the umask's."""
     path = Path(path)
     with writing(path, "file"):
         path.parent.mkdir(parents=True, exist_ok=True)
         recover(path)
-        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+        mode = stat.S_IMODE(os.stat(path).st_mode) if path.is_file() else None
+        tmp, fd = _locked_sibling(path, lambda p: os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)))
         try:
-            mode = stat.S_IMODE(os.stat(path).st_mode) if path.is_file() else 0o666
-            _write_new_file(tmp, data)
-            if mode != 0o666:
+            with open(tmp, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            if mode is not None:
                 os.chmod(tmp, mode)
             os.replace(tmp, path)
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
+        finally:
+            if fd is not None:
+                os.close(fd)
 
 
 def array_bytes(array: np.ndarray) -> bytes:
@@ -212,6 +218,28 @@ def recover(path: str | Path) -> list[str]:
     return done
 
 
+def _locked_sibling(target: Path, create: Callable[[Path], None]) -> tuple[Path, int | None]:
+    """A new `.NAME.<token>.tmp` sibling of `target` made by `create` (with the user's umask) and a
+    descriptor locking it. Another command's `recover` may take an unlocked sibling for a dead one
+    and remove it in the instant between creation and locking: then a fresh one is made."""
+    for _ in range(100):
+        path = target.parent / f".{target.name}.{secrets.token_hex(6)}.tmp"
+        try:
+            create(path)
+        except FileExistsError:
+            continue
+        fd = _try_lock(path)
+        if fd is None and fcntl is not None:
+            continue  # removed (or being removed) by a recovery: not ours any more
+        try:
+            if fd is None or os.path.samestat(os.fstat(fd), os.lstat(path)):
+                return path, fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    raise OSError(errno.EEXIST, "no free name for a staging folder", str(target))
+
+
 class Staging:
     """A new version of folder `target`, assembled in a locked hidden sibling and put in place by
     `commit()` (see the module docstring); `discard()` removes it. The staging folder gets the
@@ -222,15 +250,7 @@ class Staging:
         self.target = target.resolve() if target.is_symlink() else target  # replace what a symlink names
         self.target.parent.mkdir(parents=True, exist_ok=True)
         recover(self.target)
-        for _ in range(100):
-            folder = self.target.parent / f".{self.target.name}.{secrets.token_hex(6)}.tmp"
-            try:
-                os.mkdir(folder, 0o777)
-                break
-            except FileExistsError:
-                continue
-        self.folder = folder
-        self._lock = _try_lock(folder)
+        self.folder, self._lock = _locked_sibling(self.target, lambda p: os.mkdir(p, 0o777))
         self._done = False
 
     def commit(self) -> None:

@@ -277,7 +277,8 @@ def _edges(doc, layers: dict[str, list], levels: int, where: str) -> tuple[list,
     for e, edge in enumerate(doc.edges):
         (sc, si), (tc, ti) = symbol_parts(edge.source), symbol_parts(edge.target)
         if si >= counts.get(sc, 0) or ti >= counts.get(tc, 0):
-            raise TerraError(f"{where}: edge {e} joins node {edge.source} and {edge.target}, which are not both nodes")
+            raise TerraError(f"{where}: edge {e} joins {sc}{si} and {tc}{ti} (NodeSymbol char and index), "
+                             "which are not both nodes of the graph")
         if sc == "p" and tc == "p":
             if si == ti:
                 raise TerraError(f"{where}: edge {e} joins place {si} to itself")
@@ -289,7 +290,7 @@ def _edges(doc, layers: dict[str, list], levels: int, where: str) -> tuple[list,
             continue  # object -> place links are stored on the objects
         elif above.get(tc) == sc:
             if parent_of.setdefault(tc, {}).setdefault(ti, si) != si:
-                raise TerraError(f"{where}: node {edge.target} has two parents")
+                raise TerraError(f"{where}: node {tc}{ti} (NodeSymbol char and index) has two parents")
         else:
             raise TerraError(f"{where}: edge {e} from {sc!r} to {tc!r} nodes is neither a place edge nor a parent link")
     return place_edges, weights, kinds, parent_of
