@@ -585,7 +585,81 @@ FAILURES = ("traceback", "bad exit code", "not one line", "invalid result", "cha
             "hang", "crash")
 
 
-# ------------------------------------------------------------------------------------- worker
+# ------------------------------------------------------------------------------------- workers
+def supervise(jobs: list[dict], workers: int, timeout: float, log: Callable[[dict], None] | None = None,
+              until: float | None = None) -> list[dict]:
+    """Run `jobs` ({"target", "seed", "seeds", "work"}) in `workers` worker processes (`python -m
+    tests.fuzzing worker`, each with its own work folder). A worker that dies mid-job is a crash, one
+    that answers nothing for `timeout` seconds a hang (it is killed); either is replaced and the
+    jobs go on. No job starts after time.monotonic() `until` (when given): the rest are left out.
+    Returns one result per job run, in the order they finish."""
+    import selectors
+    import subprocess
+
+    pending = list(reversed(jobs))
+    results: list[dict] = []
+    procs: dict[int, tuple[subprocess.Popen, dict | None, float]] = {}
+    selector = selectors.DefaultSelector()
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1", "PYTHONFAULTHANDLER": "0"}
+    repo = Path(__file__).resolve().parents[1]
+
+    def start(slot: int) -> None:
+        proc = subprocess.Popen([sys.executable, "-m", "tests.fuzzing", "worker"], cwd=repo, env=env, text=True,
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        procs[slot] = (proc, None, 0.0)
+        selector.register(proc.stdout, selectors.EVENT_READ, slot)
+        feed(slot)
+
+    def feed(slot: int) -> None:
+        proc = procs[slot][0]
+        if pending and (until is None or _now() < until):
+            job = dict(pending.pop(), work=str(Path(jobs[0]["work"]) / f"worker{slot}"))
+            proc.stdin.write(json.dumps(job) + "\n")
+            proc.stdin.flush()
+            procs[slot] = (proc, job, _now())
+        else:
+            procs[slot] = (proc, None, 0.0)
+
+    def finish(slot: int, outcome: str, detail: str) -> None:
+        proc, job, _ = procs.pop(slot)
+        selector.unregister(proc.stdout)
+        proc.kill()
+        proc.wait()
+        results.append({"target": job["target"], "seed": job["seed"], "outcome": outcome, "detail": detail,
+                        "mutation": "", "argv": [], "code": proc.returncode})
+        if log:
+            log(results[-1])
+        start(slot)
+
+    for slot in range(workers):
+        start(slot)
+    while any(job is not None for _, job, _ in procs.values()):
+        for key, _ in selector.select(timeout=1.0):
+            slot = key.data
+            proc, job, _ = procs[slot]
+            line = proc.stdout.readline()
+            if not line:
+                finish(slot, "crash", f"worker exited with {proc.wait()}")
+                continue
+            results.append(json.loads(line))
+            if log:
+                log(results[-1])
+            feed(slot)
+        for slot, (proc, job, since) in list(procs.items()):
+            if job is not None and _now() - since > timeout:
+                finish(slot, "hang", f"no answer within {timeout} s")
+    for proc, _, _ in procs.values():
+        proc.stdin.close()
+        proc.wait()
+    return results
+
+
+def _now() -> float:
+    import time
+
+    return time.monotonic()
+
+
 def worker() -> None:
     """Answer jobs from stdin (one JSON line each) with results on stdout (one JSON line each)."""
     import resource
@@ -604,7 +678,9 @@ def worker() -> None:
             cache[key] = (seeds, targets(seeds))
         seeds, table = cache[key]
         rng = random.Random(f"{job['target']}/{job['seed']}")
-        result = run_case(table[job["target"]], seeds, rng, Path(job["work"]), job.get("timeout", 60.0))
+        # The worker's own deadline answers before the supervisor's: a hang the alarm can break is
+        # reported with what was running; one it cannot (a C loop) is found by the supervisor.
+        result = run_case(table[job["target"]], seeds, rng, Path(job["work"]), job.get("timeout", 60.0) * 0.8)
         result["seed"] = job["seed"]
         real_stdout.write(json.dumps(result) + "\n")
         real_stdout.flush()

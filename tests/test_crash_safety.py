@@ -64,7 +64,7 @@ def map_setup(reliability_seeds, tmp_path_factory):
     """A dataset, an old bundle (other voxel size) and the new bundle's state (a reference run)."""
     root = tmp_path_factory.mktemp("kill-map")
     dataset = reliability_seeds.datasets["terra-folder"]
-    (root / "old.yaml").write_text("mapping:\n  voxel_size: 0.5\n")
+    (root / "old.yaml").write_text("mapping:\n  fusion:\n    voxel_size: 0.5\n")
     (root / "new.yaml").write_text("mapping:\n  checkpoint_every: 1\n")
     assert cli(["map", dataset, "--out", root / "ref.terra", "-q", "-c", root / "new.yaml"])[0] == 0
     assert cli(["map", dataset, "--out", root / "old.terra", "-q", "-c", root / "old.yaml"])[0] == 0
@@ -88,8 +88,8 @@ def _check_killed_then_rerun(out: Path, old: str, new: str, rerun: list, point: 
 # Swaps of an existing target during `terra map` with checkpoint_every 1 on 3 frames: the second
 # checkpoint replaces the first (swap 1), the bundle replaces the old bundle (swap 2).
 @pytest.mark.slow
-@pytest.mark.parametrize("point,n", [("write", 3), ("write", 30), ("exchange", 1), ("exchange", 2), ("remove", 2),
-                                     ("rmtree", 2), ("rename", 1), ("rename", 2)])
+@pytest.mark.parametrize("point,n", [("write", 3), ("write", 30), ("exchange", 2), ("rmtree", 2), ("rename", 1),
+                                     ("rename", 2)])
 def test_kill_during_map_leaves_old_or_new_and_the_rerun_cleans_up(map_setup, tmp_path, point, n):
     dataset, root, old, new = map_setup
     out = tmp_path / "campus.terra"
@@ -103,7 +103,7 @@ def test_kill_during_map_leaves_old_or_new_and_the_rerun_cleans_up(map_setup, tm
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("fraction", [0.3, 0.6, 0.85])
+@pytest.mark.parametrize("fraction", [0.5, 0.9])
 def test_kill_map_at_a_random_moment(map_setup, tmp_path, fraction):
     """SIGKILL from outside after a share of a full run's duration: old or new, then a clean rerun."""
     dataset, root, old, new = map_setup
@@ -122,6 +122,24 @@ def test_kill_map_at_a_random_moment(map_setup, tmp_path, fraction):
     _check_killed_then_rerun(out, old, new, args[3:], "delay")
 
 
+# Kills during `terra map` onto a new path after a checkpoint was written (3 frames, one checkpoint
+# after each of frames 1 and 2): before the second checkpoint replaces the first ("exchange" 1), and
+# after it did, before the replaced checkpoint is deleted ("remove" 1).
+@pytest.mark.slow
+@pytest.mark.parametrize("point,resumed", [("exchange", 1), ("remove", 2)])
+def test_a_killed_map_resumes_to_the_bytes_of_an_uninterrupted_run(map_setup, tmp_path, point, resumed):
+    dataset, root, _, _ = map_setup
+    out = tmp_path / "campus.terra"
+    args = ["map", dataset, "--out", out, "-c", root / "new.yaml"]
+    assert terra(*args, point=point, n=1).returncode == -signal.SIGKILL
+    assert not out.exists() and (tmp_path / "campus.terra.partial" / "state" / "manifest.json").is_file()
+    done = terra(*args)
+    assert done.returncode == 0, done.stderr
+    assert f"resumed after frame {resumed}" in done.stdout
+    assert folder_digest(out) == folder_digest(root / "ref.terra")  # every file, byte for byte
+    assert leftovers(tmp_path, "campus.terra") == []
+
+
 @pytest.fixture(scope="module")
 def build_setup(reliability_seeds, tmp_path_factory):
     """A bundle with a graph (old) and the state of the same bundle rebuilt with spectral regions (new)."""
@@ -132,7 +150,7 @@ def build_setup(reliability_seeds, tmp_path_factory):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point,n", [("write", 2), ("exchange", 1), ("rmtree", 1), ("rename", 1)])
+@pytest.mark.parametrize("point,n", [("write", 2), ("exchange", 1), ("rename", 1)])
 def test_kill_during_build(reliability_seeds, build_setup, tmp_path, point, n):
     _, old, new = build_setup
     out = tmp_path / "campus.terra"
@@ -143,12 +161,12 @@ def test_kill_during_build(reliability_seeds, build_setup, tmp_path, point, n):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point", ["exchange", "remove", "rename"])
+@pytest.mark.parametrize("point", ["remove", "rename"])
 def test_kill_during_find_save(reliability_seeds, tmp_path, point):
     out, ref = tmp_path / "campus.terra", tmp_path / "ref.terra"
     shutil.copytree(reliability_seeds.bundle, out)
     shutil.copytree(reliability_seeds.bundle, ref)
-    queries = ["find the dumpster", "get bike from the bicycle rack", "--save", "--alpha", "0.2"]
+    queries = ["a tree", "a car", "--save", "--alpha", "0.2"]
     assert cli(["find", ref, *queries])[0] == 0
     old, new = bundle_state(out), bundle_state(ref)
     assert old != new
@@ -273,10 +291,11 @@ def test_a_file_size_limit_during_map_is_one_line(reliability_seeds, tmp_path):
 
 @pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("mount"), reason="mounting a small tmpfs needs root")
 def test_a_really_full_disk(reliability_seeds, tmp_path):
-    """A 1 MiB tmpfs holding a 0.5 MB bundle: the new version does not fit beside it."""
+    """A tmpfs 1.4 times the bundle's size, holding the bundle: the new version does not fit beside it."""
     disk = tmp_path / "disk"
     disk.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True).returncode:
+    size = int(1.4 * sum(p.stat().st_size for p in reliability_seeds.bundle.rglob("*") if p.is_file())) + 65536
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(disk)], capture_output=True).returncode:
         pytest.skip("tmpfs cannot be mounted here")
     try:
         out = disk / "campus.terra"
