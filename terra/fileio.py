@@ -63,7 +63,7 @@ def write_error(path: str | Path, exc: OSError, what: str = "output") -> OutputE
     """One line for an OSError met writing `path` (a `what`): the path, the system's reason and,
     for a full disk, a read-only file system or a permission problem, what to do."""
     where = exc.filename or path
-    reason = exc.strerror or type(exc).__name__
+    reason = exc.strerror or str(exc) or type(exc).__name__  # some writers (ndarray.tofile) set no errno
     advice = _WHAT_TO_DO.get(exc.errno or 0)
     tail = f"; {advice}" if advice else ""
     return OutputError(f"{where}: cannot write the {what} ({reason}){tail}; nothing was replaced")

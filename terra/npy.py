@@ -155,3 +155,14 @@ def check_csr(indptr: np.ndarray, indices: np.ndarray, n_rows: int, n_cols: int,
     if indices.size and (int(indices.min()) < 0 or int(indices.max()) >= n_cols):
         raise TerraError(f"{where}: column indices from {int(indices.min())} to {int(indices.max())}, "
                          f"expected 0..{n_cols - 1}")
+
+
+def write_npy(path: str | Path, array: np.ndarray) -> None:
+    """Write `array` as a .npy file (no pickled objects). Encoded in memory and written in one call:
+    `np.save` to a path goes through ndarray.tofile, whose short write on a full disk raises an
+    OSError without errno or reason."""
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=False)  # the same bytes as np.save to a path
+    Path(path).write_bytes(buf.getvalue())

@@ -289,6 +289,20 @@ def test_a_file_size_limit_during_map_is_one_line(reliability_seeds, tmp_path):
     assert folder_digest(out) == before and leftovers(tmp_path, "campus.terra") == []
 
 
+@pytest.mark.slow
+def test_a_file_size_limit_during_sim_overwrite_is_one_line(tmp_path):
+    """`terra sim --overwrite` onto an existing dataset with RLIMIT_FSIZE below one scan's size: one
+    line, the old dataset byte for byte, nothing left beside it."""
+    out = tmp_path / "data"
+    common = ["sim", "--preset", "tiny", "--max-frames", "2", "-q", "--overwrite", "--out", out]
+    assert terra(*common, "--seed", "1").returncode == 0
+    before = folder_digest(out)
+    done = terra(*common, "--seed", "2", point="fsize", n=20_000)
+    assert done.returncode == 2, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "File too large" in done.stderr, done.stderr
+    assert folder_digest(out) == before and leftovers(tmp_path, "data") == []
+
+
 @pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("mount"), reason="mounting a small tmpfs needs root")
 def test_a_really_full_disk(reliability_seeds, tmp_path):
     """A tmpfs 1.4 times the bundle's size, holding the bundle: the new version does not fit beside it."""

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from terra.errors import TerraError
+from terra.npy import write_npy
 
 GROUND_TRUTH_DIR = "ground_truth"
 
@@ -120,8 +121,8 @@ def write_ground_truth(root: Path, gt: GroundTruth) -> None:
         for r in rows
     ]
     (out / "objects.csv").write_text(header + "\n".join(lines) + "\n")
-    np.save(out / "terrain.npy", gt.terrain.classes.astype(np.int32), allow_pickle=False)
-    np.save(out / "ground_height.npy", gt.terrain.ground_height.astype(np.float32), allow_pickle=False)
+    write_npy(out / "terrain.npy", gt.terrain.classes.astype(np.int32))
+    write_npy(out / "ground_height.npy", gt.terrain.ground_height.astype(np.float32))
     meta = {
         "origin": [float(v) for v in gt.terrain.origin],
         "resolution": float(gt.terrain.resolution),

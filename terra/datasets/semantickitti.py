@@ -89,13 +89,14 @@ def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show
         if Tr is None:
             Tr = frame.cameras[0].calibration.T_cam_lidar if frame.cameras else _DEFAULT_TR
         inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
-        np.concatenate([frame.points, inten[:, None]], axis=1).astype(np.float32).tofile(seq / "velodyne" / f"{name}.bin")
+        # write_bytes, not ndarray.tofile: a short write (full disk) then says why, with its errno
+        (seq / "velodyne" / f"{name}.bin").write_bytes(np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tobytes())
         if frame.point_labels is not None:
             inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
             if inst.size and (inst.min() < 0 or inst.max() > 0xFFFF):
                 raise TerraError("instance ids must lie in 0..65535 for SemanticKITTI .label files")
             value = to_kitti[frame.point_labels].astype(np.uint32) | (inst.astype(np.uint32) << np.uint32(16))
-            value.astype("<u4").tofile(seq / "labels" / f"{name}.label")
+            (seq / "labels" / f"{name}.label").write_bytes(value.astype("<u4").tobytes())
         poses.append(Tr @ frame.T_map_lidar @ invert_pose(Tr))
         times.append(float(frame.stamp))
         for n, cam in enumerate(frame.cameras):

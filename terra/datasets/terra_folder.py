@@ -48,6 +48,7 @@ from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, pose_from_xyz_quat, pose_to_xyz_quat, transform_points, voxel_keys
+from terra.npy import write_npy
 from terra.progress import progress
 
 POSES = "transformations_lidar2global"
@@ -140,13 +141,13 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
     for frame in progress((dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress):
         t = stamp_text(frame.stamp)
         stamps.append(float(t))
-        np.save(root / POSES / f"transform_lidar_to_map_{t}.npy", pose_to_xyz_quat(frame.T_map_lidar), allow_pickle=False)
+        write_npy(root / POSES / f"transform_lidar_to_map_{t}.npy", pose_to_xyz_quat(frame.T_map_lidar))
         inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
         scan = np.concatenate([frame.points, inten[:, None]], axis=1).astype(np.float32)
-        np.save(root / SCANS / f"lidar_pc_{t}.npy", scan, allow_pickle=False)
+        write_npy(root / SCANS / f"lidar_pc_{t}.npy", scan)
         if frame.point_labels is not None:
             inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
-            np.save(root / LABELS / f"lidar_labels_{t}.npy", np.stack([frame.point_labels, inst], 1).astype(np.int32), allow_pickle=False)
+            write_npy(root / LABELS / f"lidar_labels_{t}.npy", np.stack([frame.point_labels, inst], 1).astype(np.int32))
         acc.add(transform_points(frame.T_map_lidar, frame.points.astype(np.float64)), inten)
         for index, cam in enumerate(frame.cameras):
             files = CameraFiles(index + FIRST_CAMERA)
@@ -156,7 +157,7 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
                     (root / d).mkdir(exist_ok=True)
             write_rgb(root / files.image(frame.stamp), cam.image)
             T_cam_lidar = pose_to_xyz_quat(cam.calibration.T_cam_lidar)
-            np.save(root / files.transform(frame.stamp), T_cam_lidar, allow_pickle=False)
+            write_npy(root / files.transform(frame.stamp), T_cam_lidar)
             if cam.semantic is not None:
                 write_label_png(root / files.semantic_image(frame.stamp), cam.semantic)
             if cam.instance is not None:
@@ -164,7 +165,7 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
         if len(stamps) == 1:
             msmap_camera_keys(cameras)  # refuse what the authors' layout cannot hold before writing more
     last = stamp_text(max(stamps)) if stamps else stamp_text(0.0)
-    np.save(root / GLOBAL / f"global_pc_{last}.npy", acc.result(), allow_pickle=False)
+    write_npy(root / GLOBAL / f"global_pc_{last}.npy", acc.result())
     meta = {"format": "terra-folder", "version": 2, "name": dataset.name, "frames": len(stamps),
             "first_camera": FIRST_CAMERA, "cameras": [calibration_to_json(c) for c in cameras]}
     (root / META).write_text(json.dumps(meta, indent=1) + "\n")
