@@ -176,16 +176,20 @@ def test_kill_during_find_save(reliability_seeds, tmp_path, point):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point", ["exchange", "rmtree"])
+@pytest.mark.parametrize("point", ["exchange", "rmtree", "rename"])
 def test_kill_during_sim_overwrite(tmp_path, point):
     """`terra sim --overwrite` onto an existing dataset: killed mid-swap, the folder is the old
-    dataset or the new one, byte for byte; the rerun leaves nothing else."""
+    dataset or the new one, byte for byte (after the two-rename fallback, once a command opened
+    it: here `terra inspect`); the rerun leaves nothing else."""
     out, ref = tmp_path / "data", tmp_path / "ref"
     common = ["sim", "--preset", "tiny", "--max-frames", "2", "-q", "--overwrite"]
     assert terra(*common, "--seed", "1", "--out", out).returncode == 0
     assert terra(*common, "--seed", "2", "--out", ref).returncode == 0
     old, new = folder_digest(out), folder_digest(ref)
     assert terra(*common, "--seed", "2", "--out", out, point=point, n=1).returncode == -signal.SIGKILL
+    if point == "rename":
+        assert not out.exists()  # killed between the fallback's two renames
+        assert terra("inspect", out).returncode == 0
     assert folder_digest(out) in (old, new)
     assert terra(*common, "--seed", "2", "--out", out).returncode == 0
     assert folder_digest(out) == new
