@@ -472,7 +472,9 @@ class BundleWriter:
         for file_name, entry in base.files.items():
             if file_name.split("/", 1)[0] in drop_components:
                 continue
-            source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=False)
+            # Checksummed: a damaged file of the same size must not be carried into a version
+            # whose manifest vouches for it.
+            source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
             dst = self._tmp / file_name
             dst.parent.mkdir(parents=True, exist_ok=True)
             try:
