@@ -44,10 +44,11 @@ from benchtable import report
 from tests.fuzzing import FAILURES, build_seeds, supervise, targets
 
 
-def fuzz(seeds, work: Path, cases: int, workers: int, timeout: float, budget: float | None) -> dict:
+def fuzz(seeds, work: Path, cases: int, workers: int, timeout: float, budget: float | None,
+         only: list[str] | None = None, offset: int = 0) -> dict:
     """Counts of outcomes per reader and the failures (at most 50, with their mutation)."""
-    names = list(targets(seeds))
-    jobs = [{"target": names[k % len(names)], "seed": k // len(names), "seeds": seeds.to_json(), "work": str(work)}
+    names = only or list(targets(seeds))
+    jobs = [{"target": names[k % len(names)], "seed": offset + k // len(names), "seeds": seeds.to_json(), "work": str(work)}
             for k in range(cases)]
     until = None if budget is None else time.monotonic() + budget
     done = [0]
@@ -81,6 +82,8 @@ def kills(seeds, work: Path, count: int, rng: random.Random) -> dict:
     """`terra map` over an existing bundle killed after a random share of a full run, then rerun."""
     from tests.test_crash_safety import leftovers
 
+    if count == 0:
+        return {"runs": 0, "full_run_seconds": None, "tally": {}, "failures": []}
     dataset = seeds.datasets["terra-folder"]
     (work / "old.yaml").write_text("mapping:\n  fusion:\n    voxel_size: 0.5\n")
     (work / "new.yaml").write_text("mapping:\n  checkpoint_every: 1\n")
@@ -131,6 +134,8 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds without an answer that make a hang")
     parser.add_argument("--budget", type=float, default=None, help="start no fuzz case after this many seconds")
+    parser.add_argument("--targets", default=None, help="comma-separated readers (default: all)")
+    parser.add_argument("--seed-offset", type=int, default=0, help="first case number of each reader")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "fuzz_readers.json")
     args = parser.parse_args()
     result = {"machine": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
@@ -140,7 +145,11 @@ def main() -> None:
         seeds = build_seeds(work / "seeds")
         (work / "fuzz").mkdir()
         (work / "kill").mkdir()
-        result["fuzz"] = fuzz(seeds, work / "fuzz", args.cases, args.workers, args.timeout, args.budget)
+        only = args.targets.split(",") if args.targets else None
+        if only and set(only) - set(targets(seeds)):
+            parser.error(f"unknown readers {sorted(set(only) - set(targets(seeds)))}; known: {sorted(targets(seeds))}")
+        result["fuzz"] = fuzz(seeds, work / "fuzz", args.cases, args.workers, args.timeout, args.budget, only,
+                              args.seed_offset)
         result["kill"] = kills(seeds, work / "kill", args.kills, random.Random(0))
     f, k = result["fuzz"], result["kill"]
     outcomes = f["outcomes"]
