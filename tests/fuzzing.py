@@ -173,7 +173,7 @@ def mutate_structure(value: Any, rng: random.Random) -> Any:
     elif op == 3:
         parent[key] = {"0": current} if isinstance(current, list) else [current]
     elif op == 4 and isinstance(current, (int, float)) and not isinstance(current, bool):
-        parent[key] = rng.choice([-current, current * 1000 + 1, current - 1, int(current) if current == current else 0])
+        parent[key] = rng.choice([-current, current * 1000 + 1, current - 1, int(current) if abs(current) < float("inf") else 0])
     else:
         parent[key] = _interesting_value(rng)
     return value

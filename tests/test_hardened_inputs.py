@@ -453,3 +453,13 @@ def test_a_damaged_file_is_not_carried_into_a_new_version(bundle, argv):
     before = folder_digest(bundle)
     refused([argv[0], bundle, *argv[1:]], "map/meta.json", "checksum mismatch")
     assert folder_digest(bundle) == before
+
+
+def test_a_huge_camera_count_in_the_msmap_yaml_is_one_line(reliability_seeds, tmp_path):
+    """num_cams 10^12 (found by the fuzz benchmark: a list of 10^12 camera numbers, MemoryError)."""
+    data = Path(shutil.copytree(reliability_seeds.datasets["terra-folder"], tmp_path / "data"))
+    config = data / "msmap_camera_config.yaml"
+    config.write_text(config.read_text().replace("num_cams: 1", "num_cams: 1000000000000"))
+    refused(["map", data, "--camera-config", config, "--out", tmp_path / "out", "-q"],
+            "msmap_camera_config.yaml", "num_cams is 1000000000000 but there is no cam2_K")
+    assert not (tmp_path / "out").exists()

@@ -94,11 +94,11 @@ def _camera_numbers(cfg: dict, where: _Where) -> list[int]:
     count = cfg["num_cams"]
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise TerraError(f"{where('num_cams')}: num_cams must be a non-negative integer, got {count!r}")
-    numbers = list(range(first, first + count))
+    numbers = range(first, first + count)  # lazy: a num_cams of 10^12 stops at its first missing cam{n}_K
     for n in numbers:
         if f"cam{n}_K" not in cfg:
             raise TerraError(f"{where('num_cams')}: num_cams is {count} but there is no cam{n}_K (9 floats, row-major)")
-    return numbers
+    return list(numbers)
 
 
 def _positive_int(cfg: dict, key: str, where: _Where) -> int:
