@@ -463,3 +463,15 @@ def test_a_huge_camera_count_in_the_msmap_yaml_is_one_line(reliability_seeds, tm
     refused(["map", data, "--camera-config", config, "--out", tmp_path / "out", "-q"],
             "msmap_camera_config.yaml", "num_cams is 1000000000000 but there is no cam2_K")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("data", [b"\x80\x02q\x00.", b"\x80\x02R."])
+def test_a_garbled_reference_torch_file_is_one_line(reliability_seeds, tmp_path, data):
+    """Pickle opcodes that make torch's weights-only unpickler index an empty stack (found by the
+    fuzz benchmark: an IndexError traceback from `terra import`)."""
+    ref = Path(shutil.copytree(reliability_seeds.reference, tmp_path / "reference"))
+    victim = next(ref.glob("clip_imgs_itr*.pt"))
+    victim.write_bytes(data)
+    refused(["import", ref, "-f", "terra-reference", "-o", tmp_path / "out", "--terrain-classes",
+             "sidewalk,grass,asphalt,dirt,water"], victim.name, "unreadable torch file")
+    assert not (tmp_path / "out").exists()

@@ -187,7 +187,9 @@ def load_tensor(path: Path) -> np.ndarray:
         raise TerraError(
             f"{path}: holds {_unsafe_globals(path, exc)}; only tensors are read from the reference's torch files"
         ) from None
-    except (RuntimeError, EOFError, OSError, ValueError, KeyError, AttributeError) as exc:
+    # torch's weights-only unpickler meets garbled opcodes with whatever its stack does (IndexError...)
+    except (RuntimeError, EOFError, OSError, ValueError, KeyError, AttributeError, IndexError, TypeError,
+            UnicodeDecodeError, MemoryError, RecursionError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise TerraError(f"{path}: unreadable torch file ({first})") from None
     if not isinstance(obj, torch.Tensor):
