@@ -1,31 +1,64 @@
-"""The bundle: Terra's on-disk map and scene graph, a folder with no pickle in it.
+"""The bundle: Terra's on-disk map and scene graph, a folder with no pickle in it; and the one way
+Terra replaces a folder it writes (bundles, datasets, reports, exports).
 
 Layout: `manifest.json` plus one `.npy` file per array and `.json` files for structured data,
-under component folders (`map/`, `graph/`, ...). Arrays load with `allow_pickle=False`. Every file
-is listed in the manifest with its size and SHA-256. Writes are atomic: a new version is assembled
-in a temporary sibling folder and swapped in by rename, so a crash leaves the old bundle intact.
-No timestamps are written, so the same input gives the same bytes.
+under component folders (`map/`, `graph/`, ...). Every file is listed in the manifest with its size
+and SHA-256; the manifest is validated on open (terra.schemas.BundleManifest: types, ranges, and
+file names that cannot leave the bundle), arrays are checked header first (terra.npy) and JSON is
+read with one-line errors (terra.fileio). No timestamps are written: the same input gives the same
+bytes.
+
+Replacing a folder (`Staging`, `replace_folder`, `recover`, `atomic_folder`). A new version is
+assembled in a hidden sibling `.NAME.<token>.tmp` (created with the user's umask, like any folder
+the user makes) and then takes the place of NAME in one step:
+- where the OS can exchange two paths atomically (Linux renameat2 RENAME_EXCHANGE, macOS
+  renamex_np RENAME_SWAP), the staging folder and NAME swap places, and the old version, now in
+  the staging name, is deleted. At no instant is NAME missing or partly written: a reader or a
+  kill -9 sees the old complete version or the new one.
+- elsewhere (file systems without the exchange), NAME is renamed to `.NAME.old-<token>` and the
+  staging folder to NAME. A kill between the two renames leaves NAME missing for an instant;
+  `recover(NAME)`, which every bundle open, every writer and every dataset write runs first,
+  puts the old version back.
+Chosen over a symlink to versioned folders because a bundle stays a plain folder (copied, synced,
+archived and opened by other tools as one) and a first replacement of an existing folder needs no
+migration. A writer holds an exclusive lock (flock) on its staging folder while it lives, and the
+lock dies with the process: `recover` removes only unlocked leftovers (`.NAME.*.tmp`,
+`.NAME.tmp-*`, `.NAME.old-*` of killed runs), never the work of a process still running.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import hashlib
 import io
 import json
 import os
+import secrets
 import shutil
+import stat
+import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from terra import __version__
 from terra.errors import TerraError
+from terra.fileio import read_error, read_json, writing
+from terra.npy import ArraySpec, read_npy
+
+try:  # POSIX: writers lock their staging folder; recovery leaves locked ones alone
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
 
 SCHEMA = "terra-bundle"
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
+MAX_MANIFEST_BYTES = 64 << 20
+M = TypeVar("M")
 
 
 def _sha256(path: Path) -> str:
@@ -64,21 +97,38 @@ def dumps_json(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
+def _write_new_file(path: Path, data: bytes, mode: int = 0o666) -> None:
+    """Create file `path` (it must not exist) with `data`, synced to disk; `mode` before the umask."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write a file through a temporary sibling and a rename."""
+    """Write a file through a locked temporary sibling and a rename (TerraError with what to do when
+    the disk is full or read-only). A replaced file keeps its permissions; a new one gets the umask's."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~process_umask())  # mkstemp's 0600 would outlive the rename
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with writing(path, "file"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        recover(path)
+        mode = stat.S_IMODE(os.stat(path).st_mode) if path.is_file() else None
+        tmp, fd = _locked_sibling(path, lambda p: os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)))
+        try:
+            with open(tmp, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            if mode is not None:
+                os.chmod(tmp, mode)
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        finally:
+            if fd is not None:
+                os.close(fd)
 
 
 def array_bytes(array: np.ndarray) -> bytes:
@@ -91,30 +141,263 @@ def array_bytes(array: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+# ----------------------------------------------------------------------------- folder replacement
+_RENAME_EXCHANGE = 2  # linux/fs.h
+_RENAME_SWAP = 2  # macOS stdio.h (renamex_np)
+_EXCHANGE_UNSUPPORTED = {errno.ENOSYS, errno.EINVAL, getattr(errno, "ENOTSUP", -1), getattr(errno, "EOPNOTSUPP", -1)}
+
+
+def _libc() -> Any:
+    try:
+        return ctypes.CDLL(None, use_errno=True)
+    except OSError:  # pragma: no cover - no C library to call
+        return None
+
+
+def exchange_paths(a: Path, b: Path) -> bool:
+    """Swap what paths `a` and `b` name in one atomic step. False when this OS or file system
+    cannot (the caller then renames twice); OSError for a real failure."""
+    libc = _libc()
+    if sys.platform.startswith("linux") and libc is not None and hasattr(libc, "renameat2"):
+        at_fdcwd = -100
+        result = libc.renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE)
+    elif sys.platform == "darwin" and libc is not None and hasattr(libc, "renamex_np"):
+        result = libc.renamex_np(os.fsencode(a), os.fsencode(b), _RENAME_SWAP)
+    else:
+        return False
+    if result == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in _EXCHANGE_UNSUPPORTED:
+        return False
+    raise OSError(code, os.strerror(code), str(b))
+
+
+def _try_lock(path: Path) -> int | None:
+    """A descriptor holding an exclusive lock on `path`; None when a live process holds it."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    if fcntl is None:
+        return fd
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def _leftover_kind(path: Path, entry: str) -> str | None:
+    """'old' (a version moved aside), 'tmp' (a staging folder or file) or None (not a leftover of `path`)."""
+    prefix = f".{path.name}."
+    if not entry.startswith(prefix):
+        return None
+    rest = entry[len(prefix):]
+    if rest.startswith("old-") and "." not in rest:
+        return "old"
+    if (rest.endswith(".tmp") and rest.count(".") == 1) or (rest.startswith("tmp-") and "." not in rest):
+        return "tmp"
+    return None
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def recover(path: str | Path) -> list[str]:
+    """Clean up after interrupted replacements of `path`: when `path` is missing and an old version
+    was moved aside (`.NAME.old-*`), it is put back; unlocked staging leftovers (`.NAME.*.tmp`,
+    `.NAME.tmp-*`) and surplus old versions are removed. Leftovers locked by a running writer are
+    left alone. Best effort (a read-only folder is left as it is). Returns what it did, in words."""
+    path = Path(path)
+    try:
+        entries = sorted(os.listdir(path.parent or "."))
+    except OSError:
+        return []
+    done = []
+    for entry in entries:
+        kind = _leftover_kind(path, entry)
+        if kind is None:
+            continue
+        leftover = path.parent / entry
+        fd = _try_lock(leftover)
+        if fd is None:
+            continue
+        try:
+            if kind == "old" and not os.path.lexists(path):
+                os.rename(leftover, path)
+                done.append(f"restored {path} from {entry}")
+            else:
+                _remove(leftover)
+                done.append(f"removed {entry}")
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return done
+
+
+def _locked_sibling(target: Path, create: Callable[[Path], None]) -> tuple[Path, int | None]:
+    """A new `.NAME.<token>.tmp` sibling of `target` made by `create` (with the user's umask) and a
+    descriptor locking it. Another command's `recover` may take an unlocked sibling for a dead one
+    and remove it in the instant between creation and locking: then a fresh one is made."""
+    for _ in range(100):
+        path = target.parent / f".{target.name}.{secrets.token_hex(6)}.tmp"
+        try:
+            create(path)
+        except FileExistsError:
+            continue
+        fd = _try_lock(path)
+        if fd is None and fcntl is not None:
+            continue  # removed (or being removed) by a recovery: not ours any more
+        try:
+            if fd is None or os.path.samestat(os.fstat(fd), os.lstat(path)):
+                return path, fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    raise OSError(errno.EEXIST, "no free name for a staging folder", str(target))
+
+
+class Staging:
+    """A new version of folder `target`, assembled in a locked hidden sibling and put in place by
+    `commit()` (see the module docstring); `discard()` removes it. The staging folder gets the
+    user's umask, and on commit the mode of the folder it replaces."""
+
+    def __init__(self, target: str | Path):
+        target = Path(target)
+        self.target = target.resolve() if target.is_symlink() else target  # replace what a symlink names
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        recover(self.target)
+        self.folder, self._lock = _locked_sibling(self.target, lambda p: os.mkdir(p, 0o777))
+        self._done = False
+
+    def commit(self) -> None:
+        """Put the staged folder at the target atomically, then delete the version it replaced."""
+        _sync_tree(self.folder)
+        if os.path.isdir(self.target) and not os.path.islink(self.target):
+            os.chmod(self.folder, stat.S_IMODE(os.stat(self.target).st_mode))
+        replaced = replace_folder(self.folder, self.target)
+        self._done = True
+        self._release()
+        if replaced is not None:
+            _remove(replaced)
+
+    def discard(self) -> None:
+        if not self._done:
+            self._done = True
+            _remove(self.folder)
+            self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+
+def replace_folder(new: Path, target: Path) -> Path | None:
+    """Make complete folder `new` (a sibling of `target`) the content of `target` in one step.
+    Returns where the replaced version now is (to delete), or None when `target` did not exist."""
+    if not os.path.lexists(target):
+        try:
+            os.rename(new, target)
+            return None
+        except OSError as exc:
+            if exc.errno not in (errno.EEXIST, errno.ENOTEMPTY):  # created meanwhile: swap below
+                raise
+    if exchange_paths(new, target):
+        return new
+    old = target.parent / f".{target.name}.old-{secrets.token_hex(6)}"
+    fd = _try_lock(target)  # recovery leaves the old version alone while it is moved aside
+    try:
+        os.rename(target, old)
+        os.rename(new, target)
+    finally:
+        if fd is not None:
+            os.close(fd)
+    return old
+
+
+def _sync_tree(folder: Path) -> None:
+    """fsync every folder of a staged tree (files are synced as they are written), so the new
+    version is on disk before it replaces the old one."""
+    for root, _, _ in os.walk(folder):
+        fd = os.open(root, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        except OSError:
+            pass  # some file systems cannot sync a folder; the rename still orders the data
+        finally:
+            os.close(fd)
+
+
+def check_output_folder(out: str | Path, overwrite: bool) -> None:
+    """TerraError unless folder `out` may be written: absent, empty, or `overwrite` (then it is
+    replaced as a whole when the new one is complete)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise TerraError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise TerraError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
+    if not out.absolute().parent.exists():
+        raise TerraError(f"{out.absolute().parent}: parent folder does not exist")
+
+
+def atomic_folder(out: str | Path, fill: Callable[[Path], None], what: str = "output folder") -> Path:
+    """Call fill(staging) on a fresh staging folder of `out`, then replace `out` with it (the same
+    mechanism as bundles). On any error the staging folder is removed and `out` is as it was;
+    an OSError (full disk, read-only folder) becomes one TerraError line naming `out`."""
+    out = Path(out).absolute()
+    with writing(out, what):
+        staging = Staging(out)
+        try:
+            fill(staging.folder)
+            staging.commit()
+        except BaseException:
+            staging.discard()
+            raise
+    return staging.target
+
+
+# ----------------------------------------------------------------------------------------- reading
 class Bundle:
     """Read access to a bundle folder. Raises TerraError (one line) for anything malformed."""
 
     def __init__(self, path: str | Path):
+        from terra.schemas import BundleManifest, validate_model
+
         self.path = Path(path)
+        recover(self.path)
         manifest_path = self.path / MANIFEST
-        if not manifest_path.is_file():
+        if not self.path.is_dir() or not manifest_path.exists():
             raise TerraError(f"{self.path}: not a Terra bundle (no {MANIFEST}); build one with `terra map`")
-        try:
-            self.manifest: dict[str, Any] = json.loads(manifest_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise TerraError(f"{manifest_path}: unreadable manifest ({exc})") from None
-        if self.manifest.get("schema") != SCHEMA:
-            raise TerraError(f"{manifest_path}: field 'schema' is {self.manifest.get('schema')!r}, expected {SCHEMA!r}")
-        version = self.manifest.get("schema_version")
-        if version != SCHEMA_VERSION:
+        manifest = read_json(manifest_path, "bundle manifest", MAX_MANIFEST_BYTES)
+        if not isinstance(manifest, dict):
+            raise TerraError(f"{manifest_path}: expected a JSON object with schema, schema_version and files, "
+                             f"got {type(manifest).__name__}")
+        if manifest.get("schema") != SCHEMA:
+            raise TerraError(f"{manifest_path}: field 'schema' is {manifest.get('schema')!r:.60}, expected {SCHEMA!r}")
+        version = manifest.get("schema_version")
+        if version != SCHEMA_VERSION or isinstance(version, bool):
             raise TerraError(
-                f"{manifest_path}: schema_version {version!r} is not supported by terra {__version__} "
+                f"{manifest_path}: schema_version {version!r:.20} is not supported by terra {__version__} "
                 f"(expected {SCHEMA_VERSION}); rebuild the bundle"
             )
+        self.model = validate_model(manifest, BundleManifest, manifest_path)
+        self.manifest: dict[str, Any] = manifest
 
     @property
     def files(self) -> dict[str, dict[str, Any]]:
         return self.manifest.get("files", {})
+
+    @property
+    def components(self) -> dict[str, Any]:
+        return self.manifest.get("components") or {}
 
     def has(self, name: str) -> bool:
         """Whether an array (`map/points`) or JSON file (`graph/scene_graph.json`) is present."""
@@ -130,32 +413,44 @@ class Bundle:
         if entry is None:
             raise TerraError(f"{self.path}: bundle has no '{file_name}'")
         path = self.path / file_name
-        if not path.is_file():
-            raise TerraError(f"{path}: listed in the manifest but missing")
-        if path.stat().st_size != entry["bytes"]:
-            raise TerraError(f"{path}: size {path.stat().st_size} bytes, manifest says {entry['bytes']} (corrupt bundle)")
-        if verify and _sha256(path) != entry["sha256"]:
-            raise TerraError(f"{path}: checksum mismatch (corrupt bundle)")
+        try:
+            info = os.lstat(path)
+            inside = path.resolve().is_relative_to(self.path.resolve())
+        except FileNotFoundError:
+            raise TerraError(f"{path}: listed in the manifest but missing (corrupt bundle)") from None
+        except OSError as exc:
+            raise read_error(path, exc, "bundle file") from None
+        if not stat.S_ISREG(info.st_mode) or not inside:
+            raise TerraError(f"{path}: not a regular file inside the bundle (corrupt bundle)")
+        if info.st_size != entry["bytes"]:
+            raise TerraError(f"{path}: size {info.st_size} bytes, manifest says {entry['bytes']} (corrupt bundle)")
+        if verify:
+            try:
+                digest = _sha256(path)
+            except OSError as exc:
+                raise read_error(path, exc, "bundle file") from None
+            if digest != entry["sha256"]:
+                raise TerraError(f"{path}: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)")
         return path
 
-    def array(self, name: str, verify: bool = False, mmap: bool = False) -> np.ndarray:
-        """Load an array by name, e.g. `map/points`."""
-        path = self._checked_path(name, verify)
-        try:
-            return np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
-        except (OSError, ValueError) as exc:
-            raise TerraError(f"{path}: unreadable array ({exc})") from None
+    def array(self, name: str, spec: ArraySpec | None = None, verify: bool = False, mmap: bool = False) -> np.ndarray:
+        """Load an array by name, e.g. `map/points`, checked against `spec` before its data is read."""
+        return read_npy(self._checked_path(name, verify), spec, mmap=mmap, what="bundle array")
 
-    def json(self, name: str, verify: bool = False) -> Any:
+    def json(self, name: str, verify: bool = False, max_depth: int | None = 64) -> Any:
         """Load a JSON file by name, e.g. `graph/scene_graph.json`."""
         path = self._checked_path(name, verify)
-        try:
-            return json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise TerraError(f"{path}: unreadable JSON ({exc})") from None
+        return read_json(path, "bundle JSON file", int(self.files[self._file_name(name)]["bytes"]) + 1, max_depth)
+
+    def document(self, name: str, model: type[M], verify: bool = False, max_depth: int | None = 64) -> M:
+        """A JSON file by name validated as pydantic `model` (TerraError naming the file and field)."""
+        from terra.schemas import validate_model
+
+        return validate_model(self.json(name, verify, max_depth), model, self.path / name)
 
     def verify(self) -> None:
-        """Check every file's size and checksum against the manifest."""
+        """Check every file's size and checksum against the manifest (TerraError naming the first
+        damaged or missing file)."""
         for file_name in self.files:
             self._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
 
@@ -168,43 +463,59 @@ class Bundle:
         return sizes
 
 
+# ----------------------------------------------------------------------------------------- writing
 class BundleWriter:
-    """Assembles a new bundle version and swaps it in atomically on `commit()`.
+    """Assembles a new bundle version and swaps it in atomically on `commit()` (see the module
+    docstring). A full disk or read-only folder is one TerraError line; the old bundle stays.
 
     With `base`, the new version starts as a copy (hard links where possible) of that bundle, so a
     later stage (e.g. `terra build`) adds or replaces components without touching the others.
     `drop_components` removes stale components (e.g. `graph` when the map is rebuilt).
     """
 
-    def __init__(self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = ()):
+    def __init__(self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = (),
+                 what: str = "bundle"):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = sibling_tmp_dir(self.path)
+        self.what = what  # for messages: "bundle", "mapping checkpoint"
         self.manifest: dict[str, Any] = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}}
-        if base is not None:
-            self.manifest = json.loads(json.dumps(base.manifest))
-            self.manifest["files"] = {}
-            for file_name, entry in base.files.items():
-                if file_name.split("/", 1)[0] in drop_components:
-                    continue
-                dst = self._tmp / file_name
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                try:
-                    os.link(base.path / file_name, dst)
-                except OSError:
-                    shutil.copy2(base.path / file_name, dst)
-                self.manifest["files"][file_name] = entry
-            for component in drop_components:
-                self.manifest.get("components", {}).pop(component, None)
-        self.manifest["written_by"] = f"terra {__version__}"
         self._done = False
+        with writing(self.path, what):
+            self._staging = Staging(self.path)
+            self._tmp = self._staging.folder
+            try:
+                if base is not None:
+                    self._start_from(base, drop_components)
+            except BaseException:
+                self.abort()
+                raise
+        self.manifest["written_by"] = f"terra {__version__}"
+
+    def _start_from(self, base: Bundle, drop_components: tuple[str, ...]) -> None:
+        self.manifest = json.loads(json.dumps(base.manifest))
+        self.manifest["files"] = {}
+        for file_name, entry in base.files.items():
+            if file_name.split("/", 1)[0] in drop_components:
+                continue
+            # Checksummed: a damaged file of the same size must not be carried into a version
+            # whose manifest vouches for it.
+            source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
+            dst = self._tmp / file_name
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(source, dst)
+            except OSError:
+                shutil.copy2(source, dst)
+            self.manifest["files"][file_name] = entry
+        for component in drop_components:
+            self.manifest.get("components", {}).pop(component, None)
 
     def _put(self, file_name: str, data: bytes) -> None:
         dst = self._tmp / file_name
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        if dst.exists():
-            dst.unlink()  # may be a hard link into the base bundle: never write through it
-        dst.write_bytes(data)
+        with writing(self.path, self.what):
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            if dst.exists():
+                dst.unlink()  # may be a hard link into the base bundle: never write through it
+            _write_new_file(dst, data)
         self.manifest["files"][file_name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
 
     def put_array(self, name: str, array: np.ndarray) -> None:
@@ -225,22 +536,16 @@ class BundleWriter:
     def commit(self) -> Bundle:
         """Write the manifest and swap the new version into place."""
         self.manifest["files"] = dict(sorted(self.manifest["files"].items()))
-        (self._tmp / MANIFEST).write_text(dumps_json(self.manifest))
-        old = None
-        if self.path.exists():
-            old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-            if old.exists():
-                shutil.rmtree(old)
-            os.replace(self.path, old)
-        os.replace(self._tmp, self.path)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        text = dumps_json(self.manifest).encode()
+        with writing(self.path, self.what):
+            _write_new_file(self._tmp / MANIFEST, text)
+            self._staging.commit()
         self._done = True
         return Bundle(self.path)
 
     def abort(self) -> None:
         if not self._done:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._staging.discard()
             self._done = True
 
     def __enter__(self) -> "BundleWriter":

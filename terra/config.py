@@ -21,7 +21,7 @@ from terra.errors import TerraError
 class Section(BaseModel):
     """Base of every config section: unknown keys are errors, values are validated on assignment."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 S = TypeVar("S", bound=BaseModel)
@@ -69,7 +69,12 @@ def load_section(path: str | Path | None, stage: str, overrides: dict | None = N
     source = "defaults"
     if path is not None:
         source = str(path)
-        data = _read_config(Path(path), sections).get(stage) or {}
+        data = _read_config(Path(path), sections).get(stage)
+        if data is None:
+            data = {}
+        elif not isinstance(data, dict):
+            raise TerraError(f"{path}: field '{stage}' must be a mapping of the {stage} section's options "
+                             f"(see `terra config dump {stage}`), got {type(data).__name__}")
     data = _deep_merge(data, overrides or {})
     try:
         return _section(stage).model_validate(data)
@@ -79,18 +84,15 @@ def load_section(path: str | Path | None, stage: str, overrides: dict | None = N
 
 def _read_config(path: Path, sections: dict) -> dict:
     """The top-level mapping of a config file; TerraError for unreadable YAML or an unknown key."""
+    from terra.fileio import read_yaml
+
     keys = [*sections, DATASET_KEY]
-    try:
-        raw = yaml.safe_load(path.read_text()) or {}
-    except OSError as exc:
-        raise TerraError(f"{path}: cannot read config ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    raw = read_yaml(path, "config file") or {}
     if not isinstance(raw, dict):
         raise TerraError(f"{path}: expected a mapping with keys among {', '.join(keys)}")
-    unknown = set(raw) - set(keys)
+    unknown = [key for key in raw if key not in keys]
     if unknown:
-        raise TerraError(f"{path}: unknown top-level key {sorted(unknown)[0]!r}; expected keys among {', '.join(keys)}")
+        raise TerraError(f"{path}: unknown top-level key {str(unknown[0])[:60]!r}; expected keys among {', '.join(keys)}")
     return raw
 
 

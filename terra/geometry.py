@@ -63,6 +63,9 @@ def yaw_rotation(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+MAX_IMAGE_SIDE = 65535  # pixels (JPEG's limit): larger sizes are damaged calibrations
+
+
 @dataclass
 class CameraCalibration:
     """A camera with a real lens model, rigidly mounted on the LiDAR.
@@ -92,10 +95,11 @@ class CameraCalibration:
             self.dist = lens.check_coefficients(self.model, self.dist)
         except ValueError as exc:
             raise ValueError(f"camera {self.name}: {exc}") from None
-        if self.T_cam_lidar.shape != (4, 4):
-            raise ValueError(f"camera {self.name}: T_cam_lidar must be 4x4, got {self.T_cam_lidar.shape}")
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"camera {self.name}: image size must be positive, got {self.width}x{self.height}")
+        if self.T_cam_lidar.shape != (4, 4) or not np.all(np.isfinite(self.T_cam_lidar)):
+            raise ValueError(f"camera {self.name}: T_cam_lidar must be a finite 4x4 transform, got shape {self.T_cam_lidar.shape}")
+        if not 0 < self.width <= MAX_IMAGE_SIDE or not 0 < self.height <= MAX_IMAGE_SIDE:
+            raise ValueError(f"camera {self.name}: image size must be 1..{MAX_IMAGE_SIDE} pixels a side, "
+                             f"got {self.width}x{self.height}")
 
     @property
     def distorted(self) -> bool:

@@ -192,6 +192,17 @@ def working(desc: str, enabled: bool = True) -> Iterator[None]:
             bar.close()
 
 
+def close_bars() -> None:
+    """Close every open progress bar, ours and libraries' (Terra's bars do not stay on screen): an
+    error printed next starts on a clean line and stays one line."""
+    tqdm_module = sys.modules.get("tqdm.std")  # no bar was ever made when tqdm is not imported
+    for bar in list(getattr(getattr(tqdm_module, "tqdm", None), "_instances", ())):
+        try:
+            bar.close()
+        except Exception:  # noqa: BLE001 - a bar that cannot be closed must not hide the error being reported
+            pass
+
+
 class StageTimer:
     """Accumulates wall time per named stage; `table()` renders the summary printed at the end."""
 

@@ -13,7 +13,7 @@ os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
 
 pytest_plugins = ["tests.fixtures_mapping", "tests.fixtures_graph", "tests.fixtures_eval", "tests.fixtures_perception",
-                  "tests.fixtures_interop", "tests.fixtures_ros"]
+                  "tests.fixtures_interop", "tests.fixtures_ros", "tests.fixtures_reliability"]
 
 
 @pytest.fixture(scope="session")

@@ -78,7 +78,7 @@ def test_embedder_is_recorded_and_a_mismatched_dimension_is_refused(tmp_path):
     write_map(writer, msm)
     writer.manifest["embedder"]["dim"] = 4  # the arrays hold 5-d rows
     bundle = writer.commit()
-    with pytest.raises(TerraError, match=r"map/bank.npy: expected rows of the embedder's dimension 4.*got shape \(7, 5\)"):
+    with pytest.raises(TerraError, match=r"map/bank.npy: array of shape \(7, 5\), expected float16 \(7, 4\).*embedder's dimension"):
         load_map(bundle)
 
 

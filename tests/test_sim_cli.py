@@ -116,7 +116,7 @@ def test_failure_while_writing_leaves_nothing(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(terra_folder, "write_rgb", failing)
     assert sim(tmp_path / "out") == 2
-    assert "out: could not write the dataset (No space left on device); nothing was written" in error_line(capsys)
+    assert "out: cannot write the dataset (No space left on device); the disk is full" in error_line(capsys)
     assert len(calls) == 2 and leftovers(tmp_path) == []
 
 

@@ -1,7 +1,8 @@
 """The `terra` command line: one Typer app; each module in this package adds its commands.
 
 Every user error (TerraError) becomes one line on stderr and its exit code (2, or 3 for an
-unreachable plan goal); never a traceback for bad input.
+unreachable plan goal); never a traceback for bad input. Any other exception is a defect in Terra:
+`main` shows its traceback and asks for a report (exit code 1); `run` lets it propagate.
 """
 
 from __future__ import annotations
@@ -55,6 +56,15 @@ def fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
+_NOTES: list[str] = []
+
+
+def note(message: str) -> None:
+    """A remark for the user (e.g. keys of a task file the command ignores), printed on stderr once
+    the command has succeeded: a refused command still says one line, its error."""
+    _NOTES.append(message)
+
+
 def run(argv: list[str] | None = None) -> int:
     """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path)."""
     _load_commands()
@@ -62,11 +72,15 @@ def run(argv: list[str] | None = None) -> int:
     from terra.cli.interrupts import Interrupted, catch_interrupts, clear, interrupted_message
 
     clear()
+    _NOTES.clear()
     command = catch_interrupts(tidy_help(typer.main.get_command(app)))
     try:
         result = command.main(args=argv, prog_name="terra", standalone_mode=False)
+        for message in _NOTES:
+            typer.echo(f"note: {message}", err=True)
         return result if isinstance(result, int) else 0
     except TerraError as exc:
+        _close_bars()
         typer.echo(f"terra: error: {exc}", err=True)
         return exc.exit_code
     except typer.Exit as exc:
@@ -86,6 +100,25 @@ def run(argv: list[str] | None = None) -> int:
         raise
 
 
+def _close_bars() -> None:
+    from terra.progress import close_bars
+
+    close_bars()
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: exits with the code of `run`."""
-    sys.exit(run(argv))
+    """Console entry point: exits with the code of `run`. An unexpected exception is a bug: its
+    traceback is shown, with a line asking to report it, and the exit code is 1."""
+    try:
+        code = run(argv)
+    except Exception:  # noqa: BLE001 - not a catch-all: the traceback is printed in full
+        import traceback
+
+        from terra import __version__
+
+        _close_bars()
+        traceback.print_exc()
+        typer.echo(f"terra: internal error: this is a bug in terra {__version__}, not a problem with your input; "
+                   "please report it with the command line and the traceback above", err=True)
+        code = 1
+    sys.exit(code)

@@ -70,8 +70,8 @@ def build(model: type[R], source: str, values: dict[str, Any]) -> R:
 
 
 def _task_file(path: Path | None, command: str) -> TaskFile:
-    """The task file (empty without one); keys `command` does not use are noted on stderr, so one
-    file can drive find, monitor and plan."""
+    """The task file (empty without one); keys `command` does not use are noted on stderr when the
+    command succeeds, so one file can drive find, monitor and plan."""
     from terra.tasks.task_file import TaskFile, load_task_file
 
     if path is None:
@@ -79,9 +79,9 @@ def _task_file(path: Path | None, command: str) -> TaskFile:
     task_file = load_task_file(path)
     unused = task_file.unused_keys(command)
     if unused:
-        import typer
+        from terra.cli import note
 
-        typer.echo(f"note: {path}: {', '.join(unused)} not used by terra {command} (ignored)", err=True)
+        note(f"{path}: {', '.join(unused)} not used by terra {command} (ignored)")
     return task_file
 
 

@@ -1,21 +1,36 @@
-"""Small file helpers shared by the dataset folder formats (terra_folder, semantickitti).
+"""Small file helpers shared by the dataset folder formats (terra_folder, semantickitti, kitti_raw).
 
 Images: RGB as JPEG/PNG through Pillow; label images as 16-bit PNG (exact, compact). No pickle.
+Reading goes through terra.fileio (no blocking on a FIFO, one line for a folder or an unreadable
+file), structured files through terra.schemas, and images are checked for their pixel count from
+the header before they are decoded (MAX_IMAGE_PIXELS): a small file declaring 20000 x 20000 pixels
+is one line, not gigabytes.
 """
 
 from __future__ import annotations
 
+import io
 import json
+import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
-from terra.datasets.base import ClassTable
+from terra.datasets.base import ClassTable, SemanticClass
 from terra.errors import TerraError
+from terra.fileio import read_bytes, read_json as read_json_file
 from terra.geometry import CameraCalibration
+from terra.npy import ArraySpec, read_npy
 
 CLASSES_FILE = "classes.json"
+MAX_IMAGE_PIXELS = 89_478_485  # Pillow's own warning threshold (about 9459 x 9459)
+MAX_IMAGE_BYTES = 512 << 20
+# What Pillow's decoders raise on damaged or hostile data (besides OSError): this is the one place
+# they are turned into "undecodable image" lines.
+IMAGE_ERRORS = (OSError, SyntaxError, ValueError, EOFError, struct.error, TypeError, IndexError, ZeroDivisionError,
+                MemoryError, Image.DecompressionBombError)
 
 
 def write_classes(root: Path, classes: ClassTable) -> None:
@@ -24,12 +39,15 @@ def write_classes(root: Path, classes: ClassTable) -> None:
 
 def read_classes(root: Path) -> ClassTable | None:
     """The class table in `root/classes.json`, or None when the folder has none."""
+    from terra.schemas import ClassesFile, read_model
+
     path = Path(root) / CLASSES_FILE
-    if not path.is_file():
+    if not path.exists():
         return None
+    rows = read_model(path, ClassesFile, "class table").classes
     try:
-        return ClassTable.from_json(read_json(path)["classes"])
-    except (ValueError, KeyError, TypeError) as exc:
+        return ClassTable([SemanticClass(r.id, r.name, r.terrain, r.semantickitti_id) for r in rows])
+    except ValueError as exc:
         raise TerraError(f"{path}: malformed class table ({exc})") from None
 
 
@@ -40,11 +58,14 @@ def calibration_to_json(cal: CameraCalibration) -> dict:
 
 
 def calibration_from_json(d: dict, source: str) -> CameraCalibration:
+    """A CameraCalibration from its JSON form (terra.schemas.CalibrationDoc); TerraError naming `source`."""
+    from terra.schemas import CalibrationDoc, validate_model
+
+    doc = validate_model(d, CalibrationDoc, source)
     try:
-        return CameraCalibration(str(d["name"]), int(d["width"]), int(d["height"]), np.asarray(d["K"], float),
-                                 np.asarray(d["dist"], float), np.asarray(d["T_cam_lidar"], float),
-                                 str(d.get("model", "pinhole")))
-    except (KeyError, TypeError, ValueError) as exc:
+        return CameraCalibration(doc.name, doc.width, doc.height, np.asarray(doc.K, float), np.asarray(doc.dist, float),
+                                 np.asarray(doc.T_cam_lidar, float), doc.model)
+    except ValueError as exc:
         raise TerraError(f"{source}: malformed camera calibration ({exc})") from None
 
 
@@ -55,15 +76,52 @@ def write_label_png(path: Path, labels: np.ndarray) -> None:
     Image.fromarray(labels.astype(np.uint16)).save(path, format="PNG", compress_level=6)
 
 
-def read_label_png(path: Path) -> np.ndarray:
-    """(H, W) int32 ids from a 16-bit (or 8-bit) PNG."""
+def open_image(path: Path, what: str = "image", formats: tuple[str, ...] = ("JPEG", "PNG")) -> Image.Image:
+    """The image in file `path`, opened (header read, pixels not yet decoded) after checking its
+    format and pixel count; TerraError naming the file otherwise."""
+    data = read_bytes(path, what, MAX_IMAGE_BYTES)
+    expected = " or ".join(formats)
     try:
-        with Image.open(path) as im:
-            labels = np.asarray(im)
-    except OSError as exc:
-        raise TerraError(f"{path}: unreadable label image ({exc})") from None
-    if labels.ndim != 2:
-        raise TerraError(f"{path}: expected a single-channel label image, got shape {labels.shape}")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # refused below, with its size
+            im = Image.open(io.BytesIO(data), formats=list(formats))
+    except UnidentifiedImageError:
+        raise TerraError(f"{path}: not a {expected} image (unrecognised data)") from None
+    except Image.DecompressionBombError:
+        raise TerraError(f"{path}: {what} declares more pixels than the {MAX_IMAGE_PIXELS:,} Terra decodes "
+                         "(a damaged or hostile file)") from None
+    except IMAGE_ERRORS as exc:
+        raise TerraError(f"{path}: unreadable {what} ({_reason(exc)}); expected {expected}") from None
+    width, height = im.size
+    if width * height > MAX_IMAGE_PIXELS:
+        raise TerraError(f"{path}: {what} declares {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS:,} "
+                         "Terra decodes (a damaged or hostile file)")
+    return im
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else ""
+    return text or type(exc).__name__
+
+
+def image_size(path: Path, what: str = "image") -> tuple[int, int]:
+    """(width, height) of an image from its header, without decoding its pixels."""
+    return open_image(path, what).size
+
+
+def read_label_png(path: Path) -> np.ndarray:
+    """(H, W) int32 ids from a 16-bit (or 8-bit) greyscale PNG; TerraError for another format, a
+    colour image or ids outside 0..65535."""
+    im = open_image(path, "label image", ("PNG",))
+    try:
+        labels = np.asarray(im)
+    except IMAGE_ERRORS as exc:
+        raise TerraError(f"{path}: undecodable label image ({_reason(exc)})") from None
+    if labels.ndim != 2 or labels.dtype.kind not in "biu":
+        raise TerraError(f"{path}: expected a single-channel label image, got {im.mode} of shape {labels.shape}")
+    if labels.size and (int(labels.min()) < 0 or int(labels.max()) > 65535):
+        raise TerraError(f"{path}: label ids from {int(labels.min())} to {int(labels.max())}, expected 0..65535 "
+                         "(a 16-bit PNG)")
     return labels.astype(np.int32)
 
 
@@ -77,12 +135,12 @@ def write_rgb(path: Path, image: np.ndarray, quality: int = 92) -> None:
 
 
 def read_rgb(path: Path) -> np.ndarray:
-    """(H, W, 3) uint8 RGB, whatever the file's mode."""
+    """(H, W, 3) uint8 RGB of a JPEG or PNG, whatever its mode."""
+    im = open_image(path)
     try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
-    except OSError as exc:
-        raise TerraError(f"{path}: unreadable image ({exc})") from None
+        return np.asarray(im.convert("RGB"))
+    except IMAGE_ERRORS as exc:
+        raise TerraError(f"{path}: undecodable image ({_reason(exc)})") from None
 
 
 def stamp_text(stamp: float) -> str:
@@ -94,32 +152,34 @@ def stamp_of(path: Path) -> float:
     """The stamp in a file name: the text after the last '_' of the stem."""
     text = Path(path).stem.rsplit("_", 1)[-1]
     try:
-        return float(text)
+        stamp = float(text)
     except ValueError:
-        raise TerraError(f"{path}: expected a name ending in _<seconds>, e.g. lidar_pc_12.000000.npy") from None
+        stamp = float("nan")
+    if not np.isfinite(stamp):
+        raise TerraError(f"{path}: expected a name ending in _<seconds>, e.g. lidar_pc_12.000000.npy")
+    return stamp
 
 
 def load_npy(path: Path, shape: tuple[int | None, ...] | None = None, what: str = "") -> np.ndarray:
-    """A .npy array (never pickled); with `shape`, TerraError unless it matches (None = any length)."""
-    try:
-        with open(path, "rb") as f:
-            if f.read(6) != b"\x93NUMPY":
-                raise TerraError(f"{path}: not a .npy file")
-        array = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise TerraError(f"{path}: unreadable array ({exc})") from None
-    if shape is not None and (array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape))):
-        expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise TerraError(f"{path}: expected an array of shape {expected}{' ' + what if what else ''}, got {array.shape}")
-    return array
+    """A numeric .npy array (never pickled, header checked before reading: terra.npy); with
+    `shape`, TerraError unless it matches (None = any length)."""
+    return read_npy(path, ArraySpec(shape=shape, what=what) if shape is not None else None)
+
+
+def read_raw(path: Path, dtype: str, what: str) -> np.ndarray:
+    """The values of a headerless binary file (KITTI .bin scans, .label files) as a flat writable
+    array of `dtype`; TerraError naming the file when it cannot be read or its size is not a whole
+    number of values."""
+    data = bytearray(read_bytes(path, what))
+    itemsize = np.dtype(dtype).itemsize
+    if len(data) % itemsize:
+        raise TerraError(f"{path}: {len(data)} bytes is not a whole number of {np.dtype(dtype).name} values ({what})")
+    return np.frombuffer(data, dtype=dtype)
 
 
 def read_json(path: Path) -> dict:
     """A JSON object from `path`; TerraError naming the file when it is unreadable or not an object."""
-    try:
-        value = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise TerraError(f"{path}: unreadable JSON ({exc})") from None
+    value = read_json_file(path, "JSON file")
     if not isinstance(value, dict):
         raise TerraError(f"{path}: expected a JSON object")
     return value

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from terra.errors import TerraError
+from terra.npy import write_npy
 
 GROUND_TRUTH_DIR = "ground_truth"
 
@@ -120,8 +121,8 @@ def write_ground_truth(root: Path, gt: GroundTruth) -> None:
         for r in rows
     ]
     (out / "objects.csv").write_text(header + "\n".join(lines) + "\n")
-    np.save(out / "terrain.npy", gt.terrain.classes.astype(np.int32), allow_pickle=False)
-    np.save(out / "ground_height.npy", gt.terrain.ground_height.astype(np.float32), allow_pickle=False)
+    write_npy(out / "terrain.npy", gt.terrain.classes.astype(np.int32))
+    write_npy(out / "ground_height.npy", gt.terrain.ground_height.astype(np.float32))
     meta = {
         "origin": [float(v) for v in gt.terrain.origin],
         "resolution": float(gt.terrain.resolution),
@@ -136,44 +137,26 @@ def write_ground_truth(root: Path, gt: GroundTruth) -> None:
 
 
 def load_ground_truth(root: str | Path) -> GroundTruth:
-    """Read `root/ground_truth/`; TerraError naming the file when something is missing or malformed."""
+    """Read `root/ground_truth/` (checked against terra.schemas' ground-truth models and array
+    specs); TerraError naming the file when something is missing or malformed."""
+    from terra.npy import ArraySpec, read_npy
+    from terra.schemas import GroundTruthObjects, GroundTruthRegions, GroundTruthTerrain, read_model
+
     gt_dir = Path(root) / GROUND_TRUTH_DIR
     if not gt_dir.is_dir():
         raise TerraError(f"{gt_dir}: no ground truth folder (expected a dataset written by `terra sim`, "
                          "or a KITTI raw drive with label_02/ or label_2/ labels)")
-
-    def read_json(name: str) -> dict:
-        path = gt_dir / name
-        try:
-            return json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise TerraError(f"{path}: unreadable ({exc})") from None
-
-    def read_npy(name: str) -> np.ndarray:
-        path = gt_dir / name
-        try:
-            return np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise TerraError(f"{path}: unreadable ({exc})") from None
-
-    try:
-        objects = [
-            ObjectBox(int(o["instance_id"]), int(o["class_id"]), str(o["class_name"]),
-                      np.asarray(o["center"], float), np.asarray(o["size"], float), float(o["yaw"]))
-            for o in read_json("objects.json")["objects"]
-        ]
-        meta = read_json("terrain.json")
-        terrain = TerrainRaster(
-            classes=read_npy("terrain.npy"),
-            ground_height=read_npy("ground_height.npy"),
-            origin=np.asarray(meta["origin"], float),
-            resolution=float(meta["resolution"]),
-            legend={int(k): v for k, v in meta["legend"].items()},
-        )
-        regions = [
-            NamedRegion(str(r["name"]), str(r["description"]), np.asarray(r["polygon"], float))
-            for r in read_json("regions.json")["regions"]
-        ]
-    except (KeyError, TypeError, ValueError) as exc:
-        raise TerraError(f"{gt_dir}: malformed ground truth (missing or bad field {exc})") from None
+    objects = [
+        ObjectBox(o.instance_id, o.class_id, o.class_name, np.asarray(o.center, float), np.asarray(o.size, float), o.yaw)
+        for o in read_model(gt_dir / "objects.json", GroundTruthObjects, "ground-truth objects file").objects
+    ]
+    meta = read_model(gt_dir / "terrain.json", GroundTruthTerrain, "ground-truth terrain file")
+    classes = read_npy(gt_dir / "terrain.npy", ArraySpec(("int32",), (None, None), what="terrain class per cell"))
+    heights = read_npy(gt_dir / "ground_height.npy", ArraySpec(("float32",), classes.shape, what="ground height per cell"))
+    terrain = TerrainRaster(classes=classes, ground_height=heights, origin=np.asarray(meta.origin, float),
+                            resolution=float(meta.resolution), legend={int(k): v for k, v in meta.legend.items()})
+    regions = [
+        NamedRegion(r.name, r.description, np.asarray(r.polygon, float))
+        for r in read_model(gt_dir / "regions.json", GroundTruthRegions, "ground-truth regions file").regions
+    ]
     return GroundTruth(objects, terrain, regions)

@@ -18,9 +18,11 @@ from scipy.linalg import rq
 
 from terra.datasets.base import ClassTable, SemanticClass
 from terra.errors import TerraError
+from terra.fileio import read_text
 from terra.geometry import make_pose
 
 TEXT_KEYS = frozenset({"calib_time"})
+MAX_CALIB_BYTES = 1 << 20
 
 # SemanticKITTI's own label table: id -> (name, BGR colour as in semantic-kitti.yaml).
 STANDARD_LABELS: dict[int, tuple[str, tuple[int, int, int]]] = {
@@ -127,10 +129,7 @@ def check_rotation(R: np.ndarray, where: str, tolerance: float = 1e-4) -> None:
 def read_calib_file(path: Path) -> CalibFile:
     """Parse a KITTI calibration file; TerraError naming the file, line and key on a malformed line."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TerraError(f"{path}: unreadable calibration file ({exc})") from None
+    text = read_text(path, "calibration file", MAX_CALIB_BYTES)
     calib = CalibFile(path)
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
@@ -158,6 +157,9 @@ def read_calib_file(path: Path) -> CalibFile:
 def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """K (3x3, positive diagonal) and T_cam_ref (4x4) with P = K [R | t] for a 3x4 projection
     matrix that maps reference-frame points (metres) to pixels. KITTI's rectified P2/P3 give R = I."""
+    scale = np.abs(P[:, :3]).max() if np.all(np.isfinite(P)) else 0.0
+    if not scale or abs(np.linalg.det(P[:, :3] / scale)) < 1e-12:
+        raise ValueError("is not a camera projection (its left 3x3 block must be finite and invertible)")
     K, R = rq(P[:, :3])
     signs = np.diag(np.sign(np.where(np.diag(K) == 0, 1.0, np.diag(K))))
     K, R = K @ signs, signs @ R  # signs @ signs = I: flip so focal lengths are positive
@@ -194,10 +196,7 @@ def format_timestamp(seconds: float, base: int = 0) -> str:
 def read_timestamps(path: Path) -> np.ndarray:
     """(N,) seconds since 1970 of a KITTI raw `timestamps.txt`; TerraError naming the file and line."""
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TerraError(f"{path}: unreadable time stamps ({exc})") from None
+    lines = read_text(path, "time stamp file").splitlines()
     while lines and not lines[-1].strip():
         lines.pop()
     stamps = np.empty(len(lines))

@@ -106,10 +106,9 @@ def parse_label_line(text: str, where: str, tracking: bool) -> KittiLabel | None
 
 def read_label_file(path: Path, tracking: bool, frame: int = -1) -> list[KittiLabel]:
     """Every labelled object of a file (DontCare skipped); object files get `frame` as their frame."""
-    try:
-        lines = Path(path).read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TerraError(f"{path}: unreadable label file ({exc})") from None
+    from terra.fileio import read_text
+
+    lines = read_text(path, "KITTI label file").splitlines()
     out = []
     for number, line in enumerate(lines, start=1):
         if line.strip():

@@ -37,7 +37,7 @@ from pydantic import Field, field_validator
 from terra.config import Section
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
-from terra.datasets.folder_io import read_classes, read_label_png, read_rgb
+from terra.datasets.folder_io import image_size, read_classes, read_label_png, read_raw, read_rgb
 from terra.datasets.kitti_common import CalibFile, check_rotation, read_calib_file, read_timestamps, standard_classes
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
@@ -163,13 +163,7 @@ def _one_drive(path: Path) -> Path:
 
 def _header_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file from its header (no decoding)."""
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            return im.size
-    except OSError as exc:
-        raise TerraError(f"{path}: unreadable image ({exc})") from None
+    return image_size(path)
 
 
 def _indexed_files(folder: Path, suffix: str) -> dict[int, Path]:
@@ -287,14 +281,14 @@ class KittiRawDataset:
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
         scan_path, number = self.scans[index], int(self.indices[index])
-        raw = np.fromfile(scan_path, dtype="<f4")
+        raw = read_raw(scan_path, "<f4", "LiDAR scan")
         if raw.size % 4:
             raise TerraError(f"{scan_path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
         raw = raw.reshape(-1, 4)
         labels = instances = None
         label_path = self.drive / VELODYNE / "labels" / f"{number:010d}.label"
-        if label_path.is_file():
-            value = np.fromfile(label_path, dtype="<u4")
+        if label_path.exists():
+            value = read_raw(label_path, "<u4", "label file")
             if value.size != raw.shape[0]:
                 raise TerraError(f"{label_path}: {value.size} labels for {raw.shape[0]} points")
             labels, instances = (value & 0xFFFF).astype(np.int32), (value >> 16).astype(np.int32)

@@ -143,9 +143,9 @@ def _check_rig(cameras: list[CameraCalibration]) -> list[CameraCalibration]:
 def _write_scan(folder: Path, i: int, frame: Frame) -> None:
     name = f"{i:010d}"
     inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
-    np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tofile(
-        folder / VELODYNE / "data" / f"{name}.bin"
-    )
+    # write_bytes, not ndarray.tofile: a short write (full disk) then says why, with its errno
+    scan = np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4")
+    (folder / VELODYNE / "data" / f"{name}.bin").write_bytes(scan.tobytes())
     if frame.point_labels is not None:
         inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
         if (
@@ -157,7 +157,7 @@ def _write_scan(folder: Path, i: int, frame: Frame) -> None:
             raise TerraError(f"frame {i}: class and instance ids must lie in 0..65535 for .label files")
         (folder / VELODYNE / "labels").mkdir(exist_ok=True)
         value = frame.point_labels.astype(np.uint32) | (inst.astype(np.uint32) << np.uint32(16))
-        value.astype("<u4").tofile(folder / VELODYNE / "labels" / f"{name}.label")
+        (folder / VELODYNE / "labels" / f"{name}.label").write_bytes(value.astype("<u4").tobytes())
 
 
 def _write_images(folder: Path, i: int, frame: Frame, count: int) -> list[float]:

@@ -42,14 +42,11 @@ class MsmapCameras:
 
 def read_msmap_config(path: Path) -> MsmapCameras:
     """The cameras of an msmap YAML file (any of the authors' msmap configs, as it is)."""
+    from terra.fileio import parse_yaml, read_text
+
     path = Path(path)
-    try:
-        text = path.read_text()
-        cfg = yaml.safe_load(text)
-    except OSError as exc:
-        raise TerraError(f"{path}: cannot read camera config ({exc.strerror or exc})") from None
-    except yaml.YAMLError as exc:
-        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    text = read_text(path, "camera config")
+    cfg = parse_yaml(text, path, "camera config")
     if not isinstance(cfg, dict):
         raise TerraError(f"{path}: expected a mapping with num_cams, IMG_W, IMG_H, cam1_K, cam1_dist, cam_axis")
     where = _Where(path, text)
@@ -97,11 +94,11 @@ def _camera_numbers(cfg: dict, where: _Where) -> list[int]:
     count = cfg["num_cams"]
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise TerraError(f"{where('num_cams')}: num_cams must be a non-negative integer, got {count!r}")
-    numbers = list(range(first, first + count))
+    numbers = range(first, first + count)  # lazy: a num_cams of 10^12 stops at its first missing cam{n}_K
     for n in numbers:
         if f"cam{n}_K" not in cfg:
             raise TerraError(f"{where('num_cams')}: num_cams is {count} but there is no cam{n}_K (9 floats, row-major)")
-    return numbers
+    return list(numbers)
 
 
 def _positive_int(cfg: dict, key: str, where: _Where) -> int:

@@ -94,10 +94,9 @@ def _is_number(word: str) -> bool:
 
 def read_packet(path: Path) -> np.ndarray:
     """The packet in one `oxts/data/NNNNNNNNNN.txt` file (a single line)."""
-    try:
-        text = Path(path).read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TerraError(f"{path}: unreadable OXTS packet ({exc})") from None
+    from terra.fileio import read_text
+
+    text = read_text(path, "OXTS packet", 1 << 20)
     lines = [line for line in text.splitlines() if line.strip()]
     if len(lines) != 1:
         raise TerraError(f"{path}: expected one line of {len(FIELDS)} numbers, got {len(lines)} lines")

@@ -71,7 +71,10 @@ def open_dataset(path: str | Path, format: str = "auto", options: Mapping[str, A
 
     `options` are the loader's settings (its config section's fields), e.g. from a config file's
     `dataset` section."""
+    from terra.bundle import recover
+
     path = Path(path)
+    recover(path)  # a dataset folder whose replacement (`terra sim --overwrite`) was cut short
     if not path.exists():
         raise TerraError(f"{path}: dataset does not exist")
     if format != "auto":

@@ -20,19 +20,22 @@ distortion, as KITTI images are rectified).
 
 from __future__ import annotations
 
+import io
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, read_classes, read_json, read_label_png,
-                                      read_rgb, write_label_png, write_rgb)
+from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, image_size, read_classes, read_json,
+                                      read_label_png, read_raw, read_rgb, write_label_png, write_rgb)
 from terra.datasets.kitti_common import (STANDARD_LABELS, STANDARD_TERRAIN, decompose_projection, read_calib_file,
                                          standard_classes)
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
+from terra.fileio import read_text, read_yaml
 from terra.geometry import CameraCalibration, invert_pose, make_pose
 from terra.progress import progress
 
@@ -86,13 +89,14 @@ def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show
         if Tr is None:
             Tr = frame.cameras[0].calibration.T_cam_lidar if frame.cameras else _DEFAULT_TR
         inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
-        np.concatenate([frame.points, inten[:, None]], axis=1).astype(np.float32).tofile(seq / "velodyne" / f"{name}.bin")
+        # write_bytes, not ndarray.tofile: a short write (full disk) then says why, with its errno
+        (seq / "velodyne" / f"{name}.bin").write_bytes(np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tobytes())
         if frame.point_labels is not None:
             inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
             if inst.size and (inst.min() < 0 or inst.max() > 0xFFFF):
                 raise TerraError("instance ids must lie in 0..65535 for SemanticKITTI .label files")
             value = to_kitti[frame.point_labels].astype(np.uint32) | (inst.astype(np.uint32) << np.uint32(16))
-            value.astype("<u4").tofile(seq / "labels" / f"{name}.label")
+            (seq / "labels" / f"{name}.label").write_bytes(value.astype("<u4").tobytes())
         poses.append(Tr @ frame.T_map_lidar @ invert_pose(Tr))
         times.append(float(frame.stamp))
         for n, cam in enumerate(frame.cameras):
@@ -177,10 +181,11 @@ class SemanticKittiDataset:
         if not self.scans:
             raise TerraError(f"{seq / 'velodyne'}: no .bin scans")
         calib_path = seq / "calib.txt"
-        calib_file = read_calib_file(calib_path) if calib_path.is_file() else None
+        calib_file = read_calib_file(calib_path) if calib_path.exists() else None
         keys = calib_file.keys() if calib_file else []
         calib = {key: calib_file.matrix(key, (3, 4), "a 3x4 matrix, row-major") for key in keys}
-        self.Tr = np.vstack([calib["Tr"], [0, 0, 0, 1]]) if "Tr" in calib else np.eye(4)
+        self.Tr = calib_file.pose_3x4("Tr") if "Tr" in calib else np.eye(4)
+        self._calib_file = calib_file
         poses_path = seq / "poses.txt"
         if not poses_path.is_file():
             raise TerraError(f"{seq}: no poses.txt (KITTI ground-truth poses are needed; run odometry first)")
@@ -214,21 +219,18 @@ class SemanticKittiDataset:
             first = sorted(folder.glob("*.png")) if folder.is_dir() else []
             if f"P{k}" not in calib or not first:
                 continue
-            K, T_k_0 = decompose_projection(calib[f"P{k}"].reshape(3, 4))
-            h, w = read_rgb(first[0]).shape[:2]
+            try:
+                K, T_k_0 = decompose_projection(calib[f"P{k}"].reshape(3, 4))
+            except ValueError as exc:
+                raise TerraError(f"{self._calib_file.where(f'P{k}')}: P{k} {exc}") from None
+            w, h = image_size(first[0])
             cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), T_k_0 @ self.Tr))
             folders.append(f"image_{k}")
         return cams, folders
 
     def _class_mapping(self, root: Path) -> tuple[np.ndarray, ClassTable]:
         legend_path = root / LEGEND
-        legend = None
-        if legend_path.is_file():
-            try:
-                legend = {int(k): str(v) for k, v in yaml.safe_load(legend_path.read_text())["labels"].items()}
-            except (KeyError, TypeError, ValueError, AttributeError, yaml.YAMLError) as exc:
-                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                raise TerraError(f"{legend_path}: malformed legend ({reason}); expected a 'labels' mapping id -> name") from None
+        legend = _read_legend(legend_path) if legend_path.exists() else None
         ours = read_classes(root)
         if ours is not None and legend is not None:
             mapping = {}
@@ -251,15 +253,15 @@ class SemanticKittiDataset:
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
         scan_path = self.scans[index]
-        raw = np.fromfile(scan_path, dtype="<f4")
+        raw = read_raw(scan_path, "<f4", "LiDAR scan")
         if raw.size % 4:
             raise TerraError(f"{scan_path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
         raw = raw.reshape(-1, 4)
         stem = scan_path.stem
         labels = instances = None
         label_path = self.seq / "labels" / f"{stem}.label"
-        if label_path.is_file():
-            value = np.fromfile(label_path, dtype="<u4")
+        if label_path.exists():
+            value = read_raw(label_path, "<u4", "SemanticKITTI label file")
             if value.size != raw.shape[0]:
                 raise TerraError(f"{label_path}: {value.size} labels for {raw.shape[0]} points")
             labels = self._ids_from_kitti[value & 0xFFFF].astype(np.int32)
@@ -297,14 +299,31 @@ class SemanticKittiDataset:
 
 
 def _read_table(path: Path, columns: int, rows: int, what: str) -> np.ndarray:
-    """(rows, columns) numbers of a whitespace-separated text file; TerraError naming the file."""
+    """(rows, columns) finite numbers of a whitespace-separated text file; TerraError naming the file."""
+    text = read_text(path, what)
     try:
-        table = np.loadtxt(path, ndmin=2, dtype=np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data": the shape check below says it
+            table = np.loadtxt(io.StringIO(text), ndmin=2, dtype=np.float64)
     except ValueError as exc:
-        raise TerraError(f"{path}: expected {rows} lines of {what} ({exc})") from None
+        raise TerraError(f"{path}: expected {rows} lines of {what} ({str(exc).splitlines()[0][:100]})") from None
     if table.shape != (rows, columns):
         raise TerraError(f"{path}: expected {rows} lines of {what}, got shape {table.shape}")
+    if not np.isfinite(table).all():
+        raise TerraError(f"{path}: holds non-finite numbers; expected {rows} lines of {what}")
     return table
+
+
+def _read_legend(path: Path) -> dict[int, str]:
+    """id -> name of a semantic-kitti.yaml legend's `labels` mapping (ids 0..65535)."""
+    legend = read_yaml(path, "SemanticKITTI legend")
+    labels = legend.get("labels") if isinstance(legend, dict) else None
+    if not isinstance(labels, dict) or not all(
+        isinstance(k, int) and not isinstance(k, bool) and 0 <= k <= 0xFFFF and isinstance(v, str) and v
+        for k, v in labels.items()
+    ):
+        raise TerraError(f"{path}: malformed legend; expected a 'labels' mapping of ids 0..65535 to names")
+    return dict(labels)
 
 
 def _detect(path: Path) -> bool:

@@ -41,13 +41,14 @@ from pydantic import Field
 
 from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes, read_json,
-                                      read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
+from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes,
+                                      image_size, read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, pose_from_xyz_quat, pose_to_xyz_quat, transform_points, voxel_keys
+from terra.npy import write_npy
 from terra.progress import progress
 
 POSES = "transformations_lidar2global"
@@ -140,13 +141,13 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
     for frame in progress((dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress):
         t = stamp_text(frame.stamp)
         stamps.append(float(t))
-        np.save(root / POSES / f"transform_lidar_to_map_{t}.npy", pose_to_xyz_quat(frame.T_map_lidar), allow_pickle=False)
+        write_npy(root / POSES / f"transform_lidar_to_map_{t}.npy", pose_to_xyz_quat(frame.T_map_lidar))
         inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
         scan = np.concatenate([frame.points, inten[:, None]], axis=1).astype(np.float32)
-        np.save(root / SCANS / f"lidar_pc_{t}.npy", scan, allow_pickle=False)
+        write_npy(root / SCANS / f"lidar_pc_{t}.npy", scan)
         if frame.point_labels is not None:
             inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
-            np.save(root / LABELS / f"lidar_labels_{t}.npy", np.stack([frame.point_labels, inst], 1).astype(np.int32), allow_pickle=False)
+            write_npy(root / LABELS / f"lidar_labels_{t}.npy", np.stack([frame.point_labels, inst], 1).astype(np.int32))
         acc.add(transform_points(frame.T_map_lidar, frame.points.astype(np.float64)), inten)
         for index, cam in enumerate(frame.cameras):
             files = CameraFiles(index + FIRST_CAMERA)
@@ -156,7 +157,7 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
                     (root / d).mkdir(exist_ok=True)
             write_rgb(root / files.image(frame.stamp), cam.image)
             T_cam_lidar = pose_to_xyz_quat(cam.calibration.T_cam_lidar)
-            np.save(root / files.transform(frame.stamp), T_cam_lidar, allow_pickle=False)
+            write_npy(root / files.transform(frame.stamp), T_cam_lidar)
             if cam.semantic is not None:
                 write_label_png(root / files.semantic_image(frame.stamp), cam.semantic)
             if cam.instance is not None:
@@ -164,7 +165,7 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
         if len(stamps) == 1:
             msmap_camera_keys(cameras)  # refuse what the authors' layout cannot hold before writing more
     last = stamp_text(max(stamps)) if stamps else stamp_text(0.0)
-    np.save(root / GLOBAL / f"global_pc_{last}.npy", acc.result(), allow_pickle=False)
+    write_npy(root / GLOBAL / f"global_pc_{last}.npy", acc.result())
     meta = {"format": "terra-folder", "version": 2, "name": dataset.name, "frames": len(stamps),
             "first_camera": FIRST_CAMERA, "cameras": [calibration_to_json(c) for c in cameras]}
     (root / META).write_text(json.dumps(meta, indent=1) + "\n")
@@ -186,9 +187,8 @@ class TerraFolderDataset:
         self.root = root = Path(root)
         if not (root / POSES).is_dir():
             raise TerraError(f"{root}: not a terra-folder dataset (no {POSES}/ folder)")
-        meta_path = root / META
-        meta = read_json(meta_path) if meta_path.is_file() else {}
-        self.name = str(meta.get("name", root.name))
+        meta = _read_meta(root / META)
+        self.name = str(meta.get("name") or root.name)
         numbers, calibrations, exact, threshold = self._calibration(meta, cameras, camera_config)
         self.calibrations, self.camera_numbers, self._exact_cameras = calibrations, numbers, exact
         _check_image_folders(root, numbers, self.camera_source)
@@ -214,11 +214,9 @@ class TerraFolderDataset:
             config = read_msmap_config(Path(camera_config))
             self.camera_source = str(camera_config)
             return config.numbers, config.cameras, False, config.unaligned_threshold
-        if "cameras" in meta:
-            if not isinstance(meta["cameras"], list):
-                raise TerraError(f"{root / META}: 'cameras' must be a list of calibrations")
+        if meta.get("cameras") is not None:
             self.camera_source = str(root / META)
-            first = int(meta.get("first_camera", 0))
+            first = int(meta.get("first_camera") or 0)
             return ([first + i for i in range(len(meta["cameras"]))],
                     [calibration_from_json(c, str(root / META)) for c in meta["cameras"]], True, None)
         if (root / CAMERA_YAML).is_file():
@@ -262,14 +260,8 @@ class TerraFolderDataset:
 
     def _check_image_sizes(self) -> None:
         """The first image of every camera has the calibrated size (the reference asserts it)."""
-        from PIL import Image
-
         for cal, (image_file, _) in zip(self.calibrations, self._frames[0][3]):
-            try:
-                with Image.open(image_file) as im:
-                    size = im.size
-            except OSError as exc:
-                raise TerraError(f"{image_file}: unreadable image ({exc})") from None
+            size = image_size(image_file)
             if size != (cal.width, cal.height):
                 source = self.camera_source or "the calibration"
                 raise TerraError(f"{image_file}: image is {size[0]}x{size[1]}, but {source} says "
@@ -329,9 +321,18 @@ class TerraFolderDataset:
                            "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1])})
 
 
+def _read_meta(path: Path) -> dict:
+    """terra_dataset.json as a plain dict of validated values ({} when the folder has none)."""
+    from terra.schemas import TerraDatasetFile, read_model
+
+    if not path.exists():
+        return {}
+    return read_model(path, TerraDatasetFile, "dataset description").model_dump()
+
+
 def _first_camera(root: Path, meta: dict) -> int:
     """1 for the authors' numbering, 0 for folders Terra wrote before it followed it."""
-    if "first_camera" in meta:
+    if meta.get("first_camera") is not None:
         return int(meta["first_camera"])
     return 0 if (root / "camera0_images").is_dir() else FIRST_CAMERA
 

@@ -354,7 +354,7 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
     failure never leaves a partial report (a tuned.json already in `out` is kept). Returns the
     summary (also written to out/summary.json).
     """
-    from terra.sim.writer import atomic_folder
+    from terra.bundle import atomic_folder
 
     config = config or EvalConfig()
     timer = timer or StageTimer()
@@ -402,5 +402,5 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
         write_report(folder, summary)
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_folder(out, True, fill)
+    atomic_folder(out, fill, "report")
     return summary

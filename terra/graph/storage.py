@@ -179,74 +179,147 @@ def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any]
 
 
 def load_scene_graph(bundle: Bundle) -> SceneGraph:
-    """The scene graph stored in `bundle`; TerraError (one line) when absent or incompatible."""
-    info = bundle.manifest.get("components", {}).get("graph")
+    """The scene graph stored in `bundle`; TerraError (one line naming the file and what is wrong)
+    when absent, incompatible, or inconsistent: the document is validated (terra.schemas), node ids
+    must number each layer 0..n-1, edges must join existing nodes of adjacent levels, every node
+    below the top level has one parent, and the embedding arrays must match the node counts."""
+    from terra.schemas import SceneGraphDocument
+
+    info = bundle.model.components.graph
     if info is None or not bundle.has(GRAPH_JSON):
         raise TerraError(f"{bundle.path}: the bundle has no scene graph; build one with `terra build {bundle.path}`")
-    if info.get("format") != GRAPH_FORMAT:
-        raise TerraError(f"{bundle.path}: scene graph format {info.get('format')!r} is not supported (expected {GRAPH_FORMAT}); rebuild it with `terra build {bundle.path}`")
-    doc = bundle.json(GRAPH_JSON)
-    try:
-        return _from_document(doc, bundle)
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise TerraError(f"{bundle.path / GRAPH_JSON}: malformed scene graph ({type(exc).__name__}: {exc})") from None
+    if info.format != GRAPH_FORMAT:
+        raise TerraError(f"{bundle.path}: scene graph format {info.format!r} is not supported (expected {GRAPH_FORMAT}); rebuild it with `terra build {bundle.path}`")
+    # Fully typed below the metadata dicts Terra does not read, so no depth walk is needed.
+    doc = bundle.document(GRAPH_JSON, SceneGraphDocument, max_depth=None)
+    where = str(bundle.path / GRAPH_JSON)
+    meta = doc.metadata.terra
+    if meta.format != GRAPH_FORMAT:
+        raise TerraError(f"{where}: metadata.terra.format {meta.format!r}, expected {GRAPH_FORMAT}")
+    if info.regions is not None and len(info.regions) != meta.region_levels:
+        raise TerraError(f"{where}: {meta.region_levels} region levels, but manifest.json components.graph.regions "
+                         f"lists {len(info.regions)}")
+    return _from_document(doc, bundle, where)
 
 
-def _from_document(doc: dict, bundle: Bundle) -> SceneGraph:
-    meta = doc["metadata"]["terra"]
-    if meta.get("format") != GRAPH_FORMAT:
-        raise ValueError(f"format {meta.get('format')!r}, expected {GRAPH_FORMAT}")
-    L = int(meta["region_levels"])
-    terrain_classes = list(meta["terrain_classes"])
-    by_char: dict[str, list[tuple[int, dict]]] = {}
-    for node in doc["nodes"]:
-        char, index = symbol_parts(int(node["id"]))
-        by_char.setdefault(char, []).append((index, node["attributes"]))
-    for items in by_char.values():
+def _layers(doc, levels: int, where: str) -> dict[str, list]:
+    """Node attributes per id char ('O', 'p', region level chars, 'Z'), in index order; TerraError
+    unless each char's indices are exactly 0..n-1."""
+    chars = {"O", "p", "Z"} | {level_char(k) for k in range(1, levels + 1)}
+    by_char: dict[str, list[tuple[int, object]]] = {}
+    for node in doc.nodes:
+        char, index = symbol_parts(node.id)
+        if char not in chars:
+            raise TerraError(f"{where}: node id {node.id} has symbol {char!r}, expected one of {''.join(sorted(chars))} "
+                             f"for {levels} region levels")
+        by_char.setdefault(char, []).append((index, node.attributes))
+    out = {}
+    for char, items in by_char.items():
         items.sort(key=lambda item: item[0])
+        if [i for i, _ in items] != list(range(len(items))):
+            raise TerraError(f"{where}: node ids of symbol {char!r} must number 0..{len(items) - 1} once each")
+        out[char] = [a for _, a in items]
+    return out
 
-    terrain_embeddings = bundle.array("graph/terrain_embedding")
-    dim = terrain_embeddings.shape[1]
-    place_items = by_char.get("p", [])
-    places = Places(
-        position=np.array([a["position"] for _, a in place_items], dtype=np.float64).reshape(-1, 3),
-        terrain=np.array([a["semantic_label"] for _, a in place_items], dtype=np.int64),
-        clearance=np.array([a["distance"] for _, a in place_items], dtype=np.float64),
-        embedding=bundle.array("graph/place_embedding").reshape(-1, dim),
-    )
-    object_items = by_char.get("O", [])
-    objects = Objects(
-        center=np.array([a["position"] for _, a in object_items], dtype=np.float64).reshape(-1, 3),
-        size=np.array([a["bounding_box"]["dimensions"] for _, a in object_items], dtype=np.float64).reshape(-1, 3),
-        yaw=np.array([a["metadata"]["terra"]["yaw"] for _, a in object_items], dtype=np.float64),
-        label=[a["name"] for _, a in object_items],
-        score=np.array([a["metadata"]["terra"]["score"] for _, a in object_items], dtype=np.float32),
-        point_count=np.array([a["metadata"]["terra"]["point_count"] for _, a in object_items], dtype=np.int64),
-        place=np.array([a["metadata"]["terra"]["place"] for _, a in object_items], dtype=np.int64),
+
+def _embedding(bundle: Bundle, name: str, rows: int, dim: int | None) -> np.ndarray:
+    from terra.npy import ArraySpec
+
+    spec = ArraySpec(("float32",), (rows, dim), finite=True, what="unit embeddings, one row per node")
+    return bundle.array(name, spec)
+
+
+def _places(layers: dict[str, list], terrain_count: int, bundle: Bundle, dim: int, where: str) -> Places:
+    items = layers.get("p", [])
+    for i, a in enumerate(items):
+        if a.semantic_label is None or not 0 <= a.semantic_label < terrain_count or a.distance is None or a.distance < 0:
+            raise TerraError(f"{where}: place {i}: semantic_label must be a terrain index 0..{terrain_count - 1} and "
+                             "distance (clearance) a number >= 0")
+    return Places(
+        position=np.array([a.position for a in items], dtype=np.float64).reshape(-1, 3),
+        terrain=np.array([a.semantic_label for a in items], dtype=np.int64),
+        clearance=np.array([a.distance for a in items], dtype=np.float64),
+        embedding=_embedding(bundle, "graph/place_embedding", len(items), dim),
     )
 
+
+def _objects(layers: dict[str, list], n_places: int, where: str) -> Objects:
+    from terra.schemas import ObjectTerra, validate_model
+
+    items = layers.get("O", [])
+    terra = []
+    for i, a in enumerate(items):
+        extra = validate_model(a.metadata.get("terra"), ObjectTerra, f"{where} object {i} metadata")
+        if a.bounding_box is None or a.name is None or extra.place >= n_places:
+            raise TerraError(f"{where}: object {i}: needs a name, a bounding_box and a place index below {n_places}")
+        terra.append(extra)
+    return Objects(
+        center=np.array([a.position for a in items], dtype=np.float64).reshape(-1, 3),
+        size=np.array([a.bounding_box.dimensions for a in items], dtype=np.float64).reshape(-1, 3),
+        yaw=np.array([t.yaw for t in terra], dtype=np.float64),
+        label=[a.name for a in items],
+        score=np.array([t.score for t in terra], dtype=np.float32),
+        point_count=np.array([t.point_count for t in terra], dtype=np.int64),
+        place=np.array([t.place for t in terra], dtype=np.int64),
+    )
+
+
+def _edges(doc, layers: dict[str, list], levels: int, where: str) -> tuple[list, list, list, dict[str, dict[int, int]]]:
+    """Place edges (pairs, weights, kinds) and, per child char, child index -> parent index."""
+    from terra.schemas import EdgeTerra, validate_model
+
+    above = {"p": level_char(1)} | {level_char(k): level_char(k + 1) for k in range(1, levels)}
+    if levels:
+        above[level_char(levels)] = "Z"
+    counts = {char: len(items) for char, items in layers.items()}
     place_edges, weights, kinds = [], [], []
     parent_of: dict[str, dict[int, int]] = {}
-    for edge in doc["edges"]:
-        (sc, si), (tc, ti) = symbol_parts(int(edge["source"])), symbol_parts(int(edge["target"]))
+    for e, edge in enumerate(doc.edges):
+        (sc, si), (tc, ti) = symbol_parts(edge.source), symbol_parts(edge.target)
+        if si >= counts.get(sc, 0) or ti >= counts.get(tc, 0):
+            raise TerraError(f"{where}: edge {e} joins {sc}{si} and {tc}{ti} (NodeSymbol char and index), "
+                             "which are not both nodes of the graph")
         if sc == "p" and tc == "p":
+            if si == ti:
+                raise TerraError(f"{where}: edge {e} joins place {si} to itself")
+            kind = validate_model(edge.info.metadata.get("terra"), EdgeTerra, f"{where} edge {e} metadata").kind
             place_edges.append((si, ti))
-            weights.append(edge["info"]["weight"])
-            kinds.append(EDGE_KIND_CODES[edge["info"]["metadata"]["terra"]["kind"]])
-        elif tc != "O":
-            parent_of.setdefault(tc, {})[ti] = si
+            weights.append(edge.info.weight)
+            kinds.append(EDGE_KIND_CODES[kind])
+        elif tc == "O" and sc == "p":
+            continue  # object -> place links are stored on the objects
+        elif above.get(tc) == sc:
+            if parent_of.setdefault(tc, {}).setdefault(ti, si) != si:
+                raise TerraError(f"{where}: node {tc}{ti} (NodeSymbol char and index) has two parents")
+        else:
+            raise TerraError(f"{where}: edge {e} from {sc!r} to {tc!r} nodes is neither a place edge nor a parent link")
+    return place_edges, weights, kinds, parent_of
+
+
+def _from_document(doc, bundle: Bundle, where: str) -> SceneGraph:
+    meta = doc.metadata.terra
+    levels, terrain_classes = meta.region_levels, list(meta.terrain_classes)
+    dim = bundle.model.embedder.dim if bundle.model.embedder is not None else None
+    terrain_embeddings = bundle.array("graph/terrain_embedding", _terrain_spec(len(terrain_classes), dim))
+    dim = terrain_embeddings.shape[1]
+    layers = _layers(doc, levels, where)
+    places = _places(layers, len(terrain_classes), bundle, dim, where)
+    objects = _objects(layers, len(places), where)
+    place_edges, weights, kinds, parent_of = _edges(doc, layers, levels, where)
     regions = []
     child_char, n_children = "p", len(places)
-    for k in range(1, L + 1):
+    for k in range(1, levels + 1):
         char = level_char(k)
-        items = by_char.get(char, [])
+        items = layers.get(char, [])
         mapping = parent_of.get(child_char, {})
-        parent = np.array([mapping[c] for c in range(n_children)], dtype=np.int64)
+        if len(mapping) != n_children:
+            raise TerraError(f"{where}: {n_children - len(mapping)} of the {n_children} nodes below region level {k} "
+                             "have no parent there")
         regions.append(RegionLevel(
             level=k,
-            position=np.array([a["position"] for _, a in items], dtype=np.float64).reshape(-1, 3),
-            embedding=bundle.array(f"graph/region_embedding_{k}").reshape(-1, dim),
-            parent_of_child=parent,
+            position=np.array([a.position for a in items], dtype=np.float64).reshape(-1, 3),
+            embedding=_embedding(bundle, f"graph/region_embedding_{k}", len(items), dim),
+            parent_of_child=np.array([mapping[c] for c in range(n_children)], dtype=np.int64),
         ))
         child_char, n_children = char, len(items)
     return SceneGraph(
@@ -258,6 +331,12 @@ def _from_document(doc: dict, bundle: Bundle) -> SceneGraph:
         place_edge_kind=np.array(kinds, dtype=np.int64),
         regions=regions,
         objects=objects,
-        embedder=meta.get("embedder", ""),
-        region_method=meta.get("region_method", ""),
+        embedder=meta.embedder,
+        region_method=meta.region_method,
     )
+
+
+def _terrain_spec(count: int, dim: int | None):
+    from terra.npy import ArraySpec
+
+    return ArraySpec(("float32",), (count, dim), finite=True, what="terrain class embeddings, one row per class")

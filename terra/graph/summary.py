@@ -9,21 +9,21 @@ from terra.bundle import Bundle
 
 def graph_summary(bundle: Bundle) -> dict[str, Any]:
     """Places, edges by kind, regions per level, objects, region method and embedding sources,
-    from the manifest (no array is loaded)."""
-    info = bundle.manifest.get("components", {}).get("graph")
+    from the manifest (no array is loaded; its types were checked when the bundle was opened)."""
+    info = bundle.model.components.graph
     if info is None:
         return {}
-    stats = info.get("stats", {})
-    config = info.get("config", {})
+    stats = info.stats
+    method = info.config.get("regions", {}).get("method") if isinstance(info.config.get("regions"), dict) else None
     return {
-        "format": info.get("format"),
-        "places": info.get("places"),
-        "places_per_terrain": stats.get("places_per_terrain", {}),
-        "place_edges": info.get("place_edges"),
-        "edges_by_kind": stats.get("edges", {}),
-        "regions_per_level": info.get("regions", []),
-        "region_method": config.get("regions", {}).get("method"),
-        "objects": info.get("objects"),
-        "embedding_source": stats.get("embedding_source", {}),
-        "embedding_rule": stats.get("embedding_rule"),
+        "format": info.format,
+        "places": info.places,
+        "places_per_terrain": dict(stats.places_per_terrain),
+        "place_edges": info.place_edges,
+        "edges_by_kind": dict(stats.edges),
+        "regions_per_level": list(info.regions or []),
+        "region_method": method if isinstance(method, str) else None,
+        "objects": info.objects,
+        "embedding_source": dict(stats.embedding_source),
+        "embedding_rule": stats.embedding_rule,
     }

@@ -130,7 +130,7 @@ def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_r
     """Write the bundle's map as the reference's MS-map files into folder `out` (atomically)."""
     from terra.errors import TerraError
     from terra.mapping.storage import load_map
-    from terra.sim.writer import atomic_folder
+    from terra.bundle import atomic_folder, check_output_folder
 
     if not np.isfinite(image_range) or image_range <= 0:
         raise TerraError(f"--image-range must be a positive number of metres, got {image_range}")
@@ -143,7 +143,8 @@ def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_r
             (root / name).write_bytes(data)
         (root / rf.SIDECAR).write_text(dumps_json(sidecar(msm, bundle, image_range)))
 
-    atomic_folder(Path(out), overwrite, fill)
+    check_output_folder(Path(out), overwrite)
+    atomic_folder(Path(out), fill, "export")
     return {
         "format": "terra-reference",
         "out": str(out),

@@ -22,6 +22,7 @@ map_location="cpu")`, so tensors saved on a GPU load on a machine without one.
 from __future__ import annotations
 
 import io
+import os
 import pickle
 import re
 from pathlib import Path
@@ -145,14 +146,19 @@ class PlainDataUnpickler(pickle.Unpickler):
 
 def load_pickle(path: Path) -> Any:
     """The plain data in pickle file `path` (see the module docstring)."""
+    from terra.fileio import open_regular
+
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        with os.fdopen(open_regular(path, "pickle file"), "rb") as f:
             return PlainDataUnpickler(f, path).load()
     except TerraError:
         raise
     except FileNotFoundError:
         raise TerraError(f"{path}: file not found") from None
+    except (RecursionError, MemoryError) as exc:
+        raise TerraError(f"{path}: not a readable pickle of plain data ({type(exc).__name__}: nested or sized "
+                         "beyond what plain map data needs)") from None
     except (
         pickle.UnpicklingError,
         EOFError,
@@ -181,7 +187,9 @@ def load_tensor(path: Path) -> np.ndarray:
         raise TerraError(
             f"{path}: holds {_unsafe_globals(path, exc)}; only tensors are read from the reference's torch files"
         ) from None
-    except (RuntimeError, EOFError, OSError, ValueError, KeyError, AttributeError) as exc:
+    # torch's weights-only unpickler meets garbled opcodes with whatever its stack does (IndexError...)
+    except (RuntimeError, EOFError, OSError, ValueError, KeyError, AttributeError, IndexError, TypeError,
+            UnicodeDecodeError, MemoryError, RecursionError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise TerraError(f"{path}: unreadable torch file ({first})") from None
     if not isinstance(obj, torch.Tensor):

@@ -21,7 +21,6 @@ What they cannot give, and how the bundle copes:
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,10 +99,9 @@ def _stamp_of(path: Path) -> float:
 
 
 def _load_points(path: Path) -> np.ndarray:
-    try:
-        array = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise TerraError(f"{path}: unreadable array ({exc})") from None
+    from terra.npy import read_npy
+
+    array = read_npy(path, what="global map")
     if array.ndim != 2 or array.shape[1] < 3 or not np.issubdtype(array.dtype, np.number):
         raise TerraError(f"{path}: expected an (N, 4) array of x, y, z, intensity, got {array.dtype} {array.shape}")
     points = np.asarray(array[:, :3], dtype=np.float32)
@@ -235,16 +233,13 @@ def read_reference(folder: Path, itr: int | None = None, global_pc: Path | None 
 
 
 def _sidecar(folder: Path) -> dict[str, Any]:
+    """Terra's sidecar beside exported files (terra.schemas.ReferenceSidecar), {} without one."""
+    from terra.schemas import ReferenceSidecar, read_model
+
     path = folder / rf.SIDECAR
-    if not path.is_file():
+    if not path.exists():
         return {}
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise TerraError(f"{path}: unreadable JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise TerraError(f"{path}: expected a JSON object")
-    return data
+    return read_model(path, ReferenceSidecar, "sidecar JSON file").model_dump(exclude_none=True)
 
 
 # ------------------------------------------------------------------------------ image positions

@@ -46,7 +46,7 @@ class Checkpoint:
         return int(meta["next_frame"]), arrays, meta["fusion"]
 
     def save(self, key: str, next_frame: int, arrays: dict[str, np.ndarray], fusion_meta: dict) -> None:
-        writer = BundleWriter(self.path)
+        writer = BundleWriter(self.path, what="mapping checkpoint")
         try:
             for name, array in sorted(arrays.items()):
                 writer.put_array(f"state/{name}", array)

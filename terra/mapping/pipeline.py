@@ -20,10 +20,11 @@ from typing import Iterator, Protocol
 
 import numpy as np
 
-from terra.bundle import Bundle, BundleWriter
+from terra.bundle import Bundle, BundleWriter, recover
 from terra.datasets.base import CameraFrame, Dataset, Frame
 from terra.datasets.fingerprint import dataset_fingerprint
 from terra.errors import TerraError
+from terra.fileio import OutputError
 from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
@@ -87,6 +88,7 @@ def run_mapping(
     out = Path(out)
     timer = timer if timer is not None else StageTimer()
     feed = feed if feed is not None else SerialFeed(show_progress)
+    recover(out)  # leftovers of an interrupted run: a killed final write, a swap cut short
     check_output(out)
     n_frames = len(dataset)
     if n_frames == 0:
@@ -100,7 +102,21 @@ def run_mapping(
     key = _run_key(config, source, perception, global_map)
     checkpoint = Checkpoint(out)
     start = _resume(checkpoint, key, fusion)
+    try:
+        msm, stats = _fuse_all(dataset, config, perception, fusion, checkpoint, key, start, feed, timer)
+        with timer.stage("write"):
+            bundle = _write(out, msm, config, stats, dataset, perception, source)
+    except OutputError as exc:
+        raise OutputError(f"{exc}{_resume_hint(checkpoint)}") from None
+    checkpoint.discard()
+    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
 
+
+def _fuse_all(dataset: Dataset, config: MappingConfig, perception: Perception, fusion: MapFusion,
+              checkpoint: Checkpoint, key: str, start: int, feed: FrameFeed, timer: StageTimer):
+    """Frames `start`.. fused in the order `feed` hands them over (checkpointed every
+    `checkpoint_every`), then the finished map and stats."""
+    n_frames = len(dataset)
     for i in feed.frames(start, n_frames):
         with timer.stage("load"):
             frame = load_frame(dataset, i, fusion.stats)
@@ -114,22 +130,29 @@ def run_mapping(
 
     stats = fusion.stats.to_json()
     if stats.get("frames_fused", 0) == 0:
+        checkpoint.discard()  # nothing to resume: a rerun would meet the same frames
         first = next(iter(fusion.stats.notes.values()), "")
         raise TerraError(f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)}){'; first: ' + first if first else ''}")
     with timer.stage("finish"):
         msm = fusion.finish(perception.embedder, perception.terrain_embeddings())
-    with timer.stage("write"):
-        writer = BundleWriter(out)
-        try:
-            write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name, classes=dataset.classes.to_json())
-            writer.manifest["components"]["map"]["dataset"] = source
-            writer.manifest["perception"] = perception.describe()
-            bundle = writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
-    checkpoint.discard()
-    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
+    return msm, stats
+
+
+def _write(out: Path, msm, config: MappingConfig, stats: dict, dataset: Dataset, perception: Perception,
+           source: dict) -> Bundle:
+    with BundleWriter(out) as writer:
+        write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name,
+                  classes=dataset.classes.to_json())
+        writer.manifest["components"]["map"]["dataset"] = source
+        writer.manifest["perception"] = perception.describe()
+    return Bundle(out)
+
+
+def _resume_hint(checkpoint: Checkpoint) -> str:
+    """What a rerun will do after a write failure: resume from the last checkpoint, if there is one."""
+    if (checkpoint.path / "manifest.json").is_file():
+        return f"; rerun the same command to resume from the checkpoint in {checkpoint.folder}"
+    return ""
 
 
 def _run_key(config: MappingConfig, source: dict, perception: Perception, global_map: np.ndarray | None) -> str:

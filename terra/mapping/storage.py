@@ -23,6 +23,8 @@ import scipy.sparse as sp
 
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
+from terra.npy import ArraySpec, check_csr
+from terra.schemas import MapMeta
 from terra.mapping.semantic_map import ImageTable, MetricSemanticMap, ms_avg_norms, ms_max_ids
 from terra.mapping.visibility import VisibilityIndex
 from terra.perception.text import normalize_rows
@@ -93,73 +95,111 @@ def write_map(
     }
 
 
+def _map_info(bundle: Bundle) -> tuple[dict[str, int], MapMeta]:
+    """The sizes every map array is checked against, from the manifest (N points, K bank entries,
+    M images, D embedding dimension, T terrain classes, nnz observations), and map/meta.json."""
+    model = bundle.model
+    where = f"{bundle.path}/manifest.json"
+    if model.embedder is None:
+        raise TerraError(f"{where}: field 'embedder' must hold 'name' and 'dim'")
+    info = model.components.map
+    if info is None:
+        raise TerraError(f"{where}: field 'components.map' is missing; rebuild the bundle with `terra map`")
+    counts = {"points": info.points, "bank": info.bank, "images": info.images, "observations": info.observations}
+    missing = [k for k, v in counts.items() if v is None]
+    if missing:
+        raise TerraError(f"{where}: field 'components.map.{missing[0]}' is missing (a count of the stored map)")
+    sizes = {"N": info.points, "K": info.bank, "M": info.images, "nnz": info.observations,
+             "D": model.embedder.dim, "T": len(model.terrain_classes)}
+    return sizes, bundle.document("map/meta.json", MapMeta)
+
+
+def _specs(sizes: dict[str, int], cameras: int) -> dict[str, ArraySpec]:
+    """What each array of component map/ must be (module docstring), sized by the manifest."""
+    n, k, m, d, t, nnz = (sizes[key] for key in ("N", "K", "M", "D", "T", "nnz"))
+    return {
+        "map/points": ArraySpec(("float32",), (n, 3), finite=True, what="x, y, z metres, map frame"),
+        "map/terrain_votes": ArraySpec(("uint16",), (n, t), what="votes per point and terrain class"),
+        "map/counts_indptr": ArraySpec(("int64",), (n + 1,), what="row pointer of the observation counts"),
+        "map/counts_indices": ArraySpec(("int32",), (nnz,), what="bank ids of the observation counts"),
+        "map/counts_data": ArraySpec(("uint8", "uint16", "uint32", "uint64"), (nnz,), low=0, high=2**31 - 1,
+                                     what="observation counts"),
+        "map/bank": ArraySpec(("float16",), (k, d), finite=True, what="bank entries x the embedder's dimension"),
+        "map/terrain_embeddings": ArraySpec(("float32",), (t, d), finite=True, what="terrain classes x the embedder's dimension"),
+        "map/images/stamp": ArraySpec(("float64",), (m,), finite=True, what="image stamps, seconds"),
+        "map/images/camera": ArraySpec(("int16",), (m,), low=0, high=max(cameras - 1, 0),
+                                       what="camera index into map/meta.json camera_names"),
+        "map/images/T_map_cam": ArraySpec(("float64",), (m, 4, 4), finite=True, what="camera poses"),
+        "map/images/embedding": ArraySpec(("float16",), (m, d), finite=True, what="images x the embedder's dimension"),
+        "map/visibility/cells": ArraySpec(("int64",), (None,), what="sorted visibility cell keys"),
+        "map/visibility/indptr": ArraySpec(("int64",), (None,), what="row pointer of the visibility index"),
+        "map/visibility/images": ArraySpec(("int32",), (None,), what="image ids of the visibility index"),
+        "map/ms_avg_norm": ArraySpec(("float32",), (n,), finite=True, low=0.0, what="MS-Avg row norms"),
+        "map/ms_max_id": ArraySpec(("int32",), (n,), low=-1, high=max(k - 1, -1), what="most observed bank id"),
+    }
+
+
 def load_map(bundle: Bundle) -> MetricSemanticMap:
-    """The MetricSemanticMap stored in `bundle` (TerraError when it has none or it is malformed)."""
+    """The MetricSemanticMap stored in `bundle`; TerraError (one line naming the file) when it has
+    none or anything in it disagrees with the manifest: dtype, shape, finiteness, ranges, and the
+    structure of the sparse counts and visibility index."""
     if not bundle.has("map/points"):
         raise TerraError(f"{bundle.path}: bundle has no map component; build one with `terra map`")
-    embedder = bundle.manifest.get("embedder") or {}
-    if "name" not in embedder or "dim" not in embedder:
-        raise TerraError(f"{bundle.path}/manifest.json: field 'embedder' must hold 'name' and 'dim'")
-    dim = int(embedder["dim"])
-    meta = bundle.json("map/meta.json")
-    points = bundle.array("map/points")
-    n = points.shape[0]
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise TerraError(f"{bundle.path}/map/points.npy: expected (N, 3) metres, got shape {points.shape} (corrupt bundle)")
-    for name in ("map/bank", "map/terrain_embeddings", "map/images/embedding"):
-        shape = bundle.array(name, mmap=True).shape
-        if len(shape) != 2 or shape[1] != dim:
-            raise TerraError(f"{bundle.path}/{name}.npy: expected rows of the embedder's dimension {dim} (manifest.json 'embedder'), got shape {shape}")
-    bank = normalize_rows(bundle.array("map/bank").astype(np.float32))
-    indptr = bundle.array("map/counts_indptr")
-    indices = bundle.array("map/counts_indices")
-    data = bundle.array("map/counts_data").astype(np.int32)
-    if indptr.shape != (n + 1,) or indices.shape != data.shape or (indices.size and int(indices.max()) >= bank.shape[0]):
-        raise TerraError(f"{bundle.path}/map: counts arrays do not match {n} points and {bank.shape[0]} bank entries (corrupt bundle)")
-    counts = sp.csr_matrix((data, indices, indptr), shape=(n, bank.shape[0]))
+    sizes, meta = _map_info(bundle)
+    if sizes["M"] and not meta.camera_names:
+        raise TerraError(f"{bundle.path}/map/meta.json: field 'camera_names' is empty, but the map has {sizes['M']} images")
+    specs = _specs(sizes, len(meta.camera_names))
+
+    def array(name: str) -> np.ndarray:
+        return bundle.array(name, specs[name])
+
+    points = array("map/points")
+    bank = normalize_rows(array("map/bank").astype(np.float32))
+    counts = _counts(bundle, array, sizes)
     images = ImageTable(
-        stamp=bundle.array("map/images/stamp"),
-        camera=bundle.array("map/images/camera"),
-        T_map_cam=bundle.array("map/images/T_map_cam"),
-        embedding=normalize_rows(bundle.array("map/images/embedding").astype(np.float32)),
-        camera_names=list(meta.get("camera_names", [])),
+        stamp=array("map/images/stamp"),
+        camera=array("map/images/camera"),
+        T_map_cam=array("map/images/T_map_cam"),
+        embedding=normalize_rows(array("map/images/embedding").astype(np.float32)),
+        camera_names=list(meta.camera_names),
     )
-    visibility = None
-    if bundle.has("map/visibility/cells"):
-        visibility = VisibilityIndex(
-            cell_size=float(meta["visibility_cell_size"]),
-            cell_keys=bundle.array("map/visibility/cells"),
-            indptr=bundle.array("map/visibility/indptr"),
-            images=bundle.array("map/visibility/images"),
-            image_positions=images.position,
-        )
     msm = MetricSemanticMap(
         points=points,
-        terrain_classes=list(bundle.manifest.get("terrain_classes", [])),
-        terrain_votes=bundle.array("map/terrain_votes"),
-        terrain_embeddings=bundle.array("map/terrain_embeddings").astype(np.float32),
+        terrain_classes=list(bundle.model.terrain_classes),
+        terrain_votes=array("map/terrain_votes"),
+        terrain_embeddings=array("map/terrain_embeddings").astype(np.float32),
         counts=counts,
         bank=bank,
         images=images,
-        embedder=str(embedder["name"]),
-        voxel_size=float(meta.get("voxel_size", 0.4)),
-        visibility=visibility,
+        embedder=bundle.model.embedder.name,
+        voxel_size=float(meta.voxel_size),
+        visibility=_visibility(bundle, array, meta, images, sizes["M"]),
     )
-    msm._avg_norm = _derived(bundle, "map/ms_avg_norm", n, np.float32)
-    max_id = _derived(bundle, "map/ms_max_id", n, np.int32)
-    if max_id is not None:
-        if max_id.size and (int(max_id.max()) >= bank.shape[0] or int(max_id.min()) < -1):
-            raise TerraError(f"{bundle.path}/map/ms_max_id.npy: ids outside -1..{bank.shape[0] - 1} (corrupt bundle)")
-        msm._max_id = max_id.astype(np.int64)
+    if bundle.has("map/ms_avg_norm"):
+        msm._avg_norm = array("map/ms_avg_norm")
+    if bundle.has("map/ms_max_id"):
+        msm._max_id = array("map/ms_max_id").astype(np.int64)
     return msm
 
 
-def _derived(bundle: Bundle, name: str, n: int, dtype: type) -> np.ndarray | None:
-    """A stored per-point array of `n` rows, or None when the bundle predates it."""
-    if not bundle.has(name):
+def _counts(bundle: Bundle, array, sizes: dict[str, int]) -> sp.csr_matrix:
+    """The (N, K) observation counts, after checking their CSR structure."""
+    indptr, indices = array("map/counts_indptr"), array("map/counts_indices")
+    check_csr(indptr, indices, sizes["N"], sizes["K"], f"{bundle.path}/map/counts_*.npy")
+    data = array("map/counts_data").astype(np.int32)
+    return sp.csr_matrix((data, indices, indptr), shape=(sizes["N"], sizes["K"]))
+
+
+def _visibility(bundle: Bundle, array, meta: MapMeta, images: ImageTable, m: int) -> VisibilityIndex | None:
+    if not bundle.has("map/visibility/cells"):
         return None
-    array = bundle.array(name)
-    if array.shape != (n,) or array.dtype != dtype:
-        raise TerraError(f"{bundle.path}/{name}.npy: expected ({n},) {np.dtype(dtype).name}, "
-                         f"got {array.shape} {array.dtype} (corrupt bundle)")
-    return array
+    where = f"{bundle.path}/map/visibility"
+    if meta.visibility_cell_size is None:
+        raise TerraError(f"{bundle.path}/map/meta.json: field 'visibility_cell_size' is missing, "
+                         "but the map has a visibility index")
+    cells, indptr, image_ids = (array(f"map/visibility/{name}") for name in ("cells", "indptr", "images"))
+    if cells.size > 1 and np.any(np.diff(cells) <= 0):
+        raise TerraError(f"{where}/cells.npy: cell keys must be strictly increasing (corrupt bundle)")
+    check_csr(indptr, image_ids, cells.shape[0], m, f"{where}/*.npy")
+    return VisibilityIndex(cell_size=float(meta.visibility_cell_size), cell_keys=cells, indptr=indptr,
+                           images=image_ids, image_positions=images.position)

@@ -33,16 +33,19 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
         "terrain_classes": manifest.get("terrain_classes", []),
         "bytes": bundle.component_bytes(),
     }
-    info = manifest.get("components", {}).get("map")
+    info = bundle.model.components.map
     if info is not None and bundle.has("map/terrain_votes"):
-        votes = bundle.array("map/terrain_votes", mmap=True)
+        from terra.npy import ArraySpec
+
+        spec = ArraySpec(("uint16",), (info.points, len(out["terrain_classes"])), what="votes per point and terrain class")
+        votes = bundle.array("map/terrain_votes", spec, mmap=True)
         out["map"] = {
-            "points": info.get("points"),
-            "bank_entries": info.get("bank"),
-            "images": info.get("images"),
-            "observations": info.get("observations"),
-            "observed_points": info.get("observed_points"),
+            "points": info.points,
+            "bank_entries": info.bank,
+            "images": info.images,
+            "observations": info.observations,
+            "observed_points": info.observed_points,
             "terrain_points": terrain_histogram(votes, out["terrain_classes"]),
-            "stats": info.get("stats", {}),
+            "stats": info.stats,
         }
     return out

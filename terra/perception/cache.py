@@ -50,6 +50,7 @@ import numpy as np
 
 from terra.bundle import array_bytes, atomic_write_bytes, dumps_json, sibling_tmp_dir
 from terra.datasets.base import CameraFrame, Frame
+from terra.fileio import writing
 from terra.perception.base import ImagePerception, Perception, PointPerception
 from terra.perception.config import CacheConfig
 from terra.perception.masks import MaskSet
@@ -215,6 +216,10 @@ class PerceptionCache:
         final = self.entry(key)
         if (final / "entry.json").is_file():
             return
+        with writing(final, "perception cache entry"):
+            self._store(key, seen, final)
+
+    def _store(self, key: str, seen: ImagePerception, final: Path) -> None:
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = sibling_tmp_dir(final)
         try:

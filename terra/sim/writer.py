@@ -1,13 +1,14 @@
-"""Write a dataset folder atomically: everything goes into a hidden sibling folder that is renamed
-into place at the end, so a crash or a bad argument never leaves a half-written dataset."""
+"""Write a dataset folder atomically: everything goes into a hidden sibling folder that replaces the
+output at the end (terra.bundle.atomic_folder, the mechanism bundles use), so a crash, a full disk
+or a bad argument never leaves a half-written dataset and an existing one stays until the new one
+is complete."""
 
 from __future__ import annotations
 
-import os
-import shutil
 from pathlib import Path
 from typing import Callable
 
+from terra.bundle import atomic_folder, check_output_folder
 from terra.datasets.base import Dataset
 from terra.datasets.folder_io import write_classes
 from terra.datasets.ground_truth import write_ground_truth
@@ -16,37 +17,7 @@ from terra.errors import TerraError
 FORMATS = ("terra-folder", "semantickitti", "kitti-raw", "rosbag1", "rosbag2")
 
 
-def check_output(out: Path, overwrite: bool) -> None:
-    """TerraError unless `out` can be written: absent, empty, or `overwrite`."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise TerraError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise TerraError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
-    if not out.parent.exists():
-        raise TerraError(f"{out.parent}: parent folder does not exist")
-
-
-def atomic_folder(out: Path, overwrite: bool, fill: Callable[[Path], None]) -> Path:
-    """Call fill(tmp) on a fresh sibling folder, then move it to `out` (replacing it if allowed)."""
-    out = Path(out).resolve()
-    check_output(out, overwrite)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    try:
-        fill(tmp)
-        if out.exists():
-            old = out.parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
+check_output = check_output_folder  # the dataset writers' name for it
 
 
 def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder", overwrite: bool = False,
@@ -85,4 +56,5 @@ def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder
         if extra is not None:
             extra(root)
 
-    return atomic_folder(Path(out), overwrite, fill)
+    check_output(Path(out), overwrite)
+    return atomic_folder(Path(out), fill, "dataset")

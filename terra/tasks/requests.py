@@ -20,7 +20,7 @@ PointFeature = Literal["avg", "max"]
 class TaskRequest(BaseModel):
     """Base of the requests: unknown keys are errors, instances are immutable."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
 
 
 class FindRequest(TaskRequest):

@@ -23,7 +23,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from terra.config import validation_message
@@ -41,7 +40,7 @@ COMMAND_KEYS = {
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class TaskItem(_Strict):
@@ -136,13 +135,10 @@ class TaskFile(_Strict):
 
 def load_task_file(path: str | Path) -> TaskFile:
     """Parse and validate a task file; TerraError (one line, file and field named) when malformed."""
+    from terra.fileio import read_yaml
+
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise TerraError(f"{path}: cannot read task file ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise TerraError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    raw = read_yaml(path, "task file")
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from terra.errors import TerraError
+from terra.fileio import writing
 from terra.viz.style import Extent
 
 if TYPE_CHECKING:
@@ -54,12 +55,13 @@ def render_bundle(
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.png")
     summary: dict[str, Any] = {"what": what, "out": str(out)}
     try:
-        if what == "terrain":
-            figures.terrain_map_figure(tmp, msm.terrain_classes, msm.points, point_classes(msm), dpi=dpi, extent=extent,
-                                       cell=msm.voxel_size)
-        else:
-            summary.update(_graph_figure(what, loaded, graph, tmp, background, dpi, extent, queries, plan))
-        os.replace(tmp, out)
+        with writing(out, "picture"):
+            if what == "terrain":
+                figures.terrain_map_figure(tmp, msm.terrain_classes, msm.points, point_classes(msm), dpi=dpi,
+                                           extent=extent, cell=msm.voxel_size)
+            else:
+                summary.update(_graph_figure(what, loaded, graph, tmp, background, dpi, extent, queries, plan))
+            os.replace(tmp, out)
     finally:
         tmp.unlink(missing_ok=True)
     return summary

@@ -33,7 +33,7 @@ def bag_paths(path: Path) -> list[Path]:
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return [path]
-        bags = sorted(path.glob("*.bag"))
+        bags = sorted(p for p in path.glob("*.bag") if p.is_file())  # never a FIFO: the reader would block
         if bags:
             return bags
     raise TerraError(
@@ -68,9 +68,25 @@ def storage_name(paths: list[Path]) -> str:
     if first.suffix == ".bag":
         return "rosbag1"
     if first.is_dir():
-        text = (first / "metadata.yaml").read_text(errors="replace")
+        text = check_ros2_folder(first)
         return "rosbag2 (mcap)" if "storage_identifier: mcap" in text else "rosbag2 (sqlite3)"
     return "rosbag2 (mcap)" if first.suffix == ".mcap" else "rosbag2 (sqlite3)"
+
+
+def check_ros2_folder(folder: Path) -> str:
+    """The text of a ROS 2 bag folder's metadata.yaml, after checking that every storage file it
+    lists is a regular file inside the folder (the reader would block on a FIFO); TerraError otherwise."""
+    from terra.fileio import decode_text, parse_yaml, read_bytes
+    from terra.schemas import RosbagMetadata, validate_model
+
+    path = folder / "metadata.yaml"
+    text = decode_text(read_bytes(path, "bag metadata file", 16 << 20), path, "bag metadata file")
+    info = validate_model(parse_yaml(text, path, "bag metadata file"), RosbagMetadata, path).rosbag2_bagfile_information
+    for name in info.relative_file_paths + [f.path for f in info.files or []]:
+        storage = folder / name
+        if ".." in Path(name).parts or Path(name).is_absolute() or not storage.is_file():
+            raise TerraError(f"{path}: lists storage file {name[:80]!r}, which is not a file in {folder}")
+    return text
 
 
 def _reader_errors() -> tuple[type[BaseException], ...]:
@@ -95,6 +111,11 @@ def _reader_errors() -> tuple[type[BaseException], ...]:
         KeyError,
         ValueError,
         AssertionError,
+        # A record or message length field that claims more bytes than any bag holds: the reader
+        # asks for a buffer of that size before it finds the data short.
+        MemoryError,
+        OverflowError,
+        RecursionError,
     )
 
 
