@@ -20,13 +20,16 @@ class TerrainGrid:
     """label: (H, W) int16 terrain index per cell (majority of its terrain points, -1 = none or
     blocked). ground: (H, W) float32 local ground height (metres, map frame; cells without terrain
     points take the nearest cell's). blocked: (H, W) bool cells holding obstacle points.
-    origin: (2,) lower-left corner of cell (0, 0), metres. cell_size: metres."""
+    origin: (2,) lower-left corner of cell (0, 0), metres. cell_size: metres. offset: (row, col)
+    of this grid's cell (0, 0) when it is a window of a larger grid whose cell (0, 0) lies at
+    `origin` (see GridFrame); (0, 0) for a whole grid."""
 
     label: np.ndarray
     ground: np.ndarray
     blocked: np.ndarray
     origin: np.ndarray
     cell_size: float
+    offset: tuple[int, int] = (0, 0)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -34,13 +37,13 @@ class TerrainGrid:
 
     def cell_centres(self, cells: np.ndarray) -> np.ndarray:
         """(n, 2) map-frame x, y (metres) of the centres of (n, 2) row/col cells."""
-        cells = np.asarray(cells, dtype=np.float64).reshape(-1, 2)
+        cells = np.asarray(cells, dtype=np.float64).reshape(-1, 2) + np.asarray(self.offset, dtype=np.float64)
         return self.origin + (cells[:, ::-1] + 0.5) * self.cell_size
 
     def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rows, cols, inside) of map-frame points (n, 2+); rows/cols clipped into the grid."""
         rc = np.floor((np.asarray(xy)[:, :2] - self.origin) / self.cell_size).astype(np.int64)
-        rows, cols = rc[:, 1], rc[:, 0]
+        rows, cols = rc[:, 1] - self.offset[0], rc[:, 0] - self.offset[1]
         H, W = self.shape
         inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
         return np.clip(rows, 0, H - 1), np.clip(cols, 0, W - 1), inside
@@ -75,6 +78,48 @@ class TerrainGrid:
         return mask, dropped
 
 
+@dataclass(frozen=True)
+class GridFrame:
+    """Where a grid lies: origin (2,) metres, the lower-left corner of cell (0, 0) of the whole
+    grid, whose cell `offset` (row, col) is this frame's first; shape (H, W) cells; cell_size metres. A window of a frame is a frame too (`window`): it keeps
+    the origin and moves the offset, so a point falls in the same cell of both, to the last bit."""
+
+    origin: tuple[float, float]
+    shape: tuple[int, int]
+    cell_size: float
+    offset: tuple[int, int] = (0, 0)
+
+    def window(self, rows: slice, cols: slice) -> "GridFrame":
+        """The frame of cells [rows, cols] of this one (slices with explicit, in-range bounds)."""
+        offset = (self.offset[0] + rows.start, self.offset[1] + cols.start)
+        return GridFrame(self.origin, (rows.stop - rows.start, cols.stop - cols.start), self.cell_size, offset)
+
+
+def grid_frame(points: np.ndarray, terrain: np.ndarray, cell_size: float = 0.4, margin_cells: int = 4) -> GridFrame:
+    """The frame `build_terrain_grid` puts around the terrain points (N, 3) (terrain (N,) >= 0):
+    their 2D bounds, snapped to the cell size, plus `margin_cells` on every side. Raises
+    ValueError when there is no terrain point."""
+    is_terrain = np.asarray(terrain) >= 0
+    if not is_terrain.any():
+        raise ValueError("the map has no terrain points")
+    xy = np.asarray(points)[is_terrain, :2].astype(np.float64)
+    lo = np.floor(xy.min(axis=0) / cell_size) * cell_size - margin_cells * cell_size
+    hi = xy.max(axis=0)
+    W, H = (np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells)
+    return GridFrame((float(lo[0]), float(lo[1])), (int(H), int(W)), float(cell_size))
+
+
+def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: float) -> int:
+    """Cells: how far a cell's label and blocked flag in `build_terrain_grid` depend on the points
+    around it. The support window (half side w = round(support_radius / cell_size)) decides the
+    majority label and, once more, which cells are densely scanned; the fill takes labels within
+    fill_radius. Ground is the exception (the nearest cell with terrain points, at any distance);
+    terra.graph.tiled_grid checks it per cell. Keep this in step with the algorithm: the tiled
+    build relies on it (and tests/test_graph_tiling.py compares tiled and whole grids)."""
+    w = int(round(support_radius / cell_size))
+    return 2 * w + int(np.ceil(fill_radius / cell_size)) + 2
+
+
 def build_terrain_grid(
     points: np.ndarray,
     terrain: np.ndarray,
@@ -85,6 +130,7 @@ def build_terrain_grid(
     min_support: float = 0.6,
     margin_cells: int = 4,
     fill_radius: float = 0.0,
+    frame: GridFrame | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
@@ -104,11 +150,12 @@ def build_terrain_grid(
     is_terrain = terrain >= 0
     if not is_terrain.any():
         raise ValueError("the map has no terrain points")
+    frame = frame or grid_frame(points, terrain, cell_size, margin_cells)
+    cell_size = frame.cell_size
     tp, tt = points[is_terrain], terrain[is_terrain].astype(np.int64)
-    lo = np.floor(tp[:, :2].min(axis=0) / cell_size) * cell_size - margin_cells * cell_size
-    hi = tp[:, :2].max(axis=0)
-    W, H = (np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells)
-    grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool), lo, float(cell_size))
+    H, W = frame.shape
+    grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool),
+                       np.asarray(frame.origin, dtype=np.float64), float(frame.cell_size), frame.offset)
     rows, cols, _ = grid.cell_of(tp)
     flat = rows * W + cols
 

@@ -126,9 +126,11 @@ def extract_places(
     max_deviation: float,
     max_distance: float,
     cover_radius: float = np.inf,
+    gvd_result: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> CellPlaces:
-    """Places and GVD edges of one terrain's free mask (H, W); every length here is in cells."""
-    full, distance = gvd(free, min_clearance, min_gap)
+    """Places and GVD edges of one terrain's free mask (H, W); every length here is in cells.
+    gvd_result: `gvd(free, min_clearance, min_gap)` when already computed (by the tiled GVD)."""
+    full, distance = gvd_result if gvd_result is not None else gvd(free, min_clearance, min_gap)
     skeleton = prune_spurs(full, distance, prune_ratio, prune_length)
     skeleton = restore_far_branches(full, skeleton, cover_radius)
     graph = simplify(skeleton_graph(skeleton, distance), distance, junction_merge)
