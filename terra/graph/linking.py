@@ -38,8 +38,8 @@ def always_clear(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.ones(len(a), dtype=bool)
 
 
-_SAMPLES_PER_CHUNK = 1 << 20
-"""Line samples processed at once (each costs about 60 bytes of temporaries)."""
+_SAMPLES_PER_CHUNK = 1 << 18
+"""Line samples processed at once (each costs about 60 bytes of temporaries: ~16 MB)."""
 
 
 def _segment_chunks(a: np.ndarray, b: np.ndarray, cell_size: float):

@@ -87,23 +87,27 @@ def _tiled_gvd(free: np.ndarray, min_clearance: float, min_gap: float, tile: int
                stats: TiledGvdStats) -> tuple[np.ndarray, np.ndarray]:
     skeleton = np.zeros(free.shape, dtype=bool)
     distance = np.zeros(free.shape, dtype=np.float32)
-    if not free.any():
+    rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
+    if rows.size == 0:
         return skeleton, distance
-    labels = obstacle_components(free)
+    # As gvd() does: only the bounding box of the free cells, plus one cell, framed.
+    box = (slice(max(rows[0] - 1, 0), rows[-1] + 2), slice(max(cols[0] - 1, 0), cols[-1] + 2))
+    sub = free[box]
+    labels = obstacle_components(sub)
     stats.rounds = rounds
-    for core in cores(free.shape, tile):
-        if not free[core].any():  # skeleton cells are free cells; obstacles have distance 0
+    for core in cores(sub.shape, tile):
+        if not sub[core].any():  # skeleton cells are free cells; obstacles have distance 0
             continue
         m = margin
         while True:
-            win = window(free.shape, core, m)
+            win = window(sub.shape, core, m)
             stats.windows += 1
             stats.max_margin = max(stats.max_margin, m)
-            result = window_gvd(free, labels, win, min_clearance, min_gap, rounds)
+            result = window_gvd(sub, labels, win, min_clearance, min_gap, rounds)
             if result is not None:
                 break
             m *= 2
-        skeleton[core], distance[core] = result
+        skeleton[box][core], distance[box][core] = result
     return skeleton, distance
 
 
