@@ -80,18 +80,25 @@ def build_terrain_grid_tiled(
 class _PointIndex:
     """Points sorted by grid row, to find those inside a window without scanning them all."""
 
-    def __init__(self, points: np.ndarray, frame: GridFrame) -> None:
-        cell = np.floor((np.asarray(points)[:, :2] - np.asarray(frame.origin)) / frame.cell_size).astype(np.int64)  # as TerrainGrid.cell_of
-        self.row, self.col = cell[:, 1], cell[:, 0]
-        self.order = np.argsort(self.row, kind="stable")
+    def __init__(self, points: np.ndarray, frame: GridFrame, chunk: int = 1 << 20) -> None:
+        # 12 bytes a point (int32 cells, int32 order), computed in chunks: no float64 copy of the map.
+        n = len(points)
+        self.row, self.col = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+        origin = np.asarray(frame.origin, dtype=np.float64)
+        for start in range(0, n, chunk):
+            xy = np.asarray(points[start : start + chunk, :2], dtype=np.float64)
+            cell = np.floor((xy - origin) / frame.cell_size)  # as TerrainGrid.cell_of
+            self.row[start : start + chunk] = np.clip(cell[:, 1], -1, frame.shape[0])
+            self.col[start : start + chunk] = np.clip(cell[:, 0], -1, frame.shape[1])
+        self.order = np.argsort(self.row, kind="stable").astype(np.int32)
         self.sorted_row = self.row[self.order]
 
     def inside(self, win: Window) -> np.ndarray:
         """Indices (increasing: the points' own order) of the points in the window's cells; the
         outermost windows take the points beyond the grid too, as the one-piece grid does."""
-        lo = -np.inf if win.rows.start == 0 else win.rows.start
-        hi = np.inf if win.closed[1] else win.rows.stop
-        a, b = np.searchsorted(self.sorted_row, [lo, hi], side="left")
+        lo = -1 if win.rows.start == 0 else win.rows.start  # rows are clipped to -1..H
+        hi = np.iinfo(np.int32).max if win.closed[1] else win.rows.stop
+        a, b = np.searchsorted(self.sorted_row, np.array([lo, hi], dtype=np.int32), side="left")
         rows = self.order[a:b]
         col = self.col[rows]
         keep = np.ones(len(rows), dtype=bool)
