@@ -69,4 +69,9 @@ def build_command(
     typer.echo(f"  place embeddings: {src['images']} from images, {src['points']} from points, {src['terrain_text']} from the terrain name")
     if src["images"] == 0 and src["points"]:
         typer.echo("  (the map has no images: place embeddings come from the map points instead)")
+    cells = result.stats["grid_cells"]
+    tiles = result.stats.get("gvd_tiles")
+    where = (f"in {section.tiles.size:g} m tiles ({tiles['windows']} GVD windows, overlap up to {tiles['max_overlap_m']:g} m)"
+             if tiles else "in one piece")
+    typer.echo(f"  terrain grid: {cells[0]} x {cells[1]} cells, computed {where}")
     typer.echo(result.timer.table())
