@@ -102,9 +102,12 @@ def grid_frame(points: np.ndarray, terrain: np.ndarray, cell_size: float = 0.4, 
     is_terrain = np.asarray(terrain) >= 0
     if not is_terrain.any():
         raise ValueError("the map has no terrain points")
-    xy = np.asarray(points)[is_terrain, :2].astype(np.float64)
-    lo = np.floor(xy.min(axis=0) / cell_size) * cell_size - margin_cells * cell_size
-    hi = xy.max(axis=0)
+    points = np.asarray(points)
+    # Bounds without copying the points (the min of float32 values is exact in float64 too).
+    low = [float(np.min(points[:, k], where=is_terrain, initial=np.inf)) for k in (0, 1)]
+    high = [float(np.max(points[:, k], where=is_terrain, initial=-np.inf)) for k in (0, 1)]
+    lo = np.floor(np.array(low) / cell_size) * cell_size - margin_cells * cell_size
+    hi = np.array(high)
     W, H = (np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells)
     return GridFrame((float(lo[0]), float(lo[1])), (int(H), int(W)), float(cell_size))
 
