@@ -57,8 +57,14 @@ def timed(args: list[str], log: Path) -> dict:
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", text)
     # CPU seconds beside wall time: on a shared machine the wall time also counts other jobs.
     cpu = sum(float(x) for x in re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)", text))
-    return {"command": "terra " + " ".join(args), "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
-            "peak_rss_mb": round(int(rss.group(1)) / 1024, 1) if rss else None, "exit_code": done.returncode, "log": str(log)}
+    return {
+        "command": "terra " + " ".join(args),
+        "wall_s": round(wall, 1),
+        "cpu_s": round(cpu, 1),
+        "peak_rss_mb": round(int(rss.group(1)) / 1024, 1) if rss else None,
+        "exit_code": done.returncode,
+        "log": str(log),
+    }
 
 
 def size_mb(path: Path) -> float:
@@ -78,7 +84,10 @@ def sim_and_map(preset: str, cache: Path, fresh: bool) -> tuple[Path, dict]:
     if not fresh and (bundle / "manifest.json").exists():
         return bundle, stages  # mapped before: the simulation is not needed again
     if fresh or not (data / "terra_dataset.json").exists():
-        stages["sim"] = timed(["sim", "--preset", preset, "--seed", "0", "--out", str(data), "--overwrite", "-q"], cache / f"{preset}-sim.log")
+        stages["sim"] = timed(
+            ["sim", "--preset", preset, "--seed", "0", "--out", str(data), "--overwrite", "-q"],
+            cache / f"{preset}-sim.log",
+        )
         ensure(stages["sim"], "terra sim")
     if fresh or not (bundle / "manifest.json").exists():
         if bundle.exists():
@@ -98,13 +107,19 @@ def same_graph(a: Path, b: Path) -> dict:
 
     ga, gb = load_scene_graph(Bundle(a)), load_scene_graph(Bundle(b))
     checks = {
-        "places": np.array_equal(ga.places.position, gb.places.position) and np.array_equal(ga.places.terrain, gb.places.terrain),
-        "edges": np.array_equal(ga.place_edges, gb.place_edges) and np.array_equal(ga.place_edge_weight, gb.place_edge_weight)
+        "places": np.array_equal(ga.places.position, gb.places.position)
+        and np.array_equal(ga.places.terrain, gb.places.terrain),
+        "edges": np.array_equal(ga.place_edges, gb.place_edges)
+        and np.array_equal(ga.place_edge_weight, gb.place_edge_weight)
         and np.array_equal(ga.place_edge_kind, gb.place_edge_kind),
         "regions": len(ga.regions) == len(gb.regions)
         and all(np.array_equal(ga.place_region(k), gb.place_region(k)) for k in range(1, len(ga.regions) + 1)),
     }
-    checks["counts"] = {"places": len(ga.places), "edges": int(len(ga.place_edges)), "regions": [len(r) for r in ga.regions]}
+    checks["counts"] = {
+        "places": len(ga.places),
+        "edges": int(len(ga.place_edges)),
+        "regions": [len(r) for r in ga.regions],
+    }
     return checks
 
 
@@ -127,15 +142,39 @@ def run_large(cache: Path, fresh: bool) -> None:
         shutil.copytree(bundle, target)
         config = work / f"{name.replace(' ', '-')}.yaml"
         config.write_text("build: {}\n" if tiles is None else f"build:\n  tiles:\n    size: {tiles}\n")
-        builds[name] = timed(["build", str(target), "--config", str(config), "-q"], work / f"{name.replace(' ', '-')}.log")
+        builds[name] = timed(
+            ["build", str(target), "--config", str(config), "-q"], work / f"{name.replace(' ', '-')}.log"
+        )
         ensure(builds[name], f"terra build ({name})")
         builds[name]["stats"] = build_stats(target)
     same = same_graph(work / "one-piece.terra", work / "tiles.terra")
-    rows = [(f"{s} large preset", f"{v['wall_s']} s, {v['peak_rss_mb']} MB peak, {v['output_mb']} MB", "-") for s, v in stages.items()]
-    rows += [(f"terra build large, {name}", f"{b['wall_s']} s, {b['peak_rss_mb']:.0f} MB peak", "<= 2048 MB (tiles)") for name, b in builds.items()]
-    rows.append(("tiles == one piece (places, edges, regions)", f"{same['places']}, {same['edges']}, {same['regions']}", "all True"))
-    rows.append(("places / edges / regions per level", f"{same['counts']['places']} / {same['counts']['edges']} / {same['counts']['regions']}", "-"))
-    report(rows, {**machine(), "preset": "large", "stages": stages, "builds": builds, "same": same}, RESULTS / "scale_large.json")
+    rows = [
+        (f"{s} large preset", f"{v['wall_s']} s, {v['peak_rss_mb']} MB peak, {v['output_mb']} MB", "-")
+        for s, v in stages.items()
+    ]
+    rows += [
+        (f"terra build large, {name}", f"{b['wall_s']} s, {b['peak_rss_mb']:.0f} MB peak", "<= 2048 MB (tiles)")
+        for name, b in builds.items()
+    ]
+    rows.append(
+        (
+            "tiles == one piece (places, edges, regions)",
+            f"{same['places']}, {same['edges']}, {same['regions']}",
+            "all True",
+        )
+    )
+    rows.append(
+        (
+            "places / edges / regions per level",
+            f"{same['counts']['places']} / {same['counts']['edges']} / {same['counts']['regions']}",
+            "-",
+        )
+    )
+    report(
+        rows,
+        {**machine(), "preset": "large", "stages": stages, "builds": builds, "same": same},
+        RESULTS / "scale_large.json",
+    )
 
 
 def run_huge(cache: Path, fresh: bool) -> None:
@@ -145,18 +184,43 @@ def run_huge(cache: Path, fresh: bool) -> None:
     ensure(stages["build"], "terra build")
     stages["build"]["output_mb"] = size_mb(bundle)
     stages["build"]["stats"] = build_stats(bundle)
-    stages["find"] = timed(["find", str(bundle), "get bike from the bicycle rack", "--method", "3dsg", "--json"], cache / "huge-find.log")
+    stages["find"] = timed(
+        ["find", str(bundle), "get bike from the bicycle rack", "--method", "3dsg", "--json"], cache / "huge-find.log"
+    )
     ensure(stages["find"], "terra find")
     total = time.perf_counter() - start
-    rows = [(f"terra {s} (huge)", f"{v['wall_s']} s, {v['peak_rss_mb']} MB peak" + (f", {v['output_mb']} MB" if "output_mb" in v else ""), "-")
-            for s, v in stages.items()]
+    rows = [
+        (
+            f"terra {s} (huge)",
+            f"{v['wall_s']} s, {v['peak_rss_mb']} MB peak" + (f", {v['output_mb']} MB" if "output_mb" in v else ""),
+            "-",
+        )
+        for s, v in stages.items()
+    ]
     peak = max(v["peak_rss_mb"] for v in stages.values())
     wall = sum(v["wall_s"] for v in stages.values())
     rows.append(("end to end (stages run here)", f"{wall:.0f} s, {peak:.0f} MB peak", "< 3600 s, < 8192 MB"))
     g = stages["build"]["stats"]
-    rows.append(("huge map: grid cells, places", f"{g['grid_cells'][0]} x {g['grid_cells'][1]}, {sum(g['places_per_terrain'].values())}", "-"))
-    report(rows, {**machine(), "preset": "huge", "stages": stages, "end_to_end_wall_s": round(wall, 1), "this_run_wall_s": round(total, 1),
-                  "peak_rss_mb": peak, "cached_stages_reused": [s for s in ("sim", "map") if s not in stages]}, RESULTS / "scale_huge.json")
+    rows.append(
+        (
+            "huge map: grid cells, places",
+            f"{g['grid_cells'][0]} x {g['grid_cells'][1]}, {sum(g['places_per_terrain'].values())}",
+            "-",
+        )
+    )
+    report(
+        rows,
+        {
+            **machine(),
+            "preset": "huge",
+            "stages": stages,
+            "end_to_end_wall_s": round(wall, 1),
+            "this_run_wall_s": round(total, 1),
+            "peak_rss_mb": peak,
+            "cached_stages_reused": [s for s in ("sim", "map") if s not in stages],
+        },
+        RESULTS / "scale_huge.json",
+    )
 
 
 def twin_map(source: Path, target: Path, world: float, side: float) -> dict:
@@ -178,7 +242,9 @@ def twin_map(source: Path, target: Path, world: float, side: float) -> dict:
     pair_images = np.repeat(np.arange(len(vis.indptr) - 1), np.diff(vis.indptr)) if vis is not None else None
     for k, (dx, dy) in enumerate(shifts):
         p = msm.points + np.array([dx, dy, 0.0], dtype=np.float32)
-        inside = (msm.points[:, :2] >= 0).all(axis=1) & (msm.points[:, :2] < world).all(axis=1)  # no overlap between copies
+        inside = (msm.points[:, :2] >= 0).all(axis=1) & (msm.points[:, :2] < world).all(
+            axis=1
+        )  # no overlap between copies
         keep = np.flatnonzero(inside & (p[:, 0] < side) & (p[:, 1] < side))
         rows.append(keep)
         points.append(p[keep])
@@ -190,21 +256,38 @@ def twin_map(source: Path, target: Path, world: float, side: float) -> dict:
             cx, cy = int(round(dx / vis.cell_size)), int(round(dy / vis.cell_size))
             keys.append(vis.cell_keys[pair_images] + (cx << 42) + (cy << 21))
             owners.append(vis.images.astype(np.int64) + k * len(images))
-    table = ImageTable(stamp=np.concatenate([images.stamp + k * 1e6 for k in range(len(shifts))]),
-                       camera=np.tile(images.camera, len(shifts)), T_map_cam=np.concatenate(T),
-                       embedding=np.tile(images.embedding, (len(shifts), 1)), camera_names=images.camera_names)
+    table = ImageTable(
+        stamp=np.concatenate([images.stamp + k * 1e6 for k in range(len(shifts))]),
+        camera=np.tile(images.camera, len(shifts)),
+        T_map_cam=np.concatenate(T),
+        embedding=np.tile(images.embedding, (len(shifts), 1)),
+        camera_names=images.camera_names,
+    )
     index = None
     if vis is not None:
         index = VisibilityIndex.from_pairs(np.concatenate(keys), np.concatenate(owners), vis.cell_size, table.position)
-    twin = MetricSemanticMap(points=np.vstack(points), terrain_classes=msm.terrain_classes,
-                             terrain_votes=np.vstack([msm.terrain_votes[r] for r in rows]), terrain_embeddings=msm.terrain_embeddings,
-                             counts=sp.vstack([msm.counts[r] for r in rows]).tocsr(), bank=msm.bank, images=table,
-                             embedder=msm.embedder, voxel_size=msm.voxel_size, visibility=index)
+    twin = MetricSemanticMap(
+        points=np.vstack(points),
+        terrain_classes=msm.terrain_classes,
+        terrain_votes=np.vstack([msm.terrain_votes[r] for r in rows]),
+        terrain_embeddings=msm.terrain_embeddings,
+        counts=sp.vstack([msm.counts[r] for r in rows]).tocsr(),
+        bank=msm.bank,
+        images=table,
+        embedder=msm.embedder,
+        voxel_size=msm.voxel_size,
+        visibility=index,
+    )
     if target.exists():
         shutil.rmtree(target)
     base = Bundle(source)
     with BundleWriter(target) as writer:
-        write_map(writer, twin, dataset=f"2 x 2 copies of {source.name}, cropped to {side:g} m", classes=base.json("map/meta.json")["classes"])
+        write_map(
+            writer,
+            twin,
+            dataset=f"2 x 2 copies of {source.name}, cropped to {side:g} m",
+            classes=base.json("map/meta.json")["classes"],
+        )
         writer.manifest["perception"] = base.manifest.get("perception", {})
     return {"points": len(twin), "images": len(table), "km2": round(side * side / 1e6, 2)}
 
@@ -235,20 +318,23 @@ def query_twin(bundle: str, work: Path) -> dict:
     import json
 
     task = "get bike from the bicycle rack"
-    commands = {"find": ["find", bundle, task, "--method", "3dsg", "--json"],
-                "monitor": ["monitor", bundle, "Large parking lot surrounded by buildings", "--json"],
-                "plan": ["plan", bundle, "--to", task, "--from-xy", "3100", "3100", "--prefer", "sidewalk", "--json"]}
+    commands = {
+        "find": ["find", bundle, task, "--method", "3dsg", "--json"],
+        "monitor": ["monitor", bundle, "Large parking lot surrounded by buildings", "--json"],
+        "plan": ["plan", bundle, "--to", task, "--from-xy", "3100", "3100", "--prefer", "sidewalk", "--json"],
+    }
     out = {}
     for name, args in commands.items():
         log = work / f"twin-{name}.log"
         out[name] = timed(args, log)
         ensure(out[name], f"terra {name}")
         text = log.read_text()
-        body = json.loads(text[text.index("{"): text.rindex("}") + 1])
+        body = json.loads(text[text.index("{") : text.rindex("}") + 1])
         if name == "find":
             out[name]["answer"] = f"{len(body['objects'])} objects"
         elif name == "monitor":
-            out[name]["answer"] = f"{sum(len(r['regions']) for r in body['results'])} regions, {sum(len(r['places']) for r in body['results'])} places"
+            regions = sum(len(r["regions"]) for r in body["results"])
+            out[name]["answer"] = f"{regions} regions, {sum(len(r['places']) for r in body['results'])} places"
         else:
             out[name]["answer"] = f"path of {len(body['places'])} places, {body['length_m']:.0f} m"
     return out
@@ -270,37 +356,66 @@ def run_growth(cache: Path, fresh: bool, one_piece_10km2: bool = True) -> None:
     maps["10 km2 twin"]["make_s"] = round(time.perf_counter() - start, 1)
     rows = []
     for label, m in maps.items():
-        m["builds"] = build_both(m["bundle"], work, label.replace(" ", "-"), one_piece=one_piece_10km2 or label != "10 km2 twin")
+        m["builds"] = build_both(
+            m["bundle"], work, label.replace(" ", "-"), one_piece=one_piece_10km2 or label != "10 km2 twin"
+        )
         m["bundle"] = str(m["bundle"])
         for name in ("tiles", "one piece"):
             if name in m["builds"]:
                 b = m["builds"][name]
                 g = b["stats"]
-                rows.append((f"terra build {label} ({m['km2']} km2), {name}",
-                             f"{b['wall_s']} s ({b['cpu_s']} s CPU), {b['peak_rss_mb']:.0f} MB peak; grid {g['grid_cells'][0]} x {g['grid_cells'][1]}, "
-                             f"{sum(g['places_per_terrain'].values())} places", "<= 2048 MB (large, tiles)" if label == "large" and name == "tiles" else "-"))
+                rows.append(
+                    (
+                        f"terra build {label} ({m['km2']} km2), {name}",
+                        f"{b['wall_s']} s ({b['cpu_s']} s CPU), {b['peak_rss_mb']:.0f} MB peak; "
+                        f"grid {g['grid_cells'][0]} x {g['grid_cells'][1]}, "
+                        f"{sum(g['places_per_terrain'].values())} places",
+                        "<= 2048 MB (large, tiles)" if label == "large" and name == "tiles" else "-",
+                    )
+                )
         if "same" in m["builds"]:
             same = m["builds"]["same"]
-            rows.append((f"{label}: tiles == one piece (places, edges, regions)", f"{same['places']}, {same['edges']}, {same['regions']}", "all True"))
+            rows.append(
+                (
+                    f"{label}: tiles == one piece (places, edges, regions)",
+                    f"{same['places']}, {same['edges']}, {same['regions']}",
+                    "all True",
+                )
+            )
     queries = query_twin(maps["10 km2 twin"]["builds"]["tiles"]["bundle"], work)
     for name, q in queries.items():
-        rows.append((f"terra {name} on the 10 km2 twin", f"{q['wall_s']} s, {q['peak_rss_mb']:.0f} MB peak; {q['answer']}", "-"))
+        rows.append(
+            (f"terra {name} on the 10 km2 twin", f"{q['wall_s']} s, {q['peak_rss_mb']:.0f} MB peak; {q['answer']}", "-")
+        )
     growth = {}
     for name in ("tiles", "one piece"):
         a, b = maps["large"]["builds"].get(name), maps["10 km2 twin"]["builds"].get(name)
         if a and b:
             dkm2 = maps["10 km2 twin"]["km2"] - maps["large"]["km2"]
-            growth[name] = {"mb_per_km2": round((b["peak_rss_mb"] - a["peak_rss_mb"]) / dkm2, 1),
-                            "s_per_km2": round((b["wall_s"] - a["wall_s"]) / dkm2, 1),
-                            "cpu_s_per_km2": round((b["cpu_s"] - a["cpu_s"]) / dkm2, 1)}
-            rows.append((f"growth large -> 10 km2, {name}",
-                         f"{growth[name]['mb_per_km2']} MB/km2, {growth[name]['s_per_km2']} s/km2 ({growth[name]['cpu_s_per_km2']} s CPU/km2)", "-"))
+            growth[name] = {
+                "mb_per_km2": round((b["peak_rss_mb"] - a["peak_rss_mb"]) / dkm2, 1),
+                "s_per_km2": round((b["wall_s"] - a["wall_s"]) / dkm2, 1),
+                "cpu_s_per_km2": round((b["cpu_s"] - a["cpu_s"]) / dkm2, 1),
+            }
+            rows.append(
+                (
+                    f"growth large -> 10 km2, {name}",
+                    f"{growth[name]['mb_per_km2']} MB/km2, {growth[name]['s_per_km2']} s/km2 "
+                    f"({growth[name]['cpu_s_per_km2']} s CPU/km2)",
+                    "-",
+                )
+            )
     report(rows, {**machine(), "maps": maps, "queries": queries, "growth": growth}, RESULTS / "scale_growth.json")
 
 
 def machine() -> dict:
-    return {"machine": platform.node(), "python": platform.python_version(), "cpus": os.cpu_count(),
-            "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d")}
+    return {
+        "machine": platform.node(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "date": time.strftime("%Y-%m-%d"),
+    }
 
 
 def main() -> None:
@@ -308,7 +423,9 @@ def main() -> None:
     parser.add_argument("preset", choices=["large", "huge", "growth"])
     parser.add_argument("--cache", type=Path, default=Path("/work/bench-cache/issue-18b"))
     parser.add_argument("--fresh", action="store_true", help="simulate and map again even when cached")
-    parser.add_argument("--skip-one-piece-10km2", action="store_true", help="growth: build the 10 km^2 map in tiles only")
+    parser.add_argument(
+        "--skip-one-piece-10km2", action="store_true", help="growth: build the 10 km^2 map in tiles only"
+    )
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     if args.preset == "growth":
