@@ -12,6 +12,8 @@ It reports peak RSS and wall time per km^2 and the growth from the large map to 
 
 `huge`: the huge preset (3.2 km x 3.2 km, 10.24 km^2) end to end: `terra sim`, `terra map`,
 `terra build` and a `terra find` query, each under /usr/bin/time -v (wall, peak RSS, output size).
+Not runnable yet: the huge world holds 76,955 objects, more than the 16-bit instance ids of the
+label images, so `terra sim --preset huge` stops with that error.
 
 Datasets and bundles are cached under --cache and reused (sim and map are skipped when present;
 --fresh redoes them). Every command runs as `python -m terra` from this checkout.
