@@ -10,9 +10,16 @@ against the ground-truth raster. It also builds the tiny and campus presets' gra
 connectivity and region counts per level, and the paper's fixed cuts on the small campus.
 
 Datasets and maps come from --cache (made with `terra sim` and `terra map --noise realistic` when
-missing: about 2 minutes per small seed, 6 for the campus); graphs are rebuilt with this checkout.
+missing: about 2 minutes per small seed, 6 for the campus); graphs are rebuilt with this checkout,
+under --work (default: the cache), once per build configuration compared: "before" is the terrain
+grid without the hysteresis extension (`build.grid.weak_support: null`, the grid of main before
+it), "unbounded" the hysteresis with no reach bound (`build.grid.weak_reach: null`), "after" the
+default (reach bounded). Beside the targets it records, per configuration, how many places sit on
+their own ground-truth terrain (terra.eval.metrics.places.place_terrain_agreement), the sidewalk
+preference with a stronger planner penalty, and the best single region per query (a ceiling of
+the hierarchy: terra.eval.regions.best_region_scores).
 
-Usage: python benchmarks/bench_regions_nav.py [--cache DIR] [--seeds 0,2,3] [--no-campus]
+Usage: python benchmarks/bench_regions_nav.py [--cache DIR] [--work DIR] [--seeds 0,2,3] [--no-campus]
 Writes benchmarks/results/regions_nav.json and prints a table.
 """
 
@@ -27,14 +34,15 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 from benchmarks.benchtable import report  # noqa: E402
 
 TARGETS = {"agglomerative_f1": 0.70, "spectral_f1": 0.60, "matched_iou": 0.5, "retrieval_f1": 0.75, "sidewalk_share": 0.8,
            "connectivity": 0.99, "box_side": 0.05}
+# before: main's terrain grid; unbounded: the hysteresis without its reach bound; after: the default.
+CONFIGS = {"before": {"grid": {"weak_support": None}}, "unbounded": {"grid": {"weak_reach": None}}, "after": {}}
+STRONG_PENALTY = 3.0  # planner penalty of the second sidewalk-preference measurement (the default is 1)
 
 
 def ensure_map(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
@@ -49,17 +57,20 @@ def ensure_map(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
     return dataset, bundle
 
 
-def graph_bundle(cache: Path, preset: str, seed: int, work: Path) -> tuple[Path, Path, float]:
-    """A copy of the cached map with a scene graph built by this checkout (default config)."""
+def graph_bundle(cache: Path, preset: str, seed: int, work: Path, config: dict) -> tuple[Path, Path, float]:
+    """A copy of the cached map with a scene graph built by this checkout (`config`: build
+    configuration overrides)."""
+    from terra.graph.config import BuildConfig
     from terra.graph.pipeline import build_graph
 
     dataset, bundle = ensure_map(cache, preset, seed)
     out = work / f"{preset}-seed{seed}.terra"
     if out.exists():
         shutil.rmtree(out)
+    work.mkdir(parents=True, exist_ok=True)
     shutil.copytree(bundle, out)
     start = time.perf_counter()
-    build_graph(out, progress=False)
+    build_graph(out, BuildConfig.model_validate(config), progress=False)
     return dataset, out, time.perf_counter() - start
 
 
@@ -80,14 +91,36 @@ def levels_of(bundle: Path, method: str, cuts: list[float] | None = None) -> lis
 def connectivity(bundle: Path, dataset: Path) -> dict:
     from terra.bundle import Bundle
     from terra.datasets.ground_truth import load_ground_truth
-    from terra.eval.metrics.places import observed_cells, same_terrain_connectivity
+    from terra.eval.metrics.places import observed_cells, place_terrain_agreement, same_terrain_connectivity
     from terra.graph.storage import load_scene_graph
     from terra.mapping.storage import load_map
 
     graph, msm, gt = load_scene_graph(Bundle(bundle)), load_map(Bundle(bundle)), load_ground_truth(dataset)
     seen = observed_cells(gt.terrain, msm.points[msm.terrain_index(0.5) >= 0])
     return {"places": len(graph.places), "whole_raster": same_terrain_connectivity(graph, gt.terrain).to_json(),
-            "labelled_ground": same_terrain_connectivity(graph, gt.terrain, seen).to_json()}
+            "labelled_ground": same_terrain_connectivity(graph, gt.terrain, seen).to_json(),
+            "terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json()}
+
+
+def scene_extras(bundle: Path, dataset: Path, config) -> dict:
+    """What the evaluation report does not hold: place terrain agreement, the sidewalk preference
+    with STRONG_PENALTY on the report's pairs, and the best-single-region ceiling per method."""
+    from terra.eval.metrics.places import observed_cells, place_terrain_agreement
+    from terra.eval.metrics.regions import micro_scores
+    from terra.eval.navigation import preference_routes, terrain_route_pairs
+    from terra.eval.regions import best_region_scores, rebuild_regions, region_truth
+    from terra.eval.inputs import EvalInputs
+
+    inputs = EvalInputs.load(bundle, dataset)
+    graph, gt, nav = inputs.graph, inputs.gt, config.navigation
+    seen = observed_cells(gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+    pairs = terrain_route_pairs(graph, gt.terrain, nav.prefer[0], seen, nav.route_pairs)
+    strong = preference_routes(graph, gt.terrain, pairs, nav.prefer[0], nav.step, STRONG_PENALTY).to_json(nav.min_share)
+    truth = region_truth(graph, gt.regions)
+    ceiling = {m: micro_scores(best_region_scores(rebuild_regions(inputs.bundle, graph, m)[0], truth)).to_json()
+               for m in ("agglomerative", "spectral")}
+    return {"terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json(),
+            "preference_routes_strong_penalty": {"penalty": STRONG_PENALTY, **strong}, "best_region_ceiling": ceiling}
 
 
 def test_scene(summary: dict) -> dict:
@@ -105,75 +138,109 @@ def test_scene(summary: dict) -> dict:
     }
 
 
+def run_config(name: str, overrides: dict, args, eval_config) -> dict:
+    """Every figure of one build configuration: tuned on the validation seed, then the test seeds,
+    the paper's cuts, and the other presets."""
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import evaluate, tune
+
+    work = args.work / name
+    out: dict = {"build_config": overrides}
+    val_data, val_bundle, _ = graph_bundle(args.cache, "small", args.validation_seed, work, overrides)
+    start = time.perf_counter()
+    tuned = tune(EvalInputs.load(val_bundle, val_data), eval_config)
+    out["tune_seconds"] = time.perf_counter() - start
+    out["tuned"] = tuned.to_json()
+    out["small"] = {}
+    for seed in [int(s) for s in args.seeds.split(",")]:
+        dataset, bundle, build_s = graph_bundle(args.cache, "small", seed, work, overrides)
+        summary = evaluate(bundle, dataset, work / f"report-seed{seed}", eval_config, tuned, show_progress=False)
+        out["small"][seed] = {**test_scene(summary), **scene_extras(bundle, dataset, eval_config), "build_seconds": build_s}
+    out["small_paper_cuts"] = {"seed": seed, "regions_per_level": levels_of(bundle, "agglomerative", [50.0, 100.0, 200.0, 400.0])}
+    out["presets"] = {}
+    for preset in ["tiny"] + ([] if args.no_campus else ["campus"]):
+        dataset, bundle, build_s = graph_bundle(args.cache, preset, 0, work, overrides)
+        out["presets"][preset] = {**connectivity(bundle, dataset), "build_seconds": build_s,
+                                  "regions_per_level": {m: levels_of(bundle, m) for m in ("agglomerative", "spectral")}}
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14")))
+    parser.add_argument("--work", type=Path, default=None, help="where graphs and reports go (default: CACHE/bench)")
     parser.add_argument("--seeds", default="0,2,3")
     parser.add_argument("--validation-seed", type=int, default=1)
     parser.add_argument("--no-campus", action="store_true")
     args = parser.parse_args()
+    args.work = args.work or args.cache / "bench"
     from terra.eval.config import EvalConfig
-    from terra.eval.runner import EvalInputs, evaluate, tune
 
     result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "targets": TARGETS}
-    work = args.cache / "bench"
-    work.mkdir(parents=True, exist_ok=True)
+              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "targets": TARGETS,
+              "strong_penalty": STRONG_PENALTY}
     config = EvalConfig.model_validate({"figures": False, "segmentation": {"max_images": 0}})
-    val_data, val_bundle, _ = graph_bundle(args.cache, "small", args.validation_seed, work)
-    start = time.perf_counter()
-    tuned = tune(EvalInputs.load(val_bundle, val_data), config)
-    result["tune_seconds"] = time.perf_counter() - start
-    result["tuned"] = tuned.to_json()
-    result["small"] = {}
-    for seed in [int(s) for s in args.seeds.split(",")]:
-        dataset, bundle, build_s = graph_bundle(args.cache, "small", seed, work)
-        summary = evaluate(bundle, dataset, work / f"report-seed{seed}", config, tuned, show_progress=False)
-        result["small"][seed] = {**test_scene(summary), "build_seconds": build_s}
-    result["small_paper_cuts"] = {"seed": seed, "regions_per_level": levels_of(bundle, "agglomerative", [50.0, 100.0, 200.0, 400.0])}
-    presets = ["tiny"] + ([] if args.no_campus else ["campus"])
-    result["presets"] = {}
-    for preset in presets:
-        dataset, bundle, build_s = graph_bundle(args.cache, preset, 0, work)
-        result["presets"][preset] = {**connectivity(bundle, dataset), "build_seconds": build_s,
-                                     "regions_per_level": {m: levels_of(bundle, m) for m in ("agglomerative", "spectral")}}
+    result["configs"] = {name: run_config(name, overrides, args, config) for name, overrides in CONFIGS.items()}
     report(rows(result), result, ROOT / "results" / "regions_nav.json")
+
+
+def side(result: dict, get, fmt: str = "{:.3f}") -> str:
+    """'before -> after' of one figure."""
+    values = []
+    for c in result["configs"].values():
+        try:
+            values.append(fmt.format(get(c)))
+        except (KeyError, TypeError):
+            values.append("-")
+    return " -> ".join(values)
 
 
 def rows(result: dict) -> list[tuple[str, str, str]]:
     out = []
-    seeds = result["small"]
-    for seed, s in seeds.items():
-        reg, ret = s["regions"], s["retrieval"]
-        out.append((f"seed {seed}: regions F1 agglomerative / spectral / AIB",
-                    f"{reg['agglomerative']['f1']:.3f} / {reg['spectral']['f1']:.3f} / {reg['aib']['f1']:.3f}", ">= 0.70 / >= 0.60 / below both"))
+    first = next(iter(result["configs"].values()))
+    for seed in first["small"]:
+        def sc(c, seed=seed):
+            return c["small"][seed]
+        for m, target in (("agglomerative", ">= 0.70"), ("spectral", ">= 0.60"), ("aib", "below both")):
+            out.append((f"seed {seed}: regions F1 {m}", side(result, lambda c, m=m: sc(c)["regions"][m]["f1"]), target))
+        for m in ("agglomerative", "spectral"):
+            out.append((f"seed {seed}: best single region per query F1 (ceiling) {m}",
+                        side(result, lambda c, m=m: sc(c)["best_region_ceiling"][m]["f1"]), "-"))
         out.append((f"seed {seed}: regions runtime ms (build + query) agg / spec / AIB",
-                    " / ".join(f"{reg[m]['runtime_ms']:.0f}" for m in ("agglomerative", "spectral", "aib")), "-"))
-        out.append((f"seed {seed}: regions per level agg / spec", " ; ".join("/".join(map(str, c)) for c in s["regions_per_level"].values()),
-                    "strictly decreasing"))
+                    side(result, lambda c: " / ".join(f"{sc(c)['regions'][m]['runtime_ms']:.0f}" for m in ("agglomerative", "spectral", "aib")), "{}"), "-"))
+        out.append((f"seed {seed}: regions per level agg ; spec",
+                    side(result, lambda c: " ; ".join("/".join(map(str, v)) for v in sc(c)["regions_per_level"].values()), "{}"), "strictly decreasing"))
         for m in ("ms-avg", "3dsg"):
-            r = ret[m]
-            out.append((f"seed {seed}: retrieval {m} F1 / matched IoU / thinnest side m", f"{r['f1']:.3f} / {r['matched_iou']:.3f} / {r['smallest_box_side_m']:.2f}",
+            out.append((f"seed {seed}: retrieval {m} F1 / matched IoU / thinnest side m",
+                        side(result, lambda c, m=m: "{:.3f} / {:.3f} / {:.2f}".format(*(sc(c)["retrieval"][m][k] for k in ("f1", "matched_iou", "smallest_box_side_m"))), "{}"),
                         ">= 0.75 / >= 0.5 / >= 0.05"))
-        routes = s["navigation"]["preference_routes"]
-        out.append((f"seed {seed}: sidewalk preferred: mean share / pairs >= 80%", f"{routes.get('preferred_mean_share', 0):.3f} / "
-                    f"{routes.get('fraction_meeting', 0):.3f} of {routes.get('pairs', 0)}", ">= 0.8 where a sidewalk route exists"))
-        case = s["navigation"]["case"]
-        if case:
-            plans = case["plans"]
-            out.append((f"seed {seed}: case {case['start_place']}->{case['goal_place']} sidewalk m shortest / preferred",
-                        " / ".join(f"{p['gt_terrain_m'].get('sidewalk', 0):.1f} of {p['length_m']:.1f}" for p in plans.values()), "a change"))
-        c = s["places"]
-        out.append((f"seed {seed}: places same-terrain pairs joined (labelled ground / raster)",
-                    f"{c['connectivity_seen']['joined_share']:.3f} / {c['connectivity']['joined_share']:.3f}", ">= 0.99"))
-    paper = result["small_paper_cuts"]
-    out.append((f"seed {paper['seed']}: regions per level with --cuts 50,100,200,400", "/".join(map(str, paper["regions_per_level"])), "the paper's"))
-    for preset, p in result["presets"].items():
-        out.append((f"{preset}: places same-terrain pairs joined (labelled ground / raster)",
-                    f"{p['labelled_ground']['joined_share']:.3f} / {p['whole_raster']['joined_share']:.3f}", ">= 0.99"))
-        out.append((f"{preset}: regions per level agg / spec", " ; ".join("/".join(map(str, c)) for c in p["regions_per_level"].values()),
-                    "strictly decreasing"))
-        out.append((f"{preset}: terra build (s)", f"{p['build_seconds']:.1f}", "-"))
+        out.append((f"seed {seed}: sidewalk preferred: mean share / pairs >= 80%",
+                    side(result, lambda c: "{:.3f} / {:.3f}".format(sc(c)["navigation"]["preference_routes"]["preferred_mean_share"],
+                                                                     sc(c)["navigation"]["preference_routes"]["fraction_meeting"]), "{}"), ">= 0.8 where a sidewalk route exists"))
+        out.append((f"seed {seed}: ... with planner penalty {result['strong_penalty']:g}",
+                    side(result, lambda c: "{:.3f} / {:.3f}".format(sc(c)["preference_routes_strong_penalty"]["preferred_mean_share"],
+                                                                     sc(c)["preference_routes_strong_penalty"]["fraction_meeting"]), "{}"), "-"))
+        out.append((f"seed {seed}: navigation case sidewalk m shortest / preferred",
+                    side(result, lambda c: " / ".join(f"{p['gt_terrain_m'].get('sidewalk', 0):.1f} of {p['length_m']:.1f}"
+                                                      for p in sc(c)["navigation"]["case"]["plans"].values()), "{}"), "a change"))
+        out.append((f"seed {seed}: places / same-terrain pairs joined (labelled ground ; raster)",
+                    side(result, lambda c: "{} / {:.3f} ; {:.3f}".format(sc(c)["places"]["places"], sc(c)["places"]["connectivity_seen"]["joined_share"],
+                                                                         sc(c)["places"]["connectivity"]["joined_share"]), "{}"), ">= 0.99"))
+        out.append((f"seed {seed}: places on their own terrain / > 1 m from it",
+                    side(result, lambda c: "{:.3f} / {}".format(sc(c)["terrain_agreement"]["share"], sc(c)["terrain_agreement"]["farther_than_m"]["1"]), "{}"), "-"))
+    out.append(("small: regions per level with --cuts 50,100,200,400",
+                side(result, lambda c: "/".join(map(str, c["small_paper_cuts"]["regions_per_level"])), "{}"), "the paper's"))
+    for preset in first["presets"]:
+        def pc(c, preset=preset):
+            return c["presets"][preset]
+        out.append((f"{preset}: places / same-terrain pairs joined (labelled ground ; raster)",
+                    side(result, lambda c: "{} / {:.3f} ; {:.3f}".format(pc(c)["places"], pc(c)["labelled_ground"]["joined_share"],
+                                                                         pc(c)["whole_raster"]["joined_share"]), "{}"), ">= 0.99"))
+        out.append((f"{preset}: places on their own terrain / > 1 m from it",
+                    side(result, lambda c: "{:.3f} / {}".format(pc(c)["terrain_agreement"]["share"], pc(c)["terrain_agreement"]["farther_than_m"]["1"]), "{}"), "-"))
+        out.append((f"{preset}: regions per level agg ; spec",
+                    side(result, lambda c: " ; ".join("/".join(map(str, v)) for v in pc(c)["regions_per_level"].values()), "{}"), "strictly decreasing"))
+        out.append((f"{preset}: terra build (s)", side(result, lambda c: pc(c)["build_seconds"], "{:.1f}"), "-"))
     return out
 
 

@@ -36,6 +36,29 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def process_umask() -> int:
+    """The process's umask (the permission bits new files and folders must not get)."""
+    try:
+        with open("/proc/self/status") as f:  # read without changing it (Linux)
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def sibling_tmp_dir(path: Path) -> Path:
+    """A new empty folder beside `path` to assemble its next version in, with the permissions a
+    plain mkdir gives (tempfile.mkdtemp makes it 0700, which would leave the published output
+    unreadable to colleagues on a shared machine)."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    os.chmod(tmp, 0o777 & ~process_umask())
+    return tmp
+
+
 def dumps_json(obj: Any) -> str:
     """Canonical JSON text (sorted keys, fixed indentation) so equal content gives equal bytes."""
     return json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n"
@@ -47,6 +70,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~process_umask())  # mkstemp's 0600 would outlive the rename
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -155,7 +179,7 @@ class BundleWriter:
     def __init__(self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = ()):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent))
+        self._tmp = sibling_tmp_dir(self.path)
         self.manifest: dict[str, Any] = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}}
         if base is not None:
             self.manifest = json.loads(json.dumps(base.manifest))

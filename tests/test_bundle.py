@@ -1,4 +1,6 @@
 import json
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -79,3 +81,22 @@ def test_object_arrays_are_refused(tmp_path):
     with pytest.raises(TypeError):
         w.put_array("map/bad", np.array([{"a": 1}], dtype=object))
     w.abort()
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
+def test_outputs_get_the_users_normal_permissions(tmp_path, umask):
+    """What a plain mkdir / open gives under the umask, not tempfile's private 0700 / 0600, so a
+    colleague on a shared lab machine can read the bundle when the user's umask allows it."""
+    from terra.bundle import atomic_write_bytes, process_umask
+
+    old = os.umask(umask)
+    try:
+        assert process_umask() == umask
+        b = _write(tmp_path / "b", np.zeros((2, 3), np.float32))
+        atomic_write_bytes(tmp_path / "tuned.json", b"{}")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(b.path.stat().st_mode) == 0o777 & ~umask
+    assert stat.S_IMODE((b.path / "map").stat().st_mode) == 0o777 & ~umask
+    for path in [b.path / "manifest.json", b.path / "map" / "points.npy", tmp_path / "tuned.json"]:
+        assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask, path

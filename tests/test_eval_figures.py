@@ -72,16 +72,18 @@ def draw_every_figure(out):
     background = terrain_points_image(pts, (pts[:, 0] // 8).astype(int), TERRAIN)
     gt_boxes = BoxSet.from_objects(gt.objects)
     pred = BoxSet([[5.5, 5, 0.7]], [[3, 2, 1.4]], [0.1])
+    classes = (pts[:, 0] // 8).astype(int)
     return [
-        figures.terrain_map_figure(out / "terrain.png", TERRAIN, background, gt),
+        figures.terrain_map_figure(out / "terrain.png", TERRAIN, pts, classes, gt),
         figures.places_figure(out / "places.png", sg, background),
         figures.region_levels_figure(out / "regions.png", sg, background),
         figures.boxes_figure(out / "boxes.png", gt_boxes, {"ms-avg": (pred, np.array([0]))}, ["Find the car"], np.array([0]), background),
         figures.paths_figure(out / "paths.png", sg, 0, 29, [("shortest", np.array([0, 7, 14, 21, 28, 29]), 24.0),
                                                             ("prefer sidewalk", np.array([0, 6, 12, 18, 24, 25, 26, 27, 28, 29]), 36.0)],
                              "Get bike from the bicycle rack", background),
-        figures.monitoring_figure(out / "monitor.png", sg, gt.regions, [np.array([0, 1, 6, 7])], "mix", background),
-        figures.memory_figure(out / "memory.png", [("tiny", {"map": 300_000, "graph": 40_000, "manifest": 3000}, 2000.0)]),
+        figures.monitoring_figure(out / "monitor.png", sg, gt.regions, [np.array([0, 1, 6, 7])], "mix", background,
+                                  scores=[(0.5, 0.25)]),
+        figures.memory_figure(out / "memory.png", {"map: points": 300_000, "graph: nodes and edges": 40_000, "other": 3000}, 2000.0),
     ]
 
 

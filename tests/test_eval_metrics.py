@@ -187,6 +187,29 @@ def test_same_terrain_connectivity_counts_pairs_per_ground_truth_component():
     assert (side.pairs, side.joined) == (2, 1)
 
 
+def test_place_terrain_agreement_counts_wrong_places_by_distance_to_their_terrain():
+    """A 1 m raster: sidewalk in columns 0-1, grass in 2-9, an unlabelled cell at (9, 4). Two
+    sidewalk places on sidewalk; a sidewalk place on the first grass column (1 m from the sidewalk,
+    cell centre to cell centre: a boundary drawn one cell off); one deep in the grass (column 8,
+    7 m away); a grass place on grass; one place on the unlabelled cell and one outside the raster
+    (neither counted)."""
+    from terra.eval.metrics.places import place_terrain_agreement
+    from tests.test_tasks_synthetic import make_graph
+
+    classes = np.full((5, 10), 2, dtype=np.int32)
+    classes[:, :2] = 1
+    classes[4, 9] = 0
+    raster = TerrainRaster(classes, np.zeros((5, 10), np.float32), np.zeros(2), 1.0, {0: "unlabeled", 1: "sidewalk", 2: "grass"})
+    position = [[0.5, 0.5], [1.5, 3.5], [2.5, 2.5], [8.5, 1.5], [5.5, 2.5], [9.5, 4.5], [20.0, 1.0]]
+    terrain = [0, 0, 0, 0, 1, 1, 0]
+    graph = make_graph(position, terrain, [], terrain_classes=["sidewalk", "grass"])
+    result = place_terrain_agreement(graph, raster, distances=(1.0, 4.0))
+    # Distances between cell centres: (2, 2) is 1 m from sidewalk column 1, (1, 8) is 7 m.
+    assert (result.places, result.agreeing) == (5, 3)
+    assert result.farther == {1.0: 1, 4.0: 1}
+    assert result.share == pytest.approx(3 / 5)
+
+
 def test_distance_to_path_and_iou_by_distance_band():
     from terra.eval.metrics.retrieval import accuracy_matches, distance_to_path, iou_by_distance
 

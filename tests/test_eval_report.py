@@ -51,7 +51,7 @@ def test_report_has_the_papers_tables_with_best_values_in_bold():
     assert "## Table I: terrain segmentation (10 labelled images)" in text
     assert "| labels | 0.900 | 0.900 | 0.950 | 120.0 |" in text
     assert "| sidewalk | grass |" in text and "| labels | 0.900 | - |" in text  # absent class shown as '-'
-    assert "## Table II: open-set object retrieval (\"Find the {object}\": 2 objects in 1 queries)" in text
+    assert "## Table II: open-set object retrieval (\"Find the {object}\": 2 objects in 1 query)" in text
     # IoU is best for ms-max, F1 best for ms-avg; equal SAcc values are bold for both.
     assert "| ms-avg | 0.123 | **0.500** | **0.500** | **0.250** | **0.500** | **0.400** | 0.246 | 0.400 |" in text
     assert "| 0-5 m | 2 | 1 / 0.25 | 1 / 0.40 |" in text and "| >= 5 m | 0 | 0 / - | 0 / - |" in text
@@ -94,3 +94,71 @@ def test_alpha_grid_and_best_point_keep_the_first_best():
     assert alpha_grid(TuneEval(alpha_min=0.2, alpha_max=0.4, alpha_steps=3)) == [0.2, 0.3, 0.4]
     pts = [{"alpha": 0.2, "f1": 0.1}, {"alpha": 0.3, "f1": 0.5}, {"alpha": 0.4, "f1": 0.5}]
     assert best_point(pts)["alpha"] == 0.3
+
+
+def test_report_and_headline_say_the_labels_backend_grades_ground_truth_masks():
+    from terra.eval.report import headline
+
+    s = summary()
+    s["perception"] = {"backend": "labels", "ground_truth_masks": True, "models": [],
+                       "noise": {"dilate_px": 3, "miss_rate": 0.1, "confusion_rate": 0.05}}
+    s["segmentation"]["methods"]["labels"]["fps"] = None
+    text = render_report(s)
+    assert ("Terrain and object masks are the dataset's own ground-truth label images, with simulated noise (masks grown "
+            "by 3 px, 10% of objects missed, 5% of labels swapped for a look-alike)") in text
+    assert "not comparable with the paper's CLIP/YOLO numbers" in text
+    assert "FPS: - for a segmenter that is a lookup of label images" in text and "| labels | 0.900 | 0.900 | 0.950 | - |" in text
+    lines = headline(s)
+    assert lines[0].startswith("  perception: labels backend (the ground-truth label images with simulated noise)")
+    assert not any("FPS" in line for line in lines)
+    s["perception"] = {"backend": "models", "ground_truth_masks": False,
+                       "models": [{"role": "terrain", "name": "yolo11n-seg.onnx"}, {"role": "clip", "name": "clip-b16"}]}
+    text = render_report(s)
+    assert "Perception: the `models` backend (terrain `yolo11n-seg.onnx`, clip `clip-b16`)." in text
+    assert "not comparable" not in text
+
+
+def test_table_two_explains_found_and_hits():
+    text = render_report(summary())
+    assert "| Find the car | 2 | 3 / 1 | 3 / 1 |" in text
+    assert "*Found*: the boxes retrieved for the query (clusters of map points that match it better" in text and "*Hits*: its ground-truth objects" in text
+    assert "a query can have hits with nothing found" in text
+
+
+def test_regions_with_no_place_are_listed_as_not_evaluable():
+    from terra.eval.report import headline
+
+    s = summary()
+    s["regions"]["not_evaluable"] = [{"name": "service_area", "description": "service area behind the building",
+                                      "reason": "no place of the scene graph lies inside it"}]
+    text = render_report(s)
+    assert "## Table III: region monitoring (1 labelled region; 1 not evaluable, listed below)" in text
+    assert ('- service_area: "service area behind the building": no place of the scene graph lies inside it.' in text)
+    assert "  regions not evaluable (no place inside, left out of the averages): service_area" in headline(s)
+
+
+def test_evaluable_regions_leave_out_regions_without_places():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from terra.datasets.ground_truth import NamedRegion
+    from terra.eval.runner import NOT_EVALUABLE, evaluable_regions
+
+    square = lambda x0: np.array([[x0, 0.0], [x0 + 10, 0.0], [x0 + 10, 10.0], [x0, 10.0]])
+    regions = [NamedRegion("a", "first", square(0.0)), NamedRegion("empty", "nothing here", square(100.0)),
+               NamedRegion("b", "second", square(20.0))]
+    places = np.array([[5.0, 5.0, 0.0], [25.0, 5.0, 0.0], [26.0, 6.0, 0.0]])
+    inputs = SimpleNamespace(graph=SimpleNamespace(places=SimpleNamespace(position=places)), gt=SimpleNamespace(regions=regions))
+    kept, truth, skipped = evaluable_regions(inputs)
+    assert [r.name for r in kept] == ["a", "b"] and [t.tolist() for t in truth] == [[0], [1, 2]]
+    assert skipped == [{"name": "empty", "description": "nothing here", "reason": NOT_EVALUABLE}]
+
+
+def test_memory_table_gives_each_part_against_the_area():
+    s = summary()
+    s["memory"]["parts_bytes"] = {"graph: nodes and edges": 1000, "map: points": 3 * 2**20}
+    text = render_report(s)
+    assert "| Part | Bytes | MiB | Bytes per m² | Share |" in text
+    assert "| map: points | 3,145,728 | 3.000 | 629.1 | 100.0% |" in text
+    assert text.index("| map: points |") < text.index("| graph: nodes and edges |")  # largest first

@@ -97,7 +97,8 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
     from terra.eval.config import EvalConfig
     from terra.eval.regions import MonitorParams, region_truth
     from terra.eval.retrieval import retrieval_task, run_retrieval
-    from terra.eval.runner import EvalInputs, monitoring_run
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import monitoring_run
     from terra.eval.tuning import TunedParameters, alpha_grid
 
     tuned = TunedParameters.load(tiny_demo.validation / "tuned.json")
@@ -117,7 +118,8 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
 
 def test_aib_null_score_changes_what_aib_returns(tiny_demo):
     from terra.eval.regions import MonitorParams, region_truth
-    from terra.eval.runner import EvalInputs, monitoring_run
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import monitoring_run
 
     val = EvalInputs.load(tiny_demo.validation / "map.terra", tiny_demo.validation / "dataset")
     truth = region_truth(val.graph, val.gt.regions)
@@ -156,7 +158,7 @@ def test_eval_bad_input_one_line_exit_2_and_no_report(tiny_demo, tmp_path):
     empty.mkdir()
     cases = [
         (["--gt", str(empty)], "no ground truth folder"),
-        (["--gt", str(tiny_demo.validation / "dataset")], "is not the one"),
+        (["--gt", str(tiny_demo.validation / "dataset")], "not the dataset"),  # its frames differ
     ]
     no_graph = tmp_path / "map-only.terra"
     writer = BundleWriter(no_graph, base=Bundle(tiny_demo.bundle), drop_components=("graph",))
@@ -174,9 +176,12 @@ def test_eval_bad_input_one_line_exit_2_and_no_report(tiny_demo, tmp_path):
     _assert_one_line_error(code, stderr, "the scene under test")
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map-only.terra", "not-a-dataset", "tuned-on-test.json"]
-    # A folder that is not a report is never replaced.
+    # A folder that is not a report is never replaced, even with --overwrite.
     (empty / "notes.txt").write_text("mine")
     code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q"])
+    _assert_one_line_error(code, stderr, "exists (pass --overwrite to replace it)")
+    code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q",
+                               "--overwrite"])
     _assert_one_line_error(code, stderr, "is not an evaluation report folder")
     assert [p.name for p in empty.iterdir()] == ["notes.txt"]
 

@@ -46,7 +46,11 @@ def test_build_prints_a_json_summary_and_honours_regions(tiny_copy, capsys):
     assert summary["region_method"] == graph.region_method == "spectral"
     assert summary["regions_per_level"] == [len(level) for level in graph.regions]
     assert set(summary["seconds"]) >= {"terrain grid", "GVD places", "write"}
-    assert run(["build", str(tiny_copy), "--quiet"]) == 0  # rebuilding replaces the graph
+    before = folder_state(tiny_copy)
+    assert run(["build", str(tiny_copy), "--quiet"]) == 2  # an existing graph is kept ...
+    assert "has a scene graph already (pass --overwrite to replace it)" in capsys.readouterr().err
+    assert folder_state(tiny_copy) == before
+    assert run(["build", str(tiny_copy), "--quiet", "--overwrite"]) == 0  # ... unless --overwrite
     assert load_scene_graph(Bundle(tiny_copy)).region_method == "agglomerative"
 
 

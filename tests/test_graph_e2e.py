@@ -61,7 +61,7 @@ def test_places_lie_on_their_own_terrain_in_the_ground_truth(small_graph, small_
 def test_place_heights_come_from_the_ground(small_graph, small_campus):
     gt = small_campus.ground_truth().terrain
     rows, cols, inside = gt.cell_of(small_graph.places.position[:, :2])
-    assert inside.mean() >= 0.9  # a few places sit on ground scanned beyond the world's raster
+    assert inside.mean() >= 0.85  # some sit on the fields scanned beyond the world's raster
     error = np.abs(small_graph.places.position[inside, 2] - gt.ground_height[rows[inside], cols[inside]])
     assert np.median(error) < 0.05 and error.max() < 0.2
     assert np.ptp(small_graph.places.position[:, 2]) > 0.3  # the simulated ground is not flat
@@ -191,7 +191,10 @@ def test_a_map_without_images_falls_back_to_points_and_says_so(tiny_bundle, tmp_
     graph = build_graph(path, progress=False)
     stats = Bundle(path).manifest["components"]["graph"]["stats"]
     assert stats["embedding_source"]["images"] == 0
-    assert stats["embedding_source"]["points"] == len(graph.places)
+    # Every place takes the points' mean, except those with no observed point within 20 m (on the
+    # fields around the campus), which take their terrain's name.
+    source = stats["embedding_source"]
+    assert source["points"] + source["terrain_text"] == len(graph.places) and source["points"] >= 0.8 * len(graph.places)
     assert stats["embedding_rule"].startswith("points: the map has no images")
     # The fallback is the normalised mean MS-Avg feature of the points within 20 m (2D, per 2 m
     # cell: compare with the direct mean over points for one place, allowing the cell rounding).

@@ -13,7 +13,7 @@ from terra.graph.grid import build_terrain_grid, grid_frame
 from terra.graph.gvd import EIGHT, brushfire, gvd
 from terra.graph.pipeline import build_scene_graph
 from terra.graph.storage import load_scene_graph
-from terra.graph.tiled_grid import build_terrain_grid_tiled
+from terra.graph.tiled_grid import TiledGridStats, build_terrain_grid_tiled
 from terra.graph.tiled_gvd import TiledGvdStats, obstacle_components, tiled_gvd
 from terra.graph.tiling import cores, window
 
@@ -194,6 +194,80 @@ def test_tiled_terrain_grid_equals_the_one_piece_grid():
     # The wall (40 m from any terrain point) is blocked in both: its ground had to come from afar.
     wall_row, wall_col, _ = whole.cell_of(np.array([[51.0, 57.0]]))
     assert whole.blocked[wall_row[0], wall_col[0]] and (whole.label >= 0).sum() > 1000
+
+
+def assert_same_grid(tiled, whole, points: np.ndarray) -> None:
+    assert tiled.shape == whole.shape and np.array_equal(tiled.origin, whole.origin)
+    assert np.array_equal(tiled.label, whole.label) and np.array_equal(tiled.blocked, whole.blocked)
+    rows, cols, inside = whole.cell_of(points)
+    read = ndimage.binary_dilation(whole.label >= 0, EIGHT, iterations=2)
+    read[rows[inside], cols[inside]] = True
+    assert np.array_equal(tiled.ground[read], whole.ground[read])
+
+
+def test_tiled_terrain_grid_equals_the_one_piece_grid_with_the_default_hysteresis():
+    points, terrain = hand_placed_points()
+    grid = BuildConfig().grid
+    args = {"cell_size": 0.4, "obstacle_height": (0.3, 2.0), "obstacle_min_points": 2, "support_radius": 1.2, "min_support": 0.6,
+            "fill_radius": 1.0, "weak_support": grid.weak_support, "weak_reach": grid.weak_reach}
+    whole = build_terrain_grid(points, terrain, **args)
+    stats = TiledGridStats()
+    tiled = build_terrain_grid_tiled(points, terrain, **args, tile=20, margin=8, stats=stats)
+    assert_same_grid(tiled, whole, points)
+    assert stats.windows >= 20 and stats.one_piece is None
+
+
+def sparsely_labelled_strip() -> tuple[np.ndarray, np.ndarray]:
+    """A 4 m wide strip along x (0-60 m, y 3-7 m) scanned every 0.2 m, all of it ground without a
+    terrain class except: labelled class 0 every 0.2 m for x < 20 and x >= 40, and between them
+    one labelled point in every 2nd column and 3rd row of 0.4 m cells (1/6 of the cells: between
+    weak_support 0.1 and min_support 0.6). A patch at y 40 m makes the grid taller than a tile."""
+    xs, ys = np.arange(0.0, 60.0, 0.2) + 0.05, np.arange(3.0, 7.0, 0.2) + 0.05
+    ground = np.array([(x, y, 0.0) for x in xs for y in ys])
+    dense = np.array([(x, y, 0.0) for x in xs if x < 20.0 or x >= 40.0 for y in ys])
+    sparse = np.array([(x, y, 0.0) for x in np.arange(20.1, 40.0, 0.8) for y in np.arange(3.1, 7.0, 1.2)])
+    far = np.array([(x, y, 0.0) for x in np.arange(0.05, 4.0, 0.2) for y in np.arange(40.05, 44.0, 0.2)])
+    points = np.vstack([ground, dense, sparse, far])
+    terrain = np.concatenate([-np.ones(len(ground)), np.zeros(len(dense) + len(sparse) + len(far))]).astype(int)
+    return points, terrain
+
+
+@pytest.mark.parametrize("weak_reach, middle_labelled", [(6.0, False), (16.0, True)])
+def test_tiled_grid_equals_one_piece_where_the_hysteresis_labels_cells_across_tile_borders(weak_reach, middle_labelled):
+    points, terrain = sparsely_labelled_strip()
+    args = {"cell_size": 0.4, "obstacle_height": (0.3, 2.0), "obstacle_min_points": 2, "support_radius": 0.8, "min_support": 0.6,
+            "fill_radius": 0.0}
+    plain = build_terrain_grid(points, terrain, **args)
+    whole = build_terrain_grid(points, terrain, **args, weak_support=0.1, weak_reach=weak_reach)
+    tile = 20
+    stats = TiledGridStats()
+    tiled = build_terrain_grid_tiled(points, terrain, **args, weak_support=0.1, weak_reach=weak_reach, tile=tile, margin=4,
+                                     stats=stats)
+    assert_same_grid(tiled, whole, points)
+    # The hysteresis did label the sparse stretch, from both ends, in cells on tile borders.
+    extra = (whole.label == 0) & (plain.label < 0)
+    rows, cols = np.nonzero(extra)
+    assert len(rows) > 150
+    assert np.isin(cols % tile, (0, tile - 1)).sum() > 20  # cells on both sides of several tile borders
+    # Hand-worked bound: weak_reach / 0.4 m cells along the chain from each dense end (20 m, 40 m).
+    strip_row, _, _ = whole.cell_of(np.array([[0.0, 5.0]]))
+    _, mid, _ = whole.cell_of(np.array([[30.0, 5.0]]))
+    _, near_left, _ = whole.cell_of(np.array([[20.0 + weak_reach - 1.0, 5.0]]))
+    assert whole.label[strip_row[0], near_left[0]] == 0
+    assert (whole.label[strip_row[0], mid[0]] == 0) == middle_labelled
+    # Cores were computed in windows open on their sides (a first-column core's window ends at
+    # tile + margin < W), not in the whole grid.
+    assert stats.windows >= 8 and tile + stats.max_margin < whole.shape[1]
+
+
+def test_an_unbounded_hysteresis_builds_the_grid_in_one_piece_and_says_why():
+    points, terrain = sparsely_labelled_strip()
+    args = {"cell_size": 0.4, "support_radius": 0.8, "fill_radius": 0.0, "weak_support": 0.1, "weak_reach": None}
+    stats = TiledGridStats()
+    tiled = build_terrain_grid_tiled(points, terrain, **args, tile=20, margin=4, stats=stats)
+    whole = build_terrain_grid(points, terrain, **args)
+    assert_same_grid(tiled, whole, points)
+    assert stats.windows == 0 and "weak_reach is null" in stats.one_piece
 
 
 # --------------------------------------------------------------------------- the scene graph

@@ -96,7 +96,7 @@ def test_structural_faults_exit_2_and_keep_the_old_bundle(damage, names, damaged
     else:
         source = tmp_path / "no-such-folder"
     capsys.readouterr()
-    assert run(["map", str(source), "--out", str(out), "-q"]) == 2
+    assert run(["map", str(source), "--out", str(out), "-q", "--overwrite"]) == 2  # replacing it fails: it stays
     line = one_error_line(capsys.readouterr())
     assert names in line
     assert folder_digest(out) == before
@@ -179,3 +179,20 @@ def test_noise_preset_is_recorded_and_changes_the_map(box_folder, box_bundle, tm
     changed = {k for k, v in folder_digest(out).items() if k.startswith("map/counts") and v != folder_digest(box_bundle).get(k)}
     assert changed
     assert Bundle(out).manifest["embedder"] == {"name": text_embedder.name, "dim": text_embedder.dim}
+
+
+def test_info_names_a_damaged_file_and_exits_2(box_bundle, tmp_path, capsys, text_embedder):
+    """Same size, one byte changed: only the checksum can tell, and `terra info` checks it."""
+    copy = tmp_path / "copy.terra"
+    shutil.copytree(box_bundle, copy)
+    capsys.readouterr()
+    assert run(["info", str(copy)]) == 0
+    assert f"checksums: {len(Bundle(copy).files)} files checked against the manifest, all intact" in capsys.readouterr().out
+    bank = copy / "map" / "bank.npy"
+    data = bytearray(bank.read_bytes())
+    data[-1] ^= 0xFF
+    bank.write_bytes(bytes(data))
+    assert run(["info", str(copy)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert str(bank) in one_error_line(captured) and "checksum" in one_error_line(captured)

@@ -175,3 +175,44 @@ def test_plan_between_nodes_without_queries(lot, capsys):
 def test_help_has_an_example(command, capsys):
     code, out, _ = call([command, "--help"], capsys)
     assert code == 0 and f"Example: terra {command}" in out
+
+
+def test_one_task_file_drives_find_monitor_and_plan(lot, capsys, tmp_path):
+    """Each command takes what it uses from one file and notes the rest as ignored, never refusing
+    the other commands' keys."""
+    bundle, _ = lot
+    tasks = tmp_path / "tasks.yaml"
+    tasks.write_text("prediction_method: ms_avg\nalpha: 0.4\nk: 1\n"
+                     "object_tasks: [{task: find the dumpster}]\n"
+                     "region_tasks: [{task: dumpster}]\n"
+                     "terrain_preferences: {preferred: [sidewalk], forbidden: [water]}\n"
+                     "queries: {start: 0, destination: find the dumpster}\n")  # start: a place id
+    found = call_json(["find", str(bundle), "--tasks", str(tasks)], capsys)
+    assert found["queries"] == ["find the dumpster"] and found["method"] == "ms-avg" and found["alpha"] == 0.4
+    code, _, err = call(["find", str(bundle), "--tasks", str(tasks)], capsys)
+    assert code == 0 and err == f"note: {tasks}: k, region_tasks, terrain_preferences, queries not used by terra find (ignored)\n"
+    monitored = call_json(["monitor", str(bundle), "--tasks", str(tasks)], capsys)
+    assert [r["query"] for r in monitored["results"]] == ["dumpster"] and monitored["k"] == 1
+    assert monitored["method"] == "mix"  # ms_avg names an object method: monitor keeps its default
+    code, _, err = call(["monitor", str(bundle), "--tasks", str(tasks)], capsys)
+    assert code == 0 and "prediction_method, object_tasks, terrain_preferences, queries not used by terra monitor" in err
+    plan = call_json(["plan", str(bundle), "--tasks", str(tasks)], capsys)
+    assert plan["goal"]["query"] == "find the dumpster" and plan["preferences"]["forbidden"] == ["water"]
+    assert plan["preferences"]["penalty"]["sidewalk"] == 0.0 < plan["preferences"]["penalty"]["grass"]  # preferred
+    code, _, err = call(["plan", str(bundle), "--tasks", str(tasks)], capsys)
+    assert code == 0 and "k, object_tasks, region_tasks not used by terra plan" in err
+
+
+def test_a_start_far_from_every_place_is_refused_naming_the_nearest(lot, capsys, tmp_path):
+    bundle, _ = lot
+    # Places lie every 5 m on 0..35 m (x-major): the nearest to (200, 10) is p58 at (35, 10), 165 m away.
+    code, out, err = call(["plan", str(bundle), "--to-node", "3", "--from-xy", "200", "10"], capsys)
+    assert code == 2 and out == ""
+    assert err == ("terra: error: start (200, 10) is 165.0 m from the nearest allowed place, p58 at (35.0, 10.0); "
+                   "starts farther than 20 m (tasks.planning.start_radius) are refused\n")
+    plan = call_json(["plan", str(bundle), "--to-node", "3", "--from-xy", "36", "10"], capsys)  # 1 m away: fine
+    assert plan["start"]["place"] == 58
+    config = tmp_path / "far.yaml"
+    config.write_text("tasks:\n  planning:\n    start_radius: 200\n")
+    plan = call_json(["plan", str(bundle), "--to-node", "3", "--from-xy", "200", "10", "--config", str(config)], capsys)
+    assert plan["start"]["place"] == 58

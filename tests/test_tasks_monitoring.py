@@ -80,3 +80,13 @@ def test_min_level_leaves_the_finest_regions_out_of_the_ranking(graph):
     assert result.regions == [(2, 0)] and result.places.tolist() == [0, 2, 3, 5]
     # A level above the hierarchy's top ranks the top level.
     assert monitor_region(graph, "watch the lot", method="max", k=1, embedder=TaskEmbedder(), min_level=5).regions == [(2, 0)]
+
+
+def test_best_region_ceiling_picks_the_region_matching_the_truth_best(graph):
+    from terra.eval.regions import best_region_scores
+
+    # Truth {0, 1}: R0 = {0,1,2} gives tp 2, fp 1 (F1 0.8); S0 (6 places) gives 2/8 = 0.5.
+    # Truth {6, 7}: R2 = {6,7} exactly (F1 1), found at level 1 before S1 (also {6,7}) at level 2.
+    # Truth {0,...,5}: S0 exactly. Truth {}: nothing to match.
+    scores = best_region_scores(graph, [np.array([0, 1]), np.array([6, 7]), np.arange(6), np.zeros(0, np.int64)])
+    assert [(s.tp, s.fp, s.fn) for s in scores] == [(2, 1, 0), (2, 0, 0), (6, 0, 0), (0, 0, 0)]

@@ -20,8 +20,28 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain help text (terra.cli.helptext)
     context_settings={"help_option_names": ["-h", "--help"]},
 )
+
+
+def _version(value: bool) -> None:
+    if value:
+        from terra import __version__
+
+        typer.echo(f"terra {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _options(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                 help="Print the version and exit."),
+) -> None:
+    """Terra: terrain-aware 3D scene graphs for outdoor robots.
+
+    Example: terra demo --out terra-demo
+    """
 
 
 def _load_commands() -> None:
@@ -38,8 +58,13 @@ def fail(message: str, code: int = 2) -> None:
 def run(argv: list[str] | None = None) -> int:
     """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path)."""
     _load_commands()
+    from terra.cli.helptext import tidy_help
+    from terra.cli.interrupts import Interrupted, catch_interrupts, clear, interrupted_message
+
+    clear()
+    command = catch_interrupts(tidy_help(typer.main.get_command(app)))
     try:
-        result = app(args=argv, standalone_mode=False)
+        result = command.main(args=argv, prog_name="terra", standalone_mode=False)
         return result if isinstance(result, int) else 0
     except TerraError as exc:
         typer.echo(f"terra: error: {exc}", err=True)
@@ -49,8 +74,8 @@ def run(argv: list[str] | None = None) -> int:
     except typer.Abort:
         typer.echo("terra: aborted", err=True)
         return 130
-    except KeyboardInterrupt:
-        typer.echo("terra: interrupted", err=True)
+    except (KeyboardInterrupt, Interrupted):
+        typer.echo(interrupted_message(), err=True)
         return 130
     except Exception as exc:
         # Usage errors (unknown command or option, missing argument) from Typer's bundled click:

@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.cli.interrupts import on_interrupt
 
 
 @app.command("demo")
@@ -23,17 +24,22 @@ def demo_command(
                                help="How the scenes are written and read back: terra-folder, "
                                     "rosbag2 (a ROS 2 mcap bag) or rosbag1."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Redo every step instead of resuming from the finished ones."),
     as_json: bool = typer.Option(False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, step log or timing table."),
 ) -> None:
-    """Show the whole system working: simulate the --preset campus (seed --seed) and a validation
+    """Run the whole system on a simulated campus and write a report.
+
+    Show the whole system working: simulate the --preset campus (seed --seed) and a validation
     campus (seed + 1), map both, build their scene graphs, choose alpha and k on the validation
     scene, then on the test scene find "Get bike from the bicycle rack" and "Find the dumpster",
     monitor "Large parking lot surrounded by buildings", plan to the bicycle rack preferring
     sidewalk, and evaluate it like the paper (OUT/report/report.md).
 
     Every step is cached under OUT with the configuration it was made with: a second run, or a
-    run after Ctrl-C, reuses the finished steps and redoes only what changed.
+    run after Ctrl-C, reuses the finished steps and redoes only what changed (--overwrite redoes
+    them all). A folder that is not a demo folder is refused.
 
     With --format rosbag2 the simulated drives are written as ROS 2 bags and mapped from them, as a
     robot's own log would be.
@@ -44,7 +50,8 @@ def demo_command(
 
     cfg = DemoConfig.load(config, preset, seed, validation_preset, validation_spacing, format)
     run = DemoRun(out, cfg, show_progress=not quiet and not as_json,
-                  log=None if quiet or as_json else (lambda line: typer.echo(line, err=True)))
+                  log=None if quiet or as_json else (lambda line: typer.echo(line, err=True)), overwrite=overwrite)
+    on_interrupt(run.interrupted)
     demo = run.run()
     if as_json:
         typer.echo(json.dumps({**demo, "steps": run.steps, "timing": run.timer.to_json()}, indent=1, sort_keys=True))

@@ -12,6 +12,7 @@ import typer
 
 from terra.cli import app
 from terra.errors import TerraError
+from terra.words import counted
 
 
 @app.command("eval")
@@ -55,10 +56,14 @@ def eval_command(
         min=1,
         help="With --terrain-only: images evaluated (default: eval.segmentation.max_images).",
     ),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Replace an existing report (or tuned.json with --tune)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary (or the tuned parameters) as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars or timing table."),
 ) -> None:
-    """Evaluate BUNDLE against the ground truth of the simulated dataset --gt, like the paper's
+    """Score a bundle against ground truth (Tables I-III).
+
+    Evaluate BUNDLE against the ground truth of the simulated dataset --gt, like the paper's
     Tables I-III, memory and navigation figures: writes OUT/report.md, OUT/summary.json and
     OUT/figures/*.png.
 
@@ -87,15 +92,17 @@ def eval_command(
         raise TerraError("give one --config (several are for --terrain-only, one table row each)")
     if tune and tuned is not None:
         raise TerraError("--tune chooses parameters and --tuned applies them; give one of them")
-    _evaluate(bundle, gt, out, tuned, tune, config[0] if config else None, as_json, quiet)
+    _evaluate(bundle, gt, out, tuned, tune, config[0] if config else None, as_json, quiet, overwrite)
 
 
-def _evaluate(
-    bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool, config: Path | None, as_json: bool, quiet: bool
-) -> None:
+def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool, config: Path | None, as_json: bool,
+              quiet: bool, overwrite: bool) -> None:
     """The full evaluation, or --tune."""
+    from terra.cli.interrupts import on_interrupt
+    from terra.cli.outputs import refuse_existing
     from terra.config import load_section
-    from terra.eval.runner import EvalInputs, evaluate, tune as tune_parameters
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.runner import evaluate, tune as tune_parameters
     from terra.eval.tuning import TUNED, TunedParameters
     from terra.progress import StageTimer
 
@@ -103,8 +110,11 @@ def _evaluate(
     tasks_cfg = load_section(config, "tasks")
     timer = StageTimer()
     if tune:
+        refuse_existing(Path(out) / TUNED, overwrite)
+        on_interrupt(f"nothing was written ({Path(out) / TUNED} is unchanged); run the same command again")
         with timer.stage("tune"):
-            params = tune_parameters(EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg)
+            params = tune_parameters(EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg,
+                                     show_progress=not quiet and not as_json)
         path = params.save(Path(out) / TUNED)
         if as_json:
             typer.echo(json.dumps(params.to_json(), indent=1, sort_keys=True))
@@ -119,7 +129,10 @@ def _evaluate(
             typer.echo(timer.table())
         return
     params = TunedParameters.load(tuned) if tuned is not None else None
-    summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet, timer=timer)
+    refuse_existing(Path(out), overwrite)
+    on_interrupt(f"no report was written ({out} is unchanged); run the same command again")
+    summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json,
+                       timer=timer)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return
@@ -168,7 +181,7 @@ def _terrain_lines(table: dict) -> list[str]:
     methods = table["methods"]
     width = max([len(m) for m in methods] + [6])
     lines = [
-        f"terrain segmentation of {table['dataset']} ({table['images']} labelled images):",
+        f"terrain segmentation of {table['dataset']} ({counted(table['images'], 'labelled image')}):",
         f"  {'method':<{width}}  {'mIoU':>6}  {'F-mIoU':>6}  {'F1':>6}  {'FPS':>7}",
     ]
     for name, s in methods.items():

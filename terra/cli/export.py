@@ -26,20 +26,29 @@ def export_command(
         "terrain", "--color", help="ply: colour points by 'terrain' or 'ms-max' (most observed bank entry)."
     ),
     image_range: float = typer.Option(
-        20.0, "--image-range", help="terra-reference: metres for gidx2imgs_{range}m (the paper's 20 m)."
+        20.0, "--image-range", help="terra-reference: metres for gidx2imgs_RANGEm_dict (the paper's 20 m)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Export BUNDLE for other tools: the scene graph as spark_dsg JSON (Hydra, Clio) or networkx
+    """Export a bundle for other tools (spark-dsg, PLY, ...).
+
+    Export BUNDLE for other tools: the scene graph as spark_dsg JSON (Hydra, Clio) or networkx
     node-link JSON, the map's points as PLY (CloudCompare, Open3D), or the metric-semantic map
     files of the authors' Phase 1 (their Phase 2 scripts build on them). Written atomically; an
     existing output is kept unless --overwrite.
 
     Example: terra export campus.terra --format spark-dsg --out campus.dsg.json
     """
+    from terra.cli.interrupts import on_interrupt
     from terra.interop.export import export_bundle
 
-    summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range)
+    on_interrupt("nothing was written (an existing output is unchanged); run the same command again")
+
+    from terra.progress import working
+
+    with working(f"exporting {fmt}", not as_json):
+        summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color,
+                                image_range=image_range)
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return

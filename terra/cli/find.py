@@ -21,7 +21,9 @@ def find_command(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /find answers)."),
 ) -> None:
-    """Find objects matching text QUERIES: oriented boxes with scores and their nearest place.
+    """Find the objects that text queries name.
+
+    Find objects matching text QUERIES: oriented boxes with scores and their nearest place.
 
     Example: terra find campus.terra "find the dumpster" "get bike from the bicycle rack" --method 3dsg --json
     """

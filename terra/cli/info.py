@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from terra.cli import app
+from terra.words import counted
 
 
 def bundle_summary(path: Path) -> dict:
@@ -15,7 +16,9 @@ def bundle_summary(path: Path) -> dict:
     from terra.mapping.summary import map_summary
 
     bundle = Bundle(path)
+    bundle.verify()  # a damaged file is named (TerraError, exit 2) before anything is summarised
     summary = map_summary(bundle)
+    summary["files_verified"] = len(bundle.files)
     if "graph" in bundle.manifest.get("components", {}):
         try:
             from terra.graph.summary import graph_summary
@@ -41,6 +44,7 @@ def _lines(summary: dict) -> list[str]:
     if summary.get("graph"):
         lines.extend(_graph_lines(summary["graph"], summary.get("terrain_classes") or []))
     lines.append("  bytes: " + ", ".join(f"{k} {v:,}" for k, v in sorted(summary["bytes"].items())))
+    lines.append(f"  checksums: {counted(summary['files_verified'], 'file')} checked against the manifest, all intact")
     return lines
 
 
@@ -69,8 +73,11 @@ def info_command(
     bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map` / `terra build`."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Summarise BUNDLE: points, bank size, images, terrain histogram, bytes per component, and
-    the scene graph when there is one.
+    """Summarise a bundle.
+
+    Summarise BUNDLE: points, bank size, images, terrain histogram, bytes per component, and
+    the scene graph when there is one. Every file's size and SHA-256 are checked against the
+    manifest first: a damaged file is named and the exit code is 2.
 
     Example: terra info campus.terra --json
     """

@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.words import counted
 
 
 def _camera_lines(cam: dict) -> list[str]:
@@ -52,7 +53,7 @@ def _bag_lines(d: dict) -> list[str]:
 def render(info: dict) -> list[str]:
     span = info["time_span"]
     lines = [
-        f"{info['path']} ({info['format']}): {info['frames']} frames"
+        f"{info['path']} ({info['format']}): {counted(info['frames'], 'frame')}"
         + (f", {span[0]:.3f} .. {span[1]:.3f} s ({span[1] - span[0]:.3f} s)" if span else ""),
         f"  poses: {info['pose_source']}",
     ]
@@ -80,7 +81,9 @@ def inspect_command(
     ),
     as_json: bool = typer.Option(False, "--json", help="Print everything as one JSON document."),
 ) -> None:
-    """Show what SOURCE holds before mapping it: frames and time span, each camera's size,
+    """Show what a dataset or ROS bag holds before mapping it.
+
+    Show what SOURCE holds before mapping it: frames and time span, each camera's size,
     intrinsics, lens model and coefficients and T_cam_lidar as read, the pose source, and what
     would be skipped and why. For a bag also every topic (type, count, rate, span), the TF tree,
     and a ready-to-edit `dataset` config section.

@@ -8,30 +8,21 @@ from typing import Optional
 import typer
 
 from terra.cli import app
+from terra.cli.interrupts import on_interrupt
 from terra.errors import TerraError
-
-
-def _sim_dataset(spec: str):
-    preset, _, seed = spec.partition(":")
-    try:
-        from terra.sim import simulate
-    except ImportError:
-        raise TerraError("--sim needs the simulator (terra.sim), which is not available") from None
-    try:
-        return simulate(preset, seed=int(seed) if seed else 0)
-    except ValueError as exc:
-        raise TerraError(f"--sim {spec!r}: {exc}") from None
+from terra.words import counted
 
 
 @app.command("map")
 def map_command(
     dataset: Optional[Path] = typer.Argument(
         None, help="Dataset: a folder (terra-folder, SemanticKITTI, KITTI raw drive) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write (replaced atomically)."),
+    out: Path = typer.Option(..., "--out", "-o",
+                             help="Bundle folder to write; an existing bundle is kept unless --overwrite."),
     config: Optional[Path] = typer.Option(
         None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
     format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."),
-    camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, cam{n}_K, cam{n}_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
+    camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, camN_K, camN_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
     poses: str = typer.Option("auto", "--poses", help="auto: the source's poses (LiDAR odometry when it has none); "
                                                     "odometry: KISS-ICP on the scans."),
     sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
@@ -42,31 +33,60 @@ def map_command(
     cache: Optional[Path] = typer.Option(
         None, "--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."
     ),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle at --out (atomically)."),
+    workers: Optional[int] = typer.Option(
+        None, "--workers", "-w", min=1,
+        help="Perceive frames on a local Dask cluster of N worker processes (loopback only); "
+        "needs the pip extra 'dask'.",
+    ),
+    scheduler: Optional[str] = typer.Option(
+        None, "--scheduler",
+        help="Perceive frames on a running Dask cluster: tcp://HOST:PORT or a scheduler file "
+        "(default: $TERRA_DASK_SCHEDULER).",
+    ),
+    in_flight: Optional[int] = typer.Option(
+        None, "--in-flight", min=1,
+        help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
-    """Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
+    """Build the metric-semantic map of a dataset (Phase 1).
 
-    An interrupted run resumes from its last checkpoint (OUT.partial/) when rerun with the same
-    arguments. Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or
-    --cache), so later runs never repeat inference; --perception-only just fills that cache.
+    Build the task-agnostic metric-semantic map of DATASET into the bundle --out.
+
+    An existing bundle at --out is refused unless --overwrite. An interrupted run (Ctrl-C, a
+    crash) resumes from its last checkpoint (OUT.partial/) when the same command is run again.
+    Model outputs (backend `models`) are cached per image in OUT.work/perception/ (or --cache),
+    so later runs never repeat inference; --perception-only just fills that cache.
 
     With a bag, topics and frames need no configuration when the bag makes them unambiguous
     (`terra inspect BAG` prints the `dataset` section it would use). Without poses in the source,
     or with --poses odometry, KISS-ICP computes them and the trajectory is written beside the
     bundle (<name>_poses_kitti.txt, <name>_poses_tum.txt).
 
+    With --workers or --scheduler, Dask workers perceive the frames (each reads them from the same
+    path, or renders the same --sim) into the cache, and this process fuses them in order: the same
+    bundle, byte for byte. The cache folder must be shared by this process and the workers.
+
     Example: terra map campus-data --out campus.terra --config terra.yaml
 
     Example (a ROS bag): terra map drive.bag --out drive.terra
 
+    Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
+
     Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
     """
     from terra.config import load_dataset_options, load_section
-    from terra.datasets import open_dataset
+    from terra.distributed.cluster import cluster_config
     from terra.odometry.kiss import OdometryDataset, with_poses
 
+    cluster = cluster_config(workers, scheduler, in_flight)
+    if in_flight is not None and not cluster.enabled:
+        raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
     if (dataset is None) == (sim is None):
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
+    if not perception_only:
+        _check_out(out, overwrite)
     overrides: dict = {"perception": {}}
     if noise is not None:
         overrides["perception"]["noise"] = noise
@@ -74,19 +94,43 @@ def map_command(
         overrides["perception"]["cache"] = {"folder": str(cache)}
     mapping = load_section(config, "mapping", overrides)
     odometry = load_section(config, "odometry")
-    options = load_dataset_options(config)
+    spec = _source_spec(dataset, sim, format, camera_config, load_dataset_options(config))
+    source = with_poses(spec.open(), poses, odometry, show_progress=not quiet)
+    if isinstance(source, OdometryDataset):
+        spec = spec.with_odometry()  # the workers perceive images, which need no poses
+    if perception_only:
+        folder = mapping.perception.cache.folder or f"{out}.work/perception"
+        on_interrupt(f"the images perceived so far are cached in {folder}; "
+                     "run the same command again to go on")
+        _perceive(spec, source, mapping, out, cluster, quiet)
+    else:
+        on_interrupt(lambda: _kept(out))
+        _map(spec, source, mapping, out, cluster, quiet)
+
+
+def _source_spec(
+    dataset: Optional[Path], sim: Optional[str], format: str, camera_config: Optional[Path], options: dict
+):
+    from terra.distributed.source import SourceSpec
+
     if camera_config is not None:
         if sim is not None or format not in ("auto", "terra-folder"):
             raise TerraError("--camera-config is for terra-folder datasets (the authors' extracted layout)")
         format, options = "terra-folder", {**options, "camera_config": camera_config}
-    source = _sim_dataset(sim) if sim is not None else open_dataset(dataset, format, options)
-    source = with_poses(source, poses, odometry, show_progress=not quiet)
-    if perception_only:
-        _perceive(source, mapping, out, quiet)
-        return
-    from terra.mapping.pipeline import run_mapping
+    return SourceSpec.from_cli(dataset, sim, format, options)
 
-    run = run_mapping(source, mapping, out, show_progress=not quiet)
+
+def _map(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
+    from terra.odometry.kiss import OdometryDataset
+
+    if cluster.enabled:
+        from terra.distributed.phase1 import map_on_cluster
+
+        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress=not quiet)
+    else:
+        from terra.mapping.pipeline import run_mapping
+
+        run, on_cluster = run_mapping(source, mapping, out, show_progress=not quiet), None
     trajectory = None
     if isinstance(source, OdometryDataset):
         from terra.odometry.trajectory import write_trajectory
@@ -98,13 +142,17 @@ def map_command(
     if run.resumed_from:
         typer.echo(f"resumed after frame {run.resumed_from}")
     typer.echo(
-        f"map: {info['points']} points ({info['observed_points']} with object observations), "
-        f"{info['bank']} bank entries, {info['images']} images -> {run.bundle.path}"
+        f"map: {counted(info['points'], 'point')} ({info['observed_points']} with object observations), "
+        f"{counted(info['bank'], 'bank entry', 'bank entries')}, {counted(info['images'], 'image')} "
+        f"-> {run.bundle.path}"
     )
+    if on_cluster is not None:
+        _cluster_summary(on_cluster)
     if run.cache is not None:
         cache = run.cache
+        where = "removed: the config keeps no cache" if cache.get("removed") else cache["folder"]
         typer.echo(
-            f"perception cache: {cache['hits']} images read back, {cache['computed']} computed ({cache['folder']})"
+            f"perception cache: {counted(cache['hits'], 'image')} read back, {cache['computed']} computed ({where})"
         )
     if getattr(source, "pose_source", None):
         typer.echo(f"  poses: {source.pose_source}")
@@ -115,16 +163,55 @@ def map_command(
     typer.echo(run.timer.table())
 
 
-def _perceive(source, mapping, out: Path, quiet: bool) -> None:
-    from terra.mapping.perceive import run_perception
+def _check_out(out: Path, overwrite: bool) -> None:
+    """The common rule (terra.cli.outputs): an existing bundle needs --overwrite; an unfinished run
+    (OUT.partial/) resumes."""
+    from terra.cli.outputs import refuse_existing
 
-    run = run_perception(source, mapping, out, show_progress=not quiet)
+    refuse_existing(out, overwrite)
+
+
+def _kept(out: Path) -> str:
+    """What an interrupted `terra map` leaves: its last checkpoint, to resume from."""
+    from terra.bundle import Bundle
+    from terra.mapping.checkpoint import Checkpoint
+
+    checkpoint = Checkpoint(out)
+    try:
+        done = int(Bundle(checkpoint.path).json("state/meta.json")["next_frame"])
+    except Exception:  # no checkpoint yet (or an unreadable one, which the next run ignores)
+        return f"no checkpoint was reached, {out} is unchanged; run the same command again to start over"
+    return f"the map up to frame {done} is checkpointed in {checkpoint.folder}; run the same command again to resume"
+
+
+def _perceive(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
+    if cluster.enabled:
+        from terra.distributed.phase1 import perceive_on_cluster
+
+        run, on_cluster = perceive_on_cluster(spec, source, mapping, out, cluster, show_progress=not quiet)
+    else:
+        from terra.mapping.perceive import run_perception
+
+        run, on_cluster = run_perception(source, mapping, out, show_progress=not quiet), None
     if quiet:
         return
-    typer.echo(f"perception cache: {run.images} images of {run.frames} frames, {run.hits} already cached, "
+    if on_cluster is not None:
+        _cluster_summary(on_cluster)
+    typer.echo(f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, "
+               f"{run.hits} already cached, "
                f"{run.computed} computed -> {run.folder}")
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
+
+
+def _cluster_summary(run) -> None:
+    tally = run.tally
+    used = len(tally.by_worker)
+    typer.echo(
+        f"perception on {run.cluster}: {counted(tally.frames, 'frame')} by {counted(used, 'worker')} "
+        f"(up to {run.in_flight} in flight), {counted(tally.computed, 'image')} computed, {tally.hits} read back, "
+        f"{tally.seconds:.1f} s of worker time"
+    )
 
 
 def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
@@ -135,7 +222,7 @@ def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
 
 
 def _odometry_line(run, files) -> str:
-    line = (f"odometry: KISS-ICP over {len(run.stamps)} scans ({run.scans_per_second:.1f} scans/s, "
+    line = (f"odometry: KISS-ICP over {counted(len(run.stamps), 'scan')} ({run.scans_per_second:.1f} scans/s, "
             f"{run.deskewed} deskewed), trajectory -> {files[0]}, {files[1].name}")
     if run.errors:
         e = run.errors

@@ -21,7 +21,9 @@ def monitor_command(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /monitor answers)."),
 ) -> None:
-    """Choose the regions and places to monitor for each task in QUERIES.
+    """Choose the regions and places to watch for a monitoring task.
+
+    Choose the regions and places to monitor for each task in QUERIES.
 
     Example: terra monitor campus.terra "large parking lot surrounded by buildings" --k 2 --json
     """

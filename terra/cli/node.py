@@ -25,7 +25,9 @@ def node_command(
         False, "--json", help="Print JSON (the body of GET /nodes/NODE or GET /locate?x=X&y=Y)."
     ),
 ) -> None:
-    """Look up a scene-graph node: a place's terrain, neighbours, regions and objects; a region's
+    """Look up a place, region or object of the scene graph.
+
+    Look up a scene-graph node: a place's terrain, neighbours, regions and objects; a region's
     level, parent, children and places; an object's box. With --at, the place nearest a point.
 
     Example: terra node campus.terra p12 --json

@@ -27,7 +27,9 @@ def plan_command(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON (as POST /plan)."),
 ) -> None:
-    """Plan a path from a start to the place of the object a task names, honouring terrain
+    """Plan a terrain-aware path to what a task names.
+
+    Plan a path from a start to the place of the object a task names, honouring terrain
     preferences. Edge cost = length x (1 + mean penalty of its two places' terrains); forbidden
     terrain is removed. Without --from*, the start is the place nearest the first camera pose.
     Exit code 3 when no path exists.

@@ -13,7 +13,9 @@ from terra.cli import app
 def prepare_command(
     embedder: Optional[str] = typer.Option(None, "--embedder", help="Text embedder name (default: the packaged MiniLM)."),
 ) -> None:
-    """Export the text embedder to ONNX into the user cache (once per machine; ~20 s), so the
+    """Export the text model to ONNX once, so queries start fast.
+
+    Export the text embedder to ONNX into the user cache (once per machine; ~20 s), so the
     first `terra find/monitor/plan` answers in about a second. Useful in an image build or before
     a robot goes out. Prints the runtime and where the export lives ($TERRA_CACHE_DIR to move it).
 

@@ -7,6 +7,8 @@ import json
 import math
 from typing import TYPE_CHECKING, Any
 
+from terra.words import counted
+
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
     from terra.tasks.lookup import Location, NodeInfo
     from terra.tasks.results import FindResult, MonitorResults, PlanResult
@@ -18,21 +20,21 @@ def render_json(result: Any) -> str:
 
 def render_find(result: FindResult) -> str:
     lines = [
-        f"{len(result.objects)} objects for {len(result.queries)} queries "
+        f"{counted(len(result.objects), 'object')} for {counted(len(result.queries), 'query', 'queries')} "
         f"(method {result.method}, alpha {result.alpha:.3f})"
     ]
     for q, query in enumerate(result.queries):
         mine = [(i, o) for i, o in enumerate(result.objects) if o.query == q]
-        lines.append(f"{query!r}: {len(mine)} objects")
+        lines.append(f"{query!r}: {counted(len(mine), 'object')}")
         for i, o in mine:
             c, s = o.center, o.size
             lines.append(
                 f"  #{i:<3d} score {o.score:.3f}  centre ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m  "
                 f"size {s[0]:.2f} x {s[1]:.2f} x {s[2]:.2f} m  yaw {math.degrees(o.yaw):6.1f} deg  "
-                f"{o.point_count} points  place {o.place}"
+                f"{counted(o.point_count, 'point')}  place {o.place}"
             )
     if result.saved:
-        lines.append(f"saved {len(result.objects)} objects to the scene graph of {result.bundle}")
+        lines.append(f"saved {counted(len(result.objects), 'object')} to the scene graph of {result.bundle}")
     return "\n".join(lines)
 
 
@@ -44,16 +46,17 @@ def render_monitor(result: MonitorResults) -> str:
     for r in result.results:
         lines.append(
             f"{r.query!r} (method {result.method}, k {result.k}, alpha {result.alpha:.3f}): "
-            f"{len(r.regions)} regions, {len(r.places)} places"
+            f"{counted(len(r.regions), 'region')}, {counted(len(r.places), 'place')}"
         )
         for (level, index), score in zip(r.regions, r.region_scores):
             p = graph.regions[level - 1].position[index]
             count = int(np.count_nonzero(graph.place_region(level) == index))
             lines.append(
-                f"  region level {level} #{index}  score {score:.3f}  centre ({p[0]:.1f}, {p[1]:.1f}) m  {count} places"
+                f"  region level {level} #{index}  score {score:.3f}  centre ({p[0]:.1f}, {p[1]:.1f}) m  "
+                f"{counted(count, 'place')}"
             )
         for c, members in enumerate(r.clusters):
-            lines.append(f"  cluster {c}: {len(members)} places")
+            lines.append(f"  cluster {c}: {counted(len(members), 'place')}")
         if len(r.places):
             xy = graph.places.position[np.asarray(r.places, dtype=np.int64), :2]
             lines.append(f"  places: {' '.join(str(int(p)) for p in r.places)}")
@@ -80,7 +83,7 @@ def render_plan(result: PlanResult) -> str:
         lines.append(f"  skipped {skipped.object.label!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {skipped.object.score:.3f}: "
                      f"{skipped.reason}")
     lines.append(f"start: place {start.place} ({start.how})")
-    penalised = {k: v for k, v in result.penalty.items() if v > 0}
+    penalised = {k: v for k, v in result.penalty.items() if v > 0 and k not in result.forbidden}
     if penalised or result.forbidden:
         lines.append(
             "terrain: "
@@ -89,7 +92,8 @@ def render_plan(result: PlanResult) -> str:
             )
         )
     by_terrain = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
-    lines.append(f"path: {len(path.places)} places, {path.length_m:.1f} m ({by_terrain}), cost {path.cost:.1f}")
+    lines.append(f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m ({by_terrain}), "
+                 f"cost {path.cost:.1f}")
     for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
         lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
     return "\n".join(lines)
@@ -114,7 +118,8 @@ def render_node(info: NodeInfo) -> str:
         p = f["position"]
         return "\n".join(
             [
-                f"region {info.id}: level {f['level']} at ({p[0]:.1f}, {p[1]:.1f}) m, {len(f['places'])} places, "
+                f"region {info.id}: level {f['level']} at ({p[0]:.1f}, {p[1]:.1f}) m, "
+                f"{counted(len(f['places']), 'place')}, "
                 f"parent {f['parent']}",
                 f"  children: {' '.join(f['children'])}",
             ]

@@ -15,7 +15,7 @@ from terra.cli import app
 def render_command(
     bundle: Path = typer.Argument(..., help="Bundle folder (`terra map`; `terra build` for all but terrain)."),
     what: str = typer.Option(..., "--what", "-w", help="terrain | places | regions | objects | path."),
-    out: Path = typer.Option(..., "--out", "-o", help="PNG file to write (replaced)."),
+    out: Path = typer.Option(..., "--out", "-o", help="PNG file to write; an existing one is kept unless --overwrite."),
     dpi: int = typer.Option(120, "--dpi", help="Resolution of the PNG."),
     query: Optional[List[str]] = typer.Option(
         None, "--query", "-q", help="objects: find these objects and draw them (repeatable)."
@@ -30,16 +30,24 @@ def render_command(
     prefer: Optional[List[str]] = typer.Option(None, "--prefer", help="path: preferred terrain (repeatable)."),
     penalty: Optional[List[str]] = typer.Option(None, "--penalty", help="path: TERRAIN=W cost factor (repeatable)."),
     forbid: Optional[List[str]] = typer.Option(None, "--forbid", help="path: terrain never to enter (repeatable)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing PNG at --out."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """Draw one top-down figure of BUNDLE (the ones `terra eval` puts in its report): map terrain,
+    """Draw one top-down figure of a bundle as a PNG.
+
+    Draw one top-down figure of BUNDLE (the ones `terra eval` puts in its report): map terrain,
     the places layer, the region levels, the objects, or a terrain-aware path.
 
     Example: terra render campus.terra --what path --to "get bike from the bicycle rack" --out path.png
     """
+    from terra.cli.interrupts import on_interrupt
+    from terra.cli.outputs import refuse_existing
     from terra.cli.task_options import open_bundle, plan_request
     from terra.tasks.config import TasksConfig
     from terra.viz.render import render_bundle
+
+    refuse_existing(out, overwrite)
+    on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
 
     plan = None
     if what == "path":

@@ -30,7 +30,9 @@ def serve_command(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     access_log: bool = typer.Option(False, "--access-log", help="Log every request on stderr."),
 ) -> None:
-    """Serve the bundle's task queries over HTTP: POST /find, /monitor, /plan with the JSON of
+    """Answer find, monitor and plan queries over HTTP.
+
+    Serve the bundle's task queries over HTTP: POST /find, /monitor, /plan with the JSON of
     `terra find/monitor/plan --json`, GET /nodes/NODE, /regions/LEVEL/INDEX, /locate?x=&y=,
     /health; OpenAPI at /docs. The map, scene graph and text model are loaded once, before it
     listens. Needs the `serve` extra (pip install "terra-3dsg[serve]").

@@ -8,7 +8,9 @@ from pathlib import Path
 import typer
 
 from terra.cli import app
+from terra.cli.interrupts import on_interrupt
 from terra.errors import TerraError
+from terra.words import counted
 
 
 @app.command("sim")
@@ -26,14 +28,16 @@ def sim(
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or timing table."),
 ) -> None:
-    """Simulate a robot driving through a generated campus and write the dataset.
+    """Simulate a campus drive and write it as a dataset.
+
+    Simulate a robot driving through a generated campus and write the dataset.
 
     Writes the frames (LiDAR scans with per-point labels, camera images with label images, poses, calibration), ground_truth/ (objects, terrain raster, named regions), classes.json and world.png, a top-down picture of the world and the route.
 
     Example: terra sim --preset small --seed 0 --out campus-small
     """
     from terra.config import load_section
-    from terra.progress import StageTimer
+    from terra.progress import StageTimer, working
     from terra.sim.classes import CLASS_COLORS
     from terra.sim.dataset import simulate
     from terra.sim.presets import get_preset
@@ -44,6 +48,7 @@ def sim(
     if format not in FORMATS:
         raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
     check_output(out, overwrite)
+    on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
     cfg = load_section(config, "sim")
     if max_frames is not None:
         cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": max_frames})})
@@ -52,7 +57,7 @@ def sim(
 
         cfg = without_distortion(cfg)
     timer = StageTimer()
-    with timer.stage("world"):
+    with timer.stage("world"), working("building the world", not quiet):
         dataset = simulate(preset, seed, cfg)
     dataset.timer = timer
 
@@ -60,7 +65,7 @@ def sim(
         with timer.stage("picture"):
             traj = dataset.trajectory.T_map_base[:, :2, 3]
             render_world_png(dataset.ground_truth(), root / "world.png", traj, CLASS_COLORS,
-                             title=f"{dataset.name}: {len(dataset)} frames")
+                             title=f"{dataset.name}: {counted(len(dataset), 'frame')}")
 
     start = time.perf_counter()
     try:
@@ -71,7 +76,7 @@ def sim(
     elapsed = time.perf_counter() - start
     timer.add("encode and save", elapsed - sum(v for k, v in timer.seconds.items() if k != "world"))
     gt = dataset.ground_truth()
-    typer.echo(f"wrote {folder} ({format}): {len(dataset)} frames, {len(gt.objects)} objects, "
+    typer.echo(f"wrote {folder} ({format}): {counted(len(dataset), 'frame')}, {counted(len(gt.objects), 'object')}, "
                f"{len(gt.regions)} named regions, picture world.png")
     if not quiet:
         typer.echo(timer.table("terra sim timing"), err=True)

@@ -69,10 +69,20 @@ def build(model: type[R], source: str, values: dict[str, Any]) -> R:
         raise TerraError(validation_message(source, exc)) from None
 
 
-def _task_file(path: Path | None) -> TaskFile:
+def _task_file(path: Path | None, command: str) -> TaskFile:
+    """The task file (empty without one); keys `command` does not use are noted on stderr, so one
+    file can drive find, monitor and plan."""
     from terra.tasks.task_file import TaskFile, load_task_file
 
-    return load_task_file(path) if path is not None else TaskFile()
+    if path is None:
+        return TaskFile()
+    task_file = load_task_file(path)
+    unused = task_file.unused_keys(command)
+    if unused:
+        import typer
+
+        typer.echo(f"note: {path}: {', '.join(unused)} not used by terra {command} (ignored)", err=True)
+    return task_file
 
 
 def find_request(
@@ -82,7 +92,7 @@ def find_request(
     from terra.tasks.requests import FindRequest
 
     check_choice("--method", method, ("ms-avg", "ms-max", "3dsg"))
-    task_file = _task_file(tasks)
+    task_file = _task_file(tasks, "find")
     file_method, feature = task_file.object_method(str(tasks))
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
     return build(
@@ -104,7 +114,7 @@ def monitor_request(
     from terra.tasks.requests import MonitorRequest
 
     check_choice("--method", method, ("mix", "max", "thresh", "aib"))
-    task_file = _task_file(tasks)
+    task_file = _task_file(tasks, "monitor")
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
     return build(
         MonitorRequest,
@@ -136,7 +146,7 @@ def plan_request(
     from terra.tasks.requests import PlanRequest
 
     check_choice("--method", method, ("ms-avg", "ms-max", "3dsg"))
-    task_file = _task_file(tasks)
+    task_file = _task_file(tasks, "plan")
     prefs = task_file.terrain_preferences
     dest, start = task_file.queries.destination, task_file.queries.start
     if to is None and to_node is None:

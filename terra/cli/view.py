@@ -26,7 +26,9 @@ def view_command(
         None, "--config", "-c", help="YAML config; its `tasks` section is used for the queries."
     ),
 ) -> None:
-    """Open BUNDLE in a web viewer: points coloured by terrain, MS-Max class or similarity to a
+    """Open a bundle in the web viewer.
+
+    Open BUNDLE in a web viewer: points coloured by terrain, MS-Max class or similarity to a
     text; places, each region level and the objects as layers; find and monitor queries that
     highlight their answers; terrain-aware plans between typed or picked places. Ctrl-C stops it.
 
@@ -41,6 +43,9 @@ def view_command(
     cfg = load_tasks_config(config)
     viewer = TerraViewer(open_bundle(bundle, cfg), host=host, port=port, max_points=max_points, config=cfg)
     typer.echo(f"terra view: {bundle} at {viewer.url} (Ctrl-C to stop)")
+    from terra.cli.interrupts import on_interrupt
+
+    on_interrupt("the viewer stopped; nothing was written")
     if host not in ("127.0.0.1", "localhost", "::1"):
         typer.echo(f"note: listening on {host}: anyone who can reach this machine can see the map", err=True)
     try:

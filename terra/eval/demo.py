@@ -47,6 +47,7 @@ from terra.mapping.config import MappingConfig
 from terra.progress import StageTimer
 from terra.sim.config import SimConfig
 from terra.tasks.config import TasksConfig
+from terra.words import counted
 
 FIND_QUERIES = ("Get bike from the bicycle rack", "Find the dumpster")
 MONITOR_QUERY = "Large parking lot surrounded by buildings"
@@ -114,6 +115,16 @@ def _dump(section: Section) -> dict:
     return section.model_dump(mode="json")
 
 
+def check_demo_folder(out: Path) -> None:
+    """The rule for existing outputs (terra.cli.outputs) as the demo applies it: its own folder
+    resumes (`.cache/` stamps), an absent or empty one is created, anything else is refused."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise TerraError(f"{out}: exists and is not a folder; choose another --out")
+    if out.is_dir() and any(out.iterdir()) and not ((out / ".cache").is_dir() or (out / DEMO_JSON).is_file()):
+        raise TerraError(f"{out}: folder exists and is not a terra demo folder; choose another --out")
+
+
 class StepCache:
     """Stamps of finished steps under `root/.cache`: a step is fresh when its stamp holds the same
     key and its outputs exist."""
@@ -150,7 +161,7 @@ class DemoRun:
     or came from the cache (`steps`)."""
 
     def __init__(self, out: str | Path, config: DemoConfig, show_progress: bool = True,
-                 log: Callable[[str], None] | None = None) -> None:
+                 log: Callable[[str], None] | None = None, overwrite: bool = False) -> None:
         self.out = Path(out)
         self.config = config
         self.show_progress = show_progress
@@ -158,22 +169,37 @@ class DemoRun:
         self.cache = StepCache(self.out)
         self.timer = StageTimer()
         self.steps: dict[str, str] = {}
+        self.current: str | None = None  # the step running now (for the Ctrl-C message)
+        self.overwrite = overwrite  # redo every step, whatever the stamps say
+        check_demo_folder(self.out)
 
     def step(self, name: str, key: dict, outputs: tuple[Path, ...], work: Callable[[], None], timed: bool = True) -> None:
         """Run `work` unless the step is fresh; stamp it when done. `timed=False` for work that
         records its own stages in self.timer."""
-        if self.cache.fresh(name, key, *outputs):
+        from terra.progress import working
+
+        if not self.overwrite and self.cache.fresh(name, key, *outputs):
             self.steps[name] = "cached"
             self.timer.add(f"{name} (cached)", 0.0)
             return
         self.log(f"{name} ...")
-        if timed:
-            with self.timer.stage(name):
+        self.current = name
+        with working(name, self.show_progress):
+            if timed:
+                with self.timer.stage(name):
+                    work()
+            else:
                 work()
-        else:
-            work()
         self.cache.done(name, key)
+        self.current = None
         self.steps[name] = "ran"
+
+    def interrupted(self) -> str:
+        """What an interruption keeps, for `terra demo`'s Ctrl-C line."""
+        done = sum(1 for v in self.steps.values() if v == "ran") + sum(1 for v in self.steps.values() if v == "cached")
+        step = f" from '{self.current}'" if self.current else ""
+        return (f"{done} finished step{'s' if done != 1 else ''} kept in {self.out}; run the same command again to "
+                f"continue{step}")
 
     # ------------------------------------------------------------------ scenes
 
@@ -228,9 +254,11 @@ class DemoRun:
         return demo
 
     def _tune(self, scene: Scene, path: Path) -> None:
-        from terra.eval.runner import EvalInputs, tune
+        from terra.eval.inputs import EvalInputs
+        from terra.eval.runner import tune
 
-        tune(EvalInputs.load(scene.bundle, scene.dataset), self.config.eval, self.config.tasks).save(path)
+        inputs = EvalInputs.load(scene.bundle, scene.dataset)
+        tune(inputs, self.config.eval, self.config.tasks, self.show_progress).save(path)
 
     def _tasks_and_eval(self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
         from terra.eval.runner import evaluate
@@ -276,15 +304,28 @@ def gt_class_of(query: str, gt: GroundTruth) -> str | None:
     return next((n for n in names if n.lower() in text), None)
 
 
-def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | None) -> dict | None:
-    """The ground-truth object of `class_name` nearest (2-D, metres) to `center`."""
+def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | None,
+                      box: dict | None = None) -> dict | None:
+    """The ground-truth object of `class_name` nearest (2-D, metres) to `center`. With the found
+    object's `box` (center, size, yaw), also its 3-D IoU with that object and whether it is a hit
+    by Table II's relaxed rule (the boxes overlap and the found box holds the object's centre), so
+    the demo's summary and Table II judge a find the same way."""
+    from terra.eval.metrics.boxes import BoxSet, iou_matrix
+
     objects = [o for o in gt.objects if o.class_name == class_name]
     if not objects:
         return None
     xy = np.array([o.center[:2] for o in objects])
     d = np.linalg.norm(xy - np.asarray(center, float)[:2], axis=1)
     i = int(np.argmin(d))
-    return {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center], "distance_m": round(float(d[i]), 4)}
+    out = {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center],
+           "distance_m": round(float(d[i]), 4)}
+    if box is not None:
+        found = BoxSet(np.asarray([box["center"]]), np.asarray([box["size"]]), np.asarray([box["yaw"]]))
+        truth = BoxSet.from_objects([objects[i]])
+        iou = float(iou_matrix(found, truth)[0, 0])
+        out.update(iou=round(iou, 4), hit=bool(iou > 0 and found.contains(truth.center)[0, 0]))
+    return out
 
 
 def _find(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> list[dict]:
@@ -302,7 +343,7 @@ def _find(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config:
         entry: dict[str, Any] = {"query": query, "method": method, "alpha": result.alpha, "objects": len(mine),
                                  "best": best}
         if best is not None:
-            entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt))
+            entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt), best)
         out.append(entry)
     return out
 
@@ -378,20 +419,31 @@ def format_demo(demo: dict, out: Path) -> list[str]:
         c = f["best"]["center"]
         line = f"  find {f['query']!r}: object at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) m, score {f['best']['score']:.2f}"
         if f.get("nearest_gt"):
-            line += f"; nearest true {f['nearest_gt']['class']} {f['nearest_gt']['distance_m']:.1f} m away"
+            line += "; " + _judged(f["nearest_gt"])
+        row = _table_ii_row(demo.get("evaluation", {}), f["query"], f["method"])
+        if row is not None:
+            noun = f["nearest_gt"]["class"] if f.get("nearest_gt") else "object"
+            line += (f" (Table II, {f['method']}: {row['num_predictions']} found, "
+                     f"{row['relaxed_hits']} of {counted(row['num_gt'], noun)} hit)")
         lines.append(line)
     m = demo["tasks"]["monitor"]
     params = ", ".join(f"{k} {v:g}" for k, v in m["parameters"].items())
-    line = f"  monitor {m['query']!r}: {m['places']} places in {m['regions']} regions ({m['method']}, {params})"
+    line = (f"  monitor {m['query']!r}: {counted(m['places'], 'place')} in {counted(m['regions'], 'region')} "
+            f"({m['method']}, {params})")
     if "labelled_region" in m:
         r = m["labelled_region"]
-        line += f"; against labelled region {r['name']!r}: precision {r['precision']:.2f}, recall {r['recall']:.2f}"
+        if r.get("gt_places", 1) == 0:
+            line += f"; labelled region {r['name']!r} is not evaluable (no place inside it)"
+        else:
+            line += (f"; against labelled region {r['name']!r} ({counted(r['gt_places'], 'place')}): precision "
+                     f"{r['precision']:.2f}, recall {r['recall']:.2f}")
     lines.append(line)
     p = demo["tasks"]["plan"]
     if "error" in p:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['error']}")
     else:
-        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over {p['places']} places "
+        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over "
+                     f"{counted(p['places'], 'place')} "
                      f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
         lines += [f"    skipped {s}" for s in p.get("skipped", [])]
     ev = demo["evaluation"]
@@ -399,6 +451,27 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     lines += ["  " + h for h in headline(ev)]
     lines.append(f"report: {out / demo['report']}")
     return lines
+
+
+def _judged(nearest: dict) -> str:
+    """'nearest true dumpster 0.5 m away, box IoU 0.31: a hit' as Table II would count it."""
+    text = f"nearest true {nearest['class']} {nearest['distance_m']:.1f} m away"
+    if "hit" not in nearest:
+        return text
+    if nearest["hit"]:
+        return text + f", box IoU {nearest['iou']:.2f}: a hit"
+    why = "the boxes do not overlap" if nearest["iou"] <= 0 else "the box does not hold its centre"
+    return text + f", box IoU {nearest['iou']:.2f}: not a hit ({why})"
+
+
+def _table_ii_row(evaluation: dict, query: str, method: str) -> dict | None:
+    """Table II's per-query row for the same query text and method, when the evaluation has one."""
+    retrieval = evaluation.get("retrieval", {})
+    queries = [q.lower() for q in retrieval.get("queries", [])]
+    rows = retrieval.get("methods", {}).get(method, {}).get("per_query", [])
+    if query.lower() in queries and len(rows) == len(queries):
+        return rows[queries.index(query.lower())]
+    return None
 
 
 def _sets_noise(path: Path | None) -> bool:

@@ -38,6 +38,7 @@ class MonitoringRun:
     build_seconds: float | None = None
     parameters: dict = field(default_factory=dict)
     cluster_seconds: float = 0.0
+    regions: list[NamedRegion] = field(default_factory=list)  # the regions queried, in the order of `predicted`
 
     def timing_ms(self) -> dict[str, float]:
         """regions_ms, query_ms and runtime_ms (see the module docstring)."""
@@ -118,7 +119,8 @@ def run_monitoring(graph: SceneGraph, regions: list[NamedRegion], truth: list[np
         cluster_seconds += result.cluster_seconds
     seconds = time.perf_counter() - start
     scores = [set_scores(p, t) for p, t in zip(predicted, truth)]
-    return MonitoringRun(predicted, scores, seconds, parameters=params.to_json(), cluster_seconds=cluster_seconds)
+    return MonitoringRun(predicted, scores, seconds, parameters=params.to_json(), cluster_seconds=cluster_seconds,
+                         regions=list(regions))
 
 
 def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph, float]:
@@ -140,3 +142,26 @@ def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph,
     levels = build_levels(assignments, places.position, places.embedding)
     seconds = time.perf_counter() - start
     return replace(graph, regions=levels, region_method=method), seconds
+
+
+def best_region_scores(graph: SceneGraph, truth: list[np.ndarray]) -> list[SetScores]:
+    """Per query, the scores of the single region (any level) whose places match its true places
+    best (highest F1; ties: lowest level, then lowest index; none when no region overlaps them):
+    what monitoring that picks one region per query would reach with a perfect ranking. A ceiling of the hierarchy's regions, not a
+    method: it reads the labels."""
+    P = len(graph.places)
+    out = []
+    for places in truth:
+        places = np.unique(np.asarray(places, dtype=np.int64))
+        best, best_f1 = SetScores(0, 0, int(places.size)), 0.0  # no region overlapping: none
+        for level in range(1, len(graph.regions) + 1):
+            label = graph.place_region(level)
+            n = len(graph.regions[level - 1])
+            size = np.bincount(label, minlength=n)
+            tp = np.bincount(label[places], minlength=n) if P else np.zeros(n, np.int64)
+            f1 = np.divide(2.0 * tp, size + places.size, out=np.zeros(n), where=(size + places.size) > 0)
+            i = int(np.argmax(f1)) if n else 0
+            if n and f1[i] > best_f1 + 1e-12:
+                best, best_f1 = SetScores(int(tp[i]), int(size[i] - tp[i]), int(places.size - tp[i])), float(f1[i])
+        out.append(best)
+    return out

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from terra.bundle import atomic_write_bytes, dumps_json
+from terra.words import counted
 
 SUMMARY = "summary.json"
 REPORT = "report.md"
@@ -60,14 +61,44 @@ def table(header: list[str], rows: list[list[str]], align: str | None = None) ->
     return "\n".join(lines)
 
 
+def perception_statement(perception: dict | None, embedder: str = "") -> str:
+    """One paragraph saying which perception produced the map and what that means for the tables."""
+    if not perception:
+        return ""
+    backend = perception.get("backend", "unknown")
+    if perception.get("ground_truth_masks"):
+        noise = perception.get("noise") or {}
+        if any(noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")):
+            missed, swapped = 100 * (noise.get("miss_rate") or 0), 100 * (noise.get("confusion_rate") or 0)
+            how = (f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, {missed:.0f}% of objects missed, "
+                   f"{swapped:.0f}% of labels swapped for a look-alike)")
+        else:
+            how = "exactly, without noise"
+        return (f"Perception: the `labels` backend. Terrain and object masks are the dataset's own ground-truth label "
+                f"images, {how}, and class names are embedded as text"
+                + (f" by `{embedder}`" if embedder else "") + ". "
+                "Tables I and II therefore grade masks derived from the ground truth itself: they measure the mapping, "
+                "fusion and retrieval stages, not a segmenter, and are not comparable with the paper's CLIP/YOLO "
+                "numbers. A label lookup has no frame rate, so no FPS is given.")
+    models = ", ".join(f"{m.get('role', 'model')} `{m.get('name', '?')}`" for m in perception.get("models", []))
+    return f"Perception: the `{backend}` backend" + (f" ({models})" if models else "") + "."
+
+
+def _perception_note(summary: dict) -> list[str]:
+    text = perception_statement(summary.get("perception"), summary.get("embedder", ""))
+    return [text, ""] if text else []
+
+
 def _segmentation(seg: dict) -> list[str]:
     methods = ordered(seg.get("methods", {}))
     header = ["Method", "mIoU ↑", "F-mIoU ↑", "F1 ↑", "FPS ↑"]
     keys = ["miou", "fw_miou", "f1", "fps"]
     values = [[m.get(k) for k in keys] for m in methods.values()]
     rows = [[name] + [_f(m.get(k), 1 if k == "fps" else 3) for k in keys] for name, m in methods.items()]
-    out = [f"## Table I: terrain segmentation ({seg.get('images', 0)} labelled images)", "",
+    out = [f"## Table I: terrain segmentation ({counted(seg.get('images', 0), 'labelled image')})", "",
            table(header, _bold_best(rows, values, [True] * 4)), ""]
+    if any(m.get("fps") is None for m in methods.values()):
+        out += ["FPS: - for a segmenter that is a lookup of label images (no model runs).", ""]
     first = next(iter(methods.values()), None)
     if first:
         names = first["classes"]
@@ -83,7 +114,7 @@ def _retrieval(ret: dict) -> list[str]:
     rows = [[name] + [_f(m.get(k)) for k in keys] + [_f(m.get("alpha"), 3)] for name, m in methods.items()]
     queries = ret.get("queries", [])
     out = [f"## Table II: open-set object retrieval (\"{ret.get('template', 'Find the {object}')}\": "
-           f"{ret.get('num_gt', 0)} objects in {len(queries)} queries)", "",
+           f"{counted(ret.get('num_gt', 0), 'object')} in {counted(len(queries), 'query', 'queries')})", "",
            table(header, _bold_best(rows, values, [True] * 7)), "",
            "IoU divides the matched boxes' IoU by the number of objects; matched IoU is their mean.", ""]
     out += _iou_by_distance(methods)
@@ -96,7 +127,13 @@ def _retrieval(ret: dict) -> list[str]:
                 pq = m["per_query"][i]
                 row.append(f"{pq['num_predictions']} / {pq['relaxed_hits']}")
             per_rows.append(row)
-        out += ["Per query (predictions retrieved for the query / relaxed accuracy hits):", "", table(per, per_rows), ""]
+        out += ["Per query. *Found*: the boxes retrieved for the query (clusters of map points that match it better "
+                "than any other query or terrain name, above alpha). *Hits*: its ground-truth objects counted as found by the relaxed-accuracy rule: "
+                "the query's best-scoring boxes, as many as it has objects and whichever query they were retrieved "
+                "for, are matched one to one to its objects, and a matched box that overlaps its object and holds "
+                "its centre is a hit. So a query can have hits with nothing found (its best boxes went to another "
+                "query) and boxes found with no hit (a box beside the object, or too thin to overlap it).", "",
+                table(per, per_rows), ""]
     return out
 
 
@@ -120,7 +157,8 @@ def _places(places: dict) -> list[str]:
             rows.append([label, f"{c['joined']:,} / {c['pairs']:,}", f"{c['joined_share']:.3f}", per])
     regions = ", ".join(f"{k} {v}" for k, v in places.get("places_per_region", {}).items())
     return ["## Places against the ground-truth terrain", "",
-            f"{places.get('places', 0)} places. Pairs of places of one terrain on one connected component of that terrain "
+            f"{counted(places.get('places', 0), 'place')}. Pairs of places of one terrain on one connected component of "
+            "that terrain "
             "in the ground-truth raster, joined by a path on that terrain alone:", "",
             table(["Components over", "Joined pairs", "Share", "per terrain"], rows, "lrrl"), "",
             f"Places inside each labelled region: {regions}.", ""]
@@ -135,7 +173,9 @@ def _regions(reg: dict) -> list[str]:
             for name, m in methods.items()]
     queries = reg.get("queries", [])
     better = [True, True, True, False, False, False]
-    out = [f"## Table III: region monitoring ({len(queries)} labelled regions)", "",
+    skipped = reg.get("not_evaluable", [])
+    out = [f"## Table III: region monitoring ({counted(len(queries), 'labelled region')}"
+           + (f"; {len(skipped)} not evaluable, listed below" if skipped else "") + ")", "",
            table(header, _bold_best(rows, [v[:3] + [None, None] + v[5:] for v in values], better), "lrrrrrrl"), "",
            "Runtime = building the regions (Terra's hierarchy once; AIB's clustering, for every query) + answering one "
            "query, on the same places.", ""]
@@ -152,17 +192,23 @@ def _regions(reg: dict) -> list[str]:
                 row.append(f"{pq['precision']:.2f} / {pq['recall']:.2f}")
             per_rows.append(row)
         out += ["Per region (precision / recall):", "", table(per, per_rows, "lr" + "r" * len(methods)), ""]
+    if skipped:
+        out += ["Not evaluable, left out of every average above and of the tuning:", ""]
+        out += [f"- {r['name']}: \"{r['description']}\": {r['reason']}." for r in skipped] + [""]
     return out
 
 
 def _memory(mem: dict) -> list[str]:
-    comps = mem.get("components_bytes", {})
-    rows = [[c, f"{b:,}", f"{b / 2**20:.3f}"] for c, b in comps.items()]
-    rows.append(["**total**", f"{mem.get('total_bytes', 0):,}", f"{mem.get('total_bytes', 0) / 2**20:.3f}"])
+    parts = mem.get("parts_bytes") or mem.get("components_bytes", {})
+    area, total = mem.get("area_m2", 0), mem.get("total_bytes", 0)
+    rows = [[c, f"{b:,}", f"{b / 2**20:.3f}", f"{b / area:,.1f}" if area else "-",
+             f"{100 * b / total:.1f}%" if total else "-"]
+            for c, b in sorted(parts.items(), key=lambda kv: (-kv[1], kv[0]))]
+    rows.append(["**total**", f"{total:,}", f"{total / 2**20:.3f}", f"{total / area:,.1f}" if area else "-", "100%"])
     return ["## Memory of the saved map and graph", "",
-            f"Mapped area {mem.get('area_m2', 0):,.0f} m² (occupied 0.4 m cells); "
-            f"{mem.get('bytes_per_m2', 0):,.0f} bytes per m².", "",
-            table(["Component", "Bytes", "MiB"], rows), ""]
+            f"Mapped area {area:,.0f} m² (occupied 0.4 m cells); {mem.get('bytes_per_m2', 0):,.0f} bytes per m² "
+            "in all.", "",
+            table(["Part", "Bytes", "MiB", "Bytes per m²", "Share"], rows), ""]
 
 
 def _navigation(nav: dict) -> list[str]:
@@ -180,7 +226,8 @@ def _navigation(nav: dict) -> list[str]:
     else:
         skipped = nav.get("skipped", [])
         out += [f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
-                f"(the approach place of the best reachable of {nav.get('candidates', 1)} objects for the task"
+                "(the approach place of the best reachable of "
+                f"{counted(nav.get('candidates', 1), 'object')} for the task"
                 + (f"; {len(skipped)} skipped" if skipped else "") + "). Terrain lengths read from the ground-truth raster.", "",
                 table(header, rows), ""]
         out += [f"- skipped {s['label']!r} (score {s['score']:.3f}) at place {s['place']}: {s['reason']}" for s in skipped]
@@ -234,6 +281,7 @@ def render_report(summary: dict) -> str:
         f"- embedder: `{summary.get('embedder', '')}`; parameters: {params.get('source', 'defaults')}",
         "- runtimes and FPS are measurements on this machine; every other figure is deterministic.", "",
     ]
+    lines += _perception_note(summary)
     for key, section in (("not_evaluated", _not_evaluated), ("segmentation", _segmentation), ("retrieval", _retrieval),
                          ("regions", _regions), ("memory", _memory), ("places", _places), ("navigation", _navigation)):
         if key in summary:
@@ -256,17 +304,30 @@ def terrain_shares(by_terrain: dict[str, float], length: float) -> str:
 def headline(summary: dict) -> list[str]:
     """A few indented lines with the main figures of a summary (printed by `terra eval` and `terra demo`)."""
     lines = []
+    perception = summary.get("perception")
+    if perception and perception.get("ground_truth_masks"):
+        noise = " with simulated noise" if any((perception.get("noise") or {}).values()) else ""
+        lines.append(f"  perception: labels backend (the ground-truth label images{noise}); terrain segmentation and "
+                     "retrieval grade masks derived from the ground truth, not comparable with the paper's CLIP/YOLO "
+                     "figures")
+    elif perception:
+        lines.append(f"  perception: {perception.get('backend')} backend")
     seg = summary.get("segmentation", {}).get("methods", {})
     for name, s in ordered(seg).items():
         fps = "" if s.get("fps") is None else f", {s['fps']:.0f} FPS"  # no frame rate for a label lookup
         lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}{fps}")
     ret = summary.get("retrieval", {})
     for name, s in ordered(ret.get("methods", {})).items():
-        lines.append(f"  retrieval {name:<7} ({ret['num_gt']} objects, {len(ret['queries'])} queries): IoU {s['iou']:.3f} "
+        counts = f"{counted(ret['num_gt'], 'object')}, {counted(len(ret['queries']), 'query', 'queries')}"
+        lines.append(f"  retrieval {name:<7} ({counts}): IoU {s['iou']:.3f} "
                      f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
     for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
         lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "
                      f"{s['runtime_ms']:.0f} ms (regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})")
+    skipped_regions = summary.get("regions", {}).get("not_evaluable", [])
+    if skipped_regions:
+        lines.append("  regions not evaluable (no place inside, left out of the averages): "
+                     + ", ".join(r["name"] for r in skipped_regions))
     places = summary.get("places", {}).get("connectivity_seen")
     if places:
         lines.append(f"  places: {summary['places']['places']}, same-terrain pairs joined {100 * places['joined_share']:.1f}% "

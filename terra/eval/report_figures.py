@@ -3,31 +3,28 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from terra.eval.config import EvalConfig
+from terra.eval.inputs import EvalInputs
 from terra.eval.regions import MonitoringRun
 from terra.eval.report import ordered, terrain_shares
 from terra.eval.retrieval import RetrievalRun, RetrievalTask
 from terra.viz import figures
-from terra.viz.raster import terrain_points_image
+from terra.viz.raster import point_classes, terrain_points_image
 from terra.viz.style import view_extent
-
-if TYPE_CHECKING:
-    from terra.eval.runner import EvalInputs
 
 FIGURES = "figures"
 
 
-def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: RetrievalTask, retrieval: dict[str, RetrievalRun],
+def write_figures(out: Path, inputs: EvalInputs, summary: dict, task: RetrievalTask, retrieval: dict[str, RetrievalRun],
                   monitoring: dict[str, MonitoringRun], config: EvalConfig) -> dict[str, str]:
     """Write every figure under out/figures/; returns {title: path relative to out}."""
     folder = Path(out) / FIGURES
     dpi = config.dpi
     msm, graph = inputs.msm, inputs.graph
-    background = terrain_points_image(msm.points, msm.terrain_index(), msm.terrain_classes, cell=msm.voxel_size)
+    background = terrain_points_image(msm.points, point_classes(msm), msm.terrain_classes, cell=msm.voxel_size)
     # Show the evaluated world (the ground-truth raster, else the map), not every far LiDAR return.
     raster = inputs.gt.terrain
     written: dict[str, Path] = {}
@@ -35,7 +32,8 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
         corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
         extent = view_extent(corners, margin=0.03)
         written["Terrain map vs ground truth"] = figures.terrain_map_figure(
-            folder / "1_terrain_map.png", msm.terrain_classes, background, inputs.gt, dpi, extent)
+            folder / "1_terrain_map.png", msm.terrain_classes, msm.points, point_classes(msm), inputs.gt, dpi, extent,
+            cell=max(msm.voxel_size, raster.resolution))
     else:
         extent = view_extent(msm.points, margin=0.03)
     written["Places layer by terrain"] = figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)
@@ -48,13 +46,17 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
     if retrieval:
         gt_boxes, gt_query = task.gt_boxes()
         predictions = {m: (run.boxes, run.query) for m, run in retrieval.items()}
-        written["Retrieved boxes vs ground truth"] = figures.boxes_figure(folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query,
-                                                                          background, dpi, extent)
+        counts = {m: [(r["num_predictions"], r["relaxed_hits"]) for r in s["per_query"]]
+                  for m, s in summary.get("retrieval", {}).get("methods", {}).items()}
+        written["Retrieved boxes vs ground truth"] = figures.boxes_figure(
+            folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts)
     best = _best_terra_hierarchy(monitoring)
     if best is not None:
         graph_m = inputs.hierarchies[best][0] if best in inputs.hierarchies else graph
-        written[f"Region monitoring ({best})"] = figures.monitoring_figure(folder / "5_monitoring.png", graph_m, inputs.gt.regions,
-                                                                           monitoring[best].predicted, best, background, dpi, extent)
+        run = monitoring[best]
+        written[f"Region monitoring ({best})"] = figures.monitoring_figure(
+            folder / "5_monitoring.png", graph_m, run.regions or inputs.gt.regions, run.predicted, best, background, dpi,
+            extent, [(sc.precision, sc.recall) for sc in run.scores])
     nav = summary.get("navigation", {})
     if "plans" in nav:
         ordered_plans = ordered(nav["plans"])
@@ -63,7 +65,9 @@ def write_figures(out: Path, inputs: "EvalInputs", summary: dict, task: Retrieva
         written["Terrain-aware navigation"] = figures.paths_figure(folder / "6_paths.png", graph, nav["start_place"], nav["goal_place"],
                                                                    plans, nav["task"], background, dpi, extent, notes)
     mem = summary["memory"]
-    written["Memory"] = figures.memory_figure(folder / "7_memory.png", [(inputs.bundle.path.name, mem["components_bytes"], mem["area_m2"])], dpi)
+    parts = mem.get("parts_bytes") or mem["components_bytes"]
+    written["Memory"] = figures.memory_figure(folder / "7_memory.png", parts, mem["area_m2"], inputs.bundle.path.name,
+                                              dpi)
     return {title: path.relative_to(out).as_posix() for title, path in written.items()}
 
 

@@ -5,110 +5,24 @@ ground truth, written as report.md, summary.json and figures (terra.eval.report)
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass, field
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 from terra.bundle import Bundle
-from terra.datasets.base import Dataset
-from terra.datasets.ground_truth import GroundTruth, load_ground_truth
 from terra.errors import TerraError
 from terra.eval.config import EvalConfig
+from terra.eval.inputs import EvalInputs
 from terra.eval.metrics.memory import mapped_area, memory_summary
 from terra.eval.navigation import plan_with, preference_case, preference_routes, start_place, terrain_route_pairs
 from terra.eval.regions import MonitoringRun, MonitorParams, region_truth, run_monitoring
 from terra.eval.report import SUMMARY, write_report
 from terra.eval.retrieval import RetrievalRun, RetrievalTask, retrieval_task, run_retrieval
 from terra.eval.tuning import TUNED, TunedParameters, alpha_grid, best_point
-from terra.graph.scene_graph import SceneGraph
 from terra.loaded import LoadedBundle
-from terra.mapping.semantic_map import MetricSemanticMap
-from terra.perception.text import TextEmbedder
 from terra.progress import StageTimer
-
-def mapped_dataset_name(bundle: Bundle) -> str:
-    """Name of the dataset a bundle's map was built from ("" when not recorded)."""
-    if not bundle.has("map/meta.json"):
-        return ""
-    meta = bundle.json("map/meta.json")
-    return str(meta.get("dataset", "")) if isinstance(meta, dict) else ""
-
-
-@dataclass
-class EvalInputs:
-    """What evaluation reads: the loaded bundle (map, graph, query embedder) and the ground truth."""
-
-    loaded: LoadedBundle
-    gt: GroundTruth
-    gt_root: Path
-    hierarchies: dict[str, tuple[SceneGraph, float | None]] = field(default_factory=dict)
-
-    dataset: Dataset | None = None
-    dataset_name: str = ""
-
-    @property
-    def bundle(self) -> Bundle:
-        return self.loaded.bundle
-
-    @property
-    def msm(self) -> MetricSemanticMap:
-        return self.loaded.msm
-
-    @property
-    def graph(self) -> SceneGraph:
-        return self.loaded.require_graph("evaluation")
-
-    @property
-    def embedder(self) -> TextEmbedder:
-        return self.loaded.embedder
-
-    @classmethod
-    def load(cls, bundle_path: str | Path, gt_root: str | Path, loaded: LoadedBundle | None = None) -> "EvalInputs":
-        """Open everything, cheapest checks first, so bad input fails before any work: the bundle
-        must hold a scene graph, `gt_root` must be a dataset written by `terra sim`, and it must
-        be the dataset the bundle was mapped from (by its recorded name). `loaded`: an already
-        opened bundle to share (its map, graph and embedder are not loaded again)."""
-        loaded = loaded or LoadedBundle(bundle_path)
-        loaded.require_graph("evaluation")
-        dataset, gt = dataset_ground_truth(Path(gt_root))
-        mapped = mapped_dataset_name(loaded.bundle)
-        if mapped and mapped != dataset.name:
-            raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {loaded.path} was mapped from "
-                             f"({mapped!r})")
-        loaded.require_map("evaluation")
-        loaded.embedder  # noqa: B018 (loaded now: evaluation embeds many texts)
-        return cls(loaded, gt, Path(gt_root), dataset=dataset, dataset_name=dataset.name)
-
-    @property
-    def objects_only(self) -> bool:
-        """Whether the ground truth has objects alone (real datasets such as KITTI)."""
-        return self.gt.terrain is None
-
-    def hierarchy(self, method: str) -> tuple[SceneGraph, float | None]:
-        """The scene graph with `method` region levels on the bundle's places, and the seconds
-        it took to build them (cached)."""
-        if method not in self.hierarchies:
-            from terra.eval.regions import rebuild_regions
-
-            self.hierarchies[method] = rebuild_regions(self.bundle, self.graph, method)
-        return self.hierarchies[method]
-
-
-def dataset_ground_truth(gt_root: Path) -> tuple[Dataset, GroundTruth]:
-    """The dataset at `gt_root` and its ground truth: the simulator's ground_truth/ folder, or the
-    dataset's own (KITTI labels: objects only)."""
-    from terra.datasets import open_dataset
-    from terra.datasets.ground_truth import GROUND_TRUTH_DIR
-    from terra.datasets.registry import detect_format
-
-    if (gt_root / GROUND_TRUTH_DIR).is_dir() or detect_format(gt_root) is None:
-        gt = load_ground_truth(gt_root)  # names the missing folder when there is neither
-        return open_dataset(gt_root), gt
-    dataset = open_dataset(gt_root)
-    if not hasattr(dataset, "ground_truth"):
-        raise TerraError(f"{gt_root}: no ground truth ({GROUND_TRUTH_DIR}/ or labels) in this dataset")
-    return dataset, dataset.ground_truth()
 
 
 NOT_IN_KITTI = {
@@ -173,9 +87,10 @@ METHOD_LABELS = {"aib": "AIB (Clio) on Terra places", "spectral": "Terra spectra
 
 
 def monitoring_run(inputs: EvalInputs, method: str, truth: list[np.ndarray], params: MonitorParams, monitor_method: str,
-                   tasks_config=None) -> MonitoringRun:
-    """One Table III row: AIB on the places layer, or `monitor_method` on a rebuilt hierarchy."""
-    regions = inputs.gt.regions
+                   tasks_config=None, regions: list | None = None) -> MonitoringRun:
+    """One Table III row: AIB on the places layer, or `monitor_method` on a rebuilt hierarchy.
+    `regions` and `truth`: the evaluable labelled regions and their places (evaluable_regions)."""
+    regions = inputs.gt.regions if regions is None else regions
     if method == "aib":
         return run_monitoring(inputs.graph, regions, truth, "aib", params, inputs.embedder, tasks_config)
     graph, build_seconds = inputs.hierarchy(method)
@@ -198,16 +113,36 @@ def monitoring_params(method: str, embedder: str, tuned: TunedParameters | None,
                          tuned.monitoring_min_level(method) if tuned is not None else None)
 
 
+NOT_EVALUABLE = "no place of the scene graph lies inside it, so no prediction can be right or wrong there"
+
+
+def evaluable_regions(inputs: EvalInputs) -> tuple[list, list[np.ndarray], list[dict]]:
+    """The labelled regions that can be scored (at least one place inside), their places, and
+    the others with the reason: a region with no place has no recall, and every place predicted
+    for it would count against the method, so it is listed as not evaluable and left out of the
+    averages (and of tuning) instead."""
+    regions, truth, skipped = [], [], []
+    for region, places in zip(inputs.gt.regions, region_truth(inputs.graph, inputs.gt.regions)):
+        if len(places):
+            regions.append(region)
+            truth.append(places)
+        else:
+            skipped.append({"name": region.name, "description": region.description, "reason": NOT_EVALUABLE})
+    return regions, truth, skipped
+
+
 def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
                     ) -> tuple[dict, dict[str, MonitoringRun]]:
-    truth = region_truth(inputs.graph, inputs.gt.regions)
+    regions, truth, skipped = evaluable_regions(inputs)
     runs = {}
     for method in config.regions.methods:
         params = monitoring_params(method, inputs.embedder.name, tuned, tasks_config)
-        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config)
+        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
+                                      regions)
     section = {
+        "not_evaluable": skipped,
         "queries": [{"name": r.name, "description": r.description, "num_gt_places": int(len(t))}
-                    for r, t in zip(inputs.gt.regions, truth)],
+                    for r, t in zip(regions, truth)],
         "monitor_method": config.regions.monitor_method,
         "methods": {m: run.to_json(METHOD_LABELS[m]) for m, run in runs.items()},
         "regions_per_level": {m: [len(level) for level in inputs.hierarchy(m)[0].regions] for m in runs if m != "aib"},
@@ -290,25 +225,30 @@ def places_section(inputs: EvalInputs) -> dict:
 # ---------------------------------------------------------------------------- tuning
 
 
-def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None) -> TunedParameters:
+def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None, show_progress: bool = False) -> TunedParameters:
     """Grid-search alpha (and k and levels) on a validation bundle: see terra.eval.tuning."""
+    from terra.progress import progress
+
     grid = alpha_grid(config.tune)
     tuned = TunedParameters(inputs.embedder.name, validation={"bundle": inputs.bundle.path.name,
-                                                              "dataset": inputs.dataset_name or inputs.gt_root.name})
+                                                              "dataset": inputs.dataset_name or inputs.gt_root.name,
+                                                              **inputs.fingerprint_record()})
     task = retrieval_task(inputs.gt, config.retrieval)
     if task.queries:
         for method in config.retrieval.methods:
             points = []
-            for alpha in grid:
+            for alpha in progress(grid, f"tuning {method} retrieval", enabled=show_progress, unit="alphas"):
                 run = run_retrieval(inputs.msm, inputs.graph, task.queries, method, alpha, inputs.embedder, tasks_config)
                 points.append({"alpha": alpha, "f1": run.evaluate(task, config.retrieval.precision_ratio).f1})
             tuned.retrieval[method] = best_point(points)
-    truth = region_truth(inputs.graph, inputs.gt.regions)
-    if inputs.gt.regions:
+    regions, truth, _ = evaluable_regions(inputs)
+    if regions:
         for method in config.regions.methods:
             points = []
-            for params in _monitor_grid(method, grid, config, inputs):
-                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config)
+            grid_points = _monitor_grid(method, grid, config, inputs)
+            for params in progress(grid_points, f"tuning {method} monitoring", enabled=show_progress, unit="settings"):
+                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
+                                     regions)
                 points.append({**params.to_json(), "f1": run.total.f1})
             tuned.monitoring[method] = best_point(points)
     return tuned
@@ -358,18 +298,45 @@ def parameter_source(tuned: TunedParameters | None) -> dict:
             "tuned": tuned.to_json()}
 
 
+def perception_section(bundle: Bundle) -> dict:
+    """Which perception produced the map, from the bundle: the backend, its noise (labels) or its
+    model files (models), and whether its masks come from the ground truth itself (the labels
+    backend reads the dataset's label images, so Tables I and II then grade ground-truth masks)."""
+    map_info = bundle.manifest.get("components", {}).get("map", {})
+    perception = (map_info.get("config") or {}).get("perception") or {}
+    recorded = bundle.manifest.get("perception") or {}
+    backend = str(recorded.get("backend") or perception.get("backend") or "unknown")
+    models = [{k: m.get(k) for k in ("role", "name", "sha256") if k in m} for m in recorded.get("models", [])
+              if isinstance(m, dict)]
+    section: dict = {"backend": backend, "ground_truth_masks": backend == "labels", "models": models}
+    noise = perception.get("noise")
+    if backend == "labels" and isinstance(noise, dict):
+        section["noise"] = {k: noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")}
+    return section
+
+
 def summary_header(inputs: EvalInputs, tuned: TunedParameters | None) -> dict:
     """What was evaluated with what, and the sections the ground truth cannot score (and why)."""
     summary: dict = {
         "bundle": inputs.bundle.path.name,
         "dataset": inputs.dataset_name or inputs.gt_root.name,
         "embedder": inputs.embedder.name,
+        "perception": perception_section(inputs.bundle),
         "parameters": parameter_source(tuned),
     }
     skipped = not_evaluated(inputs)
     if skipped:
         summary["not_evaluated"] = {**skipped, "notes": list(inputs.gt.notes)}
     return summary
+
+
+@contextmanager
+def _stage(timer: StageTimer, name: str, show_progress: bool) -> Iterator[None]:
+    """A timed evaluation stage that reports it is still working in long runs (terra.progress)."""
+    from terra.progress import working
+
+    with timer.stage(name), working(name, show_progress):
+        yield
 
 
 def check_report_folder(out: Path) -> None:
@@ -397,32 +364,35 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
         inputs = EvalInputs.load(bundle_path, gt_root, loaded)
     if tuned is not None:
         tuned.check_embedder(inputs.embedder.name)
-        tuned.check_not_tuned_on(inputs.dataset_name)
+        tuned.check_not_tuned_on(inputs.dataset_name, fingerprint=inputs.dataset_fingerprint)
     summary = summary_header(inputs, tuned)
     skipped = summary.get("not_evaluated", {})
+
+    def stage(name: str):
+        return _stage(timer, name, show_progress)
 
     def fill(folder: Path) -> None:
         monitoring: dict[str, MonitoringRun] = {}
         if "segmentation" not in skipped:
-            with timer.stage("eval: segmentation"):
+            with stage("eval: segmentation"):
                 seg = segmentation_section(inputs, config, show_progress)
             if seg is not None:
                 summary["segmentation"] = seg
-        with timer.stage("eval: retrieval"):
+        with stage("eval: retrieval"):
             summary["retrieval"], task, retrieval = retrieval_section(inputs, config, tuned, tasks_config)
         if "regions" not in skipped:
-            with timer.stage("eval: regions"):
+            with stage("eval: regions"):
                 summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks_config)
-        with timer.stage("eval: memory"):
+        with stage("eval: memory"):
             summary["memory"] = memory_summary(inputs.bundle, mapped_area(inputs.msm.points, config.map_cell))
         if not inputs.objects_only:  # place connectivity is judged on the ground-truth terrain raster
-            with timer.stage("eval: places"):
+            with stage("eval: places"):
                 summary["places"] = places_section(inputs)
         if "navigation" not in skipped:
-            with timer.stage("eval: navigation"):
+            with stage("eval: navigation"):
                 summary["navigation"] = navigation_section(inputs, config, tuned, tasks_config)
         if config.figures:
-            with timer.stage("eval: figures"):
+            with stage("eval: figures"):
                 from terra.eval.report_figures import write_figures
 
                 summary["figures"] = write_figures(folder, inputs, summary, task, retrieval, monitoring, config)

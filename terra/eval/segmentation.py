@@ -51,7 +51,8 @@ def evaluate_segmenter(segmenter: TerrainSegmenter, dataset: Dataset, max_images
     total = np.zeros((n_labels, n_labels), dtype=np.int64)
     seconds, images, warm = 0.0, 0, not timed
     first = dataset[0]
-    for i in progress(sample_frames(len(dataset), max_images, len(first.cameras)), desc="segmentation", enabled=show_progress):
+    frames = sample_frames(len(dataset), max_images, len(first.cameras))
+    for i in progress(frames, desc="segmentation", enabled=show_progress, unit="frames"):
         frame = dataset[int(i)]
         for c, camera in enumerate(frame.cameras):
             if camera.semantic is None or images >= max_images:

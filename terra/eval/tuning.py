@@ -79,11 +79,19 @@ class TunedParameters:
         """Name of the dataset the parameters were chosen on ("" when not recorded)."""
         return str(self.validation.get("dataset", ""))
 
-    def check_not_tuned_on(self, test_dataset: str, source: str = "tuned parameters") -> None:
+    def check_not_tuned_on(self, test_dataset: str, source: str = "tuned parameters", fingerprint: str = "") -> None:
         """TerraError unless the parameters record a validation scene other than `test_dataset`:
-        alpha and k must never be chosen on the labels they are scored against."""
+        alpha and k must never be chosen on the labels they are scored against. The scenes are
+        compared by content (`fingerprint`, terra.datasets.fingerprint) when both are recorded,
+        so a renamed copy of the validation scene is still recognised; else by name."""
         if not self.validation_dataset:
             raise TerraError(f"{source}: field 'validation.dataset' is missing; tune again with `terra eval --tune`")
+        recorded = str(self.validation.get("fingerprint") or "")
+        if recorded and fingerprint:
+            if recorded == fingerprint:
+                raise TerraError(f"{source} were tuned on the scene under test ({self.validation_dataset!r}, the same "
+                                 "frames); tune on a validation scene (another seed) instead")
+            return
         if self.validation_dataset == test_dataset:
             raise TerraError(f"{source} were tuned on {test_dataset!r}, the scene under test; "
                              "tune on a validation scene (another seed) instead")

@@ -27,7 +27,9 @@ class GridSection(Section):
 
     cell_size: float = Field(0.4, gt=0.0, description="metres per grid cell")
     support_radius: float = Field(1.6, ge=0.0, description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)")
-    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold ground points, labelled or not (drops sparse distant scan rings)")
+    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold labelled terrain points for the cell to take their majority; for filling and weak_support, the share that must hold ground points, labelled or not (drops sparse distant scan rings)")
+    weak_support: float | None = Field(0.1, ge=0.0, le=1.0, description="a window with this smaller share of labelled cells also takes their majority where it continues a patch of that class meeting min_support (hysteresis: sparsely labelled stretches of a strip keep its class; isolated noisy patches do not); None = never")
+    weak_reach: float | None = Field(16.0, gt=0.0, description="metres; such cells are labelled at most this far (along the sparsely labelled chain) from the patch they continue (None = any distance)")
     fill_radius: float = Field(2.0, ge=0.0, description="metres; densely scanned ground no camera labelled takes the class of the labelled cells within this distance when they all agree (0 = never)")
     close_iterations: int = Field(1, ge=0, description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)")
     open_iterations: int = Field(1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)")

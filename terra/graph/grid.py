@@ -81,7 +81,8 @@ class TerrainGrid:
 @dataclass(frozen=True)
 class GridFrame:
     """Where a grid lies: origin (2,) metres, the lower-left corner of cell (0, 0) of the whole
-    grid, whose cell `offset` (row, col) is this frame's first; shape (H, W) cells; cell_size metres. A window of a frame is a frame too (`window`): it keeps
+    grid, whose cell `offset` (row, col) is this frame's first; shape (H, W) cells; cell_size
+    metres. A window of a frame is a frame too (`window`): it keeps
     the origin and moves the offset, so a point falls in the same cell of both, to the last bit."""
 
     origin: tuple[float, float]
@@ -112,15 +113,29 @@ def grid_frame(points: np.ndarray, terrain: np.ndarray, cell_size: float = 0.4, 
     return GridFrame((float(lo[0]), float(lo[1])), (int(H), int(W)), float(cell_size))
 
 
-def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: float) -> int:
+def hysteresis_steps(cell_size: float, support_radius: float, min_support: float, weak_support: float | None,
+                     weak_reach: float | None) -> int | None:
+    """Cells: the longest chain `build_terrain_grid`'s hysteresis extends a class along (0 = the
+    step is off; None = unbounded, `weak_reach` None: a label can then depend on cells at any
+    distance)."""
+    if weak_support is None or support_radius <= 0 or weak_support >= min_support:
+        return 0
+    if weak_reach is None:
+        return None
+    return max(int(round(weak_reach / cell_size)), 1)
+
+
+def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: float, chain: int = 0) -> int:
     """Cells: how far a cell's label and blocked flag in `build_terrain_grid` depend on the points
     around it. The support window (half side w = round(support_radius / cell_size)) decides the
-    majority label and, once more, which cells are densely scanned; the fill takes labels within
-    fill_radius. Ground is the exception (the nearest cell with terrain points, at any distance);
+    majority label, the weak majority and, once more, which cells are densely scanned; the
+    hysteresis follows a chain of `chain` cells (`hysteresis_steps`; it must be bounded), each
+    cell of which reads its window; the fill takes labels within fill_radius. Ground is the
+    exception (the nearest cell with terrain points or unlabelled ground, at any distance);
     terra.graph.tiled_grid checks it per cell. Keep this in step with the algorithm: the tiled
     build relies on it (and tests/test_graph_tiling.py compares tiled and whole grids)."""
     w = int(round(support_radius / cell_size))
-    return 2 * w + int(np.ceil(fill_radius / cell_size)) + 2
+    return 2 * w + chain + int(np.ceil(fill_radius / cell_size)) + 2
 
 
 def build_terrain_grid(
@@ -133,6 +148,8 @@ def build_terrain_grid(
     min_support: float = 0.6,
     margin_cells: int = 4,
     fill_radius: float = 0.0,
+    weak_support: float | None = None,
+    weak_reach: float | None = None,
     frame: GridFrame | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
@@ -142,6 +159,15 @@ def build_terrain_grid(
     side `support_radius` metres, kept where at least `min_support` of the window's cells have
     terrain points: this fills the gaps between nearby scan lines and drops the isolated rings of
     distant, sparsely scanned ground, on which no place should sit.
+
+    Where the cameras labelled the ground only sparsely (a road seen at a glancing angle, the far
+    side of a block), a window with at least `weak_support` (< min_support) of its cells labelled
+    also takes its majority (a labelled cell in a sparser window keeps its own class), on densely
+    scanned ground, but only where it continues a patch of that class that meets `min_support`
+    (hysteresis, connected through such cells): a strip keeps its class through a sparsely
+    labelled stretch, while an isolated patch that one mislabelled image left stays unlabelled
+    (None = never), reaching at most `weak_reach` metres from it along the chain (None = any
+    distance: the connection is then global).
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
     than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
@@ -184,21 +210,47 @@ def build_terrain_grid(
     height = other[:, 2] - grid.ground[orow, ocol]
     low = obstacle_height[0] if obstacle_height is not None else 0.3
     unlabelled_ground = np.zeros((H, W), dtype=bool)
-    unlabelled_ground[orow[inside & (height < low)], ocol[inside & (height < low)]] = True
+    low_point = inside & (height < low)
+    unlabelled_ground[orow[low_point], ocol[low_point]] = True
+    # Cells scanned only by such points take their own mean height rather than that of the nearest
+    # terrain cell, which can lie metres away on other ground (a bank, a field beyond a road): the
+    # support window, hysteresis and filling below can label these cells, and places sit on them.
+    _ground_from_unlabelled(grid.ground, has, other[low_point, 2], orow[low_point] * W + ocol[low_point])
     window = 2 * int(round(support_radius / cell_size)) + 1
     # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
     # distant scan rings are not, and are never filled).
     dense = ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant") >= min_support - 1e-6
+    raw = grid.label.copy()
     if support_radius > 0:
-        grid.label[:] = _window_majority(grid.label, n_classes, window, min_support)
+        grid.label[:] = _window_majority(raw, n_classes, window, min_support)
     if obstacle_height is not None:
         hit = inside & (height >= obstacle_height[0]) & (height <= obstacle_height[1])
         counts = np.bincount(orow[hit] * W + ocol[hit], minlength=H * W).reshape(H, W)
         grid.blocked[:] = counts >= obstacle_min_points
         grid.label[grid.blocked] = -1
+    steps = hysteresis_steps(cell_size, support_radius, min_support, weak_support, weak_reach)
+    if steps != 0:
+        weak = _window_majority(raw, n_classes, window, weak_support)
+        weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
+        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps or 0)
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid
+
+
+def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, flat: np.ndarray) -> None:
+    """In place: `ground` (H, W) metres where `has` (cells with terrain points) is False and ground
+    points without a terrain class (heights `z` (n,) in flat cells `flat` (n,)) fall: their mean
+    height, then, for cells with neither, the nearest cell with either."""
+    H, W = ground.shape
+    total = np.bincount(flat, weights=z, minlength=H * W).reshape(H, W)
+    count = np.bincount(flat, minlength=H * W).reshape(H, W)
+    own = ~has & (count > 0)
+    if not own.any():
+        return
+    ground[own] = (total[own] / count[own]).astype(ground.dtype)
+    _, (nr, nc) = ndimage.distance_transform_edt(~(has | own), return_indices=True)
+    ground[:] = ground[nr, nc]
 
 
 def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: float) -> None:
@@ -215,6 +267,16 @@ def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: fl
         near[k] = ndimage.distance_transform_edt(label != t)[rows, cols] <= radius
     one = near.sum(axis=0) == 1
     label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
+
+
+def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray, max_steps: int = 0) -> None:
+    """In place: unlabelled cells take their `weak` class (-1 = none) where they are 8-connected,
+    through cells of that class (strong or weak), to a cell already labelled with it, within
+    `max_steps` cells along that chain (0 = any number)."""
+    for t in np.unique(weak[weak >= 0]):
+        strong = label == t
+        reached = ndimage.binary_dilation(strong, structure=EIGHT, iterations=max_steps, mask=(weak == t) | strong)
+        label[reached & (label < 0)] = t
 
 
 def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:

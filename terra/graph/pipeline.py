@@ -23,7 +23,7 @@ from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
 from terra.graph.spectral import SpectralStop, spectral_assignments
-from terra.graph.tiled_grid import build_terrain_grid_tiled
+from terra.graph.tiled_grid import TiledGridStats, build_terrain_grid_tiled
 from terra.graph.tiled_gvd import TiledGvdStats, tiled_gvd
 from terra.graph.tiling import tile_cells
 from terra.mapping.semantic_map import MetricSemanticMap
@@ -109,16 +109,20 @@ def _tile_cells(config: BuildConfig, shape: tuple[int, int]) -> int | None:
     return None if tile is None or tile >= max(shape) else tile
 
 
-def terrain_grid(points: np.ndarray, point_terrain: np.ndarray, config: BuildConfig) -> TerrainGrid:
+def terrain_grid(points: np.ndarray, point_terrain: np.ndarray, config: BuildConfig,
+                 stats: TiledGridStats | None = None) -> TerrainGrid:
     """The terrain grid of the map's points (build_terrain_grid), tile by tile when
-    `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid)."""
+    `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid, which
+    falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null)."""
     gc = config.grid
-    args = (points, point_terrain, gc.cell_size, gc.obstacle_height, gc.obstacle_min_points, gc.support_radius, gc.min_support)
+    args = (points, point_terrain, gc.cell_size, gc.obstacle_height, gc.obstacle_min_points, gc.support_radius,
+            gc.min_support)
+    kwargs = {"fill_radius": gc.fill_radius, "weak_support": gc.weak_support, "weak_reach": gc.weak_reach}
     tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
     if tile is None:
-        return build_terrain_grid(*args, fill_radius=gc.fill_radius)
-    return build_terrain_grid_tiled(*args, fill_radius=gc.fill_radius, tile=tile, margin=int(np.ceil(config.tiles.overlap / gc.cell_size)),
-                                    read_radius=gc.close_iterations + 1)
+        return build_terrain_grid(*args, **kwargs)
+    margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
+    return build_terrain_grid_tiled(*args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats)
 
 
 def _tiled_gvd(mask: np.ndarray, config: BuildConfig, cell_size: float, stats: TiledGvdStats) -> tuple[np.ndarray, np.ndarray] | None:
@@ -202,7 +206,8 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         point_terrain = np.where(np.isin(point_terrain, terrains), point_terrain, -1).astype(np.int16)  # 2 bytes a point
         if not (point_terrain >= 0).any():
             raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
-        grid = terrain_grid(msm.points, point_terrain, config)
+        grid_stats = TiledGridStats()
+        grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
     with timer.stage("GVD places"):
         ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
     if len(ps.position) == 0:
@@ -237,6 +242,9 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         embedder=msm.embedder,
         region_method=config.regions.method,
     )
+    if grid_stats.windows or grid_stats.one_piece:
+        stats["grid_tiles"] = {"windows": grid_stats.windows, "max_overlap_m": round(grid_stats.max_margin * config.grid.cell_size, 3),
+                               "one_piece": grid_stats.one_piece}
     stats.update({
         "places_per_terrain": {names[t]: n for t, n in stats["places_per_terrain"].items()},
         "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],

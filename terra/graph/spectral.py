@@ -60,7 +60,6 @@ def should_stop(position: np.ndarray, embedding: np.ndarray, max_semantic_diff: 
 def two_way_split(affinity: sp.csr_matrix, seed: int) -> np.ndarray:
     """(n,) bool side of each node: a spectral bisection of a connected affinity graph, or the
     largest component versus the rest when it is disconnected."""
-    n = affinity.shape[0]
     n_comp, comp = connected_components(affinity, directed=False)
     if n_comp > 1:
         sizes = np.bincount(comp)

@@ -5,29 +5,60 @@ Each core's window is built by `build_terrain_grid` itself, on the points inside
 in the window's frame (cells of the one-piece frame, so cell (r, c) is the same cell), and its core
 is copied out. Why that is the one-piece result:
 - Labels and blocked cells depend on points within `terrain_grid_reach` cells (support window,
-  densely-scanned test, fill radius). Filters treat outside an array as empty: at a closed side
-  (the grid's own edge) that is what the one-piece grid does too; at an open side the margin
-  keeps the core out of reach. Points keep their order, so every per-cell sum adds the same
-  numbers in the same order; window filters sum in float64 and round to float32, and their tests
-  carry a 1e-6 tolerance far above the rounding difference between windows.
-- Ground: a cell without terrain points takes the mean height of the nearest cell with some
-  (nearest with the lowest (column, row) on ties, the EDT's rule, which does not depend on where
-  the array starts). A window's frame keeps the one-piece origin and an integer offset, so points
-  fall in the same cells to the last bit. If that distance in the window is below the cell's gap to the unseen part
-  (`Window.gap`), the nearest cells are the same. The check is required of every core cell that
-  holds a point (their heights decide blocked cells and unlabelled ground) and of every cell
-  within `read_radius` of a labelled cell (the places' heights); the window grows (doubling its
-  margin) until it holds. Other cells' ground is read by no stage and may differ.
+  densely-scanned test, the hysteresis chain of at most `hysteresis_steps` cells and the weak
+  window at its end, fill radius), given the terrain-based ground of the cells there (below).
+  Filters and dilations treat outside an array as empty: at a closed side (the grid's own edge)
+  that is what the one-piece grid does too; at an open side the margin keeps the core out of
+  reach. Points keep their order, so every per-cell sum adds the same numbers in the same order;
+  window filters sum in float64 and round to float32, and their tests carry a 1e-6 tolerance far
+  above the rounding difference between windows. An unbounded hysteresis (`weak_reach` None)
+  has no reach: a label can depend on cells across the whole map, so that grid is built in one
+  piece (`TiledGridStats.one_piece` says why).
+- Terrain-based ground: a cell without terrain points first takes the mean height of the nearest
+  cell with some (nearest with the lowest (column, row) on ties, the EDT's rule, which does not
+  depend on where the array starts). A window's frame keeps the one-piece origin and an integer
+  offset, so points fall in the same cells to the last bit. If that distance in the window is
+  below the cell's gap to the unseen part (`Window.gap`), the nearest cells are the same. The
+  heights of a cell's other points above it decide whether the cell is blocked and whether it
+  holds unlabelled ground, and so the labels within reach: the check is required of every cell
+  holding only other points within the reach of the core.
+- Final ground: cells holding unlabelled ground (and no terrain point) take those points' mean
+  height, then every cell without either takes the nearest cell with either. A cell's own
+  terrain distance E (to its nearest cell with terrain points) bounds that search; if E is below
+  its gap, and no cell within E holds other points whose terrain-based ground is unproven (which
+  could turn unlabelled ground on or off), every candidate within E is known exactly and the
+  nearest one is the one-piece one. The check is required of every core cell within
+  `read_radius` of a labelled cell (the places' heights); no other stage reads the final ground.
+The window grows (doubling its margin) until both checks hold.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import ndimage
 
+from terra.graph.grid import (
+    GridFrame,
+    TerrainGrid,
+    build_terrain_grid,
+    grid_frame,
+    hysteresis_steps,
+    terrain_grid_reach,
+)
 from terra.graph.gvd import EIGHT
-from terra.graph.grid import GridFrame, TerrainGrid, build_terrain_grid, grid_frame, terrain_grid_reach
 from terra.graph.tiling import Window, cores, window
+
+
+@dataclass
+class TiledGridStats:
+    """What a tiled terrain grid build did: windows built, the widest margin (cells) a core needed,
+    and, when the grid had to be built in one piece, why (None when it was tiled)."""
+
+    windows: int = 0
+    max_margin: int = 0
+    one_piece: str | None = None
 
 
 def build_terrain_grid_tiled(
@@ -39,20 +70,32 @@ def build_terrain_grid_tiled(
     support_radius: float = 1.6,
     min_support: float = 0.6,
     fill_radius: float = 0.0,
+    weak_support: float | None = None,
+    weak_reach: float | None = None,
     tile: int = 512,
     margin: int = 64,
     read_radius: int = 2,
+    stats: TiledGridStats | None = None,
 ) -> TerrainGrid:
     """`build_terrain_grid(points (N, 3), terrain (N,), ...)` one core of `tile` x `tile` cells at a
     time (see the module docstring); margin: the first overlap tried, cells (at least the reach);
-    read_radius: cells around labelled cells whose ground must be exact (the masks' closing)."""
+    read_radius: cells around labelled cells whose ground must be exact (the masks' closing).
+    With an unbounded hysteresis (weak_reach None) the grid is built in one piece (stats says so)."""
     points = np.asarray(points)
     terrain = np.asarray(terrain)
+    stats = stats if stats is not None else TiledGridStats()
+    args = (cell_size, obstacle_height, obstacle_min_points, support_radius, min_support)
+    weak = {"fill_radius": fill_radius, "weak_support": weak_support, "weak_reach": weak_reach}
+    chain = hysteresis_steps(cell_size, support_radius, min_support, weak_support, weak_reach)
+    if chain is None:
+        stats.one_piece = "build.grid.weak_reach is null: the hysteresis can carry a class across the whole map"
+        return build_terrain_grid(points, terrain, *args, **weak)
     frame = grid_frame(points, terrain, cell_size)
     H, W = frame.shape
     grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool),
                        np.asarray(frame.origin, dtype=np.float64), frame.cell_size)
-    margin = max(margin, terrain_grid_reach(cell_size, support_radius, fill_radius))
+    reach = terrain_grid_reach(cell_size, support_radius, fill_radius, chain)
+    margin = max(margin, reach)
     index = _PointIndex(points, frame)
     for core in cores((H, W), tile):
         m = margin
@@ -65,13 +108,17 @@ def build_terrain_grid_tiled(
                 m *= 2
                 continue
             # The cheap part of the ground check first (cells holding points), then the whole grid.
-            if not win.whole and not _ground_proven(None, points[rows], terrain[rows], win, frame, read_radius):
+            proven = win.whole or _ground_proven(None, points[rows], terrain[rows], win, frame, read_radius, reach)
+            if not proven:
                 m *= 2
                 continue
-            part = build_terrain_grid(points[rows], terrain[rows], cell_size, obstacle_height, obstacle_min_points, support_radius,
-                                      min_support, fill_radius=fill_radius, frame=frame.window(win.rows, win.cols))
-            if win.whole or _ground_proven(part, points[rows], terrain[rows], win, frame, read_radius):
-                grid.label[core], grid.ground[core], grid.blocked[core] = (a[win.core] for a in (part.label, part.ground, part.blocked))
+            part = build_terrain_grid(points[rows], terrain[rows], *args, **weak,
+                                      frame=frame.window(win.rows, win.cols))
+            stats.windows += 1
+            if win.whole or _ground_proven(part, points[rows], terrain[rows], win, frame, read_radius, reach):
+                for name in ("label", "ground", "blocked"):
+                    getattr(grid, name)[core] = getattr(part, name)[win.core]
+                stats.max_margin = max(stats.max_margin, m)
                 break
             m *= 2
     return grid
@@ -110,27 +157,35 @@ class _PointIndex:
 
 
 def _ground_proven(part: TerrainGrid | None, points: np.ndarray, terrain: np.ndarray, win: Window, frame: GridFrame,
-                   read_radius: int) -> bool:
-    """Whether the ground of every core cell that matters is the one-piece ground: its nearest cell
-    with terrain points lies closer than the unseen part of the grid. The cells that matter: those
-    holding points, and (with the window's grid `part`) those within `read_radius` of a labelled cell."""
+                   read_radius: int, reach: int) -> bool:
+    """Whether the ground every stage reads in the core is the one-piece ground (module docstring):
+    the terrain-based ground of the cells within `reach` of the core that hold only other points,
+    and (with the window's grid `part`) the final ground of the core cells within `read_radius`
+    of a labelled cell."""
     h, w = win.shape
     cells = TerrainGrid(np.zeros((0, 0), np.int16), np.zeros((0, 0), np.float32), np.zeros((0, 0), bool),
-                        np.asarray(frame.origin, dtype=np.float64), frame.cell_size, frame.window(win.rows, win.cols).offset)
+                        np.asarray(frame.origin, dtype=np.float64), frame.cell_size,
+                        frame.window(win.rows, win.cols).offset)
     rc = np.floor((points[:, :2] - cells.origin) / cells.cell_size).astype(np.int64)
     rows, cols = rc[:, 1] - cells.offset[0], rc[:, 0] - cells.offset[1]
     inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
     has = np.zeros((h, w), dtype=bool)
     has[rows[inside & (terrain >= 0)], cols[inside & (terrain >= 0)]] = True
-    needed = np.zeros((h, w), dtype=bool)
-    needed[rows[inside], cols[inside]] = True
-    if part is not None and read_radius > 0 and (part.label >= 0).any():
-        needed |= ndimage.binary_dilation(part.label >= 0, EIGHT, iterations=read_radius)
-    needed &= ~has
+    other = np.zeros((h, w), dtype=bool)
+    other[rows[inside & (terrain < 0)], cols[inside & (terrain < 0)]] = True
+    other &= ~has  # a cell with terrain points has its own ground
+    gap = win.gap()
+    distance = ndimage.distance_transform_edt(~has) if has.any() else np.full((h, w), np.inf)
+    unsure = other & ~(distance < gap)  # terrain-based ground may differ: unlabelled ground and blocked flags too
+    near = (slice(max(win.core[0].start - reach, 0), win.core[0].stop + reach),
+            slice(max(win.core[1].start - reach, 0), win.core[1].stop + reach))
+    if unsure[near].any():
+        return False
+    if part is None or read_radius <= 0 or not (part.label >= 0).any():
+        return True
+    needed = ndimage.binary_dilation(part.label >= 0, EIGHT, iterations=read_radius) & ~has
     core = needed[win.core]
     if not core.any():
         return True
-    if not has.any():
-        return False
-    distance = ndimage.distance_transform_edt(~has)
-    return bool((distance[win.core][core] < win.gap()[win.core][core]).all())
+    bound = np.minimum(gap, ndimage.distance_transform_edt(~unsure)) if unsure.any() else gap
+    return bool((distance[win.core][core] < bound[win.core][core]).all())

@@ -14,13 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from terra.datasets.base import Dataset
 from terra.errors import TerraError
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats
-from terra.mapping.pipeline import image_fault, load_frame, open_perception
+from terra.mapping.pipeline import load_frame, open_perception, perceive_image, uses_images
 from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception
 from terra.progress import StageTimer
@@ -46,25 +44,13 @@ def perceive_frame(
     dataset: Dataset, index: int, perception: CachedPerception, config: MappingConfig, stats: FusionStats | None = None
 ) -> int:
     """Perceive every usable image of frame `index` into `perception`'s cache; returns how many images
-    were perceived (read back or computed). Faults are counted in `stats` when given."""
+    were perceived (read back or computed). Faults are counted in `stats` when given, as fusion counts them."""
     stats = stats if stats is not None else FusionStats()
     frame = load_frame(dataset, index, stats)
-    if frame is None:
-        return 0
-    source = config.perception.source
-    if not (source == "images" or (source == "auto" and frame.cameras)):
+    if frame is None or not uses_images(frame, config):
         return 0  # scans mapped from per-point labels: nothing to cache
-    seed = config.perception.noise.seed
-    done = 0
-    for c, camera in enumerate(frame.cameras):
-        fault = image_fault(frame, camera, config)
-        if fault is not None:
-            stats.add(fault[0])
-            stats.note(*fault)
-            continue
-        perception.perceive(camera, np.random.default_rng([seed, index, c]))
-        done += 1
-    return done
+    seen = (perceive_image(perception, frame, index, c, config, stats) for c in range(len(frame.cameras)))
+    return sum(image is not None for image in seen)
 
 
 def run_perception(
@@ -83,7 +69,8 @@ def run_perception(
         )
     stats = FusionStats()
     images = 0
-    for i in progress_bar(range(len(dataset)), desc="perception", total=len(dataset), enabled=show_progress):
+    for i in progress_bar(range(len(dataset)), desc="perception", total=len(dataset), enabled=show_progress,
+                          unit="frames"):
         with timer.stage("perception"):
             images += perceive_frame(dataset, i, cached, config, stats)
     return PerceptionRun(

@@ -5,7 +5,9 @@ model backends; terra/perception/cache.py), so model inference is never repeated
 Resumable: the fusion state is checkpointed every `checkpoint_every` frames in `OUT.partial/`;
 a rerun with the same dataset and config continues after the last checkpoint and produces the
 same bytes as an uninterrupted run (noise is seeded per frame and camera, not by a running
-stream). Per-frame faults (unreadable frame, bad pose, empty or non-finite scan, unmatched or
+stream). Frames are fused in order as a `FrameFeed` hands them over: `SerialFeed` (every frame at once,
+perceived during fusion) or a feed that waits until other processes have perceived a frame into the
+cache (terra/distributed). Per-frame faults (unreadable frame, bad pose, empty or non-finite scan, unmatched or
 mis-sized image) are skipped and counted; structural faults raise TerraError before the old
 bundle, if any, is touched.
 """
@@ -14,17 +16,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator, Protocol
 
 import numpy as np
 
 from terra.bundle import Bundle, BundleWriter
 from terra.datasets.base import CameraFrame, Dataset, Frame
+from terra.datasets.fingerprint import dataset_fingerprint
 from terra.errors import TerraError
 from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.storage import MAP_FORMAT, write_map
-from terra.perception.base import Perception
+from terra.perception.base import ImagePerception, Perception
 from terra.perception.cache import CachedPerception, cached
 from terra.perception.registry import get_perception
 from terra.progress import StageTimer, progress as progress_bar
@@ -45,16 +49,45 @@ class MapRun:
     cache: dict | None = None
 
 
+class FrameFeed(Protocol):
+    """Hands frame indices to the fusion loop, in order: `frames(start, stop)` yields start, ..., stop - 1,
+    each once the frame may be fused (for a distributed feed: once its perception is in the cache).
+    Closing the iterator early (an error, Ctrl-C) must release whatever the feed holds."""
+
+    def frames(self, start: int, stop: int) -> Iterator[int]: ...
+
+
+@dataclass
+class SerialFeed:
+    """Every frame at once, with a progress bar: perception runs inside fusion, in this process."""
+
+    show_progress: bool = True
+
+    def frames(self, start: int, stop: int) -> Iterator[int]:
+        return progress_bar(range(start, stop), desc="mapping", total=stop - start, enabled=self.show_progress,
+                            unit="frames")
+
+
 def build_map(dataset: Dataset, config: MappingConfig, out: Path, progress: bool = True) -> Bundle:
     """Build the metric-semantic map of `dataset` into the bundle folder `out` (atomic, resumable)."""
     return run_mapping(dataset, config, out, show_progress=progress).bundle
 
 
-def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progress: bool = True, perception: Perception | None = None) -> MapRun:
-    """`build_map` with its timings and counters (used by `terra map` for the summary)."""
+def run_mapping(
+    dataset: Dataset,
+    config: MappingConfig,
+    out: Path,
+    show_progress: bool = True,
+    perception: Perception | None = None,
+    feed: FrameFeed | None = None,
+    timer: StageTimer | None = None,
+) -> MapRun:
+    """`build_map` with its timings and counters (used by `terra map` for the summary). `feed` orders the
+    frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default)."""
     out = Path(out)
-    timer = StageTimer()
-    _check_output(out)
+    timer = timer if timer is not None else StageTimer()
+    feed = feed if feed is not None else SerialFeed(show_progress)
+    check_output(out)
     n_frames = len(dataset)
     if n_frames == 0:
         raise TerraError(f"dataset {dataset.name!r} has no frames")
@@ -63,27 +96,12 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
         global_map, dropped = _global_map(dataset, config)
         fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
         fusion.stats.add("global_map_points_nonfinite", dropped)
-    key = fingerprint(
-        {
-            "format": MAP_FORMAT,
-            # Where the perception cache lives changes no output.
-            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
-            "dataset": dataset.name,
-            "frames": n_frames,
-            "embedder": [perception.embedder, perception.dim],
-            "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
-        }
-    )
+        source = {"name": dataset.name, "fingerprint": dataset_fingerprint(dataset), "frames": n_frames}
+    key = _run_key(config, source, perception, global_map)
     checkpoint = Checkpoint(out)
-    start = 0
-    saved = checkpoint.load(key)
-    if saved is not None:
-        start, arrays, meta = saved
-        fusion.restore(arrays, meta)
-    else:
-        checkpoint.discard()
+    start = _resume(checkpoint, key, fusion)
 
-    for i in progress_bar(range(start, n_frames), desc="mapping", total=n_frames - start, enabled=show_progress):
+    for i in feed.frames(start, n_frames):
         with timer.stage("load"):
             frame = load_frame(dataset, i, fusion.stats)
         if frame is not None:
@@ -104,6 +122,7 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
         writer = BundleWriter(out)
         try:
             write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name, classes=dataset.classes.to_json())
+            writer.manifest["components"]["map"]["dataset"] = source
             writer.manifest["perception"] = perception.describe()
             bundle = writer.commit()
         except BaseException:
@@ -111,6 +130,35 @@ def run_mapping(dataset: Dataset, config: MappingConfig, out: Path, show_progres
             raise
     checkpoint.discard()
     return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
+
+
+def _run_key(config: MappingConfig, source: dict, perception: Perception, global_map: np.ndarray | None) -> str:
+    """What a checkpoint must match to be resumed: everything that changes the map's bytes. `source`: the
+    dataset's name, content fingerprint and frame count."""
+    return fingerprint(
+        {
+            "format": MAP_FORMAT,
+            # Where the perception cache lives changes no output.
+            "config": config.model_dump(mode="json", exclude={"perception": {"cache"}}),
+            # What the dataset holds, not where it lives: a renamed copy resumes the checkpoint.
+            "dataset": source["fingerprint"],
+            "frames": source["frames"],
+            "embedder": [perception.embedder, perception.dim],
+            "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
+        }
+    )
+
+
+def _resume(checkpoint: Checkpoint, key: str, fusion: MapFusion) -> int:
+    """The first frame to fuse: after a matching checkpoint (restored into `fusion`), else 0 (any stale
+    checkpoint removed)."""
+    saved = checkpoint.load(key)
+    if saved is None:
+        checkpoint.discard()
+        return 0
+    start, arrays, meta = saved
+    fusion.restore(arrays, meta)
+    return start
 
 
 def open_perception(config: MappingConfig, dataset: Dataset, out: Path,
@@ -129,7 +177,7 @@ def cache_summary(perception: Perception) -> dict | None:
     return {"folder": str(perception.cache.folder), **perception.counts.to_json()}
 
 
-def _check_output(out: Path) -> None:
+def check_output(out: Path) -> None:
     """Refuse to replace something that is not a bundle (a user's folder or file)."""
     if out.exists() and not (out / "manifest.json").is_file():
         if out.is_file() or any(out.iterdir()):
@@ -208,27 +256,44 @@ def image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tup
     return None
 
 
+def perceive_image(
+    perception: Perception, frame: Frame, i: int, c: int, config: MappingConfig, stats: FusionStats
+) -> ImagePerception | None:
+    """The perception of camera `c` of frame `i`, or None (counted in `stats`, with a first note) when the
+    image cannot be used. The generator is seeded by (noise seed, frame, camera), so any process perceiving
+    this image, in any order, draws the same numbers."""
+    camera = frame.cameras[c]
+    fault = image_fault(frame, camera, config)
+    if fault is not None:
+        stats.add(fault[0])
+        stats.note(*fault)
+        return None
+    try:
+        return perception.perceive(camera, np.random.default_rng([config.perception.noise.seed, i, c]))
+    except ValueError as exc:
+        stats.add("images_skipped_no_labels")
+        stats.note("images_skipped_no_labels", f"{camera.name or f'frame {i} camera {c}'}: {exc}")
+        return None
+
+
+def uses_images(frame: Frame, config: MappingConfig) -> bool:
+    """Whether frame's semantics come from its images (else from per-point labels, when the source has them)."""
+    source = config.perception.source
+    return source == "images" or (source == "auto" and bool(frame.cameras))
+
+
 def _fuse_frame(frame: Frame, i: int, config: MappingConfig, perception: Perception, fusion: MapFusion, timer: StageTimer) -> None:
     seed = config.perception.noise.seed
     source = config.perception.source
-    use_images = source == "images" or (source == "auto" and bool(frame.cameras))
     with timer.stage("fusion"):
         points_map, index = fusion.associate(frame.points, frame.T_map_lidar)
     fusion.stats.add("frames_fused")
-    if use_images:
+    if uses_images(frame, config):
         for c, camera in enumerate(frame.cameras):
-            fault = image_fault(frame, camera, config)
-            if fault is not None:
-                fusion.stats.add(fault[0])
-                fusion.stats.note(*fault)
-                continue
             with timer.stage("perception"):
-                try:
-                    seen = perception.perceive(camera, np.random.default_rng([seed, i, c]))
-                except ValueError as exc:
-                    fusion.stats.add("images_skipped_no_labels")
-                    fusion.stats.note("images_skipped_no_labels", f"{camera.name or f'frame {i} camera {c}'}: {exc}")
-                    continue
+                seen = perceive_image(perception, frame, i, c, config, fusion.stats)
+            if seen is None:
+                continue
             with timer.stage("fusion"):
                 fusion.integrate_image(frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, seen)
     elif source in ("auto", "points"):

@@ -108,7 +108,7 @@ def run_odometry(dataset: Dataset, config: OdometryConfig, show_progress: bool =
     odometry = KissICP(kiss_config(config))
     stamps, poses, velocity = np.zeros(n), np.tile(np.eye(4), (n, 1, 1)), np.zeros((n, 6))
     reference, seconds, deskewed = np.full((n, 4, 4), np.nan), 0.0, 0
-    for i in progress(range(n), desc="odometry", total=n, enabled=show_progress):
+    for i in progress(range(n), desc="odometry", total=n, enabled=show_progress, unit="scans"):
         frame = dataset[i]
         stamps[i], reference[i] = frame.stamp, frame.T_map_lidar
         start = time.perf_counter()

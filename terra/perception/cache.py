@@ -42,14 +42,13 @@ import io
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from terra.bundle import array_bytes, atomic_write_bytes, dumps_json
+from terra.bundle import array_bytes, atomic_write_bytes, dumps_json, sibling_tmp_dir
 from terra.datasets.base import CameraFrame, Frame
 from terra.perception.base import ImagePerception, Perception, PointPerception
 from terra.perception.config import CacheConfig
@@ -166,12 +165,17 @@ def decode(arrays: dict[str, np.ndarray], meta: dict, dim: int) -> ImagePercepti
 # -- the folder -----------------------------------------------------------------------------
 
 
+def backend_key(identity: dict) -> str:
+    """The backend key of a backend `identity` (see the module docstring); its first 16 hex name its folder."""
+    return fingerprint({"format": CACHE_FORMAT, "identity": identity})
+
+
 class PerceptionCache:
     """The cache folder of one backend (identity) inside a cache root."""
 
     def __init__(self, root: Path, identity: dict):
         self.root = Path(root)
-        self.backend_key = fingerprint({"format": CACHE_FORMAT, "identity": identity})
+        self.backend_key = backend_key(identity)
         self.folder = self.root / self.backend_key[:16]
         description = self.folder / "backend.json"
         if not description.is_file():
@@ -212,7 +216,7 @@ class PerceptionCache:
         if (final / "entry.json").is_file():
             return
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=final.parent))
+        tmp = sibling_tmp_dir(final)
         try:
             files = {}
             for name, array in encode(seen).items():
@@ -335,10 +339,18 @@ def default_cache_folder(out: Path) -> Path:
     return out.with_name(out.name + ".work") / "perception"
 
 
+def cache_root(config: CacheConfig, out: Path) -> Path:
+    """The cache root `config` names for the bundle `out` (its folder, or OUT.work/perception)."""
+    return Path(config.folder).expanduser() if config.folder else default_cache_folder(out)
+
+
+def cache_identity(perception: Perception) -> dict:
+    """What keys `perception`'s outputs: its identity, or its backend name and embedder when it has none."""
+    return perception.identity or {"backend": perception.backend, "embedder": [perception.embedder, perception.dim]}
+
+
 def cached(perception: Perception, config: CacheConfig, out: Path) -> Perception:
     """`perception` behind the cache `config` asks for (the perception itself when the cache is off)."""
     if not cache_enabled(perception, config):
         return perception
-    folder = Path(config.folder).expanduser() if config.folder else default_cache_folder(out)
-    identity = perception.identity or {"backend": perception.backend, "embedder": [perception.embedder, perception.dim]}
-    return CachedPerception(perception, PerceptionCache(folder, identity))
+    return CachedPerception(perception, PerceptionCache(cache_root(config, out), cache_identity(perception)))

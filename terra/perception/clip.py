@@ -18,9 +18,7 @@ TERRA_CLIP_PATH environment variable (`clip_text_embedder`).
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 from scipy import ndimage
@@ -256,21 +254,11 @@ def _context_length(model: object) -> int:
     return int(getattr(model.config.text_config, "max_position_embeddings", 77))
 
 
-@contextmanager
-def _quiet_transformers() -> Iterator[None]:
-    """No progress bars or advisory warnings from transformers while a model loads (the library never prints)."""
-    from transformers.utils import logging as hf_logging
+def _quiet_transformers():
+    """transformers without bars or warnings while a model loads (terra.perception.quiet)."""
+    from terra.perception.quiet import quiet_transformers
 
-    bars = hf_logging.is_progress_bar_enabled()
-    level = hf_logging.get_verbosity()
-    hf_logging.disable_progress_bar()
-    hf_logging.set_verbosity_error()
-    try:
-        yield
-    finally:
-        hf_logging.set_verbosity(level)
-        if bars:
-            hf_logging.enable_progress_bar()
+    return quiet_transformers()
 
 
 def resolve_clip_folder(model: str | None, allow_download: bool, field: str = "perception.models.clip.model") -> Path:

@@ -55,7 +55,10 @@ class SentenceTransformerEmbedder:
         os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
         self.name = name
         self.device = device or default_device()
-        self._model = model_loader(self.device)
+        from terra.perception.quiet import quiet_transformers
+
+        with quiet_transformers():  # no "Loading weights" bar in a command's output
+            self._model = model_loader(self.device)
         dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
         self.dim = int(dim_of())
         self._cache: dict[str, np.ndarray] = {}

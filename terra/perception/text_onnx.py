@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
-import tempfile
 import threading
 from collections import OrderedDict
 from importlib import metadata
@@ -28,6 +27,7 @@ from typing import Callable
 
 import numpy as np
 
+from terra.bundle import sibling_tmp_dir
 from terra.errors import TerraError
 from terra.perception.text_export import (
     EXPORT_TOLERANCE,
@@ -248,7 +248,7 @@ def prepare_export(
 
 def _export_into(folder: Path, name: str, source_dir: Path) -> None:
     """Export into a temporary sibling, then swap it in place of `folder` (caller holds the lock)."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    tmp = sibling_tmp_dir(folder)
     try:
         info = export_sentence_model(name, source_dir, tmp)
         # onnxruntime + tokenizers must give sentence-transformers' vectors for every probe text

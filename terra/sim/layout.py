@@ -221,7 +221,7 @@ def building_block(k: Block) -> None:
 
 
 def park_block(k: Block) -> None:
-    B, rng = k.B, k.b.rng
+    B = k.B
     perimeter(k)
     cx, cy = B / 2, 0.55 * B
     rx, ry = 0.17 * B, 0.12 * B

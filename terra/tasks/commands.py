@@ -166,6 +166,19 @@ def _plan_to_goal(
     return outcome.plan, goal
 
 
+def _check_start_distance(graph: SceneGraph, xy: np.ndarray, place: int, radius: float) -> None:
+    """TerraError when a start point lies farther than `radius` metres from the allowed place it
+    would snap to (a typo in a coordinate, or another map's frame), naming that place."""
+    if place < 0:
+        raise NoPathError("no path: every place is on forbidden terrain")
+    nearest = graph.places.position[place, :2]
+    distance = float(np.linalg.norm(nearest - xy[:2]))
+    if distance > radius:
+        raise TerraError(f"start ({xy[0]:g}, {xy[1]:g}) is {distance:.1f} m from the nearest allowed place, "
+                         f"p{place} at ({nearest[0]:.1f}, {nearest[1]:.1f}); starts farther than {radius:g} m "
+                         "(tasks.planning.start_radius) are refused")
+
+
 def _start(
     loaded: LoadedBundle,
     graph: SceneGraph,
@@ -183,11 +196,11 @@ def _start(
     if request.from_node is not None:
         return PlanEnd(int(request.from_node), "given place")
     if request.from_xy is not None:
-        xy, how = (
-            np.asarray(request.from_xy, dtype=np.float64),
-            f"nearest allowed place to ({request.from_xy[0]:g}, {request.from_xy[1]:g})",
-        )
-    elif loaded.has_map and len(loaded.msm.images):
+        xy = np.asarray(request.from_xy, dtype=np.float64)
+        place = nearest_allowed_place(graph, xy, allowed)
+        _check_start_distance(graph, xy, place, config.planning.start_radius)
+        return PlanEnd(place, f"nearest allowed place to ({xy[0]:g}, {xy[1]:g})")
+    if loaded.has_map and len(loaded.msm.images):
         xy, how = loaded.msm.images.position[0, :2], "nearest allowed place to the first camera pose"
     else:
         raise TerraError("the map records no camera poses; give a start with --from, --from-node or --from-xy")

@@ -86,6 +86,8 @@ class PlanningConfig(Section):
 
     default_penalty: float = Field(1.0, ge=0)
     goal_radius: float = Field(5.0, ge=0)
+    start_radius: float = Field(20.0, ge=0, description="metres: a start given as a point (--from-xy) farther than "
+                                "this from every allowed place is refused, naming the nearest one")
     find_method: RetrievalMethod = "3dsg"
 
 

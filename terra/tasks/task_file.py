@@ -12,6 +12,10 @@ Keys (all optional; the commands' own options win over the file):
 - `queries`: {start: place id | text query | null, destination: text query | place id}.
 - `terra`, `trim`, `case`, `bounds`: reference settings with no meaning here; accepted, ignored.
 Items may also be plain strings. Anything else is refused with the file and field named.
+
+One file may drive all three commands: each uses its own keys (`COMMAND_KEYS`) and
+`prediction_method` where it names a method of its kind (an object method for find and plan, a
+region method for monitor); `unused_keys` lists what a command leaves aside, for a note.
 """
 
 from __future__ import annotations
@@ -29,6 +33,11 @@ OBJECT_METHODS = {"ms_avg": ("ms-avg", None), "ms_max": ("ms-max", None), "3dsg"
                   "3dsg_avg": ("3dsg", "avg"), "3dsg_max": ("3dsg", "max"),
                   "ms-avg": ("ms-avg", None), "ms-max": ("ms-max", None)}
 REGION_METHODS = ("max", "thresh", "mix", "aib")
+COMMAND_KEYS = {
+    "find": {"object_tasks", "tasks", "alpha", "prediction_method"},
+    "monitor": {"region_tasks", "alpha", "k", "prediction_method"},
+    "plan": {"terrain_preferences", "queries", "alpha", "prediction_method"},
+}
 
 
 class _Strict(BaseModel):
@@ -96,9 +105,19 @@ class TaskFile(_Strict):
     def region_queries(self) -> list[str]:
         return [t.task for t in self.region_tasks]
 
+    def unused_keys(self, command: str) -> list[str]:
+        """Keys set in the file that `command` (find, monitor or plan) does not use, in file order."""
+        used = set(COMMAND_KEYS[command])
+        method = self.prediction_method
+        mine, theirs = (REGION_METHODS, OBJECT_METHODS) if command == "monitor" else (OBJECT_METHODS, REGION_METHODS)
+        if method is not None and method not in mine and method in theirs:
+            used.discard("prediction_method")  # a method of the other kind: the other command's
+        return [k for k in type(self).model_fields if k in self.model_fields_set and k not in used]
+
     def object_method(self, source: str) -> tuple[str | None, str | None]:
-        """(retrieval method, 3DSG point feature or None) from `prediction_method`."""
-        if self.prediction_method is None:
+        """(retrieval method, 3DSG point feature or None) from `prediction_method`; (None, None)
+        when it names a region method (the file's monitor task)."""
+        if self.prediction_method is None or self.prediction_method in REGION_METHODS:
             return None, None
         if self.prediction_method not in OBJECT_METHODS:
             raise TerraError(f"{source}: field 'prediction_method' is {self.prediction_method!r}; for objects expected one of: "
@@ -106,7 +125,8 @@ class TaskFile(_Strict):
         return OBJECT_METHODS[self.prediction_method]
 
     def region_method(self, source: str) -> str | None:
-        if self.prediction_method is None:
+        """The monitoring method from `prediction_method`; None when it names an object method."""
+        if self.prediction_method is None or self.prediction_method in OBJECT_METHODS:
             return None
         if self.prediction_method not in REGION_METHODS:
             raise TerraError(f"{source}: field 'prediction_method' is {self.prediction_method!r}; for regions expected one of: "

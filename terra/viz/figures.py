@@ -1,11 +1,15 @@
 """The evaluation report's figures, each a function writing one PNG.
 
-Every figure is top-down in the map frame (metres). Backgrounds come from the map's points
-coloured by terrain; ground truth draws in black, predictions in colour.
+Every map figure is top-down in the map frame (metres), in one terrain palette (terra.viz.style,
+the same as the simulator's world.png); backgrounds are the map's points coloured by terrain,
+faded. Overlays use colours that are no terrain's: ground truth black, paths magenta, predicted
+places orange, methods METHOD_COLOURS. Legends sit below the panels, never over data. The
+retrieval figure, with its zoomed insets, is in terra.viz.retrieval_figure.
 """
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Sequence
 
@@ -16,43 +20,81 @@ from matplotlib.patches import Patch, Polygon
 from terra.datasets.ground_truth import GroundTruth, NamedRegion
 from terra.eval.metrics.boxes import BoxSet
 from terra.graph.scene_graph import SceneGraph
-from terra.viz.places import draw_places, marker_size, region_colours
-from terra.viz.raster import TopDownImage, terrain_raster_image
-from terra.viz.style import (GOAL_COLOUR, PATH_COLOUR, START_COLOUR, Extent, new_figure, save_figure, terrain_legend,
-                             topdown_axis)
+from terra.viz.class_grid import (DIFFERENCE_COLOURS, DIFFERENCE_LABELS, difference, difference_rgba, gt_class_grid,
+                                  map_class_grid)
+from terra.viz.places import draw_place_edges, draw_places, edge_handles, marker_size, region_colours
+from terra.viz.raster import TopDownImage
+from terra.viz.retrieval_figure import boxes_figure  # noqa: F401 (one module of figures for callers)
+from terra.viz.style import (GOAL_COLOUR, HIGHLIGHT_COLOUR, PATH_COLOUR, START_COLOUR, UNSEEN_COLOUR, Extent,
+                             figure_legend, new_figure, save_figure, terrain_handles, topdown_axis, view_extent)
+from terra.words import counted
 
 
-def terrain_map_figure(path: str | Path, terrain_classes: list[str], map_image: TopDownImage,
-                       gt: GroundTruth | None = None, dpi: int = 120, extent: Extent | None = None) -> Path:
-    """Map points coloured by their fused terrain class, beside the ground-truth terrain."""
-    fig, axes = new_figure(2 if gt is not None else 1, title="Terrain: metric-semantic map" + (" vs ground truth" if gt else ""), extent=extent)
-    map_image.show(axes[0])
-    topdown_axis(axes[0], "map points (top-down, highest point per cell)", extent)
-    terrain_legend(axes[0], terrain_classes, other="not terrain")
-    if gt is not None:
-        terrain_raster_image(gt.terrain, terrain_classes).show(axes[1])
-        topdown_axis(axes[1], "ground truth", extent)
+def _outline_buildings(ax, gt: GroundTruth | None) -> None:
+    """Ground-truth building footprints as thin outlines, the same on every panel."""
+    if gt is None:
+        return
+    buildings = [o for o in gt.objects if o.class_name == "building"]
+    for corners in BoxSet.from_objects(buildings).footprint_corners() if buildings else []:
+        ax.add_patch(Polygon(corners, closed=True, fill=False, edgecolor="black", linewidth=0.8, zorder=4))
+
+
+def terrain_map_figure(path: str | Path, terrain_classes: list[str], points: np.ndarray, terrain_index: np.ndarray,
+                       gt: GroundTruth | None = None, dpi: int = 120, extent: Extent | None = None,
+                       cell: float = 0.4) -> Path:
+    """(a) the map's points by class (`terrain_index`: terra.viz.raster.point_classes) and (b) the
+    ground truth (terrain raster with every object's footprint as not terrain), both on the same
+    `cell` grid and drawn the same way, and (c) where they differ. Without `gt`, the map panel alone."""
+    extent = extent or view_extent(points)
+    map_grid = map_class_grid(points, terrain_index, len(terrain_classes), extent, cell)
+    panels = 3 if gt is not None and gt.terrain is not None else 1
+    fig, axes = new_figure(panels, panel_size=5.5, extent=extent,
+                           title="Terrain: the map" + (" against the ground truth" if panels == 3 else ""))
+    axes[0].imshow(map_grid.rgba(terrain_classes), origin="lower", extent=map_grid.extent, interpolation="nearest")
+    topdown_axis(axes[0], "(a) map: highest point per cell" if panels == 3 else "map: highest point per cell", extent)
+    handles = terrain_handles(terrain_classes, "not terrain")
+    handles.append(Patch(color=UNSEEN_COLOUR, label="no camera label (LiDAR only)"))
+    if panels == 3:
+        gt_grid = gt_class_grid(gt, terrain_classes, map_grid.extent, cell)
+        axes[1].imshow(gt_grid.rgba(terrain_classes), origin="lower", extent=gt_grid.extent, interpolation="nearest")
+        topdown_axis(axes[1], "(b) ground truth: terrain, objects on top", extent)
+        categories, share = difference(map_grid, gt_grid)
+        axes[2].imshow(difference_rgba(categories), origin="lower", extent=gt_grid.extent, interpolation="nearest")
+        agree = "" if share is None else f": terrain agrees on {100 * share:.1f}% of cells"
+        topdown_axis(axes[2], f"(c) difference{agree}", extent)
+        for ax in axes:
+            _outline_buildings(ax, gt)
+        handles += [Patch(color=c, label=label) for c, label in zip(DIFFERENCE_COLOURS, DIFFERENCE_LABELS)]
+        handles.append(Line2D([], [], color="black", linewidth=0.8, label="building outline (ground truth)"))
+    figure_legend(fig, handles, ncols=min(len(handles), 5))
     return save_figure(fig, path, dpi)
 
 
 def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
                   extent: Extent | None = None) -> Path:
-    """The places layer coloured by terrain, edges grey (bridges dashed)."""
-    fig, (ax,) = new_figure(1, panel_size=7.0, title=f"Places layer: {len(sg.places)} places, {len(sg.place_edges)} edges", extent=extent)
+    """The places layer coloured by terrain; edges along one terrain grey, cross-terrain links
+    black, bridges dashed."""
+    fig, (ax,) = new_figure(1, panel_size=7.5, extent=extent,
+                            title=f"Places layer: {counted(len(sg.places), 'place')}, "
+                                  f"{counted(len(sg.place_edges), 'edge')}")
     if background is not None:
         background.show(ax, alpha=0.25)
-    draw_places(ax, sg)
+    counts = draw_place_edges(ax, sg)
+    draw_places(ax, sg, edges=False, zorder=3)
     topdown_axis(ax, extent=extent)
-    terrain_legend(ax, sg.terrain_classes, other=None)
+    figure_legend(fig, terrain_handles(sg.terrain_classes, None) + edge_handles(counts), ncols=4)
     return save_figure(fig, path, dpi)
 
 
 def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
                          extent: Extent | None = None) -> Path:
-    """One panel per region level: places coloured by the region containing them."""
+    """One panel per region level: places coloured by the region containing them, region
+    centres as crosses."""
     levels = max(len(sg.regions), 1)
     ncols = min(levels, 2)
-    fig, axes = new_figure(ncols, (levels + ncols - 1) // ncols, title=f"Region levels ({sg.region_method or 'regions'})", extent=extent)
+    fig, axes = new_figure(ncols, (levels + ncols - 1) // ncols, extent=extent,
+                           title=f"Region levels ({sg.region_method or 'regions'}): places by region, "
+                                 "x = region centre")
     for ax in axes[levels:]:
         ax.set_visible(False)
     if not sg.regions:
@@ -64,40 +106,12 @@ def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownIm
         draw_places(ax, sg, colours=region_colours(assignment, seed=level), edges=False)
         centres = sg.regions[level - 1].position
         ax.scatter(centres[:, 0], centres[:, 1], marker="x", c="black", s=25, linewidths=1.0, zorder=3)
-        n = len(sg.regions[level - 1])
-        topdown_axis(ax, f"level {level}: {n} region{'s' if n != 1 else ''}", extent)
+        topdown_axis(ax, f"level {level}: {counted(len(sg.regions[level - 1]), 'region')}", extent)
     return save_figure(fig, path, dpi)
 
 
 def _footprint(ax, corners: np.ndarray, **kwargs) -> None:
     ax.add_patch(Polygon(corners, closed=True, fill=False, **kwargs))
-
-
-def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxSet, np.ndarray]], queries: list[str],
-                 gt_query: np.ndarray, background: TopDownImage | None = None, dpi: int = 120,
-                 extent: Extent | None = None) -> Path:
-    """Retrieved boxes against ground truth, one panel per method. `predictions` maps a method to
-    (boxes, query index per box); `gt_query` is the query index of each ground-truth box. Ground
-    truth is drawn solid and black, predictions dashed in their query's colour."""
-    from matplotlib import colormaps
-
-    colours = colormaps["tab20"](np.arange(max(len(queries), 1)) % 20)[:, :3]
-    methods = list(predictions) or ["(no method)"]
-    fig, axes = new_figure(len(methods), panel_size=6.0, title="Object retrieval: predicted (dashed) vs ground-truth (solid) boxes", extent=extent)
-    for method, ax in zip(methods, axes):
-        if background is not None:
-            background.show(ax, alpha=0.3)
-        for corners, q in zip(gt.footprint_corners(), gt_query):
-            _footprint(ax, corners, edgecolor="black", linewidth=1.2, zorder=3)
-            ax.plot(*corners.mean(axis=0), marker="o", ms=2.5, color=colours[q], zorder=4)
-        boxes, query = predictions.get(method, (BoxSet.empty(), np.zeros(0, dtype=np.int64)))
-        for corners, q in zip(boxes.footprint_corners(), query):
-            _footprint(ax, corners, edgecolor=colours[q], linewidth=1.2, linestyle="--", zorder=5)
-        topdown_axis(ax, f"{method}: {len(boxes)} boxes, {len(gt)} ground truth", extent)
-    handles = [Line2D([], [], color=colours[i], linestyle="--", label=q) for i, q in enumerate(queries)]
-    handles.append(Line2D([], [], color="black", label="ground truth"))
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 5), fontsize=8, frameon=False)
-    return save_figure(fig, path, dpi)
 
 
 def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
@@ -108,10 +122,12 @@ def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | 
 
     labels = list(dict.fromkeys(sg.objects.label))
     colours = colormaps["tab10"](np.arange(max(len(labels), 1)) % 10)[:, :3]
-    fig, (ax,) = new_figure(1, panel_size=7.0, title=title or f"Objects: {len(sg.objects)} in the scene graph", extent=extent)
+    title = title or f"Objects: {counted(len(sg.objects), 'object')} in the scene graph"
+    fig, (ax,) = new_figure(1, panel_size=7.0, title=title,
+                            extent=extent)
     if background is not None:
         background.show(ax, alpha=0.3)
-    draw_places(ax, sg, colours=np.full((len(sg.places), 3), 0.7), edges=True)
+    draw_places(ax, sg, colours=np.full((len(sg.places), 3), 0.7), edges="#b0b0b0")
     boxes = BoxSet(sg.objects.center, sg.objects.size, sg.objects.yaw)
     for corners, label, place, centre in zip(boxes.footprint_corners(), sg.objects.label, sg.objects.place, boxes.center):
         colour = colours[labels.index(label)]
@@ -121,8 +137,7 @@ def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | 
                     linewidth=0.8, linestyle=":", zorder=4)
     topdown_axis(ax, extent=extent)
     if labels:
-        ax.legend(handles=[Line2D([], [], color=colours[i], label=lb) for i, lb in enumerate(labels)], loc="upper right",
-                  fontsize=7, framealpha=0.85)
+        figure_legend(fig, [Line2D([], [], color=colours[i], label=lb) for i, lb in enumerate(labels)], ncols=3)
     else:
         ax.text(0.5, 0.5, "no objects (run terra find --save, or give --query)", ha="center", va="center", transform=ax.transAxes)
     return save_figure(fig, path, dpi)
@@ -131,81 +146,99 @@ def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | 
 def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) -> None:
     xy = sg.places.position[:, :2]
     if len(places):
-        ax.plot(xy[places, 0], xy[places, 1], color=PATH_COLOUR, linewidth=2.0, zorder=4)
-        ax.scatter(xy[places, 0], xy[places, 1], s=marker_size(len(sg.places)) * 1.5, c=PATH_COLOUR, edgecolors="black",
-                   linewidths=0.3, zorder=5)
-    ax.scatter(*xy[start], s=90, c=START_COLOUR, edgecolors="white", linewidths=1.0, zorder=6)
-    ax.scatter(*xy[goal], s=90, c=GOAL_COLOUR, edgecolors="white", linewidths=1.0, zorder=6)
+        ax.plot(xy[places, 0], xy[places, 1], color="white", linewidth=4.0, zorder=4, solid_capstyle="round")
+        ax.plot(xy[places, 0], xy[places, 1], color=PATH_COLOUR, linewidth=2.2, zorder=4.5, solid_capstyle="round")
+    ax.scatter(*xy[start], s=110, c=START_COLOUR, edgecolors="black", linewidths=1.5, zorder=6)
+    ax.scatter(*xy[goal], s=170, marker="*", c=GOAL_COLOUR, edgecolors="white", linewidths=1.0, zorder=6)
 
 
 def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans: Sequence[tuple[str, np.ndarray, float]],
                  task: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None,
                  notes: Sequence[str] | None = None) -> Path:
     """Like the paper's navigation figure: (a) terrain-coloured places, then one panel per plan
-    given as (title, place indices, length in metres), start red, goal black, path cyan.
-    `notes`: one line per plan shown under its title (e.g. its terrain shares)."""
+    given as (title, place indices, length in metres); the path magenta, the start a white disc,
+    the goal a black star (no terrain has these colours). `notes`: one line per plan shown under
+    its title (e.g. its terrain shares)."""
     fig, axes = new_figure(1 + len(plans), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
     for ax in axes:
         if background is not None:
             background.show(ax, alpha=0.2)
-        draw_places(ax, sg)
+        draw_places(ax, sg, edges="#a0a0a0")
     topdown_axis(axes[0], "(a) terrain-coloured places", extent)
-    terrain_legend(axes[0], sg.terrain_classes, other=None)
     for i, ((title, places, length), ax) in enumerate(zip(plans, axes[1:])):
         _draw_path(ax, sg, np.asarray(places, dtype=np.int64), start, goal)
         note = f"\n{notes[i]}" if notes is not None and notes[i] else ""
         topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m{note}", extent)
-    handles = [Line2D([], [], marker="o", linestyle="", color=START_COLOUR, label="start"),
-               Line2D([], [], marker="o", linestyle="", color=GOAL_COLOUR, label="goal"),
-               Line2D([], [], color=PATH_COLOUR, label="path")]
-    axes[-1].legend(handles=handles, loc="upper right", fontsize=7, framealpha=0.85)
+    handles = terrain_handles(sg.terrain_classes, None) + [
+        Line2D([], [], marker="o", linestyle="", markerfacecolor=START_COLOUR, markeredgecolor="black", label="start"),
+        Line2D([], [], marker="*", linestyle="", markersize=10, color=GOAL_COLOUR, label="goal"),
+        Line2D([], [], color=PATH_COLOUR, linewidth=2.2, label="path")]
+    figure_legend(fig, handles, ncols=len(handles))
     return save_figure(fig, path, dpi)
 
 
 def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegion], predicted: list[np.ndarray],
-                      method: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None) -> Path:
-    """Per named region: its polygon (black) and the places predicted for its description
-    (highlighted), like the paper's region-monitoring figure."""
+                      method: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None,
+                      scores: Sequence[tuple[float, float]] | None = None) -> Path:
+    """Per labelled region, a panel titled with its query (the region's description) and, given
+    `scores` [(precision, recall)], how well it was answered: the region's polygon (black), its
+    places (black rings) and the places predicted for the query (orange)."""
+    from terra.eval.metrics.regions import places_in_polygon
+
     n = max(len(regions), 1)
-    ncols = min(n, 2)
-    fig, axes = new_figure(ncols, (n + ncols - 1) // ncols, title=f"Region monitoring ({method}): predicted places vs labelled regions", extent=extent)
+    ncols = min(n, min((3, 4), key=lambda c: (-(-n // c) * c - n, c)))  # 3 or 4 columns, fewest empty panels
+    fig, axes = new_figure(ncols, (n + ncols - 1) // ncols, panel_size=4.6, extent=extent,
+                           title=f"Region monitoring ({method}): the places predicted for each region's description")
     for ax in axes[len(regions):]:
         ax.set_visible(False)
-    grey = np.full((len(sg.places), 3), 0.75)
-    for region, places, ax in zip(regions, predicted, axes):
+    grey = np.full((len(sg.places), 3), 0.78)
+    size = marker_size(len(sg.places))
+    for i, (region, places, ax) in enumerate(zip(regions, predicted, axes)):
         if background is not None:
-            background.show(ax, alpha=0.25)
+            background.show(ax, alpha=0.2)
         draw_places(ax, sg, colours=grey, edges=False)
+        truth = sg.places.position[places_in_polygon(sg.places.position, region.polygon)]
+        ax.scatter(truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8,
+                   zorder=4)
         xy = sg.places.position[np.asarray(places, dtype=np.int64)]
-        ax.scatter(xy[:, 0], xy[:, 1], s=marker_size(len(sg.places)) * 1.5, c="#ff7f0e", edgecolors="black", linewidths=0.3, zorder=4)
-        ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=5))
-        topdown_axis(ax, f'"{region.description}"' if len(region.description) < 60 else region.name, extent)
-    axes[0].legend(handles=[Patch(color="#ff7f0e", label="predicted places"), Line2D([], [], color="black", label="labelled region")],
-                   loc="upper right", fontsize=7, framealpha=0.85)
+        ax.scatter(xy[:, 0], xy[:, 1], s=size * 1.4, c=HIGHLIGHT_COLOUR, edgecolors="black", linewidths=0.3, zorder=5)
+        ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=6))
+        title = "\n".join(textwrap.wrap(f'"{region.description}"', 44))
+        if scores is not None:
+            p, r = scores[i]
+            title += f"\nP {p:.2f}, R {r:.2f} ({counted(len(xy), 'place')} predicted, {len(truth)} in the region)"
+        topdown_axis(ax, title, extent)
+        ax.title.set_fontsize(8.5)
+    figure_legend(fig, [Patch(color=HIGHLIGHT_COLOUR, label="predicted places"),
+                        Line2D([], [], marker="o", linestyle="", markerfacecolor="none", markeredgecolor="black",
+                               label="places in the region"),
+                        Line2D([], [], color="black", label="labelled region")], ncols=3)
     return save_figure(fig, path, dpi)
 
 
-def memory_figure(path: str | Path, entries: Sequence[tuple[str, dict[str, int], float]], dpi: int = 120) -> Path:
-    """Stacked bars of bundle bytes by component (MiB) per entry (label, component bytes, area m^2),
-    annotated with bytes per square metre of mapped area, like the paper's memory figure."""
-    from matplotlib import colormaps
-
-    components = sorted({c for _, comp, _ in entries for c in comp})
-    colours = colormaps["Set2"](np.arange(max(len(components), 1)) % 8)
-    fig, (ax,) = new_figure(1, panel_size=4.5, title="Saved map and graph size")
-    x = np.arange(len(entries))
-    bottom = np.zeros(len(entries))
-    for c, colour in zip(components, colours):
-        mib = np.array([comp.get(c, 0) / 2**20 for _, comp, _ in entries])
-        ax.bar(x, mib, bottom=bottom, color=colour, label=c, width=0.6)
-        bottom += mib
-    for xi, (label, comp, area) in zip(x, entries):
-        total = sum(comp.values())
-        ax.annotate(f"{total / 2**20:.2f} MiB\n{area:,.0f} m²\n{total / max(area, 1e-9):,.0f} B/m²", (xi, bottom[xi]),
-                    ha="center", va="bottom", fontsize=7, xytext=(0, 2), textcoords="offset points")
-    ax.set_xticks(x, [label for label, _, _ in entries], fontsize=8)
-    ax.set_xlim(-0.5 - 0.5 / max(len(entries), 1), len(entries) - 0.5 + 0.5 / max(len(entries), 1))
-    ax.set_ylabel("MiB on disk", fontsize=8)
-    ax.set_ylim(0, max(bottom.max(initial=0) * 1.35, 1e-3))
-    ax.legend(fontsize=7, loc="upper left")
+def memory_figure(path: str | Path, parts: dict[str, int], area_m2: float, label: str = "", dpi: int = 120) -> Path:
+    """What the saved map and graph spend their bytes on: one bar per part (MiB), annotated with
+    bytes per square metre of mapped area and the share of the total (map parts purple, graph
+    parts orange)."""
+    names = sorted(parts, key=lambda n: (-parts[n], n))  # largest first (summary.json sorts keys by name)
+    mib = np.array([parts[n] / 2**20 for n in names])
+    total = max(sum(parts.values()), 1)
+    per_m2 = total / max(area_m2, 1e-9)
+    title = (f"Saved map and graph{' of ' + label if label else ''}: {total / 2**20:.2f} MiB for {area_m2:,.0f} m² "
+             f"({per_m2:,.0f} B/m²)")
+    fig, (ax,) = new_figure(1, panel_size=7.5, title=title)
+    fig.set_size_inches(7.5, max(0.42 * len(names) + 1.2, 3.0))
+    y = np.arange(len(names))[::-1]
+    colours = ["#6a3d9a" if n.startswith("map") else HIGHLIGHT_COLOUR if n.startswith("graph") else "#9e9e9e"
+               for n in names]
+    ax.barh(y, mib, color=colours, height=0.65)
+    for yi, name, value in zip(y, names, mib):
+        ax.annotate(f"{parts[name] / max(area_m2, 1e-9):,.1f} B/m², {100 * parts[name] / total:.0f}%", (value, yi),
+                    xytext=(4, 0), textcoords="offset points", va="center", fontsize=8)
+    ax.set_yticks(y, names, fontsize=8)
+    ax.set_xlabel("MiB on disk", fontsize=8)
+    ax.set_xlim(0, max(float(mib.max(initial=0)) * 1.45, 1e-3))
+    ax.tick_params(axis="x", labelsize=7)
+    for side in ("top", "right"):
+        ax.spines[side].set_visible(False)
     return save_figure(fig, path, dpi)

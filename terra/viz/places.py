@@ -1,4 +1,4 @@
-"""Drawing the places layer: nodes coloured by terrain or by region, edges as thin lines."""
+"""Drawing the places layer: nodes coloured by terrain or by region, edges styled by kind."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 
-from terra.graph.scene_graph import EDGE_BRIDGE, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
 from terra.viz.style import terrain_palette
 
 
@@ -15,23 +15,45 @@ def marker_size(count: int) -> float:
     return float(np.clip(4000.0 / max(count, 1), 3.0, 30.0))
 
 
-def draw_place_edges(ax: Axes, sg: SceneGraph, colour: str = "#7f7f7f", width: float = 0.6, alpha: float = 0.7) -> None:
-    """Place edges as line segments; bridge edges (joining components) dashed."""
+EDGE_STYLES = {  # kind: (label, colour, width, line style); cross-terrain links stand out
+    EDGE_GVD: ("along one terrain", "#8c8c8c", 0.6, "solid"),
+    EDGE_CROSS_TERRAIN: ("cross-terrain link", "#000000", 1.3, "solid"),
+    EDGE_BRIDGE: ("bridge (joins components)", "#000000", 1.0, "dashed"),
+}
+
+
+def draw_place_edges(ax: Axes, sg: SceneGraph, colour: str | None = None, width: float | None = None,
+                     alpha: float = 0.8) -> dict[int, int]:
+    """Place edges as line segments styled by kind (EDGE_STYLES), or all in `colour` when given;
+    returns the number of edges drawn per kind."""
+    counts: dict[int, int] = {}
     if len(sg.place_edges) == 0:
-        return
+        return counts
     xy = sg.places.position[:, :2]
-    bridge = sg.place_edge_kind == EDGE_BRIDGE
-    for mask, style in ((~bridge, "solid"), (bridge, "dashed")):
+    for kind, (_, kind_colour, kind_width, style) in EDGE_STYLES.items():
+        mask = sg.place_edge_kind == kind
         if mask.any():
-            segs = xy[sg.place_edges[mask]]
-            ax.add_collection(LineCollection(segs, colors=colour, linewidths=width, alpha=alpha, linestyles=style, zorder=1))
+            counts[kind] = int(np.count_nonzero(mask))
+            ax.add_collection(LineCollection(xy[sg.place_edges[mask]], colors=colour or kind_colour,
+                                             linewidths=width or kind_width, alpha=alpha, linestyles=style,
+                                             zorder=1.5 if kind != EDGE_GVD else 1))
+    return counts
 
 
-def draw_places(ax: Axes, sg: SceneGraph, colours: np.ndarray | None = None, edges: bool = True,
+def edge_handles(counts: dict[int, int]) -> list:
+    """Legend lines for the edge kinds drawn, with their counts."""
+    from matplotlib.lines import Line2D
+
+    return [Line2D([], [], color=c, linewidth=w, linestyle=st, label=f"{label} ({counts[kind]})")
+            for kind, (label, c, w, st) in EDGE_STYLES.items() if counts.get(kind)]
+
+
+def draw_places(ax: Axes, sg: SceneGraph, colours: np.ndarray | None = None, edges: bool | str = True,
                 size: float | None = None, zorder: int = 2) -> None:
-    """Place nodes at their map-frame xy, coloured by terrain unless `colours` (P, 3) is given."""
+    """Place nodes at their map-frame xy, coloured by terrain unless `colours` (P, 3) is given;
+    edges styled by kind (True), all in one colour (a colour string) or not drawn (False)."""
     if edges:
-        draw_place_edges(ax, sg)
+        draw_place_edges(ax, sg, colour=None if edges is True else edges)
     if len(sg.places) == 0:
         return
     if colours is None:

@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.axes import Axes
 
 from terra.datasets.ground_truth import TerrainRaster
-from terra.viz.style import terrain_palette
+from terra.viz.style import map_palette, terrain_palette
 
 
 @dataclass
@@ -20,6 +20,18 @@ class TopDownImage:
 
     def show(self, ax: Axes, alpha: float = 1.0) -> None:
         ax.imshow(self.rgba, origin="lower", extent=self.extent, interpolation="nearest", alpha=alpha, zorder=0)
+
+    def crop(self, window: tuple[float, float, float, float]) -> "TopDownImage":
+        """The part of the image covering `window` (xmin, xmax, ymin, ymax metres), whole cells,
+        so a zoomed panel does not resample the whole map."""
+        h, w = self.rgba.shape[:2]
+        x0, x1, y0, y1 = self.extent
+        cx, cy = (x1 - x0) / max(w, 1), (y1 - y0) / max(h, 1)
+        c0, c1 = (int(np.clip(np.floor((window[0] - x0) / cx), 0, w)), int(np.clip(np.ceil((window[1] - x0) / cx), 0, w)))
+        r0, r1 = (int(np.clip(np.floor((window[2] - y0) / cy), 0, h)), int(np.clip(np.ceil((window[3] - y0) / cy), 0, h)))
+        if c1 <= c0 or r1 <= r0:
+            return TopDownImage(np.zeros((1, 1, 4)), (window[0], window[1], window[2], window[3]))
+        return TopDownImage(self.rgba[r0:r1, c0:c1], (x0 + c0 * cx, x0 + c1 * cx, y0 + r0 * cy, y0 + r1 * cy))
 
 
 def rasterize_points(points: np.ndarray, colours: np.ndarray, cell: float = 0.4, max_pixels: int = 1600) -> TopDownImage:
@@ -45,10 +57,22 @@ def rasterize_points(points: np.ndarray, colours: np.ndarray, cell: float = 0.4,
     return TopDownImage(rgba.reshape(shape[0], shape[1], 4), extent)
 
 
+def point_classes(msm) -> np.ndarray:
+    """(N,) what each map point shows in figures: its terrain index 0..T-1, T when it is not
+    terrain (an object, a building, a tree: it has object observations), T + 1 when no camera
+    labelled it at all (LiDAR only, e.g. beyond the cameras' range)."""
+    terrain = msm.terrain_index()
+    count = len(msm.terrain_classes)
+    observed = np.diff(msm.counts.tocsr().indptr) > 0
+    return np.where(terrain >= 0, terrain, np.where(observed, count, count + 1))
+
+
 def terrain_points_image(points: np.ndarray, terrain_index: np.ndarray, terrain_classes: list[str], cell: float = 0.4) -> TopDownImage:
-    """Map points coloured by terrain index (-1 = not terrain, drawn dark grey)."""
-    palette = terrain_palette(terrain_classes)
-    return rasterize_points(points, palette[np.asarray(terrain_index)], cell)
+    """Map points coloured by terrain index (-1 or T = not terrain, drawn dark grey; T + 1 = no
+    camera label, light grey; see point_classes)."""
+    palette = map_palette(terrain_classes)
+    index = np.asarray(terrain_index)
+    return rasterize_points(points, palette[np.where(index < 0, len(terrain_classes), index)], cell)
 
 
 def terrain_raster_image(raster: TerrainRaster, terrain_classes: list[str]) -> TopDownImage:

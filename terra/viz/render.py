@@ -38,7 +38,7 @@ def render_bundle(
     """Draw figure `what` of the bundle into PNG `out` (replaced atomically); returns a summary.
     `queries`: objects to find for "objects"; `plan`: the plan request for "path"."""
     from terra.viz import figures
-    from terra.viz.raster import terrain_points_image
+    from terra.viz.raster import point_classes, terrain_points_image
 
     if what not in WHAT:
         raise TerraError(f"--what {what!r}: expected one of {', '.join(WHAT)}")
@@ -49,13 +49,14 @@ def render_bundle(
         raise TerraError(f"{out}: expected a PNG file name in an existing folder")
     msm = loaded.require_map("terra render")
     graph = None if what == "terrain" else loaded.require_graph(f"--what {what}")
-    background = terrain_points_image(msm.points, msm.terrain_index(), msm.terrain_classes, cell=msm.voxel_size)
+    background = terrain_points_image(msm.points, point_classes(msm), msm.terrain_classes, cell=msm.voxel_size)
     extent = mapped_extent(msm, loaded.graph)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}.png")
     summary: dict[str, Any] = {"what": what, "out": str(out)}
     try:
         if what == "terrain":
-            figures.terrain_map_figure(tmp, msm.terrain_classes, background, dpi=dpi, extent=extent)
+            figures.terrain_map_figure(tmp, msm.terrain_classes, msm.points, point_classes(msm), dpi=dpi, extent=extent,
+                                       cell=msm.voxel_size)
         else:
             summary.update(_graph_figure(what, loaded, graph, tmp, background, dpi, extent, queries, plan))
         os.replace(tmp, out)

@@ -15,7 +15,8 @@ from matplotlib.colors import to_rgb  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-# The paper colours sidewalk red, grass green and asphalt blue; the others follow suit.
+# One terrain palette for every figure Terra draws (world.png, the report, terra render): the
+# paper colours sidewalk red, grass green and asphalt blue; the others follow suit.
 TERRAIN_COLOURS = {
     "sidewalk": "#d62728",
     "grass": "#2ca02c",
@@ -25,11 +26,17 @@ TERRAIN_COLOURS = {
     "gravel": "#9467bd",
     "sand": "#e6c229",
 }
-FALLBACK_COLOURS = ["#ff7f0e", "#e377c2", "#bcbd22", "#7f7f7f", "#8c564b", "#9467bd"]
-OTHER_COLOUR = "#4d4d4d"  # non-terrain map points (objects, buildings, trees)
-START_COLOUR = "#e31a1c"
+FALLBACK_COLOURS = ["#e377c2", "#bcbd22", "#8c564b", "#7f7f7f"]
+OTHER_COLOUR = "#4d4d4d"  # what is not terrain: buildings, trees, objects (map points and ground truth alike)
+UNSEEN_COLOUR = "#dedede"  # map points no camera labelled (LiDAR only)
+TREE_COLOUR = "#6e6e6e"  # tree crowns in pictures of the ground truth
+# Overlays, none of them a terrain colour: paths magenta, starts white, goals black, highlighted
+# places orange; methods in retrieval figures get METHOD_COLOURS.
+START_COLOUR = "#ffffff"
 GOAL_COLOUR = "#000000"
-PATH_COLOUR = "#00bcd4"
+PATH_COLOUR = "#ff00ff"
+HIGHLIGHT_COLOUR = "#ff7f0e"
+METHOD_COLOURS = ["#ff00ff", "#ff7f0e", "#6a3d9a", "#000000", "#b15928"]
 
 
 def terrain_colour(name: str, index: int = 0) -> tuple[float, float, float]:
@@ -43,12 +50,32 @@ def terrain_palette(terrain_classes: list[str]) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64)
 
 
-def terrain_legend(ax: Axes, terrain_classes: list[str], other: str | None = "other", **kwargs) -> None:
-    """A legend with one patch per terrain class (and `other` when given)."""
+def map_palette(terrain_classes: list[str]) -> np.ndarray:
+    """(T + 2, 3) RGB rows for map points: terrain classes, not terrain, then no camera label."""
+    return np.vstack([terrain_palette(terrain_classes), to_rgb(UNSEEN_COLOUR)])
+
+
+def terrain_handles(terrain_classes: list[str], other: str | None = "not terrain") -> list:
+    """Legend patches: one per terrain class, then `other` (not terrain) when given."""
     handles = [Patch(color=terrain_colour(n, i), label=n) for i, n in enumerate(terrain_classes)]
     if other:
         handles.append(Patch(color=OTHER_COLOUR, label=other))
-    ax.legend(handles=handles, loc=kwargs.pop("loc", "upper right"), fontsize=kwargs.pop("fontsize", 7), framealpha=0.85, **kwargs)
+    return handles
+
+
+def terrain_legend(ax: Axes, terrain_classes: list[str], other: str | None = "other", **kwargs) -> None:
+    """A legend with one patch per terrain class (and `other` when given), outside the axes
+    (below them) so it never covers data."""
+    figure_legend(ax.figure, terrain_handles(terrain_classes, other), **kwargs)
+
+
+def figure_legend(fig: Figure, handles: list, ncols: int | None = None, fontsize: float = 8,
+                  title: str | None = None) -> None:
+    """One legend for the whole figure, below the panels (never over data)."""
+    if not handles:
+        return
+    fig.legend(handles=handles, loc="outside lower center", ncols=ncols or min(len(handles), 6), fontsize=fontsize,
+               frameon=False, title=title, title_fontsize=fontsize)
 
 
 Extent = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax (metres, map frame)
@@ -62,12 +89,34 @@ def new_figure(ncols: int = 1, nrows: int = 1, panel_size: float = 5.0, title: s
     if extent is not None:
         aspect = float(np.clip((extent[3] - extent[2]) / max(extent[1] - extent[0], 1e-9), 0.4, 2.0))
     height = panel_size * aspect + 0.6  # room for the axis labels and panel title
-    fig = Figure(figsize=(panel_size * ncols, height * nrows + (0.4 if title else 0.0)), layout="constrained")
+    fig = Figure(figsize=(panel_size * ncols, height * nrows + (0.4 if title else 0.0)), layout="compressed")
+    fig.get_layout_engine().set(h_pad=0.06, w_pad=0.06, hspace=0.02, wspace=0.02)
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel().tolist()
     if title:
         fig.suptitle(title, fontsize=12)
     return fig, axes
+
+
+def _close_gaps(fig: Figure) -> None:
+    """Move the figure's title down onto the panels and its legend up under them: equal-aspect
+    map panels rarely fill the height the layout gave them, which otherwise leaves white bands
+    inside the picture (the outer margins are cropped when saving)."""
+    fig.canvas.draw()  # lay the panels out once, then freeze them
+    renderer = fig.canvas.get_renderer()
+    boxes = [ax.get_tightbbox(renderer) for ax in fig.axes if ax.get_visible()]
+    if not boxes:
+        return
+    fig.set_layout_engine("none")
+    height = fig.bbox.height
+    top, bottom = max(b.y1 for b in boxes) / height, min(b.y0 for b in boxes) / height
+    title = fig._suptitle  # the figure's own title (set by suptitle)
+    if title is not None:
+        title.set_y(min(top + 0.01, 0.99))
+        title.set_verticalalignment("bottom")
+    for legend in fig.legends:
+        legend.set_loc("upper center")
+        legend.set_bbox_to_anchor((0.5, max(bottom - 0.005, 0.0)), transform=fig.transFigure)
 
 
 def topdown_axis(ax: Axes, title: str | None = None, extent: Extent | None = None) -> None:
@@ -94,8 +143,10 @@ def view_extent(*xy: np.ndarray, margin: float = 0.05) -> Extent:
 
 
 def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
-    """Write a PNG with no software/time metadata, so equal figures give equal bytes."""
+    """Write a PNG with no software/time metadata, so equal figures give equal bytes, cropped to
+    what is drawn (no empty white bands)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    _close_gaps(fig)
+    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": None}, bbox_inches="tight", pad_inches=0.12)
     return path

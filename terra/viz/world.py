@@ -27,6 +27,23 @@ def _box_corners(center: np.ndarray, size: np.ndarray, yaw: float) -> np.ndarray
     return np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]]) @ np.array([[c, s], [-s, c]]) + center[:2]
 
 
+def world_colours(gt: GroundTruth, colors: np.ndarray) -> np.ndarray:
+    """RGB 0..255 per class id: terrain, buildings and trees as every report figure draws them
+    (terra.viz.style's palette); the simulator's own colours (its camera images') for the rest."""
+    from matplotlib.colors import to_rgb
+
+    from terra.viz.style import OTHER_COLOUR, TREE_COLOUR, terrain_colour
+
+    out = np.array(colors, dtype=np.float64).copy()
+    for class_id, name in (gt.terrain.legend.items() if gt.terrain is not None else ()):
+        if 0 < class_id < len(out) and name != "unlabeled":
+            out[class_id] = np.asarray(terrain_colour(name, class_id)) * 255.0
+    for o in gt.objects:
+        if o.class_name in ("building", "tree") and 0 <= o.class_id < len(out):
+            out[o.class_id] = np.asarray(to_rgb(OTHER_COLOUR if o.class_name == "building" else TREE_COLOUR)) * 255.0
+    return out
+
+
 def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray | None = None,
                      colors: np.ndarray | None = None, title: str = "", dpi: int = 110) -> Path:
     """Write a top-down PNG (map frame, x right, y up, metres) of `gt` and the robot trajectory.
@@ -45,6 +62,7 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
     if colors is None:
         from terra.sim.classes import CLASS_COLORS as colors
     raster = gt.terrain
+    colors = world_colours(gt, colors)
     h, w = raster.classes.shape
     x0, y0 = raster.origin
     x1, y1 = x0 + w * raster.resolution, y0 + h * raster.resolution
@@ -57,8 +75,8 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
     side = 8.0
     fig = plt.figure(figsize=(side + 3.2, side * (y1 - y0) / max(x1 - x0, 1e-9) + 0.7))
     ax = fig.add_axes((0.07, 0.06, side / (side + 3.2) * 0.93, 0.88))
-    ax.imshow(colors[np.clip(raster.classes, 0, len(colors) - 1)], origin="lower", extent=(x0, x1, y0, y1),
-              interpolation="nearest")
+    ax.imshow(colors[np.clip(raster.classes, 0, len(colors) - 1)].astype(np.uint8), origin="lower",
+              extent=(x0, x1, y0, y1), interpolation="nearest")
 
     # Objects, lowest first so tall things (buildings, trees) stay on top; trees as crowns.
     patches, faces, edges = [], [], []
@@ -116,6 +134,6 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
                fontsize=7.5, frameon=False, title=f"terrain ({len(terrain_ids)}), objects ({len(object_ids)})",
                title_fontsize=8, handlelength=1.6, labelspacing=0.35, ncols=1 if len(handles) <= 36 else 2)
     out = Path(out)
-    fig.savefig(out, dpi=dpi, metadata={"Software": None})
+    fig.savefig(out, dpi=dpi, metadata={"Software": None}, bbox_inches="tight", pad_inches=0.1)
     plt.close(fig)
     return out
