@@ -114,8 +114,8 @@ def test_demo_redoes_only_the_steps_whose_configuration_changed(tiny_demo, tmp_p
 
 
 def test_demo_bad_arguments_fail_with_one_line(tmp_path):
-    code, _, stderr = run_cli(["demo", "--out", str(tmp_path / "d"), "--preset", "huge"])
-    assert code == 2 and stderr.strip().count("\n") == 0 and "unknown preset 'huge'" in stderr
+    code, _, stderr = run_cli(["demo", "--out", str(tmp_path / "d"), "--preset", "gigantic"])
+    assert code == 2 and stderr.strip().count("\n") == 0 and "unknown preset 'gigantic'" in stderr
     assert not (tmp_path / "d").exists()
 
 

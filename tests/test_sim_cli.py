@@ -59,7 +59,7 @@ def error_line(capsys):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--preset", "huge"], "unknown preset 'huge'; expected one of: tiny, small, campus, large"),
+    (["--preset", "gigantic"], "unknown preset 'gigantic'; expected one of: tiny, small, campus, large, huge"),
     (["--format", "kitti360"], "unknown format 'kitti360'; expected one of: terra-folder, semantickitti, kitti-raw"),
 ])
 def test_unknown_preset_or_format(tmp_path, capsys, args, message):

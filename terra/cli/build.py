@@ -92,4 +92,16 @@ def build_command(
     typer.echo(f"  place embeddings: {src['images']} from images, {src['points']} from points, {src['terrain_text']} from the terrain name")
     if src["images"] == 0 and src["points"]:
         typer.echo("  (the map has no images: place embeddings come from the map points instead)")
+    cells = result.stats["grid_cells"]
+    grid_tiles, tiles = result.stats.get("grid_tiles"), result.stats.get("gvd_tiles")
+    if grid_tiles and grid_tiles["one_piece"]:
+        grid_where = f"in one piece ({grid_tiles['one_piece']})"
+    elif grid_tiles:
+        grid_where = (f"in {section.tiles.size:g} m tiles ({grid_tiles['windows']} windows, "
+                      f"overlap up to {grid_tiles['max_overlap_m']:g} m)")
+    else:
+        grid_where = "in one piece"
+    gvd_where = (f"in tiles ({tiles['windows']} windows, overlap up to {tiles['max_overlap_m']:g} m)"
+                 if tiles else "in one piece")
+    typer.echo(f"  terrain grid: {cells[0]} x {cells[1]} cells, computed {grid_where}; GVD {gvd_where}")
     typer.echo(result.timer.table())

@@ -16,7 +16,7 @@ from terra.words import counted
 @app.command("sim")
 def sim(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist or be empty, unless --overwrite)."),
-    preset: str = typer.Option("small", "--preset", "-p", help="World size: tiny, small, campus or large."),
+    preset: str = typer.Option("small", "--preset", "-p", help="World size: tiny, small, campus, large (2 km) or huge (3.2 km)."),
     seed: int = typer.Option(0, "--seed", "-s", min=0, help="Random seed; same preset and seed give the same bytes."),
     format: str = typer.Option("terra-folder", "--format", "-f",
                                help="terra-folder (the reference layout), semantickitti, kitti-raw (a raw drive with "

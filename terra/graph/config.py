@@ -45,6 +45,15 @@ class GridSection(Section):
         return v
 
 
+class TilesSection(Section):
+    """The terrain grid and the per-terrain GVD computed one tile (plus an overlap) at a time, so
+    `terra build`'s working memory follows the tile, not the map. The result is the same as in one
+    piece: each tile's overlap grows until that is proven (terra.graph.tiled_grid, tiled_gvd)."""
+
+    size: float | None = Field(400.0, gt=0.0, description="metres; side of a square tile (None = the whole grid in one piece)")
+    overlap: float = Field(50.0, gt=0.0, description="metres of overlap tried first around each tile; doubled where a tile's result is not yet proven equal to the one-piece result")
+
+
 class GvdSection(Section):
     """Per-terrain generalized Voronoi diagram and place extraction on it."""
 
@@ -133,6 +142,7 @@ class RegionsSection(Section):
 class BuildConfig(Section):
     terrain: TerrainSection = Field(default_factory=TerrainSection)
     grid: GridSection = Field(default_factory=GridSection)
+    tiles: TilesSection = Field(default_factory=TilesSection)
     gvd: GvdSection = Field(default_factory=GvdSection)
     linking: LinkingSection = Field(default_factory=LinkingSection)
     embedding: EmbeddingSection = Field(default_factory=EmbeddingSection)

@@ -20,13 +20,16 @@ class TerrainGrid:
     """label: (H, W) int16 terrain index per cell (majority of its terrain points, -1 = none or
     blocked). ground: (H, W) float32 local ground height (metres, map frame; cells without terrain
     points take the nearest cell's). blocked: (H, W) bool cells holding obstacle points.
-    origin: (2,) lower-left corner of cell (0, 0), metres. cell_size: metres."""
+    origin: (2,) lower-left corner of cell (0, 0), metres. cell_size: metres. offset: (row, col)
+    of this grid's cell (0, 0) when it is a window of a larger grid whose cell (0, 0) lies at
+    `origin` (see GridFrame); (0, 0) for a whole grid."""
 
     label: np.ndarray
     ground: np.ndarray
     blocked: np.ndarray
     origin: np.ndarray
     cell_size: float
+    offset: tuple[int, int] = (0, 0)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -34,13 +37,13 @@ class TerrainGrid:
 
     def cell_centres(self, cells: np.ndarray) -> np.ndarray:
         """(n, 2) map-frame x, y (metres) of the centres of (n, 2) row/col cells."""
-        cells = np.asarray(cells, dtype=np.float64).reshape(-1, 2)
+        cells = np.asarray(cells, dtype=np.float64).reshape(-1, 2) + np.asarray(self.offset, dtype=np.float64)
         return self.origin + (cells[:, ::-1] + 0.5) * self.cell_size
 
     def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rows, cols, inside) of map-frame points (n, 2+); rows/cols clipped into the grid."""
         rc = np.floor((np.asarray(xy)[:, :2] - self.origin) / self.cell_size).astype(np.int64)
-        rows, cols = rc[:, 1], rc[:, 0]
+        rows, cols = rc[:, 1] - self.offset[0], rc[:, 0] - self.offset[1]
         H, W = self.shape
         inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
         return np.clip(rows, 0, H - 1), np.clip(cols, 0, W - 1), inside
@@ -75,6 +78,66 @@ class TerrainGrid:
         return mask, dropped
 
 
+@dataclass(frozen=True)
+class GridFrame:
+    """Where a grid lies: origin (2,) metres, the lower-left corner of cell (0, 0) of the whole
+    grid, whose cell `offset` (row, col) is this frame's first; shape (H, W) cells; cell_size
+    metres. A window of a frame is a frame too (`window`): it keeps
+    the origin and moves the offset, so a point falls in the same cell of both, to the last bit."""
+
+    origin: tuple[float, float]
+    shape: tuple[int, int]
+    cell_size: float
+    offset: tuple[int, int] = (0, 0)
+
+    def window(self, rows: slice, cols: slice) -> "GridFrame":
+        """The frame of cells [rows, cols] of this one (slices with explicit, in-range bounds)."""
+        offset = (self.offset[0] + rows.start, self.offset[1] + cols.start)
+        return GridFrame(self.origin, (rows.stop - rows.start, cols.stop - cols.start), self.cell_size, offset)
+
+
+def grid_frame(points: np.ndarray, terrain: np.ndarray, cell_size: float = 0.4, margin_cells: int = 4) -> GridFrame:
+    """The frame `build_terrain_grid` puts around the terrain points (N, 3) (terrain (N,) >= 0):
+    their 2D bounds, snapped to the cell size, plus `margin_cells` on every side. Raises
+    ValueError when there is no terrain point."""
+    is_terrain = np.asarray(terrain) >= 0
+    if not is_terrain.any():
+        raise ValueError("the map has no terrain points")
+    points = np.asarray(points)
+    # Bounds without copying the points (the min of float32 values is exact in float64 too).
+    low = [float(np.min(points[:, k], where=is_terrain, initial=np.inf)) for k in (0, 1)]
+    high = [float(np.max(points[:, k], where=is_terrain, initial=-np.inf)) for k in (0, 1)]
+    lo = np.floor(np.array(low) / cell_size) * cell_size - margin_cells * cell_size
+    hi = np.array(high)
+    W, H = (np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells)
+    return GridFrame((float(lo[0]), float(lo[1])), (int(H), int(W)), float(cell_size))
+
+
+def hysteresis_steps(cell_size: float, support_radius: float, min_support: float, weak_support: float | None,
+                     weak_reach: float | None) -> int | None:
+    """Cells: the longest chain `build_terrain_grid`'s hysteresis extends a class along (0 = the
+    step is off; None = unbounded, `weak_reach` None: a label can then depend on cells at any
+    distance)."""
+    if weak_support is None or support_radius <= 0 or weak_support >= min_support:
+        return 0
+    if weak_reach is None:
+        return None
+    return max(int(round(weak_reach / cell_size)), 1)
+
+
+def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: float, chain: int = 0) -> int:
+    """Cells: how far a cell's label and blocked flag in `build_terrain_grid` depend on the points
+    around it. The support window (half side w = round(support_radius / cell_size)) decides the
+    majority label, the weak majority and, once more, which cells are densely scanned; the
+    hysteresis follows a chain of `chain` cells (`hysteresis_steps`; it must be bounded), each
+    cell of which reads its window; the fill takes labels within fill_radius. Ground is the
+    exception (the nearest cell with terrain points or unlabelled ground, at any distance);
+    terra.graph.tiled_grid checks it per cell. Keep this in step with the algorithm: the tiled
+    build relies on it (and tests/test_graph_tiling.py compares tiled and whole grids)."""
+    w = int(round(support_radius / cell_size))
+    return 2 * w + chain + int(np.ceil(fill_radius / cell_size)) + 2
+
+
 def build_terrain_grid(
     points: np.ndarray,
     terrain: np.ndarray,
@@ -87,6 +150,7 @@ def build_terrain_grid(
     fill_radius: float = 0.0,
     weak_support: float | None = None,
     weak_reach: float | None = None,
+    frame: GridFrame | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
@@ -115,11 +179,12 @@ def build_terrain_grid(
     is_terrain = terrain >= 0
     if not is_terrain.any():
         raise ValueError("the map has no terrain points")
+    frame = frame or grid_frame(points, terrain, cell_size, margin_cells)
+    cell_size = frame.cell_size
     tp, tt = points[is_terrain], terrain[is_terrain].astype(np.int64)
-    lo = np.floor(tp[:, :2].min(axis=0) / cell_size) * cell_size - margin_cells * cell_size
-    hi = tp[:, :2].max(axis=0)
-    W, H = (np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells)
-    grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool), lo, float(cell_size))
+    H, W = frame.shape
+    grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool),
+                       np.asarray(frame.origin, dtype=np.float64), float(frame.cell_size), frame.offset)
     rows, cols, _ = grid.cell_of(tp)
     flat = rows * W + cols
 
@@ -163,11 +228,11 @@ def build_terrain_grid(
         counts = np.bincount(orow[hit] * W + ocol[hit], minlength=H * W).reshape(H, W)
         grid.blocked[:] = counts >= obstacle_min_points
         grid.label[grid.blocked] = -1
-    if weak_support is not None and support_radius > 0 and weak_support < min_support:
+    steps = hysteresis_steps(cell_size, support_radius, min_support, weak_support, weak_reach)
+    if steps != 0:
         weak = _window_majority(raw, n_classes, window, weak_support)
         weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
-        steps = 0 if weak_reach is None else max(int(round(weak_reach / cell_size)), 1)
-        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps)
+        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps or 0)
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
     return grid

@@ -37,14 +37,34 @@ class Brushfire:
     component: np.ndarray
 
 
-def brushfire(free: np.ndarray) -> Brushfire:
-    """Distance field, nearest obstacle and its component for every cell of a free-space mask."""
+def brushfire(free: np.ndarray, closed: tuple[bool, bool, bool, bool] = (True, True, True, True),
+              labels: np.ndarray | None = None) -> Brushfire:
+    """Distance field, nearest obstacle and its component for every cell of a free-space mask.
+
+    Each cell's parent is the nearest obstacle cell, ties to the lowest (column, row): that is
+    scipy's exact EDT (tests/test_graph_tiling.py checks it against brute force), and it does not
+    depend on where the array starts, which the tiled GVD relies on.
+
+    For a window of a larger mask (terra.graph.tiled_gvd): `closed` says which sides (first row,
+    last row, first column, last column) are the edge of the whole mask, beyond which lies the
+    obstacle frame; beyond the other sides nothing is known and no obstacle is assumed.
+    `labels` (H + 2, W + 2): the obstacle components of the whole mask over this window and the
+    one-cell ring around it (the frame included), instead of components of the window alone.
+    """
     free = np.asarray(free, dtype=bool)
     # A one-cell obstacle frame makes the outside an obstacle; it is labelled with the components
     # it touches, so a wall that reaches the border joins the outside component.
     padded = np.pad(free, 1, constant_values=False)
+    top, bottom, left, right = (not side for side in closed)
+    padded[0, :], padded[-1, :] = top, bottom
+    padded[:, 0] = left
+    padded[:, -1] = right
+    if not all(closed):
+        # A corner cell beyond a closed side is outside the whole mask: frame; beyond two open sides, unknown.
+        padded[0, 0], padded[0, -1], padded[-1, 0], padded[-1, -1] = top and left, top and right, bottom and left, bottom and right
     distance, parent = ndimage.distance_transform_edt(padded, return_indices=True)
-    labels, _ = ndimage.label(~padded, structure=EIGHT)
+    if labels is None:
+        labels, _ = ndimage.label(~padded, structure=EIGHT)
     component = labels[parent[0], parent[1]]
     inner = (slice(1, -1), slice(1, -1))
     return Brushfire(
@@ -96,17 +116,22 @@ def fill_empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
     A GVD loop always encloses an obstacle; loops around free cells only are thinning artefacts
     where several GVD branches meet (e.g. in the middle of a room).
     """
+    empty = empty_loops(skeleton, free)
+    return thin(skeleton | empty) if empty.any() else skeleton
+
+
+def empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the cells of every hole of the skeleton (a 4-connected component of the cells
+    off it) that holds no obstacle cell and does not touch the array's border."""
     holes, n = ndimage.label(~skeleton)  # 4-connected complement
     if n <= 1:
-        return skeleton
+        return np.zeros(np.shape(skeleton), dtype=bool)
     has_obstacle = np.bincount(holes.ravel(), weights=~free.ravel(), minlength=n + 1) > 0
     touches_border = np.zeros(n + 1, dtype=bool)
     touches_border[np.concatenate([holes[0], holes[-1], holes[:, 0], holes[:, -1]])] = True
     empty = ~has_obstacle & ~touches_border
     empty[0] = False
-    if not empty.any():
-        return skeleton
-    return thin(skeleton | empty[holes])
+    return empty[holes]
 
 
 def gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5) -> tuple[np.ndarray, np.ndarray]:

@@ -17,12 +17,15 @@ from terra.errors import TerraError
 from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig
 from terra.graph.embedding import image_embeddings, point_embeddings
-from terra.graph.grid import TerrainGrid, build_terrain_grid
+from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
 from terra.graph.linking import bridge_components, grid_gap_length, grid_line_clear, grid_line_passable, link_dead_ends, link_strip_gaps
 from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
 from terra.graph.spectral import SpectralStop, spectral_assignments
+from terra.graph.tiled_grid import TiledGridStats, build_terrain_grid_tiled
+from terra.graph.tiled_gvd import TiledGvdStats, tiled_gvd
+from terra.graph.tiling import tile_cells
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.progress import StageTimer, progress
 
@@ -55,6 +58,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
     positions, terrain_ids, clearances, edges, weights = [], [], [], [], []
     traversable = np.zeros(grid.shape, dtype=bool)
     stats: dict[str, Any] = {"places_per_terrain": {}, "patches_dropped": 0}
+    tile_stats = TiledGvdStats()
     offset = 0
     min_cells = int(np.ceil(config.grid.min_component_area / (s * s)))
     for t in progress(terrains, "terrain GVDs", enabled=show_progress):
@@ -68,6 +72,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
             mask,
             min_clearance=g.min_clearance / s,
             min_gap=g.min_gap / s,
+            gvd_result=_tiled_gvd(mask, config, s, tile_stats),
             prune_ratio=g.prune_ratio,
             prune_length=g.prune_length / s,
             junction_merge=g.junction_merge,
@@ -92,7 +97,42 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         edges=np.vstack(edges).astype(np.int64) if edges else np.zeros((0, 2), np.int64),
         weight=np.concatenate(weights) if weights else np.zeros(0),
     )
+    if tile_stats.windows:
+        stats["gvd_tiles"] = {"windows": tile_stats.windows, "max_overlap_m": round(tile_stats.max_margin * s, 3),
+                              "thinning_rounds": tile_stats.rounds}
     return place_set, traversable, stats
+
+
+def _tile_cells(config: BuildConfig, shape: tuple[int, int]) -> int | None:
+    """Cells per tile side, or None when the grid fits in one tile (then nothing is tiled)."""
+    tile = tile_cells(config.tiles.size, config.grid.cell_size)
+    return None if tile is None or tile >= max(shape) else tile
+
+
+def terrain_grid(points: np.ndarray, point_terrain: np.ndarray, config: BuildConfig,
+                 stats: TiledGridStats | None = None) -> TerrainGrid:
+    """The terrain grid of the map's points (build_terrain_grid), tile by tile when
+    `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid, which
+    falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null)."""
+    gc = config.grid
+    args = (points, point_terrain, gc.cell_size, gc.obstacle_height, gc.obstacle_min_points, gc.support_radius,
+            gc.min_support)
+    kwargs = {"fill_radius": gc.fill_radius, "weak_support": gc.weak_support, "weak_reach": gc.weak_reach}
+    tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
+    if tile is None:
+        return build_terrain_grid(*args, **kwargs)
+    margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
+    return build_terrain_grid_tiled(*args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats)
+
+
+def _tiled_gvd(mask: np.ndarray, config: BuildConfig, cell_size: float, stats: TiledGvdStats) -> tuple[np.ndarray, np.ndarray] | None:
+    """The GVD of one terrain mask tile by tile (terra.graph.tiled_gvd), or None to let
+    extract_places compute it in one piece."""
+    tile = _tile_cells(config, mask.shape)
+    if tile is None:
+        return None
+    return tiled_gvd(mask, config.gvd.min_clearance / cell_size, config.gvd.min_gap / cell_size, tile=tile,
+                     margin=int(np.ceil(config.tiles.overlap / cell_size)), stats=stats)
 
 
 def strip_links(ps: TerrainPlaceSet, grid: TerrainGrid, config: BuildConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -163,14 +203,11 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         terrains = [names.index(n) for n in config.terrain.include]
     with timer.stage("terrain grid"):
         point_terrain = msm.terrain_index(config.terrain.min_share)
-        point_terrain = np.where(np.isin(point_terrain, terrains), point_terrain, -1)
+        point_terrain = np.where(np.isin(point_terrain, terrains), point_terrain, -1).astype(np.int16)  # 2 bytes a point
         if not (point_terrain >= 0).any():
             raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
-        grid = build_terrain_grid(
-            msm.points, point_terrain, config.grid.cell_size, config.grid.obstacle_height, config.grid.obstacle_min_points,
-            config.grid.support_radius, config.grid.min_support, fill_radius=config.grid.fill_radius,
-            weak_support=config.grid.weak_support, weak_reach=config.grid.weak_reach,
-        )
+        grid_stats = TiledGridStats()
+        grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
     with timer.stage("GVD places"):
         ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
     if len(ps.position) == 0:
@@ -205,6 +242,9 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         embedder=msm.embedder,
         region_method=config.regions.method,
     )
+    if grid_stats.windows or grid_stats.one_piece:
+        stats["grid_tiles"] = {"windows": grid_stats.windows, "max_overlap_m": round(grid_stats.max_margin * config.grid.cell_size, 3),
+                               "one_piece": grid_stats.one_piece}
     stats.update({
         "places_per_terrain": {names[t]: n for t, n in stats["places_per_terrain"].items()},
         "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],

@@ -29,6 +29,7 @@ from scipy import ndimage
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from terra.graph.cell_index import CellIndex
 from terra.graph.gvd import EIGHT, gvd
 from terra.graph.skeleton import SkeletonGraph, prune_spurs, simplify, skeleton_adjacency, skeleton_graph
 
@@ -126,9 +127,11 @@ def extract_places(
     max_deviation: float,
     max_distance: float,
     cover_radius: float = np.inf,
+    gvd_result: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> CellPlaces:
-    """Places and GVD edges of one terrain's free mask (H, W); every length here is in cells."""
-    full, distance = gvd(free, min_clearance, min_gap)
+    """Places and GVD edges of one terrain's free mask (H, W); every length here is in cells.
+    gvd_result: `gvd(free, min_clearance, min_gap)` when already computed (by the tiled GVD)."""
+    full, distance = gvd_result if gvd_result is not None else gvd(free, min_clearance, min_gap)
     skeleton = prune_spurs(full, distance, prune_ratio, prune_length)
     skeleton = restore_far_branches(full, skeleton, cover_radius)
     graph = simplify(skeleton_graph(skeleton, distance), distance, junction_merge)
@@ -190,8 +193,11 @@ def join_patch_pieces(free: np.ndarray, cells: np.ndarray, edges: np.ndarray) ->
     _, piece = connected_components(graph, directed=False)
     split = [p for p in np.unique(place_patch) if p > 0 and len(np.unique(piece[place_patch == p])) > 1]
     pairs, lengths = [], []
+    boxes = ndimage.find_objects(patch)
     for p in split:
-        a, b, length = _geodesic_joins(patch == p, cells, np.flatnonzero(place_patch == p), piece)
+        box = boxes[p - 1]  # the patch's bounding box: no full-grid mask per patch
+        corner = np.array([box[0].start, box[1].start])
+        a, b, length = _geodesic_joins(patch[box] == p, cells - corner, np.flatnonzero(place_patch == p), piece)
         pairs.append(np.column_stack([a, b]))
         lengths.append(length)
     if not pairs:
@@ -207,9 +213,7 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
     lo, hi = np.array([rows.min(), cols.min()]), np.array([rows.max(), cols.max()]) + 1
     sub = region[lo[0]:hi[0], lo[1]:hi[1]]
     region_cells, adjacency = grid_adjacency(sub)
-    index = np.full(sub.shape, -1, dtype=np.int64)
-    index[region_cells[:, 0], region_cells[:, 1]] = np.arange(len(region_cells))
-    sources = index[cells[places, 0] - lo[0], cells[places, 1] - lo[1]]
+    sources = CellIndex(region_cells, sub.shape).find(cells[places, 0] - lo[0], cells[places, 1] - lo[1])
     dist, _, origin = dijkstra(adjacency, directed=False, indices=sources, min_only=True, return_predecessors=True)
     owner = np.full(len(region_cells), -1, dtype=np.int64)
     owner[sources] = places
@@ -244,12 +248,10 @@ def grid_adjacency(region: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
     """Cells (K, 2) of a bool grid in raster order and their symmetric 8-adjacency (K, K), weights
     1 (4-neighbours) or sqrt(2) (diagonal), in cells."""
     cells = np.argwhere(region)
-    H, W = region.shape
-    index = np.full((H + 2, W + 2), -1, dtype=np.int64)
-    index[cells[:, 0] + 1, cells[:, 1] + 1] = np.arange(len(cells))
+    find = CellIndex(cells, region.shape).find  # memory for the region's cells, not its bounding box
     rows, cols, weights = [], [], []
     for dr, dc, w in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, np.sqrt(2.0)), (1, -1, np.sqrt(2.0))):
-        other = index[cells[:, 0] + 1 + dr, cells[:, 1] + 1 + dc]
+        other = find(cells[:, 0] + dr, cells[:, 1] + dc)
         keep = other >= 0
         rows.append(np.flatnonzero(keep))
         cols.append(other[keep])

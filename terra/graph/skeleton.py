@@ -17,6 +17,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 
+from terra.graph.cell_index import CellIndex
+
 _OFFSETS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, np.sqrt(2.0)), (1, -1, np.sqrt(2.0)))
 
 
@@ -51,18 +53,15 @@ def skeleton_adjacency(skeleton: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]
     """Skeleton cells (K, 2) in raster order and their symmetric m-adjacency (K, K), weights 1 or
     sqrt(2) cells."""
     skeleton = np.asarray(skeleton, dtype=bool)
-    H, W = skeleton.shape
     cells = np.argwhere(skeleton)
-    index = np.full((H + 2, W + 2), -1, dtype=np.int64)  # padded so shifted lookups stay inside
-    index[cells[:, 0] + 1, cells[:, 1] + 1] = np.arange(len(cells))
-    on = index >= 0
+    find = CellIndex(cells, skeleton.shape).find  # no (H, W) index: a skeleton is a few cells of a large grid
     rows, cols, weights = [], [], []
-    r, c = cells[:, 0] + 1, cells[:, 1] + 1
+    r, c = cells[:, 0], cells[:, 1]
     for dr, dc, w in _OFFSETS:
-        other = index[r + dr, c + dc]
+        other = find(r + dr, c + dc)
         keep = other >= 0
         if dr and dc:  # diagonal: only where neither shared 4-neighbour is on the skeleton
-            keep &= ~on[r + dr, c] & ~on[r, c + dc]
+            keep &= (find(r + dr, c) < 0) & (find(r, c + dc) < 0)
         rows.append(np.flatnonzero(keep))
         cols.append(other[keep])
         weights.append(np.full(int(keep.sum()), w))
@@ -82,14 +81,7 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     degree = np.diff(A.indptr)
     is_node = degree != 2
     # Cells of a 2x2 block (thinning can leave one where branches meet) form one node.
-    sk = np.zeros((skeleton.shape[0] + 1, skeleton.shape[1] + 1), dtype=bool)
-    sk[:-1, :-1] = skeleton
-    block = sk[:-1, :-1] & sk[1:, :-1] & sk[:-1, 1:] & sk[1:, 1:]
-    in_block = block.copy()
-    in_block[1:, :] |= block[:-1, :]
-    in_block[:, 1:] |= block[:, :-1]
-    in_block[1:, 1:] |= block[:-1, :-1]
-    is_node |= in_block[cells[:, 0], cells[:, 1]]
+    is_node |= _in_block(cells, np.shape(skeleton))
     # A loop with no junction or end gets a node at its first cell.
     _, comp = connected_components(A, directed=False)
     has_node = np.bincount(comp, weights=is_node, minlength=comp.max() + 1) > 0
@@ -161,6 +153,16 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     return SkeletonGraph(node_cell, edges.astype(np.int64), path_cells.astype(np.int64), path_start.astype(np.int64), cell_node)
 
 
+def _in_block(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(K,) whether each cell (raster order) belongs to a 2x2 block of cells of the set."""
+    find = CellIndex(cells, shape).find
+    on = {(dr, dc): find(cells[:, 0] + dr, cells[:, 1] + dc) >= 0 for dr in (-1, 0, 1) for dc in (-1, 0, 1)}
+    inside = np.zeros(len(cells), dtype=bool)
+    for top, left in ((0, 0), (-1, 0), (0, -1), (-1, -1)):  # the four blocks holding a cell, by their top-left corner
+        inside |= on[top, left] & on[top + 1, left] & on[top, left + 1] & on[top + 1, left + 1]
+    return inside
+
+
 def _assemble(node_cell: np.ndarray, edges: list, paths: list, cell_node: np.ndarray) -> SkeletonGraph:
     edges_arr = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     lengths = np.array([len(p) for p in paths], dtype=np.int64)
@@ -218,7 +220,9 @@ def prune_spurs(skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_le
         inner = _path_rows(g, spur_idx, drop_ends=True)
         skeleton[g.path_cells[inner, 0], g.path_cells[inner, 1]] = False
         tips = np.where(tip_u, u, v)[spur_idx]
-        skeleton[np.isin(g.cell_node, tips)] = False
+        node_rows, node_cols = np.nonzero(g.cell_node >= 0)
+        drop = np.isin(g.cell_node[node_rows, node_cols], tips)
+        skeleton[node_rows[drop], node_cols[drop]] = False
     return skeleton
 
 
@@ -256,7 +260,7 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
         rep = np.zeros(n_new, dtype=np.int64)
         rep[new_id[order][first]] = order[first]
         node_cell = g.node_cell[rep]
-        cell_node = np.where(g.cell_node >= 0, new_id[np.maximum(g.cell_node, 0)], -1).astype(np.int32)
+        cell_node = _renumber(g.cell_node, new_id)
         keep = ~short
         edges = new_id[edges[keep]]
         paths = [p.copy() for p, k in zip(paths, keep) if k]
@@ -292,7 +296,16 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
     kept_edges = [e for e, a in zip(edge_list, alive) if a]
     kept_paths = [p for p, a in zip(paths, alive) if a]
     # Renumber the surviving nodes in their old order.
-    new_index = np.cumsum(~removed) - 1
-    cell_node = np.where((cell_node >= 0) & ~removed[np.maximum(cell_node, 0)], new_index[np.maximum(cell_node, 0)], -1).astype(np.int32)
+    new_index = np.where(removed, -1, np.cumsum(~removed) - 1)
+    cell_node = _renumber(cell_node, new_index)
     remapped = [(int(new_index[a]), int(new_index[b])) for a, b in kept_edges]
     return _assemble(node_cell[~removed], remapped, kept_paths, cell_node)
+
+
+def _renumber(cell_node: np.ndarray, new_id: np.ndarray) -> np.ndarray:
+    """(H, W) int32: each node cell's node renumbered by `new_id` (-1 drops it), -1 elsewhere;
+    only the node cells are touched."""
+    out = np.full(cell_node.shape, -1, dtype=np.int32)
+    rows, cols = np.nonzero(cell_node >= 0)
+    out[rows, cols] = new_id[cell_node[rows, cols]]
+    return out

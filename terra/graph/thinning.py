@@ -35,6 +35,14 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
 
 def thin(mask: np.ndarray) -> np.ndarray:
     """One-cell-thin skeleton of a boolean (H, W) mask (Guo-Hall), topology preserved."""
+    return thin_counted(mask)[0]
+
+
+def thin_counted(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """`thin` and the number of full iterations (both sub-iterations) it ran, the last one being
+    the pass that changed nothing. A cell's result depends on the mask within 2 cells per
+    iteration (each sub-iteration reads the 3 x 3 neighbourhood): terra.graph.tiled_gvd uses this
+    count to bound how far a window's border can reach into its core."""
     mask = np.asarray(mask, dtype=bool)
     H, W = mask.shape
     grid = np.zeros((H + 2, W + 2), dtype=bool)  # a false frame keeps neighbour lookups inside
@@ -43,8 +51,10 @@ def thin(mask: np.ndarray) -> np.ndarray:
     weights = (1 << np.arange(8)).astype(np.int64)
     tables = _tables()
     changed = True
+    iterations = 0
     while changed and len(cells):
         changed = False
+        iterations += 1
         for table in tables:
             bits = grid[cells[:, 0, None] + _NEIGHBOURS[:, 0], cells[:, 1, None] + _NEIGHBOURS[:, 1]]
             delete = table[bits.astype(np.int64) @ weights]
@@ -52,4 +62,4 @@ def thin(mask: np.ndarray) -> np.ndarray:
                 grid[cells[delete, 0], cells[delete, 1]] = False
                 cells = cells[~delete]
                 changed = True
-    return grid[1:-1, 1:-1].copy()
+    return grid[1:-1, 1:-1].copy(), iterations

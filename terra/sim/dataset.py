@@ -120,7 +120,7 @@ class SimDataset:
 
 
 def simulate(preset: str = "small", seed: int = 0, config: SimConfig | None = None) -> SimDataset:
-    """A simulated campus: `preset` in tiny, small, campus, large; same arguments, same data."""
+    """A simulated campus: `preset` in tiny, small, campus, large, huge; same arguments, same data."""
     from terra.sim.presets import generate_world
 
     if not isinstance(seed, (int, np.integer)) or seed < 0:
