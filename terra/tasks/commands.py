@@ -29,10 +29,26 @@ def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksCon
     return config.model_copy(update={"retrieval": config.retrieval.model_copy(update={"sg_point_feature": feature})})
 
 
+def _retrieval_alpha(alpha: float | None, config: TasksConfig, loaded: LoadedBundle) -> float:
+    """The request's alpha, else the configured one (per embedder, then the default)."""
+    if alpha is not None:
+        return alpha
+    return alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
+
+
+def _find_objects(loaded: LoadedBundle, graph: SceneGraph | None, queries: list[str], method: str, alpha: float,
+                  config: TasksConfig) -> list[FoundObject]:
+    """Object retrieval with the loaded bundle's map, text embedder and cached scorer."""
+    from terra.tasks.retrieval import find_objects
+
+    return find_objects(loaded.msm, graph, queries, method=method, alpha=alpha, config=config,
+                        embedder=loaded.embedder, scorer=loaded.scorer)
+
+
 def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None = None) -> FindResult:
     """Objects for every query of the request, from one embedding batch. With `save`, they replace
     same-label objects in the bundle's scene graph (serialised, atomic: LoadedBundle.update_graph)."""
-    from terra.tasks.retrieval import find_objects, with_objects
+    from terra.tasks.retrieval import with_objects
 
     config = _with_feature(config or TasksConfig(), request.point_feature)
     queries = clean_queries(list(request.queries))
@@ -40,19 +56,8 @@ def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None 
     graph = loaded.require_graph(f"--method {method}") if method == "3dsg" else loaded.graph
     if request.save:
         loaded.require_graph("--save")
-    alpha = request.alpha
-    if alpha is None:
-        alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
-    found = find_objects(
-        loaded.msm,
-        graph,
-        queries,
-        method=method,
-        alpha=alpha,
-        config=config,
-        embedder=loaded.embedder,
-        scorer=loaded.scorer,
-    )
+    alpha = _retrieval_alpha(request.alpha, config, loaded)
+    found = _find_objects(loaded, graph, queries, method, alpha, config)
     if request.save:
         loaded.update_graph(lambda current: with_objects(current, found))
     return FindResult(loaded.path, method, float(alpha), queries, found, saved=request.save)
@@ -108,22 +113,8 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     )
     found: list[FoundObject] = []
     if object_queries:
-        from terra.tasks.retrieval import find_objects
-
         method = request.method or config.planning.find_method
-        alpha = request.alpha
-        if alpha is None:
-            alpha = alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
-        found = find_objects(
-            loaded.msm,
-            graph,
-            object_queries,
-            method=method,
-            alpha=alpha,
-            config=config,
-            embedder=loaded.embedder,
-            scorer=loaded.scorer,
-        )
+        found = _find_objects(loaded, graph, object_queries, method, _retrieval_alpha(request.alpha, config, loaded), config)
     start = _start(loaded, graph, request, found, object_queries, cost_graph, config)
     if not 0 <= start.place < len(graph.places):
         raise TerraError(f"start place {start.place} does not exist; the graph has places 0..{len(graph.places) - 1}")
