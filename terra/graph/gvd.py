@@ -134,6 +134,15 @@ def empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
     return empty[holes]
 
 
+def free_box(free: np.ndarray) -> tuple[slice, slice] | None:
+    """The bounding box of the free cells of `free` (H, W) plus one cell on each side (clipped to
+    the grid), as (row, column) slices; None when no cell is free."""
+    rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
+    if rows.size == 0:
+        return None
+    return slice(max(rows[0] - 1, 0), rows[-1] + 2), slice(max(cols[0] - 1, 0), cols[-1] + 2)
+
+
 def gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
     """One-cell-thin GVD of a free mask and the distance field: ((H, W) bool, (H, W) float32 cells).
 
@@ -143,10 +152,9 @@ def gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5) -> t
     free = np.asarray(free, dtype=bool)
     skeleton = np.zeros(free.shape, dtype=bool)
     distance = np.zeros(free.shape, dtype=np.float32)
-    rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
-    if rows.size == 0:
+    box = free_box(free)
+    if box is None:
         return skeleton, distance
-    box = (slice(max(rows[0] - 1, 0), rows[-1] + 2), slice(max(cols[0] - 1, 0), cols[-1] + 2))
     sub = free[box]
     fire = brushfire(sub)
     marked = voronoi_cells(sub, fire, min_clearance, min_gap)

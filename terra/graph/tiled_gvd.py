@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from terra.graph.gvd import EIGHT, brushfire, empty_loops, voronoi_cells
+from terra.graph.gvd import EIGHT, brushfire, empty_loops, free_box, voronoi_cells
 from terra.graph.thinning import thin_counted
 from terra.graph.tiling import Window, cores, window
 
@@ -87,11 +87,9 @@ def _tiled_gvd(free: np.ndarray, min_clearance: float, min_gap: float, tile: int
                stats: TiledGvdStats) -> tuple[np.ndarray, np.ndarray]:
     skeleton = np.zeros(free.shape, dtype=bool)
     distance = np.zeros(free.shape, dtype=np.float32)
-    rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
-    if rows.size == 0:
+    box = free_box(free)  # as gvd() does: only the bounding box of the free cells, plus one cell, framed
+    if box is None:
         return skeleton, distance
-    # As gvd() does: only the bounding box of the free cells, plus one cell, framed.
-    box = (slice(max(rows[0] - 1, 0), rows[-1] + 2), slice(max(cols[0] - 1, 0), cols[-1] + 2))
     sub = free[box]
     labels = obstacle_components(sub)
     stats.rounds = rounds
