@@ -31,7 +31,8 @@ from scipy.spatial import cKDTree
 
 from terra.graph.cell_index import CellIndex
 from terra.graph.gvd import EIGHT, gvd
-from terra.graph.skeleton import SkeletonGraph, prune_spurs, simplify, skeleton_adjacency, skeleton_graph
+from terra.graph.skeleton import (SkeletonGraph, cell_adjacency, prune_spurs, simplify, skeleton_adjacency,
+                                  skeleton_graph)
 
 
 @dataclass
@@ -212,7 +213,7 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
     rows, cols = np.nonzero(region)
     lo, hi = np.array([rows.min(), cols.min()]), np.array([rows.max(), cols.max()]) + 1
     sub = region[lo[0]:hi[0], lo[1]:hi[1]]
-    region_cells, adjacency = grid_adjacency(sub)
+    region_cells, adjacency = cell_adjacency(sub)
     sources = CellIndex(region_cells, sub.shape).find(cells[places, 0] - lo[0], cells[places, 1] - lo[1])
     dist, _, origin = dijkstra(adjacency, directed=False, indices=sources, min_only=True, return_predecessors=True)
     owner = np.full(len(region_cells), -1, dtype=np.int64)
@@ -242,23 +243,6 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
             out_b.append(int(b[i]))
             out_len.append(float(cost[i]))
     return np.asarray(out_a, np.int64), np.asarray(out_b, np.int64), np.asarray(out_len)
-
-
-def grid_adjacency(region: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-    """Cells (K, 2) of a bool grid in raster order and their symmetric 8-adjacency (K, K), weights
-    1 (4-neighbours) or sqrt(2) (diagonal), in cells."""
-    cells = np.argwhere(region)
-    find = CellIndex(cells, region.shape).find  # memory for the region's cells, not its bounding box
-    rows, cols, weights = [], [], []
-    for dr, dc, w in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, np.sqrt(2.0)), (1, -1, np.sqrt(2.0))):
-        other = find(cells[:, 0] + dr, cells[:, 1] + dc)
-        keep = other >= 0
-        rows.append(np.flatnonzero(keep))
-        cols.append(other[keep])
-        weights.append(np.full(int(keep.sum()), w))
-    i, j, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
-    adjacency = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells)))
-    return cells, adjacency.tocsr()
 
 
 def _lonely_patch_cells(free: np.ndarray, distance: np.ndarray, cells: np.ndarray) -> np.ndarray:

@@ -52,15 +52,22 @@ class SkeletonGraph:
 def skeleton_adjacency(skeleton: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
     """Skeleton cells (K, 2) in raster order and their symmetric m-adjacency (K, K), weights 1 or
     sqrt(2) cells."""
-    skeleton = np.asarray(skeleton, dtype=bool)
-    cells = np.argwhere(skeleton)
-    find = CellIndex(cells, skeleton.shape).find  # no (H, W) index: a skeleton is a few cells of a large grid
+    return cell_adjacency(skeleton, m_adjacency=True)
+
+
+def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndarray, sp.csr_matrix]:
+    """Cells (K, 2) of a bool grid in raster order and their symmetric 8-adjacency (K, K), weights
+    1 (4-neighbours) or sqrt(2) (diagonal), in cells. With `m_adjacency`, a diagonal pair is joined
+    only where neither shared 4-neighbour is in the mask (a thin skeleton's own steps)."""
+    mask = np.asarray(mask, dtype=bool)
+    cells = np.argwhere(mask)
+    find = CellIndex(cells, mask.shape).find  # no (H, W) index: memory for the cells, not the grid
     rows, cols, weights = [], [], []
     r, c = cells[:, 0], cells[:, 1]
     for dr, dc, w in _OFFSETS:
         other = find(r + dr, c + dc)
         keep = other >= 0
-        if dr and dc:  # diagonal: only where neither shared 4-neighbour is on the skeleton
+        if m_adjacency and dr and dc:
             keep &= (find(r + dr, c) < 0) & (find(r, c + dc) < 0)
         rows.append(np.flatnonzero(keep))
         cols.append(other[keep])
