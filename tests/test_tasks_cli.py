@@ -88,11 +88,12 @@ def test_plan_reaches_the_object_and_respects_forbidden_terrain(lot, capsys):
     assert report["length_m"] == pytest.approx(30.0)  # Manhattan moves on a 5 m grid
     assert sum(report["length_by_terrain"].values()) == pytest.approx(30.0)
     # Preferring sidewalk: the 5 m south step happens on the sidewalk; grass is only the
-    # unavoidable 5 -> 10 -> 15 and half of 15 -> 20 (12.5 m). Cost 2 x 10 + 1.5 x 5 + 17.5.
+    # unavoidable 5 -> 10 -> 15 and half of 15 -> 20 (12.5 m). With the default penalty 5, cost
+    # 6 x 10 (grass to grass) + 3.5 x 5 (grass to sidewalk) + 15 (sidewalk).
     pref = call_json(common + ["--from-xy", "5", "35", "--prefer", "sidewalk"], capsys)
     assert pref["length_m"] == pytest.approx(30.0)
     assert pref["length_by_terrain"] == pytest.approx({"grass": 12.5, "sidewalk": 17.5})
-    assert pref["cost"] == pytest.approx(42.5)
+    assert pref["cost"] == pytest.approx(92.5)
     # Grass forbidden: the start snaps to the nearest sidewalk place and no step is on grass.
     no_grass = call_json(common + ["--from-xy", "5", "35", "--forbid", "grass"], capsys)
     assert no_grass["waypoints"][0][:2] == [20.0, 35.0] and "grass" not in no_grass["terrain"]

@@ -86,11 +86,15 @@ def test_plan_without_preferences_takes_the_short_route():
 
 def test_preference_cost_is_length_times_one_plus_mean_penalty():
     g = detour_graph()
-    # Preferring sidewalk puts the default penalty 1.0 on grass: the direct route costs
+    # Preferring sidewalk with default penalty 1.0 on grass: the direct route costs
     # 10/3 * 1.5 + 10/3 * 2 + 10/3 * 1.5 = 16.67 < 20, so it still wins.
-    plan = plan_path(g, 0, 3, prefer=["sidewalk"])
+    plan = plan_path(g, 0, 3, prefer=["sidewalk"], default_penalty=1.0)
     assert plan.places.tolist() == [0, 1, 2, 3]
     assert plan.cost == pytest.approx(10 / 3 * 5)
+    # The default penalty 5.0: 10/3 * (3.5 + 6 + 3.5) = 43.3 > 20, so the sidewalk detour wins.
+    plan = plan_path(g, 0, 3, prefer=["sidewalk"])
+    assert plan.places.tolist() == [0, 4, 5, 6, 3]
+    assert plan.cost == pytest.approx(20.0)
     # With grass penalty 2.0: 10/3 * (2 + 3 + 2) = 23.3 > 20, so the sidewalk detour wins.
     plan = plan_path(g, 0, 3, prefer=["sidewalk"], penalties={"grass": 2.0})
     assert plan.places.tolist() == [0, 4, 5, 6, 3]
@@ -128,8 +132,12 @@ def test_bad_terrain_and_place_arguments():
 
 
 def test_preferred_terrain_overrides_an_explicit_penalty_as_in_reference_task_files():
-    costs = TerrainCosts.from_preferences(["sidewalk", "grass", "asphalt"], prefer=[0], penalties={0: 1.0, 1: 5.0})
+    costs = TerrainCosts.from_preferences(["sidewalk", "grass", "asphalt"], prefer=[0], penalties={0: 1.0, 1: 5.0},
+                                         default_penalty=1.0)
     np.testing.assert_allclose(costs.penalty, [0.0, 5.0, 1.0])
+    # Without a default given, the other terrains get the configured default (5).
+    costs = TerrainCosts.from_preferences(["sidewalk", "grass", "asphalt"], prefer=[0], penalties={1: 2.0})
+    np.testing.assert_allclose(costs.penalty, [0.0, 2.0, 5.0])
 
 
 def test_cost_graph_never_goes_below_straight_line_and_keeps_cheapest_duplicate():

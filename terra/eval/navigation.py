@@ -18,6 +18,7 @@ from terra.errors import TerraError
 from terra.eval.metrics.navigation import path_length, path_terrain_lengths
 from terra.graph.scene_graph import SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
+from terra.tasks.config import DEFAULT_PENALTY
 
 
 def start_place(msm: MetricSemanticMap, graph: SceneGraph) -> int:
@@ -55,7 +56,7 @@ class PlanResult:
 
 
 def plan_with(graph: SceneGraph, start: int, goal: int, name: str, raster: TerrainRaster, prefer: list[str] = (),
-              step: float = 0.1, default_penalty: float = 1.0) -> PlanResult:
+              step: float = 0.1, default_penalty: float = DEFAULT_PENALTY) -> PlanResult:
     """Plan start -> goal (preferring `prefer` terrains) and measure it against the ground truth."""
     from terra.tasks.planning import plan_path
 
@@ -123,7 +124,7 @@ class PreferenceRoutes:
 
 
 def preference_routes(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, terrain: str, step: float = 0.1,
-                      default_penalty: float = 1.0) -> PreferenceRoutes:
+                      default_penalty: float = DEFAULT_PENALTY) -> PreferenceRoutes:
     """Both plans (shortest; preferring `terrain`) for every pair, measured on the raster."""
     shortest, preferred = [], []
     for a, b in np.asarray(pairs, dtype=np.int64).reshape(-1, 2).tolist():
@@ -146,3 +147,60 @@ def preference_case(routes: PreferenceRoutes, min_share: float = 0.8) -> int | N
     if not ok.any():
         return None
     return int(np.flatnonzero(ok & (gain >= gain[ok].max() - 1e-6))[0])  # millimetre ties: the first pair
+
+
+# ---------------------------------------------------------------- choosing the planner's penalty
+
+
+@dataclass
+class PenaltyPoint:
+    """The preferred plans of one penalty over a set of pairs: share of pairs keeping at least
+    `min_share` of their length on the terrain, and the detour against the shortest plans
+    (length ratio preferred / shortest; extra metres)."""
+
+    penalty: float
+    pairs: int
+    meeting: int
+    mean_share: float
+    mean_detour: float
+    max_detour: float
+    max_extra_m: float
+
+    @property
+    def fraction_meeting(self) -> float:
+        return self.meeting / self.pairs if self.pairs else 1.0
+
+    def to_json(self) -> dict:
+        return {"penalty": self.penalty, "pairs": self.pairs, "meeting": self.meeting, "fraction_meeting": self.fraction_meeting,
+                "mean_share": self.mean_share, "mean_detour": self.mean_detour, "max_detour": self.max_detour,
+                "max_extra_m": self.max_extra_m}
+
+
+def penalty_sweep(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, terrain: str, penalties: list[float],
+                  min_share: float = 0.8, step: float = 0.1) -> list[PenaltyPoint]:
+    """For each planner `default_penalty` in `penalties`, the plans preferring `terrain` between
+    the `pairs` measured on the ground-truth raster (a validation scene's, never a test scene's)."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    shortest = np.array([plan_with(graph, a, b, "shortest", raster, (), step).length_m for a, b in pairs.tolist()])
+    out = []
+    for penalty in penalties:
+        plans = [plan_with(graph, a, b, "preferred", raster, (terrain,), step, float(penalty)) for a, b in pairs.tolist()]
+        length = np.array([p.length_m for p in plans])
+        share = np.array([p.gt_terrain_m.get(terrain, 0.0) / p.length_m if p.length_m > 0 else 1.0 for p in plans])
+        detour = np.where(shortest > 0, length / np.maximum(shortest, 1e-12), 1.0)
+        out.append(PenaltyPoint(float(penalty), len(pairs), int((share >= min_share).sum()),
+                                float(share.mean()) if len(share) else 1.0, float(detour.mean()) if len(detour) else 1.0,
+                                float(detour.max()) if len(detour) else 1.0,
+                                float((length - shortest).max()) if len(length) else 0.0))
+    return out
+
+
+def choose_penalty(points: list[PenaltyPoint]) -> float:
+    """The smallest penalty whose plans keep the most pairs at or above the share: a larger one
+    only lengthens detours without moving another pair onto the terrain. Every penalty bounds its
+    own detour (a plan costs at most (1 + penalty) x the shortest plan's length), so the smallest
+    sufficient one is also the one with the shortest detours."""
+    if not points:
+        raise TerraError("no penalties to choose from")
+    best = max(p.meeting / p.pairs if p.pairs else 1.0 for p in points)
+    return min(p.penalty for p in points if (p.meeting / p.pairs if p.pairs else 1.0) >= best - 1e-12)

@@ -37,6 +37,9 @@ class RetrievalConfig(Section):
     ground_lift: float = Field(0.15, ge=0, description="metres; footprints use the points at least this high above the ground (masks bleed onto the ground around objects); boxes reach down to the ground")
     context_radius: float | None = Field(8.0, gt=0, description="metres; the direction of the terrain strips (GVD edges) within this range of an object is preferred as its yaw (None = minimum-area rectangle only)")
     prefer_context: float = Field(1.2, ge=1.0, description="the strip direction wins while its rectangle is at most this many times the minimum-area one")
+    standing_only: bool = Field(True, description="drop clusters lying flat on the ground (mask bleed) and attach floating ones to the object below them or drop them (terra.tasks.standing)")
+    float_height: float | None = Field(1.0, gt=0, description="metres; a cluster whose lowest point is higher above the ground than this floats (None = never)")
+    attach_gap: float = Field(2.0, ge=0, description="metres; a floating cluster joins the nearest standing cluster of its query within this distance")
     split_instances: bool = Field(True, description="split elongated clusters at gaps in their footprint wider than the map's point spacing (adjacent objects of one class)")
     instance_min_length: float = Field(3.0, gt=0, description="metres; shorter clusters are never split")
     instance_gap_factor: float = Field(2.0, gt=1.0, description="a gap is wider than this many times the cluster's median point spacing")
@@ -44,6 +47,7 @@ class RetrievalConfig(Section):
     # the MS-Avg ("avg") or MS-Max ("max") point feature.
     place_radius: float = Field(10.0, gt=0)
     sg_point_feature: Literal["avg", "max"] = "avg"
+    sg_widen: bool = Field(True, description="a query without an object in the regions above alpha is searched again in its places above alpha over the whole map, then near every place")
 
 
 class AIBConfig(Section):
@@ -74,6 +78,12 @@ class MonitoringConfig(Section):
     aib: AIBConfig = Field(default_factory=AIBConfig)
 
 
+# Chosen on the validation scene (small preset, seed 1) by `benchmarks/bench_regions_nav.py`: the
+# smallest penalty of the grid 0.5-8 at which the most place pairs joined by a sidewalk route keep
+# 80 % of a sidewalk-preferring plan on sidewalk (1465 of 1466 pairs from 5 up; 1424 at 1.0).
+DEFAULT_PENALTY = 5.0
+
+
 class PlanningConfig(Section):
     """Terrain-aware A* on the places layer.
 
@@ -84,7 +94,7 @@ class PlanningConfig(Section):
     when that place is forbidden, the nearest allowed place within `goal_radius` metres is used.
     """
 
-    default_penalty: float = Field(1.0, ge=0)
+    default_penalty: float = Field(DEFAULT_PENALTY, ge=0, description="cost per metre off the preferred terrains is 1 + this")
     goal_radius: float = Field(5.0, ge=0)
     start_radius: float = Field(20.0, ge=0, description="metres: a start given as a point (--from-xy) farther than "
                                 "this from every allowed place is refused, naming the nearest one")

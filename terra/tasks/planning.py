@@ -9,7 +9,8 @@ Terrain preferences as edge costs, in metres-equivalent:
 - penalty[t] is the explicit `penalties` value for terrain t (>= 0). Terrains in `prefer` get 0
   (preference wins over an explicit penalty, as in the reference's task files). When `prefer` is
   not empty, every other terrain without an explicit penalty gets `default_penalty`: with the
-  default 1.0, a metre off the preferred terrains costs as much as two metres on them.
+  default 5.0 (terra.tasks.config.DEFAULT_PENALTY, chosen on a validation scene), a metre off the
+  preferred terrains costs as much as six metres on them.
 - Places on `forbid` terrains are removed with all their edges: a path never touches them, and
   when none remains the planner raises NoPathError (exit code 3) rather than crossing them.
 
@@ -32,6 +33,7 @@ import numpy as np
 from terra.errors import NoPathError, TerraError
 from terra.graph.scene_graph import SceneGraph
 from terra.tasks.astar import astar
+from terra.tasks.config import DEFAULT_PENALTY
 
 TerrainRef = str | int
 
@@ -64,7 +66,7 @@ class TerrainCosts:
         prefer: Iterable[TerrainRef] = (),
         penalties: Mapping[TerrainRef, float] | None = None,
         forbid: Iterable[TerrainRef] = (),
-        default_penalty: float = 1.0,
+        default_penalty: float = DEFAULT_PENALTY,
     ) -> "TerrainCosts":
         n = len(terrain_classes)
         preferred = {resolve_terrain(terrain_classes, t) for t in prefer}
@@ -192,7 +194,7 @@ def plan_path(
     prefer: Iterable[TerrainRef] = (),
     penalties: Mapping[TerrainRef, float] | None = None,
     forbid: Iterable[TerrainRef] = (),
-    default_penalty: float = 1.0,
+    default_penalty: float = DEFAULT_PENALTY,
 ) -> PathPlan:
     """The cheapest path between two places under terrain preferences (see the module docstring).
 
