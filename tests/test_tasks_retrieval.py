@@ -161,3 +161,31 @@ def test_point_scorer_equals_dense_features(scene, text_embedder, feature):
     rows = np.array([5, 1700, 1701, 2500, len(msm) - 1])
     np.testing.assert_allclose(scorer.similarity(vectors, feature, rows), dense[rows], atol=1e-5)
     assert np.all(scorer.similarity(vectors, feature)[-2:] == 0)  # unobserved points score 0
+
+
+def test_3dsg_widens_the_search_when_the_matching_regions_hold_no_object(text_embedder):
+    from tests.test_tasks_synthetic import make_graph, region_level
+
+    msm, graph, _ = dumpster_lot(text_embedder)
+    # The regions' embeddings swapped: the west region (places x <= 15, searched to x <= 25) reads
+    # "car", but the only car stands east at x = 30. The east places read "dumpster", below alpha
+    # for "a car", so only the widening to every place reaches it.
+    xy = graph.places.position[:, :2]
+    west = (xy[:, 0] < 20).astype(np.int64)
+    emb = text_embedder.embed_text(["dumpster", "car"])  # region 0 = east, region 1 = west
+    swapped = make_graph(xy, np.where(west == 1, 1, 0), graph.place_edges, embedding=emb[west],
+                         regions=[region_level(1, west, emb, position=[[30, 20, 0], [10, 20, 0]])])
+    narrow = find_objects(msm, swapped, ["a car"], method="3dsg", alpha=0.4, embedder=text_embedder,
+                          config=RetrievalConfig(sg_widen=False))
+    assert narrow == []
+    found = find_objects(msm, swapped, ["a car"], method="3dsg", alpha=0.4, embedder=text_embedder)
+    assert [tuple(np.round(o.center[:2], 6)) for o in found] == [OBJECTS["car"][0][:2]]
+    # A query that finds objects in the regions above alpha is not widened: the same answer with
+    # and without widening, even in one call with a query that is widened.
+    both = find_objects(msm, swapped, ["find the dumpster", "a car"], method="3dsg", alpha=0.4, embedder=text_embedder)
+    alone = find_objects(msm, swapped, ["find the dumpster", "a car"], method="3dsg", alpha=0.4, embedder=text_embedder,
+                         config=RetrievalConfig(sg_widen=False))
+    assert [o.query for o in alone] == [0, 0] and [o.query for o in both] == [0, 0, 1]
+    for a, b in zip(alone, both[:2]):
+        np.testing.assert_allclose(a.center, b.center)
+        np.testing.assert_array_equal(a.point_indices, b.point_indices)

@@ -2,13 +2,17 @@
 
 A map point matches a query when, among the terrain class names (distractors) and all queries of
 the call, its best cosine is that query's and exceeds alpha. Matched points are clustered with
-DBSCAN per query into objects; each object gets a gravity-aligned oriented box, a score per query
-(the mean cosine of its points) and the nearest place node (in 2-D).
+DBSCAN per query into objects; with a scene graph, clusters lying flat on the ground are dropped
+and floating parts join the object below them (terra.tasks.standing). Each object gets a
+gravity-aligned oriented box, a score per query (the mean cosine of its points) and the nearest
+place node (in 2-D).
 
 - "ms-avg" / "ms-max": every observed map point, with its MS-Avg / MS-Max feature.
 - "3dsg": regions first. The best-scoring region fixes a level; the regions of that level above
   alpha (all of them when none is) give their places; the places above alpha (all of those
   places when none is) give the points within `place_radius` metres (2-D) that are searched.
+  A query that finds no object there is searched again over the places above alpha of the whole
+  level, then near every place (`sg_widen`).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
 from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
 from terra.tasks.scoring import PointScorer
+from terra.tasks.standing import standing_groups
 
 METHODS = ("ms-avg", "ms-max", "3dsg")
 
@@ -114,14 +119,17 @@ def points_near(points_xy: np.ndarray, centres_xy: np.ndarray, radius: float) ->
     return candidates[dist <= radius]
 
 
-def select_places_3dsg(graph: SceneGraph, query: np.ndarray, alpha: float) -> np.ndarray:
-    """Places searched by Terra-3DSG for one unit query (D,): see the module docstring."""
+def select_places_3dsg(graph: SceneGraph, query: np.ndarray, alpha: float, widen: int = 0) -> np.ndarray:
+    """Places searched by Terra-3DSG for one unit query (D,): see the module docstring. `widen`
+    1: every region of the best level, as when none is above alpha; 2: every place."""
     check_has_regions(graph, "--method 3dsg")
+    if widen >= 2:
+        return np.arange(len(graph.places))
     scores = region_similarities(graph, query)
     best_level = ranked_regions(graph, scores)[0][0]
     level_scores = scores[best_level - 1]
     chosen = np.flatnonzero(level_scores > alpha)
-    if chosen.size == 0:
+    if chosen.size == 0 or widen:
         chosen = np.arange(len(level_scores))
     places = places_of_regions(graph, [(best_level, int(i)) for i in chosen])
     above = places[place_similarities(graph, query)[places] > alpha]
@@ -153,6 +161,13 @@ def instance_groups(points: np.ndarray, groups: list[np.ndarray], cfg: Retrieval
     return out
 
 
+def grounded_groups(points: np.ndarray, groups: list[np.ndarray], graph: SceneGraph, cfg: RetrievalConfig) -> list[np.ndarray]:
+    """The clusters (row arrays into `points`) that stand on the ground under their nearest place,
+    floating parts attached (terra.tasks.standing)."""
+    centre = np.array([points[g, :2].mean(axis=0) for g in groups])
+    return standing_groups(points, groups, ground_under(graph, centre), cfg.ground_lift, cfg.float_height, cfg.attach_gap)
+
+
 def object_boxes(points: np.ndarray, owner: np.ndarray, graph: SceneGraph | None, cfg: RetrievalConfig) -> list:
     """Boxes of the clusters (owner ids 0..G-1 of points (n, 3)), standing on the ground under the
     nearest place and square to the terrain strips around them when the graph gives them."""
@@ -163,6 +178,36 @@ def object_boxes(points: np.ndarray, owner: np.ndarray, graph: SceneGraph | None
     ground = ground_under(graph, centre)
     context = strip_directions(graph, centre, cfg.context_radius) if cfg.context_radius is not None else None
     return fit_object_boxes(points, owner, ground, context, cfg.box_padding, cfg.box_min_size, cfg.ground_lift, cfg.prefer_context)
+
+
+def _match_clusters(msm: MetricSemanticMap, graph: SceneGraph | None, scorer: PointScorer, query_vectors: np.ndarray,
+                    terrain_vectors: np.ndarray, alpha: float, cfg: RetrievalConfig, feature: str,
+                    allowed: list[np.ndarray] | None) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
+    """Matched points clustered into objects per query: (query, rows into the candidate rows)
+    pairs, the candidate map rows, and their (n, T + Q) similarities. `allowed`: per query, the
+    map rows searched (None = every observed point)."""
+    n_terrain = len(terrain_vectors)
+    rows = None if allowed is None else np.unique(np.concatenate(allowed))
+    # Query columns over every searched point first; the terrain columns (distractors) are only
+    # needed where some query clears alpha.
+    query_sim = scorer.similarity(query_vectors, feature, rows)
+    above = np.flatnonzero((query_sim > alpha).any(axis=1))
+    cand_rows = above if rows is None else rows[above]
+    similarity = np.hstack([scorer.similarity(terrain_vectors, feature, cand_rows), query_sim[above]])
+    matched = point_matches(similarity, n_terrain, alpha)
+    clusters: list[tuple[int, np.ndarray]] = []
+    for q in range(len(query_vectors)):
+        mask = matched == q
+        if allowed is not None:
+            mask &= np.isin(cand_rows, allowed[q])
+        local = np.flatnonzero(mask)
+        groups = cluster_matches(msm.points[cand_rows[local]], cfg.dbscan_eps, cfg.dbscan_min_samples, cfg.min_points)
+        if cfg.standing_only and graph is not None and len(graph.places) and groups:
+            groups = grounded_groups(msm.points[cand_rows[local]], groups, graph, cfg)
+        if cfg.split_instances:
+            groups = instance_groups(msm.points[cand_rows[local]], groups, cfg)
+        clusters += [(q, local[g]) for g in groups]
+    return clusters, cand_rows, similarity
 
 
 def find_objects(
@@ -202,34 +247,27 @@ def find_objects(
         if graph is None:
             raise TerraError("--method 3dsg needs a scene graph in the bundle; build one with `terra build`")
         observed = scorer.observed()
-        allowed = []
-        for q in range(len(queries)):
-            places = select_places_3dsg(graph, query_vectors[q], alpha)
-            near = points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)
-            allowed.append(observed[near])
-        rows = np.unique(np.concatenate(allowed))
-        feature = cfg.sg_point_feature
-    else:
-        rows, allowed, feature = None, None, method[3:]
-    # Query columns over every searched point first; the terrain columns (distractors) are only
-    # needed where some query clears alpha.
-    query_sim = scorer.similarity(query_vectors, feature, rows)
-    above = np.flatnonzero((query_sim > alpha).any(axis=1))
-    cand_rows = above if rows is None else rows[above]
-    similarity = np.hstack([scorer.similarity(terrain_vectors, feature, cand_rows), query_sim[above]])
-    matched = point_matches(similarity, n_terrain, alpha)
 
-    # Clusters of every query, then all their boxes in one vectorised call.
-    clusters: list[tuple[int, np.ndarray]] = []  # (query, rows into the candidate arrays)
-    for q in range(len(queries)):
-        mask = matched == q
-        if allowed is not None:
-            mask &= np.isin(cand_rows, allowed[q])
-        local = np.flatnonzero(mask)
-        groups = cluster_matches(msm.points[cand_rows[local]], cfg.dbscan_eps, cfg.dbscan_min_samples, cfg.min_points)
-        if cfg.split_instances:
-            groups = instance_groups(msm.points[cand_rows[local]], groups, cfg)
-        clusters += [(q, local[g]) for g in groups]
+        def searched(places: np.ndarray) -> np.ndarray:  # observed map rows within place_radius of the places
+            return observed[points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)]
+
+        allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in range(len(queries))]
+        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg,
+                                                          cfg.sg_point_feature, allowed)
+        # The regions above alpha narrow the search; when they hold no object for a query, the
+        # answer comes from its places above alpha anywhere, then from every place, rather than
+        # from nothing (a region scoring just above alpha can leave out every instance).
+        for widen in (1, 2) if cfg.sg_widen else ():
+            empty = sorted(set(range(len(queries))) - {q for q, _ in clusters})
+            if not empty:
+                break
+            for q in empty:
+                allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
+            clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg,
+                                                              cfg.sg_point_feature, allowed)
+    else:
+        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg,
+                                                          method[3:], None)
     if not clusters:
         return []
     members = np.concatenate([m for _, m in clusters])
