@@ -100,3 +100,14 @@ def test_every_figure_writes_a_valid_reproducible_png(tmp_path):
             rgb = np.asarray(im.convert("RGB")).astype(np.int64)
             assert np.unique(rgb[..., 0] << 16 | rgb[..., 1] << 8 | rgb[..., 2]).size > 20
         assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_places_view_grows_to_hold_places_beyond_the_raster():
+    from terra.viz.places import extent_with_places
+
+    sg = grid_graph()  # places over x 0..20, y 0..16: the larger side is 20 m, so the margin is 0.6 m
+    # A raster view covering only part of the grid grows to every place with the margin.
+    assert extent_with_places((2.0, 10.0, 1.0, 30.0), sg) == pytest.approx((-0.6, 20.6, -0.6, 30.0))
+    # A view that already holds every place is left as it is; no view stays None.
+    assert extent_with_places((-5.0, 25.0, -5.0, 25.0), sg) == (-5.0, 25.0, -5.0, 25.0)
+    assert extent_with_places(None, sg) is None

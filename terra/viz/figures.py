@@ -22,7 +22,8 @@ from terra.eval.metrics.boxes import BoxSet
 from terra.graph.scene_graph import SceneGraph
 from terra.viz.class_grid import (DIFFERENCE_COLOURS, DIFFERENCE_LABELS, difference, difference_rgba, gt_class_grid,
                                   map_class_grid)
-from terra.viz.places import draw_place_edges, draw_places, edge_handles, marker_size, region_colours
+from terra.viz.places import (draw_place_edges, draw_places, edge_handles, extent_with_places, marker_size,
+                              region_colours)
 from terra.viz.raster import TopDownImage
 from terra.viz.retrieval_figure import boxes_figure  # noqa: F401 (one module of figures for callers)
 from terra.viz.style import (GOAL_COLOUR, HIGHLIGHT_COLOUR, PATH_COLOUR, START_COLOUR, UNSEEN_COLOUR, Extent,
@@ -73,7 +74,8 @@ def terrain_map_figure(path: str | Path, terrain_classes: list[str], points: np.
 def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
                   extent: Extent | None = None) -> Path:
     """The places layer coloured by terrain; edges along one terrain grey, cross-terrain links
-    black, bridges dashed."""
+    black, bridges dashed. The view is `extent` grown to hold every place."""
+    extent = extent_with_places(extent, sg)
     fig, (ax,) = new_figure(1, panel_size=7.5, extent=extent,
                             title=f"Places layer: {counted(len(sg.places), 'place')}, "
                                   f"{counted(len(sg.place_edges), 'edge')}")

@@ -7,7 +7,7 @@ from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
-from terra.viz.style import terrain_palette
+from terra.viz.style import Extent, terrain_palette
 
 
 def marker_size(count: int) -> float:
@@ -20,6 +20,20 @@ EDGE_STYLES = {  # kind: (label, colour, width, line style); cross-terrain links
     EDGE_CROSS_TERRAIN: ("cross-terrain link", "#000000", 1.3, "solid"),
     EDGE_BRIDGE: ("bridge (joins components)", "#000000", 1.0, "dashed"),
 }
+
+
+def extent_with_places(extent: Extent | None, sg: SceneGraph, margin: float = 0.03) -> Extent | None:
+    """`extent` (x0, x1, y0, y1 metres, map frame) grown to hold every place with `margin` (a share
+    of the places' larger side) around them: a view of the evaluated world (the ground-truth
+    raster) leaves out places built from far LiDAR returns, and their edges would run off the
+    frame. None stays None (the axes then fit the data)."""
+    if extent is None or len(sg.places) == 0:
+        return extent
+    xy = np.asarray(sg.places.position, dtype=np.float64)[:, :2]
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    pad = margin * max(float((hi - lo).max()), 1.0)
+    return (min(extent[0], float(lo[0] - pad)), max(extent[1], float(hi[0] + pad)),
+            min(extent[2], float(lo[1] - pad)), max(extent[3], float(hi[1] + pad)))
 
 
 def draw_place_edges(ax: Axes, sg: SceneGraph, colour: str | None = None, width: float | None = None,
