@@ -10,22 +10,22 @@ against the ground-truth raster. It also builds the tiny and campus presets' gra
 connectivity and region counts per level, and the paper's fixed cuts on the small campus.
 
 Datasets and maps come from --cache (made with `terra sim` and `terra map --noise realistic` when
-missing: about 2 minutes per small seed, 6 for the campus); graphs are rebuilt with this checkout,
-under --work (default: the cache), once per build configuration compared: "before" is the terrain
-grid without the hysteresis extension (`build.grid.weak_support: null`, the grid of main before
-it), "unbounded" the hysteresis with no reach bound (`build.grid.weak_reach: null`), "after" the
-default (reach bounded). Beside the targets it records, per configuration, how many places sit on
-their own ground-truth terrain (terra.eval.metrics.places.place_terrain_agreement), the sidewalk
-preference with a stronger planner penalty, and the best single region per query (a ceiling of
-the hierarchy: terra.eval.regions.best_region_scores).
+missing: about 2 minutes per small seed, 6 for the campus); graphs are rebuilt once with this
+checkout's default build under --work. Two task configurations run on the same graphs: "before"
+is main's before session 4 (planner default penalty 1, every retrieval cluster kept, Terra-3DSG
+never widened), "after" this checkout's defaults; each is tuned on the validation seed. Beside the
+targets it records how many places sit on their own ground-truth terrain
+(terra.eval.metrics.places.place_terrain_agreement) and, on the validation seed only, the sweep
+that chose the planner's default penalty (terra.eval.navigation.penalty_sweep).
 
-Usage: python benchmarks/bench_regions_nav.py [--cache DIR] [--work DIR] [--seeds 0,2,3] [--no-campus]
-Writes benchmarks/results/regions_nav.json and prints a table.
+Usage: python benchmarks/bench_regions_nav.py [--cache DIR] [--work DIR] [--seeds 0,2,3] [--no-campus] [--out JSON]
+Writes --out (default benchmarks/results/regions_nav.json) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import shutil
@@ -40,9 +40,12 @@ from benchmarks.benchtable import report  # noqa: E402
 
 TARGETS = {"agglomerative_f1": 0.70, "spectral_f1": 0.60, "matched_iou": 0.5, "retrieval_f1": 0.75, "sidewalk_share": 0.8,
            "connectivity": 0.99, "box_side": 0.05}
-# before: main's terrain grid; unbounded: the hysteresis without its reach bound; after: the default.
-CONFIGS = {"before": {"grid": {"weak_support": None}}, "unbounded": {"grid": {"weak_reach": None}}, "after": {}}
-STRONG_PENALTY = 3.0  # planner penalty of the second sidewalk-preference measurement (the default is 1)
+# Session 4 compares, on the same graphs (the default build), main's task settings ("before":
+# planner penalty 1, every retrieval cluster kept, 3DSG never widened) with this checkout's defaults.
+CONFIGS = {"before": {"build": {}, "tasks": {"planning": {"default_penalty": 1.0},
+                                             "retrieval": {"standing_only": False, "sg_widen": False}}},
+           "after": {"build": {}, "tasks": {}}}
+PENALTY_GRID = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0]  # planner penalties swept on the validation seed
 
 
 def ensure_map(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
@@ -65,13 +68,20 @@ def graph_bundle(cache: Path, preset: str, seed: int, work: Path, config: dict) 
 
     dataset, bundle = ensure_map(cache, preset, seed)
     out = work / f"{preset}-seed{seed}.terra"
+    key = (str(out), repr(config))
+    if key in BUILT:  # built by this run already, with the same configuration
+        return dataset, out, BUILT[key]
     if out.exists():
         shutil.rmtree(out)
     work.mkdir(parents=True, exist_ok=True)
     shutil.copytree(bundle, out)
     start = time.perf_counter()
     build_graph(out, BuildConfig.model_validate(config), progress=False)
-    return dataset, out, time.perf_counter() - start
+    BUILT[key] = time.perf_counter() - start
+    return dataset, out, BUILT[key]
+
+
+BUILT: dict[tuple[str, str], float] = {}  # graphs built by this run: seconds
 
 
 def levels_of(bundle: Path, method: str, cuts: list[float] | None = None) -> list[int]:
@@ -102,25 +112,29 @@ def connectivity(bundle: Path, dataset: Path) -> dict:
             "terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json()}
 
 
-def scene_extras(bundle: Path, dataset: Path, config) -> dict:
-    """What the evaluation report does not hold: place terrain agreement, the sidewalk preference
-    with STRONG_PENALTY on the report's pairs, and the best-single-region ceiling per method."""
-    from terra.eval.metrics.places import observed_cells, place_terrain_agreement
-    from terra.eval.metrics.regions import micro_scores
-    from terra.eval.navigation import preference_routes, terrain_route_pairs
-    from terra.eval.regions import best_region_scores, rebuild_regions, region_truth
+def scene_extras(bundle: Path, dataset: Path) -> dict:
+    """What the evaluation report does not hold: how many places sit on their own terrain."""
     from terra.eval.inputs import EvalInputs
+    from terra.eval.metrics.places import place_terrain_agreement
 
     inputs = EvalInputs.load(bundle, dataset)
-    graph, gt, nav = inputs.graph, inputs.gt, config.navigation
-    seen = observed_cells(gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
-    pairs = terrain_route_pairs(graph, gt.terrain, nav.prefer[0], seen, nav.route_pairs)
-    strong = preference_routes(graph, gt.terrain, pairs, nav.prefer[0], nav.step, STRONG_PENALTY).to_json(nav.min_share)
-    truth = region_truth(graph, gt.regions)
-    ceiling = {m: micro_scores(best_region_scores(rebuild_regions(inputs.bundle, graph, m)[0], truth)).to_json()
-               for m in ("agglomerative", "spectral")}
-    return {"terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json(),
-            "preference_routes_strong_penalty": {"penalty": STRONG_PENALTY, **strong}, "best_region_ceiling": ceiling}
+    return {"terrain_agreement": place_terrain_agreement(inputs.graph, inputs.gt.terrain).to_json()}
+
+
+def validation_penalty_sweep(bundle: Path, dataset: Path, config) -> dict:
+    """The planner penalty chosen on the validation scene: every place pair joined by a sidewalk
+    route over the labelled ground, planned preferring sidewalk under each penalty of PENALTY_GRID
+    (terra.eval.navigation.penalty_sweep, choose_penalty)."""
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.metrics.places import observed_cells
+    from terra.eval.navigation import choose_penalty, penalty_sweep, terrain_route_pairs
+
+    inputs = EvalInputs.load(bundle, dataset)
+    nav = config.navigation
+    seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+    pairs = terrain_route_pairs(inputs.graph, inputs.gt.terrain, nav.prefer[0], seen, max_pairs=10**9)
+    points = penalty_sweep(inputs.graph, inputs.gt.terrain, pairs, nav.prefer[0], PENALTY_GRID, nav.min_share, nav.step)
+    return {"terrain": nav.prefer[0], "pairs": len(pairs), "chosen": choose_penalty(points), "points": [p.to_json() for p in points]}
 
 
 def test_scene(summary: dict) -> dict:
@@ -132,7 +146,8 @@ def test_scene(summary: dict) -> dict:
         "regions_per_level": summary["regions"]["regions_per_level"],
         "retrieval": {m: {k: ret[m][k] for k in ("f1", "iou", "matched_iou", "relaxed_accuracy", "relaxed_precision", "smallest_box_side_m",
                                                  "alpha", "iou_by_distance")} for m in ret},
-        "navigation": {"preference_routes": routes, "case": nav.get("preference_case"), "task_plans": nav.get("plans"),
+        "navigation": {"preference_routes": routes, "case": nav.get("preference_case"),
+                       "task_plans": {k: nav[k] for k in ("plans", "goal_object", "error", "candidates", "alpha") if k in nav},
                        "skipped": nav.get("skipped", [])},
         "places": summary["places"],
     }
@@ -144,18 +159,22 @@ def run_config(name: str, overrides: dict, args, eval_config) -> dict:
     from terra.eval.inputs import EvalInputs
     from terra.eval.runner import evaluate, tune
 
-    work = args.work / name
-    out: dict = {"build_config": overrides}
+    from terra.tasks.config import TasksConfig
+
+    work = args.work / "graphs"
+    tasks = TasksConfig.model_validate(overrides["tasks"])
+    out: dict = {"build_config": overrides["build"], "tasks_config": overrides["tasks"]}
+    overrides = overrides["build"]
     val_data, val_bundle, _ = graph_bundle(args.cache, "small", args.validation_seed, work, overrides)
     start = time.perf_counter()
-    tuned = tune(EvalInputs.load(val_bundle, val_data), eval_config)
+    tuned = tune(EvalInputs.load(val_bundle, val_data), eval_config, tasks)
     out["tune_seconds"] = time.perf_counter() - start
     out["tuned"] = tuned.to_json()
     out["small"] = {}
     for seed in [int(s) for s in args.seeds.split(",")]:
         dataset, bundle, build_s = graph_bundle(args.cache, "small", seed, work, overrides)
-        summary = evaluate(bundle, dataset, work / f"report-seed{seed}", eval_config, tuned, show_progress=False)
-        out["small"][seed] = {**test_scene(summary), **scene_extras(bundle, dataset, eval_config), "build_seconds": build_s}
+        summary = evaluate(bundle, dataset, args.work / name / f"report-seed{seed}", eval_config, tuned, tasks, show_progress=False)
+        out["small"][seed] = {**test_scene(summary), **scene_extras(bundle, dataset), "build_seconds": build_s}
     out["small_paper_cuts"] = {"seed": seed, "regions_per_level": levels_of(bundle, "agglomerative", [50.0, 100.0, 200.0, 400.0])}
     out["presets"] = {}
     for preset in ["tiny"] + ([] if args.no_campus else ["campus"]):
@@ -172,16 +191,20 @@ def main() -> None:
     parser.add_argument("--seeds", default="0,2,3")
     parser.add_argument("--validation-seed", type=int, default=1)
     parser.add_argument("--no-campus", action="store_true")
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "regions_nav.json", help="JSON written")
     args = parser.parse_args()
     args.work = args.work or args.cache / "bench"
     from terra.eval.config import EvalConfig
 
     result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "targets": TARGETS,
-              "strong_penalty": STRONG_PENALTY}
+              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "targets": TARGETS}
     config = EvalConfig.model_validate({"figures": False, "segmentation": {"max_images": 0}})
     result["configs"] = {name: run_config(name, overrides, args, config) for name, overrides in CONFIGS.items()}
-    report(rows(result), result, ROOT / "results" / "regions_nav.json")
+    val_data, val_bundle, _ = graph_bundle(args.cache, "small", args.validation_seed, args.work / "graphs", {})
+    result["validation_penalty_sweep"] = validation_penalty_sweep(val_bundle, val_data, config)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")  # kept even if the table fails
+    report(rows(result), result, args.out)
 
 
 def side(result: dict, get, fmt: str = "{:.3f}") -> str:
@@ -203,9 +226,6 @@ def rows(result: dict) -> list[tuple[str, str, str]]:
             return c["small"][seed]
         for m, target in (("agglomerative", ">= 0.70"), ("spectral", ">= 0.60"), ("aib", "below both")):
             out.append((f"seed {seed}: regions F1 {m}", side(result, lambda c, m=m: sc(c)["regions"][m]["f1"]), target))
-        for m in ("agglomerative", "spectral"):
-            out.append((f"seed {seed}: best single region per query F1 (ceiling) {m}",
-                        side(result, lambda c, m=m: sc(c)["best_region_ceiling"][m]["f1"]), "-"))
         out.append((f"seed {seed}: regions runtime ms (build + query) agg / spec / AIB",
                     side(result, lambda c: " / ".join(f"{sc(c)['regions'][m]['runtime_ms']:.0f}" for m in ("agglomerative", "spectral", "aib")), "{}"), "-"))
         out.append((f"seed {seed}: regions per level agg ; spec",
@@ -217,9 +237,9 @@ def rows(result: dict) -> list[tuple[str, str, str]]:
         out.append((f"seed {seed}: sidewalk preferred: mean share / pairs >= 80%",
                     side(result, lambda c: "{:.3f} / {:.3f}".format(sc(c)["navigation"]["preference_routes"]["preferred_mean_share"],
                                                                      sc(c)["navigation"]["preference_routes"]["fraction_meeting"]), "{}"), ">= 0.8 where a sidewalk route exists"))
-        out.append((f"seed {seed}: ... with planner penalty {result['strong_penalty']:g}",
-                    side(result, lambda c: "{:.3f} / {:.3f}".format(sc(c)["preference_routes_strong_penalty"]["preferred_mean_share"],
-                                                                     sc(c)["preference_routes_strong_penalty"]["fraction_meeting"]), "{}"), "-"))
+        out.append((f"seed {seed}: task plan: goal object score (or why none)",
+                    side(result, lambda c: "{:.3f}".format(sc(c)["navigation"]["task_plans"]["goal_object"]["score"])
+                         if "goal_object" in (sc(c)["navigation"]["task_plans"] or {}) else "none", "{}"), "an object"))
         out.append((f"seed {seed}: navigation case sidewalk m shortest / preferred",
                     side(result, lambda c: " / ".join(f"{p['gt_terrain_m'].get('sidewalk', 0):.1f} of {p['length_m']:.1f}"
                                                       for p in sc(c)["navigation"]["case"]["plans"].values()), "{}"), "a change"))
@@ -241,6 +261,10 @@ def rows(result: dict) -> list[tuple[str, str, str]]:
         out.append((f"{preset}: regions per level agg ; spec",
                     side(result, lambda c: " ; ".join("/".join(map(str, v)) for v in pc(c)["regions_per_level"].values()), "{}"), "strictly decreasing"))
         out.append((f"{preset}: terra build (s)", side(result, lambda c: pc(c)["build_seconds"], "{:.1f}"), "-"))
+    sweep = result["validation_penalty_sweep"]
+    for p in sweep["points"]:
+        out.append((f"validation seed: penalty {p['penalty']:g}: pairs >= 80 % / mean detour / max detour",
+                    f"{p['meeting']} of {p['pairs']} / {p['mean_detour']:.3f} / {p['max_detour']:.2f}", "chosen" if p["penalty"] == sweep["chosen"] else "-"))
     return out
 
 
