@@ -9,7 +9,7 @@ import pytest
 from terra.tasks.config import RetrievalConfig
 from terra.tasks.retrieval import find_objects
 from terra.tasks.standing import standing_groups
-from tests.test_tasks_synthetic import box_points, make_graph, make_map
+from tests.test_tasks_synthetic import TERRAINS, box_points, make_graph, make_map
 
 BANK = ["grass", "lamp post", "bench"]
 GRASS, LAMP, BENCH = range(3)
@@ -37,7 +37,8 @@ def test_flat_clusters_go_floating_parts_join_the_nearest_standing_cluster_or_go
     assert len(standing_groups(points, groups, np.full(4, np.nan))) == 4
     # The ground at 5.9 m (a deck the heads rest on): the pole and the slab lie below it and go,
     # the heads (points 0.2 m above it) stand.
-    assert [g.tolist() for g in standing_groups(points, groups, np.full(4, 5.9))] == [groups[1].tolist(), groups[3].tolist()]
+    deck = standing_groups(points, groups, np.full(4, 5.9))
+    assert [g.tolist() for g in deck] == [groups[1].tolist(), groups[3].tolist()]
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +55,7 @@ def lamp_scene(text_embedder):
              (box_points((32.0, 30.0, 3.0), (1.0, 0.4, 0.4), 0.0), BENCH)]
     points = np.vstack([p for p, _ in parts])
     observations = [{label: 3} for p, label in parts for _ in range(len(p))]
-    msm = make_map(points, observations, text_embedder.embed_text(BANK), text_embedder.embed_text(["sidewalk", "grass", "asphalt", "dirt", "water"]))
+    msm = make_map(points, observations, text_embedder.embed_text(BANK), text_embedder.embed_text(TERRAINS))
     gx, gy = np.meshgrid(np.arange(0.0, 40.0, 5.0), np.arange(0.0, 40.0, 5.0), indexing="ij")
     xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
     edges = [[i, j] for i in range(len(xy)) for j in range(i + 1, len(xy)) if np.linalg.norm(xy[i] - xy[j]) == 5.0]

@@ -171,9 +171,9 @@ class PenaltyPoint:
         return self.meeting / self.pairs if self.pairs else 1.0
 
     def to_json(self) -> dict:
-        return {"penalty": self.penalty, "pairs": self.pairs, "meeting": self.meeting, "fraction_meeting": self.fraction_meeting,
-                "mean_share": self.mean_share, "mean_detour": self.mean_detour, "max_detour": self.max_detour,
-                "max_extra_m": self.max_extra_m}
+        return {"penalty": self.penalty, "pairs": self.pairs, "meeting": self.meeting,
+                "fraction_meeting": self.fraction_meeting, "mean_share": self.mean_share,
+                "mean_detour": self.mean_detour, "max_detour": self.max_detour, "max_extra_m": self.max_extra_m}
 
 
 def penalty_sweep(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, terrain: str, penalties: list[float],
@@ -184,12 +184,14 @@ def penalty_sweep(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, t
     shortest = np.array([plan_with(graph, a, b, "shortest", raster, (), step).length_m for a, b in pairs.tolist()])
     out = []
     for penalty in penalties:
-        plans = [plan_with(graph, a, b, "preferred", raster, (terrain,), step, float(penalty)) for a, b in pairs.tolist()]
+        plans = [plan_with(graph, a, b, "preferred", raster, (terrain,), step, float(penalty))
+                 for a, b in pairs.tolist()]
         length = np.array([p.length_m for p in plans])
         share = np.array([p.gt_terrain_m.get(terrain, 0.0) / p.length_m if p.length_m > 0 else 1.0 for p in plans])
         detour = np.where(shortest > 0, length / np.maximum(shortest, 1e-12), 1.0)
         out.append(PenaltyPoint(float(penalty), len(pairs), int((share >= min_share).sum()),
-                                float(share.mean()) if len(share) else 1.0, float(detour.mean()) if len(detour) else 1.0,
+                                float(share.mean()) if len(share) else 1.0,
+                                float(detour.mean()) if len(detour) else 1.0,
                                 float(detour.max()) if len(detour) else 1.0,
                                 float((length - shortest).max()) if len(length) else 0.0))
     return out
@@ -202,5 +204,5 @@ def choose_penalty(points: list[PenaltyPoint]) -> float:
     sufficient one is also the one with the shortest detours."""
     if not points:
         raise TerraError("no penalties to choose from")
-    best = max(p.meeting / p.pairs if p.pairs else 1.0 for p in points)
-    return min(p.penalty for p in points if (p.meeting / p.pairs if p.pairs else 1.0) >= best - 1e-12)
+    best = max(p.fraction_meeting for p in points)
+    return min(p.penalty for p in points if p.fraction_meeting >= best - 1e-12)

@@ -161,11 +161,13 @@ def instance_groups(points: np.ndarray, groups: list[np.ndarray], cfg: Retrieval
     return out
 
 
-def grounded_groups(points: np.ndarray, groups: list[np.ndarray], graph: SceneGraph, cfg: RetrievalConfig) -> list[np.ndarray]:
+def grounded_groups(points: np.ndarray, groups: list[np.ndarray], graph: SceneGraph,
+                    cfg: RetrievalConfig) -> list[np.ndarray]:
     """The clusters (row arrays into `points`) that stand on the ground under their nearest place,
     floating parts attached (terra.tasks.standing)."""
     centre = np.array([points[g, :2].mean(axis=0) for g in groups])
-    return standing_groups(points, groups, ground_under(graph, centre), cfg.ground_lift, cfg.float_height, cfg.attach_gap)
+    ground = ground_under(graph, centre)
+    return standing_groups(points, groups, ground, cfg.ground_lift, cfg.float_height, cfg.attach_gap)
 
 
 def object_boxes(points: np.ndarray, owner: np.ndarray, graph: SceneGraph | None, cfg: RetrievalConfig) -> list:
@@ -252,8 +254,8 @@ def find_objects(
             return observed[points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)]
 
         allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in range(len(queries))]
-        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg,
-                                                          cfg.sg_point_feature, allowed)
+        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
+                                                          alpha, cfg, cfg.sg_point_feature, allowed)
         # The regions above alpha narrow the search; when they hold no object for a query, the
         # answer comes from its places above alpha anywhere, then from every place, rather than
         # from nothing (a region scoring just above alpha can leave out every instance).
@@ -263,11 +265,11 @@ def find_objects(
                 break
             for q in empty:
                 allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
-            clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg,
-                                                              cfg.sg_point_feature, allowed)
+            clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
+                                                              alpha, cfg, cfg.sg_point_feature, allowed)
     else:
-        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg,
-                                                          method[3:], None)
+        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
+                                                          alpha, cfg, method[3:], None)
     if not clusters:
         return []
     members = np.concatenate([m for _, m in clusters])
