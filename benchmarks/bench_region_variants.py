@@ -2,7 +2,7 @@
 
 Issue 14 asks Table III F1 >= 0.70 (agglomerative) and >= 0.60 (spectral) on the small preset's
 test seeds 0, 2 and 3 with every parameter chosen on seed 1. This script measures, in one run,
-whether either lever moves it:
+whether any of these levers moves it:
 
 - region affinity (what the hierarchies cluster on), added to the paper's weight
   w_ij = |p_i - p_j| + gamma (1 - cos(e_i, e_j)) of both methods (agglomerative: every pair;
@@ -23,13 +23,17 @@ whether either lever moves it:
     parent scores within `margin` of it (choosing the level per query);
   - "gap": the top region of the ranked level with the widest gap between its first and
     second region scores.
+- query embedding (terra.tasks.queries.embed_query: the whole description, the mean of its parts,
+  or both) and region score (the paper's region embedding, or the median cosine of the region's
+  places), on the paper's hierarchies.
 
 Every (affinity, rule) pair is tuned on seed 1 over the grid below (alpha, k or margin, ranked
-levels) and scored unchanged on seeds 0, 2 and 3; so is the choice of affinity and rule itself
-("chosen on seed 1"). Beside them, ceilings that read the labels: the best single region per query
-(terra.eval.regions.best_region_scores), the best union of regions of one level per query (regions
-taken in order of their share of true places, the best prefix), and the best place threshold per
-query (no regions at all). AIB (null score tuned on seed 1) is run on the same places.
+levels) and scored unchanged on seeds 0, 2 and 3; so is the choice of affinity and rule itself,
+and of query embedding and region score ("chosen on seed 1"). Beside them, ceilings that read
+the labels: the best single region per query (terra.eval.regions.best_region_scores), the best
+union of regions of one level per query (regions taken in order of their share of true places,
+the best prefix), and the best place threshold per query (no regions at all). AIB (null score
+tuned on seed 1) is run on the same places.
 
 Maps come from --cache (`small-seed{N}/map.terra` and `dataset`, made by
 benchmarks/bench_regions_nav.py); graphs are built by this checkout with the default build
@@ -57,9 +61,16 @@ ALPHAS = [round(float(a), 4) for a in np.linspace(0.15, 0.75, 13)]
 MARGINS = (0.0, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15)
 K_MAX = 8
 OBJECT_RADIUS = 10.0  # metres
-AFFINITIES = {"paper": {}, "terrain 25": {"terrain": 25.0}, "terrain 50": {"terrain": 50.0}, "patch 25": {"patch": 25.0},
-              "patch 50": {"patch": 50.0}, "objects 50": {"objects": 50.0}, "objects 100": {"objects": 100.0},
-              "patch 25 + objects 50": {"patch": 25.0, "objects": 50.0}}
+AFFINITIES = {
+    "paper": {},
+    "terrain 25": {"terrain": 25.0},
+    "terrain 50": {"terrain": 50.0},
+    "patch 25": {"patch": 25.0},
+    "patch 50": {"patch": 50.0},
+    "objects 50": {"objects": 50.0},
+    "objects 100": {"objects": 100.0},
+    "patch 25 + objects 50": {"patch": 25.0, "objects": 50.0},
+}
 RULES = ("mix", "margin", "ascend", "gap")
 
 
@@ -138,10 +149,14 @@ def spectral_levels(scene: dict, terms: dict, config) -> list[np.ndarray]:
     r, sc = config.regions, config.regions.spectral
     pos, emb, e = scene["position"], scene["embedding"], scene["edges"]
     P = len(pos)
-    w = paper_weight(pos[e[:, 0]], pos[e[:, 1]], emb[e[:, 0]], emb[e[:, 1]], r.gamma) + extra_weight(e[:, 0], e[:, 1], scene, terms)
+    w = paper_weight(pos[e[:, 0]], pos[e[:, 1]], emb[e[:, 0]], emb[e[:, 1]], r.gamma) + extra_weight(
+        e[:, 0], e[:, 1], scene, terms
+    )
     sim = np.exp(-w / max(float(sc.sigma or np.median(w)), 1e-9))
-    affinity = sp.coo_matrix((np.concatenate([sim, sim]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
-                             shape=(P, P)).tocsr()
+    affinity = sp.coo_matrix(
+        (np.concatenate([sim, sim]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
+        shape=(P, P),
+    ).tocsr()
     semantic, area = sc.semantic_fraction * semantic_difference(emb), sc.area_fraction * bbox_area(pos)
     members, parent = split_tree(pos, emb, affinity, semantic, area, sc.stop_rule, sc.min_places, sc.max_depth, r.seed)
     return split_levels(members, parent, P, r.levels, r.top_regions)
@@ -149,11 +164,19 @@ def spectral_levels(scene: dict, terms: dict, config) -> list[np.ndarray]:
 
 # ---- monitoring rules, vectorised over one hierarchy -----------------------------------------
 class Hierarchy:
-    """Per level: place labels and region scores (R, Q) against the queries, the region embeddings
-    being terra.graph.regions.build_levels' (each level the normalised mean of the level below);
-    parents; place scores (P, Q)."""
+    """Per level: place labels and region scores (R, Q) against the queries: the cosine of the
+    region embeddings of terra.graph.regions.build_levels (each level the normalised mean of the
+    level below; `score="embedding"`, the paper's) or the median cosine of the region's places
+    (`score="median"`); parents; place scores (P, Q)."""
 
-    def __init__(self, labels: list[np.ndarray], position: np.ndarray, embedding: np.ndarray, queries: np.ndarray):
+    def __init__(
+        self,
+        labels: list[np.ndarray],
+        position: np.ndarray,
+        embedding: np.ndarray,
+        queries: np.ndarray,
+        score: str = "embedding",
+    ):
         from terra.graph.regions import build_levels
 
         levels = build_levels(labels, position, embedding)
@@ -161,8 +184,14 @@ class Hierarchy:
         self.labels = [np.asarray(levels[0].parent_of_child, np.int64)]
         for par in self.parent:
             self.labels.append(par[self.labels[-1]])
-        self.scores = [np.asarray(level.embedding, np.float32) @ queries.T for level in levels]
         self.place_scores = np.asarray(embedding, np.float32) @ queries.T
+        if score == "embedding":  # the paper's: the cosine of the region's embedding
+            self.scores = [np.asarray(level.embedding, np.float32) @ queries.T for level in levels]
+        else:  # "median": the median cosine of the region's places
+            self.scores = [
+                np.stack([np.median(self.place_scores[lab == r], axis=0) for r in range(int(lab.max()) + 1)])
+                for lab in self.labels
+            ]
 
     def chosen(self, q: int, rule: str, p: dict) -> np.ndarray:
         """(P,) bool: places of the regions `rule` returns for query q (before alpha)."""
@@ -185,12 +214,17 @@ class Hierarchy:
             while l + 1 < hi and self.scores[l + 1][self.parent[l][r], q] >= self.scores[l][r, q] - p["margin"]:
                 l, r = l + 1, int(self.parent[l][r])
             return self.labels[l] == r
-        gaps = [np.diff(np.sort(self.scores[l][:, q])[-2:])[0] if len(self.scores[l]) > 1 else -1.0 for l in range(lo, hi)]
+        gaps = [
+            np.diff(np.sort(self.scores[l][:, q])[-2:])[0] if len(self.scores[l]) > 1 else -1.0 for l in range(lo, hi)
+        ]
         l = lo + int(np.argmax(gaps))
         return self.labels[l] == int(np.argmax(self.scores[l][:, q]))
 
     def predict(self, rule: str, p: dict) -> list[np.ndarray]:
-        return [np.flatnonzero(self.chosen(q, rule, p) & (self.place_scores[:, q] > p["alpha"])) for q in range(self.place_scores.shape[1])]
+        return [
+            np.flatnonzero(self.chosen(q, rule, p) & (self.place_scores[:, q] > p["alpha"]))
+            for q in range(self.place_scores.shape[1])
+        ]
 
 
 def micro_f1(predicted: list[np.ndarray], truth: list[np.ndarray]) -> float:
@@ -288,11 +322,22 @@ def load_scene(cache: Path, seed: int, config, embedder_cache: dict) -> dict:
     p = graph.places
     from terra.tasks.queries import QUERY_MODES, embed_query
 
-    queries = {mode: np.stack([embed_query(embedder_cache["embedder"], r.description, mode) for r in gt.regions]) for mode in QUERY_MODES}
-    return {"graph": graph, "gt": gt, "truth": region_truth(graph, gt.regions), "queries": queries,
-            "position": np.asarray(p.position, np.float64), "embedding": np.asarray(p.embedding, np.float32),
-            "terrain": np.asarray(p.terrain), "edges": np.asarray(graph.place_edges, np.int64).reshape(-1, 2),
-            "patch": terrain_patches(np.asarray(p.terrain), graph.place_edges), "objects": object_features(msm, p.position)}
+    queries = {
+        mode: np.stack([embed_query(embedder_cache["embedder"], r.description, mode) for r in gt.regions])
+        for mode in QUERY_MODES
+    }
+    return {
+        "graph": graph,
+        "gt": gt,
+        "truth": region_truth(graph, gt.regions),
+        "queries": queries,
+        "position": np.asarray(p.position, np.float64),
+        "embedding": np.asarray(p.embedding, np.float32),
+        "terrain": np.asarray(p.terrain),
+        "edges": np.asarray(graph.place_edges, np.int64).reshape(-1, 2),
+        "patch": terrain_patches(np.asarray(p.terrain), graph.place_edges),
+        "objects": object_features(msm, p.position),
+    }
 
 
 def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
@@ -311,7 +356,9 @@ def check_paper(scene: dict, method: str, labels: list[np.ndarray]) -> bool:
     return len(built) == len(labels) and all(same_partition(a, b) for a, b in zip(built, labels))
 
 
-def check_mix(scene: dict, method: str, labels: list[np.ndarray], params: dict, f1: float, embedder, mode: str = "sentence") -> bool:
+def check_mix(
+    scene: dict, method: str, labels: list[np.ndarray], params: dict, f1: float, embedder, mode: str = "sentence"
+) -> bool:
     """terra's own monitor (run_monitoring, "mix", `tasks.monitoring.query: mode`) gives the fast
     evaluator's F1 at `params`."""
     from terra.eval.regions import MonitorParams, run_monitoring
@@ -320,9 +367,15 @@ def check_mix(scene: dict, method: str, labels: list[np.ndarray], params: dict, 
 
     g = scene["graph"]
     g = replace(g, regions=build_levels(labels, scene["position"], scene["embedding"]), region_method=method)
-    run = run_monitoring(g, scene["gt"].regions, scene["truth"], "mix",
-                         MonitorParams(params["alpha"], params["k"], params["hi"], params["lo"]), embedder,
-                         TasksConfig.model_validate({"monitoring": {"query": mode}}))
+    run = run_monitoring(
+        g,
+        scene["gt"].regions,
+        scene["truth"],
+        "mix",
+        MonitorParams(params["alpha"], params["k"], params["hi"], params["lo"]),
+        embedder,
+        TasksConfig.model_validate({"monitoring": {"query": mode}}),
+    )
     return abs(run.total.f1 - f1) < 1e-9
 
 
@@ -335,26 +388,44 @@ def aib_f1(scenes: dict, seeds: list[int], embedder, mode: str = "sentence") -> 
 
     def f1(seed: int, a: float) -> float:
         s = scenes[seed]
-        return run_monitoring(s["graph"], s["gt"].regions, s["truth"], "aib", MonitorParams(a), embedder, tasks).total.f1
+        return run_monitoring(
+            s["graph"], s["gt"].regions, s["truth"], "aib", MonitorParams(a), embedder, tasks
+        ).total.f1
 
     val = [f1(seeds[0], a) for a in ALPHAS]
     best = ALPHAS[int(np.argmax(val))]
     return {"null_score": best, "f1": {str(s): f1(s, best) for s in seeds}}
 
 
-def evaluate_variant(scenes: dict, seeds: list[int], method: str, terms: dict, config, mode: str = "sentence",
-                     labels: dict | None = None) -> tuple[dict, dict]:
+def evaluate_variant(
+    scenes: dict,
+    seeds: list[int],
+    method: str,
+    terms: dict,
+    config,
+    mode: str = "sentence",
+    labels: dict | None = None,
+    score: str = "embedding",
+) -> tuple[dict, dict]:
     """Counts, ceilings and per-rule tuned F1 of one affinity with one method and query mode;
     also the labels (given `labels`, those are used instead of building them)."""
     build = agglomerative_levels if method == "agglomerative" else spectral_levels
     labels = labels or {s: build(scenes[s], terms, config) for s in seeds}
-    hier = {s: Hierarchy(labels[s], scenes[s]["position"], scenes[s]["embedding"], scenes[s]["queries"][mode]) for s in seeds}
+    hier = {
+        s: Hierarchy(labels[s], scenes[s]["position"], scenes[s]["embedding"], scenes[s]["queries"][mode], score)
+        for s in seeds
+    }
     labels = {s: hier[s].labels for s in seeds}  # dense, nested as build_levels makes them
     counts = {str(s): [int(lab.max()) + 1 for lab in labels[s]] for s in seeds}
-    entry = {"regions_per_level": counts,
-             "strictly_decreasing": all(all(a > b for a, b in zip(c[:-1], c[1:])) for c in counts.values()),
-             "ceiling_best_region": {str(s): best_single_ceiling(scenes[s]["graph"], labels[s], scenes[s]["truth"]) for s in seeds},
-             "ceiling_best_union": {str(s): union_ceiling(labels[s], scenes[s]["truth"]) for s in seeds}, "rules": {}}
+    entry = {
+        "regions_per_level": counts,
+        "strictly_decreasing": all(all(a > b for a, b in zip(c[:-1], c[1:])) for c in counts.values()),
+        "ceiling_best_region": {
+            str(s): best_single_ceiling(scenes[s]["graph"], labels[s], scenes[s]["truth"]) for s in seeds
+        },
+        "ceiling_best_union": {str(s): union_ceiling(labels[s], scenes[s]["truth"]) for s in seeds},
+        "rules": {},
+    }
     for rule in RULES:
         params, val_f1 = tune(hier[seeds[0]], scenes[seeds[0]]["truth"], rule)
         f1 = {str(s): micro_f1(hier[s].predict(rule, params), scenes[s]["truth"]) for s in seeds}
@@ -364,43 +435,64 @@ def evaluate_variant(scenes: dict, seeds: list[int], method: str, terms: dict, c
 
 
 def query_modes(scenes: dict, seeds: list[int], method: str, labels: dict, config, embedder) -> dict:
-    """The paper's hierarchies queried with each query mode (terra.tasks.queries.embed_query): F1
-    per rule tuned on the first seed, AIB's, the place-threshold ceiling, and which mode the first
-    seed would choose for the paper's rule ("mix")."""
+    """The paper's hierarchies queried with each query mode (terra.tasks.queries.embed_query) and
+    each region score (the paper's region embedding, or the median of its places' cosines): F1 per
+    rule tuned on the first seed, AIB's, the place-threshold ceiling, and which (mode, score) the
+    first seed would choose for the paper's rule ("mix")."""
     from terra.tasks.queries import QUERY_MODES
 
     out = {}
     for mode in QUERY_MODES:
-        entry, _ = evaluate_variant(scenes, seeds, method, {}, config, mode, labels)
-        mix = entry["rules"]["mix"]
-        out[mode] = {"rules": entry["rules"], "aib": aib_f1(scenes, seeds, embedder, mode),
-                     "threshold_ceiling": {str(s): threshold_ceiling(scenes[s]["embedding"] @ scenes[s]["queries"][mode].T, scenes[s]["truth"])
-                                           for s in seeds},
-                     "mix_equals_run_monitoring": all(check_mix(scenes[s], method, labels[s], mix["params"], mix["f1"][str(s)], embedder, mode)
-                                                      for s in seeds)}
-    val = [out[m]["rules"]["mix"]["f1"][str(seeds[0])] for m in QUERY_MODES]
-    out["chosen_on_validation"] = QUERY_MODES[int(np.argmax(val))]
+        entry = {
+            "aib": aib_f1(scenes, seeds, embedder, mode),
+            "threshold_ceiling": {
+                str(s): threshold_ceiling(scenes[s]["embedding"] @ scenes[s]["queries"][mode].T, scenes[s]["truth"])
+                for s in seeds
+            },
+        }
+        for score in ("embedding", "median"):
+            entry[score] = evaluate_variant(scenes, seeds, method, {}, config, mode, labels, score)[0]["rules"]
+        mix = entry["embedding"]["mix"]
+        entry["mix_equals_run_monitoring"] = all(
+            check_mix(scenes[s], method, labels[s], mix["params"], mix["f1"][str(s)], embedder, mode) for s in seeds
+        )
+        out[mode] = entry
+    pairs = [(m, sc) for m in QUERY_MODES for sc in ("embedding", "median")]
+    val = [out[m][sc]["mix"]["f1"][str(seeds[0])] for m, sc in pairs]
+    mode, score = pairs[int(np.argmax(val))]
+    out["chosen_on_validation"] = {"query": mode, "region_score": score, **out[mode][score]["mix"]}
     return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14")))
+    parser.add_argument(
+        "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
+    )
     parser.add_argument("--seeds", default="0,2,3")
     parser.add_argument("--validation-seed", type=int, default=1)
     args = parser.parse_args()
     from terra.graph.config import BuildConfig
 
     start = time.perf_counter()
-    result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "methods": {}, "checks": {}}
+    result = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "date": time.strftime("%Y-%m-%d"),
+        "methods": {},
+        "checks": {},
+    }
     seeds = [args.validation_seed] + [int(s) for s in args.seeds.split(",")]
     config, cache = BuildConfig(), {}
     scenes = {s: load_scene(args.cache, s, config, cache) for s in seeds}
     embedder = cache["embedder"]
     result["places"] = {str(s): len(scenes[s]["graph"].places) for s in seeds}
-    result["threshold_ceiling"] = {str(s): threshold_ceiling(scenes[s]["embedding"] @ scenes[s]["queries"]["sentence"].T, scenes[s]["truth"])
-                                   for s in seeds}
+    result["threshold_ceiling"] = {
+        str(s): threshold_ceiling(scenes[s]["embedding"] @ scenes[s]["queries"]["sentence"].T, scenes[s]["truth"])
+        for s in seeds
+    }
     result["aib"] = aib_f1(scenes, seeds, embedder)
     result["query_modes"] = {}
     for method in ("agglomerative", "spectral"):
@@ -411,8 +503,11 @@ def main() -> None:
                 mix = out[name]["rules"]["mix"]
                 result["checks"][method] = {
                     "paper_affinity_equals_terra_build": all(check_paper(scenes[s], method, labels[s]) for s in seeds),
-                    "mix_equals_run_monitoring": all(check_mix(scenes[s], method, labels[s], mix["params"], mix["f1"][str(s)], embedder)
-                                                     for s in seeds)}
+                    "mix_equals_run_monitoring": all(
+                        check_mix(scenes[s], method, labels[s], mix["params"], mix["f1"][str(s)], embedder)
+                        for s in seeds
+                    ),
+                }
             print(f"{method} {name} done ({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
             if name == "paper":
                 result["query_modes"][method] = query_modes(scenes, seeds, method, labels, config, embedder)
@@ -420,7 +515,10 @@ def main() -> None:
         pairs = [(a, r) for a in AFFINITIES for r in RULES]
         val = [out[a]["rules"][r]["f1"][str(seeds[0])] for a, r in pairs]
         a, r = pairs[int(np.argmax(val))]
-        result["methods"][method] = {"affinities": out, "chosen_on_validation": {"affinity": a, "rule": r, **out[a]["rules"][r]}}
+        result["methods"][method] = {
+            "affinities": out,
+            "chosen_on_validation": {"affinity": a, "rule": r, **out[a]["rules"][r]},
+        }
     result["seconds"] = time.perf_counter() - start
     report(rows(result, seeds), result, ROOT / "results" / "region_variants.json")
 
@@ -429,25 +527,53 @@ def rows(result: dict, seeds: list[int]) -> list[tuple[str, str, str]]:
     def fmt(d: dict) -> str:
         return " / ".join(f"{d[str(s)]:.3f}" for s in seeds)
 
-    out = [("places per seed", " / ".join(str(result["places"][str(s)]) for s in seeds), "-"),
-           ("ceiling: best place threshold per query (no regions)", fmt(result["threshold_ceiling"]), "-"),
-           (f"AIB F1 (null score {result['aib']['null_score']} tuned on seed {seeds[0]})", fmt(result["aib"]["f1"]), "below both")]
+    out = [
+        ("places per seed", " / ".join(str(result["places"][str(s)]) for s in seeds), "-"),
+        ("ceiling: best place threshold per query (no regions)", fmt(result["threshold_ceiling"]), "-"),
+        (
+            f"AIB F1 (null score {result['aib']['null_score']} tuned on seed {seeds[0]})",
+            fmt(result["aib"]["f1"]),
+            "below both",
+        ),
+    ]
     for method, target in (("agglomerative", ">= 0.70"), ("spectral", ">= 0.60")):
         m = result["methods"][method]
         for name, entry in m["affinities"].items():
-            out.append((f"{method} / {name}: ceiling best region ; best union", f"{fmt(entry['ceiling_best_region'])} ; "
-                        f"{fmt(entry['ceiling_best_union'])}", "-"))
+            out.append(
+                (
+                    f"{method} / {name}: ceiling best region ; best union",
+                    f"{fmt(entry['ceiling_best_region'])} ; {fmt(entry['ceiling_best_union'])}",
+                    "-",
+                )
+            )
             for rule, r in entry["rules"].items():
                 out.append((f"{method} / {name} / {rule}", fmt(r["f1"]), target))
         for mode, q in result["query_modes"][method].items():
             if mode == "chosen_on_validation":
-                out.append((f"{method} / paper: query mode chosen on seed {seeds[0]} (mix)", q, "-"))
+                out.append(
+                    (
+                        f"{method} / paper: mix with query {q['query']}, region score {q['region_score']} "
+                        f"(chosen on seed {seeds[0]})",
+                        fmt(q["f1"]),
+                        target,
+                    )
+                )
                 continue
-            for rule, r in q["rules"].items():
-                out.append((f"{method} / paper / {rule} / query {mode}", fmt(r["f1"]), target))
-            out.append((f"AIB / query {mode} (beside {method}); place-threshold ceiling", f"{fmt(q['aib']['f1'])} ; "
-                        f"{fmt(q['threshold_ceiling'])}", "-"))
-            out.append((f"{method} / query {mode}: mix equals run_monitoring", str(q["mix_equals_run_monitoring"]), "True"))
+            for score in ("embedding", "median"):
+                for rule, r in q[score].items():
+                    out.append(
+                        (f"{method} / paper / {rule} / query {mode} / region score {score}", fmt(r["f1"]), target)
+                    )
+            out.append(
+                (
+                    f"AIB / query {mode} (beside {method}); place-threshold ceiling",
+                    f"{fmt(q['aib']['f1'])} ; {fmt(q['threshold_ceiling'])}",
+                    "-",
+                )
+            )
+            out.append(
+                (f"{method} / query {mode}: mix equals run_monitoring", str(q["mix_equals_run_monitoring"]), "True")
+            )
         c = m["chosen_on_validation"]
         out.append((f"{method}: chosen on seed {seeds[0]} = {c['affinity']} / {c['rule']}", fmt(c["f1"]), target))
         out.append((f"{method}: checks", str(result["checks"][method]), "all true"))
