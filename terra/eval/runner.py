@@ -250,8 +250,15 @@ def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None, show_progres
                 run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
                                      regions)
                 points.append({**params.to_json(), "f1": run.total.f1})
-            tuned.monitoring[method] = best_point(points)
+            # The alpha chosen depends on how queries are embedded (tasks.monitoring.query).
+            tuned.monitoring[method] = {**best_point(points), "query": _query_mode(tasks_config)}
     return tuned
+
+
+def _query_mode(tasks_config) -> str:
+    from terra.tasks.config import TasksConfig
+
+    return (tasks_config or TasksConfig()).monitoring.query
 
 
 def _monitor_grid(method: str, alphas: list[float], config: EvalConfig, inputs: EvalInputs) -> list[MonitorParams]:
@@ -365,6 +372,7 @@ def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, conf
     if tuned is not None:
         tuned.check_embedder(inputs.embedder.name)
         tuned.check_not_tuned_on(inputs.dataset_name, fingerprint=inputs.dataset_fingerprint)
+        tuned.check_query_mode(_query_mode(tasks_config))
     summary = summary_header(inputs, tuned)
     skipped = summary.get("not_evaluated", {})
 

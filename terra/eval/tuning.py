@@ -27,8 +27,9 @@ TUNED = "tuned.json"  # file name written by `terra eval --tune`
 
 @dataclass
 class TunedParameters:
-    """alpha per retrieval method; {alpha, k, levels} per monitoring method; `validation`: the
-    dataset and bundle they were chosen on."""
+    """alpha per retrieval method; {alpha, k, levels, min_level, query} per monitoring method (query:
+    the tasks.monitoring.query they were tuned with); `validation`: the dataset and bundle they
+    were chosen on."""
 
     embedder: str
     retrieval: dict[str, dict] = field(default_factory=dict)
@@ -95,6 +96,15 @@ class TunedParameters:
         if self.validation_dataset == test_dataset:
             raise TerraError(f"{source} were tuned on {test_dataset!r}, the scene under test; "
                              "tune on a validation scene (another seed) instead")
+
+    def check_query_mode(self, mode: str, source: str = "tuned parameters") -> None:
+        """TerraError when a monitoring method was tuned with another `tasks.monitoring.query` than
+        `mode` (its alpha belongs to that query embedding); files without the record pass."""
+        for method, entry in sorted(self.monitoring.items()):
+            recorded = entry.get("query") if isinstance(entry, dict) else None
+            if recorded is not None and recorded != mode:
+                raise TerraError(f"{source}: {method} monitoring was tuned with tasks.monitoring.query {recorded!r} "
+                                 f"but the configuration has {mode!r}; tune again or set it to {recorded!r}")
 
     def check_embedder(self, embedder: str, source: str = "tuned parameters") -> None:
         if self.embedder != embedder:

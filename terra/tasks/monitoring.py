@@ -7,6 +7,10 @@ Methods, for one query with unit embedding q:
 - "thresh": every region above alpha, then their places above alpha.
 - "aib": Clio's information-bottleneck clustering of the places for this task
   (terra.tasks.aib); every member place of the clusters relevant to the query.
+
+The query's vector is the embedding of its whole text (the paper's) or, with
+`tasks.monitoring.query`, the mean over its parts (terra.tasks.queries.embed_query), for every
+method alike.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from terra.perception.text import TextEmbedder
 from terra.tasks.aib import aib_clusters, task_relevance
 from terra.tasks.config import MonitoringConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
-from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
+from terra.tasks.queries import check_embedder, clean_queries, embed_query, resolve_embedder
 
 METHODS = ("mix", "max", "thresh", "aib")
 
@@ -104,7 +108,7 @@ def monitor_region(
     check_embedder(embedder, graph.embedder, int(graph.places.embedding.shape[1]), source="scene graph")
     if alpha is None:
         alpha = alpha_for(cfg.alpha, cfg.default_alpha, embedder.name)
-    q = embed_queries(embedder, [query])[0]
+    q = embed_query(embedder, query, cfg.query)
     place_scores = place_similarities(graph, q)
 
     if method == "aib":
