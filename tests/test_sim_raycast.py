@@ -106,3 +106,34 @@ def test_range_noise_statistics():
     err = np.linalg.norm(noisy["points"][wall], axis=1) - np.linalg.norm(exact["points"][wall], axis=1)
     assert wall.sum() > 500
     assert abs(err.mean()) < 0.01 and err.std() == pytest.approx(0.05, rel=0.15)
+
+
+def test_tile_culling_keeps_every_shape_a_ray_of_the_tile_can_hit():
+    """The compiled culling against brute force: every (tile, shape) pair where some ray of the tile
+    passes within the shape's bounding sphere (its cone, worked out directly) is a candidate, and
+    the candidates are the pairs of the cone-meets-cone test written with arccos, in tile-major order."""
+    from terra.sim.kernels import cull_kernel
+    from terra.sim.raycast import RayTiles
+
+    rng = np.random.default_rng(4)
+    lidar = Lidar(LidarConfig(beams=8, columns=64, vertical_fov_deg=(-20.0, 20.0)))
+    tiles = lidar.tiles
+    centre = rng.uniform(-40, 40, (300, 3))
+    radius = rng.uniform(0.2, 6.0, 300)
+    dist = np.linalg.norm(centre, axis=1)
+    u = centre / dist[:, None]
+    ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / dist, 0, 1)))
+    ptr, shapes = cull_kernel(tiles.axis, tiles.cos_half, tiles.sin_half, tiles.half_angle, u, np.cos(ang),
+                              np.sin(ang), ang)
+    pairs = {(g, int(p)) for g in range(len(ptr) - 1) for p in shapes[ptr[g]:ptr[g + 1]]}
+    assert all(np.all(np.diff(shapes[ptr[g]:ptr[g + 1]]) > 0) for g in range(len(ptr) - 1))
+    # Reference 1: the cone test with explicit angles.
+    angle = np.arccos(np.clip(tiles.axis @ u.T, -1, 1))
+    g_ref, p_ref = np.nonzero(angle <= tiles.half_angle[:, None] + ang[None, :])
+    assert pairs == set(zip(g_ref.tolist(), p_ref.tolist()))
+    # Reference 2: rays that pass within a shape's bounding sphere belong to candidate tiles.
+    ray_angle = np.arccos(np.clip(tiles.directions @ u.T, -1, 1))  # (N, P)
+    for g, rays in enumerate(tiles.rays):
+        seen = np.flatnonzero((ray_angle[rays] <= ang[None, :]).any(axis=0))
+        assert {(g, int(p)) for p in seen} <= pairs
+    assert isinstance(tiles, RayTiles) and len(pairs) < len(tiles.rays) * len(u)  # culling culls

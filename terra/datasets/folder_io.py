@@ -1,6 +1,8 @@
 """Small file helpers shared by the dataset folder formats (terra_folder, semantickitti, kitti_raw).
 
-Images: RGB as JPEG/PNG through Pillow; label images as 16-bit PNG (exact, compact). No pickle.
+Images: RGB as JPEG/PNG through Pillow; label images as 16-bit PNG (exact, compact); instance
+images as 16-bit PNG while every id fits, else as 24-bit RGB PNG with id = R + 256 G + 65536 B (the
+COCO panoptic encoding), so worlds with more than 65,535 objects keep their ids. No pickle.
 Reading goes through terra.fileio (no blocking on a FIFO, one line for a folder or an unreadable
 file), structured files through terra.schemas, and images are checked for their pixel count from
 the header before they are decoded (MAX_IMAGE_PIXELS): a small file declaring 20000 x 20000 pixels
@@ -27,6 +29,8 @@ from terra.npy import ArraySpec, read_npy
 CLASSES_FILE = "classes.json"
 MAX_IMAGE_PIXELS = 89_478_485  # Pillow's own warning threshold (about 9459 x 9459)
 MAX_IMAGE_BYTES = 512 << 20
+MAX_LABEL_ID = 65535  # 16-bit greyscale PNG (semantic images, and instance images whose ids fit)
+MAX_INSTANCE_ID = (1 << 24) - 1  # 24-bit RGB PNG, id = R + 256 G + 65536 B
 # What Pillow's decoders raise on damaged or hostile data (besides OSError): this is the one place
 # they are turned into "undecodable image" lines.
 IMAGE_ERRORS = (OSError, SyntaxError, ValueError, EOFError, struct.error, TypeError, IndexError, ZeroDivisionError,
@@ -71,8 +75,8 @@ def calibration_from_json(d: dict, source: str) -> CameraCalibration:
 
 def write_label_png(path: Path, labels: np.ndarray) -> None:
     """A label image (H, W) of non-negative ids below 65536 as a 16-bit greyscale PNG."""
-    if labels.size and (labels.min() < 0 or labels.max() > 65535):
-        raise TerraError(f"{path}: label ids must lie in 0..65535 to be stored as 16-bit PNG")
+    if labels.size and (labels.min() < 0 or labels.max() > MAX_LABEL_ID):
+        raise TerraError(f"{path}: label ids must lie in 0..{MAX_LABEL_ID} to be stored as 16-bit PNG")
     Image.fromarray(labels.astype(np.uint16)).save(path, format="PNG", compress_level=6)
 
 
@@ -113,15 +117,54 @@ def read_label_png(path: Path) -> np.ndarray:
     """(H, W) int32 ids from a 16-bit (or 8-bit) greyscale PNG; TerraError for another format, a
     colour image or ids outside 0..65535."""
     im = open_image(path, "label image", ("PNG",))
-    try:
-        labels = np.asarray(im)
-    except IMAGE_ERRORS as exc:
-        raise TerraError(f"{path}: undecodable label image ({_reason(exc)})") from None
+    labels = _decode_labels(im, path, "label image")
     if labels.ndim != 2 or labels.dtype.kind not in "biu":
         raise TerraError(f"{path}: expected a single-channel label image, got {im.mode} of shape {labels.shape}")
-    if labels.size and (int(labels.min()) < 0 or int(labels.max()) > 65535):
-        raise TerraError(f"{path}: label ids from {int(labels.min())} to {int(labels.max())}, expected 0..65535 "
-                         "(a 16-bit PNG)")
+    return _checked_ids(labels, path, MAX_LABEL_ID, "a 16-bit PNG")
+
+
+def write_instance_png(path: Path, ids: np.ndarray) -> None:
+    """An instance image (H, W) of non-negative ids: a 16-bit greyscale PNG when every id is at most
+    65535 (what 16-bit readers know), else a 24-bit RGB PNG with id = R + 256 G + 65536 B (ids up to
+    16,777,215; the COCO panoptic encoding). Lossless either way: read_instance_png gives the ids back."""
+    ids = np.asarray(ids)
+    top = int(ids.max()) if ids.size else 0
+    if ids.size and (int(ids.min()) < 0 or top > MAX_INSTANCE_ID):
+        raise TerraError(f"{path}: instance ids must lie in 0..{MAX_INSTANCE_ID} to be stored as a PNG "
+                         f"(got {int(ids.min())}..{top})")
+    if top <= MAX_LABEL_ID:
+        write_label_png(path, ids)
+        return
+    wide = ids.astype(np.uint32)
+    rgb = np.stack([wide & 0xFF, (wide >> 8) & 0xFF, (wide >> 16) & 0xFF], axis=-1).astype(np.uint8)
+    Image.fromarray(rgb).save(path, format="PNG", compress_level=6)
+
+
+def read_instance_png(path: Path) -> np.ndarray:
+    """(H, W) int32 ids from an instance image: 8- or 16-bit greyscale PNG, or 24-bit RGB PNG with
+    id = R + 256 G + 65536 B (write_instance_png); TerraError naming the file for anything else."""
+    im = open_image(path, "instance image", ("PNG",))
+    ids = _decode_labels(im, path, "instance image")
+    if im.mode == "RGB" and ids.ndim == 3 and ids.shape[2] == 3 and ids.dtype == np.uint8:
+        wide = ids.astype(np.int32)
+        return wide[:, :, 0] | (wide[:, :, 1] << 8) | (wide[:, :, 2] << 16)
+    if ids.ndim != 2 or ids.dtype.kind not in "biu":
+        raise TerraError(f"{path}: expected a greyscale or 8-bit RGB instance image, got {im.mode} of shape "
+                         f"{ids.shape}")
+    return _checked_ids(ids, path, MAX_LABEL_ID, "a 16-bit PNG")
+
+
+def _decode_labels(im: Image.Image, path: Path, what: str) -> np.ndarray:
+    try:
+        return np.asarray(im)
+    except IMAGE_ERRORS as exc:
+        raise TerraError(f"{path}: undecodable {what} ({_reason(exc)})") from None
+
+
+def _checked_ids(labels: np.ndarray, path: Path, top: int, form: str) -> np.ndarray:
+    if labels.size and (int(labels.min()) < 0 or int(labels.max()) > top):
+        raise TerraError(f"{path}: label ids from {int(labels.min())} to {int(labels.max())}, expected 0..{top} "
+                         f"({form})")
     return labels.astype(np.int32)
 
 

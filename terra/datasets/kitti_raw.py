@@ -20,7 +20,8 @@ the identity, as the devkit's convertOxtsToPose does). Frames pair files by thei
 
 Terra's additions, which KITTI tools ignore: classes.json and ground_truth/ beside the date folder,
 velodyne_points/labels/NNNNNNNNNN.label (class | instance << 16, as SemanticKITTI), and
-image_0k/semantic/ and image_0k/instance/ 16-bit label images. Object labels in the KITTI
+image_0k/semantic/ and image_0k/instance/ 16-bit label images (instance ids above 65535: 24-bit RGB PNG,
+id = R + 256 G + 65536 B). Object labels in the KITTI
 tracking format (`label_02/NNNN.txt`) or object format (`label_2/NNNNNNNNNN.txt`, one per frame) in
 the drive folder give ground-truth boxes (terra.datasets.kitti_labels).
 """
@@ -37,7 +38,7 @@ from pydantic import Field, field_validator
 from terra.config import Section
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
-from terra.datasets.folder_io import image_size, read_classes, read_label_png, read_raw, read_rgb
+from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_raw, read_rgb
 from terra.datasets.kitti_common import CalibFile, check_rotation, read_calib_file, read_timestamps, standard_classes
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
@@ -320,7 +321,7 @@ class KittiRawDataset:
             stamp,
             read_rgb(path),
             read_label_png(sem) if sem.is_file() else None,
-            read_label_png(inst) if inst.is_file() else None,
+            read_instance_png(inst) if inst.is_file() else None,
             name=str(path.relative_to(self.date_folder.parent)),
         )
 

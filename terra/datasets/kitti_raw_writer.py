@@ -26,7 +26,7 @@ import numpy as np
 
 from terra.datasets import oxts
 from terra.datasets.base import Dataset, Frame
-from terra.datasets.folder_io import write_label_png, write_rgb
+from terra.datasets.folder_io import write_instance_png, write_label_png, write_rgb
 from terra.datasets.kitti_common import format_timestamp
 from terra.datasets.kitti_labels import rotation_y_of
 from terra.datasets.kitti_raw import CAM_TO_CAM, IMU_TO_VELO, OXTS, VELO_TO_CAM, VELODYNE
@@ -167,10 +167,11 @@ def _write_images(folder: Path, i: int, frame: Frame, count: int) -> list[float]
         camera = folder / f"image_0{2 + k}"
         (camera / "data").mkdir(parents=True, exist_ok=True)
         write_rgb(camera / "data" / f"{i:010d}.png", cam.image)
-        for extra, image in (("semantic", cam.semantic), ("instance", cam.instance)):
+        for extra, image, write in (("semantic", cam.semantic, write_label_png),
+                                    ("instance", cam.instance, write_instance_png)):
             if image is not None:
                 (camera / extra).mkdir(exist_ok=True)
-                write_label_png(camera / extra / f"{i:010d}.png", image)
+                write(camera / extra / f"{i:010d}.png", image)
     return [float(cam.stamp) for cam in frame.cameras]
 
 

@@ -10,7 +10,8 @@ A sequence folder `sequences/NN/` holds, with the real dataset's conventions:
 Terra's writer makes camera 0 its first camera (so P2 = [K | 0]) and writes `poses.txt` in the
 map frame (P = Tr T_map_lidar Tr^-1; the first pose is not forced to identity). Beside the real
 files it adds, ignored by SemanticKITTI tools: image_{2+n}_semantic/ and image_{2+n}_instance/
-(16-bit PNG in the same label ids), terra_cameras.json (exact calibrations with distortion), and
+(16-bit PNG in the same label ids; an instance image with ids above 65535 as 24-bit RGB
+PNG, id = R + 256 G + 65536 B), terra_cameras.json (exact calibrations with distortion), and
 at the dataset root classes.json, ground_truth/ and `semantic-kitti.yaml`, a legend in
 SemanticKITTI's yaml convention that names every id used, including ids 100+ for classes the
 real dataset does not have. Real sequences (no legend) read with the standard SemanticKITTI table,
@@ -30,7 +31,8 @@ import yaml
 
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, image_size, read_classes, read_json,
-                                      read_label_png, read_raw, read_rgb, write_label_png, write_rgb)
+                                      read_instance_png, read_label_png, read_raw, read_rgb, write_instance_png,
+                                      write_label_png, write_rgb)
 from terra.datasets.kitti_common import (STANDARD_LABELS, STANDARD_TERRAIN, decompose_projection, read_calib_file,
                                          standard_classes)
 from terra.datasets.registry import Loader
@@ -109,7 +111,7 @@ def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show
             if cam.semantic is not None:
                 write_label_png(seq / f"{folder}_semantic" / f"{name}.png", to_kitti[cam.semantic])
             if cam.instance is not None:
-                write_label_png(seq / f"{folder}_instance" / f"{name}.png", cam.instance)
+                write_instance_png(seq / f"{folder}_instance" / f"{name}.png", cam.instance)
     Tr = _DEFAULT_TR if Tr is None else Tr
     (seq / "poses.txt").write_text("".join(_fmt(P[:3]) + "\n" for P in poses))
     (seq / "times.txt").write_text("".join(repr(t) + "\n" for t in times))
@@ -275,7 +277,7 @@ class SemanticKittiDataset:
             sem_path = self.seq / f"{folder}_semantic" / f"{stem}.png"
             inst_path = self.seq / f"{folder}_instance" / f"{stem}.png"
             sem = self._ids_from_kitti[read_label_png(sem_path)].astype(np.int32) if sem_path.is_file() else None
-            inst = read_label_png(inst_path) if inst_path.is_file() else None
+            inst = read_instance_png(inst_path) if inst_path.is_file() else None
             cams.append(CameraFrame(cal, stamp, read_rgb(img_path), sem, inst, name=str(img_path.relative_to(self.root))))
         return Frame(index, stamp, np.ascontiguousarray(raw[:, :3]), self.poses[index], cams,
                      np.ascontiguousarray(raw[:, 3]), labels, instances)

@@ -13,7 +13,8 @@ n = 1..num_cams, like their config keys):
   cam{n}_dist, cam_axis; terra.datasets.msmap_config) to paste into their msmap config.
 Terra's additions, which the authors' scripts ignore:
 - lidar_labels/lidar_labels_{t}.npy (M, 2) int32 class id, instance id per point;
-- camera{n}_semantic/cam{n}_sem_{t}.png, camera{n}_instance/cam{n}_inst_{t}.png: 16-bit label images;
+- camera{n}_semantic/cam{n}_sem_{t}.png, camera{n}_instance/cam{n}_inst_{t}.png: 16-bit label images
+  (an instance image whose ids exceed 65535 is a 24-bit RGB PNG, id = R + 256 G + 65536 B);
 - terra_dataset.json: name, stamps, exact camera calibrations (lens model and every coefficient);
   classes.json; ground_truth/.
 Folders written by Terra before it numbered cameras from 1 (camera0_images, cam0_K) read as well.
@@ -42,7 +43,8 @@ from pydantic import Field
 from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes,
-                                      image_size, read_label_png, read_rgb, stamp_of, stamp_text, write_label_png, write_rgb)
+                                      image_size, read_instance_png, read_label_png, read_rgb, stamp_of, stamp_text,
+                                      write_instance_png, write_label_png, write_rgb)
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
@@ -106,7 +108,10 @@ class GlobalMapAccumulator:
     def add(self, points_map: np.ndarray, intensity: np.ndarray) -> None:
         self._pending.append((points_map.astype(np.float64), intensity.astype(np.float64)))
         self._pending_n += len(points_map)
-        if self._pending_n >= self.flush_every:
+        # Each flush re-sorts every voxel so far: waiting for half as many new points as there are
+        # voxels keeps the total cost n log n on big maps. Sums come out the same whenever the
+        # flushes happen (each voxel adds its rows in arrival order either way).
+        if self._pending_n >= max(self.flush_every, len(self._keys) // 2):
             self._flush()
 
     def _flush(self) -> None:
@@ -161,7 +166,7 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
             if cam.semantic is not None:
                 write_label_png(root / files.semantic_image(frame.stamp), cam.semantic)
             if cam.instance is not None:
-                write_label_png(root / files.instance_image(frame.stamp), cam.instance)
+                write_instance_png(root / files.instance_image(frame.stamp), cam.instance)
         if len(stamps) == 1:
             msmap_camera_keys(cameras)  # refuse what the authors' layout cannot hold before writing more
     last = stamp_text(max(stamps)) if stamps else stamp_text(0.0)
@@ -296,7 +301,7 @@ class TerraFolderDataset:
         files = CameraFiles(n)
         sem_file, inst_file = self.root / files.semantic_image(stamp), self.root / files.instance_image(stamp)
         semantic = read_label_png(sem_file) if sem_file.is_file() else None
-        instance = read_label_png(inst_file) if inst_file.is_file() else None
+        instance = read_instance_png(inst_file) if inst_file.is_file() else None
         return CameraFrame(cal, stamp, image, semantic, instance, name=str(image_file.relative_to(self.root)))
 
     def global_map(self) -> np.ndarray | None:

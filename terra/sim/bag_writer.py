@@ -7,7 +7,7 @@ Topics (log time = header stamp = the frame's stamp):
   simulated LiDAR captures a scan at one instant), label and instance (uint32, the simulator's ids);
 - /<camera>/image_raw/compressed (JPEG, quality 92, no chroma subsampling, as the folder layout
   writes) or /<camera>/image_raw (rgb8); /<camera>/camera_info; /<camera>/semantic and
-  /<camera>/instance (mono16 label images).
+  /<camera>/instance (mono16 label images; 32SC1 when an image holds an id above 65535).
 The folder also gets classes.json and ground_truth/ (written by terra.sim.writer), which the bag
 loader reads from beside the bag.
 """
@@ -27,6 +27,11 @@ from terra.progress import progress
 MAP, BASE, LIDAR = "map", "base_link", "lidar"
 LIDAR_TOPIC = "/lidar/points"
 IMAGE_FORMATS = ("jpeg", "raw")
+
+
+def label_encoding(labels: np.ndarray) -> str:
+    """mono16 when every id fits 16 bits (what most ROS tools display), else 32SC1: ids are never cut."""
+    return "mono16" if labels.size == 0 or (int(labels.min()) >= 0 and int(labels.max()) <= 0xFFFF) else "32SC1"
 
 
 def optical_frame(camera: str) -> str:
@@ -102,7 +107,7 @@ def _write_camera(topics: "_Topics", factory: MessageFactory, cam, ns: int, imag
                 f"{ns_topic}/{kind}",
                 "sensor_msgs/msg/Image",
                 ns,
-                factory.image(ns, frame_id, np.asarray(labels, np.uint16), "mono16"),
+                factory.image(ns, frame_id, labels, label_encoding(labels)),
                 factory,
             )
 

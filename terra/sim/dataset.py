@@ -79,6 +79,14 @@ class SimDataset:
 
     def render(self, index: int) -> Frame:
         """Render frame `index` (no caching)."""
+        from threadpoolctl import threadpool_limits
+
+        # The renderer's matrix products are tiny ((N, 3) by (3, 3)); BLAS threads only fight the
+        # compiled kernels' threads for the cores (10x slower products on 2 busy cores).
+        with threadpool_limits(1, user_api="blas"):
+            return self._render(index)
+
+    def _render(self, index: int) -> Frame:
         stamp = float(self.trajectory.stamps[index])
         T_true = self.gt_T_map_lidar(index)
         rng = np.random.default_rng([self.seed, index, 1])

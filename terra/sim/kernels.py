@@ -185,6 +185,42 @@ def cast_kernel(origin, dirs, tile_rays, tile_ptr, tile_prims, kind, center, hal
 
 
 @njit(cache=True, parallel=True)
+def cull_kernel(axis, cos_half, sin_half, half, u, cos_ang, sin_ang, ang):
+    """Candidate shapes per ray tile (CSR, tile-major, shapes ascending): shape p is a candidate of
+    tile g when the cone of its bounding sphere (unit direction u[p], half-angle ang[p]) meets the
+    tile's cone (unit axis[g], half-angle half[g]), i.e. when angle(axis, u) <= half + ang,
+    tested as cos(angle) >= cos(half + ang) by the angle-sum formula (no arccos per pair).
+
+    Returns (ptr (G + 1,), shapes). Two passes (count, then fill) so tiles run in parallel and the
+    order does not depend on the threads."""
+    n_tiles, n_shapes = axis.shape[0], u.shape[0]
+    counts = np.zeros(n_tiles, np.int64)
+    for g in prange(n_tiles):
+        counts[g] = _cull_tile(g, axis, cos_half, sin_half, half, u, cos_ang, sin_ang, ang, n_shapes, None, 0)
+    ptr = np.zeros(n_tiles + 1, np.int64)
+    for g in range(n_tiles):
+        ptr[g + 1] = ptr[g] + counts[g]
+    shapes = np.empty(ptr[n_tiles], np.int64)
+    for g in prange(n_tiles):
+        _cull_tile(g, axis, cos_half, sin_half, half, u, cos_ang, sin_ang, ang, n_shapes, shapes, ptr[g])
+    return ptr, shapes
+
+
+@njit(cache=True, inline="always")
+def _cull_tile(g, axis, cos_half, sin_half, half, u, cos_ang, sin_ang, ang, n_shapes, out, start):
+    k = start
+    ax, ay, az = axis[g, 0], axis[g, 1], axis[g, 2]
+    ch, sh, h = cos_half[g], sin_half[g], half[g]
+    for p in range(n_shapes):
+        cos = ax * u[p, 0] + ay * u[p, 1] + az * u[p, 2]
+        if cos >= ch * cos_ang[p] - sh * sin_ang[p] or h + ang[p] >= math.pi:
+            if out is not None:
+                out[k] = p
+            k += 1
+    return k - start
+
+
+@njit(cache=True, parallel=True)
 def shade_kernel(t, dirs, normal, color, origin, sun, out):
     """Lambert shading of base colours with a fine hashed surface texture and light haze; sky
     where t is inf. out: (N, 3) uint8."""

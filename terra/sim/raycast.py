@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terra.sim.classes import CLASS_COLORS
-from terra.sim.kernels import cast_kernel
+from terra.sim.kernels import cast_kernel, cull_kernel
 from terra.sim.world import World
 
 
@@ -25,6 +25,10 @@ class RayTiles:
     rays: np.ndarray
     axis: np.ndarray
     half_angle: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.cos_half = np.cos(self.half_angle)  # per-frame culling constants
+        self.sin_half = np.sin(self.half_angle)
 
     @classmethod
     def from_grid(cls, directions: np.ndarray, rows: int, cols: int, tile_rows: int, tile_cols: int) -> "RayTiles":
@@ -70,23 +74,19 @@ def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: flo
     prims = world.prims
 
     # Candidate shapes per tile (CSR): the cone of the tile meets the cone of the bounding sphere.
+    # The test keeps a 1e-6 rad margin (RayTiles.half_angle), so rounding in it never changes a hit.
     near = world.prims_near(origin, max_range)
-    g = p = np.zeros(0, np.int64)
     if near.size:
         rel = prims.center[near] - origin
         dist = np.linalg.norm(rel, axis=1)
         radius = world.bounding_radius[near]
         ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / np.maximum(dist, 1e-9), 0.0, 1.0)))
         u = rel / np.maximum(dist, 1e-9)[:, None]
-        cos = (tiles.axis @ R.T) @ u.T  # (G, P) cosine of the angle between tile axis and shape
-        # angle <= half + ang  <=>  cos(angle) >= cos(half + ang), or half + ang >= pi; the sum
-        # formula avoids an arccos per (tile, shape) pair, the costliest part of the culling.
-        half = tiles.half_angle[:, None]
-        reach = np.cos(half) * np.cos(ang)[None, :] - np.sin(half) * np.sin(ang)[None, :]
-        g, p = np.nonzero((cos >= reach) | (half + ang[None, :] >= np.pi))
-    tile_ptr = np.zeros(tiles.rays.shape[0] + 1, np.int64)
-    np.cumsum(np.bincount(g, minlength=tiles.rays.shape[0]), out=tile_ptr[1:])
-    tile_prims = near[p] if near.size else p
+        tile_ptr, local = cull_kernel(np.ascontiguousarray(tiles.axis @ R.T), tiles.cos_half, tiles.sin_half,
+                                      tiles.half_angle, np.ascontiguousarray(u), np.cos(ang), np.sin(ang), ang)
+        tile_prims = near[local]
+    else:
+        tile_ptr, tile_prims = np.zeros(tiles.rays.shape[0] + 1, np.int64), np.zeros(0, np.int64)
 
     t = np.empty(n)
     prim = np.empty(n, np.int64)

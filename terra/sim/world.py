@@ -61,6 +61,7 @@ class World:
     regions: list[NamedRegion]
     route: np.ndarray
     _tree: cKDTree | None = field(default=None, repr=False)
+    _raster_height: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         # Per-shape constants the renderer needs every frame.
@@ -81,10 +82,12 @@ class World:
 
     def ground_truth(self) -> GroundTruth:
         """Objects, terrain raster with ground heights at cell centres, named regions."""
-        xs, ys = self.terrain.cell_centres()
-        gx, gy = np.meshgrid(xs, ys)
-        height = self.ground.height(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
+        if self._raster_height is None:  # 41 M cells on the huge preset: computed once, not per caller
+            xs, ys = self.terrain.cell_centres()
+            gx, gy = np.meshgrid(xs, ys)
+            height = self.ground.height(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
+            self._raster_height = height.astype(np.float32)
         legend = {c.id: c.name for c in SIM_CLASSES if c.terrain or c.id == 0}
-        raster = TerrainRaster(self.terrain.classes.astype(np.int32), height.astype(np.float32),
+        raster = TerrainRaster(self.terrain.classes.astype(np.int32), self._raster_height.copy(),
                                self.terrain.origin.copy(), self.terrain.resolution, legend)
         return GroundTruth(list(self.objects), raster, list(self.regions))

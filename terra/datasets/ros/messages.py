@@ -93,10 +93,11 @@ class MessageFactory:
         )
 
     def image(self, stamp_ns: int, frame_id: str, pixels: np.ndarray, encoding: str = "rgb8"):
-        """A sensor_msgs/Image: (H, W, 3) uint8 for rgb8, (H, W) uint16 for mono16 (little endian)."""
+        """A sensor_msgs/Image: (H, W, 3) uint8 for rgb8, (H, W) ids for mono16 / 32SC1 (little endian)."""
         pixels = np.ascontiguousarray(pixels)
         height, width = pixels.shape[:2]
-        data = pixels.astype("<u2").tobytes() if encoding == "mono16" else pixels.astype(np.uint8).tobytes()
+        dtype = {"mono16": "<u2", "32SC1": "<i4"}.get(encoding, np.uint8)
+        data = pixels.astype(dtype).tobytes()
         return self._t["sensor_msgs/msg/Image"](
             header=self.header(stamp_ns, frame_id),
             height=height,
