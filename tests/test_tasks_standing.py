@@ -41,6 +41,21 @@ def test_flat_clusters_go_floating_parts_join_the_nearest_standing_cluster_or_go
     assert [g.tolist() for g in deck] == [groups[1].tolist(), groups[3].tolist()]
 
 
+def test_a_query_whose_every_cluster_is_flat_keeps_them():
+    # Two crosswalk stripes painted on the road (z = 0): nothing of the query rises off the ground,
+    # so the clusters are the objects asked for, not mask bleed around a standing one.
+    stripes = [box_points((0.0, y, 0.01), (6.0, 0.5, 0.02), 0.0) for y in (0.0, 20.0)]
+    points = np.vstack(stripes)
+    groups = [np.arange(len(stripes[0])), np.arange(len(stripes[0]), len(points))]
+    out = standing_groups(points, groups, np.zeros(2))
+    assert [g.tolist() for g in out] == [g.tolist() for g in groups]
+    # A standing bench among them makes the stripes bleed again.
+    bench = box_points((40.0, 0.0, 0.25), (1.6, 0.6, 0.5), 0.0)
+    points = np.vstack([points, bench])
+    groups.append(np.arange(len(points) - len(bench), len(points)))
+    assert [g.tolist() for g in standing_groups(points, groups, np.zeros(3))] == [groups[2].tolist()]
+
+
 @pytest.fixture(scope="module")
 def lamp_scene(text_embedder):
     """Grass ground (z = 0) with a lamp post whose head DBSCAN (eps 1 m) separates from the pole,

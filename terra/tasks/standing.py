@@ -2,10 +2,12 @@
 
 Two kinds of cluster of matched points are not objects by themselves:
 
-- Flat: fewer than three points at least `lift` metres above the ground. A mask that bleeds past
-  an object's outline labels the pavement or lawn around it with the object's class; those points
-  lie on the ground and form a thin slab that no object is (the same `lift` keeps such points out
-  of box footprints, terra.tasks.boxes).
+- Flat: fewer than three points at least `lift` metres above the ground, while the same query
+  has clusters that do rise off it. A mask that bleeds past an object's outline labels the
+  pavement or lawn around it with the object's class; those points lie on the ground and form a
+  thin slab that no object is (the same `lift` keeps such points out of box footprints,
+  terra.tasks.boxes). When every cluster of a query is flat, the query names a flat thing (a
+  crosswalk, a painted marking, a manhole cover) and its clusters are all kept.
 - Floating: the lowest point more than `float_height` metres above the ground. Outdoor objects
   rest on the ground, so a cluster hanging in the air is a part whose support the matched points
   missed: a lamp head on its arm more than DBSCAN's eps from the pole's top, a signal head, a
@@ -32,6 +34,8 @@ def standing_groups(points: np.ndarray, groups: list[np.ndarray], ground_z: np.n
     high = np.array([np.count_nonzero(points[g, 2] >= ground[i] + lift) for i, g in enumerate(groups)], dtype=np.int64)
     bottom = np.array([points[g, 2].min() - ground[i] if known[i] else -np.inf for i, g in enumerate(groups)])
     flat = known & (high < 3)
+    if flat.all():  # only flat things match: the query names one (see the module docstring)
+        return list(groups)
     floating = known & ~flat & (bottom > float_height) if float_height is not None else np.zeros(len(groups), bool)
     standing = [i for i in range(len(groups)) if not flat[i] and not floating[i]]
     out = {i: [groups[i]] for i in standing}
