@@ -93,3 +93,26 @@ def test_retrieval_keeps_standing_objects_with_their_floating_parts(lamp_scene, 
     every = find_objects(msm, graph, ["lamp post", "bench"], method="ms-avg", alpha=0.4, embedder=text_embedder,
                          config=RetrievalConfig(standing_only=False))
     assert sorted(o.query for o in every) == [0, 0, 1, 1, 1]
+
+
+def test_retrieval_keeps_a_flat_thing_when_nothing_of_its_query_stands(text_embedder):
+    """Two crosswalk stripes painted on the grass-level ground and a bench: "crosswalk" finds both
+    stripes (nothing of it stands, so they are the objects asked for), "bench" only the bench."""
+    bank = ["grass", "crosswalk", "bench"]
+    xs, ys = np.meshgrid(np.arange(0.0, 40.0, 1.0), np.arange(0.0, 40.0, 1.0), indexing="ij")
+    ground = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
+    parts = [(ground, 0), (box_points((10.0, 10.0, 0.01), (6.0, 0.5, 0.02), 0.0), 1),
+             (box_points((10.0, 30.0, 0.01), (6.0, 0.5, 0.02), 0.0), 1),
+             (box_points((25.0, 10.0, 0.25), (1.6, 0.6, 0.5), 0.0), 2),
+             (box_points((30.0, 30.0, 0.02), (2.0, 1.0, 0.04), 0.0), 2)]  # a bench mask bled onto the grass
+    points = np.vstack([p for p, _ in parts])
+    observations = [{label: 3} for p, label in parts for _ in range(len(p))]
+    msm = make_map(points, observations, text_embedder.embed_text(bank), text_embedder.embed_text(TERRAINS))
+    gx, gy = np.meshgrid(np.arange(0.0, 40.0, 5.0), np.arange(0.0, 40.0, 5.0), indexing="ij")
+    xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    graph = make_graph(xy, np.ones(len(xy), dtype=np.int64), [])
+    found = find_objects(msm, graph, ["crosswalk", "bench"], method="ms-avg", alpha=0.4, embedder=text_embedder)
+    stripes = sorted((o.center[:2].tolist() for o in found if o.query == 0))
+    assert len(stripes) == 2  # within a point spacing (0.1 m) of the painted stripes' centres
+    assert stripes[0] == pytest.approx([10.0, 10.0], abs=0.1) and stripes[1] == pytest.approx([10.0, 30.0], abs=0.1)
+    assert [tuple(np.round(o.center[:2], 3)) for o in found if o.query == 1] == [(25.0, 10.0)]

@@ -162,12 +162,12 @@ def instance_groups(points: np.ndarray, groups: list[np.ndarray], cfg: Retrieval
 
 
 def grounded_groups(points: np.ndarray, groups: list[np.ndarray], graph: SceneGraph,
-                    cfg: RetrievalConfig) -> list[np.ndarray]:
+                    cfg: RetrievalConfig, keep_flat: bool = True) -> list[np.ndarray]:
     """The clusters (row arrays into `points`) that stand on the ground under their nearest place,
-    floating parts attached (terra.tasks.standing)."""
+    floating parts attached; all of them when every one is flat and `keep_flat` (terra.tasks.standing)."""
     centre = np.array([points[g, :2].mean(axis=0) for g in groups])
     ground = ground_under(graph, centre)
-    return standing_groups(points, groups, ground, cfg.ground_lift, cfg.float_height, cfg.attach_gap)
+    return standing_groups(points, groups, ground, cfg.ground_lift, cfg.float_height, cfg.attach_gap, keep_flat)
 
 
 def object_boxes(points: np.ndarray, owner: np.ndarray, graph: SceneGraph | None, cfg: RetrievalConfig) -> list:
@@ -184,10 +184,12 @@ def object_boxes(points: np.ndarray, owner: np.ndarray, graph: SceneGraph | None
 
 def _match_clusters(msm: MetricSemanticMap, graph: SceneGraph | None, scorer: PointScorer, query_vectors: np.ndarray,
                     terrain_vectors: np.ndarray, alpha: float, cfg: RetrievalConfig, feature: str,
-                    allowed: list[np.ndarray] | None) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
+                    allowed: list[np.ndarray] | None,
+                    keep_flat: bool = True) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
     """Matched points clustered into objects per query: (query, rows into the candidate rows)
     pairs, the candidate map rows, and their (n, T + Q) similarities. `allowed`: per query, the
-    map rows searched (None = every observed point)."""
+    map rows searched (None = every observed point). `keep_flat`: this search is the last one, so
+    a query whose every cluster lies flat names a flat thing and keeps them (terra.tasks.standing)."""
     n_terrain = len(terrain_vectors)
     rows = None if allowed is None else np.unique(np.concatenate(allowed))
     # Query columns over every searched point first; the terrain columns (distractors) are only
@@ -205,7 +207,7 @@ def _match_clusters(msm: MetricSemanticMap, graph: SceneGraph | None, scorer: Po
         local = np.flatnonzero(mask)
         groups = cluster_matches(msm.points[cand_rows[local]], cfg.dbscan_eps, cfg.dbscan_min_samples, cfg.min_points)
         if cfg.standing_only and graph is not None and len(graph.places) and groups:
-            groups = grounded_groups(msm.points[cand_rows[local]], groups, graph, cfg)
+            groups = grounded_groups(msm.points[cand_rows[local]], groups, graph, cfg, keep_flat)
         if cfg.split_instances:
             groups = instance_groups(msm.points[cand_rows[local]], groups, cfg)
         clusters += [(q, local[g]) for g in groups]
@@ -255,10 +257,12 @@ def find_objects(
 
         allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in range(len(queries))]
         clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
-                                                          alpha, cfg, cfg.sg_point_feature, allowed)
-        # The regions above alpha narrow the search; when they hold no object for a query, the
-        # answer comes from its places above alpha anywhere, then from every place, rather than
-        # from nothing (a region scoring just above alpha can leave out every instance).
+                                                          alpha, cfg, cfg.sg_point_feature, allowed,
+                                                          keep_flat=not cfg.sg_widen)
+        # The regions above alpha narrow the search; when they hold no standing object for a
+        # query, the answer comes from its places above alpha anywhere, then from every place,
+        # rather than from nothing (a region scoring just above alpha can leave out every
+        # instance). Only that last search keeps a query's flat-only clusters (a crosswalk).
         for widen in (1, 2) if cfg.sg_widen else ():
             empty = sorted(set(range(len(queries))) - {q for q, _ in clusters})
             if not empty:
@@ -266,7 +270,8 @@ def find_objects(
             for q in empty:
                 allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
             clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
-                                                              alpha, cfg, cfg.sg_point_feature, allowed)
+                                                              alpha, cfg, cfg.sg_point_feature, allowed,
+                                                              keep_flat=widen == 2)
     else:
         clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
                                                           alpha, cfg, method[3:], None)

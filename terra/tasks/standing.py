@@ -6,8 +6,9 @@ Two kinds of cluster of matched points are not objects by themselves:
   has clusters that do rise off it. A mask that bleeds past an object's outline labels the
   pavement or lawn around it with the object's class; those points lie on the ground and form a
   thin slab that no object is (the same `lift` keeps such points out of box footprints,
-  terra.tasks.boxes). When every cluster of a query is flat, the query names a flat thing (a
-  crosswalk, a painted marking, a manhole cover) and its clusters are all kept.
+  terra.tasks.boxes). When every cluster of a query is flat over the whole search, the query
+  names a flat thing (a crosswalk, a painted marking, a manhole cover) and its clusters are all
+  kept (`keep_flat`; a narrowed search that may still widen passes False).
 - Floating: the lowest point more than `float_height` metres above the ground. Outdoor objects
   rest on the ground, so a cluster hanging in the air is a part whose support the matched points
   missed: a lamp head on its arm more than DBSCAN's eps from the pole's top, a signal head, a
@@ -24,17 +25,19 @@ import numpy as np
 
 
 def standing_groups(points: np.ndarray, groups: list[np.ndarray], ground_z: np.ndarray, lift: float = 0.15,
-                    float_height: float | None = 1.0, attach_gap: float = 2.0) -> list[np.ndarray]:
+                    float_height: float | None = 1.0, attach_gap: float = 2.0,
+                    keep_flat: bool = True) -> list[np.ndarray]:
     """The clusters (row arrays into `points` (n, 3)) that stand on the ground, each with the
     floating parts attached to it; `ground_z` (G,) is the ground height under each cluster.
-    Order follows `groups` (attached parts are appended to their cluster's rows)."""
+    Order follows `groups` (attached parts are appended to their cluster's rows). `keep_flat`:
+    when every cluster is flat they are all returned (the query names a flat thing)."""
     points = np.asarray(points, dtype=np.float64)
     ground = np.asarray(ground_z, dtype=np.float64).reshape(len(groups))
     known = np.isfinite(ground)
     high = np.array([np.count_nonzero(points[g, 2] >= ground[i] + lift) for i, g in enumerate(groups)], dtype=np.int64)
     bottom = np.array([points[g, 2].min() - ground[i] if known[i] else -np.inf for i, g in enumerate(groups)])
     flat = known & (high < 3)
-    if flat.all():  # only flat things match: the query names one (see the module docstring)
+    if keep_flat and flat.all():  # only flat things match: the query names one (module docstring)
         return list(groups)
     floating = known & ~flat & (bottom > float_height) if float_height is not None else np.zeros(len(groups), bool)
     standing = [i for i in range(len(groups)) if not flat[i] and not floating[i]]
