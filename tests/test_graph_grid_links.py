@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terra.graph.grid_links import GridPathRules, candidate_pairs, link_pieces_on_grid, terrain_pieces
+from terra.graph.grid_links import (
+    GridPathRules,
+    candidate_pairs,
+    link_pieces_on_grid,
+    terrain_pieces,
+)
 
 CELL = 0.5
 # A 20 x 30 grid of 0.5 m cells (y 0-10 m, x 0-15 m), all terrain 0, with a wall in column 14
@@ -110,6 +115,23 @@ def test_a_piece_links_from_whichever_of_its_places_gives_the_cheapest_path():
     # (7.62 m, against 13.21 m from place 0).
     label, blocked = grid()
     position = np.array([centre(4, 13), centre(18, 13), centre(4, 16)])
-    links, cost = link_pieces_on_grid(position, np.zeros(3, dtype=np.int64), np.array([[0, 1]]), rules(label, blocked), reach=12.0)
+    terrain = np.zeros(3, dtype=np.int64)
+    links, cost = link_pieces_on_grid(position, terrain, np.array([[0, 1]]), rules(label, blocked), reach=12.0)
     assert links.tolist() == [[1, 2]]
     assert cost == pytest.approx([11 * CELL + 3 * np.sqrt(2) * CELL])
+
+
+def test_the_build_step_reads_the_grid_and_the_linking_configuration():
+    from terra.graph.config import BuildConfig
+    from terra.graph.grid import TerrainGrid
+    from terra.graph.pipeline import TerrainPlaceSet, grid_links
+
+    label, blocked = grid()
+    terrain_grid = TerrainGrid(label, np.zeros((H, W), np.float32), blocked, np.zeros(2), CELL)
+    places = TerrainPlaceSet(POSITION, TERRAIN, np.ones(2), NO_EDGES, np.zeros(0))
+    links, cost = grid_links(places, NO_EDGES, terrain_grid, BuildConfig())
+    assert links.tolist() == [[0, 1]] and cost == pytest.approx([AROUND_THE_WALL])
+    off = BuildConfig.model_validate({"linking": {"grid_link_distance": None}})
+    assert grid_links(places, NO_EDGES, terrain_grid, off)[0].shape == (0, 2)
+    short = BuildConfig.model_validate({"linking": {"grid_link_max_length": 13.0}})
+    assert grid_links(places, NO_EDGES, terrain_grid, short)[0].shape == (0, 2)
