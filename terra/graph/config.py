@@ -77,6 +77,9 @@ class LinkingSection(Section):
     strip_link_distance: float | None = Field(12.0, gt=0.0, description="metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within this range, across a gap (None = never)")
     strip_max_gap: float = Field(4.0, ge=0.0, description="metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the cameras missed or took for something else, not a road between two sidewalks)")
     strip_max_blocked: float = Field(0.8, ge=0.0, description="metres; and at most this much of blocked cells (a post or a trunk standing on the strip)")
+    grid_link_distance: float | None = Field(12.0, gt=0.0, description="metres; places of one terrain in different pieces of its places graph this close (2D) are joined by a path on the terrain grid where one is allowed (terra.graph.grid_links; None = never)")
+    grid_link_max_gap: float = Field(4.0, ge=0.0, description="metres; such a path may cross at most this much of unlabelled free cells (never blocked cells or another terrain's)")
+    grid_link_max_length: float = Field(30.0, gt=0.0, description="metres; and be at most this long (the link costs the path's length)")
 
 
 class EmbeddingSection(Section):

@@ -8,6 +8,8 @@
    links to the nearest place of the same terrain in another piece within `max_distance`, when
    the straight line crosses only traversable cells and at most `max_gap` metres of them belong
    to another terrain: the strip continues, so the route on that terrain continues.
+   Pieces that straight lines cannot join (a car between them) are then joined along grid
+   paths (terra.graph.grid_links).
 3. Bridges: while the graph has several components, each component joins its closest other
    component (Boruvka rounds, so at most log2(components) rounds). A bridge whose line crosses
    only traversable cells costs its length; otherwise it costs length * `bridge_penalty`.

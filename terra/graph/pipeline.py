@@ -18,6 +18,7 @@ from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
+from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
 from terra.graph.linking import bridge_components, grid_gap_length, grid_line_clear, grid_line_passable, link_dead_ends, link_strip_gaps
 from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
@@ -148,6 +149,16 @@ def strip_links(ps: TerrainPlaceSet, grid: TerrainGrid, config: BuildConfig) -> 
                            gap=gap, max_gap=lk.strip_max_gap)
 
 
+def grid_links(ps: TerrainPlaceSet, edges: np.ndarray, grid: TerrainGrid, config: BuildConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Same-terrain links along grid paths between pieces that `edges` (GVD and strip links) leave
+    apart (terra.graph.grid_links), and their costs in metres."""
+    lk = config.linking
+    if lk.grid_link_distance is None:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    rules = GridPathRules(grid.label, grid.blocked, grid.origin, grid.cell_size, lk.grid_link_max_gap, lk.grid_link_max_length)
+    return link_pieces_on_grid(ps.position, ps.terrain, edges, rules, lk.grid_link_distance, lk.link_candidates)
+
+
 def place_embeddings(msm: MetricSemanticMap, position: np.ndarray, terrain: np.ndarray, max_range: float) -> tuple[np.ndarray, dict[str, int]]:
     """(P, D) unit image embeddings by the paper's rule, falling back to point embeddings and, for
     places with nothing in range, the terrain's text embedding; counts per source."""
@@ -217,6 +228,8 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         kwargs = {"clear": clear} if clear is not None else {}
         strips, strip_len = strip_links(ps, grid, config)
         gvd_edges, gvd_weight = np.vstack([ps.edges, strips]), np.concatenate([ps.weight, strip_len])
+        paths, path_len = grid_links(ps, gvd_edges, grid, config)
+        gvd_edges, gvd_weight = np.vstack([gvd_edges, paths]), np.concatenate([gvd_weight, path_len])
         links, link_len = link_dead_ends(ps.position, ps.terrain, gvd_edges, config.linking.max_link_distance, config.linking.link_candidates, **kwargs)
         edges = np.vstack([gvd_edges, links])
         weight = np.concatenate([gvd_weight, link_len])
@@ -250,6 +263,7 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],
         "blocked_cells": int(grid.blocked.sum()),
         "edges": {"gvd": int((kind == EDGE_GVD).sum()), "cross_terrain": int((kind == EDGE_CROSS_TERRAIN).sum()), "bridge": int((kind == EDGE_BRIDGE).sum())},
+        "grid_links": len(paths),
         "bridges_not_clear": int((~bridge_clear).sum()),
         "embedding_source": sources,
         "embedding_rule": embedding_rule(msm, config.embedding.max_range),
