@@ -202,8 +202,8 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
             raise TerraError(f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})")
         terrains = [names.index(n) for n in config.terrain.include]
     with timer.stage("terrain grid"):
-        point_terrain = msm.terrain_index(config.terrain.min_share)
-        point_terrain = np.where(np.isin(point_terrain, terrains), point_terrain, -1).astype(np.int16)  # 2 bytes a point
+        point_terrain = msm.terrain_index(config.terrain.min_share, dtype=np.int16)  # 2 bytes a point
+        point_terrain[~np.isin(point_terrain, terrains)] = -1
         if not (point_terrain >= 0).any():
             raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
         grid_stats = TiledGridStats()
