@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from terra.graph.gvd import EIGHT
+from terra.graph.gvd import EIGHT, component_sizes, label_components
 
 
 @dataclass
@@ -62,14 +62,19 @@ class TerrainGrid:
         """
         mask = self.label == terrain
         if close_iterations > 0:
-            fillable = mask | ((self.label < 0) & ~self.blocked)
-            mask = ndimage.binary_closing(mask, structure=EIGHT, iterations=close_iterations) & fillable
+            # In place: a full-grid temporary per operator would cost more than the mask itself.
+            fillable = self.label < 0
+            fillable &= ~self.blocked
+            fillable |= mask
+            mask = ndimage.binary_closing(mask, structure=EIGHT, iterations=close_iterations)
+            mask &= fillable
+            del fillable
         if open_iterations > 0:
             mask = ndimage.binary_opening(mask, structure=EIGHT, iterations=open_iterations)
         dropped = 0
         if min_cells > 1 and mask.any():
-            labels, n = ndimage.label(mask, structure=EIGHT)
-            sizes = np.bincount(labels.ravel(), minlength=n + 1)
+            labels, n = label_components(mask)
+            sizes = component_sizes(labels, n)
             small = sizes < min_cells
             small[0] = False
             dropped = int(small.sum())

@@ -289,7 +289,7 @@ def run_build(bundle_path: Path, config: BuildConfig | None = None, regions: str
     _check_bundle(bundle)
     timer = StageTimer()
     with timer.stage("load map"):
-        msm = load_map(bundle)
+        msm = load_map(bundle, max_ids=False)  # the build never reads the MS-Max ids
     result = build_scene_graph(msm, config, show_progress)
     for name, seconds in result.timer.seconds.items():
         timer.add(name, seconds)

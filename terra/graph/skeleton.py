@@ -33,7 +33,7 @@ class SkeletonGraph:
     edges: np.ndarray
     path_cells: np.ndarray
     path_start: np.ndarray
-    cell_node: "NodeCells"
+    cell_node: NodeCells
 
     def path(self, e: int) -> np.ndarray:
         return self.path_cells[self.path_start[e] : self.path_start[e + 1]]
@@ -58,7 +58,7 @@ class NodeCells:
     cells: np.ndarray
     node: np.ndarray
 
-    def renumbered(self, new_id: np.ndarray) -> "NodeCells":
+    def renumbered(self, new_id: np.ndarray) -> NodeCells:
         """Each cell's node renumbered by `new_id` (-1 drops the cell), raster order kept."""
         node = np.asarray(new_id)[self.node]
         keep = node >= 0
@@ -78,6 +78,9 @@ def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndar
     mask = np.asarray(mask, dtype=bool)
     cells = np.argwhere(mask)
     find = CellIndex(cells, mask.shape).find  # no (H, W) index: memory for the cells, not the grid
+    # int32 positions (scipy's own index type for fewer than 2**31 cells): memory per cell matters
+    # on the large patches of the place joins.
+    index = np.int32 if len(cells) < np.iinfo(np.int32).max else np.int64
     rows, cols, weights = [], [], []
     r, c = cells[:, 0], cells[:, 1]
     for dr, dc, w in _OFFSETS:
@@ -85,11 +88,14 @@ def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndar
         keep = other >= 0
         if m_adjacency and dr and dc:
             keep &= (find(r + dr, c) < 0) & (find(r, c + dc) < 0)
-        rows.append(np.flatnonzero(keep))
-        cols.append(other[keep])
+        rows.append(np.flatnonzero(keep).astype(index))
+        cols.append(other[keep].astype(index))
         weights.append(np.full(int(keep.sum()), w))
+        del other, keep
     i, j, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    del rows, cols, weights
     adjacency = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells)))
+    del i, j, w
     return cells, adjacency.tocsr()
 
 
