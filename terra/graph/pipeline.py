@@ -67,6 +67,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         traversable |= mask
         if not mask.any():
             stats["places_per_terrain"][t] = 0
+            del mask  # before the next terrain's mask: one full-grid mask at a time
             continue
         cp = extract_places(
             mask,
@@ -90,6 +91,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         weights.append(np.hypot(cp.length * s, dz))
         offset += len(cp.cells)
         stats["places_per_terrain"][t] = int(len(cp.cells))
+        del mask
     place_set = TerrainPlaceSet(
         position=np.vstack(positions) if positions else np.zeros((0, 3)),
         terrain=np.concatenate(terrain_ids) if terrain_ids else np.zeros(0, np.int64),
@@ -208,6 +210,7 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
             raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
         grid_stats = TiledGridStats()
         grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
+        del point_terrain  # 2 bytes a point no later stage reads
     with timer.stage("GVD places"):
         ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
     if len(ps.position) == 0:
