@@ -460,7 +460,7 @@ def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
                 if target.exists():
                     shutil.rmtree(target)
                 shutil.copytree(bundle, target)
-                entry[label] = timed(["build", str(target), "-q"], work / f"{name}-{label}.log", tree)
+                entry[label] = timed(["build", str(target), "-q", "--overwrite"], work / f"{name}-{label}.log", tree)
                 ensure(entry[label], f"terra build ({name}, {label})")
                 entry[label]["mb_per_km2"] = round(entry[label]["peak_rss_mb"] / km2, 1)
                 entry[label]["grid_cells"] = build_stats(target)["grid_cells"]
