@@ -445,7 +445,8 @@ def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
 
     work = cache / "memory"
     work.mkdir(parents=True, exist_ok=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
     result = {"baseline": baseline, "this": commit, "maps": {}}
     rows = []
     with tempfile.TemporaryDirectory(prefix="terra-baseline-") as tmp:
@@ -471,7 +472,8 @@ def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
             b, a = entry["before"], entry["after"]
             rows.append((f"terra build {name} ({km2} km2, grid {a['grid_cells'][0]} x {a['grid_cells'][1]})",
                          f"before {b['peak_rss_mb']:.0f} MB, {b['wall_s']} s ({b['cpu_s']} s CPU); "
-                         f"after {a['peak_rss_mb']:.0f} MB, {a['wall_s']} s ({a['cpu_s']} s CPU); same graph: {entry['same_graph']}",
+                         f"after {a['peak_rss_mb']:.0f} MB, {a['wall_s']} s ({a['cpu_s']} s CPU); "
+                         f"same graph: {entry['same_graph']}",
                          "same graph"))
     names = list(result["maps"])
     result["growth_mb_per_km2"] = {}
@@ -480,7 +482,8 @@ def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
         growth = {label: round((m1[label]["peak_rss_mb"] - m0[label]["peak_rss_mb"]) / (m1["km2"] - m0["km2"]), 1)
                   for label in ("before", "after")}
         result["growth_mb_per_km2"][f"{lo} -> {hi}"] = growth
-        rows.append((f"growth {lo} -> {hi}", f"before {growth['before']} MB/km2, after {growth['after']} MB/km2", "lower"))
+        rows.append((f"growth {lo} -> {hi}", f"before {growth['before']} MB/km2, after {growth['after']} MB/km2",
+                     "lower"))
     report(rows, {**machine(), **result}, RESULTS / "scale_memory.json")
 
 

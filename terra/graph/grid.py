@@ -207,7 +207,8 @@ def build_terrain_grid(
     count = np.bincount(flat, minlength=H * W)
     has = (count > 0).reshape(H, W)
     mean = (total / np.maximum(count, 1)).reshape(H, W)
-    _, (nr, nc) = ndimage.distance_transform_edt(~has, return_indices=True)
+    # Indices only: the distances would cost 8 bytes a cell and nothing reads them.
+    nr, nc = ndimage.distance_transform_edt(~has, return_distances=False, return_indices=True)
     grid.ground[:] = mean[nr, nc]
 
     other = points[~is_terrain]
@@ -254,7 +255,7 @@ def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, 
     if not own.any():
         return
     ground[own] = (total[own] / count[own]).astype(ground.dtype)
-    _, (nr, nc) = ndimage.distance_transform_edt(~(has | own), return_indices=True)
+    nr, nc = ndimage.distance_transform_edt(~(has | own), return_distances=False, return_indices=True)
     ground[:] = ground[nr, nc]
 
 
