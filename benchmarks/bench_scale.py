@@ -15,6 +15,13 @@ It reports peak RSS and wall time per km^2 and the growth from the large map to 
 (wall, CPU seconds, peak RSS, output size, 1-minute load average before and after: the machine is
 shared, so wall time also counts other jobs).
 
+`memory`: `terra build` (default tiles) of this checkout side by side with an earlier commit
+(`--baseline`, unpacked with `git archive`) on the campus, large and huge maps (each copied into
+--cache first; `--map NAME=BUNDLE` points at a mapped bundle), alternating the two trees per map, each
+build in its own process under /usr/bin/time -v. It reports peak RSS, MB per km^2 and the growth
+per km^2 between the maps, and whether both trees give the same places (positions, terrains,
+clearances, embeddings), edges (pairs, weights, kinds) and every region level.
+
 Datasets and bundles are cached under --cache and reused (sim and map are skipped when present;
 --fresh redoes them). Every command runs as `python -m terra` from this checkout.
 
@@ -22,6 +29,7 @@ Usage:
   python benchmarks/bench_scale.py large [--cache /work/bench-cache/issue-18b]
   python benchmarks/bench_scale.py growth [--cache /work/bench-cache/issue-18b] [--skip-one-piece-10km2]
   python benchmarks/bench_scale.py huge [--cache /work/bench-cache/issue-18c] [--fresh]
+  python benchmarks/bench_scale.py memory --baseline COMMIT --cache DIR --map campus=B --map large=B --map huge=B
 Writes benchmarks/results/scale_<preset>.json and prints a table.
 """
 
@@ -35,6 +43,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -49,13 +58,14 @@ RESULTS = ROOT / "benchmarks" / "results"
 TIME = "/usr/bin/time"
 
 
-def timed(args: list[str], log: Path) -> dict:
-    """Run `python -m terra ARGS` under /usr/bin/time -v; wall seconds, peak RSS (MB), exit code."""
+def timed(args: list[str], log: Path, tree: Path = ROOT) -> dict:
+    """Run `python -m terra ARGS` (the checkout at `tree`) under /usr/bin/time -v; wall seconds,
+    peak RSS (MB), exit code."""
     cmd = [TIME, "-v", sys.executable, "-m", "terra", *args]
     load_before = os.getloadavg()[0]
     start = time.perf_counter()
     with log.open("w") as out:
-        done = subprocess.run(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+        done = subprocess.run(cmd, cwd=tree, stdout=out, stderr=subprocess.STDOUT)
     wall = time.perf_counter() - start
     text = log.read_text()
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", text)
@@ -103,6 +113,19 @@ def sim_and_map(preset: str, cache: Path, fresh: bool) -> tuple[Path, dict]:
         if name in stages:
             stages[name]["output_mb"] = size_mb(path)
     return bundle, stages
+
+
+def same_content(a: Path, b: Path) -> bool:
+    """Whether two bundles' graphs hold the same places with clearances and embeddings, edges with
+    weights and kinds, and region levels (same_graph checks these but for clearance and embedding)."""
+    from terra.bundle import Bundle
+    from terra.graph.storage import load_scene_graph
+
+    ga, gb = load_scene_graph(Bundle(a)), load_scene_graph(Bundle(b))
+    same = same_graph(a, b)
+    return bool(same["places"] and same["edges"] and same["regions"]
+                and np.array_equal(ga.places.clearance, gb.places.clearance)
+                and np.array_equal(ga.places.embedding, gb.places.embedding))
 
 
 def same_graph(a: Path, b: Path) -> dict:
@@ -417,6 +440,53 @@ def run_growth(cache: Path, fresh: bool, one_piece_10km2: bool = True) -> None:
     report(rows, {**machine(), "maps": maps, "queries": queries, "growth": growth}, RESULTS / "scale_growth.json")
 
 
+def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
+    from terra.sim.presets import get_preset
+
+    work = cache / "memory"
+    work.mkdir(parents=True, exist_ok=True)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
+    result = {"baseline": baseline, "this": commit, "maps": {}}
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="terra-baseline-") as tmp:
+        old_tree = Path(tmp)
+        archive = subprocess.run(["git", "archive", baseline], cwd=ROOT, capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(old_tree)], input=archive, check=True)
+        for name, bundle in maps.items():
+            km2 = round(get_preset(name).size ** 2 / 1e6, 2)
+            entry = {"bundle": str(bundle), "km2": km2}
+            for label, tree in (("before", old_tree), ("after", ROOT)):
+                target = work / f"{name}-{label}.terra"
+                if target.exists():
+                    shutil.rmtree(target)
+                shutil.copytree(bundle, target)
+                entry[label] = timed(["build", str(target), "-q", "--overwrite"], work / f"{name}-{label}.log", tree)
+                ensure(entry[label], f"terra build ({name}, {label})")
+                entry[label]["mb_per_km2"] = round(entry[label]["peak_rss_mb"] / km2, 1)
+                entry[label]["grid_cells"] = build_stats(target)["grid_cells"]
+            entry["same_graph"] = same_content(work / f"{name}-before.terra", work / f"{name}-after.terra")
+            for label in ("before", "after"):
+                shutil.rmtree(work / f"{name}-{label}.terra")
+            result["maps"][name] = entry
+            b, a = entry["before"], entry["after"]
+            rows.append((f"terra build {name} ({km2} km2, grid {a['grid_cells'][0]} x {a['grid_cells'][1]})",
+                         f"before {b['peak_rss_mb']:.0f} MB, {b['wall_s']} s ({b['cpu_s']} s CPU); "
+                         f"after {a['peak_rss_mb']:.0f} MB, {a['wall_s']} s ({a['cpu_s']} s CPU); "
+                         f"same graph: {entry['same_graph']}",
+                         "same graph"))
+    names = list(result["maps"])
+    result["growth_mb_per_km2"] = {}
+    for lo, hi in zip(names, names[1:]):
+        m0, m1 = result["maps"][lo], result["maps"][hi]
+        growth = {label: round((m1[label]["peak_rss_mb"] - m0[label]["peak_rss_mb"]) / (m1["km2"] - m0["km2"]), 1)
+                  for label in ("before", "after")}
+        result["growth_mb_per_km2"][f"{lo} -> {hi}"] = growth
+        rows.append((f"growth {lo} -> {hi}", f"before {growth['before']} MB/km2, after {growth['after']} MB/km2",
+                     "lower"))
+    report(rows, {**machine(), **result}, RESULTS / "scale_memory.json")
+
+
 def machine() -> dict:
     return {
         "machine": platform.node(),
@@ -429,15 +499,22 @@ def machine() -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("preset", choices=["large", "huge", "growth"])
+    parser.add_argument("preset", choices=["large", "huge", "growth", "memory"])
     parser.add_argument("--cache", type=Path, default=Path("/work/bench-cache/issue-18b"))
     parser.add_argument("--fresh", action="store_true", help="simulate and map again even when cached")
     parser.add_argument(
         "--skip-one-piece-10km2", action="store_true", help="growth: build the 10 km^2 map in tiles only"
     )
+    parser.add_argument("--baseline", default="HEAD", help="memory: the commit to compare this checkout with")
+    parser.add_argument("--map", action="append", default=[], metavar="NAME=BUNDLE",
+                        help="memory: a preset's mapped bundle (campus, large, huge), smallest first")
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
-    if args.preset == "growth":
+    if args.preset == "memory":
+        if not args.map:
+            raise SystemExit("memory: give at least one --map NAME=BUNDLE")
+        run_memory(args.cache, args.baseline, {m.split("=", 1)[0]: Path(m.split("=", 1)[1]) for m in args.map})
+    elif args.preset == "growth":
         run_growth(args.cache, args.fresh, not args.skip_one_piece_10km2)
     else:
         (run_large if args.preset == "large" else run_huge)(args.cache, args.fresh)

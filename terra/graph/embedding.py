@@ -45,6 +45,19 @@ def image_embeddings(positions: np.ndarray, observing: ObservingFn, images: np.n
     return normalize_rows(out), (counts > 0) | fallback
 
 
+def unique_cells(cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.unique(cell, axis=0, return_inverse=True)` for (n, 2) int64 cells (rows sorted by the
+    first column, then the second), through one int64 key per cell: the same result without the
+    row-wise sort's copies of the cells."""
+    if len(cell) == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    low = cell.min(axis=0)
+    span = int(cell[:, 1].max() - low[1]) + 1
+    key = (cell[:, 0] - low[0]) * span + (cell[:, 1] - low[1])
+    unique, inverse = np.unique(key, return_inverse=True)
+    return np.column_stack([unique // span + low[0], unique % span + low[1]]), inverse.ravel()
+
+
 def point_embeddings(
     positions: np.ndarray, points: np.ndarray, counts: sp.csr_matrix, bank: np.ndarray, norms: np.ndarray, max_range: float = 20.0
 ) -> np.ndarray:
@@ -55,17 +68,18 @@ def point_embeddings(
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     bank = np.asarray(bank, dtype=np.float32)
     counts = sp.csr_matrix(counts)
-    norms = np.asarray(norms, dtype=np.float64)
+    norms = np.asarray(norms)
     seen = np.flatnonzero(norms > 0)
     P = len(positions)
     if P == 0 or seen.size == 0:
         return np.zeros((P, bank.shape[1]), np.float32)
-    xy = np.asarray(points, dtype=np.float64)[seen, :2]
-    cell = np.floor(xy / POINT_CELL).astype(np.int64)
-    keys, cell_of = np.unique(cell, axis=0, return_inverse=True)
-    cell_of = cell_of.ravel()
+    # Only the observed points' x, y in float64 (not a float64 copy of the whole map).
+    cell = np.floor(np.asarray(points[seen, :2], dtype=np.float64) / POINT_CELL).astype(np.int64)
+    keys, cell_of = unique_cells(cell)
+    del cell
     # Per cell: sum of unit MS-Avg features = (cell membership / norm) @ counts @ bank.
-    member = sp.csr_matrix((1.0 / norms[seen], (cell_of, np.arange(seen.size))), shape=(len(keys), seen.size))
+    inverse_norm = 1.0 / np.asarray(norms[seen], dtype=np.float64)
+    member = sp.csr_matrix((inverse_norm, (cell_of, np.arange(seen.size))), shape=(len(keys), seen.size))
     cell_counts = member @ counts[seen]  # (cells, K)
     centres = (keys + 0.5) * POINT_CELL
     near = cKDTree(centres).query_ball_point(positions[:, :2], r=max_range)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from terra.graph.gvd import EIGHT
+from terra.graph.gvd import EIGHT, component_sizes, label_components
 
 
 @dataclass
@@ -62,14 +62,19 @@ class TerrainGrid:
         """
         mask = self.label == terrain
         if close_iterations > 0:
-            fillable = mask | ((self.label < 0) & ~self.blocked)
-            mask = ndimage.binary_closing(mask, structure=EIGHT, iterations=close_iterations) & fillable
+            # In place: a full-grid temporary per operator would cost more than the mask itself.
+            fillable = self.label < 0
+            fillable &= ~self.blocked
+            fillable |= mask
+            mask = ndimage.binary_closing(mask, structure=EIGHT, iterations=close_iterations)
+            mask &= fillable
+            del fillable
         if open_iterations > 0:
             mask = ndimage.binary_opening(mask, structure=EIGHT, iterations=open_iterations)
         dropped = 0
         if min_cells > 1 and mask.any():
-            labels, n = ndimage.label(mask, structure=EIGHT)
-            sizes = np.bincount(labels.ravel(), minlength=n + 1)
+            labels, n = label_components(mask)
+            sizes = component_sizes(labels, n)
             small = sizes < min_cells
             small[0] = False
             dropped = int(small.sum())
@@ -202,7 +207,8 @@ def build_terrain_grid(
     count = np.bincount(flat, minlength=H * W)
     has = (count > 0).reshape(H, W)
     mean = (total / np.maximum(count, 1)).reshape(H, W)
-    _, (nr, nc) = ndimage.distance_transform_edt(~has, return_indices=True)
+    # Indices only: the distances would cost 8 bytes a cell and nothing reads them.
+    nr, nc = ndimage.distance_transform_edt(~has, return_distances=False, return_indices=True)
     grid.ground[:] = mean[nr, nc]
 
     other = points[~is_terrain]
@@ -249,7 +255,7 @@ def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, 
     if not own.any():
         return
     ground[own] = (total[own] / count[own]).astype(ground.dtype)
-    _, (nr, nc) = ndimage.distance_transform_edt(~(has | own), return_indices=True)
+    nr, nc = ndimage.distance_transform_edt(~(has | own), return_distances=False, return_indices=True)
     ground[:] = ground[nr, nc]
 
 

@@ -134,6 +134,24 @@ def empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
     return empty[holes]
 
 
+def label_components(mask: np.ndarray, structure: np.ndarray = EIGHT) -> tuple[np.ndarray, int]:
+    """`ndimage.label(mask, structure)` in uint16 when the components fit (fewer than 65,536), else
+    int32: the same labels, in half the memory on a full grid."""
+    try:
+        return ndimage.label(mask, structure=structure, output=np.uint16)
+    except RuntimeError:  # scipy: "insufficient bit-depth in requested output type"
+        return ndimage.label(mask, structure=structure, output=np.int32)
+
+
+def component_sizes(labels: np.ndarray, n: int, rows: int = 256) -> np.ndarray:
+    """(n + 1,) int64 cells per label of an (H, W) label array (0 = background), counted a few rows
+    at a time: np.bincount would first copy the whole array to int64."""
+    sizes = np.zeros(n + 1, dtype=np.int64)
+    for start in range(0, labels.shape[0], rows):
+        sizes += np.bincount(labels[start : start + rows].ravel(), minlength=n + 1)
+    return sizes
+
+
 def free_box(free: np.ndarray) -> tuple[slice, slice] | None:
     """The bounding box of the free cells of `free` (H, W) plus one cell on each side (clipped to
     the grid), as (row, column) slices; None when no cell is free."""

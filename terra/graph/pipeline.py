@@ -68,6 +68,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         traversable |= mask
         if not mask.any():
             stats["places_per_terrain"][t] = 0
+            del mask  # before the next terrain's mask: one full-grid mask at a time
             continue
         cp = extract_places(
             mask,
@@ -91,6 +92,7 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         weights.append(np.hypot(cp.length * s, dz))
         offset += len(cp.cells)
         stats["places_per_terrain"][t] = int(len(cp.cells))
+        del mask
     place_set = TerrainPlaceSet(
         position=np.vstack(positions) if positions else np.zeros((0, 3)),
         terrain=np.concatenate(terrain_ids) if terrain_ids else np.zeros(0, np.int64),
@@ -213,12 +215,13 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
             raise TerraError(f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})")
         terrains = [names.index(n) for n in config.terrain.include]
     with timer.stage("terrain grid"):
-        point_terrain = msm.terrain_index(config.terrain.min_share)
-        point_terrain = np.where(np.isin(point_terrain, terrains), point_terrain, -1).astype(np.int16)  # 2 bytes a point
+        point_terrain = msm.terrain_index(config.terrain.min_share, dtype=np.int16)  # 2 bytes a point
+        point_terrain[~np.isin(point_terrain, terrains)] = -1
         if not (point_terrain >= 0).any():
             raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
         grid_stats = TiledGridStats()
         grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
+        del point_terrain  # 2 bytes a point no later stage reads
     with timer.stage("GVD places"):
         ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
     if len(ps.position) == 0:
@@ -303,7 +306,7 @@ def run_build(bundle_path: Path, config: BuildConfig | None = None, regions: str
     _check_bundle(bundle)
     timer = StageTimer()
     with timer.stage("load map"):
-        msm = load_map(bundle)
+        msm = load_map(bundle, max_ids=False)  # the build never reads the MS-Max ids
     result = build_scene_graph(msm, config, show_progress)
     for name, seconds in result.timer.seconds.items():
         timer.add(name, seconds)

@@ -30,7 +30,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from terra.graph.cell_index import CellIndex
-from terra.graph.gvd import EIGHT, gvd
+from terra.graph.gvd import EIGHT, gvd, label_components
 from terra.graph.skeleton import (SkeletonGraph, cell_adjacency, prune_spurs, simplify, skeleton_adjacency,
                                   skeleton_graph)
 
@@ -137,8 +137,10 @@ def extract_places(
     skeleton = restore_far_branches(full, skeleton, cover_radius)
     graph = simplify(skeleton_graph(skeleton, distance), distance, junction_merge)
     cells, edges, length = split_graph(graph, max_deviation, max_distance)
-    cells = np.vstack([cells, _lonely_patch_cells(free, distance, cells)])
-    joins, join_length = join_patch_pieces(free, cells, edges)
+    patches = label_components(free)  # 8-connected patches, labelled once for both steps
+    cells = np.vstack([cells, _lonely_patch_cells(free, distance, cells, patches)])
+    joins, join_length = join_patch_pieces(free, cells, edges, patches)
+    del patches
     edges, length = unique_edges(np.vstack([edges, joins]), np.concatenate([length, join_length]))
     return CellPlaces(cells, edges, length, distance[cells[:, 0], cells[:, 1]].astype(np.float64))
 
@@ -179,16 +181,17 @@ def restore_far_branches(full: np.ndarray, kept: np.ndarray, radius: float) -> n
         far = np.minimum(far, cKDTree(cells[path]).query(cells[pruned])[0])
 
 
-def join_patch_pieces(free: np.ndarray, cells: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def join_patch_pieces(free: np.ndarray, cells: np.ndarray, edges: np.ndarray,
+                      patches: tuple[np.ndarray, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Edges (k, 2) and their lengths (k,) in cells that join places of one 8-connected patch of
     `free` that the GVD edges leave in separate pieces, each along the shortest path through the
     patch (a minimum spanning tree over the pieces, from a geodesic Voronoi partition of the patch
-    by its places)."""
+    by its places). patches: `ndimage.label(free, EIGHT)` when already computed."""
     none = np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     n = len(cells)
     if n < 2:
         return none
-    patch, _ = ndimage.label(free, structure=EIGHT)
+    patch, _ = patches if patches is not None else ndimage.label(free, structure=EIGHT)
     place_patch = patch[cells[:, 0], cells[:, 1]]
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, piece = connected_components(graph, directed=False)
@@ -210,8 +213,8 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
     """Minimum spanning joins (place a, place b, length in cells) between the pieces of `places`
     inside one connected `region` (H, W) bool: every cell takes its geodesically nearest place;
     neighbouring cells owned by places of different pieces offer a join of d_a + step + d_b."""
-    rows, cols = np.nonzero(region)
-    lo, hi = np.array([rows.min(), cols.min()]), np.array([rows.max(), cols.max()]) + 1
+    rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))  # its bounds, not its cells
+    lo, hi = np.array([rows[0], cols[0]]), np.array([rows[-1], cols[-1]]) + 1
     sub = region[lo[0]:hi[0], lo[1]:hi[1]]
     region_cells, adjacency = cell_adjacency(sub)
     sources = CellIndex(region_cells, sub.shape).find(cells[places, 0] - lo[0], cells[places, 1] - lo[1])
@@ -220,10 +223,12 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
     owner[sources] = places
     owner = owner[origin]
     coo = sp.triu(adjacency).tocoo()
+    del adjacency
     u, v, step = coo.row, coo.col, coo.data
-    a, b = owner[u], owner[v]
-    cross = piece[a] != piece[b]
-    a, b, cost = a[cross], b[cross], (dist[u] + step + dist[v])[cross]
+    cross = np.flatnonzero(piece[owner[u]] != piece[owner[v]])  # only the pairs across pieces are kept
+    u, v, step = u[cross], v[cross], step[cross]
+    del coo
+    a, b, cost = owner[u], owner[v], dist[u] + step + dist[v]
     # Kruskal over pieces: cheapest candidate first, ties by place indices.
     order = np.lexsort((b, a, cost))
     parent = {int(c): int(c) for c in np.unique(piece[places])}
@@ -245,9 +250,11 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
     return np.asarray(out_a, np.int64), np.asarray(out_b, np.int64), np.asarray(out_len)
 
 
-def _lonely_patch_cells(free: np.ndarray, distance: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """One cell (largest clearance) for every free patch that holds no place yet."""
-    labels, n = ndimage.label(free, structure=EIGHT)
+def _lonely_patch_cells(free: np.ndarray, distance: np.ndarray, cells: np.ndarray,
+                        patches: tuple[np.ndarray, int] | None = None) -> np.ndarray:
+    """One cell (largest clearance) for every free patch that holds no place yet (patches:
+    `ndimage.label(free, EIGHT)` when already computed)."""
+    labels, n = patches if patches is not None else ndimage.label(free, structure=EIGHT)
     if n == 0:
         return np.zeros((0, 2), dtype=np.int64)
     covered = np.zeros(n + 1, dtype=bool)

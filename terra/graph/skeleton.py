@@ -26,14 +26,14 @@ _OFFSETS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, np.sqrt(2.0)), (1, -1, np.sqrt(2.0)
 class SkeletonGraph:
     """node_cell: (n, 2) row/col of each node. edges: (e, 2) node pairs (a loop has u == v).
     path_cells: all edge polylines concatenated, each from its u cell to its v cell inclusive;
-    path_start: (e + 1,) offsets into path_cells. cell_node: (H, W) int32 node of each node cell
-    (-1 elsewhere), used to remove a pruned tip with its whole cluster."""
+    path_start: (e + 1,) offsets into path_cells. cell_node: the cells of every node cluster and
+    their node, used to remove a pruned tip with its whole cluster."""
 
     node_cell: np.ndarray
     edges: np.ndarray
     path_cells: np.ndarray
     path_start: np.ndarray
-    cell_node: np.ndarray
+    cell_node: NodeCells
 
     def path(self, e: int) -> np.ndarray:
         return self.path_cells[self.path_start[e] : self.path_start[e + 1]]
@@ -49,6 +49,22 @@ class SkeletonGraph:
         return np.bincount(self.edges.ravel(), minlength=len(self.node_cell))
 
 
+@dataclass
+class NodeCells:
+    """The cells of a skeleton graph's node clusters: cells (m, 2) row/col in raster order and
+    node (m,) the node each belongs to. A list, not an (H, W) array: memory for the skeleton's
+    node cells, not for the grid."""
+
+    cells: np.ndarray
+    node: np.ndarray
+
+    def renumbered(self, new_id: np.ndarray) -> NodeCells:
+        """Each cell's node renumbered by `new_id` (-1 drops the cell), raster order kept."""
+        node = np.asarray(new_id)[self.node]
+        keep = node >= 0
+        return NodeCells(self.cells[keep], node[keep].astype(np.int64))
+
+
 def skeleton_adjacency(skeleton: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
     """Skeleton cells (K, 2) in raster order and their symmetric m-adjacency (K, K), weights 1 or
     sqrt(2) cells."""
@@ -62,6 +78,9 @@ def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndar
     mask = np.asarray(mask, dtype=bool)
     cells = np.argwhere(mask)
     find = CellIndex(cells, mask.shape).find  # no (H, W) index: memory for the cells, not the grid
+    # int32 positions (scipy's own index type for fewer than 2**31 cells): memory per cell matters
+    # on the large patches of the place joins.
+    index = np.int32 if len(cells) < np.iinfo(np.int32).max else np.int64
     rows, cols, weights = [], [], []
     r, c = cells[:, 0], cells[:, 1]
     for dr, dc, w in _OFFSETS:
@@ -69,11 +88,14 @@ def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndar
         keep = other >= 0
         if m_adjacency and dr and dc:
             keep &= (find(r + dr, c) < 0) & (find(r, c + dc) < 0)
-        rows.append(np.flatnonzero(keep))
-        cols.append(other[keep])
+        rows.append(np.flatnonzero(keep).astype(index))
+        cols.append(other[keep].astype(index))
         weights.append(np.full(int(keep.sum()), w))
+        del other, keep
     i, j, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    del rows, cols, weights
     adjacency = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells)))
+    del i, j, w
     return cells, adjacency.tocsr()
 
 
@@ -82,9 +104,9 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     one with the largest clearance (ties: first in raster order)."""
     cells, A = skeleton_adjacency(skeleton)
     K = len(cells)
-    cell_node = np.full(np.shape(skeleton), -1, dtype=np.int32)
     if K == 0:
-        return SkeletonGraph(np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros(1, np.int64), cell_node)
+        return SkeletonGraph(np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros(1, np.int64),
+                             NodeCells(np.zeros((0, 2), np.int64), np.zeros(0, np.int64)))
     degree = np.diff(A.indptr)
     is_node = degree != 2
     # Cells of a 2x2 block (thinning can leave one where branches meet) form one node.
@@ -107,7 +129,7 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     node_cell[cluster[order][first]] = cells[node_idx[order][first]]
     node_of_cell = np.full(K, -1, dtype=np.int64)
     node_of_cell[node_idx] = cluster
-    cell_node[cells[node_idx, 0], cells[node_idx, 1]] = cluster
+    cell_node = NodeCells(cells[node_idx].astype(np.int64), cluster.astype(np.int64))  # node_idx ascends: raster order
 
     seg_idx = np.flatnonzero(~is_node)
     if len(seg_idx) == 0:
@@ -170,7 +192,7 @@ def _in_block(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return inside
 
 
-def _assemble(node_cell: np.ndarray, edges: list, paths: list, cell_node: np.ndarray) -> SkeletonGraph:
+def _assemble(node_cell: np.ndarray, edges: list, paths: list, cell_node: NodeCells) -> SkeletonGraph:
     edges_arr = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     lengths = np.array([len(p) for p in paths], dtype=np.int64)
     path_start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
@@ -227,9 +249,8 @@ def prune_spurs(skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_le
         inner = _path_rows(g, spur_idx, drop_ends=True)
         skeleton[g.path_cells[inner, 0], g.path_cells[inner, 1]] = False
         tips = np.where(tip_u, u, v)[spur_idx]
-        node_rows, node_cols = np.nonzero(g.cell_node >= 0)
-        drop = np.isin(g.cell_node[node_rows, node_cols], tips)
-        skeleton[node_rows[drop], node_cols[drop]] = False
+        drop = np.isin(g.cell_node.node, tips)
+        skeleton[g.cell_node.cells[drop, 0], g.cell_node.cells[drop, 1]] = False
     return skeleton
 
 
@@ -267,7 +288,7 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
         rep = np.zeros(n_new, dtype=np.int64)
         rep[new_id[order][first]] = order[first]
         node_cell = g.node_cell[rep]
-        cell_node = _renumber(g.cell_node, new_id)
+        cell_node = g.cell_node.renumbered(new_id)
         keep = ~short
         edges = new_id[edges[keep]]
         paths = [p.copy() for p, k in zip(paths, keep) if k]
@@ -304,15 +325,7 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
     kept_paths = [p for p, a in zip(paths, alive) if a]
     # Renumber the surviving nodes in their old order.
     new_index = np.where(removed, -1, np.cumsum(~removed) - 1)
-    cell_node = _renumber(cell_node, new_index)
+    cell_node = cell_node.renumbered(new_index)
     remapped = [(int(new_index[a]), int(new_index[b])) for a, b in kept_edges]
     return _assemble(node_cell[~removed], remapped, kept_paths, cell_node)
 
-
-def _renumber(cell_node: np.ndarray, new_id: np.ndarray) -> np.ndarray:
-    """(H, W) int32: each node cell's node renumbered by `new_id` (-1 drops it), -1 elsewhere;
-    only the node cells are touched."""
-    out = np.full(cell_node.shape, -1, dtype=np.int32)
-    rows, cols = np.nonzero(cell_node >= 0)
-    out[rows, cols] = new_id[cell_node[rows, cols]]
-    return out

@@ -92,11 +92,11 @@ def build_terrain_grid_tiled(
         return build_terrain_grid(points, terrain, *args, **weak)
     frame = grid_frame(points, terrain, cell_size)
     H, W = frame.shape
+    index = _PointIndex(points, frame)  # before the grid: its sorting temporaries come and go first
     grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool),
                        np.asarray(frame.origin, dtype=np.float64), frame.cell_size)
     reach = terrain_grid_reach(cell_size, support_radius, fill_radius, chain)
     margin = max(margin, reach)
-    index = _PointIndex(points, frame)
     for core in cores((H, W), tile):
         m = margin
         while True:
@@ -128,26 +128,31 @@ class _PointIndex:
     """Points sorted by grid row, to find those inside a window without scanning them all."""
 
     def __init__(self, points: np.ndarray, frame: GridFrame, chunk: int = 1 << 20) -> None:
-        # 12 bytes a point (int32 cells, int32 order), computed in chunks: no float64 copy of the map.
+        # 8 bytes a point where the grid has fewer than 32,767 rows and columns (int16 cells, int32
+        # order), computed in chunks: no float64 copy of the map.
         n = len(points)
-        self.row, self.col = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+        cell = np.int16 if max(frame.shape) + 1 < np.iinfo(np.int16).max else np.int32
+        row, col = np.empty(n, dtype=cell), np.empty(n, dtype=cell)
         origin = np.asarray(frame.origin, dtype=np.float64)
         for start in range(0, n, chunk):
             xy = np.asarray(points[start : start + chunk, :2], dtype=np.float64)
-            cell = np.floor((xy - origin) / frame.cell_size)  # as TerrainGrid.cell_of
-            self.row[start : start + chunk] = np.clip(cell[:, 1], -1, frame.shape[0])
-            self.col[start : start + chunk] = np.clip(cell[:, 0], -1, frame.shape[1])
-        self.order = np.argsort(self.row, kind="stable").astype(np.int32)
-        self.sorted_row = self.row[self.order]
+            rc = np.floor((xy - origin) / frame.cell_size)  # as TerrainGrid.cell_of
+            row[start : start + chunk] = np.clip(rc[:, 1], -1, frame.shape[0])
+            col[start : start + chunk] = np.clip(rc[:, 0], -1, frame.shape[1])
+        self.order = np.argsort(row, kind="stable").astype(np.int32)
+        self.sorted_row = row[self.order]
+        del row
+        self.sorted_col = col[self.order]
+        self.rows = frame.shape[0]
 
     def inside(self, win: Window) -> np.ndarray:
         """Indices (increasing: the points' own order) of the points in the window's cells; the
         outermost windows take the points beyond the grid too, as the one-piece grid does."""
         lo = -1 if win.rows.start == 0 else win.rows.start  # rows are clipped to -1..H
-        hi = np.iinfo(np.int32).max if win.closed[1] else win.rows.stop
-        a, b = np.searchsorted(self.sorted_row, np.array([lo, hi], dtype=np.int32), side="left")
+        hi = self.rows + 1 if win.closed[1] else win.rows.stop
+        a, b = np.searchsorted(self.sorted_row, np.array([lo, hi], dtype=self.sorted_row.dtype), side="left")
         rows = self.order[a:b]
-        col = self.col[rows]
+        col = self.sorted_col[a:b]
         keep = np.ones(len(rows), dtype=bool)
         if not win.closed[2]:
             keep &= col >= win.cols.start

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from terra.graph.gvd import EIGHT, brushfire, empty_loops, free_box, voronoi_cells
+from terra.graph.gvd import brushfire, empty_loops, free_box, label_components, voronoi_cells
 from terra.graph.thinning import thin_counted
 from terra.graph.tiling import Window, cores, window
 
@@ -63,10 +63,11 @@ class _NeedMoreRounds(Exception):
 
 
 def obstacle_components(free: np.ndarray) -> np.ndarray:
-    """(H + 2, W + 2) int32: 8-connected components of the obstacle cells of `free` (H, W) with the
-    one-cell obstacle frame around it (as gvd.brushfire labels them), frame included."""
-    labels, _ = ndimage.label(np.pad(~np.asarray(free, dtype=bool), 1, constant_values=True), structure=EIGHT)
-    return labels.astype(np.int32, copy=False)
+    """(H + 2, W + 2) uint16 (int32 when there are 65,535 components or more): 8-connected
+    components of the obstacle cells of `free` (H, W) with the one-cell obstacle frame around it
+    (as gvd.brushfire labels them), frame included. The same labels in either type; the narrower
+    one halves the array that stays in memory while the terrain's windows are computed."""
+    return label_components(np.pad(~np.asarray(free, dtype=bool), 1, constant_values=True))[0]
 
 
 def tiled_gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5, tile: int = 512, margin: int = 128,

@@ -105,14 +105,19 @@ class MetricSemanticMap:
             return [np.zeros(0, dtype=np.int32) for _ in range(p)], np.full(p, -1, dtype=np.int64)
         return self.visibility.images_observing(positions, max_range=max_range)
 
-    def terrain_index(self, min_share: float = 0.5) -> np.ndarray:
+    def terrain_index(self, min_share: float = 0.5, dtype: type = np.int64, chunk: int = 1 << 18) -> np.ndarray:
         """(N,) terrain class index by majority vote, -1 where no vote or the winner's share of the
-        point's votes is below `min_share`."""
+        point's votes is below `min_share`. Computed in chunks of rows so that the temporaries
+        (sums, shares) cost memory for a chunk, not for the map; `dtype` must hold the class count."""
         votes = self.terrain_votes
-        total = votes.sum(axis=1)
-        best = votes.argmax(axis=1)
-        share = np.divide(votes[np.arange(len(votes)), best], total, out=np.zeros(len(votes)), where=total > 0)
-        return np.where((total > 0) & (share >= min_share), best, -1)
+        out = np.empty(len(votes), dtype=dtype)
+        for start in range(0, len(votes), chunk):
+            part = votes[start : start + chunk]
+            total = part.sum(axis=1)
+            best = part.argmax(axis=1)
+            share = np.divide(part[np.arange(len(part)), best], total, out=np.zeros(len(part)), where=total > 0)
+            out[start : start + chunk] = np.where((total > 0) & (share >= min_share), best, -1)
+        return out
 
 
 def ms_avg_norms(counts: sp.csr_matrix, bank: np.ndarray, chunk: int = 65536) -> np.ndarray:

@@ -139,10 +139,12 @@ def _specs(sizes: dict[str, int], cameras: int) -> dict[str, ArraySpec]:
     }
 
 
-def load_map(bundle: Bundle) -> MetricSemanticMap:
+def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     """The MetricSemanticMap stored in `bundle`; TerraError (one line naming the file) when it has
     none or anything in it disagrees with the manifest: dtype, shape, finiteness, ranges, and the
-    structure of the sparse counts and visibility index."""
+    structure of the sparse counts and visibility index. max_ids: False checks the stored MS-Max
+    ids but does not keep them (8 bytes a point; `ms_max_ids` computes them if asked), for callers
+    that never use them, such as `terra build`."""
     if not bundle.has("map/points"):
         raise TerraError(f"{bundle.path}: bundle has no map component; build one with `terra map`")
     sizes, meta = _map_info(bundle)
@@ -178,7 +180,9 @@ def load_map(bundle: Bundle) -> MetricSemanticMap:
     if bundle.has("map/ms_avg_norm"):
         msm._avg_norm = array("map/ms_avg_norm")
     if bundle.has("map/ms_max_id"):
-        msm._max_id = array("map/ms_max_id").astype(np.int64)
+        ids = array("map/ms_max_id")  # checked either way: a damaged file fails every command alike
+        if max_ids:
+            msm._max_id = ids.astype(np.int64)
     return msm
 
 
