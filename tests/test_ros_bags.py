@@ -81,6 +81,28 @@ def test_random_access_equals_sequential_reading(sim_sources):
         np.testing.assert_array_equal(forward[i].point_labels, truth[i].point_labels)
 
 
+@pytest.mark.parametrize("fmt", ["rosbag1", "rosbag2"])
+def test_a_dropped_or_refused_recording_leaves_no_open_file(sim_sources, tmp_path, fmt):
+    import gc
+    import warnings
+
+    from terra.datasets.rosbag import RosbagConfig, RosbagDataset
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        dataset = open_dataset(sim_sources[fmt])
+        assert len(dataset) and dataset[0].points.size
+        reader = dataset.bag.reader
+        del dataset
+        gc.collect()
+        assert reader.stack is None  # closed when the dataset went
+        # A recording refused after it was opened (no such LiDAR topic) is closed at once.
+        with pytest.raises(TerraError, match="no topic '/missing'"):
+            RosbagDataset(sim_sources[fmt], RosbagConfig(lidar_topic="/missing"))
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
+
+
 @pytest.mark.slow
 def test_map_from_the_bag_equals_the_map_from_the_folder(sim_sources, tmp_path):
     """Same counts, bank, points, terrain votes, image embeddings. What differs: T_map_cam by at

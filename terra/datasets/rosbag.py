@@ -110,6 +110,18 @@ class RosbagDataset:
         self.skipped_notes: dict[str, str] = {}
         self._pose_lookup = None  # (TF tree, map frame) when poses come from TF or an odometry topic: deskewing
         self.bag = Bag(self.path)
+        try:
+            self._open(config, show_progress)
+        except BaseException:  # a refused recording leaves no open file behind
+            self.bag.close()
+            raise
+
+    def close(self) -> None:
+        """Close the recording (frames can no longer be read)."""
+        self.bag.close()
+
+    def _open(self, config: RosbagConfig, show_progress: bool) -> None:
+        """Topics, message index, poses, calibrations and frames of the open recording."""
         self.lidar_topic = choose_lidar(self.bag, config.lidar_topic)
         self.camera_topics = choose_cameras(self.bag, config.cameras)
         odom_topic = choose_odometry(self.bag, config.odometry_topic) if config.poses in ("auto", "topic") else None

@@ -178,8 +178,18 @@ class Bag:
             self.start_ns, self.end_ns = int(self.reader.start_time), int(self.reader.end_time)
 
     def close(self) -> None:
-        if self.reader.stack is not None:
-            self.reader.close()
+        """Close the recording's files; again is harmless."""
+        reader = getattr(self, "reader", None)
+        if reader is not None and reader.stack is not None:
+            reader.close()
+
+    def __del__(self) -> None:
+        # Datasets are handed around without a with-block (mapping, evaluation, Dask workers), so
+        # a dropped one closes its files here rather than leaving them to the garbage collector.
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: nothing left to report to
+            pass
 
     def topics_of_type(self, *msgtypes: str) -> list[str]:
         """Topics whose message type is one of `msgtypes` (ROS 2 spelling), sorted."""
