@@ -160,20 +160,8 @@ def run_large(cache: Path, fresh: bool) -> None:
     bundle, stages = sim_and_map("large", cache, fresh)
     work = cache / "large-builds"
     work.mkdir(exist_ok=True)
-    builds = {}
-    for name, tiles in (("one piece", "null"), ("tiles", None)):
-        target = work / f"{name.replace(' ', '-')}.terra"
-        if target.exists():
-            shutil.rmtree(target)
-        shutil.copytree(bundle, target)
-        config = work / f"{name.replace(' ', '-')}.yaml"
-        config.write_text("build: {}\n" if tiles is None else f"build:\n  tiles:\n    size: {tiles}\n")
-        builds[name] = timed(
-            ["build", str(target), "--config", str(config), "-q"], work / f"{name.replace(' ', '-')}.log"
-        )
-        ensure(builds[name], f"terra build ({name})")
-        builds[name]["stats"] = build_stats(target)
-    same = same_graph(work / "one-piece.terra", work / "tiles.terra")
+    builds = build_both(bundle, work, "large")
+    same = builds.pop("same")
     rows = [
         (f"{s} large preset", f"{v['wall_s']} s, {v['peak_rss_mb']} MB peak, {v['output_mb']} MB", "-")
         for s, v in stages.items()
