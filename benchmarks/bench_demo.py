@@ -24,8 +24,17 @@ import time
 from pathlib import Path
 
 TARGET_S = 300.0
-STAGE_ORDER = ["test: simulate", "test: map", "test: graph", "validation: simulate", "validation: map", "validation: graph",
-               "validation: tune", "test: tasks", "eval:"]
+STAGE_ORDER = [
+    "test: simulate",
+    "test: map",
+    "test: graph",
+    "validation: simulate",
+    "validation: map",
+    "validation: graph",
+    "validation: tune",
+    "test: tasks",
+    "eval:",
+]
 
 
 def stage_rank(name: str) -> int:
@@ -81,7 +90,9 @@ def main() -> None:
     }
     print(f"terra demo --preset {preset} --seed {args.seed}")
     print(f"  {'run':<28} {'seconds':>9}")
-    print(f"  {'cold (empty --out)':<28} {cold_s:>9.1f}   target <= {TARGET_S:.0f} s: {'met' if result['meets_target'] else 'MISSED'}")
+    print(
+        f"  {'cold (empty --out)':<28} {cold_s:>9.1f}   target <= {TARGET_S:.0f} s: {'met' if result['meets_target'] else 'MISSED'}"
+    )
     print(f"  {'warm (every step cached)':<28} {warm_s:>9.1f}")
     print("  cold run by stage:")
     for name, sec in result["stages_s"].items():

@@ -56,8 +56,20 @@ def build_models(folder: Path, quick: bool) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     clip = folder / ("clip-tiny" if quick else "clip-vit-b-32-6-layers-random")
     if not (clip / "model.safetensors").is_file():
-        sizes = {} if quick else dict(image_size=224, patch_size=32, hidden=768, layers=6, heads=12,
-                                      projection_dim=512, text_hidden=512, text_heads=8)
+        sizes = (
+            {}
+            if quick
+            else dict(
+                image_size=224,
+                patch_size=32,
+                hidden=768,
+                layers=6,
+                heads=12,
+                projection_dim=512,
+                text_hidden=512,
+                text_heads=8,
+            )
+        )
         save_clip(clip, **sizes)
     terrain, masks = folder / "terrain-seg.onnx", folder / "fastsam.onnx"
     if not terrain.is_file():
@@ -111,8 +123,13 @@ def perceive(spec, dataset, models: dict, work: Path, workers: int | None, threa
         finished = perceive_here(dataset, perception, config, threads)
     else:
         finished, startup, begin = perceive_on_workers(spec, dataset, perception, config, workers, threads)
-    return {"frames": len(dataset), "startup_s": startup, "perception_s": max(finished) - begin,
-            "frames_per_s": steady_rate(finished, warm), "wall_s": time.perf_counter() - start}
+    return {
+        "frames": len(dataset),
+        "startup_s": startup,
+        "perception_s": max(finished) - begin,
+        "frames_per_s": steady_rate(finished, warm),
+        "wall_s": time.perf_counter() - start,
+    }
 
 
 def perceive_here(dataset, perception, config, threads: int) -> list[float]:
@@ -225,8 +242,15 @@ def expected_scaling(one_core_fps: float, ceiling_fps: float, startup_s: float) 
     for n in (1, 2, 4, 8, 16, 32, 64):
         rate = min(n * one_core_fps, ceiling_fps)
         bound = "client" if rate == ceiling_fps else "workers"
-        rows.append({"workers": n, "frames_per_s": rate, "speedup": rate / one_core_fps,
-                     "minutes_for_3001_frames": (startup_s + 3001 / rate) / 60, "bound": bound})
+        rows.append(
+            {
+                "workers": n,
+                "frames_per_s": rate,
+                "speedup": rate / one_core_fps,
+                "minutes_for_3001_frames": (startup_s + 3001 / rate) / 60,
+                "bound": bound,
+            }
+        )
     return rows
 
 
@@ -299,10 +323,19 @@ def main() -> None:
     model = expected_scaling(rate[pair] / 2, ceiling["frames_per_s"], startup[pair])
     maps = {"process": serial["wall_s"], "2 workers": two["wall_s"]}
     result = {
-        "machine": platform.platform(), "cpus": os.cpu_count(), "load_average_1min_at_start": load_start,
-        "load_average_1min_at_end": os.getloadavg()[0], "frames": frames, "quick": args.quick,
-        "runs": runs, "frames_per_s": rate, "startup_s": startup, "client_ceiling": ceiling, "map_wall_s": maps,
-        "map_timers": {"process": serial["timer"], "2 workers": two["timer"]}, "identical": identical,
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": load_start,
+        "load_average_1min_at_end": os.getloadavg()[0],
+        "frames": frames,
+        "quick": args.quick,
+        "runs": runs,
+        "frames_per_s": rate,
+        "startup_s": startup,
+        "client_ceiling": ceiling,
+        "map_wall_s": maps,
+        "map_timers": {"process": serial["timer"], "2 workers": two["timer"]},
+        "identical": identical,
         "expected_scaling": model,
     }
     result["cpu_capacity_2_vs_1"] = capacity

@@ -28,8 +28,12 @@ def main() -> None:
     parser.add_argument("--preset", default="small")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument("--json", type=Path, default=Path(__file__).resolve().parent / "results" / "figures.json",
-                        help="where to write the JSON (one file per tree when comparing two)")
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=Path(__file__).resolve().parent / "results" / "figures.json",
+        help="where to write the JSON (one file per tree when comparing two)",
+    )
     args = parser.parse_args()
     load = os.getloadavg()[0]
     import terra
@@ -55,12 +59,30 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as out:
             wall, cpu = time.perf_counter(), time.process_time()
             figures = write_figures(Path(out), inputs, summary, task, retrieval, monitoring, config)
-            runs.append({"wall_s": round(time.perf_counter() - wall, 2), "cpu_s": round(time.process_time() - cpu, 2),
-                         "figures": len(figures), "bytes": sum(p.stat().st_size for p in Path(out).rglob("*.png"))})
-    result = {"tree": Path(terra.__file__).resolve().parents[1].name, "scene": scene.name, "runs": runs,
-              "load_average_1min_at_start": load, "cpus": os.cpu_count(), "machine": platform.platform()}
-    rows = [(f"write_figures, run {i + 1}", f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU, {r['figures']} PNGs, "
-             f"{r['bytes'] / 2**20:.2f} MiB", "-") for i, r in enumerate(runs)]
+            runs.append(
+                {
+                    "wall_s": round(time.perf_counter() - wall, 2),
+                    "cpu_s": round(time.process_time() - cpu, 2),
+                    "figures": len(figures),
+                    "bytes": sum(p.stat().st_size for p in Path(out).rglob("*.png")),
+                }
+            )
+    result = {
+        "tree": Path(terra.__file__).resolve().parents[1].name,
+        "scene": scene.name,
+        "runs": runs,
+        "load_average_1min_at_start": load,
+        "cpus": os.cpu_count(),
+        "machine": platform.platform(),
+    }
+    rows = [
+        (
+            f"write_figures, run {i + 1}",
+            f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU, {r['figures']} PNGs, {r['bytes'] / 2**20:.2f} MiB",
+            "-",
+        )
+        for i, r in enumerate(runs)
+    ]
     report(rows, result, args.json)
 
 

@@ -101,11 +101,28 @@ def child(case: str, n: int) -> dict:
         skeleton, _ = gvd(free, min_clearance=1.0, min_gap=1.5)
         t_gvd = time.perf_counter() - t0
         t0 = time.perf_counter()
-        places = extract_places(free, min_clearance=1.0, min_gap=1.5, prune_ratio=1.5, prune_length=2.5, junction_merge=1.0, max_deviation=9.375, max_distance=25.0)
+        places = extract_places(
+            free,
+            min_clearance=1.0,
+            min_gap=1.5,
+            prune_ratio=1.5,
+            prune_length=2.5,
+            junction_merge=1.0,
+            max_deviation=9.375,
+            max_distance=25.0,
+        )
         t_places = time.perf_counter() - t0
         peak = tracemalloc.get_traced_memory()[1] / 2**20
-        return {"case": f"GVD {n} x {n}", "seconds": t_gvd, "places_seconds": t_places, "free_share": float(free.mean()),
-                "gvd_cells": int(skeleton.sum()), "places": int(len(places.cells)), "tracemalloc_peak_mb": peak, "rss_increase_mb": _rss_mb() - base}
+        return {
+            "case": f"GVD {n} x {n}",
+            "seconds": t_gvd,
+            "places_seconds": t_places,
+            "free_share": float(free.mean()),
+            "gvd_cells": int(skeleton.sum()),
+            "places": int(len(places.cells)),
+            "tracemalloc_peak_mb": peak,
+            "rss_increase_mb": _rss_mb() - base,
+        }
     pos, emb, terrain, edges = synthetic_places(n)
     base = _rss_mb()
     tracemalloc.start()
@@ -119,8 +136,14 @@ def child(case: str, n: int) -> dict:
     seconds = time.perf_counter() - t0
     peak = tracemalloc.get_traced_memory()[1] / 2**20
     name = case if case == "agglomerative" else "spectral (stop_rule both)"
-    return {"case": f"{name} {n} places", "seconds": seconds, "regions": [int(len(np.unique(x))) for x in labels],
-            "tracemalloc_peak_mb": peak, "rss_increase_mb": _rss_mb() - base, "rss_peak_mb": _rss_mb()}
+    return {
+        "case": f"{name} {n} places",
+        "seconds": seconds,
+        "regions": [int(len(np.unique(x))) for x in labels],
+        "tracemalloc_peak_mb": peak,
+        "rss_increase_mb": _rss_mb() - base,
+        "rss_peak_mb": _rss_mb(),
+    }
 
 
 def in_child(case: str, n: int, timeout: float) -> dict:
@@ -143,7 +166,13 @@ def bench_build(bundle: Path, repeat: int) -> list[dict]:
 
     rows = []
     if not (bundle / "manifest.json").is_file():
-        return [{"case": f"terra build {bundle}", "seconds": None, "note": "bundle not found (run terra sim + terra map first)"}]
+        return [
+            {
+                "case": f"terra build {bundle}",
+                "seconds": None,
+                "note": "bundle not found (run terra sim + terra map first)",
+            }
+        ]
     manifest = Bundle(bundle).manifest
     with tempfile.TemporaryDirectory(prefix="bench-graph-") as tmp:
         work = Path(tmp) / bundle.name
@@ -155,12 +184,18 @@ def bench_build(bundle: Path, repeat: int) -> list[dict]:
                 result = run_build(work, regions=method, show_progress=False)
                 times.append(time.perf_counter() - t0)
             g = result.graph
-            rows.append({
-                "case": f"terra build ({method})", "seconds": min(times), "runs": times,
-                "map_points": manifest.get("counts", {}).get("points"),
-                "places": len(g.places), "place_edges": int(len(g.place_edges)),
-                "regions": [len(level) for level in g.regions], "stages": result.timer.to_json(),
-            })
+            rows.append(
+                {
+                    "case": f"terra build ({method})",
+                    "seconds": min(times),
+                    "runs": times,
+                    "map_points": manifest.get("counts", {}).get("points"),
+                    "places": len(g.places),
+                    "place_edges": int(len(g.place_edges)),
+                    "regions": [len(level) for level in g.regions],
+                    "stages": result.timer.to_json(),
+                }
+            )
     return rows
 
 
@@ -193,20 +228,45 @@ def main() -> None:
             scaling.append(in_child(case, n, args.timeout))
             print(f"  {scaling[-1]['case']}: {scaling[-1].get('seconds')}", file=sys.stderr)
 
-    targets = {"terra build (agglomerative)": 30.0, "terra build (spectral)": 30.0, f"GVD {args.grid} x {args.grid}": 3.0, f"agglomerative {args.places} places": 20.0}
+    targets = {
+        "terra build (agglomerative)": 30.0,
+        "terra build (spectral)": 30.0,
+        f"GVD {args.grid} x {args.grid}": 3.0,
+        f"agglomerative {args.places} places": 20.0,
+    }
     memory_target_mb = {f"agglomerative {args.places} places": 2048.0}
     print(f"{'case':34s} {'seconds':>9s} {'target':>8s} {'RSS+ MB':>8s} {'traced MB':>9s}  detail")
     for row in rows + scaling:
         sec = "-" if row.get("seconds") is None else f"{row['seconds']:.2f}"
         tgt = targets.get(row["case"])
         rss, traced = row.get("rss_increase_mb"), row.get("tracemalloc_peak_mb")
-        detail = row.get("note") or ", ".join(f"{k} {row[k]:.2f}" if isinstance(row[k], float) else f"{k} {row[k]}" for k in ("places", "regions", "places_seconds", "gvd_cells") if k in row)
-        print(f"{row['case']:34s} {sec:>9s} {('<= %g' % tgt) if tgt else '':>8s} {'' if rss is None else f'{rss:8.0f}':>8s} {'' if traced is None else f'{traced:9.0f}':>9s}  {detail}")
+        detail = row.get("note") or ", ".join(
+            f"{k} {row[k]:.2f}" if isinstance(row[k], float) else f"{k} {row[k]}"
+            for k in ("places", "regions", "places_seconds", "gvd_cells")
+            if k in row
+        )
+        print(
+            f"{row['case']:34s} {sec:>9s} {('<= %g' % tgt) if tgt else '':>8s} {'' if rss is None else f'{rss:8.0f}':>8s} {'' if traced is None else f'{traced:9.0f}':>9s}  {detail}"
+        )
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({
-        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
-        "quick": args.quick, "targets_seconds": targets, "targets_memory_mb": memory_target_mb, "rows": rows, "scaling": scaling,
-    }, indent=1, sort_keys=True) + "\n")
+    RESULTS.write_text(
+        json.dumps(
+            {
+                "machine": {
+                    "python": platform.python_version(),
+                    "processor": platform.processor() or platform.machine(),
+                },
+                "quick": args.quick,
+                "targets_seconds": targets,
+                "targets_memory_mb": memory_target_mb,
+                "rows": rows,
+                "scaling": scaling,
+            },
+            indent=1,
+            sort_keys=True,
+        )
+        + "\n"
+    )
     print(f"wrote {RESULTS}")
 
 

@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from benchtable import report
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +61,9 @@ def bench_fusion(preset: str, n_frames: int) -> dict:
         c0, t0 = time.process_time(), time.perf_counter()
         points_map, index = fusion.associate(frame.points, frame.T_map_lidar)
         for camera, s in zip(frame.cameras, seen):
-            fusion.integrate_image(frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, s)
+            fusion.integrate_image(
+                frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, s
+            )
         per_frame.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     t0 = time.perf_counter()
@@ -128,34 +129,63 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="20 frames and the tiny preset instead of the campus")
     parser.add_argument("--preset", default="small", help="simulated preset of the fusion timing")
     parser.add_argument("--frames", type=int, default=150, help="frames of the fusion timing")
-    parser.add_argument("--dataset", type=Path, default=Path("/work/bench-cache/campus-sim"), help="campus dataset folder")
-    parser.add_argument("--map-out", type=Path, default=Path("/work/bench-cache/campus-map"), help="campus bundle to write")
+    parser.add_argument(
+        "--dataset", type=Path, default=Path("/work/bench-cache/campus-sim"), help="campus dataset folder"
+    )
+    parser.add_argument(
+        "--map-out", type=Path, default=Path("/work/bench-cache/campus-map"), help="campus bundle to write"
+    )
     parser.add_argument("--skip-campus", action="store_true", help="only the fusion timing")
-    parser.add_argument("--result", type=Path, default=None, help="JSON to write (default results/mapping.json, mapping-quick.json with --quick)")
+    parser.add_argument(
+        "--result",
+        type=Path,
+        default=None,
+        help="JSON to write (default results/mapping.json, mapping-quick.json with --quick)",
+    )
     args = parser.parse_args()
 
     frames = 20 if args.quick else args.frames
-    args.result = args.result or ROOT / "benchmarks" / "results" / ("mapping-quick.json" if args.quick else "mapping.json")
-    result: dict = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
-                    "cpus": os.cpu_count(), "load_average_1min_at_start": os.getloadavg()[0], "quick": args.quick}
+    args.result = args.result or ROOT / "benchmarks" / "results" / (
+        "mapping-quick.json" if args.quick else "mapping.json"
+    )
+    result: dict = {
+        "machine": platform.processor() or platform.machine(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "quick": args.quick,
+    }
     result["fusion"] = f = bench_fusion(args.preset, frames)
-    rows = [(f"fusion per frame ({f['preset']}, {f['frames']} frames, {f['cameras_per_frame']} camera, "
-             f"~{f['scan_points_median']:,} pts/scan)",
-             f"{f['median_ms']:.1f} ms median (p90 {f['p90_ms']:.1f}, max {f['max_ms']:.1f}, cpu {f['cpu_median_ms']:.1f})", "<= 50 ms"),
-            ("  labels perception per frame (not fusion)", f"{f['labels_perception_median_ms']:.1f} ms median", "-")]
+    rows = [
+        (
+            f"fusion per frame ({f['preset']}, {f['frames']} frames, {f['cameras_per_frame']} camera, "
+            f"~{f['scan_points_median']:,} pts/scan)",
+            f"{f['median_ms']:.1f} ms median (p90 {f['p90_ms']:.1f}, max {f['max_ms']:.1f}, cpu {f['cpu_median_ms']:.1f})",
+            "<= 50 ms",
+        ),
+        ("  labels perception per frame (not fusion)", f"{f['labels_perception_median_ms']:.1f} ms median", "-"),
+    ]
     if not args.skip_campus:
         if args.quick:
             tmp = Path(tempfile.mkdtemp(prefix="bench-mapping-"))
             source, out, label = ["--sim", "tiny"], tmp / "tiny.terra", "tiny preset"
         else:
             if not (args.dataset / "manifest.json").exists() and not args.dataset.is_dir():
-                raise SystemExit(f"{args.dataset}: no such dataset folder (generate it with `terra sim campus --out ...`)")
+                raise SystemExit(
+                    f"{args.dataset}: no such dataset folder (generate it with `terra sim campus --out ...`)"
+                )
             source, out, label = [str(args.dataset)], args.map_out, "campus preset"
         result["map"] = m = bench_map_command(source, out)
         result["map"]["label"] = label
-        rows += [(f"terra map, {label} ({m['frames_fused']} frames, {m['points']:,} points)", f"{m['wall_s']:.1f} s wall", "-"),
-                 (f"bundle size, {label}", f"{m['bundle_mb']:.1f} MB", "<= 150 MB"),
-                 (f"peak memory of terra map, {label}", f"{m['peak_rss_mb']:.0f} MB", "<= 4096 MB")]
+        rows += [
+            (
+                f"terra map, {label} ({m['frames_fused']} frames, {m['points']:,} points)",
+                f"{m['wall_s']:.1f} s wall",
+                "-",
+            ),
+            (f"bundle size, {label}", f"{m['bundle_mb']:.1f} MB", "<= 150 MB"),
+            (f"peak memory of terra map, {label}", f"{m['peak_rss_mb']:.0f} MB", "<= 4096 MB"),
+        ]
         if args.quick:
             shutil.rmtree(out.parent, ignore_errors=True)
     report(rows, result, args.result)

@@ -70,19 +70,24 @@ def measure(folder: Path, config_overrides: dict) -> dict:
     seen = observed_cells(gt.terrain, msm.points[msm.terrain_index(0.5) >= 0])
     labelled = same_terrain_connectivity(build.graph, gt.terrain, seen)
     links, link_seconds = grid_link_seconds(msm, config)
-    return {"places": len(build.graph.places), "labelled_ground": labelled.to_json(),
-            "whole_raster": same_terrain_connectivity(build.graph, gt.terrain).to_json(),
-            "unjoined_per_terrain": {k: v.pairs - v.joined for k, v in labelled.per_terrain.items()
-                                     if v.pairs > v.joined},
-            "terrain_agreement": place_terrain_agreement(build.graph, gt.terrain).to_json(),
-            "grid_links": links, "grid_link_seconds": link_seconds, "build_seconds": build_seconds,
-            "edges": build.stats["edges"]}
+    return {
+        "places": len(build.graph.places),
+        "labelled_ground": labelled.to_json(),
+        "whole_raster": same_terrain_connectivity(build.graph, gt.terrain).to_json(),
+        "unjoined_per_terrain": {k: v.pairs - v.joined for k, v in labelled.per_terrain.items() if v.pairs > v.joined},
+        "terrain_agreement": place_terrain_agreement(build.graph, gt.terrain).to_json(),
+        "grid_links": links,
+        "grid_link_seconds": link_seconds,
+        "build_seconds": build_seconds,
+        "edges": build.stats["edges"],
+    }
 
 
 def rows(result: dict) -> list[tuple[str, str, str]]:
     """'before -> after' of each figure, per map."""
     out = []
     for name, by_config in result["maps"].items():
+
         def side(get, by_config=by_config) -> str:
             return " -> ".join(get(by_config[c]) for c in CONFIGS)
 
@@ -91,29 +96,47 @@ def rows(result: dict) -> list[tuple[str, str, str]]:
             return f"{m['places']} / {agreement['share']:.3f} / {agreement['farther_than_m']['1']}"
 
         pairs = by_config["after"]["labelled_ground"]["pairs"]
-        out.append((f"{name}: pairs joined, labelled ground (of pairs)",
-                    side(lambda m: f"{m['labelled_ground']['joined_share']:.4f}") + f" (of {pairs:,})", ">= 0.99"))
-        out.append((f"{name}: unjoined pairs per terrain",
-                    side(lambda m: str(m["unjoined_per_terrain"] or "none")), "-"))
-        out.append((f"{name}: pairs joined, whole raster",
-                    side(lambda m: f"{m['whole_raster']['joined_share']:.4f}"), "-"))
+        out.append(
+            (
+                f"{name}: pairs joined, labelled ground (of pairs)",
+                side(lambda m: f"{m['labelled_ground']['joined_share']:.4f}") + f" (of {pairs:,})",
+                ">= 0.99",
+            )
+        )
+        out.append(
+            (f"{name}: unjoined pairs per terrain", side(lambda m: str(m["unjoined_per_terrain"] or "none")), "-")
+        )
+        out.append(
+            (f"{name}: pairs joined, whole raster", side(lambda m: f"{m['whole_raster']['joined_share']:.4f}"), "-")
+        )
         out.append((f"{name}: places / on own terrain / > 1 m from it", side(places), "no worse"))
-        out.append((f"{name}: grid links / their step s / build s",
-                    side(lambda m: f"{m['grid_links']} / {m['grid_link_seconds']:.2f} / {m['build_seconds']:.1f}"),
-                    "small"))
+        out.append(
+            (
+                f"{name}: grid links / their step s / build s",
+                side(lambda m: f"{m['grid_links']} / {m['grid_link_seconds']:.2f} / {m['build_seconds']:.1f}"),
+                "small",
+            )
+        )
     return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", type=Path,
-                        default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14")))
+    parser.add_argument(
+        "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
+    )
     parser.add_argument("--maps", default=MAPS, help="comma-separated PRESET-seedN folders of --cache")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "places_links.json", help="JSON written")
     args = parser.parse_args()
-    result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"),
-              "configs": CONFIGS, "maps": {}}
+    result = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "date": time.strftime("%Y-%m-%d"),
+        "configs": CONFIGS,
+        "maps": {},
+    }
     for name in args.maps.split(","):
         result["maps"][name] = {c: measure(args.cache / name, overrides) for c, overrides in CONFIGS.items()}
     report(rows(result), result, args.out)

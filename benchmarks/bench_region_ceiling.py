@@ -65,7 +65,10 @@ def map_point_embeddings(msm, position: np.ndarray, radius: float) -> np.ndarray
     terrain = msm.terrain_index(0.5)
     ground = np.flatnonzero(terrain >= 0)
     out = np.zeros((len(position), msm.dim), np.float64)
-    for xy, f in ((msm.points[seen, :2], features), (msm.points[ground, :2], np.asarray(msm.terrain_embeddings, np.float32)[terrain[ground]])):
+    for xy, f in (
+        (msm.points[seen, :2], features),
+        (msm.points[ground, :2], np.asarray(msm.terrain_embeddings, np.float32)[terrain[ground]]),
+    ):
         for i, near in enumerate(cKDTree(xy).query_ball_point(position[:, :2], radius)):
             if near:
                 out[i] += f[near].mean(axis=0)
@@ -113,8 +116,12 @@ def with_regions(graph, embedding: np.ndarray, method: str):
 
     config = BuildConfig.model_validate({"regions": {"method": method}})
     p = graph.places
-    levels = build_levels(region_assignments(p.position, embedding, p.terrain, graph.place_edges, config), p.position, embedding)
-    return replace(graph, places=replace(p, embedding=embedding.astype(np.float32)), regions=levels, region_method=method)
+    levels = build_levels(
+        region_assignments(p.position, embedding, p.terrain, graph.place_edges, config), p.position, embedding
+    )
+    return replace(
+        graph, places=replace(p, embedding=embedding.astype(np.float32)), regions=levels, region_method=method
+    )
 
 
 def grid(n_levels: int):
@@ -123,8 +130,14 @@ def grid(n_levels: int):
 
     levels = [None] + list(range(1, n_levels))
     lows = [None] + ([2] if n_levels >= 2 else [])
-    return [MonitorParams(a, k, lv, lo) for lo in lows for lv in levels if (lv or n_levels) >= (lo or 1)
-            for k in range(1, K_MAX + 1) for a in ALPHAS]
+    return [
+        MonitorParams(a, k, lv, lo)
+        for lo in lows
+        for lv in levels
+        if (lv or n_levels) >= (lo or 1)
+        for k in range(1, K_MAX + 1)
+        for a in ALPHAS
+    ]
 
 
 def f1_of(graph, gt, truth, params, embedder) -> float:
@@ -135,7 +148,9 @@ def f1_of(graph, gt, truth, params, embedder) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14")))
+    parser.add_argument(
+        "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
+    )
     parser.add_argument("--seeds", default="0,2,3")
     parser.add_argument("--validation-seed", type=int, default=1)
     parser.add_argument("--radii", default="10,20")
@@ -161,9 +176,17 @@ def main() -> None:
     for r in radii:
         rules[f"map points {r:g} m"] = lambda msm, graph, gt, r=r: map_point_embeddings(msm, graph.places.position, r)
     for r in radii:
-        rules[f"ground truth {r:g} m"] = lambda msm, graph, gt, r=r: ground_truth_embeddings(gt, graph.places.position, r, embedder)
-    result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "rules": {}}
+        rules[f"ground truth {r:g} m"] = lambda msm, graph, gt, r=r: ground_truth_embeddings(
+            gt, graph.places.position, r, embedder
+        )
+    result = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "date": time.strftime("%Y-%m-%d"),
+        "rules": {},
+    }
     for name, rule in rules.items():
         entry = {}
         for method in ("agglomerative", "spectral"):
@@ -190,9 +213,20 @@ def rows(result: dict, seeds: list[int]) -> list[tuple[str, str, str]]:
     for name, entry in result["rules"].items():
         for method, target in (("agglomerative", ">= 0.70"), ("spectral", ">= 0.60")):
             s = entry[method]["seeds"]
-            out.append((f"{name}: {method} F1 seed {' / '.join(map(str, seeds))} (first: validation)",
-                        " / ".join(f"{s[k]['f1']:.3f}" for k in seeds), target))
-            out.append((f"{name}: {method} best single region ceiling", " / ".join(f"{s[k]['best_region_ceiling']:.3f}" for k in seeds), "-"))
+            out.append(
+                (
+                    f"{name}: {method} F1 seed {' / '.join(map(str, seeds))} (first: validation)",
+                    " / ".join(f"{s[k]['f1']:.3f}" for k in seeds),
+                    target,
+                )
+            )
+            out.append(
+                (
+                    f"{name}: {method} best single region ceiling",
+                    " / ".join(f"{s[k]['best_region_ceiling']:.3f}" for k in seeds),
+                    "-",
+                )
+            )
     return out
 
 

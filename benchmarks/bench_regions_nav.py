@@ -38,13 +38,24 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
 from benchmarks.benchtable import report  # noqa: E402
 
-TARGETS = {"agglomerative_f1": 0.70, "spectral_f1": 0.60, "matched_iou": 0.5, "retrieval_f1": 0.75, "sidewalk_share": 0.8,
-           "connectivity": 0.99, "box_side": 0.05}
+TARGETS = {
+    "agglomerative_f1": 0.70,
+    "spectral_f1": 0.60,
+    "matched_iou": 0.5,
+    "retrieval_f1": 0.75,
+    "sidewalk_share": 0.8,
+    "connectivity": 0.99,
+    "box_side": 0.05,
+}
 # Session 4 compares, on the same graphs (the default build), main's task settings ("before":
 # planner penalty 1, every retrieval cluster kept, 3DSG never widened) with this checkout's defaults.
-CONFIGS = {"before": {"build": {}, "tasks": {"planning": {"default_penalty": 1.0},
-                                             "retrieval": {"standing_only": False, "sg_widen": False}}},
-           "after": {"build": {}, "tasks": {}}}
+CONFIGS = {
+    "before": {
+        "build": {},
+        "tasks": {"planning": {"default_penalty": 1.0}, "retrieval": {"standing_only": False, "sg_widen": False}},
+    },
+    "after": {"build": {}, "tasks": {}},
+}
 PENALTY_GRID = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0]  # planner penalties swept on the validation seed
 
 
@@ -54,9 +65,15 @@ def ensure_map(cache: Path, preset: str, seed: int) -> tuple[Path, Path]:
     dataset, bundle = folder / "dataset", folder / "map.terra"
     folder.mkdir(parents=True, exist_ok=True)
     if not dataset.exists():
-        subprocess.run([sys.executable, "-m", "terra", "sim", "--preset", preset, "--seed", str(seed), "--out", str(dataset)], check=True)
+        subprocess.run(
+            [sys.executable, "-m", "terra", "sim", "--preset", preset, "--seed", str(seed), "--out", str(dataset)],
+            check=True,
+        )
     if not bundle.exists():
-        subprocess.run([sys.executable, "-m", "terra", "map", str(dataset), "--out", str(bundle), "--noise", "realistic", "-q"], check=True)
+        subprocess.run(
+            [sys.executable, "-m", "terra", "map", str(dataset), "--out", str(bundle), "--noise", "realistic", "-q"],
+            check=True,
+        )
     return dataset, bundle
 
 
@@ -95,7 +112,12 @@ def levels_of(bundle: Path, method: str, cuts: list[float] | None = None) -> lis
     graph = load_scene_graph(Bundle(bundle))
     config = BuildConfig.model_validate({"regions": {"method": method, "cuts": cuts}})
     p = graph.places
-    return [len(level) for level in build_levels(region_assignments(p.position, p.embedding, p.terrain, graph.place_edges, config), p.position, p.embedding)]
+    return [
+        len(level)
+        for level in build_levels(
+            region_assignments(p.position, p.embedding, p.terrain, graph.place_edges, config), p.position, p.embedding
+        )
+    ]
 
 
 def connectivity(bundle: Path, dataset: Path) -> dict:
@@ -107,9 +129,12 @@ def connectivity(bundle: Path, dataset: Path) -> dict:
 
     graph, msm, gt = load_scene_graph(Bundle(bundle)), load_map(Bundle(bundle)), load_ground_truth(dataset)
     seen = observed_cells(gt.terrain, msm.points[msm.terrain_index(0.5) >= 0])
-    return {"places": len(graph.places), "whole_raster": same_terrain_connectivity(graph, gt.terrain).to_json(),
-            "labelled_ground": same_terrain_connectivity(graph, gt.terrain, seen).to_json(),
-            "terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json()}
+    return {
+        "places": len(graph.places),
+        "whole_raster": same_terrain_connectivity(graph, gt.terrain).to_json(),
+        "labelled_ground": same_terrain_connectivity(graph, gt.terrain, seen).to_json(),
+        "terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json(),
+    }
 
 
 def scene_extras(bundle: Path, dataset: Path) -> dict:
@@ -134,7 +159,12 @@ def validation_penalty_sweep(bundle: Path, dataset: Path, config) -> dict:
     seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
     pairs = terrain_route_pairs(inputs.graph, inputs.gt.terrain, nav.prefer[0], seen, max_pairs=10**9)
     points = penalty_sweep(inputs.graph, inputs.gt.terrain, pairs, nav.prefer[0], PENALTY_GRID, nav.min_share, nav.step)
-    return {"terrain": nav.prefer[0], "pairs": len(pairs), "chosen": choose_penalty(points), "points": [p.to_json() for p in points]}
+    return {
+        "terrain": nav.prefer[0],
+        "pairs": len(pairs),
+        "chosen": choose_penalty(points),
+        "points": [p.to_json() for p in points],
+    }
 
 
 def test_scene(summary: dict) -> dict:
@@ -142,13 +172,36 @@ def test_scene(summary: dict) -> dict:
     reg, ret, nav = summary["regions"]["methods"], summary["retrieval"]["methods"], summary["navigation"]
     routes = nav.get("preference_routes", {})
     return {
-        "regions": {m: {k: reg[m][k] for k in ("precision", "recall", "f1", "regions_ms", "query_ms", "runtime_ms", "parameters")} for m in reg},
+        "regions": {
+            m: {
+                k: reg[m][k]
+                for k in ("precision", "recall", "f1", "regions_ms", "query_ms", "runtime_ms", "parameters")
+            }
+            for m in reg
+        },
         "regions_per_level": summary["regions"]["regions_per_level"],
-        "retrieval": {m: {k: ret[m][k] for k in ("f1", "iou", "matched_iou", "relaxed_accuracy", "relaxed_precision", "smallest_box_side_m",
-                                                 "alpha", "iou_by_distance")} for m in ret},
-        "navigation": {"preference_routes": routes, "case": nav.get("preference_case"),
-                       "task_plans": {k: nav[k] for k in ("plans", "goal_object", "error", "candidates", "alpha") if k in nav},
-                       "skipped": nav.get("skipped", [])},
+        "retrieval": {
+            m: {
+                k: ret[m][k]
+                for k in (
+                    "f1",
+                    "iou",
+                    "matched_iou",
+                    "relaxed_accuracy",
+                    "relaxed_precision",
+                    "smallest_box_side_m",
+                    "alpha",
+                    "iou_by_distance",
+                )
+            }
+            for m in ret
+        },
+        "navigation": {
+            "preference_routes": routes,
+            "case": nav.get("preference_case"),
+            "task_plans": {k: nav[k] for k in ("plans", "goal_object", "error", "candidates", "alpha") if k in nav},
+            "skipped": nav.get("skipped", []),
+        },
         "places": summary["places"],
     }
 
@@ -158,7 +211,6 @@ def run_config(name: str, overrides: dict, args, eval_config) -> dict:
     the paper's cuts, and the other presets."""
     from terra.eval.inputs import EvalInputs
     from terra.eval.runner import evaluate, tune
-
     from terra.tasks.config import TasksConfig
 
     work = args.work / "graphs"
@@ -173,20 +225,30 @@ def run_config(name: str, overrides: dict, args, eval_config) -> dict:
     out["small"] = {}
     for seed in [int(s) for s in args.seeds.split(",")]:
         dataset, bundle, build_s = graph_bundle(args.cache, "small", seed, work, overrides)
-        summary = evaluate(bundle, dataset, args.work / name / f"report-seed{seed}", eval_config, tuned, tasks, show_progress=False)
+        summary = evaluate(
+            bundle, dataset, args.work / name / f"report-seed{seed}", eval_config, tuned, tasks, show_progress=False
+        )
         out["small"][seed] = {**test_scene(summary), **scene_extras(bundle, dataset), "build_seconds": build_s}
-    out["small_paper_cuts"] = {"seed": seed, "regions_per_level": levels_of(bundle, "agglomerative", [50.0, 100.0, 200.0, 400.0])}
+    out["small_paper_cuts"] = {
+        "seed": seed,
+        "regions_per_level": levels_of(bundle, "agglomerative", [50.0, 100.0, 200.0, 400.0]),
+    }
     out["presets"] = {}
     for preset in ["tiny"] + ([] if args.no_campus else ["campus"]):
         dataset, bundle, build_s = graph_bundle(args.cache, preset, 0, work, overrides)
-        out["presets"][preset] = {**connectivity(bundle, dataset), "build_seconds": build_s,
-                                  "regions_per_level": {m: levels_of(bundle, m) for m in ("agglomerative", "spectral")}}
+        out["presets"][preset] = {
+            **connectivity(bundle, dataset),
+            "build_seconds": build_s,
+            "regions_per_level": {m: levels_of(bundle, m) for m in ("agglomerative", "spectral")},
+        }
     return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14")))
+    parser.add_argument(
+        "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
+    )
     parser.add_argument("--work", type=Path, default=None, help="where graphs and reports go (default: CACHE/bench)")
     parser.add_argument("--seeds", default="0,2,3")
     parser.add_argument("--validation-seed", type=int, default=1)
@@ -196,8 +258,14 @@ def main() -> None:
     args.work = args.work or args.cache / "bench"
     from terra.eval.config import EvalConfig
 
-    result = {"machine": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-              "load_average_1min_at_start": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d"), "targets": TARGETS}
+    result = {
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "date": time.strftime("%Y-%m-%d"),
+        "targets": TARGETS,
+    }
     config = EvalConfig.model_validate({"figures": False, "segmentation": {"max_images": 0}})
     result["configs"] = {name: run_config(name, overrides, args, config) for name, overrides in CONFIGS.items()}
     val_data, val_bundle, _ = graph_bundle(args.cache, "small", args.validation_seed, args.work / "graphs", {})
@@ -222,49 +290,180 @@ def rows(result: dict) -> list[tuple[str, str, str]]:
     out = []
     first = next(iter(result["configs"].values()))
     for seed in first["small"]:
+
         def sc(c, seed=seed):
             return c["small"][seed]
+
         for m, target in (("agglomerative", ">= 0.70"), ("spectral", ">= 0.60"), ("aib", "below both")):
             out.append((f"seed {seed}: regions F1 {m}", side(result, lambda c, m=m: sc(c)["regions"][m]["f1"]), target))
-        out.append((f"seed {seed}: regions runtime ms (build + query) agg / spec / AIB",
-                    side(result, lambda c: " / ".join(f"{sc(c)['regions'][m]['runtime_ms']:.0f}" for m in ("agglomerative", "spectral", "aib")), "{}"), "-"))
-        out.append((f"seed {seed}: regions per level agg ; spec",
-                    side(result, lambda c: " ; ".join("/".join(map(str, v)) for v in sc(c)["regions_per_level"].values()), "{}"), "strictly decreasing"))
+        out.append(
+            (
+                f"seed {seed}: regions runtime ms (build + query) agg / spec / AIB",
+                side(
+                    result,
+                    lambda c: " / ".join(
+                        f"{sc(c)['regions'][m]['runtime_ms']:.0f}" for m in ("agglomerative", "spectral", "aib")
+                    ),
+                    "{}",
+                ),
+                "-",
+            )
+        )
+        out.append(
+            (
+                f"seed {seed}: regions per level agg ; spec",
+                side(
+                    result,
+                    lambda c: " ; ".join("/".join(map(str, v)) for v in sc(c)["regions_per_level"].values()),
+                    "{}",
+                ),
+                "strictly decreasing",
+            )
+        )
         for m in ("ms-avg", "3dsg"):
-            out.append((f"seed {seed}: retrieval {m} F1 / matched IoU / thinnest side m",
-                        side(result, lambda c, m=m: "{:.3f} / {:.3f} / {:.2f}".format(*(sc(c)["retrieval"][m][k] for k in ("f1", "matched_iou", "smallest_box_side_m"))), "{}"),
-                        ">= 0.75 / >= 0.5 / >= 0.05"))
-        out.append((f"seed {seed}: sidewalk preferred: mean share / pairs >= 80%",
-                    side(result, lambda c: "{:.3f} / {:.3f}".format(sc(c)["navigation"]["preference_routes"]["preferred_mean_share"],
-                                                                     sc(c)["navigation"]["preference_routes"]["fraction_meeting"]), "{}"), ">= 0.8 where a sidewalk route exists"))
-        out.append((f"seed {seed}: task plan: goal object score (or why none)",
-                    side(result, lambda c: "{:.3f}".format(sc(c)["navigation"]["task_plans"]["goal_object"]["score"])
-                         if "goal_object" in (sc(c)["navigation"]["task_plans"] or {}) else "none", "{}"), "an object"))
-        out.append((f"seed {seed}: navigation case sidewalk m shortest / preferred",
-                    side(result, lambda c: " / ".join(f"{p['gt_terrain_m'].get('sidewalk', 0):.1f} of {p['length_m']:.1f}"
-                                                      for p in sc(c)["navigation"]["case"]["plans"].values()), "{}"), "a change"))
-        out.append((f"seed {seed}: places / same-terrain pairs joined (labelled ground ; raster)",
-                    side(result, lambda c: "{} / {:.3f} ; {:.3f}".format(sc(c)["places"]["places"], sc(c)["places"]["connectivity_seen"]["joined_share"],
-                                                                         sc(c)["places"]["connectivity"]["joined_share"]), "{}"), ">= 0.99"))
-        out.append((f"seed {seed}: places on their own terrain / > 1 m from it",
-                    side(result, lambda c: "{:.3f} / {}".format(sc(c)["terrain_agreement"]["share"], sc(c)["terrain_agreement"]["farther_than_m"]["1"]), "{}"), "-"))
-    out.append(("small: regions per level with --cuts 50,100,200,400",
-                side(result, lambda c: "/".join(map(str, c["small_paper_cuts"]["regions_per_level"])), "{}"), "the paper's"))
+            out.append(
+                (
+                    f"seed {seed}: retrieval {m} F1 / matched IoU / thinnest side m",
+                    side(
+                        result,
+                        lambda c, m=m: "{:.3f} / {:.3f} / {:.2f}".format(
+                            *(sc(c)["retrieval"][m][k] for k in ("f1", "matched_iou", "smallest_box_side_m"))
+                        ),
+                        "{}",
+                    ),
+                    ">= 0.75 / >= 0.5 / >= 0.05",
+                )
+            )
+        out.append(
+            (
+                f"seed {seed}: sidewalk preferred: mean share / pairs >= 80%",
+                side(
+                    result,
+                    lambda c: "{:.3f} / {:.3f}".format(
+                        sc(c)["navigation"]["preference_routes"]["preferred_mean_share"],
+                        sc(c)["navigation"]["preference_routes"]["fraction_meeting"],
+                    ),
+                    "{}",
+                ),
+                ">= 0.8 where a sidewalk route exists",
+            )
+        )
+        out.append(
+            (
+                f"seed {seed}: task plan: goal object score (or why none)",
+                side(
+                    result,
+                    lambda c: (
+                        "{:.3f}".format(sc(c)["navigation"]["task_plans"]["goal_object"]["score"])
+                        if "goal_object" in (sc(c)["navigation"]["task_plans"] or {})
+                        else "none"
+                    ),
+                    "{}",
+                ),
+                "an object",
+            )
+        )
+        out.append(
+            (
+                f"seed {seed}: navigation case sidewalk m shortest / preferred",
+                side(
+                    result,
+                    lambda c: " / ".join(
+                        f"{p['gt_terrain_m'].get('sidewalk', 0):.1f} of {p['length_m']:.1f}"
+                        for p in sc(c)["navigation"]["case"]["plans"].values()
+                    ),
+                    "{}",
+                ),
+                "a change",
+            )
+        )
+        out.append(
+            (
+                f"seed {seed}: places / same-terrain pairs joined (labelled ground ; raster)",
+                side(
+                    result,
+                    lambda c: "{} / {:.3f} ; {:.3f}".format(
+                        sc(c)["places"]["places"],
+                        sc(c)["places"]["connectivity_seen"]["joined_share"],
+                        sc(c)["places"]["connectivity"]["joined_share"],
+                    ),
+                    "{}",
+                ),
+                ">= 0.99",
+            )
+        )
+        out.append(
+            (
+                f"seed {seed}: places on their own terrain / > 1 m from it",
+                side(
+                    result,
+                    lambda c: "{:.3f} / {}".format(
+                        sc(c)["terrain_agreement"]["share"], sc(c)["terrain_agreement"]["farther_than_m"]["1"]
+                    ),
+                    "{}",
+                ),
+                "-",
+            )
+        )
+    out.append(
+        (
+            "small: regions per level with --cuts 50,100,200,400",
+            side(result, lambda c: "/".join(map(str, c["small_paper_cuts"]["regions_per_level"])), "{}"),
+            "the paper's",
+        )
+    )
     for preset in first["presets"]:
+
         def pc(c, preset=preset):
             return c["presets"][preset]
-        out.append((f"{preset}: places / same-terrain pairs joined (labelled ground ; raster)",
-                    side(result, lambda c: "{} / {:.3f} ; {:.3f}".format(pc(c)["places"], pc(c)["labelled_ground"]["joined_share"],
-                                                                         pc(c)["whole_raster"]["joined_share"]), "{}"), ">= 0.99"))
-        out.append((f"{preset}: places on their own terrain / > 1 m from it",
-                    side(result, lambda c: "{:.3f} / {}".format(pc(c)["terrain_agreement"]["share"], pc(c)["terrain_agreement"]["farther_than_m"]["1"]), "{}"), "-"))
-        out.append((f"{preset}: regions per level agg ; spec",
-                    side(result, lambda c: " ; ".join("/".join(map(str, v)) for v in pc(c)["regions_per_level"].values()), "{}"), "strictly decreasing"))
+
+        out.append(
+            (
+                f"{preset}: places / same-terrain pairs joined (labelled ground ; raster)",
+                side(
+                    result,
+                    lambda c: "{} / {:.3f} ; {:.3f}".format(
+                        pc(c)["places"], pc(c)["labelled_ground"]["joined_share"], pc(c)["whole_raster"]["joined_share"]
+                    ),
+                    "{}",
+                ),
+                ">= 0.99",
+            )
+        )
+        out.append(
+            (
+                f"{preset}: places on their own terrain / > 1 m from it",
+                side(
+                    result,
+                    lambda c: "{:.3f} / {}".format(
+                        pc(c)["terrain_agreement"]["share"], pc(c)["terrain_agreement"]["farther_than_m"]["1"]
+                    ),
+                    "{}",
+                ),
+                "-",
+            )
+        )
+        out.append(
+            (
+                f"{preset}: regions per level agg ; spec",
+                side(
+                    result,
+                    lambda c: " ; ".join("/".join(map(str, v)) for v in pc(c)["regions_per_level"].values()),
+                    "{}",
+                ),
+                "strictly decreasing",
+            )
+        )
         out.append((f"{preset}: terra build (s)", side(result, lambda c: pc(c)["build_seconds"], "{:.1f}"), "-"))
     sweep = result["validation_penalty_sweep"]
     for p in sweep["points"]:
-        out.append((f"validation seed: penalty {p['penalty']:g}: pairs >= 80 % / mean detour / max detour",
-                    f"{p['meeting']} of {p['pairs']} / {p['mean_detour']:.3f} / {p['max_detour']:.2f}", "chosen" if p["penalty"] == sweep["chosen"] else "-"))
+        out.append(
+            (
+                f"validation seed: penalty {p['penalty']:g}: pairs >= 80 % / mean detour / max detour",
+                f"{p['meeting']} of {p['pairs']} / {p['mean_detour']:.3f} / {p['max_detour']:.2f}",
+                "chosen" if p["penalty"] == sweep["chosen"] else "-",
+            )
+        )
     return out
 
 

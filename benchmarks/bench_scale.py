@@ -123,9 +123,13 @@ def same_content(a: Path, b: Path) -> bool:
 
     ga, gb = load_scene_graph(Bundle(a)), load_scene_graph(Bundle(b))
     same = same_graph(a, b)
-    return bool(same["places"] and same["edges"] and same["regions"]
-                and np.array_equal(ga.places.clearance, gb.places.clearance)
-                and np.array_equal(ga.places.embedding, gb.places.embedding))
+    return bool(
+        same["places"]
+        and same["edges"]
+        and same["regions"]
+        and np.array_equal(ga.places.clearance, gb.places.clearance)
+        and np.array_equal(ga.places.embedding, gb.places.embedding)
+    )
 
 
 def same_graph(a: Path, b: Path) -> dict:
@@ -433,8 +437,9 @@ def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
 
     work = cache / "memory"
     work.mkdir(parents=True, exist_ok=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                            text=True).stdout.strip()
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+    ).stdout.strip()
     result = {"baseline": baseline, "this": commit, "maps": {}}
     rows = []
     with tempfile.TemporaryDirectory(prefix="terra-baseline-") as tmp:
@@ -458,20 +463,27 @@ def run_memory(cache: Path, baseline: str, maps: dict[str, Path]) -> None:
                 shutil.rmtree(work / f"{name}-{label}.terra")
             result["maps"][name] = entry
             b, a = entry["before"], entry["after"]
-            rows.append((f"terra build {name} ({km2} km2, grid {a['grid_cells'][0]} x {a['grid_cells'][1]})",
-                         f"before {b['peak_rss_mb']:.0f} MB, {b['wall_s']} s ({b['cpu_s']} s CPU); "
-                         f"after {a['peak_rss_mb']:.0f} MB, {a['wall_s']} s ({a['cpu_s']} s CPU); "
-                         f"same graph: {entry['same_graph']}",
-                         "same graph"))
+            rows.append(
+                (
+                    f"terra build {name} ({km2} km2, grid {a['grid_cells'][0]} x {a['grid_cells'][1]})",
+                    f"before {b['peak_rss_mb']:.0f} MB, {b['wall_s']} s ({b['cpu_s']} s CPU); "
+                    f"after {a['peak_rss_mb']:.0f} MB, {a['wall_s']} s ({a['cpu_s']} s CPU); "
+                    f"same graph: {entry['same_graph']}",
+                    "same graph",
+                )
+            )
     names = list(result["maps"])
     result["growth_mb_per_km2"] = {}
     for lo, hi in zip(names, names[1:]):
         m0, m1 = result["maps"][lo], result["maps"][hi]
-        growth = {label: round((m1[label]["peak_rss_mb"] - m0[label]["peak_rss_mb"]) / (m1["km2"] - m0["km2"]), 1)
-                  for label in ("before", "after")}
+        growth = {
+            label: round((m1[label]["peak_rss_mb"] - m0[label]["peak_rss_mb"]) / (m1["km2"] - m0["km2"]), 1)
+            for label in ("before", "after")
+        }
         result["growth_mb_per_km2"][f"{lo} -> {hi}"] = growth
-        rows.append((f"growth {lo} -> {hi}", f"before {growth['before']} MB/km2, after {growth['after']} MB/km2",
-                     "lower"))
+        rows.append(
+            (f"growth {lo} -> {hi}", f"before {growth['before']} MB/km2, after {growth['after']} MB/km2", "lower")
+        )
     report(rows, {**machine(), **result}, RESULTS / "scale_memory.json")
 
 
@@ -494,8 +506,13 @@ def main() -> None:
         "--skip-one-piece-10km2", action="store_true", help="growth: build the 10 km^2 map in tiles only"
     )
     parser.add_argument("--baseline", default="HEAD", help="memory: the commit to compare this checkout with")
-    parser.add_argument("--map", action="append", default=[], metavar="NAME=BUNDLE",
-                        help="memory: a preset's mapped bundle (campus, large, huge), smallest first")
+    parser.add_argument(
+        "--map",
+        action="append",
+        default=[],
+        metavar="NAME=BUNDLE",
+        help="memory: a preset's mapped bundle (campus, large, huge), smallest first",
+    )
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     if args.preset == "memory":

@@ -61,10 +61,16 @@ def bench_frame(frames: int) -> dict:
         points.append(len(scan["points"]))
     total = [a + b for a, b in zip(lidar, camera)]
     cfg = ds.config
-    return {"frames_timed": len(total), "lidar_s_median": statistics.median(lidar), "camera_s_median": statistics.median(camera),
-            "frame_s_median": statistics.median(total), "frame_s_max": max(total), "points_per_scan_median": statistics.median(points),
-            "lidar": f"{cfg.lidar.beams} x {cfg.lidar.columns}",
-            "cameras": [f"{c.width} x {c.height}" for c in cfg.cameras]}
+    return {
+        "frames_timed": len(total),
+        "lidar_s_median": statistics.median(lidar),
+        "camera_s_median": statistics.median(camera),
+        "frame_s_median": statistics.median(total),
+        "frame_s_max": max(total),
+        "points_per_scan_median": statistics.median(points),
+        "lidar": f"{cfg.lidar.beams} x {cfg.lidar.columns}",
+        "cameras": [f"{c.width} x {c.height}" for c in cfg.cameras],
+    }
 
 
 def bench_preset(preset: str, fmt: str, work: Path, max_frames: int | None) -> dict:
@@ -73,8 +79,10 @@ def bench_preset(preset: str, fmt: str, work: Path, max_frames: int | None) -> d
     argv = ["sim", "--preset", preset, "--seed", "0", "--format", fmt, "--out", str(out), "--quiet", "--overwrite"]
     if max_frames:
         argv += ["--max-frames", str(max_frames)]
-    code = ("import resource, sys; from terra.cli import run; rc = run(sys.argv[1:]); "
-            "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)")
+    code = (
+        "import resource, sys; from terra.cli import run; rc = run(sys.argv[1:]); "
+        "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)"
+    )
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
@@ -92,19 +100,32 @@ def bench_preset(preset: str, fmt: str, work: Path, max_frames: int | None) -> d
     for i in range(len(ds)):
         ds[i]
     read = time.perf_counter() - t1
-    return {"preset": preset, "format": fmt, "frames": len(ds), "wall_s": wall,
-            "cpu_s": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
-            "peak_rss_mb": rss_kb / 1024, "output_mb": size / 2**20, "read_back_s": read,
-            "summary": proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""}
+    return {
+        "preset": preset,
+        "format": fmt,
+        "frames": len(ds),
+        "wall_s": wall,
+        "cpu_s": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
+        "peak_rss_mb": rss_kb / 1024,
+        "output_mb": size / 2**20,
+        "read_back_s": read,
+        "summary": proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else "",
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--presets", default="small", help="comma-separated presets to generate (tiny, small, campus, large; '' for none)")
+    parser.add_argument(
+        "--presets",
+        default="small",
+        help="comma-separated presets to generate (tiny, small, campus, large; '' for none)",
+    )
     parser.add_argument("--format", default="terra-folder", choices=["terra-folder", "semantickitti"])
     parser.add_argument("--frames", type=int, default=9, help="frames timed for the per-frame figure")
     parser.add_argument("--max-frames", type=int, default=None, help="cap the generated presets (for a check run)")
-    parser.add_argument("--work", type=Path, default=None, help="where generated datasets go (default: a temp folder, removed)")
+    parser.add_argument(
+        "--work", type=Path, default=None, help="where generated datasets go (default: a temp folder, removed)"
+    )
     parser.add_argument("--quick", action="store_true", help="3 frames, tiny preset with 10 frames")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sim.json")
     args = parser.parse_args()
@@ -112,8 +133,13 @@ def main() -> None:
         args.frames, args.presets, args.max_frames = 3, "tiny", 10
     presets = [p for p in args.presets.split(",") if p]
 
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-              "load_average_1min_at_start": os.getloadavg()[0], "quick": args.quick}
+    result = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "quick": args.quick,
+    }
     result["frame"] = bench_frame(args.frames)
     work = args.work or Path(tempfile.mkdtemp(prefix="bench-sim-"))
     try:
@@ -123,15 +149,31 @@ def main() -> None:
             shutil.rmtree(work, ignore_errors=True)
 
     f = result["frame"]
-    rows = [("frame: LiDAR " + f["lidar"] + " (median)", f"{f['lidar_s_median']:.3f} s", ""),
-            ("frame: camera " + ", ".join(f["cameras"]) + " (median)", f"{f['camera_s_median']:.3f} s", ""),
-            ("frame: LiDAR + camera (median / max)", f"{f['frame_s_median']:.3f} / {f['frame_s_max']:.3f} s", f"<= {TARGETS['frame']} s")]
+    rows = [
+        ("frame: LiDAR " + f["lidar"] + " (median)", f"{f['lidar_s_median']:.3f} s", ""),
+        ("frame: camera " + ", ".join(f["cameras"]) + " (median)", f"{f['camera_s_median']:.3f} s", ""),
+        (
+            "frame: LiDAR + camera (median / max)",
+            f"{f['frame_s_median']:.3f} / {f['frame_s_max']:.3f} s",
+            f"<= {TARGETS['frame']} s",
+        ),
+    ]
     for p in result["presets"]:
         target = TARGETS.get(p["preset"]) if not args.max_frames else None
-        rows.append((f"terra sim --preset {p['preset']} ({p['frames']} frames, {p['format']})",
-                     f"{p['wall_s']:.1f} s wall, {p['cpu_s']:.0f} s CPU, {p['peak_rss_mb']:.0f} MB, {p['output_mb']:.0f} MB out",
-                     f"<= {target:.0f} s" if target else ""))
-        rows.append((f"  read back all frames ({p['format']} reader)", f"{p['read_back_s']:.1f} s ({p['frames'] / max(p['read_back_s'], 1e-9):.0f} frames/s)", ""))
+        rows.append(
+            (
+                f"terra sim --preset {p['preset']} ({p['frames']} frames, {p['format']})",
+                f"{p['wall_s']:.1f} s wall, {p['cpu_s']:.0f} s CPU, {p['peak_rss_mb']:.0f} MB, {p['output_mb']:.0f} MB out",
+                f"<= {target:.0f} s" if target else "",
+            )
+        )
+        rows.append(
+            (
+                f"  read back all frames ({p['format']} reader)",
+                f"{p['read_back_s']:.1f} s ({p['frames'] / max(p['read_back_s'], 1e-9):.0f} frames/s)",
+                "",
+            )
+        )
     report(rows, result, args.out)
 
 

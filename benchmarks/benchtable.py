@@ -11,8 +11,10 @@ def report(rows: list[tuple[str, str, str]], result: dict, out: Path) -> None:
     """Print `rows` under a header naming the machine's load, then write `result` to `out`."""
     width = max(len(r[0]) for r in rows)
     value_width = max(len(r[1]) for r in rows)
-    print(f"{'measure':<{width}}  {'value':<{value_width}}  target   (load average at start "
-          f"{result['load_average_1min_at_start']:.1f} on {result['cpus']} cpus)")
+    print(
+        f"{'measure':<{width}}  {'value':<{value_width}}  target   (load average at start "
+        f"{result['load_average_1min_at_start']:.1f} on {result['cpus']} cpus)"
+    )
     for name, value, target in rows:
         print(f"{name:<{width}}  {value:<{value_width}}  {target}")
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -44,20 +44,33 @@ from benchtable import report
 from tests.fuzzing import FAILURES, build_seeds, supervise, targets
 
 
-def fuzz(seeds, work: Path, cases: int, workers: int, timeout: float, budget: float | None,
-         only: list[str] | None = None, offset: int = 0) -> dict:
+def fuzz(
+    seeds,
+    work: Path,
+    cases: int,
+    workers: int,
+    timeout: float,
+    budget: float | None,
+    only: list[str] | None = None,
+    offset: int = 0,
+) -> dict:
     """Counts of outcomes per reader and the failures (at most 50, with their mutation)."""
     names = only or list(targets(seeds))
-    jobs = [{"target": names[k % len(names)], "seed": offset + k // len(names), "seeds": seeds.to_json(), "work": str(work)}
-            for k in range(cases)]
+    jobs = [
+        {"target": names[k % len(names)], "seed": offset + k // len(names), "seeds": seeds.to_json(), "work": str(work)}
+        for k in range(cases)
+    ]
     until = None if budget is None else time.monotonic() + budget
     done = [0]
 
     def log(result: dict) -> None:
         done[0] += 1
         if result["outcome"] in FAILURES:
-            print(f"  {result['outcome']}: {result['target']} #{result['seed']}: {result['mutation']} "
-                  f"{result['detail'][:200]!r}", flush=True)
+            print(
+                f"  {result['outcome']}: {result['target']} #{result['seed']}: {result['mutation']} "
+                f"{result['detail'][:200]!r}",
+                flush=True,
+            )
         if done[0] % 500 == 0:
             print(f"  {done[0]} of {cases} inputs", flush=True)
 
@@ -67,9 +80,13 @@ def fuzz(seeds, work: Path, cases: int, workers: int, timeout: float, budget: fl
     for r in results:
         per_target[r["target"]][r["outcome"]] += 1
     failures = [r for r in results if r["outcome"] in FAILURES]
-    return {"inputs": len(results), "seconds": time.perf_counter() - start,
-            "outcomes": dict(sum(per_target.values(), collections.Counter())),
-            "per_target": {n: dict(c) for n, c in per_target.items()}, "failures": failures[:50]}
+    return {
+        "inputs": len(results),
+        "seconds": time.perf_counter() - start,
+        "outcomes": dict(sum(per_target.values(), collections.Counter())),
+        "per_target": {n: dict(c) for n, c in per_target.items()},
+        "failures": failures[:50],
+    }
 
 
 def _bundle_state(path: Path) -> str:
@@ -104,21 +121,25 @@ def kills(seeds, work: Path, count: int, rng: random.Random) -> dict:
         folder.mkdir()
         out = folder / "campus.terra"
         shutil.copytree(work / "old.terra", out)
-        proc = subprocess.Popen(argv(out, "new.yaml"), cwd=REPO, env=env, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL)
+        proc = subprocess.Popen(
+            argv(out, "new.yaml"), cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
         time.sleep(rng.uniform(0.0, 1.1) * full)
         proc.send_signal(signal.SIGKILL)
         killed = proc.wait() == -signal.SIGKILL
         tally["killed" if killed else "finished before the kill"] += 1
         # The two-rename fallback may leave the path missing until a command's recovery step runs.
-        subprocess.run([sys.executable, "-m", "terra", "info", str(out), "--no-verify"], cwd=REPO, env=env,
-                       capture_output=True)
+        subprocess.run(
+            [sys.executable, "-m", "terra", "info", str(out), "--no-verify"], cwd=REPO, env=env, capture_output=True
+        )
         after_kill = _bundle_state(out)
         rerun = subprocess.run(argv(out, "new.yaml"), cwd=REPO, env=env, capture_output=True, text=True)
-        checks = {"old or new after the kill": after_kill in (old, new),
-                  "rerun exit 0": rerun.returncode == 0,
-                  "new bundle after the rerun": _bundle_state(out) == new,
-                  "no leftovers": leftovers(folder, out.name) == []}
+        checks = {
+            "old or new after the kill": after_kill in (old, new),
+            "rerun exit 0": rerun.returncode == 0,
+            "new bundle after the rerun": _bundle_state(out) == new,
+            "no leftovers": leftovers(folder, out.name) == [],
+        }
         for what, ok in checks.items():
             tally[what if ok else f"NOT {what}"] += 1
         if not all(checks.values()):
@@ -138,8 +159,13 @@ def main() -> None:
     parser.add_argument("--seed-offset", type=int, default=0, help="first case number of each reader")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "fuzz_readers.json")
     args = parser.parse_args()
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-              "load_average_1min_at_start": os.getloadavg()[0], "args": {k: str(v) for k, v in vars(args).items()}}
+    result = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "load_average_1min_at_start": os.getloadavg()[0],
+        "args": {k: str(v) for k, v in vars(args).items()},
+    }
     with tempfile.TemporaryDirectory(prefix="terra-fuzz-") as tmp:
         work = Path(tmp)
         seeds = build_seeds(work / "seeds")
@@ -148,20 +174,27 @@ def main() -> None:
         only = args.targets.split(",") if args.targets else None
         if only and set(only) - set(targets(seeds)):
             parser.error(f"unknown readers {sorted(set(only) - set(targets(seeds)))}; known: {sorted(targets(seeds))}")
-        result["fuzz"] = fuzz(seeds, work / "fuzz", args.cases, args.workers, args.timeout, args.budget, only,
-                              args.seed_offset)
+        result["fuzz"] = fuzz(
+            seeds, work / "fuzz", args.cases, args.workers, args.timeout, args.budget, only, args.seed_offset
+        )
         result["kill"] = kills(seeds, work / "kill", args.kills, random.Random(0))
     f, k = result["fuzz"], result["kill"]
     outcomes = f["outcomes"]
-    rows = [("mutated inputs", str(f["inputs"]), ">= 10000"),
-            ("  exit 0, valid result", str(outcomes.get("ok", 0)), ""),
-            ("  exit 2, one line", str(outcomes.get("refused", 0)), "")]
+    rows = [
+        ("mutated inputs", str(f["inputs"]), ">= 10000"),
+        ("  exit 0, valid result", str(outcomes.get("ok", 0)), ""),
+        ("  exit 2, one line", str(outcomes.get("refused", 0)), ""),
+    ]
     rows += [(f"  {what}", str(outcomes.get(what, 0)), "0") for what in FAILURES]
-    rows += [("fuzz wall time", f"{f['seconds']:.0f} s", ""),
-             ("kill -9 of terra map", str(k["runs"]), ""),
-             ("  killed mid-run", str(k["tally"].get("killed", 0)), "")]
-    rows += [(f"  {what}", str(k["tally"].get(what, 0)), str(k["runs"]))
-             for what in ("old or new after the kill", "new bundle after the rerun", "no leftovers")]
+    rows += [
+        ("fuzz wall time", f"{f['seconds']:.0f} s", ""),
+        ("kill -9 of terra map", str(k["runs"]), ""),
+        ("  killed mid-run", str(k["tally"].get("killed", 0)), ""),
+    ]
+    rows += [
+        (f"  {what}", str(k["tally"].get(what, 0)), str(k["runs"]))
+        for what in ("old or new after the kill", "new bundle after the rerun", "no leftovers")
+    ]
     report(rows, result, args.out)
     print(json.dumps({n: c for n, c in f["per_target"].items()}, sort_keys=True))
 

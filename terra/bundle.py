@@ -39,8 +39,9 @@ import shutil
 import stat
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -194,7 +195,7 @@ def _leftover_kind(path: Path, entry: str) -> str | None:
     prefix = f".{path.name}."
     if not entry.startswith(prefix):
         return None
-    rest = entry[len(prefix):]
+    rest = entry[len(prefix) :]
     if rest.startswith("old-") and "." not in rest:
         return "old"
     if (rest.endswith(".tmp") and rest.count(".") == 1) or (rest.startswith("tmp-") and "." not in rest):
@@ -378,8 +379,10 @@ class Bundle:
             raise TerraError(f"{self.path}: not a Terra bundle (no {MANIFEST}); build one with `terra map`")
         manifest = read_json(manifest_path, "bundle manifest", MAX_MANIFEST_BYTES)
         if not isinstance(manifest, dict):
-            raise TerraError(f"{manifest_path}: expected a JSON object with schema, schema_version and files, "
-                             f"got {type(manifest).__name__}")
+            raise TerraError(
+                f"{manifest_path}: expected a JSON object with schema, schema_version and files, "
+                f"got {type(manifest).__name__}"
+            )
         if manifest.get("schema") != SCHEMA:
             raise TerraError(f"{manifest_path}: field 'schema' is {manifest.get('schema')!r:.60}, expected {SCHEMA!r}")
         version = manifest.get("schema_version")
@@ -473,8 +476,9 @@ class BundleWriter:
     `drop_components` removes stale components (e.g. `graph` when the map is rebuilt).
     """
 
-    def __init__(self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = (),
-                 what: str = "bundle"):
+    def __init__(
+        self, path: str | Path, base: Bundle | None = None, drop_components: tuple[str, ...] = (), what: str = "bundle"
+    ):
         self.path = Path(path)
         self.what = what  # for messages: "bundle", "mapping checkpoint"
         self.manifest: dict[str, Any] = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}}
@@ -548,7 +552,7 @@ class BundleWriter:
             self._staging.discard()
             self._done = True
 
-    def __enter__(self) -> "BundleWriter":
+    def __enter__(self) -> BundleWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

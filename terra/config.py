@@ -73,8 +73,10 @@ def load_section(path: str | Path | None, stage: str, overrides: dict | None = N
         if data is None:
             data = {}
         elif not isinstance(data, dict):
-            raise TerraError(f"{path}: field '{stage}' must be a mapping of the {stage} section's options "
-                             f"(see `terra config dump {stage}`), got {type(data).__name__}")
+            raise TerraError(
+                f"{path}: field '{stage}' must be a mapping of the {stage} section's options "
+                f"(see `terra config dump {stage}`), got {type(data).__name__}"
+            )
     data = _deep_merge(data, overrides or {})
     try:
         return _section(stage).model_validate(data)
@@ -92,7 +94,9 @@ def _read_config(path: Path, sections: dict) -> dict:
         raise TerraError(f"{path}: expected a mapping with keys among {', '.join(keys)}")
     unknown = [key for key in raw if key not in keys]
     if unknown:
-        raise TerraError(f"{path}: unknown top-level key {str(unknown[0])[:60]!r}; expected keys among {', '.join(keys)}")
+        raise TerraError(
+            f"{path}: unknown top-level key {str(unknown[0])[:60]!r}; expected keys among {', '.join(keys)}"
+        )
     return raw
 
 

@@ -18,9 +18,10 @@ import json
 import math
 import os
 import stat
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from terra.errors import TerraError
 
@@ -163,14 +164,16 @@ def parse_json(text: str, source: str | Path, what: str = "JSON file", max_depth
     return value
 
 
-def read_json(path: str | Path, what: str = "JSON file", limit: int = MAX_TEXT_BYTES,
-              max_depth: int | None = MAX_DEPTH) -> Any:
+def read_json(
+    path: str | Path, what: str = "JSON file", limit: int = MAX_TEXT_BYTES, max_depth: int | None = MAX_DEPTH
+) -> Any:
     """The JSON value in file `path` (see `read_text`, `parse_json`)."""
     return parse_json(read_text(path, what, limit), path, what, max_depth)
 
 
-def check_depth(value: Any, source: str | Path, what: str, max_depth: int = MAX_DEPTH,
-                max_nodes: int | None = None) -> None:
+def check_depth(
+    value: Any, source: str | Path, what: str, max_depth: int = MAX_DEPTH, max_nodes: int | None = None
+) -> None:
     """TerraError when `value` nests deeper than `max_depth`, refers to itself (a recursive YAML
     alias) or, with `max_nodes`, holds more values than that once shared sub-values (YAML aliases)
     are counted each time they appear. Iterative: no input can exhaust the recursion limit here."""
@@ -191,8 +194,9 @@ def check_depth(value: Any, source: str | Path, what: str, max_depth: int = MAX_
             if height[key] > max_depth:
                 raise TerraError(f"{source}: nested more than {max_depth} levels deep; expected {_a(what)}")
             if max_nodes is not None and size[key] > max_nodes:
-                raise TerraError(f"{source}: holds more than {max_nodes:,} values once its aliases are expanded; "
-                                 f"expected {_a(what)}")
+                raise TerraError(
+                    f"{source}: holds more than {max_nodes:,} values once its aliases are expanded; expected {_a(what)}"
+                )
             continue
         if key in height:
             continue

@@ -90,16 +90,22 @@ class CameraCalibration:
         if self.K.shape != (3, 3):
             raise ValueError(f"camera {self.name}: K must be 3x3, got {self.K.shape}")
         if not np.all(np.isfinite(self.K)) or self.K[0, 0] <= 0 or self.K[1, 1] <= 0 or self.K[2, 2] != 1.0:
-            raise ValueError(f"camera {self.name}: K must be finite with positive focal lengths and K[2, 2] = 1, got {self.K.tolist()}")
+            raise ValueError(
+                f"camera {self.name}: K must be finite with positive focal lengths and K[2, 2] = 1, got {self.K.tolist()}"
+            )
         try:
             self.dist = lens.check_coefficients(self.model, self.dist)
         except ValueError as exc:
             raise ValueError(f"camera {self.name}: {exc}") from None
         if self.T_cam_lidar.shape != (4, 4) or not np.all(np.isfinite(self.T_cam_lidar)):
-            raise ValueError(f"camera {self.name}: T_cam_lidar must be a finite 4x4 transform, got shape {self.T_cam_lidar.shape}")
+            raise ValueError(
+                f"camera {self.name}: T_cam_lidar must be a finite 4x4 transform, got shape {self.T_cam_lidar.shape}"
+            )
         if not 0 < self.width <= MAX_IMAGE_SIDE or not 0 < self.height <= MAX_IMAGE_SIDE:
-            raise ValueError(f"camera {self.name}: image size must be 1..{MAX_IMAGE_SIDE} pixels a side, "
-                             f"got {self.width}x{self.height}")
+            raise ValueError(
+                f"camera {self.name}: image size must be 1..{MAX_IMAGE_SIDE} pixels a side, "
+                f"got {self.width}x{self.height}"
+            )
 
     @property
     def distorted(self) -> bool:
@@ -138,7 +144,9 @@ def _border_pixels(width: int, height: int, step: int = 4) -> np.ndarray:
     return np.concatenate([top, bottom, left, right])
 
 
-def project_points(points_cam: np.ndarray, camera: CameraCalibration, min_depth: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+def project_points(
+    points_cam: np.ndarray, camera: CameraCalibration, min_depth: float = 0.05
+) -> tuple[np.ndarray, np.ndarray]:
     """Project camera-frame points (N, 3, metres) to pixels through the camera's lens model.
 
     Returns (uv (N, 2) float pixels, valid (N,) bool): valid means depth z > min_depth, the ray

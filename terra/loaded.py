@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
@@ -173,8 +174,9 @@ class LoadedBundle:
         raised, where the query embeds them."""
         texts = [str(t).strip() for t in texts if str(t).strip()]
         if texts:
-            threading.Thread(target=_quietly, args=(lambda: self.embedder.embed_text(texts),), name="terra-embed",
-                             daemon=True).start()
+            threading.Thread(
+                target=_quietly, args=(lambda: self.embedder.embed_text(texts),), name="terra-embed", daemon=True
+            ).start()
 
     def warm(self) -> None:
         """Load everything a query may need now (a service does this before it listens)."""

@@ -41,7 +41,12 @@ class ArraySpec:
     def shape_text(self) -> str:
         if self.shape is None:
             return "any shape"
-        return "(" + ", ".join("N" if s is None else str(s) for s in self.shape) + ("," if len(self.shape) == 1 else "") + ")"
+        return (
+            "("
+            + ", ".join("N" if s is None else str(s) for s in self.shape)
+            + ("," if len(self.shape) == 1 else "")
+            + ")"
+        )
 
     def describe(self) -> str:
         dtype = " or ".join(self.dtypes) if self.dtypes else "numeric"
@@ -97,11 +102,14 @@ def read_npy(path: str | Path, spec: ArraySpec | None = None, mmap: bool = False
             count = int(np.prod(shape, dtype=object))
             nbytes = count * dtype.itemsize
             if size - offset != nbytes:
-                raise TerraError(f"{path}: header says {dtype.name} {shape} ({nbytes:,} bytes of data), "
-                                 f"the file holds {size - offset:,} (truncated or corrupt)")
+                raise TerraError(
+                    f"{path}: header says {dtype.name} {shape} ({nbytes:,} bytes of data), "
+                    f"the file holds {size - offset:,} (truncated or corrupt)"
+                )
             if mmap and nbytes:
-                array = np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape,
-                                  order="F" if fortran else "C")
+                array = np.memmap(
+                    path, dtype=dtype, mode="r", offset=offset, shape=shape, order="F" if fortran else "C"
+                )
             else:
                 buffer = bytearray(nbytes)
                 if f.readinto(buffer) != nbytes:
@@ -129,7 +137,9 @@ def check_values(array: np.ndarray, spec: ArraySpec, where: str | Path) -> None:
             raise TerraError(f"{where}: holds NaN or infinite values, expected {spec.describe()}")
         low, high = array.min(), array.max()
         if (spec.low is not None and low < spec.low) or (spec.high is not None and high > spec.high):
-            bounds = f"[{'-inf' if spec.low is None else _num(spec.low)}, {'inf' if spec.high is None else _num(spec.high)}]"
+            bounds = (
+                f"[{'-inf' if spec.low is None else _num(spec.low)}, {'inf' if spec.high is None else _num(spec.high)}]"
+            )
             raise TerraError(f"{where}: values from {_num(low)} to {_num(high)}, expected {bounds} ({spec.describe()})")
 
 
@@ -153,8 +163,9 @@ def check_csr(indptr: np.ndarray, indices: np.ndarray, n_rows: int, n_cols: int,
     if int(indptr[-1]) != indices.shape[0]:
         raise TerraError(f"{where}: row pointer ends at {int(indptr[-1])}, but there are {indices.shape[0]} entries")
     if indices.size and (int(indices.min()) < 0 or int(indices.max()) >= n_cols):
-        raise TerraError(f"{where}: column indices from {int(indices.min())} to {int(indices.max())}, "
-                         f"expected 0..{n_cols - 1}")
+        raise TerraError(
+            f"{where}: column indices from {int(indices.min())} to {int(indices.max())}, expected 0..{n_cols - 1}"
+        )
 
 
 def write_npy(path: str | Path, array: np.ndarray) -> None:

@@ -19,8 +19,9 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, Iterable, Iterator, TypeVar
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 
@@ -79,8 +80,9 @@ class Progress:
     A tqdm bar on a terminal; otherwise a line every `line_interval()` seconds with the stage,
     the count, the rate and the time left, and a closing line when any was printed."""
 
-    def __init__(self, desc: str, total: float | None = None, unit: str = "", enabled: bool = True,
-                 count_format: str = "{:.0f}") -> None:
+    def __init__(
+        self, desc: str, total: float | None = None, unit: str = "", enabled: bool = True, count_format: str = "{:.0f}"
+    ) -> None:
         self.desc, self.total, self.unit = desc, total, unit
         self.count_format = count_format
         self.done = 0.0
@@ -138,8 +140,9 @@ class Progress:
             _emit(f"{self.desc} {self.count_format.format(self.done)}{unit} done in {took}")
 
 
-def progress(iterable: Iterable[T], desc: str, total: int | None = None, enabled: bool = True,
-             unit: str = "") -> Iterator[T]:
+def progress(
+    iterable: Iterable[T], desc: str, total: int | None = None, enabled: bool = True, unit: str = ""
+) -> Iterator[T]:
     """Iterate `iterable`, reporting progress (see Progress); nothing when disabled."""
     if total is None and hasattr(iterable, "__len__"):
         total = len(iterable)  # type: ignore[arg-type]

@@ -12,8 +12,15 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
 
-pytest_plugins = ["tests.fixtures_mapping", "tests.fixtures_graph", "tests.fixtures_eval", "tests.fixtures_perception",
-                  "tests.fixtures_interop", "tests.fixtures_ros", "tests.fixtures_reliability"]
+pytest_plugins = [
+    "tests.fixtures_mapping",
+    "tests.fixtures_graph",
+    "tests.fixtures_eval",
+    "tests.fixtures_perception",
+    "tests.fixtures_interop",
+    "tests.fixtures_ros",
+    "tests.fixtures_reliability",
+]
 
 
 @pytest.fixture(scope="session")

@@ -20,13 +20,18 @@ import pytest
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass
 from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays, transform_points
 
+
 def folder_digest(path) -> dict[str, str]:
     """SHA-256 per file of a folder (relative path -> hex), to compare bundles byte for byte."""
     import hashlib
     from pathlib import Path
 
     path = Path(path)
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
 
 
 # ---------------------------------------------------------------------------- session bundles
@@ -40,7 +45,9 @@ class TruthRecorder:
     def __init__(self, dataset, voxel_size: float):
         self._dataset, self.voxel_size = dataset, float(voxel_size)
         self.name, self.classes = dataset.name, dataset.classes
-        self.label_pairs: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # frame -> voxel keys, labels, counts
+        self.label_pairs: dict[
+            int, tuple[np.ndarray, np.ndarray, np.ndarray]
+        ] = {}  # frame -> voxel keys, labels, counts
         self.nearest_seen: dict[tuple[int, int], np.ndarray] = {}  # (frame, camera) -> (3,) map frame
 
     def __len__(self) -> int:
@@ -74,7 +81,9 @@ class TruthRecorder:
         return label[order[first]]
 
 
-def _count_pairs(keys: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _count_pairs(
+    keys: np.ndarray, labels: np.ndarray, weights: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unique (key, label) pairs, sorted, with their summed weights."""
     if keys.size == 0:
         return keys, labels, weights
@@ -189,7 +198,9 @@ def cast(origins: np.ndarray, dirs: np.ndarray, boxes: list[Box], max_range: flo
     return best, cls, inst
 
 
-def box_camera(width: int = 160, height: int = 120, focal: float = 100.0, dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> CameraCalibration:
+def box_camera(
+    width: int = 160, height: int = 120, focal: float = 100.0, dist=(0.0, 0.0, 0.0, 0.0, 0.0)
+) -> CameraCalibration:
     """A forward-looking camera (optical z = LiDAR +x) 0.2 m above and 0.1 m ahead of the LiDAR."""
     R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # rows: cam x, y, z in LiDAR axes
     T_cam_lidar = make_pose(R, -R @ np.array([0.1, 0.0, 0.2]))

@@ -27,9 +27,10 @@ import shutil
 import signal
 import sys
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -52,14 +53,27 @@ class Seeds:
     msmap: Path | None = None
 
     def to_json(self) -> dict:
-        return {"root": str(self.root), "datasets": {k: str(v) for k, v in self.datasets.items()},
-                "bundle": str(self.bundle), "reference": str(self.reference), "config": str(self.config),
-                "tasks": str(self.tasks), "msmap": str(self.msmap)}
+        return {
+            "root": str(self.root),
+            "datasets": {k: str(v) for k, v in self.datasets.items()},
+            "bundle": str(self.bundle),
+            "reference": str(self.reference),
+            "config": str(self.config),
+            "tasks": str(self.tasks),
+            "msmap": str(self.msmap),
+        }
 
     @classmethod
-    def from_json(cls, d: dict) -> "Seeds":
-        return cls(Path(d["root"]), {k: Path(v) for k, v in d["datasets"].items()}, Path(d["bundle"]),
-                   Path(d["reference"]), Path(d["config"]), Path(d["tasks"]), Path(d["msmap"]))
+    def from_json(cls, d: dict) -> Seeds:
+        return cls(
+            Path(d["root"]),
+            {k: Path(v) for k, v in d["datasets"].items()},
+            Path(d["bundle"]),
+            Path(d["reference"]),
+            Path(d["config"]),
+            Path(d["tasks"]),
+            Path(d["msmap"]),
+        )
 
 
 def cli(argv: list[str]) -> tuple[int, str, str]:
@@ -88,25 +102,37 @@ def build_seeds(root: Path, frames: int = 3) -> Seeds:
     dataset = simulate("tiny", 0, cfg)
     for fmt in ("terra-folder", "semantickitti", "rosbag1", "rosbag2"):
         seeds.datasets[fmt] = write_dataset(dataset, root / fmt, format=fmt, overwrite=True, progress=False)
-    write_dataset(simulate("tiny", 0, without_distortion(cfg)), root / "kitti-raw", format="kitti-raw",
-                  overwrite=True, progress=False)
+    write_dataset(
+        simulate("tiny", 0, without_distortion(cfg)),
+        root / "kitti-raw",
+        format="kitti-raw",
+        overwrite=True,
+        progress=False,
+    )
     seeds.datasets["kitti-raw"] = root / "kitti-raw"
     seeds.datasets["rosbag1"] = next((root / "rosbag1").glob("*.bag"))
     seeds.bundle = root / "campus.terra"
-    for argv in (["map", root / "terra-folder", "--out", seeds.bundle, "-q"], ["build", seeds.bundle, "-q"],
-                 ["export", seeds.bundle, "-f", "terra-reference", "-o", root / "reference"]):
+    for argv in (
+        ["map", root / "terra-folder", "--out", seeds.bundle, "-q"],
+        ["build", seeds.bundle, "-q"],
+        ["export", seeds.bundle, "-f", "terra-reference", "-o", root / "reference"],
+    ):
         code, _, err = cli(argv)
         assert code == 0, err
     seeds.reference = root / "reference"
     seeds.config = root / "config.yaml"
-    seeds.config.write_text("\n".join(__import__("terra.config", fromlist=["dump_section"]).dump_section(s)
-                                      for s in ("mapping", "build", "tasks")))
+    seeds.config.write_text(
+        "\n".join(
+            __import__("terra.config", fromlist=["dump_section"]).dump_section(s) for s in ("mapping", "build", "tasks")
+        )
+    )
     seeds.tasks = root / "tasks.yaml"
     seeds.tasks.write_text(
         "object_tasks:\n  - task: find the dumpster\n  - get bike from the bicycle rack\nalpha: 0.3\n"
         "prediction_method: ms_avg\nregion_tasks:\n  - task: the parking lot\n    place_nodes: [0, 1]\n"
         "k: 2\nterrain_preferences:\n  preferred: [asphalt]\n  forbidden: [water]\n  penalties: {grass: 5}\n"
-        "queries:\n  start: 0\n  destination: 3\n")
+        "queries:\n  start: 0\n  destination: 3\n"
+    )
     seeds.msmap = root / "terra-folder" / "msmap_camera_config.yaml"
     return seeds
 
@@ -173,7 +199,9 @@ def mutate_structure(value: Any, rng: random.Random) -> Any:
     elif op == 3:
         parent[key] = {"0": current} if isinstance(current, list) else [current]
     elif op == 4 and isinstance(current, (int, float)) and not isinstance(current, bool):
-        parent[key] = rng.choice([-current, current * 1000 + 1, current - 1, int(current) if abs(current) < float("inf") else 0])
+        parent[key] = rng.choice(
+            [-current, current * 1000 + 1, current - 1, int(current) if abs(current) < float("inf") else 0]
+        )
     else:
         parent[key] = _interesting_value(rng)
     return value
@@ -193,18 +221,18 @@ def mutate_bytes(data: bytes, rng: random.Random) -> bytes:
             width = rng.choice([1, 2, 4, 8])
             value = rng.choice(INTERESTING_INTS) % (1 << (8 * width))
             i = rng.randrange(n - width + 1)
-            data[i:i + width] = value.to_bytes(width, rng.choice(["little", "big"]))
+            data[i : i + width] = value.to_bytes(width, rng.choice(["little", "big"]))
         elif op == 2:
-            del data[rng.randrange(n + 1):]
+            del data[rng.randrange(n + 1) :]
         elif op == 3 and n:
             i = rng.randrange(n)
-            del data[i:i + rng.randrange(1, 256)]
+            del data[i : i + rng.randrange(1, 256)]
         elif op == 4:
             i = rng.randrange(n + 1)
             data[i:i] = bytes(rng.randrange(256) for _ in range(rng.choice([1, 7, 64])))
         elif op == 5 and n:
             i = rng.randrange(n)
-            data[i:i] = data[i:i + rng.randrange(1, 512)]
+            data[i:i] = data[i : i + rng.randrange(1, 512)]
         elif op == 6 and n:
             i = rng.randrange(n)
             data[i] = rng.choice([0x00, 0xFF, 0x7F, 0x80, ord("["), ord("{"), ord("-"), ord("\\")])
@@ -225,7 +253,9 @@ def mutate_text(text: str, rng: random.Random, kind: str) -> bytes:
         for _ in range(rng.choice([1, 1, 2, 3])):
             value = mutate_structure(value, rng)
         try:
-            out = (json.dumps(value, allow_nan=True) if kind == "json" else yaml.safe_dump(value, sort_keys=False)).encode()
+            out = (
+                json.dumps(value, allow_nan=True) if kind == "json" else yaml.safe_dump(value, sort_keys=False)
+            ).encode()
         except (yaml.YAMLError, RecursionError):  # nested past the serialiser: splice deep brackets in as text
             i = rng.randrange(len(text) + 1)
             out = (text[:i] + "[" * 3000 + "]" * 3000 + text[i:]).encode()
@@ -233,8 +263,25 @@ def mutate_text(text: str, rng: random.Random, kind: str) -> bytes:
     return mutate_bytes(text.encode(), rng)
 
 
-NPY_DTYPES = ["int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64", "float16", "float32",
-              "float64", "bool", "complex64", "<M8[s]", "S4", ">f4", ">i8"]
+NPY_DTYPES = [
+    "int8",
+    "int16",
+    "int32",
+    "int64",
+    "uint8",
+    "uint16",
+    "uint32",
+    "uint64",
+    "float16",
+    "float32",
+    "float64",
+    "bool",
+    "complex64",
+    "<M8[s]",
+    "S4",
+    ">f4",
+    ">i8",
+]
 
 
 def _fit(value: float | int, dtype: np.dtype) -> Any:
@@ -263,8 +310,13 @@ def _mutate_npy(data: bytes, rng: random.Random) -> bytes:
     if op == 0:
         array = array.astype(rng.choice(NPY_DTYPES)) if array.dtype.kind != "M" else array
     elif op == 1:
-        shapes = [array.reshape(-1), array[: rng.randrange(array.shape[0] + 1)] if array.ndim else array,
-                  array[..., None], array.reshape(-1)[:0], np.repeat(array, 2, axis=0) if array.ndim else array]
+        shapes = [
+            array.reshape(-1),
+            array[: rng.randrange(array.shape[0] + 1)] if array.ndim else array,
+            array[..., None],
+            array.reshape(-1)[:0],
+            np.repeat(array, 2, axis=0) if array.ndim else array,
+        ]
         array = rng.choice(shapes)
     elif op == 2 and array.size:
         flat = array.reshape(-1).copy()
@@ -415,19 +467,35 @@ def _command(target: Target, seeds: Seeds, copy: Path, case: Path, rng: random.R
             return ["inspect", source], None
         return ["map", source, "--out", out, "-q"], out
     if name == "config file":
-        argv = rng.choice([["find", case / "bundle", QUERY, "--config", copy / "config.yaml"],
-                           ["build", case / "bundle", "-q", "--config", copy / "config.yaml"]])
+        argv = rng.choice(
+            [
+                ["find", case / "bundle", QUERY, "--config", copy / "config.yaml"],
+                ["build", case / "bundle", "-q", "--config", copy / "config.yaml"],
+            ]
+        )
         return argv, (case / "bundle" if argv[0] == "build" else None)
     if name == "task file":
-        argv = rng.choice([["find", case / "bundle", "--tasks", copy / "tasks.yaml"],
-                           ["monitor", case / "bundle", "--tasks", copy / "tasks.yaml"],
-                           ["plan", case / "bundle", "--tasks", copy / "tasks.yaml"]])
+        argv = rng.choice(
+            [
+                ["find", case / "bundle", "--tasks", copy / "tasks.yaml"],
+                ["monitor", case / "bundle", "--tasks", copy / "tasks.yaml"],
+                ["plan", case / "bundle", "--tasks", copy / "tasks.yaml"],
+            ]
+        )
         return argv, None
     if name == "msmap yaml":
         return ["map", copy, "--camera-config", copy / "msmap_camera_config.yaml", "--out", out, "-q"], out
     if name == "reference files":
-        return ["import", copy, "-f", "terra-reference", "-o", out, "--terrain-classes",
-                "sidewalk,grass,asphalt,dirt,water"], out
+        return [
+            "import",
+            copy,
+            "-f",
+            "terra-reference",
+            "-o",
+            out,
+            "--terrain-classes",
+            "sidewalk,grass,asphalt,dirt,water",
+        ], out
     raise ValueError(name)
 
 
@@ -486,6 +554,7 @@ class Timeout(BaseException):
 @contextlib.contextmanager
 def deadline(seconds: float):
     """Raise Timeout in this (main) thread after `seconds`."""
+
     def handler(signum, frame):
         raise Timeout(f"no answer within {seconds} s")
 
@@ -516,8 +585,14 @@ def run_case(target: Target, seeds: Seeds, rng: random.Random, work: Path, timeo
         resign(copy, str(victim.relative_to(copy)))
     argv, output = _command(target, seeds, copy, case, rng)
     before = snapshot(case)
-    result = {"target": target.name, "mutation": mutation, "argv": [str(a) for a in argv], "code": None,
-              "outcome": "ok", "detail": ""}
+    result = {
+        "target": target.name,
+        "mutation": mutation,
+        "argv": [str(a) for a in argv],
+        "code": None,
+        "outcome": "ok",
+        "detail": "",
+    }
     try:
         with deadline(timeout):
             code, stdout, stderr = cli(argv)
@@ -581,13 +656,26 @@ def _judge_files(before: dict, after: dict, case: Path, output: Path | None, cod
     return {}
 
 
-FAILURES = ("traceback", "bad exit code", "not one line", "invalid result", "changed bundle", "written outside",
-            "hang", "crash")
+FAILURES = (
+    "traceback",
+    "bad exit code",
+    "not one line",
+    "invalid result",
+    "changed bundle",
+    "written outside",
+    "hang",
+    "crash",
+)
 
 
 # ------------------------------------------------------------------------------------- workers
-def supervise(jobs: list[dict], workers: int, timeout: float, log: Callable[[dict], None] | None = None,
-              until: float | None = None) -> list[dict]:
+def supervise(
+    jobs: list[dict],
+    workers: int,
+    timeout: float,
+    log: Callable[[dict], None] | None = None,
+    until: float | None = None,
+) -> list[dict]:
     """Run `jobs` ({"target", "seed", "seeds", "work"}) in `workers` worker processes (`python -m
     tests.fuzzing worker`, each with its own work folder). A worker that dies mid-job is a crash, one
     that answers nothing for `timeout` seconds a hang (it is killed); either is replaced and the
@@ -604,8 +692,15 @@ def supervise(jobs: list[dict], workers: int, timeout: float, log: Callable[[dic
     repo = Path(__file__).resolve().parents[1]
 
     def start(slot: int) -> None:
-        proc = subprocess.Popen([sys.executable, "-m", "tests.fuzzing", "worker"], cwd=repo, env=env, text=True,
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "tests.fuzzing", "worker"],
+            cwd=repo,
+            env=env,
+            text=True,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+        )
         procs[slot] = (proc, None, 0.0)
         selector.register(proc.stdout, selectors.EVENT_READ, slot)
         feed(slot)
@@ -625,8 +720,17 @@ def supervise(jobs: list[dict], workers: int, timeout: float, log: Callable[[dic
         selector.unregister(proc.stdout)
         proc.kill()
         proc.wait()
-        results.append({"target": job["target"], "seed": job["seed"], "outcome": outcome, "detail": detail,
-                        "mutation": "", "argv": [], "code": proc.returncode})
+        results.append(
+            {
+                "target": job["target"],
+                "seed": job["seed"],
+                "outcome": outcome,
+                "detail": detail,
+                "mutation": "",
+                "argv": [],
+                "code": proc.returncode,
+            }
+        )
         if log:
             log(results[-1])
         start(slot)

@@ -39,10 +39,9 @@ def test_failed_write_leaves_previous_bundle_untouched(tmp_path):
     pts = np.ones((3, 3), dtype=np.float32)
     _write(tmp_path / "b", pts)
     before = (tmp_path / "b" / "manifest.json").read_bytes()
-    with pytest.raises(RuntimeError):
-        with BundleWriter(tmp_path / "b", base=Bundle(tmp_path / "b")) as w:
-            w.put_array("graph/x", np.zeros(3))
-            raise RuntimeError("crash mid-write")
+    with pytest.raises(RuntimeError), BundleWriter(tmp_path / "b", base=Bundle(tmp_path / "b")) as w:
+        w.put_array("graph/x", np.zeros(3))
+        raise RuntimeError("crash mid-write")
     assert (tmp_path / "b" / "manifest.json").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]  # no temporary folder left behind
 

@@ -63,7 +63,7 @@ def test_help_has_plain_placeholders_and_an_example(path, capsys):
     assert not re.search(r"\{[a-z_]+\}", out), out  # typer's {bundle} for a required argument
     usage = out.splitlines()[0]
     assert usage.startswith(f"Usage: terra {' '.join(path)} [OPTIONS]")
-    assert usage == usage.replace(usage[len("Usage: terra "):], usage[len("Usage: terra "):])  # one line
+    assert usage == usage.replace(usage[len("Usage: terra ") :], usage[len("Usage: terra ") :])  # one line
     assert re.search(r"^\s*Examples?\b.*terra ", out, re.M), out  # an example to copy
     # The example lines are kept whole (not wrapped in the middle of a command).
     for line in out.splitlines():
@@ -156,8 +156,11 @@ def test_ctrl_c_during_map_prints_the_resume_line_and_exits_130(tmp_path):
     proc.wait(timeout=120)
     last = (seen + rest.splitlines(keepends=True))[-1].strip()
     assert proc.returncode == 130, "".join(seen) + rest
-    match = re.fullmatch(rf"terra: interrupted; the map up to frame (\d+) is checkpointed in "
-                         rf"{re.escape(str(out))}\.partial; run the same command again to resume", last)
+    match = re.fullmatch(
+        rf"terra: interrupted; the map up to frame (\d+) is checkpointed in "
+        rf"{re.escape(str(out))}\.partial; run the same command again to resume",
+        last,
+    )
     assert match and int(match.group(1)) >= 3, last
     assert "Traceback" not in rest and not out.exists() and (tmp_path / "campus.terra.partial").is_dir()
     state = json.loads((tmp_path / "campus.terra.partial" / "state" / "state" / "meta.json").read_text())

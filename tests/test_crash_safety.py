@@ -33,7 +33,9 @@ def terra(*args, point: str | None = None, n: int = 1, timeout: float = 300) -> 
     """`terra ARGS` in a subprocess, killed at kill point `point` (tests/killpoint.py) when given."""
     cmd = [sys.executable, "-m", "tests.killpoint", point, str(n), "--"] if point else [sys.executable, "-m", "terra"]
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
-    return subprocess.run(cmd + [str(a) for a in args], cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env)
+    return subprocess.run(
+        cmd + [str(a) for a in args], cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env
+    )
 
 
 def bundle_state(path: Path) -> str:
@@ -88,8 +90,9 @@ def _check_killed_then_rerun(out: Path, old: str, new: str, rerun: list, point: 
 # Swaps of an existing target during `terra map` with checkpoint_every 1 on 3 frames: the second
 # checkpoint replaces the first (swap 1), the bundle replaces the old bundle (swap 2).
 @pytest.mark.slow
-@pytest.mark.parametrize("point,n", [("write", 3), ("write", 30), ("exchange", 2), ("rmtree", 2), ("rename", 1),
-                                     ("rename", 2)])
+@pytest.mark.parametrize(
+    "point,n", [("write", 3), ("write", 30), ("exchange", 2), ("rmtree", 2), ("rename", 1), ("rename", 2)]
+)
 def test_kill_during_map_leaves_old_or_new_and_the_rerun_cleans_up(map_setup, tmp_path, point, n):
     dataset, root, old, new = map_setup
     out = tmp_path / "campus.terra"
@@ -109,7 +112,19 @@ def test_kill_map_at_a_random_moment(map_setup, tmp_path, fraction):
     dataset, root, old, new = map_setup
     out = tmp_path / "campus.terra"
     shutil.copytree(root / "old.terra", out)
-    args = [sys.executable, "-m", "terra", "map", str(dataset), "--out", str(out), "-q", "-c", str(root / "new.yaml"), "--overwrite"]
+    args = [
+        sys.executable,
+        "-m",
+        "terra",
+        "map",
+        str(dataset),
+        "--out",
+        str(out),
+        "-q",
+        "-c",
+        str(root / "new.yaml"),
+        "--overwrite",
+    ]
     start = time.perf_counter()
     subprocess.run(args, cwd=REPO, capture_output=True, check=True)
     full = time.perf_counter() - start
@@ -243,9 +258,11 @@ def test_a_full_disk_is_one_line_and_the_old_bundle_stays(reliability_seeds, tmp
     out = tmp_path / "campus.terra"
     shutil.copytree(reliability_seeds.bundle, out)
     before = folder_digest(out)
-    argv = {"map": ["map", reliability_seeds.datasets["terra-folder"], "--out", out, "-q", "--overwrite"],
-            "build": ["build", out, "-q", "--overwrite"],
-            "find --save": ["find", out, "find the dumpster", "--save"]}[command]
+    argv = {
+        "map": ["map", reliability_seeds.datasets["terra-folder"], "--out", out, "-q", "--overwrite"],
+        "build": ["build", out, "-q", "--overwrite"],
+        "find --save": ["find", out, "find the dumpster", "--save"],
+    }[command]
     _enospc_at(monkeypatch, 3)
     code, _, err = cli(argv)
     assert code == 2
@@ -287,7 +304,9 @@ def test_a_file_size_limit_during_map_is_one_line(reliability_seeds, tmp_path):
     out = tmp_path / "campus.terra"
     shutil.copytree(reliability_seeds.bundle, out)
     before = folder_digest(out)
-    done = terra("map", reliability_seeds.datasets["terra-folder"], "--out", out, "-q", "--overwrite", point="fsize", n=100_000)
+    done = terra(
+        "map", reliability_seeds.datasets["terra-folder"], "--out", out, "-q", "--overwrite", point="fsize", n=100_000
+    )
     assert done.returncode == 2, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1 and "File too large" in done.stderr
     assert folder_digest(out) == before and leftovers(tmp_path, "campus.terra") == []
@@ -313,7 +332,9 @@ def test_a_really_full_disk(reliability_seeds, tmp_path):
     disk = tmp_path / "disk"
     disk.mkdir()
     size = int(1.4 * sum(p.stat().st_size for p in reliability_seeds.bundle.rglob("*") if p.is_file())) + 65536
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(disk)], capture_output=True).returncode:
+    if subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(disk)], capture_output=True
+    ).returncode:
         pytest.skip("tmpfs cannot be mounted here")
     try:
         out = disk / "campus.terra"
@@ -365,5 +386,8 @@ def test_info_names_a_damaged_file(reliability_seeds, tmp_path):
     (out / "map" / "bank.npy").write_bytes(bytes(data))
     code, _, err = cli(["info", out])
     assert code == 2
-    assert err.strip() == f"terra: error: {out}/map/bank.npy: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)"
+    assert (
+        err.strip()
+        == f"terra: error: {out}/map/bank.npy: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)"
+    )
     assert cli(["info", out, "--no-verify"])[0] == 0

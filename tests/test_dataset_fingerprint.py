@@ -38,8 +38,11 @@ def test_samples_spread_over_the_drive():
 def test_the_map_records_the_fingerprint_of_its_dataset(mapped_sequence):
     sequence, bundle = mapped_sequence
     recorded = Bundle(bundle.path).manifest["components"]["map"]["dataset"]
-    assert recorded == {"name": open_dataset(sequence).name, "fingerprint": dataset_fingerprint(open_dataset(sequence)),
-                        "frames": len(HandDataset())}
+    assert recorded == {
+        "name": open_dataset(sequence).name,
+        "fingerprint": dataset_fingerprint(open_dataset(sequence)),
+        "frames": len(HandDataset()),
+    }
     assert mapped_dataset_fingerprint(Bundle(bundle.path)) == recorded["fingerprint"]
 
 

@@ -271,5 +271,7 @@ def test_two_drives_need_one_chosen(drive, tmp_path):
 def test_unsynced_extract_drives_are_refused_with_a_reason(drive, tmp_path):
     date = shutil.copytree(drive.parent, tmp_path / "2011_09_26")
     (date / drive.name).rename(date / "2011_09_26_drive_0005_extract")
-    with pytest.raises(TerraError, match=r"drive_0005_extract: an unsynced '_extract' drive .* reads the synced and rectified"):
+    with pytest.raises(
+        TerraError, match=r"drive_0005_extract: an unsynced '_extract' drive .* reads the synced and rectified"
+    ):
         open_dataset(date)

@@ -22,7 +22,9 @@ def hand():
 @pytest.fixture(scope="module")
 def folders(hand, tmp_path_factory):
     root = tmp_path_factory.mktemp("layout")
-    return {fmt: write_dataset(hand, root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")}
+    return {
+        fmt: write_dataset(hand, root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")
+    }
 
 
 def pose_from_file(values: np.ndarray) -> np.ndarray:
@@ -44,7 +46,9 @@ def test_reference_folder_as_the_authors_scripts_read_it(hand, folders):
         assert cfg[f"cam{n}_dist"] == cal.dist.tolist()
     # The scan list is the pose folder sorted by the number after the last '_'; every other file's
     # name is rebuilt from that number with exactly six decimals.
-    pose_files = sorted((root / "transformations_lidar2global").iterdir(), key=lambda p: float(p.stem.rsplit("_", 1)[-1]))
+    pose_files = sorted(
+        (root / "transformations_lidar2global").iterdir(), key=lambda p: float(p.stem.rsplit("_", 1)[-1])
+    )
     stamps = [float(p.stem.rsplit("_", 1)[-1]) for p in pose_files]
     assert stamps == list(STAMPS)
     for t, pose_file, frame in zip(stamps, pose_files, hand.frames):
@@ -64,8 +68,11 @@ def test_reference_folder_as_the_authors_scripts_read_it(hand, folders):
             tf = np.load(root / f"transformations_lidar2cam{n}" / f"transform_lidar_to_cam{n}_{t:.6f}.npy")
             # lidar -> cam is T_cam<-lidar: p_c = R p_L + t.
             p_lidar = np.array([3.0, -1.0, 0.5])
-            np.testing.assert_allclose(Rotation.from_quat(tf[3:]).apply(p_lidar) + tf[:3],
-                                       cam.calibration.T_cam_lidar[:3, :3] @ p_lidar + cam.calibration.T_cam_lidar[:3, 3], atol=1e-12)
+            np.testing.assert_allclose(
+                Rotation.from_quat(tf[3:]).apply(p_lidar) + tf[:3],
+                cam.calibration.T_cam_lidar[:3, :3] @ p_lidar + cam.calibration.T_cam_lidar[:3, 3],
+                atol=1e-12,
+            )
             with Image.open(root / f"camera{n}_semantic" / f"cam{n}_sem_{t:.6f}.png") as im:
                 np.testing.assert_array_equal(np.asarray(im), cam.semantic)
     # Only the global map with the largest stamp is used, and only its [:, :3], in the map frame.
@@ -108,8 +115,12 @@ def test_semantickitti_conventions(hand, folders):
     assert poses.shape == (len(STAMPS), 12)
     np.testing.assert_array_equal(np.loadtxt(seq / "times.txt"), STAMPS)
     legend = yaml.safe_load((root / "semantic-kitti.yaml").read_text())["labels"]
-    sk = {c.id: (c.semantickitti_id if c.semantickitti_id is not None else next(k for k, v in legend.items() if v == c.name))
-          for c in CLASSES}
+    sk = {
+        c.id: (
+            c.semantickitti_id if c.semantickitti_id is not None else next(k for k, v in legend.items() if v == c.name)
+        )
+        for c in CLASSES
+    }
     assert sk[23] >= 100 and legend[10] == "car" and legend[40] == "asphalt"
     for i, frame in enumerate(hand.frames):
         scan = np.fromfile(seq / "velodyne" / f"{i:06d}.bin", dtype=np.float32).reshape(-1, 4)

@@ -18,14 +18,18 @@ from tests.fixtures_datasets import HandDataset
 def originals(tmp_path_factory):
     root = tmp_path_factory.mktemp("readers")
     hand = HandDataset()
-    return {fmt: write_dataset(hand, root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")}
+    return {
+        fmt: write_dataset(hand, root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")
+    }
 
 
 @pytest.fixture
 def copy(originals, tmp_path):
     """A fresh copy of a written folder that a test may damage."""
+
     def make(fmt):
         return shutil.copytree(originals[fmt], tmp_path / fmt)
+
     return make
 
 
@@ -41,7 +45,10 @@ def test_registry_detects_both_formats(originals):
 def test_registry_errors(originals, tmp_path):
     (tmp_path / "photos").mkdir()
     (tmp_path / "photos" / "a.txt").write_text("x")
-    with pytest.raises(TerraError, match=r"photos: not a recognised dataset \(expected one of: kitti-raw, rosbag, semantickitti, terra-folder"):
+    with pytest.raises(
+        TerraError,
+        match=r"photos: not a recognised dataset \(expected one of: kitti-raw, rosbag, semantickitti, terra-folder",
+    ):
         open_dataset(tmp_path / "photos")
     with pytest.raises(TerraError, match="does not exist"):
         open_dataset(tmp_path / "missing")
@@ -94,8 +101,21 @@ def damage_terra_folder(root, what):
     return path
 
 
-@pytest.mark.parametrize("what", ["truncated scan", "scan shape", "labels length", "pose shape", "pose quaternion",
-                                  "not npy", "image", "label image", "meta", "classes"])
+@pytest.mark.parametrize(
+    "what",
+    [
+        "truncated scan",
+        "scan shape",
+        "labels length",
+        "pose shape",
+        "pose quaternion",
+        "not npy",
+        "image",
+        "label image",
+        "meta",
+        "classes",
+    ],
+)
 def test_terra_folder_corrupt_file_names_the_file(copy, what):
     root = copy("terra-folder")
     path = damage_terra_folder(root, what)
@@ -120,8 +140,11 @@ def test_terra_folder_missing_images_skip_scans_like_the_reference(copy):
         open_dataset(root)
     for p in (root / "camera1_images").iterdir():
         p.unlink()  # a calibrated camera without images is an error, not a silent LiDAR-only run
-    with pytest.raises(TerraError, match=r"terra_dataset.json: calibrates cameras 1, 2 but .* has image folders "
-                                         r"camera2_images/: no images for camera 1$"):
+    with pytest.raises(
+        TerraError,
+        match=r"terra_dataset.json: calibrates cameras 1, 2 but .* has image folders "
+        r"camera2_images/: no images for camera 1$",
+    ):
         open_dataset(root)
 
 
@@ -161,8 +184,21 @@ def damage_kitti(root, what):
     return path
 
 
-@pytest.mark.parametrize("what", ["bin size", "label count", "poses lines", "poses text", "missing poses", "times",
-                                  "calib", "cameras json", "image", "legend"])
+@pytest.mark.parametrize(
+    "what",
+    [
+        "bin size",
+        "label count",
+        "poses lines",
+        "poses text",
+        "missing poses",
+        "times",
+        "calib",
+        "cameras json",
+        "image",
+        "legend",
+    ],
+)
 def test_semantickitti_corrupt_file_names_the_file(copy, what):
     root = copy("semantickitti")
     path = damage_kitti(root, what)
@@ -190,7 +226,14 @@ def test_folder_extracted_by_the_authors_tools(copy):
     root = copy("terra-folder")
     for extra in ("terra_dataset.json", "classes.json"):
         (root / extra).unlink()
-    for extra in ("lidar_labels", "camera1_semantic", "camera1_instance", "camera2_semantic", "camera2_instance", "ground_truth"):
+    for extra in (
+        "lidar_labels",
+        "camera1_semantic",
+        "camera1_instance",
+        "camera2_semantic",
+        "camera2_instance",
+        "ground_truth",
+    ):
         shutil.rmtree(root / extra)
     # The camera driver stamps images a little after the scan: 0.05 s is matched, 0.3 s is not.
     for n, delay in ((1, 0.05), (2, 0.05)):

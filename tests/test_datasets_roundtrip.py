@@ -17,7 +17,9 @@ def hand():
 @pytest.fixture(scope="module")
 def written(hand, tmp_path_factory):
     root = tmp_path_factory.mktemp("formats")
-    return {fmt: write_dataset(hand, root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")}
+    return {
+        fmt: write_dataset(hand, root / fmt, format=fmt, progress=False) for fmt in ("terra-folder", "semantickitti")
+    }
 
 
 def assert_same_calibration(got, expected):
@@ -114,8 +116,11 @@ def test_semantickitti_without_terra_extras_reads_like_real_kitti(hand, written,
 
     root = tmp_path / "kitti"
     seq = root / "sequences" / "00"
-    shutil.copytree(written["semantickitti"] / "sequences" / "00", seq,
-                    ignore=shutil.ignore_patterns("*_semantic", "*_instance", "terra_cameras.json"))
+    shutil.copytree(
+        written["semantickitti"] / "sequences" / "00",
+        seq,
+        ignore=shutil.ignore_patterns("*_semantic", "*_instance", "terra_cameras.json"),
+    )
     ds = open_dataset(root, format="semantickitti")
     assert ds.classes.by_id(10).name == "car" and ds.classes.by_id(48).terrain
     frame = ds[1]

@@ -25,8 +25,11 @@ def test_demo_writes_the_report_and_prints_its_figures(tiny_demo):
     printed = tiny_demo.stdout
     assert f"report: {tiny_demo.out / 'report' / 'report.md'}" in printed
     # Every retrieval / region figure printed is the one in summary.json.
-    rows = re.findall(r"retrieval (\S+)\s+\((\d+) objects, (\d+) queries\): IoU ([\d.]+) \(matched ([\d.]+)\), RAcc ([\d.]+), "
-                      r"RPrec ([\d.]+), F1 ([\d.]+)", printed)
+    rows = re.findall(
+        r"retrieval (\S+)\s+\((\d+) objects, (\d+) queries\): IoU ([\d.]+) \(matched ([\d.]+)\), RAcc ([\d.]+), "
+        r"RPrec ([\d.]+), F1 ([\d.]+)",
+        printed,
+    )
     assert {r[0] for r in rows} == set(summary["retrieval"]["methods"])
     for name, n_obj, n_q, iou, matched, racc, rprec, f1 in rows:
         m = summary["retrieval"]["methods"][name]
@@ -84,7 +87,11 @@ def test_demo_rerun_resumes_from_the_caches(tiny_demo, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a cached step was redone")
 
-    for module, name in ((terra.sim, "simulate"), (terra.mapping.pipeline, "build_map"), (terra.graph.pipeline, "build_graph")):
+    for module, name in (
+        (terra.sim, "simulate"),
+        (terra.mapping.pipeline, "build_map"),
+        (terra.graph.pipeline, "build_graph"),
+    ):
         monkeypatch.setattr(module, name, refuse)
     report = tiny_demo.out / "report" / "summary.json"
     before = report.read_bytes(), (tiny_demo.out / "demo.json").read_bytes()
@@ -120,12 +127,14 @@ def test_demo_bad_arguments_fail_with_one_line(tmp_path):
 
 
 def test_the_demo_judges_a_find_by_table_twos_rule():
-    """"Found 0.5 m away" is not a hit when the box does not overlap the object: the summary says
+    """ "Found 0.5 m away" is not a hit when the box does not overlap the object: the summary says
     so, and quotes Table II's row for the same query."""
     from terra.datasets.ground_truth import GroundTruth, ObjectBox
     from terra.eval.demo import format_demo, nearest_gt_object
 
-    truth = GroundTruth([ObjectBox(1, 26, "dumpster", np.array([0.0, 0.0, 0.75]), np.array([2.0, 1.0, 1.5]), 0.0)], None, [])
+    truth = GroundTruth(
+        [ObjectBox(1, 26, "dumpster", np.array([0.0, 0.0, 0.75]), np.array([2.0, 1.0, 1.5]), 0.0)], None, []
+    )
     beside = {"center": [0.0, 0.5 + 0.8, 0.75], "size": [2.0, 0.2, 1.5], "yaw": 0.0}  # thin, 0.7 m off its side
     over = {"center": [0.5, 0.0, 0.75], "size": [2.0, 1.0, 1.5], "yaw": 0.0}  # shifted 0.5 m along its length
     miss = nearest_gt_object(np.array(beside["center"]), truth, "dumpster", beside)
@@ -133,34 +142,79 @@ def test_the_demo_judges_a_find_by_table_twos_rule():
     hit = nearest_gt_object(np.array(over["center"]), truth, "dumpster", over)
     assert hit["iou"] == pytest.approx(1.5 / 2.5) and hit["hit"] is True  # overlap 1.5 x 1 x 1.5 of 2 x 1 x 1.5 each
     row = {"query": "Find the dumpster", "num_gt": 2, "num_predictions": 3, "relaxed_hits": 0}
-    demo = {"test_scene": {"preset": "tiny", "seed": 0}, "validation_scene": {"preset": "tiny", "seed": 1},
-            "tasks": {"find": [{"query": "Find the dumpster", "method": "ms-avg", "alpha": 0.4,
-                                "best": {**beside, "score": 0.8}, "nearest_gt": miss}],
-                      "monitor": {"query": "q", "method": "mix", "parameters": {"k": 1}, "places": 0, "regions": 1,
-                                  "labelled_region": {"name": "service", "gt_places": 0, "precision": 0.0, "recall": 0.0}},
-                      "plan": {"to": "x", "prefer": ["sidewalk"], "error": "no path"}},
-            "evaluation": {"parameters": {"source": "defaults"},
-                           "retrieval": {"queries": ["Find the dumpster"], "num_gt": 2, "methods": {"ms-avg": {
-                               "per_query": [row], "iou": 0.0, "relaxed_accuracy": 0.0, "relaxed_precision": 0.0, "f1": 0.0}}}},
-            "report": "report/report.md"}
+    demo = {
+        "test_scene": {"preset": "tiny", "seed": 0},
+        "validation_scene": {"preset": "tiny", "seed": 1},
+        "tasks": {
+            "find": [
+                {
+                    "query": "Find the dumpster",
+                    "method": "ms-avg",
+                    "alpha": 0.4,
+                    "best": {**beside, "score": 0.8},
+                    "nearest_gt": miss,
+                }
+            ],
+            "monitor": {
+                "query": "q",
+                "method": "mix",
+                "parameters": {"k": 1},
+                "places": 0,
+                "regions": 1,
+                "labelled_region": {"name": "service", "gt_places": 0, "precision": 0.0, "recall": 0.0},
+            },
+            "plan": {"to": "x", "prefer": ["sidewalk"], "error": "no path"},
+        },
+        "evaluation": {
+            "parameters": {"source": "defaults"},
+            "retrieval": {
+                "queries": ["Find the dumpster"],
+                "num_gt": 2,
+                "methods": {
+                    "ms-avg": {
+                        "per_query": [row],
+                        "iou": 0.0,
+                        "relaxed_accuracy": 0.0,
+                        "relaxed_precision": 0.0,
+                        "f1": 0.0,
+                    }
+                },
+            },
+        },
+        "report": "report/report.md",
+    }
     lines = format_demo(demo, Path("out"))
-    assert lines[1] == ("  find 'Find the dumpster': object at (0.0, 1.3, 0.8) m, score 0.80; nearest true dumpster 1.3 m away, "
-                        "box IoU 0.00: not a hit (the boxes do not overlap) (Table II, ms-avg: 3 found, 0 of 2 dumpsters hit)")
-    assert lines[2] == "  monitor 'q': 0 places in 1 region (mix, k 1); labelled region 'service' is not evaluable (no place inside it)"
+    assert lines[1] == (
+        "  find 'Find the dumpster': object at (0.0, 1.3, 0.8) m, score 0.80; nearest true dumpster 1.3 m away, "
+        "box IoU 0.00: not a hit (the boxes do not overlap) (Table II, ms-avg: 3 found, 0 of 2 dumpsters hit)"
+    )
+    assert (
+        lines[2]
+        == "  monitor 'q': 0 places in 1 region (mix, k 1); labelled region 'service' is not evaluable (no place inside it)"
+    )
 
 
 def test_the_demo_says_which_perception_made_the_map(tiny_demo):
     report = (tiny_demo.out / "report" / "report.md").read_text()
-    assert "Perception: the `labels` backend" in report and "not comparable with the paper's CLIP/YOLO numbers" in report
+    assert (
+        "Perception: the `labels` backend" in report and "not comparable with the paper's CLIP/YOLO numbers" in report
+    )
     assert "  perception: labels backend (the ground-truth label images with simulated noise)" in tiny_demo.stdout
     assert _summary(tiny_demo)["perception"]["ground_truth_masks"] is True
 
 
 def _scores(summary: dict) -> dict:
     """What must not depend on where the dataset lives: the tables, without runtimes."""
-    retrieval = {m: {k: v for k, v in s.items() if k != "runtime_ms"} for m, s in summary["retrieval"]["methods"].items()}
+    retrieval = {
+        m: {k: v for k, v in s.items() if k != "runtime_ms"} for m, s in summary["retrieval"]["methods"].items()
+    }
     regions = {m: (s["precision"], s["recall"], s["f1"]) for m, s in summary["regions"]["methods"].items()}
-    return {"retrieval": retrieval, "regions": regions, "places": summary["places"], "memory": summary["memory"]["area_m2"]}
+    return {
+        "retrieval": retrieval,
+        "regions": regions,
+        "places": summary["places"],
+        "memory": summary["memory"]["area_m2"],
+    }
 
 
 def test_a_renamed_copy_of_the_dataset_evaluates_like_the_original(tiny_demo, tmp_path):
@@ -171,21 +225,56 @@ def test_a_renamed_copy_of_the_dataset_evaluates_like_the_original(tiny_demo, tm
     config = tmp_path / "fast.yaml"
     config.write_text("eval:\n  figures: false\n  segmentation:\n    max_images: 0\n")
     tuned = tiny_demo.validation / "tuned.json"
-    code, out, err = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(copy), "--tuned", str(tuned), "--out",
-                              str(tmp_path / "report"), "--config", str(config), "--json"])
+    code, out, err = run_cli(
+        [
+            "eval",
+            str(tiny_demo.bundle),
+            "--gt",
+            str(copy),
+            "--tuned",
+            str(tuned),
+            "--out",
+            str(tmp_path / "report"),
+            "--config",
+            str(config),
+            "--json",
+        ]
+    )
     assert code == 0, err
     summary = json.loads(out)
     assert summary["dataset"] == "campus-copy"
     assert _scores(summary) == _scores(_summary(tiny_demo))
     # Another scene is refused whatever it is called; parameters tuned on a renamed copy of the
     # validation scene are recognised as tuned on it.
-    code, _, err = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.validation / "dataset"), "--out",
-                            str(tmp_path / "other"), "--config", str(config)])
+    code, _, err = run_cli(
+        [
+            "eval",
+            str(tiny_demo.bundle),
+            "--gt",
+            str(tiny_demo.validation / "dataset"),
+            "--out",
+            str(tmp_path / "other"),
+            "--config",
+            str(config),
+        ]
+    )
     assert code == 2 and "not the dataset" in err and not (tmp_path / "other").exists()
     val_copy = Path(shutil.copytree(tiny_demo.validation / "dataset", tmp_path / "val-copy"))
     meta = json.loads((val_copy / "terra_dataset.json").read_text())
     meta["name"] = "val-copy"
     (val_copy / "terra_dataset.json").write_text(json.dumps(meta))
-    code, _, err = run_cli(["eval", str(tiny_demo.validation / "map.terra"), "--gt", str(val_copy), "--tuned", str(tuned),
-                            "--out", str(tmp_path / "val"), "--config", str(config)])
+    code, _, err = run_cli(
+        [
+            "eval",
+            str(tiny_demo.validation / "map.terra"),
+            "--gt",
+            str(val_copy),
+            "--tuned",
+            str(tuned),
+            "--out",
+            str(tmp_path / "val"),
+            "--config",
+            str(config),
+        ]
+    )
     assert code == 2 and "were tuned on the scene under test" in err

@@ -65,10 +65,17 @@ def dask_cluster():
     """A 2-worker local cluster started by the test, as a user would start one for --scheduler."""
     from distributed import Client, LocalCluster
 
-    with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
-        silence_logs=logging.CRITICAL,
-    ) as cluster, Client(cluster, set_as_default=False) as client:
+    with (
+        LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            silence_logs=logging.CRITICAL,
+        ) as cluster,
+        Client(cluster, set_as_default=False) as client,
+    ):
         yield client
 
 
@@ -242,8 +249,11 @@ def test_ctrl_c_stops_the_cluster_and_resumes_to_the_same_bytes(tiny_folder, das
     argv = ["map", str(tiny_folder), "--out", str(out), "--config", str(config)]
     # A terminal's Ctrl-C: SIGINT to the whole process group, the worker processes included.
     child = subprocess.Popen(
-        [sys.executable, "-m", "terra", *argv, "--workers", "2", "--in-flight", "1", "-q"], cwd=ROOT,
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
+        [sys.executable, "-m", "terra", *argv, "--workers", "2", "--in-flight", "1", "-q"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
     )
     import psutil
 

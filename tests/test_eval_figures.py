@@ -19,24 +19,41 @@ def grid_graph() -> SceneGraph:
     xs, ys = np.meshgrid(np.arange(6) * 4.0, np.arange(5) * 4.0)
     pos = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1)
     idx = np.arange(len(pos)).reshape(xs.shape)
-    edges = np.concatenate([np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
-                            np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)])
+    edges = np.concatenate(
+        [np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1), np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)]
+    )
     terrain = (pos[:, 0] // 8).astype(np.int64)
     level1 = terrain.copy()
     level2 = np.array([0, 0, 1])
-    regions = [RegionLevel(1, np.stack([pos[level1 == r].mean(0) for r in range(3)]), np.zeros((3, 3), np.float32), level1),
-               RegionLevel(2, np.array([[4.0, 8, 0], [18, 8, 0]]), np.zeros((2, 3), np.float32), level2)]
+    regions = [
+        RegionLevel(1, np.stack([pos[level1 == r].mean(0) for r in range(3)]), np.zeros((3, 3), np.float32), level1),
+        RegionLevel(2, np.array([[4.0, 8, 0], [18, 8, 0]]), np.zeros((2, 3), np.float32), level2),
+    ]
     places = Places(pos, terrain, np.ones(len(pos)), np.zeros((len(pos), 3), np.float32))
     kind = np.zeros(len(edges), np.int64)
     kind[0] = 2
-    return SceneGraph(TERRAIN, np.eye(3, dtype=np.float32), places, edges, np.full(len(edges), 4.0), kind, regions,
-                      embedder="test", region_method="agglomerative")
+    return SceneGraph(
+        TERRAIN,
+        np.eye(3, dtype=np.float32),
+        places,
+        edges,
+        np.full(len(edges), 4.0),
+        kind,
+        regions,
+        embedder="test",
+        region_method="agglomerative",
+    )
 
 
 def ground_truth() -> GroundTruth:
     classes = np.array([[1, 2, 3], [1, 9, 3]], np.int32)
-    raster = TerrainRaster(classes, np.zeros((2, 3), np.float32), np.array([-1.0, -1.0]), 10.0,
-                           {1: "sidewalk", 2: "grass", 3: "asphalt", 9: "building"})
+    raster = TerrainRaster(
+        classes,
+        np.zeros((2, 3), np.float32),
+        np.array([-1.0, -1.0]),
+        10.0,
+        {1: "sidewalk", 2: "grass", 3: "asphalt", 9: "building"},
+    )
     objects = [ObjectBox(1, 9, "car", np.array([5.0, 5, 0.75]), np.array([4.0, 2, 1.5]), 0.3)]
     regions = [NamedRegion("lot", "Large parking lot", np.array([[0, 0], [10, 0], [10, 10], [0, 10.0]]))]
     return GroundTruth(objects, raster, regions)
@@ -61,6 +78,7 @@ def test_terrain_images_use_the_terrain_palette():
     assert tuple(raster.rgba[0, 0, :3]) == pytest.approx(terrain_colour("sidewalk"))
     assert tuple(raster.rgba[0, 2, :3]) == pytest.approx(terrain_colour("asphalt"))
     from matplotlib.colors import to_rgb
+
     assert tuple(raster.rgba[1, 1, :3]) == pytest.approx(to_rgb(OTHER_COLOUR))  # building: not terrain
     assert raster.extent == (-1.0, 29.0, -1.0, 19.0)
 
@@ -77,13 +95,27 @@ def draw_every_figure(out):
         figures.terrain_map_figure(out / "terrain.png", TERRAIN, pts, classes, gt),
         figures.places_figure(out / "places.png", sg, background),
         figures.region_levels_figure(out / "regions.png", sg, background),
-        figures.boxes_figure(out / "boxes.png", gt_boxes, {"ms-avg": (pred, np.array([0]))}, ["Find the car"], np.array([0]), background),
-        figures.paths_figure(out / "paths.png", sg, 0, 29, [("shortest", np.array([0, 7, 14, 21, 28, 29]), 24.0),
-                                                            ("prefer sidewalk", np.array([0, 6, 12, 18, 24, 25, 26, 27, 28, 29]), 36.0)],
-                             "Get bike from the bicycle rack", background),
-        figures.monitoring_figure(out / "monitor.png", sg, gt.regions, [np.array([0, 1, 6, 7])], "mix", background,
-                                  scores=[(0.5, 0.25)]),
-        figures.memory_figure(out / "memory.png", {"map: points": 300_000, "graph: nodes and edges": 40_000, "other": 3000}, 2000.0),
+        figures.boxes_figure(
+            out / "boxes.png", gt_boxes, {"ms-avg": (pred, np.array([0]))}, ["Find the car"], np.array([0]), background
+        ),
+        figures.paths_figure(
+            out / "paths.png",
+            sg,
+            0,
+            29,
+            [
+                ("shortest", np.array([0, 7, 14, 21, 28, 29]), 24.0),
+                ("prefer sidewalk", np.array([0, 6, 12, 18, 24, 25, 26, 27, 28, 29]), 36.0),
+            ],
+            "Get bike from the bicycle rack",
+            background,
+        ),
+        figures.monitoring_figure(
+            out / "monitor.png", sg, gt.regions, [np.array([0, 1, 6, 7])], "mix", background, scores=[(0.5, 0.25)]
+        ),
+        figures.memory_figure(
+            out / "memory.png", {"map: points": 300_000, "graph: nodes and edges": 40_000, "other": 3000}, 2000.0
+        ),
     ]
 
 

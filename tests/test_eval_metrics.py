@@ -199,7 +199,9 @@ def test_place_terrain_agreement_counts_wrong_places_by_distance_to_their_terrai
     classes = np.full((5, 10), 2, dtype=np.int32)
     classes[:, :2] = 1
     classes[4, 9] = 0
-    raster = TerrainRaster(classes, np.zeros((5, 10), np.float32), np.zeros(2), 1.0, {0: "unlabeled", 1: "sidewalk", 2: "grass"})
+    raster = TerrainRaster(
+        classes, np.zeros((5, 10), np.float32), np.zeros(2), 1.0, {0: "unlabeled", 1: "sidewalk", 2: "grass"}
+    )
     position = [[0.5, 0.5], [1.5, 3.5], [2.5, 2.5], [8.5, 1.5], [5.5, 2.5], [9.5, 4.5], [20.0, 1.0]]
     terrain = [0, 0, 0, 0, 1, 1, 0]
     graph = make_graph(position, terrain, [], terrain_classes=["sidewalk", "grass"])
@@ -222,7 +224,9 @@ def test_distance_to_path_and_iou_by_distance_band():
     np.testing.assert_allclose(matched[0], [1 / 3, np.nan])
     bands = iou_by_distance(matched, gt, path, bands=(5.0, 10.0))
     assert [(b["objects"], b["matched"]) for b in bands] == [(1, 1), (0, 0), (1, 0)]
-    assert bands[0]["matched_iou"] == pytest.approx(1 / 3) and bands[2]["matched_iou"] is None and bands[2]["to_m"] is None
+    assert (
+        bands[0]["matched_iou"] == pytest.approx(1 / 3) and bands[2]["matched_iou"] is None and bands[2]["to_m"] is None
+    )
 
 
 def test_matched_iou_is_the_mean_over_matches_only():
@@ -233,8 +237,8 @@ def test_matched_iou_is_the_mean_over_matches_only():
 
 
 def test_table_iii_runtime_is_building_the_regions_plus_one_query():
-    from terra.eval.regions import MonitoringRun
     from terra.eval.metrics.regions import SetScores
+    from terra.eval.regions import MonitoringRun
 
     hierarchy = MonitoringRun([], [SetScores(1, 0, 0)] * 4, seconds=0.4, build_seconds=0.06)
     assert hierarchy.timing_ms() == pytest.approx({"regions_ms": 60.0, "query_ms": 100.0, "runtime_ms": 160.0})

@@ -16,7 +16,9 @@ def detour_raster() -> TerrainRaster:
     y in [-1, 1) under the direct route of the detour graph."""
     classes = np.zeros((10, 14), dtype=np.int32)
     classes[1:3, 3:11] = 1
-    return TerrainRaster(classes, np.zeros((10, 14), np.float32), np.array([-2.0, -2.0]), 1.0, {0: "sidewalk", 1: "grass"})
+    return TerrainRaster(
+        classes, np.zeros((10, 14), np.float32), np.array([-2.0, -2.0]), 1.0, {0: "sidewalk", 1: "grass"}
+    )
 
 
 def test_preferring_sidewalk_moves_the_detour_case_onto_it():

@@ -35,20 +35,42 @@ def _fast_config(tmp_path):
 
 def test_report_has_every_table_key_and_a_readable_png_per_figure(tiny_demo):
     summary = _summary(tiny_demo)
-    assert {"bundle", "dataset", "embedder", "parameters", "segmentation", "retrieval", "regions", "memory", "navigation",
-            "figures", "timing"} <= set(summary)
+    assert {
+        "bundle",
+        "dataset",
+        "embedder",
+        "parameters",
+        "segmentation",
+        "retrieval",
+        "regions",
+        "memory",
+        "navigation",
+        "figures",
+        "timing",
+    } <= set(summary)
     for key in ("iou", "strict_accuracy", "relaxed_accuracy", "strict_precision", "relaxed_precision", "f1", "alpha"):
         assert all(key in m for m in summary["retrieval"]["methods"].values())
     for key in ("precision", "recall", "f1", "runtime_ms", "parameters", "per_query"):
         assert all(key in m for m in summary["regions"]["methods"].values())
     assert {"miou", "fw_miou", "f1", "fps"} <= set(next(iter(summary["segmentation"]["methods"].values())))
     text = (tiny_demo.out / "report" / "report.md").read_text()
-    for heading in ("## Table I: terrain segmentation", "## Table II: open-set object retrieval", "## Table III: region monitoring",
-                    "## Memory of the saved map and graph", "## Navigation:", "## Figures"):
+    for heading in (
+        "## Table I: terrain segmentation",
+        "## Table II: open-set object retrieval",
+        "## Table III: region monitoring",
+        "## Memory of the saved map and graph",
+        "## Navigation:",
+        "## Figures",
+    ):
         assert heading in text
     titles = set(summary["figures"])
-    assert {"Terrain map vs ground truth", "Places layer by terrain", "Retrieved boxes vs ground truth",
-            "Terrain-aware navigation", "Memory"} <= titles
+    assert {
+        "Terrain map vs ground truth",
+        "Places layer by terrain",
+        "Retrieved boxes vs ground truth",
+        "Terrain-aware navigation",
+        "Memory",
+    } <= titles
     assert any(t.startswith("Region levels") for t in titles)
     for rel in summary["figures"].values():
         with Image.open(tiny_demo.out / "report" / rel) as im:
@@ -95,9 +117,9 @@ def test_retrieval_truth_and_memory_match_the_files(tiny_demo):
 
 def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_there(tiny_demo):
     from terra.eval.config import EvalConfig
+    from terra.eval.inputs import EvalInputs
     from terra.eval.regions import MonitorParams, region_truth
     from terra.eval.retrieval import retrieval_task, run_retrieval
-    from terra.eval.inputs import EvalInputs
     from terra.eval.runner import monitoring_run
     from terra.eval.tuning import TunedParameters, alpha_grid
 
@@ -105,7 +127,10 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
     val = EvalInputs.load(tiny_demo.validation / "map.terra", tiny_demo.validation / "dataset")
     config = EvalConfig()
     task = retrieval_task(val.gt, config.retrieval)
-    f1 = [run_retrieval(val.msm, val.graph, task.queries, "ms-avg", a, val.embedder).evaluate(task).f1 for a in alpha_grid(config.tune)]
+    f1 = [
+        run_retrieval(val.msm, val.graph, task.queries, "ms-avg", a, val.embedder).evaluate(task).f1
+        for a in alpha_grid(config.tune)
+    ]
     assert tuned.retrieval["ms-avg"]["f1"] == pytest.approx(max(f1))
     assert tuned.retrieval["ms-avg"]["alpha"] == alpha_grid(config.tune)[int(np.argmax(f1))]
     truth = region_truth(val.graph, val.gt.regions)
@@ -132,8 +157,8 @@ def test_tuned_parameters_record_the_query_mode_and_are_refused_under_another(ti
 
 
 def test_aib_null_score_changes_what_aib_returns(tiny_demo):
-    from terra.eval.regions import MonitorParams, region_truth
     from terra.eval.inputs import EvalInputs
+    from terra.eval.regions import MonitorParams, region_truth
     from terra.eval.runner import monitoring_run
 
     val = EvalInputs.load(tiny_demo.validation / "map.terra", tiny_demo.validation / "dataset")
@@ -147,8 +172,21 @@ def test_eval_cli_is_deterministic_apart_from_runtimes(tiny_demo, tmp_path):
     tuned = tiny_demo.validation / "tuned.json"
     summaries = []
     for name in ("a", "b"):
-        code, stdout, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--tuned", str(tuned),
-                                        "--config", str(config), "--out", str(tmp_path / name), "-q"])
+        code, stdout, stderr = run_cli(
+            [
+                "eval",
+                str(tiny_demo.bundle),
+                "--gt",
+                str(tiny_demo.dataset),
+                "--tuned",
+                str(tuned),
+                "--config",
+                str(config),
+                "--out",
+                str(tmp_path / name),
+                "-q",
+            ]
+        )
         assert code == 0, stderr
         assert f"report: {tmp_path / name / 'report.md'}" in stdout
         summaries.append(json.loads((tmp_path / name / "summary.json").read_text()))
@@ -186,17 +224,31 @@ def test_eval_bad_input_one_line_exit_2_and_no_report(tiny_demo, tmp_path):
         _assert_one_line_error(code, stderr, pattern)
     code, _, stderr = run_cli(["eval", str(no_graph), "--gt", str(tiny_demo.dataset), "--out", str(out), "-q"])
     _assert_one_line_error(code, stderr, "no scene graph")
-    code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--tuned", str(tuned_on_test),
-                               "--out", str(out), "-q"])
+    code, _, stderr = run_cli(
+        [
+            "eval",
+            str(tiny_demo.bundle),
+            "--gt",
+            str(tiny_demo.dataset),
+            "--tuned",
+            str(tuned_on_test),
+            "--out",
+            str(out),
+            "-q",
+        ]
+    )
     _assert_one_line_error(code, stderr, "the scene under test")
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map-only.terra", "not-a-dataset", "tuned-on-test.json"]
     # A folder that is not a report is never replaced, even with --overwrite.
     (empty / "notes.txt").write_text("mine")
-    code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q"])
+    code, _, stderr = run_cli(
+        ["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q"]
+    )
     _assert_one_line_error(code, stderr, "exists (pass --overwrite to replace it)")
-    code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q",
-                               "--overwrite"])
+    code, _, stderr = run_cli(
+        ["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--out", str(empty), "-q", "--overwrite"]
+    )
     _assert_one_line_error(code, stderr, "is not an evaluation report folder")
     assert [p.name for p in empty.iterdir()] == ["notes.txt"]
 
@@ -223,6 +275,17 @@ def test_a_failure_midway_leaves_no_partial_report_and_keeps_the_old_one(tiny_de
 
 
 def test_tune_and_tuned_together_are_refused(tiny_demo, tmp_path):
-    code, _, stderr = run_cli(["eval", str(tiny_demo.bundle), "--gt", str(tiny_demo.dataset), "--tune", "--tuned", "x.json",
-                               "--out", str(tmp_path / "r")])
+    code, _, stderr = run_cli(
+        [
+            "eval",
+            str(tiny_demo.bundle),
+            "--gt",
+            str(tiny_demo.dataset),
+            "--tune",
+            "--tuned",
+            "x.json",
+            "--out",
+            str(tmp_path / "r"),
+        ]
+    )
     _assert_one_line_error(code, stderr, "give one of them")

@@ -57,8 +57,10 @@ def readme_commands() -> list[str]:
 def test_readme_first_commands_install_then_demo_and_test():
     demo, tests = readme_commands()
     assert demo == 'pip install torch==2.13.0 -e ".[test]" && terra demo --out terra-demo'
-    assert tests == ('pip install torch==2.13.0 -e ".[test]" && bash scripts/setup-test-browser.sh '
-                     "&& python -m pytest -q -p no:cacheprovider")
+    assert tests == (
+        'pip install torch==2.13.0 -e ".[test]" && bash scripts/setup-test-browser.sh '
+        "&& python -m pytest -q -p no:cacheprovider"
+    )
     assert (REPO / "scripts" / "setup-test-browser.sh").is_file()
 
 

@@ -35,8 +35,13 @@ BUDGET = {
     "msmap yaml": 15,
     "reference files": 20,
 }
-FUZZ = settings(deadline=None, derandomize=True, database=None, phases=[Phase.explicit, Phase.generate],
-                suppress_health_check=list(HealthCheck))
+FUZZ = settings(
+    deadline=None,
+    derandomize=True,
+    database=None,
+    phases=[Phase.explicit, Phase.generate],
+    suppress_health_check=list(HealthCheck),
+)
 
 
 def test_every_reader_has_a_budget(reliability_seeds):
@@ -63,8 +68,11 @@ def test_mutated_inputs_give_a_valid_result_or_one_line(reliability_seeds, tmp_p
 @pytest.mark.slow
 def test_no_mutated_input_crashes_or_hangs_a_process(reliability_seeds, tmp_path):
     """Worker processes (each running many inputs) observed from outside: zero crashes, zero hangs."""
-    jobs = [{"target": name, "seed": seed, "seeds": reliability_seeds.to_json(), "work": str(tmp_path)}
-            for name in ("bundle arrays", "bag rosbag1", "bag rosbag2") for seed in range(20)]
+    jobs = [
+        {"target": name, "seed": seed, "seeds": reliability_seeds.to_json(), "work": str(tmp_path)}
+        for name in ("bundle arrays", "bag rosbag1", "bag rosbag2")
+        for seed in range(20)
+    ]
     results = supervise(jobs, workers=2, timeout=120.0)
     assert len(results) == len(jobs)
     failed = [r for r in results if r["outcome"] in FAILURES]

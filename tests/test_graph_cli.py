@@ -19,7 +19,11 @@ from tests.fixtures_graph import copy_bundle
 
 def folder_state(path: Path) -> dict[str, str]:
     """SHA-256 of every file under the bundle's parent folder (catches leftover temporaries too)."""
-    return {str(p.relative_to(path.parent)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.parent.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(path.parent)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(path.parent.rglob("*"))
+        if p.is_file()
+    }
 
 
 def fails_cleanly(argv: list[str], bundle: Path, capsys, expect: str) -> str:
@@ -71,7 +75,9 @@ def test_a_map_without_terrain_points(tiny_copy, capsys):
 def test_configured_terrain_classes_missing_from_the_map(tiny_copy, tmp_path, capsys):
     config = tmp_path / "terra.yaml"
     config.write_text("build:\n  terrain:\n    include: [sidewalk, lava]\n")
-    err = fails_cleanly(["build", str(tiny_copy), "--config", str(config)], tiny_copy, capsys, "'lava' is not in the map")
+    err = fails_cleanly(
+        ["build", str(tiny_copy), "--config", str(config)], tiny_copy, capsys, "'lava' is not in the map"
+    )
     assert "sidewalk" in err  # names what the map has
 
 
@@ -125,5 +131,9 @@ def test_build_cuts_reproduces_the_papers_fixed_levels(tiny_copy, capsys):
         pairs = np.unique(np.column_stack([expected, got]), axis=0)
         assert len(pairs) == len(np.unique(expected)) == len(np.unique(got))  # the same partition
     assert summary["regions_per_level"] == [len(level) for level in graph.regions]
-    fails_cleanly(["build", str(tiny_copy), "--cuts", "50,x"], tiny_copy, capsys, "--cuts expects comma-separated numbers")
-    fails_cleanly(["build", str(tiny_copy), "--cuts", "100,50"], tiny_copy, capsys, "cuts must be a non-empty list of increasing")
+    fails_cleanly(
+        ["build", str(tiny_copy), "--cuts", "50,x"], tiny_copy, capsys, "--cuts expects comma-separated numbers"
+    )
+    fails_cleanly(
+        ["build", str(tiny_copy), "--cuts", "100,50"], tiny_copy, capsys, "cuts must be a non-empty list of increasing"
+    )

@@ -195,7 +195,9 @@ def test_a_map_without_images_falls_back_to_points_and_says_so(tiny_bundle, tmp_
     # Every place takes the points' mean, except those with no observed point within 20 m (on the
     # fields around the campus), which take their terrain's name.
     source = stats["embedding_source"]
-    assert source["points"] + source["terrain_text"] == len(graph.places) and source["points"] >= 0.8 * len(graph.places)
+    assert source["points"] + source["terrain_text"] == len(graph.places) and source["points"] >= 0.8 * len(
+        graph.places
+    )
     assert stats["embedding_rule"].startswith("points: the map has no images")
     # The fallback is the normalised mean MS-Avg feature of the points within 20 m (2D, per 2 m
     # cell: compare with the direct mean over points for one place, allowing the cell rounding).

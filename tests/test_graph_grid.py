@@ -29,10 +29,21 @@ def strip_scene() -> tuple[np.ndarray, np.ndarray]:
     """A 3 m wide sidewalk along x: densely labelled on [0, 15) and [30, 40), labelled only on thin
     columns on [15, 30); beyond it, [40, 50) ground with a few grass columns (one mislabelled view)
     that joins no densely labelled grass."""
-    dense_a, sparse, dense_b, stray = lattice(0, 15, 0, 3), lattice(15, 30, 0, 3), lattice(30, 40, 0, 3), lattice(40, 50, 0, 3)
+    dense_a, sparse, dense_b, stray = (
+        lattice(0, 15, 0, 3),
+        lattice(15, 30, 0, 3),
+        lattice(30, 40, 0, 3),
+        lattice(40, 50, 0, 3),
+    )
     points = np.vstack([dense_a, sparse, dense_b, stray])
-    terrain = np.concatenate([np.full(len(dense_a), SIDEWALK), sparse_labels(sparse, SIDEWALK), np.full(len(dense_b), SIDEWALK),
-                              sparse_labels(stray, GRASS)])
+    terrain = np.concatenate(
+        [
+            np.full(len(dense_a), SIDEWALK),
+            sparse_labels(sparse, SIDEWALK),
+            np.full(len(dense_b), SIDEWALK),
+            sparse_labels(stray, GRASS),
+        ]
+    )
     return points, terrain
 
 
@@ -49,11 +60,14 @@ def test_a_sparsely_labelled_stretch_continues_the_strip_it_joins():
     points, terrain = strip_scene()
     # The window majority needs 60 % of a 3.6 m window labelled: the columns (1 in 10 of the
     # points) are far below that, so without hysteresis the strip breaks in two.
-    plain = build_terrain_grid(points, terrain, support_radius=1.6, min_support=0.6, fill_radius=0.0, obstacle_height=None)
+    plain = build_terrain_grid(
+        points, terrain, support_radius=1.6, min_support=0.6, fill_radius=0.0, obstacle_height=None
+    )
     assert label_at(plain, 22.5, 1.5) == -1
     assert sidewalk_pieces(plain) == 2
-    grid = build_terrain_grid(points, terrain, support_radius=1.6, min_support=0.6, fill_radius=0.0, obstacle_height=None,
-                              weak_support=0.1)
+    grid = build_terrain_grid(
+        points, terrain, support_radius=1.6, min_support=0.6, fill_radius=0.0, obstacle_height=None, weak_support=0.1
+    )
     assert label_at(grid, 22.5, 1.5) == SIDEWALK
     assert sidewalk_pieces(grid) == 1
     # The densely labelled cells are the same either way.
@@ -63,8 +77,9 @@ def test_a_sparsely_labelled_stretch_continues_the_strip_it_joins():
 
 def test_a_sparse_patch_that_continues_no_dense_patch_stays_unlabelled():
     points, terrain = strip_scene()
-    grid = build_terrain_grid(points, terrain, support_radius=1.6, min_support=0.6, fill_radius=0.0, obstacle_height=None,
-                              weak_support=0.1)
+    grid = build_terrain_grid(
+        points, terrain, support_radius=1.6, min_support=0.6, fill_radius=0.0, obstacle_height=None, weak_support=0.1
+    )
     # The stray grass columns touch the sidewalk's end but no grass that meets min_support: they
     # take neither grass (not anchored) nor sidewalk (not their majority).
     assert label_at(grid, 46.0, 1.5) == -1
@@ -84,8 +99,9 @@ def test_hysteresis_does_not_cross_a_blocked_cell_band():
     points, terrain = strip_scene()
     wall = lattice(21.8, 22.6, -1, 4)
     wall = np.vstack([wall + [0, 0, 0.8], wall + [0, 0, 1.2]])
-    grid = build_terrain_grid(np.vstack([points, wall]), np.concatenate([terrain, np.full(len(wall), -1)]), fill_radius=0.0,
-                              weak_support=0.1)
+    grid = build_terrain_grid(
+        np.vstack([points, wall]), np.concatenate([terrain, np.full(len(wall), -1)]), fill_radius=0.0, weak_support=0.1
+    )
     assert label_at(grid, 22.2, 1.5) == -1
     assert label_at(grid, 18.0, 1.5) == SIDEWALK and label_at(grid, 27.0, 1.5) == SIDEWALK
     assert sidewalk_pieces(grid) == 2

@@ -10,7 +10,15 @@ from terra.graph.skeleton import prune_spurs, skeleton_graph
 from terra.graph.thinning import thin
 
 # Cells, not metres: the extraction parameters the pipeline would derive at 0.4 m cells.
-PARAMS = dict(min_clearance=1.0, min_gap=1.5, prune_ratio=1.5, prune_length=2.5, junction_merge=1.0, max_deviation=9.4, max_distance=25.0)
+PARAMS = dict(
+    min_clearance=1.0,
+    min_gap=1.5,
+    prune_ratio=1.5,
+    prune_length=2.5,
+    junction_merge=1.0,
+    max_deviation=9.4,
+    max_distance=25.0,
+)
 
 
 def corridor(width=11, length=60, margin=5):
@@ -152,8 +160,8 @@ def test_a_small_plaza_off_a_road_gets_a_place():
     the GVD branches into the pad are pruned as corner spurs, so without the pocket rule no place
     lies in it; with it (5 m = 12.5 cells) the pad holds a place joined to the road's places, and
     only the branches reaching beyond 5 m from the kept GVD come back."""
-    from scipy.sparse.csgraph import connected_components
     import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
 
     free = np.zeros((60, 130), bool)
     free[30:55, 5:125] = True

@@ -53,7 +53,9 @@ def test_bridges_connect_every_component_with_the_penalty_where_blocked():
     pairs, cost, clear = bridge_components(position, edges, penalty=100.0)
     assert sorted(map(tuple, pairs.tolist())) == [(2, 3), (5, 6)]
     assert np.allclose(sorted(cost), [80.0, 180.0]) and clear.all()
-    blocked, blocked_cost, blocked_clear = bridge_components(position, edges, penalty=100.0, clear=lambda a, b: np.zeros(len(a), bool))
+    blocked, blocked_cost, blocked_clear = bridge_components(
+        position, edges, penalty=100.0, clear=lambda a, b: np.zeros(len(a), bool)
+    )
     assert sorted(map(tuple, blocked.tolist())) == [(2, 3), (5, 6)]
     assert np.allclose(sorted(blocked_cost), [8000.0, 18000.0]) and not blocked_clear.any()
     # Nothing is dropped: every place is in the one resulting component.

@@ -43,10 +43,16 @@ def test_terrain_index_in_chunks_equals_the_hand_worked_majority():
     votes = np.array([[0, 0, 0], [3, 1, 0], [1, 1, 0], [0, 2, 2], [0, 0, 5], [2, 1, 1]], dtype=np.uint16)
     n = len(votes)
     images = ImageTable(np.zeros(0), np.zeros(0, np.int16), np.zeros((0, 4, 4)), np.zeros((0, 3), np.float32))
-    msm = MetricSemanticMap(points=np.zeros((n, 3), np.float32), terrain_classes=["a", "b", "c"], terrain_votes=votes,
-                            terrain_embeddings=np.eye(3, dtype=np.float32),
-                            counts=sp.csr_matrix((n, 2), dtype=np.int32),
-                            bank=np.eye(2, 3, dtype=np.float32), images=images, embedder="toy")
+    msm = MetricSemanticMap(
+        points=np.zeros((n, 3), np.float32),
+        terrain_classes=["a", "b", "c"],
+        terrain_votes=votes,
+        terrain_embeddings=np.eye(3, dtype=np.float32),
+        counts=sp.csr_matrix((n, 2), dtype=np.int32),
+        bank=np.eye(2, 3, dtype=np.float32),
+        images=images,
+        embedder="toy",
+    )
     # winner share: -, 3/4, 1/2 (tie: lowest class), 1/2, 1, 1/2
     expected = [-1, 0, 0, 1, 2, 0]
     for chunk in (1, 4, 100):

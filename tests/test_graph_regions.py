@@ -53,12 +53,16 @@ def test_dense_average_linkage_cuts_match_a_naive_reference():
     rng = np.random.default_rng(1)
     # Three spatial blobs 120 m apart, two embedding families mixed inside them.
     centres = np.array([[0.0, 0.0], [120.0, 0.0], [0.0, 130.0]])
-    pos = np.column_stack([np.repeat(centres, 8, axis=0) + rng.normal(scale=12.0, size=(24, 2)), rng.normal(scale=0.5, size=24)])
+    pos = np.column_stack(
+        [np.repeat(centres, 8, axis=0) + rng.normal(scale=12.0, size=(24, 2)), rng.normal(scale=0.5, size=24)]
+    )
     base = unit(rng, 2)
     emb = base[rng.integers(0, 2, 24)] + 0.2 * unit(rng, 24)
     cuts = (20.0, 50.0, 100.0, 200.0)
     out = agglomerative_assignments(pos, emb, np.zeros(24, int), gamma=100.0, cuts=cuts)
-    W = np.array([[paper_weight(pos[[i]], pos[[j]], emb[[i]], emb[[j]], 100.0)[0] for j in range(24)] for i in range(24)])
+    W = np.array(
+        [[paper_weight(pos[[i]], pos[[j]], emb[[i]], emb[[j]], 100.0)[0] for j in range(24)] for i in range(24)]
+    )
     for labels, cut in zip(out, cuts):
         assert partition(labels) == naive_average_linkage_cut(W, cut)
     sizes = [len(partition(labels)) for labels in out]
@@ -166,6 +170,7 @@ def chain_world(rng, n=30, m=12):
     embedding, joined by one edge; each spans more than 10,000 m^2 with a ripple. (Unbalanced on
     purpose: with two orthogonal families of equal size every member is equally similar to the
     mean, so the paper's semantic difference of the whole would be 0.)"""
+
     def chain(k, y):
         x = np.linspace(0, 300, k)
         return np.column_stack([x, y + 40 * np.sin(x / 40), np.zeros(k)])
@@ -173,7 +178,9 @@ def chain_world(rng, n=30, m=12):
     pos = np.vstack([chain(n, 0.0), chain(m, 150.0)])
     family = np.repeat([0, 1], [n, m])
     emb = np.eye(6)[family] + 0.05 * unit(rng, n + m, 6)
-    edges = np.array([(i, i + 1) for i in range(n - 1)] + [(n + i, n + i + 1) for i in range(m - 1)] + [(n // 2, n + m // 2)])
+    edges = np.array(
+        [(i, i + 1) for i in range(n - 1)] + [(n + i, n + i + 1) for i in range(m - 1)] + [(n // 2, n + m // 2)]
+    )
     return pos, emb, edges, family
 
 
@@ -251,7 +258,9 @@ def test_adaptive_levels_carry_information_where_the_papers_cuts_do_not():
     emb = unit(rng, 3)[(pos[:, 0] > 60).astype(int) + (pos[:, 1] > 40)] + 0.3 * unit(rng, 400, 8)[:, :8]
     paper = agglomerative_assignments(pos, emb, np.zeros(400, int), cuts=(50.0, 100.0, 200.0, 400.0))
     assert [len(np.unique(p)) for p in paper][2:] == [1, 1]
-    w = pdist(pos) + 100.0 * (1 - (1 - 0.5 * pdist(np.asarray(emb / np.linalg.norm(emb, axis=1, keepdims=True)), "sqeuclidean")))
+    w = pdist(pos) + 100.0 * (
+        1 - (1 - 0.5 * pdist(np.asarray(emb / np.linalg.norm(emb, axis=1, keepdims=True)), "sqeuclidean"))
+    )
     Z = linkage(w, "average")
     for labels, cut in zip(paper, (50.0, 100.0, 200.0, 400.0)):
         assert partition(labels) == partition(fcluster(Z, cut, "distance"))
@@ -268,7 +277,9 @@ def three_areas(rng, base: float):
     places: with equal families every place would be equally similar to the mean, a semantic
     difference of 0); embeddings are `base` times a common direction plus the family's, so a larger
     base compresses their cosines into a narrower, higher range. Places are chained along the line."""
-    pos = np.column_stack([np.repeat([0.0, 40.0, 80.0], 30) + np.tile(np.linspace(0, 30, 30), 3), np.zeros(90), np.zeros(90)])
+    pos = np.column_stack(
+        [np.repeat([0.0, 40.0, 80.0], 30) + np.tile(np.linspace(0, 30, 30), 3), np.zeros(90), np.zeros(90)]
+    )
     family = np.repeat([0, 1, 2], [45, 30, 15])
     emb = base * np.eye(8)[7] + np.eye(8)[family] + 0.02 * unit(rng, 90, 8)
     edges = np.array([(i, i + 1) for i in range(89)])

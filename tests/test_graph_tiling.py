@@ -23,7 +23,13 @@ from terra.graph.tiling import cores, window
 def test_cores_partition_the_grid_with_smaller_last_row_and_column():
     parts = cores((7, 10), 4)
     assert [(r.start, r.stop, c.start, c.stop) for r, c in parts] == [
-        (0, 4, 0, 4), (0, 4, 4, 8), (0, 4, 8, 10), (4, 7, 0, 4), (4, 7, 4, 8), (4, 7, 8, 10)]
+        (0, 4, 0, 4),
+        (0, 4, 4, 8),
+        (0, 4, 8, 10),
+        (4, 7, 0, 4),
+        (4, 7, 4, 8),
+        (4, 7, 8, 10),
+    ]
     cover = np.zeros((7, 10), int)
     for core in parts:
         cover[core] += 1
@@ -85,7 +91,11 @@ def test_a_window_brushfire_equals_the_whole_one_where_its_distance_is_below_the
     whole = brushfire(free)
     labels = obstacle_components(free)
     win = window(free.shape, (slice(0, 30), slice(15, 25)), margin=3)  # columns 12..27, open left and right
-    part = brushfire(free[win.rows, win.cols], win.closed, labels[win.rows.start : win.rows.stop + 2, win.cols.start : win.cols.stop + 2])
+    part = brushfire(
+        free[win.rows, win.cols],
+        win.closed,
+        labels[win.rows.start : win.rows.stop + 2, win.cols.start : win.cols.stop + 2],
+    )
     sure = part.distance < win.gap()
     cols = slice(win.cols.start, win.cols.stop)
     assert np.array_equal(part.distance[sure], whole.distance[:, cols][sure])
@@ -170,17 +180,32 @@ def hand_placed_points() -> tuple[np.ndarray, np.ndarray]:
     strip1 = np.array([(x, y, 0.01 * x + 0.1) for x in xs for y in np.arange(13.0, 17.0, 0.2)])
     between = np.array([(x, y, 0.01 * x + 0.05) for x in xs[::2] for y in np.arange(8.0, 12.0, 0.4)])
     posts = np.array([(x, y, z) for x in (10.1, 30.3, 50.5) for y in (5.1, 15.1) for z in (0.6, 1.0, 1.4)])
-    far = np.array([(x, y, 0.0) for x in np.arange(0.0, 4.0, 0.2) for y in np.arange(96.0, 100.0, 0.2)])  # widens the grid
+    far = np.array(
+        [(x, y, 0.0) for x in np.arange(0.0, 4.0, 0.2) for y in np.arange(96.0, 100.0, 0.2)]
+    )  # widens the grid
     wall = np.array([(50.0 + 0.1 * k, 57.0, 0.3 + 0.05 * j) for k in range(20) for j in range(20)])
     points = np.vstack([strip0, strip1, far, between, posts, wall])
-    terrain = np.concatenate([np.zeros(len(strip0)), np.ones(len(strip1)), np.zeros(len(far)),
-                              -np.ones(len(between) + len(posts) + len(wall))]).astype(int)
+    terrain = np.concatenate(
+        [
+            np.zeros(len(strip0)),
+            np.ones(len(strip1)),
+            np.zeros(len(far)),
+            -np.ones(len(between) + len(posts) + len(wall)),
+        ]
+    ).astype(int)
     return points, terrain
 
 
 def test_tiled_terrain_grid_equals_the_one_piece_grid():
     points, terrain = hand_placed_points()
-    args = dict(cell_size=0.4, obstacle_height=(0.3, 2.0), obstacle_min_points=2, support_radius=1.2, min_support=0.6, fill_radius=1.0)
+    args = dict(
+        cell_size=0.4,
+        obstacle_height=(0.3, 2.0),
+        obstacle_min_points=2,
+        support_radius=1.2,
+        min_support=0.6,
+        fill_radius=1.0,
+    )
     whole = build_terrain_grid(points, terrain, **args)
     tiled = build_terrain_grid_tiled(points, terrain, **args, tile=20, margin=8)
     assert tiled.shape == whole.shape == grid_frame(points, terrain, 0.4).shape
@@ -208,8 +233,16 @@ def assert_same_grid(tiled, whole, points: np.ndarray) -> None:
 def test_tiled_terrain_grid_equals_the_one_piece_grid_with_the_default_hysteresis():
     points, terrain = hand_placed_points()
     grid = BuildConfig().grid
-    args = {"cell_size": 0.4, "obstacle_height": (0.3, 2.0), "obstacle_min_points": 2, "support_radius": 1.2, "min_support": 0.6,
-            "fill_radius": 1.0, "weak_support": grid.weak_support, "weak_reach": grid.weak_reach}
+    args = {
+        "cell_size": 0.4,
+        "obstacle_height": (0.3, 2.0),
+        "obstacle_min_points": 2,
+        "support_radius": 1.2,
+        "min_support": 0.6,
+        "fill_radius": 1.0,
+        "weak_support": grid.weak_support,
+        "weak_reach": grid.weak_reach,
+    }
     whole = build_terrain_grid(points, terrain, **args)
     stats = TiledGridStats()
     tiled = build_terrain_grid_tiled(points, terrain, **args, tile=20, margin=8, stats=stats)
@@ -235,14 +268,21 @@ def sparsely_labelled_strip() -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("weak_reach, middle_labelled", [(6.0, False), (16.0, True)])
 def test_tiled_grid_equals_one_piece_where_the_hysteresis_labels_cells_across_tile_borders(weak_reach, middle_labelled):
     points, terrain = sparsely_labelled_strip()
-    args = {"cell_size": 0.4, "obstacle_height": (0.3, 2.0), "obstacle_min_points": 2, "support_radius": 0.8, "min_support": 0.6,
-            "fill_radius": 0.0}
+    args = {
+        "cell_size": 0.4,
+        "obstacle_height": (0.3, 2.0),
+        "obstacle_min_points": 2,
+        "support_radius": 0.8,
+        "min_support": 0.6,
+        "fill_radius": 0.0,
+    }
     plain = build_terrain_grid(points, terrain, **args)
     whole = build_terrain_grid(points, terrain, **args, weak_support=0.1, weak_reach=weak_reach)
     tile = 20
     stats = TiledGridStats()
-    tiled = build_terrain_grid_tiled(points, terrain, **args, weak_support=0.1, weak_reach=weak_reach, tile=tile, margin=4,
-                                     stats=stats)
+    tiled = build_terrain_grid_tiled(
+        points, terrain, **args, weak_support=0.1, weak_reach=weak_reach, tile=tile, margin=4, stats=stats
+    )
     assert_same_grid(tiled, whole, points)
     # The hysteresis did label the sparse stretch, from both ends, in cells on tile borders.
     extra = (whole.label == 0) & (plain.label < 0)

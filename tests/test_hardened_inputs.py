@@ -66,8 +66,13 @@ def test_corrupt_sparse_counts_are_refused_not_a_segfault(bundle, mutation):
         save_array(bundle, "map/counts_indices.npy", indices)
     else:
         save_array(bundle, "map/counts_indptr.npy", np.load(bundle / "map/counts_indptr.npy").astype(np.int8))
-    done = subprocess.run([sys.executable, "-m", "terra", "find", str(bundle), QUERY], cwd=REPO, capture_output=True,
-                          text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-m", "terra", "find", str(bundle), QUERY],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 2, done.stderr
     assert "map/counts_" in one_line(done.stderr)
 
@@ -80,14 +85,17 @@ def test_a_non_monotonic_row_pointer_is_refused(bundle):
 
 
 # ---------------------------------------------------------------------------------- manifest
-@pytest.mark.parametrize("change,fragment", [
-    ("null", "expected a JSON object"),
-    (lambda m: m["files"].update({"map/points.npy": [1, 2]}), "field 'files.map/points.npy'"),
-    (lambda m: m["files"]["map/points.npy"].pop("bytes"), "files.map/points.npy.bytes"),
-    (lambda m: m["components"].update({"graph": "x"}), "field 'components.graph'"),
-    (lambda m: m.update({"terrain_classes": [1, 2]}), "terrain_classes"),
-    (lambda m: m.update({"embedder": {"name": "x", "dim": -3}}), "embedder.dim"),
-])
+@pytest.mark.parametrize(
+    "change,fragment",
+    [
+        ("null", "expected a JSON object"),
+        (lambda m: m["files"].update({"map/points.npy": [1, 2]}), "field 'files.map/points.npy'"),
+        (lambda m: m["files"]["map/points.npy"].pop("bytes"), "files.map/points.npy.bytes"),
+        (lambda m: m["components"].update({"graph": "x"}), "field 'components.graph'"),
+        (lambda m: m.update({"terrain_classes": [1, 2]}), "terrain_classes"),
+        (lambda m: m.update({"embedder": {"name": "x", "dim": -3}}), "embedder.dim"),
+    ],
+)
 def test_a_malformed_manifest_is_one_line(bundle, change, fragment):
     path = bundle / "manifest.json"
     if change == "null":
@@ -110,8 +118,9 @@ def test_map_metadata_null_and_a_scene_graph_metadata_list_are_one_line(bundle):
 
 
 def test_a_file_entry_outside_the_bundle_is_refused_and_nothing_is_written_outside(bundle):
-    edit_json(bundle / "manifest.json",
-              lambda m: m["files"].update({"../escape/x.npy": {"bytes": 1, "sha256": "0" * 64}}))
+    edit_json(
+        bundle / "manifest.json", lambda m: m["files"].update({"../escape/x.npy": {"bytes": 1, "sha256": "0" * 64}})
+    )
     before = sorted(os.listdir(bundle.parent))
     refused(["build", bundle, "-q", "--overwrite"], "../escape/x.npy")
     assert sorted(os.listdir(bundle.parent)) == before and not (bundle.parent / "escape").exists()
@@ -191,12 +200,12 @@ def test_a_header_claiming_a_huge_shape_is_refused_before_allocating(bundle):
 def _reheader(data: bytes, shape: str) -> bytes:
     """`data` (a .npy v1.0 file) with its header's shape replaced and the header re-padded."""
     length = int.from_bytes(data[8:10], "little")
-    header = data[10:10 + length].decode("latin1")
+    header = data[10 : 10 + length].decode("latin1")
     start = header.index("'shape': ") + len("'shape': ")
     end = header.index(")", start) + 1
     new = (header[:start] + shape + header[end:]).rstrip("\n").rstrip()
     new = new + " " * ((64 - (10 + len(new) + 1) % 64) % 64) + "\n"
-    return data[:8] + len(new).to_bytes(2, "little") + new.encode("latin1") + data[10 + length:]
+    return data[:8] + len(new).to_bytes(2, "little") + new.encode("latin1") + data[10 + length :]
 
 
 def test_a_flipped_header_byte_is_one_line(bundle):
@@ -207,17 +216,23 @@ def test_a_flipped_header_byte_is_one_line(bundle):
     refused(["find", bundle, QUERY], "map/bank.npy")
 
 
-@pytest.mark.parametrize("name,change,fragment", [
-    ("map/points.npy", lambda a: np.where(np.arange(a.size).reshape(a.shape) % 5 == 0, np.nan, a).astype(a.dtype),
-     "NaN"),
-    ("map/terrain_votes.npy", lambda a: a[:, 0].copy(), "array of shape"),
-    ("map/visibility/indptr.npy", lambda a: a[:-1].copy(), "visibility"),
-    ("map/visibility/images.npy", lambda a: a + 10_000, "visibility"),
-    ("map/images/T_map_cam.npy", lambda a: a[:0].copy(), "T_map_cam.npy"),
-    ("map/points.npy", lambda a: np.zeros(a.shape, "M8[s]"), "datetime64"),
-    ("map/counts_data.npy", lambda a: a.astype(np.float32), "counts_data.npy"),
-    ("map/ms_max_id.npy", lambda a: a + 1000, "ms_max_id.npy"),
-])
+@pytest.mark.parametrize(
+    "name,change,fragment",
+    [
+        (
+            "map/points.npy",
+            lambda a: np.where(np.arange(a.size).reshape(a.shape) % 5 == 0, np.nan, a).astype(a.dtype),
+            "NaN",
+        ),
+        ("map/terrain_votes.npy", lambda a: a[:, 0].copy(), "array of shape"),
+        ("map/visibility/indptr.npy", lambda a: a[:-1].copy(), "visibility"),
+        ("map/visibility/images.npy", lambda a: a + 10_000, "visibility"),
+        ("map/images/T_map_cam.npy", lambda a: a[:0].copy(), "T_map_cam.npy"),
+        ("map/points.npy", lambda a: np.zeros(a.shape, "M8[s]"), "datetime64"),
+        ("map/counts_data.npy", lambda a: a.astype(np.float32), "counts_data.npy"),
+        ("map/ms_max_id.npy", lambda a: a + 1000, "ms_max_id.npy"),
+    ],
+)
 def test_malformed_map_arrays_are_one_line(bundle, name, change, fragment):
     save_array(bundle, name, change(np.load(bundle / name)))
     refused(["build", bundle, "-q", "--overwrite"], fragment)
@@ -238,16 +253,25 @@ def _first(doc: dict, char: str) -> dict:
     return next(n for n in doc["nodes"] if chr(n["id"] >> 56) == char)
 
 
-@pytest.mark.parametrize("change,fragment", [
-    (lambda d: _first(d, "p").update({"id": 1.5}), "nodes.0.id"),
-    (lambda d: d["metadata"]["terra"].update({"terrain_classes": []}), "terrain_classes"),
-    (lambda d: d.update({"nodes": [n for n in d["nodes"] if chr(n["id"] >> 56) != "R"]}), "which are not both nodes"),
-    (lambda d: d["edges"][0].update({"target": float("inf")}), "Infinity is not a JSON number"),
-    (lambda d: d["edges"][0].update({"target": 2**70}), "edges.0.target"),
-    (lambda d: d.update({"edges": [e for e in d["edges"] if chr(e["source"] >> 56) != "R"]}), "have no parent there"),
-    (lambda d: _first(d, "p")["attributes"].update({"position": [float("nan"), 0.0, 0.0]}), "not valid JSON"),
-    (lambda d: d["edges"][0].update({"target": d["edges"][0]["source"]}), "edge 0"),
-])
+@pytest.mark.parametrize(
+    "change,fragment",
+    [
+        (lambda d: _first(d, "p").update({"id": 1.5}), "nodes.0.id"),
+        (lambda d: d["metadata"]["terra"].update({"terrain_classes": []}), "terrain_classes"),
+        (
+            lambda d: d.update({"nodes": [n for n in d["nodes"] if chr(n["id"] >> 56) != "R"]}),
+            "which are not both nodes",
+        ),
+        (lambda d: d["edges"][0].update({"target": float("inf")}), "Infinity is not a JSON number"),
+        (lambda d: d["edges"][0].update({"target": 2**70}), "edges.0.target"),
+        (
+            lambda d: d.update({"edges": [e for e in d["edges"] if chr(e["source"] >> 56) != "R"]}),
+            "have no parent there",
+        ),
+        (lambda d: _first(d, "p")["attributes"].update({"position": [float("nan"), 0.0, 0.0]}), "not valid JSON"),
+        (lambda d: d["edges"][0].update({"target": d["edges"][0]["source"]}), "edge 0"),
+    ],
+)
 def test_a_malformed_scene_graph_is_one_line(bundle, change, fragment):
     _graph_edit(bundle, change)
     for argv in (["plan", bundle, "--from-node", "0", "--to-node", "3"], ["monitor", bundle, "the parking lot"]):
@@ -270,7 +294,9 @@ def _png_declaring(width: int, height: int) -> bytes:
         return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
     header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 16)) + chunk(b"IEND", b"")
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 16)) + chunk(b"IEND", b"")
+    )
 
 
 @pytest.fixture
@@ -302,7 +328,8 @@ def test_a_label_png_that_is_a_32_bit_tiff_skips_its_frame(kitti, tmp_path):
     from PIL import Image
 
     Image.fromarray(np.full((4, 4), 2**31 - 5, np.int32), mode="I").save(
-        kitti / "sequences/00/image_2_semantic/000001.png", format="TIFF")
+        kitti / "sequences/00/image_2_semantic/000001.png", format="TIFF"
+    )
     stdout = _mapped_with_skips(kitti, tmp_path / "o.terra")
     assert "frames_skipped_unreadable: 1" in stdout and "not a PNG image" in stdout
 
@@ -311,8 +338,9 @@ def test_a_label_png_that_is_a_32_bit_tiff_skips_its_frame(kitti, tmp_path):
 def test_a_singular_or_nan_projection_is_one_line(kitti, tmp_path, values, fragment):
     (kitti / "sequences/00/terra_cameras.json").unlink()  # so the cameras come from P2
     calib = kitti / "sequences/00/calib.txt"
-    calib.write_text("\n".join(f"P2: {values}" if line.startswith("P2") else line
-                               for line in calib.read_text().splitlines()) + "\n")
+    calib.write_text(
+        "\n".join(f"P2: {values}" if line.startswith("P2") else line for line in calib.read_text().splitlines()) + "\n"
+    )
     refused(["inspect", kitti], "calib.txt:3", "P2", fragment)
 
 
@@ -343,12 +371,15 @@ def test_a_bag_whose_metadata_lists_a_fifo_is_refused_without_blocking(reliabili
 
 
 # ---------------------------------------------------------------------------------- config
-@pytest.mark.parametrize("text,command,fragment", [
-    ("build: [1, 2]\n", "build", "field 'build' must be a mapping"),
-    ("tasks: 9223372036854775808\n", "find", "field 'tasks' must be a mapping"),
-    ("tasks:\n  retrieval:\n    default_alpha: .nan\n", "find", "finite number"),
-    ("1: 2\n", "find", "unknown top-level key '1'"),
-])
+@pytest.mark.parametrize(
+    "text,command,fragment",
+    [
+        ("build: [1, 2]\n", "build", "field 'build' must be a mapping"),
+        ("tasks: 9223372036854775808\n", "find", "field 'tasks' must be a mapping"),
+        ("tasks:\n  retrieval:\n    default_alpha: .nan\n", "find", "finite number"),
+        ("1: 2\n", "find", "unknown top-level key '1'"),
+    ],
+)
 def test_malformed_configs_are_one_line(bundle, tmp_path, text, command, fragment):
     config = tmp_path / "c.yaml"
     config.write_text(text)
@@ -466,8 +497,11 @@ def test_a_huge_camera_count_in_the_msmap_yaml_is_one_line(reliability_seeds, tm
     data = Path(shutil.copytree(reliability_seeds.datasets["terra-folder"], tmp_path / "data"))
     config = data / "msmap_camera_config.yaml"
     config.write_text(config.read_text().replace("num_cams: 1", "num_cams: 1000000000000"))
-    refused(["map", data, "--camera-config", config, "--out", tmp_path / "out", "-q"],
-            "msmap_camera_config.yaml", "num_cams is 1000000000000 but there is no cam2_K")
+    refused(
+        ["map", data, "--camera-config", config, "--out", tmp_path / "out", "-q"],
+        "msmap_camera_config.yaml",
+        "num_cams is 1000000000000 but there is no cam2_K",
+    )
     assert not (tmp_path / "out").exists()
 
 
@@ -478,6 +512,18 @@ def test_a_garbled_reference_torch_file_is_one_line(reliability_seeds, tmp_path,
     ref = Path(shutil.copytree(reliability_seeds.reference, tmp_path / "reference"))
     victim = next(ref.glob("clip_imgs_itr*.pt"))
     victim.write_bytes(data)
-    refused(["import", ref, "-f", "terra-reference", "-o", tmp_path / "out", "--terrain-classes",
-             "sidewalk,grass,asphalt,dirt,water"], victim.name, "unreadable torch file")
+    refused(
+        [
+            "import",
+            ref,
+            "-f",
+            "terra-reference",
+            "-o",
+            tmp_path / "out",
+            "--terrain-classes",
+            "sidewalk,grass,asphalt,dirt,water",
+        ],
+        victim.name,
+        "unreadable torch file",
+    )
     assert not (tmp_path / "out").exists()

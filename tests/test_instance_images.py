@@ -94,10 +94,15 @@ def _wide(dataset: HandDataset) -> HandDataset:
     """The hand dataset with instance ids beyond 16 bits in its images and scans."""
     frames = []
     for f in dataset.frames:
-        cams = [CameraFrame(c.calibration, c.stamp, c.image, c.semantic, np.where(c.instance > 0, c.instance + 76000, 0))
-                for c in f.cameras]
-        frames.append(Frame(f.index, f.stamp, f.points, f.T_map_lidar, cams, f.intensity, f.point_labels,
-                            f.point_instances + 100000))
+        cams = [
+            CameraFrame(c.calibration, c.stamp, c.image, c.semantic, np.where(c.instance > 0, c.instance + 76000, 0))
+            for c in f.cameras
+        ]
+        frames.append(
+            Frame(
+                f.index, f.stamp, f.points, f.T_map_lidar, cams, f.intensity, f.point_labels, f.point_instances + 100000
+            )
+        )
     dataset.frames = frames
     return dataset
 

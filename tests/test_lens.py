@@ -94,8 +94,12 @@ def test_fisheye_projection_and_inverse_match_opencv():
     sample = rays[::89] * 5.0
     np.testing.assert_allclose(project_points(sample, cam)[0], _cv_project(sample, FISHEYE, lens.FISHEYE), atol=1e-6)
     pixels = _pixels()
-    theirs = cv2.fisheye.undistortPoints(pixels[:, None, :], K, np.asarray(FISHEYE),
-                                         criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)).reshape(-1, 2)
+    theirs = cv2.fisheye.undistortPoints(
+        pixels[:, None, :],
+        K,
+        np.asarray(FISHEYE),
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15),
+    ).reshape(-1, 2)
     ours = lens.undistort(cam.pixels_to_normalized(pixels), FISHEYE, lens.FISHEYE)
     np.testing.assert_allclose(ours * K[0, 0], theirs * K[0, 0], atol=1e-6)
 
@@ -114,13 +118,16 @@ def test_rays_beyond_the_field_of_view_never_fold_into_the_image():
     assert project_points(corner, cam)[1][0]
 
 
-@pytest.mark.parametrize("model,dist,message", [
-    (lens.PINHOLE, [0.1, 0.2, 0.3], "supported lengths: 0, 4, 5, 8, 12, 14"),
-    (lens.PINHOLE, [0.1] * 6, "supported lengths: 0, 4, 5, 8, 12, 14"),
-    (lens.FISHEYE, [0.1] * 5, "supported lengths: 4"),
-    ("kannala", [0.1] * 4, "unknown lens model"),
-    (lens.PINHOLE, [0.1, np.nan, 0.0, 0.0], "finite"),
-])
+@pytest.mark.parametrize(
+    "model,dist,message",
+    [
+        (lens.PINHOLE, [0.1, 0.2, 0.3], "supported lengths: 0, 4, 5, 8, 12, 14"),
+        (lens.PINHOLE, [0.1] * 6, "supported lengths: 0, 4, 5, 8, 12, 14"),
+        (lens.FISHEYE, [0.1] * 5, "supported lengths: 4"),
+        ("kannala", [0.1] * 4, "unknown lens model"),
+        (lens.PINHOLE, [0.1, np.nan, 0.0, 0.0], "finite"),
+    ],
+)
 def test_unsupported_coefficients_are_named(model, dist, message):
     with pytest.raises(ValueError, match=message):
         CameraCalibration("c", W, H, K, dist, model=model)
@@ -141,8 +148,9 @@ def test_the_authors_lenses_match_opencv_over_the_whole_image(name):
     pixels = _pixels()
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 500, 1e-15)
     undistorted = cv2.undistortPoints(pixels[:, None, :], K_real, np.asarray(dist), criteria=criteria).reshape(-1, 2)
-    back, _ = cv2.projectPoints(np.concatenate([undistorted, np.ones((len(pixels), 1))], 1), np.zeros(3), np.zeros(3), K_real,
-                                np.asarray(dist))
+    back, _ = cv2.projectPoints(
+        np.concatenate([undistorted, np.ones((len(pixels), 1))], 1), np.zeros(3), np.zeros(3), K_real, np.asarray(dist)
+    )
     converged = np.abs(back.reshape(-1, 2) - pixels).max(axis=1) < 1e-7
     assert converged.mean() > 0.9
     ours = lens.undistort(cam.pixels_to_normalized(pixels), dist)

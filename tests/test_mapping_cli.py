@@ -49,7 +49,11 @@ def test_per_frame_faults_in_a_folder_are_skipped_and_counted(damaged, tmp_path,
     np.save(labels, np.zeros((0, 2), np.int32))
     # Frame 4's image is 0.15 s late: the folder reader still pairs it (its gap is 0.2 s), the
     # mapper's tolerance (0.1 s) rejects it.
-    for folder, stem, ext in (("camera1_images", "cam1_img", "jpg"), ("camera1_semantic", "cam1_sem", "png"), ("camera1_instance", "cam1_inst", "png")):
+    for folder, stem, ext in (
+        ("camera1_images", "cam1_img", "jpg"),
+        ("camera1_semantic", "cam1_sem", "png"),
+        ("camera1_instance", "cam1_inst", "png"),
+    ):
         (damaged / folder / f"{stem}_4.000000.{ext}").rename(damaged / folder / f"{stem}_4.150000.{ext}")
     out = tmp_path / "m.terra"
     assert run(["map", str(damaged), "--out", str(out)]) == 0
@@ -134,7 +138,10 @@ def test_info_prints_the_scene_graph_as_lines(tiny_graph_bundle, capsys):
     assert f"graph: {len(graph.places)} places, {len(graph.place_edges)} place edges" in text
     assert f"places per terrain: {expected}" in text
     assert "regions per level" in text and ", ".join(str(len(level)) for level in graph.regions) in text
-    kinds = {name: int(np.count_nonzero(graph.place_edge_kind == kind)) for name, kind in (("gvd", EDGE_GVD), ("cross_terrain", EDGE_CROSS_TERRAIN), ("bridge", EDGE_BRIDGE))}
+    kinds = {
+        name: int(np.count_nonzero(graph.place_edge_kind == kind))
+        for name, kind in (("gvd", EDGE_GVD), ("cross_terrain", EDGE_CROSS_TERRAIN), ("bridge", EDGE_BRIDGE))
+    }
     edge_line = next(line for line in text.splitlines() if "edges by kind:" in line)
     assert all(f"{name} {n}" in edge_line for name, n in kinds.items())
     sources = next(line for line in text.splitlines() if "place embeddings from:" in line).split(":")[1]
@@ -148,7 +155,12 @@ def test_killed_process_resumes_to_the_same_bytes(tiny_bundle, tmp_path, capsys)
     config.write_text("mapping:\n  checkpoint_every: 8\n")
     out = tmp_path / "map.terra"
     argv = ["map", "--sim", "tiny", "--out", str(out), "--config", str(config), "-q"]
-    child = subprocess.Popen([sys.executable, "-m", "terra", *argv], cwd=Path(__file__).parents[1], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    child = subprocess.Popen(
+        [sys.executable, "-m", "terra", *argv],
+        cwd=Path(__file__).parents[1],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     state = tmp_path / "map.terra.partial" / "state" / "manifest.json"
     deadline = time.monotonic() + 120
     while not state.is_file() and child.poll() is None and time.monotonic() < deadline:
@@ -176,7 +188,9 @@ def test_noise_preset_is_recorded_and_changes_the_map(box_folder, box_bundle, tm
     assert {k: noisy[k] for k in NOISE_PRESETS["realistic"]} == NOISE_PRESETS["realistic"]
     assert clean["dilate_px"] == 0 and clean["miss_rate"] == 0 and clean["confusion_rate"] == 0
     # The noise reached the fusion: the observations differ from the noise-free map's.
-    changed = {k for k, v in folder_digest(out).items() if k.startswith("map/counts") and v != folder_digest(box_bundle).get(k)}
+    changed = {
+        k for k, v in folder_digest(out).items() if k.startswith("map/counts") and v != folder_digest(box_bundle).get(k)
+    }
     assert changed
     assert Bundle(out).manifest["embedder"] == {"name": text_embedder.name, "dim": text_embedder.dim}
 
@@ -187,7 +201,10 @@ def test_info_names_a_damaged_file_and_exits_2(box_bundle, tmp_path, capsys, tex
     shutil.copytree(box_bundle, copy)
     capsys.readouterr()
     assert run(["info", str(copy)]) == 0
-    assert f"checksums: {len(Bundle(copy).files)} files checked against the manifest, all intact" in capsys.readouterr().out
+    assert (
+        f"checksums: {len(Bundle(copy).files)} files checked against the manifest, all intact"
+        in capsys.readouterr().out
+    )
     bank = copy / "map" / "bank.npy"
     data = bytearray(bank.read_bytes())
     data[-1] ^= 0xFF

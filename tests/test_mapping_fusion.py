@@ -72,7 +72,9 @@ def test_bank_reuses_entries_at_09_and_dedups_within_one_image():
 def test_largest_cluster_per_group_equals_one_dbscan_per_group():
     rng = np.random.default_rng(3)
     blob = lambda centre, n: rng.normal(centre, 0.3, (n, 3))  # noqa: E731
-    pts = np.concatenate([blob([0, 0, 0], 12), blob([10, 0, 0], 7), [[30, 0, 0], [40, 0, 0]], blob([10, 0, 0], 9), blob([0, 5, 0], 3)])
+    pts = np.concatenate(
+        [blob([0, 0, 0], 12), blob([10, 0, 0], 7), [[30, 0, 0], [40, 0, 0]], blob([10, 0, 0], 9), blob([0, 5, 0], 3)]
+    )
     group = np.array([0] * 12 + [0] * 7 + [0, 0] + [4] * 9 + [7] * 3)
     keep = largest_clusters(pts, group, eps=1.0, min_samples=4)
     expected = np.zeros(len(pts), bool)

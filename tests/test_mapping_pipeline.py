@@ -160,11 +160,22 @@ def test_per_frame_faults_are_skipped_and_counted(tmp_path, text_embedder):
     assert stats["frames_skipped_bad_points"] == 1
     assert stats["frames_fused"] == 5 and stats["images_fused"] == 3
     assert run.notes["frames_skipped_unreadable"] == "frame3.npy: unreadable scan"
-    assert run.notes["frames_skipped_bad_pose"].startswith("frame 6 (t = 6.000 s): T_map_lidar must be a finite 4x4 pose")
+    assert run.notes["frames_skipped_bad_pose"].startswith(
+        "frame 6 (t = 6.000 s): T_map_lidar must be a finite 4x4 pose"
+    )
     n8 = len(BoxScene(n_frames=9)[8].points)
-    assert run.notes["frames_skipped_bad_points"] == f"frame 8 (t = 8.000 s): points must be (N, 3) metres, got shape ({n8}, 2)"
-    assert run.notes["images_skipped_unmatched_stamp"] == "front: image stamp 5.000 s is 1.000 s from its scan's 4.000 s (tolerance 0.1 s)"
-    assert run.notes["images_skipped_bad_size"] == "front: semantic labels of (119, 160) pixels, calibration says (height, width) (120, 160)"
+    assert (
+        run.notes["frames_skipped_bad_points"]
+        == f"frame 8 (t = 8.000 s): points must be (N, 3) metres, got shape ({n8}, 2)"
+    )
+    assert (
+        run.notes["images_skipped_unmatched_stamp"]
+        == "front: image stamp 5.000 s is 1.000 s from its scan's 4.000 s (tolerance 0.1 s)"
+    )
+    assert (
+        run.notes["images_skipped_bad_size"]
+        == "front: semantic labels of (119, 160) pixels, calibration says (height, width) (120, 160)"
+    )
     assert run.bundle.manifest["components"]["map"]["stats"] == stats
     assert len(load_map(run.bundle).images) == 3
 

@@ -33,7 +33,9 @@ def test_pinhole_pixels_hand_computed():
 def test_distortion_and_extrinsics_hand_computed():
     dist = [0.1, -0.05, 0.001, 0.002, 0.0]
     # Camera 2 m in front of the LiDAR along its z axis, axes aligned: p_cam = p_lidar - (0, 0, 2).
-    cam = CameraCalibration("c", 640, 480, [[400, 0, 320], [0, 400, 240], [0, 0, 1]], dist, make_pose(np.eye(3), [0, 0, -2.0]))
+    cam = CameraCalibration(
+        "c", 640, 480, [[400, 0, 320], [0, 400, 240], [0, 0, 1]], dist, make_pose(np.eye(3), [0, 0, -2.0])
+    )
     x, y = 0.2, 0.1
     r2 = x * x + y * y
     radial = 1 + 0.1 * r2 - 0.05 * r2 * r2

@@ -15,7 +15,11 @@ from tests.fixtures_mapping import BoxScene
 
 
 def random_map(rng, n=60, k=7, d=5) -> MetricSemanticMap:
-    counts = sp.random(n, k, density=0.2, random_state=np.random.RandomState(1), data_rvs=lambda s: rng.integers(1, 5, s)).tocsr().astype(np.int32)
+    counts = (
+        sp.random(n, k, density=0.2, random_state=np.random.RandomState(1), data_rvs=lambda s: rng.integers(1, 5, s))
+        .tocsr()
+        .astype(np.int32)
+    )
     return MetricSemanticMap(
         points=rng.normal(size=(n, 3)).astype(np.float32),
         terrain_classes=["grass"],
@@ -78,7 +82,9 @@ def test_embedder_is_recorded_and_a_mismatched_dimension_is_refused(tmp_path):
     write_map(writer, msm)
     writer.manifest["embedder"]["dim"] = 4  # the arrays hold 5-d rows
     bundle = writer.commit()
-    with pytest.raises(TerraError, match=r"map/bank.npy: array of shape \(7, 5\), expected float16 \(7, 4\).*embedder's dimension"):
+    with pytest.raises(
+        TerraError, match=r"map/bank.npy: array of shape \(7, 5\), expected float16 \(7, 4\).*embedder's dimension"
+    ):
         load_map(bundle)
 
 
@@ -111,4 +117,6 @@ def test_images_observing_matches_brute_force(box_map):
         assert nearest[q] == (saw[int(np.argmin(dist))] if saw else -1)
     assert any(len(x) for x in lists) and nearest[-1] == -1
     # The camera pose of each image is the LiDAR pose composed with the extrinsics.
-    np.testing.assert_allclose(msm.images.T_map_cam[2], scene.pose(2) @ np.linalg.inv(scene.camera.T_cam_lidar), atol=1e-9)
+    np.testing.assert_allclose(
+        msm.images.T_map_cam[2], scene.pose(2) @ np.linalg.inv(scene.camera.T_cam_lidar), atol=1e-9
+    )

@@ -17,7 +17,11 @@ def sim(out, *extra):
 
 
 def file_hashes(root):
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
 
 
 @pytest.fixture(scope="module")
@@ -58,10 +62,16 @@ def error_line(capsys):
     return err[0]
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--preset", "gigantic"], "unknown preset 'gigantic'; expected one of: tiny, small, campus, large, huge"),
-    (["--format", "kitti360"], "unknown format 'kitti360'; expected one of: terra-folder, semantickitti, kitti-raw"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--preset", "gigantic"], "unknown preset 'gigantic'; expected one of: tiny, small, campus, large, huge"),
+        (
+            ["--format", "kitti360"],
+            "unknown format 'kitti360'; expected one of: terra-folder, semantickitti, kitti-raw",
+        ),
+    ],
+)
 def test_unknown_preset_or_format(tmp_path, capsys, args, message):
     code = run(["sim", "--out", str(tmp_path / "out"), "--quiet", *args])
     assert code == 2 and message in error_line(capsys)
@@ -80,18 +90,21 @@ def test_non_empty_output_needs_overwrite(tmp_path, capsys):
     assert leftovers(tmp_path) == ["out"]
 
 
-@pytest.mark.parametrize("yaml_text, field", [
-    ("sim:\n  lidar:\n    beams: 0\n", "lidar.beams"),
-    ("sim:\n  lidar:\n    vertical_fov_deg: [10, -10]\n", "vertical_fov_deg must satisfy"),
-    ("sim:\n  lidar:\n    min_range: 50\n    max_range: 20\n", "max_range must exceed min_range"),
-    ("sim:\n  cameras:\n    - dist: [0.1, 0.2, 0.3]\n", "supported lengths: 0, 4, 5, 8, 12, 14"),
-    ("sim:\n  cameras:\n    - dist: [-0.5, 0, 0, 0, 0]\n", "cannot be inverted over the 640x480 image"),
-    ("sim:\n  cameras:\n    - cx: 700\n", "principal point (700.0, 239.5) must lie inside"),
-    ("sim:\n  cameras:\n    - name: a\n    - name: a\n", "camera names must be unique"),
-    ("sim:\n  cameras:\n    - fx: -3\n", "cameras.0.fx"),
-    ("sim:\n  lidar:\n    colums: 512\n", "colums"),
-    ("sim:\n  lidar: [1, 2\n", "not valid YAML"),
-])
+@pytest.mark.parametrize(
+    "yaml_text, field",
+    [
+        ("sim:\n  lidar:\n    beams: 0\n", "lidar.beams"),
+        ("sim:\n  lidar:\n    vertical_fov_deg: [10, -10]\n", "vertical_fov_deg must satisfy"),
+        ("sim:\n  lidar:\n    min_range: 50\n    max_range: 20\n", "max_range must exceed min_range"),
+        ("sim:\n  cameras:\n    - dist: [0.1, 0.2, 0.3]\n", "supported lengths: 0, 4, 5, 8, 12, 14"),
+        ("sim:\n  cameras:\n    - dist: [-0.5, 0, 0, 0, 0]\n", "cannot be inverted over the 640x480 image"),
+        ("sim:\n  cameras:\n    - cx: 700\n", "principal point (700.0, 239.5) must lie inside"),
+        ("sim:\n  cameras:\n    - name: a\n    - name: a\n", "camera names must be unique"),
+        ("sim:\n  cameras:\n    - fx: -3\n", "cameras.0.fx"),
+        ("sim:\n  lidar:\n    colums: 512\n", "colums"),
+        ("sim:\n  lidar: [1, 2\n", "not valid YAML"),
+    ],
+)
 def test_invalid_sensor_configuration(tmp_path, capsys, yaml_text, field):
     config = tmp_path / "sensors.yaml"
     config.write_text(yaml_text)

@@ -18,7 +18,9 @@ H = 1.8  # LiDAR height above the flat ground
 def make_world(rows, ground=None):
     ground = ground or Heightfield(np.zeros(1), np.zeros((1, 2)), np.zeros(1), 0.0)
     terrain = TerrainGrid(np.full((4, 4), 2, np.uint8), np.array([-200.0, -200.0]), 100.0)
-    return World("test", 0, (-200, -200, 200, 200), ground, terrain, Primitives.from_rows(rows), [], [], np.zeros((2, 2)))
+    return World(
+        "test", 0, (-200, -200, 200, 200), ground, terrain, Primitives.from_rows(rows), [], [], np.zeros((2, 2))
+    )
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +31,15 @@ def scene():
         (BOX, (0.0, 10.0, 1.0), (0.5, 3.0, 1.0), np.radians(30.0), 26, 2, (1, 2, 3)),
         (CYLINDER, (-10.0, 0.0, 1.5), (0.5, 0.5, 1.5), 0.0, 24, 3, (1, 2, 3)),
         (ELLIPSOID, (0.0, -10.0, 1.8), (1.0, 2.0, 1.0), 0.0, 11, 4, (1, 2, 3)),
-        (BOX, (89.5 * np.cos(np.radians(135)), 89.5 * np.sin(np.radians(135)), 2.0), (1.0, 1.0, 2.0), np.radians(135), 10, 5, (1, 2, 3)),
+        (
+            BOX,
+            (89.5 * np.cos(np.radians(135)), 89.5 * np.sin(np.radians(135)), 2.0),
+            (1.0, 1.0, 2.0),
+            np.radians(135),
+            10,
+            5,
+            (1, 2, 3),
+        ),
     ]
     lidar = Lidar(LidarConfig(beams=3, columns=COLUMNS, vertical_fov_deg=(-10.0, 10.0), max_range=100.0))
     hits = cast(make_world(rows), make_pose(np.eye(3), [0.0, 0.0, H]), lidar.tiles, 100.0)
@@ -123,10 +133,11 @@ def test_tile_culling_keeps_every_shape_a_ray_of_the_tile_can_hit():
     dist = np.linalg.norm(centre, axis=1)
     u = centre / dist[:, None]
     ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / dist, 0, 1)))
-    ptr, shapes = cull_kernel(tiles.axis, tiles.cos_half, tiles.sin_half, tiles.half_angle, u, np.cos(ang),
-                              np.sin(ang), ang)
-    pairs = {(g, int(p)) for g in range(len(ptr) - 1) for p in shapes[ptr[g]:ptr[g + 1]]}
-    assert all(np.all(np.diff(shapes[ptr[g]:ptr[g + 1]]) > 0) for g in range(len(ptr) - 1))
+    ptr, shapes = cull_kernel(
+        tiles.axis, tiles.cos_half, tiles.sin_half, tiles.half_angle, u, np.cos(ang), np.sin(ang), ang
+    )
+    pairs = {(g, int(p)) for g in range(len(ptr) - 1) for p in shapes[ptr[g] : ptr[g + 1]]}
+    assert all(np.all(np.diff(shapes[ptr[g] : ptr[g + 1]]) > 0) for g in range(len(ptr) - 1))
     # Reference 1: the cone test with explicit angles.
     angle = np.arccos(np.clip(tiles.axis @ u.T, -1, 1))
     g_ref, p_ref = np.nonzero(angle <= tiles.half_angle[:, None] + ang[None, :])

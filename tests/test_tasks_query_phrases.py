@@ -29,16 +29,25 @@ class TableEmbedder:
         return np.array([self.table[t] for t in texts], dtype=np.float32)
 
 
-@pytest.mark.parametrize("text, parts", [
-    ("park with a pond, a dirt trail and picnic tables on the grass", ["park", "a pond", "a dirt trail", "picnic tables", "the grass"]),
-    ("large parking lot surrounded by buildings", ["large parking lot", "buildings"]),
-    ("two long parallel sidewalks lined by trees", ["two long parallel sidewalks", "trees"]),
-    ("service area behind the building with dumpsters", ["service area", "the building", "dumpsters"]),
-    ("open lawn between the sidewalk and the building entrance", ["open lawn", "the sidewalk", "the building entrance"]),
-    ("find the dumpster", ["find the dumpster"]),
-    ("  Sand AND gravel ", ["Sand", "gravel"]),
-    ("with", ["with"]),  # nothing but a connective: the text itself
-])
+@pytest.mark.parametrize(
+    "text, parts",
+    [
+        (
+            "park with a pond, a dirt trail and picnic tables on the grass",
+            ["park", "a pond", "a dirt trail", "picnic tables", "the grass"],
+        ),
+        ("large parking lot surrounded by buildings", ["large parking lot", "buildings"]),
+        ("two long parallel sidewalks lined by trees", ["two long parallel sidewalks", "trees"]),
+        ("service area behind the building with dumpsters", ["service area", "the building", "dumpsters"]),
+        (
+            "open lawn between the sidewalk and the building entrance",
+            ["open lawn", "the sidewalk", "the building entrance"],
+        ),
+        ("find the dumpster", ["find the dumpster"]),
+        ("  Sand AND gravel ", ["Sand", "gravel"]),
+        ("with", ["with"]),  # nothing but a connective: the text itself
+    ],
+)
 def test_query_phrases_split_at_commas_and_connectives(text, parts):
     assert query_phrases(text) == parts
 
@@ -62,7 +71,9 @@ def test_monitoring_ranks_regions_by_the_configured_query_vector():
     e = TableEmbedder()
     a, b = np.array([1, 0, 0], np.float32), (np.array([0, 2, 1], np.float32) / np.sqrt(5)).astype(np.float32)
     level1 = region_level(1, [0, 0, 1, 1], [a, b], position=[[0.5, 0, 0], [2.5, 0, 0]])
-    graph = make_graph([[i, 0] for i in range(4)], [0] * 4, [[i, i + 1] for i in range(3)], embedding=[a, a, b, b], regions=[level1])
+    graph = make_graph(
+        [[i, 0] for i in range(4)], [0] * 4, [[i, i + 1] for i in range(3)], embedding=[a, a, b, b], regions=[level1]
+    )
     query = "park with a pond and picnic tables"
     whole = monitor_region(graph, query, method="max", k=1, embedder=e)
     assert whole.regions == [(1, 0)] and whole.places.tolist() == [0, 1]

@@ -48,8 +48,11 @@ def test_ms_retrieval_finds_each_object_with_its_box_score_and_place(scene, text
     # the footprint's sides and 0.1 m above the top: centre z 0.85, sizes + (0.2, 0.2, 0.1).
     lift = np.array([0.0, 0.0, 0.05])
     got = {(o.label, tuple(np.round(o.center - lift, 6))) for o in found}
-    expected = {("find the dumpster", OBJECTS["dumpster_a"][0]), ("find the dumpster", OBJECTS["dumpster_b"][0]),
-                ("a car", OBJECTS["car"][0])}
+    expected = {
+        ("find the dumpster", OBJECTS["dumpster_a"][0]),
+        ("find the dumpster", OBJECTS["dumpster_b"][0]),
+        ("a car", OBJECTS["car"][0]),
+    }
     assert got == expected
     vectors = np.vstack([msm.terrain_embeddings, text_embedder.embed_text(queries)])
     sim = dense_similarity(msm, vectors, method[3:])
@@ -60,7 +63,7 @@ def test_ms_retrieval_finds_each_object_with_its_box_score_and_place(scene, text
         assert o.yaw == pytest.approx(yaw, abs=1e-5)
         np.testing.assert_array_equal(o.point_indices, truth[name])
         assert o.point_count == len(truth[name])
-        np.testing.assert_allclose(o.scores, sim[truth[name], len(TERRAINS):].mean(axis=0), rtol=1e-5)
+        np.testing.assert_allclose(o.scores, sim[truth[name], len(TERRAINS) :].mean(axis=0), rtol=1e-5)
         assert o.score == pytest.approx(o.scores[o.query])
         place_d = np.linalg.norm(graph.places.position[:, :2] - np.asarray(center[:2]), axis=1)
         assert place_d[o.place] == pytest.approx(place_d.min())
@@ -84,13 +87,15 @@ def test_3dsg_searches_only_near_places_of_matching_regions(scene, text_embedder
 
 def test_point_matches_rules():
     # Columns: 2 terrains, then 2 queries.
-    sim = np.array([
-        [0.1, 0.2, 0.5, 0.3],  # query 0 best and above alpha
-        [0.6, 0.2, 0.5, 0.3],  # terrain best
-        [0.1, 0.2, 0.3, 0.35],  # query 1 best but below alpha 0.4
-        [0.5, 0.1, 0.5, 0.1],  # tie terrain/query: terrain wins
-        [0.1, 0.1, 0.2, 0.9],  # query 1
-    ])
+    sim = np.array(
+        [
+            [0.1, 0.2, 0.5, 0.3],  # query 0 best and above alpha
+            [0.6, 0.2, 0.5, 0.3],  # terrain best
+            [0.1, 0.2, 0.3, 0.35],  # query 1 best but below alpha 0.4
+            [0.5, 0.1, 0.5, 0.1],  # tie terrain/query: terrain wins
+            [0.1, 0.1, 0.2, 0.9],  # query 1
+        ]
+    )
     assert point_matches(sim, 2, 0.4).tolist() == [0, -1, -1, -1, 1]
     assert point_matches(np.zeros((0, 4)), 2, 0.4).tolist() == []
 
@@ -136,8 +141,15 @@ def test_without_graph_objects_have_no_place_and_config_alpha_applies(scene, tex
 
 def test_with_objects_replaces_same_label_and_keeps_others(scene, text_embedder):
     msm, graph, _ = scene
-    old = Objects(center=np.ones((2, 3)), size=np.ones((2, 3)), yaw=np.zeros(2), label=["find the dumpster", "bench"],
-                  score=np.array([0.5, 0.6], dtype=np.float32), point_count=np.array([5, 6]), place=np.array([0, 1]))
+    old = Objects(
+        center=np.ones((2, 3)),
+        size=np.ones((2, 3)),
+        yaw=np.zeros(2),
+        label=["find the dumpster", "bench"],
+        score=np.array([0.5, 0.6], dtype=np.float32),
+        point_count=np.array([5, 6]),
+        place=np.array([0, 1]),
+    )
     graph = with_objects(graph, [])
     graph.objects = old
     found = find_objects(msm, graph, ["find the dumpster"], alpha=0.4, embedder=text_embedder)
@@ -173,18 +185,37 @@ def test_3dsg_widens_the_search_when_the_matching_regions_hold_no_object(text_em
     xy = graph.places.position[:, :2]
     west = (xy[:, 0] < 20).astype(np.int64)
     emb = text_embedder.embed_text(["dumpster", "car"])  # region 0 = east, region 1 = west
-    swapped = make_graph(xy, np.where(west == 1, 1, 0), graph.place_edges, embedding=emb[west],
-                         regions=[region_level(1, west, emb, position=[[30, 20, 0], [10, 20, 0]])])
-    narrow = find_objects(msm, swapped, ["a car"], method="3dsg", alpha=0.4, embedder=text_embedder,
-                          config=RetrievalConfig(sg_widen=False))
+    swapped = make_graph(
+        xy,
+        np.where(west == 1, 1, 0),
+        graph.place_edges,
+        embedding=emb[west],
+        regions=[region_level(1, west, emb, position=[[30, 20, 0], [10, 20, 0]])],
+    )
+    narrow = find_objects(
+        msm,
+        swapped,
+        ["a car"],
+        method="3dsg",
+        alpha=0.4,
+        embedder=text_embedder,
+        config=RetrievalConfig(sg_widen=False),
+    )
     assert narrow == []
     found = find_objects(msm, swapped, ["a car"], method="3dsg", alpha=0.4, embedder=text_embedder)
     assert [tuple(np.round(o.center[:2], 6)) for o in found] == [OBJECTS["car"][0][:2]]
     # A query that finds objects in the regions above alpha is not widened: the same answer with
     # and without widening, even in one call with a query that is widened.
     both = find_objects(msm, swapped, ["find the dumpster", "a car"], method="3dsg", alpha=0.4, embedder=text_embedder)
-    alone = find_objects(msm, swapped, ["find the dumpster", "a car"], method="3dsg", alpha=0.4, embedder=text_embedder,
-                         config=RetrievalConfig(sg_widen=False))
+    alone = find_objects(
+        msm,
+        swapped,
+        ["find the dumpster", "a car"],
+        method="3dsg",
+        alpha=0.4,
+        embedder=text_embedder,
+        config=RetrievalConfig(sg_widen=False),
+    )
     assert [o.query for o in alone] == [0, 0] and [o.query for o in both] == [0, 0, 1]
     for a, b in zip(alone, both[:2]):
         np.testing.assert_allclose(a.center, b.center)

@@ -63,11 +63,14 @@ def lamp_scene(text_embedder):
     hanging 3 m up with nothing below it. Places every 5 m on the ground."""
     xs, ys = np.meshgrid(np.arange(0.0, 40.0, 1.0), np.arange(0.0, 40.0, 1.0), indexing="ij")
     ground = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
-    parts = [(ground, GRASS), (box_points((10.0, 10.0, 2.5), (0.2, 0.2, 5.0), 0.0), LAMP),
-             (box_points((11.6, 10.0, 5.9), (0.6, 0.2, 0.2), 0.0), LAMP),
-             (box_points((25.0, 10.0, 0.25), (1.6, 0.6, 0.5), 0.0), BENCH),
-             (box_points((20.0, 30.0, 0.02), (2.0, 1.0, 0.04), 0.0), BENCH),
-             (box_points((32.0, 30.0, 3.0), (1.0, 0.4, 0.4), 0.0), BENCH)]
+    parts = [
+        (ground, GRASS),
+        (box_points((10.0, 10.0, 2.5), (0.2, 0.2, 5.0), 0.0), LAMP),
+        (box_points((11.6, 10.0, 5.9), (0.6, 0.2, 0.2), 0.0), LAMP),
+        (box_points((25.0, 10.0, 0.25), (1.6, 0.6, 0.5), 0.0), BENCH),
+        (box_points((20.0, 30.0, 0.02), (2.0, 1.0, 0.04), 0.0), BENCH),
+        (box_points((32.0, 30.0, 3.0), (1.0, 0.4, 0.4), 0.0), BENCH),
+    ]
     points = np.vstack([p for p, _ in parts])
     observations = [{label: 3} for p, label in parts for _ in range(len(p))]
     msm = make_map(points, observations, text_embedder.embed_text(BANK), text_embedder.embed_text(TERRAINS))
@@ -90,8 +93,15 @@ def test_retrieval_keeps_standing_objects_with_their_floating_parts(lamp_scene, 
     # Only the standing bench: the slab on the grass and the hanging piece are no objects.
     assert [tuple(np.round(o.center[:2], 3)) for o in benches] == [(25.0, 10.0)]
     # Keeping every cluster (main's behaviour before) finds the head and both bench-coloured pieces.
-    every = find_objects(msm, graph, ["lamp post", "bench"], method="ms-avg", alpha=0.4, embedder=text_embedder,
-                         config=RetrievalConfig(standing_only=False))
+    every = find_objects(
+        msm,
+        graph,
+        ["lamp post", "bench"],
+        method="ms-avg",
+        alpha=0.4,
+        embedder=text_embedder,
+        config=RetrievalConfig(standing_only=False),
+    )
     assert sorted(o.query for o in every) == [0, 0, 1, 1, 1]
 
 
@@ -101,10 +111,13 @@ def test_retrieval_keeps_a_flat_thing_when_nothing_of_its_query_stands(text_embe
     bank = ["grass", "crosswalk", "bench"]
     xs, ys = np.meshgrid(np.arange(0.0, 40.0, 1.0), np.arange(0.0, 40.0, 1.0), indexing="ij")
     ground = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
-    parts = [(ground, 0), (box_points((10.0, 10.0, 0.01), (6.0, 0.5, 0.02), 0.0), 1),
-             (box_points((10.0, 30.0, 0.01), (6.0, 0.5, 0.02), 0.0), 1),
-             (box_points((25.0, 10.0, 0.25), (1.6, 0.6, 0.5), 0.0), 2),
-             (box_points((30.0, 30.0, 0.02), (2.0, 1.0, 0.04), 0.0), 2)]  # a bench mask bled onto the grass
+    parts = [
+        (ground, 0),
+        (box_points((10.0, 10.0, 0.01), (6.0, 0.5, 0.02), 0.0), 1),
+        (box_points((10.0, 30.0, 0.01), (6.0, 0.5, 0.02), 0.0), 1),
+        (box_points((25.0, 10.0, 0.25), (1.6, 0.6, 0.5), 0.0), 2),
+        (box_points((30.0, 30.0, 0.02), (2.0, 1.0, 0.04), 0.0), 2),
+    ]  # a bench mask bled onto the grass
     points = np.vstack([p for p, _ in parts])
     observations = [{label: 3} for p, label in parts for _ in range(len(p))]
     msm = make_map(points, observations, text_embedder.embed_text(bank), text_embedder.embed_text(TERRAINS))
@@ -112,7 +125,7 @@ def test_retrieval_keeps_a_flat_thing_when_nothing_of_its_query_stands(text_embe
     xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
     graph = make_graph(xy, np.ones(len(xy), dtype=np.int64), [])
     found = find_objects(msm, graph, ["crosswalk", "bench"], method="ms-avg", alpha=0.4, embedder=text_embedder)
-    stripes = sorted((o.center[:2].tolist() for o in found if o.query == 0))
+    stripes = sorted(o.center[:2].tolist() for o in found if o.query == 0)
     assert len(stripes) == 2  # within a point spacing (0.1 m) of the painted stripes' centres
     assert stripes[0] == pytest.approx([10.0, 10.0], abs=0.1) and stripes[1] == pytest.approx([10.0, 30.0], abs=0.1)
     assert [tuple(np.round(o.center[:2], 3)) for o in found if o.query == 1] == [(25.0, 10.0)]

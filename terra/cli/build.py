@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -28,9 +27,15 @@ def _check_graph(bundle: Path, overwrite: bool) -> None:
 @app.command("build")
 def build_command(
     bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map`."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `build` section is used."),
-    regions: Optional[str] = typer.Option(None, "--regions", help="Region method: agglomerative or spectral (overrides the config)."),
-    cuts: Optional[str] = typer.Option(None, "--cuts", help="Agglomerative cut heights, e.g. 50,100,200,400 (the paper's); default: levels adapted to the map."),
+    config: Path | None = typer.Option(None, "--config", "-c", help="YAML config; its `build` section is used."),
+    regions: str | None = typer.Option(
+        None, "--regions", help="Region method: agglomerative or spectral (overrides the config)."
+    ),
+    cuts: str | None = typer.Option(
+        None,
+        "--cuts",
+        help="Agglomerative cut heights, e.g. 50,100,200,400 (the paper's); default: levels adapted to the map.",
+    ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the scene graph the bundle already has."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary (counts, stats, timings) as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
@@ -46,9 +51,8 @@ def build_command(
     (the paper's fixed agglomerative levels: terra build campus.terra --cuts 50,100,200,400)
     """
     from terra.config import load_section
-    from terra.graph.pipeline import run_build
-
     from terra.errors import TerraError
+    from terra.graph.pipeline import run_build
 
     overrides: dict = {"regions": {}}
     if regions is not None:
@@ -86,10 +90,16 @@ def build_command(
     per_terrain = ", ".join(f"{k} {v}" for k, v in result.stats["places_per_terrain"].items())
     edges = result.stats["edges"]
     typer.echo(f"graph: {counted(summary['places'], 'place')} ({per_terrain}) -> {bundle}")
-    typer.echo(f"  place edges: {summary['place_edges']} (gvd {edges['gvd']}, cross-terrain {edges['cross_terrain']}, bridge {edges['bridge']})")
-    typer.echo(f"  regions ({graph.region_method}): " + " / ".join(str(n) for n in summary["regions_per_level"]) + " per level")
+    typer.echo(
+        f"  place edges: {summary['place_edges']} (gvd {edges['gvd']}, cross-terrain {edges['cross_terrain']}, bridge {edges['bridge']})"
+    )
+    typer.echo(
+        f"  regions ({graph.region_method}): " + " / ".join(str(n) for n in summary["regions_per_level"]) + " per level"
+    )
     src = result.stats["embedding_source"]
-    typer.echo(f"  place embeddings: {src['images']} from images, {src['points']} from points, {src['terrain_text']} from the terrain name")
+    typer.echo(
+        f"  place embeddings: {src['images']} from images, {src['points']} from points, {src['terrain_text']} from the terrain name"
+    )
     if src["images"] == 0 and src["points"]:
         typer.echo("  (the map has no images: place embeddings come from the map points instead)")
     cells = result.stats["grid_cells"]
@@ -97,11 +107,16 @@ def build_command(
     if grid_tiles and grid_tiles["one_piece"]:
         grid_where = f"in one piece ({grid_tiles['one_piece']})"
     elif grid_tiles:
-        grid_where = (f"in {section.tiles.size:g} m tiles ({grid_tiles['windows']} windows, "
-                      f"overlap up to {grid_tiles['max_overlap_m']:g} m)")
+        grid_where = (
+            f"in {section.tiles.size:g} m tiles ({grid_tiles['windows']} windows, "
+            f"overlap up to {grid_tiles['max_overlap_m']:g} m)"
+        )
     else:
         grid_where = "in one piece"
-    gvd_where = (f"in tiles ({tiles['windows']} windows, overlap up to {tiles['max_overlap_m']:g} m)"
-                 if tiles else "in one piece")
+    gvd_where = (
+        f"in tiles ({tiles['windows']} windows, overlap up to {tiles['max_overlap_m']:g} m)"
+        if tiles
+        else "in one piece"
+    )
     typer.echo(f"  terrain grid: {cells[0]} x {cells[1]} cells, computed {grid_where}; GVD {gvd_where}")
     typer.echo(result.timer.table())

@@ -6,7 +6,9 @@ import typer
 
 from terra.cli import app
 
-config_app = typer.Typer(help="Inspect configuration.\n\nExample: terra config dump mapping > mapping.yaml", no_args_is_help=True)
+config_app = typer.Typer(
+    help="Inspect configuration.\n\nExample: terra config dump mapping > mapping.yaml", no_args_is_help=True
+)
 app.add_typer(config_app, name="config")
 
 

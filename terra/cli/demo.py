@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,18 +14,40 @@ from terra.cli.interrupts import on_interrupt
 
 @app.command("demo")
 def demo_command(
-    out: Path = typer.Option(Path("terra-demo"), "--out", "-o", help="Demo folder: scenes, bundles, report/ and demo.json; re-runs reuse what is there."),
+    out: Path = typer.Option(
+        Path("terra-demo"),
+        "--out",
+        "-o",
+        help="Demo folder: scenes, bundles, report/ and demo.json; re-runs reuse what is there.",
+    ),
     preset: str = typer.Option("small", "--preset", "-p", help="Test scene: tiny, small, campus or large."),
-    seed: int = typer.Option(0, "--seed", "-s", min=0, help="Seed of the test scene; the validation scene uses seed + 1."),
-    validation_preset: Optional[str] = typer.Option(None, "--validation-preset", help="Preset of the validation scene, where alpha and k are tuned (default: --preset)."),
-    validation_spacing: float = typer.Option(2.0, "--validation-spacing", help="The validation scene's frames are this many times further apart than the test scene's (cheaper; 1 = same)."),
-    format: str = typer.Option("terra-folder", "--format",
-                               help="How the scenes are written and read back: terra-folder, "
-                                    "rosbag2 (a ROS 2 mcap bag) or rosbag1."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."),
-    overwrite: bool = typer.Option(False, "--overwrite",
-                                   help="Redo every step instead of resuming from the finished ones."),
-    as_json: bool = typer.Option(False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."),
+    seed: int = typer.Option(
+        0, "--seed", "-s", min=0, help="Seed of the test scene; the validation scene uses seed + 1."
+    ),
+    validation_preset: str | None = typer.Option(
+        None,
+        "--validation-preset",
+        help="Preset of the validation scene, where alpha and k are tuned (default: --preset).",
+    ),
+    validation_spacing: float = typer.Option(
+        2.0,
+        "--validation-spacing",
+        help="The validation scene's frames are this many times further apart than the test scene's (cheaper; 1 = same).",
+    ),
+    format: str = typer.Option(
+        "terra-folder",
+        "--format",
+        help="How the scenes are written and read back: terra-folder, rosbag2 (a ROS 2 mcap bag) or rosbag1.",
+    ),
+    config: Path | None = typer.Option(
+        None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."
+    ),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="Redo every step instead of resuming from the finished ones."
+    ),
+    as_json: bool = typer.Option(
+        False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, step log or timing table."),
 ) -> None:
     """Run the whole system on a simulated campus and write a report.
@@ -49,8 +70,13 @@ def demo_command(
     from terra.eval.demo import DemoConfig, DemoRun, format_demo
 
     cfg = DemoConfig.load(config, preset, seed, validation_preset, validation_spacing, format)
-    run = DemoRun(out, cfg, show_progress=not quiet and not as_json,
-                  log=None if quiet or as_json else (lambda line: typer.echo(line, err=True)), overwrite=overwrite)
+    run = DemoRun(
+        out,
+        cfg,
+        show_progress=not quiet and not as_json,
+        log=None if quiet or as_json else (lambda line: typer.echo(line, err=True)),
+        overwrite=overwrite,
+    )
     on_interrupt(run.interrupted)
     demo = run.run()
     if as_json:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -21,22 +20,24 @@ def eval_command(
         ...,
         help="Bundle with a map and a scene graph (`terra map`, `terra build`); --terrain-only: a labelled dataset.",
     ),
-    gt: Optional[Path] = typer.Option(
-        None, "--gt", help="Dataset folder written by `terra sim` (its ground_truth/ is read), or a KITTI raw drive with labels (retrieval only)."
+    gt: Path | None = typer.Option(
+        None,
+        "--gt",
+        help="Dataset folder written by `terra sim` (its ground_truth/ is read), or a KITTI raw drive with labels (retrieval only).",
     ),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None,
         "--out",
         "-o",
         help="Report folder (report.md, summary.json, figures/); with --tune, where tuned.json goes.",
     ),
-    tuned: Optional[Path] = typer.Option(
+    tuned: Path | None = typer.Option(
         None, "--tuned", help="alpha/k chosen on a validation scene (tuned.json from `terra eval --tune`)."
     ),
     tune: bool = typer.Option(
         False, "--tune", help="Grid-search alpha/k on this (validation!) bundle and write OUT/tuned.json."
     ),
-    config: Optional[List[Path]] = typer.Option(
+    config: list[Path] | None = typer.Option(
         None,
         "--config",
         "-c",
@@ -50,14 +51,15 @@ def eval_command(
     dataset_format: str = typer.Option(
         "auto", "--format", help="With --terrain-only: dataset format (auto, terra-folder, semantickitti)."
     ),
-    max_images: Optional[int] = typer.Option(
+    max_images: int | None = typer.Option(
         None,
         "--max-images",
         min=1,
         help="With --terrain-only: images evaluated (default: eval.segmentation.max_images).",
     ),
-    overwrite: bool = typer.Option(False, "--overwrite",
-                                   help="Replace an existing report (or tuned.json with --tune)."),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="Replace an existing report (or tuned.json with --tune)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary (or the tuned parameters) as JSON."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars or timing table."),
 ) -> None:
@@ -95,14 +97,24 @@ def eval_command(
     _evaluate(bundle, gt, out, tuned, tune, config[0] if config else None, as_json, quiet, overwrite)
 
 
-def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool, config: Path | None, as_json: bool,
-              quiet: bool, overwrite: bool) -> None:
+def _evaluate(
+    bundle: Path,
+    gt: Path,
+    out: Path,
+    tuned: Path | None,
+    tune: bool,
+    config: Path | None,
+    as_json: bool,
+    quiet: bool,
+    overwrite: bool,
+) -> None:
     """The full evaluation, or --tune."""
     from terra.cli.interrupts import on_interrupt
     from terra.cli.outputs import refuse_existing
     from terra.config import load_section
     from terra.eval.inputs import EvalInputs
-    from terra.eval.runner import evaluate, tune as tune_parameters
+    from terra.eval.runner import evaluate
+    from terra.eval.runner import tune as tune_parameters
     from terra.eval.tuning import TUNED, TunedParameters
     from terra.progress import StageTimer
 
@@ -113,8 +125,9 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
         refuse_existing(Path(out) / TUNED, overwrite)
         on_interrupt(f"nothing was written ({Path(out) / TUNED} is unchanged); run the same command again")
         with timer.stage("tune"):
-            params = tune_parameters(EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg,
-                                     show_progress=not quiet and not as_json)
+            params = tune_parameters(
+                EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg, show_progress=not quiet and not as_json
+            )
         path = params.save(Path(out) / TUNED)
         if as_json:
             typer.echo(json.dumps(params.to_json(), indent=1, sort_keys=True))
@@ -131,8 +144,9 @@ def _evaluate(bundle: Path, gt: Path, out: Path, tuned: Path | None, tune: bool,
     params = TunedParameters.load(tuned) if tuned is not None else None
     refuse_existing(Path(out), overwrite)
     on_interrupt(f"no report was written ({out} is unchanged); run the same command again")
-    summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json,
-                       timer=timer)
+    summary = evaluate(
+        bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json, timer=timer
+    )
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return

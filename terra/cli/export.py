@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,7 +14,7 @@ from terra.cli import app
 def export_command(
     bundle: Path = typer.Argument(..., help="Bundle folder (`terra map`, and `terra build` for the graph formats)."),
     fmt: str = typer.Option(..., "--format", "-f", help="spark-dsg | networkx | ply | terra-reference."),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None, "--out", "-o", help="Output file (folder for terra-reference); default beside the bundle."
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output."),
@@ -47,8 +46,9 @@ def export_command(
     from terra.progress import working
 
     with working(f"exporting {fmt}", not as_json):
-        summary = export_bundle(bundle, fmt, out, overwrite, features=not no_features, color=color,
-                                image_range=image_range)
+        summary = export_bundle(
+            bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range
+        )
     if as_json:
         typer.echo(json.dumps(summary, indent=1, sort_keys=True))
         return

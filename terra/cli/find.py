@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -12,13 +11,23 @@ from terra.cli import app
 
 @app.command("find")
 def find_command(
-    bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map` (and `terra build` for 3dsg/--save)."),
-    queries: Optional[List[str]] = typer.Argument(None, help="Text queries, e.g. \"find the dumpster\"; several share one load."),
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="ms-avg, ms-max or 3dsg (default from the config: ms-avg)."),
-    alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.retrieval.alpha)."),
-    tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (object_tasks, alpha, prediction_method)."),
-    save: bool = typer.Option(False, "--save", help="Add the objects to the bundle's scene graph (same-label objects are replaced)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    bundle: Path = typer.Argument(
+        ..., help="Bundle folder written by `terra map` (and `terra build` for 3dsg/--save)."
+    ),
+    queries: list[str] | None = typer.Argument(
+        None, help='Text queries, e.g. "find the dumpster"; several share one load.'
+    ),
+    method: str | None = typer.Option(
+        None, "--method", "-m", help="ms-avg, ms-max or 3dsg (default from the config: ms-avg)."
+    ),
+    alpha: float | None = typer.Option(
+        None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.retrieval.alpha)."
+    ),
+    tasks: Path | None = typer.Option(None, "--tasks", help="YAML task file (object_tasks, alpha, prediction_method)."),
+    save: bool = typer.Option(
+        False, "--save", help="Add the objects to the bundle's scene graph (same-label objects are replaced)."
+    ),
+    config: Path | None = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /find answers)."),
 ) -> None:
     """Find the objects that text queries name.

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -19,18 +18,18 @@ def import_command(
     ),
     fmt: str = typer.Option(..., "--format", "-f", help="terra-reference (the only format read)."),
     out: Path = typer.Option(..., "--out", "-o", help="Bundle folder to write."),
-    terrain_classes: Optional[str] = typer.Option(
+    terrain_classes: str | None = typer.Option(
         None, "--terrain-classes", help="Comma-separated class names of the bank's first rows, in order."
     ),
-    embedder: Optional[str] = typer.Option(
+    embedder: str | None = typer.Option(
         None, "--embedder", help="Name of the embedder the files were made with (default clip-vit-b-16)."
     ),
-    global_pc: Optional[Path] = typer.Option(
+    global_pc: Path | None = typer.Option(
         None,
         "--global-pc",
         help="The dataset's global map (global_pc_T.npy or its folder); default FOLDER/global_pc.",
     ),
-    itr: Optional[int] = typer.Option(
+    itr: int | None = typer.Option(
         None, "--itr", help="Which save (_itrN) to read (default the largest, as their Phase 2)."
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle."),

@@ -42,7 +42,9 @@ def _lines(summary: dict) -> list[str]:
     lines.append(f"  embedder: {emb.get('name')} ({emb.get('dim')}-d)")
     m = summary.get("map")
     if m:
-        lines.append(f"  points: {m['points']} ({m['observed_points']} with object observations, {m['observations']} observations)")
+        lines.append(
+            f"  points: {m['points']} ({m['observed_points']} with object observations, {m['observations']} observations)"
+        )
         lines.append(f"  bank entries: {m['bank_entries']}   images: {m['images']}")
         lines.append("  terrain points: " + ", ".join(f"{k} {v}" for k, v in m["terrain_points"].items()))
         faults = {k: v for k, v in m.get("stats", {}).items() if "skipped" in k or "nonfinite" in k}
@@ -52,7 +54,9 @@ def _lines(summary: dict) -> list[str]:
         lines.extend(_graph_lines(summary["graph"], summary.get("terrain_classes") or []))
     lines.append("  bytes: " + ", ".join(f"{k} {v:,}" for k, v in sorted(summary["bytes"].items())))
     if summary.get("files_verified"):
-        lines.append(f"  checksums: {counted(summary['files_verified'], 'file')} checked against the manifest, all intact")
+        lines.append(
+            f"  checksums: {counted(summary['files_verified'], 'file')} checked against the manifest, all intact"
+        )
     return lines
 
 
@@ -80,7 +84,9 @@ def _graph_lines(g: dict, terrain_order: list[str]) -> list[str]:
 def info_command(
     bundle: Path = typer.Argument(..., help="Bundle folder written by `terra map` / `terra build`."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
-    no_verify: bool = typer.Option(False, "--no-verify", help="Skip the checksum check of every file (faster on big maps)."),
+    no_verify: bool = typer.Option(
+        False, "--no-verify", help="Skip the checksum check of every file (faster on big maps)."
+    ),
 ) -> None:
     """Summarise a bundle.
 

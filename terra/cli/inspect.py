@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -76,7 +75,7 @@ def render(info: dict) -> list[str]:
 def inspect_command(
     source: Path = typer.Argument(..., help="A dataset folder, a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
     format: str = typer.Option("auto", "--format", help="auto, terra-folder, semantickitti or rosbag."),
-    config: Optional[Path] = typer.Option(
+    config: Path | None = typer.Option(
         None, "--config", "-c", help="YAML config whose `dataset` section sets the loader's options."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print everything as one JSON document."),

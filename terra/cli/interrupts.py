@@ -9,7 +9,8 @@ work got (e.g. the frame of `terra map`'s last checkpoint).
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 NOTHING_WRITTEN = "nothing was written; run the same command again"
 _note: dict[str, Callable[[], str] | None] = {"note": None}
@@ -42,6 +43,7 @@ def catch_interrupts(command: Any) -> Any:
     """Every command of the tree raises Interrupted on Ctrl-C, for `terra.cli.run` to report."""
     callback = getattr(command, "callback", None)
     if callback is not None and not getattr(callback, "_terra_interruptible", False):
+
         @functools.wraps(callback)
         def interruptible(*args: Any, **kwargs: Any) -> Any:
             try:

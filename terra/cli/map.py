@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,37 +14,58 @@ from terra.words import counted
 
 @app.command("map")
 def map_command(
-    dataset: Optional[Path] = typer.Argument(
-        None, help="Dataset: a folder (terra-folder, SemanticKITTI, KITTI raw drive) or a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
-    out: Path = typer.Option(..., "--out", "-o",
-                             help="Bundle folder to write; an existing bundle is kept unless --overwrite."),
-    config: Optional[Path] = typer.Option(
-        None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."),
-    format: str = typer.Option("auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."),
-    camera_config: Optional[Path] = typer.Option(None, "--camera-config", help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, camN_K, camN_dist, cam_axis; other keys ignored) for a terra-folder dataset."),
-    poses: str = typer.Option("auto", "--poses", help="auto: the source's poses (LiDAR odometry when it has none); "
-                                                    "odometry: KISS-ICP on the scans."),
-    sim: Optional[str] = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
-    noise: Optional[str] = typer.Option(None, "--noise", help="Perception noise preset (none, realistic); overrides the config."),
+    dataset: Path | None = typer.Argument(
+        None,
+        help="Dataset: a folder (terra-folder, SemanticKITTI, KITTI raw drive) or a ROS bag (.bag, .mcap, ROS 2 bag folder).",
+    ),
+    out: Path = typer.Option(
+        ..., "--out", "-o", help="Bundle folder to write; an existing bundle is kept unless --overwrite."
+    ),
+    config: Path | None = typer.Option(
+        None, "--config", "-c", help="YAML config; its `dataset`, `odometry` and `mapping` sections are used."
+    ),
+    format: str = typer.Option(
+        "auto", "--format", help="Dataset format: auto, terra-folder, semantickitti, kitti-raw or rosbag."
+    ),
+    camera_config: Path | None = typer.Option(
+        None,
+        "--camera-config",
+        help="The authors' msmap YAML as it is (num_cams, IMG_W, IMG_H, camN_K, camN_dist, cam_axis; other keys ignored) for a terra-folder dataset.",
+    ),
+    poses: str = typer.Option(
+        "auto",
+        "--poses",
+        help="auto: the source's poses (LiDAR odometry when it has none); odometry: KISS-ICP on the scans.",
+    ),
+    sim: str | None = typer.Option(None, "--sim", help="Map a simulated campus PRESET[:SEED] instead of a folder."),
+    noise: str | None = typer.Option(
+        None, "--noise", help="Perception noise preset (none, realistic); overrides the config."
+    ),
     perception_only: bool = typer.Option(
         False, "--perception-only", help="Only fill the per-frame perception cache (no fusion, no bundle written)."
     ),
-    cache: Optional[Path] = typer.Option(
+    cache: Path | None = typer.Option(
         None, "--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bundle at --out (atomically)."),
-    workers: Optional[int] = typer.Option(
-        None, "--workers", "-w", min=1,
+    workers: int | None = typer.Option(
+        None,
+        "--workers",
+        "-w",
+        min=1,
         help="Perceive frames on a local Dask cluster of N worker processes (loopback only); "
         "needs the pip extra 'dask'.",
     ),
-    scheduler: Optional[str] = typer.Option(
-        None, "--scheduler",
+    scheduler: str | None = typer.Option(
+        None,
+        "--scheduler",
         help="Perceive frames on a running Dask cluster: tcp://HOST:PORT or a scheduler file "
         "(default: $TERRA_DASK_SCHEDULER).",
     ),
-    in_flight: Optional[int] = typer.Option(
-        None, "--in-flight", min=1,
+    in_flight: int | None = typer.Option(
+        None,
+        "--in-flight",
+        min=1,
         help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
@@ -100,17 +120,14 @@ def map_command(
         spec = spec.with_odometry()  # the workers perceive images, which need no poses
     if perception_only:
         folder = mapping.perception.cache.folder or f"{out}.work/perception"
-        on_interrupt(f"the images perceived so far are cached in {folder}; "
-                     "run the same command again to go on")
+        on_interrupt(f"the images perceived so far are cached in {folder}; run the same command again to go on")
         _perceive(spec, source, mapping, out, cluster, quiet)
     else:
         on_interrupt(lambda: _kept(out))
         _map(spec, source, mapping, out, cluster, quiet)
 
 
-def _source_spec(
-    dataset: Optional[Path], sim: Optional[str], format: str, camera_config: Optional[Path], options: dict
-):
+def _source_spec(dataset: Path | None, sim: str | None, format: str, camera_config: Path | None, options: dict):
     from terra.distributed.source import SourceSpec
 
     if camera_config is not None:
@@ -197,9 +214,11 @@ def _perceive(spec, source, mapping, out: Path, cluster, quiet: bool) -> None:
         return
     if on_cluster is not None:
         _cluster_summary(on_cluster)
-    typer.echo(f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, "
-               f"{run.hits} already cached, "
-               f"{run.computed} computed -> {run.folder}")
+    typer.echo(
+        f"perception cache: {counted(run.images, 'image')} of {counted(run.frames, 'frame')}, "
+        f"{run.hits} already cached, "
+        f"{run.computed} computed -> {run.folder}"
+    )
     _faults(run.stats, run.notes)
     typer.echo(run.timer.table())
 
@@ -222,10 +241,14 @@ def _faults(stats: dict[str, int], notes: dict[str, str]) -> None:
 
 
 def _odometry_line(run, files) -> str:
-    line = (f"odometry: KISS-ICP over {counted(len(run.stamps), 'scan')} ({run.scans_per_second:.1f} scans/s, "
-            f"{run.deskewed} deskewed), trajectory -> {files[0]}, {files[1].name}")
+    line = (
+        f"odometry: KISS-ICP over {counted(len(run.stamps), 'scan')} ({run.scans_per_second:.1f} scans/s, "
+        f"{run.deskewed} deskewed), trajectory -> {files[0]}, {files[1].name}"
+    )
     if run.errors:
         e = run.errors
-        line += (f"\n  vs the source's poses: ATE {e['ate_rmse_m']:.3f} m RMSE, final error {e['final_error_m']:.3f} m "
-                 f"= {e['drift_percent']:.2f} % of {e['distance_m']:.1f} m travelled")
+        line += (
+            f"\n  vs the source's poses: ATE {e['ate_rmse_m']:.3f} m RMSE, final error {e['final_error_m']:.3f} m "
+            f"= {e['drift_percent']:.2f} % of {e['distance_m']:.1f} m travelled"
+        )
     return line

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -13,12 +12,22 @@ from terra.cli import app
 @app.command("monitor")
 def monitor_command(
     bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
-    queries: Optional[List[str]] = typer.Argument(None, help="Monitoring task text, e.g. \"large parking lot surrounded by buildings\"."),
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="mix (paper), max, thresh or aib (Clio baseline); default mix."),
-    k: Optional[int] = typer.Option(None, "--k", "-k", help="Number of top regions for mix and max (default from the config: 1)."),
-    alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."),
-    tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (region_tasks, k, alpha, prediction_method)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    queries: list[str] | None = typer.Argument(
+        None, help='Monitoring task text, e.g. "large parking lot surrounded by buildings".'
+    ),
+    method: str | None = typer.Option(
+        None, "--method", "-m", help="mix (paper), max, thresh or aib (Clio baseline); default mix."
+    ),
+    k: int | None = typer.Option(
+        None, "--k", "-k", help="Number of top regions for mix and max (default from the config: 1)."
+    ),
+    alpha: float | None = typer.Option(
+        None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."
+    ),
+    tasks: Path | None = typer.Option(
+        None, "--tasks", help="YAML task file (region_tasks, k, alpha, prediction_method)."
+    ),
+    config: Path | None = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON (as POST /monitor answers)."),
 ) -> None:
     """Choose the regions and places to watch for a monitoring task.

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Tuple
 
 import typer
 
@@ -13,12 +12,12 @@ from terra.cli import app
 @app.command("node")
 def node_command(
     bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
-    node: Optional[str] = typer.Argument(
+    node: str | None = typer.Argument(
         None,
         help="Node: p12 (place), R3 (region of level 1; S, T, ... above), O0 (object), "
         "Z0 (root) or a numeric spark_dsg id.",
     ),
-    at: Optional[Tuple[float, float]] = typer.Option(
+    at: tuple[float, float] | None = typer.Option(
         None, "--at", help="Instead of NODE: the place nearest X Y (metres, map frame) and its regions."
     ),
     as_json: bool = typer.Option(

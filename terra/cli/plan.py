@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional, Tuple
 
 import typer
 
@@ -13,18 +12,26 @@ from terra.cli import app
 @app.command("plan")
 def plan_command(
     bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
-    to: Optional[str] = typer.Option(None, "--to", help="Destination task, e.g. \"get bike from the bicycle rack\"."),
-    to_node: Optional[int] = typer.Option(None, "--to-node", help="Destination place id instead of a query."),
-    from_query: Optional[str] = typer.Option(None, "--from", help="Start at the object a query names."),
-    from_node: Optional[int] = typer.Option(None, "--from-node", help="Start place id."),
-    from_xy: Optional[Tuple[float, float]] = typer.Option(None, "--from-xy", help="Start at the allowed place nearest X Y (metres, map frame)."),
-    prefer: Optional[List[str]] = typer.Option(None, "--prefer", help="Preferred terrain (repeatable); others get the default penalty."),
-    penalty: Optional[List[str]] = typer.Option(None, "--penalty", help="TERRAIN=W: cost per metre x (1 + W) on that terrain (repeatable)."),
-    forbid: Optional[List[str]] = typer.Option(None, "--forbid", help="Terrain never to enter (repeatable)."),
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="Retrieval method for the queries (default 3dsg)."),
-    alpha: Optional[float] = typer.Option(None, "--alpha", "-a", help="Cosine threshold for the queries."),
-    tasks: Optional[Path] = typer.Option(None, "--tasks", help="YAML task file (terrain_preferences, queries: start/destination)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    to: str | None = typer.Option(None, "--to", help='Destination task, e.g. "get bike from the bicycle rack".'),
+    to_node: int | None = typer.Option(None, "--to-node", help="Destination place id instead of a query."),
+    from_query: str | None = typer.Option(None, "--from", help="Start at the object a query names."),
+    from_node: int | None = typer.Option(None, "--from-node", help="Start place id."),
+    from_xy: tuple[float, float] | None = typer.Option(
+        None, "--from-xy", help="Start at the allowed place nearest X Y (metres, map frame)."
+    ),
+    prefer: list[str] | None = typer.Option(
+        None, "--prefer", help="Preferred terrain (repeatable); others get the default penalty."
+    ),
+    penalty: list[str] | None = typer.Option(
+        None, "--penalty", help="TERRAIN=W: cost per metre x (1 + W) on that terrain (repeatable)."
+    ),
+    forbid: list[str] | None = typer.Option(None, "--forbid", help="Terrain never to enter (repeatable)."),
+    method: str | None = typer.Option(None, "--method", "-m", help="Retrieval method for the queries (default 3dsg)."),
+    alpha: float | None = typer.Option(None, "--alpha", "-a", help="Cosine threshold for the queries."),
+    tasks: Path | None = typer.Option(
+        None, "--tasks", help="YAML task file (terrain_preferences, queries: start/destination)."
+    ),
+    config: Path | None = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON (as POST /plan)."),
 ) -> None:
     """Plan a terrain-aware path to what a task names.
@@ -38,8 +45,9 @@ def plan_command(
     """
     from terra.cli.task_options import load_tasks_config, open_bundle, plan_request
 
-    request = plan_request(to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [],
-                           method, alpha, tasks)
+    request = plan_request(
+        to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [], method, alpha, tasks
+    )
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
     loaded.prefetch([q for q in (request.to, request.from_query) if q])  # embeds while the query modules import

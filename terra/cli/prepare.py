@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 import typer
 
 from terra.cli import app
@@ -11,7 +9,7 @@ from terra.cli import app
 
 @app.command("prepare")
 def prepare_command(
-    embedder: Optional[str] = typer.Option(None, "--embedder", help="Text embedder name (default: the packaged MiniLM)."),
+    embedder: str | None = typer.Option(None, "--embedder", help="Text embedder name (default: the packaged MiniLM)."),
 ) -> None:
     """Export the text model to ONNX once, so queries start fast.
 

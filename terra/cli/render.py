@@ -80,8 +80,10 @@ def render_plan(result: PlanResult) -> str:
         lines.append(f"goal: place {goal.place}")
     for skipped in goal.skipped:
         c = skipped.object.center
-        lines.append(f"  skipped {skipped.object.label!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {skipped.object.score:.3f}: "
-                     f"{skipped.reason}")
+        lines.append(
+            f"  skipped {skipped.object.label!r} at ({c[0]:.2f}, {c[1]:.2f}) m, score {skipped.object.score:.3f}: "
+            f"{skipped.reason}"
+        )
     lines.append(f"start: place {start.place} ({start.how})")
     penalised = {k: v for k, v in result.penalty.items() if v > 0 and k not in result.forbidden}
     if penalised or result.forbidden:
@@ -92,8 +94,9 @@ def render_plan(result: PlanResult) -> str:
             )
         )
     by_terrain = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
-    lines.append(f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m ({by_terrain}), "
-                 f"cost {path.cost:.1f}")
+    lines.append(
+        f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m ({by_terrain}), cost {path.cost:.1f}"
+    )
     for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
         lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
     return "\n".join(lines)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import List, Optional, Tuple
 
 import typer
 
@@ -17,19 +16,19 @@ def render_command(
     what: str = typer.Option(..., "--what", "-w", help="terrain | places | regions | objects | path."),
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write; an existing one is kept unless --overwrite."),
     dpi: int = typer.Option(120, "--dpi", help="Resolution of the PNG."),
-    query: Optional[List[str]] = typer.Option(
+    query: list[str] | None = typer.Option(
         None, "--query", "-q", help="objects: find these objects and draw them (repeatable)."
     ),
-    to: Optional[str] = typer.Option(None, "--to", help="path: destination query, as in `terra plan`."),
-    to_node: Optional[int] = typer.Option(None, "--to-node", help="path: destination place id."),
-    from_query: Optional[str] = typer.Option(None, "--from", help="path: start at the object a query names."),
-    from_node: Optional[int] = typer.Option(None, "--from-node", help="path: start place id."),
-    from_xy: Optional[Tuple[float, float]] = typer.Option(
+    to: str | None = typer.Option(None, "--to", help="path: destination query, as in `terra plan`."),
+    to_node: int | None = typer.Option(None, "--to-node", help="path: destination place id."),
+    from_query: str | None = typer.Option(None, "--from", help="path: start at the object a query names."),
+    from_node: int | None = typer.Option(None, "--from-node", help="path: start place id."),
+    from_xy: tuple[float, float] | None = typer.Option(
         None, "--from-xy", help="path: start nearest X Y (metres, map frame)."
     ),
-    prefer: Optional[List[str]] = typer.Option(None, "--prefer", help="path: preferred terrain (repeatable)."),
-    penalty: Optional[List[str]] = typer.Option(None, "--penalty", help="path: TERRAIN=W cost factor (repeatable)."),
-    forbid: Optional[List[str]] = typer.Option(None, "--forbid", help="path: terrain never to enter (repeatable)."),
+    prefer: list[str] | None = typer.Option(None, "--prefer", help="path: preferred terrain (repeatable)."),
+    penalty: list[str] | None = typer.Option(None, "--penalty", help="path: TERRAIN=W cost factor (repeatable)."),
+    forbid: list[str] | None = typer.Option(None, "--forbid", help="path: terrain never to enter (repeatable)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing PNG at --out."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:

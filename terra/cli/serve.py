@@ -4,7 +4,6 @@ bundle (terra.serve.app)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -18,7 +17,7 @@ def serve_command(
         "127.0.0.1", "--host", help="Address to bind (loopback by default; 0.0.0.0 opens it to the network)."
     ),
     port: int = typer.Option(8765, "--port", "-p", help="TCP port."),
-    token: Optional[str] = typer.Option(
+    token: str | None = typer.Option(
         None,
         "--token",
         envvar="TERRA_SERVE_TOKEN",
@@ -27,7 +26,7 @@ def serve_command(
     ),
     max_queries: int = typer.Option(32, "--max-queries", help="Most text queries per request (more: 413)."),
     max_body_bytes: int = typer.Option(65536, "--max-body-bytes", help="Largest request body in bytes (more: 413)."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
+    config: Path | None = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     access_log: bool = typer.Option(False, "--access-log", help="Log every request on stderr."),
 ) -> None:
     """Answer find, monitor and plan queries over HTTP.

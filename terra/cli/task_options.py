@@ -4,8 +4,9 @@ with the flags' names in the messages, TERRAIN=WEIGHT parsing, and the reference
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from terra.errors import TerraError
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -22,7 +21,7 @@ def view_command(
     max_points: int = typer.Option(
         200_000, "--max-points", help="Points drawn at most (a fixed subset; queries use every point)."
     ),
-    config: Optional[Path] = typer.Option(
+    config: Path | None = typer.Option(
         None, "--config", "-c", help="YAML config; its `tasks` section is used for the queries."
     ),
 ) -> None:

@@ -6,4 +6,14 @@ from __future__ import annotations
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass
 from terra.datasets.registry import LOADERS, Loader, loader_names, open_dataset
 
-__all__ = ["CameraFrame", "ClassTable", "Dataset", "Frame", "SemanticClass", "LOADERS", "Loader", "loader_names", "open_dataset"]
+__all__ = [
+    "CameraFrame",
+    "ClassTable",
+    "Dataset",
+    "Frame",
+    "SemanticClass",
+    "LOADERS",
+    "Loader",
+    "loader_names",
+    "open_dataset",
+]

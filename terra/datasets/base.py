@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Iterator, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -71,8 +72,13 @@ class ClassTable:
         ]
 
     @classmethod
-    def from_json(cls, rows: list[dict]) -> "ClassTable":
-        return cls([SemanticClass(int(r["id"]), str(r["name"]), bool(r.get("terrain", False)), r.get("semantickitti_id")) for r in rows])
+    def from_json(cls, rows: list[dict]) -> ClassTable:
+        return cls(
+            [
+                SemanticClass(int(r["id"]), str(r["name"]), bool(r.get("terrain", False)), r.get("semantickitti_id"))
+                for r in rows
+            ]
+        )
 
 
 @dataclass

@@ -22,7 +22,8 @@ from PIL import Image, UnidentifiedImageError
 
 from terra.datasets.base import ClassTable, SemanticClass
 from terra.errors import TerraError
-from terra.fileio import read_bytes, read_json as read_json_file
+from terra.fileio import read_bytes
+from terra.fileio import read_json as read_json_file
 from terra.geometry import CameraCalibration
 from terra.npy import ArraySpec, read_npy
 
@@ -33,8 +34,18 @@ MAX_LABEL_ID = 65535  # 16-bit greyscale PNG (semantic images, and instance imag
 MAX_INSTANCE_ID = (1 << 24) - 1  # 24-bit RGB PNG, id = R + 256 G + 65536 B
 # What Pillow's decoders raise on damaged or hostile data (besides OSError): this is the one place
 # they are turned into "undecodable image" lines.
-IMAGE_ERRORS = (OSError, SyntaxError, ValueError, EOFError, struct.error, TypeError, IndexError, ZeroDivisionError,
-                MemoryError, Image.DecompressionBombError)
+IMAGE_ERRORS = (
+    OSError,
+    SyntaxError,
+    ValueError,
+    EOFError,
+    struct.error,
+    TypeError,
+    IndexError,
+    ZeroDivisionError,
+    MemoryError,
+    Image.DecompressionBombError,
+)
 
 
 def write_classes(root: Path, classes: ClassTable) -> None:
@@ -57,8 +68,15 @@ def read_classes(root: Path) -> ClassTable | None:
 
 def calibration_to_json(cal: CameraCalibration) -> dict:
     """Exact JSON form of a calibration (floats keep full precision through repr)."""
-    return {"name": cal.name, "width": int(cal.width), "height": int(cal.height), "K": cal.K.tolist(),
-            "model": cal.model, "dist": cal.dist.tolist(), "T_cam_lidar": cal.T_cam_lidar.tolist()}
+    return {
+        "name": cal.name,
+        "width": int(cal.width),
+        "height": int(cal.height),
+        "K": cal.K.tolist(),
+        "model": cal.model,
+        "dist": cal.dist.tolist(),
+        "T_cam_lidar": cal.T_cam_lidar.tolist(),
+    }
 
 
 def calibration_from_json(d: dict, source: str) -> CameraCalibration:
@@ -67,8 +85,15 @@ def calibration_from_json(d: dict, source: str) -> CameraCalibration:
 
     doc = validate_model(d, CalibrationDoc, source)
     try:
-        return CameraCalibration(doc.name, doc.width, doc.height, np.asarray(doc.K, float), np.asarray(doc.dist, float),
-                                 np.asarray(doc.T_cam_lidar, float), doc.model)
+        return CameraCalibration(
+            doc.name,
+            doc.width,
+            doc.height,
+            np.asarray(doc.K, float),
+            np.asarray(doc.dist, float),
+            np.asarray(doc.T_cam_lidar, float),
+            doc.model,
+        )
     except ValueError as exc:
         raise TerraError(f"{source}: malformed camera calibration ({exc})") from None
 
@@ -92,14 +117,18 @@ def open_image(path: Path, what: str = "image", formats: tuple[str, ...] = ("JPE
     except UnidentifiedImageError:
         raise TerraError(f"{path}: not a {expected} image (unrecognised data)") from None
     except Image.DecompressionBombError:
-        raise TerraError(f"{path}: {what} declares more pixels than the {MAX_IMAGE_PIXELS:,} Terra decodes "
-                         "(a damaged or hostile file)") from None
+        raise TerraError(
+            f"{path}: {what} declares more pixels than the {MAX_IMAGE_PIXELS:,} Terra decodes "
+            "(a damaged or hostile file)"
+        ) from None
     except IMAGE_ERRORS as exc:
         raise TerraError(f"{path}: unreadable {what} ({_reason(exc)}); expected {expected}") from None
     width, height = im.size
     if width * height > MAX_IMAGE_PIXELS:
-        raise TerraError(f"{path}: {what} declares {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS:,} "
-                         "Terra decodes (a damaged or hostile file)")
+        raise TerraError(
+            f"{path}: {what} declares {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS:,} "
+            "Terra decodes (a damaged or hostile file)"
+        )
     return im
 
 
@@ -130,8 +159,9 @@ def write_instance_png(path: Path, ids: np.ndarray) -> None:
     ids = np.asarray(ids)
     top = int(ids.max()) if ids.size else 0
     if ids.size and (int(ids.min()) < 0 or top > MAX_INSTANCE_ID):
-        raise TerraError(f"{path}: instance ids must lie in 0..{MAX_INSTANCE_ID} to be stored as a PNG "
-                         f"(got {int(ids.min())}..{top})")
+        raise TerraError(
+            f"{path}: instance ids must lie in 0..{MAX_INSTANCE_ID} to be stored as a PNG (got {int(ids.min())}..{top})"
+        )
     if top <= MAX_LABEL_ID:
         write_label_png(path, ids)
         return
@@ -149,8 +179,9 @@ def read_instance_png(path: Path) -> np.ndarray:
         wide = ids.astype(np.int32)
         return wide[:, :, 0] | (wide[:, :, 1] << 8) | (wide[:, :, 2] << 16)
     if ids.ndim != 2 or ids.dtype.kind not in "biu":
-        raise TerraError(f"{path}: expected a greyscale or 8-bit RGB instance image, got {im.mode} of shape "
-                         f"{ids.shape}")
+        raise TerraError(
+            f"{path}: expected a greyscale or 8-bit RGB instance image, got {im.mode} of shape {ids.shape}"
+        )
     return _checked_ids(ids, path, MAX_LABEL_ID, "a 16-bit PNG")
 
 
@@ -163,8 +194,9 @@ def _decode_labels(im: Image.Image, path: Path, what: str) -> np.ndarray:
 
 def _checked_ids(labels: np.ndarray, path: Path, top: int, form: str) -> np.ndarray:
     if labels.size and (int(labels.min()) < 0 or int(labels.max()) > top):
-        raise TerraError(f"{path}: label ids from {int(labels.min())} to {int(labels.max())}, expected 0..{top} "
-                         f"({form})")
+        raise TerraError(
+            f"{path}: label ids from {int(labels.min())} to {int(labels.max())}, expected 0..{top} ({form})"
+        )
     return labels.astype(np.int32)
 
 

@@ -84,7 +84,7 @@ class GroundTruth:
     regions: list[NamedRegion]
     notes: list[str] = field(default_factory=list)
 
-    def translated(self, offset: np.ndarray) -> "GroundTruth":
+    def translated(self, offset: np.ndarray) -> GroundTruth:
         """The same ground truth in a frame shifted by `offset` (3,) metres: p_new = p + offset."""
         offset = np.asarray(offset, np.float64).reshape(3)
         objects = [replace(o, center=np.asarray(o.center, np.float64) + offset) for o in self.objects]
@@ -130,7 +130,11 @@ def write_ground_truth(root: Path, gt: GroundTruth) -> None:
     }
     (out / "terrain.json").write_text(json.dumps(meta, indent=1) + "\n")
     regions = [
-        {"name": r.name, "description": r.description, "polygon": [[round(float(x), 6), round(float(y), 6)] for x, y in r.polygon]}
+        {
+            "name": r.name,
+            "description": r.description,
+            "polygon": [[round(float(x), 6), round(float(y), 6)] for x, y in r.polygon],
+        }
         for r in gt.regions
     ]
     (out / "regions.json").write_text(json.dumps({"frame": "map", "regions": regions}, indent=1) + "\n")
@@ -144,17 +148,28 @@ def load_ground_truth(root: str | Path) -> GroundTruth:
 
     gt_dir = Path(root) / GROUND_TRUTH_DIR
     if not gt_dir.is_dir():
-        raise TerraError(f"{gt_dir}: no ground truth folder (expected a dataset written by `terra sim`, "
-                         "or a KITTI raw drive with label_02/ or label_2/ labels)")
+        raise TerraError(
+            f"{gt_dir}: no ground truth folder (expected a dataset written by `terra sim`, "
+            "or a KITTI raw drive with label_02/ or label_2/ labels)"
+        )
     objects = [
-        ObjectBox(o.instance_id, o.class_id, o.class_name, np.asarray(o.center, float), np.asarray(o.size, float), o.yaw)
+        ObjectBox(
+            o.instance_id, o.class_id, o.class_name, np.asarray(o.center, float), np.asarray(o.size, float), o.yaw
+        )
         for o in read_model(gt_dir / "objects.json", GroundTruthObjects, "ground-truth objects file").objects
     ]
     meta = read_model(gt_dir / "terrain.json", GroundTruthTerrain, "ground-truth terrain file")
     classes = read_npy(gt_dir / "terrain.npy", ArraySpec(("int32",), (None, None), what="terrain class per cell"))
-    heights = read_npy(gt_dir / "ground_height.npy", ArraySpec(("float32",), classes.shape, what="ground height per cell"))
-    terrain = TerrainRaster(classes=classes, ground_height=heights, origin=np.asarray(meta.origin, float),
-                            resolution=float(meta.resolution), legend={int(k): v for k, v in meta.legend.items()})
+    heights = read_npy(
+        gt_dir / "ground_height.npy", ArraySpec(("float32",), classes.shape, what="ground height per cell")
+    )
+    terrain = TerrainRaster(
+        classes=classes,
+        ground_height=heights,
+        origin=np.asarray(meta.origin, float),
+        resolution=float(meta.resolution),
+        legend={int(k): v for k, v in meta.legend.items()},
+    )
     regions = [
         NamedRegion(r.name, r.description, np.asarray(r.polygon, float))
         for r in read_model(gt_dir / "regions.json", GroundTruthRegions, "ground-truth regions file").regions

@@ -28,9 +28,10 @@ the drive folder give ground-truth boxes (terra.datasets.kitti_labels).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -56,12 +57,12 @@ class KittiRawConfig(Section):
     """Options of the KITTI raw loader."""
 
     poses: str = Field(
-        "oxts",
+        default="oxts",
         description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion), or another "
         "source registered in terra.datasets.kitti_raw.POSE_SOURCES",
     )
     normalise: oxts.Normalise = Field(
-        "first-position",
+        default="first-position",
         description="map origin: 'first-position' (east, north, up axes "
         "at the first IMU position) or 'first-pose' (the first IMU pose is the identity)",
     )
@@ -157,8 +158,10 @@ def _one_drive(path: Path) -> Path:
     if len(drives) > 1:
         raise TerraError(f"{path}: {len(drives)} drives; open one of them, e.g. {drives[0]}")
     if drives[0].name.endswith("_extract"):
-        raise TerraError(f"{drives[0]}: an unsynced '_extract' drive (unrectified images, sensor clocks apart); "
-                         "Terra reads the synced and rectified '_sync' drives")
+        raise TerraError(
+            f"{drives[0]}: an unsynced '_extract' drive (unrectified images, sensor clocks apart); "
+            "Terra reads the synced and rectified '_sync' drives"
+        )
     return drives[0]
 
 
@@ -181,7 +184,7 @@ def _indexed_files(folder: Path, suffix: str) -> dict[int, Path]:
 PoseSource = Callable[["KittiRawDataset", KittiRawConfig], np.ndarray]
 
 
-def oxts_poses(drive: "KittiRawDataset", config: KittiRawConfig) -> np.ndarray:
+def oxts_poses(drive: KittiRawDataset, config: KittiRawConfig) -> np.ndarray:
     """(F, 4, 4) T_map_lidar of every frame from its OXTS packet (the devkit's conversion)."""
     T_world_imu = oxts.normalise_poses(oxts.world_poses(drive.packets), config.normalise)
     return T_world_imu @ invert_pose(drive.calibration.T_velo_imu)

@@ -167,8 +167,10 @@ def _write_images(folder: Path, i: int, frame: Frame, count: int) -> list[float]
         camera = folder / f"image_0{2 + k}"
         (camera / "data").mkdir(parents=True, exist_ok=True)
         write_rgb(camera / "data" / f"{i:010d}.png", cam.image)
-        for extra, image, write in (("semantic", cam.semantic, write_label_png),
-                                    ("instance", cam.instance, write_instance_png)):
+        for extra, image, write in (
+            ("semantic", cam.semantic, write_label_png),
+            ("instance", cam.instance, write_instance_png),
+        ):
             if image is not None:
                 (camera / extra).mkdir(exist_ok=True)
                 write(camera / extra / f"{i:010d}.png", image)

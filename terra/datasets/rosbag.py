@@ -47,41 +47,43 @@ PREFERRED_MAP_FRAMES = ("map", "odom", "world")
 class CameraTopicsConfig(Section):
     """One camera of the bag."""
 
-    name: str | None = Field(None, description="camera name (default: the image topic's namespace)")
+    name: str | None = Field(default=None, description="camera name (default: the image topic's namespace)")
     image_topic: str = Field(..., description="sensor_msgs/Image or CompressedImage topic")
     info_topic: str | None = Field(
-        None, description="sensor_msgs/CameraInfo topic (default: camera_info beside the image)"
+        default=None, description="sensor_msgs/CameraInfo topic (default: camera_info beside the image)"
     )
     semantic_topic: str | None = Field(
-        None, description="optional label image (mono16 class ids) for the labels backend"
+        default=None, description="optional label image (mono16 class ids) for the labels backend"
     )
-    instance_topic: str | None = Field(None, description="optional label image (mono16 instance ids)")
+    instance_topic: str | None = Field(default=None, description="optional label image (mono16 instance ids)")
 
 
 class RosbagConfig(Section):
     """Options of the bag loader (the `dataset` section of a config file). Unset topics and frames
     are found in the bag when that is unambiguous."""
 
-    lidar_topic: str | None = Field(None, description="sensor_msgs/PointCloud2 topic of the LiDAR")
+    lidar_topic: str | None = Field(default=None, description="sensor_msgs/PointCloud2 topic of the LiDAR")
     cameras: list[CameraTopicsConfig] | None = Field(
-        None, description="cameras to use (default: every image topic with a camera_info beside it)"
+        default=None, description="cameras to use (default: every image topic with a camera_info beside it)"
     )
-    lidar_frame: str | None = Field(None, description="TF frame of the LiDAR (default: the clouds' header.frame_id)")
+    lidar_frame: str | None = Field(
+        default=None, description="TF frame of the LiDAR (default: the clouds' header.frame_id)"
+    )
     map_frame: str | None = Field(
-        None, description="TF frame the poses are in (default: map, odom or world above the LiDAR)"
+        default=None, description="TF frame the poses are in (default: map, odom or world above the LiDAR)"
     )
     poses: Literal["auto", "tf", "topic", "odometry"] = Field(
-        "auto",
+        default="auto",
         description="pose source: tf (/tf), topic (nav_msgs/Odometry), odometry (KISS-ICP on the scans), "
         "auto (the first that exists)",
     )
-    odometry_topic: str | None = Field(None, description="nav_msgs/Odometry topic for poses: topic")
-    max_gap: float = Field(0.05, gt=0.0, description="seconds an image may lie from its scan's stamp")
+    odometry_topic: str | None = Field(default=None, description="nav_msgs/Odometry topic for poses: topic")
+    max_gap: float = Field(default=0.05, gt=0.0, description="seconds an image may lie from its scan's stamp")
     max_pose_gap: float = Field(
-        0.5, gt=0.0, description="seconds between the two TF samples a scan's pose is interpolated from"
+        default=0.5, gt=0.0, description="seconds between the two TF samples a scan's pose is interpolated from"
     )
     deskew: bool = Field(
-        True,
+        default=True,
         description="with per-point times and poses from /tf or an odometry topic: move every point into the "
         "LiDAR frame at the scan stamp, with the pose at its own time",
     )

@@ -30,11 +30,27 @@ import numpy as np
 import yaml
 
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, image_size, read_classes, read_json,
-                                      read_instance_png, read_label_png, read_raw, read_rgb, write_instance_png,
-                                      write_label_png, write_rgb)
-from terra.datasets.kitti_common import (STANDARD_LABELS, STANDARD_TERRAIN, decompose_projection, read_calib_file,
-                                         standard_classes)
+from terra.datasets.folder_io import (
+    calibration_from_json,
+    calibration_to_json,
+    image_size,
+    read_classes,
+    read_instance_png,
+    read_json,
+    read_label_png,
+    read_raw,
+    read_rgb,
+    write_instance_png,
+    write_label_png,
+    write_rgb,
+)
+from terra.datasets.kitti_common import (
+    STANDARD_LABELS,
+    STANDARD_TERRAIN,
+    decompose_projection,
+    read_calib_file,
+    standard_classes,
+)
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.fileio import read_text, read_yaml
@@ -86,13 +102,17 @@ def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show
     to_kitti = _lookup(ids)
     poses, times, cameras = [], [], []
     Tr = None
-    for frame in progress((dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress):
+    for frame in progress(
+        (dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress
+    ):
         name = f"{len(times):06d}"
         if Tr is None:
             Tr = frame.cameras[0].calibration.T_cam_lidar if frame.cameras else _DEFAULT_TR
         inten = frame.intensity if frame.intensity is not None else np.zeros(len(frame.points), np.float32)
         # write_bytes, not ndarray.tofile: a short write (full disk) then says why, with its errno
-        (seq / "velodyne" / f"{name}.bin").write_bytes(np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tobytes())
+        (seq / "velodyne" / f"{name}.bin").write_bytes(
+            np.concatenate([frame.points, inten[:, None]], axis=1).astype("<f4").tobytes()
+        )
         if frame.point_labels is not None:
             inst = frame.point_instances if frame.point_instances is not None else np.zeros_like(frame.point_labels)
             if inst.size and (inst.min() < 0 or inst.max() > 0xFFFF):
@@ -145,9 +165,13 @@ def _legend(classes: ClassTable, ids: dict[int, int]) -> dict:
             rgb = from_sim.get(c.name, (128, 128, 128))
             colors[k] = [int(rgb[2]), int(rgb[1]), int(rgb[0])]
         learning[k] = train
-    return {"labels": labels, "color_map": colors, "learning_map": learning,
-            "learning_map_inv": {v: k for k, v in learning.items()},
-            "learning_ignore": {v: v == 0 for v in learning.values()}}
+    return {
+        "labels": labels,
+        "color_map": colors,
+        "learning_map": learning,
+        "learning_map_inv": {v: k for k, v in learning.items()},
+        "learning_ignore": {v: v == 0 for v in learning.values()},
+    }
 
 
 def _class_colors() -> dict[str, tuple[int, int, int]]:
@@ -163,7 +187,11 @@ def _sequence_dir(path: Path) -> Path:
     path = Path(path)
     if (path / "velodyne").is_dir():
         return path
-    seqs = sorted(p for p in (path / "sequences").iterdir() if (p / "velodyne").is_dir()) if (path / "sequences").is_dir() else []
+    seqs = (
+        sorted(p for p in (path / "sequences").iterdir() if (p / "velodyne").is_dir())
+        if (path / "sequences").is_dir()
+        else []
+    )
     if len(seqs) == 1:
         return seqs[0]
     if not seqs:
@@ -212,7 +240,7 @@ class SemanticKittiDataset:
         if exact.is_file():
             rows = read_json(exact).get("cameras")
             if not isinstance(rows, list):
-                raise TerraError(f"{exact}: expected {{\"cameras\": [calibration, ...]}}")
+                raise TerraError(f'{exact}: expected {{"cameras": [calibration, ...]}}')
             cams = [calibration_from_json(c, str(exact)) for c in rows]
             return cams, [f"image_{2 + n}" for n in range(len(cams))]
         cams, folders = [], []
@@ -278,9 +306,19 @@ class SemanticKittiDataset:
             inst_path = self.seq / f"{folder}_instance" / f"{stem}.png"
             sem = self._ids_from_kitti[read_label_png(sem_path)].astype(np.int32) if sem_path.is_file() else None
             inst = read_instance_png(inst_path) if inst_path.is_file() else None
-            cams.append(CameraFrame(cal, stamp, read_rgb(img_path), sem, inst, name=str(img_path.relative_to(self.root))))
-        return Frame(index, stamp, np.ascontiguousarray(raw[:, :3]), self.poses[index], cams,
-                     np.ascontiguousarray(raw[:, 3]), labels, instances)
+            cams.append(
+                CameraFrame(cal, stamp, read_rgb(img_path), sem, inst, name=str(img_path.relative_to(self.root)))
+            )
+        return Frame(
+            index,
+            stamp,
+            np.ascontiguousarray(raw[:, :3]),
+            self.poses[index],
+            cams,
+            np.ascontiguousarray(raw[:, 3]),
+            labels,
+            instances,
+        )
 
     def global_map(self) -> np.ndarray | None:
         return None
@@ -294,10 +332,22 @@ class SemanticKittiDataset:
         """What `terra inspect` reports: scans, cameras (exact or from P2/P3), label files present."""
         labels = len(list((self.seq / "labels").glob("*.label"))) if (self.seq / "labels").is_dir() else 0
         span = (float(self.stamps[0]), float(self.stamps[-1]))
-        return SourceInfo("semantickitti", str(self.seq), len(self.scans), span, list(self.cameras),
-                          "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)", {}, {},
-                          {"sequence": self.name, "label_files": labels, "camera_folders": list(self._camera_folders),
-                           "calibrations_from": CAMERAS if (self.seq / CAMERAS).is_file() else "calib.txt"})
+        return SourceInfo(
+            "semantickitti",
+            str(self.seq),
+            len(self.scans),
+            span,
+            list(self.cameras),
+            "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)",
+            {},
+            {},
+            {
+                "sequence": self.name,
+                "label_files": labels,
+                "camera_folders": list(self._camera_folders),
+                "calibrations_from": CAMERAS if (self.seq / CAMERAS).is_file() else "calib.txt",
+            },
+        )
 
 
 def _read_table(path: Path, columns: int, rows: int, what: str) -> np.ndarray:
@@ -333,5 +383,9 @@ def _detect(path: Path) -> bool:
     return (path / "velodyne").is_dir() or (path / "sequences").is_dir()
 
 
-LOADER = Loader("semantickitti", _detect, lambda path, _options: SemanticKittiDataset(path),
-                description="KITTI odometry / SemanticKITTI sequences (velodyne/, labels/, poses.txt, calib.txt)")
+LOADER = Loader(
+    "semantickitti",
+    _detect,
+    lambda path, _options: SemanticKittiDataset(path),
+    description="KITTI odometry / SemanticKITTI sequences (velodyne/, labels/, poses.txt, calib.txt)",
+)

@@ -42,9 +42,21 @@ from pydantic import Field
 
 from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
-from terra.datasets.folder_io import (calibration_from_json, calibration_to_json, load_npy, read_classes,
-                                      image_size, read_instance_png, read_label_png, read_rgb, stamp_of, stamp_text,
-                                      write_instance_png, write_label_png, write_rgb)
+from terra.datasets.folder_io import (
+    calibration_from_json,
+    calibration_to_json,
+    image_size,
+    load_npy,
+    read_classes,
+    read_instance_png,
+    read_label_png,
+    read_rgb,
+    stamp_of,
+    stamp_text,
+    write_instance_png,
+    write_label_png,
+    write_rgb,
+)
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
@@ -143,7 +155,9 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
     acc = GlobalMapAccumulator()
     cameras: list[CameraCalibration] = []
     stamps: list[float] = []
-    for frame in progress((dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress):
+    for frame in progress(
+        (dataset[i] for i in range(len(dataset))), desc="writing frames", total=len(dataset), enabled=show_progress
+    ):
         t = stamp_text(frame.stamp)
         stamps.append(float(t))
         write_npy(root / POSES / f"transform_lidar_to_map_{t}.npy", pose_to_xyz_quat(frame.T_map_lidar))
@@ -171,8 +185,14 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
             msmap_camera_keys(cameras)  # refuse what the authors' layout cannot hold before writing more
     last = stamp_text(max(stamps)) if stamps else stamp_text(0.0)
     write_npy(root / GLOBAL / f"global_pc_{last}.npy", acc.result())
-    meta = {"format": "terra-folder", "version": 2, "name": dataset.name, "frames": len(stamps),
-            "first_camera": FIRST_CAMERA, "cameras": [calibration_to_json(c) for c in cameras]}
+    meta = {
+        "format": "terra-folder",
+        "version": 2,
+        "name": dataset.name,
+        "frames": len(stamps),
+        "first_camera": FIRST_CAMERA,
+        "cameras": [calibration_to_json(c) for c in cameras],
+    }
     (root / META).write_text(json.dumps(meta, indent=1) + "\n")
     (root / CAMERA_YAML).write_text(yaml.safe_dump(msmap_camera_keys(cameras), sort_keys=False))
 
@@ -187,8 +207,13 @@ class TerraFolderDataset:
     names where the intrinsics came from and `camera_numbers` the cameras' numbers in the layout.
     """
 
-    def __init__(self, root: Path, max_gap: float | None = None, cameras: list[CameraCalibration] | None = None,
-                 camera_config: Path | None = None) -> None:
+    def __init__(
+        self,
+        root: Path,
+        max_gap: float | None = None,
+        cameras: list[CameraCalibration] | None = None,
+        camera_config: Path | None = None,
+    ) -> None:
         self.root = root = Path(root)
         if not (root / POSES).is_dir():
             raise TerraError(f"{root}: not a terra-folder dataset (no {POSES}/ folder)")
@@ -204,12 +229,14 @@ class TerraFolderDataset:
         self.skipped_notes: dict[str, str] = {}
         self._frames = self._pair_streams()
         if not self._frames:
-            raise TerraError(f"{root}: no scan with a pose, a LiDAR file and every camera image "
-                             f"within {self.max_gap} s")
+            raise TerraError(
+                f"{root}: no scan with a pose, a LiDAR file and every camera image within {self.max_gap} s"
+            )
         self._check_image_sizes()
 
-    def _calibration(self, meta: dict, cameras: list[CameraCalibration] | None, camera_config: Path | None
-                     ) -> tuple[list[int], list[CameraCalibration], bool, float | None]:
+    def _calibration(
+        self, meta: dict, cameras: list[CameraCalibration] | None, camera_config: Path | None
+    ) -> tuple[list[int], list[CameraCalibration], bool, float | None]:
         """(camera numbers, calibrations, whether extrinsics are exact, unaligned_threshold)."""
         root = self.root
         if cameras is not None:
@@ -222,8 +249,12 @@ class TerraFolderDataset:
         if meta.get("cameras") is not None:
             self.camera_source = str(root / META)
             first = int(meta.get("first_camera") or 0)
-            return ([first + i for i in range(len(meta["cameras"]))],
-                    [calibration_from_json(c, str(root / META)) for c in meta["cameras"]], True, None)
+            return (
+                [first + i for i in range(len(meta["cameras"]))],
+                [calibration_from_json(c, str(root / META)) for c in meta["cameras"]],
+                True,
+                None,
+            )
         if (root / CAMERA_YAML).is_file():
             config = read_msmap_config(root / CAMERA_YAML)
             self.camera_source = str(root / CAMERA_YAML)
@@ -241,8 +272,10 @@ class TerraFolderDataset:
             files = CameraFiles(n)
             transforms = stamped_files(root / files.transforms, f"transform_lidar_to_cam{n}_*.npy")
             if not self._exact_cameras and not transforms[1]:
-                raise TerraError(f"{root / files.transforms}: no lidar -> camera {n} transforms "
-                                 f"(transform_lidar_to_cam{n}_<t>.npy); camera {n}'s extrinsics are unknown")
+                raise TerraError(
+                    f"{root / files.transforms}: no lidar -> camera {n} transforms "
+                    f"(transform_lidar_to_cam{n}_<t>.npy); camera {n}'s extrinsics are unknown"
+                )
             streams.append((stamped_files(root / files.images, f"cam{n}_img_*.jpg"), transforms))
         frames = []
         for t, pose_file in zip(pose_t, pose_f):
@@ -259,8 +292,9 @@ class TerraFolderDataset:
             else:
                 self.skipped["scans_unaligned"] = self.skipped.get("scans_unaligned", 0) + 1
                 where = "missing" if np.isinf(gap) else f"{gap:.3f} s away"
-                self.skipped_notes.setdefault("scans_unaligned",
-                                              f"{pose_file}: nearest {what} is {where} (tolerance {self.max_gap} s)")
+                self.skipped_notes.setdefault(
+                    "scans_unaligned", f"{pose_file}: nearest {what} is {where} (tolerance {self.max_gap} s)"
+                )
         return frames
 
     def _check_image_sizes(self) -> None:
@@ -269,8 +303,10 @@ class TerraFolderDataset:
             size = image_size(image_file)
             if size != (cal.width, cal.height):
                 source = self.camera_source or "the calibration"
-                raise TerraError(f"{image_file}: image is {size[0]}x{size[1]}, but {source} says "
-                                 f"{cal.width}x{cal.height} (IMG_W x IMG_H)")
+                raise TerraError(
+                    f"{image_file}: image is {size[0]}x{size[1]}, but {source} says "
+                    f"{cal.width}x{cal.height} (IMG_W x IMG_H)"
+                )
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -285,18 +321,29 @@ class TerraFolderDataset:
         if label_file.is_file():
             li = load_npy(label_file, (len(scan), 2), "class id, instance id per point of its scan")
             labels, instances = li[:, 0].astype(np.int32), li[:, 1].astype(np.int32)
-        cams = [self._camera_frame(n, cal, image_file, tf_file)
-                for n, cal, (image_file, tf_file) in zip(self.camera_numbers, self.calibrations, picks)]
-        return Frame(index, t, np.ascontiguousarray(scan[:, :3], dtype=np.float32), _read_pose(pose_file),
-                     cams, scan[:, 3].astype(np.float32), labels, instances)
+        cams = [
+            self._camera_frame(n, cal, image_file, tf_file)
+            for n, cal, (image_file, tf_file) in zip(self.camera_numbers, self.calibrations, picks)
+        ]
+        return Frame(
+            index,
+            t,
+            np.ascontiguousarray(scan[:, :3], dtype=np.float32),
+            _read_pose(pose_file),
+            cams,
+            scan[:, 3].astype(np.float32),
+            labels,
+            instances,
+        )
 
     def _camera_frame(self, n: int, cal: CameraCalibration, image_file: Path, tf_file: Path | None) -> CameraFrame:
         if tf_file is not None and not self._exact_cameras:
             cal = CameraCalibration(cal.name, cal.width, cal.height, cal.K, cal.dist, _read_pose(tf_file), cal.model)
         image = read_rgb(image_file)
         if image.shape[:2] != (cal.height, cal.width):
-            raise TerraError(f"{image_file}: image is {image.shape[1]}x{image.shape[0]}, "
-                             f"calibration says {cal.width}x{cal.height}")
+            raise TerraError(
+                f"{image_file}: image is {image.shape[1]}x{image.shape[0]}, calibration says {cal.width}x{cal.height}"
+            )
         stamp = stamp_of(image_file)
         files = CameraFiles(n)
         sem_file, inst_file = self.root / files.semantic_image(stamp), self.root / files.instance_image(stamp)
@@ -318,12 +365,22 @@ class TerraFolderDataset:
 
     def info(self) -> SourceInfo:
         """What `terra inspect` reports: frames, cameras as read, and the scans left out and why."""
-        return SourceInfo("terra-folder", str(self.root), len(self._frames), (self._frames[0][0], self._frames[-1][0]),
-                          list(self.calibrations), f"{POSES}/ (one T_map_lidar file per scan)", dict(self.skipped),
-                          dict(self.skipped_notes),
-                          {"calibrations_from": self.camera_source or "none (LiDAR only)",
-                           "camera_numbers": list(self.camera_numbers), "max_gap_s": self.max_gap,
-                           "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1])})
+        return SourceInfo(
+            "terra-folder",
+            str(self.root),
+            len(self._frames),
+            (self._frames[0][0], self._frames[-1][0]),
+            list(self.calibrations),
+            f"{POSES}/ (one T_map_lidar file per scan)",
+            dict(self.skipped),
+            dict(self.skipped_notes),
+            {
+                "calibrations_from": self.camera_source or "none (LiDAR only)",
+                "camera_numbers": list(self.camera_numbers),
+                "max_gap_s": self.max_gap,
+                "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1]),
+            },
+        )
 
 
 def _read_meta(path: Path) -> dict:
@@ -357,8 +414,10 @@ def _check_image_folders(root: Path, numbers: list[int], source: str) -> None:
     folders = image_folders(root)
     if not numbers and folders:
         names = ", ".join(f"{p.name}/" for p in folders.values())
-        raise TerraError(f"{root}: has images ({names}) but no camera calibration (no {META} or {CAMERA_YAML}); "
-                         f"pass the authors' msmap config with --camera-config MSMAP.yaml")
+        raise TerraError(
+            f"{root}: has images ({names}) but no camera calibration (no {META} or {CAMERA_YAML}); "
+            f"pass the authors' msmap config with --camera-config MSMAP.yaml"
+        )
     missing = [n for n in numbers if n not in folders]
     extra = [n for n in folders if n not in numbers]
     if missing or extra:
@@ -366,28 +425,40 @@ def _check_image_folders(root: Path, numbers: list[int], source: str) -> None:
         found = ", ".join(f"{p.name}/" for p in folders.values()) or "none"
         problems = []
         if missing:
-            problems.append(f"no images for camera{'s' if len(missing) > 1 else ''} {', '.join(str(n) for n in missing)}")
+            problems.append(
+                f"no images for camera{'s' if len(missing) > 1 else ''} {', '.join(str(n) for n in missing)}"
+            )
         if extra:
             problems.append(f"no calibration for {', '.join(folders[n].name + '/' for n in extra)}")
-        raise TerraError(f"{source}: calibrates cameras {calibrated} but {root} has image folders {found}: "
-                         f"{'; '.join(problems)}")
+        raise TerraError(
+            f"{source}: calibrates cameras {calibrated} but {root} has image folders {found}: {'; '.join(problems)}"
+        )
 
 
 def _read_pose(path: Path) -> np.ndarray:
     """4x4 pose from a (7,) [tx ty tz qx qy qz qw] file (metres, scalar-last quaternion)."""
     xyz_quat = load_npy(path, (7,), "[tx, ty, tz, qx, qy, qz, qw]")
     if not np.all(np.isfinite(xyz_quat)) or abs(np.linalg.norm(xyz_quat[3:]) - 1.0) > 1e-3:
-        raise TerraError(f"{path}: expected finite values and a unit quaternion [qx, qy, qz, qw], got {xyz_quat.tolist()}")
+        raise TerraError(
+            f"{path}: expected finite values and a unit quaternion [qx, qy, qz, qw], got {xyz_quat.tolist()}"
+        )
     return pose_from_xyz_quat(xyz_quat)
 
 
 class TerraFolderConfig(Section):
     """Options of the reference folder layout."""
 
-    max_gap: float | None = Field(None, gt=0.0, description="seconds a scan's LiDAR file, images and camera transforms "
-                                  "may lie from its pose stamp; None = the camera config's unaligned_threshold, else 0.2")
-    camera_config: Path | None = Field(None, description="the authors' msmap YAML (num_cams, IMG_W, IMG_H, cam{n}_K, "
-                                       "cam{n}_dist, cam_axis; other keys ignored): replaces the folder's own calibration")
+    max_gap: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="seconds a scan's LiDAR file, images and camera transforms "
+        "may lie from its pose stamp; None = the camera config's unaligned_threshold, else 0.2",
+    )
+    camera_config: Path | None = Field(
+        default=None,
+        description="the authors' msmap YAML (num_cams, IMG_W, IMG_H, cam{n}_K, "
+        "cam{n}_dist, cam_axis; other keys ignored): replaces the folder's own calibration",
+    )
 
 
 def _detect(path: Path) -> bool:
@@ -398,4 +469,10 @@ def _open(path: Path, config: TerraFolderConfig) -> TerraFolderDataset:
     return TerraFolderDataset(path, max_gap=config.max_gap, camera_config=config.camera_config)
 
 
-LOADER = Loader("terra-folder", _detect, _open, TerraFolderConfig, "the authors' extracted folder layout (Terra's own simulator output too)")
+LOADER = Loader(
+    "terra-folder",
+    _detect,
+    _open,
+    TerraFolderConfig,
+    "the authors' extracted folder layout (Terra's own simulator output too)",
+)

@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from pydantic import Field, ValidationError, field_validator
 
@@ -32,19 +33,27 @@ _NOISY_LOGGERS = ("distributed", "asyncio", "tornado")
 class ClusterConfig(Section):
     """Where Phase 1 perception runs: `workers` local processes, or the cluster at `scheduler`."""
 
-    workers: int | None = Field(None, ge=1, le=1024, description="start a local cluster of this many worker processes")
+    workers: int | None = Field(
+        default=None, ge=1, le=1024, description="start a local cluster of this many worker processes"
+    )
     scheduler: str | None = Field(
-        None, description="address (tcp://HOST:PORT) or scheduler file (JSON) of a running Dask cluster"
+        default=None, description="address (tcp://HOST:PORT) or scheduler file (JSON) of a running Dask cluster"
     )
     in_flight: int | None = Field(
-        None, ge=1, le=100_000,
+        default=None,
+        ge=1,
+        le=100_000,
         description="frames handed to the workers and not yet fused (default: 2 per worker, at least 4)",
     )
     threads: int | None = Field(
-        None, ge=1, le=1024,
+        default=None,
+        ge=1,
+        le=1024,
         description="math library threads per local worker (OMP/MKL/OpenBLAS; default: this machine's cores / workers)",
     )
-    connect_timeout: float = Field(30.0, gt=0.0, description="seconds to wait for the scheduler and a first worker")
+    connect_timeout: float = Field(
+        default=30.0, gt=0.0, description="seconds to wait for the scheduler and a first worker"
+    )
 
     @field_validator("scheduler")
     @classmethod

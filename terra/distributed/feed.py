@@ -12,8 +12,9 @@ cancels the tasks still pending.
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from typing import Any
 
 from terra.distributed.job import PerceptionJob
 from terra.distributed.worker import perceive_task

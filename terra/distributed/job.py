@@ -38,7 +38,7 @@ class PerceptionJob:
     @classmethod
     def for_run(
         cls, source: SourceSpec, dataset: Dataset, config: MappingConfig, perception: CachedPerception
-    ) -> "PerceptionJob":
+    ) -> PerceptionJob:
         """The job of mapping `dataset` (opened from `source`) with `perception` (already cached)."""
         return cls(
             source,
@@ -58,7 +58,7 @@ class PerceptionJob:
         return dumps_json({**fields, "expect": self.expect})
 
     @classmethod
-    def from_text(cls, text: str) -> "PerceptionJob":
+    def from_text(cls, text: str) -> PerceptionJob:
         data = json.loads(text)
         return cls(SourceSpec.from_json(data["source"]), data["config"], data["cache_root"], data["expect"])
 

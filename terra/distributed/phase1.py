@@ -141,7 +141,11 @@ def prepare_workers(cluster: Cluster, job: PerceptionJob) -> list[str]:
     futures = [
         cluster.client.submit(
             # Loosely pinned: if that worker dies meanwhile, another one runs the check.
-            prepare_task, text, key=f"terra-prepare-{job.key[:16]}-{n}", workers=[address], allow_other_workers=True
+            prepare_task,
+            text,
+            key=f"terra-prepare-{job.key[:16]}-{n}",
+            workers=[address],
+            allow_other_workers=True,
         )
         for n, address in enumerate(addresses)
     ]
@@ -149,8 +153,10 @@ def prepare_workers(cluster: Cluster, job: PerceptionJob) -> list[str]:
         for future in futures:
             future.result()
     except ImportError as exc:  # the task itself, or a backend's dependency, cannot be loaded there
-        raise TerraError(f"a worker cannot load what Terra needs ({exc}); install the same Terra, with the "
-                         "extras the config uses, on every worker") from None
+        raise TerraError(
+            f"a worker cannot load what Terra needs ({exc}); install the same Terra, with the "
+            "extras the config uses, on every worker"
+        ) from None
     finally:
         cluster.client.cancel(futures)
     return addresses

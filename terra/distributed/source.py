@@ -13,9 +13,10 @@ repeat the client's sequential registration. The workers see identity poses inst
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ class SourceSpec:
     @classmethod
     def from_cli(
         cls, path: Path | None, sim: str | None, format: str = "auto", options: Mapping[str, Any] | None = None
-    ) -> "SourceSpec":
+    ) -> SourceSpec:
         """The spec of `terra map`'s arguments: a folder (format detected now, so every worker uses the
         same loader) or `--sim PRESET[:SEED]`."""
         if (path is None) == (sim is None):
@@ -64,7 +65,7 @@ class SourceSpec:
 
         return open_dataset(self.path, self.format, self.options or None)
 
-    def with_odometry(self) -> "SourceSpec":
+    def with_odometry(self) -> SourceSpec:
         """This spec for a source whose poses the client computes with odometry."""
         return replace(self, poses="odometry")
 
@@ -79,11 +80,15 @@ class SourceSpec:
 
     def to_json(self) -> dict:
         return {
-            "path": self.path, "format": self.format, "options": dict(self.options), "sim": self.sim, "poses": self.poses
+            "path": self.path,
+            "format": self.format,
+            "options": dict(self.options),
+            "sim": self.sim,
+            "poses": self.poses,
         }
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> "SourceSpec":
+    def from_json(cls, data: Mapping[str, Any]) -> SourceSpec:
         return cls(
             data.get("path"),
             data.get("format", "auto"),

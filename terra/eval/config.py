@@ -19,7 +19,7 @@ class SegmentationEval(Section):
     max_images: images evaluated, evenly spaced over the dataset (0 = skip the table).
     """
 
-    max_images: int = Field(40, ge=0)
+    max_images: int = Field(default=40, ge=0)
 
 
 class RetrievalEval(Section):
@@ -30,7 +30,7 @@ class RetrievalEval(Section):
     template: str = "Find the {object}"
     classes: list[str] | None = None
     exclude: list[str] = Field(default_factory=lambda: ["building", "tree", "crosswalk", "misc"])
-    precision_ratio: float = Field(0.9, gt=0.0, le=1.0)
+    precision_ratio: float = Field(default=0.9, gt=0.0, le=1.0)
 
     @field_validator("template")
     @classmethod
@@ -48,7 +48,9 @@ class RegionsEval(Section):
     bottleneck on the places layer.
     """
 
-    methods: list[Literal["spectral", "agglomerative", "aib"]] = Field(default_factory=lambda: ["aib", "spectral", "agglomerative"])
+    methods: list[Literal["spectral", "agglomerative", "aib"]] = Field(
+        default_factory=lambda: ["aib", "spectral", "agglomerative"]
+    )
     monitor_method: Literal["mix", "max", "thresh"] = "mix"
 
 
@@ -58,9 +60,18 @@ class NavigationEval(Section):
 
     task: str = "Get bike from the bicycle rack"
     prefer: list[str] = Field(default_factory=lambda: ["sidewalk"])
-    step: float = Field(0.1, gt=0.0, description="metres; path pieces read against the ground-truth terrain")
-    route_pairs: int = Field(200, ge=0, description="place pairs joined by a route on the first preferred terrain, planned both ways (drawn with a fixed seed)")
-    min_share: float = Field(0.8, ge=0.0, le=1.0, description="a preferred plan should keep at least this share of its length on the preferred terrain")
+    step: float = Field(default=0.1, gt=0.0, description="metres; path pieces read against the ground-truth terrain")
+    route_pairs: int = Field(
+        default=200,
+        ge=0,
+        description="place pairs joined by a route on the first preferred terrain, planned both ways (drawn with a fixed seed)",
+    )
+    min_share: float = Field(
+        default=0.8,
+        ge=0.0,
+        le=1.0,
+        description="a preferred plan should keep at least this share of its length on the preferred terrain",
+    )
 
 
 class TuneEval(Section):
@@ -68,8 +79,8 @@ class TuneEval(Section):
 
     alpha_min: float = 0.15
     alpha_max: float = 0.75
-    alpha_steps: int = Field(13, ge=1)
-    k_max: int = Field(8, ge=1)
+    alpha_steps: int = Field(default=13, ge=1)
+    k_max: int = Field(default=8, ge=1)
 
 
 class EvalConfig(Section):
@@ -78,6 +89,6 @@ class EvalConfig(Section):
     regions: RegionsEval = Field(default_factory=RegionsEval)
     navigation: NavigationEval = Field(default_factory=NavigationEval)
     tune: TuneEval = Field(default_factory=TuneEval)
-    map_cell: float = Field(0.4, gt=0.0, description="metres; cell of the mapped-area count")
+    map_cell: float = Field(default=0.4, gt=0.0, description="metres; cell of the mapped-area count")
     figures: bool = True
-    dpi: int = Field(110, ge=50, le=600)
+    dpi: int = Field(default=110, ge=50, le=600)

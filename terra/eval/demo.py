@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -76,8 +77,15 @@ class DemoConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
 
     @classmethod
-    def load(cls, path: Path | None, preset: str, seed: int, validation_preset: str | None = None,
-             validation_spacing: float = 2.0, format: str = "terra-folder") -> "DemoConfig":
+    def load(
+        cls,
+        path: Path | None,
+        preset: str,
+        seed: int,
+        validation_preset: str | None = None,
+        validation_spacing: float = 2.0,
+        format: str = "terra-folder",
+    ) -> DemoConfig:
         """Sections from a YAML file (defaults without one); TerraError for a bad argument."""
         from terra.config import load_section
         from terra.sim.presets import get_preset
@@ -91,11 +99,15 @@ class DemoConfig:
         if format not in FORMATS:
             raise TerraError(f"--format {format!r}: expected one of: {', '.join(FORMATS)}")
         if not validation_spacing >= 1.0:
-            raise TerraError(f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}")
+            raise TerraError(
+                f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}"
+            )
         sections = {s: load_section(path, s) for s in ("sim", "build", "tasks", "eval")}
         # The demo shows the method under realistic perception noise (bleeding masks, missed
         # instances, look-alike confusions) unless the user's file sets the noise itself.
-        sections["mapping"] = load_section(path, "mapping", None if _sets_noise(path) else {"perception": {"noise": "realistic"}})
+        sections["mapping"] = load_section(
+            path, "mapping", None if _sets_noise(path) else {"perception": {"noise": "realistic"}}
+        )
         return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), format, **sections)
 
     @property
@@ -160,8 +172,14 @@ class DemoRun:
     """Runs the demo's steps into `out`, recording each step's time (`timer`) and whether it ran
     or came from the cache (`steps`)."""
 
-    def __init__(self, out: str | Path, config: DemoConfig, show_progress: bool = True,
-                 log: Callable[[str], None] | None = None, overwrite: bool = False) -> None:
+    def __init__(
+        self,
+        out: str | Path,
+        config: DemoConfig,
+        show_progress: bool = True,
+        log: Callable[[str], None] | None = None,
+        overwrite: bool = False,
+    ) -> None:
         self.out = Path(out)
         self.config = config
         self.show_progress = show_progress
@@ -173,7 +191,9 @@ class DemoRun:
         self.overwrite = overwrite  # redo every step, whatever the stamps say
         check_demo_folder(self.out)
 
-    def step(self, name: str, key: dict, outputs: tuple[Path, ...], work: Callable[[], None], timed: bool = True) -> None:
+    def step(
+        self, name: str, key: dict, outputs: tuple[Path, ...], work: Callable[[], None], timed: bool = True
+    ) -> None:
         """Run `work` unless the step is fresh; stamp it when done. `timed=False` for work that
         records its own stages in self.timer."""
         from terra.progress import working
@@ -198,8 +218,10 @@ class DemoRun:
         """What an interruption keeps, for `terra demo`'s Ctrl-C line."""
         done = sum(1 for v in self.steps.values() if v == "ran") + sum(1 for v in self.steps.values() if v == "cached")
         step = f" from '{self.current}'" if self.current else ""
-        return (f"{done} finished step{'s' if done != 1 else ''} kept in {self.out}; run the same command again to "
-                f"continue{step}")
+        return (
+            f"{done} finished step{'s' if done != 1 else ''} kept in {self.out}; run the same command again to "
+            f"continue{step}"
+        )
 
     # ------------------------------------------------------------------ scenes
 
@@ -216,14 +238,25 @@ class DemoRun:
         dataset, bundle = root / "dataset", root / "map.terra"
         root.mkdir(parents=True, exist_ok=True)
         sim_key = {"terra": __version__, "preset": preset, "seed": seed, "sim": _dump(sim), "format": cfg.format}
-        self.step(f"{label}: simulate", sim_key, (dataset,),
-                  lambda: write_dataset(simulate(preset, seed, sim), dataset, format=cfg.format, overwrite=True,
-                                        progress=self.show_progress))
+        self.step(
+            f"{label}: simulate",
+            sim_key,
+            (dataset,),
+            lambda: write_dataset(
+                simulate(preset, seed, sim), dataset, format=cfg.format, overwrite=True, progress=self.show_progress
+            ),
+        )
         map_key = {"dataset": sim_key, "mapping": _dump(cfg.mapping)}
-        self.step(f"{label}: map", map_key, (bundle,),
-                  lambda: build_map(open_dataset(dataset), cfg.mapping, bundle, progress=self.show_progress))
+        self.step(
+            f"{label}: map",
+            map_key,
+            (bundle,),
+            lambda: build_map(open_dataset(dataset), cfg.mapping, bundle, progress=self.show_progress),
+        )
         graph_key = {"map": map_key, "build": _dump(cfg.build)}
-        self.step(f"{label}: graph", graph_key, (bundle,), lambda: build_graph(bundle, cfg.build, progress=self.show_progress))
+        self.step(
+            f"{label}: graph", graph_key, (bundle,), lambda: build_graph(bundle, cfg.build, progress=self.show_progress)
+        )
         return Scene(label, dataset, bundle, graph_key)
 
     # ------------------------------------------------------------------ the whole demo
@@ -236,8 +269,13 @@ class DemoRun:
         cfg = self.config
         self.out.mkdir(parents=True, exist_ok=True)
         test = self.scene("test", f"{cfg.preset}-seed{cfg.seed}", cfg.preset, cfg.seed, cfg.sim)
-        val = self.scene("validation", f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}",
-                         cfg.validation_preset, cfg.validation_seed, cfg.validation_sim())
+        val = self.scene(
+            "validation",
+            f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}",
+            cfg.validation_preset,
+            cfg.validation_seed,
+            cfg.validation_sim(),
+        )
         tuned_path = val.bundle.parent / TUNED
         tune_key = {"scene": val.key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks)}
         self.step("validation: tune alpha and k", tune_key, (tuned_path,), lambda: self._tune(val, tuned_path))
@@ -245,10 +283,20 @@ class DemoRun:
 
         report = self.out / REPORT_DIR
         demo_json = self.out / DEMO_JSON
-        eval_key = {"scene": test.key, "tuned": tune_key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks),
-                    "queries": [list(FIND_QUERIES), MONITOR_QUERY, PLAN_TARGET, list(PLAN_PREFER)]}
-        self.step("test: tasks and evaluation", eval_key, (report / SUMMARY, demo_json),
-                  lambda: self._tasks_and_eval(test, val, tuned, report, demo_json), timed=False)
+        eval_key = {
+            "scene": test.key,
+            "tuned": tune_key,
+            "eval": _dump(cfg.eval),
+            "tasks": _dump(cfg.tasks),
+            "queries": [list(FIND_QUERIES), MONITOR_QUERY, PLAN_TARGET, list(PLAN_PREFER)],
+        }
+        self.step(
+            "test: tasks and evaluation",
+            eval_key,
+            (report / SUMMARY, demo_json),
+            lambda: self._tasks_and_eval(test, val, tuned, report, demo_json),
+            timed=False,
+        )
         demo = json.loads(demo_json.read_text())
         demo["evaluation"] = json.loads((report / SUMMARY).read_text())
         return demo
@@ -260,7 +308,9 @@ class DemoRun:
         inputs = EvalInputs.load(scene.bundle, scene.dataset)
         tune(inputs, self.config.eval, self.config.tasks, self.show_progress).save(path)
 
-    def _tasks_and_eval(self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path) -> None:
+    def _tasks_and_eval(
+        self, scene: Scene, validation: Scene, tuned: TunedParameters, report: Path, demo_json: Path
+    ) -> None:
         from terra.eval.runner import evaluate
         from terra.loaded import LoadedBundle
 
@@ -268,15 +318,33 @@ class DemoRun:
         loaded = LoadedBundle(scene.bundle, embedder_name=self.config.tasks.embedder)
         with self.timer.stage("test: tasks"):
             tasks = run_tasks(loaded, load_ground_truth(scene.dataset), tuned, self.config.tasks)
-        evaluate(scene.bundle, scene.dataset, report, self.config.eval, tuned, self.config.tasks,
-                 show_progress=self.show_progress, timer=self.timer, loaded=loaded)
+        evaluate(
+            scene.bundle,
+            scene.dataset,
+            report,
+            self.config.eval,
+            tuned,
+            self.config.tasks,
+            show_progress=self.show_progress,
+            timer=self.timer,
+            loaded=loaded,
+        )
         cfg = self.config
         demo = {
-            "test_scene": {"preset": cfg.preset, "seed": cfg.seed, "frames": _frames(scene.dataset), "dataset": _rel(scene.dataset, self.out),
-                           "bundle": _rel(scene.bundle, self.out)},
-            "validation_scene": {"preset": cfg.validation_preset, "seed": cfg.validation_seed,
-                                 "frames": _frames(validation.dataset),
-                                 "frame_spacing_factor": cfg.validation_spacing, "dataset_name": tuned.validation_dataset},
+            "test_scene": {
+                "preset": cfg.preset,
+                "seed": cfg.seed,
+                "frames": _frames(scene.dataset),
+                "dataset": _rel(scene.dataset, self.out),
+                "bundle": _rel(scene.bundle, self.out),
+            },
+            "validation_scene": {
+                "preset": cfg.validation_preset,
+                "seed": cfg.validation_seed,
+                "frames": _frames(validation.dataset),
+                "frame_spacing_factor": cfg.validation_spacing,
+                "dataset_name": tuned.validation_dataset,
+            },
             "parameters": {"retrieval": tuned.retrieval, "monitoring": tuned.monitoring},
             "tasks": tasks,
             "report": _rel(report / "report.md", self.out),
@@ -304,8 +372,9 @@ def gt_class_of(query: str, gt: GroundTruth) -> str | None:
     return next((n for n in names if n.lower() in text), None)
 
 
-def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | None,
-                      box: dict | None = None) -> dict | None:
+def nearest_gt_object(
+    center: np.ndarray, gt: GroundTruth, class_name: str | None, box: dict | None = None
+) -> dict | None:
     """The ground-truth object of `class_name` nearest (2-D, metres) to `center`. With the found
     object's `box` (center, size, yaw), also its 3-D IoU with that object and whether it is a hit
     by Table II's relaxed rule (the boxes overlap and the found box holds the object's centre), so
@@ -318,8 +387,11 @@ def nearest_gt_object(center: np.ndarray, gt: GroundTruth, class_name: str | Non
     xy = np.array([o.center[:2] for o in objects])
     d = np.linalg.norm(xy - np.asarray(center, float)[:2], axis=1)
     i = int(np.argmin(d))
-    out = {"class": class_name, "center": [round(float(v), 4) for v in objects[i].center],
-           "distance_m": round(float(d[i]), 4)}
+    out = {
+        "class": class_name,
+        "center": [round(float(v), 4) for v in objects[i].center],
+        "distance_m": round(float(d[i]), 4),
+    }
     if box is not None:
         found = BoxSet(np.asarray([box["center"]]), np.asarray([box["size"]]), np.asarray([box["yaw"]]))
         truth = BoxSet.from_objects([objects[i]])
@@ -340,8 +412,13 @@ def _find(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config:
         mine = [(i, o) for i, o in enumerate(result.objects) if o.query == q]
         rows = [dict(id=i, **o.to_json()) for i, o in mine]
         best = max(rows, key=lambda o: o["score"], default=None)
-        entry: dict[str, Any] = {"query": query, "method": method, "alpha": result.alpha, "objects": len(mine),
-                                 "best": best}
+        entry: dict[str, Any] = {
+            "query": query,
+            "method": method,
+            "alpha": result.alpha,
+            "objects": len(mine),
+            "best": best,
+        }
         if best is not None:
             entry["nearest_gt"] = nearest_gt_object(np.asarray(best["center"]), gt, gt_class_of(query, gt), best)
         out.append(entry)
@@ -360,20 +437,40 @@ def _monitor(graph: SceneGraph, gt: GroundTruth, tuned: TunedParameters, config:
             config = aib_config(config, embedder.name, alpha)
     else:
         alpha, k = tuned.monitoring_params(graph.region_method)
-        params = MonitorParams(alpha, k, tuned.monitoring_levels(graph.region_method), tuned.monitoring_min_level(graph.region_method))
+        params = MonitorParams(
+            alpha, k, tuned.monitoring_levels(graph.region_method), tuned.monitoring_min_level(graph.region_method)
+        )
         graph = up_to_level(graph, params.levels)
-    result = monitor_region(graph, MONITOR_QUERY, method=method, k=params.k, alpha=params.alpha, embedder=embedder, config=config,
-                            min_level=params.min_level)
+    result = monitor_region(
+        graph,
+        MONITOR_QUERY,
+        method=method,
+        k=params.k,
+        alpha=params.alpha,
+        embedder=embedder,
+        config=config,
+        min_level=params.min_level,
+    )
     places = np.asarray(result.places, dtype=np.int64)
-    entry: dict[str, Any] = {"query": MONITOR_QUERY, "method": method, "parameters": params.to_json(),
-                             "regions": len(result.regions), "places": int(len(places))}
+    entry: dict[str, Any] = {
+        "query": MONITOR_QUERY,
+        "method": method,
+        "parameters": params.to_json(),
+        "regions": len(result.regions),
+        "places": int(len(places)),
+    }
     if gt.regions:
         # Score against the labelled region whose description reads most like the query.
         cos = embedder.embed_text([r.description for r in gt.regions]) @ embedder.embed_text([MONITOR_QUERY])[0]
         region = gt.regions[int(np.argmax(cos))]
         scores = set_scores(places, places_in_polygon(graph.places.position, region.polygon))
-        entry["labelled_region"] = {"name": region.name, "description": region.description,
-                                    "precision": scores.precision, "recall": scores.recall, "gt_places": scores.tp + scores.fn}
+        entry["labelled_region"] = {
+            "name": region.name,
+            "description": region.description,
+            "precision": scores.precision,
+            "recall": scores.recall,
+            "gt_places": scores.tp + scores.fn,
+        }
     return entry
 
 
@@ -384,23 +481,37 @@ def _plan(loaded: LoadedBundle, tuned: TunedParameters, config: TasksConfig) -> 
     method = config.planning.find_method
     entry: dict[str, Any] = {"to": PLAN_TARGET, "prefer": list(PLAN_PREFER), "method": method}
     try:
-        result = plan(loaded, PlanRequest(to=PLAN_TARGET, prefer=list(PLAN_PREFER), method=method,
-                                          alpha=tuned.retrieval_alpha(method)), config)
+        result = plan(
+            loaded,
+            PlanRequest(to=PLAN_TARGET, prefer=list(PLAN_PREFER), method=method, alpha=tuned.retrieval_alpha(method)),
+            config,
+        )
     except TerraError as exc:  # no object or no path: the demo reports it and goes on
         return {**entry, "error": str(exc)}
     path = result.plan.to_json()
-    entry.update({"length_m": path["length_m"], "places": len(path["places"]),
-                  "length_by_terrain": path["length_by_terrain"], "goal": result.goal.object.to_json()["center"],
-                  "skipped": [f"{s.object.label!r} at ({s.object.center[0]:.1f}, {s.object.center[1]:.1f}): {s.reason}"
-                              for s in result.goal.skipped]})
+    entry.update(
+        {
+            "length_m": path["length_m"],
+            "places": len(path["places"]),
+            "length_by_terrain": path["length_by_terrain"],
+            "goal": result.goal.object.to_json()["center"],
+            "skipped": [
+                f"{s.object.label!r} at ({s.object.center[0]:.1f}, {s.object.center[1]:.1f}): {s.reason}"
+                for s in result.goal.skipped
+            ],
+        }
+    )
     return entry
 
 
 def run_tasks(loaded: LoadedBundle, gt: GroundTruth, tuned: TunedParameters, config: TasksConfig) -> dict:
     """The demo's tasks on the loaded bundle with the tuned parameters (as `terra find/monitor/plan` run them)."""
     graph = loaded.require_graph("terra demo")
-    return {"find": _find(loaded, gt, tuned, config), "monitor": _monitor(graph, gt, tuned, config, loaded.embedder),
-            "plan": _plan(loaded, tuned, config)}
+    return {
+        "find": _find(loaded, gt, tuned, config),
+        "monitor": _monitor(graph, gt, tuned, config, loaded.embedder),
+        "plan": _plan(loaded, tuned, config),
+    }
 
 
 # ---------------------------------------------------------------------- the printed summary
@@ -411,40 +522,52 @@ def format_demo(demo: dict, out: Path) -> list[str]:
     from terra.eval.report import headline, terrain_shares
 
     t, v = demo["test_scene"], demo["validation_scene"]
-    lines = [f"terra demo: {t['preset']} campus, seed {t['seed']} (parameters tuned on {v['preset']} campus, seed {v['seed']})"]
+    lines = [
+        f"terra demo: {t['preset']} campus, seed {t['seed']} (parameters tuned on {v['preset']} campus, seed {v['seed']})"
+    ]
     for f in demo["tasks"]["find"]:
         if f["best"] is None:
             lines.append(f"  find {f['query']!r}: nothing found ({f['method']}, alpha {f['alpha']:.2f})")
             continue
         c = f["best"]["center"]
-        line = f"  find {f['query']!r}: object at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) m, score {f['best']['score']:.2f}"
+        line = (
+            f"  find {f['query']!r}: object at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f}) m, score {f['best']['score']:.2f}"
+        )
         if f.get("nearest_gt"):
             line += "; " + _judged(f["nearest_gt"])
         row = _table_ii_row(demo.get("evaluation", {}), f["query"], f["method"])
         if row is not None:
             noun = f["nearest_gt"]["class"] if f.get("nearest_gt") else "object"
-            line += (f" (Table II, {f['method']}: {row['num_predictions']} found, "
-                     f"{row['relaxed_hits']} of {counted(row['num_gt'], noun)} hit)")
+            line += (
+                f" (Table II, {f['method']}: {row['num_predictions']} found, "
+                f"{row['relaxed_hits']} of {counted(row['num_gt'], noun)} hit)"
+            )
         lines.append(line)
     m = demo["tasks"]["monitor"]
     params = ", ".join(f"{k} {v:g}" for k, v in m["parameters"].items())
-    line = (f"  monitor {m['query']!r}: {counted(m['places'], 'place')} in {counted(m['regions'], 'region')} "
-            f"({m['method']}, {params})")
+    line = (
+        f"  monitor {m['query']!r}: {counted(m['places'], 'place')} in {counted(m['regions'], 'region')} "
+        f"({m['method']}, {params})"
+    )
     if "labelled_region" in m:
         r = m["labelled_region"]
         if r.get("gt_places", 1) == 0:
             line += f"; labelled region {r['name']!r} is not evaluable (no place inside it)"
         else:
-            line += (f"; against labelled region {r['name']!r} ({counted(r['gt_places'], 'place')}): precision "
-                     f"{r['precision']:.2f}, recall {r['recall']:.2f}")
+            line += (
+                f"; against labelled region {r['name']!r} ({counted(r['gt_places'], 'place')}): precision "
+                f"{r['precision']:.2f}, recall {r['recall']:.2f}"
+            )
     lines.append(line)
     p = demo["tasks"]["plan"]
     if "error" in p:
         lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['error']}")
     else:
-        lines.append(f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over "
-                     f"{counted(p['places'], 'place')} "
-                     f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)")
+        lines.append(
+            f"  plan to {p['to']!r} preferring {', '.join(p['prefer'])}: {p['length_m']:.1f} m over "
+            f"{counted(p['places'], 'place')} "
+            f"({terrain_shares(p['length_by_terrain'], p['length_m'])}, map terrain)"
+        )
         lines += [f"    skipped {s}" for s in p.get("skipped", [])]
     ev = demo["evaluation"]
     lines.append(f"  evaluation ({ev['parameters']['source']}):")

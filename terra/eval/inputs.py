@@ -40,12 +40,15 @@ def check_same_dataset(bundle: Bundle, dataset: Dataset, gt_root: Path) -> str:
     recorded = mapped_dataset_fingerprint(bundle)
     found = dataset_fingerprint(dataset)
     if recorded and recorded != found:
-        raise TerraError(f"{gt_root}: not the dataset {bundle.path} was mapped from (its frames differ from those of "
-                         f"{mapped_dataset_name(bundle) or 'the mapped dataset'!r})")
+        raise TerraError(
+            f"{gt_root}: not the dataset {bundle.path} was mapped from (its frames differ from those of "
+            f"{mapped_dataset_name(bundle) or 'the mapped dataset'!r})"
+        )
     mapped = mapped_dataset_name(bundle)
     if not recorded and mapped and mapped != dataset.name:
-        raise TerraError(f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from "
-                         f"({mapped!r})")
+        raise TerraError(
+            f"{gt_root}: dataset {dataset.name!r} is not the one {bundle.path} was mapped from ({mapped!r})"
+        )
     return found
 
 
@@ -83,7 +86,7 @@ class EvalInputs:
         return self.loaded.embedder
 
     @classmethod
-    def load(cls, bundle_path: str | Path, gt_root: str | Path, loaded: LoadedBundle | None = None) -> "EvalInputs":
+    def load(cls, bundle_path: str | Path, gt_root: str | Path, loaded: LoadedBundle | None = None) -> EvalInputs:
         """Open everything, cheapest checks first, so bad input fails before any work: the bundle
         must hold a scene graph, `gt_root` must be a dataset written by `terra sim`, and it must
         be the dataset the bundle was mapped from (by its content, check_same_dataset). `loaded`:

@@ -55,14 +55,28 @@ class PlanResult:
         }
 
 
-def plan_with(graph: SceneGraph, start: int, goal: int, name: str, raster: TerrainRaster, prefer: list[str] = (),
-              step: float = 0.1, default_penalty: float = DEFAULT_PENALTY) -> PlanResult:
+def plan_with(
+    graph: SceneGraph,
+    start: int,
+    goal: int,
+    name: str,
+    raster: TerrainRaster,
+    prefer: list[str] = (),
+    step: float = 0.1,
+    default_penalty: float = DEFAULT_PENALTY,
+) -> PlanResult:
     """Plan start -> goal (preferring `prefer` terrains) and measure it against the ground truth."""
     from terra.tasks.planning import plan_path
 
     plan = plan_path(graph, start, goal, prefer=list(prefer), default_penalty=default_penalty)
-    return PlanResult(name, np.asarray(plan.places), np.asarray(plan.waypoints), float(plan.cost),
-                      dict(plan.length_by_terrain), path_terrain_lengths(plan.waypoints, raster, step))
+    return PlanResult(
+        name,
+        np.asarray(plan.places),
+        np.asarray(plan.waypoints),
+        float(plan.cost),
+        dict(plan.length_by_terrain),
+        path_terrain_lengths(plan.waypoints, raster, step),
+    )
 
 
 # ---------------------------------------------------------------- preferring a terrain where it runs
@@ -75,8 +89,14 @@ def robot_path(msm: MetricSemanticMap) -> np.ndarray:
     return np.asarray(msm.images.T_map_cam, dtype=np.float64)[:, :2, 3]
 
 
-def terrain_route_pairs(graph: SceneGraph, raster: TerrainRaster, terrain: str, seen: np.ndarray | None = None,
-                        max_pairs: int = 200, seed: int = 0) -> np.ndarray:
+def terrain_route_pairs(
+    graph: SceneGraph,
+    raster: TerrainRaster,
+    terrain: str,
+    seen: np.ndarray | None = None,
+    max_pairs: int = 200,
+    seed: int = 0,
+) -> np.ndarray:
     """(k, 2) place pairs (i < j) between which a route on `terrain` exists in the world: both
     places are of that terrain in the graph and on one 8-connected component of its cells in the
     ground-truth raster (over the `seen` cells only, when given). All pairs, or `max_pairs` of
@@ -115,16 +135,26 @@ class PreferenceRoutes:
 
     def to_json(self, min_share: float) -> dict:
         share = self.share(self.preferred)
-        return {"terrain": self.terrain, "pairs": int(len(self.pairs)), "min_share": min_share,
-                "preferred_mean_share": float(share.mean()) if len(share) else None,
-                "preferred_lowest_share": float(share.min()) if len(share) else None,
-                "shortest_mean_share": float(self.share(self.shortest).mean()) if len(share) else None,
-                "pairs_meeting": int((share >= min_share).sum()),
-                "fraction_meeting": float((share >= min_share).mean()) if len(share) else None}
+        return {
+            "terrain": self.terrain,
+            "pairs": int(len(self.pairs)),
+            "min_share": min_share,
+            "preferred_mean_share": float(share.mean()) if len(share) else None,
+            "preferred_lowest_share": float(share.min()) if len(share) else None,
+            "shortest_mean_share": float(self.share(self.shortest).mean()) if len(share) else None,
+            "pairs_meeting": int((share >= min_share).sum()),
+            "fraction_meeting": float((share >= min_share).mean()) if len(share) else None,
+        }
 
 
-def preference_routes(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, terrain: str, step: float = 0.1,
-                      default_penalty: float = DEFAULT_PENALTY) -> PreferenceRoutes:
+def preference_routes(
+    graph: SceneGraph,
+    raster: TerrainRaster,
+    pairs: np.ndarray,
+    terrain: str,
+    step: float = 0.1,
+    default_penalty: float = DEFAULT_PENALTY,
+) -> PreferenceRoutes:
     """Both plans (shortest; preferring `terrain`) for every pair, measured on the raster."""
     shortest, preferred = [], []
     for a, b in np.asarray(pairs, dtype=np.int64).reshape(-1, 2).tolist():
@@ -171,29 +201,50 @@ class PenaltyPoint:
         return self.meeting / self.pairs if self.pairs else 1.0
 
     def to_json(self) -> dict:
-        return {"penalty": self.penalty, "pairs": self.pairs, "meeting": self.meeting,
-                "fraction_meeting": self.fraction_meeting, "mean_share": self.mean_share,
-                "mean_detour": self.mean_detour, "max_detour": self.max_detour, "max_extra_m": self.max_extra_m}
+        return {
+            "penalty": self.penalty,
+            "pairs": self.pairs,
+            "meeting": self.meeting,
+            "fraction_meeting": self.fraction_meeting,
+            "mean_share": self.mean_share,
+            "mean_detour": self.mean_detour,
+            "max_detour": self.max_detour,
+            "max_extra_m": self.max_extra_m,
+        }
 
 
-def penalty_sweep(graph: SceneGraph, raster: TerrainRaster, pairs: np.ndarray, terrain: str, penalties: list[float],
-                  min_share: float = 0.8, step: float = 0.1) -> list[PenaltyPoint]:
+def penalty_sweep(
+    graph: SceneGraph,
+    raster: TerrainRaster,
+    pairs: np.ndarray,
+    terrain: str,
+    penalties: list[float],
+    min_share: float = 0.8,
+    step: float = 0.1,
+) -> list[PenaltyPoint]:
     """For each planner `default_penalty` in `penalties`, the plans preferring `terrain` between
     the `pairs` measured on the ground-truth raster (a validation scene's, never a test scene's)."""
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     shortest = np.array([plan_with(graph, a, b, "shortest", raster, (), step).length_m for a, b in pairs.tolist()])
     out = []
     for penalty in penalties:
-        plans = [plan_with(graph, a, b, "preferred", raster, (terrain,), step, float(penalty))
-                 for a, b in pairs.tolist()]
+        plans = [
+            plan_with(graph, a, b, "preferred", raster, (terrain,), step, float(penalty)) for a, b in pairs.tolist()
+        ]
         length = np.array([p.length_m for p in plans])
         share = np.array([p.gt_terrain_m.get(terrain, 0.0) / p.length_m if p.length_m > 0 else 1.0 for p in plans])
         detour = np.where(shortest > 0, length / np.maximum(shortest, 1e-12), 1.0)
-        out.append(PenaltyPoint(float(penalty), len(pairs), int((share >= min_share).sum()),
-                                float(share.mean()) if len(share) else 1.0,
-                                float(detour.mean()) if len(detour) else 1.0,
-                                float(detour.max()) if len(detour) else 1.0,
-                                float((length - shortest).max()) if len(length) else 0.0))
+        out.append(
+            PenaltyPoint(
+                float(penalty),
+                len(pairs),
+                int((share >= min_share).sum()),
+                float(share.mean()) if len(share) else 1.0,
+                float(detour.mean()) if len(detour) else 1.0,
+                float(detour.max()) if len(detour) else 1.0,
+                float((length - shortest).max()) if len(length) else 0.0,
+            )
+        )
     return out
 
 

@@ -57,7 +57,9 @@ class MonitoringRun:
             "label": label,
             **total.to_json(),
             **self.timing_ms(),
-            "parameters": ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.parameters.items()),
+            "parameters": ", ".join(
+                f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.parameters.items()
+            ),
             "per_query": [s.to_json() for s in self.scores],
         }
 
@@ -94,12 +96,21 @@ def aib_config(tasks_config, embedder: str, null_score: float):
     from terra.tasks.config import TasksConfig
 
     cfg = tasks_config or TasksConfig()
-    aib = cfg.monitoring.aib.model_copy(update={"null_score": {**cfg.monitoring.aib.null_score, embedder: float(null_score)}})
+    aib = cfg.monitoring.aib.model_copy(
+        update={"null_score": {**cfg.monitoring.aib.null_score, embedder: float(null_score)}}
+    )
     return cfg.model_copy(update={"monitoring": cfg.monitoring.model_copy(update={"aib": aib})})
 
 
-def run_monitoring(graph: SceneGraph, regions: list[NamedRegion], truth: list[np.ndarray], method: str, params: MonitorParams,
-                   embedder: TextEmbedder, tasks_config=None) -> MonitoringRun:
+def run_monitoring(
+    graph: SceneGraph,
+    regions: list[NamedRegion],
+    truth: list[np.ndarray],
+    method: str,
+    params: MonitorParams,
+    embedder: TextEmbedder,
+    tasks_config=None,
+) -> MonitoringRun:
     """Monitor every region's description with `method` ("mix", "max", "thresh" or "aib")."""
     from terra.tasks.monitoring import monitor_region
 
@@ -113,14 +124,23 @@ def run_monitoring(graph: SceneGraph, regions: list[NamedRegion], truth: list[np
     cluster_seconds = 0.0
     start = time.perf_counter()
     for region in regions:
-        result = monitor_region(graph, region.description, method=method, k=params.k, alpha=params.alpha, embedder=embedder,
-                                config=tasks_config, min_level=params.min_level)
+        result = monitor_region(
+            graph,
+            region.description,
+            method=method,
+            k=params.k,
+            alpha=params.alpha,
+            embedder=embedder,
+            config=tasks_config,
+            min_level=params.min_level,
+        )
         predicted.append(np.asarray(result.places, dtype=np.int64))
         cluster_seconds += result.cluster_seconds
     seconds = time.perf_counter() - start
     scores = [set_scores(p, t) for p, t in zip(predicted, truth)]
-    return MonitoringRun(predicted, scores, seconds, parameters=params.to_json(), cluster_seconds=cluster_seconds,
-                         regions=list(regions))
+    return MonitoringRun(
+        predicted, scores, seconds, parameters=params.to_json(), cluster_seconds=cluster_seconds, regions=list(regions)
+    )
 
 
 def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph, float]:

@@ -70,16 +70,19 @@ def perception_statement(perception: dict | None, embedder: str = "") -> str:
         noise = perception.get("noise") or {}
         if any(noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")):
             missed, swapped = 100 * (noise.get("miss_rate") or 0), 100 * (noise.get("confusion_rate") or 0)
-            how = (f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, {missed:.0f}% of objects missed, "
-                   f"{swapped:.0f}% of labels swapped for a look-alike)")
+            how = (
+                f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, {missed:.0f}% of objects missed, "
+                f"{swapped:.0f}% of labels swapped for a look-alike)"
+            )
         else:
             how = "exactly, without noise"
-        return (f"Perception: the `labels` backend. Terrain and object masks are the dataset's own ground-truth label "
-                f"images, {how}, and class names are embedded as text"
-                + (f" by `{embedder}`" if embedder else "") + ". "
-                "Tables I and II therefore grade masks derived from the ground truth itself: they measure the mapping, "
-                "fusion and retrieval stages, not a segmenter, and are not comparable with the paper's CLIP/YOLO "
-                "numbers. A label lookup has no frame rate, so no FPS is given.")
+        return (
+            f"Perception: the `labels` backend. Terrain and object masks are the dataset's own ground-truth label "
+            f"images, {how}, and class names are embedded as text" + (f" by `{embedder}`" if embedder else "") + ". "
+            "Tables I and II therefore grade masks derived from the ground truth itself: they measure the mapping, "
+            "fusion and retrieval stages, not a segmenter, and are not comparable with the paper's CLIP/YOLO "
+            "numbers. A label lookup has no frame rate, so no FPS is given."
+        )
     models = ", ".join(f"{m.get('role', 'model')} `{m.get('name', '?')}`" for m in perception.get("models", []))
     return f"Perception: the `{backend}` backend" + (f" ({models})" if models else "") + "."
 
@@ -95,14 +98,23 @@ def _segmentation(seg: dict) -> list[str]:
     keys = ["miou", "fw_miou", "f1", "fps"]
     values = [[m.get(k) for k in keys] for m in methods.values()]
     rows = [[name] + [_f(m.get(k), 1 if k == "fps" else 3) for k in keys] for name, m in methods.items()]
-    out = [f"## Table I: terrain segmentation ({counted(seg.get('images', 0), 'labelled image')})", "",
-           table(header, _bold_best(rows, values, [True] * 4)), ""]
+    out = [
+        f"## Table I: terrain segmentation ({counted(seg.get('images', 0), 'labelled image')})",
+        "",
+        table(header, _bold_best(rows, values, [True] * 4)),
+        "",
+    ]
     if any(m.get("fps") is None for m in methods.values()):
         out += ["FPS: - for a segmenter that is a lookup of label images (no model runs).", ""]
     first = next(iter(methods.values()), None)
     if first:
         names = first["classes"]
-        out += ["Per-class IoU:", "", table(["Method"] + names, [[n] + [_f(v) for v in m["iou"]] for n, m in methods.items()]), ""]
+        out += [
+            "Per-class IoU:",
+            "",
+            table(["Method"] + names, [[n] + [_f(v) for v in m["iou"]] for n, m in methods.items()]),
+            "",
+        ]
     return out
 
 
@@ -113,10 +125,15 @@ def _retrieval(ret: dict) -> list[str]:
     values = [[m.get(k) for k in keys] for m in methods.values()]
     rows = [[name] + [_f(m.get(k)) for k in keys] + [_f(m.get("alpha"), 3)] for name, m in methods.items()]
     queries = ret.get("queries", [])
-    out = [f"## Table II: open-set object retrieval (\"{ret.get('template', 'Find the {object}')}\": "
-           f"{counted(ret.get('num_gt', 0), 'object')} in {counted(len(queries), 'query', 'queries')})", "",
-           table(header, _bold_best(rows, values, [True] * 7)), "",
-           "IoU divides the matched boxes' IoU by the number of objects; matched IoU is their mean.", ""]
+    out = [
+        f'## Table II: open-set object retrieval ("{ret.get("template", "Find the {object}")}": '
+        f"{counted(ret.get('num_gt', 0), 'object')} in {counted(len(queries), 'query', 'queries')})",
+        "",
+        table(header, _bold_best(rows, values, [True] * 7)),
+        "",
+        "IoU divides the matched boxes' IoU by the number of objects; matched IoU is their mean.",
+        "",
+    ]
     out += _iou_by_distance(methods)
     if methods:
         per = ["Query", "GT"] + [f"{n} found / hits" for n in methods]
@@ -127,13 +144,17 @@ def _retrieval(ret: dict) -> list[str]:
                 pq = m["per_query"][i]
                 row.append(f"{pq['num_predictions']} / {pq['relaxed_hits']}")
             per_rows.append(row)
-        out += ["Per query. *Found*: the boxes retrieved for the query (clusters of map points that match it better "
-                "than any other query or terrain name, above alpha). *Hits*: its ground-truth objects counted as found by the relaxed-accuracy rule: "
-                "the query's best-scoring boxes, as many as it has objects and whichever query they were retrieved "
-                "for, are matched one to one to its objects, and a matched box that overlaps its object and holds "
-                "its centre is a hit. So a query can have hits with nothing found (its best boxes went to another "
-                "query) and boxes found with no hit (a box beside the object, or too thin to overlap it).", "",
-                table(per, per_rows), ""]
+        out += [
+            "Per query. *Found*: the boxes retrieved for the query (clusters of map points that match it better "
+            "than any other query or terrain name, above alpha). *Hits*: its ground-truth objects counted as found by the relaxed-accuracy rule: "
+            "the query's best-scoring boxes, as many as it has objects and whichever query they were retrieved "
+            "for, are matched one to one to its objects, and a matched box that overlaps its object and holds "
+            "its centre is a hit. So a query can have hits with nothing found (its best boxes went to another "
+            "query) and boxes found with no hit (a box beside the object, or too thin to overlap it).",
+            "",
+            table(per, per_rows),
+            "",
+        ]
     return out
 
 
@@ -142,10 +163,20 @@ def _iou_by_distance(methods: dict) -> list[str]:
     if not bands:
         return []
     names = [f"{b['from_m']:g}-{b['to_m']:g} m" if b["to_m"] is not None else f">= {b['from_m']:g} m" for b in bands]
-    rows = [[n, str(b["objects"])] + [f"{m['iou_by_distance'][i]['matched']} / {_f(m['iou_by_distance'][i]['matched_iou'], 2)}"
-                                     for m in methods.values()] for i, (n, b) in enumerate(zip(names, bands))]
-    return ["Matched boxes by the objects' distance from the robot's path (matched / their mean IoU):", "",
-            table(["Distance", "Objects"] + list(methods), rows), ""]
+    rows = [
+        [n, str(b["objects"])]
+        + [
+            f"{m['iou_by_distance'][i]['matched']} / {_f(m['iou_by_distance'][i]['matched_iou'], 2)}"
+            for m in methods.values()
+        ]
+        for i, (n, b) in enumerate(zip(names, bands))
+    ]
+    return [
+        "Matched boxes by the objects' distance from the robot's path (matched / their mean IoU):",
+        "",
+        table(["Distance", "Objects"] + list(methods), rows),
+        "",
+    ]
 
 
 def _places(places: dict) -> list[str]:
@@ -156,12 +187,18 @@ def _places(places: dict) -> list[str]:
             per = ", ".join(f"{t} {v['share']:.3f}" for t, v in c["per_terrain"].items())
             rows.append([label, f"{c['joined']:,} / {c['pairs']:,}", f"{c['joined_share']:.3f}", per])
     regions = ", ".join(f"{k} {v}" for k, v in places.get("places_per_region", {}).items())
-    return ["## Places against the ground-truth terrain", "",
-            f"{counted(places.get('places', 0), 'place')}. Pairs of places of one terrain on one connected component of "
-            "that terrain "
-            "in the ground-truth raster, joined by a path on that terrain alone:", "",
-            table(["Components over", "Joined pairs", "Share", "per terrain"], rows, "lrrl"), "",
-            f"Places inside each labelled region: {regions}.", ""]
+    return [
+        "## Places against the ground-truth terrain",
+        "",
+        f"{counted(places.get('places', 0), 'place')}. Pairs of places of one terrain on one connected component of "
+        "that terrain "
+        "in the ground-truth raster, joined by a path on that terrain alone:",
+        "",
+        table(["Components over", "Joined pairs", "Share", "per terrain"], rows, "lrrl"),
+        "",
+        f"Places inside each labelled region: {regions}.",
+        "",
+    ]
 
 
 def _regions(reg: dict) -> list[str]:
@@ -169,24 +206,36 @@ def _regions(reg: dict) -> list[str]:
     header = ["Method", "Precision ↑", "Recall ↑", "F1 ↑", "Regions (ms)", "Query (ms)", "Runtime (ms) ↓", "parameters"]
     keys = ["precision", "recall", "f1", "regions_ms", "query_ms", "runtime_ms"]
     values = [[m.get(k) for k in keys] for m in methods.values()]
-    rows = [[m.get("label", name)] + [_f(m.get(k), 1 if k.endswith("_ms") else 3) for k in keys] + [m.get("parameters", "")]
-            for name, m in methods.items()]
+    rows = [
+        [m.get("label", name)] + [_f(m.get(k), 1 if k.endswith("_ms") else 3) for k in keys] + [m.get("parameters", "")]
+        for name, m in methods.items()
+    ]
     queries = reg.get("queries", [])
     better = [True, True, True, False, False, False]
     skipped = reg.get("not_evaluable", [])
-    out = [f"## Table III: region monitoring ({counted(len(queries), 'labelled region')}"
-           + (f"; {len(skipped)} not evaluable, listed below" if skipped else "") + ")", "",
-           table(header, _bold_best(rows, [v[:3] + [None, None] + v[5:] for v in values], better), "lrrrrrrl"), "",
-           "Runtime = building the regions (Terra's hierarchy once; AIB's clustering, for every query) + answering one "
-           "query, on the same places.", ""]
+    out = [
+        f"## Table III: region monitoring ({counted(len(queries), 'labelled region')}"
+        + (f"; {len(skipped)} not evaluable, listed below" if skipped else "")
+        + ")",
+        "",
+        table(header, _bold_best(rows, [v[:3] + [None, None] + v[5:] for v in values], better), "lrrrrrrl"),
+        "",
+        "Runtime = building the regions (Terra's hierarchy once; AIB's clustering, for every query) + answering one "
+        "query, on the same places.",
+        "",
+    ]
     levels = reg.get("regions_per_level", {})
     if levels:
-        out += ["Regions per level, level 1 first: " + "; ".join(f"{m} {' / '.join(map(str, c))}" for m, c in ordered(levels).items()), ""]
+        out += [
+            "Regions per level, level 1 first: "
+            + "; ".join(f"{m} {' / '.join(map(str, c))}" for m, c in ordered(levels).items()),
+            "",
+        ]
     if methods and queries:
         per = ["Region (query)", "GT places"] + [f"{n} P / R" for n in methods]
         per_rows = []
         for i, q in enumerate(queries):
-            row = [f"{q['name']}: \"{q['description']}\"", str(q["num_gt_places"])]
+            row = [f'{q["name"]}: "{q["description"]}"', str(q["num_gt_places"])]
             for m in methods.values():
                 pq = m["per_query"][i]
                 row.append(f"{pq['precision']:.2f} / {pq['recall']:.2f}")
@@ -194,21 +243,32 @@ def _regions(reg: dict) -> list[str]:
         out += ["Per region (precision / recall):", "", table(per, per_rows, "lr" + "r" * len(methods)), ""]
     if skipped:
         out += ["Not evaluable, left out of every average above and of the tuning:", ""]
-        out += [f"- {r['name']}: \"{r['description']}\": {r['reason']}." for r in skipped] + [""]
+        out += [f'- {r["name"]}: "{r["description"]}": {r["reason"]}.' for r in skipped] + [""]
     return out
 
 
 def _memory(mem: dict) -> list[str]:
     parts = mem.get("parts_bytes") or mem.get("components_bytes", {})
     area, total = mem.get("area_m2", 0), mem.get("total_bytes", 0)
-    rows = [[c, f"{b:,}", f"{b / 2**20:.3f}", f"{b / area:,.1f}" if area else "-",
-             f"{100 * b / total:.1f}%" if total else "-"]
-            for c, b in sorted(parts.items(), key=lambda kv: (-kv[1], kv[0]))]
+    rows = [
+        [
+            c,
+            f"{b:,}",
+            f"{b / 2**20:.3f}",
+            f"{b / area:,.1f}" if area else "-",
+            f"{100 * b / total:.1f}%" if total else "-",
+        ]
+        for c, b in sorted(parts.items(), key=lambda kv: (-kv[1], kv[0]))
+    ]
     rows.append(["**total**", f"{total:,}", f"{total / 2**20:.3f}", f"{total / area:,.1f}" if area else "-", "100%"])
-    return ["## Memory of the saved map and graph", "",
-            f"Mapped area {area:,.0f} m² (occupied 0.4 m cells); {mem.get('bytes_per_m2', 0):,.0f} bytes per m² "
-            "in all.", "",
-            table(["Part", "Bytes", "MiB", "Bytes per m²", "Share"], rows), ""]
+    return [
+        "## Memory of the saved map and graph",
+        "",
+        f"Mapped area {area:,.0f} m² (occupied 0.4 m cells); {mem.get('bytes_per_m2', 0):,.0f} bytes per m² in all.",
+        "",
+        table(["Part", "Bytes", "MiB", "Bytes per m²", "Share"], rows),
+        "",
+    ]
 
 
 def _navigation(nav: dict) -> list[str]:
@@ -218,19 +278,29 @@ def _navigation(nav: dict) -> list[str]:
     rows = []
     for name, p in plans.items():
         length = p.get("length_m", 0.0)
-        cells = [f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)" for t in terrains]
+        cells = [
+            f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)"
+            for t in terrains
+        ]
         rows.append([name, f"{length:.1f}", str(p.get("places", 0))] + cells)
-    out = [f"## Navigation: \"{nav.get('task', '')}\"", ""]
+    out = [f'## Navigation: "{nav.get("task", "")}"', ""]
     if nav.get("error"):
         out += [f"Not evaluated: {nav['error']}", ""]
     else:
         skipped = nav.get("skipped", [])
-        out += [f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
-                "(the approach place of the best reachable of "
-                f"{counted(nav.get('candidates', 1), 'object')} for the task"
-                + (f"; {len(skipped)} skipped" if skipped else "") + "). Terrain lengths read from the ground-truth raster.", "",
-                table(header, rows), ""]
-        out += [f"- skipped {s['label']!r} (score {s['score']:.3f}) at place {s['place']}: {s['reason']}" for s in skipped]
+        out += [
+            f"Start place {nav.get('start_place')} (nearest the first camera pose), goal place {nav.get('goal_place')} "
+            "(the approach place of the best reachable of "
+            f"{counted(nav.get('candidates', 1), 'object')} for the task"
+            + (f"; {len(skipped)} skipped" if skipped else "")
+            + "). Terrain lengths read from the ground-truth raster.",
+            "",
+            table(header, rows),
+            "",
+        ]
+        out += [
+            f"- skipped {s['label']!r} (score {s['score']:.3f}) at place {s['place']}: {s['reason']}" for s in skipped
+        ]
         out += [""] if skipped else []
     return out + _preference(nav)
 
@@ -239,8 +309,13 @@ def _plan_rows(plans: dict, terrains: list[str]) -> list[list[str]]:
     rows = []
     for name, p in ordered(plans).items():
         length = p.get("length_m", 0.0)
-        rows.append([name, f"{length:.1f}", str(p.get("places", 0))]
-                    + [f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)" for t in terrains])
+        rows.append(
+            [name, f"{length:.1f}", str(p.get("places", 0))]
+            + [
+                f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)"
+                for t in terrains
+            ]
+        )
     return rows
 
 
@@ -249,24 +324,42 @@ def _preference(nav: dict) -> list[str]:
     case = nav.get("preference_case")
     if case:
         terrains = sorted({t for p in case["plans"].values() for t in p.get("gt_terrain_m", {})})
-        out += [f"Terrain preference case: from place {case['start_place']} at ({case['start_xy'][0]:.1f}, {case['start_xy'][1]:.1f}) "
-                f"to place {case['goal_place']} at ({case['goal_xy'][0]:.1f}, {case['goal_xy'][1]:.1f}) m, the pair of "
-                f"{', '.join(nav.get('prefer', []))} places where the preference moves the path most onto it:", "",
-                table(["Plan", "Length (m)", "Places"] + [f"{t} (m, %)" for t in terrains], _plan_rows(case["plans"], terrains)), ""]
+        out += [
+            f"Terrain preference case: from place {case['start_place']} at ({case['start_xy'][0]:.1f}, {case['start_xy'][1]:.1f}) "
+            f"to place {case['goal_place']} at ({case['goal_xy'][0]:.1f}, {case['goal_xy'][1]:.1f}) m, the pair of "
+            f"{', '.join(nav.get('prefer', []))} places where the preference moves the path most onto it:",
+            "",
+            table(
+                ["Plan", "Length (m)", "Places"] + [f"{t} (m, %)" for t in terrains],
+                _plan_rows(case["plans"], terrains),
+            ),
+            "",
+        ]
     routes = nav.get("preference_routes")
     if routes and routes.get("pairs"):
-        out += [f"Preferring {routes['terrain']} between {routes['pairs']} place pairs joined by a {routes['terrain']} route in the world: "
-                f"mean {100 * routes['preferred_mean_share']:.1f}% of the path on {routes['terrain']} (shortest: "
-                f"{100 * routes['shortest_mean_share']:.1f}%), lowest {100 * routes['preferred_lowest_share']:.1f}%, "
-                f"{routes['pairs_meeting']} pairs ({100 * routes['fraction_meeting']:.1f}%) at {100 * routes['min_share']:.0f}% or more.", ""]
+        out += [
+            f"Preferring {routes['terrain']} between {routes['pairs']} place pairs joined by a {routes['terrain']} route in the world: "
+            f"mean {100 * routes['preferred_mean_share']:.1f}% of the path on {routes['terrain']} (shortest: "
+            f"{100 * routes['shortest_mean_share']:.1f}%), lowest {100 * routes['preferred_lowest_share']:.1f}%, "
+            f"{routes['pairs_meeting']} pairs ({100 * routes['fraction_meeting']:.1f}%) at {100 * routes['min_share']:.0f}% or more.",
+            "",
+        ]
     return out
 
 
 def _not_evaluated(skipped: dict) -> list[str]:
-    titles = {"segmentation": "Table I, terrain segmentation", "regions": "Table III, region monitoring",
-              "navigation": "Navigation"}
-    out = ["## Not evaluated", "", "The ground truth of this dataset holds objects only (KITTI labels): only Table II "
-           "and the memory figures are computed. No number is given for what it cannot score:", ""]
+    titles = {
+        "segmentation": "Table I, terrain segmentation",
+        "regions": "Table III, region monitoring",
+        "navigation": "Navigation",
+    }
+    out = [
+        "## Not evaluated",
+        "",
+        "The ground truth of this dataset holds objects only (KITTI labels): only Table II "
+        "and the memory figures are computed. No number is given for what it cannot score:",
+        "",
+    ]
     out += [f"- {title}: {skipped[key]}." for key, title in titles.items() if key in skipped]
     out += [f"- {note}." for note in skipped.get("notes", [])]
     return out + [""]
@@ -276,14 +369,23 @@ def render_report(summary: dict) -> str:
     """report.md text from a summary dict (see `write_report`)."""
     params = summary.get("parameters", {})
     lines = [
-        "# Terra evaluation report", "",
+        "# Terra evaluation report",
+        "",
         f"- bundle: `{summary.get('bundle', '')}`, ground truth: `{summary.get('dataset', '')}`",
         f"- embedder: `{summary.get('embedder', '')}`; parameters: {params.get('source', 'defaults')}",
-        "- runtimes and FPS are measurements on this machine; every other figure is deterministic.", "",
+        "- runtimes and FPS are measurements on this machine; every other figure is deterministic.",
+        "",
     ]
     lines += _perception_note(summary)
-    for key, section in (("not_evaluated", _not_evaluated), ("segmentation", _segmentation), ("retrieval", _retrieval),
-                         ("regions", _regions), ("memory", _memory), ("places", _places), ("navigation", _navigation)):
+    for key, section in (
+        ("not_evaluated", _not_evaluated),
+        ("segmentation", _segmentation),
+        ("retrieval", _retrieval),
+        ("regions", _regions),
+        ("memory", _memory),
+        ("places", _places),
+        ("navigation", _navigation),
+    ):
         if key in summary:
             lines += section(summary[key])
     figures = dict(sorted(summary.get("figures", {}).items(), key=lambda kv: kv[1]))
@@ -295,10 +397,12 @@ def render_report(summary: dict) -> str:
 
 
 def terrain_shares(by_terrain: dict[str, float], length: float) -> str:
-    """"sidewalk 60%, grass 40%": each terrain's share of a path's length (metres), largest first."""
+    """ "sidewalk 60%, grass 40%": each terrain's share of a path's length (metres), largest first."""
     if length <= 0:
         return "no length"
-    return ", ".join(f"{t} {100 * m / length:.0f}%" for t, m in sorted(by_terrain.items(), key=lambda kv: (-kv[1], kv[0])) if m > 0)
+    return ", ".join(
+        f"{t} {100 * m / length:.0f}%" for t, m in sorted(by_terrain.items(), key=lambda kv: (-kv[1], kv[0])) if m > 0
+    )
 
 
 def headline(summary: dict) -> list[str]:
@@ -307,9 +411,11 @@ def headline(summary: dict) -> list[str]:
     perception = summary.get("perception")
     if perception and perception.get("ground_truth_masks"):
         noise = " with simulated noise" if any((perception.get("noise") or {}).values()) else ""
-        lines.append(f"  perception: labels backend (the ground-truth label images{noise}); terrain segmentation and "
-                     "retrieval grade masks derived from the ground truth, not comparable with the paper's CLIP/YOLO "
-                     "figures")
+        lines.append(
+            f"  perception: labels backend (the ground-truth label images{noise}); terrain segmentation and "
+            "retrieval grade masks derived from the ground truth, not comparable with the paper's CLIP/YOLO "
+            "figures"
+        )
     elif perception:
         lines.append(f"  perception: {perception.get('backend')} backend")
     seg = summary.get("segmentation", {}).get("methods", {})
@@ -319,22 +425,32 @@ def headline(summary: dict) -> list[str]:
     ret = summary.get("retrieval", {})
     for name, s in ordered(ret.get("methods", {})).items():
         counts = f"{counted(ret['num_gt'], 'object')}, {counted(len(ret['queries']), 'query', 'queries')}"
-        lines.append(f"  retrieval {name:<7} ({counts}): IoU {s['iou']:.3f} "
-                     f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}")
+        lines.append(
+            f"  retrieval {name:<7} ({counts}): IoU {s['iou']:.3f} "
+            f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}"
+        )
     for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
-        lines.append(f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "
-                     f"{s['runtime_ms']:.0f} ms (regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})")
+        lines.append(
+            f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "
+            f"{s['runtime_ms']:.0f} ms (regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})"
+        )
     skipped_regions = summary.get("regions", {}).get("not_evaluable", [])
     if skipped_regions:
-        lines.append("  regions not evaluable (no place inside, left out of the averages): "
-                     + ", ".join(r["name"] for r in skipped_regions))
+        lines.append(
+            "  regions not evaluable (no place inside, left out of the averages): "
+            + ", ".join(r["name"] for r in skipped_regions)
+        )
     places = summary.get("places", {}).get("connectivity_seen")
     if places:
-        lines.append(f"  places: {summary['places']['places']}, same-terrain pairs joined {100 * places['joined_share']:.1f}% "
-                     "(ground the cameras labelled)")
+        lines.append(
+            f"  places: {summary['places']['places']}, same-terrain pairs joined {100 * places['joined_share']:.1f}% "
+            "(ground the cameras labelled)"
+        )
     mem = summary.get("memory")
     if mem:
-        lines.append(f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² ({mem['bytes_per_m2']:.0f} B/m²)")
+        lines.append(
+            f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² ({mem['bytes_per_m2']:.0f} B/m²)"
+        )
     nav = summary.get("navigation", {})
     for name, p in ordered(nav.get("plans", {})).items():
         lines.append(f"  path {name}: {p['length_m']:.1f} m ({terrain_shares(p['gt_terrain_m'], p['length_m'])})")
@@ -346,13 +462,17 @@ def headline(summary: dict) -> list[str]:
     case = nav.get("preference_case")
     if case:
         for name, p in ordered(case["plans"]).items():
-            lines.append(f"  case {case['start_place']} -> {case['goal_place']} {name}: {p['length_m']:.1f} m "
-                         f"({terrain_shares(p['gt_terrain_m'], p['length_m'])})")
+            lines.append(
+                f"  case {case['start_place']} -> {case['goal_place']} {name}: {p['length_m']:.1f} m "
+                f"({terrain_shares(p['gt_terrain_m'], p['length_m'])})"
+            )
     routes = nav.get("preference_routes")
     if routes and routes.get("pairs"):
-        lines.append(f"  preferring {routes['terrain']} over {routes['pairs']} {routes['terrain']} routes: mean "
-                     f"{100 * routes['preferred_mean_share']:.1f}% on it, {100 * routes['fraction_meeting']:.1f}% of pairs >= "
-                     f"{100 * routes['min_share']:.0f}%")
+        lines.append(
+            f"  preferring {routes['terrain']} over {routes['pairs']} {routes['terrain']} routes: mean "
+            f"{100 * routes['preferred_mean_share']:.1f}% on it, {100 * routes['fraction_meeting']:.1f}% of pairs >= "
+            f"{100 * routes['min_share']:.0f}%"
+        )
     return lines
 
 

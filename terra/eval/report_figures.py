@@ -18,8 +18,15 @@ from terra.viz.style import view_extent
 FIGURES = "figures"
 
 
-def write_figures(out: Path, inputs: EvalInputs, summary: dict, task: RetrievalTask, retrieval: dict[str, RetrievalRun],
-                  monitoring: dict[str, MonitoringRun], config: EvalConfig) -> dict[str, str]:
+def write_figures(
+    out: Path,
+    inputs: EvalInputs,
+    summary: dict,
+    task: RetrievalTask,
+    retrieval: dict[str, RetrievalRun],
+    monitoring: dict[str, MonitoringRun],
+    config: EvalConfig,
+) -> dict[str, str]:
     """Write every figure under out/figures/; returns {title: path relative to out}."""
     folder = Path(out) / FIGURES
     dpi = config.dpi
@@ -32,42 +39,74 @@ def write_figures(out: Path, inputs: EvalInputs, summary: dict, task: RetrievalT
         corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
         extent = view_extent(corners, margin=0.03)
         written["Terrain map vs ground truth"] = figures.terrain_map_figure(
-            folder / "1_terrain_map.png", msm.terrain_classes, msm.points, point_classes(msm), inputs.gt, dpi, extent,
-            cell=max(msm.voxel_size, raster.resolution))
+            folder / "1_terrain_map.png",
+            msm.terrain_classes,
+            msm.points,
+            point_classes(msm),
+            inputs.gt,
+            dpi,
+            extent,
+            cell=max(msm.voxel_size, raster.resolution),
+        )
     else:
         extent = view_extent(msm.points, margin=0.03)
     written["Places layer by terrain"] = figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)
     for method in ("spectral", "agglomerative"):
         if method in inputs.hierarchies:
-            written[f"Region levels ({method})"] = figures.region_levels_figure(folder / f"3_regions_{method}.png", inputs.hierarchies[method][0],
-                                                                                background, dpi, extent)
+            written[f"Region levels ({method})"] = figures.region_levels_figure(
+                folder / f"3_regions_{method}.png", inputs.hierarchies[method][0], background, dpi, extent
+            )
     if not any(t.startswith("Region levels") for t in written) and graph.regions:
-        written["Region levels"] = figures.region_levels_figure(folder / "3_regions.png", graph, background, dpi, extent)
+        written["Region levels"] = figures.region_levels_figure(
+            folder / "3_regions.png", graph, background, dpi, extent
+        )
     if retrieval:
         gt_boxes, gt_query = task.gt_boxes()
         predictions = {m: (run.boxes, run.query) for m, run in retrieval.items()}
-        counts = {m: [(r["num_predictions"], r["relaxed_hits"]) for r in s["per_query"]]
-                  for m, s in summary.get("retrieval", {}).get("methods", {}).items()}
+        counts = {
+            m: [(r["num_predictions"], r["relaxed_hits"]) for r in s["per_query"]]
+            for m, s in summary.get("retrieval", {}).get("methods", {}).items()
+        }
         written["Retrieved boxes vs ground truth"] = figures.boxes_figure(
-            folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts)
+            folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts
+        )
     best = _best_terra_hierarchy(monitoring)
     if best is not None:
         graph_m = inputs.hierarchies[best][0] if best in inputs.hierarchies else graph
         run = monitoring[best]
         written[f"Region monitoring ({best})"] = figures.monitoring_figure(
-            folder / "5_monitoring.png", graph_m, run.regions or inputs.gt.regions, run.predicted, best, background, dpi,
-            extent, [(sc.precision, sc.recall) for sc in run.scores])
+            folder / "5_monitoring.png",
+            graph_m,
+            run.regions or inputs.gt.regions,
+            run.predicted,
+            best,
+            background,
+            dpi,
+            extent,
+            [(sc.precision, sc.recall) for sc in run.scores],
+        )
     nav = summary.get("navigation", {})
     if "plans" in nav:
         ordered_plans = ordered(nav["plans"])
         plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in ordered_plans.items()]
         notes = ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in ordered_plans.values()]
-        written["Terrain-aware navigation"] = figures.paths_figure(folder / "6_paths.png", graph, nav["start_place"], nav["goal_place"],
-                                                                   plans, nav["task"], background, dpi, extent, notes)
+        written["Terrain-aware navigation"] = figures.paths_figure(
+            folder / "6_paths.png",
+            graph,
+            nav["start_place"],
+            nav["goal_place"],
+            plans,
+            nav["task"],
+            background,
+            dpi,
+            extent,
+            notes,
+        )
     mem = summary["memory"]
     parts = mem.get("parts_bytes") or mem["components_bytes"]
-    written["Memory"] = figures.memory_figure(folder / "7_memory.png", parts, mem["area_m2"], inputs.bundle.path.name,
-                                              dpi)
+    written["Memory"] = figures.memory_figure(
+        folder / "7_memory.png", parts, mem["area_m2"], inputs.bundle.path.name, dpi
+    )
     return {title: path.relative_to(out).as_posix() for title, path in written.items()}
 
 

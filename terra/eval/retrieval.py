@@ -39,8 +39,11 @@ class RetrievalTask:
         if not boxes:
             return BoxSet.empty(), np.zeros(0, dtype=np.int64)
         query = np.concatenate([np.full(len(b), q) for q, b in enumerate(self.gt)])
-        return BoxSet(np.vstack([b.center for b in boxes]), np.vstack([b.size for b in boxes]),
-                      np.concatenate([b.yaw for b in boxes])), query
+        return BoxSet(
+            np.vstack([b.center for b in boxes]),
+            np.vstack([b.size for b in boxes]),
+            np.concatenate([b.yaw for b in boxes]),
+        ), query
 
 
 def retrieval_task(gt: GroundTruth, config: RetrievalEval) -> RetrievalTask:
@@ -66,8 +69,15 @@ class RetrievalRun:
         return evaluate_retrieval(self.boxes, self.scores, self.query, task.gt, precision_ratio, task.queries)
 
 
-def run_retrieval(msm: MetricSemanticMap, graph: SceneGraph | None, queries: list[str], method: str, alpha: float | None,
-                  embedder: TextEmbedder, tasks_config=None) -> RetrievalRun:
+def run_retrieval(
+    msm: MetricSemanticMap,
+    graph: SceneGraph | None,
+    queries: list[str],
+    method: str,
+    alpha: float | None,
+    embedder: TextEmbedder,
+    tasks_config=None,
+) -> RetrievalRun:
     """Run `find_objects` once for all queries and collect its boxes."""
     from terra.tasks.retrieval import find_objects
 

@@ -5,9 +5,9 @@ ground truth, written as report.md, summary.json and figures (terra.eval.report)
 from __future__ import annotations
 
 import shutil
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -24,7 +24,6 @@ from terra.eval.tuning import TUNED, TunedParameters, alpha_grid, best_point
 from terra.loaded import LoadedBundle
 from terra.progress import StageTimer
 
-
 NOT_IN_KITTI = {
     "segmentation": "needs images labelled with terrain classes",
     "regions": "needs named regions with their descriptions",
@@ -36,21 +35,26 @@ def not_evaluated(inputs: EvalInputs) -> dict[str, str]:
     """Sections the ground truth cannot score, each with the reason in words (never numbers)."""
     if not inputs.objects_only:
         return {}
-    return {key: f"{reason}, which this dataset's labels do not have; not evaluated"
-            for key, reason in NOT_IN_KITTI.items()}
+    return {
+        key: f"{reason}, which this dataset's labels do not have; not evaluated" for key, reason in NOT_IN_KITTI.items()
+    }
 
 
 # ---------------------------------------------------------------------------- Table II
 
 
-def retrieval_runs(inputs: EvalInputs, task: RetrievalTask, methods: list[str], alphas: dict[str, float | None],
-                   tasks_config=None) -> dict[str, RetrievalRun]:
-    return {m: run_retrieval(inputs.msm, inputs.graph, task.queries, m, alphas.get(m), inputs.embedder, tasks_config)
-            for m in methods}
+def retrieval_runs(
+    inputs: EvalInputs, task: RetrievalTask, methods: list[str], alphas: dict[str, float | None], tasks_config=None
+) -> dict[str, RetrievalRun]:
+    return {
+        m: run_retrieval(inputs.msm, inputs.graph, task.queries, m, alphas.get(m), inputs.embedder, tasks_config)
+        for m in methods
+    }
 
 
-def retrieval_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
-                      ) -> tuple[dict, RetrievalTask, dict[str, RetrievalRun]]:
+def retrieval_section(
+    inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
+) -> tuple[dict, RetrievalTask, dict[str, RetrievalRun]]:
     task = retrieval_task(inputs.gt, config.retrieval)
     methods = config.retrieval.methods
     alphas = {m: _retrieval_alpha(m, inputs, tuned, tasks_config) for m in methods}
@@ -63,11 +67,16 @@ def retrieval_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParame
         "template": config.retrieval.template,
         "queries": task.queries,
         "num_gt": task.num_gt,
-        "methods": {m: {**run.evaluate(task, config.retrieval.precision_ratio).to_json(), "alpha": alphas[m],
-                        "runtime_ms": 1000.0 * run.seconds,
-                        "smallest_box_side_m": float(run.boxes.size.min()) if len(run.boxes) else None,
-                        "iou_by_distance": iou_by_distance(accuracy_matches(run.boxes, run.scores, task.gt), task.gt, path)}
-                    for m, run in runs.items()},
+        "methods": {
+            m: {
+                **run.evaluate(task, config.retrieval.precision_ratio).to_json(),
+                "alpha": alphas[m],
+                "runtime_ms": 1000.0 * run.seconds,
+                "smallest_box_side_m": float(run.boxes.size.min()) if len(run.boxes) else None,
+                "iou_by_distance": iou_by_distance(accuracy_matches(run.boxes, run.scores, task.gt), task.gt, path),
+            }
+            for m, run in runs.items()
+        },
     }
     return section, task, runs
 
@@ -83,11 +92,22 @@ def _retrieval_alpha(method: str, inputs: EvalInputs, tuned: TunedParameters | N
 
 # ---------------------------------------------------------------------------- Table III
 
-METHOD_LABELS = {"aib": "AIB (Clio) on Terra places", "spectral": "Terra spectral", "agglomerative": "Terra agglomerative"}
+METHOD_LABELS = {
+    "aib": "AIB (Clio) on Terra places",
+    "spectral": "Terra spectral",
+    "agglomerative": "Terra agglomerative",
+}
 
 
-def monitoring_run(inputs: EvalInputs, method: str, truth: list[np.ndarray], params: MonitorParams, monitor_method: str,
-                   tasks_config=None, regions: list | None = None) -> MonitoringRun:
+def monitoring_run(
+    inputs: EvalInputs,
+    method: str,
+    truth: list[np.ndarray],
+    params: MonitorParams,
+    monitor_method: str,
+    tasks_config=None,
+    regions: list | None = None,
+) -> MonitoringRun:
     """One Table III row: AIB on the places layer, or `monitor_method` on a rebuilt hierarchy.
     `regions` and `truth`: the evaluable labelled regions and their places (evaluable_regions)."""
     regions = inputs.gt.regions if regions is None else regions
@@ -108,9 +128,12 @@ def monitoring_params(method: str, embedder: str, tuned: TunedParameters | None,
     if method == "aib":
         default = alpha_for(cfg.aib.null_score, cfg.aib.default_null_score, embedder)
         return MonitorParams(float(alpha) if alpha is not None else default)
-    return MonitorParams(float(alpha) if alpha is not None else alpha_for(cfg.alpha, cfg.default_alpha, embedder),
-                         int(k) if k is not None else cfg.k, tuned.monitoring_levels(method) if tuned is not None else None,
-                         tuned.monitoring_min_level(method) if tuned is not None else None)
+    return MonitorParams(
+        float(alpha) if alpha is not None else alpha_for(cfg.alpha, cfg.default_alpha, embedder),
+        int(k) if k is not None else cfg.k,
+        tuned.monitoring_levels(method) if tuned is not None else None,
+        tuned.monitoring_min_level(method) if tuned is not None else None,
+    )
 
 
 NOT_EVALUABLE = "no place of the scene graph lies inside it, so no prediction can be right or wrong there"
@@ -131,18 +154,21 @@ def evaluable_regions(inputs: EvalInputs) -> tuple[list, list[np.ndarray], list[
     return regions, truth, skipped
 
 
-def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
-                    ) -> tuple[dict, dict[str, MonitoringRun]]:
+def regions_section(
+    inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
+) -> tuple[dict, dict[str, MonitoringRun]]:
     regions, truth, skipped = evaluable_regions(inputs)
     runs = {}
     for method in config.regions.methods:
         params = monitoring_params(method, inputs.embedder.name, tuned, tasks_config)
-        runs[method] = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
-                                      regions)
+        runs[method] = monitoring_run(
+            inputs, method, truth, params, config.regions.monitor_method, tasks_config, regions
+        )
     section = {
         "not_evaluable": skipped,
-        "queries": [{"name": r.name, "description": r.description, "num_gt_places": int(len(t))}
-                    for r, t in zip(regions, truth)],
+        "queries": [
+            {"name": r.name, "description": r.description, "num_gt_places": int(len(t))} for r, t in zip(regions, truth)
+        ],
         "monitor_method": config.regions.monitor_method,
         "methods": {m: run.to_json(METHOD_LABELS[m]) for m, run in runs.items()},
         "regions_per_level": {m: [len(level) for level in inputs.hierarchy(m)[0].regions] for m in runs if m != "aib"},
@@ -153,7 +179,9 @@ def regions_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParamete
 # ---------------------------------------------------------------------------- navigation
 
 
-def navigation_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None) -> dict:
+def navigation_section(
+    inputs: EvalInputs, config: EvalConfig, tuned: TunedParameters | None, tasks_config=None
+) -> dict:
     """The task's plan (goal: the best reachable object for it) shortest and with the preferred
     terrains, the preference measured over place pairs joined by a route on the first preferred
     terrain, and the pair that shows the preference best (eval/navigation.py)."""
@@ -168,16 +196,22 @@ def navigation_section(inputs: EvalInputs, config: EvalConfig, tuned: TunedParam
 
         seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
         pairs = terrain_route_pairs(inputs.graph, inputs.gt.terrain, cfg.prefer[0], seen, cfg.route_pairs)
-        routes = preference_routes(inputs.graph, inputs.gt.terrain, pairs, cfg.prefer[0], cfg.step, tasks.planning.default_penalty)
+        routes = preference_routes(
+            inputs.graph, inputs.gt.terrain, pairs, cfg.prefer[0], cfg.step, tasks.planning.default_penalty
+        )
         section["preference_routes"] = routes.to_json(cfg.min_share)
         case = preference_case(routes, cfg.min_share)
         if case is not None:
             a, b = (int(v) for v in routes.pairs[case])
             section["preference_case"] = {
-                "start_place": a, "goal_place": b,
+                "start_place": a,
+                "goal_place": b,
                 "start_xy": [round(float(v), 3) for v in inputs.graph.places.position[a, :2]],
                 "goal_xy": [round(float(v), 3) for v in inputs.graph.places.position[b, :2]],
-                "plans": {"shortest": routes.shortest[case].to_json(), routes.preferred[case].name: routes.preferred[case].to_json()},
+                "plans": {
+                    "shortest": routes.shortest[case].to_json(),
+                    routes.preferred[case].name: routes.preferred[case].to_json(),
+                },
             }
     return section
 
@@ -190,23 +224,54 @@ def _task_plans(inputs: EvalInputs, cfg, tuned: TunedParameters | None, tasks, t
 
     method = tasks.planning.find_method
     alpha = _retrieval_alpha(method, inputs, tuned, tasks_config)
-    found = [o for o in find_objects(inputs.msm, inputs.graph, [cfg.task], method=method, alpha=alpha, config=tasks,
-                                     embedder=inputs.embedder) if o.query == 0]
+    found = [
+        o
+        for o in find_objects(
+            inputs.msm, inputs.graph, [cfg.task], method=method, alpha=alpha, config=tasks, embedder=inputs.embedder
+        )
+        if o.query == 0
+    ]
     out: dict = {"alpha": alpha, "candidates": len(found)}
     if not found:
         return {**out, "error": f"no object found for {cfg.task!r} with {method} at alpha {alpha:g}"}
     start = start_place(inputs.msm, inputs.graph)
     costs = TerrainCosts.from_preferences(inputs.graph.terrain_classes)
     try:
-        goal = plan_to_objects(inputs.graph, CostGraph.build(inputs.graph, costs), start, found, tasks.planning.goal_radius)
+        goal = plan_to_objects(
+            inputs.graph, CostGraph.build(inputs.graph, costs), start, found, tasks.planning.goal_radius
+        )
     except NoPathError as exc:
         return {**out, "error": str(exc)}
-    plans = [plan_with(inputs.graph, start, goal.goal_place, "shortest", inputs.gt.terrain, (), cfg.step, tasks.planning.default_penalty),
-             plan_with(inputs.graph, start, goal.goal_place, f"prefer {', '.join(cfg.prefer)}", inputs.gt.terrain, cfg.prefer,
-                       cfg.step, tasks.planning.default_penalty)]
-    return {**out, "start_place": start, "goal_place": goal.goal_place,
-            "goal_object": {"center": [float(v) for v in goal.goal_object.center], "score": float(goal.goal_object.score)},
-            "skipped": [s.to_json() for s in goal.skipped], "plans": {p.name: p.to_json() for p in plans}}
+    plans = [
+        plan_with(
+            inputs.graph,
+            start,
+            goal.goal_place,
+            "shortest",
+            inputs.gt.terrain,
+            (),
+            cfg.step,
+            tasks.planning.default_penalty,
+        ),
+        plan_with(
+            inputs.graph,
+            start,
+            goal.goal_place,
+            f"prefer {', '.join(cfg.prefer)}",
+            inputs.gt.terrain,
+            cfg.prefer,
+            cfg.step,
+            tasks.planning.default_penalty,
+        ),
+    ]
+    return {
+        **out,
+        "start_place": start,
+        "goal_place": goal.goal_place,
+        "goal_object": {"center": [float(v) for v in goal.goal_object.center], "score": float(goal.goal_object.score)},
+        "skipped": [s.to_json() for s in goal.skipped],
+        "plans": {p.name: p.to_json() for p in plans},
+    }
 
 
 def places_section(inputs: EvalInputs) -> dict:
@@ -216,10 +281,14 @@ def places_section(inputs: EvalInputs) -> dict:
     from terra.eval.regions import region_truth
 
     seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
-    return {"places": len(inputs.graph.places),
-            "connectivity": same_terrain_connectivity(inputs.graph, inputs.gt.terrain).to_json(),
-            "connectivity_seen": same_terrain_connectivity(inputs.graph, inputs.gt.terrain, seen).to_json(),
-            "places_per_region": {r.name: int(len(t)) for r, t in zip(inputs.gt.regions, region_truth(inputs.graph, inputs.gt.regions))}}
+    return {
+        "places": len(inputs.graph.places),
+        "connectivity": same_terrain_connectivity(inputs.graph, inputs.gt.terrain).to_json(),
+        "connectivity_seen": same_terrain_connectivity(inputs.graph, inputs.gt.terrain, seen).to_json(),
+        "places_per_region": {
+            r.name: int(len(t)) for r, t in zip(inputs.gt.regions, region_truth(inputs.graph, inputs.gt.regions))
+        },
+    }
 
 
 # ---------------------------------------------------------------------------- tuning
@@ -230,15 +299,22 @@ def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None, show_progres
     from terra.progress import progress
 
     grid = alpha_grid(config.tune)
-    tuned = TunedParameters(inputs.embedder.name, validation={"bundle": inputs.bundle.path.name,
-                                                              "dataset": inputs.dataset_name or inputs.gt_root.name,
-                                                              **inputs.fingerprint_record()})
+    tuned = TunedParameters(
+        inputs.embedder.name,
+        validation={
+            "bundle": inputs.bundle.path.name,
+            "dataset": inputs.dataset_name or inputs.gt_root.name,
+            **inputs.fingerprint_record(),
+        },
+    )
     task = retrieval_task(inputs.gt, config.retrieval)
     if task.queries:
         for method in config.retrieval.methods:
             points = []
             for alpha in progress(grid, f"tuning {method} retrieval", enabled=show_progress, unit="alphas"):
-                run = run_retrieval(inputs.msm, inputs.graph, task.queries, method, alpha, inputs.embedder, tasks_config)
+                run = run_retrieval(
+                    inputs.msm, inputs.graph, task.queries, method, alpha, inputs.embedder, tasks_config
+                )
                 points.append({"alpha": alpha, "f1": run.evaluate(task, config.retrieval.precision_ratio).f1})
             tuned.retrieval[method] = best_point(points)
     regions, truth, _ = evaluable_regions(inputs)
@@ -247,8 +323,9 @@ def tune(inputs: EvalInputs, config: EvalConfig, tasks_config=None, show_progres
             points = []
             grid_points = _monitor_grid(method, grid, config, inputs)
             for params in progress(grid_points, f"tuning {method} monitoring", enabled=show_progress, unit="settings"):
-                run = monitoring_run(inputs, method, truth, params, config.regions.monitor_method, tasks_config,
-                                     regions)
+                run = monitoring_run(
+                    inputs, method, truth, params, config.regions.monitor_method, tasks_config, regions
+                )
                 points.append({**params.to_json(), "f1": run.total.f1})
             # The alpha chosen depends on how queries are embedded (tasks.monitoring.query).
             tuned.monitoring[method] = {**best_point(points), "query": _query_mode(tasks_config)}
@@ -270,8 +347,14 @@ def _monitor_grid(method: str, alphas: list[float], config: EvalConfig, inputs: 
     n_levels = len(inputs.hierarchy(method)[0].regions)
     levels = [None] + list(range(1, n_levels))
     lows = [None] + ([2] if n_levels >= 2 else [])
-    return [MonitorParams(a, k, lv, lo) for lo in lows for lv in levels if (lv or n_levels) >= (lo or 1)
-            for k in range(1, config.tune.k_max + 1) for a in alphas]
+    return [
+        MonitorParams(a, k, lv, lo)
+        for lo in lows
+        for lv in levels
+        if (lv or n_levels) >= (lo or 1)
+        for k in range(1, config.tune.k_max + 1)
+        for a in alphas
+    ]
 
 
 # ---------------------------------------------------------------------------- the report
@@ -288,11 +371,15 @@ def segmentation_section(inputs: EvalInputs, config: EvalConfig, show_progress: 
     from terra.perception.registry import get_terrain_segmenter
 
     dataset = inputs.dataset or open_dataset(inputs.gt_root)
-    mapping = MappingConfig.model_validate(inputs.bundle.manifest.get("components", {}).get("map", {}).get("config") or {})
+    mapping = MappingConfig.model_validate(
+        inputs.bundle.manifest.get("components", {}).get("map", {}).get("config") or {}
+    )
     if not any(c.semantic is not None for c in dataset[0].cameras):
         return None
     segmenter = get_terrain_segmenter(mapping.perception, dataset.classes)  # no mask or embedding model is loaded
-    scores = evaluate_segmenter(segmenter, dataset, config.segmentation.max_images, mapping.perception.noise.seed, show_progress)
+    scores = evaluate_segmenter(
+        segmenter, dataset, config.segmentation.max_images, mapping.perception.noise.seed, show_progress
+    )
     label = f"{mapping.perception.backend} (noise: " + ("on" if mapping.perception.noise.enabled else "none") + ")"
     return {"images": scores.images, "methods": {label: scores.to_json()}}
 
@@ -301,8 +388,11 @@ def parameter_source(tuned: TunedParameters | None) -> dict:
     """Where alpha and k came from, for summary.json and the report's header."""
     if tuned is None:
         return {"source": "defaults (the tasks stage's configuration)"}
-    return {"source": f"tuned on validation scene {tuned.validation_dataset}", "validation": dict(tuned.validation),
-            "tuned": tuned.to_json()}
+    return {
+        "source": f"tuned on validation scene {tuned.validation_dataset}",
+        "validation": dict(tuned.validation),
+        "tuned": tuned.to_json(),
+    }
 
 
 def perception_section(bundle: Bundle) -> dict:
@@ -313,8 +403,11 @@ def perception_section(bundle: Bundle) -> dict:
     perception = (map_info.get("config") or {}).get("perception") or {}
     recorded = bundle.manifest.get("perception") or {}
     backend = str(recorded.get("backend") or perception.get("backend") or "unknown")
-    models = [{k: m.get(k) for k in ("role", "name", "sha256") if k in m} for m in recorded.get("models", [])
-              if isinstance(m, dict)]
+    models = [
+        {k: m.get(k) for k in ("role", "name", "sha256") if k in m}
+        for m in recorded.get("models", [])
+        if isinstance(m, dict)
+    ]
     section: dict = {"backend": backend, "ground_truth_masks": backend == "labels", "models": models}
     noise = perception.get("noise")
     if backend == "labels" and isinstance(noise, dict):
@@ -352,9 +445,17 @@ def check_report_folder(out: Path) -> None:
         raise TerraError(f"{out}: exists and is not an evaluation report folder; choose another --out or remove it")
 
 
-def evaluate(bundle_path: str | Path, gt_root: str | Path, out: str | Path, config: EvalConfig | None = None,
-             tuned: TunedParameters | None = None, tasks_config=None, show_progress: bool = True,
-             timer: StageTimer | None = None, loaded: LoadedBundle | None = None) -> dict:
+def evaluate(
+    bundle_path: str | Path,
+    gt_root: str | Path,
+    out: str | Path,
+    config: EvalConfig | None = None,
+    tuned: TunedParameters | None = None,
+    tasks_config=None,
+    show_progress: bool = True,
+    timer: StageTimer | None = None,
+    loaded: LoadedBundle | None = None,
+) -> dict:
     """Evaluate a bundle against a simulated dataset's ground truth; write the report to `out`.
 
     The report is written into a temporary sibling folder that replaces `out` at the end, so a

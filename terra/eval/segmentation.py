@@ -37,15 +37,18 @@ def sample_frames(n_frames: int, max_images: int, cameras: int) -> np.ndarray:
     return np.unique(np.linspace(0, n_frames - 1, wanted).round().astype(np.int64))
 
 
-def evaluate_segmenter(segmenter: TerrainSegmenter, dataset: Dataset, max_images: int = 40, seed: int = 0,
-                       show_progress: bool = True) -> SegmentationScores:
+def evaluate_segmenter(
+    segmenter: TerrainSegmenter, dataset: Dataset, max_images: int = 40, seed: int = 0, show_progress: bool = True
+) -> SegmentationScores:
     """Confusion of `segmenter` against ground truth on up to `max_images` labelled images.
 
     FPS counts segmenter wall time only, after one untimed warm-up image (models load lazily); a
     segmenter whose `timed` attribute is False (the labels lookup) gets no FPS."""
     names = [c.name for c in dataset.classes.terrain_classes]
     if list(segmenter.terrain_classes) != names:
-        raise TerraError(f"segmenter terrain classes {list(segmenter.terrain_classes)} differ from the dataset's {names}")
+        raise TerraError(
+            f"segmenter terrain classes {list(segmenter.terrain_classes)} differ from the dataset's {names}"
+        )
     timed = bool(getattr(segmenter, "timed", True))
     n_labels = len(names) + 1
     total = np.zeros((n_labels, n_labels), dtype=np.int64)
@@ -72,8 +75,12 @@ def evaluate_segmenter(segmenter: TerrainSegmenter, dataset: Dataset, max_images
     return segmentation_scores(total, names, seconds, images, timed)
 
 
-def terrain_table(dataset: Dataset, segmenters: dict[str, tuple[TerrainSegmenter, int]], max_images: int = 40,
-                  show_progress: bool = True) -> dict:
+def terrain_table(
+    dataset: Dataset,
+    segmenters: dict[str, tuple[TerrainSegmenter, int]],
+    max_images: int = 40,
+    show_progress: bool = True,
+) -> dict:
     """Table I for several segmenters on the same labelled images: {"dataset", "images", "methods":
     {label: scores}}; `segmenters` maps a row label to (segmenter, noise seed)."""
     methods = {}

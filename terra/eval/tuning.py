@@ -52,8 +52,13 @@ class TunedParameters:
         return self.monitoring.get(method, {}).get("min_level")
 
     def to_json(self) -> dict:
-        return {"schema": TUNED_SCHEMA, "embedder": self.embedder, "retrieval": self.retrieval,
-                "monitoring": self.monitoring, "validation": self.validation}
+        return {
+            "schema": TUNED_SCHEMA,
+            "embedder": self.embedder,
+            "retrieval": self.retrieval,
+            "monitoring": self.monitoring,
+            "validation": self.validation,
+        }
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -61,7 +66,7 @@ class TunedParameters:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "TunedParameters":
+    def load(cls, path: str | Path) -> TunedParameters:
         path = Path(path)
         try:
             data = json.loads(path.read_text())
@@ -70,8 +75,12 @@ class TunedParameters:
         if not isinstance(data, dict) or data.get("schema") != TUNED_SCHEMA:
             raise TerraError(f"{path}: field 'schema' is not {TUNED_SCHEMA!r}; write one with `terra eval --tune`")
         try:
-            return cls(str(data["embedder"]), dict(data.get("retrieval", {})), dict(data.get("monitoring", {})),
-                       dict(data.get("validation", {})))
+            return cls(
+                str(data["embedder"]),
+                dict(data.get("retrieval", {})),
+                dict(data.get("monitoring", {})),
+                dict(data.get("validation", {})),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise TerraError(f"{path}: malformed tuned parameters ({exc})") from None
 
@@ -90,12 +99,16 @@ class TunedParameters:
         recorded = str(self.validation.get("fingerprint") or "")
         if recorded and fingerprint:
             if recorded == fingerprint:
-                raise TerraError(f"{source} were tuned on the scene under test ({self.validation_dataset!r}, the same "
-                                 "frames); tune on a validation scene (another seed) instead")
+                raise TerraError(
+                    f"{source} were tuned on the scene under test ({self.validation_dataset!r}, the same "
+                    "frames); tune on a validation scene (another seed) instead"
+                )
             return
         if self.validation_dataset == test_dataset:
-            raise TerraError(f"{source} were tuned on {test_dataset!r}, the scene under test; "
-                             "tune on a validation scene (another seed) instead")
+            raise TerraError(
+                f"{source} were tuned on {test_dataset!r}, the scene under test; "
+                "tune on a validation scene (another seed) instead"
+            )
 
     def check_query_mode(self, mode: str, source: str = "tuned parameters") -> None:
         """TerraError when a monitoring method was tuned with another `tasks.monitoring.query` than
@@ -103,12 +116,16 @@ class TunedParameters:
         for method, entry in sorted(self.monitoring.items()):
             recorded = entry.get("query") if isinstance(entry, dict) else None
             if recorded is not None and recorded != mode:
-                raise TerraError(f"{source}: {method} monitoring was tuned with tasks.monitoring.query {recorded!r} "
-                                 f"but the configuration has {mode!r}; tune again or set it to {recorded!r}")
+                raise TerraError(
+                    f"{source}: {method} monitoring was tuned with tasks.monitoring.query {recorded!r} "
+                    f"but the configuration has {mode!r}; tune again or set it to {recorded!r}"
+                )
 
     def check_embedder(self, embedder: str, source: str = "tuned parameters") -> None:
         if self.embedder != embedder:
-            raise TerraError(f"{source} were tuned for embedder {self.embedder!r} but the map uses {embedder!r}; tune again")
+            raise TerraError(
+                f"{source} were tuned for embedder {self.embedder!r} but the map uses {embedder!r}; tune again"
+            )
 
 
 def alpha_grid(config: TuneEval) -> list[float]:

@@ -73,7 +73,7 @@ def agglomerative_assignments(
     P = len(position)
     if P <= 1:
         return [np.zeros(P, np.int64) for _ in range(n_levels)]
-    if P <= dense_max:
+    if dense_max >= P:
         # For unit vectors 1 - cos = |e_i - e_j|^2 / 2.
         w = pdist(position)
         w += (0.5 * gamma) * pdist(unit, "sqeuclidean")
@@ -84,7 +84,9 @@ def agglomerative_assignments(
     group = micro_clusters(position, terrain, cell=first_cut / 10.0, max_groups=micro_max)
     G = int(group.max()) + 1
     size = np.bincount(group, minlength=G).astype(np.float64)
-    centroid = np.stack([np.bincount(group, weights=position[:, d], minlength=G) for d in range(3)], axis=1) / size[:, None]
+    centroid = (
+        np.stack([np.bincount(group, weights=position[:, d], minlength=G) for d in range(3)], axis=1) / size[:, None]
+    )
     emb_sum = np.zeros((G, unit.shape[1]))
     np.add.at(emb_sum, group, unit)
     D = cdist(centroid, centroid)
@@ -96,8 +98,14 @@ def agglomerative_assignments(
     return [group_labels(merges, G, t)[group] for t in heights]
 
 
-def _level_heights(heights: np.ndarray, items: int, places: int, cuts: tuple[float, ...] | None, gap_levels: int | None,
-                   adaptive: AdaptiveCuts) -> tuple[float, ...]:
+def _level_heights(
+    heights: np.ndarray,
+    items: int,
+    places: int,
+    cuts: tuple[float, ...] | None,
+    gap_levels: int | None,
+    adaptive: AdaptiveCuts,
+) -> tuple[float, ...]:
     """Cut heights of the levels: fixed `cuts`, gap cuts, or adaptive ones for a tree over `items`
     leaves (places, or micro-clusters standing for `places` places)."""
     if gap_levels:

@@ -12,7 +12,9 @@ class CellIndex:
 
     def __init__(self, cells: np.ndarray, shape: tuple[int, int]) -> None:
         self.width = int(shape[1]) + 2
-        self.keys = (np.asarray(cells[:, 0], dtype=np.int64) + 1) * self.width + (np.asarray(cells[:, 1], dtype=np.int64) + 1)
+        self.keys = (np.asarray(cells[:, 0], dtype=np.int64) + 1) * self.width + (
+            np.asarray(cells[:, 1], dtype=np.int64) + 1
+        )
 
     def find(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(n,) position of each (row, col) in the list, -1 where it is not one of the cells."""

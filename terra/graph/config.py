@@ -18,24 +18,61 @@ from terra.config import Section
 class TerrainSection(Section):
     """Terrain class per map point from its terrain votes."""
 
-    min_share: float = Field(0.5, ge=0.0, le=1.0, description="a point's winning terrain needs this share of its votes")
-    include: list[str] | None = Field(None, description="terrain classes to build places for (None = all of the map's)")
+    min_share: float = Field(
+        default=0.5, ge=0.0, le=1.0, description="a point's winning terrain needs this share of its votes"
+    )
+    include: list[str] | None = Field(
+        default=None, description="terrain classes to build places for (None = all of the map's)"
+    )
 
 
 class GridSection(Section):
     """One 2D occupancy grid per terrain class."""
 
-    cell_size: float = Field(0.4, gt=0.0, description="metres per grid cell")
-    support_radius: float = Field(1.6, ge=0.0, description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)")
-    min_support: float = Field(0.6, ge=0.0, le=1.0, description="share of the window's cells that must hold labelled terrain points for the cell to take their majority; for filling and weak_support, the share that must hold ground points, labelled or not (drops sparse distant scan rings)")
-    weak_support: float | None = Field(0.1, ge=0.0, le=1.0, description="a window with this smaller share of labelled cells also takes their majority where it continues a patch of that class meeting min_support (hysteresis: sparsely labelled stretches of a strip keep its class; isolated noisy patches do not); None = never")
-    weak_reach: float | None = Field(16.0, gt=0.0, description="metres; such cells are labelled at most this far (along the sparsely labelled chain) from the patch they continue (None = any distance)")
-    fill_radius: float = Field(2.0, ge=0.0, description="metres; densely scanned ground no camera labelled takes the class of the labelled cells within this distance when they all agree (0 = never)")
-    close_iterations: int = Field(1, ge=0, description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)")
-    open_iterations: int = Field(1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)")
-    obstacle_height: tuple[float, float] | None = Field((0.3, 2.0), description="non-terrain points this many metres above the local ground block a cell (None = never)")
-    obstacle_min_points: int = Field(2, ge=1, description="points in the height band needed to block a cell")
-    min_component_area: float = Field(2.0, ge=0.0, description="terrain patches smaller than this (m^2) get no place (reported as dropped)")
+    cell_size: float = Field(default=0.4, gt=0.0, description="metres per grid cell")
+    support_radius: float = Field(
+        default=1.6,
+        ge=0.0,
+        description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)",
+    )
+    min_support: float = Field(
+        default=0.6,
+        ge=0.0,
+        le=1.0,
+        description="share of the window's cells that must hold labelled terrain points for the cell to take their majority; for filling and weak_support, the share that must hold ground points, labelled or not (drops sparse distant scan rings)",
+    )
+    weak_support: float | None = Field(
+        default=0.1,
+        ge=0.0,
+        le=1.0,
+        description="a window with this smaller share of labelled cells also takes their majority where it continues a patch of that class meeting min_support (hysteresis: sparsely labelled stretches of a strip keep its class; isolated noisy patches do not); None = never",
+    )
+    weak_reach: float | None = Field(
+        default=16.0,
+        gt=0.0,
+        description="metres; such cells are labelled at most this far (along the sparsely labelled chain) from the patch they continue (None = any distance)",
+    )
+    fill_radius: float = Field(
+        default=2.0,
+        ge=0.0,
+        description="metres; densely scanned ground no camera labelled takes the class of the labelled cells within this distance when they all agree (0 = never)",
+    )
+    close_iterations: int = Field(
+        default=1,
+        ge=0,
+        description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)",
+    )
+    open_iterations: int = Field(
+        default=1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)"
+    )
+    obstacle_height: tuple[float, float] | None = Field(
+        default=(0.3, 2.0),
+        description="non-terrain points this many metres above the local ground block a cell (None = never)",
+    )
+    obstacle_min_points: int = Field(default=2, ge=1, description="points in the height band needed to block a cell")
+    min_component_area: float = Field(
+        default=2.0, ge=0.0, description="terrain patches smaller than this (m^2) get no place (reported as dropped)"
+    )
 
     @field_validator("obstacle_height")
     @classmethod
@@ -50,42 +87,110 @@ class TilesSection(Section):
     `terra build`'s working memory follows the tile, not the map. The result is the same as in one
     piece: each tile's overlap grows until that is proven (terra.graph.tiled_grid, tiled_gvd)."""
 
-    size: float | None = Field(400.0, gt=0.0, description="metres; side of a square tile (None = the whole grid in one piece)")
-    overlap: float = Field(50.0, gt=0.0, description="metres of overlap tried first around each tile; doubled where a tile's result is not yet proven equal to the one-piece result")
+    size: float | None = Field(
+        default=400.0, gt=0.0, description="metres; side of a square tile (None = the whole grid in one piece)"
+    )
+    overlap: float = Field(
+        default=50.0,
+        gt=0.0,
+        description="metres of overlap tried first around each tile; doubled where a tile's result is not yet proven equal to the one-piece result",
+    )
 
 
 class GvdSection(Section):
     """Per-terrain generalized Voronoi diagram and place extraction on it."""
 
-    min_clearance: float = Field(0.4, ge=0.0, description="GVD cells need at least this distance (m) to the terrain's boundary")
-    min_gap: float = Field(0.6, ge=0.0, description="metres; two nearest obstacle points of one obstacle component count as different walls only with this much clearance at their midpoint (rejects steps of one digitised wall)")
-    prune_ratio: float = Field(1.5, ge=0.0, description="dead-end branches shorter than prune_ratio * junction clearance + prune_length are removed (corner spurs)")
-    prune_length: float = Field(1.0, ge=0.0, description="metres, see prune_ratio")
-    junction_merge: float = Field(1.0, ge=0.0, description="junctions joined by a GVD path shorter than this times their clearance become one node")
-    max_deviation: float = Field(3.75, gt=0.0, description="metres; a GVD path is split where it strays further than this from its chord")
-    max_distance: float = Field(10.0, gt=0.0, description="metres; paths with a longer chord are split near their middle")
-    cover_radius: float | None = Field(5.0, gt=0.0, description="metres; a pruned GVD branch reaching farther than this from the kept GVD (into a pocket: a service pad, a plaza) is restored so the pocket gets a place (None = never)")
+    min_clearance: float = Field(
+        default=0.4, ge=0.0, description="GVD cells need at least this distance (m) to the terrain's boundary"
+    )
+    min_gap: float = Field(
+        default=0.6,
+        ge=0.0,
+        description="metres; two nearest obstacle points of one obstacle component count as different walls only with this much clearance at their midpoint (rejects steps of one digitised wall)",
+    )
+    prune_ratio: float = Field(
+        default=1.5,
+        ge=0.0,
+        description="dead-end branches shorter than prune_ratio * junction clearance + prune_length are removed (corner spurs)",
+    )
+    prune_length: float = Field(default=1.0, ge=0.0, description="metres, see prune_ratio")
+    junction_merge: float = Field(
+        default=1.0,
+        ge=0.0,
+        description="junctions joined by a GVD path shorter than this times their clearance become one node",
+    )
+    max_deviation: float = Field(
+        default=3.75, gt=0.0, description="metres; a GVD path is split where it strays further than this from its chord"
+    )
+    max_distance: float = Field(
+        default=10.0, gt=0.0, description="metres; paths with a longer chord are split near their middle"
+    )
+    cover_radius: float | None = Field(
+        default=5.0,
+        gt=0.0,
+        description="metres; a pruned GVD branch reaching farther than this from the kept GVD (into a pocket: a service pad, a plaza) is restored so the pocket gets a place (None = never)",
+    )
 
 
 class LinkingSection(Section):
     """Cross-terrain links and bridges that make the places graph connected."""
 
-    max_link_distance: float = Field(20.0, gt=0.0, description="metres; a dead end links to the nearest place of another terrain within this range")
-    link_candidates: int = Field(8, ge=1, description="nearest other-terrain places tried per dead end (the first with a clear line wins)")
-    require_clear_line: bool = Field(True, description="links may only cross mapped terrain cells, never blocked or unmapped ones")
-    bridge_penalty: float = Field(100.0, ge=1.0, description="bridges between otherwise disconnected components cost their length times this")
-    strip_link_distance: float | None = Field(12.0, gt=0.0, description="metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within this range, across a gap (None = never)")
-    strip_max_gap: float = Field(4.0, ge=0.0, description="metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the cameras missed or took for something else, not a road between two sidewalks)")
-    strip_max_blocked: float = Field(0.8, ge=0.0, description="metres; and at most this much of blocked cells (a post or a trunk standing on the strip)")
-    grid_link_distance: float | None = Field(12.0, gt=0.0, description="metres; places of one terrain in different pieces of its places graph this close (2D) are joined by a path on the terrain grid where one is allowed (terra.graph.grid_links; None = never)")
-    grid_link_max_gap: float = Field(4.0, ge=0.0, description="metres; such a path may cross at most this much of unlabelled free cells (never blocked cells or another terrain's)")
-    grid_link_max_length: float = Field(30.0, gt=0.0, description="metres; and be at most this long (the link costs the path's length)")
+    max_link_distance: float = Field(
+        default=20.0,
+        gt=0.0,
+        description="metres; a dead end links to the nearest place of another terrain within this range",
+    )
+    link_candidates: int = Field(
+        default=8,
+        ge=1,
+        description="nearest other-terrain places tried per dead end (the first with a clear line wins)",
+    )
+    require_clear_line: bool = Field(
+        default=True, description="links may only cross mapped terrain cells, never blocked or unmapped ones"
+    )
+    bridge_penalty: float = Field(
+        default=100.0,
+        ge=1.0,
+        description="bridges between otherwise disconnected components cost their length times this",
+    )
+    strip_link_distance: float | None = Field(
+        default=12.0,
+        gt=0.0,
+        description="metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within this range, across a gap (None = never)",
+    )
+    strip_max_gap: float = Field(
+        default=4.0,
+        ge=0.0,
+        description="metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the cameras missed or took for something else, not a road between two sidewalks)",
+    )
+    strip_max_blocked: float = Field(
+        default=0.8,
+        ge=0.0,
+        description="metres; and at most this much of blocked cells (a post or a trunk standing on the strip)",
+    )
+    grid_link_distance: float | None = Field(
+        default=12.0,
+        gt=0.0,
+        description="metres; places of one terrain in different pieces of its places graph this close (2D) are joined by a path on the terrain grid where one is allowed (terra.graph.grid_links; None = never)",
+    )
+    grid_link_max_gap: float = Field(
+        default=4.0,
+        ge=0.0,
+        description="metres; such a path may cross at most this much of unlabelled free cells (never blocked cells or another terrain's)",
+    )
+    grid_link_max_length: float = Field(
+        default=30.0, gt=0.0, description="metres; and be at most this long (the link costs the path's length)"
+    )
 
 
 class EmbeddingSection(Section):
     """Image embedding of each place (the paper's rule)."""
 
-    max_range: float = Field(20.0, gt=0.0, description="metres; images taken within this range whose camera saw the place are averaged")
+    max_range: float = Field(
+        default=20.0,
+        gt=0.0,
+        description="metres; images taken within this range whose camera saw the place are averaged",
+    )
 
 
 class SpectralSection(Section):
@@ -99,15 +204,39 @@ class SpectralSection(Section):
     split maps built with the embedder and at the size they were chosen for.
     """
 
-    thresholds: Literal["relative", "absolute"] = Field("relative", description="'relative' to the map's own semantic difference and area, or the paper's 'absolute' values")
-    semantic_fraction: float = Field(0.3, gt=0.0, le=1.0, description="relative: stop below this share of the whole map's semantic difference")
-    area_fraction: float = Field(0.01, gt=0.0, le=1.0, description="relative: stop below this share of the whole map's 2D bounding-box area")
-    max_semantic_diff: float = Field(0.45, ge=0.0, description="absolute: a cluster with a smaller semantic difference stops splitting (the paper's CLIP value)")
-    min_area: float = Field(10000.0, ge=0.0, description="absolute: m^2; a cluster whose 2D bounding box is smaller stops splitting")
-    stop_rule: Literal["either", "both"] = Field("either", description="'either' (the paper): stop when one test holds; 'both' (the reference code): only when both hold")
-    sigma: float | None = Field(None, gt=0.0, description="affinity exp(-w / sigma) on place edges; None = median edge weight")
-    min_places: int = Field(4, ge=2, description="clusters with fewer places are not split")
-    max_depth: int = Field(24, ge=1, description="safety cap on the recursion depth")
+    thresholds: Literal["relative", "absolute"] = Field(
+        default="relative",
+        description="'relative' to the map's own semantic difference and area, or the paper's 'absolute' values",
+    )
+    semantic_fraction: float = Field(
+        default=0.3,
+        gt=0.0,
+        le=1.0,
+        description="relative: stop below this share of the whole map's semantic difference",
+    )
+    area_fraction: float = Field(
+        default=0.01,
+        gt=0.0,
+        le=1.0,
+        description="relative: stop below this share of the whole map's 2D bounding-box area",
+    )
+    max_semantic_diff: float = Field(
+        default=0.45,
+        ge=0.0,
+        description="absolute: a cluster with a smaller semantic difference stops splitting (the paper's CLIP value)",
+    )
+    min_area: float = Field(
+        default=10000.0, ge=0.0, description="absolute: m^2; a cluster whose 2D bounding box is smaller stops splitting"
+    )
+    stop_rule: Literal["either", "both"] = Field(
+        default="either",
+        description="'either' (the paper): stop when one test holds; 'both' (the reference code): only when both hold",
+    )
+    sigma: float | None = Field(
+        default=None, gt=0.0, description="affinity exp(-w / sigma) on place edges; None = median edge weight"
+    )
+    min_places: int = Field(default=4, ge=2, description="clusters with fewer places are not split")
+    max_depth: int = Field(default=24, ge=1, description="safety cap on the recursion depth")
 
 
 class RegionsSection(Section):
@@ -122,15 +251,42 @@ class RegionsSection(Section):
     """
 
     method: Literal["agglomerative", "spectral"] = "agglomerative"
-    gamma: float = Field(100.0, ge=0.0, description="weight w = |p_i - p_j| (m) + gamma * (1 - cos(e_i, e_j))")
-    cuts: list[float] | None = Field(None, max_length=8, description="agglomerative cut heights, one region level each, increasing (the paper: 50, 100, 200, 400); None = adaptive levels")
-    gap_levels: int | None = Field(None, ge=1, le=8, description="instead of `cuts`: this many levels cut just below the largest merge-height gaps (the reference's integer agg_params; not the paper's default)")
-    levels: int = Field(4, ge=1, le=8, description="region levels of the adaptive agglomerative cuts and of spectral regions")
-    first_level_size: float = Field(12.0, gt=1.0, description="adaptive levels: about this many places per level-1 region")
-    top_regions: int = Field(3, ge=1, description="adaptive levels: regions of the top level (fewer on maps too small for them)")
-    snap: float = Field(1.25, ge=1.0, description="adaptive agglomerative cuts move within this factor of each level's count to a natural break of the merge heights (1 = exact counts)")
-    dense_max_places: int = Field(5000, ge=2, description="exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters")
-    micro_max_clusters: int = Field(5000, ge=2, description="micro-clusters (terrain x grid cell) used above dense_max_places, at most this many")
+    gamma: float = Field(default=100.0, ge=0.0, description="weight w = |p_i - p_j| (m) + gamma * (1 - cos(e_i, e_j))")
+    cuts: list[float] | None = Field(
+        default=None,
+        max_length=8,
+        description="agglomerative cut heights, one region level each, increasing (the paper: 50, 100, 200, 400); None = adaptive levels",
+    )
+    gap_levels: int | None = Field(
+        default=None,
+        ge=1,
+        le=8,
+        description="instead of `cuts`: this many levels cut just below the largest merge-height gaps (the reference's integer agg_params; not the paper's default)",
+    )
+    levels: int = Field(
+        default=4, ge=1, le=8, description="region levels of the adaptive agglomerative cuts and of spectral regions"
+    )
+    first_level_size: float = Field(
+        default=12.0, gt=1.0, description="adaptive levels: about this many places per level-1 region"
+    )
+    top_regions: int = Field(
+        default=3, ge=1, description="adaptive levels: regions of the top level (fewer on maps too small for them)"
+    )
+    snap: float = Field(
+        default=1.25,
+        ge=1.0,
+        description="adaptive agglomerative cuts move within this factor of each level's count to a natural break of the merge heights (1 = exact counts)",
+    )
+    dense_max_places: int = Field(
+        default=5000,
+        ge=2,
+        description="exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters",
+    )
+    micro_max_clusters: int = Field(
+        default=5000,
+        ge=2,
+        description="micro-clusters (terrain x grid cell) used above dense_max_places, at most this many",
+    )
     seed: int = 0
     spectral: SpectralSection = Field(default_factory=SpectralSection)
 
@@ -138,7 +294,9 @@ class RegionsSection(Section):
     @classmethod
     def _increasing(cls, v: list[float] | None) -> list[float] | None:
         if v is not None and (not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0):
-            raise ValueError("cuts must be a non-empty list of increasing positive numbers (or null for adaptive levels)")
+            raise ValueError(
+                "cuts must be a non-empty list of increasing positive numbers (or null for adaptive levels)"
+            )
         return v
 
 

@@ -12,7 +12,7 @@ summed per 2 m cell, so the cost is places x cells in range, not places x points
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,7 +27,9 @@ it, (P,) nearest image that saw it or -1) -- MetricSemanticMap.images_observing.
 POINT_CELL = 2.0  # metres; cell size of the point-embedding fallback
 
 
-def image_embeddings(positions: np.ndarray, observing: ObservingFn, images: np.ndarray, max_range: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+def image_embeddings(
+    positions: np.ndarray, observing: ObservingFn, images: np.ndarray, max_range: float = 20.0
+) -> tuple[np.ndarray, np.ndarray]:
     """((P, D) float32 unit embeddings, (P,) bool whether an image supplied it); rows of places no
     image saw are zero."""
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
@@ -37,8 +39,12 @@ def image_embeddings(positions: np.ndarray, observing: ObservingFn, images: np.n
         return np.zeros((P, D), np.float32), np.zeros(P, dtype=bool)
     in_range, nearest = observing(positions, max_range)
     counts = np.array([len(ix) for ix in in_range], dtype=np.int64)
-    cols = np.concatenate([np.asarray(ix, dtype=np.int64) for ix in in_range]) if counts.sum() else np.zeros(0, np.int64)
-    member = sp.csr_matrix((np.ones(len(cols), np.float32), (np.repeat(np.arange(P), counts), cols)), shape=(P, len(images)))
+    cols = (
+        np.concatenate([np.asarray(ix, dtype=np.int64) for ix in in_range]) if counts.sum() else np.zeros(0, np.int64)
+    )
+    member = sp.csr_matrix(
+        (np.ones(len(cols), np.float32), (np.repeat(np.arange(P), counts), cols)), shape=(P, len(images))
+    )
     out = np.asarray(member @ images, dtype=np.float32)
     fallback = (counts == 0) & (np.asarray(nearest) >= 0)
     out[fallback] = images[np.asarray(nearest)[fallback]]
@@ -59,7 +65,12 @@ def unique_cells(cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def point_embeddings(
-    positions: np.ndarray, points: np.ndarray, counts: sp.csr_matrix, bank: np.ndarray, norms: np.ndarray, max_range: float = 20.0
+    positions: np.ndarray,
+    points: np.ndarray,
+    counts: sp.csr_matrix,
+    bank: np.ndarray,
+    norms: np.ndarray,
+    max_range: float = 20.0,
 ) -> np.ndarray:
     """(P, D) float32: normalised mean MS-Avg feature of the observed points (N, 3) within
     `max_range` metres (2D) of each place; zero rows where none is in range. counts: (N, K) sparse

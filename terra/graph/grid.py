@@ -53,7 +53,9 @@ class TerrainGrid:
         cells = np.asarray(cells).reshape(-1, 2)
         return self.ground[cells[:, 0], cells[:, 1]].astype(np.float64)
 
-    def terrain_mask(self, terrain: int, close_iterations: int = 1, open_iterations: int = 1, min_cells: int = 0) -> tuple[np.ndarray, int]:
+    def terrain_mask(
+        self, terrain: int, close_iterations: int = 1, open_iterations: int = 1, min_cells: int = 0
+    ) -> tuple[np.ndarray, int]:
         """Free cells of one terrain class, cleaned morphologically, and how many patches were dropped.
 
         A closing fills holes left by sparse points, but only with cells that no other terrain
@@ -95,7 +97,7 @@ class GridFrame:
     cell_size: float
     offset: tuple[int, int] = (0, 0)
 
-    def window(self, rows: slice, cols: slice) -> "GridFrame":
+    def window(self, rows: slice, cols: slice) -> GridFrame:
         """The frame of cells [rows, cols] of this one (slices with explicit, in-range bounds)."""
         offset = (self.offset[0] + rows.start, self.offset[1] + cols.start)
         return GridFrame(self.origin, (rows.stop - rows.start, cols.stop - cols.start), self.cell_size, offset)
@@ -114,12 +116,13 @@ def grid_frame(points: np.ndarray, terrain: np.ndarray, cell_size: float = 0.4, 
     high = [float(np.max(points[:, k], where=is_terrain, initial=-np.inf)) for k in (0, 1)]
     lo = np.floor(np.array(low) / cell_size) * cell_size - margin_cells * cell_size
     hi = np.array(high)
-    W, H = (np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells)
+    W, H = np.floor((hi - lo) / cell_size).astype(np.int64) + 1 + margin_cells
     return GridFrame((float(lo[0]), float(lo[1])), (int(H), int(W)), float(cell_size))
 
 
-def hysteresis_steps(cell_size: float, support_radius: float, min_support: float, weak_support: float | None,
-                     weak_reach: float | None) -> int | None:
+def hysteresis_steps(
+    cell_size: float, support_radius: float, min_support: float, weak_support: float | None, weak_reach: float | None
+) -> int | None:
     """Cells: the longest chain `build_terrain_grid`'s hysteresis extends a class along (0 = the
     step is off; None = unbounded, `weak_reach` None: a label can then depend on cells at any
     distance)."""
@@ -188,8 +191,14 @@ def build_terrain_grid(
     cell_size = frame.cell_size
     tp, tt = points[is_terrain], terrain[is_terrain].astype(np.int64)
     H, W = frame.shape
-    grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool),
-                       np.asarray(frame.origin, dtype=np.float64), float(frame.cell_size), frame.offset)
+    grid = TerrainGrid(
+        np.full((H, W), -1, np.int16),
+        np.zeros((H, W), np.float32),
+        np.zeros((H, W), bool),
+        np.asarray(frame.origin, dtype=np.float64),
+        float(frame.cell_size),
+        frame.offset,
+    )
     rows, cols, _ = grid.cell_of(tp)
     flat = rows * W + cols
 
@@ -225,7 +234,10 @@ def build_terrain_grid(
     window = 2 * int(round(support_radius / cell_size)) + 1
     # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
     # distant scan rings are not, and are never filled).
-    dense = ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant") >= min_support - 1e-6
+    dense = (
+        ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant")
+        >= min_support - 1e-6
+    )
     raw = grid.label.copy()
     if support_radius > 0:
         grid.label[:] = _window_majority(raw, n_classes, window, min_support)

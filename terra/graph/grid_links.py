@@ -70,8 +70,9 @@ def terrain_pieces(terrain: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def candidate_pairs(position: np.ndarray, terrain: np.ndarray, piece: np.ndarray, reach: float,
-                    candidates: int) -> np.ndarray:
+def candidate_pairs(
+    position: np.ndarray, terrain: np.ndarray, piece: np.ndarray, reach: float, candidates: int
+) -> np.ndarray:
     """(m, 2) place pairs (i < j) of one terrain in different pieces, at most `reach` metres apart
     (2D; each place with its `candidates` nearest of its terrain), one per pair of pieces (the
     nearest; ties: lowest indices), ordered by distance then indices."""
@@ -98,8 +99,14 @@ def candidate_pairs(position: np.ndarray, terrain: np.ndarray, piece: np.ndarray
     return pairs[np.sort(first)].astype(np.int64)
 
 
-def link_pieces_on_grid(position: np.ndarray, terrain: np.ndarray, edges: np.ndarray, rules: GridPathRules,
-                        reach: float, candidates: int = 8) -> tuple[np.ndarray, np.ndarray]:
+def link_pieces_on_grid(
+    position: np.ndarray,
+    terrain: np.ndarray,
+    edges: np.ndarray,
+    rules: GridPathRules,
+    reach: float,
+    candidates: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
     """Grid links (k, 2) (i < j, unique) between pieces of each terrain's places graph and their
     costs (k,) in metres: the grid path's length with the height difference of its places."""
     position = np.asarray(position, dtype=np.float64)
@@ -130,8 +137,9 @@ def link_pieces_on_grid(position: np.ndarray, terrain: np.ndarray, edges: np.nda
     return np.asarray(found, dtype=np.int64), np.asarray(cost)
 
 
-def _grid_path(position: np.ndarray, terrain: np.ndarray, piece: np.ndarray, a: int, b: int,
-               rules: GridPathRules) -> tuple[int, int, float] | None:
+def _grid_path(
+    position: np.ndarray, terrain: np.ndarray, piece: np.ndarray, a: int, b: int, rules: GridPathRules
+) -> tuple[int, int, float] | None:
     """The cheapest allowed grid path from a place of a's piece to one of b's piece, in the window
     around a and b: (its first place, its last place, its length in metres), or None."""
     s = rules.cell_size
@@ -171,8 +179,17 @@ def _grid_path(position: np.ndarray, terrain: np.ndarray, piece: np.ndarray, a: 
     return int(first), int(dst_place[best]), float(length)
 
 
-def _places_in_window(position: np.ndarray, terrain: np.ndarray, piece: np.ndarray, pieces: tuple[int, int], t: int,
-                      origin: np.ndarray, s: float, corner: tuple[int, int], shape: tuple[int, int]):
+def _places_in_window(
+    position: np.ndarray,
+    terrain: np.ndarray,
+    piece: np.ndarray,
+    pieces: tuple[int, int],
+    t: int,
+    origin: np.ndarray,
+    s: float,
+    corner: tuple[int, int],
+    shape: tuple[int, int],
+):
     """((places, flat cells) of the first piece, (places, flat cells) of the second) inside the
     window (cells from `corner` (row, col), `shape`), places by increasing index; None when a
     piece has none there."""
@@ -204,7 +221,7 @@ def _cell_graph(free: np.ndarray, off: np.ndarray, s: float) -> tuple[sp.csr_mat
         dst = (slice(r_lo + dr, r_hi + dr), slice(c_lo + dc, c_hi + dc))
         ok = free[src] & free[dst]
         if dr and dc:  # a diagonal step needs both cells beside it free
-            ok &= free[r_lo + dr:r_hi + dr, c_lo:c_hi] & free[r_lo:r_hi, c_lo + dc:c_hi + dc]
+            ok &= free[r_lo + dr : r_hi + dr, c_lo:c_hi] & free[r_lo:r_hi, c_lo + dc : c_hi + dc]
         step = s * np.hypot(dr, dc)
         rows.append(index[src][ok])
         cols.append(index[dst][ok])
@@ -214,7 +231,8 @@ def _cell_graph(free: np.ndarray, off: np.ndarray, s: float) -> tuple[sp.csr_mat
     length, off_len = np.concatenate(lengths), np.concatenate(offs)
 
     def symmetric(values: np.ndarray) -> sp.csr_matrix:
-        return sp.csr_matrix((np.concatenate([values, values]), (np.concatenate([r, c]), np.concatenate([c, r]))),
-                             shape=(h * w, h * w))
+        return sp.csr_matrix(
+            (np.concatenate([values, values]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(h * w, h * w)
+        )
 
     return symmetric(length + OFF_TERRAIN_WEIGHT * off_len), symmetric(length), symmetric(off_len)

@@ -37,8 +37,9 @@ class Brushfire:
     component: np.ndarray
 
 
-def brushfire(free: np.ndarray, closed: tuple[bool, bool, bool, bool] = (True, True, True, True),
-              labels: np.ndarray | None = None) -> Brushfire:
+def brushfire(
+    free: np.ndarray, closed: tuple[bool, bool, bool, bool] = (True, True, True, True), labels: np.ndarray | None = None
+) -> Brushfire:
     """Distance field, nearest obstacle and its component for every cell of a free-space mask.
 
     Each cell's parent is the nearest obstacle cell, ties to the lowest (column, row): that is
@@ -61,7 +62,12 @@ def brushfire(free: np.ndarray, closed: tuple[bool, bool, bool, bool] = (True, T
     padded[:, -1] = right
     if not all(closed):
         # A corner cell beyond a closed side is outside the whole mask: frame; beyond two open sides, unknown.
-        padded[0, 0], padded[0, -1], padded[-1, 0], padded[-1, -1] = top and left, top and right, bottom and left, bottom and right
+        padded[0, 0], padded[0, -1], padded[-1, 0], padded[-1, -1] = (
+            top and left,
+            top and right,
+            bottom and left,
+            bottom and right,
+        )
     distance, parent = ndimage.distance_transform_edt(padded, return_indices=True)
     if labels is None:
         labels, _ = ndimage.label(~padded, structure=EIGHT)

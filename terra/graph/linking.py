@@ -25,7 +25,7 @@ Positions are (P, 3) metres in the map frame; costs are metres.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -48,12 +48,16 @@ def _segment_chunks(a: np.ndarray, b: np.ndarray, cell_size: float):
     """Slices of the segments a[i] -> b[i] whose half-cell samples number about _SAMPLES_PER_CHUNK."""
     a, b = np.asarray(a, dtype=np.float64)[:, :2], np.asarray(b, dtype=np.float64)[:, :2]
     steps = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / (0.5 * cell_size)).astype(np.int64), 1) + 1
-    bounds = np.searchsorted(np.cumsum(steps), np.arange(1, int(steps.sum() // _SAMPLES_PER_CHUNK) + 1) * _SAMPLES_PER_CHUNK)
+    bounds = np.searchsorted(
+        np.cumsum(steps), np.arange(1, int(steps.sum() // _SAMPLES_PER_CHUNK) + 1) * _SAMPLES_PER_CHUNK
+    )
     edges = np.unique(np.concatenate([[0], bounds, [len(a)]]))
     return [slice(int(lo), int(hi)) for lo, hi in zip(edges[:-1], edges[1:])]
 
 
-def _segment_samples(a: np.ndarray, b: np.ndarray, cell_size: float, stride: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _segment_samples(
+    a: np.ndarray, b: np.ndarray, cell_size: float, stride: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points every half cell along each segment a[i] -> b[i] (both ends included): (xy (m, 2),
     owner (m,) segment index, step (m,) metres each sample stands for). With `stride` s > 1 only
     every s-th of those same points (from the first): a subset for a quick rejection."""
@@ -93,8 +97,14 @@ def grid_line_passable(blocked: np.ndarray, origin: np.ndarray, cell_size: float
     return clear
 
 
-def _length_on(cells: np.ndarray | None, a: np.ndarray, b: np.ndarray, origin: np.ndarray, cell_size: float,
-               shape: tuple[int, int] | None = None) -> np.ndarray:
+def _length_on(
+    cells: np.ndarray | None,
+    a: np.ndarray,
+    b: np.ndarray,
+    origin: np.ndarray,
+    cell_size: float,
+    shape: tuple[int, int] | None = None,
+) -> np.ndarray:
     """(n,) metres of each segment a[i] -> b[i] on True cells of `cells` (H, W), or, with
     cells None, outside a grid of `shape`."""
     out = np.zeros(len(a))
@@ -171,7 +181,9 @@ def link_dead_ends(
         k = min(candidates, others.size)
         dist, idx = cKDTree(position[others, :2]).query(position[ends, :2], k=k, distance_upper_bound=max_distance)
         dist, idx = dist.reshape(len(ends), k), idx.reshape(len(ends), k)
-        first = first_passing(np.isfinite(dist), lambda rows, c: clear(position[ends[rows], :2], position[others[idx[rows, c]], :2]))
+        first = first_passing(
+            np.isfinite(dist), lambda rows, c: clear(position[ends[rows], :2], position[others[idx[rows, c]], :2])
+        )
         has = first >= 0
         a = ends[has]
         b = others[idx[has, first[has]]]
@@ -227,8 +239,14 @@ def link_strip_gaps(
         valid = np.isfinite(dist)
         valid[valid] &= piece[mine[idx[valid]]] != np.repeat(piece[ends], k).reshape(len(ends), k)[valid]
 
-        def passes(rows: np.ndarray, c: int, t: int = int(t), mine: np.ndarray = mine, ends: np.ndarray = ends,
-                   idx: np.ndarray = idx) -> np.ndarray:
+        def passes(
+            rows: np.ndarray,
+            c: int,
+            t: int = int(t),
+            mine: np.ndarray = mine,
+            ends: np.ndarray = ends,
+            idx: np.ndarray = idx,
+        ) -> np.ndarray:
             a, b = position[ends[rows], :2], position[mine[idx[rows, c]], :2]
             good = clear(a, b)
             if gap is not None:
@@ -269,8 +287,9 @@ def bridge_components(
             break
         a, b = other_component_neighbours(tree, position[:, :2], comp, candidates)
         length = np.linalg.norm(position[a] - position[b], axis=1)
-        win, cost, ok = cheapest_per_group(comp[a], a, b, length, penalty,
-                                           lambda i: clear(position[a[i], :2], position[b[i], :2]))
+        win, cost, ok = cheapest_per_group(
+            comp[a], a, b, length, penalty, lambda i: clear(position[a[i], :2], position[b[i], :2])
+        )
         pairs = np.sort(np.column_stack([a[win], b[win]]), axis=1).astype(np.int64)
         pairs, first = np.unique(pairs, axis=0, return_index=True)
         out_pairs.append(pairs)
@@ -287,7 +306,9 @@ _SMALL_COMPONENT = 256
 larger ones (few: at most P / 256) query a tree of the places outside them."""
 
 
-def other_component_neighbours(tree: cKDTree, xy: np.ndarray, comp: np.ndarray, candidates: int) -> tuple[np.ndarray, np.ndarray]:
+def other_component_neighbours(
+    tree: cKDTree, xy: np.ndarray, comp: np.ndarray, candidates: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Candidate pairs (a, b) (m,) each: every place a with its min(candidates, places outside
     its component) nearest places b (2D) in other components, nearest first."""
     P = len(xy)
@@ -315,8 +336,14 @@ def other_component_neighbours(tree: cKDTree, xy: np.ndarray, comp: np.ndarray, 
     return np.concatenate(out_a).astype(np.int64), np.concatenate(out_b).astype(np.int64)
 
 
-def cheapest_per_group(group: np.ndarray, a: np.ndarray, b: np.ndarray, length: np.ndarray, penalty: float,
-                       clear: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cheapest_per_group(
+    group: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    length: np.ndarray,
+    penalty: float,
+    clear: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per group (0..G-1, every group present): the candidate of least (cost, a, b), where cost is
     `length`, or `length * penalty` (>= length) when `clear(indices) -> bool` fails.
 

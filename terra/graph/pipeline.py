@@ -19,7 +19,14 @@ from terra.graph.config import BuildConfig
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
-from terra.graph.linking import bridge_components, grid_gap_length, grid_line_clear, grid_line_passable, link_dead_ends, link_strip_gaps
+from terra.graph.linking import (
+    bridge_components,
+    grid_gap_length,
+    grid_line_clear,
+    grid_line_passable,
+    link_dead_ends,
+    link_strip_gaps,
+)
 from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
@@ -52,7 +59,9 @@ class TerrainPlaceSet:
     weight: np.ndarray
 
 
-def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, show_progress: bool = False) -> tuple[TerrainPlaceSet, np.ndarray, dict[str, Any]]:
+def terrain_places(
+    grid: TerrainGrid, terrains: list[int], config: BuildConfig, show_progress: bool = False
+) -> tuple[TerrainPlaceSet, np.ndarray, dict[str, Any]]:
     """Places and GVD edges of every terrain in `terrains`, the union of the cleaned terrain masks
     (traversable cells), and per-terrain counters."""
     g, s = config.gvd, grid.cell_size
@@ -101,8 +110,11 @@ def terrain_places(grid: TerrainGrid, terrains: list[int], config: BuildConfig, 
         weight=np.concatenate(weights) if weights else np.zeros(0),
     )
     if tile_stats.windows:
-        stats["gvd_tiles"] = {"windows": tile_stats.windows, "max_overlap_m": round(tile_stats.max_margin * s, 3),
-                              "thinning_rounds": tile_stats.rounds}
+        stats["gvd_tiles"] = {
+            "windows": tile_stats.windows,
+            "max_overlap_m": round(tile_stats.max_margin * s, 3),
+            "thinning_rounds": tile_stats.rounds,
+        }
     return place_set, traversable, stats
 
 
@@ -112,30 +124,48 @@ def _tile_cells(config: BuildConfig, shape: tuple[int, int]) -> int | None:
     return None if tile is None or tile >= max(shape) else tile
 
 
-def terrain_grid(points: np.ndarray, point_terrain: np.ndarray, config: BuildConfig,
-                 stats: TiledGridStats | None = None) -> TerrainGrid:
+def terrain_grid(
+    points: np.ndarray, point_terrain: np.ndarray, config: BuildConfig, stats: TiledGridStats | None = None
+) -> TerrainGrid:
     """The terrain grid of the map's points (build_terrain_grid), tile by tile when
     `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid, which
     falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null)."""
     gc = config.grid
-    args = (points, point_terrain, gc.cell_size, gc.obstacle_height, gc.obstacle_min_points, gc.support_radius,
-            gc.min_support)
+    args = (
+        points,
+        point_terrain,
+        gc.cell_size,
+        gc.obstacle_height,
+        gc.obstacle_min_points,
+        gc.support_radius,
+        gc.min_support,
+    )
     kwargs = {"fill_radius": gc.fill_radius, "weak_support": gc.weak_support, "weak_reach": gc.weak_reach}
     tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
     if tile is None:
         return build_terrain_grid(*args, **kwargs)
     margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
-    return build_terrain_grid_tiled(*args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats)
+    return build_terrain_grid_tiled(
+        *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats
+    )
 
 
-def _tiled_gvd(mask: np.ndarray, config: BuildConfig, cell_size: float, stats: TiledGvdStats) -> tuple[np.ndarray, np.ndarray] | None:
+def _tiled_gvd(
+    mask: np.ndarray, config: BuildConfig, cell_size: float, stats: TiledGvdStats
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The GVD of one terrain mask tile by tile (terra.graph.tiled_gvd), or None to let
     extract_places compute it in one piece."""
     tile = _tile_cells(config, mask.shape)
     if tile is None:
         return None
-    return tiled_gvd(mask, config.gvd.min_clearance / cell_size, config.gvd.min_gap / cell_size, tile=tile,
-                     margin=int(np.ceil(config.tiles.overlap / cell_size)), stats=stats)
+    return tiled_gvd(
+        mask,
+        config.gvd.min_clearance / cell_size,
+        config.gvd.min_gap / cell_size,
+        tile=tile,
+        margin=int(np.ceil(config.tiles.overlap / cell_size)),
+        stats=stats,
+    )
 
 
 def strip_links(ps: TerrainPlaceSet, grid: TerrainGrid, config: BuildConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -147,21 +177,35 @@ def strip_links(ps: TerrainPlaceSet, grid: TerrainGrid, config: BuildConfig) -> 
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     clear = grid_line_passable(grid.blocked, grid.origin, grid.cell_size, lk.strip_max_blocked)
     gap = grid_gap_length(grid.label, grid.origin, grid.cell_size)
-    return link_strip_gaps(ps.position, ps.terrain, ps.edges, lk.strip_link_distance, lk.link_candidates, clear=clear,
-                           gap=gap, max_gap=lk.strip_max_gap)
+    return link_strip_gaps(
+        ps.position,
+        ps.terrain,
+        ps.edges,
+        lk.strip_link_distance,
+        lk.link_candidates,
+        clear=clear,
+        gap=gap,
+        max_gap=lk.strip_max_gap,
+    )
 
 
-def grid_links(ps: TerrainPlaceSet, edges: np.ndarray, grid: TerrainGrid, config: BuildConfig) -> tuple[np.ndarray, np.ndarray]:
+def grid_links(
+    ps: TerrainPlaceSet, edges: np.ndarray, grid: TerrainGrid, config: BuildConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """Same-terrain links along grid paths between pieces that `edges` (GVD and strip links) leave
     apart (terra.graph.grid_links), and their costs in metres."""
     lk = config.linking
     if lk.grid_link_distance is None:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-    rules = GridPathRules(grid.label, grid.blocked, grid.origin, grid.cell_size, lk.grid_link_max_gap, lk.grid_link_max_length)
+    rules = GridPathRules(
+        grid.label, grid.blocked, grid.origin, grid.cell_size, lk.grid_link_max_gap, lk.grid_link_max_length
+    )
     return link_pieces_on_grid(ps.position, ps.terrain, edges, rules, lk.grid_link_distance, lk.link_candidates)
 
 
-def place_embeddings(msm: MetricSemanticMap, position: np.ndarray, terrain: np.ndarray, max_range: float) -> tuple[np.ndarray, dict[str, int]]:
+def place_embeddings(
+    msm: MetricSemanticMap, position: np.ndarray, terrain: np.ndarray, max_range: float
+) -> tuple[np.ndarray, dict[str, int]]:
     """(P, D) unit image embeddings by the paper's rule, falling back to point embeddings and, for
     places with nothing in range, the terrain's text embedding; counts per source."""
     P, D = len(position), msm.dim
@@ -185,40 +229,74 @@ def embedding_rule(msm: MetricSemanticMap, max_range: float) -> str:
     return f"images: mean whole-image embedding of the images within {max_range:g} m that saw the place (else the nearest that saw it; else points within {max_range:g} m)"
 
 
-def region_assignments(position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig) -> list[np.ndarray]:
+def region_assignments(
+    position: np.ndarray, embedding: np.ndarray, terrain: np.ndarray, edges: np.ndarray, config: BuildConfig
+) -> list[np.ndarray]:
     """Per region level (1 = finest), (P,) region label of every place, by the configured method."""
     r = config.regions
     if r.method == "agglomerative":
         adaptive = AdaptiveCuts(r.levels, r.first_level_size, r.top_regions, r.snap)
         cuts = tuple(r.cuts) if r.cuts is not None else None
-        return agglomerative_assignments(position, embedding, terrain, r.gamma, cuts, r.dense_max_places, r.micro_max_clusters,
-                                         r.gap_levels, adaptive)
+        return agglomerative_assignments(
+            position,
+            embedding,
+            terrain,
+            r.gamma,
+            cuts,
+            r.dense_max_places,
+            r.micro_max_clusters,
+            r.gap_levels,
+            adaptive,
+        )
     sc = r.spectral
     relative = sc.thresholds == "relative"
-    stop = SpectralStop(sc.semantic_fraction if relative else sc.max_semantic_diff, sc.area_fraction if relative else sc.min_area,
-                        sc.stop_rule, relative)
-    return spectral_assignments(position, embedding, edges, gamma=r.gamma, levels=r.levels, stop=stop, sigma=sc.sigma,
-                                min_places=sc.min_places, max_depth=sc.max_depth, seed=r.seed, top=r.top_regions)
+    stop = SpectralStop(
+        sc.semantic_fraction if relative else sc.max_semantic_diff,
+        sc.area_fraction if relative else sc.min_area,
+        sc.stop_rule,
+        relative,
+    )
+    return spectral_assignments(
+        position,
+        embedding,
+        edges,
+        gamma=r.gamma,
+        levels=r.levels,
+        stop=stop,
+        sigma=sc.sigma,
+        min_places=sc.min_places,
+        max_depth=sc.max_depth,
+        seed=r.seed,
+        top=r.top_regions,
+    )
 
 
-def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None, show_progress: bool = False) -> GraphBuild:
+def build_scene_graph(
+    msm: MetricSemanticMap, config: BuildConfig | None = None, show_progress: bool = False
+) -> GraphBuild:
     """The scene graph of a map. TerraError when the map gives nothing to build on."""
     config = config or BuildConfig()
     timer = StageTimer()
     names = list(msm.terrain_classes)
     if not names:
-        raise TerraError("the map lists no terrain classes (manifest 'terrain_classes' is empty); rebuild it with `terra map`")
+        raise TerraError(
+            "the map lists no terrain classes (manifest 'terrain_classes' is empty); rebuild it with `terra map`"
+        )
     terrains = list(range(len(names)))
     if config.terrain.include is not None:
         unknown = [n for n in config.terrain.include if n not in names]
         if unknown:
-            raise TerraError(f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})")
+            raise TerraError(
+                f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})"
+            )
         terrains = [names.index(n) for n in config.terrain.include]
     with timer.stage("terrain grid"):
         point_terrain = msm.terrain_index(config.terrain.min_share, dtype=np.int16)  # 2 bytes a point
         point_terrain[~np.isin(point_terrain, terrains)] = -1
         if not (point_terrain >= 0).any():
-            raise TerraError(f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}")
+            raise TerraError(
+                f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}"
+            )
         grid_stats = TiledGridStats()
         grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
         del point_terrain  # 2 bytes a point no later stage reads
@@ -233,11 +311,20 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         gvd_edges, gvd_weight = np.vstack([ps.edges, strips]), np.concatenate([ps.weight, strip_len])
         paths, path_len = grid_links(ps, gvd_edges, grid, config)
         gvd_edges, gvd_weight = np.vstack([gvd_edges, paths]), np.concatenate([gvd_weight, path_len])
-        links, link_len = link_dead_ends(ps.position, ps.terrain, gvd_edges, config.linking.max_link_distance, config.linking.link_candidates, **kwargs)
+        links, link_len = link_dead_ends(
+            ps.position,
+            ps.terrain,
+            gvd_edges,
+            config.linking.max_link_distance,
+            config.linking.link_candidates,
+            **kwargs,
+        )
         edges = np.vstack([gvd_edges, links])
         weight = np.concatenate([gvd_weight, link_len])
         kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
-        bridges, bridge_cost, bridge_clear = bridge_components(ps.position, edges, config.linking.bridge_penalty, config.linking.link_candidates, **kwargs)
+        bridges, bridge_cost, bridge_clear = bridge_components(
+            ps.position, edges, config.linking.bridge_penalty, config.linking.link_candidates, **kwargs
+        )
         edges = np.vstack([edges, bridges])
         weight = np.concatenate([weight, bridge_cost])
         kind = np.concatenate([kind, np.full(len(bridges), EDGE_BRIDGE)])
@@ -250,7 +337,12 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
     graph = SceneGraph(
         terrain_classes=names,
         terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),
-        places=Places(ps.position.astype(np.float64), ps.terrain.astype(np.int64), ps.clearance.astype(np.float64), embedding.astype(np.float32)),
+        places=Places(
+            ps.position.astype(np.float64),
+            ps.terrain.astype(np.int64),
+            ps.clearance.astype(np.float64),
+            embedding.astype(np.float32),
+        ),
         place_edges=edges,
         place_edge_weight=weight,
         place_edge_kind=kind,
@@ -259,22 +351,33 @@ def build_scene_graph(msm: MetricSemanticMap, config: BuildConfig | None = None,
         region_method=config.regions.method,
     )
     if grid_stats.windows or grid_stats.one_piece:
-        stats["grid_tiles"] = {"windows": grid_stats.windows, "max_overlap_m": round(grid_stats.max_margin * config.grid.cell_size, 3),
-                               "one_piece": grid_stats.one_piece}
-    stats.update({
-        "places_per_terrain": {names[t]: n for t, n in stats["places_per_terrain"].items()},
-        "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],
-        "blocked_cells": int(grid.blocked.sum()),
-        "edges": {"gvd": int((kind == EDGE_GVD).sum()), "cross_terrain": int((kind == EDGE_CROSS_TERRAIN).sum()), "bridge": int((kind == EDGE_BRIDGE).sum())},
-        "grid_links": len(paths),
-        "bridges_not_clear": int((~bridge_clear).sum()),
-        "embedding_source": sources,
-        "embedding_rule": embedding_rule(msm, config.embedding.max_range),
-    })
+        stats["grid_tiles"] = {
+            "windows": grid_stats.windows,
+            "max_overlap_m": round(grid_stats.max_margin * config.grid.cell_size, 3),
+            "one_piece": grid_stats.one_piece,
+        }
+    stats.update(
+        {
+            "places_per_terrain": {names[t]: n for t, n in stats["places_per_terrain"].items()},
+            "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],
+            "blocked_cells": int(grid.blocked.sum()),
+            "edges": {
+                "gvd": int((kind == EDGE_GVD).sum()),
+                "cross_terrain": int((kind == EDGE_CROSS_TERRAIN).sum()),
+                "bridge": int((kind == EDGE_BRIDGE).sum()),
+            },
+            "grid_links": len(paths),
+            "bridges_not_clear": int((~bridge_clear).sum()),
+            "embedding_source": sources,
+            "embedding_rule": embedding_rule(msm, config.embedding.max_range),
+        }
+    )
     return GraphBuild(graph, stats, timer)
 
 
-def _unique_typed_edges(edges: np.ndarray, weight: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _unique_typed_edges(
+    edges: np.ndarray, weight: np.ndarray, kind: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unique (i < j) edges keeping the cheapest (lowest kind on ties), ordered by (i, j)."""
     rows = unique_edge_rows(edges, weight, kind)
     return np.sort(edges, axis=1)[rows].astype(np.int64), weight[rows].astype(np.float64), kind[rows].astype(np.int64)
@@ -284,15 +387,21 @@ def _check_bundle(bundle: Bundle) -> None:
     if "map" not in bundle.manifest.get("components", {}) or not bundle.has("map/points"):
         raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
     if not bundle.manifest.get("terrain_classes"):
-        raise TerraError(f"{bundle.path}/manifest.json: field 'terrain_classes' is missing or empty; the map has no terrain classes to build places on")
+        raise TerraError(
+            f"{bundle.path}/manifest.json: field 'terrain_classes' is missing or empty; the map has no terrain classes to build places on"
+        )
 
 
-def build_graph(bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, progress: bool = True) -> SceneGraph:
+def build_graph(
+    bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, progress: bool = True
+) -> SceneGraph:
     """Build the scene graph of the map in `bundle_path` and add it to the bundle (atomically)."""
     return run_build(bundle_path, config, regions, progress).graph
 
 
-def run_build(bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, show_progress: bool = True) -> GraphBuild:
+def run_build(
+    bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, show_progress: bool = True
+) -> GraphBuild:
     """`build_graph` with its counters and timings (used by `terra build` for the summary)."""
     from terra.graph.storage import write_scene_graph
     from terra.mapping.storage import load_map

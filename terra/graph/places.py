@@ -31,8 +31,14 @@ from scipy.spatial import cKDTree
 
 from terra.graph.cell_index import CellIndex
 from terra.graph.gvd import EIGHT, gvd, label_components
-from terra.graph.skeleton import (SkeletonGraph, cell_adjacency, prune_spurs, simplify, skeleton_adjacency,
-                                  skeleton_graph)
+from terra.graph.skeleton import (
+    SkeletonGraph,
+    cell_adjacency,
+    prune_spurs,
+    simplify,
+    skeleton_adjacency,
+    skeleton_graph,
+)
 
 
 @dataclass
@@ -77,7 +83,9 @@ def split_path(path: np.ndarray, max_deviation: float, max_distance: float) -> l
     return sorted(splits)
 
 
-def split_graph(g: SkeletonGraph, max_deviation: float, max_distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def split_graph(
+    g: SkeletonGraph, max_deviation: float, max_distance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(cells (n, 2), edges (e, 2), lengths (e,)) after splitting every path; the first nodes are
     g's own. Loops shorter than the split thresholds vanish; parallel edges keep the shortest."""
     cells = [g.node_cell]
@@ -96,7 +104,9 @@ def split_graph(g: SkeletonGraph, max_deviation: float, max_distance: float) -> 
             edges.append((ids[k], ids[k + 1]))
             lengths.append(arc[at[k + 1]] - arc[at[k]])
     cells_arr = np.vstack(cells).astype(np.int64)
-    return cells_arr, *unique_edges(np.asarray(edges, dtype=np.int64).reshape(-1, 2), np.asarray(lengths, dtype=np.float64))
+    return cells_arr, *unique_edges(
+        np.asarray(edges, dtype=np.int64).reshape(-1, 2), np.asarray(lengths, dtype=np.float64)
+    )
 
 
 def unique_edge_rows(edges: np.ndarray, weight: np.ndarray, tiebreak: np.ndarray | None = None) -> np.ndarray:
@@ -115,7 +125,9 @@ def unique_edges(edges: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.
     """Edges as sorted pairs (i < j) without self-loops or duplicates (the lightest one kept),
     ordered by (i, j)."""
     rows = unique_edge_rows(edges, weight)
-    return np.sort(np.asarray(edges, dtype=np.int64).reshape(-1, 2), axis=1)[rows], np.asarray(weight, dtype=np.float64)[rows]
+    return np.sort(np.asarray(edges, dtype=np.int64).reshape(-1, 2), axis=1)[rows], np.asarray(
+        weight, dtype=np.float64
+    )[rows]
 
 
 def extract_places(
@@ -181,8 +193,9 @@ def restore_far_branches(full: np.ndarray, kept: np.ndarray, radius: float) -> n
         far = np.minimum(far, cKDTree(cells[path]).query(cells[pruned])[0])
 
 
-def join_patch_pieces(free: np.ndarray, cells: np.ndarray, edges: np.ndarray,
-                      patches: tuple[np.ndarray, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def join_patch_pieces(
+    free: np.ndarray, cells: np.ndarray, edges: np.ndarray, patches: tuple[np.ndarray, int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Edges (k, 2) and their lengths (k,) in cells that join places of one 8-connected patch of
     `free` that the GVD edges leave in separate pieces, each along the shortest path through the
     patch (a minimum spanning tree over the pieces, from a geodesic Voronoi partition of the patch
@@ -209,13 +222,15 @@ def join_patch_pieces(free: np.ndarray, cells: np.ndarray, edges: np.ndarray,
     return np.vstack(pairs).astype(np.int64), np.concatenate(lengths)
 
 
-def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _geodesic_joins(
+    region: np.ndarray, cells: np.ndarray, places: np.ndarray, piece: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimum spanning joins (place a, place b, length in cells) between the pieces of `places`
     inside one connected `region` (H, W) bool: every cell takes its geodesically nearest place;
     neighbouring cells owned by places of different pieces offer a join of d_a + step + d_b."""
     rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))  # its bounds, not its cells
     lo, hi = np.array([rows[0], cols[0]]), np.array([rows[-1], cols[-1]]) + 1
-    sub = region[lo[0]:hi[0], lo[1]:hi[1]]
+    sub = region[lo[0] : hi[0], lo[1] : hi[1]]
     region_cells, adjacency = cell_adjacency(sub)
     sources = CellIndex(region_cells, sub.shape).find(cells[places, 0] - lo[0], cells[places, 1] - lo[1])
     dist, _, origin = dijkstra(adjacency, directed=False, indices=sources, min_only=True, return_predecessors=True)
@@ -250,8 +265,9 @@ def _geodesic_joins(region: np.ndarray, cells: np.ndarray, places: np.ndarray, p
     return np.asarray(out_a, np.int64), np.asarray(out_b, np.int64), np.asarray(out_len)
 
 
-def _lonely_patch_cells(free: np.ndarray, distance: np.ndarray, cells: np.ndarray,
-                        patches: tuple[np.ndarray, int] | None = None) -> np.ndarray:
+def _lonely_patch_cells(
+    free: np.ndarray, distance: np.ndarray, cells: np.ndarray, patches: tuple[np.ndarray, int] | None = None
+) -> np.ndarray:
     """One cell (largest clearance) for every free patch that holds no place yet (patches:
     `ndimage.label(free, EIGHT)` when already computed)."""
     labels, n = patches if patches is not None else ndimage.label(free, structure=EIGHT)

@@ -18,7 +18,9 @@ def paper_weight(p_i: np.ndarray, p_j: np.ndarray, e_i: np.ndarray, e_j: np.ndar
     """Row-wise w = |p_i - p_j| + gamma (1 - cos(e_i, e_j)) for (n, 3) positions (metres) and
     (n, D) embeddings (any norm; zero rows count as cos = 0)."""
     cos = np.einsum("ij,ij->i", normalize_rows(e_i), normalize_rows(e_j))
-    return np.linalg.norm(np.asarray(p_i, float) - np.asarray(p_j, float), axis=1) + gamma * (1.0 - np.clip(cos, -1.0, 1.0))
+    return np.linalg.norm(np.asarray(p_i, float) - np.asarray(p_j, float), axis=1) + gamma * (
+        1.0 - np.clip(cos, -1.0, 1.0)
+    )
 
 
 def canonical_labels(labels: np.ndarray) -> np.ndarray:
@@ -50,10 +52,15 @@ def build_levels(assignments: list[np.ndarray], position: np.ndarray, embedding:
         parent = canonical_labels(labels[first_place])
         R = int(parent.max()) + 1 if len(parent) else 0
         count = np.bincount(parent, minlength=R).astype(np.float64)
-        pos = np.stack([np.bincount(parent, weights=child_pos[:, d], minlength=R) for d in range(3)], axis=1) / count[:, None]
+        pos = (
+            np.stack([np.bincount(parent, weights=child_pos[:, d], minlength=R) for d in range(3)], axis=1)
+            / count[:, None]
+        )
         emb = np.zeros((R, child_emb.shape[1]), np.float32)
         np.add.at(emb, parent, child_emb)
-        levels.append(RegionLevel(level=k, position=pos, embedding=normalize_rows(emb), parent_of_child=parent.astype(np.int64)))
+        levels.append(
+            RegionLevel(level=k, position=pos, embedding=normalize_rows(emb), parent_of_child=parent.astype(np.int64))
+        )
         child_pos, child_emb = pos, levels[-1].embedding
         child_of_place = parent[child_of_place]
     return levels

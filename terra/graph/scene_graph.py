@@ -92,14 +92,16 @@ class SceneGraph:
     embedder: str = ""
     region_method: str = ""
 
-    def place_adjacency(self) -> "sp.csr_matrix":  # noqa: F821 (imported in the body)
+    def place_adjacency(self) -> sp.csr_matrix:  # noqa: F821 (imported in the body)
         """Symmetric (P, P) sparse matrix of place edge weights."""
         import scipy.sparse as sp  # here: monitoring and lookups load the graph without SciPy
 
         n = len(self.places)
         i, j = self.place_edges[:, 0], self.place_edges[:, 1]
         w = self.place_edge_weight.astype(np.float64)
-        return sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n)).tocsr()
+        return sp.coo_matrix(
+            (np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n)
+        ).tocsr()
 
     def place_region(self, level: int) -> np.ndarray:
         """(P,) index of the region at `level` (1-based) containing each place."""

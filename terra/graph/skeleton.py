@@ -94,7 +94,9 @@ def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndar
         del other, keep
     i, j, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
     del rows, cols, weights
-    adjacency = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells)))
+    adjacency = sp.coo_matrix(
+        (np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells))
+    )
     del i, j, w
     return cells, adjacency.tocsr()
 
@@ -105,8 +107,13 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     cells, A = skeleton_adjacency(skeleton)
     K = len(cells)
     if K == 0:
-        return SkeletonGraph(np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros(1, np.int64),
-                             NodeCells(np.zeros((0, 2), np.int64), np.zeros(0, np.int64)))
+        return SkeletonGraph(
+            np.zeros((0, 2), np.int64),
+            np.zeros((0, 2), np.int64),
+            np.zeros((0, 2), np.int64),
+            np.zeros(1, np.int64),
+            NodeCells(np.zeros((0, 2), np.int64), np.zeros(0, np.int64)),
+        )
     degree = np.diff(A.indptr)
     is_node = degree != 2
     # Cells of a 2x2 block (thinning can leave one where branches meet) form one node.
@@ -179,7 +186,9 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
         edges = np.vstack([edges, np.asarray(extra_edges)])
         path_start = np.concatenate([path_start, path_start[-1] + 3 * np.arange(1, len(extra_edges) + 1)])
         path_cells = np.vstack([path_cells] + extra_paths)
-    return SkeletonGraph(node_cell, edges.astype(np.int64), path_cells.astype(np.int64), path_start.astype(np.int64), cell_node)
+    return SkeletonGraph(
+        node_cell, edges.astype(np.int64), path_cells.astype(np.int64), path_start.astype(np.int64), cell_node
+    )
 
 
 def _in_block(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -223,7 +232,9 @@ def _drop_stubs(skeleton: np.ndarray) -> np.ndarray:
     return out
 
 
-def prune_spurs(skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_length: float, max_rounds: int = 8) -> np.ndarray:
+def prune_spurs(
+    skeleton: np.ndarray, distance: np.ndarray, ratio: float, min_length: float, max_rounds: int = 8
+) -> np.ndarray:
     """Remove dead-end branches shorter than ratio * (junction clearance) + min_length cells.
 
     A 90-degree corner of the free space puts a branch of about sqrt(2) times the clearance into
@@ -328,4 +339,3 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
     cell_node = cell_node.renumbered(new_index)
     remapped = [(int(new_index[a]), int(new_index[b])) for a, b in kept_edges]
     return _assemble(node_cell[~removed], remapped, kept_paths, cell_node)
-

@@ -51,7 +51,9 @@ def bbox_area(position: np.ndarray) -> float:
     return float(span[0] * span[1])
 
 
-def should_stop(position: np.ndarray, embedding: np.ndarray, max_semantic_diff: float, min_area: float, stop_rule: str) -> bool:
+def should_stop(
+    position: np.ndarray, embedding: np.ndarray, max_semantic_diff: float, min_area: float, stop_rule: str
+) -> bool:
     small_diff = semantic_difference(embedding) < max_semantic_diff
     small_area = bbox_area(position) < min_area
     return (small_diff and small_area) if stop_rule == "both" else (small_diff or small_area)
@@ -112,11 +114,15 @@ def spectral_assignments(
     return split_levels(members, parent, P, levels, top)
 
 
-def edge_affinity(position: np.ndarray, embedding: np.ndarray, edges: np.ndarray, gamma: float, sigma: float | None) -> sp.csr_matrix:
+def edge_affinity(
+    position: np.ndarray, embedding: np.ndarray, edges: np.ndarray, gamma: float, sigma: float | None
+) -> sp.csr_matrix:
     """Symmetric (P, P) affinity exp(-w / sigma) on the place edges (sigma None: median w)."""
     P = len(position)
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    w = paper_weight(position[edges[:, 0]], position[edges[:, 1]], embedding[edges[:, 0]], embedding[edges[:, 1]], gamma)
+    w = paper_weight(
+        position[edges[:, 0]], position[edges[:, 1]], embedding[edges[:, 0]], embedding[edges[:, 1]], gamma
+    )
     if sigma is None:
         sigma = float(np.median(w)) if len(w) else 1.0
     sim = np.exp(-w / max(sigma, 1e-9))
@@ -124,8 +130,17 @@ def edge_affinity(position: np.ndarray, embedding: np.ndarray, edges: np.ndarray
     return sp.coo_matrix((np.concatenate([sim, sim]), (rows, cols)), shape=(P, P)).tocsr()
 
 
-def split_tree(position: np.ndarray, embedding: np.ndarray, affinity: sp.csr_matrix, max_semantic_diff: float, min_area: float,
-               stop_rule: str, min_places: int, max_depth: int, seed: int) -> tuple[list[np.ndarray], list[int]]:
+def split_tree(
+    position: np.ndarray,
+    embedding: np.ndarray,
+    affinity: sp.csr_matrix,
+    max_semantic_diff: float,
+    min_area: float,
+    stop_rule: str,
+    min_places: int,
+    max_depth: int,
+    seed: int,
+) -> tuple[list[np.ndarray], list[int]]:
     """The divisive tree: node members (node 0 = all places) and parents, nodes numbered in the
     order they were created; the largest unstopped cluster is split first."""
     import heapq
@@ -136,8 +151,11 @@ def split_tree(position: np.ndarray, embedding: np.ndarray, affinity: sp.csr_mat
     while heap:
         _, node = heapq.heappop(heap)
         idx = members[node]
-        if (len(idx) < min_places or depth[node] >= max_depth
-                or should_stop(position[idx], embedding[idx], max_semantic_diff, min_area, stop_rule)):
+        if (
+            len(idx) < min_places
+            or depth[node] >= max_depth
+            or should_stop(position[idx], embedding[idx], max_semantic_diff, min_area, stop_rule)
+        ):
             continue
         side = two_way_split(affinity[idx][:, idx], seed)
         if side.all() or not side.any():

@@ -63,7 +63,15 @@ def _feature(vec: np.ndarray | None) -> dict[str, Any]:
     return {"rows": int(vec.shape[0]), "cols": 1, "data": [float(x) for x in vec]}
 
 
-def _node(node_id: int, layer: int, kind: str, position: np.ndarray, terra: dict, extra: dict | None = None, feature: np.ndarray | None = None) -> dict:
+def _node(
+    node_id: int,
+    layer: int,
+    kind: str,
+    position: np.ndarray,
+    terra: dict,
+    extra: dict | None = None,
+    feature: np.ndarray | None = None,
+) -> dict:
     attributes = {
         "type": kind,
         "position": [float(v) for v in position],
@@ -78,7 +86,12 @@ def _node(node_id: int, layer: int, kind: str, position: np.ndarray, terra: dict
 
 
 def _edge(source: int, target: int, weight: float | None = None, kind: str | None = None) -> dict:
-    info: dict[str, Any] = {"type": "EdgeAttributes", "weight": 1.0 if weight is None else float(weight), "weighted": weight is not None, "metadata": {}}
+    info: dict[str, Any] = {
+        "type": "EdgeAttributes",
+        "weight": 1.0 if weight is None else float(weight),
+        "weighted": weight is not None,
+        "metadata": {},
+    }
     if kind is not None:
         info["metadata"] = {"terra": {"kind": kind}}
     return {"source": source, "target": target, "info": info}
@@ -104,15 +117,46 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
             "world_P_center": [float(v) for v in o.center[i]],
             "world_R_center": {"w": float(np.cos(yaw / 2)), "x": 0.0, "y": 0.0, "z": float(np.sin(yaw / 2))},
         }
-        terra = {"index": i, "yaw": yaw, "score": float(o.score[i]), "point_count": int(o.point_count[i]), "place": int(o.place[i])}
-        nodes.append(_node(node_symbol("O", i), LAYER_OBJECTS, "ObjectNodeAttributes", o.center[i], terra, {"name": o.label[i], "bounding_box": box}))
+        terra = {
+            "index": i,
+            "yaw": yaw,
+            "score": float(o.score[i]),
+            "point_count": int(o.point_count[i]),
+            "place": int(o.place[i]),
+        }
+        nodes.append(
+            _node(
+                node_symbol("O", i),
+                LAYER_OBJECTS,
+                "ObjectNodeAttributes",
+                o.center[i],
+                terra,
+                {"name": o.label[i], "bounding_box": box},
+            )
+        )
         edges.append(_edge(node_symbol("p", int(o.place[i])), node_symbol("O", i)))
 
     for i in range(len(places)):
         t = int(places.terrain[i])
         terra = {"index": i, "terrain": sg.terrain_classes[t], "clearance": float(places.clearance[i])}
-        extra = {"name": sg.terrain_classes[t], "semantic_label": t, "distance": float(places.clearance[i]), "num_basis_points": 0, "real_place": True}
-        nodes.append(_node(node_symbol("p", i), LAYER_PLACES, "PlaceNodeAttributes", places.position[i], terra, extra, feat(places.embedding, i)))
+        extra = {
+            "name": sg.terrain_classes[t],
+            "semantic_label": t,
+            "distance": float(places.clearance[i]),
+            "num_basis_points": 0,
+            "real_place": True,
+        }
+        nodes.append(
+            _node(
+                node_symbol("p", i),
+                LAYER_PLACES,
+                "PlaceNodeAttributes",
+                places.position[i],
+                terra,
+                extra,
+                feat(places.embedding, i),
+            )
+        )
     for (i, j), w, k in zip(sg.place_edges, sg.place_edge_weight, sg.place_edge_kind):
         edges.append(_edge(node_symbol("p", int(i)), node_symbol("p", int(j)), float(w), EDGE_KIND_NAMES[int(k)]))
 
@@ -122,14 +166,33 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
         layer = LAYER_PLACES + level.level
         for r in range(len(level)):
             terra = {"index": r, "level": level.level}
-            nodes.append(_node(node_symbol(char, r), layer, "RoomNodeAttributes", level.position[r], terra, {"name": f"L{level.level}-{r}"}, feat(level.embedding, r)))
+            nodes.append(
+                _node(
+                    node_symbol(char, r),
+                    layer,
+                    "RoomNodeAttributes",
+                    level.position[r],
+                    terra,
+                    {"name": f"L{level.level}-{r}"},
+                    feat(level.embedding, r),
+                )
+            )
         for c, r in enumerate(level.parent_of_child):
             edges.append(_edge(node_symbol(char, int(r)), node_symbol(child_char, c)))
         child_char = char
     if L:
         top = sg.regions[-1]
         root_pos = top.position.mean(axis=0) if len(top) else np.zeros(3)
-        nodes.append(_node(node_symbol("Z", 0), names["ROOT"], "SemanticNodeAttributes", root_pos, {"index": 0, "level": L + 1}, {"name": "root"}))
+        nodes.append(
+            _node(
+                node_symbol("Z", 0),
+                names["ROOT"],
+                "SemanticNodeAttributes",
+                root_pos,
+                {"index": 0, "level": L + 1},
+                {"name": "root"},
+            )
+        )
         for r in range(len(top)):
             edges.append(_edge(node_symbol("Z", 0), node_symbol(child_char, r)))
 
@@ -140,7 +203,12 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
         "embedder": sg.embedder,
         "region_method": sg.region_method,
         "region_levels": L,
-        "units": {"position": "m, map frame", "clearance": "m", "weight": "m (bridges: times their penalty)", "yaw": "rad about +z"},
+        "units": {
+            "position": "m, map frame",
+            "clearance": "m",
+            "weight": "m (bridges: times their penalty)",
+            "yaw": "rad about +z",
+        },
     }
     return {
         "SPARK_DSG_header": SPARK_HEADER,
@@ -164,17 +232,25 @@ def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any]
     writer.put_array("graph/place_embedding", np.asarray(sg.places.embedding, dtype=np.float32).reshape(-1, dim))
     writer.put_array("graph/terrain_embedding", np.asarray(sg.terrain_embeddings, dtype=np.float32))
     for level in sg.regions:
-        writer.put_array(f"graph/region_embedding_{level.level}", np.asarray(level.embedding, dtype=np.float32).reshape(-1, dim))
+        writer.put_array(
+            f"graph/region_embedding_{level.level}", np.asarray(level.embedding, dtype=np.float32).reshape(-1, dim)
+        )
     components = writer.manifest.setdefault("components", {})
     previous = components.get("graph", {}) if isinstance(components.get("graph"), dict) else {}
-    entry = dict(info) if info is not None else {k: v for k, v in previous.items() if k not in ("format", "places", "place_edges", "regions", "objects")}
-    entry.update({
-        "format": GRAPH_FORMAT,
-        "places": len(sg.places),
-        "place_edges": int(len(sg.place_edges)),
-        "regions": [len(level) for level in sg.regions],
-        "objects": len(sg.objects),
-    })
+    entry = (
+        dict(info)
+        if info is not None
+        else {k: v for k, v in previous.items() if k not in ("format", "places", "place_edges", "regions", "objects")}
+    )
+    entry.update(
+        {
+            "format": GRAPH_FORMAT,
+            "places": len(sg.places),
+            "place_edges": int(len(sg.place_edges)),
+            "regions": [len(level) for level in sg.regions],
+            "objects": len(sg.objects),
+        }
+    )
     components["graph"] = entry
 
 
@@ -189,7 +265,9 @@ def load_scene_graph(bundle: Bundle) -> SceneGraph:
     if info is None or not bundle.has(GRAPH_JSON):
         raise TerraError(f"{bundle.path}: the bundle has no scene graph; build one with `terra build {bundle.path}`")
     if info.format != GRAPH_FORMAT:
-        raise TerraError(f"{bundle.path}: scene graph format {info.format!r} is not supported (expected {GRAPH_FORMAT}); rebuild it with `terra build {bundle.path}`")
+        raise TerraError(
+            f"{bundle.path}: scene graph format {info.format!r} is not supported (expected {GRAPH_FORMAT}); rebuild it with `terra build {bundle.path}`"
+        )
     # Fully typed below the metadata dicts Terra does not read, so no depth walk is needed.
     doc = bundle.document(GRAPH_JSON, SceneGraphDocument, max_depth=None)
     where = str(bundle.path / GRAPH_JSON)
@@ -197,8 +275,10 @@ def load_scene_graph(bundle: Bundle) -> SceneGraph:
     if meta.format != GRAPH_FORMAT:
         raise TerraError(f"{where}: metadata.terra.format {meta.format!r}, expected {GRAPH_FORMAT}")
     if info.regions is not None and len(info.regions) != meta.region_levels:
-        raise TerraError(f"{where}: {meta.region_levels} region levels, but manifest.json components.graph.regions "
-                         f"lists {len(info.regions)}")
+        raise TerraError(
+            f"{where}: {meta.region_levels} region levels, but manifest.json components.graph.regions "
+            f"lists {len(info.regions)}"
+        )
     return _from_document(doc, bundle, where)
 
 
@@ -210,8 +290,10 @@ def _layers(doc, levels: int, where: str) -> dict[str, list]:
     for node in doc.nodes:
         char, index = symbol_parts(node.id)
         if char not in chars:
-            raise TerraError(f"{where}: node id {node.id} has symbol {char!r}, expected one of {''.join(sorted(chars))} "
-                             f"for {levels} region levels")
+            raise TerraError(
+                f"{where}: node id {node.id} has symbol {char!r}, expected one of {''.join(sorted(chars))} "
+                f"for {levels} region levels"
+            )
         by_char.setdefault(char, []).append((index, node.attributes))
     out = {}
     for char, items in by_char.items():
@@ -232,9 +314,16 @@ def _embedding(bundle: Bundle, name: str, rows: int, dim: int | None) -> np.ndar
 def _places(layers: dict[str, list], terrain_count: int, bundle: Bundle, dim: int, where: str) -> Places:
     items = layers.get("p", [])
     for i, a in enumerate(items):
-        if a.semantic_label is None or not 0 <= a.semantic_label < terrain_count or a.distance is None or a.distance < 0:
-            raise TerraError(f"{where}: place {i}: semantic_label must be a terrain index 0..{terrain_count - 1} and "
-                             "distance (clearance) a number >= 0")
+        if (
+            a.semantic_label is None
+            or not 0 <= a.semantic_label < terrain_count
+            or a.distance is None
+            or a.distance < 0
+        ):
+            raise TerraError(
+                f"{where}: place {i}: semantic_label must be a terrain index 0..{terrain_count - 1} and "
+                "distance (clearance) a number >= 0"
+            )
     return Places(
         position=np.array([a.position for a in items], dtype=np.float64).reshape(-1, 3),
         terrain=np.array([a.semantic_label for a in items], dtype=np.int64),
@@ -277,8 +366,10 @@ def _edges(doc, layers: dict[str, list], levels: int, where: str) -> tuple[list,
     for e, edge in enumerate(doc.edges):
         (sc, si), (tc, ti) = symbol_parts(edge.source), symbol_parts(edge.target)
         if si >= counts.get(sc, 0) or ti >= counts.get(tc, 0):
-            raise TerraError(f"{where}: edge {e} joins {sc}{si} and {tc}{ti} (NodeSymbol char and index), "
-                             "which are not both nodes of the graph")
+            raise TerraError(
+                f"{where}: edge {e} joins {sc}{si} and {tc}{ti} (NodeSymbol char and index), "
+                "which are not both nodes of the graph"
+            )
         if sc == "p" and tc == "p":
             if si == ti:
                 raise TerraError(f"{where}: edge {e} joins place {si} to itself")
@@ -313,14 +404,18 @@ def _from_document(doc, bundle: Bundle, where: str) -> SceneGraph:
         items = layers.get(char, [])
         mapping = parent_of.get(child_char, {})
         if len(mapping) != n_children:
-            raise TerraError(f"{where}: {n_children - len(mapping)} of the {n_children} nodes below region level {k} "
-                             "have no parent there")
-        regions.append(RegionLevel(
-            level=k,
-            position=np.array([a.position for a in items], dtype=np.float64).reshape(-1, 3),
-            embedding=_embedding(bundle, f"graph/region_embedding_{k}", len(items), dim),
-            parent_of_child=np.array([mapping[c] for c in range(n_children)], dtype=np.int64),
-        ))
+            raise TerraError(
+                f"{where}: {n_children - len(mapping)} of the {n_children} nodes below region level {k} "
+                "have no parent there"
+            )
+        regions.append(
+            RegionLevel(
+                level=k,
+                position=np.array([a.position for a in items], dtype=np.float64).reshape(-1, 3),
+                embedding=_embedding(bundle, f"graph/region_embedding_{k}", len(items), dim),
+                parent_of_child=np.array([mapping[c] for c in range(n_children)], dtype=np.int64),
+            )
+        )
         child_char, n_children = char, len(items)
     return SceneGraph(
         terrain_classes=terrain_classes,

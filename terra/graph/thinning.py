@@ -8,7 +8,7 @@ algorithm (scikit-image's `thin`), which the tests check.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -16,7 +16,7 @@ import numpy as np
 _NEIGHBOURS = np.array([(0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1), (1, 0), (1, 1)])
 
 
-@lru_cache(maxsize=None)
+@cache
 def _tables() -> tuple[np.ndarray, np.ndarray]:
     """Deletion tables (256,) of the two sub-iterations from Guo and Hall's conditions G1-G3."""
     codes = np.arange(256)

@@ -93,8 +93,13 @@ def build_terrain_grid_tiled(
     frame = grid_frame(points, terrain, cell_size)
     H, W = frame.shape
     index = _PointIndex(points, frame)  # before the grid: its sorting temporaries come and go first
-    grid = TerrainGrid(np.full((H, W), -1, np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool),
-                       np.asarray(frame.origin, dtype=np.float64), frame.cell_size)
+    grid = TerrainGrid(
+        np.full((H, W), -1, np.int16),
+        np.zeros((H, W), np.float32),
+        np.zeros((H, W), bool),
+        np.asarray(frame.origin, dtype=np.float64),
+        frame.cell_size,
+    )
     reach = terrain_grid_reach(cell_size, support_radius, fill_radius, chain)
     margin = max(margin, reach)
     for core in cores((H, W), tile):
@@ -112,8 +117,9 @@ def build_terrain_grid_tiled(
             if not proven:
                 m *= 2
                 continue
-            part = build_terrain_grid(points[rows], terrain[rows], *args, **weak,
-                                      frame=frame.window(win.rows, win.cols))
+            part = build_terrain_grid(
+                points[rows], terrain[rows], *args, **weak, frame=frame.window(win.rows, win.cols)
+            )
             stats.windows += 1
             if win.whole or _ground_proven(part, points[rows], terrain[rows], win, frame, read_radius, reach):
                 for name in ("label", "ground", "blocked"):
@@ -161,16 +167,28 @@ class _PointIndex:
         return np.sort(rows[keep])
 
 
-def _ground_proven(part: TerrainGrid | None, points: np.ndarray, terrain: np.ndarray, win: Window, frame: GridFrame,
-                   read_radius: int, reach: int) -> bool:
+def _ground_proven(
+    part: TerrainGrid | None,
+    points: np.ndarray,
+    terrain: np.ndarray,
+    win: Window,
+    frame: GridFrame,
+    read_radius: int,
+    reach: int,
+) -> bool:
     """Whether the ground every stage reads in the core is the one-piece ground (module docstring):
     the terrain-based ground of the cells within `reach` of the core that hold only other points,
     and (with the window's grid `part`) the final ground of the core cells within `read_radius`
     of a labelled cell."""
     h, w = win.shape
-    cells = TerrainGrid(np.zeros((0, 0), np.int16), np.zeros((0, 0), np.float32), np.zeros((0, 0), bool),
-                        np.asarray(frame.origin, dtype=np.float64), frame.cell_size,
-                        frame.window(win.rows, win.cols).offset)
+    cells = TerrainGrid(
+        np.zeros((0, 0), np.int16),
+        np.zeros((0, 0), np.float32),
+        np.zeros((0, 0), bool),
+        np.asarray(frame.origin, dtype=np.float64),
+        frame.cell_size,
+        frame.window(win.rows, win.cols).offset,
+    )
     rc = np.floor((points[:, :2] - cells.origin) / cells.cell_size).astype(np.int64)
     rows, cols = rc[:, 1] - cells.offset[0], rc[:, 0] - cells.offset[1]
     inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
@@ -182,8 +200,10 @@ def _ground_proven(part: TerrainGrid | None, points: np.ndarray, terrain: np.nda
     gap = win.gap()
     distance = ndimage.distance_transform_edt(~has) if has.any() else np.full((h, w), np.inf)
     unsure = other & ~(distance < gap)  # terrain-based ground may differ: unlabelled ground and blocked flags too
-    near = (slice(max(win.core[0].start - reach, 0), win.core[0].stop + reach),
-            slice(max(win.core[1].start - reach, 0), win.core[1].stop + reach))
+    near = (
+        slice(max(win.core[0].start - reach, 0), win.core[0].stop + reach),
+        slice(max(win.core[1].start - reach, 0), win.core[1].stop + reach),
+    )
     if unsure[near].any():
         return False
     if part is None or read_radius <= 0 or not (part.label >= 0).any():

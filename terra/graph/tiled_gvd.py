@@ -70,8 +70,15 @@ def obstacle_components(free: np.ndarray) -> np.ndarray:
     return label_components(np.pad(~np.asarray(free, dtype=bool), 1, constant_values=True))[0]
 
 
-def tiled_gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5, tile: int = 512, margin: int = 128,
-              rounds: int = 4, stats: TiledGvdStats | None = None) -> tuple[np.ndarray, np.ndarray]:
+def tiled_gvd(
+    free: np.ndarray,
+    min_clearance: float = 1.0,
+    min_gap: float = 1.5,
+    tile: int = 512,
+    margin: int = 128,
+    rounds: int = 4,
+    stats: TiledGvdStats | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """`gvd(free, min_clearance, min_gap)` computed core by core: ((H, W) bool skeleton,
     (H, W) float32 distance in cells), equal to the one-piece result (see the module docstring).
     tile, margin: cells; rounds: the thinning iterations N assumed at first."""
@@ -84,8 +91,9 @@ def tiled_gvd(free: np.ndarray, min_clearance: float = 1.0, min_gap: float = 1.5
             rounds = max(2 * rounds, more.rounds)
 
 
-def _tiled_gvd(free: np.ndarray, min_clearance: float, min_gap: float, tile: int, margin: int, rounds: int,
-               stats: TiledGvdStats) -> tuple[np.ndarray, np.ndarray]:
+def _tiled_gvd(
+    free: np.ndarray, min_clearance: float, min_gap: float, tile: int, margin: int, rounds: int, stats: TiledGvdStats
+) -> tuple[np.ndarray, np.ndarray]:
     skeleton = np.zeros(free.shape, dtype=bool)
     distance = np.zeros(free.shape, dtype=np.float32)
     box = free_box(free)  # as gvd() does: only the bounding box of the free cells, plus one cell, framed
@@ -110,8 +118,9 @@ def _tiled_gvd(free: np.ndarray, min_clearance: float, min_gap: float, tile: int
     return skeleton, distance
 
 
-def window_gvd(free: np.ndarray, labels: np.ndarray, win: Window, min_clearance: float, min_gap: float,
-               rounds: int) -> tuple[np.ndarray, np.ndarray] | None:
+def window_gvd(
+    free: np.ndarray, labels: np.ndarray, win: Window, min_clearance: float, min_gap: float, rounds: int
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The GVD skeleton and distance of `win`'s core, computed in the window, or None when the
     window is too small to prove them (see the module docstring). Raises _NeedMoreRounds when a
     thinning needs more than `rounds` iterations."""

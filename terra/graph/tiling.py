@@ -73,7 +73,9 @@ def cores(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
     if tile < 1:
         raise ValueError("tile must be at least one cell")
     H, W = shape
-    return [(slice(r, min(r + tile, H)), slice(c, min(c + tile, W))) for r in range(0, H, tile) for c in range(0, W, tile)]
+    return [
+        (slice(r, min(r + tile, H)), slice(c, min(c + tile, W))) for r in range(0, H, tile) for c in range(0, W, tile)
+    ]
 
 
 def window(shape: tuple[int, int], core: tuple[slice, slice], margin: int) -> Window:
@@ -82,7 +84,10 @@ def window(shape: tuple[int, int], core: tuple[slice, slice], margin: int) -> Wi
     rows = slice(max(core[0].start - margin, 0), min(core[0].stop + margin, H))
     cols = slice(max(core[1].start - margin, 0), min(core[1].stop + margin, W))
     closed = (rows.start == 0, rows.stop == H, cols.start == 0, cols.stop == W)
-    inner = (slice(core[0].start - rows.start, core[0].stop - rows.start), slice(core[1].start - cols.start, core[1].stop - cols.start))
+    inner = (
+        slice(core[0].start - rows.start, core[0].stop - rows.start),
+        slice(core[1].start - cols.start, core[1].stop - cols.start),
+    )
     return Window(rows, cols, closed, inner)
 
 

@@ -128,9 +128,9 @@ def sidecar(msm: MetricSemanticMap, bundle: Bundle, image_range: float) -> dict[
 
 def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_range: float = 20.0) -> dict[str, Any]:
     """Write the bundle's map as the reference's MS-map files into folder `out` (atomically)."""
+    from terra.bundle import atomic_folder, check_output_folder
     from terra.errors import TerraError
     from terra.mapping.storage import load_map
-    from terra.bundle import atomic_folder, check_output_folder
 
     if not np.isfinite(image_range) or image_range <= 0:
         raise TerraError(f"--image-range must be a positive number of metres, got {image_range}")

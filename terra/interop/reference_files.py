@@ -25,8 +25,9 @@ import io
 import os
 import pickle
 import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -157,8 +158,10 @@ def load_pickle(path: Path) -> Any:
     except FileNotFoundError:
         raise TerraError(f"{path}: file not found") from None
     except (RecursionError, MemoryError) as exc:
-        raise TerraError(f"{path}: not a readable pickle of plain data ({type(exc).__name__}: nested or sized "
-                         "beyond what plain map data needs)") from None
+        raise TerraError(
+            f"{path}: not a readable pickle of plain data ({type(exc).__name__}: nested or sized "
+            "beyond what plain map data needs)"
+        ) from None
     except (
         pickle.UnpicklingError,
         EOFError,
@@ -188,8 +191,19 @@ def load_tensor(path: Path) -> np.ndarray:
             f"{path}: holds {_unsafe_globals(path, exc)}; only tensors are read from the reference's torch files"
         ) from None
     # torch's weights-only unpickler meets garbled opcodes with whatever its stack does (IndexError...)
-    except (RuntimeError, EOFError, OSError, ValueError, KeyError, AttributeError, IndexError, TypeError,
-            UnicodeDecodeError, MemoryError, RecursionError) as exc:
+    except (
+        RuntimeError,
+        EOFError,
+        OSError,
+        ValueError,
+        KeyError,
+        AttributeError,
+        IndexError,
+        TypeError,
+        UnicodeDecodeError,
+        MemoryError,
+        RecursionError,
+    ) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise TerraError(f"{path}: unreadable torch file ({first})") from None
     if not isinstance(obj, torch.Tensor):

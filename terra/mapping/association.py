@@ -72,10 +72,14 @@ class VoxelMap:
         return (self._sums[: self.size] / self._hits[: self.size, None]).astype(np.float32)
 
     def state(self) -> dict[str, np.ndarray]:
-        return {"keys": self._keys[: self.size].copy(), "sums": self._sums[: self.size].copy(), "hits": self._hits[: self.size].copy()}
+        return {
+            "keys": self._keys[: self.size].copy(),
+            "sums": self._sums[: self.size].copy(),
+            "hits": self._hits[: self.size].copy(),
+        }
 
     @classmethod
-    def from_state(cls, voxel_size: float, state: dict[str, np.ndarray]) -> "VoxelMap":
+    def from_state(cls, voxel_size: float, state: dict[str, np.ndarray]) -> VoxelMap:
         vm = cls(voxel_size)
         vm._keys = np.array(state["keys"], dtype=np.int64)
         vm._sums = np.array(state["sums"], dtype=np.float64)

@@ -50,7 +50,10 @@ class Checkpoint:
         try:
             for name, array in sorted(arrays.items()):
                 writer.put_array(f"state/{name}", array)
-            writer.put_json("state/meta.json", {"fingerprint": key, "next_frame": int(next_frame), "arrays": sorted(arrays), "fusion": fusion_meta})
+            writer.put_json(
+                "state/meta.json",
+                {"fingerprint": key, "next_frame": int(next_frame), "arrays": sorted(arrays), "fusion": fusion_meta},
+            )
             writer.commit()
         except BaseException:
             writer.abort()

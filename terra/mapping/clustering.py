@@ -18,7 +18,9 @@ from sklearn.cluster import DBSCAN
 from terra.geometry import voxel_keys
 
 
-def largest_clusters(points: np.ndarray, group: np.ndarray, eps: float, min_samples: int, voxel: float = 0.0) -> np.ndarray:
+def largest_clusters(
+    points: np.ndarray, group: np.ndarray, eps: float, min_samples: int, voxel: float = 0.0
+) -> np.ndarray:
     """Boolean (n,) keep-mask: True for points in the largest DBSCAN cluster of their group.
 
     points: (n, 3) metres. group: (n,) non-negative group (mask) ids. eps: metres. min_samples

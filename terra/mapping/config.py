@@ -11,7 +11,15 @@ from pydantic import Field
 from terra.config import Section
 from terra.perception.config import NOISE_PRESETS, NoiseConfig, PerceptionConfig
 
-__all__ = ["MappingConfig", "PerceptionConfig", "NoiseConfig", "NOISE_PRESETS", "ProjectionConfig", "FusionConfig", "VisibilityConfig"]
+__all__ = [
+    "MappingConfig",
+    "PerceptionConfig",
+    "NoiseConfig",
+    "NOISE_PRESETS",
+    "ProjectionConfig",
+    "FusionConfig",
+    "VisibilityConfig",
+]
 
 
 class ProjectionConfig(Section):
@@ -19,9 +27,9 @@ class ProjectionConfig(Section):
     zbuffer_px: side of the square pixel cell in which only the nearest point is visible (1 = per
     pixel). max_time_offset: seconds an image stamp may differ from its scan's stamp."""
 
-    min_depth: float = Field(0.1, gt=0.0)
-    zbuffer_px: int = Field(1, ge=1, le=64)
-    max_time_offset: float = Field(0.1, ge=0.0)
+    min_depth: float = Field(default=0.1, gt=0.0)
+    zbuffer_px: int = Field(default=1, ge=1, le=64)
+    max_time_offset: float = Field(default=0.1, ge=0.0)
 
 
 class FusionConfig(Section):
@@ -33,21 +41,21 @@ class FusionConfig(Section):
     size into weighted samples before DBSCAN (0 = cluster every point). match_threshold: cosine at or above which a mask reuses a bank
     entry. max_terrain_overlap: masks with a larger share of terrain pixels are dropped."""
 
-    voxel_size: float = Field(0.4, gt=0.0)
-    gate: float = Field(1.0, gt=0.0)
+    voxel_size: float = Field(default=0.4, gt=0.0)
+    gate: float = Field(default=1.0, gt=0.0)
     use_global_map: bool = True
-    dbscan_eps: float = Field(2.0, gt=0.0)
-    dbscan_min_samples: int = Field(5, ge=1)
-    dbscan_voxel: float = Field(0.2, ge=0.0)
-    match_threshold: float = Field(0.9, gt=-1.0, le=1.0)
-    max_terrain_overlap: float = Field(0.5, ge=0.0, le=1.0)
+    dbscan_eps: float = Field(default=2.0, gt=0.0)
+    dbscan_min_samples: int = Field(default=5, ge=1)
+    dbscan_voxel: float = Field(default=0.2, ge=0.0)
+    match_threshold: float = Field(default=0.9, gt=-1.0, le=1.0)
+    max_terrain_overlap: float = Field(default=0.5, ge=0.0, le=1.0)
 
 
 class VisibilityConfig(Section):
     """cell_size: metres, edge of the voxels on which we record which images saw which part of
     the map (Phase 2 asks which images within 20 m saw a place)."""
 
-    cell_size: float = Field(2.0, gt=0.0)
+    cell_size: float = Field(default=2.0, gt=0.0)
 
 
 class MappingConfig(Section):
@@ -55,4 +63,4 @@ class MappingConfig(Section):
     projection: ProjectionConfig = Field(default_factory=ProjectionConfig)
     fusion: FusionConfig = Field(default_factory=FusionConfig)
     visibility: VisibilityConfig = Field(default_factory=VisibilityConfig)
-    checkpoint_every: int = Field(50, ge=1, description="frames between resumable checkpoints")
+    checkpoint_every: int = Field(default=50, ge=1, description="frames between resumable checkpoints")

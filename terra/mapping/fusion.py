@@ -94,11 +94,15 @@ class CountAccumulator:
 class MapFusion:
     """The incremental fusion state. `integrate_*` add observations; `finish()` gives the map."""
 
-    def __init__(self, config: MappingConfig, terrain_classes: list[str], dim: int, global_map: np.ndarray | None = None):
+    def __init__(
+        self, config: MappingConfig, terrain_classes: list[str], dim: int, global_map: np.ndarray | None = None
+    ):
         self.config = config
         self.terrain_classes = list(terrain_classes)
         fusion = config.fusion
-        self.geometry: VoxelMap | FixedMap = FixedMap(global_map, fusion.gate) if global_map is not None else VoxelMap(fusion.voxel_size)
+        self.geometry: VoxelMap | FixedMap = (
+            FixedMap(global_map, fusion.gate) if global_map is not None else VoxelMap(fusion.voxel_size)
+        )
         self.bank = EmbeddingBank(dim, fusion.match_threshold)
         self.counts = CountAccumulator()
         self.votes = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
@@ -136,7 +140,12 @@ class MapFusion:
         proj = self.config.projection
         if visible is None:
             visible = visible_points(points_lidar, camera, proj.min_depth, proj.zbuffer_px)
-        self._add_image(camera.name, stamp, np.asarray(T_map_lidar, np.float64) @ invert_pose(camera.T_cam_lidar), seen.image_embedding)
+        self._add_image(
+            camera.name,
+            stamp,
+            np.asarray(T_map_lidar, np.float64) @ invert_pose(camera.T_cam_lidar),
+            seen.image_embedding,
+        )
         self._vis_cells.append(np.unique(voxel_keys(points_map[visible.index], self.config.visibility.cell_size)))
         self.stats.add("images_fused")
         rows = map_index[visible.index]
@@ -162,7 +171,9 @@ class MapFusion:
         """Fuse a scan's per-point labels (sources without images)."""
         self._vote(map_index, seen.terrain)
         self.stats.add("masks", seen.group_embeddings.shape[0])
-        self._fuse_groups(points_map[seen.group_point], map_index[seen.group_point], seen.group_index, seen.group_embeddings)
+        self._fuse_groups(
+            points_map[seen.group_point], map_index[seen.group_point], seen.group_index, seen.group_embeddings
+        )
 
     def _vote(self, rows: np.ndarray, terrain: np.ndarray) -> None:
         ok = (rows >= 0) & (terrain >= 0)
@@ -211,12 +222,18 @@ class MapFusion:
         }
         if isinstance(self.geometry, VoxelMap):
             arrays.update({f"voxel_{k}": v for k, v in self.geometry.state().items()})
-        return arrays, {"camera_names": list(self.camera_names), "stats": self.stats.to_json(), "notes": dict(self.stats.notes)}
+        return arrays, {
+            "camera_names": list(self.camera_names),
+            "stats": self.stats.to_json(),
+            "notes": dict(self.stats.notes),
+        }
 
     def restore(self, arrays: dict[str, np.ndarray], meta: dict) -> None:
         """Load a `state()` into this (freshly constructed, same config) fusion."""
         if isinstance(self.geometry, VoxelMap):
-            self.geometry = VoxelMap.from_state(self.geometry.voxel_size, {k[6:]: v for k, v in arrays.items() if k.startswith("voxel_")})
+            self.geometry = VoxelMap.from_state(
+                self.geometry.voxel_size, {k[6:]: v for k, v in arrays.items() if k.startswith("voxel_")}
+            )
         self.votes = np.array(arrays["votes"], dtype=np.uint32).reshape(-1, len(self.terrain_classes))
         self.bank = EmbeddingBank(self.dim, self.config.fusion.match_threshold, arrays["bank"])
         self.counts.keys = np.array(arrays["count_keys"], dtype=np.int64)

@@ -69,8 +69,9 @@ def run_perception(
         )
     stats = FusionStats()
     images = 0
-    for i in progress_bar(range(len(dataset)), desc="perception", total=len(dataset), enabled=show_progress,
-                          unit="frames"):
+    for i in progress_bar(
+        range(len(dataset)), desc="perception", total=len(dataset), enabled=show_progress, unit="frames"
+    ):
         with timer.stage("perception"):
             images += perceive_frame(dataset, i, cached, config, stats)
     return PerceptionRun(

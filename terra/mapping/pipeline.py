@@ -14,9 +14,10 @@ bundle, if any, is touched.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -32,7 +33,8 @@ from terra.mapping.storage import MAP_FORMAT, write_map
 from terra.perception.base import ImagePerception, Perception
 from terra.perception.cache import CachedPerception, cached
 from terra.perception.registry import get_perception
-from terra.progress import StageTimer, progress as progress_bar
+from terra.progress import StageTimer
+from terra.progress import progress as progress_bar
 
 POINTS_STREAM = 1 << 20  # noise stream number of per-point labels (camera streams are 0, 1, ...)
 
@@ -65,8 +67,9 @@ class SerialFeed:
     show_progress: bool = True
 
     def frames(self, start: int, stop: int) -> Iterator[int]:
-        return progress_bar(range(start, stop), desc="mapping", total=stop - start, enabled=self.show_progress,
-                            unit="frames")
+        return progress_bar(
+            range(start, stop), desc="mapping", total=stop - start, enabled=self.show_progress, unit="frames"
+        )
 
 
 def build_map(dataset: Dataset, config: MappingConfig, out: Path, progress: bool = True) -> Bundle:
@@ -112,8 +115,17 @@ def run_mapping(
     return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
 
 
-def _fuse_all(dataset: Dataset, config: MappingConfig, perception: Perception, fusion: MapFusion,
-              checkpoint: Checkpoint, key: str, start: int, feed: FrameFeed, timer: StageTimer):
+def _fuse_all(
+    dataset: Dataset,
+    config: MappingConfig,
+    perception: Perception,
+    fusion: MapFusion,
+    checkpoint: Checkpoint,
+    key: str,
+    start: int,
+    feed: FrameFeed,
+    timer: StageTimer,
+):
     """Frames `start`.. fused in the order `feed` hands them over (checkpointed every
     `checkpoint_every`), then the finished map and stats."""
     n_frames = len(dataset)
@@ -132,17 +144,26 @@ def _fuse_all(dataset: Dataset, config: MappingConfig, perception: Perception, f
     if stats.get("frames_fused", 0) == 0:
         checkpoint.discard()  # nothing to resume: a rerun would meet the same frames
         first = next(iter(fusion.stats.notes.values()), "")
-        raise TerraError(f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)}){'; first: ' + first if first else ''}")
+        raise TerraError(
+            f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)}){'; first: ' + first if first else ''}"
+        )
     with timer.stage("finish"):
         msm = fusion.finish(perception.embedder, perception.terrain_embeddings())
     return msm, stats
 
 
-def _write(out: Path, msm, config: MappingConfig, stats: dict, dataset: Dataset, perception: Perception,
-           source: dict) -> Bundle:
+def _write(
+    out: Path, msm, config: MappingConfig, stats: dict, dataset: Dataset, perception: Perception, source: dict
+) -> Bundle:
     with BundleWriter(out) as writer:
-        write_map(writer, msm, config=config.model_dump(mode="json"), stats=stats, dataset=dataset.name,
-                  classes=dataset.classes.to_json())
+        write_map(
+            writer,
+            msm,
+            config=config.model_dump(mode="json"),
+            stats=stats,
+            dataset=dataset.name,
+            classes=dataset.classes.to_json(),
+        )
         writer.manifest["components"]["map"]["dataset"] = source
         writer.manifest["perception"] = perception.describe()
     return Bundle(out)
@@ -167,7 +188,9 @@ def _run_key(config: MappingConfig, source: dict, perception: Perception, global
             "dataset": source["fingerprint"],
             "frames": source["frames"],
             "embedder": [perception.embedder, perception.dim],
-            "global_map": None if global_map is None else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
+            "global_map": None
+            if global_map is None
+            else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
         }
     )
 
@@ -184,8 +207,9 @@ def _resume(checkpoint: Checkpoint, key: str, fusion: MapFusion) -> int:
     return start
 
 
-def open_perception(config: MappingConfig, dataset: Dataset, out: Path,
-                    perception: Perception | None = None) -> Perception:
+def open_perception(
+    config: MappingConfig, dataset: Dataset, out: Path, perception: Perception | None = None
+) -> Perception:
     """The configured perception backend (or `perception`), behind the perception cache when it is on."""
     perception = perception or get_perception(config.perception, dataset.classes)
     if isinstance(perception, CachedPerception):
@@ -216,7 +240,9 @@ def _global_map(dataset: Dataset, config: MappingConfig) -> tuple[np.ndarray | N
         return None, 0
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] < 3 or not np.issubdtype(points.dtype, np.number):
-        raise TerraError(f"dataset {dataset.name!r}: global map must be an (M, 3) array of metres, got shape {points.shape}")
+        raise TerraError(
+            f"dataset {dataset.name!r}: global map must be an (M, 3) array of metres, got shape {points.shape}"
+        )
     points = points[:, :3].astype(np.float32)
     finite = np.isfinite(points).all(axis=1)
     if not finite.any():
@@ -271,11 +297,19 @@ def image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tup
     if offset > config.projection.max_time_offset:
         return "images_skipped_unmatched_stamp", (
             f"{name}: image stamp {float(camera.stamp):.3f} s is {offset:.3f} s from its scan's {float(frame.stamp):.3f} s "
-            f"(tolerance {config.projection.max_time_offset} s)")
+            f"(tolerance {config.projection.max_time_offset} s)"
+        )
     shape = (calib.height, calib.width)
-    for what, array in (("image", camera.image), ("semantic labels", camera.semantic), ("instance labels", camera.instance)):
+    for what, array in (
+        ("image", camera.image),
+        ("semantic labels", camera.semantic),
+        ("instance labels", camera.instance),
+    ):
         if array is not None and np.asarray(array).shape[:2] != shape:
-            return "images_skipped_bad_size", f"{name}: {what} of {np.asarray(array).shape[:2]} pixels, calibration says (height, width) {shape}"
+            return (
+                "images_skipped_bad_size",
+                f"{name}: {what} of {np.asarray(array).shape[:2]} pixels, calibration says (height, width) {shape}",
+            )
     return None
 
 
@@ -305,7 +339,9 @@ def uses_images(frame: Frame, config: MappingConfig) -> bool:
     return source == "images" or (source == "auto" and bool(frame.cameras))
 
 
-def _fuse_frame(frame: Frame, i: int, config: MappingConfig, perception: Perception, fusion: MapFusion, timer: StageTimer) -> None:
+def _fuse_frame(
+    frame: Frame, i: int, config: MappingConfig, perception: Perception, fusion: MapFusion, timer: StageTimer
+) -> None:
     seed = config.perception.noise.seed
     source = config.perception.source
     with timer.stage("fusion"):
@@ -318,7 +354,9 @@ def _fuse_frame(frame: Frame, i: int, config: MappingConfig, perception: Percept
             if seen is None:
                 continue
             with timer.stage("fusion"):
-                fusion.integrate_image(frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, seen)
+                fusion.integrate_image(
+                    frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, seen
+                )
     elif source in ("auto", "points"):
         with timer.stage("perception"):
             seen_points = perception.perceive_points(frame, np.random.default_rng([seed, i, POINTS_STREAM]))

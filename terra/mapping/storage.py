@@ -23,11 +23,11 @@ import scipy.sparse as sp
 
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
-from terra.npy import ArraySpec, check_csr
-from terra.schemas import MapMeta
 from terra.mapping.semantic_map import ImageTable, MetricSemanticMap, ms_avg_norms, ms_max_ids
 from terra.mapping.visibility import VisibilityIndex
+from terra.npy import ArraySpec, check_csr
 from terra.perception.text import normalize_rows
+from terra.schemas import MapMeta
 
 MAP_FORMAT = 1
 
@@ -109,8 +109,14 @@ def _map_info(bundle: Bundle) -> tuple[dict[str, int], MapMeta]:
     missing = [k for k, v in counts.items() if v is None]
     if missing:
         raise TerraError(f"{where}: field 'components.map.{missing[0]}' is missing (a count of the stored map)")
-    sizes = {"N": info.points, "K": info.bank, "M": info.images, "nnz": info.observations,
-             "D": model.embedder.dim, "T": len(model.terrain_classes)}
+    sizes = {
+        "N": info.points,
+        "K": info.bank,
+        "M": info.images,
+        "nnz": info.observations,
+        "D": model.embedder.dim,
+        "T": len(model.terrain_classes),
+    }
     return sizes, bundle.document("map/meta.json", MapMeta)
 
 
@@ -122,13 +128,17 @@ def _specs(sizes: dict[str, int], cameras: int) -> dict[str, ArraySpec]:
         "map/terrain_votes": ArraySpec(("uint16",), (n, t), what="votes per point and terrain class"),
         "map/counts_indptr": ArraySpec(("int64",), (n + 1,), what="row pointer of the observation counts"),
         "map/counts_indices": ArraySpec(("int32",), (nnz,), what="bank ids of the observation counts"),
-        "map/counts_data": ArraySpec(("uint8", "uint16", "uint32", "uint64"), (nnz,), low=0, high=2**31 - 1,
-                                     what="observation counts"),
+        "map/counts_data": ArraySpec(
+            ("uint8", "uint16", "uint32", "uint64"), (nnz,), low=0, high=2**31 - 1, what="observation counts"
+        ),
         "map/bank": ArraySpec(("float16",), (k, d), finite=True, what="bank entries x the embedder's dimension"),
-        "map/terrain_embeddings": ArraySpec(("float32",), (t, d), finite=True, what="terrain classes x the embedder's dimension"),
+        "map/terrain_embeddings": ArraySpec(
+            ("float32",), (t, d), finite=True, what="terrain classes x the embedder's dimension"
+        ),
         "map/images/stamp": ArraySpec(("float64",), (m,), finite=True, what="image stamps, seconds"),
-        "map/images/camera": ArraySpec(("int16",), (m,), low=0, high=max(cameras - 1, 0),
-                                       what="camera index into map/meta.json camera_names"),
+        "map/images/camera": ArraySpec(
+            ("int16",), (m,), low=0, high=max(cameras - 1, 0), what="camera index into map/meta.json camera_names"
+        ),
         "map/images/T_map_cam": ArraySpec(("float64",), (m, 4, 4), finite=True, what="camera poses"),
         "map/images/embedding": ArraySpec(("float16",), (m, d), finite=True, what="images x the embedder's dimension"),
         "map/visibility/cells": ArraySpec(("int64",), (None,), what="sorted visibility cell keys"),
@@ -149,7 +159,9 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
         raise TerraError(f"{bundle.path}: bundle has no map component; build one with `terra map`")
     sizes, meta = _map_info(bundle)
     if sizes["M"] and not meta.camera_names:
-        raise TerraError(f"{bundle.path}/map/meta.json: field 'camera_names' is empty, but the map has {sizes['M']} images")
+        raise TerraError(
+            f"{bundle.path}/map/meta.json: field 'camera_names' is empty, but the map has {sizes['M']} images"
+        )
     specs = _specs(sizes, len(meta.camera_names))
 
     def array(name: str) -> np.ndarray:
@@ -199,11 +211,17 @@ def _visibility(bundle: Bundle, array, meta: MapMeta, images: ImageTable, m: int
         return None
     where = f"{bundle.path}/map/visibility"
     if meta.visibility_cell_size is None:
-        raise TerraError(f"{bundle.path}/map/meta.json: field 'visibility_cell_size' is missing, "
-                         "but the map has a visibility index")
+        raise TerraError(
+            f"{bundle.path}/map/meta.json: field 'visibility_cell_size' is missing, but the map has a visibility index"
+        )
     cells, indptr, image_ids = (array(f"map/visibility/{name}") for name in ("cells", "indptr", "images"))
     if cells.size > 1 and np.any(np.diff(cells) <= 0):
         raise TerraError(f"{where}/cells.npy: cell keys must be strictly increasing (corrupt bundle)")
     check_csr(indptr, image_ids, cells.shape[0], m, f"{where}/*.npy")
-    return VisibilityIndex(cell_size=float(meta.visibility_cell_size), cell_keys=cells, indptr=indptr,
-                           images=image_ids, image_positions=images.position)
+    return VisibilityIndex(
+        cell_size=float(meta.visibility_cell_size),
+        cell_keys=cells,
+        indptr=indptr,
+        images=image_ids,
+        image_positions=images.position,
+    )

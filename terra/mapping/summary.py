@@ -37,7 +37,9 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
     if info is not None and bundle.has("map/terrain_votes"):
         from terra.npy import ArraySpec
 
-        spec = ArraySpec(("uint16",), (info.points, len(out["terrain_classes"])), what="votes per point and terrain class")
+        spec = ArraySpec(
+            ("uint16",), (info.points, len(out["terrain_classes"])), what="votes per point and terrain class"
+        )
         votes = bundle.array("map/terrain_votes", spec, mmap=True)
         out["map"] = {
             "points": info.points,

@@ -30,12 +30,20 @@ class VisibilityIndex:
     image_positions: np.ndarray
 
     @classmethod
-    def from_pairs(cls, cell_keys: np.ndarray, image_ids: np.ndarray, cell_size: float, image_positions: np.ndarray) -> "VisibilityIndex":
+    def from_pairs(
+        cls, cell_keys: np.ndarray, image_ids: np.ndarray, cell_size: float, image_positions: np.ndarray
+    ) -> VisibilityIndex:
         """Index from (cell key, image) observation pairs (duplicates allowed)."""
         pairs = np.unique(np.column_stack([np.asarray(cell_keys, np.int64), np.asarray(image_ids, np.int64)]), axis=0)
         keys, start = np.unique(pairs[:, 0], return_index=True)
         indptr = np.append(start, pairs.shape[0]).astype(np.int64)
-        return cls(float(cell_size), keys, indptr, pairs[:, 1].astype(np.int32), np.asarray(image_positions, dtype=np.float64).reshape(-1, 3))
+        return cls(
+            float(cell_size),
+            keys,
+            indptr,
+            pairs[:, 1].astype(np.int32),
+            np.asarray(image_positions, dtype=np.float64).reshape(-1, 3),
+        )
 
     @property
     def nnz(self) -> int:
@@ -79,7 +87,11 @@ class VisibilityIndex:
         keys = self._neighbour_keys(block, radius_cells)
         slot = np.searchsorted(self.cell_keys, keys)
         slot_c = np.minimum(slot, max(self.cell_keys.size - 1, 0))
-        hit = (slot < self.cell_keys.size) & (self.cell_keys[slot_c] == keys) if self.cell_keys.size else np.zeros(keys.shape, bool)
+        hit = (
+            (slot < self.cell_keys.size) & (self.cell_keys[slot_c] == keys)
+            if self.cell_keys.size
+            else np.zeros(keys.shape, bool)
+        )
         pos_idx = np.repeat(np.arange(block.shape[0]), keys.shape[1])[hit.ravel()]
         cells = slot_c.ravel()[hit.ravel()]
         lengths = self.indptr[cells + 1] - self.indptr[cells]

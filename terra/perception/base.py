@@ -156,7 +156,9 @@ class Perception:
     def perceive(self, camera: CameraFrame, rng: np.random.Generator) -> ImagePerception:
         terrain = self.terrain.segment_terrain(camera, rng)
         masks = self.proposer.propose_masks(camera, rng)
-        embeddings = self.mask_embedder.embed_masks(camera, masks) if len(masks) else np.zeros((0, self.dim), np.float32)
+        embeddings = (
+            self.mask_embedder.embed_masks(camera, masks) if len(masks) else np.zeros((0, self.dim), np.float32)
+        )
         return ImagePerception(terrain, masks, embeddings, self.image_embedder.embed_image(camera))
 
     def perceive_points(self, frame: Frame, rng: np.random.Generator) -> PointPerception | None:

@@ -42,9 +42,9 @@ import io
 import json
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -63,7 +63,7 @@ def fingerprint(obj: object) -> str:
     return hashlib.sha256(dumps_json(obj).encode()).hexdigest()
 
 
-def _array_digest(digest: "hashlib._Hash", array: np.ndarray) -> None:
+def _array_digest(digest: hashlib._Hash, array: np.ndarray) -> None:
     array = np.ascontiguousarray(array)
     digest.update(f"{array.dtype.str}{array.shape}".encode())
     digest.update(array.tobytes())

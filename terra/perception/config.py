@@ -41,10 +41,12 @@ class NoiseConfig(Section):
     own generator from it, so results do not depend on the order frames are processed in.
     """
 
-    dilate_px: int = Field(0, ge=0, le=50)
-    miss_rate: float = Field(0.0, ge=0.0, le=1.0)
-    confusion_rate: float = Field(0.0, ge=0.0, le=1.0)
-    confusions: dict[str, list[str]] = Field(default_factory=lambda: {k: list(v) for k, v in DEFAULT_CONFUSIONS.items()})
+    dilate_px: int = Field(default=0, ge=0, le=50)
+    miss_rate: float = Field(default=0.0, ge=0.0, le=1.0)
+    confusion_rate: float = Field(default=0.0, ge=0.0, le=1.0)
+    confusions: dict[str, list[str]] = Field(
+        default_factory=lambda: {k: list(v) for k, v in DEFAULT_CONFUSIONS.items()}
+    )
     seed: int = 0
 
     @property
@@ -64,11 +66,12 @@ class CacheConfig(Section):
     """The per-frame perception cache (terra/perception/cache.py documents its format)."""
 
     mode: Literal["auto", "on", "off"] = Field(
-        "auto", description="auto: on for backends that run models, off for the labels lookup"
+        default="auto", description="auto: on for backends that run models, off for the labels lookup"
     )
     folder: str | None = Field(
-        None, description="cache folder (default: OUT.work/perception beside the bundle); share one folder between "
-        "maps of the same images to never run a model twice"
+        default=None,
+        description="cache folder (default: OUT.work/perception beside the bundle); share one folder between "
+        "maps of the same images to never run a model twice",
     )
 
 

@@ -148,7 +148,11 @@ class LabelPointLabeler:
         terrain = self.lookup.terrain_of[labels]
         terrain = self.noise.confuse_terrain(terrain, len(self.lookup.terrain_names), rng)
         numbers, class_ids = self.lookup.compact_groups(self.lookup.group_keys(labels, frame.point_instances), labels)
-        keep, class_ids = self.noise.perturb_classes(class_ids, rng) if self.noise.enabled else (np.ones(len(class_ids), bool), class_ids)
+        keep, class_ids = (
+            self.noise.perturb_classes(class_ids, rng)
+            if self.noise.enabled
+            else (np.ones(len(class_ids), bool), class_ids)
+        )
         kept_number = np.concatenate([[0], np.where(keep, np.cumsum(keep), 0)])  # old number -> new (0 = dropped)
         numbers = kept_number[numbers]
         points = np.flatnonzero(numbers)
@@ -162,7 +166,9 @@ class LabelPointLabeler:
 
 def _semantic(camera: CameraFrame) -> np.ndarray:
     if camera.semantic is None:
-        raise ValueError(f"camera image {camera.name or camera.calibration.name!r} has no semantic labels (the labels backend needs them)")
+        raise ValueError(
+            f"camera image {camera.name or camera.calibration.name!r} has no semantic labels (the labels backend needs them)"
+        )
     return camera.semantic
 
 

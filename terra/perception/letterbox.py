@@ -28,7 +28,7 @@ class Letterbox:
     left: int
 
     @classmethod
-    def fit(cls, image_shape: tuple[int, int], input_shape: tuple[int, int]) -> "Letterbox":
+    def fit(cls, image_shape: tuple[int, int], input_shape: tuple[int, int]) -> Letterbox:
         """The letterbox of an (H, W) image in an (in_h, in_w) input (scaling up allowed, as ultralytics)."""
         h, w = int(image_shape[0]), int(image_shape[1])
         in_h, in_w = int(input_shape[0]), int(input_shape[1])

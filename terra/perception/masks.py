@@ -31,7 +31,7 @@ class MaskSet:
         return len(self.crops)
 
     @classmethod
-    def from_label_image(cls, labels: np.ndarray, class_ids: np.ndarray | None = None) -> "MaskSet":
+    def from_label_image(cls, labels: np.ndarray, class_ids: np.ndarray | None = None) -> MaskSet:
         """Masks from an (H, W) image of mask numbers 1..M (0 = no mask); mask m-1 is number m."""
         labels = np.asarray(labels)
         slices = ndimage.find_objects(labels)
@@ -46,7 +46,7 @@ class MaskSet:
         return cls(labels.shape[:2], np.asarray(boxes, dtype=np.int64).reshape(-1, 4), crops, class_ids)
 
     @classmethod
-    def from_stack(cls, stack: np.ndarray, class_ids: np.ndarray | None = None) -> "MaskSet":
+    def from_stack(cls, stack: np.ndarray, class_ids: np.ndarray | None = None) -> MaskSet:
         """Masks from an (M, H, W) boolean stack (e.g. a model's output), cropped to their boxes."""
         stack = np.asarray(stack, dtype=bool)
         boxes, crops = [], []
@@ -75,7 +75,10 @@ class MaskSet:
     def overlap_counts(self, other: np.ndarray) -> np.ndarray:
         """(M,) pixels of each mask that are also set in the (H, W) boolean image `other`."""
         return np.array(
-            [int(np.count_nonzero(crop & other[r0:r1, c0:c1])) for (r0, c0, r1, c1), crop in zip(self.boxes, self.crops)],
+            [
+                int(np.count_nonzero(crop & other[r0:r1, c0:c1]))
+                for (r0, c0, r1, c1), crop in zip(self.boxes, self.crops)
+            ],
             dtype=np.int64,
         )
 
@@ -94,7 +97,7 @@ class MaskSet:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         return np.concatenate(pix_out).astype(np.int64), np.concatenate(mask_out)
 
-    def subset(self, keep: np.ndarray) -> "MaskSet":
+    def subset(self, keep: np.ndarray) -> MaskSet:
         """The masks at indices `keep` (in that order)."""
         keep = np.asarray(keep, dtype=np.int64)
         return MaskSet(
@@ -104,7 +107,7 @@ class MaskSet:
             None if self.class_ids is None else self.class_ids[keep],
         )
 
-    def dilated(self, pixels: int) -> "MaskSet":
+    def dilated(self, pixels: int) -> MaskSet:
         """Every mask grown by `pixels` (square structuring element), clipped to the image."""
         if pixels <= 0 or len(self) == 0:
             return self

@@ -4,8 +4,8 @@ own progress (terra.progress) is the only one shown."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 
 @contextmanager

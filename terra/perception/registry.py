@@ -4,7 +4,7 @@ register a factory with the same signature, here or through the `terra.perceptio
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from terra.datasets.base import ClassTable
 from terra.perception.base import Perception, TerrainSegmenter

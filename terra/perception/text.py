@@ -6,9 +6,10 @@ from __future__ import annotations
 import importlib
 import os
 import warnings
-from functools import lru_cache
+from collections.abc import Callable
+from functools import cache
 from pathlib import Path
-from typing import Callable, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -72,8 +73,9 @@ class SentenceTransformerEmbedder:
         for i, text in enumerate(texts):
             vector = self._cache.get(text)
             if vector is None:
-                encoded = self._model.encode([text], batch_size=1, normalize_embeddings=True, convert_to_numpy=True,
-                                             show_progress_bar=False)
+                encoded = self._model.encode(
+                    [text], batch_size=1, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False
+                )
                 vector = normalize_rows(encoded)[0]
                 if len(self._cache) >= _CACHED_TEXTS:
                     self._cache.pop(next(iter(self._cache)))
@@ -95,8 +97,9 @@ def text_runtime() -> str:
     return runtime
 
 
-def sentence_model_embedder(name: str, source_dir: Callable[[], Path], loader: Callable[[str], object],
-                            package: str | None = None) -> TextEmbedder:
+def sentence_model_embedder(
+    name: str, source_dir: Callable[[], Path], loader: Callable[[str], object], package: str | None = None
+) -> TextEmbedder:
     """A sentence-transformers model by its runtime (see text_runtime): the light ONNX runtime
     over the model in `source_dir()` (exported once into the user cache), falling back to
     sentence-transformers with `loader(device)`. Both give the same vectors to 1e-5, so the
@@ -156,7 +159,7 @@ def register_text_embedder(name: str, factory: Callable[[], TextEmbedder] | str)
 TEXT_EMBEDDER_FAMILIES: dict[str, str] = {"clip:": "terra.perception.clip:clip_text_embedder"}
 
 
-@lru_cache(maxsize=None)
+@cache
 def _load_text_embedder(name: str) -> TextEmbedder:
     if name not in TEXT_EMBEDDERS:
         for prefix, reference in TEXT_EMBEDDER_FAMILIES.items():

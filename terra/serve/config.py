@@ -13,11 +13,13 @@ TOKEN_ENV = "TERRA_SERVE_TOKEN"
 class ServeConfig(Section):
     """HTTP service limits. A request over a limit is refused with 413 before any work is done."""
 
-    host: str = Field(LOOPBACK, description="Address to bind; loopback by default (other machines cannot connect).")
-    port: int = Field(8765, ge=0, le=65535, description="TCP port.")
-    token: str | None = Field(
-        None, min_length=8, description=f"Bearer token every request must carry (also ${TOKEN_ENV})."
+    host: str = Field(
+        default=LOOPBACK, description="Address to bind; loopback by default (other machines cannot connect)."
     )
-    max_body_bytes: int = Field(65536, ge=256, description="Largest request body accepted, bytes.")
-    max_queries: int = Field(32, ge=1, description="Most text queries in one request.")
-    max_query_chars: int = Field(1000, ge=1, description="Longest text query, characters.")
+    port: int = Field(default=8765, ge=0, le=65535, description="TCP port.")
+    token: str | None = Field(
+        default=None, min_length=8, description=f"Bearer token every request must carry (also ${TOKEN_ENV})."
+    )
+    max_body_bytes: int = Field(default=65536, ge=256, description="Largest request body accepted, bytes.")
+    max_queries: int = Field(default=32, ge=1, description="Most text queries in one request.")
+    max_query_chars: int = Field(default=1000, ge=1, description="Longest text query, characters.")

@@ -83,7 +83,7 @@ def write_bag(
     return root
 
 
-def _write_camera(topics: "_Topics", factory: MessageFactory, cam, ns: int, image_format: str) -> None:
+def _write_camera(topics: _Topics, factory: MessageFactory, cam, ns: int, image_format: str) -> None:
     cal = cam.calibration
     ns_topic, frame_id = f"/{cal.name}", optical_frame(cal.name)
     if image_format == "jpeg":

@@ -24,8 +24,16 @@ class WorldBuilder:
     """Accumulates a world. Objects sit on the ground: the base of an object is the lowest ground
     height under its footprint (parts with `conform` follow the ground piece by piece)."""
 
-    def __init__(self, name: str, seed: int, extent: tuple[float, float, float, float], resolution: float,
-                 ground: Heightfield, rng: np.random.Generator, fill: str = "grass") -> None:
+    def __init__(
+        self,
+        name: str,
+        seed: int,
+        extent: tuple[float, float, float, float],
+        resolution: float,
+        ground: Heightfield,
+        rng: np.random.Generator,
+        fill: str = "grass",
+    ) -> None:
         self.name, self.seed, self.extent = name, seed, extent
         self.rng = rng
         self.ground = ground
@@ -71,8 +79,9 @@ class WorldBuilder:
         return self.terrain.class_at(np.asarray(xy, float).reshape(-1, 2))
 
     # ----------------------------------------------------------------- objects
-    def add(self, cls: str, x: float, y: float, yaw: float = 0.0, conform: bool = False, model: str | None = None,
-            **params) -> int:
+    def add(
+        self, cls: str, x: float, y: float, yaw: float = 0.0, conform: bool = False, model: str | None = None, **params
+    ) -> int:
         """Place one object of class `cls` (model `model` or the class's own) at (x, y) facing `yaw`.
 
         Returns its instance id. The ground-truth box is the box around all its parts, in the
@@ -92,7 +101,9 @@ class WorldBuilder:
             # Lowest ground under the footprint corners, so no object floats on a slope.
             lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
             hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
-            corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[:2, :2].T + [x, y]
+            corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[
+                :2, :2
+            ].T + [x, y]
             base = np.full(len(parts), float(self.ground.height(corners).min()))
         for (kind, c, h, pyaw, color), wxy, b in zip(parts, world_xy, base):
             rgb = CLASS_COLORS[cid] if color is None else color
@@ -113,8 +124,16 @@ class WorldBuilder:
         z_hi = (base + centres[:, 2] + halves[:, 2]).max()
         c_local = (lo_xy + hi_xy) / 2
         c_world = R[:2, :2] @ c_local + [x, y]
-        self.objects.append(ObjectBox(iid, cid, cls, np.array([c_world[0], c_world[1], (z_lo + z_hi) / 2]),
-                                      np.array([hi_xy[0] - lo_xy[0], hi_xy[1] - lo_xy[1], z_hi - z_lo]), float(_wrap(yaw))))
+        self.objects.append(
+            ObjectBox(
+                iid,
+                cid,
+                cls,
+                np.array([c_world[0], c_world[1], (z_lo + z_hi) / 2]),
+                np.array([hi_xy[0] - lo_xy[0], hi_xy[1] - lo_xy[1], z_hi - z_lo]),
+                float(_wrap(yaw)),
+            )
+        )
         disc = (float(c_world[0]), float(c_world[1]), float(np.linalg.norm(hi_xy - lo_xy) / 2))
         for cell in _cells(*disc):
             self._occupied.setdefault(cell, []).append(disc)
@@ -133,8 +152,17 @@ class WorldBuilder:
                     return False
         return True
 
-    def scatter(self, cls: str, area, count: int, radius: float, on: tuple[str, ...] = ("grass",),
-                tries: int = 40, yaw: float | None = None, **params) -> list[int]:
+    def scatter(
+        self,
+        cls: str,
+        area,
+        count: int,
+        radius: float,
+        on: tuple[str, ...] = ("grass",),
+        tries: int = 40,
+        yaw: float | None = None,
+        **params,
+    ) -> list[int]:
         """Place up to `count` objects at random free spots inside the shapely polygon `area`."""
         ids = []
         x0, y0, x1, y1 = area.bounds
@@ -164,8 +192,17 @@ class WorldBuilder:
 
     def finish(self, route_length: float | None = None) -> World:
         route = plan_route(self.walkways, self.waypoints, route_length)
-        return World(self.name, self.seed, self.extent, self.ground, self.terrain, Primitives.from_rows(self._rows),
-                     self.objects, self.regions, route)
+        return World(
+            self.name,
+            self.seed,
+            self.extent,
+            self.ground,
+            self.terrain,
+            Primitives.from_rows(self._rows),
+            self.objects,
+            self.regions,
+            route,
+        )
 
 
 _CELL = 8.0  # metres; spatial hash of placed objects

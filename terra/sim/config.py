@@ -16,21 +16,24 @@ class LidarConfig(Section):
     """A spinning LiDAR: `beams` rows evenly spread over the vertical field of view, `columns`
     azimuth steps per turn. Range noise is Gaussian along the ray (metres, 0 = exact)."""
 
-    beams: int = Field(32, ge=1, le=256)
-    columns: int = Field(1024, ge=16, le=8192)
+    beams: int = Field(default=32, ge=1, le=256)
+    columns: int = Field(default=1024, ge=16, le=8192)
     vertical_fov_deg: tuple[float, float] = (-22.5, 22.5)
-    min_range: float = Field(0.5, ge=0.0)
-    max_range: float = Field(100.0, gt=0.0)
-    range_noise_m: float = Field(0.0, ge=0.0)
-    height: float = Field(1.8, gt=0.0, description="LiDAR origin above the ground, metres")
+    min_range: float = Field(default=0.5, ge=0.0)
+    max_range: float = Field(default=100.0, gt=0.0)
+    range_noise_m: float = Field(default=0.0, ge=0.0)
+    height: float = Field(default=1.8, gt=0.0, description="LiDAR origin above the ground, metres")
     wobble_deg: float = Field(
-        0.0, ge=0.0, le=10.0,
+        default=0.0,
+        ge=0.0,
+        le=10.0,
         description="per-scan tilt of the beam pattern (vibration, suspension), degrees: each scan's beams turn by "
         "a random angle within this bound about each axis; points stay in the LiDAR frame and poses exact. 0 = the "
-        "same pattern every scan, whose ground rings point-to-point ICP (KISS-ICP) matches to themselves")
+        "same pattern every scan, whose ground rings point-to-point ICP (KISS-ICP) matches to themselves",
+    )
 
     @model_validator(mode="after")
-    def _check(self) -> "LidarConfig":
+    def _check(self) -> LidarConfig:
         lo, hi = self.vertical_fov_deg
         if not (-90.0 <= lo < hi <= 90.0):
             raise ValueError(f"vertical_fov_deg must satisfy -90 <= low < high <= 90, got {self.vertical_fov_deg}")
@@ -49,13 +52,13 @@ class CameraConfig(Section):
     """
 
     name: str = "cam0"
-    width: int = Field(640, ge=8, le=8192)
-    height: int = Field(480, ge=8, le=8192)
-    fx: float = Field(420.0, gt=0.0)
-    fy: float = Field(420.0, gt=0.0)
+    width: int = Field(default=640, ge=8, le=8192)
+    height: int = Field(default=480, ge=8, le=8192)
+    fx: float = Field(default=420.0, gt=0.0)
+    fy: float = Field(default=420.0, gt=0.0)
     cx: float | None = None
     cy: float | None = None
-    model: str = Field("pinhole", description="lens model: pinhole (OpenCV) or fisheye (equidistant)")
+    model: str = Field(default="pinhole", description="lens model: pinhole (OpenCV) or fisheye (equidistant)")
     dist: list[float] = Field(default_factory=lambda: [-0.05, 0.01, 0.0, 0.0, 0.0])
     position: tuple[float, float, float] = (0.2, 0.0, 1.5)
     yaw_deg: float = 0.0
@@ -78,7 +81,7 @@ class CameraConfig(Section):
         return v
 
     @model_validator(mode="after")
-    def _lens_is_usable(self) -> "CameraConfig":
+    def _lens_is_usable(self) -> CameraConfig:
         cx = (self.width - 1) / 2 if self.cx is None else self.cx
         cy = (self.height - 1) / 2 if self.cy is None else self.cy
         if not (0.0 <= cx < self.width and 0.0 <= cy < self.height):
@@ -90,8 +93,9 @@ class CameraConfig(Section):
         return self
 
 
-def _check_distortion_invertible(dist: list[float], model: str, width: int, height: int, fx: float, fy: float,
-                                 cx: float, cy: float) -> None:
+def _check_distortion_invertible(
+    dist: list[float], model: str, width: int, height: int, fx: float, fy: float, cx: float, cy: float
+) -> None:
     """ValueError when the lens model folds over inside the image: then pixels have no unique
     viewing ray and the rendered image would be wrong. Checked on a grid that includes the image
     border: on straight lines from the principal point to grid pixels, every pixel must have an
@@ -108,8 +112,10 @@ def _check_distortion_invertible(dist: list[float], model: str, width: int, heig
     with np.errstate(all="ignore"):
         radius = np.hypot(*lens.undistort(lines, dist, model).T).reshape(len(ends), len(steps))
     if not (np.all(np.isfinite(radius)) and np.all(np.diff(radius, axis=1) > 0)):
-        raise ValueError(f"distortion {list(dist)} cannot be inverted over the {width}x{height} image "
-                         "(the lens model folds over; use smaller coefficients)")
+        raise ValueError(
+            f"distortion {list(dist)} cannot be inverted over the {width}x{height} image "
+            "(the lens model folds over; use smaller coefficients)"
+        )
 
 
 class RouteConfig(Section):
@@ -119,12 +125,12 @@ class RouteConfig(Section):
     in the frames): random-walk standard deviations per metre travelled.
     """
 
-    frame_spacing: float | None = Field(None, gt=0.0, description="metres between frames; None = preset")
-    length_m: float | None = Field(None, gt=0.0)
-    speed: float = Field(1.5, gt=0.0)
-    drift_xy_per_m: float = Field(0.0, ge=0.0)
-    drift_yaw_deg_per_m: float = Field(0.0, ge=0.0)
-    max_frames: int | None = Field(None, ge=1)
+    frame_spacing: float | None = Field(default=None, gt=0.0, description="metres between frames; None = preset")
+    length_m: float | None = Field(default=None, gt=0.0)
+    speed: float = Field(default=1.5, gt=0.0)
+    drift_xy_per_m: float = Field(default=0.0, ge=0.0)
+    drift_yaw_deg_per_m: float = Field(default=0.0, ge=0.0)
+    max_frames: int | None = Field(default=None, ge=1)
 
 
 class SimConfig(Section):
@@ -133,9 +139,13 @@ class SimConfig(Section):
     lidar: LidarConfig = Field(default_factory=LidarConfig)
     cameras: list[CameraConfig] = Field(default_factory=lambda: [CameraConfig()])
     route: RouteConfig = Field(default_factory=RouteConfig)
-    ground_relief_m: float = Field(1.0, ge=0.0, le=5.0, description="amplitude scale of the smooth height field")
-    terrain_resolution: float | None = Field(None, gt=0.0, description="ground-truth raster cell, metres; None = preset")
-    frame_cache: int = Field(4, ge=0, description="rendered frames kept in memory")
+    ground_relief_m: float = Field(
+        default=1.0, ge=0.0, le=5.0, description="amplitude scale of the smooth height field"
+    )
+    terrain_resolution: float | None = Field(
+        default=None, gt=0.0, description="ground-truth raster cell, metres; None = preset"
+    )
+    frame_cache: int = Field(default=4, ge=0, description="rendered frames kept in memory")
 
     @field_validator("cameras")
     @classmethod

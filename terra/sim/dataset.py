@@ -43,8 +43,15 @@ class SimDataset:
         spacing = config.route.frame_spacing or p.spacing
         max_frames = config.route.max_frames or p.max_frames
         self.trajectory: Trajectory = sample_trajectory(
-            world.route, world.ground, spacing, config.route.speed, rng, max_frames,
-            config.route.drift_xy_per_m, np.radians(config.route.drift_yaw_deg_per_m))
+            world.route,
+            world.ground,
+            spacing,
+            config.route.speed,
+            rng,
+            max_frames,
+            config.route.drift_xy_per_m,
+            np.radians(config.route.drift_yaw_deg_per_m),
+        )
         self._cache: OrderedDict[int, Frame] = OrderedDict()
         self.timer: StageTimer | None = None  # when set, rendering time is recorded per sensor
 
@@ -98,10 +105,20 @@ class SimDataset:
             for n, cam in enumerate(self.cameras):
                 T_map_cam = T_true @ invert_pose(cam.calibration.T_cam_lidar)
                 img = cam.render(self.world, T_map_cam)
-                cams.append(CameraFrame(cam.calibration, stamp, img["image"], img["semantic"], img["instance"],
-                                        name=image_name(n, stamp)))
+                cams.append(
+                    CameraFrame(
+                        cam.calibration,
+                        stamp,
+                        img["image"],
+                        img["semantic"],
+                        img["instance"],
+                        name=image_name(n, stamp),
+                    )
+                )
         T_reported = self.trajectory.T_map_base_odom[index] @ self.lidar.T_base_lidar
-        return Frame(index, stamp, scan["points"], T_reported, cams, scan["intensity"], scan["labels"], scan["instances"])
+        return Frame(
+            index, stamp, scan["points"], T_reported, cams, scan["intensity"], scan["labels"], scan["instances"]
+        )
 
     def __iter__(self):
         for i in range(len(self)):
@@ -120,11 +137,20 @@ class SimDataset:
         drift = route.drift_xy_per_m > 0 or route.drift_yaw_deg_per_m > 0
         stamps = self.trajectory.stamps
         lidar = self.config.lidar
-        return SourceInfo("sim", f"sim:{self.preset}:{self.seed}", len(self), (float(stamps[0]), float(stamps[-1])),
-                          list(self.calibrations),
-                          "simulated odometry with drift" if drift else "simulator ground truth",
-                          details={"preset": self.preset, "seed": self.seed, "world": self.name,
-                                   "lidar": f"{lidar.beams} x {lidar.columns}, {lidar.min_range}-{lidar.max_range} m"})
+        return SourceInfo(
+            "sim",
+            f"sim:{self.preset}:{self.seed}",
+            len(self),
+            (float(stamps[0]), float(stamps[-1])),
+            list(self.calibrations),
+            "simulated odometry with drift" if drift else "simulator ground truth",
+            details={
+                "preset": self.preset,
+                "seed": self.seed,
+                "world": self.name,
+                "lidar": f"{lidar.beams} x {lidar.columns}, {lidar.min_range}-{lidar.max_range} m",
+            },
+        )
 
 
 def simulate(preset: str = "small", seed: int = 0, config: SimConfig | None = None) -> SimDataset:

@@ -25,7 +25,7 @@ class Heightfield:
     base: float = 0.0
 
     @classmethod
-    def random(cls, rng: np.random.Generator, relief: float = 1.0) -> "Heightfield":
+    def random(cls, rng: np.random.Generator, relief: float = 1.0) -> Heightfield:
         """Three waves of wavelength 70-180 m; with relief 1 the slope stays under about 6 degrees."""
         wavelengths = np.array([180.0, 110.0, 70.0])
         amplitude = relief * np.array([1.2, 0.6, 0.3])

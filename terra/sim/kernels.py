@@ -93,9 +93,29 @@ def _ground_height(x, y, amp, kx, ky, phase, base):
 
 
 @njit(cache=True, parallel=True)
-def cast_kernel(origin, dirs, tile_rays, tile_ptr, tile_prims, kind, center, half, cos_yaw, sin_yaw,
-                amp, kx, ky, phase, base, slope_bound, max_range, tolerance,
-                out_t, out_prim, out_normal):
+def cast_kernel(
+    origin,
+    dirs,
+    tile_rays,
+    tile_ptr,
+    tile_prims,
+    kind,
+    center,
+    half,
+    cos_yaw,
+    sin_yaw,
+    amp,
+    kx,
+    ky,
+    phase,
+    base,
+    slope_bound,
+    max_range,
+    tolerance,
+    out_t,
+    out_prim,
+    out_normal,
+):
     """First hit per ray among its tile's candidate shapes and the ground.
 
     out_prim: shape index, -1 for the ground, -2 for nothing within max_range. out_normal: map frame.
@@ -235,7 +255,11 @@ def shade_kernel(t, dirs, normal, color, origin, sun, out):
         px = origin[0] + t[i] * dirs[i, 0]
         py = origin[1] + t[i] * dirs[i, 1]
         pz = origin[2] + t[i] * dirs[i, 2]
-        h = (np.int64(math.floor(px * 4.0)) * 73856093) ^ (np.int64(math.floor(py * 4.0)) * 19349663) ^ (np.int64(math.floor(pz * 4.0)) * 83492791)
+        h = (
+            (np.int64(math.floor(px * 4.0)) * 73856093)
+            ^ (np.int64(math.floor(py * 4.0)) * 19349663)
+            ^ (np.int64(math.floor(pz * 4.0)) * 83492791)
+        )
         texture = 0.92 + 0.16 * ((h & 1023) / 1023.0)
         lam = normal[i, 0] * sun[0] + normal[i, 1] * sun[1] + normal[i, 2] * sun[2]
         light = 0.45 + 0.55 * min(max(lam, 0.0), 1.0)

@@ -15,8 +15,8 @@ hydrants and parked cars. `tiny_layout` is a single compact site for tests.
 from __future__ import annotations
 
 import numpy as np
-from shapely.geometry import Point, box
 from shapely.affinity import scale as shp_scale
+from shapely.geometry import Point, box
 
 from terra.sim.builder import WorldBuilder
 
@@ -80,7 +80,12 @@ def street_furniture(k: Block, avoid: list[tuple[str, float, float]]) -> None:
         for i, s in enumerate(stations):
             if any(a == side and abs(s - c) < w / 2 + 3.0 for a, c, w in avoid):
                 continue
-            u, vv, yaw = {"S": (s, v, np.pi / 2), "N": (s, B - v, -np.pi / 2), "W": (v, s, 0.0), "E": (B - v, s, np.pi)}[side]
+            u, vv, yaw = {
+                "S": (s, v, np.pi / 2),
+                "N": (s, B - v, -np.pi / 2),
+                "W": (v, s, 0.0),
+                "E": (B - v, s, np.pi),
+            }[side]
             if i % 2 == 0:
                 k.add("street light", u, vv, yaw)
             else:
@@ -104,13 +109,37 @@ def parking_block(k: Block) -> None:
     k.paint(*lot, "asphalt")
     # Buildings west, north and east of the lot, lawns between.
     top = lot[3] + WALK + 2.0
-    k.add("building", INNER + 1.5 + (lot[0] - WALK - 2.0 - INNER - 1.5) / 2, B / 2, -np.pi / 2,
-          length=0.7 * B, depth=lot[0] - WALK - 2.0 - INNER - 1.5, height=rng.uniform(8, 14), door=True)
-    k.add("building", B - (INNER + 1.5 + (lot[0] - WALK - 2.0 - INNER - 1.5) / 2), B / 2, np.pi / 2,
-          length=0.7 * B, depth=lot[0] - WALK - 2.0 - INNER - 1.5, height=rng.uniform(8, 14), door=True)
+    k.add(
+        "building",
+        INNER + 1.5 + (lot[0] - WALK - 2.0 - INNER - 1.5) / 2,
+        B / 2,
+        -np.pi / 2,
+        length=0.7 * B,
+        depth=lot[0] - WALK - 2.0 - INNER - 1.5,
+        height=rng.uniform(8, 14),
+        door=True,
+    )
+    k.add(
+        "building",
+        B - (INNER + 1.5 + (lot[0] - WALK - 2.0 - INNER - 1.5) / 2),
+        B / 2,
+        np.pi / 2,
+        length=0.7 * B,
+        depth=lot[0] - WALK - 2.0 - INNER - 1.5,
+        height=rng.uniform(8, 14),
+        door=True,
+    )
     north_depth = B - INNER - 1.5 - top
-    k.add("building", mid, top + north_depth / 2, 0.0, length=lot[2] - lot[0] + 2 * WALK, depth=north_depth,
-          height=rng.uniform(10, 18), door=True)
+    k.add(
+        "building",
+        mid,
+        top + north_depth / 2,
+        0.0,
+        length=lot[2] - lot[0] + 2 * WALK,
+        depth=north_depth,
+        height=rng.uniform(10, 18),
+        door=True,
+    )
     k.paint(mid - 2.5, lot[3] + WALK, mid + 2.5, top, "sidewalk")
     k.add("stairs", mid, top - 0.55, 0.0, width=3.0)
     k.add("trash can", mid + 3.2, top - 0.8)
@@ -132,8 +161,11 @@ def parking_block(k: Block) -> None:
     k.walkway((mid, PATH), (mid, north))
     k.walkway((left, PATH), (left, north), (right, north), (right, PATH))
     k.visit((mid, PATH), (mid, north), (left, north), (left, PATH))
-    k.b.region(k.name("parking_lot"), "large parking lot surrounded by buildings",
-               k.rect(lot[0] - WALK, INNER, lot[2] + WALK, lot[3] + WALK))
+    k.b.region(
+        k.name("parking_lot"),
+        "large parking lot surrounded by buildings",
+        k.rect(lot[0] - WALK, INNER, lot[2] + WALK, lot[3] + WALK),
+    )
     street_furniture(k, [("S", mid, 8.0)])
 
 
@@ -168,8 +200,11 @@ def mall_block(k: Block) -> None:
     k.b.scatter("picnic table", south, 2, 1.5)
     k.b.scatter("tree", south, int(B * B / 1500), 2.5)
     k.visit((PATH, ys[0]), (B - PATH, ys[0]), (B - PATH, ys[1]), (PATH, ys[1]))
-    k.b.region(k.name("tree_lined_walks"), "two long parallel sidewalks lined by trees",
-               k.rect(INNER, ys[0] - 4.5, B - INNER, ys[1] + 4.5))
+    k.b.region(
+        k.name("tree_lined_walks"),
+        "two long parallel sidewalks lined by trees",
+        k.rect(INNER, ys[0] - 4.5, B - INNER, ys[1] + 4.5),
+    )
     street_furniture(k, [])
 
 
@@ -210,13 +245,25 @@ def building_block(k: Block) -> None:
     lawn = box(k.x0 + walk_x + WALK / 2 + 1, k.y0 + INNER + 1, k.x0 + B - INNER - 1, k.y0 + plaza[1] - 1)
     k.b.scatter("tree", lawn, max(2, int(B * B / 1200)), 2.5)
     k.b.scatter("picnic table", lawn, 1, 1.5)
-    k.visit((walk_x, PATH), (mid, y0 - 2.0), (walk_x, PATH), (B - PATH, PATH), (B - PATH, B - PATH),
-            (mid, B - PATH), (mid, pad[1] + 4.0), (mid, B - PATH))
-    k.b.region(k.name("entrance"), "building entrance with bicycle racks and benches",
-               k.rect(plaza[0], plaza[1], plaza[2], y0))
+    k.visit(
+        (walk_x, PATH),
+        (mid, y0 - 2.0),
+        (walk_x, PATH),
+        (B - PATH, PATH),
+        (B - PATH, B - PATH),
+        (mid, B - PATH),
+        (mid, pad[1] + 4.0),
+        (mid, B - PATH),
+    )
+    k.b.region(
+        k.name("entrance"), "building entrance with bicycle racks and benches", k.rect(plaza[0], plaza[1], plaza[2], y0)
+    )
     k.b.region(k.name("service_area"), "service area behind the building with dumpsters", k.rect(*pad))
-    k.b.region(k.name("front_lawn"), "open lawn between the sidewalk and the building entrance",
-               k.rect(walk_x + WALK / 2, INNER, B - INNER, plaza[1]))
+    k.b.region(
+        k.name("front_lawn"),
+        "open lawn between the sidewalk and the building entrance",
+        k.rect(walk_x + WALK / 2, INNER, B - INNER, plaza[1]),
+    )
     street_furniture(k, [("N", mid, 10.0)])
 
 
@@ -245,8 +292,11 @@ def park_block(k: Block) -> None:
     k.b.scatter("trash can", lawn, 2, 0.6)
     k.b.scatter("tree", lawn, int(B * B / 350), 2.5)
     k.visit((PATH, cy), (cx - trail_x, cy), (cx, cy + trail_y), (cx + trail_x, cy), (cx, cy - trail_y), (cx, PATH))
-    k.b.region(k.name("park"), "park with a pond, a dirt trail and picnic tables on the grass",
-               k.rect(INNER, INNER, B - INNER, B - INNER))
+    k.b.region(
+        k.name("park"),
+        "park with a pond, a dirt trail and picnic tables on the grass",
+        k.rect(INNER, INNER, B - INNER, B - INNER),
+    )
     street_furniture(k, [])
 
 
@@ -254,8 +304,14 @@ BLOCKS = {"parking": parking_block, "mall": mall_block, "building": building_blo
 
 
 # ---------------------------------------------------------------------------------------- grid
-def grid_layout(b: WorldBuilder, n: int, block: float, kinds: list[str], row_stride: int | None = None,
-                full_tours: int | None = None) -> None:
+def grid_layout(
+    b: WorldBuilder,
+    n: int,
+    block: float,
+    kinds: list[str],
+    row_stride: int | None = None,
+    full_tours: int | None = None,
+) -> None:
     """n x n blocks of side `block` between roads; kinds[j * n + i] for block (i, j).
 
     The robot's tour: with `row_stride` None, every block's own tour in serpentine block order.
@@ -321,8 +377,11 @@ def grid_layout(b: WorldBuilder, n: int, block: float, kinds: list[str], row_str
     if n >= 2:
         cx = cy = (n // 2) * pitch + ROAD / 2
         half = ROAD / 2 + INNER
-        b.region("intersection", "road intersection with crosswalks and stop lights",
-                 [(cx - half, cy - half), (cx + half, cy - half), (cx + half, cy + half), (cx - half, cy + half)])
+        b.region(
+            "intersection",
+            "road intersection with crosswalks and stop lights",
+            [(cx - half, cy - half), (cx + half, cy - half), (cx + half, cy + half), (cx - half, cy + half)],
+        )
     # A bus stop just inside the south sidewalk of the first block, open toward the road.
     k = blocks[(0, 0)]
     for du in (0.25, 0.75, 0.4, 0.6):
@@ -332,7 +391,9 @@ def grid_layout(b: WorldBuilder, n: int, block: float, kinds: list[str], row_str
             break
 
 
-def _choose_tours(candidates: list[tuple[int, int]], kinds: list[str], n: int, count: int | None) -> set[tuple[int, int]]:
+def _choose_tours(
+    candidates: list[tuple[int, int]], kinds: list[str], n: int, count: int | None
+) -> set[tuple[int, int]]:
     """Blocks (in route order) that get their own tour: the first of each kind, then evenly spread."""
     if count is None:
         return set(candidates)
@@ -384,4 +445,6 @@ def tiny_layout(b: WorldBuilder) -> None:
     b.visit((53, 12), (42, 54))
     b.region("parking_lot", "parking lot with rows of parked cars", [(6, 3), (54, 3), (54, 21), (6, 21)])
     b.region("entrance", "building entrance with a bicycle rack", [(25, 24), (35, 24), (35, 36), (25, 36)])
-    b.region("service_lane", "service lane behind the building with a dumpster", [(10, 49), (48, 49), (48, 58), (10, 58)])
+    b.region(
+        "service_lane", "service lane behind the building with a dumpster", [(10, 49), (48, 49), (48, 58), (10, 58)]
+    )

@@ -7,7 +7,7 @@ None for the class colour). Parameters are drawn from `rng` so instances differ 
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -15,7 +15,15 @@ from terra.sim.primitives import BOX, CYLINDER, ELLIPSOID
 
 Part = tuple[int, tuple[float, float, float], tuple[float, float, float], float, tuple[int, int, int] | None]
 
-CAR_COLORS = [(170, 30, 40), (230, 230, 235), (25, 25, 30), (60, 70, 140), (140, 140, 150), (200, 170, 60), (40, 110, 70)]
+CAR_COLORS = [
+    (170, 30, 40),
+    (230, 230, 235),
+    (25, 25, 30),
+    (60, 70, 140),
+    (140, 140, 150),
+    (200, 170, 60),
+    (40, 110, 70),
+]
 _DARK = (35, 35, 40)
 _METAL = (120, 120, 128)
 _WOOD = (130, 85, 45)
@@ -35,8 +43,11 @@ def car(rng: np.random.Generator) -> list[Part]:
     length, width = rng.uniform(4.2, 4.8), rng.uniform(1.75, 1.9)
     color = CAR_COLORS[int(rng.integers(len(CAR_COLORS)))]
     cabin = rng.uniform(0.5, 0.6)
-    wheels = [_box(sx * (length / 2 - 0.8), sy * (width / 2 - 0.12), 0.3, 0.62, 0.22, 0.6, color=_DARK)
-              for sx in (-1, 1) for sy in (-1, 1)]
+    wheels = [
+        _box(sx * (length / 2 - 0.8), sy * (width / 2 - 0.12), 0.3, 0.62, 0.22, 0.6, color=_DARK)
+        for sx in (-1, 1)
+        for sy in (-1, 1)
+    ]
     return [
         _box(0.0, 0.0, 0.25 + 0.8 / 2, length, width, 0.8, color=color),
         _box(-0.15, 0.0, 1.05 + cabin / 2, length * 0.55, width * 0.9, cabin, color=(45, 55, 70)),
@@ -58,7 +69,11 @@ def bicycle_rack(rng: np.random.Generator, hoops: int = 4, spacing: float = 0.8)
     parts = []
     xs = (np.arange(hoops) - (hoops - 1) / 2) * spacing
     for x in xs:
-        parts += [_box(x, -0.3, 0.42, 0.06, 0.06, 0.84), _box(x, 0.3, 0.42, 0.06, 0.06, 0.84), _box(x, 0.0, 0.86, 0.06, 0.66, 0.06)]
+        parts += [
+            _box(x, -0.3, 0.42, 0.06, 0.06, 0.84),
+            _box(x, 0.3, 0.42, 0.06, 0.06, 0.84),
+            _box(x, 0.0, 0.86, 0.06, 0.66, 0.06),
+        ]
     parts.append(_box(0.0, 0.0, 0.04, spacing * hoops, 0.08, 0.08))
     return parts
 
@@ -80,7 +95,11 @@ def trash_can(rng: np.random.Generator) -> list[Part]:
 def street_light(rng: np.random.Generator) -> list[Part]:
     """Pole at the origin; the arm reaches over +x."""
     h = rng.uniform(5.5, 6.5)
-    return [_cyl(0.0, 0.0, 0.0, h, 0.1), _box(0.6, 0.0, h - 0.05, 1.2, 0.08, 0.08), _box(1.15, 0.0, h - 0.18, 0.5, 0.3, 0.16, color=(240, 235, 200))]
+    return [
+        _cyl(0.0, 0.0, 0.0, h, 0.1),
+        _box(0.6, 0.0, h - 0.05, 1.2, 0.08, 0.08),
+        _box(1.15, 0.0, h - 0.18, 0.5, 0.3, 0.16, color=(240, 235, 200)),
+    ]
 
 
 def dumpster(rng: np.random.Generator) -> list[Part]:
@@ -89,8 +108,11 @@ def dumpster(rng: np.random.Generator) -> list[Part]:
 
 def stop_light(rng: np.random.Generator) -> list[Part]:
     """Pole with a signal head; the head faces +x."""
-    return [_cyl(0.0, 0.0, 0.0, 3.0, 0.1, color=_METAL), _box(0.0, 0.0, 3.5, 0.35, 0.4, 1.0),
-            _box(0.19, 0.0, 3.85, 0.04, 0.22, 0.22, color=(220, 40, 30))]
+    return [
+        _cyl(0.0, 0.0, 0.0, 3.0, 0.1, color=_METAL),
+        _box(0.0, 0.0, 3.5, 0.35, 0.4, 1.0),
+        _box(0.19, 0.0, 3.85, 0.04, 0.22, 0.22, color=(220, 40, 30)),
+    ]
 
 
 def crosswalk(rng: np.random.Generator, length: float = 10.0, width: float = 3.0) -> list[Part]:
@@ -118,7 +140,9 @@ def picnic_table(rng: np.random.Generator) -> list[Part]:
     ]
 
 
-def stairs(rng: np.random.Generator, width: float = 4.0, steps: int = 3, tread: float = 0.35, rise: float = 0.15) -> list[Part]:
+def stairs(
+    rng: np.random.Generator, width: float = 4.0, steps: int = 3, tread: float = 0.35, rise: float = 0.15
+) -> list[Part]:
     """Steps climb toward +y (the door); width along x."""
     depth = steps * tread
     return [
@@ -163,12 +187,20 @@ def tree(rng: np.random.Generator, scale: float = 1.0) -> list[Part]:
     r = rng.uniform(2.0, 3.0) * scale
     rz = r * rng.uniform(0.9, 1.25)
     green = (int(rng.integers(30, 60)), int(rng.integers(95, 130)), int(rng.integers(30, 55)))
-    return [_cyl(0.0, 0.0, 0.0, trunk + 0.5, 0.2 * scale, color=(90, 65, 40)),
-            (ELLIPSOID, (0.0, 0.0, trunk + rz * 0.85), (r, r, rz), 0.0, green)]
+    return [
+        _cyl(0.0, 0.0, 0.0, trunk + 0.5, 0.2 * scale, color=(90, 65, 40)),
+        (ELLIPSOID, (0.0, 0.0, trunk + rz * 0.85), (r, r, rz), 0.0, green),
+    ]
 
 
-def building(rng: np.random.Generator, length: float = 20.0, depth: float = 12.0, height: float = 10.0,
-             door: bool = True, sink: float = 0.0) -> list[Part]:
+def building(
+    rng: np.random.Generator,
+    length: float = 20.0,
+    depth: float = 12.0,
+    height: float = 10.0,
+    door: bool = True,
+    sink: float = 0.0,
+) -> list[Part]:
     """A box from -sink to height; a dark door on its -y face (the entrance side)."""
     tint = int(rng.integers(-25, 26))
     color = (185 + tint // 2, 150 + tint, 120 + tint)
@@ -179,10 +211,25 @@ def building(rng: np.random.Generator, length: float = 20.0, depth: float = 12.0
 
 
 MODELS: dict[str, Callable[..., list[Part]]] = {
-    "car": car, "bicycle": bicycle, "bicycle rack": bicycle_rack, "bench": bench, "trash can": trash_can,
-    "street light": street_light, "dumpster": dumpster, "stop light": stop_light, "crosswalk": crosswalk,
-    "fire hydrant": fire_hydrant, "picnic table": picnic_table, "stairs": stairs, "bollard": bollard,
-    "street sign": street_sign, "mailbox": mailbox, "planter": planter, "bus shelter": bus_shelter,
-    "parking meter": parking_meter, "tree": tree, "building": building,
+    "car": car,
+    "bicycle": bicycle,
+    "bicycle rack": bicycle_rack,
+    "bench": bench,
+    "trash can": trash_can,
+    "street light": street_light,
+    "dumpster": dumpster,
+    "stop light": stop_light,
+    "crosswalk": crosswalk,
+    "fire hydrant": fire_hydrant,
+    "picnic table": picnic_table,
+    "stairs": stairs,
+    "bollard": bollard,
+    "street sign": street_sign,
+    "mailbox": mailbox,
+    "planter": planter,
+    "bus shelter": bus_shelter,
+    "parking meter": parking_meter,
+    "tree": tree,
+    "building": building,
 }
 """Class name -> model function (rng, **params) -> parts."""

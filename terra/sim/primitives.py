@@ -39,16 +39,29 @@ class Primitives:
         return np.where(self.kind == ELLIPSOID, h.max(axis=1), np.linalg.norm(h, axis=1))
 
     @classmethod
-    def empty(cls) -> "Primitives":
-        return cls(np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                   np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, 3), np.uint8))
+    def empty(cls) -> Primitives:
+        return cls(
+            np.zeros(0, np.int8),
+            np.zeros((0, 3)),
+            np.zeros((0, 3)),
+            np.zeros(0),
+            np.zeros(0, np.int32),
+            np.zeros(0, np.int32),
+            np.zeros((0, 3), np.uint8),
+        )
 
     @classmethod
-    def from_rows(cls, rows: list[tuple]) -> "Primitives":
+    def from_rows(cls, rows: list[tuple]) -> Primitives:
         """From rows (kind, center(3), half(3), yaw, class_id, instance_id, color(3))."""
         if not rows:
             return cls.empty()
         kind, center, half, yaw, cid, iid, color = zip(*rows)
-        return cls(np.asarray(kind, np.int8), np.asarray(center, float).reshape(-1, 3),
-                   np.asarray(half, float).reshape(-1, 3), np.asarray(yaw, float),
-                   np.asarray(cid, np.int32), np.asarray(iid, np.int32), np.asarray(color, np.uint8).reshape(-1, 3))
+        return cls(
+            np.asarray(kind, np.int8),
+            np.asarray(center, float).reshape(-1, 3),
+            np.asarray(half, float).reshape(-1, 3),
+            np.asarray(yaw, float),
+            np.asarray(cid, np.int32),
+            np.asarray(iid, np.int32),
+            np.asarray(color, np.uint8).reshape(-1, 3),
+        )

@@ -31,7 +31,7 @@ class RayTiles:
         self.sin_half = np.sin(self.half_angle)
 
     @classmethod
-    def from_grid(cls, directions: np.ndarray, rows: int, cols: int, tile_rows: int, tile_cols: int) -> "RayTiles":
+    def from_grid(cls, directions: np.ndarray, rows: int, cols: int, tile_rows: int, tile_cols: int) -> RayTiles:
         """Tiles of tile_rows x tile_cols over rays stored row-major on a rows x cols grid."""
         r0 = np.arange(0, rows, tile_rows)
         c0 = np.arange(0, cols, tile_cols)
@@ -82,8 +82,16 @@ def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: flo
         radius = world.bounding_radius[near]
         ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / np.maximum(dist, 1e-9), 0.0, 1.0)))
         u = rel / np.maximum(dist, 1e-9)[:, None]
-        tile_ptr, local = cull_kernel(np.ascontiguousarray(tiles.axis @ R.T), tiles.cos_half, tiles.sin_half,
-                                      tiles.half_angle, np.ascontiguousarray(u), np.cos(ang), np.sin(ang), ang)
+        tile_ptr, local = cull_kernel(
+            np.ascontiguousarray(tiles.axis @ R.T),
+            tiles.cos_half,
+            tiles.sin_half,
+            tiles.half_angle,
+            np.ascontiguousarray(u),
+            np.cos(ang),
+            np.sin(ang),
+            ang,
+        )
         tile_prims = near[local]
     else:
         tile_ptr, tile_prims = np.zeros(tiles.rays.shape[0] + 1, np.int64), np.zeros(0, np.int64)
@@ -92,10 +100,29 @@ def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: flo
     prim = np.empty(n, np.int64)
     normal = np.empty((n, 3))
     hf = world.ground
-    cast_kernel(origin, dirs, tiles.rays, tile_ptr, tile_prims, prims.kind, prims.center, prims.half,
-                world.cos_yaw, world.sin_yaw, hf.amplitude, np.ascontiguousarray(hf.wavevector[:, 0]),
-                np.ascontiguousarray(hf.wavevector[:, 1]), hf.phase, float(hf.base), hf.slope_bound,
-                float(max_range), 1e-3, t, prim, normal)
+    cast_kernel(
+        origin,
+        dirs,
+        tiles.rays,
+        tile_ptr,
+        tile_prims,
+        prims.kind,
+        prims.center,
+        prims.half,
+        world.cos_yaw,
+        world.sin_yaw,
+        hf.amplitude,
+        np.ascontiguousarray(hf.wavevector[:, 0]),
+        np.ascontiguousarray(hf.wavevector[:, 1]),
+        hf.phase,
+        float(hf.base),
+        hf.slope_bound,
+        float(max_range),
+        1e-3,
+        t,
+        prim,
+        normal,
+    )
 
     class_id = np.zeros(n, np.int32)
     instance_id = np.zeros(n, np.int32)

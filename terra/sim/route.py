@@ -27,7 +27,11 @@ def walkway_graph(walkways: list[np.ndarray], step: float = 1.0, snap: float = 0
     pts = np.concatenate(samples)
     pairs = cKDTree(pts).query_pairs(snap, output_type="ndarray")
     n = pts.shape[0]
-    link = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)) if len(pairs) else sp.coo_matrix((n, n))
+    link = (
+        sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        if len(pairs)
+        else sp.coo_matrix((n, n))
+    )
     _, label = connected_components(link, directed=False)
     # Each merged node sits at the first sample of its group.
     _, first = np.unique(label, return_index=True)
@@ -38,11 +42,15 @@ def walkway_graph(walkways: list[np.ndarray], step: float = 1.0, snap: float = 0
     keep = u != v
     u, v = u[keep], v[keep]
     w = np.linalg.norm(nodes[u] - nodes[v], axis=1)
-    graph = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([u, v]), np.concatenate([v, u]))), shape=(len(nodes),) * 2).tocsr()
+    graph = sp.coo_matrix(
+        (np.concatenate([w, w]), (np.concatenate([u, v]), np.concatenate([v, u]))), shape=(len(nodes),) * 2
+    ).tocsr()
     return nodes, graph
 
 
-def plan_route(walkways: list[np.ndarray], waypoints: list[tuple[float, float]], max_length: float | None = None) -> np.ndarray:
+def plan_route(
+    walkways: list[np.ndarray], waypoints: list[tuple[float, float]], max_length: float | None = None
+) -> np.ndarray:
     """Polyline (K, 2) through `waypoints` in order along shortest walkway paths, cut at `max_length`."""
     if not walkways or len(waypoints) < 2:
         raise ValueError("a route needs walkways and at least two waypoints")

@@ -34,7 +34,9 @@ class Lidar:
         self.tiles = RayTiles.from_grid(dirs, config.beams, config.columns, 4, 16)
         self.T_base_lidar = make_pose(np.eye(3), [0.0, 0.0, config.height])
 
-    def render(self, world: World, T_map_lidar: np.ndarray, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
+    def render(
+        self, world: World, T_map_lidar: np.ndarray, rng: np.random.Generator | None = None
+    ) -> dict[str, np.ndarray]:
         """One scan: points (N, 3) float32 LiDAR frame, intensity (N,) float32 0..1, labels and
         instances (N,) int32. Rays with no return within [min_range, max_range] give no point."""
         cfg = self.config
@@ -53,7 +55,12 @@ class Lidar:
         points = (directions * t[keep, None]).astype(np.float32)
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal[keep], hits.directions[keep]))
         intensity = (CLASS_REFLECTANCE[hits.class_id[keep]] * np.clip(cos_inc, 0.1, 1.0)).astype(np.float32)
-        return {"points": points, "intensity": intensity, "labels": hits.class_id[keep], "instances": hits.instance_id[keep]}
+        return {
+            "points": points,
+            "intensity": intensity,
+            "labels": hits.class_id[keep],
+            "instances": hits.instance_id[keep],
+        }
 
 
 def camera_pose_on_base(config: CameraConfig) -> np.ndarray:
@@ -71,8 +78,15 @@ class Camera:
         cx = (config.width - 1) / 2 if config.cx is None else config.cx
         cy = (config.height - 1) / 2 if config.cy is None else config.cy
         K = np.array([[config.fx, 0.0, cx], [0.0, config.fy, cy], [0.0, 0.0, 1.0]])
-        self.calibration = CameraCalibration(config.name, config.width, config.height, K, np.asarray(config.dist, float),
-                                             invert_pose(self.T_base_cam) @ T_base_lidar, config.model)
+        self.calibration = CameraCalibration(
+            config.name,
+            config.width,
+            config.height,
+            K,
+            np.asarray(config.dist, float),
+            invert_pose(self.T_base_cam) @ T_base_lidar,
+            config.model,
+        )
         self.tiles = RayTiles.from_grid(pixel_rays(self.calibration), config.height, config.width, 16, 16)
 
     def render(self, world: World, T_map_cam: np.ndarray, max_range: float = 150.0) -> dict[str, np.ndarray]:
@@ -80,7 +94,11 @@ class Camera:
         h, w = self.config.height, self.config.width
         hits = cast(world, T_map_cam, self.tiles, max_range)
         image = shade(hits, T_map_cam[:3, 3])
-        return {"image": image.reshape(h, w, 3), "semantic": hits.class_id.reshape(h, w), "instance": hits.instance_id.reshape(h, w)}
+        return {
+            "image": image.reshape(h, w, 3),
+            "semantic": hits.class_id.reshape(h, w),
+            "instance": hits.instance_id.reshape(h, w),
+        }
 
 
 def shade(hits, origin: np.ndarray) -> np.ndarray:

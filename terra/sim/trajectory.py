@@ -28,9 +28,17 @@ def _interp(route: np.ndarray, cum: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(s, cum, route[:, 0]), np.interp(s, cum, route[:, 1])], axis=1)
 
 
-def sample_trajectory(route: np.ndarray, ground: Heightfield, spacing: float, speed: float, rng: np.random.Generator,
-                      max_frames: int | None = None, drift_xy_per_m: float = 0.0, drift_yaw_per_m: float = 0.0,
-                      look: float = 2.0) -> Trajectory:
+def sample_trajectory(
+    route: np.ndarray,
+    ground: Heightfield,
+    spacing: float,
+    speed: float,
+    rng: np.random.Generator,
+    max_frames: int | None = None,
+    drift_xy_per_m: float = 0.0,
+    drift_yaw_per_m: float = 0.0,
+    look: float = 2.0,
+) -> Trajectory:
     """One frame every `spacing` metres along `route` (K, 2); heading from the route `look` metres
     ahead and behind; drift as a random walk (metres and radians per sqrt(metre))."""
     seg = np.linalg.norm(np.diff(route, axis=0), axis=1)

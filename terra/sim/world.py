@@ -38,8 +38,10 @@ class TerrainGrid:
     def cell_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """Cell-centre x (W,) and y (H,) coordinates, metres."""
         h, w = self.classes.shape
-        return (self.origin[0] + (np.arange(w) + 0.5) * self.resolution,
-                self.origin[1] + (np.arange(h) + 0.5) * self.resolution)
+        return (
+            self.origin[0] + (np.arange(w) + 0.5) * self.resolution,
+            self.origin[1] + (np.arange(h) + 0.5) * self.resolution,
+        )
 
 
 @dataclass
@@ -75,7 +77,9 @@ class World:
             return np.zeros(0, np.int64)
         if self._tree is None:
             self._tree = cKDTree(self.prims.center)
-        idx = np.asarray(self._tree.query_ball_point(position, radius + float(self.bounding_radius.max())), dtype=np.int64)
+        idx = np.asarray(
+            self._tree.query_ball_point(position, radius + float(self.bounding_radius.max())), dtype=np.int64
+        )
         idx.sort()
         d = np.linalg.norm(self.prims.center[idx] - position, axis=1)
         return idx[d - self.bounding_radius[idx] <= radius]
@@ -88,6 +92,11 @@ class World:
             height = self.ground.height(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
             self._raster_height = height.astype(np.float32)
         legend = {c.id: c.name for c in SIM_CLASSES if c.terrain or c.id == 0}
-        raster = TerrainRaster(self.terrain.classes.astype(np.int32), self._raster_height.copy(),
-                               self.terrain.origin.copy(), self.terrain.resolution, legend)
+        raster = TerrainRaster(
+            self.terrain.classes.astype(np.int32),
+            self._raster_height.copy(),
+            self.terrain.origin.copy(),
+            self.terrain.resolution,
+            legend,
+        )
         return GroundTruth(list(self.objects), raster, list(self.regions))

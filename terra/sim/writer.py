@@ -5,8 +5,8 @@ is complete."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from terra.bundle import atomic_folder, check_output_folder
 from terra.datasets.base import Dataset
@@ -20,8 +20,15 @@ FORMATS = ("terra-folder", "semantickitti", "kitti-raw", "rosbag1", "rosbag2")
 check_output = check_output_folder  # the dataset writers' name for it
 
 
-def write_dataset(dataset: Dataset, out: str | Path, format: str = "terra-folder", overwrite: bool = False,
-                  progress: bool = True, extra: Callable[[Path], None] | None = None, bag_images: str = "jpeg") -> Path:
+def write_dataset(
+    dataset: Dataset,
+    out: str | Path,
+    format: str = "terra-folder",
+    overwrite: bool = False,
+    progress: bool = True,
+    extra: Callable[[Path], None] | None = None,
+    bag_images: str = "jpeg",
+) -> Path:
     """Write all frames of `dataset`, its class table (classes.json) and, when it has one, its
     ground truth (ground_truth/) to folder `out` in `format`. `extra(tmp_root)` may add files
     before the folder is moved into place. `bag_images`: jpeg (CompressedImage) or raw (Image

@@ -22,8 +22,13 @@ import numpy as np
 FLOOR = 1e-12
 
 
-def task_relevance(place_embeddings: np.ndarray, task_embeddings: np.ndarray, null_score: float,
-                   top_k: int = 2, cumulative: bool = True) -> np.ndarray:
+def task_relevance(
+    place_embeddings: np.ndarray,
+    task_embeddings: np.ndarray,
+    null_score: float,
+    top_k: int = 2,
+    cumulative: bool = True,
+) -> np.ndarray:
     """(m + 1, n) p(y|x): row 0 the null task, rows 1..m the tasks; columns sum to 1."""
     cos = np.asarray(task_embeddings, dtype=np.float64) @ np.asarray(place_embeddings, dtype=np.float64).T
     scores = np.vstack([np.full((1, cos.shape[1]), float(null_score)), np.clip(cos, 0.0, None)])

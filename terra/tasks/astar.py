@@ -26,7 +26,7 @@ def prepare_adjacency(indptr: np.ndarray, indices: np.ndarray, cost: np.ndarray)
     same arrays skip the list conversions and slicing (about twice as fast on 20,000 places).
     Worth it for a graph searched repeatedly; the memo goes when `indptr` is garbage-collected."""
     ptr, nbr, w = indptr.tolist(), indices.tolist(), cost.tolist()
-    adjacency = [list(zip(nbr[ptr[u]:ptr[u + 1]], w[ptr[u]:ptr[u + 1]])) for u in range(len(ptr) - 1)]
+    adjacency = [list(zip(nbr[ptr[u] : ptr[u + 1]], w[ptr[u] : ptr[u + 1]])) for u in range(len(ptr) - 1)]
     key = id(indptr)
 
     def forget(_ref: weakref.ref, key: int = key) -> None:

@@ -73,7 +73,7 @@ def fit_oriented_boxes(points: np.ndarray, groups: np.ndarray, padding: float = 
     size_xy[is_rect] = np.column_stack([lengths[r, long_side], lengths[r, 1 - long_side]])
     center_xy[is_rect] = corners.mean(axis=1)
     for g in np.flatnonzero(~is_rect):  # collinear or coincident footprints (rare)
-        ring = coords[first[g]:first[g] + counts[g]]
+        ring = coords[first[g] : first[g] + counts[g]]
         ends = ring[[0, -1]]
         axis[g] = ends[1] - ends[0] if np.any(ends[1] != ends[0]) else (1.0, 0.0)
         size_xy[g] = (np.linalg.norm(ends[1] - ends[0]), 0.0)
@@ -107,9 +107,16 @@ def _extents_at_yaw(points: np.ndarray, groups: np.ndarray, yaw: np.ndarray) -> 
     return centre, hi - lo
 
 
-def fit_object_boxes(points: np.ndarray, groups: np.ndarray, ground_z: np.ndarray | None = None,
-                     context_yaw: np.ndarray | None = None, padding: float = 0.0, min_size: float = 0.05,
-                     lift: float = 0.15, prefer_context: float = 1.2) -> list[OrientedBox]:
+def fit_object_boxes(
+    points: np.ndarray,
+    groups: np.ndarray,
+    ground_z: np.ndarray | None = None,
+    context_yaw: np.ndarray | None = None,
+    padding: float = 0.0,
+    min_size: float = 0.05,
+    lift: float = 0.15,
+    prefer_context: float = 1.2,
+) -> list[OrientedBox]:
     """Boxes of objects standing on the ground, robust to partial views and to masks that bleed
     onto the ground. points: (n, 3) metres, map frame; groups: (n,) ids 0..G-1.
 
@@ -144,12 +151,19 @@ def fit_object_boxes(points: np.ndarray, groups: np.ndarray, ground_z: np.ndarra
         swap = c_size[:, 1] > c_size[:, 0]
         c_yaw = wrap_half_turn(np.where(swap, context + np.pi / 2, context))
         c_size = np.where(swap[:, None], c_size[:, ::-1], c_size)
-        yaw, centre, size_xy = np.where(take, c_yaw, yaw), np.where(take[:, None], c_centre, centre), np.where(take[:, None], c_size, size_xy)
+        yaw, centre, size_xy = (
+            np.where(take, c_yaw, yaw),
+            np.where(take[:, None], c_centre, centre),
+            np.where(take[:, None], c_size, size_xy),
+        )
     starts = np.searchsorted(groups, np.arange(n_groups))
     z_hi = np.maximum.reduceat(pts[:, 2], starts) + padding / 2
     on_ground = np.isfinite(ground)
-    z_lo = np.where(on_ground, np.minimum(np.minimum.reduceat(pts[:, 2], starts), np.where(on_ground, ground, 0.0)),
-                    np.minimum.reduceat(pts[:, 2], starts) - padding / 2)
+    z_lo = np.where(
+        on_ground,
+        np.minimum(np.minimum.reduceat(pts[:, 2], starts), np.where(on_ground, ground, 0.0)),
+        np.minimum.reduceat(pts[:, 2], starts) - padding / 2,
+    )
     sizes = np.maximum(np.column_stack([size_xy + padding, z_hi - z_lo]), min_size)
     centres = np.column_stack([centre, (z_lo + z_hi) / 2])
     return [OrientedBox(center=centres[g], size=sizes[g], yaw=float(yaw[g])) for g in range(n_groups)]

@@ -13,8 +13,15 @@ from terra.graph.scene_graph import SceneGraph
 from terra.loaded import LoadedBundle
 from terra.tasks.config import TasksConfig, alpha_for
 from terra.tasks.monitoring import monitor_region
-from terra.tasks.planning import (CostGraph, PathPlan, TerrainCosts, approach_place, nearest_allowed_place, plan_on,
-                                  plan_to_objects)
+from terra.tasks.planning import (
+    CostGraph,
+    PathPlan,
+    TerrainCosts,
+    approach_place,
+    nearest_allowed_place,
+    plan_on,
+    plan_to_objects,
+)
 from terra.tasks.queries import clean_queries
 from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest, PointFeature
 from terra.tasks.results import FindResult, MonitorResults, PlanEnd, PlanResult
@@ -36,13 +43,22 @@ def _retrieval_alpha(alpha: float | None, config: TasksConfig, loaded: LoadedBun
     return alpha_for(config.retrieval.alpha, config.retrieval.default_alpha, loaded.embedder_name)
 
 
-def _find_objects(loaded: LoadedBundle, graph: SceneGraph | None, queries: list[str], method: str, alpha: float,
-                  config: TasksConfig) -> list[FoundObject]:
+def _find_objects(
+    loaded: LoadedBundle, graph: SceneGraph | None, queries: list[str], method: str, alpha: float, config: TasksConfig
+) -> list[FoundObject]:
     """Object retrieval with the loaded bundle's map, text embedder and cached scorer."""
     from terra.tasks.retrieval import find_objects
 
-    return find_objects(loaded.msm, graph, queries, method=method, alpha=alpha, config=config,
-                        embedder=loaded.embedder, scorer=loaded.scorer)
+    return find_objects(
+        loaded.msm,
+        graph,
+        queries,
+        method=method,
+        alpha=alpha,
+        config=config,
+        embedder=loaded.embedder,
+        scorer=loaded.scorer,
+    )
 
 
 def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None = None) -> FindResult:
@@ -83,8 +99,6 @@ def monitor(loaded: LoadedBundle, request: MonitorRequest, config: TasksConfig |
 # ---------------------------------------------------------------- plan
 
 
-
-
 def _object_place(graph: SceneGraph, obj: FoundObject, allowed: np.ndarray, radius: float, role: str) -> int:
     """The approach place of the object (terra.tasks.planning.approach_place); NoPathError without one."""
     place, why = approach_place(graph, obj, allowed, radius)
@@ -114,7 +128,9 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     found: list[FoundObject] = []
     if object_queries:
         method = request.method or config.planning.find_method
-        found = _find_objects(loaded, graph, object_queries, method, _retrieval_alpha(request.alpha, config, loaded), config)
+        found = _find_objects(
+            loaded, graph, object_queries, method, _retrieval_alpha(request.alpha, config, loaded), config
+        )
     start = _start(loaded, graph, request, found, object_queries, cost_graph, config)
     if not 0 <= start.place < len(graph.places):
         raise TerraError(f"start place {start.place} does not exist; the graph has places 0..{len(graph.places) - 1}")
@@ -150,10 +166,16 @@ def _plan_to_goal(
             raise TerraError(f"goal place {goal} does not exist; the graph has places 0..{len(graph.places) - 1}")
         return plan_on(graph, cost_graph, start, goal), PlanEnd(goal)
     candidates = [o for o in found if o.query == 0]
-    outcome = plan_to_objects(graph, cost_graph, start, candidates, config.planning.goal_radius,
-                              f"the destination query {queries[0]!r}")
-    goal = PlanEnd(outcome.goal_place, query=request.to, object=outcome.goal_object, candidates=len(candidates),
-                   skipped=outcome.skipped)
+    outcome = plan_to_objects(
+        graph, cost_graph, start, candidates, config.planning.goal_radius, f"the destination query {queries[0]!r}"
+    )
+    goal = PlanEnd(
+        outcome.goal_place,
+        query=request.to,
+        object=outcome.goal_object,
+        candidates=len(candidates),
+        skipped=outcome.skipped,
+    )
     return outcome.plan, goal
 
 
@@ -165,9 +187,11 @@ def _check_start_distance(graph: SceneGraph, xy: np.ndarray, place: int, radius:
     nearest = graph.places.position[place, :2]
     distance = float(np.linalg.norm(nearest - xy[:2]))
     if distance > radius:
-        raise TerraError(f"start ({xy[0]:g}, {xy[1]:g}) is {distance:.1f} m from the nearest allowed place, "
-                         f"p{place} at ({nearest[0]:.1f}, {nearest[1]:.1f}); starts farther than {radius:g} m "
-                         "(tasks.planning.start_radius) are refused")
+        raise TerraError(
+            f"start ({xy[0]:g}, {xy[1]:g}) is {distance:.1f} m from the nearest allowed place, "
+            f"p{place} at ({nearest[0]:.1f}, {nearest[1]:.1f}); starts farther than {radius:g} m "
+            "(tasks.planning.start_radius) are refused"
+        )
 
 
 def _start(

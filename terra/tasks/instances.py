@@ -26,8 +26,14 @@ def footprint_extent(xy: np.ndarray) -> tuple[float, float]:
     return float(np.ptp(along)), float(np.ptp(across))
 
 
-def split_instances(points: np.ndarray, min_length: float = 3.0, min_aspect: float = 1.8, gap_factor: float = 2.0,
-                    min_share: float = 0.3, min_height: float = 0.25) -> list[np.ndarray]:
+def split_instances(
+    points: np.ndarray,
+    min_length: float = 3.0,
+    min_aspect: float = 1.8,
+    gap_factor: float = 2.0,
+    min_share: float = 0.3,
+    min_height: float = 0.25,
+) -> list[np.ndarray]:
     """Row-index arrays of the instances in one cluster's points (n, 3): the whole cluster, or its
     parts (see the module docstring), ordered by their lowest row."""
     # SciPy's spatial and graph modules cost a cold query time: imported only when objects are split.

@@ -26,7 +26,13 @@ from terra.graph.scene_graph import SceneGraph
 from terra.perception.text import TextEmbedder
 from terra.tasks.aib import aib_clusters, task_relevance
 from terra.tasks.config import MonitoringConfig, TasksConfig, alpha_for
-from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
+from terra.tasks.hierarchy import (
+    check_has_regions,
+    place_similarities,
+    places_of_regions,
+    ranked_regions,
+    region_similarities,
+)
 from terra.tasks.queries import check_embedder, clean_queries, embed_query, resolve_embedder
 
 METHODS = ("mix", "max", "thresh", "aib")
@@ -124,7 +130,9 @@ def monitor_region(
 
     check_has_regions(graph, f"--method {method}")
     min_level = cfg.min_level if min_level is None else int(min_level)
-    ranked = [r for r in ranked_regions(graph, region_similarities(graph, q)) if r[0] >= min(min_level, len(graph.regions))]
+    ranked = [
+        r for r in ranked_regions(graph, region_similarities(graph, q)) if r[0] >= min(min_level, len(graph.regions))
+    ]
     if method == "thresh":
         chosen = [r for r in ranked if r[2] > alpha]
     else:

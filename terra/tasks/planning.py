@@ -25,8 +25,9 @@ candidate fails.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -45,7 +46,9 @@ def resolve_terrain(terrain_classes: list[str], ref: TerrainRef) -> int:
         index = int(ref)
         if 0 <= index < len(terrain_classes):
             return index
-        raise TerraError(f"terrain index {index} is out of range; the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}")
+        raise TerraError(
+            f"terrain index {index} is out of range; the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}"
+        )
     key = str(ref).strip().lower()
     if key not in names:
         raise TerraError(f"unknown terrain {str(ref)!r}; expected one of: {', '.join(terrain_classes)}")
@@ -67,7 +70,7 @@ class TerrainCosts:
         penalties: Mapping[TerrainRef, float] | None = None,
         forbid: Iterable[TerrainRef] = (),
         default_penalty: float = DEFAULT_PENALTY,
-    ) -> "TerrainCosts":
+    ) -> TerrainCosts:
         n = len(terrain_classes)
         preferred = {resolve_terrain(terrain_classes, t) for t in prefer}
         forbidden_set = {resolve_terrain(terrain_classes, t) for t in forbid}
@@ -81,7 +84,9 @@ class TerrainCosts:
             index = resolve_terrain(terrain_classes, ref)
             value = float(value)
             if not np.isfinite(value) or value < 0:
-                raise TerraError(f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; use --forbid to exclude it")
+                raise TerraError(
+                    f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; use --forbid to exclude it"
+                )
             penalty[index] = value
         penalty[list(preferred)] = 0.0
         forbidden = np.zeros(n, dtype=bool)
@@ -101,7 +106,7 @@ class CostGraph:
     min_factor: float = 1.0  # every cost >= min_factor x straight-line length (A* heuristic scale)
 
     @classmethod
-    def build(cls, graph: SceneGraph, costs: TerrainCosts) -> "CostGraph":
+    def build(cls, graph: SceneGraph, costs: TerrainCosts) -> CostGraph:
         n = len(graph.places)
         terrain = np.asarray(graph.places.terrain, dtype=np.int64)
         allowed = ~costs.forbidden[terrain] if n else np.zeros(0, dtype=bool)
@@ -177,7 +182,9 @@ def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathP
     np.add.at(per_terrain, terrain[:-1], segment / 2)
     np.add.at(per_terrain, terrain[1:], segment / 2)
     by_terrain = {graph.terrain_classes[t]: float(per_terrain[t]) for t in np.flatnonzero(per_terrain > 0)}
-    return PathPlan(idx, waypoints, float(segment.sum()), by_terrain, float(cost), [graph.terrain_classes[t] for t in terrain])
+    return PathPlan(
+        idx, waypoints, float(segment.sum()), by_terrain, float(cost), [graph.terrain_classes[t] for t in terrain]
+    )
 
 
 def _check_place(graph: SceneGraph, place: int, role: str) -> int:
@@ -216,12 +223,25 @@ def plan_on(graph: SceneGraph, cost_graph: CostGraph, start: int, goal: int) -> 
     for place, role in ((start, "start"), (goal, "goal")):
         if not cost_graph.allowed[place]:
             raise NoPathError(f"no path: the {role} place {place} is on forbidden terrain {names[terrain[place]]!r}")
-    result = astar(cost_graph.indptr, cost_graph.indices, cost_graph.cost, graph.places.position, start, goal,
-                   heuristic_scale=cost_graph.min_factor)
+    result = astar(
+        cost_graph.indptr,
+        cost_graph.indices,
+        cost_graph.cost,
+        graph.places.position,
+        start,
+        goal,
+        heuristic_scale=cost_graph.min_factor,
+    )
     if result is None:
         forbidden = sorted({names[t] for t in terrain[~cost_graph.allowed]})
-        why = f" without crossing forbidden terrain ({', '.join(forbidden)})" if forbidden else " (the places graph is disconnected)"
-        raise NoPathError(f"no path from place {start} ({names[terrain[start]]}) to place {goal} ({names[terrain[goal]]}){why}")
+        why = (
+            f" without crossing forbidden terrain ({', '.join(forbidden)})"
+            if forbidden
+            else " (the places graph is disconnected)"
+        )
+        raise NoPathError(
+            f"no path from place {start} ({names[terrain[start]]}) to place {goal} ({names[terrain[goal]]}){why}"
+        )
     places, cost = result
     return path_from_places(graph, places, cost)
 
@@ -260,7 +280,10 @@ def approach_place(graph: SceneGraph, obj: GoalObject, allowed: np.ndarray, radi
         return place, ""
     if 0 <= obj.place < len(allowed):
         terrain = graph.terrain_classes[int(graph.places.terrain[obj.place])]
-        return -1, f"its place {obj.place} is on forbidden terrain {terrain!r} and no allowed place lies within {radius:g} m"
+        return (
+            -1,
+            f"its place {obj.place} is on forbidden terrain {terrain!r} and no allowed place lies within {radius:g} m",
+        )
     return -1, f"no allowed place lies within {radius:g} m"
 
 
@@ -274,8 +297,14 @@ class SkippedGoal:
 
     def to_json(self) -> dict[str, Any]:
         o = self.object
-        return {"label": o.label, "score": round(float(o.score), 6), "center": [round(float(v), 4) for v in o.center],
-                "place": int(o.place), "approach_place": int(self.approach_place), "reason": self.reason}
+        return {
+            "label": o.label,
+            "score": round(float(o.score), 6),
+            "center": [round(float(v), 4) for v in o.center],
+            "place": int(o.place),
+            "approach_place": int(self.approach_place),
+            "reason": self.reason,
+        }
 
 
 @dataclass
@@ -289,8 +318,14 @@ class GoalPlan:
     skipped: list[SkippedGoal]
 
 
-def plan_to_objects(graph: SceneGraph, cost_graph: CostGraph, start: int, candidates: Sequence[GoalObject],
-                    radius: float, what: str = "the destination") -> GoalPlan:
+def plan_to_objects(
+    graph: SceneGraph,
+    cost_graph: CostGraph,
+    start: int,
+    candidates: Sequence[GoalObject],
+    radius: float,
+    what: str = "the destination",
+) -> GoalPlan:
     """Plan from `start` to the best-scored candidate object that can be reached.
 
     Candidates are tried by decreasing score; one is skipped when it has no approach place (see
@@ -313,6 +348,8 @@ def plan_to_objects(graph: SceneGraph, cost_graph: CostGraph, start: int, candid
             skipped.append(SkippedGoal(obj, place, str(exc).removeprefix("no path: ")))
             continue
         return GoalPlan(plan, obj, place, skipped)
-    reasons = "; ".join(f"{s.object.label!r} (score {s.object.score:.3f}) at place {s.object.place}: {s.reason}" for s in skipped[:3])
+    reasons = "; ".join(
+        f"{s.object.label!r} (score {s.object.score:.3f}) at place {s.object.place}: {s.reason}" for s in skipped[:3]
+    )
     more = f"; and {len(skipped) - 3} more" if len(skipped) > 3 else ""
     raise NoPathError(f"no path to any of the {len(skipped)} objects for {what}: {reasons}{more}")

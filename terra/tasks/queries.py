@@ -20,10 +20,10 @@ def clean_queries(queries: list[str] | tuple[str, ...] | str) -> list[str]:
         queries = [queries]
     out = [str(q).strip() for q in queries]
     if not out:
-        raise TerraError("no query given; pass at least one text query, e.g. \"find the dumpster\"")
+        raise TerraError('no query given; pass at least one text query, e.g. "find the dumpster"')
     for i, q in enumerate(out):
         if not q:
-            raise TerraError(f"query {i + 1} is empty; give a text query, e.g. \"find the dumpster\"")
+            raise TerraError(f'query {i + 1} is empty; give a text query, e.g. "find the dumpster"')
     return out
 
 
@@ -35,7 +35,9 @@ def check_embedder(embedder: TextEmbedder, map_embedder: str, map_dim: int | Non
             f"use tasks.embedder: {map_embedder} (or rebuild the map)"
         )
     if map_dim is not None and int(embedder.dim) != int(map_dim):
-        raise TerraError(f"{source} holds {map_dim}-d embeddings but embedder {embedder.name!r} gives {embedder.dim}-d vectors")
+        raise TerraError(
+            f"{source} holds {map_dim}-d embeddings but embedder {embedder.name!r} gives {embedder.dim}-d vectors"
+        )
 
 
 def check_configured_embedder(map_embedder: str, configured: str | None, source: str = "map") -> None:
@@ -47,8 +49,9 @@ def check_configured_embedder(map_embedder: str, configured: str | None, source:
         )
 
 
-def resolve_embedder(map_embedder: str, map_dim: int | None = None, configured: str | None = None,
-                     source: str = "map") -> TextEmbedder:
+def resolve_embedder(
+    map_embedder: str, map_dim: int | None = None, configured: str | None = None, source: str = "map"
+) -> TextEmbedder:
     """The text embedder for queries: `configured` when set (it must match), else the map's."""
     check_configured_embedder(map_embedder, configured, source)
     name = configured or map_embedder
@@ -67,7 +70,9 @@ def embed_queries(embedder: TextEmbedder, queries: list[str]) -> np.ndarray:
 QUERY_MODES = ("sentence", "phrases", "sentence+phrases")
 # Connectives that join the parts of a place description ("park with a pond, a dirt trail and
 # picnic tables on the grass"); longest first so "surrounded by" is not cut at "by".
-_CONNECTIVES = re.compile(r",|;| surrounded by | lined by | between | behind | with | and | on | by ", flags=re.IGNORECASE)
+_CONNECTIVES = re.compile(
+    r",|;| surrounded by | lined by | between | behind | with | and | on | by ", flags=re.IGNORECASE
+)
 
 
 def query_phrases(query: str) -> list[str]:

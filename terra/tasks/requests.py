@@ -29,15 +29,17 @@ class FindRequest(TaskRequest):
     queries: list[str] = Field(
         default_factory=list, description='Text queries, e.g. "find the dumpster"; one embedding batch.'
     )
-    method: RetrievalMethod | None = Field(None, description="ms-avg, ms-max or 3dsg; default tasks.retrieval.method.")
+    method: RetrievalMethod | None = Field(
+        default=None, description="ms-avg, ms-max or 3dsg; default tasks.retrieval.method."
+    )
     alpha: float | None = Field(
-        None, ge=-1.0, le=1.0, description="Cosine threshold; default per embedder (tasks.retrieval.alpha)."
+        default=None, ge=-1.0, le=1.0, description="Cosine threshold; default per embedder (tasks.retrieval.alpha)."
     )
     point_feature: PointFeature | None = Field(
-        None, description="3dsg: point feature searched near the chosen places (avg or max)."
+        default=None, description="3dsg: point feature searched near the chosen places (avg or max)."
     )
     save: bool = Field(
-        False, description="Store the objects in the bundle's scene graph (same-label objects are replaced)."
+        default=False, description="Store the objects in the bundle's scene graph (same-label objects are replaced)."
     )
 
 
@@ -46,23 +48,25 @@ class MonitorRequest(TaskRequest):
 
     queries: list[str] = Field(default_factory=list, description='Monitoring task texts, e.g. "large parking lot".')
     method: MonitorMethod | None = Field(
-        None, description="mix (paper), max, thresh or aib; default tasks.monitoring.method."
+        default=None, description="mix (paper), max, thresh or aib; default tasks.monitoring.method."
     )
-    k: int | None = Field(None, ge=1, description="Number of top regions for mix and max; default tasks.monitoring.k.")
+    k: int | None = Field(
+        default=None, ge=1, description="Number of top regions for mix and max; default tasks.monitoring.k."
+    )
     alpha: float | None = Field(
-        None, ge=-1.0, le=1.0, description="Cosine threshold; default per embedder (tasks.monitoring.alpha)."
+        default=None, ge=-1.0, le=1.0, description="Cosine threshold; default per embedder (tasks.monitoring.alpha)."
     )
 
 
 class PlanRequest(TaskRequest):
     """A terrain-aware path from a start to the place of an object (or a place id)."""
 
-    to: str | None = Field(None, description='Destination task, e.g. "get bike from the bicycle rack".')
-    to_node: int | None = Field(None, ge=0, description="Destination place id instead of a query.")
-    from_query: str | None = Field(None, alias="from", description="Start at the object this query names.")
-    from_node: int | None = Field(None, ge=0, description="Start place id.")
+    to: str | None = Field(default=None, description='Destination task, e.g. "get bike from the bicycle rack".')
+    to_node: int | None = Field(default=None, ge=0, description="Destination place id instead of a query.")
+    from_query: str | None = Field(default=None, alias="from", description="Start at the object this query names.")
+    from_node: int | None = Field(default=None, ge=0, description="Start place id.")
     from_xy: tuple[float, float] | None = Field(
-        None, description="Start at the allowed place nearest (x, y), metres, map frame."
+        default=None, description="Start at the allowed place nearest (x, y), metres, map frame."
     )
     prefer: list[str] = Field(
         default_factory=list, description="Preferred terrains; others get tasks.planning.default_penalty."
@@ -72,7 +76,7 @@ class PlanRequest(TaskRequest):
     )
     forbid: list[str] = Field(default_factory=list, description="Terrains never to enter.")
     method: RetrievalMethod | None = Field(
-        None, description="Retrieval method for the queries; default tasks.planning.find_method."
+        default=None, description="Retrieval method for the queries; default tasks.planning.find_method."
     )
-    alpha: float | None = Field(None, ge=-1.0, le=1.0, description="Cosine threshold for the queries.")
-    point_feature: PointFeature | None = Field(None, description="3dsg point feature (avg or max).")
+    alpha: float | None = Field(default=None, ge=-1.0, le=1.0, description="Cosine threshold for the queries.")
+    point_feature: PointFeature | None = Field(default=None, description="3dsg point feature (avg or max).")

@@ -88,7 +88,12 @@ class PlanResult:
             "bundle": str(self.bundle),
             **self.plan.to_json(),
             "start": {"place": self.start.place, "how": self.start.how, "object": obj(self.start)},
-            "goal": {"place": self.goal.place, "query": self.goal.query, "object": obj(self.goal),
-                     "candidates": self.goal.candidates, "skipped": [s.to_json() for s in self.goal.skipped]},
+            "goal": {
+                "place": self.goal.place,
+                "query": self.goal.query,
+                "object": obj(self.goal),
+                "candidates": self.goal.candidates,
+                "skipped": [s.to_json() for s in self.goal.skipped],
+            },
             "preferences": {"penalty": dict(self.penalty), "forbidden": list(self.forbidden)},
         }

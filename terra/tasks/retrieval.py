@@ -27,12 +27,18 @@ from terra.graph.scene_graph import Objects, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder
 from terra.tasks.boxes import fit_object_boxes
+from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.dbscan import dbscan_labels
+from terra.tasks.hierarchy import (
+    check_has_regions,
+    place_similarities,
+    places_of_regions,
+    ranked_regions,
+    region_similarities,
+)
 from terra.tasks.instances import split_instances
 from terra.tasks.neighbours import nearest
 from terra.tasks.object_context import ground_under, strip_directions
-from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
-from terra.tasks.hierarchy import check_has_regions, place_similarities, places_of_regions, ranked_regions, region_similarities
 from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
 from terra.tasks.scoring import PointScorer
 from terra.tasks.standing import standing_groups
@@ -161,8 +167,9 @@ def instance_groups(points: np.ndarray, groups: list[np.ndarray], cfg: Retrieval
     return out
 
 
-def grounded_groups(points: np.ndarray, groups: list[np.ndarray], graph: SceneGraph,
-                    cfg: RetrievalConfig, keep_flat: bool = True) -> list[np.ndarray]:
+def grounded_groups(
+    points: np.ndarray, groups: list[np.ndarray], graph: SceneGraph, cfg: RetrievalConfig, keep_flat: bool = True
+) -> list[np.ndarray]:
     """The clusters (row arrays into `points`) that stand on the ground under their nearest place,
     floating parts attached; all of them when every one is flat and `keep_flat` (terra.tasks.standing)."""
     centre = np.array([points[g, :2].mean(axis=0) for g in groups])
@@ -179,13 +186,23 @@ def object_boxes(points: np.ndarray, owner: np.ndarray, graph: SceneGraph | None
     centre = np.column_stack([np.bincount(owner, weights=points[:, d]) / count for d in range(2)])
     ground = ground_under(graph, centre)
     context = strip_directions(graph, centre, cfg.context_radius) if cfg.context_radius is not None else None
-    return fit_object_boxes(points, owner, ground, context, cfg.box_padding, cfg.box_min_size, cfg.ground_lift, cfg.prefer_context)
+    return fit_object_boxes(
+        points, owner, ground, context, cfg.box_padding, cfg.box_min_size, cfg.ground_lift, cfg.prefer_context
+    )
 
 
-def _match_clusters(msm: MetricSemanticMap, graph: SceneGraph | None, scorer: PointScorer, query_vectors: np.ndarray,
-                    terrain_vectors: np.ndarray, alpha: float, cfg: RetrievalConfig, feature: str,
-                    allowed: list[np.ndarray] | None,
-                    keep_flat: bool = True) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
+def _match_clusters(
+    msm: MetricSemanticMap,
+    graph: SceneGraph | None,
+    scorer: PointScorer,
+    query_vectors: np.ndarray,
+    terrain_vectors: np.ndarray,
+    alpha: float,
+    cfg: RetrievalConfig,
+    feature: str,
+    allowed: list[np.ndarray] | None,
+    keep_flat: bool = True,
+) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
     """Matched points clustered into objects per query: (query, rows into the candidate rows)
     pairs, the candidate map rows, and their (n, T + Q) similarities. `allowed`: per query, the
     map rows searched (None = every observed point). `keep_flat`: this search is the last one, so
@@ -239,7 +256,9 @@ def find_objects(
         embedder = resolve_embedder(msm.embedder, msm.dim)
     check_embedder(embedder, msm.embedder, msm.dim)
     if graph is not None and graph.embedder and graph.embedder != msm.embedder:
-        raise TerraError(f"scene graph embedder {graph.embedder!r} differs from the map's {msm.embedder!r}; rebuild the graph")
+        raise TerraError(
+            f"scene graph embedder {graph.embedder!r} differs from the map's {msm.embedder!r}; rebuild the graph"
+        )
     if alpha is None:
         alpha = alpha_for(cfg.alpha, cfg.default_alpha, msm.embedder)
     query_vectors = embed_queries(embedder, queries)
@@ -256,9 +275,18 @@ def find_objects(
             return observed[points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)]
 
         allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in range(len(queries))]
-        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
-                                                          alpha, cfg, cfg.sg_point_feature, allowed,
-                                                          keep_flat=not cfg.sg_widen)
+        clusters, cand_rows, similarity = _match_clusters(
+            msm,
+            graph,
+            scorer,
+            query_vectors,
+            terrain_vectors,
+            alpha,
+            cfg,
+            cfg.sg_point_feature,
+            allowed,
+            keep_flat=not cfg.sg_widen,
+        )
         # The regions above alpha narrow the search; when they hold no standing object for a
         # query, the answer comes from its places above alpha anywhere, then from every place,
         # rather than from nothing (a region scoring just above alpha can leave out every
@@ -269,12 +297,22 @@ def find_objects(
                 break
             for q in empty:
                 allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
-            clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
-                                                              alpha, cfg, cfg.sg_point_feature, allowed,
-                                                              keep_flat=widen == 2)
+            clusters, cand_rows, similarity = _match_clusters(
+                msm,
+                graph,
+                scorer,
+                query_vectors,
+                terrain_vectors,
+                alpha,
+                cfg,
+                cfg.sg_point_feature,
+                allowed,
+                keep_flat=widen == 2,
+            )
     else:
-        clusters, cand_rows, similarity = _match_clusters(msm, graph, scorer, query_vectors, terrain_vectors,
-                                                          alpha, cfg, method[3:], None)
+        clusters, cand_rows, similarity = _match_clusters(
+            msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg, method[3:], None
+        )
     if not clusters:
         return []
     members = np.concatenate([m for _, m in clusters])
@@ -288,8 +326,20 @@ def find_objects(
     found: list[FoundObject] = []
     for (q, local), box, place in zip(clusters, boxes, places):
         scores = similarity[local, n_terrain:].mean(axis=0)
-        found.append(FoundObject(box.center, box.size, box.yaw, q, queries[q], float(scores[q]), scores,
-                                 len(local), int(place), np.sort(cand_rows[local])))
+        found.append(
+            FoundObject(
+                box.center,
+                box.size,
+                box.yaw,
+                q,
+                queries[q],
+                float(scores[q]),
+                scores,
+                len(local),
+                int(place),
+                np.sort(cand_rows[local]),
+            )
+        )
     found.sort(key=lambda o: (o.query, -o.score, -o.point_count))
     return found
 
@@ -311,8 +361,17 @@ def with_objects(graph: SceneGraph, found: list[FoundObject]) -> SceneGraph:
         size=np.vstack([np.asarray(old.size).reshape(-1, 3)[keep]] + [o.size[None] for o in found]),
         yaw=np.concatenate([np.asarray(old.yaw, dtype=np.float64)[keep], [o.yaw for o in found]]),
         label=[lb for lb, k in zip(old.label, keep) if k] + [o.label for o in found],
-        score=np.concatenate([np.asarray(old.score, dtype=np.float32)[keep], np.array([o.score for o in found], dtype=np.float32)]),
-        point_count=np.concatenate([np.asarray(old.point_count, dtype=np.int64)[keep], np.array([o.point_count for o in found], dtype=np.int64)]),
-        place=np.concatenate([np.asarray(old.place, dtype=np.int64)[keep], np.array([o.place for o in found], dtype=np.int64)]),
+        score=np.concatenate(
+            [np.asarray(old.score, dtype=np.float32)[keep], np.array([o.score for o in found], dtype=np.float32)]
+        ),
+        point_count=np.concatenate(
+            [
+                np.asarray(old.point_count, dtype=np.int64)[keep],
+                np.array([o.point_count for o in found], dtype=np.int64),
+            ]
+        ),
+        place=np.concatenate(
+            [np.asarray(old.place, dtype=np.int64)[keep], np.array([o.place for o in found], dtype=np.int64)]
+        ),
     )
     return replace(graph, objects=objects)

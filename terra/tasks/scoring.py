@@ -31,7 +31,9 @@ class PointScorer:
         # float32 data: scipy would otherwise upcast int counts x float32 vectors to float64.
         self.counts = sp.csr_matrix((counts.data.astype(np.float32), counts.indices, counts.indptr), shape=counts.shape)
         norms = msm.ms_avg_norms()
-        self.inv_norm = np.divide(1.0, norms, out=np.zeros_like(norms, dtype=np.float32), where=norms > 0).astype(np.float32)
+        self.inv_norm = np.divide(1.0, norms, out=np.zeros_like(norms, dtype=np.float32), where=norms > 0).astype(
+            np.float32
+        )
         self.bank = np.asarray(msm.bank, dtype=np.float32)
         self._msm = msm
         self._max_ids: np.ndarray | None = None

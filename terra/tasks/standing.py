@@ -24,9 +24,15 @@ from __future__ import annotations
 import numpy as np
 
 
-def standing_groups(points: np.ndarray, groups: list[np.ndarray], ground_z: np.ndarray, lift: float = 0.15,
-                    float_height: float | None = 1.0, attach_gap: float = 2.0,
-                    keep_flat: bool = True) -> list[np.ndarray]:
+def standing_groups(
+    points: np.ndarray,
+    groups: list[np.ndarray],
+    ground_z: np.ndarray,
+    lift: float = 0.15,
+    float_height: float | None = 1.0,
+    attach_gap: float = 2.0,
+    keep_flat: bool = True,
+) -> list[np.ndarray]:
     """The clusters (row arrays into `points` (n, 3)) that stand on the ground, each with the
     floating parts attached to it; `ground_z` (G,) is the ground height under each cluster.
     Order follows `groups` (attached parts are appended to their cluster's rows). `keep_flat`:

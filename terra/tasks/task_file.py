@@ -28,9 +28,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from terra.config import validation_message
 from terra.errors import TerraError
 
-OBJECT_METHODS = {"ms_avg": ("ms-avg", None), "ms_max": ("ms-max", None), "3dsg": ("3dsg", None),
-                  "3dsg_avg": ("3dsg", "avg"), "3dsg_max": ("3dsg", "max"),
-                  "ms-avg": ("ms-avg", None), "ms-max": ("ms-max", None)}
+OBJECT_METHODS = {
+    "ms_avg": ("ms-avg", None),
+    "ms_max": ("ms-max", None),
+    "3dsg": ("3dsg", None),
+    "3dsg_avg": ("3dsg", "avg"),
+    "3dsg_max": ("3dsg", "max"),
+    "ms-avg": ("ms-avg", None),
+    "ms-max": ("ms-max", None),
+}
 REGION_METHODS = ("max", "thresh", "mix", "aib")
 COMMAND_KEYS = {
     "find": {"object_tasks", "tasks", "alpha", "prediction_method"},
@@ -73,7 +79,7 @@ class PlanQueries(_Strict):
 class TaskFile(_Strict):
     terra: str | None = None
     alpha: float | None = None
-    k: int | None = Field(None, ge=1)
+    k: int | None = Field(default=None, ge=1)
     prediction_method: str | None = None
     trim: float | None = None
     case: Any = None
@@ -119,8 +125,10 @@ class TaskFile(_Strict):
         if self.prediction_method is None or self.prediction_method in REGION_METHODS:
             return None, None
         if self.prediction_method not in OBJECT_METHODS:
-            raise TerraError(f"{source}: field 'prediction_method' is {self.prediction_method!r}; for objects expected one of: "
-                             "ms_avg, ms_max, 3dsg, 3dsg_avg, 3dsg_max")
+            raise TerraError(
+                f"{source}: field 'prediction_method' is {self.prediction_method!r}; for objects expected one of: "
+                "ms_avg, ms_max, 3dsg, 3dsg_avg, 3dsg_max"
+            )
         return OBJECT_METHODS[self.prediction_method]
 
     def region_method(self, source: str) -> str | None:
@@ -128,8 +136,10 @@ class TaskFile(_Strict):
         if self.prediction_method is None or self.prediction_method in OBJECT_METHODS:
             return None
         if self.prediction_method not in REGION_METHODS:
-            raise TerraError(f"{source}: field 'prediction_method' is {self.prediction_method!r}; for regions expected one of: "
-                             f"{', '.join(REGION_METHODS)}")
+            raise TerraError(
+                f"{source}: field 'prediction_method' is {self.prediction_method!r}; for regions expected one of: "
+                f"{', '.join(REGION_METHODS)}"
+            )
         return self.prediction_method
 
 
@@ -142,7 +152,9 @@ def load_task_file(path: str | Path) -> TaskFile:
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
-        raise TerraError(f"{path}: expected a mapping with keys such as object_tasks, region_tasks, terrain_preferences, queries")
+        raise TerraError(
+            f"{path}: expected a mapping with keys such as object_tasks, region_tasks, terrain_preferences, queries"
+        )
     try:
         return TaskFile.model_validate(raw)
     except ValidationError as exc:

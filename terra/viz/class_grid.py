@@ -28,7 +28,7 @@ class ClassGrid:
     terrain_count: int
 
     @classmethod
-    def empty(cls, extent: Extent, cell: float, terrain_count: int) -> "ClassGrid":
+    def empty(cls, extent: Extent, cell: float, terrain_count: int) -> ClassGrid:
         w = max(int(np.ceil((extent[1] - extent[0]) / cell)), 1)
         h = max(int(np.ceil((extent[3] - extent[2]) / cell)), 1)
         extent = (extent[0], extent[0] + w * cell, extent[2], extent[2] + h * cell)
@@ -50,8 +50,9 @@ class ClassGrid:
         return out
 
 
-def map_class_grid(points: np.ndarray, terrain_index: np.ndarray, terrain_count: int, extent: Extent,
-                   cell: float) -> ClassGrid:
+def map_class_grid(
+    points: np.ndarray, terrain_index: np.ndarray, terrain_count: int, extent: Extent, cell: float
+) -> ClassGrid:
     """The map's points (N, 3 metres) with their class (terra.viz.raster.point_classes: terrain
     index, T not terrain, T + 1 no camera label; -1 also not terrain) on a grid: each cell takes
     its highest point."""

@@ -10,8 +10,8 @@ retrieval figure, with its zoomed insets, is in terra.viz.retrieval_figure.
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 from matplotlib.lines import Line2D
@@ -20,14 +20,38 @@ from matplotlib.patches import Patch, Polygon
 from terra.datasets.ground_truth import GroundTruth, NamedRegion
 from terra.eval.metrics.boxes import BoxSet
 from terra.graph.scene_graph import SceneGraph
-from terra.viz.class_grid import (DIFFERENCE_COLOURS, DIFFERENCE_LABELS, difference, difference_rgba, gt_class_grid,
-                                  map_class_grid)
-from terra.viz.places import (draw_place_edges, draw_places, edge_handles, extent_with_places, marker_size,
-                              region_colours)
+from terra.viz.class_grid import (
+    DIFFERENCE_COLOURS,
+    DIFFERENCE_LABELS,
+    difference,
+    difference_rgba,
+    gt_class_grid,
+    map_class_grid,
+)
+from terra.viz.places import (
+    draw_place_edges,
+    draw_places,
+    edge_handles,
+    extent_with_places,
+    marker_size,
+    region_colours,
+)
 from terra.viz.raster import TopDownImage
 from terra.viz.retrieval_figure import boxes_figure  # noqa: F401 (one module of figures for callers)
-from terra.viz.style import (GOAL_COLOUR, HIGHLIGHT_COLOUR, PATH_COLOUR, START_COLOUR, UNSEEN_COLOUR, Extent,
-                             figure_legend, new_figure, save_figure, terrain_handles, topdown_axis, view_extent)
+from terra.viz.style import (
+    GOAL_COLOUR,
+    HIGHLIGHT_COLOUR,
+    PATH_COLOUR,
+    START_COLOUR,
+    UNSEEN_COLOUR,
+    Extent,
+    figure_legend,
+    new_figure,
+    save_figure,
+    terrain_handles,
+    topdown_axis,
+    view_extent,
+)
 from terra.words import counted
 
 
@@ -40,17 +64,28 @@ def _outline_buildings(ax, gt: GroundTruth | None) -> None:
         ax.add_patch(Polygon(corners, closed=True, fill=False, edgecolor="black", linewidth=0.8, zorder=4))
 
 
-def terrain_map_figure(path: str | Path, terrain_classes: list[str], points: np.ndarray, terrain_index: np.ndarray,
-                       gt: GroundTruth | None = None, dpi: int = 120, extent: Extent | None = None,
-                       cell: float = 0.4) -> Path:
+def terrain_map_figure(
+    path: str | Path,
+    terrain_classes: list[str],
+    points: np.ndarray,
+    terrain_index: np.ndarray,
+    gt: GroundTruth | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+    cell: float = 0.4,
+) -> Path:
     """(a) the map's points by class (`terrain_index`: terra.viz.raster.point_classes) and (b) the
     ground truth (terrain raster with every object's footprint as not terrain), both on the same
     `cell` grid and drawn the same way, and (c) where they differ. Without `gt`, the map panel alone."""
     extent = extent or view_extent(points)
     map_grid = map_class_grid(points, terrain_index, len(terrain_classes), extent, cell)
     panels = 3 if gt is not None and gt.terrain is not None else 1
-    fig, axes = new_figure(panels, panel_size=5.5, extent=extent,
-                           title="Terrain: the map" + (" against the ground truth" if panels == 3 else ""))
+    fig, axes = new_figure(
+        panels,
+        panel_size=5.5,
+        extent=extent,
+        title="Terrain: the map" + (" against the ground truth" if panels == 3 else ""),
+    )
     axes[0].imshow(map_grid.rgba(terrain_classes), origin="lower", extent=map_grid.extent, interpolation="nearest")
     topdown_axis(axes[0], "(a) map: highest point per cell" if panels == 3 else "map: highest point per cell", extent)
     handles = terrain_handles(terrain_classes, "not terrain")
@@ -71,14 +106,22 @@ def terrain_map_figure(path: str | Path, terrain_classes: list[str], points: np.
     return save_figure(fig, path, dpi)
 
 
-def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
-                  extent: Extent | None = None) -> Path:
+def places_figure(
+    path: str | Path,
+    sg: SceneGraph,
+    background: TopDownImage | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+) -> Path:
     """The places layer coloured by terrain; edges along one terrain grey, cross-terrain links
     black, bridges dashed. The view is `extent` grown to hold every place."""
     extent = extent_with_places(extent, sg)
-    fig, (ax,) = new_figure(1, panel_size=7.5, extent=extent,
-                            title=f"Places layer: {counted(len(sg.places), 'place')}, "
-                                  f"{counted(len(sg.place_edges), 'edge')}")
+    fig, (ax,) = new_figure(
+        1,
+        panel_size=7.5,
+        extent=extent,
+        title=f"Places layer: {counted(len(sg.places), 'place')}, {counted(len(sg.place_edges), 'edge')}",
+    )
     if background is not None:
         background.show(ax, alpha=0.25)
     counts = draw_place_edges(ax, sg)
@@ -88,15 +131,23 @@ def places_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | N
     return save_figure(fig, path, dpi)
 
 
-def region_levels_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
-                         extent: Extent | None = None) -> Path:
+def region_levels_figure(
+    path: str | Path,
+    sg: SceneGraph,
+    background: TopDownImage | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+) -> Path:
     """One panel per region level: places coloured by the region containing them, region
     centres as crosses."""
     levels = max(len(sg.regions), 1)
     ncols = min(levels, 2)
-    fig, axes = new_figure(ncols, (levels + ncols - 1) // ncols, extent=extent,
-                           title=f"Region levels ({sg.region_method or 'regions'}): places by region, "
-                                 "x = region centre")
+    fig, axes = new_figure(
+        ncols,
+        (levels + ncols - 1) // ncols,
+        extent=extent,
+        title=f"Region levels ({sg.region_method or 'regions'}): places by region, x = region centre",
+    )
     for ax in axes[levels:]:
         ax.set_visible(False)
     if not sg.regions:
@@ -116,8 +167,14 @@ def _footprint(ax, corners: np.ndarray, **kwargs) -> None:
     ax.add_patch(Polygon(corners, closed=True, fill=False, **kwargs))
 
 
-def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | None = None, dpi: int = 120,
-                   extent: Extent | None = None, title: str | None = None) -> Path:
+def objects_figure(
+    path: str | Path,
+    sg: SceneGraph,
+    background: TopDownImage | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+    title: str | None = None,
+) -> Path:
     """The object layer: each object's footprint (its yawed box seen from above) in its label's
     colour over grey places, with a line to the place it is linked to."""
     from matplotlib import colormaps
@@ -125,23 +182,37 @@ def objects_figure(path: str | Path, sg: SceneGraph, background: TopDownImage | 
     labels = list(dict.fromkeys(sg.objects.label))
     colours = colormaps["tab10"](np.arange(max(len(labels), 1)) % 10)[:, :3]
     title = title or f"Objects: {counted(len(sg.objects), 'object')} in the scene graph"
-    fig, (ax,) = new_figure(1, panel_size=7.0, title=title,
-                            extent=extent)
+    fig, (ax,) = new_figure(1, panel_size=7.0, title=title, extent=extent)
     if background is not None:
         background.show(ax, alpha=0.3)
     draw_places(ax, sg, colours=np.full((len(sg.places), 3), 0.7), edges="#b0b0b0")
     boxes = BoxSet(sg.objects.center, sg.objects.size, sg.objects.yaw)
-    for corners, label, place, centre in zip(boxes.footprint_corners(), sg.objects.label, sg.objects.place, boxes.center):
+    for corners, label, place, centre in zip(
+        boxes.footprint_corners(), sg.objects.label, sg.objects.place, boxes.center
+    ):
         colour = colours[labels.index(label)]
         _footprint(ax, corners, edgecolor=colour, linewidth=1.8, zorder=5)
         if 0 <= place < len(sg.places):
-            ax.plot([centre[0], sg.places.position[place, 0]], [centre[1], sg.places.position[place, 1]], color=colour,
-                    linewidth=0.8, linestyle=":", zorder=4)
+            ax.plot(
+                [centre[0], sg.places.position[place, 0]],
+                [centre[1], sg.places.position[place, 1]],
+                color=colour,
+                linewidth=0.8,
+                linestyle=":",
+                zorder=4,
+            )
     topdown_axis(ax, extent=extent)
     if labels:
         figure_legend(fig, [Line2D([], [], color=colours[i], label=lb) for i, lb in enumerate(labels)], ncols=3)
     else:
-        ax.text(0.5, 0.5, "no objects (run terra find --save, or give --query)", ha="center", va="center", transform=ax.transAxes)
+        ax.text(
+            0.5,
+            0.5,
+            "no objects (run terra find --save, or give --query)",
+            ha="center",
+            va="center",
+            transform=ax.transAxes,
+        )
     return save_figure(fig, path, dpi)
 
 
@@ -154,9 +225,18 @@ def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) ->
     ax.scatter(*xy[goal], s=170, marker="*", c=GOAL_COLOUR, edgecolors="white", linewidths=1.0, zorder=6)
 
 
-def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans: Sequence[tuple[str, np.ndarray, float]],
-                 task: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None,
-                 notes: Sequence[str] | None = None) -> Path:
+def paths_figure(
+    path: str | Path,
+    sg: SceneGraph,
+    start: int,
+    goal: int,
+    plans: Sequence[tuple[str, np.ndarray, float]],
+    task: str,
+    background: TopDownImage | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+    notes: Sequence[str] | None = None,
+) -> Path:
     """Like the paper's navigation figure: (a) terrain-coloured places, then one panel per plan
     given as (title, place indices, length in metres); the path magenta, the start a white disc,
     the goal a black star (no terrain has these colours). `notes`: one line per plan shown under
@@ -174,14 +254,23 @@ def paths_figure(path: str | Path, sg: SceneGraph, start: int, goal: int, plans:
     handles = terrain_handles(sg.terrain_classes, None) + [
         Line2D([], [], marker="o", linestyle="", markerfacecolor=START_COLOUR, markeredgecolor="black", label="start"),
         Line2D([], [], marker="*", linestyle="", markersize=10, color=GOAL_COLOUR, label="goal"),
-        Line2D([], [], color=PATH_COLOUR, linewidth=2.2, label="path")]
+        Line2D([], [], color=PATH_COLOUR, linewidth=2.2, label="path"),
+    ]
     figure_legend(fig, handles, ncols=len(handles))
     return save_figure(fig, path, dpi)
 
 
-def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegion], predicted: list[np.ndarray],
-                      method: str, background: TopDownImage | None = None, dpi: int = 120, extent: Extent | None = None,
-                      scores: Sequence[tuple[float, float]] | None = None) -> Path:
+def monitoring_figure(
+    path: str | Path,
+    sg: SceneGraph,
+    regions: list[NamedRegion],
+    predicted: list[np.ndarray],
+    method: str,
+    background: TopDownImage | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+    scores: Sequence[tuple[float, float]] | None = None,
+) -> Path:
     """Per labelled region, a panel titled with its query (the region's description) and, given
     `scores` [(precision, recall)], how well it was answered: the region's polygon (black), its
     places (black rings) and the places predicted for the query (orange)."""
@@ -189,9 +278,14 @@ def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegio
 
     n = max(len(regions), 1)
     ncols = min(n, min((3, 4), key=lambda c: (-(-n // c) * c - n, c)))  # 3 or 4 columns, fewest empty panels
-    fig, axes = new_figure(ncols, (n + ncols - 1) // ncols, panel_size=4.6, extent=extent,
-                           title=f"Region monitoring ({method}): the places predicted for each region's description")
-    for ax in axes[len(regions):]:
+    fig, axes = new_figure(
+        ncols,
+        (n + ncols - 1) // ncols,
+        panel_size=4.6,
+        extent=extent,
+        title=f"Region monitoring ({method}): the places predicted for each region's description",
+    )
+    for ax in axes[len(regions) :]:
         ax.set_visible(False)
     grey = np.full((len(sg.places), 3), 0.78)
     size = marker_size(len(sg.places))
@@ -200,8 +294,9 @@ def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegio
             background.show(ax, alpha=0.2)
         draw_places(ax, sg, colours=grey, edges=False)
         truth = sg.places.position[places_in_polygon(sg.places.position, region.polygon)]
-        ax.scatter(truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8,
-                   zorder=4)
+        ax.scatter(
+            truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8, zorder=4
+        )
         xy = sg.places.position[np.asarray(places, dtype=np.int64)]
         ax.scatter(xy[:, 0], xy[:, 1], s=size * 1.4, c=HIGHLIGHT_COLOUR, edgecolors="black", linewidths=0.3, zorder=5)
         ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=6))
@@ -211,10 +306,23 @@ def monitoring_figure(path: str | Path, sg: SceneGraph, regions: list[NamedRegio
             title += f"\nP {p:.2f}, R {r:.2f} ({counted(len(xy), 'place')} predicted, {len(truth)} in the region)"
         topdown_axis(ax, title, extent)
         ax.title.set_fontsize(8.5)
-    figure_legend(fig, [Patch(color=HIGHLIGHT_COLOUR, label="predicted places"),
-                        Line2D([], [], marker="o", linestyle="", markerfacecolor="none", markeredgecolor="black",
-                               label="places in the region"),
-                        Line2D([], [], color="black", label="labelled region")], ncols=3)
+    figure_legend(
+        fig,
+        [
+            Patch(color=HIGHLIGHT_COLOUR, label="predicted places"),
+            Line2D(
+                [],
+                [],
+                marker="o",
+                linestyle="",
+                markerfacecolor="none",
+                markeredgecolor="black",
+                label="places in the region",
+            ),
+            Line2D([], [], color="black", label="labelled region"),
+        ],
+        ncols=3,
+    )
     return save_figure(fig, path, dpi)
 
 
@@ -226,17 +334,26 @@ def memory_figure(path: str | Path, parts: dict[str, int], area_m2: float, label
     mib = np.array([parts[n] / 2**20 for n in names])
     total = max(sum(parts.values()), 1)
     per_m2 = total / max(area_m2, 1e-9)
-    title = (f"Saved map and graph{' of ' + label if label else ''}: {total / 2**20:.2f} MiB for {area_m2:,.0f} m² "
-             f"({per_m2:,.0f} B/m²)")
+    title = (
+        f"Saved map and graph{' of ' + label if label else ''}: {total / 2**20:.2f} MiB for {area_m2:,.0f} m² "
+        f"({per_m2:,.0f} B/m²)"
+    )
     fig, (ax,) = new_figure(1, panel_size=7.5, title=title)
     fig.set_size_inches(7.5, max(0.42 * len(names) + 1.2, 3.0))
     y = np.arange(len(names))[::-1]
-    colours = ["#6a3d9a" if n.startswith("map") else HIGHLIGHT_COLOUR if n.startswith("graph") else "#9e9e9e"
-               for n in names]
+    colours = [
+        "#6a3d9a" if n.startswith("map") else HIGHLIGHT_COLOUR if n.startswith("graph") else "#9e9e9e" for n in names
+    ]
     ax.barh(y, mib, color=colours, height=0.65)
     for yi, name, value in zip(y, names, mib):
-        ax.annotate(f"{parts[name] / max(area_m2, 1e-9):,.1f} B/m², {100 * parts[name] / total:.0f}%", (value, yi),
-                    xytext=(4, 0), textcoords="offset points", va="center", fontsize=8)
+        ax.annotate(
+            f"{parts[name] / max(area_m2, 1e-9):,.1f} B/m², {100 * parts[name] / total:.0f}%",
+            (value, yi),
+            xytext=(4, 0),
+            textcoords="offset points",
+            va="center",
+            fontsize=8,
+        )
     ax.set_yticks(y, names, fontsize=8)
     ax.set_xlabel("MiB on disk", fontsize=8)
     ax.set_xlim(0, max(float(mib.max(initial=0)) * 1.45, 1e-3))

@@ -32,12 +32,17 @@ def extent_with_places(extent: Extent | None, sg: SceneGraph, margin: float = 0.
     xy = np.asarray(sg.places.position, dtype=np.float64)[:, :2]
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     pad = margin * max(float((hi - lo).max()), 1.0)
-    return (min(extent[0], float(lo[0] - pad)), max(extent[1], float(hi[0] + pad)),
-            min(extent[2], float(lo[1] - pad)), max(extent[3], float(hi[1] + pad)))
+    return (
+        min(extent[0], float(lo[0] - pad)),
+        max(extent[1], float(hi[0] + pad)),
+        min(extent[2], float(lo[1] - pad)),
+        max(extent[3], float(hi[1] + pad)),
+    )
 
 
-def draw_place_edges(ax: Axes, sg: SceneGraph, colour: str | None = None, width: float | None = None,
-                     alpha: float = 0.8) -> dict[int, int]:
+def draw_place_edges(
+    ax: Axes, sg: SceneGraph, colour: str | None = None, width: float | None = None, alpha: float = 0.8
+) -> dict[int, int]:
     """Place edges as line segments styled by kind (EDGE_STYLES), or all in `colour` when given;
     returns the number of edges drawn per kind."""
     counts: dict[int, int] = {}
@@ -48,9 +53,16 @@ def draw_place_edges(ax: Axes, sg: SceneGraph, colour: str | None = None, width:
         mask = sg.place_edge_kind == kind
         if mask.any():
             counts[kind] = int(np.count_nonzero(mask))
-            ax.add_collection(LineCollection(xy[sg.place_edges[mask]], colors=colour or kind_colour,
-                                             linewidths=width or kind_width, alpha=alpha, linestyles=style,
-                                             zorder=1.5 if kind != EDGE_GVD else 1))
+            ax.add_collection(
+                LineCollection(
+                    xy[sg.place_edges[mask]],
+                    colors=colour or kind_colour,
+                    linewidths=width or kind_width,
+                    alpha=alpha,
+                    linestyles=style,
+                    zorder=1.5 if kind != EDGE_GVD else 1,
+                )
+            )
     return counts
 
 
@@ -58,12 +70,21 @@ def edge_handles(counts: dict[int, int]) -> list:
     """Legend lines for the edge kinds drawn, with their counts."""
     from matplotlib.lines import Line2D
 
-    return [Line2D([], [], color=c, linewidth=w, linestyle=st, label=f"{label} ({counts[kind]})")
-            for kind, (label, c, w, st) in EDGE_STYLES.items() if counts.get(kind)]
+    return [
+        Line2D([], [], color=c, linewidth=w, linestyle=st, label=f"{label} ({counts[kind]})")
+        for kind, (label, c, w, st) in EDGE_STYLES.items()
+        if counts.get(kind)
+    ]
 
 
-def draw_places(ax: Axes, sg: SceneGraph, colours: np.ndarray | None = None, edges: bool | str = True,
-                size: float | None = None, zorder: int = 2) -> None:
+def draw_places(
+    ax: Axes,
+    sg: SceneGraph,
+    colours: np.ndarray | None = None,
+    edges: bool | str = True,
+    size: float | None = None,
+    zorder: int = 2,
+) -> None:
     """Place nodes at their map-frame xy, coloured by terrain unless `colours` (P, 3) is given;
     edges styled by kind (True), all in one colour (a colour string) or not drawn (False)."""
     if edges:
@@ -73,8 +94,15 @@ def draw_places(ax: Axes, sg: SceneGraph, colours: np.ndarray | None = None, edg
     if colours is None:
         colours = terrain_palette(sg.terrain_classes)[sg.places.terrain]
     xy = sg.places.position
-    ax.scatter(xy[:, 0], xy[:, 1], s=size or marker_size(len(sg.places)), c=colours, edgecolors="black",
-               linewidths=0.2, zorder=zorder)
+    ax.scatter(
+        xy[:, 0],
+        xy[:, 1],
+        s=size or marker_size(len(sg.places)),
+        c=colours,
+        edgecolors="black",
+        linewidths=0.2,
+        zorder=zorder,
+    )
     ax.autoscale_view()
 
 

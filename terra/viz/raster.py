@@ -21,20 +21,28 @@ class TopDownImage:
     def show(self, ax: Axes, alpha: float = 1.0) -> None:
         ax.imshow(self.rgba, origin="lower", extent=self.extent, interpolation="nearest", alpha=alpha, zorder=0)
 
-    def crop(self, window: tuple[float, float, float, float]) -> "TopDownImage":
+    def crop(self, window: tuple[float, float, float, float]) -> TopDownImage:
         """The part of the image covering `window` (xmin, xmax, ymin, ymax metres), whole cells,
         so a zoomed panel does not resample the whole map."""
         h, w = self.rgba.shape[:2]
         x0, x1, y0, y1 = self.extent
         cx, cy = (x1 - x0) / max(w, 1), (y1 - y0) / max(h, 1)
-        c0, c1 = (int(np.clip(np.floor((window[0] - x0) / cx), 0, w)), int(np.clip(np.ceil((window[1] - x0) / cx), 0, w)))
-        r0, r1 = (int(np.clip(np.floor((window[2] - y0) / cy), 0, h)), int(np.clip(np.ceil((window[3] - y0) / cy), 0, h)))
+        c0, c1 = (
+            int(np.clip(np.floor((window[0] - x0) / cx), 0, w)),
+            int(np.clip(np.ceil((window[1] - x0) / cx), 0, w)),
+        )
+        r0, r1 = (
+            int(np.clip(np.floor((window[2] - y0) / cy), 0, h)),
+            int(np.clip(np.ceil((window[3] - y0) / cy), 0, h)),
+        )
         if c1 <= c0 or r1 <= r0:
             return TopDownImage(np.zeros((1, 1, 4)), (window[0], window[1], window[2], window[3]))
         return TopDownImage(self.rgba[r0:r1, c0:c1], (x0 + c0 * cx, x0 + c1 * cx, y0 + r0 * cy, y0 + r1 * cy))
 
 
-def rasterize_points(points: np.ndarray, colours: np.ndarray, cell: float = 0.4, max_pixels: int = 1600) -> TopDownImage:
+def rasterize_points(
+    points: np.ndarray, colours: np.ndarray, cell: float = 0.4, max_pixels: int = 1600
+) -> TopDownImage:
     """Top-down image of points (N, 3, metres, map frame) with RGB colours (N, 3): each cell shows
     its highest point. `cell` (metres) grows when the image would exceed `max_pixels` on a side."""
     points = np.asarray(points, dtype=np.float64)
@@ -67,7 +75,9 @@ def point_classes(msm) -> np.ndarray:
     return np.where(terrain >= 0, terrain, np.where(observed, count, count + 1))
 
 
-def terrain_points_image(points: np.ndarray, terrain_index: np.ndarray, terrain_classes: list[str], cell: float = 0.4) -> TopDownImage:
+def terrain_points_image(
+    points: np.ndarray, terrain_index: np.ndarray, terrain_classes: list[str], cell: float = 0.4
+) -> TopDownImage:
     """Map points coloured by terrain index (-1 or T = not terrain, drawn dark grey; T + 1 = no
     camera label, light grey; see point_classes)."""
     palette = map_palette(terrain_classes)

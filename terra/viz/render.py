@@ -10,8 +10,9 @@ path     a terrain-aware plan (the options of `terra plan`), with its length per
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,12 +30,12 @@ WHAT = ("terrain", "places", "regions", "objects", "path")
 
 
 def render_bundle(
-    loaded: "LoadedBundle",
+    loaded: LoadedBundle,
     what: str,
     out: str | Path,
     dpi: int = 120,
     queries: Sequence[str] = (),
-    plan: "PlanRequest | None" = None,
+    plan: PlanRequest | None = None,
 ) -> dict[str, Any]:
     """Draw figure `what` of the bundle into PNG `out` (replaced atomically); returns a summary.
     `queries`: objects to find for "objects"; `plan`: the plan request for "path"."""
@@ -57,8 +58,15 @@ def render_bundle(
     try:
         with writing(out, "picture"):
             if what == "terrain":
-                figures.terrain_map_figure(tmp, msm.terrain_classes, msm.points, point_classes(msm), dpi=dpi,
-                                           extent=extent, cell=msm.voxel_size)
+                figures.terrain_map_figure(
+                    tmp,
+                    msm.terrain_classes,
+                    msm.points,
+                    point_classes(msm),
+                    dpi=dpi,
+                    extent=extent,
+                    cell=msm.voxel_size,
+                )
             else:
                 summary.update(_graph_figure(what, loaded, graph, tmp, background, dpi, extent, queries, plan))
             os.replace(tmp, out)
@@ -67,7 +75,7 @@ def render_bundle(
     return summary
 
 
-def mapped_extent(msm: "MetricSemanticMap", graph: "SceneGraph | None", reach: float = 20.0) -> Extent:
+def mapped_extent(msm: MetricSemanticMap, graph: SceneGraph | None, reach: float = 20.0) -> Extent:
     """The mapped area (xmin, xmax, ymin, ymax metres): the places when there is a graph, else
     `reach` metres around the camera positions, else the 1st-99th percentile of the points; never
     every far LiDAR return, which would shrink the map to a speck."""
@@ -84,14 +92,14 @@ def mapped_extent(msm: "MetricSemanticMap", graph: "SceneGraph | None", reach: f
 
 def _graph_figure(
     what: str,
-    loaded: "LoadedBundle",
-    graph: "SceneGraph",
+    loaded: LoadedBundle,
+    graph: SceneGraph,
     tmp: Path,
     background,
     dpi: int,
     extent: Extent,
     queries: Sequence[str],
-    plan: "PlanRequest | None",
+    plan: PlanRequest | None,
 ) -> dict[str, Any]:
     from terra.viz import figures
 

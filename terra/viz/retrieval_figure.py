@@ -29,8 +29,9 @@ def _short(query: str) -> str:
     return " ".join(words[2:]) if len(words) > 2 and words[0].lower() == "find" and words[1].lower() == "the" else query
 
 
-def inset_centre(q: int, gt: BoxSet, gt_query: np.ndarray,
-                 predictions: dict[str, tuple[BoxSet, np.ndarray]]) -> np.ndarray:
+def inset_centre(
+    q: int, gt: BoxSet, gt_query: np.ndarray, predictions: dict[str, tuple[BoxSet, np.ndarray]]
+) -> np.ndarray:
     """xy (metres) of the ground-truth object of query q that a prediction for q came nearest to
     (its first object when nothing was predicted for q)."""
     mine = np.flatnonzero(gt_query == q)
@@ -55,10 +56,18 @@ def _layout(n: int) -> tuple[int, int]:
     return rows, max(1, int(np.ceil(n / rows)))
 
 
-def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxSet, np.ndarray]], queries: list[str],
-                 gt_query: np.ndarray, background: TopDownImage | None = None, dpi: int = 120,
-                 extent: Extent | None = None, counts: dict[str, list[tuple[int, int]]] | None = None,
-                 max_insets: int = 16) -> Path:
+def boxes_figure(
+    path: str | Path,
+    gt: BoxSet,
+    predictions: dict[str, tuple[BoxSet, np.ndarray]],
+    queries: list[str],
+    gt_query: np.ndarray,
+    background: TopDownImage | None = None,
+    dpi: int = 120,
+    extent: Extent | None = None,
+    counts: dict[str, list[tuple[int, int]]] | None = None,
+    max_insets: int = 16,
+) -> Path:
     """Retrieved boxes against ground truth (see the module docstring). `predictions` maps a
     method to (boxes, query index per box); `gt_query` is the query index of each ground-truth
     box; `counts` maps a method to (found, hits) per query, as Table II counts them."""
@@ -85,16 +94,34 @@ def boxes_figure(path: str | Path, gt: BoxSet, predictions: dict[str, tuple[BoxS
         window = _inset_extent(inset_centre(q, gt, gt_query, predictions), q, gt, gt_query)
         _draw(ax, background, corners, gt_query == q, predictions, colour, style, thin=False, query=q, window=window)
         letter = chr(ord("a") + k)
-        overview.add_patch(Rectangle((window[0], window[2]), window[1] - window[0], window[3] - window[2], fill=False,
-                                     edgecolor="black", linewidth=0.9, zorder=7))
-        overview.annotate(letter, (window[0], window[3]), fontsize=7, fontweight="bold", zorder=8, va="bottom",
-                          bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5, "alpha": 0.85})
+        overview.add_patch(
+            Rectangle(
+                (window[0], window[2]),
+                window[1] - window[0],
+                window[3] - window[2],
+                fill=False,
+                edgecolor="black",
+                linewidth=0.9,
+                zorder=7,
+            )
+        )
+        overview.annotate(
+            letter,
+            (window[0], window[3]),
+            fontsize=7,
+            fontweight="bold",
+            zorder=8,
+            va="bottom",
+            bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5, "alpha": 0.85},
+        )
         title = f"({letter}) {_short(queries[q])}: {int(np.count_nonzero(gt_query == q))} true"
         if counts:
             title += "\n" + ", ".join(f"{m} {counts[m][q][0]}/{counts[m][q][1]}" for m in methods if m in counts)
         _inset_axis(ax, title, window)
-    handles = [Line2D([], [], color="black", linewidth=1.8, label="ground truth of the query"),
-               Line2D([], [], color="#9a9a9a", linewidth=0.8, label="other objects")]
+    handles = [
+        Line2D([], [], color="black", linewidth=1.8, label="ground truth of the query"),
+        Line2D([], [], color="#9a9a9a", linewidth=0.8, label="other objects"),
+    ]
     handles += [Line2D([], [], color=colour[m], linestyle=style[m], linewidth=1.6, label=f"{m} boxes") for m in methods]
     title = "inset titles: method found / hits, as in Table II" if counts else None
     figure_legend(fig, handles, ncols=len(handles), title=title)
@@ -118,8 +145,18 @@ def _outlines(ax, quads: np.ndarray, **kwargs) -> None:
         ax.add_collection(PolyCollection(list(quads), closed=True, facecolors="none", **kwargs))
 
 
-def _draw(ax, background, corners, highlight, predictions, colour, style, thin: bool, query: int | None = None,
-          window: Extent | None = None) -> None:
+def _draw(
+    ax,
+    background,
+    corners,
+    highlight,
+    predictions,
+    colour,
+    style,
+    thin: bool,
+    query: int | None = None,
+    window: Extent | None = None,
+) -> None:
     """Ground truth (highlighted ones thick black, the rest grey; all black on the overview) and
     the predictions (all, or those of `query`), only what reaches into `window`."""
     if background is not None:
@@ -131,8 +168,14 @@ def _draw(ax, background, corners, highlight, predictions, colour, style, thin: 
     for method, (boxes, assigned) in predictions.items():
         quads = boxes.footprint_corners()
         keep = _in_window(quads, window) & ((np.asarray(assigned) == query) if query is not None else True)
-        _outlines(ax, quads[keep], edgecolors=colour[method], linestyles=[style[method]], linewidths=0.7 if thin else 1.6,
-                  zorder=5)
+        _outlines(
+            ax,
+            quads[keep],
+            edgecolors=colour[method],
+            linestyles=[style[method]],
+            linewidths=0.7 if thin else 1.6,
+            zorder=5,
+        )
 
 
 def _inset_axis(ax, title: str, window: Extent) -> None:

@@ -69,20 +69,29 @@ def terrain_legend(ax: Axes, terrain_classes: list[str], other: str | None = "ot
     figure_legend(ax.figure, terrain_handles(terrain_classes, other), **kwargs)
 
 
-def figure_legend(fig: Figure, handles: list, ncols: int | None = None, fontsize: float = 8,
-                  title: str | None = None) -> None:
+def figure_legend(
+    fig: Figure, handles: list, ncols: int | None = None, fontsize: float = 8, title: str | None = None
+) -> None:
     """One legend for the whole figure, below the panels (never over data)."""
     if not handles:
         return
-    fig.legend(handles=handles, loc="outside lower center", ncols=ncols or min(len(handles), 6), fontsize=fontsize,
-               frameon=False, title=title, title_fontsize=fontsize)
+    fig.legend(
+        handles=handles,
+        loc="outside lower center",
+        ncols=ncols or min(len(handles), 6),
+        fontsize=fontsize,
+        frameon=False,
+        title=title,
+        title_fontsize=fontsize,
+    )
 
 
 Extent = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax (metres, map frame)
 
 
-def new_figure(ncols: int = 1, nrows: int = 1, panel_size: float = 5.0, title: str | None = None,
-               extent: Extent | None = None) -> tuple[Figure, list[Axes]]:
+def new_figure(
+    ncols: int = 1, nrows: int = 1, panel_size: float = 5.0, title: str | None = None, extent: Extent | None = None
+) -> tuple[Figure, list[Axes]]:
     """A figure of ncols x nrows panels `panel_size` inches wide, as tall as `extent`'s aspect
     asks (square without one), detached from pyplot (no GUI, no global state)."""
     aspect = 1.0

@@ -35,7 +35,7 @@ def world_colours(gt: GroundTruth, colors: np.ndarray) -> np.ndarray:
     from terra.viz.style import OTHER_COLOUR, TREE_COLOUR, terrain_colour
 
     out = np.array(colors, dtype=np.float64).copy()
-    for class_id, name in (gt.terrain.legend.items() if gt.terrain is not None else ()):
+    for class_id, name in gt.terrain.legend.items() if gt.terrain is not None else ():
         if 0 < class_id < len(out) and name != "unlabeled":
             out[class_id] = np.asarray(terrain_colour(name, class_id)) * 255.0
     for o in gt.objects:
@@ -44,8 +44,14 @@ def world_colours(gt: GroundTruth, colors: np.ndarray) -> np.ndarray:
     return out
 
 
-def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray | None = None,
-                     colors: np.ndarray | None = None, title: str = "", dpi: int = 110) -> Path:
+def render_world_png(
+    gt: GroundTruth,
+    out: str | Path,
+    trajectory_xy: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
+    title: str = "",
+    dpi: int = 110,
+) -> Path:
     """Write a top-down PNG (map frame, x right, y up, metres) of `gt` and the robot trajectory.
 
     trajectory_xy: (M, 2) robot positions in the map frame, metres. colors: RGB uint8 per class id
@@ -75,8 +81,12 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
     side = 8.0
     fig = plt.figure(figsize=(side + 3.2, side * (y1 - y0) / max(x1 - x0, 1e-9) + 0.7))
     ax = fig.add_axes((0.07, 0.06, side / (side + 3.2) * 0.93, 0.88))
-    ax.imshow(colors[np.clip(raster.classes, 0, len(colors) - 1)].astype(np.uint8), origin="lower",
-              extent=(x0, x1, y0, y1), interpolation="nearest")
+    ax.imshow(
+        colors[np.clip(raster.classes, 0, len(colors) - 1)].astype(np.uint8),
+        origin="lower",
+        extent=(x0, x1, y0, y1),
+        interpolation="nearest",
+    )
 
     # Objects, lowest first so tall things (buildings, trees) stay on top; trees as crowns.
     patches, faces, edges = [], [], []
@@ -89,7 +99,9 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
             patches.append(Polygon(_box_corners(o.center, o.size, o.yaw), closed=True))
             faces.append((*rgb(o.class_id), 1.0))
             edges.append((0, 0, 0, 1) if o.class_name in ("building", "car") else (0, 0, 0, 0.6))
-    ax.add_collection(PatchCollection(patches, facecolors=faces, edgecolors=edges, linewidths=0.35 if detailed else 0.1))
+    ax.add_collection(
+        PatchCollection(patches, facecolors=faces, edgecolors=edges, linewidths=0.35 if detailed else 0.1)
+    )
 
     if trajectory_xy is not None and len(trajectory_xy):
         ax.plot(trajectory_xy[:, 0], trajectory_xy[:, 1], color=_ROUTE, lw=1.4 if detailed else 0.6, zorder=3)
@@ -97,21 +109,45 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
         ax.plot(*trajectory_xy[-1, :2], marker="s", color=_ROUTE, mec="k", ms=6, zorder=4)
         if len(trajectory_xy) > 1:  # direction of travel at the start
             step = min(len(trajectory_xy) - 1, 3)
-            ax.annotate("", xy=trajectory_xy[step, :2], xytext=trajectory_xy[0, :2], zorder=4,
-                        arrowprops={"arrowstyle": "-|>", "color": _ROUTE, "lw": 1.5, "mutation_scale": 14})
+            ax.annotate(
+                "",
+                xy=trajectory_xy[step, :2],
+                xytext=trajectory_xy[0, :2],
+                zorder=4,
+                arrowprops={"arrowstyle": "-|>", "color": _ROUTE, "lw": 1.5, "mutation_scale": 14},
+            )
 
     for r in gt.regions:
         poly = np.asarray(r.polygon)
-        ax.add_patch(Polygon(poly, closed=True, fill=False, edgecolor="white", lw=1.1 if detailed else 0.5, ls="--", zorder=5))
+        ax.add_patch(
+            Polygon(poly, closed=True, fill=False, edgecolor="white", lw=1.1 if detailed else 0.5, ls="--", zorder=5)
+        )
         if detailed:
-            ax.text(*poly.mean(axis=0), r.name, color="white", fontsize=6.5, ha="center", va="center",
-                    zorder=6, bbox={"facecolor": "black", "alpha": 0.55, "pad": 1.2, "lw": 0})
+            ax.text(
+                *poly.mean(axis=0),
+                r.name,
+                color="white",
+                fontsize=6.5,
+                ha="center",
+                va="center",
+                zorder=6,
+                bbox={"facecolor": "black", "alpha": 0.55, "pad": 1.2, "lw": 0},
+            )
 
     # Scale bar in the lower-left corner, on a white backing so it reads on any terrain.
     length = scale_bar_length(x1 - x0)
     bx, by = x0 + 0.03 * (x1 - x0), y0 + 0.03 * (y1 - y0)
-    ax.add_patch(Rectangle((bx - 0.01 * big, by - 0.012 * big), length + 0.02 * big, 0.05 * big, facecolor="white",
-                           alpha=0.85, lw=0, zorder=6))
+    ax.add_patch(
+        Rectangle(
+            (bx - 0.01 * big, by - 0.012 * big),
+            length + 0.02 * big,
+            0.05 * big,
+            facecolor="white",
+            alpha=0.85,
+            lw=0,
+            zorder=6,
+        )
+    )
     ax.plot([bx, bx + length], [by, by], color="black", lw=3, solid_capstyle="butt", zorder=7)
     ax.text(bx + length / 2, by + 0.012 * big, f"{length:g} m", ha="center", va="bottom", fontsize=8, zorder=7)
 
@@ -128,11 +164,22 @@ def render_world_png(gt: GroundTruth, out: str | Path, trajectory_xy: np.ndarray
     object_ids = sorted({(o.class_id, o.class_name) for o in gt.objects})
     handles = [Patch(facecolor=rgb(i), edgecolor="0.3", lw=0.4, label=raster.legend[i]) for i in terrain_ids]
     handles += [Patch(facecolor=rgb(i), edgecolor="0.3", lw=0.4, label=name) for i, name in object_ids]
-    handles += [Line2D([], [], color=_ROUTE, lw=1.5, marker="o", mec="k", label="route (o start, \u25a1 end)"),
-                Line2D([], [], color="0.4", lw=1.1, ls="--", label="named region")]
-    fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(side / (side + 3.2) * 0.93 + 0.08, 0.94),
-               fontsize=7.5, frameon=False, title=f"terrain ({len(terrain_ids)}), objects ({len(object_ids)})",
-               title_fontsize=8, handlelength=1.6, labelspacing=0.35, ncols=1 if len(handles) <= 36 else 2)
+    handles += [
+        Line2D([], [], color=_ROUTE, lw=1.5, marker="o", mec="k", label="route (o start, \u25a1 end)"),
+        Line2D([], [], color="0.4", lw=1.1, ls="--", label="named region"),
+    ]
+    fig.legend(
+        handles=handles,
+        loc="upper left",
+        bbox_to_anchor=(side / (side + 3.2) * 0.93 + 0.08, 0.94),
+        fontsize=7.5,
+        frameon=False,
+        title=f"terrain ({len(terrain_ids)}), objects ({len(object_ids)})",
+        title_fontsize=8,
+        handlelength=1.6,
+        labelspacing=0.35,
+        ncols=1 if len(handles) <= 36 else 2,
+    )
     out = Path(out)
     fig.savefig(out, dpi=dpi, metadata={"Software": None}, bbox_inches="tight", pad_inches=0.1)
     plt.close(fig)

@@ -13,10 +13,10 @@ message again without holding it in memory.
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -258,6 +258,6 @@ def stamps_seconds(msg_stamp) -> float:
 
 def xyz_quat_of(transform) -> np.ndarray:
     """[tx, ty, tz, qx, qy, qz, qw] of a geometry_msgs/Transform or Pose."""
-    t = getattr(transform, "translation", None) or getattr(transform, "position")
-    q = getattr(transform, "rotation", None) or getattr(transform, "orientation")
+    t = getattr(transform, "translation", None) or transform.position
+    q = getattr(transform, "rotation", None) or transform.orientation
     return np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w], float)

@@ -11,8 +11,8 @@ import io
 
 import numpy as np
 
-from terra.geometry import CameraCalibration, pose_to_xyz_quat
 from terra import lens
+from terra.geometry import CameraCalibration, pose_to_xyz_quat
 
 POINT_FIELDS = (
     ("x", 0, 7),

@@ -8,8 +8,8 @@ the two z intervals.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 import shapely
@@ -28,22 +28,24 @@ class BoxSet:
         self.size = np.asarray(self.size, dtype=np.float64).reshape(-1, 3)
         self.yaw = np.asarray(self.yaw, dtype=np.float64).reshape(-1)
         if not (len(self.center) == len(self.size) == len(self.yaw)):
-            raise ValueError(f"box arrays disagree: {len(self.center)} centres, {len(self.size)} sizes, {len(self.yaw)} yaws")
+            raise ValueError(
+                f"box arrays disagree: {len(self.center)} centres, {len(self.size)} sizes, {len(self.yaw)} yaws"
+            )
         if np.any(self.size < 0):
             raise ValueError("box sizes must be non-negative")
 
     def __len__(self) -> int:
         return int(self.center.shape[0])
 
-    def __getitem__(self, index) -> "BoxSet":
+    def __getitem__(self, index) -> BoxSet:
         return BoxSet(self.center[index], self.size[index], self.yaw[index])
 
     @classmethod
-    def empty(cls) -> "BoxSet":
+    def empty(cls) -> BoxSet:
         return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
 
     @classmethod
-    def from_objects(cls, objects: Iterable) -> "BoxSet":
+    def from_objects(cls, objects: Iterable) -> BoxSet:
         """From anything with `.center`, `.size`, `.yaw` (ground-truth ObjectBox, FoundObject)."""
         objects = list(objects)
         if not objects:

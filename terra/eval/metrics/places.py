@@ -72,13 +72,18 @@ class PlaceConnectivity:
         return self.joined / self.pairs if self.pairs else 1.0
 
     def to_json(self) -> dict:
-        return {"pairs": self.pairs, "joined": self.joined, "joined_share": self.joined_share,
-                "per_terrain": {k: {**asdict(v), "share": v.share} for k, v in sorted(self.per_terrain.items())}}
+        return {
+            "pairs": self.pairs,
+            "joined": self.joined,
+            "joined_share": self.joined_share,
+            "per_terrain": {k: {**asdict(v), "share": v.share} for k, v in sorted(self.per_terrain.items())},
+        }
 
 
 def joined_pairs(component: np.ndarray, graph_component: np.ndarray) -> tuple[int, int]:
     """(pairs, joined pairs) of items labelled by ground-truth `component` and by graph component
     (both (n,) integer labels): pairs share a ground-truth component, joined ones also a graph one."""
+
     def pair_count(labels: np.ndarray) -> int:
         if len(labels) == 0:
             return 0
@@ -90,7 +95,9 @@ def joined_pairs(component: np.ndarray, graph_component: np.ndarray) -> tuple[in
     return pair_count(component[:, None]), pair_count(both)
 
 
-def observed_cells(raster: TerrainRaster, points: np.ndarray, reach: float = 0.5, max_height: float = 0.3) -> np.ndarray:
+def observed_cells(
+    raster: TerrainRaster, points: np.ndarray, reach: float = 0.5, max_height: float = 0.3
+) -> np.ndarray:
     """(H, W) bool: raster cells within `reach` metres (2-D) of a map point (N, 3, map frame)
     that lies at most `max_height` metres above the ground-truth ground there: the ground the
     robot's LiDAR saw."""
@@ -100,11 +107,13 @@ def observed_cells(raster: TerrainRaster, points: np.ndarray, reach: float = 0.5
     seen = np.zeros(raster.classes.shape, dtype=bool)
     seen[rows[near_ground], cols[near_ground]] = True
     radius = int(np.ceil(reach / raster.resolution))
-    yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
     return ndimage.binary_dilation(seen, structure=(xx**2 + yy**2) * raster.resolution**2 <= reach**2)
 
 
-def same_terrain_connectivity(graph: SceneGraph, raster: TerrainRaster, observed: np.ndarray | None = None) -> PlaceConnectivity:
+def same_terrain_connectivity(
+    graph: SceneGraph, raster: TerrainRaster, observed: np.ndarray | None = None
+) -> PlaceConnectivity:
     """Connectivity of same-terrain places on each ground-truth terrain component (module doc).
     observed: (H, W) bool raster cells the robot saw (see `observed_cells`); components are then
     taken over the observed cells of each class only (None = the whole raster)."""
@@ -149,8 +158,12 @@ class TerrainAgreement:
         return self.agreeing / self.places if self.places else 1.0
 
     def to_json(self) -> dict:
-        return {"places": self.places, "agreeing": self.agreeing, "share": self.share,
-                "farther_than_m": {f"{d:g}": n for d, n in sorted(self.farther.items())}}
+        return {
+            "places": self.places,
+            "agreeing": self.agreeing,
+            "share": self.share,
+            "farther_than_m": {f"{d:g}": n for d, n in sorted(self.farther.items())},
+        }
 
 
 def place_terrain_agreement(

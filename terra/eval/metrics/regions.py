@@ -8,8 +8,8 @@ false negatives are summed over all queries before the ratios are taken.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 import shapely
@@ -47,7 +47,7 @@ class SetScores:
     def f1(self) -> float:
         return f1_score(self.precision, self.recall)
 
-    def __add__(self, other: "SetScores") -> "SetScores":
+    def __add__(self, other: SetScores) -> SetScores:
         return SetScores(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn)
 
     def to_json(self) -> dict:

@@ -61,7 +61,7 @@ class MatchCounts:
     relaxed: int = 0
     matches: int = 0
 
-    def __iadd__(self, other: "MatchCounts") -> "MatchCounts":
+    def __iadd__(self, other: MatchCounts) -> MatchCounts:
         self.iou_sum += other.iou_sum
         self.strict += other.strict
         self.relaxed += other.relaxed
@@ -143,18 +143,20 @@ def evaluate_retrieval(
         total_prec += prec
         num_gt += len(gt_t)
         num_sel += int(mine.size)
-        per_query.append({
-            "query": query_names[t] if query_names else str(t),
-            "num_gt": len(gt_t),
-            "num_predictions": int(np.count_nonzero(assigned == t)),
-            "iou_sum": acc.iou_sum,
-            "matches": acc.matches,
-            "strict_hits": acc.strict,
-            "relaxed_hits": acc.relaxed,
-            "precision_predictions": int(mine.size),
-            "strict_precision_hits": prec.strict,
-            "relaxed_precision_hits": prec.relaxed,
-        })
+        per_query.append(
+            {
+                "query": query_names[t] if query_names else str(t),
+                "num_gt": len(gt_t),
+                "num_predictions": int(np.count_nonzero(assigned == t)),
+                "iou_sum": acc.iou_sum,
+                "matches": acc.matches,
+                "strict_hits": acc.strict,
+                "relaxed_hits": acc.relaxed,
+                "precision_predictions": int(mine.size),
+                "strict_precision_hits": prec.strict,
+                "relaxed_precision_hits": prec.relaxed,
+            }
+        )
     racc = total_acc.relaxed / num_gt if num_gt else 0.0
     rprec = total_prec.relaxed / num_sel if num_sel else 0.0
     return RetrievalScores(
@@ -198,13 +200,16 @@ def distance_to_path(xy: np.ndarray, path_xy: np.ndarray) -> np.ndarray:
         return np.linalg.norm(xy - path[0], axis=1)
     a, b = path[:-1], path[1:]
     ab = b - a
-    t = np.clip(np.einsum("nsk,sk->ns", xy[:, None, :] - a[None], ab) / np.maximum((ab**2).sum(axis=1), 1e-12), 0.0, 1.0)
+    t = np.clip(
+        np.einsum("nsk,sk->ns", xy[:, None, :] - a[None], ab) / np.maximum((ab**2).sum(axis=1), 1e-12), 0.0, 1.0
+    )
     closest = a[None] + t[..., None] * ab[None]
     return np.linalg.norm(xy[:, None, :] - closest, axis=2).min(axis=1)
 
 
-def iou_by_distance(matched: list[np.ndarray], gt: list[BoxSet], path_xy: np.ndarray,
-                    bands: tuple[float, ...] = (5.0, 10.0, 20.0)) -> list[dict]:
+def iou_by_distance(
+    matched: list[np.ndarray], gt: list[BoxSet], path_xy: np.ndarray, bands: tuple[float, ...] = (5.0, 10.0, 20.0)
+) -> list[dict]:
     """Per distance band from the path ([0, 5), [5, 10), [10, 20), [20, inf) metres by default):
     ground-truth objects, how many were matched, and the mean IoU of those matches."""
     centres = [b.center[:, :2] for b in gt if len(b)]
@@ -217,6 +222,13 @@ def iou_by_distance(matched: list[np.ndarray], gt: list[BoxSet], path_xy: np.nda
     for lo, hi in zip(edges[:-1], edges[1:]):
         inside = (distance >= lo) & (distance < hi)
         hit = inside & np.isfinite(iou)
-        out.append({"from_m": lo, "to_m": None if np.isinf(hi) else hi, "objects": int(inside.sum()), "matched": int(hit.sum()),
-                    "matched_iou": float(iou[hit].mean()) if hit.any() else None})
+        out.append(
+            {
+                "from_m": lo,
+                "to_m": None if np.isinf(hi) else hi,
+                "objects": int(inside.sum()),
+                "matched": int(hit.sum()),
+                "matched_iou": float(iou[hit].mean()) if hit.any() else None,
+            }
+        )
     return out

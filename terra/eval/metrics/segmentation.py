@@ -55,8 +55,9 @@ class SegmentationScores:
         return out
 
 
-def segmentation_scores(confusion: np.ndarray, classes: list[str], seconds: float = 0.0, images: int = 0,
-                        timed: bool = True) -> SegmentationScores:
+def segmentation_scores(
+    confusion: np.ndarray, classes: list[str], seconds: float = 0.0, images: int = 0, timed: bool = True
+) -> SegmentationScores:
     """Scores from a confusion matrix over len(classes) terrain labels plus a last 'not terrain'
     label (shape (T+1, T+1)); `seconds` of segmenter time over `images` images give the FPS (None
     when not `timed`)."""
