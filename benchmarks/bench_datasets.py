@@ -84,7 +84,7 @@ def authors_layout(root: Path, frames: int) -> tuple[Path, Path]:
     import yaml
 
     from terra.sim.writer import write_dataset
-    from tests.fixtures_authors import NUNNS_PARK_YAML, rig
+    from tests.datasets.fixtures_authors import NUNNS_PARK_YAML, rig
 
     folder = write_dataset(Synthetic("field", frames, 131_072, rig(NUNNS_PARK_YAML)), root / "field", progress=False)
     for name in ("terra_dataset.json", "msmap_camera_config.yaml"):
@@ -109,7 +109,7 @@ def kitti_drive(root: Path, frames: int) -> Path:
 
 
 def lens_costs() -> dict:
-    from tests.test_lens import AUTHORS_LENSES
+    from tests.core.test_lens import AUTHORS_LENSES
 
     K, dist = AUTHORS_LENSES["nunns-park-cam3"]
     seconds = []

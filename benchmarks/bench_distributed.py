@@ -4,7 +4,7 @@ Backend: the real `models` backend, whose per-frame cost dominates: a CLIP of th
 (224 px, patch 32, 768 wide, 6 vision layers, half of ViT-B/32's 12; 512-d; random weights saved with
 save_pretrained, as no real weights exist here) embeds each frame's 3 object masks and the whole
 image (4 forward passes, about 2.2 GFLOPs each); the terrain and mask segmenters are ONNX graphs with
-constant outputs (tests/perception_models.py), so their inference costs nothing and their decoding is
+constant outputs (tests/perception/models.py), so their inference costs nothing and their decoding is
 the real code. Frames: the simulated tiny campus (640 x 480 camera, ~20 k points per scan) written as a
 terra-folder, which the workers read themselves.
 
@@ -50,8 +50,8 @@ TERRAIN = ["sidewalk", "grass", "asphalt", "dirt", "water"]
 
 def build_models(folder: Path, quick: bool) -> dict:
     """CLIP (ViT-B/32-sized, or tiny) and the two constant-output segmenters (reused when present)."""
-    from tests.fixtures_perception import all_on_protos, mask_detections, terrain_detections
-    from tests.perception_models import raw_output, save_clip, save_seg_onnx
+    from tests.perception.fixtures import all_on_protos, mask_detections, terrain_detections
+    from tests.perception.models import raw_output, save_clip, save_seg_onnx
 
     folder.mkdir(parents=True, exist_ok=True)
     clip = folder / ("clip-tiny" if quick else "clip-vit-b-32-6-layers-random")
@@ -93,7 +93,7 @@ def build_dataset(folder: Path, frames: int) -> Path:
 
 def mapping_config(models: dict, cache: Path):
     from terra.mapping.config import MappingConfig
-    from tests.fixtures_perception import models_section
+    from tests.perception.fixtures import models_section
 
     section = models_section({k: str(v) for k, v in models.items()})
     section["cache"] = {"mode": "on", "folder": str(cache)}
@@ -201,7 +201,7 @@ def client_ceiling(dataset, models: dict, work: Path) -> dict:
 
 
 def digest(path: Path) -> dict[str, str]:
-    from tests.fixtures_mapping import folder_digest
+    from tests.mapping.fixtures import folder_digest
 
     return folder_digest(path)
 

@@ -48,7 +48,7 @@ def build_models(folder: Path, quick: bool) -> dict:
     """The three models (reused when already built)."""
     import yolo_nets
 
-    from tests.perception_models import save_clip
+    from tests.perception.models import save_clip
 
     folder.mkdir(parents=True, exist_ok=True)
     clip = folder / ("clip-tiny" if quick else "clip-vit-b-16-random")

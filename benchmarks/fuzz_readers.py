@@ -1,6 +1,6 @@
 """Reliability (issue 13): mutation fuzzing of every reader, and kill -9 during `terra map`.
 
-Fuzzing: the harness of the test suite (tests/fuzzing.py) on many more inputs. Jobs go round robin
+Fuzzing: the harness of the test suite (tests/reliability/fuzzing.py) on many more inputs. Jobs go round robin
 over the readers (bundle manifest, every bundle array, scene graph, map metadata, the terra-folder,
 SemanticKITTI and KITTI raw layouts, ROS 1 and ROS 2 bags, config, task and msmap files, the authors'
 reference files); each mutates a fresh copy of its 3-frame seed and runs the command that reads it in
@@ -41,7 +41,7 @@ sys.path.insert(0, str(REPO))  # this worktree's terra and tests, not an install
 
 from benchtable import report
 
-from tests.fuzzing import FAILURES, build_seeds, supervise, targets
+from tests.reliability.fuzzing import FAILURES, build_seeds, supervise, targets
 
 
 def fuzz(
@@ -90,14 +90,14 @@ def fuzz(
 
 
 def _bundle_state(path: Path) -> str:
-    from tests.test_crash_safety import bundle_state
+    from tests.reliability.test_crash_safety import bundle_state
 
     return bundle_state(path)
 
 
 def kills(seeds, work: Path, count: int, rng: random.Random) -> dict:
     """`terra map` over an existing bundle killed after a random share of a full run, then rerun."""
-    from tests.test_crash_safety import leftovers
+    from tests.reliability.test_crash_safety import leftovers
 
     if count == 0:
         return {"runs": 0, "full_run_seconds": None, "tally": {}, "failures": []}

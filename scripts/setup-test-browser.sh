@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs Debian's chromium and chromium-driver for the viewer's browser test
-# (tests/test_viewer.py). Where they cannot be installed (no apt-get, not root) it says so and
+# (tests/viewer/test_viewer.py). Where they cannot be installed (no apt-get, not root) it says so and
 # exits 0: that test then skips with the reason. Used by .ci/run and the README's test command.
 set -u
 if command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; then

@@ -1,7 +1,7 @@
 """Session fixtures shared by every area: the text embedder and the simulated campuses.
 
 Expensive artefacts (simulated datasets, maps, graphs) are built once per test session; each
-area's fixtures live in tests/fixtures_<area>.py.
+area's fixtures live beside its tests (tests/<area>/fixtures.py).
 """
 
 import os
@@ -13,13 +13,13 @@ os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
 
 pytest_plugins = [
-    "tests.fixtures_mapping",
-    "tests.fixtures_graph",
-    "tests.fixtures_eval",
-    "tests.fixtures_perception",
-    "tests.fixtures_interop",
-    "tests.fixtures_ros",
-    "tests.fixtures_reliability",
+    "tests.mapping.fixtures",
+    "tests.graph.fixtures",
+    "tests.eval.fixtures",
+    "tests.perception.fixtures",
+    "tests.interop.fixtures",
+    "tests.datasets.fixtures_ros",
+    "tests.reliability.fixtures",
 ]
 
 

@@ -141,7 +141,7 @@ def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: flo
     cell of which reads its window; the fill takes labels within fill_radius. Ground is the
     exception (the nearest cell with terrain points or unlabelled ground, at any distance);
     terra.graph.tiled_grid checks it per cell. Keep this in step with the algorithm: the tiled
-    build relies on it (and tests/test_graph_tiling.py compares tiled and whole grids)."""
+    build relies on it (and tests/graph/test_graph_tiling.py compares tiled and whole grids)."""
     w = int(round(support_radius / cell_size))
     return 2 * w + chain + int(np.ceil(fill_radius / cell_size)) + 2
 

@@ -43,7 +43,7 @@ def brushfire(
     """Distance field, nearest obstacle and its component for every cell of a free-space mask.
 
     Each cell's parent is the nearest obstacle cell, ties to the lowest (column, row): that is
-    scipy's exact EDT (tests/test_graph_tiling.py checks it against brute force), and it does not
+    scipy's exact EDT (tests/graph/test_graph_tiling.py checks it against brute force), and it does not
     depend on where the array starts, which the tiled GVD relies on.
 
     For a window of a larger mask (terra.graph.tiled_gvd): `closed` says which sides (first row,

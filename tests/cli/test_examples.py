@@ -1,0 +1,80 @@
+"""The files a newcomer copies: examples/ loads as the commands load it, and the README's first two
+commands are what a fresh machine needs (CI runs the second one verbatim)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from terra.config import load_dataset_options, load_section, stage_names
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+CONFIGS = sorted(EXAMPLES.glob("*.yaml"))
+
+
+def test_there_are_examples():
+    assert {p.name for p in CONFIGS} >= {"campus.yaml", "models.yaml", "rosbag.yaml", "tasks.yaml"}
+
+
+@pytest.mark.parametrize("path", [p for p in CONFIGS if p.name != "tasks.yaml"], ids=lambda p: p.name)
+def test_example_configs_load_in_every_stage(path):
+    for stage in stage_names():
+        load_section(path, stage)  # TerraError (naming the key) for anything misspelt
+    options = load_dataset_options(path)
+    if options:  # a dataset section is validated by the loader it is for
+        from terra.datasets.registry import LOADERS, loader_options
+
+        loader_options(LOADERS.get("rosbag"), options, str(path))
+
+
+def test_the_campus_example_sets_what_it_says():
+    mapping = load_section(EXAMPLES / "campus.yaml", "mapping")
+    assert mapping.perception.backend == "labels" and mapping.perception.noise.enabled
+    assert load_section(EXAMPLES / "campus.yaml", "tasks").planning.start_radius == 20.0
+    assert load_section(EXAMPLES / "models.yaml", "mapping").perception.backend == "models"
+
+
+def test_the_example_task_file_drives_find_monitor_and_plan():
+    from terra.tasks.task_file import load_task_file
+
+    tasks = load_task_file(EXAMPLES / "tasks.yaml")
+    assert tasks.object_queries() == ["Get bike from the bicycle rack", "Find the dumpster"]
+    assert tasks.region_queries() == ["Large parking lot surrounded by buildings"]
+    assert tasks.object_method("tasks.yaml") == ("3dsg", None) and tasks.region_method("tasks.yaml") is None
+    assert tasks.unused_keys("find") == ["k", "region_tasks", "terrain_preferences", "queries"]
+    assert tasks.unused_keys("monitor") == ["prediction_method", "object_tasks", "terrain_preferences", "queries"]
+    assert tasks.unused_keys("plan") == ["k", "object_tasks", "region_tasks"]
+
+
+def readme_commands() -> list[str]:
+    text = (REPO / "README.md").read_text()
+    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
+    return [line for line in block.splitlines() if line.strip()]
+
+
+def test_readme_first_commands_install_then_demo_and_test():
+    demo, tests = readme_commands()
+    assert demo == 'pip install torch==2.13.0 -e ".[test]" && terra demo --out terra-demo'
+    assert tests == (
+        'pip install torch==2.13.0 -e ".[test]" && bash scripts/setup-test-browser.sh '
+        "&& bash scripts/lint.sh && python -m pytest -q -p no:cacheprovider"
+    )
+    assert (REPO / "scripts" / "setup-test-browser.sh").is_file()
+
+
+def test_ci_runs_the_readme_test_command_verbatim():
+    _, tests = readme_commands()
+    ci = (REPO / ".ci" / "run").read_text().splitlines()
+    assert tests in ci
+
+
+def test_readme_names_every_extra_of_the_package():
+    import tomllib
+
+    extras = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    readme = (REPO / "README.md").read_text()
+    for name in extras:
+        if name != "test":
+            assert f"| `{name}` |" in readme, name

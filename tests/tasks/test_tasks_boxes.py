@@ -1,0 +1,160 @@
+"""Oriented box fitting on point sets with a known answer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from terra.tasks.boxes import fit_oriented_box, wrap_half_turn
+from tests.tasks.test_tasks_synthetic import box_points
+
+
+@pytest.mark.parametrize("yaw", [np.radians(30.0), np.radians(120.0), np.radians(-75.0), 0.0])
+def test_box_of_a_rotated_rectangle(yaw):
+    center = np.array([12.5, -4.0, 1.0])
+    points = box_points(center, (4.0, 2.0, 1.6), yaw)
+    rng = np.random.default_rng(0)
+    box = fit_oriented_box(rng.permutation(points))
+    np.testing.assert_allclose(box.center, center, atol=1e-9)
+    np.testing.assert_allclose(box.size, [4.0, 2.0, 1.6], atol=1e-9)
+    # The long side is the x axis; yaw is folded into [-pi/2, pi/2).
+    expected = wrap_half_turn(yaw)
+    assert -np.pi / 2 <= box.yaw < np.pi / 2
+    assert box.yaw == pytest.approx(expected, abs=1e-9)
+    # Its corners are the rectangle's corners.
+    c, s = np.cos(yaw), np.sin(yaw)
+    true = (
+        np.array([[sx * 2.0, sy * 1.0] for sx, sy in [(-1, -1), (1, -1), (1, 1), (-1, 1)]])
+        @ np.array([[c, s], [-s, c]])
+        + center[:2]
+    )
+    got = box.corners_xy()
+    assert np.max(np.min(np.linalg.norm(got[:, None] - true[None], axis=2), axis=1)) < 1e-9
+
+
+def test_wrap_half_turn_values():
+    assert wrap_half_turn(np.radians(120)) == pytest.approx(np.radians(-60))
+    assert wrap_half_turn(np.pi / 2) == pytest.approx(-np.pi / 2)
+    assert wrap_half_turn(-np.pi) == pytest.approx(0.0)
+
+
+def test_padding_and_degenerate_point_sets():
+    line = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.5], [2.0, 2.0, 1.0]])
+    box = fit_oriented_box(line, padding=0.2)
+    assert box.yaw == pytest.approx(np.pi / 4)
+    np.testing.assert_allclose(box.size, [np.sqrt(8) + 0.2, 0.2, 1.2])
+    np.testing.assert_allclose(box.center, [1.0, 1.0, 0.5])
+    single = fit_oriented_box(np.array([[3.0, 4.0, 5.0]]))
+    np.testing.assert_allclose(single.center, [3, 4, 5])
+    np.testing.assert_allclose(single.size, [0, 0, 0])
+    with pytest.raises(ValueError):
+        fit_oriented_box(np.zeros((0, 3)))
+
+
+def test_many_groups_in_one_call_equal_one_at_a_time():
+    from terra.tasks.boxes import fit_oriented_boxes
+
+    rng = np.random.default_rng(5)
+    sets = [rng.normal(size=(n, 3)) * [3, 1, 0.5] + rng.uniform(-20, 20, 3) for n in (3, 10, 57)]
+    sets.append(np.array([[1.0, 1.0, 0.0], [2.0, 2.0, 1.0]]))  # collinear
+    sets.append(np.array([[4.0, -1.0, 2.0]]))  # single point
+    points = np.vstack(sets)
+    groups = np.concatenate([np.full(len(s), g) for g, s in enumerate(sets)])
+    shuffle = rng.permutation(len(points))
+    boxes = fit_oriented_boxes(points[shuffle], groups[shuffle], padding=0.1)
+    for box, s in zip(boxes, sets):
+        one = fit_oriented_box(s, padding=0.1)
+        np.testing.assert_allclose(box.center, one.center, atol=1e-12)
+        np.testing.assert_allclose(box.size, one.size, atol=1e-12)
+        assert box.yaw == pytest.approx(one.yaw, abs=1e-12)
+        # Every point lies inside its box (up to rounding).
+        c, si = np.cos(box.yaw), np.sin(box.yaw)
+        local = (s[:, :2] - box.center[:2]) @ np.array([[c, -si], [si, c]])
+        assert np.all(np.abs(local) <= box.size[:2] / 2 + 1e-9)
+
+
+# ------------------------------------------------------------------ boxes of objects on the ground
+
+
+def test_two_adjacent_same_class_boxes_stay_two(text_embedder):
+    """Two 3.2 m racks end to end, 0.6 m apart (closer than DBSCAN's 1 m eps, so one cluster):
+    the gap in the footprint, three times the points' spacing, splits them into two boxes."""
+    from terra.tasks.config import RetrievalConfig
+    from terra.tasks.retrieval import find_objects
+    from tests.tasks.test_tasks_synthetic import TERRAINS, make_map
+
+    racks = [box_points((x, 5.0, 0.4), (3.2, 0.2, 0.8), 0.0) for x in (1.6, 5.4)]
+    ground = np.stack(
+        np.meshgrid(np.arange(-2.0, 9.0, 0.2), np.arange(3.0, 7.0, 0.2), [0.0], indexing="ij"), -1
+    ).reshape(-1, 3)
+    points = np.vstack([ground] + racks)
+    observations = [{0: 2}] * len(ground) + [{1: 2}] * (len(points) - len(ground))
+    msm = make_map(
+        points, observations, text_embedder.embed_text(["sidewalk", "bicycle rack"]), text_embedder.embed_text(TERRAINS)
+    )
+    found = find_objects(msm, None, ["bicycle rack"], alpha=0.4, embedder=text_embedder)
+    assert len(found) == 2
+    assert sorted(round(float(o.center[0]), 6) for o in found) == [1.6, 5.4]
+    for o in found:  # 3.2 m x 0.2 m footprint plus 0.2 m padding; 0.8 m tall plus 0.1 m below and above
+        np.testing.assert_allclose(o.size, [3.4, 0.4, 1.0], atol=1e-6)
+    merged = find_objects(
+        msm, None, ["bicycle rack"], alpha=0.4, embedder=text_embedder, config=RetrievalConfig(split_instances=False)
+    )
+    assert len(merged) == 1 and merged[0].size[0] == pytest.approx(7.0 + 0.2)
+
+
+def test_object_box_ignores_ground_bleed_reaches_the_ground_and_has_a_minimum_size():
+    from terra.tasks.boxes import fit_object_boxes
+
+    post = box_points((2.0, 3.0, 1.1), (0.2, 0.2, 1.6), 0.0, spacing=0.1)  # from z 0.3 to 1.9
+    bleed = np.column_stack(
+        [np.linspace(1.0, 3.0, 21), np.full(21, 3.0), np.full(21, 0.02)]
+    )  # mask bled onto the ground
+    sign = np.array([[10.0, 0.0, 1.0], [11.0, 0.0, 1.0], [10.0, 0.0, 2.0], [11.0, 0.0, 2.0]])  # a flat plate
+    points = np.vstack([post, bleed, sign])
+    groups = np.repeat([0, 0, 1], [len(post), len(bleed), len(sign)])
+    box, plate = fit_object_boxes(points, groups, ground_z=np.array([0.0, 0.5]), min_size=0.05)
+    np.testing.assert_allclose(box.center, [2.0, 3.0, 0.95])  # footprint of the post, from the ground (0) to 1.9
+    np.testing.assert_allclose(box.size, [0.2, 0.2, 1.9])
+    np.testing.assert_allclose(plate.size, [1.0, 0.05, 1.5])  # zero thickness raised to 0.05; from ground 0.5 to 2
+    assert plate.yaw == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("turn_deg, expected_deg", [(5.0, 0.0), (20.0, 20.0)])
+def test_strip_direction_wins_while_its_rectangle_stays_close_to_the_smallest(turn_deg, expected_deg):
+    """A 1 m x 1 m square turned by 5 degrees: its axis-aligned rectangle is (cos 5 + sin 5)^2 =
+    1.17 times larger, within 1.2, so the strips' direction (0) is taken; turned by 20 degrees it is
+    1.64 times larger and the points' own yaw stays."""
+    from terra.tasks.boxes import fit_object_boxes
+
+    points = box_points((0.0, 0.0, 0.5), (1.0, 1.0, 1.0), np.radians(turn_deg), spacing=0.1)
+    (box,) = fit_object_boxes(
+        points, np.zeros(len(points), np.int64), ground_z=np.array([0.0]), context_yaw=np.array([0.0])
+    )
+    folded = (np.degrees(box.yaw) + 45.0) % 90.0 - 45.0  # a square's yaw is defined modulo 90 degrees
+    assert folded == pytest.approx(expected_deg, abs=1e-6)
+    assert (np.cos(np.radians(turn_deg)) + np.sin(np.radians(turn_deg))) ** 2 < 1.2 if expected_deg == 0 else True
+
+
+def test_strip_directions_from_nearby_gvd_edges():
+    from terra.tasks.object_context import ground_under, strip_directions
+    from tests.tasks.test_tasks_synthetic import make_graph
+
+    # An L of edges along x and y near the origin (both 0 modulo 90 degrees), a diagonal chain far
+    # away, and one spot where a 30-degree edge and an equally long 75-degree edge disagree.
+    position = [
+        [0, 0, 1.0],
+        [5, 0, 1.0],
+        [5, 5, 1.0],
+        [100, 100, 2.0],
+        [104, 104, 2.0],
+        [200, 0, 0.0],
+        [200 + 6 * np.cos(np.radians(30)), 6 * np.sin(np.radians(30)), 0.0],
+        [200 + 6 * np.cos(np.radians(75)), 6 * np.sin(np.radians(75)), 0.0],
+    ]
+    graph = make_graph(position, [0] * 8, [[0, 1], [1, 2], [3, 4], [5, 6], [5, 7]])
+    got = strip_directions(graph, np.array([[3.0, 1.0], [102.0, 101.0], [201.0, 2.0], [50.0, 50.0]]), radius=8.0)
+    assert got[0] == pytest.approx(0.0, abs=1e-9)
+    assert got[1] == pytest.approx(-np.pi / 4, abs=1e-9)  # 45 degrees is -45 modulo 90
+    assert np.isnan(got[2]) and np.isnan(got[3])  # 120 degrees apart in 4x angle: they cancel; nothing near
+    np.testing.assert_allclose(ground_under(graph, np.array([[4.0, 1.0], [103.0, 103.0]])), [1.0, 2.0])
