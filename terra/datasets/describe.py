@@ -5,12 +5,19 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from terra.datasets.base import SourceInfo
 from terra.datasets.folder_io import calibration_to_json
 from terra.datasets.registry import LOADERS, open_dataset
 from terra.errors import TerraError
+
+
+@runtime_checkable
+class _Describable(Protocol):
+    """A loaded source that reports what it holds (every built-in loader's dataset)."""
+
+    def info(self) -> SourceInfo: ...
 
 
 def describe_source(path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None) -> SourceInfo:
@@ -28,7 +35,7 @@ def describe_source(path: str | Path, format: str = "auto", options: Mapping[str
 
             return describe_unopened(path, str(exc))
         raise
-    if not hasattr(dataset, "info"):
+    if not isinstance(dataset, _Describable):
         raise TerraError(f"{path}: the {format} loader cannot describe its source (no info())")
     return dataset.info()
 

@@ -21,9 +21,11 @@ from terra.datasets.base import Dataset
 def raw_source(dataset: Dataset) -> Dataset:
     """The dataset under wrappers that change poses or points (odometry), whose frames are the
     source's own."""
-    while getattr(dataset, "source", None) is not None and hasattr(dataset.source, "__getitem__"):
-        dataset = dataset.source
-    return dataset
+    while True:
+        source = getattr(dataset, "source", None)
+        if source is None or not hasattr(source, "__getitem__"):
+            return dataset
+        dataset = source
 
 
 def sample_frames(count: int, samples: int = 3) -> list[int]:

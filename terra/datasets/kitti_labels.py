@@ -97,9 +97,9 @@ def parse_label_line(text: str, where: str, tracking: bool) -> KittiLabel | None
         numbers[0],
         int(numbers[1]),
         numbers[2],
-        tuple(numbers[3:7]),
+        (numbers[3], numbers[4], numbers[5], numbers[6]),
         (h, w, length),
-        tuple(numbers[10:13]),
+        (numbers[10], numbers[11], numbers[12]),
         numbers[13],
     )
 

@@ -28,7 +28,7 @@ the drive folder give ground-truth boxes (terra.datasets.kitti_labels).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -253,7 +253,7 @@ class KittiRawDataset:
     def _packets(self) -> np.ndarray:
         return oxts.read_packets([self.drive / OXTS / "data" / f"{i:010d}.txt" for i in self.indices])
 
-    def _cameras(self, folders: list[str]) -> tuple[list[CameraCalibration], list[str], list[np.ndarray | None]]:
+    def _cameras(self, folders: Sequence[str]) -> tuple[list[CameraCalibration], list[str], list[np.ndarray | None]]:
         """Calibrations of the configured camera folders present, checked against their first image."""
         cams, names, stamps = [], [], []
         for folder in folders:

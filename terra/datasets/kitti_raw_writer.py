@@ -90,13 +90,15 @@ def write_kitti_raw(
     (folder / VELODYNE / "data").mkdir(parents=True)
     (folder / OXTS / "data").mkdir(parents=True)
     R_rect, T_velo_imu = kitti_rig()
-    gt = dataset.ground_truth() if hasattr(dataset, "ground_truth") else None
+    ground_truth = getattr(dataset, "ground_truth", None)  # simulated sources know their objects
+    gt_pose = getattr(dataset, "gt_T_map_lidar", None)  # and their true poses (odometry wrappers)
+    gt = ground_truth() if ground_truth is not None else None
     stamps, poses, camera_stamps, rig, labels = [], [], [], None, []
     frames = (dataset[i] for i in range(len(dataset)))
     for i, frame in enumerate(progress(frames, desc="writing frames", total=len(dataset), enabled=show_progress)):
         if rig is None:
             rig = _check_rig([c.calibration for c in frame.cameras])
-        T_map_lidar = dataset.gt_T_map_lidar(i) if hasattr(dataset, "gt_T_map_lidar") else frame.T_map_lidar
+        T_map_lidar = gt_pose(i) if gt_pose is not None else frame.T_map_lidar
         _write_scan(folder, i, frame)
         camera_stamps.append(_write_images(folder, i, frame, len(rig)))
         if gt is not None and frame.cameras and frame.cameras[0].instance is not None:

@@ -36,6 +36,7 @@ from terra.datasets.ros.camera_info import camera_from_info
 from terra.datasets.ros.images import decode_compressed, decode_image, decode_labels
 from terra.datasets.ros.index import BagIndex, Stream, index_bag
 from terra.datasets.ros.pointcloud2 import decode_pointcloud2
+from terra.datasets.ros.tf import TfTree
 from terra.datasets.ros.topics import CameraTopics, choose_cameras, choose_lidar, choose_odometry
 from terra.datasets.sync import nearest
 from terra.errors import TerraError
@@ -110,7 +111,9 @@ class RosbagDataset:
         self.classes: ClassTable = read_classes(self.root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
-        self._pose_lookup = None  # (TF tree, map frame) when poses come from TF or an odometry topic: deskewing
+        self._pose_lookup: tuple[TfTree, str] | None = (
+            None  # (TF tree, map frame) when poses come from TF or an odometry topic: deskewing
+        )
         self.bag = Bag(self.path)
         try:
             self._open(config, show_progress)
@@ -169,10 +172,16 @@ class RosbagDataset:
             poses, valid = tree.lookup(map_frame, self.lidar_frame, stamps, self.config.max_pose_gap)
             self._pose_lookup = None if mode == "odometry" else (tree, map_frame)
             return poses, valid, f"tf {map_frame} -> {self.lidar_frame}", mode == "odometry", map_frame
-        if mode in ("auto", "topic") and odom_topic is not None and self.index.odometry_frames is not None:
-            parent, _ = self.index.odometry_frames
-            poses, valid = self.index.odometry.lookup(parent, self.lidar_frame, stamps, self.config.max_pose_gap)
-            self._pose_lookup = (self.index.odometry, parent)
+        odometry, odometry_frames = self.index.odometry, self.index.odometry_frames
+        if (
+            mode in ("auto", "topic")
+            and odom_topic is not None
+            and odometry is not None
+            and odometry_frames is not None
+        ):
+            parent, _ = odometry_frames
+            poses, valid = odometry.lookup(parent, self.lidar_frame, stamps, self.config.max_pose_gap)
+            self._pose_lookup = (odometry, parent)
             return poses, valid, f"odometry topic {odom_topic} ({parent} -> {self.lidar_frame})", False, parent
         nan = np.full((len(stamps), 4, 4), np.nan)
         return nan, np.ones(len(stamps), bool), "odometry (KISS-ICP)", True, None
@@ -284,7 +293,7 @@ class RosbagDataset:
         where = f"{self.path} {self.lidar_topic} at {ref.stamp:.3f} s"
         cloud = decode_pointcloud2(self.bag.deserialize(raws[ref.cloud], self.lidar_topic, where), where)
         if self.config.deskew and self._pose_lookup is not None and cloud.times is not None and np.any(cloud.times):
-            cloud.points, cloud.times = self._deskew(cloud.points, cloud.times, ref), None
+            cloud.points, cloud.times = self._deskew(cloud.points, cloud.times, ref, self._pose_lookup), None
         cams = []
         for c, key, stamp, sem, inst in ref.cameras:
             camera = self._camera_frame(c, key, stamp, sem, inst, raws)
@@ -302,11 +311,13 @@ class RosbagDataset:
             point_times=cloud.times,
         )
 
-    def _deskew(self, points: np.ndarray, times: np.ndarray, ref: _FrameRef) -> np.ndarray:
+    def _deskew(
+        self, points: np.ndarray, times: np.ndarray, ref: _FrameRef, pose_lookup: tuple[TfTree, str]
+    ) -> np.ndarray:
         """Points measured at stamp + times (s) -> the LiDAR frame at the stamp: p' = T_lidar(stamp)^-1
         T_map_lidar(stamp + t) p, poses interpolated per distinct time (a spinning LiDAR's columns).
         Times past the pose data hold the last pose."""
-        tree, target = self._pose_lookup
+        tree, target = pose_lookup
         unique, inverse = np.unique(times, return_inverse=True)
         T, _ = tree.lookup(target, self.lidar_frame, ref.stamp + unique, self.config.max_pose_gap)
         rel = np.linalg.inv(ref.T_map_lidar) @ T

@@ -52,6 +52,7 @@ from terra.datasets.kitti_common import (
     standard_classes,
 )
 from terra.datasets.registry import Loader
+from terra.datasets.sim_classes import CLASS_COLORS, SIM_CLASSES
 from terra.errors import TerraError
 from terra.fileio import read_text, read_yaml
 from terra.geometry import CameraCalibration, invert_pose, make_pose
@@ -140,11 +141,8 @@ def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show
     for k in range(max(4, 2 + len(cameras))):
         n = k - 2
         cal = cameras[n] if 0 <= n < len(cameras) else cam0
-        if cal is None:
-            P = np.hstack([np.eye(3), np.zeros((3, 1))])
-        else:
-            # Projection from camera-0 coordinates into camera n: K [R | t] with T_n0 = T_n_lidar Tr^-1.
-            P = cal.K @ (cal.T_cam_lidar @ invert_pose(Tr))[:3]
+        # Projection from camera-0 coordinates into camera n: K [R | t] with T_n0 = T_n_lidar Tr^-1.
+        P = np.hstack([np.eye(3), np.zeros((3, 1))]) if cal is None else cal.K @ (cal.T_cam_lidar @ invert_pose(Tr))[:3]
         lines.append(f"P{k}: {_fmt(P)}\n")
     lines.append(f"Tr: {_fmt(Tr[:3])}\n")
     (seq / "calib.txt").write_text("".join(lines))
@@ -155,7 +153,7 @@ def write_semantickitti(dataset: Dataset, root: Path, sequence: str = "00", show
 def _legend(classes: ClassTable, ids: dict[int, int]) -> dict:
     """semantic-kitti.yaml-style legend for the ids this dataset writes."""
     labels, colors, learning = {}, {}, {}
-    from_sim = _class_colors()
+    from_sim = _sim_colors()
     for train, c in enumerate(sorted(classes, key=lambda c: ids[c.id])):
         k = ids[c.id]
         labels[k] = c.name
@@ -174,12 +172,14 @@ def _legend(classes: ClassTable, ids: dict[int, int]) -> dict:
     }
 
 
-def _class_colors() -> dict[str, tuple[int, int, int]]:
-    try:
-        from terra.sim.classes import CLASS_COLORS, SIM_CLASSES
-    except ImportError:  # the simulator is optional for this format
-        return {}
-    return {c.name: tuple(int(v) for v in CLASS_COLORS[c.id]) for c in SIM_CLASSES}
+def _sim_colors() -> dict[str, tuple[int, int, int]]:
+    """RGB render colour of each simulator class, by name (the legend's colours for classes
+    SemanticKITTI does not have)."""
+    colors: dict[str, tuple[int, int, int]] = {}
+    for c in SIM_CLASSES:
+        r, g, b = (int(v) for v in CLASS_COLORS[c.id])
+        colors[c.name] = (r, g, b)
+    return colors
 
 
 # ------------------------------------------------------------------------------------------ reader
@@ -212,9 +212,13 @@ class SemanticKittiDataset:
             raise TerraError(f"{seq / 'velodyne'}: no .bin scans")
         calib_path = seq / "calib.txt"
         calib_file = read_calib_file(calib_path) if calib_path.exists() else None
-        keys = calib_file.keys() if calib_file else []
-        calib = {key: calib_file.matrix(key, (3, 4), "a 3x4 matrix, row-major") for key in keys}
-        self.Tr = calib_file.pose_3x4("Tr") if "Tr" in calib else np.eye(4)
+        calib: dict[str, np.ndarray] = {}
+        self.Tr = np.eye(4)
+        if calib_file is not None:
+            keys = calib_file.keys()
+            calib = {key: calib_file.matrix(key, (3, 4), "a 3x4 matrix, row-major") for key in keys}
+            if "Tr" in calib:
+                self.Tr = calib_file.pose_3x4("Tr")
         self._calib_file = calib_file
         poses_path = seq / "poses.txt"
         if not poses_path.is_file():
@@ -252,7 +256,8 @@ class SemanticKittiDataset:
             try:
                 K, T_k_0 = decompose_projection(calib[f"P{k}"].reshape(3, 4))
             except ValueError as exc:
-                raise TerraError(f"{self._calib_file.where(f'P{k}')}: P{k} {exc}") from None
+                where = self._calib_file.where(f"P{k}") if self._calib_file else str(self.seq / "calib.txt")
+                raise TerraError(f"{where}: P{k} {exc}") from None
             w, h = image_size(first[0])
             cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), T_k_0 @ self.Tr))
             folders.append(f"image_{k}")

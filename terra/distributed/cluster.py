@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,7 +71,7 @@ class ClusterConfig(Section):
 
 
 def cluster_config(
-    workers: int | None, scheduler: str | None, in_flight: int | None = None, environ: dict[str, str] | None = None
+    workers: int | None, scheduler: str | None, in_flight: int | None = None, environ: Mapping[str, str] | None = None
 ) -> ClusterConfig:
     """The cluster `terra map` options ask for; TERRA_DASK_SCHEDULER applies when neither option is given."""
     environ = os.environ if environ is None else environ
@@ -118,7 +118,7 @@ def connect(config: ClusterConfig) -> Iterator[Cluster]:
 
 @contextmanager
 def _local_cluster(workers: int, threads: int | None) -> Iterator[Cluster]:
-    import dask
+    import dask.config
     from distributed import Client, LocalCluster
 
     # A Dask nanny writes its workers' environment into this process's os.environ before each spawn;
@@ -183,6 +183,8 @@ def _remote_cluster(config: ClusterConfig) -> Iterator[Cluster]:
     from distributed import Client
 
     address = config.scheduler
+    if address is None:
+        raise TerraError(f"no Dask scheduler to connect to (give --scheduler or set {SCHEDULER_ENV})")
     by_file = "://" not in address
     try:
         client = Client(
@@ -200,7 +202,8 @@ def _remote_cluster(config: ClusterConfig) -> Iterator[Cluster]:
             raise TerraError(
                 f"the Dask scheduler {address} has no worker (waited {config.connect_timeout:g} s)"
             ) from None
-        yield Cluster(client, False, f"the Dask cluster at {client.scheduler.address}")
+        scheduler = client.scheduler
+        yield Cluster(client, False, f"the Dask cluster at {scheduler.address if scheduler is not None else address}")
     finally:
         with _closing_quietly():
             client.close()

@@ -2,9 +2,9 @@
 
 The client sends the job's text with every task (a few kilobytes), so a worker that joins late or is
 restarted after a crash needs nothing else. `expect` holds what the client saw, and a worker refuses
-to work when its own view differs: another Terra version, another dataset at that path, another frame count or class table,
-or another perception backend key (other model files or settings), since its cache entries would then
-never be read by the client.
+to work when its own view differs: another Terra version, another dataset at that path, another frame
+count or class table, or another perception backend key (other model files or settings), since its
+cache entries would then never be read by the client.
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ line when something differs.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -171,7 +172,5 @@ def transient_cache_folder(out: Path) -> Path:
 
 def _remove_transient_cache(root: Path) -> None:
     shutil.rmtree(root, ignore_errors=True)
-    try:
+    with contextlib.suppress(OSError):
         root.parent.rmdir()  # OUT.work, when nothing else is in it
-    except OSError:
-        pass

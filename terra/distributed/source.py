@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from terra.datasets.base import Dataset
+from terra.datasets.base import Dataset, Frame
 from terra.errors import TerraError
 
 
@@ -42,13 +42,13 @@ class SourceSpec:
     ) -> SourceSpec:
         """The spec of `terra map`'s arguments: a folder (format detected now, so every worker uses the
         same loader) or `--sim PRESET[:SEED]`."""
-        if (path is None) == (sim is None):
-            raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
-        if sim is not None:
+        if sim is not None and path is None:
             preset, _, seed = sim.partition(":")
             if seed and not seed.isdigit():
                 raise TerraError(f"--sim {sim!r}: the seed must be a non-negative integer")
             return cls(sim=f"{preset}:{int(seed) if seed else 0}")
+        if path is None or sim is not None:
+            raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
         absolute = Path(path).absolute()
         if format == "auto" and absolute.exists():
             from terra.datasets.registry import detect_format
@@ -61,6 +61,8 @@ class SourceSpec:
         """The dataset (TerraError, one line, when it cannot be opened)."""
         if self.sim is not None:
             return _simulate(self.sim)
+        if self.path is None:
+            raise TerraError("the source names neither a dataset path nor --sim")
         from terra.datasets.registry import open_dataset
 
         return open_dataset(self.path, self.format, self.options or None)
@@ -110,10 +112,14 @@ class PoselessView:
     def __len__(self) -> int:
         return len(self.dataset)
 
-    def __getitem__(self, index: int):
+    def __getitem__(self, index: int) -> Frame:
         frame = self.dataset[index]
         frame.T_map_lidar = np.eye(4)
         return frame
+
+    def global_map(self) -> None:
+        """None: the source's own map lies in the frame of the poses this view drops."""
+        return None
 
 
 def _simulate(spec: str) -> Dataset:

@@ -9,7 +9,20 @@ and must not pay for the image side (datasets, geometry, SciPy's image module) t
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from terra.perception.base import (
+        ImageEmbedder,
+        ImagePerception,
+        MaskEmbedder,
+        MaskProposer,
+        Perception,
+        PointPerception,
+        TerrainSegmenter,
+    )
+    from terra.perception.masks import MaskSet
+    from terra.perception.registry import backend_names, get_perception, register_backend
 
 _EXPORTS = {
     "ImageEmbedder": "terra.perception.base",
@@ -25,7 +38,19 @@ _EXPORTS = {
     "register_backend": "terra.perception.registry",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = [
+    "ImageEmbedder",
+    "ImagePerception",
+    "MaskEmbedder",
+    "MaskProposer",
+    "MaskSet",
+    "Perception",
+    "PointPerception",
+    "TerrainSegmenter",
+    "backend_names",
+    "get_perception",
+    "register_backend",
+]
 
 
 def __getattr__(name: str) -> Any:

@@ -42,9 +42,10 @@ import io
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -183,7 +184,7 @@ class PerceptionCache:
             record = {"format": CACHE_FORMAT, "key": self.backend_key, "identity": identity}
             atomic_write_bytes(description, dumps_json(record).encode())
 
-    def key(self, camera: CameraFrame, rng_state: dict | None, with_labels: bool) -> str:
+    def key(self, camera: CameraFrame, rng_state: Mapping[str, Any] | None, with_labels: bool) -> str:
         """The frame key of one image (see the module docstring)."""
         return fingerprint(
             {

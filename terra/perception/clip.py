@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
@@ -30,6 +31,10 @@ from terra.perception.masks import MaskSet
 from terra.perception.models_config import ClipConfig
 from terra.perception.text import normalize_rows
 from terra.perception.weights import ModelFile, combined_digest, folder_files
+
+if TYPE_CHECKING:
+    import torch
+    from transformers import CLIPModel, PreTrainedTokenizerBase
 
 NAME_PREFIX = "clip:"
 CLIP_PATH_ENV = "TERRA_CLIP_PATH"
@@ -86,7 +91,7 @@ class ClipPreprocess:
             return self.shortest, int(self.shortest * width / height)
         return int(self.shortest * height / width), self.shortest
 
-    def __call__(self, images: list[np.ndarray], device: str = "cpu", dtype: object = None) -> object:
+    def __call__(self, images: list[np.ndarray], device: str = "cpu", dtype: torch.dtype | None = None) -> torch.Tensor:
         """(n, 3, crop_h, crop_w) torch tensor from n (h, w, 3) uint8 RGB images."""
         import torch
         import torch.nn.functional as F
@@ -114,7 +119,7 @@ class ClipPreprocess:
         return batch.to(dtype) if dtype is not None else batch
 
 
-def _center_crop(t: object, crop: tuple[int, int]) -> object:
+def _center_crop(t: torch.Tensor, crop: tuple[int, int]) -> torch.Tensor:
     """Centre crop of a (1, 3, h, w) tensor to `crop` (zero padding where the image is smaller)."""
     import torch.nn.functional as F
 
@@ -128,10 +133,17 @@ def _center_crop(t: object, crop: tuple[int, int]) -> object:
     return t[..., top : top + ch, left : left + cw]
 
 
-def _features(output: object) -> object:
+def _features(output: object) -> torch.Tensor:
     """Projected features from get_image_features / get_text_features (a tensor in transformers 4, an
     output object with the projection in `pooler_output` in transformers 5)."""
-    return output if hasattr(output, "shape") else output.pooler_output
+    import torch
+    from transformers.modeling_outputs import BaseModelOutputWithPooling
+
+    if isinstance(output, torch.Tensor):
+        return output
+    if isinstance(output, BaseModelOutputWithPooling) and output.pooler_output is not None:
+        return output.pooler_output
+    raise TerraError(f"CLIP returned {type(output).__name__} where projected features were expected")
 
 
 class ClipEmbedder:
@@ -156,23 +168,33 @@ class ClipEmbedder:
                 "pytorch_model.bin); give the folder of a CLIP model saved with save_pretrained"
             )
         try:
-            self.dim = int(CLIPConfig.from_pretrained(str(self.folder), local_files_only=True).projection_dim)
+            projection_dim = CLIPConfig.from_pretrained(str(self.folder), local_files_only=True).projection_dim
         except (OSError, ValueError) as exc:
             raise TerraError(
                 f"perception.models.clip.model: {self.folder} is not a CLIP model folder ({exc})"
             ) from None
+        if projection_dim is None:
+            raise TerraError(f"perception.models.clip.model: {self.folder}: its config.json sets no projection_dim")
+        self.dim = int(projection_dim)
         self.digest = combined_digest(self.files)
         self.name = f"{NAME_PREFIX}{self.folder.name.lower()}@{self.digest[:12]}"
-        self._model = None
-        self._tokenizer = None
+        self._model: CLIPModel | None = None
+        self._tokenizer: PreTrainedTokenizerBase | None = None
         self._preprocess: ClipPreprocess | None = None
         self._text_cache: dict[str, np.ndarray] = {}
 
     # -- loading ---------------------------------------------------------------------------
 
-    def _load(self) -> None:
-        if self._model is not None:
-            return
+    _dtype: torch.dtype
+    """The network's float type (float16 with fp16), set when it loads."""
+
+    def _load(self) -> tuple[CLIPModel, PreTrainedTokenizerBase, ClipPreprocess]:
+        """The network, its tokenizer and its preprocessing, loaded on first use."""
+        if self._model is None or self._tokenizer is None or self._preprocess is None:
+            self._model, self._tokenizer, self._preprocess = self._read_network()
+        return self._model, self._tokenizer, self._preprocess
+
+    def _read_network(self) -> tuple[CLIPModel, PreTrainedTokenizerBase, ClipPreprocess]:
         import torch
         from transformers import AutoImageProcessor, AutoTokenizer, CLIPModel
 
@@ -180,17 +202,17 @@ class ClipEmbedder:
             model = CLIPModel.from_pretrained(str(self.folder), local_files_only=True)
             processor = AutoImageProcessor.from_pretrained(str(self.folder), local_files_only=True)
             tokenizer = AutoTokenizer.from_pretrained(str(self.folder), local_files_only=True)
-        model = model.to(self.device.torch).eval()
+        # transformers wraps PreTrainedModel.to with functools.wraps, which pyright reads as an
+        # unbound function (the device string lands on `self`); the call is Module.to.
+        model = model.to(self.device.torch).eval()  # pyright: ignore[reportArgumentType]
         if self.device.fp16:
             model = model.half()
         self._dtype = torch.float16 if self.device.fp16 else torch.float32
-        self._model, self._tokenizer, self._preprocess = model, tokenizer, ClipPreprocess(processor)
+        return model, tokenizer, ClipPreprocess(processor)
 
     @property
     def preprocess(self) -> ClipPreprocess:
-        self._load()
-        assert self._preprocess is not None
-        return self._preprocess
+        return self._load()[2]
 
     # -- embeddings ------------------------------------------------------------------------
 
@@ -200,12 +222,12 @@ class ClipEmbedder:
 
         if not crops:
             return np.zeros((0, self.dim), dtype=np.float32)
-        self._load()
+        model, _, preprocess = self._load()
         out = []
         with torch.inference_mode():
             for start in range(0, len(crops), self.batch_size):
-                pixels = self.preprocess(crops[start : start + self.batch_size], self.device.torch, self._dtype)
-                out.append(_features(self._model.get_image_features(pixel_values=pixels)).float().cpu().numpy())
+                pixels = preprocess(crops[start : start + self.batch_size], self.device.torch, self._dtype)
+                out.append(_features(model.get_image_features(pixel_values=pixels)).float().cpu().numpy())
         return normalize_rows(np.concatenate(out))
 
     def mask_crops(self, image: np.ndarray, masks: MaskSet) -> list[np.ndarray]:
@@ -230,14 +252,12 @@ class ClipEmbedder:
             return np.zeros((0, self.dim), dtype=np.float32)
         missing = [t for t in dict.fromkeys(texts) if t not in self._text_cache]
         if missing:
-            self._load()
+            model, tokenizer, _ = self._load()
             with torch.inference_mode():
                 for text in missing:
-                    tokens = self._tokenizer(
-                        [text], truncation=True, max_length=_context_length(self._model), return_tensors="pt"
-                    )
+                    tokens = tokenizer([text], truncation=True, max_length=_context_length(model), return_tensors="pt")
                     tokens = {k: v.to(self.device.torch) for k, v in tokens.items()}
-                    vector = _features(self._model.get_text_features(**tokens)).float().cpu().numpy()
+                    vector = _features(model.get_text_features(**tokens)).float().cpu().numpy()
                     self._text_cache[text] = normalize_rows(vector)[0]
         return np.stack([self._text_cache[t] for t in texts]).astype(np.float32)
 
@@ -250,7 +270,7 @@ class ClipEmbedder:
         return normalize_rows(np.mean(per_template, axis=0))
 
 
-def _context_length(model: object) -> int:
+def _context_length(model: CLIPModel) -> int:
     return int(getattr(model.config.text_config, "max_position_embeddings", 77))
 
 

@@ -167,7 +167,8 @@ class LabelPointLabeler:
 def _semantic(camera: CameraFrame) -> np.ndarray:
     if camera.semantic is None:
         raise ValueError(
-            f"camera image {camera.name or camera.calibration.name!r} has no semantic labels (the labels backend needs them)"
+            f"camera image {camera.name or camera.calibration.name!r} has no semantic labels "
+            "(the labels backend needs them)"
         )
     return camera.semantic
 

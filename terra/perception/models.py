@@ -42,8 +42,10 @@ FIELD = "perception.models"
 class SegmentationModel(Protocol):
     """A segmentation network behind either runtime: class names and detections with masks."""
 
-    names: list[str] | None
     files: list[ModelFile]
+
+    @property
+    def names(self) -> list[str] | None: ...
 
     def predict(self, image: np.ndarray, settings: DecodeSettings) -> Detections: ...
 
@@ -266,12 +268,15 @@ def _identity(
 
 
 def _check_embedder_field(config: PerceptionConfig) -> None:
-    if "embedder" in config.model_fields_set and config.embedder != PerceptionConfig().embedder:
-        if not config.embedder.startswith("clip:"):
-            raise TerraError(
-                f"perception.embedder is {config.embedder!r}, but with backend 'models' the CLIP model "
-                "(perception.models.clip.model) embeds masks, images and text in one space; remove perception.embedder"
-            )
+    if (
+        "embedder" in config.model_fields_set
+        and config.embedder != PerceptionConfig().embedder
+        and not config.embedder.startswith("clip:")
+    ):
+        raise TerraError(
+            f"perception.embedder is {config.embedder!r}, but with backend 'models' the CLIP model "
+            "(perception.models.clip.model) embeds masks, images and text in one space; remove perception.embedder"
+        )
 
 
 def models_backend(config: PerceptionConfig, classes: ClassTable) -> Perception:

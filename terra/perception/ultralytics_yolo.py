@@ -15,6 +15,8 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from types import ModuleType
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -26,6 +28,38 @@ from terra.perception.yolo import DecodeSettings, Detections
 INSTALL_HINT = 'pip install "terra-3dsg[ultralytics]" (it needs a working torchvision)'
 
 
+# What Terra reads of ultralytics' objects (the package is an optional extra, so these are typed by shape).
+class _Tensor(Protocol):
+    def cpu(self) -> _Tensor: ...
+
+    def numpy(self) -> np.ndarray: ...
+
+
+class _Masks(Protocol):
+    data: _Tensor
+
+
+class _Boxes(Protocol):
+    xyxy: _Tensor
+    conf: _Tensor
+    cls: _Tensor
+
+    def __len__(self) -> int: ...
+
+
+class _Results(Protocol):
+    masks: _Masks | None
+    boxes: _Boxes | None
+
+
+class _Model(Protocol):
+    names: dict[int, str] | list[str]
+
+    def predict(self, source: np.ndarray, **settings: Any) -> list[_Results]: ...
+
+    def set_classes(self, classes: list[str]) -> None: ...
+
+
 def _offline_environment(allow_download: bool) -> None:
     os.environ["YOLO_OFFLINE"] = "0" if allow_download else "1"
     os.environ["YOLO_AUTOINSTALL"] = "0"
@@ -33,12 +67,13 @@ def _offline_environment(allow_download: bool) -> None:
     os.environ.setdefault("YOLO_VERBOSE", "False")
 
 
-def import_ultralytics(field: str, allow_download: bool = False) -> object:
+def import_ultralytics(field: str, allow_download: bool = False) -> ModuleType:
     """The ultralytics module, imported offline; TerraError with the reason when it cannot be."""
     _offline_environment(allow_download)
     try:
-        import ultralytics
-        from ultralytics import settings
+        # An optional extra (terra-3dsg[ultralytics]), absent where the code checks run.
+        import ultralytics  # pyright: ignore[reportMissingImports]
+        from ultralytics import settings  # pyright: ignore[reportMissingImports]
     except Exception as exc:  # ImportError, or torchvision failing to import inside it
         raise TerraError(
             f"{field}: the ultralytics runtime is not usable here ({type(exc).__name__}: {exc}); "
@@ -71,7 +106,7 @@ class UltralyticsSegmentationModel:
             if extra is not None:
                 self.files.append(weight_file(extra, extra_role))
         try:
-            self.model = (ultralytics.YOLOE if prompts else ultralytics.YOLO)(str(self.path))
+            self.model: _Model = (ultralytics.YOLOE if prompts else ultralytics.YOLO)(str(self.path))
             if prompts:
                 self._set_prompts(prompts, prompt_embeddings, text_encoder)
         except TerraError:
@@ -83,16 +118,17 @@ class UltralyticsSegmentationModel:
 
     def _set_prompts(self, prompts: list[str], embeddings: Path | None, text_encoder: Path | None) -> None:
         if embeddings is not None:
-            if not hasattr(self.model, "load_prompt_embeddings"):
+            load_prompt_embeddings = getattr(self.model, "load_prompt_embeddings", None)
+            if load_prompt_embeddings is None:
                 raise TerraError(f"{self.field}: this ultralytics version cannot load prompt_embeddings; upgrade it")
-            self.model.load_prompt_embeddings(str(embeddings))
+            load_prompt_embeddings(str(embeddings))
             if list(self.model.names.values() if isinstance(self.model.names, dict) else self.model.names) != list(
                 prompts
             ):
                 raise TerraError(f"{self.field}: prompt_embeddings {embeddings} hold other prompts than {prompts}")
             return
         if text_encoder is not None:
-            from ultralytics import settings
+            from ultralytics import settings  # pyright: ignore[reportMissingImports]
 
             settings.update({"weights_dir": str(Path(text_encoder).parent)})
         self.model.set_classes(list(prompts))
@@ -114,14 +150,15 @@ class UltralyticsSegmentationModel:
         return _detections(results[0], image.shape[:2], settings)
 
 
-def _detections(result: object, shape: tuple[int, int], settings: DecodeSettings) -> Detections:
+def _detections(result: _Results, shape: tuple[int, int], settings: DecodeSettings) -> Detections:
     """Detections from one ultralytics Results object (masks thresholded at the configured probability)."""
-    if result.masks is None or result.boxes is None or len(result.boxes) == 0:
+    result_masks, result_boxes = result.masks, result.boxes
+    if result_masks is None or result_boxes is None or len(result_boxes) == 0:
         return Detections(shape)
-    masks = result.masks.data.cpu().numpy() > 0.5
-    boxes = result.boxes.xyxy.cpu().numpy().astype(np.float64)
-    scores = result.boxes.conf.cpu().numpy().astype(np.float32)
-    classes = result.boxes.cls.cpu().numpy().round().astype(np.int64)
+    masks = result_masks.data.cpu().numpy() > 0.5
+    boxes = result_boxes.xyxy.cpu().numpy().astype(np.float64)
+    scores = result_boxes.conf.cpu().numpy().astype(np.float32)
+    classes = result_boxes.cls.cpu().numpy().round().astype(np.int64)
     keep, mask_boxes, crops = [], [], []
     for i, mask in enumerate(masks):
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))

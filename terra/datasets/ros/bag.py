@@ -12,11 +12,13 @@ message again without holding it in memory.
 
 from __future__ import annotations
 
+import contextlib
 import struct
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -186,10 +188,8 @@ class Bag:
     def __del__(self) -> None:
         # Datasets are handed around without a with-block (mapping, evaluation, Dask workers), so
         # a dropped one closes its files here rather than leaving them to the garbage collector.
-        try:
+        with contextlib.suppress(Exception):  # interpreter shutdown: nothing left to report to
             self.close()
-        except Exception:  # interpreter shutdown: nothing left to report to
-            pass
 
     def topics_of_type(self, *msgtypes: str) -> list[str]:
         """Topics whose message type is one of `msgtypes` (ROS 2 spelling), sorted."""
@@ -244,8 +244,9 @@ class Bag:
                     break
         return out
 
-    def deserialize(self, raw: bytes, topic: str, where: str | None = None) -> object:
-        """The message object of `raw` (a message of `topic`)."""
+    def deserialize(self, raw: bytes, topic: str, where: str | None = None) -> Any:
+        """The message object of `raw` (a message of `topic`): a dataclass rosbags generates from the
+        bag's own message definitions, so its fields are known only when the bag is read."""
         msgtype = self.topics[topic].msgtype
         with bag_errors(where or f"{self.path} {topic}"):
             return self.reader.deserialize(raw, msgtype)

@@ -19,8 +19,8 @@ def topic_table(bag: Bag) -> list[dict]:
         first_last[1] = log_ns
     rows = []
     for name, t in bag.topics.items():
-        first, last = span.get(name, (None, None))
-        duration = (last - first) * 1e-9 if first is not None else 0.0
+        first, last = span.get(name) or (None, None)
+        duration = (last - first) * 1e-9 if first is not None and last is not None else 0.0
         rows.append(
             {
                 "topic": name,

@@ -58,7 +58,7 @@ def index_bag(bag: Bag, stamped: list[str], odometry_topic: str | None, show_pro
             if topic in rows:
                 with bag_errors(f"{bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"):
                     rows[topic].append((header_stamp(raw, bag.ros2), log_ns))
-            elif topic == odometry_topic:
+            elif topic == odometry_topic and odom is not None:
                 msg = bag.deserialize(raw, topic)
                 odom_frames = odom_frames or (msg.header.frame_id.lstrip("/"), msg.child_frame_id.lstrip("/"))
                 odom.add(

@@ -40,10 +40,18 @@ class _Track:
         quat = np.asarray(self.quat, float).reshape(-1, 4)[order][keep]
         self.quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
 
+    def append(self, stamp: float, xyz_quat: np.ndarray) -> None:
+        """One sample, while the bag is read (before `freeze`)."""
+        if not (isinstance(self.stamps, array) and isinstance(self.xyz, array) and isinstance(self.quat, array)):
+            raise TerraError(f"TF edge to '{self.parent}': a transform was added after the tree was frozen")
+        self.stamps.append(float(stamp))
+        self.xyz.extend(float(v) for v in xyz_quat[:3])
+        self.quat.extend(float(v) for v in xyz_quat[3:])
+
     def at(self, times: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
         """T_parent_child (M, 4, 4) at `times` and whether each is covered: inside the series and
         between samples at most `max_gap` seconds apart (or exactly on a sample)."""
-        stamps = self.stamps
+        stamps, xyz = np.asarray(self.stamps), np.asarray(self.xyz)  # (K,) and (K, 3) once frozen
         out = np.tile(np.eye(4), (len(times), 1, 1))
         if len(stamps) == 0:
             return out, np.zeros(len(times), bool)
@@ -56,9 +64,9 @@ class _Track:
             t = np.clip(times, stamps[0], stamps[-1])
             out[:, :3, :3] = Slerp(stamps, Rotation.from_quat(self.quat))(t).as_matrix()
             for axis in range(3):
-                out[:, axis, 3] = np.interp(t, stamps, self.xyz[:, axis])
+                out[:, axis, 3] = np.interp(t, stamps, xyz[:, axis])
         for k in np.flatnonzero(exact):  # on a sample: that sample, bit for bit
-            out[k] = pose_from_xyz_quat(np.concatenate([self.xyz[i[k]], self.quat[i[k]]]))
+            out[k] = pose_from_xyz_quat(np.concatenate([xyz[i[k]], self.quat[i[k]]]))
         return out, valid
 
 
@@ -81,10 +89,7 @@ class TfTree:
         if stamp is None:
             self.static[child] = (parent, pose_from_xyz_quat(xyz_quat))
             return
-        track = self.dynamic.setdefault(child, _Track(parent))
-        track.stamps.append(float(stamp))
-        track.xyz.extend(float(v) for v in xyz_quat[:3])
-        track.quat.extend(float(v) for v in xyz_quat[3:])
+        self.dynamic.setdefault(child, _Track(parent)).append(stamp, xyz_quat)
 
     def freeze(self) -> None:
         """Sort the time series (call once every transform is added)."""
