@@ -13,6 +13,7 @@ one in memory, so a concurrent query sees either the old graph or the new one.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -32,12 +33,6 @@ if TYPE_CHECKING:
 COST_GRAPHS = 16  # cost graphs kept per bundle (one per set of terrain preferences)
 
 
-def has_component(bundle: Bundle, name: str) -> bool:
-    """Whether the manifest lists component `name` (e.g. "map", "graph") with files present."""
-    listed = name in bundle.manifest.get("components", {})
-    return listed and any(f.startswith(f"{name}/") for f in bundle.files)
-
-
 class LoadedBundle:
     """A bundle opened for queries. `embedder_name`: a configured text embedder (e.g.
     tasks.embedder), refused when it is not the map's; `embedder`: an already loaded one to use
@@ -47,14 +42,14 @@ class LoadedBundle:
         from terra.tasks.queries import check_configured_embedder, check_embedder
 
         self.bundle = Bundle(path)
-        recorded = self.bundle.manifest.get("embedder") or {}
-        if not recorded.get("name"):
+        recorded = self.bundle.model.embedder
+        if recorded is None:
             raise TerraError(
                 f"{self.bundle.path / 'manifest.json'}: field 'embedder' is missing; "
                 "rebuild the bundle with `terra map`"
             )
-        self.embedder_name: str = str(recorded["name"])
-        self.embedder_dim: int | None = int(recorded["dim"]) if recorded.get("dim") is not None else None
+        self.embedder_name: str = recorded.name
+        self.embedder_dim: int | None = recorded.dim
         check_configured_embedder(self.embedder_name, embedder_name, source=str(self.path))
         if embedder is not None:
             check_embedder(embedder, self.embedder_name, self.embedder_dim, source=str(self.path))
@@ -75,11 +70,11 @@ class LoadedBundle:
 
     @property
     def has_map(self) -> bool:
-        return has_component(self.bundle, "map")
+        return self.bundle.has_component("map")
 
     @property
     def has_graph(self) -> bool:
-        return has_component(self.bundle, "graph")
+        return self.bundle.has_component("graph")
 
     def _load_once(self, attribute: str, load: Callable[[], Any]) -> Any:
         value = getattr(self, attribute)
@@ -207,7 +202,5 @@ class LoadedBundle:
 
 
 def _quietly(load: Callable[[], Any]) -> None:
-    try:
+    with contextlib.suppress(Exception):  # re-raised by the caller's own access
         load()
-    except Exception:  # noqa: BLE001 (re-raised by the caller's own access)
-        pass

@@ -125,6 +125,7 @@ class MapComponent(_Written):
     images: Count | None = None
     observations: Count | None = None
     observed_points: Count | None = None
+    dataset: dict[str, Any] | None = None  # the source it was mapped from (terra.datasets.fingerprint)
     config: dict[str, Any] = Field(default_factory=dict)
     stats: dict[str, Any] = Field(default_factory=dict)
 

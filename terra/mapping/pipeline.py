@@ -164,8 +164,8 @@ def _write(
             dataset=dataset.name,
             classes=dataset.classes.to_json(),
         )
-        writer.manifest["components"]["map"]["dataset"] = source
-        writer.manifest["perception"] = perception.describe()
+        writer.update_component("map", dataset=source)
+        writer.set_perception(perception.describe())
     return Bundle(out)
 
 
