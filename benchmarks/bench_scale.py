@@ -314,7 +314,7 @@ def twin_map(source: Path, target: Path, world: float, side: float) -> dict:
             dataset=f"2 x 2 copies of {source.name}, cropped to {side:g} m",
             classes=base.json("map/meta.json")["classes"],
         )
-        writer.manifest["perception"] = base.manifest.get("perception", {})
+        writer.set_perception(base.model.perception or {})
     return {"points": len(twin), "images": len(table), "km2": round(side * side / 1e6, 2)}
 
 

@@ -41,7 +41,7 @@ import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -49,6 +49,11 @@ from terra import __version__
 from terra.errors import TerraError
 from terra.fileio import read_error, read_json, writing
 from terra.npy import ArraySpec, read_npy
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+    from terra.schemas import BundleManifest, FileEntry
 
 try:  # POSIX: writers lock their staging folder; recovery leaves locked ones alone
     import fcntl
@@ -59,7 +64,7 @@ SCHEMA = "terra-bundle"
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
 MAX_MANIFEST_BYTES = 64 << 20
-M = TypeVar("M")
+M = TypeVar("M", bound="BaseModel")
 
 
 def _sha256(path: Path) -> str:
@@ -261,7 +266,8 @@ def _locked_sibling(target: Path, create: Callable[[Path], None]) -> tuple[Path,
                 return path, fd
         except FileNotFoundError:
             pass
-        os.close(fd)
+        if fd is not None:
+            os.close(fd)
     raise OSError(errno.EEXIST, "no free name for a staging folder", str(target))
 
 
@@ -365,6 +371,30 @@ def atomic_folder(out: str | Path, fill: Callable[[Path], None], what: str = "ou
     return staging.target
 
 
+# ---------------------------------------------------------------------------------------- manifest
+# The manifest has one view, the typed terra.schemas.BundleManifest: a Bundle reads it, a
+# BundleWriter edits it, and it is written back as exactly the keys it was read or given with
+# (defaults a file never had are not added), so a bundle's bytes do not depend on the model.
+def manifest_json(model: BundleManifest) -> dict[str, Any]:
+    """The manifest's JSON: the keys that were read or set, not the model's unset defaults."""
+    return model.model_dump(mode="json", by_alias=True, exclude_unset=True)
+
+
+def _manifest(data: dict[str, Any]) -> BundleManifest:
+    """The manifest model of JSON `data` Terra is writing (a ValueError there is a defect in Terra)."""
+    from terra.schemas import BundleManifest
+
+    return BundleManifest.model_validate(data)
+
+
+def listed_components(model: BundleManifest) -> list[str]:
+    """The components the manifest lists (known ones and a newer writer's), sorted."""
+    components = model.components
+    known = [name for name in type(components).model_fields if getattr(components, name) is not None]
+    extra = [name for name, value in (components.model_extra or {}).items() if value is not None]
+    return sorted({*known, *extra})
+
+
 # ----------------------------------------------------------------------------------------- reading
 class Bundle:
     """Read access to a bundle folder. Raises TerraError (one line) for anything malformed."""
@@ -391,16 +421,33 @@ class Bundle:
                 f"{manifest_path}: schema_version {version!r:.20} is not supported by terra {__version__} "
                 f"(expected {SCHEMA_VERSION}); rebuild the bundle"
             )
-        self.model = validate_model(manifest, BundleManifest, manifest_path)
-        self.manifest: dict[str, Any] = manifest
+        self.model: BundleManifest = validate_model(manifest, BundleManifest, manifest_path)
 
     @property
-    def files(self) -> dict[str, dict[str, Any]]:
-        return self.manifest.get("files", {})
+    def manifest(self) -> dict[str, Any]:
+        """The manifest as JSON, a fresh copy for display and tests; code asks the typed `model`."""
+        return manifest_json(self.model)
 
     @property
-    def components(self) -> dict[str, Any]:
-        return self.manifest.get("components") or {}
+    def files(self) -> dict[str, FileEntry]:
+        return self.model.files
+
+    @property
+    def components(self) -> list[str]:
+        """The components this bundle has (e.g. ["graph", "map"]): see `has_component`."""
+        return [name for name in listed_components(self.model) if self.has_component(name)]
+
+    def has_component(self, name: str) -> bool:
+        """Whether the manifest lists component `name` (e.g. "map", "graph") with files present under
+        `name/`: the one rule every stage and command asks."""
+        return name in listed_components(self.model) and any(f.startswith(f"{name}/") for f in self.files)
+
+    def component_config(self, name: str) -> dict[str, Any]:
+        """components.<name>.config: the stage configuration component `name` was built with ({} when
+        the manifest records none)."""
+        info = getattr(self.model.components, name, None)
+        config = getattr(info, "config", None)
+        return dict(config) if isinstance(config, dict) else {}
 
     def has(self, name: str) -> bool:
         """Whether an array (`map/points`) or JSON file (`graph/scene_graph.json`) is present."""
@@ -425,14 +472,14 @@ class Bundle:
             raise read_error(path, exc, "bundle file") from None
         if not stat.S_ISREG(info.st_mode) or not inside:
             raise TerraError(f"{path}: not a regular file inside the bundle (corrupt bundle)")
-        if info.st_size != entry["bytes"]:
-            raise TerraError(f"{path}: size {info.st_size} bytes, manifest says {entry['bytes']} (corrupt bundle)")
+        if info.st_size != entry.bytes:
+            raise TerraError(f"{path}: size {info.st_size} bytes, manifest says {entry.bytes} (corrupt bundle)")
         if verify:
             try:
                 digest = _sha256(path)
             except OSError as exc:
                 raise read_error(path, exc, "bundle file") from None
-            if digest != entry["sha256"]:
+            if digest != entry.sha256:
                 raise TerraError(f"{path}: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)")
         return path
 
@@ -443,7 +490,7 @@ class Bundle:
     def json(self, name: str, verify: bool = False, max_depth: int | None = 64) -> Any:
         """Load a JSON file by name, e.g. `graph/scene_graph.json`."""
         path = self._checked_path(name, verify)
-        return read_json(path, "bundle JSON file", int(self.files[self._file_name(name)]["bytes"]) + 1, max_depth)
+        return read_json(path, "bundle JSON file", self.files[self._file_name(name)].bytes + 1, max_depth)
 
     def document(self, name: str, model: type[M], verify: bool = False, max_depth: int | None = 64) -> M:
         """A JSON file by name validated as pydantic `model` (TerraError naming the file and field)."""
@@ -462,7 +509,7 @@ class Bundle:
         sizes: dict[str, int] = {"manifest": (self.path / MANIFEST).stat().st_size}
         for file_name, entry in self.files.items():
             component = file_name.split("/", 1)[0] if "/" in file_name else file_name
-            sizes[component] = sizes.get(component, 0) + int(entry["bytes"])
+            sizes[component] = sizes.get(component, 0) + entry.bytes
         return sizes
 
 
@@ -481,7 +528,7 @@ class BundleWriter:
     ):
         self.path = Path(path)
         self.what = what  # for messages: "bundle", "mapping checkpoint"
-        self.manifest: dict[str, Any] = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}}
+        self.model: BundleManifest = _manifest({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}})
         self._done = False
         with writing(self.path, what):
             self._staging = Staging(self.path)
@@ -492,11 +539,19 @@ class BundleWriter:
             except BaseException:
                 self.abort()
                 raise
-        self.manifest["written_by"] = f"terra {__version__}"
+        self.model.written_by = f"terra {__version__}"
+
+    @property
+    def files(self) -> dict[str, FileEntry]:
+        """The files of the version being written, by name (e.g. `graph/scene_graph.json`)."""
+        return self.model.files
 
     def _start_from(self, base: Bundle, drop_components: tuple[str, ...]) -> None:
-        self.manifest = json.loads(json.dumps(base.manifest))
-        self.manifest["files"] = {}
+        data = manifest_json(base.model)
+        data["files"] = {}
+        for component in drop_components:
+            data.get("components", {}).pop(component, None)
+        self.model = _manifest(data)
         for file_name, entry in base.files.items():
             if file_name.split("/", 1)[0] in drop_components:
                 continue
@@ -509,18 +564,43 @@ class BundleWriter:
                 os.link(source, dst)
             except OSError:
                 shutil.copy2(source, dst)
-            self.manifest["files"][file_name] = entry
-        for component in drop_components:
-            self.manifest.get("components", {}).pop(component, None)
+            self.model.files[file_name] = entry
+
+    def _edit(self, **changes: Any) -> None:
+        """Set top-level manifest fields (JSON values), validated as the manifest model."""
+        self.model = _manifest({**manifest_json(self.model), **changes})
+
+    def set_embedder(self, name: str, dim: int) -> None:
+        """The text embedder whose space the stored embeddings are in."""
+        self._edit(embedder={"name": name, "dim": dim})
+
+    def set_terrain_classes(self, names: list[str]) -> None:
+        self._edit(terrain_classes=list(names))
+
+    def set_perception(self, description: dict[str, Any]) -> None:
+        """What produced the map's semantics (terra.perception.base.Perception.describe)."""
+        self._edit(perception=description)
+
+    def set_component(self, name: str, info: dict[str, Any]) -> None:
+        """Manifest entry components.<name> (counts, config, stats), replacing any earlier one."""
+        components = manifest_json(self.model).get("components", {})
+        self._edit(components={**components, name: info})
+
+    def update_component(self, name: str, **fields: Any) -> None:
+        """Set `fields` of the existing entry components.<name>, keeping its others."""
+        components = manifest_json(self.model).get("components", {})
+        self._edit(components={**components, name: {**components.get(name, {}), **fields}})
 
     def _put(self, file_name: str, data: bytes) -> None:
+        from terra.schemas import FileEntry
+
         dst = self._tmp / file_name
         with writing(self.path, self.what):
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
             _write_new_file(dst, data)
-        self.manifest["files"][file_name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        self.model.files[file_name] = FileEntry(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
 
     def put_array(self, name: str, array: np.ndarray) -> None:
         """Store an array as `<name>.npy`, e.g. `map/points`."""
@@ -534,13 +614,12 @@ class BundleWriter:
 
     def remove(self, name: str) -> None:
         file_name = Bundle._file_name(name)
-        self.manifest["files"].pop(file_name, None)
+        self.model.files.pop(file_name, None)
         (self._tmp / file_name).unlink(missing_ok=True)
 
     def commit(self) -> Bundle:
         """Write the manifest and swap the new version into place."""
-        self.manifest["files"] = dict(sorted(self.manifest["files"].items()))
-        text = dumps_json(self.manifest).encode()
+        text = dumps_json(manifest_json(self.model)).encode()  # sorted keys: the files in name order
         with writing(self.path, self.what):
             _write_new_file(self._tmp / MANIFEST, text)
             self._staging.commit()

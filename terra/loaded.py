@@ -3,9 +3,10 @@ evaluation, the demo, `terra serve` and the web viewer take a LoadedBundle inste
 long-lived process loads the map, the scene graph and the text model once.
 
 Everything is loaded on first use (a plan between two place ids never loads the map or the text
-model) and then kept, with the per-map query state: the point scorer (float32 counts, MS-Avg
-norms, MS-Max ids) and cost graphs per set of terrain preferences. Reads are safe from many
-threads: lazy loads are guarded by a lock, and the loaded data is never changed in place. Writes
+model) and then kept, with what the stages above derive from it (`derived`: the tasks' point
+scorer and cost graphs per set of terrain preferences, which terra.tasks builds and keeps here, so
+this module needs nothing of terra.tasks). Reads are safe from many threads: lazy loads are guarded
+by a lock, and the loaded data is never changed in place. Writes
 (`update_graph`, used by `find --save`) are serialised by `write_lock` and atomic: the new bundle
 version is written beside the old and swapped in by rename, then the new graph replaces the old
 one in memory, so a concurrent query sees either the old graph or the new one.
@@ -13,11 +14,11 @@ one in memory, so a concurrent query sees either the old graph or the new one.
 
 from __future__ import annotations
 
+import contextlib
 import threading
-from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
@@ -26,16 +27,8 @@ if TYPE_CHECKING:
     from terra.graph.scene_graph import SceneGraph
     from terra.mapping.semantic_map import MetricSemanticMap
     from terra.perception.text import TextEmbedder
-    from terra.tasks.planning import CostGraph, TerrainCosts
-    from terra.tasks.scoring import PointScorer
 
-COST_GRAPHS = 16  # cost graphs kept per bundle (one per set of terrain preferences)
-
-
-def has_component(bundle: Bundle, name: str) -> bool:
-    """Whether the manifest lists component `name` (e.g. "map", "graph") with files present."""
-    listed = name in bundle.manifest.get("components", {})
-    return listed and any(f.startswith(f"{name}/") for f in bundle.files)
+T = TypeVar("T")
 
 
 class LoadedBundle:
@@ -44,17 +37,17 @@ class LoadedBundle:
     (checked against the map's name and dimension)."""
 
     def __init__(self, path: str | Path, embedder_name: str | None = None, embedder: TextEmbedder | None = None):
-        from terra.tasks.queries import check_configured_embedder, check_embedder
+        from terra.perception.text import check_configured_embedder, check_embedder
 
         self.bundle = Bundle(path)
-        recorded = self.bundle.manifest.get("embedder") or {}
-        if not recorded.get("name"):
+        recorded = self.bundle.model.embedder
+        if recorded is None:
             raise TerraError(
                 f"{self.bundle.path / 'manifest.json'}: field 'embedder' is missing; "
                 "rebuild the bundle with `terra map`"
             )
-        self.embedder_name: str = str(recorded["name"])
-        self.embedder_dim: int | None = int(recorded["dim"]) if recorded.get("dim") is not None else None
+        self.embedder_name: str = recorded.name
+        self.embedder_dim: int | None = recorded.dim
         check_configured_embedder(self.embedder_name, embedder_name, source=str(self.path))
         if embedder is not None:
             check_embedder(embedder, self.embedder_name, self.embedder_dim, source=str(self.path))
@@ -62,11 +55,10 @@ class LoadedBundle:
         self._msm: MetricSemanticMap | None = None
         self._graph: SceneGraph | None = None
         self._graph_loaded = False
-        self._scorer: PointScorer | None = None
-        self._cost_graphs: OrderedDict[tuple, CostGraph] = OrderedDict()
-        self._searched: set[tuple] = set()  # cost graphs fetched more than once (see cost_graph)
-        self._lock = threading.RLock()  # the cost-graph cache and graph swaps
-        self._load_locks = {name: threading.Lock() for name in ("_msm", "_graph", "_embedder", "_scorer")}
+        self._derived: dict[str, Any] = {}  # see `derived`
+        self._of_graph: set[str] = set()  # the derived values dropped when the graph changes
+        self._lock = threading.RLock()  # the derived values and graph swaps
+        self._load_locks = {name: threading.Lock() for name in ("_msm", "_graph", "_embedder")}
         self.write_lock = threading.Lock()  # one writer at a time (update_graph)
 
     @property
@@ -75,11 +67,11 @@ class LoadedBundle:
 
     @property
     def has_map(self) -> bool:
-        return has_component(self.bundle, "map")
+        return self.bundle.has_component("map")
 
     @property
     def has_graph(self) -> bool:
-        return has_component(self.bundle, "graph")
+        return self.bundle.has_component("graph")
 
     def _load_once(self, attribute: str, load: Callable[[], Any]) -> Any:
         value = getattr(self, attribute)
@@ -129,43 +121,25 @@ class LoadedBundle:
     @property
     def embedder(self) -> TextEmbedder:
         """The map's text embedder, loaded on first use (warm afterwards, with its text cache)."""
-        from terra.tasks.queries import resolve_embedder
+        from terra.perception.text import resolve_embedder
 
         return self._load_once(
             "_embedder", lambda: resolve_embedder(self.embedder_name, self.embedder_dim, source=str(self.path))
         )
 
-    @property
-    def scorer(self) -> PointScorer:
-        """Per-point cosine scoring of the map, built once."""
-        from terra.tasks.scoring import PointScorer
-
-        return self._load_once("_scorer", lambda: PointScorer(self.msm))
-
-    def cost_graph(self, costs: TerrainCosts) -> CostGraph:
-        """The places graph under `costs`, built once per set of preferences (and graph version)."""
-        from terra.tasks.planning import CostGraph
-
-        graph = self.require_graph("planning")
-        key = (id(graph), costs.penalty.tobytes(), costs.forbidden.tobytes())
+    def derived(self, key: str, build: Callable[[], T], of_graph: bool = False) -> T:
+        """The value `key` derived from this bundle by a stage above (e.g. the tasks' point scorer),
+        built by `build` on first use and kept; `of_graph`: derived from the scene graph, so dropped
+        when `update_graph` replaces it. Values are built outside the lock (a slow build does not
+        stall other queries): two threads may both build one, and the first stored is kept."""
         with self._lock:
-            cached = self._cost_graphs.get(key)
-            if cached is not None:
-                self._cost_graphs.move_to_end(key)
-                reused = key in self._searched
-                self._searched.add(key)
-        if cached is not None:
-            if not reused:  # asked for twice: worth A*'s adjacency lists from now on
-                from terra.tasks.astar import prepare_adjacency
-
-                prepare_adjacency(cached.indptr, cached.indices, cached.cost)
-            return cached
-        built = CostGraph.build(graph, costs)
+            if key in self._derived:
+                return self._derived[key]
+        value = build()
         with self._lock:
-            self._cost_graphs[key] = built
-            while len(self._cost_graphs) > COST_GRAPHS:
-                self._searched.discard(self._cost_graphs.popitem(last=False)[0])
-        return built
+            if of_graph:
+                self._of_graph.add(key)
+            return self._derived.setdefault(key, value)
 
     def prefetch(self, texts: list[str]) -> None:
         """Start embedding `texts` in a background thread, so a cold query overlaps the text
@@ -179,10 +153,11 @@ class LoadedBundle:
             ).start()
 
     def warm(self) -> None:
-        """Load everything a query may need now (a service does this before it listens)."""
+        """Load the map, the scene graph and the text model now (terra.tasks.commands.warm also
+        builds the query state a service needs before it listens)."""
         if self.has_map:
-            self.scorer.max_ids  # noqa: B018 (loads the map and its per-point data)
-        self.graph  # noqa: B018
+            self.require_map()
+        _ = self.graph
         load = getattr(self.embedder, "load", None)
         if load is not None:
             load()  # the text runtime's session, which a stored vector would otherwise skip
@@ -201,13 +176,12 @@ class LoadedBundle:
             with self._lock:
                 self.bundle = Bundle(self.path)
                 self._graph = graph
-                self._cost_graphs.clear()
-                self._searched.clear()
+                for key in self._of_graph:
+                    self._derived.pop(key, None)
+                self._of_graph.clear()
         return graph
 
 
 def _quietly(load: Callable[[], Any]) -> None:
-    try:
+    with contextlib.suppress(Exception):  # re-raised by the caller's own access
         load()
-    except Exception:  # noqa: BLE001 (re-raised by the caller's own access)
-        pass

@@ -92,21 +92,28 @@ BundleFileName = Annotated[str, AfterValidator(bundle_file_name)]
 UniqueNames = Annotated[list[NonEmptyStr], AfterValidator(_unique)]
 
 
+class Strict(BaseModel):
+    """Base of every model of what people write (config sections, task files, requests, dataset
+    documents): unknown keys are refused, so a misspelt key is named; floats are finite."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
 class _Written(BaseModel):
     """A document Terra writes: strict values, unknown keys kept (a newer writer's additions)."""
 
     model_config = ConfigDict(extra="allow", strict=True, allow_inf_nan=False)
 
 
-class _Authored(BaseModel):
-    """A document people write: unknown keys refused, so a misspelt key is named."""
+class _Authored(Strict):
+    """A document people write, with strict values (no "3" for 3)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
+    model_config = ConfigDict(strict=True)
 
 
 # ------------------------------------------------------------------------------------ the bundle
-class FileEntry(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+class FileEntry(Strict):
+    model_config = ConfigDict(strict=True)
 
     bytes: Count
     sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
@@ -125,6 +132,7 @@ class MapComponent(_Written):
     images: Count | None = None
     observations: Count | None = None
     observed_points: Count | None = None
+    dataset: dict[str, Any] | None = None  # the source it was mapped from (terra.datasets.fingerprint)
     config: dict[str, Any] = Field(default_factory=dict)
     stats: dict[str, Any] = Field(default_factory=dict)
 
@@ -274,7 +282,7 @@ class CalibrationDoc(_Authored):
     """One exact camera calibration (terra_dataset.json, terra_cameras.json): K 3x3 pixels, dist in
     OpenCV order for `model`, T_cam_lidar 4x4 (LiDAR -> camera optical frame, metres)."""
 
-    model_config = ConfigDict(extra="forbid", strict=False, allow_inf_nan=False)  # ints read as floats
+    model_config = ConfigDict(strict=False)  # ints read as floats
 
     name: NonEmptyStr
     width: Annotated[int, Field(ge=1, le=MAX_IMAGE_SIDE, strict=True)]

@@ -20,7 +20,7 @@ def _check_graph(bundle: Path, overwrite: bool) -> None:
 
     if overwrite or not (Path(bundle) / "manifest.json").is_file():
         return  # a missing or damaged bundle is reported by the build itself
-    if "graph" in Bundle(bundle).manifest.get("components", {}):
+    if Bundle(bundle).has_component("graph"):
         raise TerraError(f"{bundle}: has a scene graph already (pass --overwrite to replace it)")
 
 
@@ -50,7 +50,7 @@ def build_command(
     Example: terra build campus.terra --regions spectral --config terra.yaml
     (the paper's fixed agglomerative levels: terra build campus.terra --cuts 50,100,200,400)
     """
-    from terra.config import load_section
+    from terra.config import TerraConfig
     from terra.errors import TerraError
     from terra.graph.pipeline import run_build
 
@@ -65,7 +65,7 @@ def build_command(
         except ValueError:
             raise TerraError(f"--cuts expects comma-separated numbers such as 50,100,200,400, got {cuts!r}") from None
     overrides = overrides if overrides["regions"] else None
-    section = load_section(config, "build", overrides)
+    section = TerraConfig.read(config, {"build": overrides}).build
     _check_graph(bundle, overwrite)
     on_interrupt(f"{bundle} is unchanged; run the same command again")
     from terra.progress import working

@@ -111,15 +111,15 @@ def _evaluate(
     """The full evaluation, or --tune."""
     from terra.cli.interrupts import on_interrupt
     from terra.cli.outputs import refuse_existing
-    from terra.config import load_section
+    from terra.config import TerraConfig
     from terra.eval.inputs import EvalInputs
     from terra.eval.runner import evaluate
     from terra.eval.runner import tune as tune_parameters
     from terra.eval.tuning import TUNED, TunedParameters
     from terra.progress import StageTimer
 
-    eval_cfg = load_section(config, "eval")
-    tasks_cfg = load_section(config, "tasks")
+    settings = TerraConfig.read(config)
+    eval_cfg, tasks_cfg = settings.eval, settings.tasks
     timer = StageTimer()
     if tune:
         refuse_existing(Path(out) / TUNED, overwrite)
@@ -164,7 +164,7 @@ def _terrain_only(
     dataset_path: Path, configs: list[Path], dataset_format: str, max_images: int | None, as_json: bool, quiet: bool
 ) -> None:
     """Table I of each configured terrain segmenter on the labelled images of a dataset."""
-    from terra.config import load_section
+    from terra.config import TerraConfig
     from terra.datasets import open_dataset
     from terra.eval.segmentation import terrain_table
     from terra.perception.registry import get_terrain_segmenter
@@ -172,11 +172,12 @@ def _terrain_only(
 
     timer = StageTimer()
     dataset = open_dataset(dataset_path, dataset_format)
-    limit = max_images or load_section(configs[0] if configs else None, "eval").segmentation.max_images or 40
+    settings = {path: TerraConfig.read(path) for path in configs or [None]}
+    limit = max_images or next(iter(settings.values())).eval.segmentation.max_images or 40
     segmenters = {}
     with timer.stage("load models"):
-        for path in configs or [None]:
-            perception = load_section(path, "mapping").perception
+        for path, setting in settings.items():
+            perception = setting.mapping.perception
             label = f"{Path(path).stem if path else 'defaults'} ({perception.backend})"
             segmenters[label] = (get_terrain_segmenter(perception, dataset.classes), perception.noise.seed)
     with timer.stage("segmentation"):

@@ -26,7 +26,7 @@ def bundle_summary(path: Path, verify: bool = True) -> dict:
             bundle.document("map/meta.json", MapMeta)
     summary = map_summary(bundle)
     summary["files_verified"] = len(bundle.files) if verify else 0
-    if "graph" in bundle.manifest.get("components", {}):
+    if bundle.has_component("graph"):
         try:
             from terra.graph.summary import graph_summary
         except ImportError:  # the graph stage may not be installed in this build

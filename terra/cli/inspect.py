@@ -89,10 +89,10 @@ def inspect_command(
 
     Example: terra inspect drive.bag --json
     """
-    from terra.config import load_dataset_options
+    from terra.config import TerraConfig
     from terra.datasets.describe import describe_source, source_json
 
-    info = source_json(describe_source(source, format, load_dataset_options(config)))
+    info = source_json(describe_source(source, format, TerraConfig.read(config).dataset))
     if as_json:
         typer.echo(json.dumps(info, indent=1, sort_keys=True))
     else:

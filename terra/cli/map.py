@@ -96,7 +96,7 @@ def map_command(
 
     Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
     """
-    from terra.config import load_dataset_options, load_section
+    from terra.config import TerraConfig
     from terra.distributed.cluster import cluster_config
     from terra.odometry.kiss import OdometryDataset, with_poses
 
@@ -112,9 +112,9 @@ def map_command(
         overrides["perception"]["noise"] = noise
     if cache is not None:
         overrides["perception"]["cache"] = {"folder": str(cache)}
-    mapping = load_section(config, "mapping", overrides)
-    odometry = load_section(config, "odometry")
-    spec = _source_spec(dataset, sim, format, camera_config, load_dataset_options(config))
+    settings = TerraConfig.read(config, {"mapping": overrides})
+    mapping, odometry = settings.mapping, settings.odometry
+    spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
     source = with_poses(spec.open(), poses, odometry, show_progress=not quiet)
     if isinstance(source, OdometryDataset):
         spec = spec.with_odometry()  # the workers perceive images, which need no poses

@@ -41,6 +41,7 @@ def serve_command(
     from terra.cli.task_options import build, load_tasks_config, open_bundle
     from terra.errors import TerraError
     from terra.serve.config import ServeConfig
+    from terra.tasks.commands import warm
 
     try:
         import uvicorn
@@ -62,7 +63,7 @@ def serve_command(
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
     loaded.require_graph("terra serve")
-    loaded.warm()
+    warm(loaded)
     if settings.token is None and host not in ("127.0.0.1", "localhost", "::1"):
         typer.echo(
             f"terra serve: warning: listening on {host} without a token; anyone on the network may query", err=True

@@ -47,7 +47,7 @@ def sim(
 
     Example: terra sim --preset small --seed 0 --out campus-small
     """
-    from terra.config import load_section
+    from terra.config import TerraConfig
     from terra.progress import StageTimer, working
     from terra.sim.classes import CLASS_COLORS
     from terra.sim.dataset import simulate
@@ -60,7 +60,7 @@ def sim(
         raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
     check_output(out, overwrite)
     on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
-    cfg = load_section(config, "sim")
+    cfg = TerraConfig.read(config).sim
     if max_frames is not None:
         cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": max_frames})})
     if format == "kitti-raw":  # KITTI raw images are rectified

@@ -22,9 +22,9 @@ R = TypeVar("R", bound="BaseModel")
 
 
 def load_tasks_config(path: Path | None) -> TasksConfig:
-    from terra.config import load_section
+    from terra.config import TerraConfig
 
-    return load_section(path, "tasks")  # type: ignore[return-value]
+    return TerraConfig.read(path).tasks
 
 
 def open_bundle(path: Path, config: TasksConfig) -> LoadedBundle:

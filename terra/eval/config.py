@@ -64,7 +64,9 @@ class NavigationEval(Section):
     route_pairs: int = Field(
         default=200,
         ge=0,
-        description="place pairs joined by a route on the first preferred terrain, planned both ways (drawn with a fixed seed)",
+        description=(
+            "place pairs joined by a route on the first preferred terrain, planned both ways (drawn with a fixed seed)"
+        ),
     )
     min_share: float = Field(
         default=0.8,

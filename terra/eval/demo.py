@@ -87,7 +87,7 @@ class DemoConfig:
         format: str = "terra-folder",
     ) -> DemoConfig:
         """Sections from a YAML file (defaults without one); TerraError for a bad argument."""
-        from terra.config import load_section
+        from terra.config import TerraConfig
         from terra.sim.presets import get_preset
 
         get_preset(preset)
@@ -102,13 +102,23 @@ class DemoConfig:
             raise TerraError(
                 f"--validation-spacing must be >= 1 (a factor on the frame spacing), got {validation_spacing}"
             )
-        sections = {s: load_section(path, s) for s in ("sim", "build", "tasks", "eval")}
+        settings = TerraConfig.read(path)
         # The demo shows the method under realistic perception noise (bleeding masks, missed
         # instances, look-alike confusions) unless the user's file sets the noise itself.
-        sections["mapping"] = load_section(
-            path, "mapping", None if _sets_noise(path) else {"perception": {"noise": "realistic"}}
+        if not settings.sets("mapping", "perception", "noise"):
+            settings = settings.with_overrides({"mapping": {"perception": {"noise": "realistic"}}})
+        return cls(
+            preset,
+            int(seed),
+            validation_preset or preset,
+            float(validation_spacing),
+            format,
+            sim=settings.sim,
+            build=settings.build,
+            tasks=settings.tasks,
+            eval=settings.eval,
+            mapping=settings.mapping,
         )
-        return cls(preset, int(seed), validation_preset or preset, float(validation_spacing), format, **sections)
 
     @property
     def validation_seed(self) -> int:
@@ -595,14 +605,3 @@ def _table_ii_row(evaluation: dict, query: str, method: str) -> dict | None:
     if query.lower() in queries and len(rows) == len(queries):
         return rows[queries.index(query.lower())]
     return None
-
-
-def _sets_noise(path: Path | None) -> bool:
-    """Whether the YAML config at `path` sets mapping.perception.noise."""
-    if path is None:
-        return False
-    import yaml
-
-    raw = yaml.safe_load(Path(path).read_text()) or {}
-    perception = ((raw.get("mapping") or {}).get("perception") or {}) if isinstance(raw, dict) else {}
-    return isinstance(perception, dict) and "noise" in perception

@@ -27,7 +27,8 @@ def mapped_dataset_name(bundle: Bundle) -> str:
 def mapped_dataset_fingerprint(bundle: Bundle) -> str:
     """Content fingerprint of the dataset a bundle's map was built from (terra.datasets.fingerprint;
     "" for bundles made before it was recorded)."""
-    source = bundle.manifest.get("components", {}).get("map", {}).get("dataset")
+    map_info = bundle.model.components.map
+    source = map_info.dataset if map_info is not None else None
     return str(source.get("fingerprint") or "") if isinstance(source, dict) else ""
 
 

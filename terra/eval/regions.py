@@ -153,7 +153,7 @@ def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph,
     from terra.graph.pipeline import region_assignments
     from terra.graph.regions import build_levels
 
-    recorded = bundle.manifest.get("components", {}).get("graph", {}).get("config") or {}
+    recorded = bundle.component_config("graph")
     config = BuildConfig.model_validate(recorded)
     config = config.model_copy(update={"regions": config.regions.model_copy(update={"method": method})})
     places = graph.places

@@ -371,9 +371,7 @@ def segmentation_section(inputs: EvalInputs, config: EvalConfig, show_progress: 
     from terra.perception.registry import get_terrain_segmenter
 
     dataset = inputs.dataset or open_dataset(inputs.gt_root)
-    mapping = MappingConfig.model_validate(
-        inputs.bundle.manifest.get("components", {}).get("map", {}).get("config") or {}
-    )
+    mapping = MappingConfig.model_validate(inputs.bundle.component_config("map"))
     if not any(c.semantic is not None for c in dataset[0].cameras):
         return None
     segmenter = get_terrain_segmenter(mapping.perception, dataset.classes)  # no mask or embedding model is loaded
@@ -399,9 +397,8 @@ def perception_section(bundle: Bundle) -> dict:
     """Which perception produced the map, from the bundle: the backend, its noise (labels) or its
     model files (models), and whether its masks come from the ground truth itself (the labels
     backend reads the dataset's label images, so Tables I and II then grade ground-truth masks)."""
-    map_info = bundle.manifest.get("components", {}).get("map", {})
-    perception = (map_info.get("config") or {}).get("perception") or {}
-    recorded = bundle.manifest.get("perception") or {}
+    perception = bundle.component_config("map").get("perception") or {}
+    recorded = bundle.model.perception or {}
     backend = str(recorded.get("backend") or perception.get("backend") or "unknown")
     models = [
         {k: m.get(k) for k in ("role", "name", "sha256") if k in m}

@@ -33,34 +33,53 @@ class GridSection(Section):
     support_radius: float = Field(
         default=1.6,
         ge=0.0,
-        description="metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points only)",
+        description=(
+            "metres; each cell takes the majority terrain of the cells within this half-window (0 = its own points "
+            "only)"
+        ),
     )
     min_support: float = Field(
         default=0.6,
         ge=0.0,
         le=1.0,
-        description="share of the window's cells that must hold labelled terrain points for the cell to take their majority; for filling and weak_support, the share that must hold ground points, labelled or not (drops sparse distant scan rings)",
+        description=(
+            "share of the window's cells that must hold labelled terrain points for the cell to take their majority; "
+            "for filling and weak_support, the share that must hold ground points, labelled or not (drops sparse "
+            "distant scan rings)"
+        ),
     )
     weak_support: float | None = Field(
         default=0.1,
         ge=0.0,
         le=1.0,
-        description="a window with this smaller share of labelled cells also takes their majority where it continues a patch of that class meeting min_support (hysteresis: sparsely labelled stretches of a strip keep its class; isolated noisy patches do not); None = never",
+        description=(
+            "a window with this smaller share of labelled cells also takes their majority where it continues a patch of"
+            " that class meeting min_support (hysteresis: sparsely labelled stretches of a strip keep its class; "
+            "isolated noisy patches do not); None = never"
+        ),
     )
     weak_reach: float | None = Field(
         default=16.0,
         gt=0.0,
-        description="metres; such cells are labelled at most this far (along the sparsely labelled chain) from the patch they continue (None = any distance)",
+        description=(
+            "metres; such cells are labelled at most this far (along the sparsely labelled chain) from the patch they "
+            "continue (None = any distance)"
+        ),
     )
     fill_radius: float = Field(
         default=2.0,
         ge=0.0,
-        description="metres; densely scanned ground no camera labelled takes the class of the labelled cells within this distance when they all agree (0 = never)",
+        description=(
+            "metres; densely scanned ground no camera labelled takes the class of the labelled cells within this "
+            "distance when they all agree (0 = never)"
+        ),
     )
     close_iterations: int = Field(
         default=1,
         ge=0,
-        description="3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)",
+        description=(
+            "3x3 closings of each terrain mask (the paper's opening of the obstacle mask: fills sparse-point holes)"
+        ),
     )
     open_iterations: int = Field(
         default=1, ge=0, description="3x3 openings of each terrain mask (removes slivers one or two cells wide)"
@@ -93,7 +112,10 @@ class TilesSection(Section):
     overlap: float = Field(
         default=50.0,
         gt=0.0,
-        description="metres of overlap tried first around each tile; doubled where a tile's result is not yet proven equal to the one-piece result",
+        description=(
+            "metres of overlap tried first around each tile; doubled where a tile's result is not yet proven equal to "
+            "the one-piece result"
+        ),
     )
 
 
@@ -106,12 +128,17 @@ class GvdSection(Section):
     min_gap: float = Field(
         default=0.6,
         ge=0.0,
-        description="metres; two nearest obstacle points of one obstacle component count as different walls only with this much clearance at their midpoint (rejects steps of one digitised wall)",
+        description=(
+            "metres; two nearest obstacle points of one obstacle component count as different walls only with this much"
+            " clearance at their midpoint (rejects steps of one digitised wall)"
+        ),
     )
     prune_ratio: float = Field(
         default=1.5,
         ge=0.0,
-        description="dead-end branches shorter than prune_ratio * junction clearance + prune_length are removed (corner spurs)",
+        description=(
+            "dead-end branches shorter than prune_ratio * junction clearance + prune_length are removed (corner spurs)"
+        ),
     )
     prune_length: float = Field(default=1.0, ge=0.0, description="metres, see prune_ratio")
     junction_merge: float = Field(
@@ -128,7 +155,10 @@ class GvdSection(Section):
     cover_radius: float | None = Field(
         default=5.0,
         gt=0.0,
-        description="metres; a pruned GVD branch reaching farther than this from the kept GVD (into a pocket: a service pad, a plaza) is restored so the pocket gets a place (None = never)",
+        description=(
+            "metres; a pruned GVD branch reaching farther than this from the kept GVD (into a pocket: a service pad, a "
+            "plaza) is restored so the pocket gets a place (None = never)"
+        ),
     )
 
 
@@ -156,12 +186,18 @@ class LinkingSection(Section):
     strip_link_distance: float | None = Field(
         default=12.0,
         gt=0.0,
-        description="metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within this range, across a gap (None = never)",
+        description=(
+            "metres; a dead end of one terrain's places links to the nearest same-terrain place of another piece within"
+            " this range, across a gap (None = never)"
+        ),
     )
     strip_max_gap: float = Field(
         default=4.0,
         ge=0.0,
-        description="metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the cameras missed or took for something else, not a road between two sidewalks)",
+        description=(
+            "metres; such a link may cross at most this much of cells not labelled with its terrain (a stretch the "
+            "cameras missed or took for something else, not a road between two sidewalks)"
+        ),
     )
     strip_max_blocked: float = Field(
         default=0.8,
@@ -171,12 +207,18 @@ class LinkingSection(Section):
     grid_link_distance: float | None = Field(
         default=12.0,
         gt=0.0,
-        description="metres; places of one terrain in different pieces of its places graph this close (2D) are joined by a path on the terrain grid where one is allowed (terra.graph.grid_links; None = never)",
+        description=(
+            "metres; places of one terrain in different pieces of its places graph this close (2D) are joined by a path"
+            " on the terrain grid where one is allowed (terra.graph.grid_links; None = never)"
+        ),
     )
     grid_link_max_gap: float = Field(
         default=4.0,
         ge=0.0,
-        description="metres; such a path may cross at most this much of unlabelled free cells (never blocked cells or another terrain's)",
+        description=(
+            "metres; such a path may cross at most this much of unlabelled free cells (never blocked cells or another "
+            "terrain's)"
+        ),
     )
     grid_link_max_length: float = Field(
         default=30.0, gt=0.0, description="metres; and be at most this long (the link costs the path's length)"
@@ -255,13 +297,19 @@ class RegionsSection(Section):
     cuts: list[float] | None = Field(
         default=None,
         max_length=8,
-        description="agglomerative cut heights, one region level each, increasing (the paper: 50, 100, 200, 400); None = adaptive levels",
+        description=(
+            "agglomerative cut heights, one region level each, increasing (the paper: 50, 100, 200, 400); None = "
+            "adaptive levels"
+        ),
     )
     gap_levels: int | None = Field(
         default=None,
         ge=1,
         le=8,
-        description="instead of `cuts`: this many levels cut just below the largest merge-height gaps (the reference's integer agg_params; not the paper's default)",
+        description=(
+            "instead of `cuts`: this many levels cut just below the largest merge-height gaps (the reference's integer "
+            "agg_params; not the paper's default)"
+        ),
     )
     levels: int = Field(
         default=4, ge=1, le=8, description="region levels of the adaptive agglomerative cuts and of spectral regions"
@@ -275,12 +323,17 @@ class RegionsSection(Section):
     snap: float = Field(
         default=1.25,
         ge=1.0,
-        description="adaptive agglomerative cuts move within this factor of each level's count to a natural break of the merge heights (1 = exact counts)",
+        description=(
+            "adaptive agglomerative cuts move within this factor of each level's count to a natural break of the merge "
+            "heights (1 = exact counts)"
+        ),
     )
     dense_max_places: int = Field(
         default=5000,
         ge=2,
-        description="exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters",
+        description=(
+            "exact average linkage on a condensed P x P matrix up to this many places; above, on micro-clusters"
+        ),
     )
     micro_max_clusters: int = Field(
         default=5000,

@@ -384,9 +384,9 @@ def _unique_typed_edges(
 
 
 def _check_bundle(bundle: Bundle) -> None:
-    if "map" not in bundle.manifest.get("components", {}) or not bundle.has("map/points"):
+    if not bundle.has_component("map") or not bundle.has("map/points"):
         raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
-    if not bundle.manifest.get("terrain_classes"):
+    if not bundle.model.terrain_classes:
         raise TerraError(
             f"{bundle.path}/manifest.json: field 'terrain_classes' is missing or empty; the map has no terrain classes to build places on"
         )

@@ -225,7 +225,7 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
 def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any] | None = None) -> None:
     """Put `sg` into the bundle being written as component `graph/` (replacing any old one).
     `info` (counts, config, stats) goes to manifest components.graph beside the format number."""
-    for name in [n for n in writer.manifest["files"] if n.startswith("graph/")]:
+    for name in [n for n in writer.files if n.startswith("graph/")]:
         writer.remove(name[:-4] if name.endswith(".npy") else name)
     writer.put_json(GRAPH_JSON, scene_graph_to_spark_json(sg))
     dim = sg.terrain_embeddings.shape[1] if sg.terrain_embeddings.ndim == 2 else 0
@@ -235,12 +235,12 @@ def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any]
         writer.put_array(
             f"graph/region_embedding_{level.level}", np.asarray(level.embedding, dtype=np.float32).reshape(-1, dim)
         )
-    components = writer.manifest.setdefault("components", {})
-    previous = components.get("graph", {}) if isinstance(components.get("graph"), dict) else {}
+    previous = writer.model.components.graph
+    kept = {} if previous is None else previous.model_dump(mode="json", exclude_unset=True)
     entry = (
         dict(info)
         if info is not None
-        else {k: v for k, v in previous.items() if k not in ("format", "places", "place_edges", "regions", "objects")}
+        else {k: v for k, v in kept.items() if k not in ("format", "places", "place_edges", "regions", "objects")}
     )
     entry.update(
         {
@@ -251,7 +251,7 @@ def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any]
             "objects": len(sg.objects),
         }
     )
-    components["graph"] = entry
+    writer.set_component("graph", entry)
 
 
 def load_scene_graph(bundle: Bundle) -> SceneGraph:

@@ -38,8 +38,9 @@ class FusionConfig(Section):
     use_global_map: use the dataset's own global map when it has one.
     dbscan_eps (metres) / dbscan_min_samples: the per-mask clustering; only the largest cluster
     keeps the mask's embedding. dbscan_voxel: metres; a mask's points are merged per voxel of this
-    size into weighted samples before DBSCAN (0 = cluster every point). match_threshold: cosine at or above which a mask reuses a bank
-    entry. max_terrain_overlap: masks with a larger share of terrain pixels are dropped."""
+    size into weighted samples before DBSCAN (0 = cluster every point). match_threshold: cosine at
+    or above which a mask reuses a bank entry. max_terrain_overlap: masks with a larger share of
+    terrain pixels are dropped."""
 
     voxel_size: float = Field(default=0.4, gt=0.0)
     gate: float = Field(default=1.0, gt=0.0)

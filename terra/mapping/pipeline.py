@@ -30,7 +30,7 @@ from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.storage import MAP_FORMAT, write_map
-from terra.perception.base import ImagePerception, Perception
+from terra.perception.base import ImagePerception, Perception, PerceptionSkip
 from terra.perception.cache import CachedPerception, cached
 from terra.perception.registry import get_perception
 from terra.progress import StageTimer
@@ -164,8 +164,8 @@ def _write(
             dataset=dataset.name,
             classes=dataset.classes.to_json(),
         )
-        writer.manifest["components"]["map"]["dataset"] = source
-        writer.manifest["perception"] = perception.describe()
+        writer.update_component("map", dataset=source)
+        writer.set_perception(perception.describe())
     return Bundle(out)
 
 
@@ -327,7 +327,7 @@ def perceive_image(
         return None
     try:
         return perception.perceive(camera, np.random.default_rng([config.perception.noise.seed, i, c]))
-    except ValueError as exc:
+    except PerceptionSkip as exc:  # any other exception is a failure of the backend: it propagates
         stats.add("images_skipped_no_labels")
         stats.note("images_skipped_no_labels", f"{camera.name or f'frame {i} camera {c}'}: {exc}")
         return None

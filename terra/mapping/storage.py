@@ -82,17 +82,20 @@ def write_map(
         "classes": classes or [],
     }
     writer.put_json("map/meta.json", meta)
-    writer.manifest["embedder"] = {"name": msm.embedder, "dim": msm.dim}
-    writer.manifest["terrain_classes"] = list(msm.terrain_classes)
-    writer.manifest.setdefault("components", {})["map"] = {
-        "points": len(msm),
-        "bank": int(msm.bank.shape[0]),
-        "images": len(images),
-        "observations": int(counts.nnz),
-        "observed_points": int(np.count_nonzero(np.diff(counts.indptr))),
-        "config": config or {},
-        "stats": stats or {},
-    }
+    writer.set_embedder(msm.embedder, msm.dim)
+    writer.set_terrain_classes(list(msm.terrain_classes))
+    writer.set_component(
+        "map",
+        {
+            "points": len(msm),
+            "bank": int(msm.bank.shape[0]),
+            "images": len(images),
+            "observations": int(counts.nnz),
+            "observed_points": int(np.count_nonzero(np.diff(counts.indptr))),
+            "config": config or {},
+            "stats": stats or {},
+        },
+    )
 
 
 def _map_info(bundle: Bundle) -> tuple[dict[str, int], MapMeta]:

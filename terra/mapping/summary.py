@@ -24,13 +24,13 @@ def terrain_histogram(votes: np.ndarray, terrain_classes: list[str], min_share: 
 
 def map_summary(bundle: Bundle) -> dict[str, Any]:
     """Counts, terrain histogram, skipped-frame counters and bytes per component of `bundle`."""
-    manifest = bundle.manifest
+    manifest = bundle.model
     out: dict[str, Any] = {
         "path": str(bundle.path),
-        "written_by": manifest.get("written_by"),
-        "schema_version": manifest.get("schema_version"),
-        "embedder": manifest.get("embedder"),
-        "terrain_classes": manifest.get("terrain_classes", []),
+        "written_by": manifest.written_by,
+        "schema_version": manifest.schema_version,
+        "embedder": manifest.embedder.model_dump(mode="json") if manifest.embedder is not None else None,
+        "terrain_classes": list(manifest.terrain_classes),
         "bytes": bundle.component_bytes(),
     }
     info = bundle.model.components.map

@@ -10,6 +10,10 @@ CLIP crops and CLIP whole-image embeddings slot in behind the same names):
 
 `Perception` composes them. Every output embedding is a float32 unit row of the embedder's space,
 whose name and dimension every map records.
+
+A part that meets an image it cannot perceive by design (the labels backend and an image without
+label images) raises `PerceptionSkip`: the mapper skips that image and counts it. Any other
+exception is a failure, and stops the run.
 """
 
 from __future__ import annotations
@@ -21,6 +25,10 @@ import numpy as np
 
 from terra.datasets.base import CameraFrame, Frame
 from terra.perception.masks import MaskSet
+
+
+class PerceptionSkip(Exception):
+    """This image cannot be perceived, skip it: its message says why (one line, naming the image)."""
 
 
 @runtime_checkable

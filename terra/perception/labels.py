@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame
-from terra.perception.base import Perception, PointPerception
+from terra.perception.base import Perception, PerceptionSkip, PointPerception
 from terra.perception.config import PerceptionConfig
 from terra.perception.masks import MaskSet
 from terra.perception.noise import PerceptionNoise
@@ -166,7 +166,7 @@ class LabelPointLabeler:
 
 def _semantic(camera: CameraFrame) -> np.ndarray:
     if camera.semantic is None:
-        raise ValueError(
+        raise PerceptionSkip(
             f"camera image {camera.name or camera.calibration.name!r} has no semantic labels "
             "(the labels backend needs them)"
         )

@@ -200,3 +200,39 @@ def get_text_embedder(name: str = DEFAULT_TEXT_EMBEDDER) -> TextEmbedder:
 # lru_cache keys get_text_embedder() and get_text_embedder(DEFAULT) apart, so the cache sits on
 # the inner loader; `get_text_embedder.cache_clear()` keeps working for register_text_embedder.
 get_text_embedder.cache_clear = _load_text_embedder.cache_clear  # type: ignore[attr-defined]
+
+
+# ------------------------------------------------------------ the map's embedder
+def check_embedder(embedder: TextEmbedder, map_embedder: str, map_dim: int | None = None, source: str = "map") -> None:
+    """TerraError unless `embedder` is the one the map was built with (same name and dimension)."""
+    if map_embedder and embedder.name != map_embedder:
+        raise TerraError(
+            f"{source} was built with embedder {map_embedder!r} but queries would be embedded with {embedder.name!r}; "
+            f"use tasks.embedder: {map_embedder} (or rebuild the map)"
+        )
+    if map_dim is not None and int(embedder.dim) != int(map_dim):
+        raise TerraError(
+            f"{source} holds {map_dim}-d embeddings but embedder {embedder.name!r} gives {embedder.dim}-d vectors"
+        )
+
+
+def check_configured_embedder(map_embedder: str, configured: str | None, source: str = "map") -> None:
+    """TerraError when a configured embedder name differs from the map's (no model is loaded)."""
+    if configured is not None and map_embedder and configured != map_embedder:
+        raise TerraError(
+            f"{source} was built with embedder {map_embedder!r} but tasks.embedder is {configured!r}; "
+            "queries must use the map's embedder"
+        )
+
+
+def resolve_embedder(
+    map_embedder: str, map_dim: int | None = None, configured: str | None = None, source: str = "map"
+) -> TextEmbedder:
+    """The text embedder for queries: `configured` when set (it must match), else the map's."""
+    check_configured_embedder(map_embedder, configured, source)
+    name = configured or map_embedder
+    if not name:
+        raise TerraError(f"{source} records no embedder; rebuild it with `terra map`")
+    embedder = get_text_embedder(name)
+    check_embedder(embedder, map_embedder, map_dim, source)
+    return embedder

@@ -89,14 +89,14 @@ def _routes(app: FastAPI, loaded: LoadedBundle, tasks: TasksConfig, settings: Se
     @app.get("/health", summary="Bundle, embedder and sizes (also a liveness check)")
     def health() -> JSONResponse:
         graph = loaded.graph
-        components = loaded.bundle.manifest.get("components", {})
+        map_info = loaded.bundle.model.components.map
         return JSONResponse(
             {
                 "status": "ok",
                 "terra": __version__,
                 "bundle": str(loaded.path),
                 "embedder": loaded.embedder_name,
-                "points": (components.get("map") or {}).get("points", 0),
+                "points": (map_info.points if map_info is not None else None) or 0,
                 "places": len(graph.places) if graph is not None else 0,
                 "regions": [len(level) for level in graph.regions] if graph is not None else [],
             }

@@ -68,9 +68,11 @@ class CameraConfig(Section):
     @field_validator("dist")
     @classmethod
     def _dist_len(cls, v: list[float], info: ValidationInfo) -> list[float]:
+        import numpy as np
+
         from terra import lens
 
-        lens.check_coefficients(info.data.get("model", lens.PINHOLE), v)
+        lens.check_coefficients(info.data.get("model", lens.PINHOLE), np.asarray(v, dtype=np.float64))
         return v
 
     @field_validator("name")
@@ -86,9 +88,11 @@ class CameraConfig(Section):
         cy = (self.height - 1) / 2 if self.cy is None else self.cy
         if not (0.0 <= cx < self.width and 0.0 <= cy < self.height):
             raise ValueError(f"principal point ({cx}, {cy}) must lie inside the {self.width}x{self.height} image")
+        import numpy as np
+
         from terra import lens
 
-        if self.model != lens.PINHOLE or lens.has_distortion(self.dist):
+        if self.model != lens.PINHOLE or lens.has_distortion(np.asarray(self.dist, dtype=np.float64)):
             _check_distortion_invertible(self.dist, self.model, self.width, self.height, self.fx, self.fy, cx, cy)
         return self
 
@@ -110,7 +114,9 @@ def _check_distortion_invertible(
     steps = np.linspace(0.0, 1.0, 65)[1:]
     lines = (ends[:, None, :] * steps[None, :, None]).reshape(-1, 2)  # rays out from the principal point
     with np.errstate(all="ignore"):
-        radius = np.hypot(*lens.undistort(lines, dist, model).T).reshape(len(ends), len(steps))
+        radius = np.hypot(*lens.undistort(lines, np.asarray(dist, dtype=np.float64), model).T).reshape(
+            len(ends), len(steps)
+        )
     if not (np.all(np.isfinite(radius)) and np.all(np.diff(radius, axis=1) > 0)):
         raise ValueError(
             f"distortion {list(dist)} cannot be inverted over the {width}x{height} image "

@@ -15,6 +15,7 @@ from terra.tasks.config import TasksConfig, alpha_for
 from terra.tasks.monitoring import monitor_region
 from terra.tasks.planning import (
     CostGraph,
+    CostGraphs,
     PathPlan,
     TerrainCosts,
     approach_place,
@@ -28,6 +29,31 @@ from terra.tasks.results import FindResult, MonitorResults, PlanEnd, PlanResult
 
 if TYPE_CHECKING:  # retrieval (SciPy, shapely) is imported by the queries that find objects
     from terra.tasks.retrieval import FoundObject
+    from terra.tasks.scoring import PointScorer
+
+
+# ------------------------------------------------------------ query state kept on the bundle
+
+
+def point_scorer(loaded: LoadedBundle) -> PointScorer:
+    """Per-point cosine scoring of the bundle's map (float32 counts, MS-Avg norms, MS-Max ids),
+    built once per loaded bundle."""
+    from terra.tasks.scoring import PointScorer
+
+    return loaded.derived("tasks.point_scorer", lambda: PointScorer(loaded.msm))
+
+
+def cost_graph_of(loaded: LoadedBundle, costs: TerrainCosts) -> CostGraph:
+    """The places graph under `costs`, built once per set of preferences and scene graph version."""
+    graph = loaded.require_graph("planning")
+    return loaded.derived("tasks.cost_graphs", CostGraphs, of_graph=True).get(graph, costs)
+
+
+def warm(loaded: LoadedBundle) -> None:
+    """Load everything a query may need now (a service does this before it listens)."""
+    if loaded.has_map:
+        _ = point_scorer(loaded).max_ids  # the map and its per-point data
+    loaded.warm()
 
 
 def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksConfig:
@@ -57,7 +83,7 @@ def _find_objects(
         alpha=alpha,
         config=config,
         embedder=loaded.embedder,
-        scorer=loaded.scorer,
+        scorer=point_scorer(loaded),
     )
 
 
@@ -119,7 +145,7 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     costs = TerrainCosts.from_preferences(
         graph.terrain_classes, request.prefer, request.penalty, request.forbid, config.planning.default_penalty
     )
-    cost_graph = loaded.cost_graph(costs)
+    cost_graph = cost_graph_of(loaded, costs)
     object_queries = (
         clean_queries([q for q in (request.to, request.from_query) if q is not None])
         if (request.to is not None or request.from_query is not None)

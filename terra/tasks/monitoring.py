@@ -23,7 +23,7 @@ import numpy as np
 
 from terra.errors import TerraError
 from terra.graph.scene_graph import SceneGraph
-from terra.perception.text import TextEmbedder
+from terra.perception.text import TextEmbedder, check_embedder, resolve_embedder
 from terra.tasks.aib import aib_clusters, task_relevance
 from terra.tasks.config import MonitoringConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import (
@@ -33,7 +33,7 @@ from terra.tasks.hierarchy import (
     ranked_regions,
     region_similarities,
 )
-from terra.tasks.queries import check_embedder, clean_queries, embed_query, resolve_embedder
+from terra.tasks.queries import clean_queries, embed_query
 
 METHODS = ("mix", "max", "thresh", "aib")
 

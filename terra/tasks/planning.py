@@ -25,6 +25,8 @@ candidate fails.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -135,6 +137,45 @@ class CostGraph:
         present = np.unique(terrain[allowed]) if n else np.zeros(0, dtype=np.int64)
         min_factor = 1.0 + float(costs.penalty[present].min()) if present.size else 1.0
         return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed, min_factor=min_factor)
+
+
+COST_GRAPHS = 16  # cost graphs kept per scene graph (one per set of terrain preferences)
+
+
+class CostGraphs:
+    """The cost graphs of one scene graph under the sets of terrain preferences asked for lately
+    (the last COST_GRAPHS), safe to share between threads. A cost graph asked for a second time
+    gets A*'s adjacency lists prepared: from then on it is worth them."""
+
+    def __init__(self) -> None:
+        self._graphs: OrderedDict[tuple, CostGraph] = OrderedDict()
+        self._searched: set[tuple] = set()  # cost graphs fetched more than once
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self._graphs)
+
+    def get(self, graph: SceneGraph, costs: TerrainCosts) -> CostGraph:
+        key = (id(graph), costs.penalty.tobytes(), costs.forbidden.tobytes())
+        with self._lock:
+            cached = self._graphs.get(key)
+            reused = False
+            if cached is not None:
+                self._graphs.move_to_end(key)
+                reused = key in self._searched
+                self._searched.add(key)
+        if cached is not None:
+            if not reused:
+                from terra.tasks.astar import prepare_adjacency
+
+                prepare_adjacency(cached.indptr, cached.indices, cached.cost)
+            return cached
+        built = CostGraph.build(graph, costs)
+        with self._lock:
+            self._graphs[key] = built
+            while len(self._graphs) > COST_GRAPHS:
+                self._searched.discard(self._graphs.popitem(last=False)[0])
+        return built
 
 
 @dataclass

@@ -10,17 +10,18 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
+from terra.schemas import Strict
 from terra.tasks.config import MonitorMethod, RetrievalMethod
 
 PointFeature = Literal["avg", "max"]
 
 
-class TaskRequest(BaseModel):
+class TaskRequest(Strict):
     """Base of the requests: unknown keys are errors, instances are immutable."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
+    model_config = ConfigDict(frozen=True, populate_by_name=True)
 
 
 class FindRequest(TaskRequest):

@@ -25,7 +25,7 @@ import numpy as np
 from terra.errors import TerraError
 from terra.graph.scene_graph import Objects, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.perception.text import TextEmbedder
+from terra.perception.text import TextEmbedder, check_embedder, resolve_embedder
 from terra.tasks.boxes import fit_object_boxes
 from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.dbscan import dbscan_labels
@@ -39,7 +39,7 @@ from terra.tasks.hierarchy import (
 from terra.tasks.instances import split_instances
 from terra.tasks.neighbours import nearest
 from terra.tasks.object_context import ground_under, strip_directions
-from terra.tasks.queries import check_embedder, clean_queries, embed_queries, resolve_embedder
+from terra.tasks.queries import clean_queries, embed_queries
 from terra.tasks.scoring import PointScorer
 from terra.tasks.standing import standing_groups
 

@@ -23,10 +23,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 
 from terra.config import validation_message
 from terra.errors import TerraError
+from terra.schemas import Strict
 
 OBJECT_METHODS = {
     "ms_avg": ("ms-avg", None),
@@ -45,17 +46,13 @@ COMMAND_KEYS = {
 }
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-class TaskItem(_Strict):
+class TaskItem(Strict):
     task: str
     label: str | int | None = None
     place_nodes: list[int] | None = None
 
 
-class TerrainPreferences(_Strict):
+class TerrainPreferences(Strict):
     preferred: list[int | str] = Field(default_factory=list)
     forbidden: list[int | str] = Field(default_factory=list)
     penalties: dict[int | str, float] = Field(default_factory=dict)
@@ -71,12 +68,12 @@ class TerrainPreferences(_Strict):
         return {} if value is None else value
 
 
-class PlanQueries(_Strict):
+class PlanQueries(Strict):
     start: int | str | None = None
     destination: int | str | None = None
 
 
-class TaskFile(_Strict):
+class TaskFile(Strict):
     terra: str | None = None
     alpha: float | None = None
     k: int | None = Field(default=None, ge=1)

@@ -298,6 +298,8 @@ class TerraViewer:
 
     def recolour(self) -> None:
         """Colour the drawn points by the selected mode."""
+        from terra.tasks.commands import point_scorer
+
         mode = self.colour_mode.value
         if mode == "terrain":
             self.points.colors = scene.terrain_point_colours(self.msm, self.rows)
@@ -305,7 +307,7 @@ class TerraViewer:
         elif mode == "MS-Max class":
             names, class_of_bank = self._bank_classes()
             palette = scene.class_palette(len(names))
-            max_ids = self.loaded.scorer.max_ids[self.rows]
+            max_ids = point_scorer(self.loaded).max_ids[self.rows]
             self.points.colors = scene.class_point_colours(max_ids, class_of_bank, palette)
             shown = np.unique(class_of_bank[max_ids[max_ids >= 0]])
             self.legend.content = _legend_html(
@@ -317,8 +319,8 @@ class TerraViewer:
                 self.legend.content = "Type a text in <i>similar to</i>."
                 return
             vector = self.loaded.embedder.embed_text([text])
-            sim = self.loaded.scorer.similarity(vector, "avg", rows=self.rows)[:, 0]
-            colours, (lo, hi) = scene.similarity_colours(sim, self.loaded.scorer.max_ids[self.rows] >= 0)
+            sim = point_scorer(self.loaded).similarity(vector, "avg", rows=self.rows)[:, 0]
+            colours, (lo, hi) = scene.similarity_colours(sim, point_scorer(self.loaded).max_ids[self.rows] >= 0)
             self.points.colors = colours
             self.legend.content = f"cosine to “{_escape(text)}”: {lo:.2f} (dark) … {hi:.2f} (yellow); grey: unobserved"
 

@@ -11,7 +11,7 @@ from terra.errors import TerraError
 
 def _write(path, points):
     with BundleWriter(path) as w:
-        w.manifest["components"] = {"map": {"points": len(points)}}
+        w.set_component("map", {"points": len(points)})
         w.put_array("map/points", points)
         w.put_json("map/meta.json", {"voxel_size": 0.4})
     return Bundle(path)
@@ -25,7 +25,7 @@ def test_roundtrip_and_manifest(tmp_path):
     assert b.has("map/points") and not b.has("graph/nodes")
     b.verify()
     sizes = b.component_bytes()
-    assert sizes["map"] == sum(e["bytes"] for e in b.files.values())
+    assert sizes["map"] == sum(e.bytes for e in b.files.values())
 
 
 def test_same_content_same_bytes(tmp_path):
@@ -49,7 +49,7 @@ def test_failed_write_leaves_previous_bundle_untouched(tmp_path):
 def test_add_component_keeps_base_and_drop_removes(tmp_path):
     b = _write(tmp_path / "b", np.ones((3, 3), dtype=np.float32))
     with BundleWriter(b.path, base=b) as w:
-        w.manifest.setdefault("components", {})["graph"] = {"places": 2}
+        w.set_component("graph", {"places": 2})
         w.put_array("graph/x", np.arange(2))
     b2 = Bundle(tmp_path / "b")
     assert b2.has("map/points") and b2.has("graph/x")

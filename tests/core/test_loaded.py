@@ -12,6 +12,7 @@ from terra.bundle import BundleWriter
 from terra.loaded import LoadedBundle
 from terra.mapping.semantic_map import ms_avg_norms, ms_max_ids
 from terra.tasks.commands import find, plan
+from terra.tasks.planning import CostGraphs
 from terra.tasks.requests import FindRequest, PlanRequest
 from tests.tasks.test_tasks_synthetic import dumpster_lot
 
@@ -58,7 +59,7 @@ def test_a_mis_shaped_stored_array_is_refused(lot, tmp_path):
     with BundleWriter(bad, base=Bundle(lot)) as w:
         w.put_array("map/ms_avg_norm", np.zeros(3, dtype=np.float32))
     with pytest.raises(TerraError, match=r"ms_avg_norm.npy: array of shape \(3,\), expected float32"):
-        LoadedBundle(bad).msm
+        _ = LoadedBundle(bad).msm
 
 
 def test_loads_only_what_a_query_needs_and_caches_cost_graphs(lot):
@@ -66,9 +67,10 @@ def test_loads_only_what_a_query_needs_and_caches_cost_graphs(lot):
     first = plan(loaded, PlanRequest(to_node=0, from_node=63, forbid=["asphalt"]))
     assert loaded._msm is None and loaded._embedder is None  # a plan between places needs neither
     again = plan(loaded, PlanRequest(to_node=0, from_node=63, forbid=["asphalt"]))
-    assert len(loaded._cost_graphs) == 1 and again.to_json() == first.to_json()
+    cost_graphs = loaded.derived("tasks.cost_graphs", CostGraphs)
+    assert len(cost_graphs) == 1 and again.to_json() == first.to_json()
     plan(loaded, PlanRequest(to_node=0, from_node=63))
-    assert len(loaded._cost_graphs) == 2
+    assert len(cost_graphs) == 2
 
 
 def test_update_graph_is_atomic_and_seen_by_later_queries(lot):
@@ -77,8 +79,9 @@ def test_update_graph_is_atomic_and_seen_by_later_queries(lot):
 
     loaded = LoadedBundle(lot)
     result = find(loaded, FindRequest(queries=["find the dumpster"], alpha=0.4, save=True))
-    assert result.saved and len(loaded.graph.objects) == len(result.objects) == 2
+    graph = loaded.require_graph("this test")
+    assert result.saved and len(graph.objects) == len(result.objects) == 2
     Bundle(lot).verify()
-    assert load_scene_graph(Bundle(lot)).objects.label == loaded.graph.objects.label
+    assert load_scene_graph(Bundle(lot)).objects.label == graph.objects.label
     manifest = json.loads((lot / "manifest.json").read_text())
     assert manifest["components"]["graph"]["objects"] == 2

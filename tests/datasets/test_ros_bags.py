@@ -122,7 +122,7 @@ def test_map_from_the_bag_equals_the_map_from_the_folder(sim_sources, tmp_path):
         )
         bundles[fmt] = Bundle(tmp_path / f"{fmt}.terra")
     folder, bag = bundles["terra-folder"], bundles["rosbag2"]
-    differ = sorted(n for n, e in folder.files.items() if bag.files[n]["sha256"] != e["sha256"])
+    differ = sorted(n for n, e in folder.files.items() if bag.files[n].sha256 != e.sha256)
     assert differ == ["map/images/T_map_cam.npy"]
     np.testing.assert_allclose(folder.array("map/images/T_map_cam"), bag.array("map/images/T_map_cam"), atol=1e-12)
     meta_f, meta_b = folder.json("map/meta.json"), bag.json("map/meta.json")

@@ -187,7 +187,7 @@ def test_a_map_without_images_falls_back_to_points_and_says_so(tiny_bundle, tmp_
     writer.put_array("map/images/embedding", np.zeros((0, dim), np.float16))
     for name in ("map/visibility/cells", "map/visibility/indptr", "map/visibility/images"):
         writer.remove(name)
-    writer.manifest["components"]["map"]["images"] = 0  # the manifest's counts must match the arrays
+    writer.update_component("map", images=0)  # the manifest's counts must match the arrays
     writer.commit()
     graph = build_graph(path, progress=False)
     stats = Bundle(path).manifest["components"]["graph"]["stats"]

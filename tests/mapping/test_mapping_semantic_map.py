@@ -80,7 +80,7 @@ def test_embedder_is_recorded_and_a_mismatched_dimension_is_refused(tmp_path):
     msm = random_map(np.random.default_rng(3))
     writer = BundleWriter(tmp_path / "m.terra")
     write_map(writer, msm)
-    writer.manifest["embedder"]["dim"] = 4  # the arrays hold 5-d rows
+    writer.set_embedder(msm.embedder, 4)  # the arrays hold 5-d rows
     bundle = writer.commit()
     with pytest.raises(
         TerraError, match=r"map/bank.npy: array of shape \(7, 5\), expected float16 \(7, 4\).*embedder's dimension"

@@ -218,7 +218,7 @@ def test_terra_map_on_the_tiny_campus_with_tiny_models(tiny_models, tmp_path, ca
         msm.terrain_embeddings, get_perception(_config(tiny_models), SIM_CLASSES).terrain_embeddings(), atol=1e-6
     )
     # Queries resolve the map's embedder by its name in this process.
-    from terra.tasks.queries import resolve_embedder
+    from terra.perception.text import resolve_embedder
 
     assert resolve_embedder(name, 16).name == name
 

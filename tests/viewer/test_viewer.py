@@ -12,7 +12,7 @@ import pytest
 from terra.cli import run
 from terra.graph.storage import load_scene_graph
 from terra.loaded import LoadedBundle
-from terra.tasks.commands import find, plan
+from terra.tasks.commands import find, plan, point_scorer
 from terra.tasks.requests import FindRequest, PlanRequest
 from terra.viewer import scene
 from terra.viewer.browser import browser_missing
@@ -84,7 +84,7 @@ def test_viewer_queries_equal_the_task_api_on_a_fresh_load(viewer, interop_bundl
 def test_colour_modes_colour_the_drawn_points(viewer):
     viewer.colour_mode.value = "MS-Max class"
     viewer.recolour()
-    ids = viewer.loaded.scorer.max_ids[viewer.rows]
+    ids = point_scorer(viewer.loaded).max_ids[viewer.rows]
     colours = np.asarray(viewer.points.colors)
     assert (colours[ids < 0] == scene.UNOBSERVED).all() and not (colours[ids >= 0] == scene.UNOBSERVED).all(
         axis=1

@@ -48,8 +48,8 @@ def memory_summary(bundle: Bundle, area_m2: float) -> dict:
     components = dict(sorted(bundle.component_bytes().items()))
     total = int(sum(components.values()))
     parts: dict[str, int] = {}
-    for name, entry in bundle.manifest.get("files", {}).items():
-        parts[part_of(name)] = parts.get(part_of(name), 0) + int(entry.get("bytes", 0))
+    for name, entry in bundle.files.items():
+        parts[part_of(name)] = parts.get(part_of(name), 0) + entry.bytes
     parts["other"] = parts.get("other", 0) + max(total - sum(parts.values()), 0)  # the manifest itself
     return {
         "components_bytes": components,
