@@ -1,5 +1,6 @@
-"""Text renderings of the typed task results for `terra find/monitor/plan/node` (their `--json`
-is the result's `to_json()`, the same JSON `terra serve` answers with)."""
+"""Text renderings of the typed results of every command: the stages (`terra map/build/eval/sim/
+import/export`) and the task queries (`terra find/monitor/plan/node`). Their `--json` is the
+result's `to_json()` (for the queries, the same JSON `terra serve` answers with)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,62 @@ from typing import TYPE_CHECKING, Any
 from terra.words import counted
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
+    from terra.graph.results import BuildResult
     from terra.tasks.lookup import Location, NodeInfo
     from terra.tasks.results import FindResult, MonitorResults, PlanResult
 
 
 def render_json(result: Any) -> str:
     return json.dumps(result.to_json(), indent=1)
+
+
+def render_stage_json(result: Any) -> str:
+    """A stage's `--json`: its result's `to_json()`, keys sorted."""
+    return json.dumps(result.to_json(), indent=1, sort_keys=True)
+
+
+# ------------------------------------------------------------------------------------ the stages
+def render_build(result: BuildResult) -> str:
+    """The summary `terra build` prints: places, edges, regions, embeddings, grid, timings."""
+    stats, edges, src = result.stats, result.stats.edges, result.stats.embedding_source
+    per_terrain = ", ".join(f"{k} {v}" for k, v in stats.places_per_terrain.items())
+    lines = [
+        f"graph: {counted(result.places, 'place')} ({per_terrain}) -> {result.bundle}",
+        f"  place edges: {result.place_edges} (gvd {edges.gvd}, cross-terrain {edges.cross_terrain}, "
+        f"bridge {edges.bridge})",
+        f"  regions ({result.region_method}): " + " / ".join(str(n) for n in result.regions_per_level) + " per level",
+        f"  place embeddings: {src.images} from images, {src.points} from points, "
+        f"{src.terrain_text} from the terrain name",
+    ]
+    if src.images == 0 and src.points:
+        lines.append("  (the map has no images: place embeddings come from the map points instead)")
+    cells = stats.grid_cells
+    lines.append(
+        f"  terrain grid: {cells[0]} x {cells[1]} cells, computed {_grid_where(result)}; GVD {_gvd_where(result)}"
+    )
+    if result.timer is not None:
+        lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def _grid_where(result: BuildResult) -> str:
+    tiles = result.stats.grid_tiles
+    if tiles is None:
+        return "in one piece"
+    if tiles.one_piece:
+        return f"in one piece ({tiles.one_piece})"
+    size = f"{result.tile_size_m:g} m " if result.tile_size_m is not None else ""
+    return f"in {size}tiles ({tiles.windows} windows, overlap up to {tiles.max_overlap_m:g} m)"
+
+
+def _gvd_where(result: BuildResult) -> str:
+    tiles = result.stats.gvd_tiles
+    if tiles is None:
+        return "in one piece"
+    return f"in tiles ({tiles.windows} windows, overlap up to {tiles.max_overlap_m:g} m)"
+
+
+# ------------------------------------------------------------------------------------ the tasks
 
 
 def render_find(result: FindResult) -> str:
