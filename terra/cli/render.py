@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from terra.words import counted
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
     from terra.graph.results import BuildResult
+    from terra.interop.results import ExportResult, ImportResult
+    from terra.mapping.results import ClusterSummary, MapResult, OdometrySummary, PerceptionResult
     from terra.tasks.lookup import Location, NodeInfo
     from terra.tasks.results import FindResult, MonitorResults, PlanResult
 
@@ -64,6 +67,102 @@ def _gvd_where(result: BuildResult) -> str:
     if tiles is None:
         return "in one piece"
     return f"in tiles ({tiles.windows} windows, overlap up to {tiles.max_overlap_m:g} m)"
+
+
+def render_map(result: MapResult | PerceptionResult) -> str:
+    """The summary `terra map` prints (a map written, or with --perception-only the cache filled)."""
+    from terra.mapping.results import PerceptionResult
+
+    if isinstance(result, PerceptionResult):
+        return _render_perception(result)
+    counts, lines = result.counts, []
+    if result.resumed_from:
+        lines.append(f"resumed after frame {result.resumed_from}")
+    lines.append(
+        f"map: {counted(counts.points, 'point')} ({counts.observed_points} with object observations), "
+        f"{counted(counts.bank, 'bank entry', 'bank entries')}, {counted(counts.images, 'image')} "
+        f"-> {result.bundle}"
+    )
+    if result.cluster is not None:
+        lines.append(_cluster_line(result.cluster))
+    if result.cache is not None:
+        cache = result.cache
+        where = "removed: the config keeps no cache" if cache.removed else cache.folder
+        lines.append(f"perception cache: {counted(cache.hits, 'image')} read back, {cache.computed} computed ({where})")
+    if result.pose_source:
+        lines.append(f"  poses: {result.pose_source}")
+    lines += _fault_lines(result.stats, result.notes)
+    if result.odometry is not None:
+        lines.append(_odometry_line(result.odometry))
+    if result.timer is not None:
+        lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def _render_perception(result: PerceptionResult) -> str:
+    lines = [] if result.cluster is None else [_cluster_line(result.cluster)]
+    lines.append(
+        f"perception cache: {counted(result.images, 'image')} of {counted(result.frames, 'frame')}, "
+        f"{result.hits} already cached, "
+        f"{result.computed} computed -> {result.folder}"
+    )
+    lines += _fault_lines(result.stats, result.notes)
+    if result.timer is not None:
+        lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def _cluster_line(cluster: ClusterSummary) -> str:
+    return (
+        f"perception on {cluster.cluster}: {counted(cluster.frames, 'frame')} by "
+        f"{counted(cluster.workers_used, 'worker')} (up to {cluster.in_flight} in flight), "
+        f"{counted(cluster.computed, 'image')} computed, {cluster.hits} read back, "
+        f"{cluster.seconds:.1f} s of worker time"
+    )
+
+
+def _fault_lines(stats: dict[str, int], notes: dict[str, str]) -> list[str]:
+    """One line per fault counter that counted something (skipped frames or images, dropped points)."""
+    faults = {k: v for k, v in stats.items() if ("skipped" in k or "dropped_nonfinite" in k) and v}
+    return [
+        f"  {name}: {count}" + (f" (first: {notes[name]})" if notes.get(name) else "") for name, count in faults.items()
+    ]
+
+
+def _odometry_line(odometry: OdometrySummary) -> str:
+    kitti, tum = odometry.trajectory
+    line = (
+        f"odometry: KISS-ICP over {counted(odometry.scans, 'scan')} ({odometry.scans_per_second:.1f} scans/s, "
+        f"{odometry.deskewed} deskewed), trajectory -> {kitti}, {tum.name}"
+    )
+    if odometry.errors:
+        e = odometry.errors
+        line += (
+            f"\n  vs the source's poses: ATE {e['ate_rmse_m']:.3f} m RMSE, final error {e['final_error_m']:.3f} m "
+            f"= {e['drift_percent']:.2f} % of {e['distance_m']:.1f} m travelled"
+        )
+    return line
+
+
+def render_import(result: ImportResult, folder: Path) -> str:
+    """The summary `terra import` prints for the reference folder `folder`."""
+    return "\n".join(
+        [
+            f"imported {folder} (itr {result.itr}) -> {result.bundle}: {counted(result.points, 'point')}, "
+            f"{result.observed_points} with "
+            f"object observations, bank {result.bank}, {counted(result.images, 'image')}, "
+            f"embedder {result.embedder}",
+            f"  terrain classes: {', '.join(result.terrain_classes)}",
+            "  image positions: "
+            + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in result.image_positions.items())
+            + " (orientation unknown)",
+        ]
+    )
+
+
+def render_export(result: ExportResult) -> str:
+    """The line `terra export` prints: format, output and what it holds."""
+    return f"{result.format} -> {result.out} (" + ", ".join(f"{k} {v}" for k, v in result.details.items()) + ")"
 
 
 # ------------------------------------------------------------------------------------ the tasks
