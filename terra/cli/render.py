@@ -15,6 +15,7 @@ if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this 
     from terra.graph.results import BuildResult
     from terra.interop.results import ExportResult, ImportResult
     from terra.mapping.results import ClusterSummary, MapResult, OdometrySummary, PerceptionResult
+    from terra.sim.results import SimResult
     from terra.tasks.lookup import Location, NodeInfo
     from terra.tasks.results import FindResult, MonitorResults, PlanResult
 
@@ -163,6 +164,14 @@ def render_import(result: ImportResult, folder: Path) -> str:
 def render_export(result: ExportResult) -> str:
     """The line `terra export` prints: format, output and what it holds."""
     return f"{result.format} -> {result.out} (" + ", ".join(f"{k} {v}" for k, v in result.details.items()) + ")"
+
+
+def render_sim(result: SimResult) -> str:
+    """The line `terra sim` prints (its timing table goes to stderr)."""
+    return (
+        f"wrote {result.folder} ({result.format}): {counted(result.frames, 'frame')}, "
+        f"{counted(result.objects, 'object')}, {result.regions} named regions, picture {result.picture}"
+    )
 
 
 # ------------------------------------------------------------------------------------ the tasks
