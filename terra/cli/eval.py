@@ -4,15 +4,16 @@ simulated dataset's ground truth, `--tune` to choose alpha and k on a validation
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from terra.cli import app
 from terra.errors import TerraError
-from terra.words import counted
+
+if TYPE_CHECKING:  # every cli module is imported for `terra --help`: the evaluation loads on use
+    from terra.eval.results import EvalResult, TerrainTable, TuneResult
 
 EVAL_HELP = """Score a bundle against ground truth (Tables I-III).
 
@@ -153,6 +154,7 @@ def _tune(bundle, gt, out: Path, eval_cfg, tasks_cfg, timer, as_json: bool, quie
     from terra.cli.interrupts import on_interrupt
     from terra.cli.outputs import refuse_existing
     from terra.eval.inputs import EvalInputs
+    from terra.eval.results import TuneResult
     from terra.eval.runner import tune as tune_parameters
     from terra.eval.tuning import TUNED
 
@@ -162,17 +164,7 @@ def _tune(bundle, gt, out: Path, eval_cfg, tasks_cfg, timer, as_json: bool, quie
         inputs = EvalInputs.load(bundle, gt)
         params = tune_parameters(inputs, eval_cfg, tasks_cfg, show_progress=not quiet and not as_json)
     path = params.save(Path(out) / TUNED)
-    if as_json:
-        typer.echo(json.dumps(params.to_json(), indent=1, sort_keys=True))
-        return
-    typer.echo(f"tuned on {bundle} / {gt}:")
-    for name, p in {**params.retrieval, **params.monitoring}.items():
-        typer.echo(
-            f"  {name}: " + ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in p.items())
-        )
-    typer.echo(f"wrote {path}")
-    if not quiet:
-        typer.echo(timer.table())
+    _show(TuneResult(params, path, Path(bundle), Path(gt), timer), as_json, quiet)
 
 
 def _report(
@@ -181,7 +173,6 @@ def _report(
     """The evaluation report in OUT and its headline."""
     from terra.cli.interrupts import on_interrupt
     from terra.cli.outputs import refuse_existing
-    from terra.eval.report import headline
     from terra.eval.runner import evaluate
     from terra.eval.tuning import TunedParameters
 
@@ -189,16 +180,20 @@ def _report(
     refuse_existing(Path(out), overwrite)
     on_interrupt(f"no report was written ({out} is unchanged); run the same command again")
     show = not quiet and not as_json
-    summary = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=show, timer=timer)
+    result = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=show, timer=timer)
+    _show(result, as_json, quiet)
+
+
+def _show(result: EvalResult | TuneResult | TerrainTable, as_json: bool, quiet: bool) -> None:
+    """The result as JSON, or its text summary with the timing table unless --quiet."""
+    from terra.cli.render import render_eval, render_stage_json
+
     if as_json:
-        typer.echo(json.dumps(summary, indent=1, sort_keys=True))
+        typer.echo(render_stage_json(result))
         return
-    typer.echo(f"evaluation of {bundle} against {gt} (parameters: {summary['parameters']['source']}):")
-    for line in headline(summary):
-        typer.echo(line)
-    typer.echo(f"report: {Path(out) / 'report.md'}")
-    if not quiet:
-        typer.echo(timer.table())
+    typer.echo(render_eval(result))
+    if not quiet and result.timer is not None:
+        typer.echo(result.timer.table())
 
 
 def _terrain_only(
@@ -207,6 +202,7 @@ def _terrain_only(
     """Table I of each configured terrain segmenter on the labelled images of a dataset."""
     from terra.config import load_section
     from terra.datasets import open_dataset
+    from terra.eval.results import TerrainTable
     from terra.eval.segmentation import terrain_table
     from terra.perception.registry import get_terrain_segmenter
     from terra.progress import StageTimer
@@ -222,27 +218,6 @@ def _terrain_only(
             segmenters[label] = (get_terrain_segmenter(perception, dataset.classes), perception.noise.seed)
     with timer.stage("segmentation"):
         table = terrain_table(dataset, segmenters, limit, show_progress=not quiet)
-    if as_json:
-        typer.echo(json.dumps(table, indent=1, sort_keys=True))
-        return
-    for line in _terrain_lines(table):
-        typer.echo(line)
-    if not quiet:
-        typer.echo(timer.table())
-
-
-def _terrain_lines(table: dict) -> list[str]:
-    """Table I as aligned text: one row per method, then per-class IoU."""
-    methods = table["methods"]
-    width = max([len(m) for m in methods] + [6])
-    lines = [
-        f"terrain segmentation of {table['dataset']} ({counted(table['images'], 'labelled image')}):",
-        f"  {'method':<{width}}  {'mIoU':>6}  {'F-mIoU':>6}  {'F1':>6}  {'FPS':>7}",
-    ]
-    for name, s in methods.items():
-        fps = "-" if s["fps"] is None else f"{s['fps']:.1f}"  # a label lookup has no frame rate
-        lines.append(f"  {name:<{width}}  {s['miou']:>6.3f}  {s['fw_miou']:>6.3f}  {s['f1']:>6.3f}  {fps:>7}")
-    for name, s in methods.items():
-        per_class = ", ".join(f"{c} {'-' if v is None else f'{v:.3f}'}" for c, v in zip(s["classes"], s["iou"]))
-        lines.append(f"  IoU per class, {name}: {per_class}")
-    return lines
+    result = TerrainTable.from_json(table)
+    result.timer = timer
+    _show(result, as_json, quiet)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from terra.words import counted
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
+    from terra.eval.results import EvalResult, TerrainTable, TuneResult
     from terra.graph.results import BuildResult
     from terra.interop.results import ExportResult, ImportResult
     from terra.mapping.results import ClusterSummary, MapResult, OdometrySummary, PerceptionResult
@@ -172,6 +173,47 @@ def render_sim(result: SimResult) -> str:
         f"wrote {result.folder} ({result.format}): {counted(result.frames, 'frame')}, "
         f"{counted(result.objects, 'object')}, {result.regions} named regions, picture {result.picture}"
     )
+
+
+def render_eval(result: EvalResult | TuneResult | TerrainTable) -> str:
+    """What `terra eval` prints: the report's headline, the tuned parameters (--tune) or Table I
+    (--terrain-only); the timing table is the command's."""
+    from terra.eval.results import EvalResult, TerrainTable
+
+    if isinstance(result, TerrainTable):
+        return "\n".join(_terrain_lines(result))
+    if isinstance(result, EvalResult):
+        from terra.eval.report import headline
+
+        lines = [f"evaluation of {result.bundle} against {result.gt} (parameters: {result.parameter_source}):"]
+        lines += headline(result.summary())
+        lines.append(f"report: {Path(result.report or '.') / 'report.md'}")
+        return "\n".join(lines)
+    params = result.params
+    lines = [f"tuned on {result.bundle} / {result.gt}:"]
+    for name, p in {**params.retrieval, **params.monitoring}.items():
+        lines.append(
+            f"  {name}: " + ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in p.items())
+        )
+    lines.append(f"wrote {result.path}")
+    return "\n".join(lines)
+
+
+def _terrain_lines(table: TerrainTable) -> list[str]:
+    """Table I as aligned text: one row per method, then per-class IoU."""
+    methods = table.methods
+    width = max([len(m) for m in methods] + [6])
+    lines = [
+        f"terrain segmentation of {table.dataset} ({counted(table.images, 'labelled image')}):",
+        f"  {'method':<{width}}  {'mIoU':>6}  {'F-mIoU':>6}  {'F1':>6}  {'FPS':>7}",
+    ]
+    for name, s in methods.items():
+        fps = "-" if s.fps is None else f"{s.fps:.1f}"  # a label lookup has no frame rate
+        lines.append(f"  {name:<{width}}  {s.miou:>6.3f}  {s.fw_miou:>6.3f}  {s.f1:>6.3f}  {fps:>7}")
+    for name, s in methods.items():
+        per_class = ", ".join(f"{c} {'-' if v is None else f'{v:.3f}'}" for c, v in zip(s.classes, s.iou))
+        lines.append(f"  IoU per class, {name}: {per_class}")
+    return lines
 
 
 # ------------------------------------------------------------------------------------ the tasks

@@ -1,5 +1,6 @@
 """Every stage's `--json` parses back into its typed result (terra/*/results.py) and equals it:
-`terra sim`, `map`, `build`, `export` and `import` on a few frames of the tiny campus."""
+`terra sim`, `map`, `build`, `eval` (the report, --tune, --terrain-only), `export` and `import`
+on a few frames of the tiny campus."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import json
 import pytest
 
 from terra.cli import run
+from terra.eval.results import EvalResult, TerrainTable, TuneResult
 from terra.graph.results import BuildResult
 from terra.interop.results import ExportResult, ImportResult
 from terra.mapping.results import MapResult, PerceptionResult
@@ -43,6 +45,16 @@ def test_sim_map_build_export_json_round_trip(tmp_path, capsys):
     assert set(built) == {"bundle", "places", "place_edges", "regions_per_level", "region_method", "stats", "seconds"}
     assert built["stats"]["edges"]["gvd"] >= 0 and "grid_cells" in built["stats"]
     _round_trip(BuildResult, built)
+
+    report = _json(capsys, ["eval", str(bundle), "--gt", str(data), "--out", str(tmp_path / "report"), "--json"])
+    assert {"bundle", "dataset", "parameters", "retrieval", "memory", "timing"} <= set(report)
+    _round_trip(EvalResult, report)
+    tuned = _json(capsys, ["eval", str(bundle), "--gt", str(data), "--tune", "--out", str(tmp_path / "val"), "--json"])
+    assert tuned["schema"] and "retrieval" in tuned
+    _round_trip(TuneResult, tuned)
+    table = _json(capsys, ["eval", "--terrain-only", str(data), "--max-images", "4", "--json", "-q"])
+    assert table["images"] == 4 and table["methods"]
+    _round_trip(TerrainTable, table)
 
     out = tmp_path / "campus.dsg.json"
     exported = _json(capsys, ["export", str(bundle), "--format", "spark-dsg", "--out", str(out), "--json"])
