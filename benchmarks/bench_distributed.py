@@ -195,7 +195,7 @@ def client_ceiling(dataset, models: dict, work: Path) -> dict:
     out = work / "ceiling.terra"
     shutil.rmtree(out, ignore_errors=True)
     run = run_mapping(dataset, mapping_config(models, work / "map-cache"), out, show_progress=False)
-    assert run.cache["computed"] == 0
+    assert run.cache is not None and run.cache.computed == 0
     per_frame = sum(run.timer.seconds.get(s, 0.0) for s in ("load", "perception", "fusion")) / len(dataset)
     return {"client_s_per_frame": per_frame, "frames_per_s": 1.0 / per_frame, "stages": run.timer.to_json()}
 

@@ -79,7 +79,7 @@ def measure(folder: Path, config_overrides: dict) -> dict:
         "grid_links": links,
         "grid_link_seconds": link_seconds,
         "build_seconds": build_seconds,
-        "edges": build.stats["edges"],
+        "edges": build.stats.edges.to_json(),
     }
 
 

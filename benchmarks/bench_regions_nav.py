@@ -227,7 +227,7 @@ def run_config(name: str, overrides: dict, args, eval_config) -> dict:
         dataset, bundle, build_s = graph_bundle(args.cache, "small", seed, work, overrides)
         summary = evaluate(
             bundle, dataset, args.work / name / f"report-seed{seed}", eval_config, tuned, tasks, show_progress=False
-        )
+        ).summary()
         out["small"][seed] = {**test_scene(summary), **scene_extras(bundle, dataset), "build_seconds": build_s}
     out["small_paper_cuts"] = {
         "seed": seed,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import sys
+from typing import Protocol, runtime_checkable
 
 import typer
 
@@ -24,6 +25,15 @@ app = typer.Typer(
     rich_markup_mode=None,  # plain help text (terra.cli.helptext)
     context_settings={"help_option_names": ["-h", "--help"]},
 )
+
+
+@runtime_checkable
+class _ShowsItself(Protocol):
+    """A usage error of Typer's bundled click: it prints itself and carries its exit code."""
+
+    exit_code: int
+
+    def show(self) -> None: ...
 
 
 def _version(value: bool) -> None:
@@ -95,7 +105,7 @@ def run(argv: list[str] | None = None) -> int:
     except Exception as exc:
         # Usage errors (unknown command or option, missing argument) from Typer's bundled click:
         # they know how to show themselves and carry their exit code.
-        if hasattr(exc, "show") and hasattr(exc, "exit_code"):
+        if isinstance(exc, _ShowsItself):
             exc.show()
             return int(exc.exit_code)
         raise

@@ -5,50 +5,69 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from terra.cli import app
 from terra.cli.interrupts import on_interrupt
 
-
-@app.command("demo")
-def demo_command(
-    out: Path = typer.Option(
-        Path("terra-demo"),
-        "--out",
-        "-o",
-        help="Demo folder: scenes, bundles, report/ and demo.json; re-runs reuse what is there.",
+OutOpt = Annotated[
+    Path,
+    typer.Option(
+        "--out", "-o", help="Demo folder: scenes, bundles, report/ and demo.json; re-runs reuse what is there."
     ),
-    preset: str = typer.Option("small", "--preset", "-p", help="Test scene: tiny, small, campus or large."),
-    seed: int = typer.Option(
-        0, "--seed", "-s", min=0, help="Seed of the test scene; the validation scene uses seed + 1."
+]
+PresetOpt = Annotated[str, typer.Option("--preset", "-p", help="Test scene: tiny, small, campus or large.")]
+SeedOpt = Annotated[
+    int, typer.Option("--seed", "-s", min=0, help="Seed of the test scene; the validation scene uses seed + 1.")
+]
+ValidationPresetOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--validation-preset", help="Preset of the validation scene, where alpha and k are tuned (default: --preset)."
     ),
-    validation_preset: str | None = typer.Option(
-        None,
-        "--validation-preset",
-        help="Preset of the validation scene, where alpha and k are tuned (default: --preset).",
-    ),
-    validation_spacing: float = typer.Option(
-        2.0,
+]
+ValidationSpacingOpt = Annotated[
+    float,
+    typer.Option(
         "--validation-spacing",
-        help="The validation scene's frames are this many times further apart than the test scene's (cheaper; 1 = same).",
+        help="The validation scene's frames are this many times further apart than the test scene's "
+        "(cheaper; 1 = same).",
     ),
-    format: str = typer.Option(
-        "terra-folder",
+]
+FormatOpt = Annotated[
+    str,
+    typer.Option(
         "--format",
         help="How the scenes are written and read back: terra-folder, rosbag2 (a ROS 2 mcap bag) or rosbag1.",
     ),
-    config: Path | None = typer.Option(
-        None, "--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."
-    ),
-    overwrite: bool = typer.Option(
-        False, "--overwrite", help="Redo every step instead of resuming from the finished ones."
-    ),
-    as_json: bool = typer.Option(
-        False, "--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON."
-    ),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, step log or timing table."),
+]
+ConfigOpt = Annotated[
+    Path | None,
+    typer.Option("--config", "-c", help="YAML config; its sim, mapping, build, tasks and eval sections are used."),
+]
+OverwriteOpt = Annotated[
+    bool, typer.Option("--overwrite", help="Redo every step instead of resuming from the finished ones.")
+]
+JsonOpt = Annotated[
+    bool, typer.Option("--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON.")
+]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars, step log or timing table.")]
+
+
+@app.command("demo")
+def demo_command(
+    out: OutOpt = Path("terra-demo"),
+    preset: PresetOpt = "small",
+    seed: SeedOpt = 0,
+    validation_preset: ValidationPresetOpt = None,
+    validation_spacing: ValidationSpacingOpt = 2.0,
+    format: FormatOpt = "terra-folder",
+    config: ConfigOpt = None,
+    overwrite: OverwriteOpt = False,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Run the whole system on a simulated campus and write a report.
 

@@ -4,86 +4,114 @@ simulated dataset's ground truth, `--tune` to choose alpha and k on a validation
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from terra.cli import app
 from terra.errors import TerraError
-from terra.words import counted
 
+if TYPE_CHECKING:  # every cli module is imported for `terra --help`: the evaluation loads on use
+    from terra.eval.results import EvalResult, TerrainTable, TuneResult
 
-@app.command("eval")
-def eval_command(
-    bundle: Path = typer.Argument(
-        ...,
+EVAL_HELP = """Score a bundle against ground truth (Tables I-III).
+
+Evaluate BUNDLE against the ground truth of the simulated dataset --gt, like the paper's
+Tables I-III, memory and navigation figures: writes OUT/report.md, OUT/summary.json and
+OUT/figures/*.png.
+
+A KITTI raw drive with object or tracking labels (label_2/, label_02/) has objects only: its
+report gives Table II and memory, and says that terrain and region metrics are not evaluated.
+
+Choose thresholds on a validation scene (another seed), never on the test scene: run
+`terra eval val.terra --gt val-data --tune --out val-report`, then evaluate the test bundle
+with `--tuned val-report/tuned.json`. Without --tuned the tasks stage's defaults are used.
+
+With --terrain-only, BUNDLE is any labelled dataset folder and each --config's terrain
+segmenter (mapping.perception) gets a row of Table I (mIoU, F-mIoU, F1, FPS), e.g. a fine-tuned
+YOLO against YOLOE prompts.
+
+Example: terra eval campus.terra --gt campus-data --tuned val-report/tuned.json --out report
+
+Example: terra eval --terrain-only labelled-data --config yolo.yaml --config yoloe.yaml
+"""
+
+BundleArg = Annotated[
+    Path,
+    typer.Argument(
         help="Bundle with a map and a scene graph (`terra map`, `terra build`); --terrain-only: a labelled dataset.",
     ),
-    gt: Path | None = typer.Option(
-        None,
+]
+GtOpt = Annotated[
+    Path | None,
+    typer.Option(
         "--gt",
-        help="Dataset folder written by `terra sim` (its ground_truth/ is read), or a KITTI raw drive with labels (retrieval only).",
+        help="Dataset folder written by `terra sim` (its ground_truth/ is read), or a KITTI raw drive with labels "
+        "(retrieval only).",
     ),
-    out: Path | None = typer.Option(
-        None,
-        "--out",
-        "-o",
-        help="Report folder (report.md, summary.json, figures/); with --tune, where tuned.json goes.",
+]
+OutOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--out", "-o", help="Report folder (report.md, summary.json, figures/); with --tune, where tuned.json goes."
     ),
-    tuned: Path | None = typer.Option(
-        None, "--tuned", help="alpha/k chosen on a validation scene (tuned.json from `terra eval --tune`)."
-    ),
-    tune: bool = typer.Option(
-        False, "--tune", help="Grid-search alpha/k on this (validation!) bundle and write OUT/tuned.json."
-    ),
-    config: list[Path] | None = typer.Option(
-        None,
+]
+TunedOpt = Annotated[
+    Path | None,
+    typer.Option("--tuned", help="alpha/k chosen on a validation scene (tuned.json from `terra eval --tune`)."),
+]
+TuneOpt = Annotated[
+    bool, typer.Option("--tune", help="Grid-search alpha/k on this (validation!) bundle and write OUT/tuned.json.")
+]
+ConfigOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
         "--config",
         "-c",
-        help="YAML config; its `eval` and `tasks` sections are used (--terrain-only: its mapping.perception, one row each).",
+        help="YAML config; its `eval` and `tasks` sections are used (--terrain-only: its mapping.perception, "
+        "one row each).",
     ),
-    terrain_only: bool = typer.Option(
-        False,
+]
+TerrainOnlyOpt = Annotated[
+    bool,
+    typer.Option(
         "--terrain-only",
         help="Only Table I: each configured terrain segmenter on the labelled images of BUNDLE, a dataset.",
     ),
-    dataset_format: str = typer.Option(
-        "auto", "--format", help="With --terrain-only: dataset format (auto, terra-folder, semantickitti)."
+]
+FormatOpt = Annotated[
+    str, typer.Option("--format", help="With --terrain-only: dataset format (auto, terra-folder, semantickitti).")
+]
+MaxImagesOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--max-images", min=1, help="With --terrain-only: images evaluated (default: eval.segmentation.max_images)."
     ),
-    max_images: int | None = typer.Option(
-        None,
-        "--max-images",
-        min=1,
-        help="With --terrain-only: images evaluated (default: eval.segmentation.max_images).",
-    ),
-    overwrite: bool = typer.Option(
-        False, "--overwrite", help="Replace an existing report (or tuned.json with --tune)."
-    ),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary (or the tuned parameters) as JSON."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars or timing table."),
+]
+OverwriteOpt = Annotated[
+    bool, typer.Option("--overwrite", help="Replace an existing report (or tuned.json with --tune).")
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (or the tuned parameters) as JSON.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars or timing table.")]
+
+
+@app.command("eval", help=EVAL_HELP)
+def eval_command(
+    bundle: BundleArg,
+    gt: GtOpt = None,
+    out: OutOpt = None,
+    tuned: TunedOpt = None,
+    tune: TuneOpt = False,
+    config: ConfigOpt = None,
+    terrain_only: TerrainOnlyOpt = False,
+    dataset_format: FormatOpt = "auto",
+    max_images: MaxImagesOpt = None,
+    overwrite: OverwriteOpt = False,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
-    """Score a bundle against ground truth (Tables I-III).
-
-    Evaluate BUNDLE against the ground truth of the simulated dataset --gt, like the paper's
-    Tables I-III, memory and navigation figures: writes OUT/report.md, OUT/summary.json and
-    OUT/figures/*.png.
-
-    A KITTI raw drive with object or tracking labels (label_2/, label_02/) has objects only: its
-    report gives Table II and memory, and says that terrain and region metrics are not evaluated.
-
-    Choose thresholds on a validation scene (another seed), never on the test scene: run
-    `terra eval val.terra --gt val-data --tune --out val-report`, then evaluate the test bundle
-    with `--tuned val-report/tuned.json`. Without --tuned the tasks stage's defaults are used.
-
-    With --terrain-only, BUNDLE is any labelled dataset folder and each --config's terrain
-    segmenter (mapping.perception) gets a row of Table I (mIoU, F-mIoU, F1, FPS), e.g. a fine-tuned
-    YOLO against YOLOE prompts.
-
-    Example: terra eval campus.terra --gt campus-data --tuned val-report/tuned.json --out report
-
-    Example: terra eval --terrain-only labelled-data --config yolo.yaml --config yoloe.yaml
-    """
+    """`terra eval` (its help text: EVAL_HELP)."""
     if terrain_only:
         _terrain_only(bundle, config or [], dataset_format, max_images, as_json, quiet)
         return
@@ -109,55 +137,63 @@ def _evaluate(
     overwrite: bool,
 ) -> None:
     """The full evaluation, or --tune."""
-    from terra.cli.interrupts import on_interrupt
-    from terra.cli.outputs import refuse_existing
     from terra.config import TerraConfig
-    from terra.eval.inputs import EvalInputs
-    from terra.eval.runner import evaluate
-    from terra.eval.runner import tune as tune_parameters
-    from terra.eval.tuning import TUNED, TunedParameters
     from terra.progress import StageTimer
 
     settings = TerraConfig.read(config)
     eval_cfg, tasks_cfg = settings.eval, settings.tasks
     timer = StageTimer()
     if tune:
-        refuse_existing(Path(out) / TUNED, overwrite)
-        on_interrupt(f"nothing was written ({Path(out) / TUNED} is unchanged); run the same command again")
-        with timer.stage("tune"):
-            params = tune_parameters(
-                EvalInputs.load(bundle, gt), eval_cfg, tasks_cfg, show_progress=not quiet and not as_json
-            )
-        path = params.save(Path(out) / TUNED)
-        if as_json:
-            typer.echo(json.dumps(params.to_json(), indent=1, sort_keys=True))
-            return
-        typer.echo(f"tuned on {bundle} / {gt}:")
-        for name, p in {**params.retrieval, **params.monitoring}.items():
-            typer.echo(
-                f"  {name}: " + ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in p.items())
-            )
-        typer.echo(f"wrote {path}")
-        if not quiet:
-            typer.echo(timer.table())
-        return
+        _tune(bundle, gt, out, eval_cfg, tasks_cfg, timer, as_json, quiet, overwrite)
+    else:
+        _report(bundle, gt, out, tuned, eval_cfg, tasks_cfg, timer, as_json, quiet, overwrite)
+
+
+def _tune(bundle, gt, out: Path, eval_cfg, tasks_cfg, timer, as_json: bool, quiet: bool, overwrite: bool) -> None:
+    """--tune: choose alpha and k on this bundle, write OUT/tuned.json and say what was chosen."""
+    from terra.cli.interrupts import on_interrupt
+    from terra.cli.outputs import refuse_existing
+    from terra.eval.inputs import EvalInputs
+    from terra.eval.results import TuneResult
+    from terra.eval.runner import tune as tune_parameters
+    from terra.eval.tuning import TUNED
+
+    refuse_existing(Path(out) / TUNED, overwrite)
+    on_interrupt(f"nothing was written ({Path(out) / TUNED} is unchanged); run the same command again")
+    with timer.stage("tune"):
+        inputs = EvalInputs.load(bundle, gt)
+        params = tune_parameters(inputs, eval_cfg, tasks_cfg, show_progress=not quiet and not as_json)
+    path = params.save(Path(out) / TUNED)
+    _show(TuneResult(params, path, Path(bundle), Path(gt), timer), as_json, quiet)
+
+
+def _report(
+    bundle, gt, out: Path, tuned: Path | None, eval_cfg, tasks_cfg, timer, as_json: bool, quiet: bool, overwrite: bool
+) -> None:
+    """The evaluation report in OUT and its headline."""
+    from terra.cli.interrupts import on_interrupt
+    from terra.cli.outputs import refuse_existing
+    from terra.eval.runner import evaluate
+    from terra.eval.tuning import TunedParameters
+
     params = TunedParameters.load(tuned) if tuned is not None else None
     refuse_existing(Path(out), overwrite)
     on_interrupt(f"no report was written ({out} is unchanged); run the same command again")
-    summary = evaluate(
-        bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=not quiet and not as_json, timer=timer
-    )
-    if as_json:
-        typer.echo(json.dumps(summary, indent=1, sort_keys=True))
-        return
-    typer.echo(f"evaluation of {bundle} against {gt} (parameters: {summary['parameters']['source']}):")
-    from terra.eval.report import headline
+    show = not quiet and not as_json
+    result = evaluate(bundle, gt, out, eval_cfg, params, tasks_cfg, show_progress=show, timer=timer)
+    _show(result, as_json, quiet)
 
-    for line in headline(summary):
-        typer.echo(line)
-    typer.echo(f"report: {Path(out) / 'report.md'}")
-    if not quiet:
-        typer.echo(timer.table())
+
+def _show(result: EvalResult | TuneResult | TerrainTable, as_json: bool, quiet: bool) -> None:
+    """The result as JSON, or its text summary with the timing table unless --quiet."""
+    from terra.cli.render import render_eval, render_stage_json
+
+    if as_json:
+        typer.echo(render_stage_json(result))
+        return
+    typer.echo(render_eval(result))
+    if not quiet and result.timer is not None:
+        typer.echo(result.timer.table())
 
 
 def _terrain_only(
@@ -166,6 +202,7 @@ def _terrain_only(
     """Table I of each configured terrain segmenter on the labelled images of a dataset."""
     from terra.config import TerraConfig
     from terra.datasets import open_dataset
+    from terra.eval.results import TerrainTable
     from terra.eval.segmentation import terrain_table
     from terra.perception.registry import get_terrain_segmenter
     from terra.progress import StageTimer
@@ -182,27 +219,6 @@ def _terrain_only(
             segmenters[label] = (get_terrain_segmenter(perception, dataset.classes), perception.noise.seed)
     with timer.stage("segmentation"):
         table = terrain_table(dataset, segmenters, limit, show_progress=not quiet)
-    if as_json:
-        typer.echo(json.dumps(table, indent=1, sort_keys=True))
-        return
-    for line in _terrain_lines(table):
-        typer.echo(line)
-    if not quiet:
-        typer.echo(timer.table())
-
-
-def _terrain_lines(table: dict) -> list[str]:
-    """Table I as aligned text: one row per method, then per-class IoU."""
-    methods = table["methods"]
-    width = max([len(m) for m in methods] + [6])
-    lines = [
-        f"terrain segmentation of {table['dataset']} ({counted(table['images'], 'labelled image')}):",
-        f"  {'method':<{width}}  {'mIoU':>6}  {'F-mIoU':>6}  {'F1':>6}  {'FPS':>7}",
-    ]
-    for name, s in methods.items():
-        fps = "-" if s["fps"] is None else f"{s['fps']:.1f}"  # a label lookup has no frame rate
-        lines.append(f"  {name:<{width}}  {s['miou']:>6.3f}  {s['fw_miou']:>6.3f}  {s['f1']:>6.3f}  {fps:>7}")
-    for name, s in methods.items():
-        per_class = ", ".join(f"{c} {'-' if v is None else f'{v:.3f}'}" for c, v in zip(s["classes"], s["iou"]))
-        lines.append(f"  IoU per class, {name}: {per_class}")
-    return lines
+    result = TerrainTable.from_json(table)
+    result.timer = timer
+    _show(result, as_json, quiet)

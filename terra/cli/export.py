@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
@@ -46,11 +45,9 @@ def export_command(
     from terra.progress import working
 
     with working(f"exporting {fmt}", not as_json):
-        summary = export_bundle(
+        result = export_bundle(
             bundle, fmt, out, overwrite, features=not no_features, color=color, image_range=image_range
         )
-    if as_json:
-        typer.echo(json.dumps(summary, indent=1, sort_keys=True))
-        return
-    counts = {k: v for k, v in summary.items() if k not in ("format", "out", "files", "layers")}
-    typer.echo(f"{summary['format']} -> {summary['out']} (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    from terra.cli.render import render_export, render_stage_json
+
+    typer.echo(render_stage_json(result) if as_json else render_export(result))

@@ -43,7 +43,8 @@ def _lines(summary: dict) -> list[str]:
     m = summary.get("map")
     if m:
         lines.append(
-            f"  points: {m['points']} ({m['observed_points']} with object observations, {m['observations']} observations)"
+            f"  points: {m['points']} ({m['observed_points']} with object observations, "
+            f"{m['observations']} observations)"
         )
         lines.append(f"  bank entries: {m['bank_entries']}   images: {m['images']}")
         lines.append("  terrain points: " + ", ".join(f"{k} {v}" for k, v in m["terrain_points"].items()))

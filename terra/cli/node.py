@@ -39,9 +39,9 @@ def node_command(
     if (node is None) == (at is None):
         raise TerraError("give one of NODE (e.g. p12) and --at X Y")
     graph = LoadedBundle(bundle).require_graph("terra node")
-    if at is not None:
-        location = locate(graph, *at)
-        typer.echo(render_json(location) if as_json else render_location(location))
-    else:
+    if node is not None:
         info = node_info(graph, node)
         typer.echo(render_json(info) if as_json else render_node(info))
+    elif at is not None:
+        location = locate(graph, *at)
+        typer.echo(render_json(location) if as_json else render_location(location))

@@ -1,21 +1,222 @@
-"""Text renderings of the typed task results for `terra find/monitor/plan/node` (their `--json`
-is the result's `to_json()`, the same JSON `terra serve` answers with)."""
+"""Text renderings of the typed results of every command: the stages (`terra map/build/eval/sim/
+import/export`) and the task queries (`terra find/monitor/plan/node`). Their `--json` is the
+result's `to_json()` (for the queries, the same JSON `terra serve` answers with)."""
 
 from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from terra.words import counted
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
+    from terra.eval.results import EvalResult, TerrainTable, TuneResult
+    from terra.graph.results import BuildResult
+    from terra.interop.results import ExportResult, ImportResult
+    from terra.mapping.results import ClusterSummary, MapResult, OdometrySummary, PerceptionResult
+    from terra.sim.results import SimResult
     from terra.tasks.lookup import Location, NodeInfo
     from terra.tasks.results import FindResult, MonitorResults, PlanResult
 
 
 def render_json(result: Any) -> str:
     return json.dumps(result.to_json(), indent=1)
+
+
+def render_stage_json(result: Any) -> str:
+    """A stage's `--json`: its result's `to_json()`, keys sorted."""
+    return json.dumps(result.to_json(), indent=1, sort_keys=True)
+
+
+# ------------------------------------------------------------------------------------ the stages
+def render_build(result: BuildResult) -> str:
+    """The summary `terra build` prints: places, edges, regions, embeddings, grid, timings."""
+    stats, edges, src = result.stats, result.stats.edges, result.stats.embedding_source
+    per_terrain = ", ".join(f"{k} {v}" for k, v in stats.places_per_terrain.items())
+    lines = [
+        f"graph: {counted(result.places, 'place')} ({per_terrain}) -> {result.bundle}",
+        f"  place edges: {result.place_edges} (gvd {edges.gvd}, cross-terrain {edges.cross_terrain}, "
+        f"bridge {edges.bridge})",
+        f"  regions ({result.region_method}): " + " / ".join(str(n) for n in result.regions_per_level) + " per level",
+        f"  place embeddings: {src.images} from images, {src.points} from points, "
+        f"{src.terrain_text} from the terrain name",
+    ]
+    if src.images == 0 and src.points:
+        lines.append("  (the map has no images: place embeddings come from the map points instead)")
+    cells = stats.grid_cells
+    lines.append(
+        f"  terrain grid: {cells[0]} x {cells[1]} cells, computed {_grid_where(result)}; GVD {_gvd_where(result)}"
+    )
+    if result.timer is not None:
+        lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def _grid_where(result: BuildResult) -> str:
+    tiles = result.stats.grid_tiles
+    if tiles is None:
+        return "in one piece"
+    if tiles.one_piece:
+        return f"in one piece ({tiles.one_piece})"
+    size = f"{result.tile_size_m:g} m " if result.tile_size_m is not None else ""
+    return f"in {size}tiles ({tiles.windows} windows, overlap up to {tiles.max_overlap_m:g} m)"
+
+
+def _gvd_where(result: BuildResult) -> str:
+    tiles = result.stats.gvd_tiles
+    if tiles is None:
+        return "in one piece"
+    return f"in tiles ({tiles.windows} windows, overlap up to {tiles.max_overlap_m:g} m)"
+
+
+def render_map(result: MapResult | PerceptionResult) -> str:
+    """The summary `terra map` prints (a map written, or with --perception-only the cache filled)."""
+    from terra.mapping.results import PerceptionResult
+
+    if isinstance(result, PerceptionResult):
+        return _render_perception(result)
+    counts, lines = result.counts, []
+    if result.resumed_from:
+        lines.append(f"resumed after frame {result.resumed_from}")
+    lines.append(
+        f"map: {counted(counts.points, 'point')} ({counts.observed_points} with object observations), "
+        f"{counted(counts.bank, 'bank entry', 'bank entries')}, {counted(counts.images, 'image')} "
+        f"-> {result.bundle}"
+    )
+    if result.cluster is not None:
+        lines.append(_cluster_line(result.cluster))
+    if result.cache is not None:
+        cache = result.cache
+        where = "removed: the config keeps no cache" if cache.removed else cache.folder
+        lines.append(f"perception cache: {counted(cache.hits, 'image')} read back, {cache.computed} computed ({where})")
+    if result.pose_source:
+        lines.append(f"  poses: {result.pose_source}")
+    lines += _fault_lines(result.stats, result.notes)
+    if result.odometry is not None:
+        lines.append(_odometry_line(result.odometry))
+    if result.timer is not None:
+        lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def _render_perception(result: PerceptionResult) -> str:
+    lines = [] if result.cluster is None else [_cluster_line(result.cluster)]
+    lines.append(
+        f"perception cache: {counted(result.images, 'image')} of {counted(result.frames, 'frame')}, "
+        f"{result.hits} already cached, "
+        f"{result.computed} computed -> {result.folder}"
+    )
+    lines += _fault_lines(result.stats, result.notes)
+    if result.timer is not None:
+        lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def _cluster_line(cluster: ClusterSummary) -> str:
+    return (
+        f"perception on {cluster.cluster}: {counted(cluster.frames, 'frame')} by "
+        f"{counted(cluster.workers_used, 'worker')} (up to {cluster.in_flight} in flight), "
+        f"{counted(cluster.computed, 'image')} computed, {cluster.hits} read back, "
+        f"{cluster.seconds:.1f} s of worker time"
+    )
+
+
+def _fault_lines(stats: dict[str, int], notes: dict[str, str]) -> list[str]:
+    """One line per fault counter that counted something (skipped frames or images, dropped points)."""
+    faults = {k: v for k, v in stats.items() if ("skipped" in k or "dropped_nonfinite" in k) and v}
+    return [
+        f"  {name}: {count}" + (f" (first: {notes[name]})" if notes.get(name) else "") for name, count in faults.items()
+    ]
+
+
+def _odometry_line(odometry: OdometrySummary) -> str:
+    kitti, tum = odometry.trajectory
+    line = (
+        f"odometry: KISS-ICP over {counted(odometry.scans, 'scan')} ({odometry.scans_per_second:.1f} scans/s, "
+        f"{odometry.deskewed} deskewed), trajectory -> {kitti}, {tum.name}"
+    )
+    if odometry.errors:
+        e = odometry.errors
+        line += (
+            f"\n  vs the source's poses: ATE {e['ate_rmse_m']:.3f} m RMSE, final error {e['final_error_m']:.3f} m "
+            f"= {e['drift_percent']:.2f} % of {e['distance_m']:.1f} m travelled"
+        )
+    return line
+
+
+def render_import(result: ImportResult, folder: Path) -> str:
+    """The summary `terra import` prints for the reference folder `folder`."""
+    return "\n".join(
+        [
+            f"imported {folder} (itr {result.itr}) -> {result.bundle}: {counted(result.points, 'point')}, "
+            f"{result.observed_points} with "
+            f"object observations, bank {result.bank}, {counted(result.images, 'image')}, "
+            f"embedder {result.embedder}",
+            f"  terrain classes: {', '.join(result.terrain_classes)}",
+            "  image positions: "
+            + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in result.image_positions.items())
+            + " (orientation unknown)",
+        ]
+    )
+
+
+def render_export(result: ExportResult) -> str:
+    """The line `terra export` prints: format, output and what it holds."""
+    return f"{result.format} -> {result.out} (" + ", ".join(f"{k} {v}" for k, v in result.details.items()) + ")"
+
+
+def render_sim(result: SimResult) -> str:
+    """The line `terra sim` prints (its timing table goes to stderr)."""
+    return (
+        f"wrote {result.folder} ({result.format}): {counted(result.frames, 'frame')}, "
+        f"{counted(result.objects, 'object')}, {result.regions} named regions, picture {result.picture}"
+    )
+
+
+def render_eval(result: EvalResult | TuneResult | TerrainTable) -> str:
+    """What `terra eval` prints: the report's headline, the tuned parameters (--tune) or Table I
+    (--terrain-only); the timing table is the command's."""
+    from terra.eval.results import EvalResult, TerrainTable
+
+    if isinstance(result, TerrainTable):
+        return "\n".join(_terrain_lines(result))
+    if isinstance(result, EvalResult):
+        from terra.eval.report import headline
+
+        lines = [f"evaluation of {result.bundle} against {result.gt} (parameters: {result.parameter_source}):"]
+        lines += headline(result.summary())
+        lines.append(f"report: {Path(result.report or '.') / 'report.md'}")
+        return "\n".join(lines)
+    params = result.params
+    lines = [f"tuned on {result.bundle} / {result.gt}:"]
+    for name, p in {**params.retrieval, **params.monitoring}.items():
+        lines.append(
+            f"  {name}: " + ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in p.items())
+        )
+    lines.append(f"wrote {result.path}")
+    return "\n".join(lines)
+
+
+def _terrain_lines(table: TerrainTable) -> list[str]:
+    """Table I as aligned text: one row per method, then per-class IoU."""
+    methods = table.methods
+    width = max([len(m) for m in methods] + [6])
+    lines = [
+        f"terrain segmentation of {table.dataset} ({counted(table.images, 'labelled image')}):",
+        f"  {'method':<{width}}  {'mIoU':>6}  {'F-mIoU':>6}  {'F1':>6}  {'FPS':>7}",
+    ]
+    for name, s in methods.items():
+        fps = "-" if s.fps is None else f"{s.fps:.1f}"  # a label lookup has no frame rate
+        lines.append(f"  {name:<{width}}  {s.miou:>6.3f}  {s.fw_miou:>6.3f}  {s.f1:>6.3f}  {fps:>7}")
+    for name, s in methods.items():
+        per_class = ", ".join(f"{c} {'-' if v is None else f'{v:.3f}'}" for c, v in zip(s.classes, s.iou))
+        lines.append(f"  IoU per class, {name}: {per_class}")
+    return lines
+
+
+# ------------------------------------------------------------------------------------ the tasks
 
 
 def render_find(result: FindResult) -> str:

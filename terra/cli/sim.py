@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -12,54 +13,91 @@ from terra.cli.interrupts import on_interrupt
 from terra.errors import TerraError
 from terra.words import counted
 
+if TYPE_CHECKING:  # every cli module is imported for `terra --help`: the simulator loads on use
+    from terra.progress import StageTimer
+    from terra.sim.config import SimConfig
+    from terra.sim.dataset import SimDataset
+    from terra.sim.results import SimResult
 
-@app.command("sim")
-def sim(
-    out: Path = typer.Option(
-        ..., "--out", "-o", help="Output folder (must not exist or be empty, unless --overwrite)."
-    ),
-    preset: str = typer.Option(
-        "small", "--preset", "-p", help="World size: tiny, small, campus, large (2 km) or huge (3.2 km)."
-    ),
-    seed: int = typer.Option(0, "--seed", "-s", min=0, help="Random seed; same preset and seed give the same bytes."),
-    format: str = typer.Option(
-        "terra-folder",
+SIM_HELP = """Simulate a campus drive and write it as a dataset.
+
+Simulate a robot driving through a generated campus and write the dataset.
+
+Writes the frames (LiDAR scans with per-point labels, camera images with label images, poses, calibration), ground_truth/ (objects, terrain raster, named regions), classes.json and world.png, a top-down picture of the world and the route.
+
+Example: terra sim --preset small --seed 0 --out campus-small
+"""  # noqa: E501 - the paragraph is one line of help
+
+OutOpt = Annotated[
+    Path, typer.Option("--out", "-o", help="Output folder (must not exist or be empty, unless --overwrite).")
+]
+PresetOpt = Annotated[
+    str, typer.Option("--preset", "-p", help="World size: tiny, small, campus, large (2 km) or huge (3.2 km).")
+]
+SeedOpt = Annotated[
+    int, typer.Option("--seed", "-s", min=0, help="Random seed; same preset and seed give the same bytes.")
+]
+FormatOpt = Annotated[
+    str,
+    typer.Option(
         "--format",
         "-f",
         help="terra-folder (the reference layout), semantickitti, kitti-raw (a raw drive with "
         "OXTS; cameras render undistorted), rosbag1 (a ROS 1 .bag) or rosbag2 (a ROS 2 mcap bag).",
     ),
-    config: Path | None = typer.Option(
-        None, "--config", "-c", help="YAML file with a `sim:` section (see `terra config dump sim`)."
-    ),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output folder."),
-    bag_images: str = typer.Option(
-        "jpeg", "--bag-images", help="Images in a bag: jpeg (sensor_msgs/CompressedImage) or raw (Image rgb8)."
-    ),
-    max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or timing table."),
+]
+ConfigOpt = Annotated[
+    Path | None, typer.Option("--config", "-c", help="YAML file with a `sim:` section (see `terra config dump sim`).")
+]
+OverwriteOpt = Annotated[bool, typer.Option("--overwrite", help="Replace a non-empty output folder.")]
+BagImagesOpt = Annotated[
+    str, typer.Option("--bag-images", help="Images in a bag: jpeg (sensor_msgs/CompressedImage) or raw (Image rgb8).")
+]
+MaxFramesOpt = Annotated[int | None, typer.Option("--max-frames", min=1, help="Stop after this many frames.")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, timings) as JSON.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or timing table.")]
+
+
+@app.command("sim", help=SIM_HELP)
+def sim(
+    out: OutOpt,
+    preset: PresetOpt = "small",
+    seed: SeedOpt = 0,
+    format: FormatOpt = "terra-folder",
+    config: ConfigOpt = None,
+    overwrite: OverwriteOpt = False,
+    bag_images: BagImagesOpt = "jpeg",
+    max_frames: MaxFramesOpt = None,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
-    """Simulate a campus drive and write it as a dataset.
-
-    Simulate a robot driving through a generated campus and write the dataset.
-
-    Writes the frames (LiDAR scans with per-point labels, camera images with label images, poses, calibration), ground_truth/ (objects, terrain raster, named regions), classes.json and world.png, a top-down picture of the world and the route.
-
-    Example: terra sim --preset small --seed 0 --out campus-small
-    """
-    from terra.config import TerraConfig
+    """`terra sim` (its help text: SIM_HELP)."""
+    from terra.cli.render import render_sim, render_stage_json
     from terra.progress import StageTimer, working
-    from terra.sim.classes import CLASS_COLORS
     from terra.sim.dataset import simulate
     from terra.sim.presets import get_preset
-    from terra.sim.writer import FORMATS, check_output, write_dataset
-    from terra.viz.world import render_world_png
+    from terra.sim.writer import check_format, check_output
 
     get_preset(preset)
-    if format not in FORMATS:
-        raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
+    check_format(format)
     check_output(out, overwrite)
     on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
+    cfg = _sim_config(config, max_frames, format)
+    timer = StageTimer()
+    show = not quiet and not as_json
+    with timer.stage("world"), working("building the world", show):
+        dataset = simulate(preset, seed, cfg)
+    dataset.timer = timer
+    result = _write(dataset, out, format, overwrite, show, bag_images, timer)
+    typer.echo(render_stage_json(result) if as_json else render_sim(result))
+    if not quiet and not as_json:
+        typer.echo(timer.table("terra sim timing"), err=True)
+
+
+def _sim_config(config: Path | None, max_frames: int | None, format: str) -> SimConfig:
+    """The `sim` section with --max-frames applied, without lens distortion for kitti-raw."""
+    from terra.config import TerraConfig
+
     cfg = TerraConfig.read(config).sim
     if max_frames is not None:
         cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": max_frames})})
@@ -67,35 +105,42 @@ def sim(
         from terra.sim.config import without_distortion
 
         cfg = without_distortion(cfg)
-    timer = StageTimer()
-    with timer.stage("world"), working("building the world", not quiet):
-        dataset = simulate(preset, seed, cfg)
-    dataset.timer = timer
+    return cfg
+
+
+def _write(
+    dataset: SimDataset, out: Path, format: str, overwrite: bool, show: bool, bag_images: str, timer: StageTimer
+) -> SimResult:
+    """Write the dataset and its top-down picture (world.png); what was written."""
+    from terra.sim.classes import CLASS_COLORS
+    from terra.sim.results import SimResult
+    from terra.sim.writer import write_dataset
+    from terra.viz.world import render_world_png
 
     def picture(root: Path) -> None:
         with timer.stage("picture"):
             traj = dataset.trajectory.T_map_base[:, :2, 3]
-            render_world_png(
-                dataset.ground_truth(),
-                root / "world.png",
-                traj,
-                CLASS_COLORS,
-                title=f"{dataset.name}: {counted(len(dataset), 'frame')}",
-            )
+            title = f"{dataset.name}: {counted(len(dataset), 'frame')}"
+            render_world_png(dataset.ground_truth(), root / "world.png", traj, CLASS_COLORS, title=title)
 
     start = time.perf_counter()
     try:
         folder = write_dataset(
-            dataset, out, format=format, overwrite=overwrite, progress=not quiet, extra=picture, bag_images=bag_images
+            dataset, out, format=format, overwrite=overwrite, progress=show, extra=picture, bag_images=bag_images
         )
     except OSError as exc:  # disk full, permissions: the partial folder is already gone
         raise TerraError(f"{out}: could not write the dataset ({exc.strerror or exc}); nothing was written") from None
     elapsed = time.perf_counter() - start
     timer.add("encode and save", elapsed - sum(v for k, v in timer.seconds.items() if k != "world"))
     gt = dataset.ground_truth()
-    typer.echo(
-        f"wrote {folder} ({format}): {counted(len(dataset), 'frame')}, {counted(len(gt.objects), 'object')}, "
-        f"{len(gt.regions)} named regions, picture world.png"
+    return SimResult(
+        folder=Path(folder),
+        format=format,
+        name=dataset.name,
+        frames=len(dataset),
+        objects=len(gt.objects),
+        regions=len(gt.regions),
+        picture="world.png",
+        seconds=timer.to_json(),
+        timer=timer,
     )
-    if not quiet:
-        typer.echo(timer.table("terra sim timing"), err=True)

@@ -90,9 +90,10 @@ def find_request(
     queries: Sequence[str], method: str | None, alpha: float | None, save: bool, tasks: Path | None
 ) -> FindRequest:
     """Command-line queries first, then the task file's; flags win over the file's values."""
+    from terra.tasks.config import RETRIEVAL_METHODS
     from terra.tasks.requests import FindRequest
 
-    check_choice("--method", method, ("ms-avg", "ms-max", "3dsg"))
+    check_choice("--method", method, RETRIEVAL_METHODS)
     task_file = _task_file(tasks, "find")
     file_method, feature = task_file.object_method(str(tasks))
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
@@ -112,9 +113,10 @@ def find_request(
 def monitor_request(
     queries: Sequence[str], method: str | None, k: int | None, alpha: float | None, tasks: Path | None
 ) -> MonitorRequest:
+    from terra.tasks.config import MONITOR_METHODS
     from terra.tasks.requests import MonitorRequest
 
-    check_choice("--method", method, ("mix", "max", "thresh", "aib"))
+    check_choice("--method", method, MONITOR_METHODS)
     task_file = _task_file(tasks, "monitor")
     alpha = check_alpha(alpha if alpha is not None else task_file.alpha)
     return build(
@@ -144,9 +146,10 @@ def plan_request(
 ) -> PlanRequest:
     """Flags first; the task file's terrain preferences are merged under them and its start and
     destination fill what the flags leave unset."""
+    from terra.tasks.config import RETRIEVAL_METHODS
     from terra.tasks.requests import PlanRequest
 
-    check_choice("--method", method, ("ms-avg", "ms-max", "3dsg"))
+    check_choice("--method", method, RETRIEVAL_METHODS)
     task_file = _task_file(tasks, "plan")
     prefs = task_file.terrain_preferences
     dest, start = task_file.queries.destination, task_file.queries.start

@@ -30,6 +30,7 @@ from terra.errors import TerraError
 from terra.mapping.config import MappingConfig
 from terra.mapping.perceive import PerceptionRun
 from terra.mapping.pipeline import MapRun, check_output, open_perception, run_mapping
+from terra.mapping.results import CacheSummary
 from terra.perception.cache import (
     CachedPerception,
     PerceptionCache,
@@ -83,7 +84,8 @@ def map_on_cluster(
         run = run_mapping(dataset, config, out, show_progress, perception=perception, feed=feed, timer=timer)
     if temporary:
         _remove_transient_cache(root)
-        run.cache = {**(run.cache or {}), "removed": True}
+        run.cache = CacheSummary(str(root), 0, 0) if run.cache is None else run.cache
+        run.cache.removed = True
     summary.tally = feed.tally
     return run, summary
 

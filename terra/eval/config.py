@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from terra.config import Section
+from terra.tasks.config import RETRIEVAL_METHODS, RetrievalMethod
 
 
 class SegmentationEval(Section):
@@ -26,7 +27,7 @@ class RetrievalEval(Section):
     """Table II. Queries are `template` with {object} replaced by each class name; `classes`
     None means every class with an object in the ground truth, minus `exclude`."""
 
-    methods: list[Literal["ms-avg", "ms-max", "3dsg"]] = Field(default_factory=lambda: ["ms-avg", "ms-max", "3dsg"])
+    methods: list[RetrievalMethod] = Field(default_factory=lambda: list(RETRIEVAL_METHODS))
     template: str = "Find the {object}"
     classes: list[str] | None = None
     exclude: list[str] = Field(default_factory=lambda: ["building", "tree", "crosswalk", "misc"])

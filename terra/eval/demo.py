@@ -129,7 +129,9 @@ class DemoConfig:
         from terra.sim.presets import get_preset
 
         route = self.sim.route
-        spacing = (route.frame_spacing or get_preset(self.validation_preset).spacing) * self.validation_spacing
+        spacing = (
+            route.frame_spacing or get_preset(self.validation_preset or self.preset).spacing
+        ) * self.validation_spacing
         return self.sim.model_copy(update={"route": route.model_copy(update={"frame_spacing": spacing})})
 
 
@@ -202,7 +204,7 @@ class DemoRun:
         check_demo_folder(self.out)
 
     def step(
-        self, name: str, key: dict, outputs: tuple[Path, ...], work: Callable[[], None], timed: bool = True
+        self, name: str, key: dict, outputs: tuple[Path, ...], work: Callable[[], object], timed: bool = True
     ) -> None:
         """Run `work` unless the step is fresh; stamp it when done. `timed=False` for work that
         records its own stages in self.timer."""
@@ -282,7 +284,7 @@ class DemoRun:
         val = self.scene(
             "validation",
             f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}",
-            cfg.validation_preset,
+            cfg.validation_preset or cfg.preset,
             cfg.validation_seed,
             cfg.validation_sim(),
         )
@@ -504,7 +506,7 @@ def _plan(loaded: LoadedBundle, tuned: TunedParameters, config: TasksConfig) -> 
             "length_m": path["length_m"],
             "places": len(path["places"]),
             "length_by_terrain": path["length_by_terrain"],
-            "goal": result.goal.object.to_json()["center"],
+            "goal": result.goal.object.to_json()["center"] if result.goal.object is not None else None,
             "skipped": [
                 f"{s.object.label!r} at ({s.object.center[0]:.1f}, {s.object.center[1]:.1f}): {s.reason}"
                 for s in result.goal.skipped
@@ -533,7 +535,8 @@ def format_demo(demo: dict, out: Path) -> list[str]:
 
     t, v = demo["test_scene"], demo["validation_scene"]
     lines = [
-        f"terra demo: {t['preset']} campus, seed {t['seed']} (parameters tuned on {v['preset']} campus, seed {v['seed']})"
+        f"terra demo: {t['preset']} campus, seed {t['seed']} "
+        f"(parameters tuned on {v['preset']} campus, seed {v['seed']})"
     ]
     for f in demo["tasks"]["find"]:
         if f["best"] is None:

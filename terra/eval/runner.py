@@ -5,13 +5,16 @@ ground truth, written as report.md, summary.json and figures (terra.eval.report)
 from __future__ import annotations
 
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from terra.bundle import Bundle
+from terra.datasets.ground_truth import TerrainRaster
 from terra.errors import TerraError
 from terra.eval.config import EvalConfig
 from terra.eval.inputs import EvalInputs
@@ -19,6 +22,7 @@ from terra.eval.metrics.memory import mapped_area, memory_summary
 from terra.eval.navigation import plan_with, preference_case, preference_routes, start_place, terrain_route_pairs
 from terra.eval.regions import MonitoringRun, MonitorParams, region_truth, run_monitoring
 from terra.eval.report import SUMMARY, write_report
+from terra.eval.results import EvalResult
 from terra.eval.retrieval import RetrievalRun, RetrievalTask, retrieval_task, run_retrieval
 from terra.eval.tuning import TUNED, TunedParameters, alpha_grid, best_point
 from terra.loaded import LoadedBundle
@@ -29,6 +33,13 @@ NOT_IN_KITTI = {
     "regions": "needs named regions with their descriptions",
     "navigation": "needs the ground-truth terrain along the path",
 }
+
+
+def _raster(inputs: EvalInputs) -> TerrainRaster:
+    """The ground-truth terrain raster (the sections that read it run only when there is one)."""
+    if inputs.gt.terrain is None:
+        raise TerraError(f"{inputs.gt_root}: the ground truth has no terrain raster")
+    return inputs.gt.terrain
 
 
 def not_evaluated(inputs: EvalInputs) -> dict[str, str]:
@@ -44,7 +55,11 @@ def not_evaluated(inputs: EvalInputs) -> dict[str, str]:
 
 
 def retrieval_runs(
-    inputs: EvalInputs, task: RetrievalTask, methods: list[str], alphas: dict[str, float | None], tasks_config=None
+    inputs: EvalInputs,
+    task: RetrievalTask,
+    methods: Sequence[str],
+    alphas: Mapping[str, float | None],
+    tasks_config=None,
 ) -> dict[str, RetrievalRun]:
     return {
         m: run_retrieval(inputs.msm, inputs.graph, task.queries, m, alphas.get(m), inputs.embedder, tasks_config)
@@ -84,8 +99,9 @@ def retrieval_section(
 def _retrieval_alpha(method: str, inputs: EvalInputs, tuned: TunedParameters | None, tasks_config) -> float:
     from terra.tasks.config import TasksConfig, alpha_for
 
-    if tuned is not None and tuned.retrieval_alpha(method) is not None:
-        return float(tuned.retrieval_alpha(method))
+    alpha = tuned.retrieval_alpha(method) if tuned is not None else None
+    if alpha is not None:
+        return float(alpha)
     cfg = (tasks_config or TasksConfig()).retrieval
     return alpha_for(cfg.alpha, cfg.default_alpha, inputs.msm.embedder)
 
@@ -194,10 +210,10 @@ def navigation_section(
     if cfg.prefer:
         from terra.eval.metrics.places import observed_cells
 
-        seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
-        pairs = terrain_route_pairs(inputs.graph, inputs.gt.terrain, cfg.prefer[0], seen, cfg.route_pairs)
+        seen = observed_cells(_raster(inputs), inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+        pairs = terrain_route_pairs(inputs.graph, _raster(inputs), cfg.prefer[0], seen, cfg.route_pairs)
         routes = preference_routes(
-            inputs.graph, inputs.gt.terrain, pairs, cfg.prefer[0], cfg.step, tasks.planning.default_penalty
+            inputs.graph, _raster(inputs), pairs, cfg.prefer[0], cfg.step, tasks.planning.default_penalty
         )
         section["preference_routes"] = routes.to_json(cfg.min_share)
         case = preference_case(routes, cfg.min_share)
@@ -248,8 +264,8 @@ def _task_plans(inputs: EvalInputs, cfg, tuned: TunedParameters | None, tasks, t
             start,
             goal.goal_place,
             "shortest",
-            inputs.gt.terrain,
-            (),
+            _raster(inputs),
+            [],
             cfg.step,
             tasks.planning.default_penalty,
         ),
@@ -258,7 +274,7 @@ def _task_plans(inputs: EvalInputs, cfg, tuned: TunedParameters | None, tasks, t
             start,
             goal.goal_place,
             f"prefer {', '.join(cfg.prefer)}",
-            inputs.gt.terrain,
+            _raster(inputs),
             cfg.prefer,
             cfg.step,
             tasks.planning.default_penalty,
@@ -280,11 +296,11 @@ def places_section(inputs: EvalInputs) -> dict:
     from terra.eval.metrics.places import observed_cells, same_terrain_connectivity
     from terra.eval.regions import region_truth
 
-    seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+    seen = observed_cells(_raster(inputs), inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
     return {
         "places": len(inputs.graph.places),
-        "connectivity": same_terrain_connectivity(inputs.graph, inputs.gt.terrain).to_json(),
-        "connectivity_seen": same_terrain_connectivity(inputs.graph, inputs.gt.terrain, seen).to_json(),
+        "connectivity": same_terrain_connectivity(inputs.graph, _raster(inputs)).to_json(),
+        "connectivity_seen": same_terrain_connectivity(inputs.graph, _raster(inputs), seen).to_json(),
         "places_per_region": {
             r.name: int(len(t)) for r, t in zip(inputs.gt.regions, region_truth(inputs.graph, inputs.gt.regions))
         },
@@ -452,12 +468,12 @@ def evaluate(
     show_progress: bool = True,
     timer: StageTimer | None = None,
     loaded: LoadedBundle | None = None,
-) -> dict:
+) -> EvalResult:
     """Evaluate a bundle against a simulated dataset's ground truth; write the report to `out`.
 
     The report is written into a temporary sibling folder that replaces `out` at the end, so a
     failure never leaves a partial report (a tuned.json already in `out` is kept). Returns the
-    summary (also written to out/summary.json).
+    result, whose JSON is the summary written to out/summary.json.
     """
     from terra.bundle import atomic_folder
 
@@ -472,36 +488,10 @@ def evaluate(
         tuned.check_not_tuned_on(inputs.dataset_name, fingerprint=inputs.dataset_fingerprint)
         tuned.check_query_mode(_query_mode(tasks_config))
     summary = summary_header(inputs, tuned)
-    skipped = summary.get("not_evaluated", {})
-
-    def stage(name: str):
-        return _stage(timer, name, show_progress)
+    run = _ReportRun(inputs, config, tuned, tasks_config, timer, show_progress)
 
     def fill(folder: Path) -> None:
-        monitoring: dict[str, MonitoringRun] = {}
-        if "segmentation" not in skipped:
-            with stage("eval: segmentation"):
-                seg = segmentation_section(inputs, config, show_progress)
-            if seg is not None:
-                summary["segmentation"] = seg
-        with stage("eval: retrieval"):
-            summary["retrieval"], task, retrieval = retrieval_section(inputs, config, tuned, tasks_config)
-        if "regions" not in skipped:
-            with stage("eval: regions"):
-                summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks_config)
-        with stage("eval: memory"):
-            summary["memory"] = memory_summary(inputs.bundle, mapped_area(inputs.msm.points, config.map_cell))
-        if not inputs.objects_only:  # place connectivity is judged on the ground-truth terrain raster
-            with stage("eval: places"):
-                summary["places"] = places_section(inputs)
-        if "navigation" not in skipped:
-            with stage("eval: navigation"):
-                summary["navigation"] = navigation_section(inputs, config, tuned, tasks_config)
-        if config.figures:
-            with stage("eval: figures"):
-                from terra.eval.report_figures import write_figures
-
-                summary["figures"] = write_figures(folder, inputs, summary, task, retrieval, monitoring, config)
+        run.score(summary, folder)
         if (out / TUNED).is_file():
             shutil.copyfile(out / TUNED, folder / TUNED)
         summary["timing"] = timer.to_json()
@@ -509,4 +499,51 @@ def evaluate(
 
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_folder(out, fill, "report")
-    return summary
+    result = EvalResult.from_json(summary)
+    result.bundle, result.gt, result.report, result.timer = Path(bundle_path), Path(gt_root), out, timer
+    return result
+
+
+@dataclass
+class _ReportRun:
+    """The sections of one report, each a timed stage: segmentation, retrieval, regions, memory,
+    places, navigation, figures (the ground truth decides which it can score)."""
+
+    inputs: EvalInputs
+    config: EvalConfig
+    tuned: TunedParameters | None
+    tasks_config: Any
+    timer: StageTimer
+    show_progress: bool
+
+    def stage(self, name: str):
+        return _stage(self.timer, name, self.show_progress)
+
+    def score(self, summary: dict, folder: Path) -> None:
+        """Every section the ground truth can score into `summary`, the figures into `folder`."""
+        inputs, config, tuned, tasks = self.inputs, self.config, self.tuned, self.tasks_config
+        skipped = summary.get("not_evaluated", {})
+        monitoring: dict[str, MonitoringRun] = {}
+        if "segmentation" not in skipped:
+            with self.stage("eval: segmentation"):
+                seg = segmentation_section(inputs, config, self.show_progress)
+            if seg is not None:
+                summary["segmentation"] = seg
+        with self.stage("eval: retrieval"):
+            summary["retrieval"], task, retrieval = retrieval_section(inputs, config, tuned, tasks)
+        if "regions" not in skipped:
+            with self.stage("eval: regions"):
+                summary["regions"], monitoring = regions_section(inputs, config, tuned, tasks)
+        with self.stage("eval: memory"):
+            summary["memory"] = memory_summary(inputs.bundle, mapped_area(inputs.msm.points, config.map_cell))
+        if not inputs.objects_only:  # place connectivity is judged on the ground-truth terrain raster
+            with self.stage("eval: places"):
+                summary["places"] = places_section(inputs)
+        if "navigation" not in skipped:
+            with self.stage("eval: navigation"):
+                summary["navigation"] = navigation_section(inputs, config, tuned, tasks)
+        if config.figures:
+            with self.stage("eval: figures"):
+                from terra.eval.report_figures import write_figures
+
+                summary["figures"] = write_figures(folder, inputs, summary, task, retrieval, monitoring, config)

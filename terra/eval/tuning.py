@@ -75,14 +75,19 @@ class TunedParameters:
         if not isinstance(data, dict) or data.get("schema") != TUNED_SCHEMA:
             raise TerraError(f"{path}: field 'schema' is not {TUNED_SCHEMA!r}; write one with `terra eval --tune`")
         try:
-            return cls(
-                str(data["embedder"]),
-                dict(data.get("retrieval", {})),
-                dict(data.get("monitoring", {})),
-                dict(data.get("validation", {})),
-            )
+            return cls.from_json(data)
         except (KeyError, TypeError, ValueError) as exc:
             raise TerraError(f"{path}: malformed tuned parameters ({exc})") from None
+
+    @classmethod
+    def from_json(cls, data: dict) -> TunedParameters:
+        """The parameters of tuned.json's document (KeyError, TypeError or ValueError when malformed)."""
+        return cls(
+            str(data["embedder"]),
+            dict(data.get("retrieval", {})),
+            dict(data.get("monitoring", {})),
+            dict(data.get("validation", {})),
+        )
 
     @property
     def validation_dataset(self) -> str:

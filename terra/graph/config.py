@@ -8,11 +8,23 @@ remain one setting away: `regions.cuts`, `regions.spectral.thresholds: absolute`
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 from pydantic import Field, field_validator
 
 from terra.config import Section
+from terra.errors import TerraError
+
+RegionMethod = Literal["agglomerative", "spectral"]
+REGION_METHODS: tuple[RegionMethod, ...] = get_args(RegionMethod)  # the one list of region methods
+
+
+def check_region_method(method: str) -> RegionMethod:
+    """`method` when it names a region method (the --regions flag, `run_build(regions=...)`), else TerraError."""
+    for known in REGION_METHODS:
+        if method == known:
+            return known
+    raise TerraError(f"--regions must be {' or '.join(repr(m) for m in REGION_METHODS)}, got {method!r}")
 
 
 class TerrainSection(Section):
@@ -292,7 +304,7 @@ class RegionsSection(Section):
     clusters after fewer and fewer splits (largest first), with the same counts rule above them.
     """
 
-    method: Literal["agglomerative", "spectral"] = "agglomerative"
+    method: RegionMethod = "agglomerative"
     gamma: float = Field(default=100.0, ge=0.0, description="weight w = |p_i - p_j| (m) + gamma * (1 - cos(e_i, e_j))")
     cuts: list[float] | None = Field(
         default=None,

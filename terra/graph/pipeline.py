@@ -8,14 +8,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
 from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
-from terra.graph.config import BuildConfig
+from terra.graph.config import BuildConfig, check_region_method
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
@@ -29,7 +28,8 @@ from terra.graph.linking import (
 )
 from terra.graph.places import extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
+from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources, GridTiles, GvdTiles
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, RegionLevel, SceneGraph
 from terra.graph.spectral import SpectralStop, spectral_assignments
 from terra.graph.tiled_grid import TiledGridStats, build_terrain_grid_tiled
 from terra.graph.tiled_gvd import TiledGvdStats, tiled_gvd
@@ -43,7 +43,7 @@ class GraphBuild:
     """A built scene graph with its counters (for the manifest) and stage timings."""
 
     graph: SceneGraph
-    stats: dict[str, Any] = field(default_factory=dict)
+    stats: BuildStats = field(default_factory=BuildStats)
     timer: StageTimer = field(default_factory=StageTimer)
 
 
@@ -59,24 +59,46 @@ class TerrainPlaceSet:
     weight: np.ndarray
 
 
+@dataclass
+class PlaceCounts:
+    """What `terrain_places` counted: places per terrain index, patches too small for a place, and
+    the GVD tiling when it was used."""
+
+    per_terrain: dict[int, int] = field(default_factory=dict)
+    patches_dropped: int = 0
+    gvd_tiles: GvdTiles | None = None
+
+
+@dataclass
+class PlaceLinks:
+    """Every place edge (E, 2) with its cost (E,) m and kind (E,) (EDGE_GVD, ...), plus the counters
+    the summary reports: links along grid paths, and bridges that cross no clear line."""
+
+    edges: np.ndarray
+    weight: np.ndarray
+    kind: np.ndarray
+    grid_links: int
+    bridges_not_clear: int
+
+
 def terrain_places(
     grid: TerrainGrid, terrains: list[int], config: BuildConfig, show_progress: bool = False
-) -> tuple[TerrainPlaceSet, np.ndarray, dict[str, Any]]:
+) -> tuple[TerrainPlaceSet, np.ndarray, PlaceCounts]:
     """Places and GVD edges of every terrain in `terrains`, the union of the cleaned terrain masks
     (traversable cells), and per-terrain counters."""
     g, s = config.gvd, grid.cell_size
     positions, terrain_ids, clearances, edges, weights = [], [], [], [], []
     traversable = np.zeros(grid.shape, dtype=bool)
-    stats: dict[str, Any] = {"places_per_terrain": {}, "patches_dropped": 0}
+    counts = PlaceCounts()
     tile_stats = TiledGvdStats()
     offset = 0
     min_cells = int(np.ceil(config.grid.min_component_area / (s * s)))
     for t in progress(terrains, "terrain GVDs", enabled=show_progress):
         mask, dropped = grid.terrain_mask(t, config.grid.close_iterations, config.grid.open_iterations, min_cells)
-        stats["patches_dropped"] += dropped
+        counts.patches_dropped += dropped
         traversable |= mask
         if not mask.any():
-            stats["places_per_terrain"][t] = 0
+            counts.per_terrain[t] = 0
             del mask  # before the next terrain's mask: one full-grid mask at a time
             continue
         cp = extract_places(
@@ -100,7 +122,7 @@ def terrain_places(
         edges.append(cp.edges + offset)
         weights.append(np.hypot(cp.length * s, dz))
         offset += len(cp.cells)
-        stats["places_per_terrain"][t] = int(len(cp.cells))
+        counts.per_terrain[t] = int(len(cp.cells))
         del mask
     place_set = TerrainPlaceSet(
         position=np.vstack(positions) if positions else np.zeros((0, 3)),
@@ -110,12 +132,8 @@ def terrain_places(
         weight=np.concatenate(weights) if weights else np.zeros(0),
     )
     if tile_stats.windows:
-        stats["gvd_tiles"] = {
-            "windows": tile_stats.windows,
-            "max_overlap_m": round(tile_stats.max_margin * s, 3),
-            "thinning_rounds": tile_stats.rounds,
-        }
-    return place_set, traversable, stats
+        counts.gvd_tiles = GvdTiles(tile_stats.windows, round(tile_stats.max_margin * s, 3), tile_stats.rounds)
+    return place_set, traversable, counts
 
 
 def _tile_cells(config: BuildConfig, shape: tuple[int, int]) -> int | None:
@@ -205,7 +223,7 @@ def grid_links(
 
 def place_embeddings(
     msm: MetricSemanticMap, position: np.ndarray, terrain: np.ndarray, max_range: float
-) -> tuple[np.ndarray, dict[str, int]]:
+) -> tuple[np.ndarray, EmbeddingSources]:
     """(P, D) unit image embeddings by the paper's rule, falling back to point embeddings and, for
     places with nothing in range, the terrain's text embedding; counts per source."""
     P, D = len(position), msm.dim
@@ -219,14 +237,20 @@ def place_embeddings(
     from_points = ~from_images & (np.abs(emb).sum(axis=1) > 0)
     none = ~from_images & ~from_points
     emb[none] = np.asarray(msm.terrain_embeddings, np.float32)[terrain[none]]
-    return emb, {"images": int(from_images.sum()), "points": int(from_points.sum()), "terrain_text": int(none.sum())}
+    return emb, EmbeddingSources(int(from_images.sum()), int(from_points.sum()), int(none.sum()))
 
 
 def embedding_rule(msm: MetricSemanticMap, max_range: float) -> str:
     """One line for the manifest saying which rule gave the place embeddings."""
     if len(msm.images) == 0:
-        return f"points: the map has no images, so each place takes the mean MS-Avg feature of the map points within {max_range:g} m"
-    return f"images: mean whole-image embedding of the images within {max_range:g} m that saw the place (else the nearest that saw it; else points within {max_range:g} m)"
+        return (
+            "points: the map has no images, so each place takes the mean MS-Avg feature of the map points "
+            f"within {max_range:g} m"
+        )
+    return (
+        f"images: mean whole-image embedding of the images within {max_range:g} m that saw the place "
+        f"(else the nearest that saw it; else points within {max_range:g} m)"
+    )
 
 
 def region_assignments(
@@ -277,102 +301,142 @@ def build_scene_graph(
     """The scene graph of a map. TerraError when the map gives nothing to build on."""
     config = config or BuildConfig()
     timer = StageTimer()
+    names, terrains = _terrains_to_build(msm, config)
+    with timer.stage("terrain grid"):
+        grid, grid_stats = _map_grid(msm, names, terrains, config)
+    with timer.stage("GVD places"):
+        places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
+    if len(places.position) == 0:
+        raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
+    with timer.stage("links"):
+        links = place_links(places, traversable, grid, config)
+    with timer.stage("place embeddings"):
+        embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
+    with timer.stage(f"regions ({config.regions.method})"):
+        assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
+        levels = build_levels(assignments, places.position, embedding)
+    graph = _scene_graph(msm, places, embedding, links, levels, config)
+    stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
+    return GraphBuild(graph, stats, timer)
+
+
+def _terrains_to_build(msm: MetricSemanticMap, config: BuildConfig) -> tuple[list[str], list[int]]:
+    """The map's terrain class names and the indices of those to build places for
+    (`build.terrain.include`, default all); TerraError for a map without terrain classes or an
+    included name the map does not have."""
     names = list(msm.terrain_classes)
     if not names:
         raise TerraError(
             "the map lists no terrain classes (manifest 'terrain_classes' is empty); rebuild it with `terra map`"
         )
-    terrains = list(range(len(names)))
-    if config.terrain.include is not None:
-        unknown = [n for n in config.terrain.include if n not in names]
-        if unknown:
-            raise TerraError(
-                f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})"
-            )
-        terrains = [names.index(n) for n in config.terrain.include]
-    with timer.stage("terrain grid"):
-        point_terrain = msm.terrain_index(config.terrain.min_share, dtype=np.int16)  # 2 bytes a point
-        point_terrain[~np.isin(point_terrain, terrains)] = -1
-        if not (point_terrain >= 0).any():
-            raise TerraError(
-                f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) with a vote share >= {config.terrain.min_share}"
-            )
-        grid_stats = TiledGridStats()
-        grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
-        del point_terrain  # 2 bytes a point no later stage reads
-    with timer.stage("GVD places"):
-        ps, traversable, stats = terrain_places(grid, terrains, config, show_progress)
-    if len(ps.position) == 0:
-        raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
-    with timer.stage("links"):
-        clear = grid_line_clear(traversable, grid.origin, grid.cell_size) if config.linking.require_clear_line else None
-        kwargs = {"clear": clear} if clear is not None else {}
-        strips, strip_len = strip_links(ps, grid, config)
-        gvd_edges, gvd_weight = np.vstack([ps.edges, strips]), np.concatenate([ps.weight, strip_len])
-        paths, path_len = grid_links(ps, gvd_edges, grid, config)
-        gvd_edges, gvd_weight = np.vstack([gvd_edges, paths]), np.concatenate([gvd_weight, path_len])
-        links, link_len = link_dead_ends(
-            ps.position,
-            ps.terrain,
-            gvd_edges,
-            config.linking.max_link_distance,
-            config.linking.link_candidates,
-            **kwargs,
+    if config.terrain.include is None:
+        return names, list(range(len(names)))
+    unknown = [n for n in config.terrain.include if n not in names]
+    if unknown:
+        raise TerraError(
+            f"build.terrain.include: terrain class {unknown[0]!r} is not in the map (it has: {', '.join(names)})"
         )
-        edges = np.vstack([gvd_edges, links])
-        weight = np.concatenate([gvd_weight, link_len])
-        kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
-        bridges, bridge_cost, bridge_clear = bridge_components(
-            ps.position, edges, config.linking.bridge_penalty, config.linking.link_candidates, **kwargs
+    return names, [names.index(n) for n in config.terrain.include]
+
+
+def _map_grid(
+    msm: MetricSemanticMap, names: list[str], terrains: list[int], config: BuildConfig
+) -> tuple[TerrainGrid, TiledGridStats]:
+    """The terrain grid of the map points whose terrain is one of `terrains`, and how it was tiled."""
+    point_terrain = msm.terrain_index(config.terrain.min_share, dtype=np.int16)  # 2 bytes a point
+    point_terrain[~np.isin(point_terrain, terrains)] = -1
+    if not (point_terrain >= 0).any():
+        raise TerraError(
+            f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) "
+            f"with a vote share >= {config.terrain.min_share}"
         )
-        edges = np.vstack([edges, bridges])
-        weight = np.concatenate([weight, bridge_cost])
-        kind = np.concatenate([kind, np.full(len(bridges), EDGE_BRIDGE)])
-        edges, weight, kind = _unique_typed_edges(edges, weight, kind)
-    with timer.stage("place embeddings"):
-        embedding, sources = place_embeddings(msm, ps.position, ps.terrain, config.embedding.max_range)
-    with timer.stage(f"regions ({config.regions.method})"):
-        assignments = region_assignments(ps.position, embedding, ps.terrain, edges, config)
-        levels = build_levels(assignments, ps.position, embedding)
-    graph = SceneGraph(
-        terrain_classes=names,
+    grid_stats = TiledGridStats()
+    grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
+    return grid, grid_stats  # point_terrain, which no later stage reads, goes here
+
+
+def place_links(places: TerrainPlaceSet, traversable: np.ndarray, grid: TerrainGrid, config: BuildConfig) -> PlaceLinks:
+    """Every edge between places: the GVD edges, strip and grid-path links within a terrain, then
+    dead-end links across terrains and bridges between components; unique, cheapest kept."""
+    lk = config.linking
+    clear = grid_line_clear(traversable, grid.origin, grid.cell_size) if lk.require_clear_line else None
+    kwargs = {"clear": clear} if clear is not None else {}
+    strips, strip_len = strip_links(places, grid, config)
+    gvd_edges, gvd_weight = np.vstack([places.edges, strips]), np.concatenate([places.weight, strip_len])
+    paths, path_len = grid_links(places, gvd_edges, grid, config)
+    gvd_edges, gvd_weight = np.vstack([gvd_edges, paths]), np.concatenate([gvd_weight, path_len])
+    links, link_len = link_dead_ends(
+        places.position, places.terrain, gvd_edges, lk.max_link_distance, lk.link_candidates, **kwargs
+    )
+    edges = np.vstack([gvd_edges, links])
+    weight = np.concatenate([gvd_weight, link_len])
+    kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
+    bridges, bridge_cost, bridge_clear = bridge_components(
+        places.position, edges, lk.bridge_penalty, lk.link_candidates, **kwargs
+    )
+    edges = np.vstack([edges, bridges])
+    weight = np.concatenate([weight, bridge_cost])
+    kind = np.concatenate([kind, np.full(len(bridges), EDGE_BRIDGE)])
+    edges, weight, kind = _unique_typed_edges(edges, weight, kind)
+    return PlaceLinks(edges, weight, kind, len(paths), int((~bridge_clear).sum()))
+
+
+def _scene_graph(
+    msm: MetricSemanticMap,
+    places: TerrainPlaceSet,
+    embedding: np.ndarray,
+    links: PlaceLinks,
+    levels: list[RegionLevel],
+    config: BuildConfig,
+) -> SceneGraph:
+    return SceneGraph(
+        terrain_classes=list(msm.terrain_classes),
         terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),
         places=Places(
-            ps.position.astype(np.float64),
-            ps.terrain.astype(np.int64),
-            ps.clearance.astype(np.float64),
+            places.position.astype(np.float64),
+            places.terrain.astype(np.int64),
+            places.clearance.astype(np.float64),
             embedding.astype(np.float32),
         ),
-        place_edges=edges,
-        place_edge_weight=weight,
-        place_edge_kind=kind,
+        place_edges=links.edges,
+        place_edge_weight=links.weight,
+        place_edge_kind=links.kind,
         regions=levels,
         embedder=msm.embedder,
         region_method=config.regions.method,
     )
+
+
+def _build_stats(
+    msm: MetricSemanticMap,
+    grid: TerrainGrid,
+    grid_stats: TiledGridStats,
+    counts: PlaceCounts,
+    links: PlaceLinks,
+    sources: EmbeddingSources,
+    config: BuildConfig,
+) -> BuildStats:
+    """The build's counters, as the manifest and `terra build` report them."""
+    names, kind = list(msm.terrain_classes), links.kind
+    grid_tiles = None
     if grid_stats.windows or grid_stats.one_piece:
-        stats["grid_tiles"] = {
-            "windows": grid_stats.windows,
-            "max_overlap_m": round(grid_stats.max_margin * config.grid.cell_size, 3),
-            "one_piece": grid_stats.one_piece,
-        }
-    stats.update(
-        {
-            "places_per_terrain": {names[t]: n for t, n in stats["places_per_terrain"].items()},
-            "grid_cells": [int(grid.shape[0]), int(grid.shape[1])],
-            "blocked_cells": int(grid.blocked.sum()),
-            "edges": {
-                "gvd": int((kind == EDGE_GVD).sum()),
-                "cross_terrain": int((kind == EDGE_CROSS_TERRAIN).sum()),
-                "bridge": int((kind == EDGE_BRIDGE).sum()),
-            },
-            "grid_links": len(paths),
-            "bridges_not_clear": int((~bridge_clear).sum()),
-            "embedding_source": sources,
-            "embedding_rule": embedding_rule(msm, config.embedding.max_range),
-        }
+        overlap = round(grid_stats.max_margin * config.grid.cell_size, 3)
+        grid_tiles = GridTiles(grid_stats.windows, overlap, grid_stats.one_piece)
+    return BuildStats(
+        places_per_terrain={names[t]: n for t, n in counts.per_terrain.items()},
+        patches_dropped=counts.patches_dropped,
+        grid_cells=(int(grid.shape[0]), int(grid.shape[1])),
+        blocked_cells=int(grid.blocked.sum()),
+        edges=EdgeCounts(
+            int((kind == EDGE_GVD).sum()), int((kind == EDGE_CROSS_TERRAIN).sum()), int((kind == EDGE_BRIDGE).sum())
+        ),
+        grid_links=links.grid_links,
+        bridges_not_clear=links.bridges_not_clear,
+        embedding_source=sources,
+        embedding_rule=embedding_rule(msm, config.embedding.max_range),
+        grid_tiles=grid_tiles,
+        gvd_tiles=counts.gvd_tiles,
     )
-    return GraphBuild(graph, stats, timer)
 
 
 def _unique_typed_edges(
@@ -408,9 +472,8 @@ def run_build(
 
     config = config or BuildConfig()
     if regions is not None:
-        if regions not in ("agglomerative", "spectral"):
-            raise TerraError(f"--regions must be 'agglomerative' or 'spectral', got {regions!r}")
-        config = config.model_copy(update={"regions": config.regions.model_copy(update={"method": regions})})
+        method = check_region_method(regions)
+        config = config.model_copy(update={"regions": config.regions.model_copy(update={"method": method})})
     bundle = Bundle(bundle_path)
     _check_bundle(bundle)
     timer = StageTimer()
@@ -419,13 +482,8 @@ def run_build(
     result = build_scene_graph(msm, config, show_progress)
     for name, seconds in result.timer.seconds.items():
         timer.add(name, seconds)
-    with timer.stage("write"):
-        writer = BundleWriter(bundle.path, base=bundle, drop_components=("graph",))
-        try:
-            write_scene_graph(writer, result.graph, {"config": config.model_dump(mode="json"), "stats": result.stats})
-            writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
+    with timer.stage("write"), BundleWriter(bundle.path, base=bundle, drop_components=("graph",)) as writer:
+        info = {"config": config.model_dump(mode="json"), "stats": result.stats.to_json()}
+        write_scene_graph(writer, result.graph, info)
     result.timer = timer
     return result

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
+from terra.interop.results import ExportResult
 
-FORMATS = ("spark-dsg", "networkx", "ply", "terra-reference")
+ExportFormat = Literal["spark-dsg", "networkx", "ply", "terra-reference"]
+FORMATS: tuple[ExportFormat, ...] = get_args(ExportFormat)  # the one list of export formats
 DEFAULT_SUFFIX = {"spark-dsg": ".dsg.json", "networkx": ".nx.json", "ply": ".ply", "terra-reference": "-reference"}
 
 
@@ -19,10 +21,12 @@ def default_output(bundle: Path, fmt: str) -> Path:
     return bundle.parent / f"{stem}{DEFAULT_SUFFIX[fmt]}"
 
 
-def check_format(fmt: str) -> str:
-    if fmt not in FORMATS:
-        raise TerraError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
-    return fmt
+def check_format(fmt: str) -> ExportFormat:
+    """`fmt` when it names an export format, else TerraError."""
+    for known in FORMATS:
+        if fmt == known:
+            return known
+    raise TerraError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
 
 
 def export_bundle(
@@ -33,15 +37,22 @@ def export_bundle(
     features: bool = True,
     color: str = "terrain",
     image_range: float = 20.0,
-) -> dict[str, Any]:
+) -> ExportResult:
     """Write bundle `bundle` in format `fmt` to `out` (default: `default_output`); returns a summary.
     TerraError (nothing written) for an unknown format, a bundle of another schema version, a
     missing component, or an existing target without `overwrite`."""
-    check_format(fmt)
+    fmt = check_format(fmt)
     source = Bundle(bundle)
     target = Path(out) if out is not None else default_output(Path(bundle), fmt)
     if target.resolve() == source.path.resolve():
         raise TerraError(f"{target}: is the bundle itself; give another --out")
+    return ExportResult.of(_export(source, fmt, target, overwrite, features, color, image_range))
+
+
+def _export(
+    source: Bundle, fmt: ExportFormat, target: Path, overwrite: bool, features: bool, color: str, image_range: float
+) -> dict[str, Any]:
+    """The exporter of `fmt`; its summary."""
     if fmt == "spark-dsg":
         from terra.interop.spark import export_spark_dsg
 

@@ -33,6 +33,7 @@ from terra.bundle import BundleWriter
 from terra.errors import TerraError
 from terra.geometry import voxel_keys
 from terra.interop import reference_files as rf
+from terra.interop.results import ImportResult
 from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
 from terra.mapping.visibility import VisibilityIndex
 from terra.perception.text import normalize_rows
@@ -391,7 +392,7 @@ def import_reference(
     overwrite: bool = False,
     cell_size: float = 2.0,
     voxel_size: float | None = None,
-) -> dict[str, Any]:
+) -> ImportResult:
     """Turn reference output folder `folder` into the bundle `out` (written atomically)."""
     out = Path(out)
     if out.exists() and not overwrite:
@@ -409,15 +410,14 @@ def import_reference(
     voxel = float(voxel_size or ref.sidecar.get("voxel_size") or 1.0)
     msm, source = to_map(ref, classes, name, cell, voxel)
     _write_bundle(out, msm, ref, source)
-    return {
-        "format": "terra-reference",
-        "bundle": str(out),
-        "itr": ref.itr,
-        "points": len(msm),
-        "bank": int(msm.bank.shape[0]),
-        "terrain_classes": classes,
-        "embedder": name,
-        "images": len(msm.images),
-        "image_positions": source,
-        "observed_points": int(np.count_nonzero(np.diff(msm.counts.indptr))),
-    }
+    return ImportResult(
+        bundle=out,
+        itr=int(ref.itr),
+        points=len(msm),
+        observed_points=int(np.count_nonzero(np.diff(msm.counts.indptr))),
+        bank=int(msm.bank.shape[0]),
+        images=len(msm.images),
+        terrain_classes=classes,
+        embedder=name,
+        image_positions=dict(source),
+    )

@@ -29,6 +29,7 @@ from terra.fileio import OutputError
 from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
+from terra.mapping.results import CacheSummary, MapCounts
 from terra.mapping.storage import MAP_FORMAT, write_map
 from terra.perception.base import ImagePerception, Perception, PerceptionSkip
 from terra.perception.cache import CachedPerception, cached
@@ -41,15 +42,17 @@ POINTS_STREAM = 1 << 20  # noise stream number of per-point labels (camera strea
 
 @dataclass
 class MapRun:
-    """What `build_map` did: the bundle, the stage timings and the fault counters; `cache`: the
-    perception cache's folder, hits and computed images (None when the cache is off)."""
+    """What `build_map` did: the bundle and its map's sizes, the stage timings and the fault
+    counters; `cache`: the perception cache's folder, hits and computed images (None when the
+    cache is off)."""
 
     bundle: Bundle
+    counts: MapCounts
     timer: StageTimer
     stats: dict[str, int]
     notes: dict[str, str]  # first message of each kind of skipped frame
     resumed_from: int
-    cache: dict | None = None
+    cache: CacheSummary | None = None
 
 
 class FrameFeed(Protocol):
@@ -112,7 +115,17 @@ def run_mapping(
     except OutputError as exc:
         raise OutputError(f"{exc}{_resume_hint(checkpoint)}") from None
     checkpoint.discard()
-    return MapRun(bundle, timer, stats, dict(fusion.stats.notes), start, cache_summary(perception))
+    notes = dict(fusion.stats.notes)
+    return MapRun(bundle, map_counts(bundle), timer, stats, notes, start, cache_summary(perception))
+
+
+def map_counts(bundle: Bundle) -> MapCounts:
+    """The sizes of the map stored in `bundle` (as its manifest lists them)."""
+    info = bundle.model.components.map
+    sizes = (info.points, info.observed_points, info.bank, info.images) if info is not None else (None,)
+    if info is None or any(n is None for n in sizes):
+        raise TerraError(f"{bundle.path}/manifest.json: components.map lacks the map's sizes")
+    return MapCounts(int(info.points or 0), int(info.observed_points or 0), int(info.bank or 0), int(info.images or 0))
 
 
 def _fuse_all(
@@ -145,7 +158,8 @@ def _fuse_all(
         checkpoint.discard()  # nothing to resume: a rerun would meet the same frames
         first = next(iter(fusion.stats.notes.values()), "")
         raise TerraError(
-            f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)}){'; first: ' + first if first else ''}"
+            f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)})"
+            + (f"; first: {first}" if first else "")
         )
     with timer.stage("finish"):
         msm = fusion.finish(perception.embedder, perception.terrain_embeddings())
@@ -217,18 +231,17 @@ def open_perception(
     return cached(perception, config.perception.cache, out)
 
 
-def cache_summary(perception: Perception) -> dict | None:
+def cache_summary(perception: Perception) -> CacheSummary | None:
     """Folder, hits and computed images of a cached perception (None when uncached)."""
     if not isinstance(perception, CachedPerception):
         return None
-    return {"folder": str(perception.cache.folder), **perception.counts.to_json()}
+    return CacheSummary(str(perception.cache.folder), perception.counts.hits, perception.counts.computed)
 
 
 def check_output(out: Path) -> None:
     """Refuse to replace something that is not a bundle (a user's folder or file)."""
-    if out.exists() and not (out / "manifest.json").is_file():
-        if out.is_file() or any(out.iterdir()):
-            raise TerraError(f"{out}: exists and is not a Terra bundle; choose another --out or remove it")
+    if out.exists() and not (out / "manifest.json").is_file() and (out.is_file() or any(out.iterdir())):
+        raise TerraError(f"{out}: exists and is not a Terra bundle; choose another --out or remove it")
 
 
 def _global_map(dataset: Dataset, config: MappingConfig) -> tuple[np.ndarray | None, int]:
@@ -296,7 +309,8 @@ def image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tup
     offset = abs(float(camera.stamp) - float(frame.stamp))
     if offset > config.projection.max_time_offset:
         return "images_skipped_unmatched_stamp", (
-            f"{name}: image stamp {float(camera.stamp):.3f} s is {offset:.3f} s from its scan's {float(frame.stamp):.3f} s "
+            f"{name}: image stamp {float(camera.stamp):.3f} s is {offset:.3f} s "
+            f"from its scan's {float(frame.stamp):.3f} s "
             f"(tolerance {config.projection.max_time_offset} s)"
         )
     shape = (calib.height, calib.width)

@@ -20,6 +20,13 @@ FORMATS = ("terra-folder", "semantickitti", "kitti-raw", "rosbag1", "rosbag2")
 check_output = check_output_folder  # the dataset writers' name for it
 
 
+def check_format(format: str) -> str:
+    """`format` when it names a dataset format the writer knows, else TerraError."""
+    if format not in FORMATS:
+        raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
+    return format
+
+
 def write_dataset(
     dataset: Dataset,
     out: str | Path,
@@ -33,8 +40,7 @@ def write_dataset(
     ground truth (ground_truth/) to folder `out` in `format`. `extra(tmp_root)` may add files
     before the folder is moved into place. `bag_images`: jpeg (CompressedImage) or raw (Image
     rgb8) for the bag formats. Returns the folder."""
-    if format not in FORMATS:
-        raise TerraError(f"unknown format {format!r}; expected one of: {', '.join(FORMATS)}")
+    check_format(format)
     if bag_images not in ("jpeg", "raw"):
         raise TerraError(f"unknown bag image format {bag_images!r}; expected jpeg or raw")
 

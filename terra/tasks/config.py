@@ -10,7 +10,7 @@ listed fall back to `default_alpha`. Evaluation tunes these on a validation seed
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 from pydantic import Field
 
@@ -18,6 +18,8 @@ from terra.config import Section
 
 RetrievalMethod = Literal["ms-avg", "ms-max", "3dsg"]
 MonitorMethod = Literal["mix", "max", "thresh", "aib"]
+RETRIEVAL_METHODS: tuple[RetrievalMethod, ...] = get_args(RetrievalMethod)  # the one list of each choice
+MONITOR_METHODS: tuple[MonitorMethod, ...] = get_args(MonitorMethod)
 
 
 class RetrievalConfig(Section):

@@ -25,7 +25,7 @@ from terra.errors import TerraError
 from terra.graph.scene_graph import SceneGraph
 from terra.perception.text import TextEmbedder, check_embedder, resolve_embedder
 from terra.tasks.aib import aib_clusters, task_relevance
-from terra.tasks.config import MonitoringConfig, TasksConfig, alpha_for
+from terra.tasks.config import MONITOR_METHODS, MonitoringConfig, TasksConfig, alpha_for
 from terra.tasks.hierarchy import (
     check_has_regions,
     place_similarities,
@@ -35,7 +35,7 @@ from terra.tasks.hierarchy import (
 )
 from terra.tasks.queries import clean_queries, embed_query
 
-METHODS = ("mix", "max", "thresh", "aib")
+METHODS = MONITOR_METHODS
 
 
 @dataclass

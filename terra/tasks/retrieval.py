@@ -27,7 +27,7 @@ from terra.graph.scene_graph import Objects, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.perception.text import TextEmbedder, check_embedder, resolve_embedder
 from terra.tasks.boxes import fit_object_boxes
-from terra.tasks.config import RetrievalConfig, TasksConfig, alpha_for
+from terra.tasks.config import RETRIEVAL_METHODS, RetrievalConfig, TasksConfig, alpha_for
 from terra.tasks.dbscan import dbscan_labels
 from terra.tasks.hierarchy import (
     check_has_regions,
@@ -43,7 +43,7 @@ from terra.tasks.queries import clean_queries, embed_queries
 from terra.tasks.scoring import PointScorer
 from terra.tasks.standing import standing_groups
 
-METHODS = ("ms-avg", "ms-max", "3dsg")
+METHODS = RETRIEVAL_METHODS
 
 
 @dataclass

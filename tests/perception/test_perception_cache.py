@@ -12,6 +12,7 @@ import pytest
 from terra.mapping.config import MappingConfig
 from terra.mapping.perceive import run_perception
 from terra.mapping.pipeline import run_mapping
+from terra.mapping.results import CacheSummary
 from terra.perception.base import ImagePerception, Perception
 from terra.perception.cache import (
     CachedPerception,
@@ -179,14 +180,14 @@ def test_map_twice_second_run_does_no_inference_and_gives_the_same_bytes(tmp_pat
     config = MappingConfig.model_validate(CACHE_ON)
     first = CountingBackend(config)
     run1 = run_mapping(BoxScene(), config, tmp_path / "a.terra", show_progress=False, perception=first.perception)
-    assert first.calls == 6 and run1.cache["computed"] == 6 and run1.cache["hits"] == 0
+    assert first.calls == 6 and run1.cache is not None and run1.cache.computed == 6 and run1.cache.hits == 0
     assert (tmp_path / "a.terra.work" / "perception").is_dir()
     second = CountingBackend(config)
     shared = MappingConfig.model_validate(
         {"perception": {"cache": {"mode": "on", "folder": str(tmp_path / "a.terra.work" / "perception")}}}
     )
     run2 = run_mapping(BoxScene(), shared, tmp_path / "b.terra", show_progress=False, perception=second.perception)
-    assert second.calls == 0 and run2.cache == {"folder": run1.cache["folder"], "hits": 6, "computed": 0}
+    assert second.calls == 0 and run2.cache == CacheSummary(run1.cache.folder, hits=6, computed=0)
     a, b = folder_digest(run1.bundle.path), folder_digest(run2.bundle.path)
     assert {k: v for k, v in a.items() if k != "manifest.json"} == {k: v for k, v in b.items() if k != "manifest.json"}
     # Fusion settings do not touch the cache: re-fusing with another DBSCAN radius runs no model.
@@ -212,7 +213,7 @@ def test_perception_only_fills_what_the_map_reads(tmp_path, text_embedder):
     assert not (tmp_path / "m.terra").exists()  # no bundle
     mapper = CountingBackend(config)
     mapped = run_mapping(BoxScene(), config, tmp_path / "m.terra", show_progress=False, perception=mapper.perception)
-    assert mapper.calls == 0 and mapped.cache["hits"] == 6
+    assert mapper.calls == 0 and mapped.cache is not None and mapped.cache.hits == 6
 
 
 def test_perception_only_needs_the_cache(tmp_path, text_embedder):
