@@ -133,10 +133,7 @@ def monitor_region(
     ranked = [
         r for r in ranked_regions(graph, region_similarities(graph, q)) if r[0] >= min(min_level, len(graph.regions))
     ]
-    if method == "thresh":
-        chosen = [r for r in ranked if r[2] > alpha]
-    else:
-        chosen = ranked[:k]
+    chosen = [r for r in ranked if r[2] > alpha] if method == "thresh" else ranked[:k]
     regions = [(level, index) for level, index, _ in chosen]
     places = places_of_regions(graph, regions)
     if method in ("mix", "thresh"):

@@ -47,7 +47,8 @@ def resolve_terrain(terrain_classes: list[str], ref: TerrainRef) -> int:
         if 0 <= index < len(terrain_classes):
             return index
         raise TerraError(
-            f"terrain index {index} is out of range; the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}"
+            f"terrain index {index} is out of range; "
+            f"the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}"
         )
     key = str(ref).strip().lower()
     if key not in names:
@@ -85,7 +86,8 @@ class TerrainCosts:
             value = float(value)
             if not np.isfinite(value) or value < 0:
                 raise TerraError(
-                    f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; use --forbid to exclude it"
+                    f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; "
+                    "use --forbid to exclude it"
                 )
             penalty[index] = value
         penalty[list(preferred)] = 0.0

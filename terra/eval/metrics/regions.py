@@ -2,8 +2,9 @@
 
 The ground-truth set of a named region is the places whose map-frame xy lies in its closed
 polygon: the boundary counts, because the simulator's region polygons and the places derived from
-its grid-aligned terrain often share coordinates, and a place on a region's edge belongs to it. Scores are micro-averaged over queries: true positives, false positives and
-false negatives are summed over all queries before the ratios are taken.
+its grid-aligned terrain often share coordinates, and a place on a region's edge belongs to it.
+Scores are micro-averaged over queries: true positives, false positives and false negatives are
+summed over all queries before the ratios are taken.
 """
 
 from __future__ import annotations
