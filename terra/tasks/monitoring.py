@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import shapely
 
 from terra.errors import TerraError
 from terra.graph.scene_graph import SceneGraph
@@ -36,6 +37,17 @@ from terra.tasks.hierarchy import (
 from terra.tasks.queries import check_embedder, clean_queries, embed_query, resolve_embedder
 
 METHODS = ("mix", "max", "thresh", "aib")
+
+
+def places_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside or on the boundary
+    of `polygon` (K, 2): the places of a named region (terra.eval.metrics.regions says why the
+    boundary counts)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) == 0:
+        return np.zeros(0, dtype=np.int64)
+    inside = shapely.intersects_xy(shapely.Polygon(np.asarray(polygon, float)), xy[:, 0], xy[:, 1])
+    return np.flatnonzero(inside)
 
 
 @dataclass

@@ -18,8 +18,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Polygon
 
 from terra.datasets.ground_truth import GroundTruth, NamedRegion
-from terra.eval.metrics.boxes import BoxSet
 from terra.graph.scene_graph import SceneGraph
+from terra.tasks.boxes import BoxSet
 from terra.viz.class_grid import (
     DIFFERENCE_COLOURS,
     DIFFERENCE_LABELS,
@@ -274,7 +274,7 @@ def monitoring_figure(
     """Per labelled region, a panel titled with its query (the region's description) and, given
     `scores` [(precision, recall)], how well it was answered: the region's polygon (black), its
     places (black rings) and the places predicted for the query (orange)."""
-    from terra.eval.metrics.regions import places_in_polygon
+    from terra.tasks.monitoring import places_in_polygon
 
     n = max(len(regions), 1)
     ncols = min(n, min((3, 4), key=lambda c: (-(-n // c) * c - n, c)))  # 3 or 4 columns, fewest empty panels

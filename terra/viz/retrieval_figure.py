@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
-from terra.eval.metrics.boxes import BoxSet
+from terra.tasks.boxes import BoxSet
 from terra.viz.raster import TopDownImage
 from terra.viz.style import METHOD_COLOURS, Extent, figure_legend, save_figure, topdown_axis, view_extent
 

@@ -13,19 +13,11 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import shapely
 
 from terra.eval.metrics.retrieval import f1_score
+from terra.tasks.monitoring import places_in_polygon
 
-
-def places_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside or on the boundary
-    of `polygon` (K, 2)."""
-    xy = np.asarray(xy, dtype=np.float64)
-    if len(xy) == 0:
-        return np.zeros(0, dtype=np.int64)
-    inside = shapely.intersects_xy(shapely.Polygon(np.asarray(polygon, float)), xy[:, 0], xy[:, 1])
-    return np.flatnonzero(inside)
+__all__ = ["SetScores", "micro_scores", "places_in_polygon", "set_scores"]
 
 
 @dataclass
