@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -37,6 +37,8 @@ from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
 
 TerrainRef = str | int
+# Penalties per terrain name or index (a dict of names alone is not a Mapping[TerrainRef, ...]).
+Penalties = Mapping[str, float] | Mapping[int, float] | Mapping[TerrainRef, float]
 
 
 def resolve_terrain(terrain_classes: list[str], ref: TerrainRef) -> int:
@@ -68,7 +70,7 @@ class TerrainCosts:
         cls,
         terrain_classes: list[str],
         prefer: Iterable[TerrainRef] = (),
-        penalties: Mapping[TerrainRef, float] | None = None,
+        penalties: Penalties | None = None,
         forbid: Iterable[TerrainRef] = (),
         default_penalty: float = DEFAULT_PENALTY,
     ) -> TerrainCosts:
@@ -201,7 +203,7 @@ def plan_path(
     start_place: int,
     goal_place: int,
     prefer: Iterable[TerrainRef] = (),
-    penalties: Mapping[TerrainRef, float] | None = None,
+    penalties: Penalties | None = None,
     forbid: Iterable[TerrainRef] = (),
     default_penalty: float = DEFAULT_PENALTY,
 ) -> PathPlan:
@@ -309,13 +311,16 @@ class SkippedGoal:
         }
 
 
+Goal = TypeVar("Goal", bound=GoalObject)
+
+
 @dataclass
-class GoalPlan:
+class GoalPlan(Generic[Goal]):
     """The plan to the first reachable candidate: its object, its approach place, and the
     better-scored candidates that were skipped (best first)."""
 
     plan: PathPlan
-    goal_object: GoalObject
+    goal_object: Goal
     goal_place: int
     skipped: list[SkippedGoal]
 
@@ -324,10 +329,10 @@ def plan_to_objects(
     graph: SceneGraph,
     cost_graph: CostGraph,
     start: int,
-    candidates: Sequence[GoalObject],
+    candidates: Sequence[Goal],
     radius: float,
     what: str = "the destination",
-) -> GoalPlan:
+) -> GoalPlan[Goal]:
     """Plan from `start` to the best-scored candidate object that can be reached.
 
     Candidates are tried by decreasing score; one is skipped when it has no approach place (see
