@@ -42,7 +42,7 @@ def _bold_best(rows: list[list[str]], values: list[list[float | None]], higher_b
     """Bold the best value of each numeric column (like the paper's tables); ties all bold."""
     out = [list(r) for r in rows]
     for col, better in enumerate(higher_better):
-        column = [v[col] for v in values if v[col] is not None]
+        column = [x for x in (v[col] for v in values) if x is not None]
         if len(column) < 2:
             continue
         best = max(column) if better else min(column)
