@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import shapely
 
 from terra.errors import TerraError
 from terra.graph.scene_graph import SceneGraph
@@ -43,6 +42,8 @@ def places_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside or on the boundary
     of `polygon` (K, 2): the places of a named region (terra.eval.metrics.regions says why the
     boundary counts)."""
+    import shapely  # only the evaluation and the figures ask; a monitor query does not
+
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) == 0:
         return np.zeros(0, dtype=np.int64)
