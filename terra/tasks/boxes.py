@@ -14,6 +14,7 @@ from typing import overload
 
 import numpy as np
 import shapely
+from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,7 @@ class OrientedBox:
         return local @ np.array([[c, s], [-s, c]]) + self.center[:2]
 
 
-@dataclass
+@dataclass(init=False)
 class BoxSet:
     """n oriented boxes: center (n, 3) metres, size (n, 3) metres (box axes), yaw (n,) radians."""
 
@@ -40,10 +41,11 @@ class BoxSet:
     size: np.ndarray
     yaw: np.ndarray
 
-    def __post_init__(self) -> None:
-        self.center = np.asarray(self.center, dtype=np.float64).reshape(-1, 3)
-        self.size = np.asarray(self.size, dtype=np.float64).reshape(-1, 3)
-        self.yaw = np.asarray(self.yaw, dtype=np.float64).reshape(-1)
+    def __init__(self, center: ArrayLike, size: ArrayLike, yaw: ArrayLike) -> None:
+        """Any array-likes of those shapes (nested lists too), stored as float64 arrays."""
+        self.center = np.asarray(center, dtype=np.float64).reshape(-1, 3)
+        self.size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
+        self.yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
         if not (len(self.center) == len(self.size) == len(self.yaw)):
             raise ValueError(
                 f"box arrays disagree: {len(self.center)} centres, {len(self.size)} sizes, {len(self.yaw)} yaws"
