@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 from terra.bundle import Bundle
 from terra.datasets.base import Dataset
@@ -126,6 +127,13 @@ def dataset_ground_truth(gt_root: Path) -> tuple[Dataset, GroundTruth]:
         gt = load_ground_truth(gt_root)  # names the missing folder when there is neither
         return open_dataset(gt_root), gt
     dataset = open_dataset(gt_root)
-    if not hasattr(dataset, "ground_truth"):
+    if not isinstance(dataset, _WithGroundTruth):
         raise TerraError(f"{gt_root}: no ground truth ({GROUND_TRUTH_DIR}/ or labels) in this dataset")
     return dataset, dataset.ground_truth()
+
+
+@runtime_checkable
+class _WithGroundTruth(Protocol):
+    """A dataset that carries its own ground truth (KITTI labels, a Terra folder, a bag)."""
+
+    def ground_truth(self) -> GroundTruth: ...

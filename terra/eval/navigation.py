@@ -8,10 +8,11 @@ ground-truth terrain (terra.eval.metrics.navigation).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  (compiled, no stub)
 
 from terra.datasets.ground_truth import TerrainRaster
 from terra.errors import TerraError
@@ -61,7 +62,7 @@ def plan_with(
     goal: int,
     name: str,
     raster: TerrainRaster,
-    prefer: list[str] = (),
+    prefer: Sequence[str] = (),
     step: float = 0.1,
     default_penalty: float = DEFAULT_PENALTY,
 ) -> PlanResult:
@@ -101,13 +102,13 @@ def terrain_route_pairs(
     places are of that terrain in the graph and on one 8-connected component of its cells in the
     ground-truth raster (over the `seen` cells only, when given). All pairs, or `max_pairs` of
     them drawn with a fixed seed."""
-    from scipy import ndimage
+    from terra.eval.metrics.places import eight_components
 
     if terrain not in graph.terrain_classes or terrain not in raster.legend.values():
         return np.zeros((0, 2), dtype=np.int64)
     cid = next(k for k, v in raster.legend.items() if v == terrain)
     cells = raster.classes == cid
-    labels, _ = ndimage.label(cells if seen is None else cells & seen, structure=np.ones((3, 3), bool))
+    labels = eight_components(cells if seen is None else cells & seen)
     mine = np.flatnonzero(graph.places.terrain == graph.terrain_classes.index(terrain))
     rows, cols, inside = raster.cell_of(graph.places.position[mine, :2])
     component = np.where(inside, labels[rows, cols], 0)

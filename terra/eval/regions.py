@@ -167,8 +167,8 @@ def rebuild_regions(bundle, graph: SceneGraph, method: str) -> tuple[SceneGraph,
 def best_region_scores(graph: SceneGraph, truth: list[np.ndarray]) -> list[SetScores]:
     """Per query, the scores of the single region (any level) whose places match its true places
     best (highest F1; ties: lowest level, then lowest index; none when no region overlaps them):
-    what monitoring that picks one region per query would reach with a perfect ranking. A ceiling of the hierarchy's regions, not a
-    method: it reads the labels."""
+    what monitoring that picks one region per query would reach with a perfect ranking. A ceiling
+    of the hierarchy's regions, not a method: it reads the labels."""
     P = len(graph.places)
     out = []
     for places in truth:

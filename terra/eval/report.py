@@ -42,7 +42,7 @@ def _bold_best(rows: list[list[str]], values: list[list[float | None]], higher_b
     """Bold the best value of each numeric column (like the paper's tables); ties all bold."""
     out = [list(r) for r in rows]
     for col, better in enumerate(higher_better):
-        column = [v[col] for v in values if v[col] is not None]
+        column = [x for x in (v[col] for v in values) if x is not None]
         if len(column) < 2:
             continue
         best = max(column) if better else min(column)
@@ -71,7 +71,8 @@ def perception_statement(perception: dict | None, embedder: str = "") -> str:
         if any(noise.get(k) for k in ("dilate_px", "miss_rate", "confusion_rate")):
             missed, swapped = 100 * (noise.get("miss_rate") or 0), 100 * (noise.get("confusion_rate") or 0)
             how = (
-                f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, {missed:.0f}% of objects missed, "
+                f"with simulated noise (masks grown by {noise.get('dilate_px', 0)} px, "
+                f"{missed:.0f}% of objects missed, "
                 f"{swapped:.0f}% of labels swapped for a look-alike)"
             )
         else:
@@ -146,7 +147,8 @@ def _retrieval(ret: dict) -> list[str]:
             per_rows.append(row)
         out += [
             "Per query. *Found*: the boxes retrieved for the query (clusters of map points that match it better "
-            "than any other query or terrain name, above alpha). *Hits*: its ground-truth objects counted as found by the relaxed-accuracy rule: "
+            "than any other query or terrain name, above alpha). *Hits*: its ground-truth objects counted as "
+            "found by the relaxed-accuracy rule: "
             "the query's best-scoring boxes, as many as it has objects and whichever query they were retrieved "
             "for, are matched one to one to its objects, and a matched box that overlaps its object and holds "
             "its centre is a hit. So a query can have hits with nothing found (its best boxes went to another "
@@ -275,14 +277,7 @@ def _navigation(nav: dict) -> list[str]:
     plans = ordered(nav.get("plans", {}))
     terrains = sorted({t for p in plans.values() for t in p.get("gt_terrain_m", {})})
     header = ["Plan", "Length (m)", "Places"] + [f"{t} (m, %)" for t in terrains]
-    rows = []
-    for name, p in plans.items():
-        length = p.get("length_m", 0.0)
-        cells = [
-            f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)"
-            for t in terrains
-        ]
-        rows.append([name, f"{length:.1f}", str(p.get("places", 0))] + cells)
+    rows = _plan_rows(plans, terrains)
     out = [f'## Navigation: "{nav.get("task", "")}"', ""]
     if nav.get("error"):
         out += [f"Not evaluated: {nav['error']}", ""]
@@ -309,14 +304,14 @@ def _plan_rows(plans: dict, terrains: list[str]) -> list[list[str]]:
     rows = []
     for name, p in ordered(plans).items():
         length = p.get("length_m", 0.0)
-        rows.append(
-            [name, f"{length:.1f}", str(p.get("places", 0))]
-            + [
-                f"{p['gt_terrain_m'].get(t, 0.0):.1f} ({100 * p['gt_terrain_m'].get(t, 0.0) / length if length else 0:.0f}%)"
-                for t in terrains
-            ]
-        )
+        rows.append([name, f"{length:.1f}", str(p.get("places", 0))] + [_terrain_cell(p, t, length) for t in terrains])
     return rows
+
+
+def _terrain_cell(plan: dict, terrain: str, length: float) -> str:
+    """ "12.5 (40%)": the metres of a plan's path on `terrain` (ground truth) and their share of its length."""
+    metres = plan["gt_terrain_m"].get(terrain, 0.0)
+    return f"{metres:.1f} ({100 * metres / length if length else 0:.0f}%)"
 
 
 def _preference(nav: dict) -> list[str]:
@@ -325,7 +320,8 @@ def _preference(nav: dict) -> list[str]:
     if case:
         terrains = sorted({t for p in case["plans"].values() for t in p.get("gt_terrain_m", {})})
         out += [
-            f"Terrain preference case: from place {case['start_place']} at ({case['start_xy'][0]:.1f}, {case['start_xy'][1]:.1f}) "
+            f"Terrain preference case: from place {case['start_place']} "
+            f"at ({case['start_xy'][0]:.1f}, {case['start_xy'][1]:.1f}) "
             f"to place {case['goal_place']} at ({case['goal_xy'][0]:.1f}, {case['goal_xy'][1]:.1f}) m, the pair of "
             f"{', '.join(nav.get('prefer', []))} places where the preference moves the path most onto it:",
             "",
@@ -338,10 +334,12 @@ def _preference(nav: dict) -> list[str]:
     routes = nav.get("preference_routes")
     if routes and routes.get("pairs"):
         out += [
-            f"Preferring {routes['terrain']} between {routes['pairs']} place pairs joined by a {routes['terrain']} route in the world: "
+            f"Preferring {routes['terrain']} between {routes['pairs']} place pairs "
+            f"joined by a {routes['terrain']} route in the world: "
             f"mean {100 * routes['preferred_mean_share']:.1f}% of the path on {routes['terrain']} (shortest: "
             f"{100 * routes['shortest_mean_share']:.1f}%), lowest {100 * routes['preferred_lowest_share']:.1f}%, "
-            f"{routes['pairs_meeting']} pairs ({100 * routes['fraction_meeting']:.1f}%) at {100 * routes['min_share']:.0f}% or more.",
+            f"{routes['pairs_meeting']} pairs ({100 * routes['fraction_meeting']:.1f}%) "
+            f"at {100 * routes['min_share']:.0f}% or more.",
             "",
         ]
     return out
@@ -407,39 +405,73 @@ def terrain_shares(by_terrain: dict[str, float], length: float) -> str:
 
 def headline(summary: dict) -> list[str]:
     """A few indented lines with the main figures of a summary (printed by `terra eval` and `terra demo`)."""
-    lines = []
-    perception = summary.get("perception")
+    nav = summary.get("navigation", {})
+    lines = _headline_perception(summary.get("perception"))
+    lines += _headline_segmentation(summary.get("segmentation", {}))
+    lines += _headline_retrieval(summary.get("retrieval", {}))
+    lines += _headline_regions(summary.get("regions", {}))
+    lines += _headline_map(summary)
+    lines += _headline_paths(nav)
+    skipped = [key for key in summary.get("not_evaluated", {}) if key != "notes"]
+    if skipped:
+        lines.append(f"  not evaluated ({', '.join(skipped)}): the ground truth has objects only (see the report)")
+    lines += _headline_preference(nav)
+    return lines
+
+
+def _headline_perception(perception: dict | None) -> list[str]:
     if perception and perception.get("ground_truth_masks"):
         noise = " with simulated noise" if any((perception.get("noise") or {}).values()) else ""
-        lines.append(
+        return [
             f"  perception: labels backend (the ground-truth label images{noise}); terrain segmentation and "
             "retrieval grade masks derived from the ground truth, not comparable with the paper's CLIP/YOLO "
             "figures"
-        )
-    elif perception:
-        lines.append(f"  perception: {perception.get('backend')} backend")
-    seg = summary.get("segmentation", {}).get("methods", {})
-    for name, s in ordered(seg).items():
+        ]
+    if perception:
+        return [f"  perception: {perception.get('backend')} backend"]
+    return []
+
+
+def _headline_segmentation(seg: dict) -> list[str]:
+    lines = []
+    for name, s in ordered(seg.get("methods", {})).items():
         fps = "" if s.get("fps") is None else f", {s['fps']:.0f} FPS"  # no frame rate for a label lookup
         lines.append(f"  terrain segmentation ({name}): mIoU {s['miou']:.3f}, F1 {s['f1']:.3f}{fps}")
-    ret = summary.get("retrieval", {})
+    return lines
+
+
+def _headline_retrieval(ret: dict) -> list[str]:
+    lines = []
     for name, s in ordered(ret.get("methods", {})).items():
         counts = f"{counted(ret['num_gt'], 'object')}, {counted(len(ret['queries']), 'query', 'queries')}"
         lines.append(
             f"  retrieval {name:<7} ({counts}): IoU {s['iou']:.3f} "
-            f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}"
+            f"(matched {s.get('matched_iou', 0.0):.3f}), RAcc {s['relaxed_accuracy']:.3f}, "
+            f"RPrec {s['relaxed_precision']:.3f}, F1 {s['f1']:.3f}"
         )
-    for name, s in ordered(summary.get("regions", {}).get("methods", {})).items():
+    return lines
+
+
+def _headline_regions(regions: dict) -> list[str]:
+    lines = []
+    for name, s in ordered(regions.get("methods", {})).items():
         lines.append(
             f"  regions {name:<13}: P {s['precision']:.3f}, R {s['recall']:.3f}, F1 {s['f1']:.3f}, "
-            f"{s['runtime_ms']:.0f} ms (regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})"
+            f"{s['runtime_ms']:.0f} ms "
+            f"(regions {s.get('regions_ms', 0.0):.0f} + query {s.get('query_ms', s['runtime_ms']):.0f})"
         )
-    skipped_regions = summary.get("regions", {}).get("not_evaluable", [])
+    skipped_regions = regions.get("not_evaluable", [])
     if skipped_regions:
         lines.append(
             "  regions not evaluable (no place inside, left out of the averages): "
             + ", ".join(r["name"] for r in skipped_regions)
         )
+    return lines
+
+
+def _headline_map(summary: dict) -> list[str]:
+    """The places' connectivity and the memory the map and graph take."""
+    lines = []
     places = summary.get("places", {}).get("connectivity_seen")
     if places:
         lines.append(
@@ -449,16 +481,24 @@ def headline(summary: dict) -> list[str]:
     mem = summary.get("memory")
     if mem:
         lines.append(
-            f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² ({mem['bytes_per_m2']:.0f} B/m²)"
+            f"  memory: {mem['total_bytes'] / 2**20:.2f} MiB for {mem['area_m2']:,.0f} m² "
+            f"({mem['bytes_per_m2']:.0f} B/m²)"
         )
-    nav = summary.get("navigation", {})
+    return lines
+
+
+def _headline_paths(nav: dict) -> list[str]:
+    lines = []
     for name, p in ordered(nav.get("plans", {})).items():
         lines.append(f"  path {name}: {p['length_m']:.1f} m ({terrain_shares(p['gt_terrain_m'], p['length_m'])})")
     if nav.get("error"):
         lines.append(f"  navigation: {nav['error']}")
-    skipped = [key for key in summary.get("not_evaluated", {}) if key != "notes"]
-    if skipped:
-        lines.append(f"  not evaluated ({', '.join(skipped)}): the ground truth has objects only (see the report)")
+    return lines
+
+
+def _headline_preference(nav: dict) -> list[str]:
+    """The preference case's plans and how often preferring a terrain kept routes on it."""
+    lines = []
     case = nav.get("preference_case")
     if case:
         for name, p in ordered(case["plans"]).items():

@@ -11,9 +11,10 @@ from terra.eval.inputs import EvalInputs
 from terra.eval.regions import MonitoringRun
 from terra.eval.report import ordered, terrain_shares
 from terra.eval.retrieval import RetrievalRun, RetrievalTask
+from terra.graph.scene_graph import SceneGraph
 from terra.viz import figures
-from terra.viz.raster import point_classes, terrain_points_image
-from terra.viz.style import view_extent
+from terra.viz.raster import TopDownImage, point_classes, terrain_points_image
+from terra.viz.style import Extent, view_extent
 
 FIGURES = "figures"
 
@@ -30,27 +31,52 @@ def write_figures(
     """Write every figure under out/figures/; returns {title: path relative to out}."""
     folder = Path(out) / FIGURES
     dpi = config.dpi
-    msm, graph = inputs.msm, inputs.graph
+    msm = inputs.msm
     background = terrain_points_image(msm.points, point_classes(msm), msm.terrain_classes, cell=msm.voxel_size)
-    # Show the evaluated world (the ground-truth raster, else the map), not every far LiDAR return.
+    written, extent = _terrain_figure(folder, inputs, dpi)
+    written.update(_graph_figures(folder, inputs, background, dpi, extent))
+    if retrieval:
+        written.update(_boxes_figure(folder, summary, task, retrieval, background, dpi, extent))
+    written.update(_monitoring_figure(folder, inputs, monitoring, background, dpi, extent))
+    written.update(_paths_figure(folder, inputs.graph, summary.get("navigation", {}), background, dpi, extent))
+    mem = summary["memory"]
+    parts = mem.get("parts_bytes") or mem["components_bytes"]
+    written["Memory"] = figures.memory_figure(
+        folder / "7_memory.png", parts, mem["area_m2"], inputs.bundle.path.name, dpi
+    )
+    return {title: path.relative_to(out).as_posix() for title, path in written.items()}
+
+
+def _terrain_figure(folder: Path, inputs: EvalInputs, dpi: int) -> tuple[dict[str, Path], Extent]:
+    """The terrain map against the ground truth, and the view every figure shares: the evaluated
+    world (the ground-truth raster, else the map), not every far LiDAR return."""
+    msm = inputs.msm
     raster = inputs.gt.terrain
-    written: dict[str, Path] = {}
-    if raster is not None:
-        corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
-        extent = view_extent(corners, margin=0.03)
-        written["Terrain map vs ground truth"] = figures.terrain_map_figure(
-            folder / "1_terrain_map.png",
-            msm.terrain_classes,
-            msm.points,
-            point_classes(msm),
-            inputs.gt,
-            dpi,
-            extent,
-            cell=max(msm.voxel_size, raster.resolution),
-        )
-    else:
-        extent = view_extent(msm.points, margin=0.03)
-    written["Places layer by terrain"] = figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)
+    if raster is None:
+        return {}, view_extent(msm.points, margin=0.03)
+    corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
+    extent = view_extent(corners, margin=0.03)
+    path = figures.terrain_map_figure(
+        folder / "1_terrain_map.png",
+        msm.terrain_classes,
+        msm.points,
+        point_classes(msm),
+        inputs.gt,
+        dpi,
+        extent,
+        cell=max(msm.voxel_size, raster.resolution),
+    )
+    return {"Terrain map vs ground truth": path}, extent
+
+
+def _graph_figures(
+    folder: Path, inputs: EvalInputs, background: TopDownImage, dpi: int, extent: Extent
+) -> dict[str, Path]:
+    """The places layer, and the region levels of each Terra hierarchy evaluated (else the bundle's)."""
+    graph = inputs.graph
+    written = {
+        "Places layer by terrain": figures.places_figure(folder / "2_places.png", graph, background, dpi, extent)
+    }
     for method in ("spectral", "agglomerative"):
         if method in inputs.hierarchies:
             written[f"Region levels ({method})"] = figures.region_levels_figure(
@@ -60,54 +86,81 @@ def write_figures(
         written["Region levels"] = figures.region_levels_figure(
             folder / "3_regions.png", graph, background, dpi, extent
         )
-    if retrieval:
-        gt_boxes, gt_query = task.gt_boxes()
-        predictions = {m: (run.boxes, run.query) for m, run in retrieval.items()}
-        counts = {
-            m: [(r["num_predictions"], r["relaxed_hits"]) for r in s["per_query"]]
-            for m, s in summary.get("retrieval", {}).get("methods", {}).items()
-        }
-        written["Retrieved boxes vs ground truth"] = figures.boxes_figure(
-            folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts
-        )
-    best = _best_terra_hierarchy(monitoring)
-    if best is not None:
-        graph_m = inputs.hierarchies[best][0] if best in inputs.hierarchies else graph
-        run = monitoring[best]
-        written[f"Region monitoring ({best})"] = figures.monitoring_figure(
-            folder / "5_monitoring.png",
-            graph_m,
-            run.regions or inputs.gt.regions,
-            run.predicted,
-            best,
-            background,
-            dpi,
-            extent,
-            [(sc.precision, sc.recall) for sc in run.scores],
-        )
-    nav = summary.get("navigation", {})
-    if "plans" in nav:
-        ordered_plans = ordered(nav["plans"])
-        plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in ordered_plans.items()]
-        notes = ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in ordered_plans.values()]
-        written["Terrain-aware navigation"] = figures.paths_figure(
-            folder / "6_paths.png",
-            graph,
-            nav["start_place"],
-            nav["goal_place"],
-            plans,
-            nav["task"],
-            background,
-            dpi,
-            extent,
-            notes,
-        )
-    mem = summary["memory"]
-    parts = mem.get("parts_bytes") or mem["components_bytes"]
-    written["Memory"] = figures.memory_figure(
-        folder / "7_memory.png", parts, mem["area_m2"], inputs.bundle.path.name, dpi
+    return written
+
+
+def _boxes_figure(
+    folder: Path,
+    summary: dict,
+    task: RetrievalTask,
+    retrieval: dict[str, RetrievalRun],
+    background: TopDownImage,
+    dpi: int,
+    extent: Extent,
+) -> dict[str, Path]:
+    """Each method's retrieved boxes against the ground truth, with Table II's counts per query."""
+    gt_boxes, gt_query = task.gt_boxes()
+    predictions = {m: (run.boxes, run.query) for m, run in retrieval.items()}
+    counts = {
+        m: [(r["num_predictions"], r["relaxed_hits"]) for r in s["per_query"]]
+        for m, s in summary.get("retrieval", {}).get("methods", {}).items()
+    }
+    path = figures.boxes_figure(
+        folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts
     )
-    return {title: path.relative_to(out).as_posix() for title, path in written.items()}
+    return {"Retrieved boxes vs ground truth": path}
+
+
+def _monitoring_figure(
+    folder: Path,
+    inputs: EvalInputs,
+    monitoring: dict[str, MonitoringRun],
+    background: TopDownImage,
+    dpi: int,
+    extent: Extent,
+) -> dict[str, Path]:
+    """The places the best Terra hierarchy predicted per region (none without a monitoring run)."""
+    best = _best_terra_hierarchy(monitoring)
+    if best is None:
+        return {}
+    graph = inputs.hierarchies[best][0] if best in inputs.hierarchies else inputs.graph
+    run = monitoring[best]
+    path = figures.monitoring_figure(
+        folder / "5_monitoring.png",
+        graph,
+        run.regions or inputs.gt.regions,
+        run.predicted,
+        best,
+        background,
+        dpi,
+        extent,
+        [(sc.precision, sc.recall) for sc in run.scores],
+    )
+    return {f"Region monitoring ({best})": path}
+
+
+def _paths_figure(
+    folder: Path, graph: SceneGraph, nav: dict, background: TopDownImage, dpi: int, extent: Extent
+) -> dict[str, Path]:
+    """The navigation task's plans with their ground-truth terrain shares (none without plans)."""
+    if "plans" not in nav:
+        return {}
+    ordered_plans = ordered(nav["plans"])
+    plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in ordered_plans.items()]
+    notes = ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in ordered_plans.values()]
+    path = figures.paths_figure(
+        folder / "6_paths.png",
+        graph,
+        nav["start_place"],
+        nav["goal_place"],
+        plans,
+        nav["task"],
+        background,
+        dpi,
+        extent,
+        notes,
+    )
+    return {"Terrain-aware navigation": path}
 
 
 def _best_terra_hierarchy(monitoring: dict[str, MonitoringRun]) -> str | None:

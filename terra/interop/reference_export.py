@@ -44,7 +44,7 @@ def scan_index(msm: MetricSemanticMap) -> int:
 def reference_counts(msm: MetricSemanticMap) -> dict[int, dict[int, int]]:
     """{point: {row: count}} over the terrain rows then the bank rows (see the module docstring)."""
     votes = sp.csr_matrix(np.asarray(msm.terrain_votes, dtype=np.int64))
-    both = sp.hstack([votes, msm.counts.astype(np.int64)], format="csr")
+    both = sp.csr_matrix(sp.hstack([votes, msm.counts.astype(np.int64)], format="csr"))  # typed CSR (no copy)
     both.sort_indices()
     out: dict[int, dict[int, int]] = {}
     indptr, indices, data = both.indptr, both.indices.tolist(), both.data.tolist()

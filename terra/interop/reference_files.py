@@ -102,10 +102,11 @@ def _allowed_globals() -> dict[tuple[str, str], Callable[[], Any]]:
 
 
 def _frombuffer() -> Any:
+    # numpy's own unpickling helper for protocol 5 arrays: private, so its stubs do not list it.
     try:
-        from numpy._core.numeric import _frombuffer
+        from numpy._core.numeric import _frombuffer  # pyright: ignore[reportAttributeAccessIssue]
     except ImportError:  # numpy < 2
-        from numpy.core.numeric import _frombuffer
+        from numpy.core.numeric import _frombuffer  # pyright: ignore[reportAttributeAccessIssue]
     return _frombuffer
 
 

@@ -64,7 +64,7 @@ def create_app(loaded: LoadedBundle, tasks: TasksConfig | None = None, settings:
         title="Terra",
         version=__version__,
         summary="Task queries on a terrain-aware 3D scene graph",
-        description=__doc__,
+        description=__doc__ or "",
     )
     app.state.loaded = loaded
     _errors(app)
@@ -74,10 +74,10 @@ def create_app(loaded: LoadedBundle, tasks: TasksConfig | None = None, settings:
 
 
 def _check_texts(texts: list[str | None], settings: ServeConfig) -> None:
-    texts = [t for t in texts if t is not None]
-    if len(texts) > settings.max_queries:
-        raise LimitExceeded(f"at most {settings.max_queries} queries per request, got {len(texts)}")
-    for i, text in enumerate(texts):
+    given = [t for t in texts if t is not None]
+    if len(given) > settings.max_queries:
+        raise LimitExceeded(f"at most {settings.max_queries} queries per request, got {len(given)}")
+    for i, text in enumerate(given):
         if len(text) > settings.max_query_chars:
             raise LimitExceeded(f"query {i + 1} has {len(text)} characters; at most {settings.max_query_chars}")
 

@@ -3,14 +3,18 @@
 A box is a centre (3,) and size (3,) in metres, map frame, and a yaw in radians about +z: size[0]
 lies along the box's x axis, which points along (cos yaw, sin yaw). Boxes are gravity aligned (no
 roll or pitch), as outdoor objects stand on the ground and as the ground-truth boxes are.
+`BoxSet` holds n such boxes as arrays, for the metrics (terra.eval.metrics.boxes) and the figures.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 import shapely
+from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True)
@@ -27,6 +31,84 @@ class OrientedBox:
         half = self.size[:2] / 2
         local = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
         return local @ np.array([[c, s], [-s, c]]) + self.center[:2]
+
+
+@dataclass(init=False)
+class BoxSet:
+    """n oriented boxes: center (n, 3) metres, size (n, 3) metres (box axes), yaw (n,) radians."""
+
+    center: np.ndarray
+    size: np.ndarray
+    yaw: np.ndarray
+
+    def __init__(self, center: ArrayLike, size: ArrayLike, yaw: ArrayLike) -> None:
+        """Any array-likes of those shapes (nested lists too), stored as float64 arrays."""
+        self.center = np.asarray(center, dtype=np.float64).reshape(-1, 3)
+        self.size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
+        self.yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
+        if not (len(self.center) == len(self.size) == len(self.yaw)):
+            raise ValueError(
+                f"box arrays disagree: {len(self.center)} centres, {len(self.size)} sizes, {len(self.yaw)} yaws"
+            )
+        if np.any(self.size < 0):
+            raise ValueError("box sizes must be non-negative")
+
+    def __len__(self) -> int:
+        return int(self.center.shape[0])
+
+    def __getitem__(self, index) -> BoxSet:
+        return BoxSet(self.center[index], self.size[index], self.yaw[index])
+
+    @classmethod
+    def empty(cls) -> BoxSet:
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+
+    @classmethod
+    def from_objects(cls, objects: Iterable) -> BoxSet:
+        """From anything with `.center`, `.size`, `.yaw` (ground-truth ObjectBox, FoundObject)."""
+        objects = list(objects)
+        if not objects:
+            return cls.empty()
+        return cls(
+            np.stack([np.asarray(o.center, float) for o in objects]),
+            np.stack([np.asarray(o.size, float) for o in objects]),
+            np.array([float(o.yaw) for o in objects]),
+        )
+
+    @property
+    def volume(self) -> np.ndarray:
+        """(n,) cubic metres."""
+        return np.prod(self.size, axis=1)
+
+    def footprint_corners(self) -> np.ndarray:
+        """(n, 4, 2) footprint corners in the map frame, counter-clockwise."""
+        half = self.size[:, None, :2] / 2.0 * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)[None]
+        c, s = np.cos(self.yaw)[:, None], np.sin(self.yaw)[:, None]
+        x = c * half[..., 0] - s * half[..., 1]
+        y = s * half[..., 0] + c * half[..., 1]
+        return np.stack([x, y], axis=-1) + self.center[:, None, :2]
+
+    def footprints(self) -> np.ndarray:
+        """(n,) shapely polygons of the footprints."""
+        return np.asarray(shapely.polygons(self.footprint_corners()))
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(n, m) whether box i contains point j (points (m, 3), map frame; boundary counts as inside)."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        d = points[None, :, :] - self.center[:, None, :]  # (n, m, 3)
+        c, s = np.cos(self.yaw)[:, None], np.sin(self.yaw)[:, None]
+        # Rotate by -yaw into the box axes.
+        local = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], axis=-1)
+        eps = 1e-9
+        return np.all(np.abs(local) <= self.size[:, None, :] / 2.0 + eps, axis=-1)
+
+
+@overload
+def wrap_half_turn(yaw: float) -> float: ...
+
+
+@overload
+def wrap_half_turn(yaw: np.ndarray) -> np.ndarray: ...
 
 
 def wrap_half_turn(yaw: float | np.ndarray) -> float | np.ndarray:
@@ -107,6 +189,48 @@ def _extents_at_yaw(points: np.ndarray, groups: np.ndarray, yaw: np.ndarray) -> 
     return centre, hi - lo
 
 
+def _prefer_context(
+    xy: np.ndarray,
+    groups: np.ndarray,
+    context: np.ndarray,
+    prefer_context: float,
+    yaw: np.ndarray,
+    centre: np.ndarray,
+    size_xy: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(yaw (G,), centre (G, 2), size (G, 2)): per group, the rectangle at its context direction
+    (`context` radians, NaN = none) where that is at most `prefer_context` times the area of the
+    given minimum-area one, else the given one. xy (n, 2) sorted by `groups`."""
+    has = np.isfinite(context)
+    c_centre, c_size = _extents_at_yaw(xy, groups, np.where(has, context, 0.0))
+    take = has & (np.prod(c_size, axis=1) <= prefer_context * np.prod(size_xy, axis=1) + 1e-9)
+    swap = c_size[:, 1] > c_size[:, 0]
+    c_yaw = wrap_half_turn(np.where(swap, context + np.pi / 2, context))
+    c_size = np.where(swap[:, None], c_size[:, ::-1], c_size)
+    return (
+        np.where(take, c_yaw, yaw),
+        np.where(take[:, None], c_centre, centre),
+        np.where(take[:, None], c_size, size_xy),
+    )
+
+
+def _z_extent(
+    z: np.ndarray, groups: np.ndarray, n_groups: int, ground: np.ndarray, padding: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(bottom, top) (G,) metres per group: from the ground height `ground` (G,) when known and
+    below the lowest point, else the lowest point less half the padding, up to the highest point
+    plus half the padding. z (n,) sorted by `groups`, every group present."""
+    starts = np.searchsorted(groups, np.arange(n_groups))
+    z_hi = np.maximum.reduceat(z, starts) + padding / 2
+    on_ground = np.isfinite(ground)
+    z_lo = np.where(
+        on_ground,
+        np.minimum(np.minimum.reduceat(z, starts), np.where(on_ground, ground, 0.0)),
+        np.minimum.reduceat(z, starts) - padding / 2,
+    )
+    return z_lo, z_hi
+
+
 def fit_object_boxes(
     points: np.ndarray,
     groups: np.ndarray,
@@ -144,26 +268,10 @@ def fit_object_boxes(
     centre = np.array([b.center[:2] for b in rect]).reshape(-1, 2)
     size_xy = np.array([b.size[:2] for b in rect]).reshape(-1, 2)
     if context_yaw is not None:
-        context = np.asarray(context_yaw, dtype=np.float64)
-        has = np.isfinite(context)
-        c_centre, c_size = _extents_at_yaw(pts[foot, :2], groups[foot], np.where(has, context, 0.0))
-        take = has & (np.prod(c_size, axis=1) <= prefer_context * np.prod(size_xy, axis=1) + 1e-9)
-        swap = c_size[:, 1] > c_size[:, 0]
-        c_yaw = wrap_half_turn(np.where(swap, context + np.pi / 2, context))
-        c_size = np.where(swap[:, None], c_size[:, ::-1], c_size)
-        yaw, centre, size_xy = (
-            np.where(take, c_yaw, yaw),
-            np.where(take[:, None], c_centre, centre),
-            np.where(take[:, None], c_size, size_xy),
+        yaw, centre, size_xy = _prefer_context(
+            pts[foot, :2], groups[foot], np.asarray(context_yaw, dtype=np.float64), prefer_context, yaw, centre, size_xy
         )
-    starts = np.searchsorted(groups, np.arange(n_groups))
-    z_hi = np.maximum.reduceat(pts[:, 2], starts) + padding / 2
-    on_ground = np.isfinite(ground)
-    z_lo = np.where(
-        on_ground,
-        np.minimum(np.minimum.reduceat(pts[:, 2], starts), np.where(on_ground, ground, 0.0)),
-        np.minimum.reduceat(pts[:, 2], starts) - padding / 2,
-    )
+    z_lo, z_hi = _z_extent(pts[:, 2], groups, n_groups, ground, padding)
     sizes = np.maximum(np.column_stack([size_xy + padding, z_hi - z_lo]), min_size)
     centres = np.column_stack([centre, (z_lo + z_hi) / 2])
     return [OrientedBox(center=centres[g], size=sizes[g], yaw=float(yaw[g])) for g in range(n_groups)]

@@ -133,12 +133,15 @@ def _object_place(graph: SceneGraph, obj: FoundObject, allowed: np.ndarray, radi
     return place
 
 
+_NO_DESTINATION = "give a destination: --to QUERY or --to-node ID (or queries.destination in --tasks)"
+
+
 def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None = None) -> PlanResult:
     """Plan from a start (query, place, xy, or by default the place nearest the first camera pose)
     to the place of the best object for `to` (or to `to_node`). Raises NoPathError when unreachable."""
     config = _with_feature(config or TasksConfig(), request.point_feature)
     if request.to is None and request.to_node is None:
-        raise TerraError("give a destination: --to QUERY or --to-node ID (or queries.destination in --tasks)")
+        raise TerraError(_NO_DESTINATION)
     if sum(x is not None for x in (request.from_query, request.from_node, request.from_xy)) > 1:
         raise TerraError("give at most one of --from, --from-node and --from-xy")
     graph = loaded.require_graph("terra plan")
@@ -187,6 +190,8 @@ def _plan_to_goal(
     """The path and its goal: `to_node` as given, or every object retrieved for `to`, best score
     first, skipping those with no reachable approach place (terra.tasks.planning.plan_to_objects)."""
     if request.to is None:
+        if request.to_node is None:  # plan() refuses such a request first
+            raise TerraError(_NO_DESTINATION)
         goal = int(request.to_node)
         if not 0 <= goal < len(graph.places):
             raise TerraError(f"goal place {goal} does not exist; the graph has places 0..{len(graph.places) - 1}")

@@ -2,12 +2,13 @@
 
 Importing scikit-learn's cluster package takes about a second, most of a cold query's budget, and
 its radius search dominated a warm object query. This is the same algorithm on neighbour pairs
-(terra.tasks.neighbours: direct for small sets, SciPy's k-d tree for large ones): a point is core when at least `min_samples` points (itself included) lie within
-`eps` (inclusive); clusters are the connected components of core points; a border point joins the
-cluster found first. scikit-learn expands clusters in order of their lowest-index core point and a
-border point takes the first cluster that reaches it, so "first" is the adjacent cluster with the
-lowest first core index, and the labels below equal `DBSCAN(eps, min_samples).fit_predict`
-(tests compare them on random and gridded point sets).
+(terra.tasks.neighbours: direct for small sets, SciPy's k-d tree for large ones): a point is core
+when at least `min_samples` points (itself included) lie within `eps` (inclusive); clusters are
+the connected components of core points; a border point joins the cluster found first.
+scikit-learn expands clusters in order of their lowest-index core point and a border point takes
+the first cluster that reaches it, so "first" is the adjacent cluster with the lowest first core
+index, and the labels below equal `DBSCAN(eps, min_samples).fit_predict` (tests compare them on
+random and gridded point sets).
 """
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ def split_instances(
     # SciPy's spatial and graph modules cost a cold query time: imported only when objects are split.
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  (compiled, no stub)
 
     points = np.asarray(points, dtype=np.float64)
     whole = [np.arange(len(points))]

@@ -30,7 +30,7 @@ def _r(values: Any) -> list[float]:
     return [round(float(v), 4) for v in values]
 
 
-def node_name(char: str, index: int) -> str:
+def node_name(char: str, index: int | np.integer) -> str:
     return f"{char}{int(index)}"
 
 

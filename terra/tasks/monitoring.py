@@ -38,6 +38,19 @@ from terra.tasks.queries import clean_queries, embed_query
 METHODS = MONITOR_METHODS
 
 
+def places_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside or on the boundary
+    of `polygon` (K, 2): the places of a named region (terra.eval.metrics.regions says why the
+    boundary counts)."""
+    import shapely  # only the evaluation and the figures ask; a monitor query does not
+
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) == 0:
+        return np.zeros(0, dtype=np.int64)
+    inside = shapely.intersects_xy(shapely.Polygon(np.asarray(polygon, float)), xy[:, 0], xy[:, 1])
+    return np.flatnonzero(inside)
+
+
 @dataclass
 class MonitorResult:
     """regions: chosen (level, index) pairs, best first (empty for "aib"); region_scores: their
@@ -133,10 +146,7 @@ def monitor_region(
     ranked = [
         r for r in ranked_regions(graph, region_similarities(graph, q)) if r[0] >= min(min_level, len(graph.regions))
     ]
-    if method == "thresh":
-        chosen = [r for r in ranked if r[2] > alpha]
-    else:
-        chosen = ranked[:k]
+    chosen = [r for r in ranked if r[2] > alpha] if method == "thresh" else ranked[:k]
     regions = [(level, index) for level, index, _ in chosen]
     places = places_of_regions(graph, regions)
     if method in ("mix", "thresh"):

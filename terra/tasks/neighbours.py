@@ -24,7 +24,7 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
         d2 = ((points[i] - points[j]) ** 2).sum(axis=1)
         keep = d2 <= radius * radius
         return np.column_stack([i[keep], j[keep]]).astype(np.int64)
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  (compiled, no stub)
 
     return cKDTree(points).query_pairs(radius, output_type="ndarray").astype(np.int64)
 
@@ -41,7 +41,7 @@ def nearest(reference: np.ndarray, queries: np.ndarray, max_distance: float = np
         dist = np.sqrt(d2[np.arange(len(queries)), index])
         far = dist > max_distance
         return np.where(far, np.inf, dist), np.where(far, m, index).astype(np.int64)
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  (compiled, no stub)
 
     dist, index = cKDTree(reference).query(queries, k=1, distance_upper_bound=max_distance)
     return np.asarray(dist, dtype=np.float64), np.asarray(index, dtype=np.int64)

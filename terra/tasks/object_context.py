@@ -42,7 +42,9 @@ def strip_directions(graph: SceneGraph, xy: np.ndarray, radius: float = 8.0, min
     d = b - a
     length = np.hypot(d[:, 0], d[:, 1])
     phase = np.exp(4j * np.arctan2(d[:, 1], d[:, 0])) * length
-    from scipy.spatial import cKDTree  # imported here: a cold query without boxes never needs it
+    # Imported here: a cold query without boxes never needs it. SciPy re-exports cKDTree from a
+    # compiled module that has no stub, so pyright cannot see it.
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 
     near = cKDTree((a + b) / 2).query_ball_point(xy, r=radius)
     for i, rows in enumerate(near):

@@ -29,7 +29,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -39,6 +39,8 @@ from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
 
 TerrainRef = str | int
+# Penalties per terrain name or index (a dict of names alone is not a Mapping[TerrainRef, ...]).
+Penalties = Mapping[str, float] | Mapping[int, float] | Mapping[TerrainRef, float]
 
 
 def resolve_terrain(terrain_classes: list[str], ref: TerrainRef) -> int:
@@ -49,7 +51,8 @@ def resolve_terrain(terrain_classes: list[str], ref: TerrainRef) -> int:
         if 0 <= index < len(terrain_classes):
             return index
         raise TerraError(
-            f"terrain index {index} is out of range; the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}"
+            f"terrain index {index} is out of range; "
+            f"the graph has {len(terrain_classes)} terrains: {', '.join(terrain_classes)}"
         )
     key = str(ref).strip().lower()
     if key not in names:
@@ -69,7 +72,7 @@ class TerrainCosts:
         cls,
         terrain_classes: list[str],
         prefer: Iterable[TerrainRef] = (),
-        penalties: Mapping[TerrainRef, float] | None = None,
+        penalties: Penalties | None = None,
         forbid: Iterable[TerrainRef] = (),
         default_penalty: float = DEFAULT_PENALTY,
     ) -> TerrainCosts:
@@ -87,7 +90,8 @@ class TerrainCosts:
             value = float(value)
             if not np.isfinite(value) or value < 0:
                 raise TerraError(
-                    f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; use --forbid to exclude it"
+                    f"penalty for terrain {terrain_classes[index]!r} must be a finite number >= 0, got {value}; "
+                    "use --forbid to exclude it"
                 )
             penalty[index] = value
         penalty[list(preferred)] = 0.0
@@ -240,7 +244,7 @@ def plan_path(
     start_place: int,
     goal_place: int,
     prefer: Iterable[TerrainRef] = (),
-    penalties: Mapping[TerrainRef, float] | None = None,
+    penalties: Penalties | None = None,
     forbid: Iterable[TerrainRef] = (),
     default_penalty: float = DEFAULT_PENALTY,
 ) -> PathPlan:
@@ -348,13 +352,16 @@ class SkippedGoal:
         }
 
 
+Goal = TypeVar("Goal", bound=GoalObject)
+
+
 @dataclass
-class GoalPlan:
+class GoalPlan(Generic[Goal]):
     """The plan to the first reachable candidate: its object, its approach place, and the
     better-scored candidates that were skipped (best first)."""
 
     plan: PathPlan
-    goal_object: GoalObject
+    goal_object: Goal
     goal_place: int
     skipped: list[SkippedGoal]
 
@@ -363,10 +370,10 @@ def plan_to_objects(
     graph: SceneGraph,
     cost_graph: CostGraph,
     start: int,
-    candidates: Sequence[GoalObject],
+    candidates: Sequence[Goal],
     radius: float,
     what: str = "the destination",
-) -> GoalPlan:
+) -> GoalPlan[Goal]:
     """Plan from `start` to the best-scored candidate object that can be reached.
 
     Candidates are tried by decreasing score; one is skipped when it has no approach place (see

@@ -71,6 +71,11 @@ class PlanEnd:
     skipped: list[SkippedGoal] = field(default_factory=list)
 
 
+def _object_json(end: PlanEnd) -> dict[str, Any] | None:
+    """The JSON of the object that chose a plan's start or goal, None when a place or xy did."""
+    return end.object.to_json() if end.object is not None else None
+
+
 @dataclass
 class PlanResult:
     """A planned path with its start, goal and the terrain preferences it honoured."""
@@ -83,15 +88,14 @@ class PlanResult:
     forbidden: list[str]
 
     def to_json(self) -> dict[str, Any]:
-        obj = lambda end: end.object.to_json() if end.object is not None else None
         return {
             "bundle": str(self.bundle),
             **self.plan.to_json(),
-            "start": {"place": self.start.place, "how": self.start.how, "object": obj(self.start)},
+            "start": {"place": self.start.place, "how": self.start.how, "object": _object_json(self.start)},
             "goal": {
                 "place": self.goal.place,
                 "query": self.goal.query,
-                "object": obj(self.goal),
+                "object": _object_json(self.goal),
                 "candidates": self.goal.candidates,
                 "skipped": [s.to_json() for s in self.goal.skipped],
             },

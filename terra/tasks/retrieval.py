@@ -40,7 +40,7 @@ from terra.tasks.instances import split_instances
 from terra.tasks.neighbours import nearest
 from terra.tasks.object_context import ground_under, strip_directions
 from terra.tasks.queries import clean_queries, embed_queries
-from terra.tasks.scoring import PointScorer
+from terra.tasks.scoring import Feature, PointScorer
 from terra.tasks.standing import standing_groups
 
 METHODS = RETRIEVAL_METHODS
@@ -199,7 +199,7 @@ def _match_clusters(
     terrain_vectors: np.ndarray,
     alpha: float,
     cfg: RetrievalConfig,
-    feature: str,
+    feature: Feature,
     allowed: list[np.ndarray] | None,
     keep_flat: bool = True,
 ) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
@@ -252,6 +252,28 @@ def find_objects(
     queries = clean_queries(queries)
     if method not in METHODS:
         raise TerraError(f"unknown retrieval method {method!r}; expected one of: {', '.join(METHODS)}")
+    embedder = _checked_embedder(msm, graph, embedder)
+    if alpha is None:
+        alpha = alpha_for(cfg.alpha, cfg.default_alpha, msm.embedder)
+    query_vectors = embed_queries(embedder, queries)
+    terrain_vectors = np.asarray(msm.terrain_embeddings, dtype=np.float32).reshape(-1, query_vectors.shape[1])
+    scorer = scorer or PointScorer(msm)
+    if method == "3dsg":
+        clusters, cand_rows, similarity = _match_3dsg(msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg)
+    else:
+        clusters, cand_rows, similarity = _match_clusters(
+            msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg, _POINT_FEATURE[method], None
+        )
+    if not clusters:
+        return []
+    return _found_objects(msm, graph, queries, clusters, cand_rows, similarity, len(terrain_vectors), cfg)
+
+
+_POINT_FEATURE: dict[str, Feature] = {"ms-avg": "avg", "ms-max": "max"}
+
+
+def _checked_embedder(msm: MetricSemanticMap, graph: SceneGraph | None, embedder: TextEmbedder | None) -> TextEmbedder:
+    """`embedder`, or the map's by default; TerraError when it or the graph's embedder is not the map's."""
     if embedder is None:
         embedder = resolve_embedder(msm.embedder, msm.dim)
     check_embedder(embedder, msm.embedder, msm.dim)
@@ -259,22 +281,51 @@ def find_objects(
         raise TerraError(
             f"scene graph embedder {graph.embedder!r} differs from the map's {msm.embedder!r}; rebuild the graph"
         )
-    if alpha is None:
-        alpha = alpha_for(cfg.alpha, cfg.default_alpha, msm.embedder)
-    query_vectors = embed_queries(embedder, queries)
-    terrain_vectors = np.asarray(msm.terrain_embeddings, dtype=np.float32).reshape(-1, query_vectors.shape[1])
-    n_terrain = len(terrain_vectors)
-    scorer = scorer or PointScorer(msm)
+    return embedder
 
-    if method == "3dsg":
-        if graph is None:
-            raise TerraError("--method 3dsg needs a scene graph in the bundle; build one with `terra build`")
-        observed = scorer.observed()
 
-        def searched(places: np.ndarray) -> np.ndarray:  # observed map rows within place_radius of the places
-            return observed[points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)]
+def _match_3dsg(
+    msm: MetricSemanticMap,
+    graph: SceneGraph | None,
+    scorer: PointScorer,
+    query_vectors: np.ndarray,
+    terrain_vectors: np.ndarray,
+    alpha: float,
+    cfg: RetrievalConfig,
+) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
+    """_match_clusters over the points near the places of each query's regions above alpha
+    (terra.tasks.hierarchy.select_places_3dsg), widened for the queries that found nothing."""
+    if graph is None:
+        raise TerraError("--method 3dsg needs a scene graph in the bundle; build one with `terra build`")
+    observed = scorer.observed()
 
-        allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in range(len(queries))]
+    def searched(places: np.ndarray) -> np.ndarray:  # observed map rows within place_radius of the places
+        return observed[points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)]
+
+    every = range(len(query_vectors))
+    allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in every]
+    clusters, cand_rows, similarity = _match_clusters(
+        msm,
+        graph,
+        scorer,
+        query_vectors,
+        terrain_vectors,
+        alpha,
+        cfg,
+        cfg.sg_point_feature,
+        allowed,
+        keep_flat=not cfg.sg_widen,
+    )
+    # The regions above alpha narrow the search; when they hold no standing object for a
+    # query, the answer comes from its places above alpha anywhere, then from every place,
+    # rather than from nothing (a region scoring just above alpha can leave out every
+    # instance). Only that last search keeps a query's flat-only clusters (a crosswalk).
+    for widen in (1, 2) if cfg.sg_widen else ():
+        empty = sorted(set(every) - {q for q, _ in clusters})
+        if not empty:
+            break
+        for q in empty:
+            allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
         clusters, cand_rows, similarity = _match_clusters(
             msm,
             graph,
@@ -285,36 +336,24 @@ def find_objects(
             cfg,
             cfg.sg_point_feature,
             allowed,
-            keep_flat=not cfg.sg_widen,
+            keep_flat=widen == 2,
         )
-        # The regions above alpha narrow the search; when they hold no standing object for a
-        # query, the answer comes from its places above alpha anywhere, then from every place,
-        # rather than from nothing (a region scoring just above alpha can leave out every
-        # instance). Only that last search keeps a query's flat-only clusters (a crosswalk).
-        for widen in (1, 2) if cfg.sg_widen else ():
-            empty = sorted(set(range(len(queries))) - {q for q, _ in clusters})
-            if not empty:
-                break
-            for q in empty:
-                allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
-            clusters, cand_rows, similarity = _match_clusters(
-                msm,
-                graph,
-                scorer,
-                query_vectors,
-                terrain_vectors,
-                alpha,
-                cfg,
-                cfg.sg_point_feature,
-                allowed,
-                keep_flat=widen == 2,
-            )
-    else:
-        clusters, cand_rows, similarity = _match_clusters(
-            msm, graph, scorer, query_vectors, terrain_vectors, alpha, cfg, method[3:], None
-        )
-    if not clusters:
-        return []
+    return clusters, cand_rows, similarity
+
+
+def _found_objects(
+    msm: MetricSemanticMap,
+    graph: SceneGraph | None,
+    queries: list[str],
+    clusters: list[tuple[int, np.ndarray]],
+    cand_rows: np.ndarray,
+    similarity: np.ndarray,
+    n_terrain: int,
+    cfg: RetrievalConfig,
+) -> list[FoundObject]:
+    """One FoundObject per (query, rows into `cand_rows`) cluster: its box, its mean cosine with
+    every query (`similarity` (n, T + Q) over the candidate rows, terrain columns first), its
+    nearest place; sorted by query, then best score, then more points."""
     members = np.concatenate([m for _, m in clusters])
     owner = np.repeat(np.arange(len(clusters)), [len(m) for _, m in clusters])
     boxes = object_boxes(msm.points[cand_rows[members]], owner, graph, cfg)

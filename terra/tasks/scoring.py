@@ -67,7 +67,8 @@ class PointScorer:
                     self._scores[vectors[i].tobytes()] = column
                 while len(self._scores) > CACHED_SCORES:
                     self._scores.popitem(last=False)
-        return np.stack(columns, axis=1) if columns else np.zeros((self.bank.shape[0], 0), dtype=np.float32)
+        filled = [c for c in columns if c is not None]  # every column, now that the missing ones are scored
+        return np.stack(filled, axis=1) if filled else np.zeros((self.bank.shape[0], 0), dtype=np.float32)
 
     def observed(self) -> np.ndarray:
         """Indices of points with at least one observation."""

@@ -49,7 +49,8 @@ def standing_groups(
     standing = [i for i in range(len(groups)) if not flat[i] and not floating[i]]
     out = {i: [groups[i]] for i in standing}
     if standing and floating.any():
-        from scipy.spatial import cKDTree  # only when a cluster floats
+        # Only when a cluster floats (cKDTree: compiled, no stub for pyright).
+        from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 
         rows = np.concatenate([groups[i] for i in standing])
         owner = np.repeat(standing, [len(groups[i]) for i in standing])

@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import socket
 import threading
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from terra.errors import TerraError
 from terra.viewer import scene
 
 if TYPE_CHECKING:
+    from terra.graph.scene_graph import SceneGraph
     from terra.loaded import LoadedBundle
     from terra.tasks.config import TasksConfig
 
@@ -116,16 +118,15 @@ class TerraViewer:
             point_shape="square",
         )
         if self.graph is not None:
-            self._add_graph_layers()
+            self._add_graph_layers(self.graph)
         self._gui_points()
         self._gui_layers()
         self._gui_ask()
         if self.graph is not None:
-            self._gui_plan()
+            self._gui_plan(self.graph)
         self._set_camera()
 
-    def _add_graph_layers(self) -> None:
-        graph = self.graph
+    def _add_graph_layers(self, graph: SceneGraph) -> None:
         lifted = (graph.places.position + np.array([0.0, 0.0, 1.0])).astype(np.float32)
         self.layers: dict[str, list] = {
             "places": [
@@ -182,16 +183,14 @@ class TerraViewer:
                 self.server.scene.add_box(
                     f"{prefix}/{i}/box",
                     colour,
-                    tuple(float(v) for v in s),
+                    _xyz(s),
                     wireframe=True,
                     wxyz=scene.yaw_wxyz(float(y)),
-                    position=tuple(float(v) for v in c),
+                    position=_xyz(c),
                 )
             )
             handles.append(
-                self.server.scene.add_label(
-                    f"{prefix}/{i}/label", text, position=tuple(float(v) for v in c + [0, 0, s[2] / 2 + 0.5])
-                )
+                self.server.scene.add_label(f"{prefix}/{i}/label", text, position=_xyz(c + [0, 0, s[2] / 2 + 0.5]))
             )
         return handles
 
@@ -230,7 +229,7 @@ class TerraViewer:
         with self.server.gui.add_folder("Layers"):
             for name, handles in self.layers.items():
                 box = self.server.gui.add_checkbox(name, initial_value=name in ("places", "objects"))
-                box.on_update(lambda event, hs=handles: [setattr(h, "visible", bool(event.target.value)) for h in hs])
+                box.on_update(_visibility_toggle(handles))
 
     def _gui_ask(self) -> None:
         gui = self.server.gui
@@ -245,7 +244,7 @@ class TerraViewer:
             lambda _: self._guarded(lambda: self.run_query(self.task.value, self.query.value), self.answer)
         )
 
-    def _gui_plan(self) -> None:
+    def _gui_plan(self, graph: SceneGraph) -> None:
         gui = self.server.gui
         with gui.add_folder("Plan"):
             self.start = gui.add_text("start", "", hint="place id, a query, or empty for the first camera pose")
@@ -254,7 +253,7 @@ class TerraViewer:
             self.prefer = gui.add_text("prefer", "", hint="terrains, comma-separated")
             self.forbid = gui.add_text("forbid", "", hint="terrains, comma-separated")
             self.plan_button = gui.add_button("Plan")
-            self.plan_answer = gui.add_markdown(f"Terrains: {', '.join(self.graph.terrain_classes)}")
+            self.plan_answer = gui.add_markdown(f"Terrains: {', '.join(graph.terrain_classes)}")
         pick_start.on_click(lambda _: self._pick("start"))
         pick_goal.on_click(lambda _: self._pick("goal"))
         self.plan_button.on_click(
@@ -266,12 +265,15 @@ class TerraViewer:
 
     def _pick(self, which: str) -> None:
         """The next click on the map sets `which` to the nearest place."""
+        graph = self.graph
+        if graph is None:  # the plan controls that pick exist only with a graph
+            return
         self._picking = which
 
         @self.server.scene.on_pointer_event("click")
         def _clicked(event) -> None:
             self.server.scene.remove_pointer_callback()
-            place = scene.ray_place(self.graph, np.asarray(event.ray_origin), np.asarray(event.ray_direction))
+            place = scene.ray_place(graph, np.asarray(event.ray_origin), np.asarray(event.ray_direction))
             if place >= 0:
                 (self.start if self._picking == "start" else self.goal).value = str(place)
             self._picking = None
@@ -363,7 +365,7 @@ class TerraViewer:
         answer = result.results[0]
         places = np.asarray(answer.places, dtype=np.int64)
         if places.size:
-            pos = (self.graph.places.position[places] + np.array([0.0, 0.0, 0.6])).astype(np.float32)
+            pos = (result.graph.places.position[places] + np.array([0.0, 0.0, 0.6])).astype(np.float32)
             self.server.scene.add_point_cloud(
                 "/results/query/places", pos, HIGHLIGHT, point_size=2.0, point_shape="circle", precision="float32"
             )
@@ -394,6 +396,7 @@ class TerraViewer:
         except NoPathError as exc:
             return f"**No path:** {exc}"
         self.last_result = result
+        graph = self.loaded.require_graph("terra plan")  # plan() has loaded it
         path = result.plan
         self.server.scene.add_line_segments(
             "/results/plan/path",
@@ -407,13 +410,28 @@ class TerraViewer:
                 f"/results/plan/{name}",
                 radius=1.2,
                 color=colour,
-                position=tuple(float(v) for v in self.graph.places.position[place] + [0, 0, 0.6]),
+                position=_xyz(graph.places.position[place] + [0, 0, 0.6]),
             )
         shares = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
         return f"**Path** {path.length_m:.1f} m over {len(path.places)} places ({shares}); cost {path.cost:.1f}"
 
     def _clear(self, prefix: str) -> None:
         self.server.scene.add_frame(prefix, show_axes=False)  # replacing a node drops its children
+
+
+def _xyz(v: np.ndarray) -> tuple[float, float, float]:
+    """A 3-vector as the float triple viser takes."""
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _visibility_toggle(handles: list) -> Callable[[Any], None]:
+    """A checkbox callback showing or hiding every scene handle of one layer."""
+
+    def toggle(event: Any) -> None:
+        for h in handles:
+            h.visible = bool(event.target.value)
+
+    return toggle
 
 
 def _escape(text: str) -> str:

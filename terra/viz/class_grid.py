@@ -79,7 +79,7 @@ def gt_class_grid(gt: GroundTruth, terrain_classes: list[str], extent: Extent, c
     every object (buildings, trees, objects) as not terrain."""
     import shapely
 
-    from terra.eval.metrics.boxes import BoxSet
+    from terra.tasks.boxes import BoxSet
 
     count = len(terrain_classes)
     grid = ClassGrid.empty(extent, cell, count)

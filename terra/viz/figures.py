@@ -14,12 +14,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Polygon
 
 from terra.datasets.ground_truth import GroundTruth, NamedRegion
-from terra.eval.metrics.boxes import BoxSet
 from terra.graph.scene_graph import SceneGraph
+from terra.tasks.boxes import BoxSet
 from terra.viz.class_grid import (
     DIFFERENCE_COLOURS,
     DIFFERENCE_LABELS,
@@ -79,7 +80,8 @@ def terrain_map_figure(
     `cell` grid and drawn the same way, and (c) where they differ. Without `gt`, the map panel alone."""
     extent = extent or view_extent(points)
     map_grid = map_class_grid(points, terrain_index, len(terrain_classes), extent, cell)
-    panels = 3 if gt is not None and gt.terrain is not None else 1
+    truth = gt if gt is not None and gt.terrain is not None else None
+    panels = 3 if truth is not None else 1
     fig, axes = new_figure(
         panels,
         panel_size=5.5,
@@ -90,8 +92,8 @@ def terrain_map_figure(
     topdown_axis(axes[0], "(a) map: highest point per cell" if panels == 3 else "map: highest point per cell", extent)
     handles = terrain_handles(terrain_classes, "not terrain")
     handles.append(Patch(color=UNSEEN_COLOUR, label="no camera label (LiDAR only)"))
-    if panels == 3:
-        gt_grid = gt_class_grid(gt, terrain_classes, map_grid.extent, cell)
+    if truth is not None:
+        gt_grid = gt_class_grid(truth, terrain_classes, map_grid.extent, cell)
         axes[1].imshow(gt_grid.rgba(terrain_classes), origin="lower", extent=gt_grid.extent, interpolation="nearest")
         topdown_axis(axes[1], "(b) ground truth: terrain, objects on top", extent)
         categories, share = difference(map_grid, gt_grid)
@@ -274,8 +276,6 @@ def monitoring_figure(
     """Per labelled region, a panel titled with its query (the region's description) and, given
     `scores` [(precision, recall)], how well it was answered: the region's polygon (black), its
     places (black rings) and the places predicted for the query (orange)."""
-    from terra.eval.metrics.regions import places_in_polygon
-
     n = max(len(regions), 1)
     ncols = min(n, min((3, 4), key=lambda c: (-(-n // c) * c - n, c)))  # 3 or 4 columns, fewest empty panels
     fig, axes = new_figure(
@@ -287,25 +287,8 @@ def monitoring_figure(
     )
     for ax in axes[len(regions) :]:
         ax.set_visible(False)
-    grey = np.full((len(sg.places), 3), 0.78)
-    size = marker_size(len(sg.places))
     for i, (region, places, ax) in enumerate(zip(regions, predicted, axes)):
-        if background is not None:
-            background.show(ax, alpha=0.2)
-        draw_places(ax, sg, colours=grey, edges=False)
-        truth = sg.places.position[places_in_polygon(sg.places.position, region.polygon)]
-        ax.scatter(
-            truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8, zorder=4
-        )
-        xy = sg.places.position[np.asarray(places, dtype=np.int64)]
-        ax.scatter(xy[:, 0], xy[:, 1], s=size * 1.4, c=HIGHLIGHT_COLOUR, edgecolors="black", linewidths=0.3, zorder=5)
-        ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=6))
-        title = "\n".join(textwrap.wrap(f'"{region.description}"', 44))
-        if scores is not None:
-            p, r = scores[i]
-            title += f"\nP {p:.2f}, R {r:.2f} ({counted(len(xy), 'place')} predicted, {len(truth)} in the region)"
-        topdown_axis(ax, title, extent)
-        ax.title.set_fontsize(8.5)
+        _monitoring_panel(ax, sg, region, places, background, extent, None if scores is None else scores[i])
     figure_legend(
         fig,
         [
@@ -324,6 +307,37 @@ def monitoring_figure(
         ncols=3,
     )
     return save_figure(fig, path, dpi)
+
+
+def _monitoring_panel(
+    ax: Axes,
+    sg: SceneGraph,
+    region: NamedRegion,
+    places: np.ndarray,
+    background: TopDownImage | None,
+    extent: Extent | None,
+    score: tuple[float, float] | None,
+) -> None:
+    """One region's panel: every place in grey, the region's places ringed, the predicted ones
+    highlighted, the polygon, and a title with its description and (precision, recall)."""
+    from terra.tasks.monitoring import places_in_polygon
+
+    grey = np.full((len(sg.places), 3), 0.78)
+    size = marker_size(len(sg.places))
+    if background is not None:
+        background.show(ax, alpha=0.2)
+    draw_places(ax, sg, colours=grey, edges=False)
+    truth = sg.places.position[places_in_polygon(sg.places.position, region.polygon)]
+    ax.scatter(truth[:, 0], truth[:, 1], s=size * 2.2, facecolors="none", edgecolors="black", linewidths=0.8, zorder=4)
+    xy = sg.places.position[np.asarray(places, dtype=np.int64)]
+    ax.scatter(xy[:, 0], xy[:, 1], s=size * 1.4, c=HIGHLIGHT_COLOUR, edgecolors="black", linewidths=0.3, zorder=5)
+    ax.add_patch(Polygon(region.polygon, closed=True, fill=False, edgecolor="black", linewidth=1.5, zorder=6))
+    title = "\n".join(textwrap.wrap(f'"{region.description}"', 44))
+    if score is not None:
+        p, r = score
+        title += f"\nP {p:.2f}, R {r:.2f} ({counted(len(xy), 'place')} predicted, {len(truth)} in the region)"
+    topdown_axis(ax, title, extent)
+    ax.title.set_fontsize(8.5)
 
 
 def memory_figure(path: str | Path, parts: dict[str, int], area_m2: float, label: str = "", dpi: int = 120) -> Path:

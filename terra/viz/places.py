@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
+from matplotlib.typing import LineStyleType
 
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
 from terra.viz.style import Extent, terrain_palette
@@ -15,7 +16,8 @@ def marker_size(count: int) -> float:
     return float(np.clip(4000.0 / max(count, 1), 3.0, 30.0))
 
 
-EDGE_STYLES = {  # kind: (label, colour, width, line style); cross-terrain links stand out
+# kind: (label, colour, width, line style); cross-terrain links stand out
+EDGE_STYLES: dict[int, tuple[str, str, float, LineStyleType]] = {
     EDGE_GVD: ("along one terrain", "#8c8c8c", 0.6, "solid"),
     EDGE_CROSS_TERRAIN: ("cross-terrain link", "#000000", 1.3, "solid"),
     EDGE_BRIDGE: ("bridge (joins components)", "#000000", 1.0, "dashed"),
@@ -55,7 +57,7 @@ def draw_place_edges(
             counts[kind] = int(np.count_nonzero(mask))
             ax.add_collection(
                 LineCollection(
-                    xy[sg.place_edges[mask]],
+                    list(xy[sg.place_edges[mask]]),
                     colors=colour or kind_colour,
                     linewidths=width or kind_width,
                     alpha=alpha,

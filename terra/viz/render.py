@@ -57,7 +57,7 @@ def render_bundle(
     summary: dict[str, Any] = {"what": what, "out": str(out)}
     try:
         with writing(out, "picture"):
-            if what == "terrain":
+            if graph is None:  # "terrain": the map alone
                 figures.terrain_map_figure(
                     tmp,
                     msm.terrain_classes,

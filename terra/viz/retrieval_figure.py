@@ -9,17 +9,21 @@ the query, titled with what each method found and hit (Table II's counts). The l
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import FigureBase
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
+from matplotlib.typing import LineStyleType
 
-from terra.eval.metrics.boxes import BoxSet
+from terra.tasks.boxes import BoxSet
 from terra.viz.raster import TopDownImage
 from terra.viz.style import METHOD_COLOURS, Extent, figure_legend, save_figure, topdown_axis, view_extent
 
-LINE_STYLES = ["--", ":", "-.", (0, (5, 1, 1, 1)), (0, (1, 2))]
+LINE_STYLES: list[LineStyleType] = ["--", ":", "-.", (0, (5, 1, 1, 1)), (0, (1, 2))]
 INSET_MIN_HALF_M = 3.0  # half the side of an inset, metres (larger for large objects)
 
 
@@ -84,49 +88,71 @@ def boxes_figure(
     overview = fig.add_subplot(grid[:, :rows])
     extent = extent or view_extent(gt.center)
     methods = list(predictions)
-    colour = {m: METHOD_COLOURS[i % len(METHOD_COLOURS)] for i, m in enumerate(methods)}
-    style = {m: LINE_STYLES[i % len(LINE_STYLES)] for i, m in enumerate(methods)}
+    look = _Look(
+        {m: METHOD_COLOURS[i % len(METHOD_COLOURS)] for i, m in enumerate(methods)},
+        {m: LINE_STYLES[i % len(LINE_STYLES)] for i, m in enumerate(methods)},
+    )
     corners = gt.footprint_corners()
-    _draw(overview, background, corners, None, predictions, colour, style, thin=True)
+    _draw(overview, background, corners, None, predictions, look.colour, look.style, thin=True)
     topdown_axis(overview, f"all {len(gt)} ground-truth objects and the boxes of each method", extent)
     for k, q in enumerate(shown):
         ax = fig.add_subplot(grid[k % rows, rows + k // rows])
         window = _inset_extent(inset_centre(q, gt, gt_query, predictions), q, gt, gt_query)
-        _draw(ax, background, corners, gt_query == q, predictions, colour, style, thin=False, query=q, window=window)
+        _draw(ax, background, corners, gt_query == q, predictions, look.colour, look.style, False, q, window)
         letter = chr(ord("a") + k)
-        overview.add_patch(
-            Rectangle(
-                (window[0], window[2]),
-                window[1] - window[0],
-                window[3] - window[2],
-                fill=False,
-                edgecolor="black",
-                linewidth=0.9,
-                zorder=7,
-            )
-        )
-        overview.annotate(
-            letter,
-            (window[0], window[3]),
-            fontsize=7,
-            fontweight="bold",
-            zorder=8,
-            va="bottom",
-            bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5, "alpha": 0.85},
-        )
+        _mark_inset(overview, window, letter)
         title = f"({letter}) {_short(queries[q])}: {int(np.count_nonzero(gt_query == q))} true"
         if counts:
             title += "\n" + ", ".join(f"{m} {counts[m][q][0]}/{counts[m][q][1]}" for m in methods if m in counts)
         _inset_axis(ax, title, window)
+    _boxes_legend(fig, methods, look, bool(counts))
+    fig.suptitle("Object retrieval: ground-truth boxes (solid) and retrieved boxes (dashed)", fontsize=12)
+    return save_figure(fig, path, dpi)
+
+
+@dataclass(frozen=True)
+class _Look:
+    """Per method, the colour and the line style of its boxes."""
+
+    colour: dict[str, str]
+    style: dict[str, LineStyleType]
+
+
+def _mark_inset(overview: Axes, window: Extent, letter: str) -> None:
+    """The inset's window as a black frame on the overview, with its letter at the top-left corner."""
+    overview.add_patch(
+        Rectangle(
+            (window[0], window[2]),
+            window[1] - window[0],
+            window[3] - window[2],
+            fill=False,
+            edgecolor="black",
+            linewidth=0.9,
+            zorder=7,
+        )
+    )
+    overview.annotate(
+        letter,
+        (window[0], window[3]),
+        fontsize=7,
+        fontweight="bold",
+        zorder=8,
+        va="bottom",
+        bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5, "alpha": 0.85},
+    )
+
+
+def _boxes_legend(fig: FigureBase, methods: list[str], look: _Look, with_counts: bool) -> None:
     handles = [
         Line2D([], [], color="black", linewidth=1.8, label="ground truth of the query"),
         Line2D([], [], color="#9a9a9a", linewidth=0.8, label="other objects"),
     ]
-    handles += [Line2D([], [], color=colour[m], linestyle=style[m], linewidth=1.6, label=f"{m} boxes") for m in methods]
-    title = "inset titles: method found / hits, as in Table II" if counts else None
+    handles += [
+        Line2D([], [], color=look.colour[m], linestyle=look.style[m], linewidth=1.6, label=f"{m} boxes")
+        for m in methods
+    ]
+    title = "inset titles: method found / hits, as in Table II" if with_counts else None
     figure_legend(fig, handles, ncols=len(handles), title=title)
-    fig.suptitle("Object retrieval: ground-truth boxes (solid) and retrieved boxes (dashed)", fontsize=12)
-    return save_figure(fig, path, dpi)
 
 
 def _in_window(quads: np.ndarray, window: Extent | None) -> np.ndarray:

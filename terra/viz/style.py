@@ -12,8 +12,10 @@ import numpy as np  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.colors import to_rgb  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.figure import Figure, FigureBase  # noqa: E402
+from matplotlib.layout_engine import ConstrainedLayoutEngine  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.text import Text  # noqa: E402
 
 # One terrain palette for every figure Terra draws (world.png, the report, terra render): the
 # paper colours sidewalk red, grass green and asphalt blue; the others follow suit.
@@ -70,7 +72,7 @@ def terrain_legend(ax: Axes, terrain_classes: list[str], other: str | None = "ot
 
 
 def figure_legend(
-    fig: Figure, handles: list, ncols: int | None = None, fontsize: float = 8, title: str | None = None
+    fig: FigureBase, handles: list, ncols: int | None = None, fontsize: float = 8, title: str | None = None
 ) -> None:
     """One legend for the whole figure, below the panels (never over data)."""
     if not handles:
@@ -98,8 +100,8 @@ def new_figure(
     if extent is not None:
         aspect = float(np.clip((extent[3] - extent[2]) / max(extent[1] - extent[0], 1e-9), 0.4, 2.0))
     height = panel_size * aspect + 0.6  # room for the axis labels and panel title
-    fig = Figure(figsize=(panel_size * ncols, height * nrows + (0.4 if title else 0.0)), layout="compressed")
-    fig.get_layout_engine().set(h_pad=0.06, w_pad=0.06, hspace=0.02, wspace=0.02)
+    layout = ConstrainedLayoutEngine(h_pad=0.06, w_pad=0.06, hspace=0.02, wspace=0.02, compress=True)
+    fig = Figure(figsize=(panel_size * ncols, height * nrows + (0.4 if title else 0.0)), layout=layout)
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel().tolist()
     if title:
@@ -111,15 +113,20 @@ def _close_gaps(fig: Figure) -> None:
     """Move the figure's title down onto the panels and its legend up under them: equal-aspect
     map panels rarely fill the height the layout gave them, which otherwise leaves white bands
     inside the picture (the outer margins are cropped when saving)."""
-    fig.canvas.draw()  # lay the panels out once, then freeze them
-    renderer = fig.canvas.get_renderer()
-    boxes = [ax.get_tightbbox(renderer) for ax in fig.axes if ax.get_visible()]
+    canvas = fig.canvas
+    if not isinstance(canvas, FigureCanvasAgg):  # new_figure and every figure module attach Agg
+        raise TypeError(f"figures are drawn on matplotlib's Agg canvas, not {type(canvas).__name__}")
+    canvas.draw()  # lay the panels out once, then freeze them
+    renderer = canvas.get_renderer()
+    boxes = [box for ax in fig.axes if ax.get_visible() and (box := ax.get_tightbbox(renderer)) is not None]
     if not boxes:
         return
     fig.set_layout_engine("none")
     height = fig.bbox.height
     top, bottom = max(b.y1 for b in boxes) / height, min(b.y0 for b in boxes) / height
-    title = fig._suptitle  # the figure's own title (set by suptitle)
+    # The figure's own title (set by suptitle): matplotlib keeps its Text there, and its public
+    # get_suptitle returns only the string.
+    title: Text | None = getattr(fig, "_suptitle", None)
     if title is not None:
         title.set_y(min(top + 0.01, 0.99))
         title.set_verticalalignment("bottom")

@@ -39,6 +39,14 @@ from terra.graph.scene_graph import SceneGraph
 EIGHT = np.ones((3, 3), dtype=bool)
 
 
+def eight_components(mask: np.ndarray) -> np.ndarray:
+    """(H, W) int32 labels of the 8-connected components of the bool raster `mask` (0 = not in it)."""
+    found = ndimage.label(mask, structure=EIGHT)
+    if not isinstance(found, tuple):  # without an `output` array, label returns (labels, count)
+        raise TypeError("scipy.ndimage.label returned no label array")
+    return np.asarray(found[0])
+
+
 @dataclass
 class TerrainConnectivity:
     """Pair counts of one terrain class (see the module docstring)."""
@@ -127,7 +135,7 @@ def same_terrain_connectivity(
         if mine.size == 0 or name not in legend_id:
             continue
         cells = raster.classes == legend_id[name]
-        labels, _ = ndimage.label(cells if observed is None else cells & observed, structure=EIGHT)
+        labels = eight_components(cells if observed is None else cells & observed)
         rows, cols, inside = raster.cell_of(position[mine, :2])
         component = np.where(inside, labels[rows, cols], 0)
         on = component > 0
@@ -192,7 +200,7 @@ def place_terrain_agreement(
         if not cells.any():
             gap = np.full(cells.shape, np.inf)
         else:
-            gap = ndimage.distance_transform_edt(~cells) * raster.resolution
+            gap = np.asarray(ndimage.distance_transform_edt(~cells)) * raster.resolution
         for d in out.farther:
             out.farther[d] += int((gap[rows[mine], cols[mine]] > d).sum())
     return out

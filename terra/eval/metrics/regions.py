@@ -2,8 +2,9 @@
 
 The ground-truth set of a named region is the places whose map-frame xy lies in its closed
 polygon: the boundary counts, because the simulator's region polygons and the places derived from
-its grid-aligned terrain often share coordinates, and a place on a region's edge belongs to it. Scores are micro-averaged over queries: true positives, false positives and
-false negatives are summed over all queries before the ratios are taken.
+its grid-aligned terrain often share coordinates, and a place on a region's edge belongs to it.
+Scores are micro-averaged over queries: true positives, false positives and false negatives are
+summed over all queries before the ratios are taken.
 """
 
 from __future__ import annotations
@@ -12,19 +13,11 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import shapely
 
 from terra.eval.metrics.retrieval import f1_score
+from terra.tasks.monitoring import places_in_polygon
 
-
-def places_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Indices of the points (P, >=2) whose x, y (metres, map frame) lie inside or on the boundary
-    of `polygon` (K, 2)."""
-    xy = np.asarray(xy, dtype=np.float64)
-    if len(xy) == 0:
-        return np.zeros(0, dtype=np.int64)
-    inside = shapely.intersects_xy(shapely.Polygon(np.asarray(polygon, float)), xy[:, 0], xy[:, 1])
-    return np.flatnonzero(inside)
+__all__ = ["SetScores", "micro_scores", "places_in_polygon", "set_scores"]
 
 
 @dataclass

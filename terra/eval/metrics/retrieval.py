@@ -130,15 +130,7 @@ def evaluate_retrieval(
     num_gt = num_sel = 0
     per_query = []
     for t, gt_t in enumerate(gt):
-        # Accuracy: the len(gt_t) best-scoring predictions for t, stable on ties.
-        top = np.argsort(-scores[:, t], kind="stable")[: len(gt_t)]
-        acc = match_boxes(pred[top], gt_t)
-        # Precision: predictions for t close to the best of them.
-        mine = np.flatnonzero(assigned == t)
-        if mine.size:
-            best = scores[mine, t].max()
-            mine = mine[scores[mine, t] >= precision_ratio * best]
-        prec = match_boxes(pred[mine], gt_t)
+        acc, prec, mine = _query_matches(pred, scores[:, t], assigned, t, gt_t, precision_ratio)
         total_acc += acc
         total_prec += prec
         num_gt += len(gt_t)
@@ -173,6 +165,22 @@ def evaluate_retrieval(
         matched_iou=total_acc.iou_sum / total_acc.matches if total_acc.matches else 0.0,
         matches=total_acc.matches,
     )
+
+
+def _query_matches(
+    pred: BoxSet, score_t: np.ndarray, assigned: np.ndarray, t: int, gt_t: BoxSet, precision_ratio: float
+) -> tuple[MatchCounts, MatchCounts, np.ndarray]:
+    """Query t's accuracy and precision matches (module docstring), and the predictions the
+    precision counts. score_t: (n,) each prediction's score for t; assigned: (n,) query indices."""
+    # Accuracy: the len(gt_t) best-scoring predictions for t, stable on ties.
+    top = np.argsort(-score_t, kind="stable")[: len(gt_t)]
+    acc = match_boxes(pred[top], gt_t)
+    # Precision: predictions for t close to the best of them.
+    mine = np.flatnonzero(assigned == t)
+    if mine.size:
+        best = score_t[mine].max()
+        mine = mine[score_t[mine] >= precision_ratio * best]
+    return acc, match_boxes(pred[mine], gt_t), mine
 
 
 def accuracy_matches(pred: BoxSet, scores: np.ndarray, gt: list[BoxSet]) -> list[np.ndarray]:
