@@ -193,7 +193,7 @@ def build_terrain_grid(
     n_classes, has = _vote_terrain(grid, points[is_terrain], terrain[is_terrain].astype(np.int64))
     other = _scan_other_points(grid, has, points[~is_terrain], obstacle_height)
     window = 2 * int(round(support_radius / frame.cell_size)) + 1
-    dense = _densely_scanned(grid.label, other.ground, window, min_support)
+    dense = _densely_scanned(grid.label, other.ground_cells, window, min_support)
     raw = grid.label.copy()
     if support_radius > 0:
         grid.label[:] = _window_majority(raw, n_classes, window, min_support)
@@ -203,7 +203,7 @@ def build_terrain_grid(
     if steps != 0 and weak_support is not None:  # steps is 0 when weak_support is None
         _extend_weak_labels(grid, raw, n_classes, window, weak_support, dense, steps or 0)
     if fill_radius > 0:
-        _fill_from_nearest_label(grid.label, other.ground & dense & ~grid.blocked, fill_radius / frame.cell_size)
+        _fill_from_nearest_label(grid.label, other.ground_cells & dense & ~grid.blocked, fill_radius / frame.cell_size)
     return grid
 
 
@@ -258,7 +258,7 @@ class _OtherPoints:
     col: np.ndarray
     inside: np.ndarray
     height: np.ndarray
-    ground: np.ndarray
+    ground_cells: np.ndarray
 
 
 def _scan_other_points(
