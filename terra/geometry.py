@@ -12,12 +12,13 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from terra import lens
 
 
-def make_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """4x4 pose from a 3x3 rotation and a translation in metres."""
+def make_pose(rotation: ArrayLike, translation: ArrayLike) -> np.ndarray:
+    """4x4 pose from a 3x3 rotation and a translation (3,) in metres."""
     T = np.eye(4)
     T[:3, :3] = rotation
     T[:3, 3] = translation
@@ -91,7 +92,8 @@ class CameraCalibration:
             raise ValueError(f"camera {self.name}: K must be 3x3, got {self.K.shape}")
         if not np.all(np.isfinite(self.K)) or self.K[0, 0] <= 0 or self.K[1, 1] <= 0 or self.K[2, 2] != 1.0:
             raise ValueError(
-                f"camera {self.name}: K must be finite with positive focal lengths and K[2, 2] = 1, got {self.K.tolist()}"
+                f"camera {self.name}: K must be finite with positive focal lengths and K[2, 2] = 1, "
+                f"got {self.K.tolist()}"
             )
         try:
             self.dist = lens.check_coefficients(self.model, self.dist)

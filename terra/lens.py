@@ -20,6 +20,7 @@ realistic lens.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 PINHOLE = "pinhole"
 FISHEYE = "fisheye"
@@ -37,7 +38,7 @@ _NEWTON_STEPS = 60
 _TOLERANCE = 1e-15  # normalised units: about 1e-12 px for a 1000 px focal length
 
 
-def check_coefficients(model: str, dist: np.ndarray) -> np.ndarray:
+def check_coefficients(model: str, dist: ArrayLike) -> np.ndarray:
     """`dist` as a flat float64 array; ValueError naming the supported lengths when it has none of them."""
     if model not in COEFFICIENT_COUNTS:
         raise ValueError(f"unknown lens model {model!r}; expected one of: {', '.join(LENS_MODELS)}")
@@ -51,12 +52,12 @@ def check_coefficients(model: str, dist: np.ndarray) -> np.ndarray:
     return dist
 
 
-def has_distortion(dist: np.ndarray) -> bool:
+def has_distortion(dist: ArrayLike) -> bool:
     """Whether the coefficients change anything (an all-zero vector is the ideal lens)."""
     return bool(np.any(np.asarray(dist) != 0))
 
 
-def distort(xy: np.ndarray, dist: np.ndarray, model: str = PINHOLE) -> np.ndarray:
+def distort(xy: ArrayLike, dist: ArrayLike, model: str = PINHOLE) -> np.ndarray:
     """Undistorted normalised coordinates (N, 2) -> distorted normalised coordinates (N, 2)."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if model == FISHEYE:
@@ -66,7 +67,7 @@ def distort(xy: np.ndarray, dist: np.ndarray, model: str = PINHOLE) -> np.ndarra
     return _pinhole_distort(xy, _padded(dist))
 
 
-def undistort(xy_distorted: np.ndarray, dist: np.ndarray, model: str = PINHOLE) -> np.ndarray:
+def undistort(xy_distorted: ArrayLike, dist: ArrayLike, model: str = PINHOLE) -> np.ndarray:
     """Inverse of `distort`: distorted normalised coordinates (N, 2) -> undistorted ones.
 
     Rows where the model cannot be inverted (the lens folds over there, or a fisheye ray at or
@@ -83,7 +84,7 @@ def undistort(xy_distorted: np.ndarray, dist: np.ndarray, model: str = PINHOLE) 
 # -- pinhole (OpenCV calib3d) ------------------------------------------------------------------
 
 
-def _padded(dist: np.ndarray) -> np.ndarray:
+def _padded(dist: ArrayLike) -> np.ndarray:
     coeffs = np.zeros(14)
     dist = np.asarray(dist, dtype=np.float64).ravel()
     coeffs[: dist.size] = dist

@@ -15,6 +15,7 @@ off; TERRA_PROGRESS_INTERVAL = seconds between lines (default 5).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -200,10 +201,8 @@ def close_bars() -> None:
     error printed next starts on a clean line and stays one line."""
     tqdm_module = sys.modules.get("tqdm.std")  # no bar was ever made when tqdm is not imported
     for bar in list(getattr(getattr(tqdm_module, "tqdm", None), "_instances", ())):
-        try:
+        with contextlib.suppress(Exception):  # a bar that cannot be closed must not hide the error being reported
             bar.close()
-        except Exception:  # noqa: BLE001 - a bar that cannot be closed must not hide the error being reported
-            pass
 
 
 class StageTimer:

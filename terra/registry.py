@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 from importlib.metadata import entry_points
-from typing import Generic, TypeVar
+from typing import Generic, TypeVar, cast
 
 from terra.errors import TerraError
 
@@ -53,7 +53,8 @@ class Registry(Generic[T]):
         if name not in self._loaded:
             if name not in self._lazy:
                 raise TerraError(f"unknown {self.kind} {name!r}; expected one of: {', '.join(self.names())}")
-            self._loaded[name] = _resolve(self._lazy.pop(name))
+            # A lazy reference names an entry of this registry's kind; only its use can check that.
+            self._loaded[name] = cast(T, _resolve(self._lazy.pop(name)))
         return self._loaded[name]
 
     def items(self) -> list[tuple[str, T]]:

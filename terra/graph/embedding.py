@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 from terra.perception.text import normalize_rows
 

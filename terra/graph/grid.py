@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from terra.graph import raster
 from terra.graph.gvd import EIGHT, component_sizes, label_components
 
 
@@ -68,11 +69,11 @@ class TerrainGrid:
             fillable = self.label < 0
             fillable &= ~self.blocked
             fillable |= mask
-            mask = ndimage.binary_closing(mask, structure=EIGHT, iterations=close_iterations)
+            mask = np.asarray(ndimage.binary_closing(mask, structure=EIGHT, iterations=close_iterations), dtype=bool)
             mask &= fillable
             del fillable
         if open_iterations > 0:
-            mask = ndimage.binary_opening(mask, structure=EIGHT, iterations=open_iterations)
+            mask = np.asarray(ndimage.binary_opening(mask, structure=EIGHT, iterations=open_iterations), dtype=bool)
         dropped = 0
         if min_cells > 1 and mask.any():
             labels, n = label_components(mask)
@@ -188,10 +189,28 @@ def build_terrain_grid(
     if not is_terrain.any():
         raise ValueError("the map has no terrain points")
     frame = frame or grid_frame(points, terrain, cell_size, margin_cells)
-    cell_size = frame.cell_size
-    tp, tt = points[is_terrain], terrain[is_terrain].astype(np.int64)
+    grid = empty_grid(frame)
+    n_classes, has = _vote_terrain(grid, points[is_terrain], terrain[is_terrain].astype(np.int64))
+    other = _scan_other_points(grid, has, points[~is_terrain], obstacle_height)
+    window = 2 * int(round(support_radius / frame.cell_size)) + 1
+    dense = _densely_scanned(grid.label, other.ground_cells, window, min_support)
+    raw = grid.label.copy()
+    if support_radius > 0:
+        grid.label[:] = _window_majority(raw, n_classes, window, min_support)
+    if obstacle_height is not None:
+        _block_obstacles(grid, other, obstacle_height, obstacle_min_points)
+    steps = hysteresis_steps(frame.cell_size, support_radius, min_support, weak_support, weak_reach)
+    if steps != 0 and weak_support is not None:  # steps is 0 when weak_support is None
+        _extend_weak_labels(grid, raw, n_classes, window, weak_support, dense, steps or 0)
+    if fill_radius > 0:
+        _fill_from_nearest_label(grid.label, other.ground_cells & dense & ~grid.blocked, fill_radius / frame.cell_size)
+    return grid
+
+
+def empty_grid(frame: GridFrame) -> TerrainGrid:
+    """A grid over `frame` with no label (-1), ground 0 and no blocked cell."""
     H, W = frame.shape
-    grid = TerrainGrid(
+    return TerrainGrid(
         np.full((H, W), -1, np.int16),
         np.zeros((H, W), np.float32),
         np.zeros((H, W), bool),
@@ -199,6 +218,13 @@ def build_terrain_grid(
         float(frame.cell_size),
         frame.offset,
     )
+
+
+def _vote_terrain(grid: TerrainGrid, tp: np.ndarray, tt: np.ndarray) -> tuple[int, np.ndarray]:
+    """In place, from the terrain points `tp` (n, 3) and their classes `tt` (n,) int64: each cell's
+    majority class and the ground of every cell. Returns the number of classes and the (H, W) bool
+    cells that hold terrain points."""
+    H, W = grid.shape
     rows, cols, _ = grid.cell_of(tp)
     flat = rows * W + cols
 
@@ -217,10 +243,30 @@ def build_terrain_grid(
     has = (count > 0).reshape(H, W)
     mean = (total / np.maximum(count, 1)).reshape(H, W)
     # Indices only: the distances would cost 8 bytes a cell and nothing reads them.
-    nr, nc = ndimage.distance_transform_edt(~has, return_distances=False, return_indices=True)
+    nr, nc = raster.nearest_zero(~has)
     grid.ground[:] = mean[nr, nc]
+    return n_classes, has
 
-    other = points[~is_terrain]
+
+@dataclass
+class _OtherPoints:
+    """The points without a terrain class in a grid: their cells (row, col (n,), clipped; inside (n,)
+    bool), their height above the terrain-based ground (n,) metres, and the (H, W) bool cells that
+    hold unlabelled ground (such points less than the obstacle band's low end above it)."""
+
+    row: np.ndarray
+    col: np.ndarray
+    inside: np.ndarray
+    height: np.ndarray
+    ground_cells: np.ndarray
+
+
+def _scan_other_points(
+    grid: TerrainGrid, has: np.ndarray, other: np.ndarray, obstacle_height: tuple[float, float] | None
+) -> _OtherPoints:
+    """Locate the points without a terrain class `other` (n, 3) and, in place, give the cells only
+    they scanned as unlabelled ground their mean height (`has`: cells with terrain points)."""
+    H, W = grid.shape
     orow, ocol, inside = grid.cell_of(other)
     height = other[:, 2] - grid.ground[orow, ocol]
     low = obstacle_height[0] if obstacle_height is not None else 0.3
@@ -231,29 +277,44 @@ def build_terrain_grid(
     # terrain cell, which can lie metres away on other ground (a bank, a field beyond a road): the
     # support window, hysteresis and filling below can label these cells, and places sit on them.
     _ground_from_unlabelled(grid.ground, has, other[low_point, 2], orow[low_point] * W + ocol[low_point])
-    window = 2 * int(round(support_radius / cell_size)) + 1
-    # Densely scanned ground: enough of the window holds ground points, labelled or not (sparse
-    # distant scan rings are not, and are never filled).
-    dense = (
-        ndimage.uniform_filter(((grid.label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant")
+    return _OtherPoints(orow, ocol, inside, height, unlabelled_ground)
+
+
+def _densely_scanned(label: np.ndarray, unlabelled_ground: np.ndarray, window: int, min_support: float) -> np.ndarray:
+    """(H, W) bool: densely scanned ground, where enough of the window holds ground points, labelled
+    or not (sparse distant scan rings are not, and are never filled)."""
+    return (
+        ndimage.uniform_filter(((label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant")
         >= min_support - 1e-6
     )
-    raw = grid.label.copy()
-    if support_radius > 0:
-        grid.label[:] = _window_majority(raw, n_classes, window, min_support)
-    if obstacle_height is not None:
-        hit = inside & (height >= obstacle_height[0]) & (height <= obstacle_height[1])
-        counts = np.bincount(orow[hit] * W + ocol[hit], minlength=H * W).reshape(H, W)
-        grid.blocked[:] = counts >= obstacle_min_points
-        grid.label[grid.blocked] = -1
-    steps = hysteresis_steps(cell_size, support_radius, min_support, weak_support, weak_reach)
-    if steps != 0:
-        weak = _window_majority(raw, n_classes, window, weak_support)
-        weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
-        _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps or 0)
-    if fill_radius > 0:
-        _fill_from_nearest_label(grid.label, unlabelled_ground & dense & ~grid.blocked, fill_radius / cell_size)
-    return grid
+
+
+def _block_obstacles(
+    grid: TerrainGrid, other: _OtherPoints, obstacle_height: tuple[float, float], obstacle_min_points: int
+) -> None:
+    """In place: cells with at least `obstacle_min_points` points in the obstacle height band are
+    blocked, and lose their label."""
+    H, W = grid.shape
+    hit = other.inside & (other.height >= obstacle_height[0]) & (other.height <= obstacle_height[1])
+    counts = np.bincount(other.row[hit] * W + other.col[hit], minlength=H * W).reshape(H, W)
+    grid.blocked[:] = counts >= obstacle_min_points
+    grid.label[grid.blocked] = -1
+
+
+def _extend_weak_labels(
+    grid: TerrainGrid,
+    raw: np.ndarray,
+    n_classes: int,
+    window: int,
+    weak_support: float,
+    dense: np.ndarray,
+    steps: int,
+) -> None:
+    """In place: the hysteresis step, the weak majority of the cells' own labels `raw` carried along
+    densely scanned, unblocked cells at most `steps` cells (0 = any number) from a label."""
+    weak = _window_majority(raw, n_classes, window, weak_support)
+    weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
+    _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps)
 
 
 def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, flat: np.ndarray) -> None:
@@ -267,7 +328,7 @@ def _ground_from_unlabelled(ground: np.ndarray, has: np.ndarray, z: np.ndarray, 
     if not own.any():
         return
     ground[own] = (total[own] / count[own]).astype(ground.dtype)
-    nr, nc = ndimage.distance_transform_edt(~(has | own), return_distances=False, return_indices=True)
+    nr, nc = raster.nearest_zero(~(has | own))
     ground[:] = ground[nr, nc]
 
 
@@ -282,7 +343,7 @@ def _fill_from_nearest_label(label: np.ndarray, fillable: np.ndarray, radius: fl
     rows, cols = np.nonzero(todo)
     near = np.zeros((len(classes), len(rows)), dtype=bool)
     for k, t in enumerate(classes):
-        near[k] = ndimage.distance_transform_edt(label != t)[rows, cols] <= radius
+        near[k] = raster.distance_to_zero(label != t)[rows, cols] <= radius
     one = near.sum(axis=0) == 1
     label[rows[one], cols[one]] = np.asarray(classes, dtype=label.dtype)[np.argmax(near[:, one], axis=0)]
 
@@ -293,7 +354,10 @@ def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray, max_steps: int = 
     `max_steps` cells along that chain (0 = any number)."""
     for t in np.unique(weak[weak >= 0]):
         strong = label == t
-        reached = ndimage.binary_dilation(strong, structure=EIGHT, iterations=max_steps, mask=(weak == t) | strong)
+        reached = np.asarray(
+            ndimage.binary_dilation(strong, structure=EIGHT, iterations=max_steps, mask=(weak == t) | strong),
+            dtype=bool,
+        )
         label[reached & (label < 0)] = t
 
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 OFF_TERRAIN_WEIGHT = 10.0
 """A metre on unlabelled cells costs 1 + this: a path keeps to its terrain unless the detour on it
@@ -122,7 +122,7 @@ def link_pieces_on_grid(
 
     found, cost = [], []
     for a, b in candidate_pairs(position, terrain, piece, reach, candidates):
-        ra, rb = find(piece[a]), find(piece[b])
+        ra, rb = find(int(piece[a])), find(int(piece[b]))
         if ra == rb:
             continue
         path = _grid_path(position, terrain, piece, a, b, rules)

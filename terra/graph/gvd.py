@@ -19,8 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
+from terra.graph import raster
 from terra.graph.thinning import thin
 
 EIGHT = np.ones((3, 3), dtype=bool)
@@ -68,9 +68,9 @@ def brushfire(
             bottom and left,
             bottom and right,
         )
-    distance, parent = ndimage.distance_transform_edt(padded, return_indices=True)
+    distance, parent = raster.distance_and_nearest_zero(padded)
     if labels is None:
-        labels, _ = ndimage.label(~padded, structure=EIGHT)
+        labels, _ = raster.label(~padded, structure=EIGHT)
     component = labels[parent[0], parent[1]]
     inner = (slice(1, -1), slice(1, -1))
     return Brushfire(
@@ -129,7 +129,7 @@ def fill_empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
 def empty_loops(skeleton: np.ndarray, free: np.ndarray) -> np.ndarray:
     """(H, W) bool: the cells of every hole of the skeleton (a 4-connected component of the cells
     off it) that holds no obstacle cell and does not touch the array's border."""
-    holes, n = ndimage.label(~skeleton)  # 4-connected complement
+    holes, n = raster.label(~skeleton)  # 4-connected complement
     if n <= 1:
         return np.zeros(np.shape(skeleton), dtype=bool)
     has_obstacle = np.bincount(holes.ravel(), weights=~free.ravel(), minlength=n + 1) > 0
@@ -144,9 +144,9 @@ def label_components(mask: np.ndarray, structure: np.ndarray = EIGHT) -> tuple[n
     """`ndimage.label(mask, structure)` in uint16 when the components fit (fewer than 65,536), else
     int32: the same labels, in half the memory on a full grid."""
     try:
-        return ndimage.label(mask, structure=structure, output=np.uint16)
+        return raster.label(mask, structure=structure, output=np.uint16)
     except RuntimeError:  # scipy: "insufficient bit-depth in requested output type"
-        return ndimage.label(mask, structure=structure, output=np.int32)
+        return raster.label(mask, structure=structure, output=np.int32)
 
 
 def component_sizes(labels: np.ndarray, n: int, rows: int = 256) -> np.ndarray:

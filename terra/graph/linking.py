@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 ClearFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """clear(a_xy (n, 2), b_xy (n, 2)) -> (n,) bool: the straight segment crosses only traversable cells."""
@@ -108,7 +108,10 @@ def _length_on(
     """(n,) metres of each segment a[i] -> b[i] on True cells of `cells` (H, W), or, with
     cells None, outside a grid of `shape`."""
     out = np.zeros(len(a))
-    H, W = cells.shape if cells is not None else shape
+    grid_shape = cells.shape if cells is not None else shape
+    if grid_shape is None:
+        raise ValueError("the segments' lengths need the cells or the shape of the grid")
+    H, W = grid_shape
     for part in _segment_chunks(a, b, cell_size):
         xy, owner, step = _segment_samples(a[part], b[part], cell_size)
         rc = np.floor((xy - origin) / cell_size).astype(np.int64)
@@ -181,8 +184,12 @@ def link_dead_ends(
         k = min(candidates, others.size)
         dist, idx = cKDTree(position[others, :2]).query(position[ends, :2], k=k, distance_upper_bound=max_distance)
         dist, idx = dist.reshape(len(ends), k), idx.reshape(len(ends), k)
+        # The test runs inside first_passing, in this iteration; the defaults bind its arrays anyway.
         first = first_passing(
-            np.isfinite(dist), lambda rows, c: clear(position[ends[rows], :2], position[others[idx[rows, c]], :2])
+            np.isfinite(dist),
+            lambda rows, c, ends=ends, others=others, idx=idx: clear(
+                position[ends[rows], :2], position[others[idx[rows, c]], :2]
+            ),
         )
         has = first >= 0
         a = ends[has]
@@ -287,8 +294,9 @@ def bridge_components(
             break
         a, b = other_component_neighbours(tree, position[:, :2], comp, candidates)
         length = np.linalg.norm(position[a] - position[b], axis=1)
+        # The test runs inside cheapest_per_group, in this round; the defaults bind its arrays anyway.
         win, cost, ok = cheapest_per_group(
-            comp[a], a, b, length, penalty, lambda i: clear(position[a[i], :2], position[b[i], :2])
+            comp[a], a, b, length, penalty, lambda i, a=a, b=b: clear(position[a[i], :2], position[b[i], :2])
         )
         pairs = np.sort(np.column_stack([a[win], b[win]]), axis=1).astype(np.int64)
         pairs, first = np.unique(pairs, axis=0, return_index=True)

@@ -27,8 +27,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import ndimage
 from scipy.sparse.csgraph import connected_components, dijkstra
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
+from terra.graph import raster
 from terra.graph.cell_index import CellIndex
 from terra.graph.gvd import EIGHT, gvd, label_components
 from terra.graph.skeleton import (
@@ -204,7 +205,7 @@ def join_patch_pieces(
     n = len(cells)
     if n < 2:
         return none
-    patch, _ = patches if patches is not None else ndimage.label(free, structure=EIGHT)
+    patch, _ = patches if patches is not None else raster.label(free, structure=EIGHT)
     place_patch = patch[cells[:, 0], cells[:, 1]]
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, piece = connected_components(graph, directed=False)
@@ -270,7 +271,7 @@ def _lonely_patch_cells(
 ) -> np.ndarray:
     """One cell (largest clearance) for every free patch that holds no place yet (patches:
     `ndimage.label(free, EIGHT)` when already computed)."""
-    labels, n = patches if patches is not None else ndimage.label(free, structure=EIGHT)
+    labels, n = patches if patches is not None else raster.label(free, structure=EIGHT)
     if n == 0:
         return np.zeros((0, 2), dtype=np.int64)
     covered = np.zeros(n + 1, dtype=bool)

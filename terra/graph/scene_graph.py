@@ -9,8 +9,12 @@ and an implicit root above the top region level.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp  # imported in the bodies that use it: lookups load the graph without SciPy
 
 EDGE_GVD = 0  # along one terrain's GVD
 EDGE_CROSS_TERRAIN = 1  # dead end linked to the nearest node of another terrain
@@ -92,16 +96,17 @@ class SceneGraph:
     embedder: str = ""
     region_method: str = ""
 
-    def place_adjacency(self) -> sp.csr_matrix:  # noqa: F821 (imported in the body)
+    def place_adjacency(self) -> sp.csr_matrix:
         """Symmetric (P, P) sparse matrix of place edge weights."""
         import scipy.sparse as sp  # here: monitoring and lookups load the graph without SciPy
 
         n = len(self.places)
         i, j = self.place_edges[:, 0], self.place_edges[:, 1]
         w = self.place_edge_weight.astype(np.float64)
-        return sp.coo_matrix(
+        adjacency = sp.coo_matrix(
             (np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n)
         ).tocsr()
+        return adjacency  # pyright: ignore[reportReturnType]  # scipy infers csr_array for coo_matrix.tocsr()
 
     def place_region(self, level: int) -> np.ndarray:
         """(P,) index of the region at `level` (1-based) containing each place."""

@@ -98,15 +98,14 @@ def cell_adjacency(mask: np.ndarray, m_adjacency: bool = False) -> tuple[np.ndar
         (np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(len(cells), len(cells))
     )
     del i, j, w
-    return cells, adjacency.tocsr()
+    return cells, adjacency.tocsr()  # pyright: ignore[reportReturnType]  # scipy infers csr_array for coo_matrix.tocsr()
 
 
 def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     """Nodes and edges of a thin skeleton. `distance` (H, W) picks each node cluster's cell: the
     one with the largest clearance (ties: first in raster order)."""
-    cells, A = skeleton_adjacency(skeleton)
-    K = len(cells)
-    if K == 0:
+    cells, adjacency = skeleton_adjacency(skeleton)
+    if len(cells) == 0:
         return SkeletonGraph(
             np.zeros((0, 2), np.int64),
             np.zeros((0, 2), np.int64),
@@ -114,19 +113,43 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
             np.zeros(1, np.int64),
             NodeCells(np.zeros((0, 2), np.int64), np.zeros(0, np.int64)),
         )
-    degree = np.diff(A.indptr)
+    is_node = _node_cells(cells, adjacency, np.shape(skeleton))
+    node_idx = np.flatnonzero(is_node)
+    node_cell, cluster = _node_clusters(cells, adjacency, node_idx, distance)
+    cell_node = NodeCells(cells[node_idx].astype(np.int64), cluster.astype(np.int64))  # node_idx ascends: raster order
+    if is_node.all():
+        return _assemble(node_cell, [], [], cell_node)
+    runs = _find_runs(adjacency, np.flatnonzero(~is_node), node_idx, cluster)
+    edges, path_cells, path_start = _run_edges(runs, cells, node_cell)
+    edges, path_cells, path_start = _join_inner_attachments(runs, cells, node_cell, edges, path_cells, path_start)
+    return SkeletonGraph(
+        node_cell, edges.astype(np.int64), path_cells.astype(np.int64), path_start.astype(np.int64), cell_node
+    )
+
+
+def _node_cells(cells: np.ndarray, adjacency: sp.csr_matrix, shape: tuple[int, ...]) -> np.ndarray:
+    """(K,) whether each skeleton cell belongs to a node: its degree is not 2, it lies in a 2x2
+    block, or it is the first cell of a loop that has no other node."""
+    n_cells = len(cells)
+    degree = np.diff(adjacency.indptr)
     is_node = degree != 2
     # Cells of a 2x2 block (thinning can leave one where branches meet) form one node.
-    is_node |= _in_block(cells, np.shape(skeleton))
+    is_node |= _in_block(cells, (shape[0], shape[1]))
     # A loop with no junction or end gets a node at its first cell.
-    _, comp = connected_components(A, directed=False)
+    _, comp = connected_components(adjacency, directed=False)
     has_node = np.bincount(comp, weights=is_node, minlength=comp.max() + 1) > 0
-    first_cell = np.full(comp.max() + 1, K)
-    np.minimum.at(first_cell, comp, np.arange(K))
+    first_cell = np.full(comp.max() + 1, n_cells)
+    np.minimum.at(first_cell, comp, np.arange(n_cells))
     is_node[first_cell[~has_node]] = True
+    return is_node
 
-    node_idx = np.flatnonzero(is_node)
-    _, cluster = connected_components(A[node_idx][:, node_idx], directed=False)
+
+def _node_clusters(
+    cells: np.ndarray, adjacency: sp.csr_matrix, node_idx: np.ndarray, distance: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The node clusters (connected node cells `node_idx`): each node's cell (n, 2), the one of
+    largest clearance in `distance` (ties: first in raster order), and each node cell's node."""
+    _, cluster = connected_components(adjacency[node_idx][:, node_idx], directed=False)
     clearance = distance[cells[node_idx, 0], cells[node_idx, 1]]
     order = np.lexsort((node_idx, -clearance, cluster))  # per cluster: best clearance first
     first = np.ones(len(order), dtype=bool)
@@ -134,17 +157,30 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     n_nodes = int(cluster.max()) + 1 if len(cluster) else 0
     node_cell = np.zeros((n_nodes, 2), dtype=np.int64)
     node_cell[cluster[order][first]] = cells[node_idx[order][first]]
-    node_of_cell = np.full(K, -1, dtype=np.int64)
-    node_of_cell[node_idx] = cluster
-    cell_node = NodeCells(cells[node_idx].astype(np.int64), cluster.astype(np.int64))  # node_idx ascends: raster order
+    return node_cell, cluster
 
-    seg_idx = np.flatnonzero(~is_node)
-    if len(seg_idx) == 0:
-        return _assemble(node_cell, [], [], cell_node)
-    S = A[seg_idx][:, seg_idx]
+
+@dataclass
+class _Runs:
+    """The runs of degree-2 cells between the nodes. cells: (s,) indices of the run cells among the
+    skeleton's cells; run: (s,) the run of each; along: (s,) its geodesic distance (cells) from
+    its run's start; count: the number of runs. attach: (a, 2) attachments (run cell, node),
+    sorted along each run; bounds: (count + 1,) offsets of each run's attachments in attach."""
+
+    cells: np.ndarray
+    run: np.ndarray
+    along: np.ndarray
+    count: int
+    attach: np.ndarray
+    bounds: np.ndarray
+
+
+def _find_runs(adjacency: sp.csr_matrix, seg_idx: np.ndarray, node_idx: np.ndarray, cluster: np.ndarray) -> _Runs:
+    """The runs of the run cells `seg_idx`, each ordered from one end, and the nodes they touch."""
+    S = adjacency[seg_idx][:, seg_idx]
     n_seg, seg = connected_components(S, directed=False)
     # Start of each run: its first end cell (degree <= 1 inside the run) in raster order; a run
-    # without ends cannot occur (loops got a node above), but fall back to its first cell.
+    # without ends cannot occur (loops got a node), but fall back to its first cell.
     start = np.full(n_seg, len(seg_idx))
     np.minimum.at(start, seg[np.diff(S.indptr) <= 1], np.flatnonzero(np.diff(S.indptr) <= 1))
     fallback = np.full(n_seg, len(seg_idx))
@@ -152,27 +188,46 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
     start = np.where(start == len(seg_idx), fallback, start)
     along = dijkstra(S, directed=False, indices=start, min_only=True)
     # Attachments (run cell, node) sorted along each run: the first names u, the last v.
-    A_sn = A[seg_idx][:, node_idx].tocoo()
-    att = np.unique(np.stack([A_sn.row, cluster[A_sn.col]], axis=1), axis=0)
+    run_node = adjacency[seg_idx][:, node_idx].tocoo()
+    att = np.unique(np.stack([run_node.row, cluster[run_node.col]], axis=1), axis=0)
     att_seg = seg[att[:, 0]]
     order = np.lexsort((att[:, 1], along[att[:, 0]], att_seg))
     att, att_seg = att[order], att_seg[order]
     bounds = np.searchsorted(att_seg, np.arange(n_seg + 1))
+    return _Runs(seg_idx, seg, along, n_seg, att, bounds)
+
+
+def _run_edges(runs: _Runs, cells: np.ndarray, node_cell: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One edge per run that touches a node, from its first attachment's node u to its last one's
+    v: edges (e, 2), path cells (u's cell, the run's cells in order, v's cell) and path starts."""
+    att, bounds, seg = runs.attach, runs.bounds, runs.run
     has = bounds[1:] > bounds[:-1]
     u = att[bounds[:-1][has], 1]
     v = att[bounds[1:][has] - 1, 1]
     # Paths: u's cell, the run's cells in order, v's cell.
-    cell_order = np.lexsort((along, seg))
+    cell_order = np.lexsort((runs.along, seg))
     cell_order = cell_order[has[seg[cell_order]]]
-    run_len = np.bincount(seg[cell_order], minlength=n_seg)[has]
+    run_len = np.bincount(seg[cell_order], minlength=runs.count)[has]
     run_start = np.concatenate([[0], np.cumsum(run_len)[:-1]])
-    runs = cells[seg_idx[cell_order]]
+    run_cells = cells[runs.cells[cell_order]]
     at = np.stack([run_start, run_start + run_len], axis=1).ravel()
     ends = np.stack([node_cell[u], node_cell[v]], axis=1).reshape(-1, 2)
-    path_cells = np.insert(runs, at, ends, axis=0)
+    path_cells = np.insert(run_cells, at, ends, axis=0)
     path_start = np.concatenate([[0], np.cumsum(run_len + 2)])
-    edges = np.stack([u, v], axis=1)
-    # A run end touching a further node (rare pixel configurations): join that node as well.
+    return np.stack([u, v], axis=1), path_cells, path_start
+
+
+def _join_inner_attachments(
+    runs: _Runs,
+    cells: np.ndarray,
+    node_cell: np.ndarray,
+    edges: np.ndarray,
+    path_cells: np.ndarray,
+    path_start: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_run_edges`' edges and paths, plus an edge for every further node a run touches between
+    its two ends (rare pixel configurations), joined to the nearer end's node."""
+    att, bounds, along = runs.attach, runs.bounds, runs.along
     extra_edges, extra_paths = [], []
     for s in np.flatnonzero(bounds[1:] - bounds[:-1] > 2):
         uu, vv = att[bounds[s], 1], att[bounds[s + 1] - 1, 1]
@@ -181,14 +236,12 @@ def skeleton_graph(skeleton: np.ndarray, distance: np.ndarray) -> SkeletonGraph:
             w, x = att[k, 1], (uu if along[att[k, 0]] <= half else vv)
             if w != x:
                 extra_edges.append((x, w))
-                extra_paths.append(np.vstack([node_cell[x], cells[seg_idx[att[k, 0]]], node_cell[w]]))
+                extra_paths.append(np.vstack([node_cell[x], cells[runs.cells[att[k, 0]]], node_cell[w]]))
     if extra_edges:
         edges = np.vstack([edges, np.asarray(extra_edges)])
         path_start = np.concatenate([path_start, path_start[-1] + 3 * np.arange(1, len(extra_edges) + 1)])
         path_cells = np.vstack([path_cells] + extra_paths)
-    return SkeletonGraph(
-        node_cell, edges.astype(np.int64), path_cells.astype(np.int64), path_start.astype(np.int64), cell_node
-    )
+    return edges, path_cells, path_start
 
 
 def _in_block(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -269,44 +322,70 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
     """Contract junction-to-junction edges shorter than `junction_merge` times the smaller
     junction clearance (one crossing drawn as two nearby junctions; each junction merges at most
     once), then dissolve nodes left with exactly two edges by joining those edges' paths."""
-    n = len(g.node_cell)
     if len(g.edges) == 0:
         return g
-    edges = g.edges.copy()
-    paths = [g.path(e) for e in range(len(edges))]
+    clear = distance[g.node_cell[:, 0], g.node_cell[:, 1]]
+    short = _junction_pairs(g, clear, junction_merge)
+    node_cell, cell_node = g.node_cell, g.cell_node
+    edges, paths = g.edges.copy(), [g.path(e) for e in range(len(g.edges))]
+    if short.any():
+        node_cell, cell_node, edges, paths = _contract(g, clear, short, edges, paths)
+    kept_edges, kept_paths, removed = _dissolve_degree_two(edges, paths, len(node_cell))
+    # Renumber the surviving nodes in their old order.
+    new_index = np.where(removed, -1, np.cumsum(~removed) - 1)
+    cell_node = cell_node.renumbered(new_index)
+    remapped = [(int(new_index[a]), int(new_index[b])) for a, b in kept_edges]
+    return _assemble(node_cell[~removed], remapped, kept_paths, cell_node)
+
+
+def _junction_pairs(g: SkeletonGraph, clear: np.ndarray, junction_merge: float) -> np.ndarray:
+    """(e,) bool: the junction-to-junction edges to contract, shorter than `junction_merge` times
+    the smaller clearance `clear` of their junctions, taken shortest first while both ends are
+    still free."""
     length = g.edge_length()
     deg = g.degree()
-    clear = distance[g.node_cell[:, 0], g.node_cell[:, 1]]
-    u, v = edges[:, 0], edges[:, 1]
+    u, v = g.edges[:, 0], g.edges[:, 1]
     short = (u != v) & (deg[u] >= 3) & (deg[v] >= 3) & (length < junction_merge * np.minimum(clear[u], clear[v]))
-    node_cell = g.node_cell
-    cell_node = g.cell_node
     if short.any():
         # Pairs only, shortest first (a matching): chains of merges would pull whole networks
         # of nearby junctions, e.g. the loops around a row of trees, into one node.
-        taken = np.zeros(n, dtype=bool)
+        taken = np.zeros(len(g.node_cell), dtype=bool)
         for e in np.flatnonzero(short)[np.argsort(length[short], kind="stable")]:
             if taken[u[e]] or taken[v[e]]:
                 short[e] = False
             else:
                 taken[u[e]] = taken[v[e]] = True
-    if short.any():
-        merge = sp.coo_matrix((np.ones(int(short.sum())), (u[short], v[short])), shape=(n, n))
-        n_new, new_id = connected_components(merge, directed=False)
-        order = np.lexsort((np.arange(n), -clear, new_id))
-        first = np.ones(n, dtype=bool)
-        first[1:] = new_id[order][1:] != new_id[order][:-1]
-        rep = np.zeros(n_new, dtype=np.int64)
-        rep[new_id[order][first]] = order[first]
-        node_cell = g.node_cell[rep]
-        cell_node = g.cell_node.renumbered(new_id)
-        keep = ~short
-        edges = new_id[edges[keep]]
-        paths = [p.copy() for p, k in zip(paths, keep) if k]
-        for p, (a, b) in zip(paths, edges):
-            p[0], p[-1] = node_cell[a], node_cell[b]
-        n = n_new
-    # Dissolve degree-2 nodes (not on a loop edge) by joining their two paths.
+    return short
+
+
+def _contract(
+    g: SkeletonGraph, clear: np.ndarray, short: np.ndarray, edges: np.ndarray, paths: list[np.ndarray]
+) -> tuple[np.ndarray, NodeCells, np.ndarray, list[np.ndarray]]:
+    """Merge the two junctions of each `short` edge into one node at the cell of the larger
+    clearance, dropping those edges: the node cells, node clusters, edges and paths after it."""
+    n = len(g.node_cell)
+    u, v = g.edges[:, 0], g.edges[:, 1]
+    merge = sp.coo_matrix((np.ones(int(short.sum())), (u[short], v[short])), shape=(n, n))
+    n_new, new_id = connected_components(merge, directed=False)
+    order = np.lexsort((np.arange(n), -clear, new_id))
+    first = np.ones(n, dtype=bool)
+    first[1:] = new_id[order][1:] != new_id[order][:-1]
+    rep = np.zeros(n_new, dtype=np.int64)
+    rep[new_id[order][first]] = order[first]
+    node_cell = g.node_cell[rep]
+    keep = ~short
+    edges = new_id[edges[keep]]
+    paths = [p.copy() for p, k in zip(paths, keep) if k]
+    for p, (a, b) in zip(paths, edges):
+        p[0], p[-1] = node_cell[a], node_cell[b]
+    return node_cell, g.cell_node.renumbered(new_id), edges, paths
+
+
+def _dissolve_degree_two(
+    edges: np.ndarray, paths: list[np.ndarray], n: int
+) -> tuple[list[tuple[int, int]], list[np.ndarray], np.ndarray]:
+    """Join the two paths of every node with exactly two edges (not on a loop edge), in node order:
+    the surviving edges, their paths, and which of the `n` nodes were removed."""
     edge_list = [tuple(e) for e in edges]
     alive = [True] * len(edge_list)
     ends: dict[int, list[int]] = {}
@@ -334,8 +413,4 @@ def simplify(g: SkeletonGraph, distance: np.ndarray, junction_merge: float) -> S
         removed[node] = True
     kept_edges = [e for e, a in zip(edge_list, alive) if a]
     kept_paths = [p for p, a in zip(paths, alive) if a]
-    # Renumber the surviving nodes in their old order.
-    new_index = np.where(removed, -1, np.cumsum(~removed) - 1)
-    cell_node = cell_node.renumbered(new_index)
-    remapped = [(int(new_index[a]), int(new_index[b])) for a, b in kept_edges]
-    return _assemble(node_cell[~removed], remapped, kept_paths, cell_node)
+    return kept_edges, kept_paths, removed

@@ -127,7 +127,8 @@ def edge_affinity(
         sigma = float(np.median(w)) if len(w) else 1.0
     sim = np.exp(-w / max(sigma, 1e-9))
     rows, cols = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate([edges[:, 1], edges[:, 0]])
-    return sp.coo_matrix((np.concatenate([sim, sim]), (rows, cols)), shape=(P, P)).tocsr()
+    affinity = sp.coo_matrix((np.concatenate([sim, sim]), (rows, cols)), shape=(P, P)).tocsr()
+    return affinity  # pyright: ignore[reportReturnType]  # scipy infers csr_array for coo_matrix.tocsr()
 
 
 def split_tree(

@@ -103,13 +103,31 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
     if L > MAX_LEVELS:
         raise ValueError(f"at most {MAX_LEVELS} region levels can be stored, got {L}")
     names = layer_names(L)
+    # Nodes and edges layer by layer, from the objects up to the root.
+    nodes, edges = _object_layer(sg.objects)
+    nodes += _place_nodes(sg, include_features)
+    edges += _place_edges(sg)
+    region_nodes, region_edges = _region_layers(sg.regions, include_features, names["ROOT"])
+    nodes += region_nodes
+    edges += region_edges
+    return {
+        "SPARK_DSG_header": SPARK_HEADER,
+        "directed": False,
+        "multigraph": False,
+        "layer_keys": [{"layer": layer, "partition": 0} for layer in sorted(set(names.values()))],
+        "layer_names": {name: {"layer": layer, "partition": 0} for name, layer in names.items()},
+        "metadata": {"terra": _graph_metadata(sg)},
+        "nodes": nodes,
+        "edges": edges,
+    }
+
+
+def _object_layer(objects: Objects) -> tuple[list[dict], list[dict]]:
+    """The object nodes (RAABB boxes) and the edge from each object's place to it."""
+    o = objects
     nodes: list[dict] = []
     edges: list[dict] = []
-    places = sg.places
-    feat = (lambda arr, i: arr[i]) if include_features else (lambda arr, i: None)
-
-    for i in range(len(sg.objects)):
-        o = sg.objects
+    for i in range(len(o)):
         yaw = float(o.yaw[i])
         box = {
             "type": "RAABB",
@@ -135,7 +153,13 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
             )
         )
         edges.append(_edge(node_symbol("p", int(o.place[i])), node_symbol("O", i)))
+    return nodes, edges
 
+
+def _place_nodes(sg: SceneGraph, include_features: bool) -> list[dict]:
+    """One PlaceNodeAttributes node per place (terrain class as its name, clearance as distance)."""
+    places = sg.places
+    nodes: list[dict] = []
     for i in range(len(places)):
         t = int(places.terrain[i])
         terra = {"index": i, "terrain": sg.terrain_classes[t], "clearance": float(places.clearance[i])}
@@ -154,14 +178,29 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
                 places.position[i],
                 terra,
                 extra,
-                feat(places.embedding, i),
+                places.embedding[i] if include_features else None,
             )
         )
-    for (i, j), w, k in zip(sg.place_edges, sg.place_edge_weight, sg.place_edge_kind):
-        edges.append(_edge(node_symbol("p", int(i)), node_symbol("p", int(j)), float(w), EDGE_KIND_NAMES[int(k)]))
+    return nodes
 
+
+def _place_edges(sg: SceneGraph) -> list[dict]:
+    """The place-place edges, weighted by traversal cost, with their kind in the metadata."""
+    return [
+        _edge(node_symbol("p", int(i)), node_symbol("p", int(j)), float(w), EDGE_KIND_NAMES[int(k)])
+        for (i, j), w, k in zip(sg.place_edges, sg.place_edge_weight, sg.place_edge_kind)
+    ]
+
+
+def _region_layers(
+    regions: list[RegionLevel], include_features: bool, root_layer: int
+) -> tuple[list[dict], list[dict]]:
+    """The region nodes of every level with the edges to their children, then the root (when there
+    are region levels) with the edges to the top level's regions."""
+    nodes: list[dict] = []
+    edges: list[dict] = []
     child_char = "p"
-    for level in sg.regions:
+    for level in regions:
         char = level_char(level.level)
         layer = LAYER_PLACES + level.level
         for r in range(len(level)):
@@ -174,51 +213,45 @@ def scene_graph_to_spark_json(sg: SceneGraph, include_features: bool = False) ->
                     level.position[r],
                     terra,
                     {"name": f"L{level.level}-{r}"},
-                    feat(level.embedding, r),
+                    level.embedding[r] if include_features else None,
                 )
             )
         for c, r in enumerate(level.parent_of_child):
             edges.append(_edge(node_symbol(char, int(r)), node_symbol(child_char, c)))
         child_char = char
-    if L:
-        top = sg.regions[-1]
+    if regions:
+        top = regions[-1]
         root_pos = top.position.mean(axis=0) if len(top) else np.zeros(3)
         nodes.append(
             _node(
                 node_symbol("Z", 0),
-                names["ROOT"],
+                root_layer,
                 "SemanticNodeAttributes",
                 root_pos,
-                {"index": 0, "level": L + 1},
+                {"index": 0, "level": len(regions) + 1},
                 {"name": "root"},
             )
         )
         for r in range(len(top)):
             edges.append(_edge(node_symbol("Z", 0), node_symbol(child_char, r)))
+    return nodes, edges
 
-    meta = {
+
+def _graph_metadata(sg: SceneGraph) -> dict[str, Any]:
+    """The document's `metadata.terra`: format, vocabulary, provenance and units."""
+    return {
         "schema": "terra-scene-graph",
         "format": GRAPH_FORMAT,
         "terrain_classes": list(sg.terrain_classes),
         "embedder": sg.embedder,
         "region_method": sg.region_method,
-        "region_levels": L,
+        "region_levels": len(sg.regions),
         "units": {
             "position": "m, map frame",
             "clearance": "m",
             "weight": "m (bridges: times their penalty)",
             "yaw": "rad about +z",
         },
-    }
-    return {
-        "SPARK_DSG_header": SPARK_HEADER,
-        "directed": False,
-        "multigraph": False,
-        "layer_keys": [{"layer": layer, "partition": 0} for layer in sorted(set(names.values()))],
-        "layer_names": {name: {"layer": layer, "partition": 0} for name, layer in names.items()},
-        "metadata": {"terra": meta},
-        "nodes": nodes,
-        "edges": edges,
     }
 
 
@@ -266,7 +299,8 @@ def load_scene_graph(bundle: Bundle) -> SceneGraph:
         raise TerraError(f"{bundle.path}: the bundle has no scene graph; build one with `terra build {bundle.path}`")
     if info.format != GRAPH_FORMAT:
         raise TerraError(
-            f"{bundle.path}: scene graph format {info.format!r} is not supported (expected {GRAPH_FORMAT}); rebuild it with `terra build {bundle.path}`"
+            f"{bundle.path}: scene graph format {info.format!r} is not supported (expected {GRAPH_FORMAT}); "
+            f"rebuild it with `terra build {bundle.path}`"
         )
     # Fully typed below the metadata dicts Terra does not read, so no depth walk is needed.
     doc = bundle.document(GRAPH_JSON, SceneGraphDocument, max_depth=None)

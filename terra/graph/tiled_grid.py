@@ -34,15 +34,18 @@ The window grows (doubling its margin) until both checks hold.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
+from terra.graph import raster
 from terra.graph.grid import (
     GridFrame,
     TerrainGrid,
     build_terrain_grid,
+    empty_grid,
     grid_frame,
     hysteresis_steps,
     terrain_grid_reach,
@@ -91,43 +94,66 @@ def build_terrain_grid_tiled(
         stats.one_piece = "build.grid.weak_reach is null: the hysteresis can carry a class across the whole map"
         return build_terrain_grid(points, terrain, *args, **weak)
     frame = grid_frame(points, terrain, cell_size)
-    H, W = frame.shape
     index = _PointIndex(points, frame)  # before the grid: its sorting temporaries come and go first
-    grid = TerrainGrid(
-        np.full((H, W), -1, np.int16),
-        np.zeros((H, W), np.float32),
-        np.zeros((H, W), bool),
-        np.asarray(frame.origin, dtype=np.float64),
-        frame.cell_size,
-    )
+    grid = empty_grid(frame)
+
+    def build(rows: np.ndarray, part: GridFrame) -> TerrainGrid:
+        return build_terrain_grid(points[rows], terrain[rows], *args, **weak, frame=part)
+
     reach = terrain_grid_reach(cell_size, support_radius, fill_radius, chain)
-    margin = max(margin, reach)
-    for core in cores((H, W), tile):
+    builder = _CoreBuilder(points, terrain, index, frame, reach, read_radius, build, stats)
+    for core in cores(frame.shape, tile):
+        builder.fill(grid, core, max(margin, reach))
+    return grid
+
+
+@dataclass
+class _CoreBuilder:
+    """Builds the tiled grid one core at a time (module docstring): the points (N, 3) and their
+    classes (N,) with their row index, the one-piece frame, the reach of the labels and the
+    read radius of the ground check (cells), and `build(rows, frame)`, the one-piece build of
+    the points `rows` in a window's frame."""
+
+    points: np.ndarray
+    terrain: np.ndarray
+    index: _PointIndex
+    frame: GridFrame
+    reach: int
+    read_radius: int
+    build: Callable[[np.ndarray, GridFrame], TerrainGrid]
+    stats: TiledGridStats
+
+    def fill(self, grid: TerrainGrid, core: tuple[slice, slice], margin: int) -> None:
+        """In place: the labels, ground and blocked flags of `core` in `grid`, from a window whose
+        margin doubles, from `margin` cells, until its core is proven the one-piece result."""
+        shape = self.frame.shape
         m = margin
         while True:
-            win = window((H, W), core, m)
-            rows = index.inside(win)
-            if not (terrain[rows] >= 0).any():
-                if win.whole or not index.inside(window((H, W), core, 0)).size:
-                    break  # no point in the core and no terrain point in reach: it stays -1, 0, False
+            win = window(shape, core, m)
+            rows = self.index.inside(win)
+            if not (self.terrain[rows] >= 0).any():
+                if win.whole or not self.index.inside(window(shape, core, 0)).size:
+                    return  # no point in the core and no terrain point in reach: it stays -1, 0, False
                 m *= 2
                 continue
             # The cheap part of the ground check first (cells holding points), then the whole grid.
-            proven = win.whole or _ground_proven(None, points[rows], terrain[rows], win, frame, read_radius, reach)
-            if not proven:
+            if not (win.whole or self._ground_proven(None, rows, win)):
                 m *= 2
                 continue
-            part = build_terrain_grid(
-                points[rows], terrain[rows], *args, **weak, frame=frame.window(win.rows, win.cols)
-            )
-            stats.windows += 1
-            if win.whole or _ground_proven(part, points[rows], terrain[rows], win, frame, read_radius, reach):
+            part = self.build(rows, self.frame.window(win.rows, win.cols))
+            self.stats.windows += 1
+            if win.whole or self._ground_proven(part, rows, win):
                 for name in ("label", "ground", "blocked"):
                     getattr(grid, name)[core] = getattr(part, name)[win.core]
-                stats.max_margin = max(stats.max_margin, m)
-                break
+                self.stats.max_margin = max(self.stats.max_margin, m)
+                return
             m *= 2
-    return grid
+
+    def _ground_proven(self, part: TerrainGrid | None, rows: np.ndarray, win: Window) -> bool:
+        # The points are taken per call, as the build takes its own: no copy outlives its check.
+        return _ground_proven(
+            part, self.points[rows], self.terrain[rows], win, self.frame, self.read_radius, self.reach
+        )
 
 
 class _PointIndex:
@@ -198,7 +224,7 @@ def _ground_proven(
     other[rows[inside & (terrain < 0)], cols[inside & (terrain < 0)]] = True
     other &= ~has  # a cell with terrain points has its own ground
     gap = win.gap()
-    distance = ndimage.distance_transform_edt(~has) if has.any() else np.full((h, w), np.inf)
+    distance = raster.distance_to_zero(~has) if has.any() else np.full((h, w), np.inf)
     unsure = other & ~(distance < gap)  # terrain-based ground may differ: unlabelled ground and blocked flags too
     near = (
         slice(max(win.core[0].start - reach, 0), win.core[0].stop + reach),
@@ -212,5 +238,5 @@ def _ground_proven(
     core = needed[win.core]
     if not core.any():
         return True
-    bound = np.minimum(gap, ndimage.distance_transform_edt(~unsure)) if unsure.any() else gap
+    bound = np.minimum(gap, raster.distance_to_zero(~unsure)) if unsure.any() else gap
     return bool((distance[win.core][core] < bound[win.core][core]).all())

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from terra.graph import raster
 from terra.graph.gvd import brushfire, empty_loops, free_box, label_components, voronoi_cells
 from terra.graph.thinning import thin_counted
 from terra.graph.tiling import Window, cores, window
@@ -156,7 +157,7 @@ def _proven(clearance: np.ndarray, reach: int) -> bool:
 def _unsure_holes(skeleton: np.ndarray, free: np.ndarray, sure: np.ndarray) -> np.ndarray:
     """Cells of the 4-connected parts of the sure off-skeleton cells that hold no obstacle and
     touch an unsure cell (4-adjacent): whether their hole gets filled is not known here."""
-    parts, n = ndimage.label(~skeleton & sure)
+    parts, n = raster.label(~skeleton & sure)
     if n == 0:
         return np.zeros(skeleton.shape, dtype=bool)
     has_obstacle = np.bincount(parts.ravel(), weights=~free.ravel(), minlength=n + 1) > 0

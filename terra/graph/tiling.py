@@ -17,7 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
+
+from terra.graph import raster
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,7 @@ class Window:
         gap = self.gap()
         if not unsure.any():
             return gap
-        to_unsure = ndimage.distance_transform_cdt(~unsure, metric="chessboard").astype(np.float32)
+        to_unsure = raster.chessboard_to_zero(~unsure).astype(np.float32)
         return np.minimum(gap, to_unsure)
 
 

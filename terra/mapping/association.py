@@ -12,7 +12,7 @@ Two kinds of global map:
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 from terra.geometry import voxel_keys
 

@@ -88,7 +88,7 @@ class CountAccumulator:
             rows = row_map[rows]
         m = sp.coo_matrix((self.values.astype(np.int32), (rows, cols)), shape=(n_rows, n_cols)).tocsr()
         m.sort_indices()
-        return m
+        return m  # pyright: ignore[reportReturnType]  # scipy infers csr_array for coo_matrix.tocsr()
 
 
 class MapFusion:

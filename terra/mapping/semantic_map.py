@@ -124,8 +124,9 @@ def ms_avg_norms(counts: sp.csr_matrix, bank: np.ndarray, chunk: int = 65536) ->
     """(N,) float32 norms of the rows of counts (N, K) @ bank (K, D), in row chunks so no N x D
     array is built; 0 for rows without observations."""
     counts = counts.tocsr()
-    out = np.zeros(counts.shape[0], dtype=np.float32)
-    for start in range(0, counts.shape[0], chunk):
+    n = counts.shape[0]  # pyright: ignore[reportOptionalSubscript]  # scipy leaves `shape` unannotated
+    out = np.zeros(n, dtype=np.float32)
+    for start in range(0, n, chunk):
         block = counts[start : start + chunk] @ bank
         out[start : start + chunk] = np.linalg.norm(block, axis=1)
     return out
@@ -134,13 +135,14 @@ def ms_avg_norms(counts: sp.csr_matrix, bank: np.ndarray, chunk: int = 65536) ->
 def ms_max_ids(counts: sp.csr_matrix) -> np.ndarray:
     """(N,) int64 column of each row's largest count (ties: lowest column); -1 for empty rows."""
     counts = counts.tocsr()
-    n = counts.shape[0]
+    n = counts.shape[0]  # pyright: ignore[reportOptionalSubscript]  # scipy leaves `shape` unannotated
+    indptr, indices, data = np.asarray(counts.indptr), np.asarray(counts.indices), np.asarray(counts.data)
     out = np.full(n, -1, dtype=np.int64)
-    nnz = np.diff(counts.indptr)
+    nnz = np.diff(indptr)
     rows = np.flatnonzero(nnz)
     if rows.size:
         # Sort each row's entries by (row, -count, id) and take the first per row.
         row_of = np.repeat(np.arange(n), nnz)
-        order = np.lexsort((counts.indices, -counts.data, row_of))
-        out[rows] = counts.indices[order[counts.indptr[rows]]]
+        order = np.lexsort((indices, np.negative(data), row_of))
+        out[rows] = indices[order[indptr[rows]]]
     return out

@@ -161,6 +161,9 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     if not bundle.has("map/points"):
         raise TerraError(f"{bundle.path}: bundle has no map component; build one with `terra map`")
     sizes, meta = _map_info(bundle)
+    embedder = bundle.model.embedder
+    if embedder is None:
+        raise TerraError(f"{bundle.path}/manifest.json: field 'embedder' is missing, but the bundle has a map")
     if sizes["M"] and not meta.camera_names:
         raise TerraError(
             f"{bundle.path}/map/meta.json: field 'camera_names' is empty, but the map has {sizes['M']} images"
@@ -188,7 +191,7 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
         counts=counts,
         bank=bank,
         images=images,
-        embedder=bundle.model.embedder.name,
+        embedder=embedder.name,
         voxel_size=float(meta.voxel_size),
         visibility=_visibility(bundle, array, meta, images, sizes["M"]),
     )

@@ -21,6 +21,7 @@ import numpy as np
 
 from terra.datasets.base import Dataset
 from terra.datasets.ros.messages import MessageFactory
+from terra.errors import TerraError
 from terra.geometry import invert_pose
 from terra.progress import progress
 
@@ -46,13 +47,16 @@ def write_bag(
     metadata.yaml and .mcap sit directly in `root` (version 2). Returns the bag path."""
     from rosbags.typesys import Stores, get_typestore
 
+    lidar = getattr(dataset, "lidar", None)  # the simulator's LiDAR mount: not part of the Dataset protocol
+    if lidar is None:
+        raise TerraError(f"{dataset.name}: bags are written from simulated datasets (lidar.T_base_lidar)")
     ros1 = version == 1
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     factory = MessageFactory(store, ros1)
     name = dataset.name
     with _open_writer(root, name, ros1) as writer:
         topics = _Topics(writer, store, ros1)
-        T_base_lidar = dataset.lidar.T_base_lidar
+        T_base_lidar = lidar.T_base_lidar
         T_lidar_base = invert_pose(T_base_lidar)
         for i in progress(range(len(dataset)), desc="writing bag", total=len(dataset), enabled=show_progress):
             frame = dataset[i]

@@ -110,7 +110,7 @@ class WorldBuilder:
             self._rows.append((kind, (wxy[0], wxy[1], b + c[2]), h, yaw + pyaw, cid, iid, tuple(int(v) for v in rgb)))
         # Ground-truth box in the object's frame: part extents (yawed parts use |R| h).
         ext = []
-        for kind, c, h, pyaw, _ in parts:
+        for kind, _c, h, pyaw, _ in parts:
             if kind in (CYLINDER, ELLIPSOID) and h[0] == h[1]:
                 e = np.array([h[0], h[1]])
             else:

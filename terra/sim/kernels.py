@@ -93,7 +93,7 @@ def _ground_height(x, y, amp, kx, ky, phase, base):
 
 
 @njit(cache=True, parallel=True)
-def cast_kernel(
+def cast_kernel(  # noqa: C901 - a compiled per-ray loop: numba needs the branches inline, not in steps
     origin,
     dirs,
     tile_rays,

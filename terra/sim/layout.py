@@ -101,13 +101,40 @@ def street_furniture(k: Block, avoid: list[tuple[str, float, float]]) -> None:
 
 
 def parking_block(k: Block) -> None:
-    B, rng = k.B, k.b.rng
+    B = k.B
     lot = (0.3 * B, INNER, 0.7 * B, 0.62 * B)
     mid = B / 2
     perimeter(k, (("S", mid, 8.0),))
     k.paint(lot[0] - WALK, INNER, lot[2] + WALK, lot[3] + WALK, "sidewalk")
     k.paint(*lot, "asphalt")
-    # Buildings west, north and east of the lot, lawns between.
+    top = _parking_buildings(k, lot)
+    k.paint(mid - 2.5, lot[3] + WALK, mid + 2.5, top, "sidewalk")
+    k.add("stairs", mid, top - 0.55, 0.0, width=3.0)
+    k.add("trash can", mid + 3.2, top - 0.8)
+    _parking_stalls(k, lot)
+    for du in (-5.5, 5.5):
+        k.add("bollard", mid + du, INNER + 1.0)
+    k.add("parking meter", mid - 8.5, INNER + 1.0)
+    for u in (lot[0] - WALK - 1.0, lot[2] + WALK + 1.0):
+        for v in (INNER + 8.0, lot[3] - 4.0):
+            k.add("street light", u, v, 0.0 if u < mid else np.pi)
+    left, right, north = lot[0] - WALK / 2, lot[2] + WALK / 2, lot[3] + WALK / 2
+    k.walkway((mid, PATH), (mid, north))
+    k.walkway((left, PATH), (left, north), (right, north), (right, PATH))
+    k.visit((mid, PATH), (mid, north), (left, north), (left, PATH))
+    k.b.region(
+        k.name("parking_lot"),
+        "large parking lot surrounded by buildings",
+        k.rect(lot[0] - WALK, INNER, lot[2] + WALK, lot[3] + WALK),
+    )
+    street_furniture(k, [("S", mid, 8.0)])
+
+
+def _parking_buildings(k: Block, lot: tuple[float, float, float, float]) -> float:
+    """Buildings west, north and east of the lot (u0, v0, u1, v1), lawns between; returns the v of
+    the north building's front."""
+    B, rng = k.B, k.b.rng
+    mid = B / 2
     top = lot[3] + WALK + 2.0
     k.add(
         "building",
@@ -140,10 +167,14 @@ def parking_block(k: Block) -> None:
         height=rng.uniform(10, 18),
         door=True,
     )
-    k.paint(mid - 2.5, lot[3] + WALK, mid + 2.5, top, "sidewalk")
-    k.add("stairs", mid, top - 0.55, 0.0, width=3.0)
-    k.add("trash can", mid + 3.2, top - 0.8)
-    # Stalls: two rows along a north-south aisle, plus rows along the lot edges when it is wide.
+    return top
+
+
+def _parking_stalls(k: Block, lot: tuple[float, float, float, float]) -> None:
+    """Cars in the stalls: two rows along a north-south aisle, plus rows along the lot edges when
+    it is wide."""
+    rng = k.b.rng
+    mid = k.B / 2
     rows = [(mid - 6.0, 0.0), (mid + 6.0, np.pi)]
     if lot[2] - lot[0] >= 40.0:
         rows += [(lot[0] + 2.5, np.pi), (lot[2] - 2.5, 0.0)]
@@ -151,22 +182,6 @@ def parking_block(k: Block) -> None:
         for v in np.arange(INNER + 7.0, lot[3] - 2.0, 2.7):
             if rng.random() < 0.65:
                 k.add("car", u + rng.normal(0, 0.1), v, yaw + rng.normal(0, 0.03))
-    for du in (-5.5, 5.5):
-        k.add("bollard", mid + du, INNER + 1.0)
-    k.add("parking meter", mid - 8.5, INNER + 1.0)
-    for u in (lot[0] - WALK - 1.0, lot[2] + WALK + 1.0):
-        for v in (INNER + 8.0, lot[3] - 4.0):
-            k.add("street light", u, v, 0.0 if u < mid else np.pi)
-    left, right, north = lot[0] - WALK / 2, lot[2] + WALK / 2, lot[3] + WALK / 2
-    k.walkway((mid, PATH), (mid, north))
-    k.walkway((left, PATH), (left, north), (right, north), (right, PATH))
-    k.visit((mid, PATH), (mid, north), (left, north), (left, PATH))
-    k.b.region(
-        k.name("parking_lot"),
-        "large parking lot surrounded by buildings",
-        k.rect(lot[0] - WALK, INNER, lot[2] + WALK, lot[3] + WALK),
-    )
-    street_furniture(k, [("S", mid, 8.0)])
 
 
 def mall_block(k: Block) -> None:
@@ -318,6 +333,24 @@ def grid_layout(
     Otherwise it drives the sidewalks along every `row_stride`-th east-west road in a serpentine and
     takes the own tour of `full_tours` blocks beside them (one of each kind first, then spread out).
     """
+    # In this order: the builder's random numbers are drawn as the blocks and objects are added.
+    blocks, tours = _lay_blocks(b, n, block, kinds)
+    if row_stride is None:
+        for j in range(n):
+            for i in range(n):
+                b.waypoints.extend(tours[(i if j % 2 == 0 else n - 1 - i, j)])
+    else:
+        _road_tour(b, blocks, tours, n, block, kinds, row_stride, full_tours)
+    _crossings(b, blocks, block)
+    _intersections(b, n, block + ROAD)
+    _bus_stop(b, blocks[(0, 0)], block)
+
+
+def _lay_blocks(
+    b: WorldBuilder, n: int, block: float, kinds: list[str]
+) -> tuple[dict[tuple[int, int], Block], dict[tuple[int, int], list]]:
+    """Roads everywhere, then each block (i, j) of its kind: the blocks and each one's own tour
+    (its waypoints, taken off the builder's route to be ordered by the caller)."""
     pitch = block + ROAD
     b.paint(box(b.extent[0], b.extent[1], b.extent[2], b.extent[3]), "asphalt")
     blocks = {}
@@ -332,25 +365,38 @@ def grid_layout(
         BLOCKS[kinds[ij[1] * n + ij[0]]](k)
         tours[ij] = b.waypoints[start:]
         del b.waypoints[start:]
-    if row_stride is None:
-        for j in range(n):
-            for i in range(n):
-                b.waypoints.extend(tours[(i if j % 2 == 0 else n - 1 - i, j)])
-    else:
-        legs = []  # (block beside the road, its corners in travel order)
-        for leg, r in enumerate(range(1, n, row_stride)):
-            cols = range(n) if leg % 2 == 0 else range(n - 1, -1, -1)
-            for i in cols:
-                k = blocks[(i, r - 1)]
-                ends = [k.p(PATH, block - PATH), k.p(block - PATH, block - PATH)]
-                legs.append(((i, r - 1), ends if leg % 2 == 0 else ends[::-1]))
-        chosen = _choose_tours([ij for ij, _ in legs], kinds, n, full_tours)
-        for ij, ends in legs:
-            b.waypoints.append(ends[0])
-            if ij in chosen:
-                b.waypoints.extend(tours[ij])
-            b.waypoints.append(ends[1])
-    # Crosswalks between neighbouring blocks at both ends of their shared road, stop lights and signs.
+    return blocks, tours
+
+
+def _road_tour(
+    b: WorldBuilder,
+    blocks: dict[tuple[int, int], Block],
+    tours: dict[tuple[int, int], list],
+    n: int,
+    block: float,
+    kinds: list[str],
+    row_stride: int,
+    full_tours: int | None,
+) -> None:
+    """The route along the sidewalks of every `row_stride`-th east-west road, in a serpentine,
+    with the own tours of the blocks `_choose_tours` picks beside them."""
+    legs = []  # (block beside the road, its corners in travel order)
+    for leg, r in enumerate(range(1, n, row_stride)):
+        cols = range(n) if leg % 2 == 0 else range(n - 1, -1, -1)
+        for i in cols:
+            k = blocks[(i, r - 1)]
+            ends = [k.p(PATH, block - PATH), k.p(block - PATH, block - PATH)]
+            legs.append(((i, r - 1), ends if leg % 2 == 0 else ends[::-1]))
+    chosen = _choose_tours([ij for ij, _ in legs], kinds, n, full_tours)
+    for ij, ends in legs:
+        b.waypoints.append(ends[0])
+        if ij in chosen:
+            b.waypoints.extend(tours[ij])
+        b.waypoints.append(ends[1])
+
+
+def _crossings(b: WorldBuilder, blocks: dict[tuple[int, int], Block], block: float) -> None:
+    """Crosswalks between neighbouring blocks at both ends of their shared road."""
     for (i, j), k in blocks.items():
         for di, dj in ((1, 0), (0, 1)):
             if (i + di, j + dj) not in blocks:
@@ -367,6 +413,10 @@ def grid_layout(
                     b.paint(box(a[0] - WALK / 2, k.y0 + block, a[0] + WALK / 2, k.y0 + block + ROAD), "asphalt")
                     b.add("crosswalk", a[0], k.y0 + block + ROAD / 2, np.pi / 2, conform=True, length=ROAD - 0.6)
                 b.walkway(a, c)
+
+
+def _intersections(b: WorldBuilder, n: int, pitch: float) -> None:
+    """Stop lights and a street sign at every inner intersection, and the middle one as a region."""
     for j in range(1, n):
         for i in range(1, n):
             cx, cy = i * pitch + ROAD / 2, j * pitch + ROAD / 2
@@ -382,8 +432,10 @@ def grid_layout(
             "road intersection with crosswalks and stop lights",
             [(cx - half, cy - half), (cx + half, cy - half), (cx + half, cy + half), (cx - half, cy + half)],
         )
-    # A bus stop just inside the south sidewalk of the first block, open toward the road.
-    k = blocks[(0, 0)]
+
+
+def _bus_stop(b: WorldBuilder, k: Block, block: float) -> None:
+    """A bus stop just inside the south sidewalk of block `k`, open toward the road."""
     for du in (0.25, 0.75, 0.4, 0.6):
         x, y = k.p(du * block, INNER + 1.0)
         if b.is_free(x, y, 2.0):

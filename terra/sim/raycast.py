@@ -70,32 +70,52 @@ def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: flo
     R = T_map_sensor[:3, :3]
     origin = np.ascontiguousarray(T_map_sensor[:3, 3], dtype=np.float64)
     dirs = np.ascontiguousarray(tiles.directions @ R.T)
+    tile_ptr, tile_prims = _tile_candidates(world, origin, R, tiles, max_range)
+    t, prim, normal = _first_hits(world, origin, dirs, tiles, tile_ptr, tile_prims, max_range)
+    class_id, instance_id, color = _hit_labels(world, origin, dirs, t, prim)
+    return Hits(t, class_id, instance_id, normal, color, dirs)
+
+
+def _tile_candidates(
+    world: World, origin: np.ndarray, R: np.ndarray, tiles: RayTiles, max_range: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate shapes per tile (CSR: tile_ptr (G + 1,), tile_prims): the cone of the tile (turned
+    into the map frame by the sensor's rotation R) meets the cone of the shape's bounding sphere.
+    The test keeps a 1e-6 rad margin (RayTiles.half_angle), so rounding in it never changes a hit."""
+    near = world.prims_near(origin, max_range)
+    if not near.size:
+        return np.zeros(tiles.rays.shape[0] + 1, np.int64), np.zeros(0, np.int64)
+    rel = world.prims.center[near] - origin
+    dist = np.linalg.norm(rel, axis=1)
+    radius = world.bounding_radius[near]
+    ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / np.maximum(dist, 1e-9), 0.0, 1.0)))
+    u = rel / np.maximum(dist, 1e-9)[:, None]
+    tile_ptr, local = cull_kernel(
+        np.ascontiguousarray(tiles.axis @ R.T),
+        tiles.cos_half,
+        tiles.sin_half,
+        tiles.half_angle,
+        np.ascontiguousarray(u),
+        np.cos(ang),
+        np.sin(ang),
+        ang,
+    )
+    return tile_ptr, near[local]
+
+
+def _first_hits(
+    world: World,
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    tiles: RayTiles,
+    tile_ptr: np.ndarray,
+    tile_prims: np.ndarray,
+    max_range: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first hit of each ray `dirs` (N, 3), map frame: t (N,) metres (inf: none), the shape
+    hit (N,) (cast_kernel's marks: -1 the ground, -2 nothing) and the surface normal (N, 3)."""
     n = dirs.shape[0]
     prims = world.prims
-
-    # Candidate shapes per tile (CSR): the cone of the tile meets the cone of the bounding sphere.
-    # The test keeps a 1e-6 rad margin (RayTiles.half_angle), so rounding in it never changes a hit.
-    near = world.prims_near(origin, max_range)
-    if near.size:
-        rel = prims.center[near] - origin
-        dist = np.linalg.norm(rel, axis=1)
-        radius = world.bounding_radius[near]
-        ang = np.where(dist <= radius, np.pi, np.arcsin(np.clip(radius / np.maximum(dist, 1e-9), 0.0, 1.0)))
-        u = rel / np.maximum(dist, 1e-9)[:, None]
-        tile_ptr, local = cull_kernel(
-            np.ascontiguousarray(tiles.axis @ R.T),
-            tiles.cos_half,
-            tiles.sin_half,
-            tiles.half_angle,
-            np.ascontiguousarray(u),
-            np.cos(ang),
-            np.sin(ang),
-            ang,
-        )
-        tile_prims = near[local]
-    else:
-        tile_ptr, tile_prims = np.zeros(tiles.rays.shape[0] + 1, np.int64), np.zeros(0, np.int64)
-
     t = np.empty(n)
     prim = np.empty(n, np.int64)
     normal = np.empty((n, 3))
@@ -123,7 +143,16 @@ def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: flo
         prim,
         normal,
     )
+    return t, prim, normal
 
+
+def _hit_labels(
+    world: World, origin: np.ndarray, dirs: np.ndarray, t: np.ndarray, prim: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """class_id, instance_id (N,) int32 and base colour (N, 3) uint8 of each ray's hit: the shape's,
+    the terrain class under the ground hit, or 0 for no hit."""
+    n = dirs.shape[0]
+    prims = world.prims
     class_id = np.zeros(n, np.int32)
     instance_id = np.zeros(n, np.int32)
     color = np.zeros((n, 3), np.uint8)
@@ -137,4 +166,4 @@ def cast(world: World, T_map_sensor: np.ndarray, tiles: RayTiles, max_range: flo
         cls = world.terrain.class_at(origin[:2] + t[gi, None] * dirs[gi, :2])
         class_id[gi] = cls
         color[gi] = CLASS_COLORS[cls]
-    return Hits(t, class_id, instance_id, normal, color, dirs)
+    return class_id, instance_id, color

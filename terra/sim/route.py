@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 
 def sample_polyline(points: np.ndarray, step: float) -> np.ndarray:
@@ -45,7 +45,7 @@ def walkway_graph(walkways: list[np.ndarray], step: float = 1.0, snap: float = 0
     graph = sp.coo_matrix(
         (np.concatenate([w, w]), (np.concatenate([u, v]), np.concatenate([v, u]))), shape=(len(nodes),) * 2
     ).tocsr()
-    return nodes, graph
+    return nodes, graph  # pyright: ignore[reportReturnType]  # scipy infers csr_array for coo_matrix.tocsr()
 
 
 def plan_route(

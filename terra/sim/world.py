@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 from terra.datasets.ground_truth import GroundTruth, NamedRegion, ObjectBox, TerrainRaster
 from terra.sim.classes import SIM_CLASSES, class_id
@@ -75,11 +75,10 @@ class World:
         """Indices (sorted) of shapes whose bounding sphere comes within `radius` metres of `position`."""
         if len(self.prims) == 0:
             return np.zeros(0, np.int64)
-        if self._tree is None:
-            self._tree = cKDTree(self.prims.center)
-        idx = np.asarray(
-            self._tree.query_ball_point(position, radius + float(self.bounding_radius.max())), dtype=np.int64
-        )
+        tree = self._tree
+        if tree is None:
+            tree = self._tree = cKDTree(self.prims.center)
+        idx = np.asarray(tree.query_ball_point(position, radius + float(self.bounding_radius.max())), dtype=np.int64)
         idx.sort()
         d = np.linalg.norm(self.prims.center[idx] - position, axis=1)
         return idx[d - self.bounding_radius[idx] <= radius]

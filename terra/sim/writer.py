@@ -63,8 +63,9 @@ def write_dataset(
 
             write_semantickitti(dataset, root, show_progress=progress)
         write_classes(root, dataset.classes)
-        if hasattr(dataset, "ground_truth"):
-            gt = dataset.ground_truth()
+        ground_truth = getattr(dataset, "ground_truth", None)  # not part of the Dataset protocol
+        if ground_truth is not None:
+            gt = ground_truth()
             write_ground_truth(root, gt if shift is None else gt.translated(shift))
         if extra is not None:
             extra(root)
