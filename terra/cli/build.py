@@ -40,7 +40,7 @@ def _check_graph(bundle: Path, overwrite: bool) -> None:
 
     if overwrite or not (Path(bundle) / "manifest.json").is_file():
         return  # a missing or damaged bundle is reported by the build itself
-    if "graph" in Bundle(bundle).manifest.get("components", {}):
+    if Bundle(bundle).has_component("graph"):
         raise TerraError(f"{bundle}: has a scene graph already (pass --overwrite to replace it)")
 
 

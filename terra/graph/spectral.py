@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
-from sklearn.cluster import SpectralClustering
 
 from terra.graph.regions import paper_weight
 from terra.perception.text import normalize_rows
@@ -67,6 +66,10 @@ def two_way_split(affinity: sp.csr_matrix, seed: int) -> np.ndarray:
         sizes = np.bincount(comp)
         largest = int(np.lexsort((np.arange(n_comp), -sizes))[0])
         return comp == largest
+    from sklearn.cluster import (
+        SpectralClustering,
+    )  # here: scikit-learn costs ~0.4 s to import, and only spectral needs it
+
     model = SpectralClustering(n_clusters=2, affinity="precomputed", random_state=seed, assign_labels="cluster_qr")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # sklearn warns about graphs it considers not fully connected
