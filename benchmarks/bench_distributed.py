@@ -195,7 +195,7 @@ def client_ceiling(dataset, models: dict, work: Path) -> dict:
     out = work / "ceiling.terra"
     shutil.rmtree(out, ignore_errors=True)
     run = run_mapping(dataset, mapping_config(models, work / "map-cache"), out, show_progress=False)
-    assert run.cache["computed"] == 0
+    assert run.cache is not None and run.cache["computed"] == 0
     per_frame = sum(run.timer.seconds.get(s, 0.0) for s in ("load", "perception", "fusion")) / len(dataset)
     return {"client_s_per_frame": per_frame, "frames_per_s": 1.0 / per_frame, "stages": run.timer.to_json()}
 
@@ -287,7 +287,7 @@ def table(frames: int, rate: dict, startup: dict, ceiling: dict, maps: dict, ide
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny CLIP and 6 frames (checks the script)")
     parser.add_argument("--frames", type=int, default=None, help="frames of the tiny campus (default 12; 6 quick)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/terra-bench-distributed"), help="models, data, caches")

@@ -58,7 +58,7 @@ def test_a_mis_shaped_stored_array_is_refused(lot, tmp_path):
     with BundleWriter(bad, base=Bundle(lot)) as w:
         w.put_array("map/ms_avg_norm", np.zeros(3, dtype=np.float32))
     with pytest.raises(TerraError, match=r"ms_avg_norm.npy: array of shape \(3,\), expected float32"):
-        LoadedBundle(bad).msm
+        _ = LoadedBundle(bad).msm
 
 
 def test_loads_only_what_a_query_needs_and_caches_cost_graphs(lot):
@@ -77,8 +77,10 @@ def test_update_graph_is_atomic_and_seen_by_later_queries(lot):
 
     loaded = LoadedBundle(lot)
     result = find(loaded, FindRequest(queries=["find the dumpster"], alpha=0.4, save=True))
-    assert result.saved and len(loaded.graph.objects) == len(result.objects) == 2
+    graph = loaded.graph
+    assert graph is not None
+    assert result.saved and len(graph.objects) == len(result.objects) == 2
     Bundle(lot).verify()
-    assert load_scene_graph(Bundle(lot)).objects.label == loaded.graph.objects.label
+    assert load_scene_graph(Bundle(lot)).objects.label == graph.objects.label
     manifest = json.loads((lot / "manifest.json").read_text())
     assert manifest["components"]["graph"]["objects"] == 2
