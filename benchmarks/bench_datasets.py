@@ -41,18 +41,18 @@ class Synthetic:
     def __len__(self) -> int:
         return self.count
 
-    def __getitem__(self, i: int) -> Frame:
-        rng = np.random.default_rng(i)
+    def __getitem__(self, index: int) -> Frame:
+        rng = np.random.default_rng(index)
         cams = []
         for cal in self.cameras:
             # Smooth images (as real ones are), so the JPEG / PNG sizes are realistic.
             base = rng.integers(0, 255, (cal.height // 8 + 1, cal.width // 8 + 1, 3)).astype(np.uint8)
             image = np.repeat(np.repeat(base, 8, 0), 8, 1)[: cal.height, : cal.width]
-            cams.append(CameraFrame(cal, 10.0 + 0.1 * i, image))
-        pose = make_pose(np.eye(3), [1.5 * i, 0.1 * i, 0.0])
+            cams.append(CameraFrame(cal, 10.0 + 0.1 * index, image))
+        pose = make_pose(np.eye(3), np.array([1.5 * index, 0.1 * index, 0.0]))
         return Frame(
-            i,
-            10.0 + 0.1 * i,
+            index,
+            10.0 + 0.1 * index,
             rng.uniform(-50, 50, (self.points, 3)).astype(np.float32),
             pose,
             cams,
@@ -101,8 +101,8 @@ def kitti_drive(root: Path, frames: int) -> Path:
     K = np.array([[721.5377, 0.0, 609.5593], [0.0, 721.5377, 172.854], [0.0, 0.0, 1.0]])
     R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     cams = [
-        CameraCalibration("left", 1242, 375, K, [], make_pose(R, [0.0, -0.08, -0.27])),
-        CameraCalibration("right", 1242, 375, K, [], make_pose(R, [-0.54, -0.08, -0.27])),
+        CameraCalibration("left", 1242, 375, K, np.zeros(0), make_pose(R, np.array([0.0, -0.08, -0.27]))),
+        CameraCalibration("right", 1242, 375, K, np.zeros(0), make_pose(R, np.array([-0.54, -0.08, -0.27]))),
     ]
     write_kitti_raw(Synthetic("drive", frames, 120_000, cams), root / "kitti", show_progress=False)
     return root / "kitti"
@@ -148,7 +148,7 @@ def oxts_cost(packets: int = 5000) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "datasets.json")
     args = parser.parse_args()

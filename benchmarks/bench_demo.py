@@ -53,7 +53,7 @@ def run_demo(out: Path, preset: str, seed: int) -> tuple[float, dict]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--preset", default="small")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
@@ -62,8 +62,11 @@ def main() -> None:
     preset = "tiny" if args.quick else args.preset
     if args.out is not None and args.out.exists():
         sys.exit(f"{args.out}: exists; the cold run needs an empty folder")
-    tmp = None if args.out is not None else Path(tempfile.mkdtemp(prefix="terra-bench-demo-"))
-    out = args.out or tmp / "demo"
+    if args.out is not None:
+        tmp, out = None, Path(args.out)
+    else:
+        tmp = Path(tempfile.mkdtemp(prefix="terra-bench-demo-"))
+        out = tmp / "demo"
     try:
         cold_s, cold = run_demo(out, preset, args.seed)
         warm_s, warm = run_demo(out, preset, args.seed)
@@ -90,9 +93,8 @@ def main() -> None:
     }
     print(f"terra demo --preset {preset} --seed {args.seed}")
     print(f"  {'run':<28} {'seconds':>9}")
-    print(
-        f"  {'cold (empty --out)':<28} {cold_s:>9.1f}   target <= {TARGET_S:.0f} s: {'met' if result['meets_target'] else 'MISSED'}"
-    )
+    verdict = "met" if result["meets_target"] else "MISSED"
+    print(f"  {'cold (empty --out)':<28} {cold_s:>9.1f}   target <= {TARGET_S:.0f} s: {verdict}")
     print(f"  {'warm (every step cached)':<28} {warm_s:>9.1f}")
     print("  cold run by stage:")
     for name, sec in result["stages_s"].items():

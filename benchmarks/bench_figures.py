@@ -23,7 +23,7 @@ from benchtable import report  # noqa: E402
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--demo", type=Path, required=True, help="a folder written by `terra demo`")
     parser.add_argument("--preset", default="small")
     parser.add_argument("--seed", type=int, default=0)

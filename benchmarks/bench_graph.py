@@ -53,7 +53,7 @@ def synthetic_mask(size: int, seed: int = 0) -> np.ndarray:
         centres[rng.integers(0, size, size * size // 20000), rng.integers(0, size, size * size // 20000)] = True
         from scipy import ndimage
 
-        free &= ~ndimage.binary_dilation(centres, structure=disk)
+        free &= ~np.asarray(ndimage.binary_dilation(centres, structure=disk), dtype=bool)
     return free
 
 
@@ -61,7 +61,7 @@ def synthetic_places(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.
     """n places at a campus density (one per ~50 m^2, as on the simulated campus) with terrain and
     embedding families in 80 m zones, and the edges of their 4-nearest-neighbour graph.
     Returns (position (n, 3) m, embedding (n, 384), terrain (n,), edges (e, 2))."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
     rng = np.random.default_rng(seed)
     side = np.sqrt(n * 50.0)
@@ -71,7 +71,7 @@ def synthetic_places(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.
     family = rng.standard_normal((12, 384)).astype(np.float32)
     emb = family[zone] + 0.6 * rng.standard_normal((n, 384)).astype(np.float32)
     emb /= np.linalg.norm(emb, axis=1, keepdims=True)
-    _, nn = cKDTree(xy).query(xy, k=5)
+    nn = np.asarray(KDTree(xy).query(xy, k=5)[1])
     edges = np.unique(np.sort(np.column_stack([np.repeat(np.arange(n), 4), nn[:, 1:].ravel()]), axis=1), axis=0)
     return pos, emb, zone % 5, edges
 
@@ -183,6 +183,7 @@ def bench_build(bundle: Path, repeat: int) -> list[dict]:
                 t0 = time.perf_counter()
                 result = run_build(work, regions=method, show_progress=False)
                 times.append(time.perf_counter() - t0)
+            assert result is not None  # repeat >= 1
             g = result.graph
             rows.append(
                 {
@@ -200,7 +201,7 @@ def bench_build(bundle: Path, repeat: int) -> list[dict]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--bundle", type=Path, default=DEFAULT_BUNDLE, help="campus map bundle (terra map output)")
     parser.add_argument("--grid", type=int, default=2500, help="GVD grid side, cells")
     parser.add_argument("--places", type=int, default=20000, help="places for the agglomerative target")
@@ -245,9 +246,10 @@ def main() -> None:
             for k in ("places", "regions", "places_seconds", "gvd_cells")
             if k in row
         )
-        print(
-            f"{row['case']:34s} {sec:>9s} {('<= %g' % tgt) if tgt else '':>8s} {'' if rss is None else f'{rss:8.0f}':>8s} {'' if traced is None else f'{traced:9.0f}':>9s}  {detail}"
-        )
+        target = f"<= {tgt:g}" if tgt else ""
+        rss_text = "" if rss is None else f"{rss:8.0f}"
+        traced_text = "" if traced is None else f"{traced:9.0f}"
+        print(f"{row['case']:34s} {sec:>9s} {target:>8s} {rss_text:>8s} {traced_text:>9s}  {detail}")
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(
         json.dumps(

@@ -160,7 +160,8 @@ def main() -> None:
         (
             f"fusion per frame ({f['preset']}, {f['frames']} frames, {f['cameras_per_frame']} camera, "
             f"~{f['scan_points_median']:,} pts/scan)",
-            f"{f['median_ms']:.1f} ms median (p90 {f['p90_ms']:.1f}, max {f['max_ms']:.1f}, cpu {f['cpu_median_ms']:.1f})",
+            f"{f['median_ms']:.1f} ms median "
+            f"(p90 {f['p90_ms']:.1f}, max {f['max_ms']:.1f}, cpu {f['cpu_median_ms']:.1f})",
             "<= 50 ms",
         ),
         ("  labels perception per frame (not fusion)", f"{f['labels_perception_median_ms']:.1f} ms median", "-"),

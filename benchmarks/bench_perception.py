@@ -31,7 +31,9 @@ import platform
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -42,6 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchtable import report  # noqa: E402
 
 TERRAIN = ["sidewalk", "grass", "asphalt"]
+T = TypeVar("T")
 
 
 def build_models(folder: Path, quick: bool) -> dict:
@@ -67,7 +70,7 @@ def build_models(folder: Path, quick: bool) -> dict:
                 text_hidden=512,
                 text_heads=8,
             )
-    info = {"clip": clip}
+    info: dict[str, Path | dict] = {"clip": clip}
     for role, size, names in (("terrain", "nano", TERRAIN), ("masks", "small", ["object"])):
         path = folder / f"yolo-seg-{size}{'-320' if quick else ''}.onnx"
         imgsz = (320, 320) if quick else (640, 640)
@@ -113,13 +116,20 @@ def object_boxes(n: int, seed: int) -> list[tuple[float, float, float, float, in
     return [(float(a), float(b), float(c), float(d), 0) for a, b, c, d in zip(cx, cy, w, h)]
 
 
-def median_time(fn, repeats: int) -> tuple[float, object]:
-    times, result = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - start)
+def median_time(fn: Callable[[], T], repeats: int) -> tuple[float, T]:
+    """Median wall-clock seconds of `repeats` (at least one) calls, and the last call's result."""
+    times: list[float] = []
+    result = _timed_call(fn, times)
+    for _ in range(repeats - 1):
+        result = _timed_call(fn, times)
     return statistics.median(times), result
+
+
+def _timed_call(fn: Callable[[], T], times: list[float]) -> T:
+    start = time.perf_counter()
+    result = fn()
+    times.append(time.perf_counter() - start)
+    return result
 
 
 def scene_frame():
@@ -131,7 +141,7 @@ def scene_frame():
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny models, few repeats (checks the script)")
     parser.add_argument(
         "--models", type=Path, default=Path("/tmp/terra-bench-models"), help="folder of the built models"
@@ -218,10 +228,13 @@ def main() -> None:
     single.embed_crops(crops[:1])
     t_crops, _ = median_time(lambda: clip.mask_crops(view, masks), repeats)
     pairs = []
+    mask_vectors = single_vectors = None
     for _ in range(args.pairs):
         t_b, mask_vectors = median_time(lambda: clip.embed_crops(crops), 1)
         t_s, single_vectors = median_time(lambda: single.embed_crops(crops), 1)
         pairs.append((t_b, t_s))
+    if mask_vectors is None or single_vectors is None:
+        raise SystemExit("--pairs must be at least 1")
     t_batched = statistics.median(b for b, _ in pairs)
     t_single = statistics.median(s for _, s in pairs)
     ratio = statistics.median(s / b for b, s in pairs)

@@ -25,7 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
-from benchmarks.benchtable import report
+from benchmarks.benchtable import report  # noqa: E402
 
 MAPS = "tiny-seed0,small-seed0,small-seed1,small-seed2,small-seed3,campus-seed0"
 CONFIGS = {"before": {"linking": {"grid_link_distance": None}}, "after": {}}
@@ -67,15 +67,18 @@ def measure(folder: Path, config_overrides: dict) -> dict:
     start = time.perf_counter()
     build = build_scene_graph(msm, config)
     build_seconds = time.perf_counter() - start
-    seen = observed_cells(gt.terrain, msm.points[msm.terrain_index(0.5) >= 0])
-    labelled = same_terrain_connectivity(build.graph, gt.terrain, seen)
+    terrain = gt.terrain
+    if terrain is None:
+        raise SystemExit(f"{folder / 'dataset'}: the ground truth has no terrain raster")
+    seen = observed_cells(terrain, msm.points[msm.terrain_index(0.5) >= 0])
+    labelled = same_terrain_connectivity(build.graph, terrain, seen)
     links, link_seconds = grid_link_seconds(msm, config)
     return {
         "places": len(build.graph.places),
         "labelled_ground": labelled.to_json(),
-        "whole_raster": same_terrain_connectivity(build.graph, gt.terrain).to_json(),
+        "whole_raster": same_terrain_connectivity(build.graph, terrain).to_json(),
         "unjoined_per_terrain": {k: v.pairs - v.joined for k, v in labelled.per_terrain.items() if v.pairs > v.joined},
-        "terrain_agreement": place_terrain_agreement(build.graph, gt.terrain).to_json(),
+        "terrain_agreement": place_terrain_agreement(build.graph, terrain).to_json(),
         "grid_links": links,
         "grid_link_seconds": link_seconds,
         "build_seconds": build_seconds,
@@ -121,7 +124,7 @@ def rows(result: dict) -> list[tuple[str, str, str]]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument(
         "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
     )

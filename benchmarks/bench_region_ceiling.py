@@ -55,7 +55,7 @@ class CachedEmbedder:
 def map_point_embeddings(msm, position: np.ndarray, radius: float) -> np.ndarray:
     """(P, D) mean of the unit MS-Avg features of observed points and the terrain-name embeddings
     of terrain points within `radius` metres (2D) of each place, the two means summed."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
     from terra.perception.text import normalize_rows
 
@@ -69,7 +69,7 @@ def map_point_embeddings(msm, position: np.ndarray, radius: float) -> np.ndarray
         (msm.points[seen, :2], features),
         (msm.points[ground, :2], np.asarray(msm.terrain_embeddings, np.float32)[terrain[ground]]),
     ):
-        for i, near in enumerate(cKDTree(xy).query_ball_point(position[:, :2], radius)):
+        for i, near in enumerate(KDTree(xy).query_ball_point(position[:, :2], radius)):
             if near:
                 out[i] += f[near].mean(axis=0)
     return normalize_rows(out.astype(np.float32))
@@ -78,7 +78,7 @@ def map_point_embeddings(msm, position: np.ndarray, radius: float) -> np.ndarray
 def ground_truth_embeddings(gt, position: np.ndarray, radius: float, embedder) -> np.ndarray:
     """(P, D) class-name mixture of the ground truth within `radius` metres of each place (see the
     module docstring)."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
     from terra.perception.text import normalize_rows
 
@@ -94,7 +94,7 @@ def ground_truth_embeddings(gt, position: np.ndarray, radius: float, embedder) -
     cell_class = lut[raster.classes[rows, cols]]
     sigma = radius / 2
     mix = np.zeros((len(position), len(names)))
-    for i, near in enumerate(cKDTree(cells).query_ball_point(position[:, :2], radius)):
+    for i, near in enumerate(KDTree(cells).query_ball_point(position[:, :2], radius)):
         d = np.linalg.norm(cells[near] - position[i, :2], axis=1)
         np.add.at(mix[i], cell_class[near], np.exp(-0.5 * (d / sigma) ** 2) * raster.resolution**2)
     centre = np.array([o.center[:2] for o in gt.objects])
@@ -147,7 +147,7 @@ def f1_of(graph, gt, truth, params, embedder) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument(
         "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
     )
@@ -201,6 +201,7 @@ def main() -> None:
                     tuned = points[int(np.argmax(scores))]
                 ceiling = micro_scores(best_region_scores(g, truth)).f1
                 per_seed[seed] = {"f1": f1_of(g, gt, truth, tuned, embedder), "best_region_ceiling": ceiling}
+            assert tuned is not None  # seeds is never empty
             entry[method] = {"tuned": tuned.to_json(), "seeds": per_seed}
         result["rules"][name] = entry
         print(f"done {name} ({time.perf_counter() - start:.0f} s)", file=sys.stderr)

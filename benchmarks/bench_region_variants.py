@@ -55,7 +55,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent))
-from benchmarks.benchtable import report
+from benchmarks.benchtable import report  # noqa: E402
 
 ALPHAS = [round(float(a), 4) for a in np.linspace(0.15, 0.75, 13)]
 MARGINS = (0.0, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15)
@@ -89,7 +89,7 @@ def terrain_patches(terrain: np.ndarray, edges: np.ndarray) -> np.ndarray:
 def object_features(msm, position: np.ndarray, radius: float = OBJECT_RADIUS) -> np.ndarray:
     """(P, D) normalised mean MS-Avg feature of the observed points without a terrain label (share
     >= 0.5) within `radius` metres (2D) of each place; zero rows where none is in range."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
     from terra.perception.text import normalize_rows
 
@@ -100,7 +100,7 @@ def object_features(msm, position: np.ndarray, radius: float = OBJECT_RADIUS) ->
     sums = np.zeros((len(keys), feats.shape[1]))
     np.add.at(sums, cell_of.ravel(), feats)
     out = np.zeros((len(position), feats.shape[1]))
-    for i, near in enumerate(cKDTree((keys + 0.5) * 2.0).query_ball_point(position[:, :2], radius)):
+    for i, near in enumerate(KDTree((keys + 0.5) * 2.0).query_ball_point(position[:, :2], radius)):
         out[i] = sums[near].sum(axis=0) if near else 0.0
     return normalize_rows(out.astype(np.float32)).astype(np.float64)
 
@@ -153,10 +153,10 @@ def spectral_levels(scene: dict, terms: dict, config) -> list[np.ndarray]:
         e[:, 0], e[:, 1], scene, terms
     )
     sim = np.exp(-w / max(float(sc.sigma or np.median(w)), 1e-9))
-    affinity = sp.coo_matrix(
+    affinity = sp.csr_matrix(  # from COO triplets, as coo_matrix(...).tocsr() builds it
         (np.concatenate([sim, sim]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
         shape=(P, P),
-    ).tocsr()
+    )
     semantic, area = sc.semantic_fraction * semantic_difference(emb), sc.area_fraction * bbox_area(pos)
     members, parent = split_tree(pos, emb, affinity, semantic, area, sc.stop_rule, sc.min_places, sc.max_depth, r.seed)
     return split_levels(members, parent, P, r.levels, r.top_regions)
@@ -197,9 +197,9 @@ class Hierarchy:
         """(P,) bool: places of the regions `rule` returns for query q (before alpha)."""
         lo, hi = p["lo"] - 1, min(p["hi"], len(self.labels))
         if rule in ("mix", "margin"):
-            level = np.concatenate([np.full(len(self.scores[l]), l) for l in range(lo, hi)])
-            index = np.concatenate([np.arange(len(self.scores[l])) for l in range(lo, hi)])
-            score = np.concatenate([self.scores[l][:, q] for l in range(lo, hi)])
+            level = np.concatenate([np.full(len(self.scores[lvl]), lvl) for lvl in range(lo, hi)])
+            index = np.concatenate([np.arange(len(self.scores[lvl])) for lvl in range(lo, hi)])
+            score = np.concatenate([self.scores[lvl][:, q] for lvl in range(lo, hi)])
             order = np.lexsort((index, level, -score))  # terra.tasks.hierarchy.ranked_regions' order
             if rule == "mix":
                 mask = np.zeros(len(self.place_scores), bool)
@@ -207,18 +207,19 @@ class Hierarchy:
                     mask |= self.labels[level[i]] == index[i]
                 return mask
             best = order[0]
-            l = level[best]
-            return np.isin(self.labels[l], np.flatnonzero(self.scores[l][:, q] >= score[best] - p["margin"]))
+            lvl = level[best]
+            return np.isin(self.labels[lvl], np.flatnonzero(self.scores[lvl][:, q] >= score[best] - p["margin"]))
         if rule == "ascend":
-            l, r = lo, int(np.argmax(self.scores[lo][:, q]))
-            while l + 1 < hi and self.scores[l + 1][self.parent[l][r], q] >= self.scores[l][r, q] - p["margin"]:
-                l, r = l + 1, int(self.parent[l][r])
-            return self.labels[l] == r
+            lvl, r = lo, int(np.argmax(self.scores[lo][:, q]))
+            while lvl + 1 < hi and self.scores[lvl + 1][self.parent[lvl][r], q] >= self.scores[lvl][r, q] - p["margin"]:
+                lvl, r = lvl + 1, int(self.parent[lvl][r])
+            return self.labels[lvl] == r
         gaps = [
-            np.diff(np.sort(self.scores[l][:, q])[-2:])[0] if len(self.scores[l]) > 1 else -1.0 for l in range(lo, hi)
+            np.diff(np.sort(self.scores[lvl][:, q])[-2:])[0] if len(self.scores[lvl]) > 1 else -1.0
+            for lvl in range(lo, hi)
         ]
-        l = lo + int(np.argmax(gaps))
-        return self.labels[l] == int(np.argmax(self.scores[l][:, q]))
+        lvl = lo + int(np.argmax(gaps))
+        return self.labels[lvl] == int(np.argmax(self.scores[lvl][:, q]))
 
     def predict(self, rule: str, p: dict) -> list[np.ndarray]:
         return [
@@ -465,7 +466,7 @@ def query_modes(scenes: dict, seeds: list[int], method: str, labels: dict, confi
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument(
         "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
     )

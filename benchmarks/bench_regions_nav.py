@@ -128,13 +128,21 @@ def connectivity(bundle: Path, dataset: Path) -> dict:
     from terra.mapping.storage import load_map
 
     graph, msm, gt = load_scene_graph(Bundle(bundle)), load_map(Bundle(bundle)), load_ground_truth(dataset)
-    seen = observed_cells(gt.terrain, msm.points[msm.terrain_index(0.5) >= 0])
+    terrain = _terrain(gt, dataset)
+    seen = observed_cells(terrain, msm.points[msm.terrain_index(0.5) >= 0])
     return {
         "places": len(graph.places),
-        "whole_raster": same_terrain_connectivity(graph, gt.terrain).to_json(),
-        "labelled_ground": same_terrain_connectivity(graph, gt.terrain, seen).to_json(),
-        "terrain_agreement": place_terrain_agreement(graph, gt.terrain).to_json(),
+        "whole_raster": same_terrain_connectivity(graph, terrain).to_json(),
+        "labelled_ground": same_terrain_connectivity(graph, terrain, seen).to_json(),
+        "terrain_agreement": place_terrain_agreement(graph, terrain).to_json(),
     }
+
+
+def _terrain(gt, dataset: Path):
+    """The ground truth's terrain raster; these measures need one."""
+    if gt.terrain is None:
+        raise SystemExit(f"{dataset}: the ground truth has no terrain raster")
+    return gt.terrain
 
 
 def scene_extras(bundle: Path, dataset: Path) -> dict:
@@ -143,7 +151,7 @@ def scene_extras(bundle: Path, dataset: Path) -> dict:
     from terra.eval.metrics.places import place_terrain_agreement
 
     inputs = EvalInputs.load(bundle, dataset)
-    return {"terrain_agreement": place_terrain_agreement(inputs.graph, inputs.gt.terrain).to_json()}
+    return {"terrain_agreement": place_terrain_agreement(inputs.graph, _terrain(inputs.gt, dataset)).to_json()}
 
 
 def validation_penalty_sweep(bundle: Path, dataset: Path, config) -> dict:
@@ -156,9 +164,10 @@ def validation_penalty_sweep(bundle: Path, dataset: Path, config) -> dict:
 
     inputs = EvalInputs.load(bundle, dataset)
     nav = config.navigation
-    seen = observed_cells(inputs.gt.terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
-    pairs = terrain_route_pairs(inputs.graph, inputs.gt.terrain, nav.prefer[0], seen, max_pairs=10**9)
-    points = penalty_sweep(inputs.graph, inputs.gt.terrain, pairs, nav.prefer[0], PENALTY_GRID, nav.min_share, nav.step)
+    terrain = _terrain(inputs.gt, dataset)
+    seen = observed_cells(terrain, inputs.msm.points[inputs.msm.terrain_index(0.5) >= 0])
+    pairs = terrain_route_pairs(inputs.graph, terrain, nav.prefer[0], seen, max_pairs=10**9)
+    points = penalty_sweep(inputs.graph, terrain, pairs, nav.prefer[0], PENALTY_GRID, nav.min_share, nav.step)
     return {
         "terrain": nav.prefer[0],
         "pairs": len(pairs),
@@ -245,7 +254,7 @@ def run_config(name: str, overrides: dict, args, eval_config) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument(
         "--cache", type=Path, default=Path(os.environ.get("TERRA_BENCH_CACHE", "/work/bench-cache/issue-14"))
     )

@@ -138,7 +138,7 @@ def same_graph(a: Path, b: Path) -> dict:
     from terra.graph.storage import load_scene_graph
 
     ga, gb = load_scene_graph(Bundle(a)), load_scene_graph(Bundle(b))
-    checks = {
+    checks: dict[str, object] = {
         "places": np.array_equal(ga.places.position, gb.places.position)
         and np.array_equal(ga.places.terrain, gb.places.terrain),
         "edges": np.array_equal(ga.place_edges, gb.place_edges)
@@ -297,7 +297,7 @@ def twin_map(source: Path, target: Path, world: float, side: float) -> dict:
         terrain_classes=msm.terrain_classes,
         terrain_votes=np.vstack([msm.terrain_votes[r] for r in rows]),
         terrain_embeddings=msm.terrain_embeddings,
-        counts=sp.vstack([msm.counts[r] for r in rows]).tocsr(),
+        counts=sp.csr_matrix(sp.vstack([msm.counts[r] for r in rows]).tocsr()),
         bank=msm.bank,
         images=table,
         embedder=msm.embedder,

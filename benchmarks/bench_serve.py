@@ -77,9 +77,10 @@ def main() -> None:
                 with urllib.request.urlopen(base + "/health", timeout=5) as r:
                     if r.status == 200:
                         break
-            except OSError:
+            except OSError as error:
                 if server.poll() is not None:
-                    raise SystemExit(f"terra serve failed: {server.stderr.read()}")
+                    stderr = server.stderr.read() if server.stderr is not None else ""
+                    raise SystemExit(f"terra serve failed: {stderr}") from error
                 time.sleep(0.2)
         startup_s = time.perf_counter() - t0
         url = base + "/find"

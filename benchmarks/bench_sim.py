@@ -163,7 +163,8 @@ def main() -> None:
         rows.append(
             (
                 f"terra sim --preset {p['preset']} ({p['frames']} frames, {p['format']})",
-                f"{p['wall_s']:.1f} s wall, {p['cpu_s']:.0f} s CPU, {p['peak_rss_mb']:.0f} MB, {p['output_mb']:.0f} MB out",
+                f"{p['wall_s']:.1f} s wall, {p['cpu_s']:.0f} s CPU, "
+                f"{p['peak_rss_mb']:.0f} MB, {p['output_mb']:.0f} MB out",
                 f"<= {target:.0f} s" if target else "",
             )
         )

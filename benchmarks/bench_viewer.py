@@ -92,7 +92,7 @@ def interop_times(bundle: Path) -> dict:
             ("ply", "m.ply"),
             ("terra-reference", "ref"),
         ):
-            out[f"export_{fmt}_s"], _ = seconds(lambda: export_bundle(bundle, fmt, folder / name))
+            out[f"export_{fmt}_s"], _ = seconds(lambda fmt=fmt, name=name: export_bundle(bundle, fmt, folder / name))
             target = folder / name
             size = (
                 sum(p.stat().st_size for p in target.rglob("*") if p.is_file())
@@ -107,7 +107,7 @@ def interop_times(bundle: Path) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--bundle", type=Path, required=True)
     parser.add_argument("--max-points", type=int, default=200_000)
     parser.add_argument("--query", default="find the dumpster")

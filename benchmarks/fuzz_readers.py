@@ -39,9 +39,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # this worktree's terra and tests, not an installed copy
 
-from benchtable import report
+from benchtable import report  # noqa: E402
 
-from tests.reliability.fuzzing import FAILURES, build_seeds, supervise, targets
+from tests.reliability.fuzzing import FAILURES, build_seeds, supervise, targets  # noqa: E402
 
 
 def fuzz(

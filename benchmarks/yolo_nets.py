@@ -82,6 +82,8 @@ def _branch(c_in: int, c_mid: int, c_out: int) -> nn.Sequential:
 class SegHead(nn.Module):
     """Anchor-free boxes (DFL), class scores, mask coefficients per anchor; prototypes from P3."""
 
+    bins: torch.Tensor  # registered buffer (1, 1, REG_MAX, 1): the DFL bin indices
+
     def __init__(self, nc: int, channels: tuple[int, int, int]):
         super().__init__()
         self.nc = nc
@@ -185,10 +187,11 @@ def export(path: Path, names: list[str], size: str, imgsz: tuple[int, int] = (64
     buffer = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        # The TorchScript exporter (dynamo=False) writes to a file object; torch annotates `f` as a path only.
         torch.onnx.export(
             model,
             (torch.zeros(1, 3, *imgsz),),
-            buffer,
+            buffer,  # pyright: ignore[reportArgumentType]
             dynamo=False,
             opset_version=17,
             input_names=["images"],

@@ -16,7 +16,7 @@ from terra.viewer.browser import HeadlessPage, browser_missing
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("bundle")
     parser.add_argument("out")
     parser.add_argument("--query", default="")

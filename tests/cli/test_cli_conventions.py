@@ -28,11 +28,13 @@ def call(argv, capsys):
 
 def command_paths() -> list[list[str]]:
     import typer
+    from typer.core import TyperGroup
 
     from terra.cli import _load_commands, app
 
     _load_commands()
     root = typer.main.get_command(app)
+    assert isinstance(root, TyperGroup)
     paths = []
     for name, command in root.commands.items():
         subs = getattr(command, "commands", None)
@@ -131,7 +133,7 @@ def test_interruption_message_says_what_was_kept():
     assert interrupted_message() == f"terra: interrupted; {NOTHING_WRITTEN}"
     on_interrupt(lambda: "the map up to frame 7 is checkpointed")
     assert interrupted_message() == "terra: interrupted; the map up to frame 7 is checkpointed"
-    on_interrupt(lambda: 1 / 0)  # a note that fails never hides the interruption
+    on_interrupt(lambda: str(1 / 0))  # a note that fails never hides the interruption
     assert interrupted_message() == f"terra: interrupted; {NOTHING_WRITTEN}"
     clear()
 
@@ -146,6 +148,7 @@ def test_ctrl_c_during_map_prints_the_resume_line_and_exits_130(tmp_path):
     env = {**os.environ, "TERRA_PROGRESS": "lines", "TERRA_PROGRESS_INTERVAL": "0", "PYTHONPATH": str(REPO)}
     argv = [sys.executable, "-m", "terra", "map", "--sim", "tiny", "--out", str(out), "--config", str(config)]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    assert proc.stderr is not None
     seen = []
     for line in proc.stderr:
         seen.append(line)

@@ -30,10 +30,16 @@ def test_example_configs_load_in_every_stage(path):
 
 
 def test_the_campus_example_sets_what_it_says():
+    from terra.mapping.config import MappingConfig
+    from terra.tasks.config import TasksConfig
+
     mapping = load_section(EXAMPLES / "campus.yaml", "mapping")
+    assert isinstance(mapping, MappingConfig)
     assert mapping.perception.backend == "labels" and mapping.perception.noise.enabled
-    assert load_section(EXAMPLES / "campus.yaml", "tasks").planning.start_radius == 20.0
-    assert load_section(EXAMPLES / "models.yaml", "mapping").perception.backend == "models"
+    tasks = load_section(EXAMPLES / "campus.yaml", "tasks")
+    assert isinstance(tasks, TasksConfig) and tasks.planning.start_radius == 20.0
+    models = load_section(EXAMPLES / "models.yaml", "mapping")
+    assert isinstance(models, MappingConfig) and models.perception.backend == "models"
 
 
 def test_the_example_task_file_drives_find_monitor_and_plan():

@@ -16,7 +16,7 @@ from terra.geometry import (
 
 
 def test_pinhole_projection_hand_computed():
-    cam = CameraCalibration("c", 640, 480, [[500, 0, 320], [0, 500, 240], [0, 0, 1]])
+    cam = CameraCalibration("c", 640, 480, np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1]]))
     uv, valid = project_points(np.array([[1.0, -0.5, 10.0], [0.0, 0.0, -5.0], [100.0, 0.0, 1.0]]), cam)
     # u = 500 * 1/10 + 320 = 370, v = 500 * -0.05 + 240 = 215
     np.testing.assert_allclose(uv[0], [370.0, 215.0])
@@ -24,8 +24,8 @@ def test_pinhole_projection_hand_computed():
 
 
 def test_distortion_hand_computed_and_inverse():
-    dist = [0.1, -0.05, 0.001, 0.002, 0.0]
-    cam = CameraCalibration("c", 640, 480, [[400, 0, 320], [0, 400, 240], [0, 0, 1]], dist)
+    dist = np.array([0.1, -0.05, 0.001, 0.002, 0.0])
+    cam = CameraCalibration("c", 640, 480, np.array([[400, 0, 320], [0, 400, 240], [0, 0, 1]]), dist)
     x, y = 0.2, 0.1
     r2 = x * x + y * y
     radial = 1 + 0.1 * r2 - 0.05 * r2 * r2
@@ -42,7 +42,7 @@ def test_distortion_hand_computed_and_inverse():
 
 
 def test_pose_roundtrip_and_inverse():
-    T = make_pose(yaw_rotation(0.7), [1.0, 2.0, 3.0])
+    T = make_pose(yaw_rotation(0.7), np.array([1.0, 2.0, 3.0]))
     np.testing.assert_allclose(invert_pose(T) @ T, np.eye(4), atol=1e-12)
     np.testing.assert_allclose(pose_from_xyz_quat(pose_to_xyz_quat(T)), T, atol=1e-12)
     with pytest.raises(ValueError):

@@ -16,16 +16,18 @@ K = np.array([[458.17091039, 0.0, 388.71610935], [0.0, 457.99950521, 230.8719519
 # Realistic coefficient vectors of every length OpenCV uses (the 4-coefficient one is a real
 # calibration of a 768 x 480 field camera).
 PINHOLE_LENSES = {
-    4: [0.03738764, -0.07371669, -0.00024887, 0.00058859],
-    5: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0],
-    8: [0.12, -0.05, 0.0007, -0.0004, 0.01, 0.15, -0.03, 0.02],
-    12: [0.12, -0.05, 0.0007, -0.0004, 0.01, 0.15, -0.03, 0.02, 0.0012, -0.0003, 0.0009, 0.0002],
-    14: [0.12, -0.05, 0.0007, -0.0004, 0.01, 0.15, -0.03, 0.02, 0.0012, -0.0003, 0.0009, 0.0002, 0.004, -0.003],
+    4: np.array([0.03738764, -0.07371669, -0.00024887, 0.00058859]),
+    5: np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0]),
+    8: np.array([0.12, -0.05, 0.0007, -0.0004, 0.01, 0.15, -0.03, 0.02]),
+    12: np.array([0.12, -0.05, 0.0007, -0.0004, 0.01, 0.15, -0.03, 0.02, 0.0012, -0.0003, 0.0009, 0.0002]),
+    14: np.array(
+        [0.12, -0.05, 0.0007, -0.0004, 0.01, 0.15, -0.03, 0.02, 0.0012, -0.0003, 0.0009, 0.0002, 0.004, -0.003]
+    ),
 }
-FISHEYE = [0.0215, -0.0087, 0.0031, -0.0008]
+FISHEYE = np.array([0.0215, -0.0087, 0.0031, -0.0008])
 
 
-def _authors_lenses() -> dict[str, tuple[np.ndarray, list[float]]]:
+def _authors_lenses() -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The six real 768 x 480 lenses of the authors' configs: three with 4 coefficients, three
     with 14 (rational + thin prism + tilt; k1 up to 16 with a nearly cancelling denominator)."""
     import yaml
@@ -36,7 +38,7 @@ def _authors_lenses() -> dict[str, tuple[np.ndarray, list[float]]]:
     for rig, text in (("ssp", SSP_YAML), ("nunns-park", NUNNS_PARK_YAML)):
         cfg = yaml.safe_load(text)
         for n in (1, 2, 3):
-            out[f"{rig}-cam{n}"] = (np.reshape(cfg[f"cam{n}_K"], (3, 3)), cfg[f"cam{n}_dist"])
+            out[f"{rig}-cam{n}"] = (np.reshape(cfg[f"cam{n}_K"], (3, 3)), np.asarray(cfg[f"cam{n}_dist"], dtype=float))
     return out
 
 
@@ -48,7 +50,7 @@ def _pixels(step: int = 8) -> np.ndarray:
     return np.stack([u.ravel(), v.ravel()], axis=1)
 
 
-def _cv_project(points: np.ndarray, dist: list[float], model: str) -> np.ndarray:
+def _cv_project(points: np.ndarray, dist: np.ndarray, model: str) -> np.ndarray:
     if model == lens.FISHEYE:
         out, _ = cv2.fisheye.projectPoints(points[:, None, :], np.zeros(3), np.zeros(3), K, np.asarray(dist))
     else:
@@ -108,7 +110,7 @@ def test_rays_beyond_the_field_of_view_never_fold_into_the_image():
     # The radial polynomial turns back beyond the image's field of view (r_d = r (1 + 0.1 r^2 -
     # 0.05 r^4) peaks at r = 1.64), so a ray 66 degrees off axis (r = 2.3) distorts onto a pixel
     # inside the image unless it is refused.
-    dist = [0.1, -0.05, 0.0, 0.0, 0.0]
+    dist = np.array([0.1, -0.05, 0.0, 0.0, 0.0])
     cam = CameraCalibration("b", W, H, K, dist)
     far = np.array([[2.3, 0.0, 1.0]])
     folded = lens.distort(far[:, :2], dist)[0, 0] * K[0, 0] + K[0, 2]

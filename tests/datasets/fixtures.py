@@ -37,7 +37,9 @@ def calibrations() -> list[CameraCalibration]:
         HEIGHT,
         np.array([[52.0, 0.0, 31.5], [0.0, 51.0, 23.25], [0.0, 0.0, 1.0]]),
         np.array([-0.11, 0.023, 0.0012, -0.0021, 0.0004]),
-        make_pose(Rotation.from_euler("x", 4.0, degrees=True).as_matrix() @ _LIDAR_TO_OPTICAL, [0.01, 0.32, -0.21]),
+        make_pose(
+            Rotation.from_euler("x", 4.0, degrees=True).as_matrix() @ _LIDAR_TO_OPTICAL, np.array([0.01, 0.32, -0.21])
+        ),
     )
     left = CameraCalibration(
         "left",
@@ -45,7 +47,9 @@ def calibrations() -> list[CameraCalibration]:
         HEIGHT,
         np.array([[47.0, 0.0, 30.0], [0.0, 47.5, 24.5], [0.0, 0.0, 1.0]]),
         np.array([0.05, -0.01, 0.0, 0.0, 0.0]),
-        make_pose(_LIDAR_TO_OPTICAL @ Rotation.from_euler("z", -90.0, degrees=True).as_matrix(), [0.1, -0.2, 0.05]),
+        make_pose(
+            _LIDAR_TO_OPTICAL @ Rotation.from_euler("z", -90.0, degrees=True).as_matrix(), np.array([0.1, -0.2, 0.05])
+        ),
     )
     return [front, left]
 
@@ -65,7 +69,8 @@ def hand_frames(seed: int = 3) -> list[Frame]:
         n = 150 + 40 * i
         points = rng.uniform(-30, 30, size=(n, 3)).astype(np.float32)
         pose = make_pose(
-            Rotation.from_euler("zyx", [0.3 * i + 0.1, 0.02, -0.03]).as_matrix(), [5.0 * i + 0.123, -2.0 * i, 0.5]
+            Rotation.from_euler("zyx", [0.3 * i + 0.1, 0.02, -0.03]).as_matrix(),
+            np.array([5.0 * i + 0.123, -2.0 * i, 0.5]),
         )
         cams = []
         for cal in calibrations():

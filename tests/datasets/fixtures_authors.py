@@ -132,7 +132,7 @@ def rig(config_text: str, count: int = 3) -> list[CameraCalibration]:
                 HEIGHT,
                 np.reshape(cfg[f"cam{n}_K"], (3, 3)),
                 cfg[f"cam{n}_dist"],
-                make_pose(R, [0.05 * n, -0.1, 0.2]),
+                make_pose(R, np.array([0.05 * n, -0.1, 0.2])),
             )
         )
     return cams

@@ -80,10 +80,13 @@ def test_odometry_poses_do_not_change_the_fingerprint(mapped_sequence):
         def __len__(self):
             return len(self.source)
 
-        def __getitem__(self, i):
-            frame = self.source[i]
+        def __getitem__(self, index):
+            frame = self.source[index]
             frame.T_map_lidar = np.eye(4)
             return frame
+
+        def global_map(self):
+            return None
 
     assert raw_source(Wrapped(source)) is source
     assert dataset_fingerprint(Wrapped(source)) == dataset_fingerprint(source)

@@ -75,6 +75,7 @@ def test_round_trip_in_the_authors_layout(written, name):
         assert len(list((folder / f"transformations_lidar2cam{n}").glob(f"transform_lidar_to_cam{n}_*.npy"))) == 3
     assert not (folder / "camera0_images").exists() and not (folder / f"camera{count + 1}_images").exists()
     ds = open_dataset(folder)
+    assert isinstance(ds, TerraFolderDataset)
     assert ds.camera_numbers == list(range(1, count + 1))
     for i, frame in enumerate(expected.frames):
         got = ds[i]
@@ -109,6 +110,7 @@ def test_folder_as_their_tools_write_it_reads_with_their_config(copy, name, tmp_
         trimmed.write_text(text.replace("num_cams: 3", "num_cams: 2").replace("['-x', '-y', '+y']", "['-x', '-y']"))
         config = trimmed
     ds = open_dataset(folder, options={"camera_config": config})
+    assert isinstance(ds, TerraFolderDataset)
     assert ds.max_gap == 0.05 and ds.camera_source == str(config) and len(ds) == 3
     for got, exp in zip(ds[1].cameras, rig(text, count)):
         assert got.calibration.name == exp.name and got.calibration.dist.tolist() == exp.dist.tolist()
@@ -145,6 +147,7 @@ def test_earlier_zero_based_terra_folders_still_read(copy):
         if without_meta:
             (folder / "terra_dataset.json").unlink()
         ds = open_dataset(folder)
+        assert isinstance(ds, TerraFolderDataset)
         assert ds.camera_numbers == [0, 1, 2]
         got = ds[2]
         for cam, exp in zip(got.cameras, expected.cameras):

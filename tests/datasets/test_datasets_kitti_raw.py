@@ -17,30 +17,41 @@ from terra.datasets.oxts import normalise_poses, world_poses
 from terra.errors import TerraError
 from terra.geometry import project_points, transform_points
 
-CAM_TO_CAM = """calib_time: 09-Jan-2012 13:57:47
-corner_dist: 9.950000e-02
-S_00: 1.392000e+03 5.120000e+02
-K_00: 9.842439e+02 0.000000e+00 6.900000e+02 0.000000e+00 9.808141e+02 2.331966e+02 0.000000e+00 0.000000e+00 1.000000e+00
-D_00: -3.728755e-01 2.037299e-01 2.219027e-03 1.383707e-03 -7.233722e-02
-R_00: 1.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00
-T_00: 2.573699e-16 -1.059758e-16 1.614870e-16
-S_rect_00: 1.242000e+03 3.750000e+02
-R_rect_00: 9.999239e-01 9.837760e-03 -7.445048e-03 -9.869795e-03 9.999421e-01 -4.278459e-03 7.402527e-03 4.351614e-03 9.999631e-01
-P_rect_00: 7.215377e+02 0.000000e+00 6.095593e+02 0.000000e+00 0.000000e+00 7.215377e+02 1.728540e+02 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00
-S_rect_02: 1.242000e+03 3.750000e+02
-R_rect_02: 9.998817e-01 1.511453e-02 -2.841595e-03 -1.511724e-02 9.998853e-01 -9.338510e-04 2.827154e-03 9.766976e-04 9.999955e-01
-P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01 0.000000e+00 7.215377e+02 1.728540e+02 2.163791e-01 0.000000e+00 0.000000e+00 1.000000e+00 2.745884e-03
-"""
-VELO_TO_CAM = """calib_time: 15-Mar-2012 11:37:16
-R: 7.533745e-03 -9.999714e-01 -6.166020e-04 1.480249e-02 7.280733e-04 -9.998902e-01 9.998621e-01 7.523790e-03 1.480755e-02
-T: -4.069766e-03 -7.631618e-02 -2.717806e-01
-delta_f: 0.000000e+00 0.000000e+00
-delta_c: 0.000000e+00 0.000000e+00
-"""
-IMU_TO_VELO = """calib_time: 25-May-2012 16:47:16
-R: 9.999976e-01 7.553071e-04 -2.035826e-03 -7.854027e-04 9.998898e-01 -1.482298e-02 2.024406e-03 1.482454e-02 9.998881e-01
-T: -8.086759e-01 3.195559e-01 -7.997231e-01
-"""
+CAM_TO_CAM = (
+    "calib_time: 09-Jan-2012 13:57:47\n"
+    "corner_dist: 9.950000e-02\n"
+    "S_00: 1.392000e+03 5.120000e+02\n"
+    "K_00: 9.842439e+02 0.000000e+00 6.900000e+02 0.000000e+00 9.808141e+02 2.331966e+02 0.000000e+00 "
+    "0.000000e+00 1.000000e+00\n"
+    "D_00: -3.728755e-01 2.037299e-01 2.219027e-03 1.383707e-03 -7.233722e-02\n"
+    "R_00: 1.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00 0.000000e+00 "
+    "0.000000e+00 1.000000e+00\n"
+    "T_00: 2.573699e-16 -1.059758e-16 1.614870e-16\n"
+    "S_rect_00: 1.242000e+03 3.750000e+02\n"
+    "R_rect_00: 9.999239e-01 9.837760e-03 -7.445048e-03 -9.869795e-03 9.999421e-01 -4.278459e-03 "
+    "7.402527e-03 4.351614e-03 9.999631e-01\n"
+    "P_rect_00: 7.215377e+02 0.000000e+00 6.095593e+02 0.000000e+00 0.000000e+00 7.215377e+02 1.728540e+02 "
+    "0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00\n"
+    "S_rect_02: 1.242000e+03 3.750000e+02\n"
+    "R_rect_02: 9.998817e-01 1.511453e-02 -2.841595e-03 -1.511724e-02 9.998853e-01 -9.338510e-04 "
+    "2.827154e-03 9.766976e-04 9.999955e-01\n"
+    "P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01 0.000000e+00 7.215377e+02 1.728540e+02 "
+    "2.163791e-01 0.000000e+00 0.000000e+00 1.000000e+00 2.745884e-03\n"
+)
+VELO_TO_CAM = (
+    "calib_time: 15-Mar-2012 11:37:16\n"
+    "R: 7.533745e-03 -9.999714e-01 -6.166020e-04 1.480249e-02 7.280733e-04 -9.998902e-01 9.998621e-01 "
+    "7.523790e-03 1.480755e-02\n"
+    "T: -4.069766e-03 -7.631618e-02 -2.717806e-01\n"
+    "delta_f: 0.000000e+00 0.000000e+00\n"
+    "delta_c: 0.000000e+00 0.000000e+00\n"
+)
+IMU_TO_VELO = (
+    "calib_time: 25-May-2012 16:47:16\n"
+    "R: 9.999976e-01 7.553071e-04 -2.035826e-03 -7.854027e-04 9.998898e-01 -1.482298e-02 2.024406e-03 "
+    "1.482454e-02 9.998881e-01\n"
+    "T: -8.086759e-01 3.195559e-01 -7.997231e-01\n"
+)
 STAMPS = ["2011-09-26 13:02:25.964389445", "2011-09-26 13:02:26.068424730", "2011-09-26 13:02:26.172421666"]
 IMAGE_STAMPS = ["2011-09-26 13:02:25.951199337", "2011-09-26 13:02:26.054421066", "2011-09-26 13:02:26.157975347"]
 # Hand-chosen packets: at rest heading east; 0.001 degrees of longitude further, 1.5 m higher, heading
@@ -166,6 +177,7 @@ def test_oxts_poses_against_hand_worked_values(drive):
 
 def test_frames_stamps_and_info(drive):
     ds = open_dataset(drive.parent.parent)  # the folder above the date folder opens too
+    assert isinstance(ds, KittiRawDataset)
     assert len(ds) == 3 and ds.name == "2011_09_26_drive_0005_sync"
     frame = ds[2]
     assert frame.stamp == pytest.approx(1317042146.172421666, abs=1e-6)
@@ -183,6 +195,7 @@ def test_scans_without_a_packet_are_skipped_and_counted(copy):
     (copy / "oxts" / "data" / "0000000000.txt").unlink()
     (copy / "image_02" / "data" / "0000000002.png").unlink()
     ds = open_dataset(copy)
+    assert isinstance(ds, KittiRawDataset)
     assert len(ds) == 2 and ds.info().skipped == {"scans_without_oxts": 1, "images_missing": 1}
     assert len(ds[0].cameras) == 1 and ds[1].cameras == []
     assert ds.info().skipped_notes["scans_without_oxts"].endswith("0000000000.txt")
@@ -256,6 +269,7 @@ def test_loader_options_are_validated(drive):
     with pytest.raises(TerraError, match=r"dataset options \[kitti-raw\]: field 'poses'"):
         open_dataset(drive, options={"poses": "gps"})
     ds = open_dataset(drive, "kitti-raw", {"normalise": "first-pose", "cameras": ["image_03"]})
+    assert isinstance(ds, KittiRawDataset)
     assert ds.cameras == [] and ds.normalise == "first-pose"
     assert KittiRawConfig().cameras == ["image_02", "image_03"]
 

@@ -131,6 +131,7 @@ def test_terra_folder_missing_images_skip_scans_like_the_reference(copy):
     root = copy("terra-folder")
     first(root / "camera1_images", "*.jpg").unlink()  # the first scan has no image within 0.2 s
     ds = open_dataset(root)
+    assert isinstance(ds, TerraFolderDataset)
     assert [ds[i].stamp for i in range(len(ds))] == [100.25, 100.625]
     assert ds.skipped == {"scans_unaligned": 1}
     assert ds.skipped_notes["scans_unaligned"].endswith("nearest camera 1 image is 0.250 s away (tolerance 0.2 s)")
@@ -213,7 +214,7 @@ def test_semantickitti_corrupt_file_names_the_file(copy, what):
 def test_decompose_projection_recovers_scaled_and_rotated_cameras():
     K = np.array([[500.0, 0.5, 320.0], [0.0, 480.0, 240.0], [0.0, 0.0, 1.0]])
     c, s = np.cos(0.4), np.sin(0.4)
-    T = make_pose(np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]), [0.54, -0.1, 0.02])
+    T = make_pose(np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]), np.array([0.54, -0.1, 0.02]))
     for scale in (1.0, -2.5):
         got_K, got_T = decompose_projection(scale * K @ T[:3])
         np.testing.assert_allclose(got_K, K, atol=1e-9)
@@ -252,4 +253,5 @@ def test_folder_extracted_by_the_authors_tools(copy):
             np.testing.assert_array_equal(cam.calibration.K, exp.calibration.K)
             np.testing.assert_array_equal(cam.calibration.dist, exp.calibration.dist)
             np.testing.assert_allclose(cam.calibration.T_cam_lidar, exp.calibration.T_cam_lidar, atol=1e-12)
-    assert ds.global_map().shape[1] == 3
+    global_map = ds.global_map()
+    assert global_map is not None and global_map.shape[1] == 3

@@ -39,6 +39,7 @@ def test_frames_round_trip(hand, written, fmt):
         got = ds[i]
         assert got.stamp == expected.stamp
         np.testing.assert_array_equal(got.points, expected.points)
+        assert got.intensity is not None
         assert got.points.dtype == np.float32 and got.intensity.dtype == np.float32
         np.testing.assert_array_equal(got.intensity, expected.intensity)
         np.testing.assert_array_equal(got.point_labels, expected.point_labels)
@@ -76,7 +77,7 @@ def test_terra_folder_global_map_is_voxel_centroids(hand, written):
     """global_pc holds the mean map-frame point of every occupied 0.4 m voxel of all scans."""
     got = open_dataset(written["terra-folder"]).global_map()
     expected = voxel_centroids(hand.frames)
-    assert got.shape == (len(expected), 3)
+    assert got is not None and got.shape == (len(expected), 3)
     np.testing.assert_allclose(sort_rows(got), expected[:, :3], atol=1e-4)
 
 
@@ -98,6 +99,7 @@ def test_ground_truth_round_trip(hand, written, fmt, tmp_path):
         assert (a.instance_id, a.class_id, a.class_name) == (b.instance_id, b.class_id, b.class_name)
         np.testing.assert_allclose(np.r_[a.center, a.size, a.yaw], np.r_[b.center, b.size, b.yaw], atol=5e-7)
     assert len(got.objects) == len(gt.objects)
+    assert got.terrain is not None and gt.terrain is not None
     np.testing.assert_array_equal(got.terrain.classes, gt.terrain.classes)
     np.testing.assert_array_equal(got.terrain.ground_height, gt.terrain.ground_height)
     np.testing.assert_array_equal(got.terrain.origin, gt.terrain.origin)
@@ -126,6 +128,7 @@ def test_semantickitti_without_terra_extras_reads_like_real_kitti(hand, written,
     frame = ds[1]
     expected = hand.frames[1]
     sk = {c.id: c.semantickitti_id for c in CLASSES}
+    assert frame.point_labels is not None and expected.point_labels is not None
     known = np.isin(expected.point_labels, [i for i, k in sk.items() if k is not None])
     np.testing.assert_array_equal(frame.point_labels[known], [sk[i] for i in expected.point_labels[known]])
     np.testing.assert_allclose(frame.T_map_lidar, expected.T_map_lidar, atol=1e-12)

@@ -94,10 +94,12 @@ def _wide(dataset: HandDataset) -> HandDataset:
     """The hand dataset with instance ids beyond 16 bits in its images and scans."""
     frames = []
     for f in dataset.frames:
-        cams = [
-            CameraFrame(c.calibration, c.stamp, c.image, c.semantic, np.where(c.instance > 0, c.instance + 76000, 0))
-            for c in f.cameras
-        ]
+        cams = []
+        for c in f.cameras:
+            assert c.instance is not None
+            wide = np.where(c.instance > 0, c.instance + 76000, 0)
+            cams.append(CameraFrame(c.calibration, c.stamp, c.image, c.semantic, wide))
+        assert f.point_instances is not None
         frames.append(
             Frame(
                 f.index, f.stamp, f.points, f.T_map_lidar, cams, f.intensity, f.point_labels, f.point_instances + 100000
@@ -114,7 +116,7 @@ def test_a_terra_folder_keeps_ids_above_65535(tmp_path):
         got = ds[i]
         np.testing.assert_array_equal(got.point_instances, expected.point_instances)
         for cam, exp in zip(got.cameras, expected.cameras):
-            assert cam.instance.max() > 65535
+            assert cam.instance is not None and cam.instance.max() > 65535
             np.testing.assert_array_equal(cam.instance, exp.instance)
             np.testing.assert_array_equal(cam.semantic, exp.semantic)
     assert sorted(p.name for p in (tmp_path / "wide" / "camera1_semantic").iterdir())  # semantics unchanged: 16-bit

@@ -9,18 +9,27 @@ import pytest
 
 from terra.datasets import open_dataset
 from terra.datasets.kitti_labels import (
+    KittiLabel,
     box_in_frame,
     ground_truth_from_labels,
     objects_from_labels,
     parse_label_line,
     read_label_file,
 )
+from terra.datasets.kitti_raw import KittiRawDataset
 from terra.errors import TerraError
 from terra.geometry import invert_pose, make_pose
 from tests.datasets.test_datasets_kitti_raw import CAM_TO_CAM, VELO_TO_CAM, matrix, write_drive
 
 # Rectified camera (x right, y down, z forward) from a Velodyne frame (x forward, y left, z up).
 T_RECT_VELO = make_pose(np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]), np.zeros(3))
+
+
+def parse_object_line(text: str, where: str, tracking: bool) -> KittiLabel:
+    """parse_label_line for a line that is an object (not DontCare)."""
+    label = parse_label_line(text, where, tracking)
+    assert label is not None
+    return label
 
 
 def box_points(center, size, yaw, count=300, seed=0):
@@ -54,7 +63,7 @@ HAND = [
 
 @pytest.mark.parametrize("line, center, size, yaw", HAND)
 def test_hand_worked_label_box_contains_the_objects_lidar_points(line, center, size, yaw):
-    label = parse_label_line(line, "hand:1", tracking=False)
+    label = parse_object_line(line, "hand:1", tracking=False)
     box = box_in_frame(label, invert_pose(T_RECT_VELO))
     np.testing.assert_allclose(box.center, center, atol=1e-6)
     np.testing.assert_allclose(box.size, size)
@@ -80,7 +89,7 @@ def test_label_box_with_kittis_own_calibration():
         f"Car 0.00 0 0.0 1.0 1.0 2.0 2.0 {size[2]} {size[1]} {size[0]} {bottom[0]} {bottom[1]} {bottom[2]} "
         f"{-yaw - math.pi / 2}"
     )
-    box = box_in_frame(parse_label_line(line, "hand:1", tracking=False), np.linalg.inv(T_rect_velo))
+    box = box_in_frame(parse_object_line(line, "hand:1", tracking=False), np.linalg.inv(T_rect_velo))
     assert box.contains(box_points(center, size, yaw), margin=0.06).all()
     assert np.linalg.norm(box.center - center) < 0.03
 
@@ -116,18 +125,21 @@ def test_malformed_label_lines_name_file_and_line(tmp_path):
 def test_sightings_merge_and_moving_tracks_are_left_out():
     car = "Car 0.00 0 0.0 1 1 2 2 1.5 1.8 4.0 {x} 1.75 {z} -1.570796"
     # A parked car seen from two ego poses 5 m apart: the same map position.
-    T_map_rect = {0: invert_pose(T_RECT_VELO), 1: make_pose(np.eye(3), [5.0, 0.0, 0.0]) @ invert_pose(T_RECT_VELO)}
+    T_map_rect = {
+        0: invert_pose(T_RECT_VELO),
+        1: make_pose(np.eye(3), np.array([5.0, 0.0, 0.0])) @ invert_pose(T_RECT_VELO),
+    }
     parked = [
-        parse_label_line(car.format(x=-2.0, z=10.0), "a:1", False),
-        parse_label_line(car.format(x=-2.0, z=5.0), "b:1", False),
+        parse_object_line(car.format(x=-2.0, z=10.0), "a:1", False),
+        parse_object_line(car.format(x=-2.0, z=5.0), "b:1", False),
     ]
     parked = [p.__class__(**{**p.__dict__, "frame": f}) for p, f in zip(parked, (0, 1))]
     moving = [
-        parse_label_line(f"{f} 9 Van 0 0 0 1 1 2 2 2.0 1.9 5.0 3.0 1.9 {12.0 + 3 * f} -1.570796", "t:1", True)
+        parse_object_line(f"{f} 9 Van 0 0 0 1 1 2 2 2.0 1.9 5.0 3.0 1.9 {12.0 + 3 * f} -1.570796", "t:1", True)
         for f in (0, 1)
     ]
     static = [
-        parse_label_line(f"{f} 4 Cyclist 0 0 0 1 1 2 2 1.7 0.6 1.8 1.0 1.6 {20.0 - 5 * f} 0.0", "t:2", True)
+        parse_object_line(f"{f} 4 Cyclist 0 0 0 1 1 2 2 1.7 0.6 1.8 1.0 1.6 {20.0 - 5 * f} 0.0", "t:2", True)
         for f in (0, 1)
     ]
     boxes = [(label, box_in_frame(label, T_map_rect[label.frame])) for label in parked + moving + static]
@@ -145,6 +157,7 @@ def test_drive_labels_become_map_frame_ground_truth(tmp_path):
     with plain numpy from the calibration text and the drive's poses, reads back at that position."""
     drive = write_drive(tmp_path)
     ds = open_dataset(drive)
+    assert isinstance(ds, KittiRawDataset)
     R_rect = np.eye(4)
     R_rect[:3, :3] = matrix(CAM_TO_CAM, "R_rect_00", (3, 3))
     T_rect_velo = R_rect @ make_pose(matrix(VELO_TO_CAM, "R", (3, 3)), matrix(VELO_TO_CAM, "T", (3,)))

@@ -131,13 +131,16 @@ def test_frames_read_back_in_the_drives_map_frame(drive, simulated):
     gt, sim_gt = load_ground_truth(drive), simulated.ground_truth()
     for obj, ref in zip(gt.objects, sim_gt.objects):
         np.testing.assert_allclose(obj.center, ref.center + shift, atol=1e-5)
+    assert gt.terrain is not None and sim_gt.terrain is not None
     np.testing.assert_allclose(gt.terrain.origin, sim_gt.terrain.origin + shift[:2], atol=1e-5)
 
 
 def test_labels_give_the_simulators_objects(drive, simulated, tmp_path):
     labelled = shutil.copytree(drive, tmp_path / "labels-only")
     shutil.rmtree(labelled / "ground_truth")
-    gt = open_dataset(labelled).ground_truth()
+    labels_only = open_dataset(labelled)
+    assert isinstance(labels_only, KittiRawDataset)
+    gt = labels_only.ground_truth()
     assert gt.terrain is None and gt.regions == [] and "terrain and named regions are not labelled" in gt.notes[0]
     reference = {o.instance_id: o for o in load_ground_truth(drive).objects}
     assert {o.class_name for o in gt.objects} >= {"car"} and len(gt.objects) >= 10

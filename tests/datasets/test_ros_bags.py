@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -14,6 +15,18 @@ from terra.cli import run
 from terra.datasets import open_dataset
 from terra.errors import TerraError
 from tests.datasets.fixtures_ros import FRAMES, factory_for, scan, write_test_bag
+
+if TYPE_CHECKING:
+    from terra.datasets.rosbag import RosbagDataset
+
+
+def open_bag(path, format: str = "auto", options: dict | None = None) -> RosbagDataset:
+    """open_dataset, checked to have opened the bag loader's dataset."""
+    from terra.datasets.rosbag import RosbagDataset
+
+    dataset = open_dataset(path, format, options)
+    assert isinstance(dataset, RosbagDataset)
+    return dataset
 
 
 def _inspect(capsys, source) -> dict:
@@ -51,6 +64,7 @@ def test_mcap_bag_reads_with_the_mcap_package(sim_sources):
     rosbags' CDR deserializer (not our loader) decodes a cloud whose points equal the frame's."""
     from mcap.reader import make_reader
     from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys.stores.ros2_humble import sensor_msgs__msg__PointCloud2
 
     path = next(Path(sim_sources["rosbag2"]).glob("*.mcap"))
     store = get_typestore(Stores.ROS2_HUMBLE)
@@ -60,10 +74,12 @@ def test_mcap_bag_reads_with_the_mcap_package(sim_sources):
         for schema, channel, message in make_reader(f).iter_messages():
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             if channel.topic == "/lidar/points" and first_cloud is None:
+                assert schema is not None
                 assert schema.name == "sensor_msgs/msg/PointCloud2" and channel.message_encoding == "cdr"
                 first_cloud = store.deserialize_cdr(message.data, schema.name)
                 assert message.log_time == 0
     assert counts["/lidar/points"] == FRAMES and counts["/cam0/camera_info"] == FRAMES and counts["/tf_static"] == 1
+    assert isinstance(first_cloud, sensor_msgs__msg__PointCloud2)
     xyz = np.frombuffer(first_cloud.data.tobytes(), np.float32).reshape(-1, 7)[:, :3]
     np.testing.assert_array_equal(xyz, sim_sources["dataset"][0].points)
 
@@ -90,7 +106,7 @@ def test_a_dropped_or_refused_recording_leaves_no_open_file(sim_sources, tmp_pat
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ResourceWarning)
-        dataset = open_dataset(sim_sources[fmt])
+        dataset = open_bag(sim_sources[fmt])
         assert len(dataset) and dataset[0].points.size
         reader = dataset.bag.reader
         del dataset
@@ -232,7 +248,7 @@ def test_unsupported_encoding_and_missing_camera_info(capsys, tmp_path):
 
 def test_ros1_bag_with_odometry_frame_poses_and_camera(tmp_path):
     """A hand-made ROS 1 bag: poses through odom -> base -> lidar, images paired, info as stated."""
-    dataset = open_dataset(_camera_bag(tmp_path))
+    dataset = open_bag(_camera_bag(tmp_path))
     assert len(dataset) == 3 and dataset.pose_source == "tf odom -> lidar"
     frame = dataset[2]
     assert frame.cameras[0].image.shape == (6, 8, 3) and frame.cameras[0].image[0, 0, 0] == 80
@@ -265,7 +281,7 @@ def test_one_corrupt_image_is_skipped_and_counted(tmp_path):
             ("/cam/image_raw/compressed", "sensor_msgs/msg/CompressedImage", ns, image),
             ("/cam/camera_info", "sensor_msgs/msg/CameraInfo", ns, f.camera_info(ns, "cam", cal)),
         ]
-    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
+    dataset = open_bag(write_test_bag(tmp_path / "bag", rows))
     frames = [dataset[i] for i in range(len(dataset))]
     assert [len(fr.cameras) for fr in frames] == [1, 0, 1]
     assert dataset.skipped["images_skipped_undecodable"] == 1
@@ -321,7 +337,7 @@ def test_two_cameras_sqlite3_storage_and_unpaired_images_counted(tmp_path):
     from terra.geometry import invert_pose
 
     rows, cams, mount = _two_camera_rows(factory_for(), late_right_at=1)
-    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows, sqlite=True))
+    dataset = open_bag(write_test_bag(tmp_path / "bag", rows, sqlite=True))
     assert dataset.bag.storage == "rosbag2 (sqlite3)" and len(dataset) == 3
     assert [c.name for c in dataset.calibrations] == ["left", "right"]
     right = dataset.calibrations[1]
@@ -341,7 +357,7 @@ def test_poses_from_a_nav_msgs_odometry_topic(tmp_path):
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     f, t = factory_for(store), store.types
-    T_base_lidar = make_pose(Rotation.from_euler("z", 0.2).as_matrix(), [0.4, 0.0, 1.1])
+    T_base_lidar = make_pose(Rotation.from_euler("z", 0.2).as_matrix(), np.array([0.4, 0.0, 1.1]))
     rows = [("/tf_static", "tf2_msgs/msg/TFMessage", 0, f.tf([(0, "base", "lidar", T_base_lidar)]))]
     for k in range(4):
         ns = k * 100_000_000
@@ -372,9 +388,9 @@ def test_poses_from_a_nav_msgs_odometry_topic(tmp_path):
                     f.pointcloud2(ns + 50_000_000, "lidar", scan(seed=k)),
                 )
             )
-    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
+    dataset = open_bag(write_test_bag(tmp_path / "bag", rows))
     assert dataset.pose_source == "odometry topic /odom (odom -> lidar)" and len(dataset) == 3
-    expected = make_pose(Rotation.from_euler("z", 0.3 * 1.5).as_matrix(), [1.5, 0.5, 0.0]) @ T_base_lidar
+    expected = make_pose(Rotation.from_euler("z", 0.3 * 1.5).as_matrix(), np.array([1.5, 0.5, 0.0])) @ T_base_lidar
     np.testing.assert_allclose(dataset[1].T_map_lidar, expected, atol=1e-12)
 
 
@@ -389,7 +405,7 @@ def test_a_bag_without_poses_maps_with_odometry(tmp_path):
         )
         for k in range(3)
     ]
-    dataset = open_dataset(write_test_bag(tmp_path / "bag", rows))
+    dataset = open_bag(write_test_bag(tmp_path / "bag", rows))
     assert dataset.needs_odometry and not dataset.has_poses and dataset.pose_source == "odometry (KISS-ICP)"
 
 
@@ -434,11 +450,11 @@ def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sourc
         def __len__(self):
             return len(self.source)
 
-        def __getitem__(self, i):
-            if i == self.stop_at:
+        def __getitem__(self, index):
+            if index == self.stop_at:
                 raise KeyboardInterrupt
-            self.loaded.append(i)
-            return self.source[i]
+            self.loaded.append(index)
+            return self.source[index]
 
         def global_map(self):
             return None
@@ -455,7 +471,7 @@ def test_mapping_a_bag_resumes_after_an_interruption_to_the_same_bytes(sim_sourc
 def test_raw_image_bag_gives_the_simulator_pixels_and_jpeg_differs_by_under_one_level(sim_sources, tmp_path):
     from terra.sim.writer import write_dataset
 
-    raw = open_dataset(
+    raw = open_bag(
         write_dataset(sim_sources["dataset"], tmp_path / "raw", format="rosbag1", progress=False, bag_images="raw")
     )
     jpeg = open_dataset(sim_sources["rosbag2"])
@@ -559,6 +575,7 @@ def test_scans_are_deskewed_with_the_tf_poses_at_each_point_time(tmp_path):
     np.testing.assert_allclose(frame.points, expected, atol=2e-5)  # float32 points
     raw = open_dataset(tmp_path / "bag", options={"deskew": False})[0]
     np.testing.assert_allclose(raw.points, seen, atol=1e-5)
+    assert raw.point_times is not None
     np.testing.assert_allclose(raw.point_times, times_ns * 1e-9)
 
 
@@ -570,7 +587,7 @@ def test_the_printed_dataset_section_is_a_valid_config_that_opens_the_same_bag(c
     info = _inspect(capsys, sim_sources["rosbag1"])
     config = tmp_path / "terra.yaml"
     config.write_text(yaml.safe_dump({"dataset": info["details"]["dataset"]}))
-    dataset = open_dataset(sim_sources["rosbag1"], "rosbag", load_dataset_options(config))
+    dataset = open_bag(sim_sources["rosbag1"], "rosbag", load_dataset_options(config))
     assert dataset.lidar_topic == "/lidar/points" and dataset.pose_source == info["pose_source"]
     assert [c.semantic for c in dataset.camera_topics] == ["/cam0/semantic"] and len(dataset) == FRAMES
     config.write_text("dataset:\n  lidar_topc: /lidar/points\n")

@@ -27,7 +27,7 @@ def _cloud(fields, rows, point_step, big=False, height=1, row_pad=0):
     for k, values in enumerate(rows):
         r, c = divmod(k, width)
         base = r * row_step + c * point_step
-        for (name, offset, _, kind), v in zip(fields, values):
+        for (_name, offset, _, kind), v in zip(fields, values):
             data[base + offset : base + offset + np.dtype(kind).itemsize] = np.array([v], order + kind).tobytes()
     return NS(
         height=height,
@@ -73,6 +73,7 @@ def test_ouster_layout_with_padding_and_ns_time(big):
     cloud = decode_pointcloud2(msg)
     np.testing.assert_array_equal(cloud.points, xyz)
     np.testing.assert_array_equal(cloud.intensity, inten)
+    assert cloud.times is not None
     np.testing.assert_allclose(cloud.times, np.arange(40) * 2.5e-3, rtol=0, atol=1e-12)
     assert cloud.points.dtype == np.float32 and cloud.labels is None
 
@@ -88,6 +89,7 @@ def test_velodyne_layout_seconds_and_nan_or_no_return_points_dropped():
     keep[[3, 17]] = False
     np.testing.assert_array_equal(cloud.points, xyz[keep])
     np.testing.assert_array_equal(cloud.intensity, inten[keep])
+    assert cloud.times is not None
     np.testing.assert_allclose(
         cloud.times, (np.float32(-0.1) + np.arange(30, dtype=np.float32) * np.float32(1e-3))[keep].astype(np.float64)
     )
@@ -188,7 +190,9 @@ def test_compressed_images_match_opencv(fmt):
     buf = io.BytesIO()
     Image.fromarray(image).save(buf, format="PNG" if fmt == "png" else "JPEG", quality=90)
     out = decode_compressed(NS(format=f"bgr8; {fmt} compressed bgr8", data=np.frombuffer(buf.getvalue(), np.uint8)))
-    reference = cv2.cvtColor(cv2.imdecode(np.frombuffer(buf.getvalue(), np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    decoded = cv2.imdecode(np.frombuffer(buf.getvalue(), np.uint8), cv2.IMREAD_COLOR)
+    assert decoded is not None
+    reference = cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
     if fmt == "png":
         np.testing.assert_array_equal(out, image)
         np.testing.assert_array_equal(reference, image)

@@ -19,8 +19,8 @@ def analytic_T_map_base(t: float) -> np.ndarray:
     return make_pose(Rotation.from_rotvec([0.0, 0.0, OMEGA * t]).as_matrix(), VELOCITY * t)
 
 
-T_BASE_LIDAR = make_pose(Rotation.from_euler("xyz", [0.01, -0.02, 0.5]).as_matrix(), [0.3, 0.0, 1.2])
-T_BASE_CAM = make_pose(Rotation.from_euler("xyz", [-1.6, 0.0, -1.5]).as_matrix(), [0.5, 0.1, 1.0])
+T_BASE_LIDAR = make_pose(Rotation.from_euler("xyz", [0.01, -0.02, 0.5]).as_matrix(), np.array([0.3, 0.0, 1.2]))
+T_BASE_CAM = make_pose(Rotation.from_euler("xyz", [-1.6, 0.0, -1.5]).as_matrix(), np.array([0.5, 0.1, 1.0]))
 
 
 def tree() -> TfTree:

@@ -315,9 +315,11 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path):
     with socket.socket() as sock:  # a loopback port nobody listens on
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    with pytest.raises(TerraError, match=f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}"):
-        with connect(ClusterConfig(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=1.0)):
-            pass
+    with (
+        pytest.raises(TerraError, match=f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}"),
+        connect(ClusterConfig(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=1.0)),
+    ):
+        pass
 
 
 def test_source_spec_round_trip(tiny_folder, tmp_path, monkeypatch):

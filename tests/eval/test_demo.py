@@ -138,8 +138,10 @@ def test_the_demo_judges_a_find_by_table_twos_rule():
     beside = {"center": [0.0, 0.5 + 0.8, 0.75], "size": [2.0, 0.2, 1.5], "yaw": 0.0}  # thin, 0.7 m off its side
     over = {"center": [0.5, 0.0, 0.75], "size": [2.0, 1.0, 1.5], "yaw": 0.0}  # shifted 0.5 m along its length
     miss = nearest_gt_object(np.array(beside["center"]), truth, "dumpster", beside)
+    assert miss is not None
     assert miss["distance_m"] == 1.3 and miss["iou"] == 0.0 and miss["hit"] is False
     hit = nearest_gt_object(np.array(over["center"]), truth, "dumpster", over)
+    assert hit is not None
     assert hit["iou"] == pytest.approx(1.5 / 2.5) and hit["hit"] is True  # overlap 1.5 x 1 x 1.5 of 2 x 1 x 1.5 each
     row = {"query": "Find the dumpster", "num_gt": 2, "num_predictions": 3, "relaxed_hits": 0}
     demo = {
@@ -188,9 +190,9 @@ def test_the_demo_judges_a_find_by_table_twos_rule():
         "  find 'Find the dumpster': object at (0.0, 1.3, 0.8) m, score 0.80; nearest true dumpster 1.3 m away, "
         "box IoU 0.00: not a hit (the boxes do not overlap) (Table II, ms-avg: 3 found, 0 of 2 dumpsters hit)"
     )
-    assert (
-        lines[2]
-        == "  monitor 'q': 0 places in 1 region (mix, k 1); labelled region 'service' is not evaluable (no place inside it)"
+    assert lines[2] == (
+        "  monitor 'q': 0 places in 1 region (mix, k 1); "
+        "labelled region 'service' is not evaluable (no place inside it)"
     )
 
 

@@ -74,7 +74,9 @@ def test_terrain_images_use_the_terrain_palette():
     pts = np.array([[0.0, 0, 0], [1.0, 0, 0]])
     img = terrain_points_image(pts, np.array([1, -1]), TERRAIN, cell=1.0)
     assert tuple(img.rgba[0, 0, :3]) == pytest.approx(terrain_colour("grass"))
-    raster = terrain_raster_image(ground_truth().terrain, TERRAIN)
+    terrain = ground_truth().terrain
+    assert terrain is not None
+    raster = terrain_raster_image(terrain, TERRAIN)
     assert tuple(raster.rgba[0, 0, :3]) == pytest.approx(terrain_colour("sidewalk"))
     assert tuple(raster.rgba[0, 2, :3]) == pytest.approx(terrain_colour("asphalt"))
     from matplotlib.colors import to_rgb
@@ -89,7 +91,7 @@ def draw_every_figure(out):
     pts = np.c_[rng.uniform(0, 20, 2000), rng.uniform(0, 16, 2000), rng.uniform(0, 1, 2000)]
     background = terrain_points_image(pts, (pts[:, 0] // 8).astype(int), TERRAIN)
     gt_boxes = BoxSet.from_objects(gt.objects)
-    pred = BoxSet([[5.5, 5, 0.7]], [[3, 2, 1.4]], [0.1])
+    pred = BoxSet(np.array([[5.5, 5, 0.7]]), np.array([[3, 2, 1.4]]), np.array([0.1]))
     classes = (pts[:, 0] // 8).astype(int)
     return [
         figures.terrain_map_figure(out / "terrain.png", TERRAIN, pts, classes, gt),

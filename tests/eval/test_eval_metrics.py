@@ -14,7 +14,7 @@ from terra.eval.metrics.segmentation import confusion_matrix, segmentation_score
 
 
 def box(center, size, yaw=0.0):
-    return BoxSet([center], [size], [yaw])
+    return BoxSet(np.array([center]), np.array([size]), np.array([yaw]))
 
 
 def test_iou_of_cubes_offset_along_x_and_z_is_one_third():
@@ -41,8 +41,8 @@ def test_yaw_quarter_turn_swaps_footprint_axes():
 
 
 def test_iou_matrix_matches_pairwise_and_handles_empty():
-    a = BoxSet([[0, 0, 0], [5, 0, 0]], [[1, 1, 1], [2, 2, 2]], [0, 0.3])
-    b = BoxSet([[0.5, 0, 0], [5, 0, 0]], [[1, 1, 1], [2, 2, 2]], [0, 0.3])
+    a = BoxSet(np.array([[0, 0, 0], [5, 0, 0]]), np.array([[1, 1, 1], [2, 2, 2]]), np.array([0, 0.3]))
+    b = BoxSet(np.array([[0.5, 0, 0], [5, 0, 0]]), np.array([[1, 1, 1], [2, 2, 2]]), np.array([0, 0.3]))
     m = iou_matrix(a, b)
     assert m.shape == (2, 2)
     assert m[0, 0] == pytest.approx(1 / 3) and m[1, 1] == pytest.approx(1.0)
@@ -58,12 +58,12 @@ def test_greedy_match_takes_best_pair_first_not_the_optimal_assignment():
 def test_retrieval_metrics_on_a_hand_worked_scene():
     # Query 0 ("car"): two unit cubes; query 1 ("dumpster"): one 2 x 1 x 1 box.
     gt = [
-        BoxSet([[0, 0, 0.5], [10, 0, 0.5]], [[1, 1, 1], [1, 1, 1]], [0, 0]),
-        BoxSet([[20, 0, 0.5]], [[2, 1, 1]], [0]),
+        BoxSet(np.array([[0, 0, 0.5], [10, 0, 0.5]]), np.array([[1, 1, 1], [1, 1, 1]]), np.array([0, 0])),
+        BoxSet(np.array([[20, 0, 0.5]]), np.array([[2, 1, 1]]), np.array([0])),
     ]
     pred = BoxSet(
-        [[0.25, 0, 0.5], [10.8, 0, 0.5], [30, 0, 0.5], [20, 0, 0.5], [20.4, 0, 0.5]],
-        [[1, 1, 1], [3, 1, 1], [1, 1, 1], [4, 2, 2], [1, 1, 1]],
+        np.array([[0.25, 0, 0.5], [10.8, 0, 0.5], [30, 0, 0.5], [20, 0, 0.5], [20.4, 0, 0.5]]),
+        np.array([[1, 1, 1], [3, 1, 1], [1, 1, 1], [4, 2, 2], [1, 1, 1]]),
         np.zeros(5),
     )
     scores = np.array([[0.9, 0.1], [0.85, 0.2], [0.5, 0.3], [0.1, 0.7], [0.0, 0.65]])
@@ -84,7 +84,7 @@ def test_retrieval_metrics_on_a_hand_worked_scene():
 
 
 def test_retrieval_with_no_predictions_scores_zero():
-    gt = [BoxSet([[0, 0, 0]], [[1, 1, 1]], [0])]
+    gt = [BoxSet(np.array([[0, 0, 0]]), np.array([[1, 1, 1]]), np.array([0]))]
     s = evaluate_retrieval(BoxSet.empty(), np.zeros((0, 1)), np.zeros(0), gt)
     assert (s.iou, s.relaxed_accuracy, s.relaxed_precision, s.f1) == (0, 0, 0, 0)
     assert s.num_gt == 1
@@ -218,8 +218,12 @@ def test_distance_to_path_and_iou_by_distance_band():
     path = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
     d = distance_to_path(np.array([[5.0, 3.0], [12.0, 5.0], [-4.0, 3.0], [20.0, 20.0]]), path)
     np.testing.assert_allclose(d, [3.0, 2.0, 5.0, np.hypot(10.0, 10.0)])
-    gt = [BoxSet([[5, 2, 0], [5, 30, 0]], [[1, 1, 1], [1, 1, 1]], [0, 0])]  # 2 m and 20.6 m from the path
-    pred = BoxSet([[5.5, 2, 0]], [[1, 1, 1]], [0])  # overlaps the near one by half: IoU 1/3
+    gt = [
+        BoxSet(np.array([[5, 2, 0], [5, 30, 0]]), np.array([[1, 1, 1], [1, 1, 1]]), np.array([0, 0]))
+    ]  # 2 m and 20.6 m from the path
+    pred = BoxSet(
+        np.array([[5.5, 2, 0]]), np.array([[1, 1, 1]]), np.array([0])
+    )  # overlaps the near one by half: IoU 1/3
     matched = accuracy_matches(pred, np.array([[0.9]]), gt)
     np.testing.assert_allclose(matched[0], [1 / 3, np.nan])
     bands = iou_by_distance(matched, gt, path, bands=(5.0, 10.0))
@@ -230,8 +234,10 @@ def test_distance_to_path_and_iou_by_distance_band():
 
 
 def test_matched_iou_is_the_mean_over_matches_only():
-    gt = [BoxSet([[0, 0, 0], [10, 0, 0]], [[1, 1, 1], [1, 1, 1]], [0, 0])]
-    pred = BoxSet([[0, 0, 0], [40, 0, 0]], [[1, 1, 1], [1, 1, 1]], [0, 0])  # one exact, one far off
+    gt = [BoxSet(np.array([[0, 0, 0], [10, 0, 0]]), np.array([[1, 1, 1], [1, 1, 1]]), np.array([0, 0]))]
+    pred = BoxSet(
+        np.array([[0, 0, 0], [40, 0, 0]]), np.array([[1, 1, 1], [1, 1, 1]]), np.array([0, 0])
+    )  # one exact, one far off
     scores = evaluate_retrieval(pred, np.array([[0.9], [0.8]]), np.array([0, 0]), gt)
     assert scores.iou == pytest.approx(0.5) and scores.matched_iou == pytest.approx(1.0) and scores.matches == 1
 

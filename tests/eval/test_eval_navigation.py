@@ -28,6 +28,7 @@ def test_preferring_sidewalk_moves_the_detour_case_onto_it():
     assert pairs.tolist() == [[0, 3], [0, 4], [0, 5], [0, 6], [3, 4], [3, 5], [3, 6], [4, 5], [4, 6], [5, 6]]
     routes = preference_routes(graph, raster, pairs, "sidewalk", step=0.1, default_penalty=1.0)
     case = preference_case(routes, min_share=0.8)
+    assert case is not None
     # 0 -> 6: straight over the lawn then north (15 m) or round by 4 and 5 (15 m on sidewalk); the
     # shortest plan (ties broken by A*) crosses 8 m of lawn, preferring sidewalk moves all of it.
     assert pairs[case].tolist() == [0, 6]

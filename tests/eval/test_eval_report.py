@@ -1,6 +1,7 @@
 """The report: markdown tables laid out like the paper's, from summary.json alone; tuned files."""
 
 import json
+from typing import TYPE_CHECKING, cast
 
 import pytest
 
@@ -8,6 +9,9 @@ from terra.errors import TerraError
 from terra.eval.config import TuneEval
 from terra.eval.report import render_report, table, write_report
 from terra.eval.tuning import TunedParameters, alpha_grid, best_point
+
+if TYPE_CHECKING:
+    from terra.eval.inputs import EvalInputs
 
 
 def summary():
@@ -260,7 +264,9 @@ def test_evaluable_regions_leave_out_regions_without_places():
     from terra.datasets.ground_truth import NamedRegion
     from terra.eval.runner import NOT_EVALUABLE, evaluable_regions
 
-    square = lambda x0: np.array([[x0, 0.0], [x0 + 10, 0.0], [x0 + 10, 10.0], [x0, 10.0]])
+    def square(x0: float) -> np.ndarray:
+        return np.array([[x0, 0.0], [x0 + 10, 0.0], [x0 + 10, 10.0], [x0, 10.0]])
+
     regions = [
         NamedRegion("a", "first", square(0.0)),
         NamedRegion("empty", "nothing here", square(100.0)),
@@ -270,7 +276,8 @@ def test_evaluable_regions_leave_out_regions_without_places():
     inputs = SimpleNamespace(
         graph=SimpleNamespace(places=SimpleNamespace(position=places)), gt=SimpleNamespace(regions=regions)
     )
-    kept, truth, skipped = evaluable_regions(inputs)
+    # evaluable_regions reads only inputs.graph.places.position and inputs.gt.regions.
+    kept, truth, skipped = evaluable_regions(cast("EvalInputs", inputs))
     assert [r.name for r in kept] == ["a", "b"] and [t.tolist() for t in truth] == [[0], [1, 2]]
     assert skipped == [{"name": "empty", "description": "nothing here", "reason": NOT_EVALUABLE}]
 

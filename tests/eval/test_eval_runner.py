@@ -3,6 +3,7 @@ report contents checked against independently computed values, tuning provenance
 
 import json
 import os
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ def _summary(tiny_demo):
     return json.loads((tiny_demo.out / "report" / "summary.json").read_text())
 
 
-def _without_measurements(obj):
+def _without_measurements(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {k: _without_measurements(v) for k, v in obj.items() if k not in MEASURED}
     if isinstance(obj, list):

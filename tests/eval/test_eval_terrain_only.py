@@ -14,6 +14,7 @@ pytest.importorskip("onnxruntime")
 
 from terra.cli import run
 from terra.datasets import open_dataset
+from terra.datasets.base import Frame
 from tests.perception.fixtures import models_section
 
 
@@ -23,6 +24,13 @@ def box_folder(tmp_path_factory):
     from tests.mapping.fixtures import BoxScene
 
     return write_dataset(BoxScene(), tmp_path_factory.mktemp("boxdata") / "box", format="terra-folder", progress=False)
+
+
+def _semantic(frame: Frame) -> np.ndarray:
+    """The first camera's semantic labels (every box scene frame has them)."""
+    semantic = frame.cameras[0].semantic
+    assert semantic is not None
+    return semantic
 
 
 def _expected_prediction() -> np.ndarray:
@@ -63,12 +71,11 @@ def test_table_one_for_labels_and_a_model(box_folder, tiny_models, tmp_path, cap
     # The same scores from scikit-learn on the same pixels.
     dataset = open_dataset(box_folder)
     index = {c.id: {"grass": 0, "asphalt": 1}.get(c.name, 2) for c in dataset.classes}
-    truth = np.concatenate(
-        [[index.get(int(v), 2) for v in dataset[i].cameras[0].semantic.ravel()] for i in range(len(dataset))]
-    )
+    truth = np.concatenate([[index.get(int(v), 2) for v in _semantic(dataset[i]).ravel()] for i in range(len(dataset))])
     predicted = np.tile(_expected_prediction().ravel(), len(dataset))
-    iou = jaccard_score(truth, predicted, labels=[0, 1], average=None)
-    f1 = f1_score(truth, predicted, labels=[0, 1], average=None)
+    # average=None (per-class scores) is documented; scikit-learn's defaults make pyright read `average` as str.
+    iou = np.asarray(jaccard_score(truth, predicted, labels=[0, 1], average=None))  # pyright: ignore[reportArgumentType]
+    f1 = np.asarray(f1_score(truth, predicted, labels=[0, 1], average=None))  # pyright: ignore[reportArgumentType]
     np.testing.assert_allclose(model["iou"], iou, rtol=1e-9)
     assert model["miou"] == pytest.approx(iou.mean()) and model["f1"] == pytest.approx(f1.mean())
     share = np.array([np.count_nonzero(truth == 0), np.count_nonzero(truth == 1)], float)

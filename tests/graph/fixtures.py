@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import cast
 
+import numpy as np
 import pytest
+from scipy import ndimage
 
 from terra.bundle import Bundle
 
@@ -21,6 +24,12 @@ def copy_bundle(bundle: Bundle | Path, dest: Path) -> Path:
     src = bundle.path if isinstance(bundle, Bundle) else Path(bundle)
     shutil.copytree(src, dest)
     return dest
+
+
+def label_parts(mask: np.ndarray, structure: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """ndimage.label(mask, structure): (labels, count). scipy's function is untyped, and its
+    caller-provided-output branch (a bare count) makes every call read as possibly an int."""
+    return cast(tuple[np.ndarray, int], ndimage.label(mask, structure=structure))
 
 
 def _graph_bundle(map_bundle: Bundle, tmp_path_factory, name: str) -> Bundle:

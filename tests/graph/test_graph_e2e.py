@@ -150,6 +150,7 @@ def test_image_embeddings_follow_the_papers_20m_rule(tiny_graph_bundle):
     msm = load_map(tiny_graph_bundle)
     graph = load_scene_graph(tiny_graph_bundle)
     vis = msm.visibility
+    assert vis is not None
     cell_centres = voxel_centres(vis.cell_keys, vis.cell_size)
     cam = msm.images.position
     emb = msm.images.embedding

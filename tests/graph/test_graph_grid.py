@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from terra.graph.grid import build_terrain_grid
+from tests.graph.fixtures import label_parts
 
 SIDEWALK, GRASS = 0, 1
 EIGHT = np.ones((3, 3), dtype=bool)
@@ -53,7 +53,7 @@ def label_at(grid, x: float, y: float) -> int:
 
 
 def sidewalk_pieces(grid) -> int:
-    return int(ndimage.label(grid.label == SIDEWALK, structure=EIGHT)[1])
+    return int(label_parts(grid.label == SIDEWALK, EIGHT)[1])
 
 
 def test_a_sparsely_labelled_stretch_continues_the_strip_it_joins():

@@ -1,5 +1,7 @@
 """GVD and place extraction on hand-made grids, checked against hand-worked geometry."""
 
+from typing import Any
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -8,9 +10,10 @@ from terra.graph.gvd import brushfire, gvd
 from terra.graph.places import extract_places, split_path
 from terra.graph.skeleton import prune_spurs, skeleton_graph
 from terra.graph.thinning import thin
+from tests.graph.fixtures import label_parts
 
 # Cells, not metres: the extraction parameters the pipeline would derive at 0.4 m cells.
-PARAMS = dict(
+PARAMS: dict[str, Any] = dict(
     min_clearance=1.0,
     min_gap=1.5,
     prune_ratio=1.5,
@@ -55,7 +58,7 @@ def pruned_graph(free):
 
 def test_brushfire_matches_brute_force_nearest_obstacle():
     rng = np.random.default_rng(3)
-    free = ndimage.binary_opening(rng.random((24, 31)) < 0.7)
+    free = np.asarray(ndimage.binary_opening(rng.random((24, 31)) < 0.7), dtype=bool)
     fire = brushfire(free)
     rows, cols = np.nonzero(free)
     # Obstacles: the non-free cells plus the frame just outside the grid.
@@ -139,7 +142,7 @@ def test_every_patch_without_gvd_gets_one_place_at_its_largest_clearance():
     free[5:10, 5:10] = True  # a 5x5 patch: its GVD is pruned to nothing but a point
     free[20:35, 20:23] = True
     places = extract_places(free, **PARAMS)
-    labels, n = ndimage.label(free)
+    labels, n = label_parts(free)
     assert set(labels[places.cells[:, 0], places.cells[:, 1]]) == {1, 2}
     small = places.cells[labels[places.cells[:, 0], places.cells[:, 1]] == 1]
     assert len(small) == 1 and tuple(small[0]) == (7, 7)

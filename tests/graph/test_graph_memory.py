@@ -2,11 +2,11 @@
 
 import numpy as np
 import scipy.sparse as sp
-from scipy import ndimage
 
 from terra.graph.embedding import unique_cells
 from terra.graph.gvd import EIGHT, component_sizes, label_components
 from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
+from tests.graph.fixtures import label_parts
 
 
 def test_unique_cells_equals_numpy_unique_by_rows():
@@ -24,13 +24,13 @@ def test_label_components_is_uint16_when_the_labels_fit_and_int32_beyond():
     few = np.zeros((20, 20), bool)
     few[2:5, 2:5] = few[10:12, 14:18] = True
     labels, n = label_components(few)
-    expected, m = ndimage.label(few, structure=EIGHT)
+    expected, m = label_parts(few, EIGHT)
     assert labels.dtype == np.uint16 and n == m == 2 and np.array_equal(labels, expected)
     many = np.zeros((600, 600), bool)
     many[::2, ::2] = True  # 90,000 isolated cells: more than uint16 can number
     labels, n = label_components(many)
     assert labels.dtype == np.int32 and n == 90_000
-    assert np.array_equal(labels, ndimage.label(many, structure=EIGHT)[0])
+    assert np.array_equal(labels, label_parts(many, EIGHT)[0])
 
 
 def test_component_sizes_count_every_label_across_row_blocks():

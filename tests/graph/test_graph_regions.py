@@ -31,6 +31,7 @@ def naive_average_linkage_cut(W: np.ndarray, height: float) -> set[frozenset[int
                     best, pair = d, (a, b)
         if best > height:
             break
+        assert pair is not None
         a, b = pair
         clusters[a] = clusters[a] + clusters[b]
         del clusters[b]

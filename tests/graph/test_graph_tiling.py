@@ -4,6 +4,8 @@ points, and the whole scene graph of the small campus built in several tiles."""
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -74,7 +76,8 @@ def test_edt_parent_is_the_nearest_obstacle_with_the_lowest_column_then_row():
         free = rng.random(tuple(rng.integers(4, 16, 2))) > rng.uniform(0.05, 0.4)
         if free.all():
             continue
-        _, (pr, pc) = ndimage.distance_transform_edt(free, return_indices=True)
+        # scipy's untyped function returns None when given output arrays; here it returns both.
+        _, (pr, pc) = cast(tuple[np.ndarray, np.ndarray], ndimage.distance_transform_edt(free, return_indices=True))
         obstacles = np.argwhere(~free)
         for r, c in np.argwhere(np.ones_like(free)):
             d2 = ((obstacles - (r, c)) ** 2).sum(axis=1)
@@ -198,7 +201,7 @@ def hand_placed_points() -> tuple[np.ndarray, np.ndarray]:
 
 def test_tiled_terrain_grid_equals_the_one_piece_grid():
     points, terrain = hand_placed_points()
-    args = dict(
+    args: dict[str, Any] = dict(
         cell_size=0.4,
         obstacle_height=(0.3, 2.0),
         obstacle_min_points=2,
@@ -213,7 +216,7 @@ def test_tiled_terrain_grid_equals_the_one_piece_grid():
     assert np.array_equal(tiled.label, whole.label) and np.array_equal(tiled.blocked, whole.blocked)
     # Ground is the same wherever a stage reads it: cells holding points, and around labels.
     rows, cols, inside = whole.cell_of(points)
-    read = ndimage.binary_dilation(whole.label >= 0, EIGHT, iterations=2)
+    read = np.asarray(ndimage.binary_dilation(whole.label >= 0, EIGHT, iterations=2), dtype=bool)
     read[rows[inside], cols[inside]] = True
     assert np.array_equal(tiled.ground[read], whole.ground[read])
     # The wall (40 m from any terrain point) is blocked in both: its ground had to come from afar.
@@ -225,7 +228,7 @@ def assert_same_grid(tiled, whole, points: np.ndarray) -> None:
     assert tiled.shape == whole.shape and np.array_equal(tiled.origin, whole.origin)
     assert np.array_equal(tiled.label, whole.label) and np.array_equal(tiled.blocked, whole.blocked)
     rows, cols, inside = whole.cell_of(points)
-    read = ndimage.binary_dilation(whole.label >= 0, EIGHT, iterations=2)
+    read = np.asarray(ndimage.binary_dilation(whole.label >= 0, EIGHT, iterations=2), dtype=bool)
     read[rows[inside], cols[inside]] = True
     assert np.array_equal(tiled.ground[read], whole.ground[read])
 
@@ -302,12 +305,18 @@ def test_tiled_grid_equals_one_piece_where_the_hysteresis_labels_cells_across_ti
 
 def test_an_unbounded_hysteresis_builds_the_grid_in_one_piece_and_says_why():
     points, terrain = sparsely_labelled_strip()
-    args = {"cell_size": 0.4, "support_radius": 0.8, "fill_radius": 0.0, "weak_support": 0.1, "weak_reach": None}
+    args: dict[str, Any] = {
+        "cell_size": 0.4,
+        "support_radius": 0.8,
+        "fill_radius": 0.0,
+        "weak_support": 0.1,
+        "weak_reach": None,
+    }
     stats = TiledGridStats()
     tiled = build_terrain_grid_tiled(points, terrain, **args, tile=20, margin=4, stats=stats)
     whole = build_terrain_grid(points, terrain, **args)
     assert_same_grid(tiled, whole, points)
-    assert stats.windows == 0 and "weak_reach is null" in stats.one_piece
+    assert stats.windows == 0 and stats.one_piece is not None and "weak_reach is null" in stats.one_piece
 
 
 # --------------------------------------------------------------------------- the scene graph

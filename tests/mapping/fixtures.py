@@ -56,17 +56,17 @@ class TruthRecorder:
     def global_map(self):
         return self._dataset.global_map()
 
-    def __getitem__(self, i: int) -> Frame:
+    def __getitem__(self, index: int) -> Frame:
         from terra.geometry import voxel_keys
         from terra.mapping.projection import visible_points
 
-        frame = self._dataset[i]
+        frame = self._dataset[index]
         points_map = transform_points(frame.T_map_lidar, frame.points.astype(np.float64))
         labels = np.asarray(frame.point_labels, np.int64)
-        self.label_pairs[i] = _count_pairs(voxel_keys(points_map, self.voxel_size), labels, np.ones(labels.size))
+        self.label_pairs[index] = _count_pairs(voxel_keys(points_map, self.voxel_size), labels, np.ones(labels.size))
         for c, camera in enumerate(frame.cameras):
             seen = visible_points(frame.points, camera.calibration)
-            self.nearest_seen[(i, c)] = points_map[seen.index[np.argmin(seen.distance)]]
+            self.nearest_seen[(index, c)] = points_map[seen.index[np.argmin(seen.distance)]]
         return frame
 
     def point_truth(self) -> np.ndarray:
@@ -204,7 +204,7 @@ def box_camera(
     """A forward-looking camera (optical z = LiDAR +x) 0.2 m above and 0.1 m ahead of the LiDAR."""
     R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # rows: cam x, y, z in LiDAR axes
     T_cam_lidar = make_pose(R, -R @ np.array([0.1, 0.0, 0.2]))
-    K = [[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1]]
+    K = np.array([[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1]])
     return CameraCalibration("front", width, height, K, np.asarray(dist), T_cam_lidar)
 
 
@@ -231,18 +231,18 @@ class BoxScene:
         return self.n_frames
 
     def pose(self, i: int) -> np.ndarray:
-        return make_pose(np.eye(3), [-6.0 + self.step * i, 0.0, 1.8])
+        return make_pose(np.eye(3), np.array([-6.0 + self.step * i, 0.0, 1.8]))
 
-    def __getitem__(self, i: int) -> Frame:
-        if not 0 <= i < self.n_frames:
-            raise IndexError(i)
-        T = self.pose(i)
+    def __getitem__(self, index: int) -> Frame:
+        if not 0 <= index < self.n_frames:
+            raise IndexError(index)
+        T = self.pose(index)
         dirs = lidar_directions()
         dist, cls, inst = cast(T[:3, 3], dirs, self.boxes)
         ok = np.isfinite(dist)
         points = (dirs[ok] * dist[ok, None]).astype(np.float32)  # LiDAR frame (no rotation)
-        cameras = [self.render(T, float(i))] if self.with_cameras else []
-        return Frame(i, float(i), points, T, cameras, point_labels=cls[ok], point_instances=inst[ok])
+        cameras = [self.render(T, float(index))] if self.with_cameras else []
+        return Frame(index, float(index), points, T, cameras, point_labels=cls[ok], point_instances=inst[ok])
 
     def render(self, T_map_lidar: np.ndarray, stamp: float) -> CameraFrame:
         cam = self.camera

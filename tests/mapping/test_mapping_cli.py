@@ -167,6 +167,7 @@ def test_killed_process_resumes_to_the_same_bytes(tiny_bundle, tmp_path, capsys)
         time.sleep(0.02)
     child.send_signal(signal.SIGKILL)  # a no-op when the child has already exited
     child.wait()
+    assert child.stderr is not None  # stderr=PIPE
     assert child.returncode == -signal.SIGKILL, child.stderr.read().decode()
     assert state.is_file() and not out.exists()
     capsys.readouterr()

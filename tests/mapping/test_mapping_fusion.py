@@ -89,7 +89,7 @@ def test_largest_cluster_per_group_equals_one_dbscan_per_group():
 
 def _identity_camera(width=20, height=10):
     # Camera frame = LiDAR frame; f = 10 px, centre (10, 5): point (x, y, 10) -> pixel (5 + y, 10 + x).
-    return CameraCalibration("cam", width, height, [[10, 0, 10], [0, 10, 5], [0, 0, 1]])
+    return CameraCalibration("cam", width, height, np.array([[10, 0, 10], [0, 10, 5], [0, 0, 1]]))
 
 
 def test_votes_and_one_count_per_point_entry_and_image():

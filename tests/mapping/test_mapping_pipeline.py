@@ -88,11 +88,11 @@ class FailingAfter(BoxScene):
         super().__init__(*args, **kwargs)
         self.read: set[int] = set()
 
-    def __getitem__(self, i):
-        if i == self.fail_at and i - 1 in self.read:
-            raise Interrupted(f"killed at frame {i}")
-        self.read.add(i)
-        return super().__getitem__(i)
+    def __getitem__(self, index):
+        if index == self.fail_at and index - 1 in self.read:
+            raise Interrupted(f"killed at frame {index}")
+        self.read.add(index)
+        return super().__getitem__(index)
 
 
 def test_resume_after_interruption_is_byte_identical(tmp_path, box_run, text_embedder):
@@ -107,9 +107,9 @@ def test_resume_after_interruption_is_byte_identical(tmp_path, box_run, text_emb
     loaded = []
 
     class Counting(BoxScene):
-        def __getitem__(self, i):
-            loaded.append(i)
-            return super().__getitem__(i)
+        def __getitem__(self, index):
+            loaded.append(index)
+            return super().__getitem__(index)
 
     run = run_mapping(Counting(), config, out, show_progress=False)
     # The dataset fingerprint reads its sample frames first; then frames 0-3 are not redone.
@@ -128,22 +128,25 @@ class Faulty(BoxScene):
     def __init__(self):
         super().__init__(n_frames=9)
 
-    def __getitem__(self, i):
-        frame = super().__getitem__(i)
-        if i == 1:
+    def __getitem__(self, index):
+        frame = super().__getitem__(index)
+        if index == 1:
             frame.points[:7] = np.nan
-        elif i == 2:
+        elif index == 2:
             frame.points = np.zeros((0, 3), np.float32)
+            assert frame.point_labels is not None
             frame.point_labels = frame.point_labels[:0]
-        elif i == 3:
-            raise TerraError(f"frame{i}.npy: unreadable scan")
-        elif i == 4:
+        elif index == 3:
+            raise TerraError(f"frame{index}.npy: unreadable scan")
+        elif index == 4:
             frame.cameras[0].stamp += 1.0
-        elif i == 6:
+        elif index == 6:
             frame.T_map_lidar = np.full((4, 4), np.nan)
-        elif i == 7:
-            frame.cameras[0].semantic = frame.cameras[0].semantic[:-1]
-        elif i == 8:
+        elif index == 7:
+            semantic = frame.cameras[0].semantic
+            assert semantic is not None
+            frame.cameras[0].semantic = semantic[:-1]
+        elif index == 8:
             frame.points = frame.points[:, :2]
         return frame
 
@@ -181,8 +184,8 @@ def test_per_frame_faults_are_skipped_and_counted(tmp_path, text_embedder):
 
 
 class Broken(BoxScene):
-    def __getitem__(self, i):
-        raise TerraError(f"scan_{i}.bin: truncated file")
+    def __getitem__(self, index):
+        raise TerraError(f"scan_{index}.bin: truncated file")
 
 
 def test_structural_faults_stop_and_keep_the_old_bundle(tmp_path, box_run):

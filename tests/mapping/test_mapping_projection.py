@@ -6,7 +6,7 @@ from terra.geometry import CameraCalibration, make_pose
 from terra.mapping.projection import visible_points
 from tests.mapping.fixtures import box_camera
 
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
+K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 
 
 def test_pinhole_pixels_hand_computed():
@@ -31,10 +31,15 @@ def test_pinhole_pixels_hand_computed():
 
 
 def test_distortion_and_extrinsics_hand_computed():
-    dist = [0.1, -0.05, 0.001, 0.002, 0.0]
+    dist = np.array([0.1, -0.05, 0.001, 0.002, 0.0])
     # Camera 2 m in front of the LiDAR along its z axis, axes aligned: p_cam = p_lidar - (0, 0, 2).
     cam = CameraCalibration(
-        "c", 640, 480, [[400, 0, 320], [0, 400, 240], [0, 0, 1]], dist, make_pose(np.eye(3), [0, 0, -2.0])
+        "c",
+        640,
+        480,
+        np.array([[400, 0, 320], [0, 400, 240], [0, 0, 1]]),
+        dist,
+        make_pose(np.eye(3), np.array([0, 0, -2.0])),
     )
     x, y = 0.2, 0.1
     r2 = x * x + y * y

@@ -15,8 +15,9 @@ from tests.mapping.fixtures import BoxScene
 
 
 def random_map(rng, n=60, k=7, d=5) -> MetricSemanticMap:
+    # scipy still takes random_state (a legacy RandomState stream) through a decorator that pyright does not see.
     counts = (
-        sp.random(n, k, density=0.2, random_state=np.random.RandomState(1), data_rvs=lambda s: rng.integers(1, 5, s))
+        sp.random(n, k, density=0.2, random_state=np.random.RandomState(1), data_rvs=lambda s: rng.integers(1, 5, s))  # pyright: ignore[reportCallIssue]
         .tocsr()
         .astype(np.int32)
     )

@@ -18,7 +18,7 @@ from terra.odometry.trajectory import kitti_text, read_kitti, tum_text
 def _poses(n=6):
     return np.stack(
         [
-            make_pose(Rotation.from_euler("zyx", [0.1 * k, 0.01, -0.02 * k]).as_matrix(), [k, 0.5 * k, 0.1])
+            make_pose(Rotation.from_euler("zyx", [0.1 * k, 0.01, -0.02 * k]).as_matrix(), np.array([k, 0.5 * k, 0.1]))
             for k in range(n)
         ]
     )
@@ -35,13 +35,13 @@ def test_kitti_and_tum_text():
 
 
 def test_errors_by_hand():
-    ref = np.stack([make_pose(np.eye(3), [k, 0.0, 0.0]) for k in range(11)])  # 10 m straight
+    ref = np.stack([make_pose(np.eye(3), np.array([k, 0.0, 0.0])) for k in range(11)])  # 10 m straight
     est = ref.copy()
     est[:, 1, 3] = np.linspace(0.0, 0.1, 11)  # drifts sideways to 0.1 m at the end
     e = trajectory_errors(est, ref)
     assert e["distance_m"] == pytest.approx(10.0) and e["final_error_m"] == pytest.approx(0.1)
     assert e["drift_percent"] == pytest.approx(1.0)
-    moved = np.stack([make_pose(Rotation.from_euler("z", 0.3).as_matrix(), [4, -2, 1]) @ T for T in ref])
+    moved = np.stack([make_pose(Rotation.from_euler("z", 0.3).as_matrix(), np.array([4, -2, 1])) @ T for T in ref])
     assert trajectory_errors(moved, ref)["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)  # ATE aligns rigidly
 
 
@@ -68,8 +68,11 @@ class _Frames:
     def __len__(self):
         return len(self.frames)
 
-    def __getitem__(self, i):
-        return self.frames[i]
+    def __getitem__(self, index):
+        return self.frames[index]
+
+    def global_map(self):
+        return None
 
 
 def _motion(t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +90,7 @@ def _motion(t: float) -> tuple[np.ndarray, np.ndarray]:
         y = np.trapezoid(speed * np.sin(heading), ts)
     else:
         y = 0.0
-    pose = make_pose(Rotation.from_rotvec([0, 0, yaw]).as_matrix(), [x, y, 0.0])
+    pose = make_pose(Rotation.from_rotvec([0, 0, yaw]).as_matrix(), np.array([x, y, 0.0]))
     return pose, np.array([0, 0, 0.1 * ramp, 1.5 * ramp, 0, 0])
 
 
@@ -105,7 +108,7 @@ def _drive(skew: bool):
     for k in range(60):
         T, velocity = _motion(0.1 * k)
         local = transform_points(invert_pose(T), world)
-        if skew:  # the sensor at stamp + tau sits at [R(tau w), tau v] in the frame at the stamp
+        if times is not None:  # skew: the sensor at stamp + tau is at [R(tau w), tau v] in the stamp's frame
             tau = times[:, None]
             local = Rotation.from_rotvec(tau * velocity[:3]).inv().apply(local - tau * velocity[3:])
         frames.append(Frame(k, 0.1 * k, local.astype(np.float32), T, point_times=times))
@@ -114,6 +117,7 @@ def _drive(skew: bool):
 
 def test_kiss_icp_recovers_a_simulated_drive_within_one_percent():
     run = run_odometry(_Frames(_drive(skew=False)), OdometryConfig(), show_progress=False)
+    assert run.errors is not None and run.reference is not None
     assert run.errors["distance_m"] > 7.0
     assert run.errors["drift_percent"] < 1.0, run.errors
     np.testing.assert_allclose(run.poses[0], run.reference[0])  # the map frame is the source's first pose
@@ -125,6 +129,7 @@ def test_deskewed_drive_within_one_percent_and_its_scans_straightened():
     skewed, straight = _drive(skew=True), _drive(skew=False)
     dataset = OdometryDataset(_Frames(skewed), OdometryConfig(), show_progress=False)
     assert dataset.run.deskewed == len(skewed) - 1
+    assert dataset.run.errors is not None
     assert dataset.run.errors["drift_percent"] < 1.0, dataset.run.errors
     k = 40
     before = np.linalg.norm(skewed[k].points - straight[k].points, axis=1).max()
@@ -156,5 +161,6 @@ def test_kiss_icp_on_a_rendered_simulated_drive_with_a_wobbling_lidar():
 
     config = {"cameras": [], "lidar": {"wobble_deg": 2.0}, "route": {"frame_spacing": 0.15, "max_frames": 80}}
     run = run_odometry(simulate("small", 0, SimConfig.model_validate(config)), OdometryConfig(), show_progress=False)
+    assert run.errors is not None
     assert run.errors["distance_m"] > 11.0
     assert run.errors["drift_percent"] < 1.0, run.errors

@@ -46,12 +46,18 @@ def _reference_features(clip: ClipEmbedder, images: list[np.ndarray]) -> np.ndar
     """Unit image features through transformers' own CLIPProcessor (the independent reference)."""
     import torch
     from transformers import CLIPProcessor
+    from transformers.modeling_outputs import BaseModelOutputWithPooling
 
     processor = CLIPProcessor.from_pretrained(str(clip.folder))
     clip.embed_crops(images[:1])  # loads the network
+    model = clip._model
+    assert model is not None
     with torch.no_grad():
-        out = clip._model.get_image_features(**processor(images=images, return_tensors="pt"))
-    features = (out if hasattr(out, "shape") else out.pooler_output).numpy()
+        out = model.get_image_features(**processor(images=images, return_tensors="pt"))
+    # A tensor in transformers 4; an output object with the projection in pooler_output in transformers 5.
+    projected = out.pooler_output if isinstance(out, BaseModelOutputWithPooling) else out
+    assert isinstance(projected, torch.Tensor)
+    features = projected.numpy()
     return features / np.linalg.norm(features, axis=1, keepdims=True)
 
 

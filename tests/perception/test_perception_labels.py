@@ -33,7 +33,7 @@ def labelled_camera() -> CameraFrame:
     inst[6:9, 1:4] = 3
     sem[7:11, 6:10] = 5
     inst[7:11, 6:10] = 9
-    calib = CameraCalibration("cam", W, H, [[10, 0, 8], [0, 10, 6], [0, 0, 1]])
+    calib = CameraCalibration("cam", W, H, np.array([[10, 0, 8], [0, 10, 6], [0, 0, 1]]))
     return CameraFrame(calib, 0.0, np.zeros((H, W, 3), np.uint8), sem, inst, "cam.png")
 
 
@@ -88,20 +88,22 @@ def test_dilation_grows_each_mask_by_k_pixels():
 
 def test_noise_misses_confuses_and_is_seeded(text_embedder):
     cam = labelled_camera()
-    missing = get_perception(PerceptionConfig(noise={"miss_rate": 1.0}), CLASSES)
+    missing = get_perception(PerceptionConfig.model_validate({"noise": {"miss_rate": 1.0}}), CLASSES)
     assert len(missing.perceive(cam, np.random.default_rng(0)).masks) == 0
-    confused = get_perception(PerceptionConfig(noise={"confusion_rate": 1.0}), CLASSES)
+    confused = get_perception(PerceptionConfig.model_validate({"noise": {"confusion_rate": 1.0}}), CLASSES)
     seen = confused.perceive(cam, np.random.default_rng(0))
     assert seen.masks.class_ids.tolist() == [7, 6, 6]  # building has no look-alike; car -> truck
     # Terrain classes swap with their look-alikes (sidewalk <-> asphalt) for the whole image.
     np.testing.assert_array_equal(seen.terrain, np.where(cam.semantic == 1, 1, np.where(cam.semantic == 2, 0, -1)))
     np.testing.assert_allclose(seen.mask_embeddings[1], text_embedder.embed_text(["truck"])[0], atol=1e-6)
-    realistic = get_perception(PerceptionConfig(noise="realistic"), CLASSES)
+    realistic = get_perception(PerceptionConfig.model_validate({"noise": "realistic"}), CLASSES)
     a = realistic.perceive(cam, np.random.default_rng([0, 4, 0]))
     b = realistic.perceive(cam, np.random.default_rng([0, 4, 0]))
     np.testing.assert_array_equal(a.masks.to_stack(), b.masks.to_stack())
     # Dilation: every mask grows by 3 px in every direction (clipped to the image).
-    dilated = get_perception(PerceptionConfig(noise={"dilate_px": 3}), CLASSES).perceive(cam, np.random.default_rng(0))
+    dilated = get_perception(PerceptionConfig.model_validate({"noise": {"dilate_px": 3}}), CLASSES).perceive(
+        cam, np.random.default_rng(0)
+    )
     car = dilated.masks.to_stack()[1]
     expected = np.zeros_like(car)
     expected[3:12, 0:7] = True  # instance 3 spans rows 6-8, cols 1-3
@@ -127,5 +129,5 @@ def test_unknown_backend_and_noise_preset_are_one_line_errors():
     with pytest.raises(TerraError, match="perception.backend 'yolo'"):
         get_perception(PerceptionConfig(backend="yolo"), CLASSES)
     with pytest.raises(ValidationError, match="unknown noise preset"):
-        PerceptionConfig(noise="heavy")
-    assert PerceptionConfig(noise={"preset": "realistic", "dilate_px": 1}).noise.dilate_px == 1
+        PerceptionConfig.model_validate({"noise": "heavy"})
+    assert PerceptionConfig.model_validate({"noise": {"preset": "realistic", "dilate_px": 1}}).noise.dilate_px == 1

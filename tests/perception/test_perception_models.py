@@ -5,6 +5,7 @@ runtime's offline guard, and an end-to-end `terra map` on the tiny simulated cam
 from __future__ import annotations
 
 import hashlib
+import importlib
 
 import numpy as np
 import pytest
@@ -32,7 +33,7 @@ def _camera(image: np.ndarray) -> CameraFrame:
     from terra.geometry import CameraCalibration
 
     h, w = image.shape[:2]
-    calib = CameraCalibration("cam0", w, h, [[500.0, 0, w / 2], [0, 500.0, h / 2], [0, 0, 1]])
+    calib = CameraCalibration("cam0", w, h, np.array([[500.0, 0, w / 2], [0, 500.0, h / 2], [0, 0, 1]]))
     return CameraFrame(calib, 0.0, image)
 
 
@@ -164,7 +165,7 @@ def test_missing_files_and_bad_settings_say_what_to_provide(tiny_models, tmp_pat
 
 def test_pt_weights_need_the_ultralytics_extra(tiny_models, tmp_path):
     try:
-        import ultralytics  # noqa: F401
+        importlib.import_module("ultralytics")
 
         pytest.skip("ultralytics imports here: the guard is not reachable")
     except Exception:
@@ -181,6 +182,9 @@ def test_pt_weights_need_the_ultralytics_extra(tiny_models, tmp_path):
 
 def test_terrain_evaluation_loads_only_the_terrain_model(tiny_models):
     segmenter = get_terrain_segmenter(_config(tiny_models, clip={"model": None}, masks={"model": None}), SIM_CLASSES)
+    from terra.perception.models import ModelTerrainSegmenter
+
+    assert isinstance(segmenter, ModelTerrainSegmenter)
     assert segmenter.terrain_classes == SIM_TERRAIN and segmenter.timed
 
 

