@@ -287,7 +287,7 @@ def table(frames: int, rate: dict, startup: dict, ceiling: dict, maps: dict, ide
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny CLIP and 6 frames (checks the script)")
     parser.add_argument("--frames", type=int, default=None, help="frames of the tiny campus (default 12; 6 quick)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/terra-bench-distributed"), help="models, data, caches")

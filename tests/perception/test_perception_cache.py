@@ -79,15 +79,39 @@ def test_entry_round_trip_is_exact(with_ids):
     assert back.image_embedding.tobytes() == seen.image_embedding.tobytes()
 
 
+class _NoParts:
+    """The four perception parts of a backend that overrides `perceive`: never called."""
+
+    name = "counting"
+    dim = 8
+    terrain_classes: list[str] = []
+
+    def segment_terrain(self, camera, rng) -> np.ndarray:
+        raise AssertionError("Counting.perceive does not segment")
+
+    def propose_masks(self, camera, rng) -> MaskSet:
+        raise AssertionError("Counting.perceive does not propose masks")
+
+    def embed_masks(self, camera, masks) -> np.ndarray:
+        raise AssertionError("Counting.perceive does not embed masks")
+
+    def embed_text(self, texts) -> np.ndarray:
+        raise AssertionError("Counting.perceive does not embed texts")
+
+    def embed_image(self, camera) -> np.ndarray:
+        raise AssertionError("Counting.perceive does not embed images")
+
+
 class Counting(Perception):
     """A perception that counts its inferences and returns `_sample` (shifted by the image's mean)."""
 
     def __init__(self, random: bool = False):
+        parts = _NoParts()
         super().__init__(
-            None,
-            None,
-            None,
-            None,
+            parts,
+            parts,
+            parts,
+            parts,
             backend="counting",
             identity={"backend": "counting"},
             random=random,
@@ -180,7 +204,8 @@ def test_map_twice_second_run_does_no_inference_and_gives_the_same_bytes(tmp_pat
     config = MappingConfig.model_validate(CACHE_ON)
     first = CountingBackend(config)
     run1 = run_mapping(BoxScene(), config, tmp_path / "a.terra", show_progress=False, perception=first.perception)
-    assert first.calls == 6 and run1.cache is not None and run1.cache.computed == 6 and run1.cache.hits == 0
+    assert run1.cache is not None
+    assert first.calls == 6 and run1.cache.computed == 6 and run1.cache.hits == 0
     assert (tmp_path / "a.terra.work" / "perception").is_dir()
     second = CountingBackend(config)
     shared = MappingConfig.model_validate(
@@ -213,7 +238,8 @@ def test_perception_only_fills_what_the_map_reads(tmp_path, text_embedder):
     assert not (tmp_path / "m.terra").exists()  # no bundle
     mapper = CountingBackend(config)
     mapped = run_mapping(BoxScene(), config, tmp_path / "m.terra", show_progress=False, perception=mapper.perception)
-    assert mapper.calls == 0 and mapped.cache is not None and mapped.cache.hits == 6
+    assert mapped.cache is not None
+    assert mapper.calls == 0 and mapped.cache.hits == 6
 
 
 def test_perception_only_needs_the_cache(tmp_path, text_embedder):

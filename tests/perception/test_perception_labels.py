@@ -92,6 +92,7 @@ def test_noise_misses_confuses_and_is_seeded(text_embedder):
     assert len(missing.perceive(cam, np.random.default_rng(0)).masks) == 0
     confused = get_perception(PerceptionConfig.model_validate({"noise": {"confusion_rate": 1.0}}), CLASSES)
     seen = confused.perceive(cam, np.random.default_rng(0))
+    assert seen.masks.class_ids is not None
     assert seen.masks.class_ids.tolist() == [7, 6, 6]  # building has no look-alike; car -> truck
     # Terrain classes swap with their look-alikes (sidewalk <-> asphalt) for the whole image.
     np.testing.assert_array_equal(seen.terrain, np.where(cam.semantic == 1, 1, np.where(cam.semantic == 2, 0, -1)))
