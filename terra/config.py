@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ValidationError
 
 from terra.errors import TerraError
-from terra.schemas import Strict
+from terra.schemas import validation_message
 
 if TYPE_CHECKING:
     from terra.eval.config import EvalConfig
@@ -32,12 +32,6 @@ if TYPE_CHECKING:
     from terra.odometry.config import OdometryConfig
     from terra.sim.config import SimConfig
     from terra.tasks.config import TasksConfig
-
-
-class Section(Strict):
-    """Base of every config section: unknown keys are errors, values are validated on assignment."""
-
-    model_config = ConfigDict(validate_assignment=True)
 
 
 # Stage -> "module:Class", imported only when that stage is asked for (see the module docstring).
@@ -61,13 +55,6 @@ def _section_class(stage: str) -> type[BaseModel]:
 
 def stage_names() -> list[str]:
     return list(_SECTIONS)
-
-
-def validation_message(source: str, exc: ValidationError) -> str:
-    """One line naming the first bad field and what was expected."""
-    err = exc.errors()[0]
-    where = ".".join(str(p) for p in err["loc"]) or "(root)"
-    return f"{source}: field '{where}': {err['msg']}"
 
 
 class TerraConfig:

@@ -1,7 +1,7 @@
 """Typed contracts of the structured files Terra reads, checked at the boundary (DESIGN.md decision 13).
 
 `read_model(path, Model)` reads a JSON or YAML file safely (terra.fileio) and validates it; every
-failure is one line naming the file and the first bad field (terra.config.validation_message).
+failure is one line naming the file and the first bad field (validation_message).
 Past this point code may trust types, ranges and finiteness.
 
 Two rules for unknown keys: files Terra writes (bundle manifest, map metadata, scene graph) accept
@@ -37,9 +37,10 @@ MAX_REGION_LEVELS = 8  # region level chars 'R'..'Y' (terra.graph.storage)
 
 
 def validation_message(source: str, exc: ValidationError) -> str:
-    from terra.config import validation_message as message
-
-    return message(source, exc)
+    """One line naming the first bad field and what was expected."""
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"]) or "(root)"
+    return f"{source}: field '{where}': {err['msg']}"
 
 
 def validate_model(data: Any, model: type[M], source: str | Path) -> M:
@@ -97,6 +98,13 @@ class Strict(BaseModel):
     documents): unknown keys are refused, so a misspelt key is named; floats are finite."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Section(Strict):
+    """Base of every config section (terra.config hands them out): values are also validated on
+    assignment."""
+
+    model_config = ConfigDict(validate_assignment=True)
 
 
 class _Written(BaseModel):

@@ -62,7 +62,7 @@ def build(model: type[R], source: str, values: dict[str, Any]) -> R:
     """`model` from `values`; TerraError (one line naming the field) when they do not fit."""
     from pydantic import ValidationError
 
-    from terra.config import validation_message
+    from terra.schemas import validation_message
 
     try:
         return model.model_validate(values)

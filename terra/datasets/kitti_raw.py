@@ -36,7 +36,6 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator
 
-from terra.config import Section
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
 from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_raw, read_rgb
@@ -44,6 +43,7 @@ from terra.datasets.kitti_common import CalibFile, check_rotation, read_calib_fi
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
+from terra.schemas import Section
 
 CAM_TO_CAM = "calib_cam_to_cam.txt"
 VELO_TO_CAM = "calib_velo_to_cam.txt"

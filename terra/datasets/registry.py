@@ -15,10 +15,10 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from terra.config import Section, validation_message
 from terra.datasets.base import Dataset
 from terra.errors import TerraError
 from terra.registry import Registry
+from terra.schemas import Section, validation_message
 
 
 class NoOptions(Section):

@@ -27,7 +27,6 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import read_classes
 from terra.datasets.registry import Loader
@@ -41,6 +40,7 @@ from terra.datasets.ros.topics import CameraTopics, choose_cameras, choose_lidar
 from terra.datasets.sync import nearest
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration
+from terra.schemas import Section
 
 PREFERRED_MAP_FRAMES = ("map", "odom", "world")
 

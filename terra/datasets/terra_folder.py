@@ -40,7 +40,6 @@ import numpy as np
 import yaml
 from pydantic import Field
 
-from terra.config import Section
 from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (
     calibration_from_json,
@@ -64,6 +63,7 @@ from terra.errors import TerraError
 from terra.geometry import CameraCalibration, pose_from_xyz_quat, pose_to_xyz_quat, transform_points, voxel_keys
 from terra.npy import write_npy
 from terra.progress import progress
+from terra.schemas import Section
 
 POSES = "transformations_lidar2global"
 SCANS = "lidar_pc"

@@ -22,8 +22,8 @@ from typing import Any
 
 from pydantic import Field, ValidationError, field_validator
 
-from terra.config import Section
 from terra.errors import TerraError
+from terra.schemas import Section
 
 SCHEDULER_ENV = "TERRA_DASK_SCHEDULER"
 # Loggers that report a cluster's shutdown (closed connections, cancelled tasks) as warnings.

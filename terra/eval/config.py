@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from terra.config import Section
+from terra.schemas import Section
 from terra.tasks.config import RETRIEVAL_METHODS, RetrievalMethod
 
 

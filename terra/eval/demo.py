@@ -35,7 +35,6 @@ import numpy as np
 
 from terra import __version__
 from terra.bundle import atomic_write_bytes, dumps_json
-from terra.config import Section
 from terra.datasets.ground_truth import GroundTruth, load_ground_truth
 from terra.errors import TerraError
 from terra.eval.config import EvalConfig
@@ -46,6 +45,7 @@ from terra.graph.scene_graph import SceneGraph
 from terra.loaded import LoadedBundle
 from terra.mapping.config import MappingConfig
 from terra.progress import StageTimer
+from terra.schemas import Section
 from terra.sim.config import SimConfig
 from terra.tasks.config import TasksConfig
 from terra.words import counted

@@ -12,8 +12,8 @@ from typing import Literal, get_args
 
 from pydantic import Field, field_validator
 
-from terra.config import Section
 from terra.errors import TerraError
+from terra.schemas import Section
 
 RegionMethod = Literal["agglomerative", "spectral"]
 REGION_METHODS: tuple[RegionMethod, ...] = get_args(RegionMethod)  # the one list of region methods

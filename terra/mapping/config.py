@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from terra.config import Section
 from terra.perception.config import NOISE_PRESETS, NoiseConfig, PerceptionConfig
+from terra.schemas import Section
 
 __all__ = [
     "MappingConfig",

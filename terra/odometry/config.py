@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from terra.config import Section
+from terra.schemas import Section
 
 
 class OdometryConfig(Section):

@@ -6,8 +6,8 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator
 
-from terra.config import Section
 from terra.perception.models_config import ModelsConfig
+from terra.schemas import Section
 
 # Look-alike classes a real segmenter confuses (by class name; names missing from a source's class
 # table are ignored). Used by the perception noise model.

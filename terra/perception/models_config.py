@@ -14,7 +14,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from terra.config import Section
+from terra.schemas import Section
 
 Runtime = Literal["auto", "yolo-onnx", "ultralytics"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from terra.config import Section
+from terra.schemas import Section
 
 LOOPBACK = "127.0.0.1"
 TOKEN_ENV = "TERRA_SERVE_TOKEN"

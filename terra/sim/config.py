@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from terra.config import Section
+from terra.schemas import Section
 
 
 class LidarConfig(Section):

@@ -14,7 +14,7 @@ from typing import Literal, get_args
 
 from pydantic import Field
 
-from terra.config import Section
+from terra.schemas import Section
 
 RetrievalMethod = Literal["ms-avg", "ms-max", "3dsg"]
 MonitorMethod = Literal["mix", "max", "thresh", "aib"]

@@ -25,9 +25,8 @@ from typing import Any
 
 from pydantic import Field, ValidationError, field_validator
 
-from terra.config import validation_message
 from terra.errors import TerraError
-from terra.schemas import Strict
+from terra.schemas import Strict, validation_message
 
 OBJECT_METHODS = {
     "ms_avg": ("ms-avg", None),

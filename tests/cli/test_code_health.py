@@ -32,7 +32,7 @@ def long_functions() -> dict[str, int]:
 def test_no_function_of_60_lines_or_more_outside_the_numeric_kernels():
     found = long_functions()
     assert set(found) - NUMERIC_KERNELS == set(), found
-    assert all(name in found or (REPO / name.split(":")[0]).is_file() for name in NUMERIC_KERNELS)
+    assert all((REPO / name.split(":")[0]).is_file() for name in NUMERIC_KERNELS)  # the exemption names real files
 
 
 def test_the_help_imports_no_numeric_or_model_library():
