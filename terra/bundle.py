@@ -343,16 +343,51 @@ def _sync_tree(folder: Path) -> None:
             os.close(fd)
 
 
-def check_output_folder(out: str | Path, overwrite: bool) -> None:
-    """TerraError unless folder `out` may be written: absent, empty, or `overwrite` (then it is
-    replaced as a whole when the new one is complete)."""
+def check_output_folder(
+    out: str | Path,
+    overwrite: bool,
+    kind: str = "output folder",
+    is_own: Callable[[Path], bool] | None = None,
+    marker: str = "",
+) -> None:
+    """TerraError unless folder `out` may be written: absent, empty, or an output of this kind
+    (`is_own`: recognised by its `marker` file and that file's schema) with `overwrite`, which is then replaced as a
+    whole when the new one is complete. A folder that is not of this kind is never replaced, even
+    with `overwrite`: it may be a user's, and only `--overwrite` stood between it and deletion."""
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise TerraError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise TerraError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
+        raise TerraError(f"{out}: exists and is not a folder; choose another --out")
+    if out.is_dir() and any(out.iterdir()):
+        if is_own is not None and not _recognised(is_own, out):
+            raise TerraError(
+                f"{out}: exists and is not a {kind} (no valid {marker or 'marker file'}; it holds "
+                f"{found_entries(out)}); Terra never replaces "
+                "a folder it did not write: choose another --out, or empty it yourself"
+            )
+        if not overwrite:
+            raise TerraError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
     if not out.absolute().parent.exists():
         raise TerraError(f"{out.absolute().parent}: parent folder does not exist")
+
+
+def _recognised(is_own: Callable[[Path], bool], out: Path) -> bool:
+    """Whether `is_own` recognises `out`; a marker that fails its schema is not recognised."""
+    try:
+        return bool(is_own(out))
+    except (TerraError, OSError, ValueError):
+        return False
+
+
+def found_entries(folder: Path, shown: int = 3) -> str:
+    """A few entries of `folder` for a message, e.g. "thesis.txt, notes/ and 4 more"."""
+    names = sorted(f"{p.name[:40]}{'/' if p.is_dir() else ''}" for p in folder.iterdir())
+    more = len(names) - shown
+    return ", ".join(names[:shown]) + (f" and {more} more" if more > 0 else "")
+
+
+def is_bundle(folder: Path) -> bool:
+    """Whether `folder` is a Terra bundle: its manifest.json reads and validates."""
+    return (Path(folder) / MANIFEST).is_file() and Bundle(folder).model is not None
 
 
 def atomic_folder(out: str | Path, fill: Callable[[Path], None], what: str = "output folder") -> Path:
@@ -567,8 +602,17 @@ class BundleWriter:
             self.model.files[file_name] = entry
 
     def _edit(self, **changes: Any) -> None:
-        """Set top-level manifest fields (JSON values), validated as the manifest model."""
-        self.model = _manifest({**manifest_json(self.model), **changes})
+        """Set top-level manifest fields (JSON values), validated as the manifest model: a value
+        the schema refuses (a user's duplicate class name, an oversized embedder name) is one
+        TerraError line naming the field, raised before anything is committed."""
+        from pydantic import ValidationError
+
+        from terra.schemas import validation_message
+
+        try:
+            self.model = _manifest({**manifest_json(self.model), **changes})
+        except ValidationError as exc:
+            raise TerraError(validation_message(f"{self.path / MANIFEST}", exc)) from None
 
     def set_embedder(self, name: str, dim: int) -> None:
         """The text embedder whose space the stored embeddings are in."""

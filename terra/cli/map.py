@@ -227,10 +227,12 @@ def _map(spec, source, mapping, out: Path, cluster, show_progress: bool) -> MapR
 
 
 def _check_out(out: Path, overwrite: bool) -> None:
-    """The common rule (terra.cli.outputs): an existing bundle needs --overwrite; an unfinished run
-    (OUT.partial/) resumes."""
+    """The common rule (terra.cli.outputs): a folder that is not a bundle is refused even with
+    --overwrite; an existing bundle needs --overwrite; an unfinished run (OUT.partial/) resumes."""
     from terra.cli.outputs import refuse_existing
+    from terra.mapping.pipeline import check_output
 
+    check_output(Path(out))
     refuse_existing(out, overwrite)
 
 

@@ -52,6 +52,12 @@ def write_classes(root: Path, classes: ClassTable) -> None:
     (Path(root) / CLASSES_FILE).write_text(json.dumps({"classes": classes.to_json()}, indent=1) + "\n")
 
 
+def is_terra_dataset(root: Path) -> bool:
+    """Whether folder `root` is a dataset Terra wrote: its classes.json reads as a class table
+    (TerraError from a malformed one)."""
+    return (Path(root) / CLASSES_FILE).is_file() and read_classes(root) is not None
+
+
 def read_classes(root: Path) -> ClassTable | None:
     """The class table in `root/classes.json`, or None when the folder has none."""
     from terra.schemas import ClassesFile, read_model

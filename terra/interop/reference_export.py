@@ -126,6 +126,15 @@ def sidecar(msm: MetricSemanticMap, bundle: Bundle, image_range: float) -> dict[
     }
 
 
+def is_reference_export(folder: Path) -> bool:
+    """Whether `folder` is an export of Terra's: its sidecar reads and validates
+    (terra.schemas.ReferenceSidecar; TerraError from a malformed one)."""
+    from terra.schemas import ReferenceSidecar, read_model
+
+    path = Path(folder) / rf.SIDECAR
+    return path.is_file() and read_model(path, ReferenceSidecar, "sidecar JSON file") is not None
+
+
 def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_range: float = 20.0) -> dict[str, Any]:
     """Write the bundle's map as the reference's MS-map files into folder `out` (atomically)."""
     from terra.bundle import atomic_folder, check_output_folder
@@ -134,6 +143,7 @@ def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_r
 
     if not np.isfinite(image_range) or image_range <= 0:
         raise TerraError(f"--image-range must be a positive number of metres, got {image_range}")
+    check_output_folder(Path(out), overwrite, "Terra reference export", is_reference_export, rf.SIDECAR)
     msm = load_map(bundle)
     files = reference_files(msm, image_range)
 
@@ -143,7 +153,6 @@ def export_reference(bundle: Bundle, out: Path, overwrite: bool = False, image_r
             (root / name).write_bytes(data)
         (root / rf.SIDECAR).write_text(dumps_json(sidecar(msm, bundle, image_range)))
 
-    check_output_folder(Path(out), overwrite)
     atomic_folder(Path(out), fill, "export")
     return {
         "format": "terra-reference",

@@ -394,9 +394,10 @@ def import_reference(
     voxel_size: float | None = None,
 ) -> ImportResult:
     """Turn reference output folder `folder` into the bundle `out` (written atomically)."""
+    from terra.bundle import check_output_folder, is_bundle
+
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise TerraError(f"{out}: exists (pass --overwrite to replace it)")
+    check_output_folder(out, overwrite, "Terra bundle", is_bundle, "manifest.json")
     ref = read_reference(Path(folder), itr, global_pc)
     classes = list(terrain_classes or ref.sidecar.get("terrain_classes") or [])
     if not classes:

@@ -239,9 +239,17 @@ def cache_summary(perception: Perception) -> CacheSummary | None:
 
 
 def check_output(out: Path) -> None:
-    """Refuse to replace something that is not a bundle (a user's folder or file)."""
-    if out.exists() and not (out / "manifest.json").is_file() and (out.is_file() or any(out.iterdir())):
-        raise TerraError(f"{out}: exists and is not a Terra bundle; choose another --out or remove it")
+    """Refuse, with or without --overwrite, to replace something that is not a bundle (a user's
+    folder or file): the same rule and words as terra.bundle.check_output_folder."""
+    from terra.bundle import found_entries
+
+    if out.is_file():
+        raise TerraError(f"{out}: exists and is not a Terra bundle (a file); choose another --out")
+    if out.is_dir() and not (out / "manifest.json").is_file() and any(out.iterdir()):
+        raise TerraError(
+            f"{out}: exists and is not a Terra bundle (no manifest.json; it holds {found_entries(out)}); "
+            "Terra never replaces a folder it did not write: choose another --out, or empty it yourself"
+        )
 
 
 def _global_map(dataset: Dataset, config: MappingConfig) -> tuple[np.ndarray | None, int]:

@@ -10,14 +10,17 @@ from pathlib import Path
 
 from terra.bundle import atomic_folder, check_output_folder
 from terra.datasets.base import Dataset
-from terra.datasets.folder_io import write_classes
+from terra.datasets.folder_io import is_terra_dataset, write_classes
 from terra.datasets.ground_truth import write_ground_truth
 from terra.errors import TerraError
 
 FORMATS = ("terra-folder", "semantickitti", "kitti-raw", "rosbag1", "rosbag2")
 
 
-check_output = check_output_folder  # the dataset writers' name for it
+def check_output(out: str | Path, overwrite: bool) -> None:
+    """TerraError unless `out` may be written: absent, empty, or (with `overwrite`) a dataset Terra
+    wrote, recognised by its class table (classes.json, which every format here writes)."""
+    check_output_folder(out, overwrite, "dataset Terra wrote", is_terra_dataset, "classes.json")
 
 
 def check_format(format: str) -> str:
