@@ -75,6 +75,22 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+# Files whose digest this process has checked, by identity (device, inode, size, mtime): a long-lived
+# reader (the service, the viewer) or a second load hashes a file once, and a file replaced or
+# rewritten since has another identity, so it is checked again.
+_VERIFIED: dict[tuple[int, int, int, int], str] = {}
+
+
+def _verified_digest(path: Path, info: os.stat_result) -> str:
+    """The SHA-256 of file `path` (with stat `info`), computed once per file identity."""
+    identity = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+    digest = _VERIFIED.get(identity)
+    if digest is None:
+        digest = _sha256(path)
+        _VERIFIED[identity] = digest
+    return digest
+
+
 def process_umask() -> int:
     """The process's umask (the permission bits new files and folders must not get)."""
     try:
@@ -511,23 +527,23 @@ class Bundle:
             raise TerraError(f"{path}: size {info.st_size} bytes, manifest says {entry.bytes} (corrupt bundle)")
         if verify:
             try:
-                digest = _sha256(path)
+                digest = _verified_digest(path, info)
             except OSError as exc:
                 raise read_error(path, exc, "bundle file") from None
             if digest != entry.sha256:
                 raise TerraError(f"{path}: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)")
         return path
 
-    def array(self, name: str, spec: ArraySpec | None = None, verify: bool = False, mmap: bool = False) -> np.ndarray:
+    def array(self, name: str, spec: ArraySpec | None = None, verify: bool = True, mmap: bool = False) -> np.ndarray:
         """Load an array by name, e.g. `map/points`, checked against `spec` before its data is read."""
         return read_npy(self._checked_path(name, verify), spec, mmap=mmap, what="bundle array")
 
-    def json(self, name: str, verify: bool = False, max_depth: int | None = 64) -> Any:
+    def json(self, name: str, verify: bool = True, max_depth: int | None = 64) -> Any:
         """Load a JSON file by name, e.g. `graph/scene_graph.json`."""
         path = self._checked_path(name, verify)
         return read_json(path, "bundle JSON file", self.files[self._file_name(name)].bytes + 1, max_depth)
 
-    def document(self, name: str, model: type[M], verify: bool = False, max_depth: int | None = 64) -> M:
+    def document(self, name: str, model: type[M], verify: bool = True, max_depth: int | None = 64) -> M:
         """A JSON file by name validated as pydantic `model` (TerraError naming the file and field)."""
         from terra.schemas import validate_model
 
