@@ -39,6 +39,18 @@ class Interrupted(Exception):
     """Ctrl-C inside a command (Typer would otherwise turn it into a silent exit code 130)."""
 
 
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is among the causes and contexts of `exc`."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return False
+
+
 def catch_interrupts(command: Any) -> Any:
     """Every command of the tree raises Interrupted on Ctrl-C, for `terra.cli.run` to report."""
     callback = getattr(command, "callback", None)
@@ -50,6 +62,12 @@ def catch_interrupts(command: Any) -> Any:
                 return callback(*args, **kwargs)
             except KeyboardInterrupt as exc:
                 raise Interrupted() from exc
+            except SystemError as exc:
+                # Ctrl-C inside a compiled kernel (the simulator's numba loops) surfaces as a
+                # SystemError whose context is the KeyboardInterrupt: it is the same interruption.
+                if _caused_by_interrupt(exc):
+                    raise Interrupted() from exc
+                raise
 
         interruptible._terra_interruptible = True  # type: ignore[attr-defined]
         command.callback = interruptible

@@ -54,6 +54,7 @@ def serve_command(
 
     Example: terra serve campus.terra --port 8765 --token "$TERRA_SERVE_TOKEN"
     """
+    from terra.cli.interrupts import on_interrupt
     from terra.cli.task_options import build, load_tasks_config, open_bundle
     from terra.serve.config import ServeConfig
     from terra.tasks.commands import warm
@@ -66,7 +67,8 @@ def serve_command(
     loaded.require_graph("terra serve")
     warm(loaded)
     _announce(loaded, settings)
-    uvicorn.run(
+    on_interrupt(f"the service on port {settings.port} stopped; {loaded.path} is unchanged")
+    config = uvicorn.Config(
         create_app(loaded, cfg, settings),
         host=settings.host,
         port=settings.port,
@@ -74,6 +76,9 @@ def serve_command(
         access_log=access_log,
         server_header=False,
     )
+    # uvicorn.Server, not uvicorn.run: run() swallows the KeyboardInterrupt that the server re-raises
+    # after a graceful shutdown on Ctrl-C, which made `terra serve` exit 0 without a word.
+    uvicorn.Server(config).run()
 
 
 def _service_modules():
