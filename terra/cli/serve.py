@@ -31,6 +31,13 @@ TokenOpt = Annotated[
 MaxQueriesOpt = Annotated[int, typer.Option("--max-queries", help="Most text queries per request (more: 413).")]
 MaxBodyOpt = Annotated[int, typer.Option("--max-body-bytes", help="Largest request body in bytes (more: 413).")]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config; its `tasks` section is used.")]
+AllowWritesOpt = Annotated[
+    bool,
+    typer.Option(
+        "--allow-writes",
+        help='Let requests change the bundle (POST /find with "save": true); else read-only (403).',
+    ),
+]
 AccessLogOpt = Annotated[bool, typer.Option("--access-log", help="Log every request on stderr.")]
 
 
@@ -44,13 +51,15 @@ def serve_command(
     max_body_bytes: MaxBodyOpt = 65536,
     config: ConfigOpt = None,
     access_log: AccessLogOpt = False,
+    allow_writes: AllowWritesOpt = False,
 ) -> None:
     """Answer find, monitor and plan queries over HTTP.
 
     Serve the bundle's task queries over HTTP: POST /find, /monitor, /plan with the JSON of
     `terra find/monitor/plan --json`, GET /nodes/NODE, /regions/LEVEL/INDEX, /locate?x=&y=,
     /health; OpenAPI at /docs. The map, scene graph and text model are loaded once, before it
-    listens. Needs the `serve` extra (pip install "terra-3dsg[serve]").
+    listens. Read-only unless --allow-writes (then `"save": true` on /find stores the objects in
+    the bundle). Needs the `serve` extra (pip install "terra-3dsg[serve]").
 
     Example: terra serve campus.terra --port 8765 --token "$TERRA_SERVE_TOKEN"
     """
@@ -61,7 +70,9 @@ def serve_command(
 
     uvicorn, create_app = _service_modules()
     values = {"host": host, "port": port, "token": token or None, "max_queries": max_queries}
-    settings = build(ServeConfig, "command line", {**values, "max_body_bytes": max_body_bytes})
+    settings = build(
+        ServeConfig, "command line", {**values, "max_body_bytes": max_body_bytes, "allow_writes": allow_writes}
+    )
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)
     loaded.require_graph("terra serve")

@@ -13,10 +13,12 @@ Endpoints (JSON; bodies are terra.tasks.requests models, responses the same JSON
 
 Handlers follow the thin-CLI rule: parse, call the typed task API, serialise with to_json().
 Queries only read the loaded bundle and run concurrently in the server's thread pool;
-`"save": true` on /find is serialised and atomic (LoadedBundle.update_graph).
+The service is read-only unless started with --allow-writes; then `"save": true` on /find is
+serialised and atomic (LoadedBundle.update_graph), and, with a token, needs it like every request.
 
 Errors are one line of JSON, {"error": "...", "kind": "..."}, never a stack trace: 400 bad input
-(empty query, unknown terrain, malformed JSON), 401 missing or wrong bearer token, 404 unknown
+(empty query, unknown terrain, malformed JSON), 401 missing or wrong bearer token, 403 a write
+(`"save": true`) to a read-only service, 404 unknown
 endpoint or node, 413 body or query count over the limits, 422 a body of the wrong shape
 (kind "invalid") or a plan with no path (kind "no_path"), 500 an internal error (logged).
 """
@@ -54,6 +56,10 @@ class LimitExceeded(TerraError):
 def error_response(status: int, kind: str, message: str) -> JSONResponse:
     """The one-line JSON error every failure answers with."""
     return JSONResponse({"error": " ".join(str(message).split()), "kind": kind}, status_code=status)
+
+
+class ReadOnly(TerraError):
+    """A request that would change the bundle, to a service started without --allow-writes."""
 
 
 def create_app(loaded: LoadedBundle, tasks: TasksConfig | None = None, settings: ServeConfig | None = None) -> FastAPI:
@@ -105,6 +111,8 @@ def _routes(app: FastAPI, loaded: LoadedBundle, tasks: TasksConfig, settings: Se
     @app.post("/find", summary="Objects for text queries (terra find --json)")
     def find(request: FindRequest) -> JSONResponse:
         _check_texts(list(request.queries), settings)
+        if request.save and not settings.allow_writes:
+            raise ReadOnly('this service is read-only: "save": true needs `terra serve --allow-writes`')
         return answer(commands.find(loaded, request, tasks))
 
     @app.post("/monitor", summary="Regions and places to monitor (terra monitor --json)")
@@ -135,6 +143,8 @@ def _routes(app: FastAPI, loaded: LoadedBundle, tasks: TasksConfig, settings: Se
 def _errors(app: FastAPI) -> None:
     @app.exception_handler(TerraError)
     async def terra_error(request: Request, exc: TerraError) -> JSONResponse:
+        if isinstance(exc, ReadOnly):
+            return error_response(403, "read_only", str(exc))
         if isinstance(exc, LimitExceeded):
             return error_response(413, "too_large", str(exc))
         if isinstance(exc, NoPathError):

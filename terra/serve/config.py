@@ -20,6 +20,10 @@ class ServeConfig(Section):
     token: str | None = Field(
         default=None, min_length=8, description=f"Bearer token every request must carry (also ${TOKEN_ENV})."
     )
+    allow_writes: bool = Field(
+        default=False,
+        description='Accept requests that change the bundle (POST /find with "save": true); off: read-only.',
+    )
     max_body_bytes: int = Field(default=65536, ge=256, description="Largest request body accepted, bytes.")
     max_queries: int = Field(default=32, ge=1, description="Most text queries in one request.")
     max_query_chars: int = Field(default=1000, ge=1, description="Longest text query, characters.")

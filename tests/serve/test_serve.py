@@ -78,7 +78,18 @@ def served(text_embedder, tmp_path_factory):
     port = free_port()
     with open(path.parent / "serve.log", "w") as log:
         process = subprocess.Popen(
-            [sys.executable, "-m", "terra", "serve", str(path), "--port", str(port), "--token", TOKEN],
+            [
+                sys.executable,
+                "-m",
+                "terra",
+                "serve",
+                str(path),
+                "--port",
+                str(port),
+                "--token",
+                TOKEN,
+                "--allow-writes",
+            ],
             cwd=ROOT,
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -274,3 +285,31 @@ def test_concurrent_saves_are_serialised_and_atomic(served, tmp_path):
     )
     assert client.call("POST", "/monitor", {"queries": ["dumpster"]})[0] == 200
     shutil.rmtree(tmp_path, ignore_errors=True)
+
+
+def test_a_service_is_read_only_unless_started_with_allow_writes(text_embedder, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from terra.graph.storage import write_scene_graph
+    from terra.loaded import LoadedBundle
+    from terra.mapping.storage import write_map
+    from terra.serve.app import create_app
+    from terra.serve.config import ServeConfig
+    from tests.mapping.fixtures import folder_digest
+
+    msm, graph, _ = dumpster_lot(text_embedder)
+    path = tmp_path / "lot.terra"
+    with BundleWriter(path) as w:
+        write_map(w, msm)
+        write_scene_graph(w, graph)
+    before = folder_digest(path)
+    client = TestClient(create_app(LoadedBundle(path), settings=ServeConfig()))
+    answer = client.post("/find", json={"queries": ["find the dumpster"], "alpha": 0.4, "save": True})
+    assert answer.status_code == 403 and answer.json()["kind"] == "read_only"
+    assert "--allow-writes" in answer.json()["error"]
+    assert folder_digest(path) == before
+    # reading is still answered, and a writing service saves
+    assert client.post("/find", json={"queries": ["find the dumpster"], "alpha": 0.4}).status_code == 200
+    writer = TestClient(create_app(LoadedBundle(path), settings=ServeConfig(allow_writes=True)))
+    saved = writer.post("/find", json={"queries": ["find the dumpster"], "alpha": 0.4, "save": True})
+    assert saved.status_code == 200 and saved.json()["saved"] and folder_digest(path) != before
