@@ -9,7 +9,8 @@ import typer
 from terra.cli import app
 
 
-@app.command("node")
+# "-1" is a node to look up (and refused as one), not an unknown option
+@app.command("node", context_settings={"ignore_unknown_options": True})
 def node_command(
     bundle: Path = typer.Argument(..., help="Bundle folder with a scene graph (`terra build`)."),
     node: str | None = typer.Argument(

@@ -23,7 +23,9 @@ class UnknownNode(TerraError):
 
 
 _KIND = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge"}
-_SHORT = re.compile(r"^([A-Za-z])(\d+)$")
+_SHORT = re.compile(r"^([A-Za-z])([0-9]{1,18})$", re.ASCII)  # ASCII digits: '²' is a digit to str.isdigit
+_NUMERIC = re.compile(r"^[0-9]{1,20}$", re.ASCII)  # a spark_dsg id is an unsigned 64-bit integer
+MAX_COORDINATE = 1.0e7  # metres: a map frame spans at most a few hundred km; farther is a typo or overflow
 
 
 def _r(values: Any) -> list[float]:
@@ -45,11 +47,13 @@ def parse_node(ref: str | int) -> tuple[str, int]:
     match = _SHORT.match(text)
     if match:
         return match.group(1), int(match.group(2))
-    if text.isdigit():
+    if _NUMERIC.match(text) and int(text) < 1 << 64:
         value = int(text)
         return chr(value >> 56), value & ((1 << 56) - 1)
+    shown = text if len(text) <= 40 else f"{text[:40]}... ({len(text)} characters)"
     raise TerraError(
-        f"node {text!r}: expected a short name such as p12 (place), R3 (region), O0 (object) or a numeric spark_dsg id"
+        f"node {shown!r}: expected a short name such as p12 (place), R3 (region), O0 (object) "
+        "or a numeric spark_dsg id (an unsigned 64-bit integer)"
     )
 
 
@@ -184,8 +188,8 @@ def locate(graph: SceneGraph, x: float, y: float) -> Location:
     """The place nearest to (x, y) metres in the map frame, with its regions."""
     if len(graph.places) == 0:
         raise TerraError("the scene graph has no places")
-    if not (np.isfinite(x) and np.isfinite(y)):
-        raise TerraError(f"x and y must be finite numbers (metres), got {x}, {y}")
+    if not (np.isfinite(x) and np.isfinite(y)) or max(abs(x), abs(y)) > MAX_COORDINATE:
+        raise TerraError(f"x and y must be finite numbers of metres within +-{MAX_COORDINATE:g}, got {x:g}, {y:g}")
     d = np.linalg.norm(graph.places.position[:, :2] - np.array([x, y]), axis=1)
     place = int(np.argmin(d))
     return Location((float(x), float(y)), place_info(graph, place), float(d[place]))

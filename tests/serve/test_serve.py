@@ -313,3 +313,12 @@ def test_a_service_is_read_only_unless_started_with_allow_writes(text_embedder, 
     writer = TestClient(create_app(LoadedBundle(path), settings=ServeConfig(allow_writes=True)))
     saved = writer.post("/find", json={"queries": ["find the dumpster"], "alpha": 0.4, "save": True})
     assert saved.status_code == 200 and saved.json()["saved"] and folder_digest(path) != before
+
+
+@pytest.mark.parametrize(
+    "url", ["/nodes/" + "9" * 30, "/nodes/%C2%B2", "/nodes/" + "9" * 3000, "/locate?x=1e308&y=-1e308"]
+)
+def test_malformed_lookups_are_400_with_one_line(served, url):
+    client, _, _ = served
+    status, body, _ = client.call("GET", url)
+    assert status == 400 and body["kind"] == "bad_request" and len(body["error"]) < 400, body

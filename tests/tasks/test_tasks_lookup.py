@@ -82,3 +82,21 @@ def test_node_command_prints_the_lookup(lot, capsys):
     assert run(["node", str(path), "p99"]) == 2
     err = capsys.readouterr().err
     assert "place 99 does not exist" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "ref", ["123456789012345678901234", "\u00b2", "p\u00b2", "9" * 5000, "-1", str(1 << 64), "p" + "1" * 19]
+)
+def test_malformed_node_ids_are_one_short_line(lot, ref, capsys):
+    path, _ = lot
+    assert run(["node", str(path), ref]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "expected a short name" in err and len(err) < 400, err
+
+
+def test_locate_refuses_coordinates_off_any_map(lot, capsys):
+    path, graph = lot
+    with pytest.raises(Exception, match="within"):
+        locate(graph, 1e308, -1e308)
+    assert run(["node", str(path), "--at", "1e308", "-1e308"]) == 2
+    assert "within" in capsys.readouterr().err
