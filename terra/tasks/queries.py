@@ -24,6 +24,12 @@ def clean_queries(queries: list[str] | tuple[str, ...] | str) -> list[str]:
     for i, q in enumerate(out):
         if not q:
             raise TerraError(f'query {i + 1} is empty; give a text query, e.g. "find the dumpster"')
+        try:
+            q.encode("utf-8")
+        except UnicodeEncodeError as exc:  # a lone surrogate ('\ud800') from JSON or a mangled shell
+            raise TerraError(
+                f"query {i + 1} is not valid text: character {exc.start + 1} is a lone UTF-16 surrogate"
+            ) from None
     return out
 
 

@@ -322,3 +322,10 @@ def test_malformed_lookups_are_400_with_one_line(served, url):
     client, _, _ = served
     status, body, _ = client.call("GET", url)
     assert status == 400 and body["kind"] == "bad_request" and len(body["error"]) < 400, body
+
+
+@pytest.mark.parametrize("endpoint", ["/find", "/monitor"])
+def test_a_lone_surrogate_in_a_query_is_400(served, endpoint):
+    client, _, _ = served
+    status, body, _ = client.call("POST", endpoint, b'{"queries": ["park \\ud800 bench"]}')
+    assert status == 400 and "lone UTF-16 surrogate" in body["error"], body
