@@ -593,3 +593,27 @@ def test_the_printed_dataset_section_is_a_valid_config_that_opens_the_same_bag(c
     config.write_text("dataset:\n  lidar_topc: /lidar/points\n")
     with pytest.raises(TerraError, match=r"\[rosbag\]: field 'lidar_topc'"):
         open_dataset(sim_sources["rosbag1"], "rosbag", load_dataset_options(config))
+
+
+@pytest.mark.parametrize("static", [True, False])
+@pytest.mark.parametrize(
+    "rotation, fragment",
+    [((0.0, 0.0, 0.0, 0.0), "quaternion has zero length"), ((float("nan"), 0.0, 0.0, 1.0), "must be finite")],
+)
+def test_a_degenerate_transform_is_one_line(capsys, tmp_path, static, rotation, fragment):
+    f = factory_for()
+    message = f.tf([(0, "map", "velodyne", np.eye(4))])
+    q = message.transforms[0].transform.rotation
+    q.x, q.y, q.z, q.w = rotation
+    topic = "/tf_static" if static else "/tf"
+    bag = write_test_bag(
+        tmp_path / "bag",
+        [
+            (topic, "tf2_msgs/msg/TFMessage", 0, message),
+            ("/points", "sensor_msgs/msg/PointCloud2", 0, f.pointcloud2(0, "velodyne", scan())),
+        ],
+    )
+    config = tmp_path / "c.yaml"
+    config.write_text("dataset:\n  poses: tf\n  map_frame: map\n")
+    argv = ["map", str(bag), "--out", str(tmp_path / "m.terra"), "--config", str(config)]
+    _assert_one_line_exit_2(capsys, argv, fragment, tmp_path / "m.terra")

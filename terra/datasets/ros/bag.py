@@ -257,8 +257,19 @@ def stamps_seconds(msg_stamp) -> float:
     return int(msg_stamp.sec) + int(msg_stamp.nanosec) * 1e-9
 
 
-def xyz_quat_of(transform) -> np.ndarray:
-    """[tx, ty, tz, qx, qy, qz, qw] of a geometry_msgs/Transform or Pose."""
+MAX_TRANSLATION = 1.0e7  # metres: farther is a corrupt message, and would overflow later arithmetic
+
+
+def xyz_quat_of(transform, where: str = "transform") -> np.ndarray:
+    """[tx, ty, tz, qx, qy, qz, qw] of a geometry_msgs/Transform or Pose; TerraError naming `where`
+    for non-finite values, a translation beyond MAX_TRANSLATION or a quaternion of (near) zero
+    length, which is no rotation at all."""
     t = getattr(transform, "translation", None) or transform.position
     q = getattr(transform, "rotation", None) or transform.orientation
-    return np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w], float)
+    values = np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w], float)
+    if not np.isfinite(values).all() or np.abs(values[:3]).max() > MAX_TRANSLATION:
+        raise TerraError(f"{where}: translation and rotation must be finite (within {MAX_TRANSLATION:g} m)")
+    norm = float(np.linalg.norm(values[3:]))
+    if norm < 1e-6:
+        raise TerraError(f"{where}: rotation quaternion has zero length (x, y, z, w all 0); expected a unit quaternion")
+    return values  # not normalised here: the rotation code does it, and the same bytes give the same map

@@ -64,7 +64,7 @@ def index_bag(bag: Bag, stamped: list[str], odometry_topic: str | None, show_pro
                 odom.add(
                     msg.header.frame_id,
                     msg.child_frame_id,
-                    xyz_quat_of(msg.pose.pose),
+                    xyz_quat_of(msg.pose.pose, f"{bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"),
                     stamps_seconds(msg.header.stamp),
                 )
             else:
@@ -73,7 +73,7 @@ def index_bag(bag: Bag, stamped: list[str], odometry_topic: str | None, show_pro
                     tree.add(
                         tr.header.frame_id,
                         tr.child_frame_id,
-                        xyz_quat_of(tr.transform),
+                        xyz_quat_of(tr.transform, f"{bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"),
                         None if static else stamps_seconds(tr.header.stamp),
                     )
     finally:
