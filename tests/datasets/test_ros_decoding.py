@@ -241,3 +241,46 @@ def test_camera_info_errors_name_the_field():
         camera_from_info(
             NS(k=K, d=[], distortion_model="plumb_bob", width=640, height=480), "cam", np.eye(4), image_size=(320, 240)
         )
+
+
+def _compressed(data: bytes, fmt: str):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(format=fmt, data=np.frombuffer(data, np.uint8))
+
+
+@pytest.mark.parametrize("codec", ["JPEG", "PNG"])
+@pytest.mark.parametrize("fmt", ["", "rgb8; jpeg compressed bgr8", "png", "tiff"])
+def test_compressed_images_are_decoded_by_their_magic_bytes(codec, fmt):
+    import io
+
+    from PIL import Image
+
+    from terra.datasets.ros.images import decode_compressed
+
+    rgb = np.zeros((6, 8, 3), np.uint8)
+    rgb[:, :4] = (200, 40, 10)
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format=codec, **({"quality": 100, "subsampling": 0} if codec == "JPEG" else {}))
+    out = decode_compressed(_compressed(buf.getvalue(), fmt))
+    assert out.shape == (6, 8, 3) and np.abs(out.astype(int) - rgb).max() <= (0 if codec == "PNG" else 8)
+
+
+def test_a_compressed_image_bomb_and_garbage_are_one_line():
+    import io
+    import zlib
+
+    from PIL import Image
+
+    from terra.datasets.ros.images import decode_compressed
+    from terra.errors import TerraError
+
+    small = io.BytesIO()
+    Image.new("L", (1, 1)).save(small, format="PNG")
+    png = bytearray(small.getvalue())
+    png[16:24] = (30000).to_bytes(4, "big") * 2  # IHDR width and height: 30000 x 30000
+    png[29:33] = zlib.crc32(bytes(png[12:29])).to_bytes(4, "big")
+    with pytest.raises(TerraError, match="more pixels than the"):
+        decode_compressed(_compressed(bytes(png), "png"))
+    with pytest.raises(TerraError, match="neither JPEG nor PNG"):
+        decode_compressed(_compressed(b"GIF89a" + bytes(20), "jpeg"))

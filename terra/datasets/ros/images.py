@@ -10,6 +10,7 @@ order the sender compressed from (image_transport writes standard JPEG/PNG, whic
 from __future__ import annotations
 
 import io
+import warnings
 
 import numpy as np
 
@@ -60,23 +61,46 @@ def decode_image(msg, where: str = "Image") -> np.ndarray:
     return np.repeat(grey[:, :, None], 3, axis=2)
 
 
+_MAGIC = {"JPEG": b"\xff\xd8", "PNG": b"\x89PNG\r\n\x1a\n"}
+
+
+def compressed_codec(data: bytes) -> str | None:
+    """JPEG or PNG from the data's first bytes (as image libraries tell them), else None."""
+    return next((codec for codec, magic in _MAGIC.items() if data.startswith(magic)), None)
+
+
 def decode_compressed(msg, where: str = "CompressedImage") -> np.ndarray:
-    """(H, W, 3) uint8 RGB of a JPEG or PNG sensor_msgs/CompressedImage."""
+    """(H, W, 3) uint8 RGB of a JPEG or PNG sensor_msgs/CompressedImage. The codec is read from the
+    data's magic bytes: drivers fill `format` in many ways ("jpeg", "rgb8; jpeg compressed bgr8") or
+    leave it empty. Pixels beyond MAX_IMAGE_PIXELS are refused from the header, before decoding."""
     from PIL import Image, UnidentifiedImageError
 
-    fmt = str(msg.format).lower()
-    if "jpeg" not in fmt and "jpg" not in fmt and "png" not in fmt:
-        raise TerraError(f"{where}: compressed format '{msg.format}' is not supported; expected jpeg or png")
-    if "compresseddepth" in fmt.replace(" ", ""):
+    from terra.datasets.folder_io import MAX_IMAGE_PIXELS
+
+    if "compresseddepth" in str(msg.format).lower().replace(" ", ""):
         raise TerraError(f"{where}: compressed format '{msg.format}' is a depth image, not a colour image")
     data = msg.data.tobytes() if isinstance(msg.data, np.ndarray) else bytes(msg.data)
+    codec = compressed_codec(data)
+    if codec is None:
+        raise TerraError(f"{where}: compressed data is neither JPEG nor PNG (format field {str(msg.format)[:40]!r})")
     try:
-        with Image.open(io.BytesIO(data)) as im:
-            if im.format not in ("JPEG", "PNG"):
-                raise TerraError(f"{where}: compressed data is {im.format}, the message says '{msg.format}'")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # refused below, with its size
+            im = Image.open(io.BytesIO(data), formats=[codec])
+        with im:
+            width, height = im.size
+            if width * height > MAX_IMAGE_PIXELS:
+                raise TerraError(
+                    f"{where}: {codec} data declares {width} x {height} pixels, more than the "
+                    f"{MAX_IMAGE_PIXELS:,} Terra decodes (a damaged or hostile message)"
+                )
             return np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
+    except Image.DecompressionBombError:
+        raise TerraError(
+            f"{where}: {codec} data declares more pixels than the {MAX_IMAGE_PIXELS:,} Terra decodes"
+        ) from None
     except (OSError, UnidentifiedImageError, ValueError) as exc:
-        raise TerraError(f"{where}: undecodable {msg.format} data ({exc})") from None
+        raise TerraError(f"{where}: undecodable {codec} data ({str(exc)[:200]})") from None
 
 
 def decode_labels(msg, where: str = "Image") -> np.ndarray:
