@@ -617,3 +617,15 @@ def test_a_degenerate_transform_is_one_line(capsys, tmp_path, static, rotation, 
     config.write_text("dataset:\n  poses: tf\n  map_frame: map\n")
     argv = ["map", str(bag), "--out", str(tmp_path / "m.terra"), "--config", str(config)]
     _assert_one_line_exit_2(capsys, argv, fragment, tmp_path / "m.terra")
+
+
+@pytest.mark.parametrize("keep", [0, 8, 9, 64])
+@pytest.mark.parametrize("command", ["map", "inspect"])
+def test_a_ros2_bag_cut_after_a_few_bytes_is_one_line(capsys, sim_sources, tmp_path, keep, command):
+    import shutil
+
+    bag = shutil.copytree(sim_sources["rosbag2"], tmp_path / "cut")
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[:keep])
+    argv = ["map", str(bag), "--out", str(tmp_path / "a.terra")] if command == "map" else ["inspect", str(bag)]
+    _assert_one_line_exit_2(capsys, argv, str(bag), tmp_path / "a.terra" if command == "map" else None)

@@ -113,6 +113,8 @@ def _reader_errors() -> tuple[type[BaseException], ...]:
         KeyError,
         ValueError,
         AssertionError,
+        # A truncated mcap: rosbags' reader takes ord() of the empty read past the end of the file.
+        TypeError,
         # A record or message length field that claims more bytes than any bag holds: the reader
         # asks for a buffer of that size before it finds the data short.
         MemoryError,
