@@ -240,3 +240,12 @@ def test_a_start_far_from_every_place_is_refused_naming_the_nearest(lot, capsys,
     config.write_text("tasks:\n  planning:\n    start_radius: 200\n")
     plan = call_json(["plan", str(bundle), "--to-node", "3", "--from-xy", "200", "10", "--config", str(config)], capsys)
     assert plan["start"]["place"] == 58
+
+
+def test_monitor_help_states_the_configured_default_k(capsys):
+    from terra.cli import run
+    from terra.tasks.config import MonitoringConfig
+
+    assert run(["monitor", "--help"]) == 0
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"tasks.monitoring.k, {MonitoringConfig().k})" in help_text
