@@ -166,10 +166,25 @@ def map_command(
     else:
         on_interrupt(lambda: _kept(out))
         result = _map(spec, source, mapping, out, cluster, show)
+        _warn_without_semantics(result)
     if as_json or not quiet:
         from terra.cli.render import render_map, render_stage_json
 
         typer.echo(render_stage_json(result) if as_json else render_map(result))
+
+
+def _warn_without_semantics(result: MapResult) -> None:
+    """A loud line on stderr when every image was skipped: the map then has no image semantics, and
+    `terra build` has no terrain to build places on (even with --quiet or --json)."""
+    skipped = result.stats.get("images_skipped_no_labels", 0)
+    if skipped and result.counts.images == 0:
+        first = result.notes.get("images_skipped_no_labels", "")
+        typer.echo(
+            f"terra map: warning: all {skipped} images were skipped ({first}); "
+            "the map has no image semantics and `terra build` will find no terrain: map with "
+            "`perception.backend: models` (examples/models.yaml), or give the bag's label topics",
+            err=True,
+        )
 
 
 def _perception_overrides(noise: str | None, cache: Path | None) -> dict:

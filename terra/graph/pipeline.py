@@ -452,8 +452,9 @@ def _check_bundle(bundle: Bundle) -> None:
         raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
     if not bundle.model.terrain_classes:
         raise TerraError(
-            f"{bundle.path}/manifest.json: field 'terrain_classes' is missing or empty; "
-            "the map has no terrain classes to build places on"
+            f"{bundle.path}: the map has no terrain classes to build places on (manifest.json field "
+            "'terrain_classes' is empty): its images gave no terrain semantics, e.g. the `labels` backend found "
+            "no label images; map it again with `perception.backend: models` or with label topics"
         )
 
 

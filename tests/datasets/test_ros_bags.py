@@ -629,3 +629,16 @@ def test_a_ros2_bag_cut_after_a_few_bytes_is_one_line(capsys, sim_sources, tmp_p
     mcap.write_bytes(mcap.read_bytes()[:keep])
     argv = ["map", str(bag), "--out", str(tmp_path / "a.terra")] if command == "map" else ["inspect", str(bag)]
     _assert_one_line_exit_2(capsys, argv, str(bag), tmp_path / "a.terra" if command == "map" else None)
+
+
+def test_a_bag_of_unlabelled_images_warns_that_the_map_has_no_semantics(capsys, tmp_path):
+    """The labels backend skips every image of a camera bag without label topics: the map is written,
+    with one loud warning naming the reason and the remedy, and `terra build` says what the map lacks."""
+    bag = _camera_bag(tmp_path)
+    out = tmp_path / "m.terra"
+    assert run(["map", str(bag), "--out", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and "all 3 images were skipped" in warnings[0], err
+    assert "perception.backend: models" in warnings[0] and "no semantic labels" in warnings[0]
+    _assert_one_line_exit_2(capsys, ["build", str(out)], "its images gave no terrain semantics")
