@@ -367,9 +367,10 @@ def check_output_folder(
     marker: str = "",
 ) -> None:
     """TerraError unless folder `out` may be written: absent, empty, or an output of this kind
-    (`is_own`: recognised by its `marker` file and that file's schema) with `overwrite`, which is then replaced as a
-    whole when the new one is complete. A folder that is not of this kind is never replaced, even
-    with `overwrite`: it may be a user's, and only `--overwrite` stood between it and deletion."""
+    (`is_own`: recognised by its `marker` file and that file's schema) with `overwrite`, which is
+    then replaced as a whole when the new one is complete. A folder that is not of this kind is
+    never replaced, even with `overwrite`: it may be a user's, and only `--overwrite` stood
+    between it and deletion."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise TerraError(f"{out}: exists and is not a folder; choose another --out")
@@ -535,7 +536,8 @@ class Bundle:
         return path
 
     def array(self, name: str, spec: ArraySpec | None = None, verify: bool = True, mmap: bool = False) -> np.ndarray:
-        """Load an array by name, e.g. `map/points`, checked against `spec` before its data is read."""
+        """Load an array by name, e.g. `map/points`, checked against the manifest's size and SHA-256
+        (hashed once per file identity in a process) and against `spec` before its data is read."""
         return read_npy(self._checked_path(name, verify), spec, mmap=mmap, what="bundle array")
 
     def json(self, name: str, verify: bool = True, max_depth: int | None = 64) -> Any:
