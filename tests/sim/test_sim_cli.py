@@ -78,16 +78,23 @@ def test_unknown_preset_or_format(tmp_path, capsys, args, message):
     assert leftovers(tmp_path) == []
 
 
-def test_non_empty_output_needs_overwrite(tmp_path, capsys):
+def test_a_foreign_folder_is_kept_and_a_dataset_needs_overwrite(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
-    assert sim(out) == 2
+    for extra in ((), ("--overwrite",)):  # a folder Terra did not write is never replaced
+        assert sim(out, *extra) == 2
+        line = error_line(capsys)
+        assert "is not a dataset Terra wrote" in line and "notes.txt" in line and "--overwrite" not in line
+        assert leftovers(out) == ["notes.txt"] and leftovers(tmp_path) == ["out"]
+    data = tmp_path / "data"
+    assert sim(data) == 0
+    (data / "stale.txt").write_text("from an earlier run")
+    assert sim(data) == 2
     assert "folder exists and is not empty (pass --overwrite to replace it)" in error_line(capsys)
-    assert leftovers(out) == ["notes.txt"] and leftovers(tmp_path) == ["out"]
-    assert sim(out, "--overwrite") == 0
-    assert "notes.txt" not in leftovers(out) and "world.png" in leftovers(out)
-    assert leftovers(tmp_path) == ["out"]
+    assert sim(data, "--overwrite") == 0
+    assert "stale.txt" not in leftovers(data) and "world.png" in leftovers(data)
+    assert sorted(leftovers(tmp_path)) == ["data", "out"]
 
 
 @pytest.mark.parametrize(
