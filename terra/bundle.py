@@ -364,7 +364,7 @@ def check_output_folder(
     overwrite: bool,
     kind: str = "output folder",
     is_own: Callable[[Path], bool] | None = None,
-    marker: str = "",
+    marker: str = "marker file",
 ) -> None:
     """TerraError unless folder `out` may be written: absent, empty, or an output of this kind
     (`is_own`: recognised by its `marker` file and that file's schema) with `overwrite`, which is
@@ -374,17 +374,22 @@ def check_output_folder(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise TerraError(f"{out}: exists and is not a folder; choose another --out")
-    if out.is_dir() and any(out.iterdir()):
-        if is_own is not None and not _recognised(is_own, out):
-            raise TerraError(
-                f"{out}: exists and is not a {kind} (no valid {marker or 'marker file'}; it holds "
-                f"{found_entries(out)}); Terra never replaces "
-                "a folder it did not write: choose another --out, or empty it yourself"
-            )
-        if not overwrite:
-            raise TerraError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
+    if is_own is not None:
+        refuse_foreign(out, kind, is_own, marker)
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise TerraError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
     if not out.absolute().parent.exists():
         raise TerraError(f"{out.absolute().parent}: parent folder does not exist")
+
+
+def refuse_foreign(out: Path, kind: str, is_own: Callable[[Path], bool], marker: str) -> None:
+    """TerraError, whatever --overwrite says, when `out` is a non-empty folder that `is_own` does not
+    recognise as this kind of output (by its `marker` file): it may be a user's."""
+    if out.is_dir() and any(out.iterdir()) and not _recognised(is_own, out):
+        raise TerraError(
+            f"{out}: exists and is not a {kind} (no valid {marker}; it holds {found_entries(out)}); "
+            "Terra never replaces a folder it did not write: choose another --out, or empty it yourself"
+        )
 
 
 def _recognised(is_own: Callable[[Path], bool], out: Path) -> bool:

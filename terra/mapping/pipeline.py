@@ -241,15 +241,12 @@ def cache_summary(perception: Perception) -> CacheSummary | None:
 def check_output(out: Path) -> None:
     """Refuse, with or without --overwrite, to replace something that is not a bundle (a user's
     folder or file): the same rule and words as terra.bundle.check_output_folder."""
-    from terra.bundle import found_entries
+    from terra.bundle import MANIFEST, refuse_foreign
 
     if out.is_file():
         raise TerraError(f"{out}: exists and is not a Terra bundle (a file); choose another --out")
-    if out.is_dir() and not (out / "manifest.json").is_file() and any(out.iterdir()):
-        raise TerraError(
-            f"{out}: exists and is not a Terra bundle (no manifest.json; it holds {found_entries(out)}); "
-            "Terra never replaces a folder it did not write: choose another --out, or empty it yourself"
-        )
+    # A manifest.json of any content marks the map's own output: a damaged bundle may be re-mapped.
+    refuse_foreign(out, "Terra bundle", lambda folder: (folder / MANIFEST).is_file(), MANIFEST)
 
 
 def _global_map(dataset: Dataset, config: MappingConfig) -> tuple[np.ndarray | None, int]:

@@ -302,20 +302,23 @@ def _match_3dsg(
     def searched(places: np.ndarray) -> np.ndarray:  # observed map rows within place_radius of the places
         return observed[points_near(msm.points[observed, :2], graph.places.position[places, :2], cfg.place_radius)]
 
+    def match(allowed: list[np.ndarray], keep_flat: bool):
+        return _match_clusters(
+            msm,
+            graph,
+            scorer,
+            query_vectors,
+            terrain_vectors,
+            alpha,
+            cfg,
+            cfg.sg_point_feature,
+            allowed,
+            keep_flat=keep_flat,
+        )
+
     every = range(len(query_vectors))
     allowed = [searched(select_places_3dsg(graph, query_vectors[q], alpha)) for q in every]
-    clusters, cand_rows, similarity = _match_clusters(
-        msm,
-        graph,
-        scorer,
-        query_vectors,
-        terrain_vectors,
-        alpha,
-        cfg,
-        cfg.sg_point_feature,
-        allowed,
-        keep_flat=not cfg.sg_widen,
-    )
+    clusters, cand_rows, similarity = match(allowed, keep_flat=not cfg.sg_widen)
     # The regions above alpha narrow the search; when they hold no standing object for a
     # query, the answer comes from its places above alpha anywhere, then from every place,
     # rather than from nothing (a region scoring just above alpha can leave out every
@@ -326,18 +329,7 @@ def _match_3dsg(
             break
         for q in empty:
             allowed[q] = searched(select_places_3dsg(graph, query_vectors[q], alpha, widen))
-        clusters, cand_rows, similarity = _match_clusters(
-            msm,
-            graph,
-            scorer,
-            query_vectors,
-            terrain_vectors,
-            alpha,
-            cfg,
-            cfg.sg_point_feature,
-            allowed,
-            keep_flat=widen == 2,
-        )
+        clusters, cand_rows, similarity = match(allowed, keep_flat=widen == 2)
     return clusters, cand_rows, similarity
 
 

@@ -4,7 +4,6 @@ inside a compiled kernel (numba turns the KeyboardInterrupt into a SystemError) 
 from __future__ import annotations
 
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -44,15 +43,11 @@ def test_any_other_system_error_is_not_taken_for_an_interruption():
         _command(broken).main(args=[], standalone_mode=False)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_ctrl_c_stops_the_service_with_one_line_and_130(tiny_graph_bundle):
     pytest.importorskip("uvicorn")
-    port = _free_port()
+    from tests.serve.test_serve import free_port
+
+    port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "terra", "serve", str(tiny_graph_bundle.path), "--port", str(port)],
         cwd=REPO,

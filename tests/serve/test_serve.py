@@ -64,17 +64,22 @@ class Client:
             return exc.code, json.loads(raw), dict(exc.headers)
 
 
-@pytest.fixture(scope="module")
-def served(text_embedder, tmp_path_factory):
-    """(client, bundle path, server process) for a copy of the dumpster lot."""
+def write_lot(path: Path, text_embedder) -> Path:
+    """The dumpster lot (map and scene graph) as a bundle at `path`."""
     from terra.graph.storage import write_scene_graph
     from terra.mapping.storage import write_map
 
     msm, graph, _ = dumpster_lot(text_embedder)
-    path = tmp_path_factory.mktemp("serve") / "lot.terra"
     with BundleWriter(path) as w:
         write_map(w, msm)
         write_scene_graph(w, graph)
+    return path
+
+
+@pytest.fixture(scope="module")
+def served(text_embedder, tmp_path_factory):
+    """(client, bundle path, server process) for a copy of the dumpster lot."""
+    path = write_lot(tmp_path_factory.mktemp("serve") / "lot.terra", text_embedder)
     port = free_port()
     with open(path.parent / "serve.log", "w") as log:
         process = subprocess.Popen(
@@ -290,18 +295,12 @@ def test_concurrent_saves_are_serialised_and_atomic(served, tmp_path):
 def test_a_service_is_read_only_unless_started_with_allow_writes(text_embedder, tmp_path):
     from fastapi.testclient import TestClient
 
-    from terra.graph.storage import write_scene_graph
     from terra.loaded import LoadedBundle
-    from terra.mapping.storage import write_map
     from terra.serve.app import create_app
     from terra.serve.config import ServeConfig
     from tests.mapping.fixtures import folder_digest
 
-    msm, graph, _ = dumpster_lot(text_embedder)
-    path = tmp_path / "lot.terra"
-    with BundleWriter(path) as w:
-        write_map(w, msm)
-        write_scene_graph(w, graph)
+    path = write_lot(tmp_path / "lot.terra", text_embedder)
     before = folder_digest(path)
     client = TestClient(create_app(LoadedBundle(path), settings=ServeConfig()))
     answer = client.post("/find", json={"queries": ["find the dumpster"], "alpha": 0.4, "save": True})
