@@ -490,6 +490,11 @@ class Bundle:
         return self.model.files
 
     @property
+    def version(self) -> int:
+        """The committed version this manifest describes (0 for bundles written before versions)."""
+        return int(self.model.version or 0)
+
+    @property
     def components(self) -> list[str]:
         """The components this bundle has (e.g. ["graph", "map"]): see `has_component`."""
         return [name for name in listed_components(self.model) if self.has_component(name)]
@@ -598,6 +603,7 @@ class BundleWriter:
                 self.abort()
                 raise
         self.model.written_by = f"terra {__version__}"
+        self.model.version = (base.version if base is not None else 0) + 1
 
     @property
     def files(self) -> dict[str, FileEntry]:

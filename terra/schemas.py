@@ -141,6 +141,12 @@ class MapComponent(_Written):
     observations: Count | None = None
     observed_points: Count | None = None
     dataset: dict[str, Any] | None = None  # the source it was mapped from (terra.datasets.fingerprint)
+    # Every source fused into the map, in order: a first `terra map` and each `--append` or live
+    # session ({name, fingerprint, frames, first_frame}).
+    sources: list[dict[str, Any]] | None = None
+    frames: Count | None = None  # frames offered to the fusion so far (the next frame's index)
+    time_span: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None  # first, last fused stamp, s
+    version: Count | None = None  # the bundle version that last changed the map
     config: dict[str, Any] = Field(default_factory=dict)
     stats: dict[str, Any] = Field(default_factory=dict)
 
@@ -164,6 +170,7 @@ class GraphComponent(_Written):
     objects: Count | None = None
     config: dict[str, Any] = Field(default_factory=dict)
     stats: GraphStats = Field(default_factory=GraphStats)
+    map_version: Count | None = None  # the map version the graph was built on (stale when older)
 
 
 class Components(_Written):
@@ -177,6 +184,9 @@ class BundleManifest(_Written):
     schema_: Literal["terra-bundle"] = Field(alias="schema")
     schema_version: int
     written_by: str | None = None
+    # Counts the committed versions of this bundle: each write based on the previous version adds
+    # one, so a reader can tell which snapshot it answered from.
+    version: Count | None = None
     files: dict[BundleFileName, FileEntry] = Field(default_factory=dict)
     embedder: EmbedderInfo | None = None
     terrain_classes: UniqueNames = Field(default_factory=list)

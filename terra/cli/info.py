@@ -37,7 +37,8 @@ def bundle_summary(path: Path, verify: bool = True) -> dict:
 
 
 def _lines(summary: dict) -> list[str]:
-    lines = [f"bundle {summary['path']} ({summary.get('written_by')})"]
+    version = f", version {summary['version']}" if summary.get("version") else ""
+    lines = [f"bundle {summary['path']} ({summary.get('written_by')}{version})"]
     emb = summary.get("embedder") or {}
     lines.append(f"  embedder: {emb.get('name')} ({emb.get('dim')}-d)")
     m = summary.get("map")
@@ -47,6 +48,7 @@ def _lines(summary: dict) -> list[str]:
             f"{m['observations']} observations)"
         )
         lines.append(f"  bank entries: {m['bank_entries']}   images: {m['images']}")
+        lines.extend(_source_lines(m))
         lines.append("  terrain points: " + ", ".join(f"{k} {v}" for k, v in m["terrain_points"].items()))
         faults = {k: v for k, v in m.get("stats", {}).items() if "skipped" in k or "nonfinite" in k}
         if any(faults.values()):
@@ -61,6 +63,21 @@ def _lines(summary: dict) -> list[str]:
     return lines
 
 
+def _source_lines(m: dict) -> list[str]:
+    """Frames, time span and the sources fused into the map (more than one after --append)."""
+    span = m.get("time_span")
+    when = f", {span[0]:.3f} .. {span[1]:.3f} s" if span else ""
+    lines = [f"  frames: {m['frames']}{when}"] if m.get("frames") is not None else []
+    sources = m.get("sources") or []
+    if len(sources) > 1:
+        lines.append(
+            "  sources: " + "; ".join(f"{s['name']} (frames {s['first_frame']}.., {s['frames']})" for s in sources)
+        )
+    if m.get("frames") is not None and not m.get("fusion_state"):
+        lines.append("  fusion state: not kept (this map cannot be continued with --append)")
+    return lines
+
+
 def _counts(counts: dict) -> str:
     return ", ".join(f"{k} {v}" for k, v in counts.items()) or "none"
 
@@ -72,8 +89,12 @@ def _graph_lines(g: dict, terrain_order: list[str]) -> list[str]:
     places = {**{t: places[t] for t in terrain_order if t in places}, **places}
     regions = g.get("regions_per_level") or []
     method = f" ({g['region_method']})" if g.get("region_method") else ""
+    stale = (
+        f" (built on map version {g.get('map_version') or 0}: run `terra build` to update)" if g.get("stale") else ""
+    )
     return [
-        f"  graph: {g.get('places')} places, {g.get('place_edges')} place edges, {g.get('objects') or 0} objects",
+        f"  graph: {g.get('places')} places, {g.get('place_edges')} place edges, {g.get('objects') or 0} objects"
+        + stale,
         "    places per terrain: " + _counts(places),
         "    edges by kind: " + _counts(g.get("edges_by_kind") or {}),
         f"    regions per level{method}, lowest first: " + (", ".join(str(n) for n in regions) or "none"),

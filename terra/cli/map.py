@@ -62,6 +62,15 @@ CacheOpt = Annotated[
     typer.Option("--cache", help="Perception cache folder (default OUT.work/perception); overrides the config."),
 ]
 OverwriteOpt = Annotated[bool, typer.Option("--overwrite", help="Replace an existing bundle at --out (atomically).")]
+AppendOpt = Annotated[
+    bool,
+    typer.Option(
+        "--append",
+        help="Continue the map in --out with the frames of DATASET (its poses in the map's frame), from the "
+        "fusion state the bundle keeps: the same map as one run over both. Uses the bundle's mapping "
+        "configuration unless --config is given (which must agree with it).",
+    ),
+]
 WorkersOpt = Annotated[
     int | None,
     typer.Option(
@@ -134,6 +143,7 @@ def map_command(
     perception_only: PerceptionOnlyOpt = False,
     cache: CacheOpt = None,
     overwrite: OverwriteOpt = False,
+    append: AppendOpt = False,
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
     in_flight: InFlightOpt = None,
@@ -150,10 +160,16 @@ def map_command(
         raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
     if (dataset is None) == (sim is None):
         raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
-    if not perception_only:
+    if append and (overwrite or perception_only or cluster.enabled):
+        raise TerraError(
+            "--append continues a bundle in this process: not with --overwrite, --perception-only or a cluster"
+        )
+    if not perception_only and not append:
         _check_out(out, overwrite)
     settings = TerraConfig.read(config, {"mapping": _perception_overrides(noise, cache)})
     mapping, odometry = settings.mapping, settings.odometry
+    if append and config is None:
+        mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
     spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
     show = not quiet and not as_json
     source = with_poses(spec.open(), poses, odometry, show_progress=show)
@@ -165,7 +181,7 @@ def map_command(
         result = _perceive(spec, source, mapping, out, cluster, show)
     else:
         on_interrupt(lambda: _kept(out))
-        result = _map(spec, source, mapping, out, cluster, show)
+        result = _map(spec, source, mapping, out, cluster, show, append)
         _warn_without_semantics(result)
     if as_json or not quiet:
         from terra.cli.render import render_map, render_stage_json
@@ -207,7 +223,20 @@ def _source_spec(dataset: Path | None, sim: str | None, format: str, camera_conf
     return SourceSpec.from_cli(dataset, sim, format, options)
 
 
-def _map(spec, source, mapping, out: Path, cluster, show_progress: bool) -> MapResult:
+def _recorded_mapping(out: Path, overrides: dict):
+    """The mapping configuration the bundle at `out` was fused with (what --append continues), with the
+    command line's --noise / --cache applied."""
+    from terra.mapping.config import MappingConfig
+    from terra.mapping.pipeline import append_base
+    from terra.schemas import validate_model
+
+    recorded = append_base(Path(out)).model.components.map
+    config = dict(recorded.config) if recorded is not None else {}
+    perception = {**config.get("perception", {}), **overrides.get("perception", {})}
+    return validate_model({**config, "perception": perception}, MappingConfig, Path(out) / "manifest.json")
+
+
+def _map(spec, source, mapping, out: Path, cluster, show_progress: bool, append: bool = False) -> MapResult:
     """Map the source into the bundle `out` (on the cluster when one is configured), write the
     odometry trajectory when KISS-ICP made the poses; the typed summary of it all."""
     from terra.mapping.results import MapResult, pose_source, source_faults
@@ -220,7 +249,7 @@ def _map(spec, source, mapping, out: Path, cluster, show_progress: bool) -> MapR
     else:
         from terra.mapping.pipeline import run_mapping
 
-        run, on_cluster = run_mapping(source, mapping, out, show_progress=show_progress), None
+        run, on_cluster = run_mapping(source, mapping, out, show_progress=show_progress, append=append), None
     odometry = None
     if isinstance(source, OdometryDataset):
         odometry = _odometry(out, source.run)

@@ -485,7 +485,12 @@ def run_build(
     for name, seconds in result.timer.seconds.items():
         timer.add(name, seconds)
     with timer.stage("write"), BundleWriter(bundle.path, base=bundle, drop_components=("graph",)) as writer:
-        info = {"config": config.model_dump(mode="json"), "stats": result.stats.to_json()}
+        map_info = bundle.model.components.map
+        info = {
+            "config": config.model_dump(mode="json"),
+            "stats": result.stats.to_json(),
+            "map_version": map_info.version if map_info is not None and map_info.version is not None else 0,
+        }
         write_scene_graph(writer, result.graph, info)
     result.timer = timer
     return result

@@ -26,4 +26,14 @@ def graph_summary(bundle: Bundle) -> dict[str, Any]:
         "objects": info.objects,
         "embedding_source": dict(stats.embedding_source),
         "embedding_rule": stats.embedding_rule,
+        "map_version": info.map_version,
+        "stale": _stale(bundle),
     }
+
+
+def _stale(bundle: Bundle) -> bool:
+    """Whether the map changed (e.g. `terra map --append`) after the graph was built on it."""
+    graph, fused = bundle.model.components.graph, bundle.model.components.map
+    if graph is None or fused is None or fused.version is None:
+        return False
+    return (graph.map_version or 0) < fused.version

@@ -18,7 +18,8 @@ from terra.datasets.base import Dataset
 from terra.errors import TerraError
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats
-from terra.mapping.pipeline import load_frame, open_perception, perceive_image, uses_images
+from terra.mapping.mapper import perceive_image, uses_images
+from terra.mapping.pipeline import load_frame, open_perception
 from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception
 from terra.progress import StageTimer

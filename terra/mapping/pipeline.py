@@ -21,23 +21,23 @@ from typing import Protocol
 
 import numpy as np
 
-from terra.bundle import Bundle, BundleWriter, recover
-from terra.datasets.base import CameraFrame, Dataset, Frame
+from terra.bundle import MANIFEST, Bundle, BundleWriter, recover
+from terra.datasets.base import Dataset, Frame
 from terra.datasets.fingerprint import dataset_fingerprint
 from terra.errors import TerraError
 from terra.fileio import OutputError
 from terra.mapping.checkpoint import Checkpoint, fingerprint
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
+from terra.mapping.mapper import Mapper, check_frame
 from terra.mapping.results import CacheSummary, MapCounts
+from terra.mapping.state import check_run, restore_mapper, run_description, state_meta, write_state
 from terra.mapping.storage import MAP_FORMAT, write_map
-from terra.perception.base import ImagePerception, Perception, PerceptionSkip
+from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception, cached
 from terra.perception.registry import get_perception
 from terra.progress import StageTimer
 from terra.progress import progress as progress_bar
-
-POINTS_STREAM = 1 << 20  # noise stream number of per-point labels (camera streams are 0, 1, ...)
 
 
 @dataclass
@@ -88,35 +88,86 @@ def run_mapping(
     perception: Perception | None = None,
     feed: FrameFeed | None = None,
     timer: StageTimer | None = None,
+    append: bool = False,
 ) -> MapRun:
     """`build_map` with its timings and counters (used by `terra map` for the summary). `feed` orders the
-    frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default)."""
+    frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default). `append`:
+    continue the map already in `out` from its kept fusion state, the frames of `dataset` following its
+    own (the same bytes as one run over both sources); the scene graph, if any, is kept and marked stale."""
     out = Path(out)
     timer = timer if timer is not None else StageTimer()
     feed = feed if feed is not None else SerialFeed(show_progress)
     recover(out)  # leftovers of an interrupted run: a killed final write, a swap cut short
-    check_output(out)
+    base = append_base(out) if append else None
+    if base is None:
+        check_output(out)
     n_frames = len(dataset)
     if n_frames == 0:
         raise TerraError(f"dataset {dataset.name!r} has no frames")
     with timer.stage("setup"):
         perception = open_perception(config, dataset, out, perception)
-        global_map, dropped = _global_map(dataset, config)
-        fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
-        fusion.stats.add("global_map_points_nonfinite", dropped)
+        run = run_description(
+            # What changes the fused bytes: not where the cache lives, nor how often it checkpoints.
+            config.model_dump(mode="json", exclude={"perception": {"cache"}, "checkpoint_every": True}),
+            perception.embedder,
+            perception.dim,
+            list(perception.terrain_classes),
+        )
+        mapper, global_map = _new_mapper(dataset, config, perception, timer, base, run)
         source = {"name": dataset.name, "fingerprint": dataset_fingerprint(dataset), "frames": n_frames}
-    key = _run_key(config, source, perception, global_map)
+        sources = _sources(base, source, mapper.next_frame)
+    key = _run_key(config, source, perception, global_map, base)
     checkpoint = Checkpoint(out)
-    start = _resume(checkpoint, key, fusion)
+    start = _resume(checkpoint, key, mapper)
     try:
-        msm, stats = _fuse_all(dataset, config, perception, fusion, checkpoint, key, start, feed, timer)
+        msm, stats = _fuse_all(dataset, mapper, checkpoint, key, start, feed)
         with timer.stage("write"):
-            bundle = _write(out, msm, config, stats, dataset, perception, source)
+            bundle = _write(out, msm, mapper, run, dataset, sources, base)
     except OutputError as exc:
         raise OutputError(f"{exc}{_resume_hint(checkpoint)}") from None
     checkpoint.discard()
-    notes = dict(fusion.stats.notes)
+    notes = dict(mapper.stats.notes)
     return MapRun(bundle, map_counts(bundle), timer, stats, notes, start, cache_summary(perception))
+
+
+def append_base(out: Path) -> Bundle:
+    """The bundle `--append` continues: it must exist and keep its fusion state."""
+    if not (out / MANIFEST).is_file():
+        raise TerraError(f"{out}: no bundle to append to; map the first source without --append")
+    base = Bundle(out)
+    if not base.has_component("map"):
+        raise TerraError(f"{out}: the bundle has no map to append to; map the first source without --append")
+    state_meta(base)  # one line when the map keeps no state
+    return base
+
+
+def _new_mapper(
+    dataset: Dataset, config: MappingConfig, perception: Perception, timer: StageTimer, base: Bundle | None, run: dict
+) -> tuple[Mapper, np.ndarray | None]:
+    """A fresh mapper for `dataset` (on its own global map when it has one), or the mapper of `base`'s map
+    restored from its kept state (after checking it was fused the same way)."""
+    global_map, dropped = _global_map(dataset, config) if base is None else (None, 0)
+    fusion = MapFusion(config, perception.terrain_classes, perception.dim, global_map)
+    mapper = Mapper(config, perception, fusion, timer)
+    if base is None:
+        fusion.stats.add("global_map_points_nonfinite", dropped)
+        return mapper, global_map
+    check_run(base, run)
+    restore_mapper(base, mapper)
+    return mapper, None
+
+
+def _sources(base: Bundle | None, source: dict, first_frame: int) -> list[dict]:
+    """The map's sources after this run: the base's (refusing a source already fused) and this one."""
+    info = base.model.components.map if base is not None else None
+    earlier = list(info.sources or ([info.dataset] if info.dataset else [])) if info is not None else []
+    for old in earlier:
+        if isinstance(old, dict) and old.get("fingerprint") == source["fingerprint"]:
+            raise TerraError(
+                f"{source['name']}: this source is already in the map (same content as {str(old.get('name')):.200}); "
+                "nothing appended"
+            )
+    return [*earlier, {**source, "first_frame": int(first_frame)}]
 
 
 def map_counts(bundle: Bundle) -> MapCounts:
@@ -128,59 +179,84 @@ def map_counts(bundle: Bundle) -> MapCounts:
     return MapCounts(int(info.points or 0), int(info.observed_points or 0), int(info.bank or 0), int(info.images or 0))
 
 
-def _fuse_all(
-    dataset: Dataset,
-    config: MappingConfig,
-    perception: Perception,
-    fusion: MapFusion,
-    checkpoint: Checkpoint,
-    key: str,
-    start: int,
-    feed: FrameFeed,
-    timer: StageTimer,
-):
-    """Frames `start`.. fused in the order `feed` hands them over (checkpointed every
+def _fuse_all(dataset: Dataset, mapper: Mapper, checkpoint: Checkpoint, key: str, start: int, feed: FrameFeed):
+    """Frames `start`.. of `dataset` fused in the order `feed` hands them over (checkpointed every
     `checkpoint_every`), then the finished map and stats."""
     n_frames = len(dataset)
+    fused_before = mapper.stats.counts.get("frames_fused", 0)
+    every = mapper.config.checkpoint_every
     for i in feed.frames(start, n_frames):
-        with timer.stage("load"):
-            frame = load_frame(dataset, i, fusion.stats)
+        with mapper.timer.stage("load"):
+            frame = read_frame(dataset, i, mapper)
         if frame is not None:
-            _fuse_frame(frame, i, config, perception, fusion, timer)
+            mapper.add(frame)
         done = i + 1
-        if done % config.checkpoint_every == 0 and done < n_frames:
-            with timer.stage("checkpoint"):
-                arrays, meta = fusion.state()
+        if done % every == 0 and done < n_frames:
+            with mapper.timer.stage("checkpoint"):
+                arrays, meta = mapper.fusion.state()
+                meta["mapper"] = {"next_frame": mapper.next_frame, "stamps": [mapper.first_stamp, mapper.last_stamp]}
                 checkpoint.save(key, done, arrays, meta)
 
-    stats = fusion.stats.to_json()
-    if stats.get("frames_fused", 0) == 0:
+    stats = mapper.stats.to_json()
+    if stats.get("frames_fused", 0) == fused_before:
         checkpoint.discard()  # nothing to resume: a rerun would meet the same frames
-        first = next(iter(fusion.stats.notes.values()), "")
+        first = next(iter(mapper.stats.notes.values()), "")
         raise TerraError(
             f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)})"
             + (f"; first: {first}" if first else "")
         )
-    with timer.stage("finish"):
-        msm = fusion.finish(perception.embedder, perception.terrain_embeddings())
-    return msm, stats
+    return mapper.finish(), stats
+
+
+def read_frame(dataset: Dataset, i: int, mapper: Mapper) -> Frame | None:
+    """Frame i of `dataset`, or None (counted as the mapper's next frame) when its file cannot be read."""
+    try:
+        return dataset[i]
+    except TerraError as exc:
+        mapper.skip("frames_skipped_unreadable", str(exc))
+        return None
 
 
 def _write(
-    out: Path, msm, config: MappingConfig, stats: dict, dataset: Dataset, perception: Perception, source: dict
+    out: Path,
+    msm,
+    mapper: Mapper,
+    run: dict,
+    dataset: Dataset,
+    sources: list[dict],
+    base: Bundle | None,
 ) -> Bundle:
-    with BundleWriter(out) as writer:
+    """The map, its fusion state and its sources as the bundle's next version (`base`'s other
+    components kept, the scene graph then stale until rebuilt)."""
+    config, perception = mapper.config, mapper.perception
+    with BundleWriter(out, base=base, drop_components=("map",)) as writer:
         write_map(
             writer,
             msm,
             config=config.model_dump(mode="json"),
-            stats=stats,
-            dataset=dataset.name,
+            stats=mapper.stats.to_json(),
+            dataset=dataset.name if base is None else _first_name(base, dataset),
             classes=dataset.classes.to_json(),
         )
-        writer.update_component("map", dataset=source)
+        write_state(writer, mapper, run)
+        span = mapper.time_span()
+        writer.update_component(
+            "map",
+            dataset=sources[0],
+            sources=sources,
+            frames=int(mapper.next_frame),
+            time_span=None if span is None else [span[0], span[1]],
+            version=writer.model.version,
+        )
         writer.set_perception(perception.describe())
     return Bundle(out)
+
+
+def _first_name(base: Bundle, dataset: Dataset) -> str:
+    """map/meta.json keeps the name of the first source mapped (later ones are listed in the manifest)."""
+    from terra.schemas import MapMeta
+
+    return str(base.document("map/meta.json", MapMeta).dataset or dataset.name)
 
 
 def _resume_hint(checkpoint: Checkpoint) -> str:
@@ -190,9 +266,11 @@ def _resume_hint(checkpoint: Checkpoint) -> str:
     return ""
 
 
-def _run_key(config: MappingConfig, source: dict, perception: Perception, global_map: np.ndarray | None) -> str:
+def _run_key(
+    config: MappingConfig, source: dict, perception: Perception, global_map: np.ndarray | None, base: Bundle | None
+) -> str:
     """What a checkpoint must match to be resumed: everything that changes the map's bytes. `source`: the
-    dataset's name, content fingerprint and frame count."""
+    dataset's name, content fingerprint and frame count; `base`: the bundle an append continues."""
     return fingerprint(
         {
             "format": MAP_FORMAT,
@@ -205,19 +283,27 @@ def _run_key(config: MappingConfig, source: dict, perception: Perception, global
             "global_map": None
             if global_map is None
             else [int(global_map.shape[0]), float(np.asarray(global_map, np.float64).sum())],
+            # An append continues one exact map: its files' checksums.
+            "append_to": None
+            if base is None
+            else {name: entry.sha256 for name, entry in base.files.items() if name.startswith("map/")},
         }
     )
 
 
-def _resume(checkpoint: Checkpoint, key: str, fusion: MapFusion) -> int:
-    """The first frame to fuse: after a matching checkpoint (restored into `fusion`), else 0 (any stale
-    checkpoint removed)."""
+def _resume(checkpoint: Checkpoint, key: str, mapper: Mapper) -> int:
+    """The first dataset frame to fuse: after a matching checkpoint (restored into `mapper`), else 0 (any
+    stale checkpoint removed)."""
     saved = checkpoint.load(key)
     if saved is None:
         checkpoint.discard()
         return 0
     start, arrays, meta = saved
-    fusion.restore(arrays, meta)
+    mapper.fusion.restore(arrays, meta)
+    progress = meta.get("mapper", {})
+    mapper.next_frame = int(progress.get("next_frame", start))
+    stamps = progress.get("stamps", [None, None])
+    mapper.first_stamp, mapper.last_stamp = stamps[0], stamps[1]
     return start
 
 
@@ -241,7 +327,7 @@ def cache_summary(perception: Perception) -> CacheSummary | None:
 def check_output(out: Path) -> None:
     """Refuse, with or without --overwrite, to replace something that is not a bundle (a user's
     folder or file): the same rule and words as terra.bundle.check_output_folder."""
-    from terra.bundle import MANIFEST, refuse_foreign
+    from terra.bundle import refuse_foreign
 
     if out.is_file():
         raise TerraError(f"{out}: exists and is not a Terra bundle (a file); choose another --out")
@@ -276,113 +362,7 @@ def load_frame(dataset: Dataset, i: int, stats: FusionStats) -> Frame | None:
         stats.add("frames_skipped_unreadable")
         stats.note("frames_skipped_unreadable", str(exc))
         return None
-    where = f"frame {i} (t = {float(frame.stamp):.3f} s)"
-    points = np.asarray(frame.points)
-    if points.ndim != 2 or points.shape[1] < 3:
-        stats.add("frames_skipped_bad_points")
-        stats.note("frames_skipped_bad_points", f"{where}: points must be (N, 3) metres, got shape {points.shape}")
-        return None
-    pose = np.asarray(frame.T_map_lidar, dtype=np.float64)
-    if pose.shape != (4, 4) or not np.isfinite(pose).all():
-        stats.add("frames_skipped_bad_pose")
-        stats.note("frames_skipped_bad_pose", f"{where}: T_map_lidar must be a finite 4x4 pose, got shape {pose.shape}")
-        return None
-    finite = np.isfinite(points[:, :3]).all(axis=1)
-    if not finite.all():
-        stats.add("points_dropped_nonfinite", int(np.count_nonzero(~finite)))
-        frame.points = points[finite, :3]
-        if frame.point_labels is not None:
-            frame.point_labels = np.asarray(frame.point_labels)[finite]
-        if frame.point_instances is not None:
-            frame.point_instances = np.asarray(frame.point_instances)[finite]
-        if frame.intensity is not None:
-            frame.intensity = np.asarray(frame.intensity)[finite]
-        if frame.point_times is not None:
-            frame.point_times = np.asarray(frame.point_times)[finite]
-    frame.points = np.asarray(frame.points, dtype=np.float32)[:, :3]
-    if frame.points.shape[0] == 0:
-        stats.add("frames_skipped_empty")
-        stats.note("frames_skipped_empty", f"{where}: no finite point in the scan")
-        return None
-    return frame
-
-
-def image_fault(frame: Frame, camera: CameraFrame, config: MappingConfig) -> tuple[str, str] | None:
-    """Why an image cannot be fused: (stats counter name, one line naming the image), or None."""
-    calib = camera.calibration
-    name = camera.name or f"frame {frame.index} camera {calib.name}"
-    offset = abs(float(camera.stamp) - float(frame.stamp))
-    if offset > config.projection.max_time_offset:
-        return "images_skipped_unmatched_stamp", (
-            f"{name}: image stamp {float(camera.stamp):.3f} s is {offset:.3f} s "
-            f"from its scan's {float(frame.stamp):.3f} s "
-            f"(tolerance {config.projection.max_time_offset} s)"
-        )
-    shape = (calib.height, calib.width)
-    for what, array in (
-        ("image", camera.image),
-        ("semantic labels", camera.semantic),
-        ("instance labels", camera.instance),
-    ):
-        if array is not None and np.asarray(array).shape[:2] != shape:
-            return (
-                "images_skipped_bad_size",
-                f"{name}: {what} of {np.asarray(array).shape[:2]} pixels, calibration says (height, width) {shape}",
-            )
-    return None
-
-
-def perceive_image(
-    perception: Perception, frame: Frame, i: int, c: int, config: MappingConfig, stats: FusionStats
-) -> ImagePerception | None:
-    """The perception of camera `c` of frame `i`, or None (counted in `stats`, with a first note) when the
-    image cannot be used. The generator is seeded by (noise seed, frame, camera), so any process perceiving
-    this image, in any order, draws the same numbers."""
-    camera = frame.cameras[c]
-    fault = image_fault(frame, camera, config)
-    if fault is not None:
-        stats.add(fault[0])
-        stats.note(*fault)
-        return None
-    try:
-        return perception.perceive(camera, np.random.default_rng([config.perception.noise.seed, i, c]))
-    except PerceptionSkip as exc:  # any other exception is a failure of the backend: it propagates
-        stats.add("images_skipped_no_labels")
-        stats.note("images_skipped_no_labels", f"{camera.name or f'frame {i} camera {c}'}: {exc}")
-        return None
-
-
-def uses_images(frame: Frame, config: MappingConfig) -> bool:
-    """Whether frame's semantics come from its images (else from per-point labels, when the source has them)."""
-    source = config.perception.source
-    return source == "images" or (source == "auto" and bool(frame.cameras))
-
-
-def _fuse_frame(
-    frame: Frame, i: int, config: MappingConfig, perception: Perception, fusion: MapFusion, timer: StageTimer
-) -> None:
-    seed = config.perception.noise.seed
-    source = config.perception.source
-    with timer.stage("fusion"):
-        points_map, index = fusion.associate(frame.points, frame.T_map_lidar)
-    fusion.stats.add("frames_fused")
-    if uses_images(frame, config):
-        for c, camera in enumerate(frame.cameras):
-            with timer.stage("perception"):
-                seen = perceive_image(perception, frame, i, c, config, fusion.stats)
-            if seen is None:
-                continue
-            with timer.stage("fusion"):
-                fusion.integrate_image(
-                    frame.points, points_map, index, frame.T_map_lidar, camera.calibration, camera.stamp, seen
-                )
-    elif source in ("auto", "points"):
-        with timer.stage("perception"):
-            seen_points = perception.perceive_points(frame, np.random.default_rng([seed, i, POINTS_STREAM]))
-        if seen_points is not None:
-            with timer.stage("fusion"):
-                fusion.integrate_points(points_map, index, seen_points)
-            fusion.stats.add("scans_fused_from_point_labels")
+    return check_frame(frame, i, stats)
 
 
 def _fault_summary(stats: dict[str, int]) -> str:

@@ -29,6 +29,7 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
         "path": str(bundle.path),
         "written_by": manifest.written_by,
         "schema_version": manifest.schema_version,
+        "version": bundle.version,
         "embedder": manifest.embedder.model_dump(mode="json") if manifest.embedder is not None else None,
         "terrain_classes": list(manifest.terrain_classes),
         "bytes": bundle.component_bytes(),
@@ -49,5 +50,14 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
             "observed_points": info.observed_points,
             "terrain_points": terrain_histogram(votes, out["terrain_classes"]),
             "stats": info.stats,
+            "version": info.version,
+            "frames": info.frames,
+            "time_span": info.time_span,
+            "sources": [
+                {k: source.get(k) for k in ("name", "first_frame", "frames")}
+                for source in (info.sources or [])
+                if isinstance(source, dict)
+            ],
+            "fusion_state": bundle.has("map/state/meta.json"),
         }
     return out

@@ -1,0 +1,244 @@
+"""A map that grows while the robot drives: frames in one at a time, consistent snapshots out.
+
+`Session` owns the live map: one `Mapper` (the same incremental Phase 1 as `terra map`) and the
+bundle it commits to. `add_frame` checks a frame (one line naming the field for anything wrong,
+counted, never fused) and fuses it; `snapshot()` commits the map with its fusion state as the
+bundle's next version, rebuilds the scene graph on it and returns a read view (`Snapshot`) that
+stays valid while later versions are written. A session over an existing bundle (`resume=True`)
+continues its kept fusion state, exactly as `terra map --append` does, so a drive fed live gives
+the same map, byte for byte, as the same frames mapped in one batch.
+
+Threads: `add_frame` and `snapshot` take the session's lock (one writer); readers use the
+`latest` snapshot, which is replaced, never changed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from terra.bundle import MANIFEST, Bundle, BundleWriter, recover
+from terra.datasets.base import CameraFrame, ClassTable, Frame
+from terra.errors import TerraError
+from terra.live.frames import LiveFrameError, check_live_frame
+from terra.loaded import LoadedBundle
+from terra.mapping.config import MappingConfig
+from terra.mapping.fusion import MapFusion
+from terra.mapping.mapper import Mapper
+from terra.mapping.state import check_run, restore_mapper, run_description, write_state
+from terra.mapping.storage import write_map
+from terra.perception.base import Perception
+
+__all__ = ["LiveFrameError", "Session", "Snapshot"]
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One committed version of a live map. `map_time`: the stamp (s) of the last frame fused into
+    it; `graph_note`: why the version has no scene graph yet (e.g. too little ground seen), or ''."""
+
+    version: int
+    frames: int
+    map_time: float | None
+    bundle: LoadedBundle
+    graph_note: str = ""
+
+
+@dataclass
+class RefusedFrames:
+    """Frames `add_frame` refused, by reason, with the first line of each."""
+
+    counts: dict[str, int] = field(default_factory=dict)
+    notes: dict[str, str] = field(default_factory=dict)
+
+    def add(self, reason: str, message: str) -> None:
+        self.counts[reason] = self.counts.get(reason, 0) + 1
+        self.notes.setdefault(reason, message)
+
+
+class Session:
+    """The live map written to the bundle folder `out`.
+
+    classes: the source's label vocabulary (the `labels` backend embeds its names; models
+    backends need only its terrain classes). config: Phase 1 settings (default MappingConfig()).
+    build: Phase 2 settings for the graph of each snapshot (default BuildConfig()); graph=False
+    commits maps only. resume: continue the map already in `out` (its classes, config and embedder
+    must match); otherwise an existing bundle at `out` is refused unless overwrite.
+    """
+
+    def __init__(
+        self,
+        out: str | Path,
+        classes: ClassTable,
+        config: MappingConfig | None = None,
+        *,
+        build=None,
+        graph: bool = True,
+        perception: Perception | None = None,
+        resume: bool = False,
+        overwrite: bool = False,
+        name: str = "live",
+    ):
+        from terra.perception.registry import get_perception
+
+        self.out = Path(out)
+        self.name = name
+        self.classes = classes
+        self.config = config if config is not None else MappingConfig()
+        self.build = build
+        self.graph = graph
+        self.perception = perception or get_perception(self.config.perception, classes)
+        recover(self.out)
+        self._base = _open_base(self.out, resume, overwrite)
+        fusion = MapFusion(self.config, self.perception.terrain_classes, self.perception.dim)
+        self.mapper = Mapper(self.config, self.perception, fusion)
+        self._run = run_description(
+            self.config.model_dump(mode="json", exclude={"perception": {"cache"}, "checkpoint_every": True}),
+            self.perception.embedder,
+            self.perception.dim,
+            list(self.perception.terrain_classes),
+        )
+        if self._base is not None and resume:
+            check_run(self._base, self._run)
+            restore_mapper(self._base, self.mapper)
+        self._first_frame = self.mapper.next_frame
+        self.refused = RefusedFrames()
+        self._lock = threading.Lock()
+        self._latest: Snapshot | None = None
+        self.last_frame_at: float | None = None  # time.monotonic() of the last accepted frame
+
+    # -- frames in --------------------------------------------------------------------------
+
+    def add_frame(
+        self,
+        points: np.ndarray,
+        T_map_lidar: np.ndarray,
+        stamp: float,
+        times: np.ndarray | None = None,
+        images: Sequence[CameraFrame] = (),
+        intensity: np.ndarray | None = None,
+        labels: np.ndarray | None = None,
+        instances: np.ndarray | None = None,
+    ) -> bool:
+        """Fuse one LiDAR scan: points (N, 3) metres in the LiDAR frame, T_map_lidar its 4x4 pose
+        in the map frame, stamp seconds (increasing), times (N,) seconds from `stamp` per point,
+        images the camera frames taken with it, labels / instances (N,) per-point ids of `classes`.
+        Returns whether it was fused (False: skipped as `terra map` skips, e.g. no finite point);
+        LiveFrameError (one line naming the field; counted in `refused`) for a malformed frame."""
+        with self._lock:
+            last = self.mapper.last_stamp
+            try:
+                frame = check_live_frame(
+                    points, T_map_lidar, stamp, times, images, intensity, labels, instances, last_stamp=last
+                )
+            except LiveFrameError as exc:
+                self.refused.add(exc.reason, str(exc))
+                raise
+            fused = self.mapper.add(frame)
+            self.last_frame_at = time.monotonic()
+            return fused
+
+    def add(self, frame: Frame) -> bool:
+        """`add_frame` for a ready Frame (e.g. from a dataset or a bag being recorded)."""
+        return self.add_frame(
+            frame.points,
+            frame.T_map_lidar,
+            frame.stamp,
+            frame.point_times,
+            frame.cameras,
+            frame.intensity,
+            frame.point_labels,
+            frame.point_instances,
+        )
+
+    # -- snapshots out ----------------------------------------------------------------------
+
+    @property
+    def latest(self) -> Snapshot | None:
+        """The last committed snapshot (None before the first)."""
+        return self._latest
+
+    @property
+    def frames(self) -> int:
+        """Frames offered to the map so far, over every session of the bundle."""
+        return self.mapper.next_frame
+
+    def snapshot(self) -> Snapshot:
+        """Commit everything fused so far as the bundle's next version (map, fusion state and, with
+        graph=True, the scene graph rebuilt on it) and return its read view."""
+        with self._lock:
+            if self.mapper.stats.counts.get("frames_fused", 0) == 0:
+                raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
+            self._commit_map()
+            note = self._commit_graph() if self.graph else "graph off"
+            bundle = Bundle(self.out)
+            self._base = bundle
+            loaded = LoadedBundle(self.out)
+            loaded.require_map()  # read now: the view answers from this version whatever follows
+            _ = loaded.graph
+            self._latest = Snapshot(bundle.version, self.mapper.next_frame, self.mapper.last_stamp, loaded, note)
+            return self._latest
+
+    def _commit_map(self) -> None:
+        msm = self.mapper.finish()
+        fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
+        source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
+        sources = _sources(self._base, source, self._first_frame)
+        with BundleWriter(self.out, base=self._base, drop_components=("map",)) as writer:
+            write_map(
+                writer,
+                msm,
+                config=self.config.model_dump(mode="json"),
+                stats=self.mapper.stats.to_json(),
+                dataset=self.name,
+                classes=self.classes.to_json(),
+            )
+            write_state(writer, self.mapper, self._run)
+            span = self.mapper.time_span()
+            writer.update_component(
+                "map",
+                dataset=sources[0],
+                sources=sources,
+                frames=int(self.mapper.next_frame),
+                time_span=None if span is None else [span[0], span[1]],
+                version=writer.model.version,
+            )
+            writer.set_perception(self.perception.describe())
+
+    def _commit_graph(self) -> str:
+        """Rebuild the scene graph on the committed map ('' when built, else why not, the map being
+        too young for places: the version keeps the map alone)."""
+        from terra.graph.pipeline import run_build
+
+        try:
+            run_build(self.out, self.build, show_progress=False)
+        except TerraError as exc:
+            return str(exc)
+        return ""
+
+
+def _open_base(out: Path, resume: bool, overwrite: bool) -> Bundle | None:
+    """The bundle a session continues (resume) or will replace (overwrite), after the same checks
+    as `terra map` and `--append`."""
+    from terra.mapping.pipeline import append_base, check_output
+
+    if resume:
+        return append_base(out)
+    check_output(out)
+    if (out / MANIFEST).is_file() and not overwrite:
+        raise TerraError(f"{out}: a bundle exists; pass resume=True to continue it or overwrite=True to replace it")
+    return None
+
+
+def _sources(base: Bundle | None, source: dict, first_frame: int) -> list[dict]:
+    """The map's sources: the base's, with this session's entry added (or updated on a later snapshot)."""
+    info = base.model.components.map if base is not None else None
+    earlier = list(info.sources or ([info.dataset] if info.dataset else [])) if info is not None else []
+    earlier = [s for s in earlier if not (isinstance(s, dict) and s.get("fingerprint") == source["fingerprint"])]
+    frames = source["frames"] - first_frame
+    return [*earlier, {**source, "frames": frames, "first_frame": int(first_frame)}]

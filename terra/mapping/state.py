@@ -1,0 +1,212 @@
+"""The fusion state kept in the bundle beside the map it gives, so a later run continues it exactly
+(`terra map --append`, a live session resumed after a crash).
+
+The read view `map/` already holds most of the state: observation counts, terrain votes (below
+65,535), the image table and the visibility index. `map/state/` adds only what the view rounds
+or drops, in the map's stored point order:
+  voxel_keys (N,) int64, voxel_sums (N, 3) float64 metres, voxel_hits (N,) smallest unsigned integer type: the exact
+  accumulators of the voxel centroids (absent for a map on the dataset's own global map);
+  bank (K, D) float32: the bank at full precision (matching uses it; the view stores float16);
+  votes (N, T) uint32: only when some vote count exceeds the view's uint16.
+  meta.json: {format, geometry, next_frame, first_stamp, last_stamp, notes, run}.
+Restoring in stored order rather than first-seen order changes no output: the stored order is the
+voxel-key order, which `finish()` computes from the keys alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from terra.bundle import Bundle, BundleWriter
+from terra.errors import TerraError
+from terra.mapping.association import FixedMap, VoxelMap
+from terra.mapping.bank import EmbeddingBank
+from terra.mapping.fusion import FusionStats, MapFusion
+from terra.mapping.mapper import Mapper
+from terra.mapping.storage import smallest_unsigned
+from terra.npy import ArraySpec
+
+STATE_FORMAT = 1
+_U16_MAX = int(np.iinfo(np.uint16).max)
+
+
+def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> None:
+    """Put the fusion state of `mapper` under `map/state/` (after `write_map` of its finished map).
+    `run`: what a continuation must match (config, embedder, terrain classes; see `check_run`)."""
+    fusion = mapper.fusion
+    geometry = fusion.geometry
+    n = geometry.size
+    order = geometry.final_order()
+    if isinstance(geometry, VoxelMap):
+        voxels = geometry.state()
+        writer.put_array("map/state/voxel_keys", voxels["keys"][order].astype(np.int64))
+        writer.put_array("map/state/voxel_sums", voxels["sums"][order].astype(np.float64))
+        writer.put_array("map/state/voxel_hits", smallest_unsigned(voxels["hits"][order]))
+    writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
+    votes = fusion.votes[:n]
+    if votes.size and int(votes.max()) > _U16_MAX:
+        writer.put_array("map/state/votes", votes[order].astype(np.uint32))
+    writer.put_json(
+        "map/state/meta.json",
+        {
+            "format": STATE_FORMAT,
+            "geometry": "voxel" if isinstance(geometry, VoxelMap) else "fixed",
+            "next_frame": int(mapper.next_frame),
+            "first_stamp": mapper.first_stamp,
+            "last_stamp": mapper.last_stamp,
+            "notes": dict(sorted(fusion.stats.notes.items())),
+            "run": run,
+        },
+    )
+
+
+def has_state(bundle: Bundle) -> bool:
+    return bundle.has("map/state/meta.json")
+
+
+def state_meta(bundle: Bundle) -> dict[str, Any]:
+    """`map/state/meta.json`, checked for the keys a continuation reads."""
+    where = f"{bundle.path}/map/state/meta.json"
+    if not has_state(bundle):
+        raise TerraError(
+            f"{bundle.path}: the map has no fusion state to continue (written before terra kept it); "
+            "map the sources again in one run"
+        )
+    meta = bundle.json("map/state/meta.json")
+    if not isinstance(meta, dict) or meta.get("format") != STATE_FORMAT:
+        raise TerraError(f"{where}: expected a fusion state of format {STATE_FORMAT}")
+    for key, kind in (("geometry", str), ("next_frame", int), ("notes", dict), ("run", dict)):
+        if not isinstance(meta.get(key), kind) or isinstance(meta.get(key), bool):
+            raise TerraError(f"{where}: field {key!r} must be a {kind.__name__}")
+    if meta["geometry"] not in ("voxel", "fixed") or meta["next_frame"] < 0:
+        raise TerraError(f"{where}: field 'geometry' must be voxel or fixed, 'next_frame' >= 0")
+    return meta
+
+
+def restore_mapper(bundle: Bundle, mapper: Mapper) -> None:
+    """Load the state kept in `bundle` into `mapper` (freshly made with the bundle's config, embedder
+    and terrain classes: `check_run` first), so its next frame continues the drive exactly."""
+    meta = state_meta(bundle)
+    fusion = mapper.fusion
+    raw = _RawMap(bundle, fusion)
+    n = raw.n
+    if meta["geometry"] == "voxel":
+        keys = raw.array("map/state/voxel_keys", ("int64",), (n,))
+        sums = raw.array("map/state/voxel_sums", ("float64",), (n, 3))
+        hits = raw.array("map/state/voxel_hits", ("uint8", "uint16", "uint32", "uint64"), (n,))
+        if n and (int(hits.min()) < 1 or np.any(np.diff(keys) <= 0)):
+            raise TerraError(f"{bundle.path}/map/state/voxel_*.npy: voxel keys must increase and hits be >= 1")
+        fusion.geometry = VoxelMap.from_state(
+            fusion.config.fusion.voxel_size, {"keys": keys, "sums": sums, "hits": hits.astype(np.int64)}
+        )
+    else:
+        fusion.geometry = FixedMap(raw.array("map/points", ("float32",), (n, 3)), fusion.config.fusion.gate)
+    _restore_observations(raw, fusion)
+    _restore_images(raw, fusion)
+    stats = bundle.model.components.map.stats if bundle.model.components.map is not None else {}
+    notes = {str(k): str(v) for k, v in meta["notes"].items()}
+    fusion.stats = FusionStats({k: int(v) for k, v in stats.items()}, notes)
+    mapper.next_frame = int(meta["next_frame"])
+    mapper.first_stamp = _stamp(meta.get("first_stamp"))
+    mapper.last_stamp = _stamp(meta.get("last_stamp"))
+
+
+class _RawMap:
+    """The stored map's arrays as written (no renormalising), checked against the manifest's sizes."""
+
+    def __init__(self, bundle: Bundle, fusion: MapFusion):
+        info = bundle.model.components.map
+        if info is None or info.points is None or info.bank is None or info.images is None:
+            raise TerraError(f"{bundle.path}/manifest.json: components.map lacks the map's sizes")
+        self.bundle = bundle
+        self.n, self.k, self.m = int(info.points), int(info.bank), int(info.images)
+        self.nnz = int(info.observations or 0)
+        self.dim = fusion.dim
+        self.t = len(fusion.terrain_classes)
+
+    def array(self, name: str, dtypes: tuple[str, ...], shape: tuple[int | None, ...]) -> np.ndarray:
+        return self.bundle.array(name, ArraySpec(dtypes, shape, what="the map's fusion state"))
+
+
+def _restore_observations(raw: _RawMap, fusion: MapFusion) -> None:
+    """Terrain votes, the bank at full precision and the (point, entry) counts."""
+    if raw.bundle.has("map/state/votes"):
+        votes = raw.array("map/state/votes", ("uint32",), (raw.n, raw.t))
+    else:
+        votes = raw.array("map/terrain_votes", ("uint16",), (raw.n, raw.t))
+    fusion.votes = np.array(votes, dtype=np.uint32)
+    bank = raw.array("map/state/bank", ("float32",), (raw.k, raw.dim))
+    fusion.bank = EmbeddingBank(fusion.dim, fusion.config.fusion.match_threshold, bank)
+    indptr = raw.array("map/counts_indptr", ("int64",), (raw.n + 1,))
+    indices = raw.array("map/counts_indices", ("int32",), (raw.nnz,))
+    data = raw.array("map/counts_data", ("uint8", "uint16", "uint32", "uint64"), (raw.nnz,))
+    rows = np.repeat(np.arange(raw.n, dtype=np.int64), np.diff(indptr))
+    fusion.counts.keys = (rows << 32) | indices.astype(np.int64)
+    fusion.counts.values = data.astype(np.int64)
+    fusion.counts._pending, fusion.counts._pending_size = [], 0
+
+
+def _restore_images(raw: _RawMap, fusion: MapFusion) -> None:
+    """The image table and each image's visibility cells (sorted, as fusion keeps them)."""
+    from terra.schemas import MapMeta
+
+    meta = raw.bundle.document("map/meta.json", MapMeta)
+    m = raw.m
+    fusion.camera_names = list(meta.camera_names)
+    fusion._image_stamp = [float(v) for v in raw.array("map/images/stamp", ("float64",), (m,))]
+    fusion._image_camera = [int(v) for v in raw.array("map/images/camera", ("int16",), (m,))]
+    fusion._image_pose = list(raw.array("map/images/T_map_cam", ("float64",), (m, 4, 4)).astype(np.float64))
+    embedding = raw.array("map/images/embedding", ("float16",), (m, raw.dim)).astype(np.float32)
+    fusion._image_embedding = list(embedding)
+    if not raw.bundle.has("map/visibility/cells"):
+        fusion._vis_cells = [np.zeros(0, np.int64) for _ in range(m)]
+        return
+    cells = raw.array("map/visibility/cells", ("int64",), (None,))
+    indptr = raw.array("map/visibility/indptr", ("int64",), (cells.size + 1,))
+    images = raw.array("map/visibility/images", ("int32",), (int(indptr[-1]) if indptr.size else 0,))
+    cell_of_pair = np.repeat(cells, np.diff(indptr))
+    order = np.lexsort((cell_of_pair, images))
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(images, minlength=m))]).astype(np.int64)
+    sorted_cells = cell_of_pair[order]
+    fusion._vis_cells = [sorted_cells[bounds[i] : bounds[i + 1]] for i in range(m)]
+
+
+def _stamp(value: object) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def run_description(config_json: dict[str, Any], embedder: str, dim: int, terrain_classes: list[str]) -> dict:
+    """What a continuation of the map must share with it: everything that changes the fused bytes."""
+    return {"config": config_json, "embedder": [embedder, int(dim)], "terrain_classes": list(terrain_classes)}
+
+
+def check_run(bundle: Bundle, run: dict[str, Any]) -> None:
+    """TerraError naming the first difference between the bundle's recorded run and `run`."""
+    recorded = state_meta(bundle)["run"]
+    where = f"{bundle.path}/map/state/meta.json"
+    for key, label in (("embedder", "embedder"), ("terrain_classes", "terrain classes")):
+        if recorded.get(key) != run.get(key):
+            raise TerraError(
+                f"{where}: the map was fused with {label} {recorded.get(key)!r:.200}, "
+                f"this run has {run.get(key)!r:.200}; continue it with the same {label}"
+            )
+    difference = _first_difference(recorded.get("config"), run.get("config"), "mapping")
+    if difference is not None:
+        raise TerraError(
+            f"{where}: the map was fused with {difference}; continue it with the same mapping "
+            "configuration (leave --config out to use the bundle's)"
+        )
+
+
+def _first_difference(old: Any, new: Any, path: str) -> str | None:
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new)):
+            found = _first_difference(old.get(key), new.get(key), f"{path}.{key}")
+            if found is not None:
+                return found
+        return None
+    if old != new:
+        return f"{path} = {old!r:.80}, this run has {new!r:.80}"
+    return None

@@ -1,0 +1,146 @@
+"""The live map (terra.live.Session) and `terra map --append` against one batch run of the same frames.
+
+The batch reference is `tiny_bundle`: simulate('tiny', 0) mapped in one `build_map` run with the
+default MappingConfig. A drive fed frame by frame, or mapped in two parts, must give the same map
+files byte for byte (map/meta.json too: the same source name), fusion state included.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from terra.bundle import Bundle
+from terra.errors import TerraError
+from terra.live import LiveFrameError, Session
+from terra.mapping.config import MappingConfig
+from terra.mapping.pipeline import run_mapping
+from tests.mapping.fixtures import folder_digest
+
+
+class FrameRange:
+    """Frames [start, stop) of a dataset, as a dataset of their own (same name and classes)."""
+
+    def __init__(self, dataset, start: int, stop: int):
+        self._dataset, self._start, self._stop = dataset, start, stop
+        self.name, self.classes = dataset.name, dataset.classes
+
+    def __len__(self) -> int:
+        return self._stop - self._start
+
+    def __getitem__(self, index: int):
+        if not 0 <= index < len(self):
+            raise IndexError(index)
+        return self._dataset[self._start + index]
+
+    def global_map(self):
+        return None
+
+
+def map_files(path) -> dict[str, str]:
+    return {name: digest for name, digest in folder_digest(path).items() if name.startswith("map/")}
+
+
+def test_batch_map_keeps_its_fusion_state(tiny_campus, tiny_bundle):
+    bundle = Bundle(tiny_bundle.path)
+    assert bundle.has("map/state/meta.json") and bundle.has("map/state/voxel_sums")
+    info = bundle.model.components.map
+    assert info is not None and info.frames == len(tiny_campus)
+    assert info.time_span == [tiny_campus[0].stamp, tiny_campus[len(tiny_campus) - 1].stamp]
+    assert info.version == bundle.version == 1
+    assert info.sources is not None and [s["first_frame"] for s in info.sources] == [0]
+
+
+def test_live_fed_drive_equals_the_batch_map(tiny_campus, tiny_bundle, tmp_path):
+    session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), graph=False, name=tiny_campus.name)
+    half = len(tiny_campus) // 2
+    for i in range(half):
+        session.add(tiny_campus[i])
+    early = session.snapshot()  # a snapshot in the middle changes nothing of what follows
+    assert early.version == 1 and early.frames == half and early.map_time == pytest.approx(tiny_campus[half - 1].stamp)
+    early_points = len(early.bundle.msm)
+    for i in range(half, len(tiny_campus)):
+        session.add(tiny_campus[i])
+    final = session.snapshot()
+    assert final.version == 2 and len(early.bundle.msm) == early_points < len(final.bundle.msm)
+    assert map_files(tmp_path / "live.terra") == map_files(tiny_bundle.path)
+
+
+def test_append_in_two_parts_equals_one_run(tiny_campus, tiny_bundle, tmp_path):
+    out = tmp_path / "parts.terra"
+    cut = len(tiny_campus) // 3
+    first = run_mapping(FrameRange(tiny_campus, 0, cut), MappingConfig(), out, show_progress=False)
+    assert first.bundle.version == 1
+    second = run_mapping(FrameRange(tiny_campus, cut, len(tiny_campus)), MappingConfig(), out, False, append=True)
+    assert second.bundle.version == 2
+    assert map_files(out) == map_files(tiny_bundle.path)
+    info = second.bundle.model.components.map
+    assert info is not None and info.sources is not None
+    assert [(s["first_frame"], s["frames"]) for s in info.sources] == [(0, cut), (cut, len(tiny_campus) - cut)]
+    assert info.frames == len(tiny_campus)
+
+
+def test_append_refuses_another_configuration_and_a_source_already_in(tiny_campus, tmp_path):
+    out = tmp_path / "parts.terra"
+    cut = 4
+    run_mapping(FrameRange(tiny_campus, 0, cut), MappingConfig(), out, show_progress=False)
+    before = folder_digest(out)
+    other = MappingConfig.model_validate({"fusion": {"voxel_size": 0.5}})
+    with pytest.raises(TerraError, match=r"mapping\.fusion\.voxel_size = 0\.4, this run has 0\.5"):
+        run_mapping(FrameRange(tiny_campus, cut, 8), other, out, show_progress=False, append=True)
+    with pytest.raises(TerraError, match="already in the map"):
+        run_mapping(FrameRange(tiny_campus, 0, cut), MappingConfig(), out, show_progress=False, append=True)
+    assert folder_digest(out) == before
+    with pytest.raises(TerraError, match="no bundle to append to"):
+        run_mapping(FrameRange(tiny_campus, 0, cut), MappingConfig(), tmp_path / "none.terra", False, append=True)
+
+
+def test_a_resumed_session_continues_the_drive(tiny_campus, tiny_bundle, tmp_path):
+    out = tmp_path / "live.terra"
+    session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name)
+    cut = len(tiny_campus) // 2
+    for i in range(cut):
+        session.add(tiny_campus[i])
+    session.snapshot()
+    with pytest.raises(TerraError, match="a bundle exists"):
+        Session(out, tiny_campus.classes, graph=False)
+    resumed = Session(out, tiny_campus.classes, graph=False, resume=True, name=tiny_campus.name)
+    assert resumed.frames == cut
+    with pytest.raises(LiveFrameError, match="does not follow"):
+        resumed.add(tiny_campus[cut - 1])  # a stamp already fused
+    for i in range(cut, len(tiny_campus)):
+        resumed.add(tiny_campus[i])
+    resumed.snapshot()
+    assert map_files(out) == map_files(tiny_bundle.path)
+
+
+def _rotation_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    pose = np.eye(4)
+    pose[:2, :2] = [[c, -s], [s, c]]
+    return pose
+
+
+@pytest.mark.parametrize(
+    ("change", "reason", "message"),
+    [
+        (lambda f: {"T_map_lidar": np.full((4, 4), np.nan)}, "bad_pose", "NaN or infinity"),
+        (lambda f: {"T_map_lidar": np.diag([2.0, 1.0, 1.0, 1.0])}, "bad_pose", "not rigid"),
+        (lambda f: {"T_map_lidar": _rotation_z(0.3)[:3]}, "bad_pose", "4x4"),
+        (lambda f: {"points": f.points[:, :2]}, "bad_points", r"\(N, 3\)"),
+        (lambda f: {"points": f.points.astype(str)}, "bad_points", "expected numbers"),
+        (lambda f: {"stamp": float("nan")}, "bad_stamp", "finite"),
+        (lambda f: {"stamp": f.stamp - 10.0}, "stamp_back", "does not follow"),
+        (lambda f: {"times": np.zeros(3)}, "bad_times", "one value per point"),
+    ],
+)
+def test_malformed_frames_are_refused_and_counted(tiny_campus, tmp_path, change, reason, message):
+    session = Session(tmp_path / "live.terra", tiny_campus.classes, graph=False)
+    good = tiny_campus[0]
+    assert session.add(good)
+    frame = tiny_campus[1]
+    fields = {"points": frame.points, "T_map_lidar": frame.T_map_lidar, "stamp": frame.stamp, **change(frame)}
+    with pytest.raises(LiveFrameError, match=message):
+        session.add_frame(**fields)
+    assert session.refused.counts == {reason: 1}
+    assert session.frames == 1 and session.mapper.stats.counts["frames_fused"] == 1  # nothing fused
