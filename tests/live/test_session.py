@@ -144,3 +144,50 @@ def test_malformed_frames_are_refused_and_counted(tiny_campus, tmp_path, change,
         session.add_frame(**fields)
     assert session.refused.counts == {reason: 1}
     assert session.frames == 1 and session.mapper.stats.counts["frames_fused"] == 1  # nothing fused
+
+
+FEED_SCRIPT = """
+import sys
+from tests.reliability.killpoint import install
+install(sys.argv[1], int(sys.argv[2]))
+from terra.live import Session
+from terra.sim import simulate
+dataset = simulate("tiny", seed=0)
+session = Session(sys.argv[3], dataset.classes, graph=False, name=dataset.name)
+for i in range(len(dataset)):
+    session.add(dataset[i])
+    if (i + 1) % 4 == 0:
+        session.snapshot()
+"""
+
+
+@pytest.mark.parametrize("nth_write", [30, 75])
+def test_kill_during_a_snapshot_keeps_the_last_version_and_resumes(tiny_campus, tiny_bundle, tmp_path, nth_write):
+    """SIGKILL the feeding process in the middle of writing a snapshot (the Nth file written); the bundle
+    still opens at its last committed version, and a resumed session re-fed from its next frame ends
+    with the batch map."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "live.terra"
+    child = subprocess.run(
+        [sys.executable, "-c", FEED_SCRIPT, "write", str(nth_write), str(out)],
+        cwd=Path(__file__).parents[2],
+        capture_output=True,
+        timeout=600,
+    )
+    assert child.returncode == -signal.SIGKILL, child.stderr.decode()[-2000:]
+    bundle = Bundle(out)  # the last committed version, complete
+    bundle.verify()
+    info = bundle.model.components.map
+    assert info is not None and info.frames is not None and info.frames % 4 == 0 and bundle.version >= 1
+    resumed = Session(out, tiny_campus.classes, graph=False, resume=True, name=tiny_campus.name)
+    assert resumed.frames == info.frames
+    for i in range(resumed.frames, len(tiny_campus)):
+        resumed.add(tiny_campus[i])
+    resumed.snapshot()
+    assert map_files(out) == map_files(tiny_bundle.path)
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name != "live.terra"]
+    assert leftovers == []
