@@ -47,6 +47,7 @@ class Snapshot:
     map_time: float | None
     bundle: LoadedBundle
     graph_note: str = ""
+    seconds: dict[str, float] = field(default_factory=dict)  # commit stages: map, graph, load
 
 
 @dataclass
@@ -174,15 +175,21 @@ class Session:
         with self._lock:
             if self.mapper.stats.counts.get("frames_fused", 0) == 0:
                 raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
+            seconds: dict[str, float] = {}
+            start = time.perf_counter()
             self._commit_map()
+            seconds["map"] = time.perf_counter() - start
             note = self._commit_graph() if self.graph else "graph off"
+            seconds["graph"] = time.perf_counter() - start - seconds["map"]
             bundle = Bundle(self.out)
             self._base = bundle
             loaded = LoadedBundle(self.out)
             loaded.require_map()  # read now: the view answers from this version whatever follows
             _ = loaded.graph
-            self._latest = Snapshot(bundle.version, self.mapper.next_frame, self.mapper.last_stamp, loaded, note)
-            return self._latest
+            seconds["load"] = time.perf_counter() - start - seconds["map"] - seconds["graph"]
+            snapshot = Snapshot(bundle.version, self.mapper.next_frame, self.mapper.last_stamp, loaded, note, seconds)
+            self._latest = snapshot
+            return snapshot
 
     def _commit_map(self) -> None:
         msm = self.mapper.finish()
