@@ -300,15 +300,21 @@ class Staging:
         self.folder, self._lock = _locked_sibling(self.target, lambda p: os.mkdir(p, 0o777))
         self._done = False
 
-    def commit(self) -> None:
-        """Put the staged folder at the target atomically, then delete the version it replaced."""
+    def commit(self, reclaim_in_background: bool = False) -> None:
+        """Put the staged folder at the target atomically, then delete the version it replaced (in a
+        daemon thread with `reclaim_in_background`, for writers that commit often: a process that
+        ends first leaves an unlocked leftover, which the next `recover` removes)."""
         _sync_tree(self.folder)
         if os.path.isdir(self.target) and not os.path.islink(self.target):
             os.chmod(self.folder, stat.S_IMODE(os.stat(self.target).st_mode))
         replaced = replace_folder(self.folder, self.target)
         self._done = True
         self._release()
-        if replaced is not None:
+        if replaced is not None and reclaim_in_background:
+            import threading
+
+            threading.Thread(target=_remove, args=(replaced,), name="terra-reclaim", daemon=True).start()
+        elif replaced is not None:
             _remove(replaced)
 
     def discard(self) -> None:
@@ -690,12 +696,13 @@ class BundleWriter:
         self.model.files.pop(file_name, None)
         (self._tmp / file_name).unlink(missing_ok=True)
 
-    def commit(self) -> Bundle:
-        """Write the manifest and swap the new version into place."""
+    def commit(self, reclaim_in_background: bool = False) -> Bundle:
+        """Write the manifest and swap the new version into place (the replaced version deleted
+        in a background thread with `reclaim_in_background`: see Staging.commit)."""
         text = dumps_json(manifest_json(self.model)).encode()  # sorted keys: the files in name order
         with writing(self.path, self.what):
             _write_new_file(self._tmp / MANIFEST, text)
-            self._staging.commit()
+            self._staging.commit(reclaim_in_background)
         self._done = True
         return Bundle(self.path)
 

@@ -196,7 +196,8 @@ class Session:
         fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
         source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
         sources = _sources(self._base, source, self._first_frame)
-        with BundleWriter(self.out, base=self._base, drop_components=("map",)) as writer:
+        writer = BundleWriter(self.out, base=self._base, drop_components=("map",))
+        try:
             write_map(
                 writer,
                 msm,
@@ -216,6 +217,10 @@ class Session:
                 version=writer.model.version,
             )
             writer.set_perception(self.perception.describe())
+            writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
+        except BaseException:
+            writer.abort()
+            raise
 
     def _commit_graph(self) -> str:
         """Rebuild the scene graph on the committed map ('' when built, else why not, the map being
