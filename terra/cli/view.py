@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import typer
@@ -24,6 +25,13 @@ def view_command(
     config: Path | None = typer.Option(
         None, "--config", "-c", help="YAML config; its `tasks` section is used for the queries."
     ),
+    live: bool = typer.Option(
+        False,
+        "--live",
+        help="Follow a map that grows (terra serve --live, terra map --follow, a terra.live.Session): draw "
+        "each new version in the open page.",
+    ),
+    poll: float = typer.Option(1.0, "--poll", min=0.1, max=60.0, help="With --live: seconds between checks."),
 ) -> None:
     """Open a bundle in the web viewer.
 
@@ -48,6 +56,21 @@ def view_command(
     if host not in ("127.0.0.1", "localhost", "::1"):
         typer.echo(f"note: listening on {host}: anyone who can reach this machine can see the map", err=True)
     try:
-        viewer.server.sleep_forever()
+        if not live:
+            viewer.server.sleep_forever()
+        while live:
+            time.sleep(poll)
+            if _refreshed(viewer):
+                typer.echo(f"terra view: version {viewer.version} drawn ({len(viewer.msm):,} points)")
     finally:
         viewer.stop()
+
+
+def _refreshed(viewer) -> bool:
+    """viewer.refresh(), a version replaced while it was being read being tried again at the next poll."""
+    from terra.errors import TerraError
+
+    try:
+        return viewer.refresh()
+    except TerraError:
+        return False

@@ -74,6 +74,8 @@ class TerraViewer:
         self.config = config or TasksConfig()
         self.msm = loaded.require_map("terra view")
         self.graph = loaded.graph
+        self.version = loaded.bundle.version  # the bundle version drawn (refresh() follows newer ones)
+        self.max_points = max_points
         self.rows = scene.display_subset(len(self.msm), max_points)
         self.last_result: Any = None
         self._picking: str | None = None
@@ -117,8 +119,10 @@ class TerraViewer:
             precision="float32",
             point_shape="square",
         )
+        self.layers: dict[str, list] = {}
+        self._draw_trajectory()
         if self.graph is not None:
-            self._add_graph_layers(self.graph)
+            self.layers = self._graph_layers(self.graph)
         self._gui_points()
         self._gui_layers()
         self._gui_ask()
@@ -126,9 +130,52 @@ class TerraViewer:
             self._gui_plan(self.graph)
         self._set_camera()
 
-    def _add_graph_layers(self, graph: SceneGraph) -> None:
+    def refresh(self) -> bool:
+        """Draw the bundle's newest version if another process committed one (`terra view --live`):
+        points, trajectory and graph layers are replaced in the open page, no reload; the queries
+        then answer on that version. Returns whether the version changed."""
+        from terra.bundle import Bundle
+        from terra.loaded import LoadedBundle
+
+        if Bundle(self.loaded.path).version == self.version:
+            return False
+        loaded = LoadedBundle(self.loaded.path, embedder=self.loaded._embedder)
+        msm, graph = loaded.require_map("terra view"), loaded.graph
+        with self._lock:
+            self.loaded, self.msm, self.graph, self.version = loaded, msm, graph, loaded.bundle.version
+            self.rows = scene.display_subset(len(msm), self.max_points)
+            self.points.points = msm.points[self.rows]
+            self.recolour()
+            self._draw_trajectory()
+            self._replace_graph_layers(graph)
+            self.header.content = self._header()
+        return True
+
+    def _replace_graph_layers(self, graph: SceneGraph | None) -> None:
+        """New graph layers in place of the old, the layer toggles keeping their handles' lists."""
+        for handles in self.layers.values():  # first: a new node of the same name would replace it
+            for handle in handles:
+                handle.remove()
+        fresh = self._graph_layers(graph) if graph is not None else {}
+        for name, handles in self.layers.items():
+            handles[:] = fresh.pop(name, [])
+        first_graph = not self.layers and bool(fresh)
+        self.layers.update(fresh)
+        if first_graph and graph is not None:  # the graph appeared: its controls too
+            self._gui_layers()
+            self._gui_plan(graph)
+
+    def _draw_trajectory(self) -> None:
+        """The drive so far: camera positions in stamp order, as a line."""
+        segments = scene.trajectory_segments(self.msm)
+        if len(segments):
+            self.server.scene.add_line_segments(
+                "/map/trajectory", segments, (20, 20, 20), thickness=3.0, thickness_units="screen"
+            )
+
+    def _graph_layers(self, graph: SceneGraph) -> dict[str, list]:
         lifted = (graph.places.position + np.array([0.0, 0.0, 1.0])).astype(np.float32)
-        self.layers: dict[str, list] = {
+        layers: dict[str, list] = {
             "places": [
                 self.server.scene.add_point_cloud(
                     "/graph/places",
@@ -148,7 +195,7 @@ class TerraViewer:
             ]
         }
         for layer in scene.region_layers(graph):
-            self.layers[f"regions level {layer.level}"] = [
+            layers[f"regions level {layer.level}"] = [
                 self.server.scene.add_point_cloud(
                     f"/graph/regions_{layer.level}/nodes",
                     layer.position.astype(np.float32),
@@ -167,7 +214,7 @@ class TerraViewer:
                     visible=False,
                 ),
             ]
-        self.layers["objects"] = self._draw_objects(
+        layers["objects"] = self._draw_objects(
             "/graph/objects",
             graph.objects.center,
             graph.objects.size,
@@ -175,6 +222,7 @@ class TerraViewer:
             [f"{lb}" for lb in graph.objects.label],
             (230, 60, 200),
         )
+        return layers
 
     def _draw_objects(self, prefix: str, center, size, yaw, labels: list[str], colour) -> list:
         handles = []
@@ -208,10 +256,7 @@ class TerraViewer:
 
     def _gui_points(self) -> None:
         gui = self.server.gui
-        gui.add_markdown(
-            f"**Terra** · `{self.loaded.path.name}` · {len(self.msm):,} points"
-            f" ({len(self.rows):,} drawn)" + (f" · {len(self.graph.places)} places" if self.graph is not None else "")
-        )
+        self.header = gui.add_markdown(self._header())
         with gui.add_folder("Points"):
             self.colour_mode = gui.add_dropdown("colour by", COLOUR_MODES, initial_value="terrain")
             self.similarity_text = gui.add_text("similar to", "")
@@ -222,6 +267,12 @@ class TerraViewer:
             lambda _: self._guarded(self.recolour, self.legend) if self.colour_mode.value == "similarity" else None
         )
         self.point_size.on_update(lambda _: setattr(self.points, "point_size", float(self.point_size.value)))
+
+    def _header(self) -> str:
+        return (
+            f"**Terra** · `{self.loaded.path.name}` · version {self.version} · {len(self.msm):,} points"
+            f" ({len(self.rows):,} drawn)" + (f" · {len(self.graph.places)} places" if self.graph is not None else "")
+        )
 
     def _gui_layers(self) -> None:
         if self.graph is None:

@@ -141,6 +141,17 @@ def path_segments(waypoints: np.ndarray, lift: float = 0.6) -> np.ndarray:
     return np.stack([pos[:-1], pos[1:]], axis=1)
 
 
+def trajectory_segments(msm: MetricSemanticMap, camera: int = 0, lift: float = 0.3) -> np.ndarray:
+    """(n - 1, 2, 3) segments joining the centres of camera `camera`'s images in stamp order (the
+    drive so far), metres, map frame, lifted `lift` metres; empty without two such images."""
+    images = msm.images
+    mine = np.flatnonzero(np.asarray(images.camera) == camera)
+    if mine.size < 2:
+        return np.zeros((0, 2, 3), dtype=np.float32)
+    order = mine[np.argsort(images.stamp[mine], kind="stable")]
+    return path_segments(images.position[order], lift)
+
+
 def parse_end(text: str) -> tuple[str, int | str | None]:
     """A start or goal as typed: "" -> ("default", None), "12" -> ("node", 12), other -> ("query", text)."""
     text = text.strip()
