@@ -41,6 +41,7 @@ def test_replay_answers_on_snapshots_and_ends_with_the_batch_answer(tiny_campus,
     best = max(batch.objects, key=lambda o: o.score)
     rack = next(o for o in gt.objects if o.class_name == "bicycle rack")
     distance = float(((best.center[0] - rack.center[0]) ** 2 + (best.center[1] - rack.center[1]) ** 2) ** 0.5)
-    assert final.distance_m == pytest.approx(distance, abs=1e-3) and final.distance_m < 2.0
+    assert final.distance_m is not None and final.distance_m == pytest.approx(distance, abs=1e-3)
+    assert final.distance_m < 2.0
     table = "\n".join(format_replay(result))
     assert "(final)" in table and f"{final.distance_m:.1f} m" in table
