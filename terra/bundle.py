@@ -583,6 +583,16 @@ class Bundle:
 
 
 # ----------------------------------------------------------------------------------------- writing
+def _version_on_disk(path: Path) -> int | None:
+    """The committed version of the bundle at `path` now (0 before versions; None without one)."""
+    try:
+        manifest = json.loads((Path(path) / MANIFEST).read_bytes())
+    except (OSError, ValueError):
+        return None
+    version = manifest.get("version", 0) if isinstance(manifest, dict) else None
+    return int(version) if isinstance(version, int) and not isinstance(version, bool) else 0
+
+
 class BundleWriter:
     """Assembles a new bundle version and swaps it in atomically on `commit()` (see the module
     docstring). A full disk or read-only folder is one TerraError line; the old bundle stays.
@@ -610,6 +620,9 @@ class BundleWriter:
                 raise
         self.model.written_by = f"terra {__version__}"
         self.model.version = (base.version if base is not None else 0) + 1
+        # A version built on `base` must replace `base` itself: another writer (a live session, a
+        # second command) committing in between would otherwise be silently undone.
+        self._base_version = base.version if base is not None else None
 
     @property
     def files(self) -> dict[str, FileEntry]:
@@ -700,6 +713,13 @@ class BundleWriter:
         """Write the manifest and swap the new version into place (the replaced version deleted
         in a background thread with `reclaim_in_background`: see Staging.commit)."""
         text = dumps_json(manifest_json(self.model)).encode()  # sorted keys: the files in name order
+        current = _version_on_disk(self.path)
+        if self._base_version is not None and current != self._base_version:
+            self.abort()
+            raise TerraError(
+                f"{self.path}: the bundle changed while this {self.what} was written (version "
+                f"{self._base_version} became {current}); nothing was written, run the command again"
+            )
         with writing(self.path, self.what):
             _write_new_file(self._tmp / MANIFEST, text)
             self._staging.commit(reclaim_in_background)

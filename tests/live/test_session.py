@@ -191,3 +191,22 @@ def test_kill_during_a_snapshot_keeps_the_last_version_and_resumes(tiny_campus, 
     assert map_files(out) == map_files(tiny_bundle.path)
     leftovers = [p.name for p in tmp_path.iterdir() if p.name != "live.terra"]
     assert leftovers == []
+
+
+def test_a_write_on_an_older_version_is_refused(tiny_graph_bundle, tmp_path):
+    """A reader that saves (find --save) after another writer committed a newer version must not undo it."""
+    import shutil
+
+    from terra.graph.pipeline import run_build
+    from terra.loaded import LoadedBundle
+
+    copy = tmp_path / "copy.terra"
+    shutil.copytree(tiny_graph_bundle.path, copy)
+    reader = LoadedBundle(copy)
+    _ = reader.graph
+    run_build(copy, show_progress=False)  # another writer: a newer version
+    newer = folder_digest(copy)
+    with pytest.raises(TerraError, match=r"the bundle changed while this bundle was written \(version 2 became 3\)"):
+        reader.update_graph(lambda graph: graph)
+    assert folder_digest(copy) == newer
+    assert [p.name for p in tmp_path.iterdir()] == ["copy.terra"]
