@@ -84,4 +84,28 @@ def open_dataset(path: str | Path, format: str = "auto", options: Mapping[str, A
     for _, loader in LOADERS.items():
         if loader.detect(path):
             return loader.open(path, loader_options(loader, options))
-    raise TerraError(f"{path}: not a recognised dataset (expected one of: {', '.join(loader_names())})")
+    raise TerraError(f"{path}: not a recognised dataset{_kind_note(path)}. Recognised formats: {recognised_formats()}")
+
+
+# Files people reach for that no loader reads, and what they are.
+_UNREAD_KINDS = {
+    ".pcap": "raw sensor packets, which need the sensor's driver: record its PointCloud2 into a bag",
+    ".pcapng": "raw sensor packets, which need the sensor's driver: record its PointCloud2 into a bag",
+    ".pcd": "one point cloud without poses or images",
+    ".ply": "one point cloud without poses or images",
+    ".las": "one point cloud without poses or images",
+    ".laz": "one point cloud without poses or images",
+    ".bin": "one scan; a KITTI sequence is the folder above velodyne/",
+}
+
+
+def _kind_note(path: Path) -> str:
+    kind = _UNREAD_KINDS.get(path.suffix.lower()) if path.is_file() else None
+    return f" (a {path.suffix.lower()} file is {kind})" if kind else ""
+
+
+def recognised_formats() -> str:
+    """Every loader's name with what it reads, for messages: 'rosbag: ROS 1 .bag, ...; semantickitti: ...'."""
+    return "; ".join(
+        f"{name}: {loader.description}" if loader.description else name for name, loader in LOADERS.items()
+    )

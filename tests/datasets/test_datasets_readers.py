@@ -47,7 +47,8 @@ def test_registry_errors(originals, tmp_path):
     (tmp_path / "photos" / "a.txt").write_text("x")
     with pytest.raises(
         TerraError,
-        match=r"photos: not a recognised dataset \(expected one of: kitti-raw, rosbag, semantickitti, terra-folder",
+        match=r"photos: not a recognised dataset\. Recognised formats: terra-folder: .*; semantickitti: .*; "
+        r"kitti-raw: KITTI raw drives .*; rosbag: ROS 1 \.bag",
     ):
         open_dataset(tmp_path / "photos")
     with pytest.raises(TerraError, match="does not exist"):
@@ -255,3 +256,17 @@ def test_folder_extracted_by_the_authors_tools(copy):
             np.testing.assert_allclose(cam.calibration.T_cam_lidar, exp.calibration.T_cam_lidar, atol=1e-12)
     global_map = ds.global_map()
     assert global_map is not None and global_map.shape[1] == 3
+
+
+@pytest.mark.parametrize(("name", "kind"), [("drive.pcap", "raw sensor packets"), ("scan.pcd", "one point cloud")])
+def test_unread_file_kinds_are_named_with_the_recognised_formats(tmp_path, capsys, name, kind):
+    """A pcap or PCD file: one line saying what the file is and which formats Terra reads."""
+    from terra.cli import run
+
+    (tmp_path / name).write_bytes(b"\xd4\xc3\xb2\xa1" + bytes(20))
+    assert run(["map", str(tmp_path / name), "--out", str(tmp_path / "x.terra")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{name}: not a recognised dataset" in err and kind in err
+    for format in loader_names():
+        assert f"{format}: " in err
+    assert not (tmp_path / "x.terra").exists()
