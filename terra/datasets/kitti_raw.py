@@ -39,7 +39,14 @@ from pydantic import Field, field_validator
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
 from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_raw, read_rgb
-from terra.datasets.kitti_common import CalibFile, check_rotation, read_calib_file, read_timestamps, standard_classes
+from terra.datasets.kitti_common import (
+    CalibFile,
+    check_rotation,
+    check_translation,
+    read_calib_file,
+    read_timestamps,
+    standard_classes,
+)
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
@@ -106,6 +113,7 @@ class DriveCalibration:
                 "and K[2, 2] = 1 (a rectified camera)"
             )
         T_cam_rect = make_pose(np.eye(3), np.linalg.solve(K, P[:, 3]))
+        check_translation(T_cam_rect[:3, 3], f"{self.cam_to_cam.where(f'P_rect_{k}')}: P_rect_{k}'s baseline K^-1 t")
         try:
             return CameraCalibration(folder, width, height, K, np.zeros(0), T_cam_rect @ self.T_rect_velo)
         except ValueError as exc:

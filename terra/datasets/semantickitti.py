@@ -47,6 +47,7 @@ from terra.datasets.folder_io import (
 from terra.datasets.kitti_common import (
     STANDARD_LABELS,
     STANDARD_TERRAIN,
+    check_translation,
     decompose_projection,
     read_calib_file,
     standard_classes,
@@ -256,12 +257,15 @@ class SemanticKittiDataset:
             try:
                 K, T_k_0 = decompose_projection(calib[f"P{k}"].reshape(3, 4))
             except ValueError as exc:
-                where = self._calib_file.where(f"P{k}") if self._calib_file else str(self.seq / "calib.txt")
-                raise TerraError(f"{where}: P{k} {exc}") from None
+                raise TerraError(f"{self._calib_where(k)}: P{k} {exc}") from None
+            check_translation(T_k_0[:3, 3], f"{self._calib_where(k)}: P{k}'s baseline K^-1 t")
             w, h = image_size(first[0])
             cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), T_k_0 @ self.Tr))
             folders.append(f"image_{k}")
         return cams, folders
+
+    def _calib_where(self, k: int) -> str:
+        return self._calib_file.where(f"P{k}") if self._calib_file else str(self.seq / "calib.txt")
 
     def _class_mapping(self, root: Path) -> tuple[np.ndarray, ClassTable]:
         legend_path = root / LEGEND

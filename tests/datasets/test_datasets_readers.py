@@ -126,6 +126,11 @@ def test_terra_folder_corrupt_file_names_the_file(copy, what):
             ds[i]
     message = str(info.value)
     assert message.startswith(str(path)) and "\n" not in message
+    if what == "Tr translation 1e308":
+        assert (
+            message
+            == f"{path}:5: Tr's translation must be within +-1e+07 m per axis, got 1e+308 m (a typo or an overflow)"
+        )
 
 
 def test_terra_folder_missing_images_skip_scans_like_the_reference(copy):
@@ -174,6 +179,12 @@ def damage_kitti(root, what):
     elif what == "calib":
         path = seq / "calib.txt"
         path.write_text("P0: 1 2 3\nTr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    elif what == "Tr translation 1e308":
+        path = seq / "calib.txt"
+        text = path.read_text().splitlines()
+        row = text[-1].split()
+        row[4] = "1e308"  # Tr's x translation: a finite number that overflows any product
+        path.write_text("\n".join(text[:-1] + [" ".join(row)]) + "\n")
     elif what == "cameras json":
         path = seq / "terra_cameras.json"
         path.write_text('{"cameras": [{"name": "x"}]}')
@@ -196,6 +207,7 @@ def damage_kitti(root, what):
         "missing poses",
         "times",
         "calib",
+        "Tr translation 1e308",
         "cameras json",
         "image",
         "legend",
@@ -210,6 +222,11 @@ def test_semantickitti_corrupt_file_names_the_file(copy, what):
             ds[i]
     message = str(info.value)
     assert message.startswith(str(path)) and "\n" not in message
+    if what == "Tr translation 1e308":
+        assert (
+            message
+            == f"{path}:5: Tr's translation must be within +-1e+07 m per axis, got 1e+308 m (a typo or an overflow)"
+        )
 
 
 def test_decompose_projection_recovers_scaled_and_rotated_cameras():
