@@ -143,8 +143,10 @@ def map_command(
     """`terra map` (its help text: MAP_HELP)."""
     from terra.config import TerraConfig
     from terra.distributed.cluster import cluster_config
-    from terra.odometry.kiss import OdometryDataset, with_poses
+    from terra.odometry.kiss import POSE_MODES, OdometryDataset, with_poses
 
+    if poses not in POSE_MODES:
+        raise TerraError(f"--poses {poses!r}: expected one of: {', '.join(POSE_MODES)}")
     cluster = cluster_config(workers, scheduler, in_flight)
     if in_flight is not None and not cluster.enabled:
         raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
@@ -155,6 +157,8 @@ def map_command(
     settings = TerraConfig.read(config, {"mapping": _perception_overrides(noise, cache)})
     mapping, odometry = settings.mapping, settings.odometry
     spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
+    if poses == "odometry":  # before the source is opened, so its own pose check cannot refuse it
+        spec = spec.with_odometry()
     show = not quiet and not as_json
     source = with_poses(spec.open(), poses, odometry, show_progress=show)
     if isinstance(source, OdometryDataset):

@@ -28,13 +28,16 @@ class NoOptions(Section):
 @dataclass(frozen=True)
 class Loader:
     """One source format: `open(path, options)` gives its frame stream; `options` is an instance of
-    `config` (defaults unless the user's `dataset` section sets fields)."""
+    `config` (defaults unless the user's `dataset` section sets fields). `without_poses`: the
+    options that open the source without its own poses (frames with NaN poses and `needs_odometry`
+    set, for LiDAR odometry), applied by `--poses odometry` before the loader checks its poses."""
 
     name: str
     detect: Callable[[Path], bool]
     open: Callable[[Path, Any], Dataset]
     config: type[Section] = field(default=NoOptions)
     description: str = ""
+    without_poses: Mapping[str, Any] = field(default_factory=dict)
 
 
 LOADERS: Registry[Loader] = Registry(
@@ -67,24 +70,35 @@ def detect_format(path: str | Path) -> str | None:
     return next((name for name, loader in LOADERS.items() if loader.detect(Path(path))), None)
 
 
-def open_dataset(path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None) -> Dataset:
+def open_dataset(
+    path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None, poses: str = "source"
+) -> Dataset:
     """Open a dataset (folder or file); `format` is a loader name or 'auto' to detect it.
 
     `options` are the loader's settings (its config section's fields), e.g. from a config file's
-    `dataset` section."""
+    `dataset` section. poses: "source" (the source's own; PosesUnavailable when it has none that
+    reach the LiDAR) or "odometry" (the loader's `without_poses` options override `options`: the
+    frames come without poses, which LiDAR odometry then computes)."""
     from terra.bundle import recover
 
+    if poses not in ("source", "odometry"):
+        raise ValueError(f"poses must be 'source' or 'odometry', got {poses!r}")
     path = Path(path)
     recover(path)  # a dataset folder whose replacement (`terra sim --overwrite`) was cut short
     if not path.exists():
         raise TerraError(f"{path}: dataset does not exist")
     if format != "auto":
-        loader = LOADERS.get(format)
-        return loader.open(path, loader_options(loader, options))
+        return _open_with(LOADERS.get(format), path, options, poses)
     for _, loader in LOADERS.items():
         if loader.detect(path):
-            return loader.open(path, loader_options(loader, options))
+            return _open_with(loader, path, options, poses)
     raise TerraError(f"{path}: not a recognised dataset{_kind_note(path)}. Recognised formats: {recognised_formats()}")
+
+
+def _open_with(loader: Loader, path: Path, options: Mapping[str, Any] | None, poses: str) -> Dataset:
+    if poses == "odometry":
+        options = {**(options or {}), **loader.without_poses}
+    return loader.open(path, loader_options(loader, options))
 
 
 # Files people reach for that no loader reads, and what they are.
