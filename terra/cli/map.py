@@ -88,6 +88,14 @@ InFlightOpt = Annotated[
         help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
     ),
 ]
+StrictOpt = Annotated[
+    bool,
+    typer.Option(
+        "--strict",
+        help="Fail (exit 2, nothing written) when the map would have no image semantics: every image skipped, "
+        "e.g. the labels backend on images without labels.",
+    ),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, faults, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")]
 
@@ -114,6 +122,8 @@ Example: terra map campus-data --out campus.terra --config terra.yaml
 
 Example (a ROS bag): terra map drive.bag --out drive.terra
 
+Example (fail rather than write a map without image semantics): terra map drive.bag --out drive.terra --strict
+
 Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
 
 Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
@@ -137,6 +147,7 @@ def map_command(
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
     in_flight: InFlightOpt = None,
+    strict: StrictOpt = False,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -169,7 +180,7 @@ def map_command(
         result = _perceive(spec, source, mapping, out, cluster, show)
     else:
         on_interrupt(lambda: _kept(out))
-        result = _map(spec, source, mapping, out, cluster, show)
+        result = _map(spec, source, mapping, out, cluster, show, _refuse_without_semantics if strict else None)
         _warn_without_semantics(result)
     if as_json or not quiet:
         from terra.cli.render import render_map, render_stage_json
@@ -177,18 +188,32 @@ def map_command(
         typer.echo(render_stage_json(result) if as_json else render_map(result))
 
 
+def _all_skipped(stats: dict, notes: dict, images: int) -> str | None:
+    """What a map lacks when every image was skipped for want of labels (None when not)."""
+    skipped = stats.get("images_skipped_no_labels", 0)
+    if not skipped or images:
+        return None
+    first = notes.get("images_skipped_no_labels", "")
+    return (
+        f"all {skipped} images were skipped ({first}); the map has no image semantics and `terra build` will "
+        "find no terrain: map with `perception.backend: models` (examples/models.yaml), or give the bag's label "
+        "topics"
+    )
+
+
 def _warn_without_semantics(result: MapResult) -> None:
     """A loud line on stderr when every image was skipped: the map then has no image semantics, and
     `terra build` has no terrain to build places on (even with --quiet or --json)."""
-    skipped = result.stats.get("images_skipped_no_labels", 0)
-    if skipped and result.counts.images == 0:
-        first = result.notes.get("images_skipped_no_labels", "")
-        typer.echo(
-            f"terra map: warning: all {skipped} images were skipped ({first}); "
-            "the map has no image semantics and `terra build` will find no terrain: map with "
-            "`perception.backend: models` (examples/models.yaml), or give the bag's label topics",
-            err=True,
-        )
+    lacks = _all_skipped(result.stats, result.notes, result.counts.images)
+    if lacks:
+        typer.echo(f"terra map: warning: {lacks}", err=True)
+
+
+def _refuse_without_semantics(stats: dict, notes: dict) -> None:
+    """--strict: the map is not written when every image was skipped (run_mapping's `accept`)."""
+    lacks = _all_skipped(stats, notes, stats.get("images_fused", 0))
+    if lacks:
+        raise TerraError(f"--strict: {lacks}; nothing was written")
 
 
 def _perception_overrides(noise: str | None, cache: Path | None) -> dict:
@@ -211,20 +236,21 @@ def _source_spec(dataset: Path | None, sim: str | None, format: str, camera_conf
     return SourceSpec.from_cli(dataset, sim, format, options)
 
 
-def _map(spec, source, mapping, out: Path, cluster, show_progress: bool) -> MapResult:
+def _map(spec, source, mapping, out: Path, cluster, show_progress: bool, accept=None) -> MapResult:
     """Map the source into the bundle `out` (on the cluster when one is configured), write the
-    odometry trajectory when KISS-ICP made the poses; the typed summary of it all."""
+    odometry trajectory when KISS-ICP made the poses; the typed summary of it all. `accept`: as
+    run_mapping's."""
     from terra.mapping.results import MapResult, pose_source, source_faults
     from terra.odometry.kiss import OdometryDataset
 
     if cluster.enabled:
         from terra.distributed.phase1 import map_on_cluster
 
-        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress=show_progress)
+        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress, accept)
     else:
         from terra.mapping.pipeline import run_mapping
 
-        run, on_cluster = run_mapping(source, mapping, out, show_progress=show_progress), None
+        run, on_cluster = run_mapping(source, mapping, out, show_progress=show_progress, accept=accept), None
     odometry = None
     if isinstance(source, OdometryDataset):
         odometry = _odometry(out, source.run)

@@ -14,7 +14,7 @@ bundle, if any, is touched.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -88,9 +88,12 @@ def run_mapping(
     perception: Perception | None = None,
     feed: FrameFeed | None = None,
     timer: StageTimer | None = None,
+    accept: Callable[[dict, dict], None] | None = None,
 ) -> MapRun:
     """`build_map` with its timings and counters (used by `terra map` for the summary). `feed` orders the
-    frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default)."""
+    frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default). `accept`
+    sees the finished map's counters and notes before anything is written: a TerraError it raises
+    leaves `out` as it was and no checkpoint behind (`terra map --strict`)."""
     out = Path(out)
     timer = timer if timer is not None else StageTimer()
     feed = feed if feed is not None else SerialFeed(show_progress)
@@ -110,6 +113,12 @@ def run_mapping(
     start = _resume(checkpoint, key, fusion)
     try:
         msm, stats = _fuse_all(dataset, config, perception, fusion, checkpoint, key, start, feed, timer)
+        if accept is not None:
+            try:
+                accept(stats, dict(fusion.stats.notes))
+            except TerraError:
+                checkpoint.discard()
+                raise
         with timer.stage("write"):
             bundle = _write(out, msm, config, stats, dataset, perception, source)
     except OutputError as exc:
