@@ -74,7 +74,7 @@ def render(info: dict) -> list[str]:
 @app.command("inspect")
 def inspect_command(
     source: Path = typer.Argument(..., help="A dataset folder, a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
-    format: str = typer.Option("auto", "--format", help="auto, terra-folder, semantickitti or rosbag."),
+    format: str = typer.Option("auto", "--format", help="auto, terra-folder, semantickitti, kitti-raw or rosbag."),
     config: Path | None = typer.Option(
         None, "--config", "-c", help="YAML config whose `dataset` section sets the loader's options."
     ),
