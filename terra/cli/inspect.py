@@ -74,9 +74,15 @@ def render(info: dict) -> list[str]:
 @app.command("inspect")
 def inspect_command(
     source: Path = typer.Argument(..., help="A dataset folder, a ROS bag (.bag, .mcap, ROS 2 bag folder)."),
-    format: str = typer.Option("auto", "--format", help="auto, terra-folder, semantickitti or rosbag."),
+    format: str = typer.Option("auto", "--format", help="auto, terra-folder, semantickitti, kitti-raw or rosbag."),
     config: Path | None = typer.Option(
         None, "--config", "-c", help="YAML config whose `dataset` section sets the loader's options."
+    ),
+    poses: str = typer.Option(
+        "auto",
+        "--poses",
+        help="auto: the source's own poses (said to be missing when it has none); odometry: describe it as "
+        "`terra map --poses odometry` reads it (without its own poses).",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print everything as one JSON document."),
 ) -> None:
@@ -88,11 +94,18 @@ def inspect_command(
     and a ready-to-edit `dataset` config section.
 
     Example: terra inspect drive.bag --json
+
+    Example (a source without poses of its own): terra inspect drive.bag --poses odometry
     """
     from terra.config import TerraConfig
     from terra.datasets.describe import describe_source, source_json
+    from terra.errors import TerraError
+    from terra.odometry.kiss import POSE_MODES
 
-    info = source_json(describe_source(source, format, TerraConfig.read(config).dataset))
+    if poses not in POSE_MODES:
+        raise TerraError(f"--poses {poses!r}: expected one of: {', '.join(POSE_MODES)}")
+    mode = "odometry" if poses == "odometry" else "source"
+    info = source_json(describe_source(source, format, TerraConfig.read(config).dataset, mode))
     if as_json:
         typer.echo(json.dumps(info, indent=1, sort_keys=True))
     else:

@@ -97,6 +97,14 @@ InFlightOpt = Annotated[
         help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
     ),
 ]
+StrictOpt = Annotated[
+    bool,
+    typer.Option(
+        "--strict",
+        help="Fail (exit 2, nothing written) when the map would have no image semantics: every image skipped, "
+        "e.g. the labels backend on images without labels.",
+    ),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, faults, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")]
 
@@ -123,6 +131,8 @@ Example: terra map campus-data --out campus.terra --config terra.yaml
 
 Example (a ROS bag): terra map drive.bag --out drive.terra
 
+Example (fail rather than write a map without image semantics): terra map drive.bag --out drive.terra --strict
+
 Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
 
 Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
@@ -147,14 +157,17 @@ def map_command(
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
     in_flight: InFlightOpt = None,
+    strict: StrictOpt = False,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
     """`terra map` (its help text: MAP_HELP)."""
     from terra.config import TerraConfig
     from terra.distributed.cluster import cluster_config
-    from terra.odometry.kiss import OdometryDataset, with_poses
+    from terra.odometry.kiss import POSE_MODES, OdometryDataset, with_poses
 
+    if poses not in POSE_MODES:
+        raise TerraError(f"--poses {poses!r}: expected one of: {', '.join(POSE_MODES)}")
     cluster = cluster_config(workers, scheduler, in_flight)
     if in_flight is not None and not cluster.enabled:
         raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
@@ -171,6 +184,8 @@ def map_command(
     if append and config is None:
         mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
     spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
+    if poses == "odometry":  # before the source is opened, so its own pose check cannot refuse it
+        spec = spec.with_odometry()
     show = not quiet and not as_json
     source = with_poses(spec.open(), poses, odometry, show_progress=show)
     if isinstance(source, OdometryDataset):
@@ -181,7 +196,8 @@ def map_command(
         result = _perceive(spec, source, mapping, out, cluster, show)
     else:
         on_interrupt(lambda: _kept(out))
-        result = _map(spec, source, mapping, out, cluster, show, append)
+        accept = _refuse_without_semantics if strict else None
+        result = _map(spec, source, mapping, out, cluster, show, accept, append)
         _warn_without_semantics(result)
     if as_json or not quiet:
         from terra.cli.render import render_map, render_stage_json
@@ -189,18 +205,32 @@ def map_command(
         typer.echo(render_stage_json(result) if as_json else render_map(result))
 
 
+def _all_skipped(stats: dict, notes: dict, images: int) -> str | None:
+    """What a map lacks when every image was skipped for want of labels (None when not)."""
+    skipped = stats.get("images_skipped_no_labels", 0)
+    if not skipped or images:
+        return None
+    first = notes.get("images_skipped_no_labels", "")
+    return (
+        f"all {skipped} images were skipped ({first}); the map has no image semantics and `terra build` will "
+        "find no terrain: map with `perception.backend: models` (examples/models.yaml), or give the bag's label "
+        "topics"
+    )
+
+
 def _warn_without_semantics(result: MapResult) -> None:
     """A loud line on stderr when every image was skipped: the map then has no image semantics, and
     `terra build` has no terrain to build places on (even with --quiet or --json)."""
-    skipped = result.stats.get("images_skipped_no_labels", 0)
-    if skipped and result.counts.images == 0:
-        first = result.notes.get("images_skipped_no_labels", "")
-        typer.echo(
-            f"terra map: warning: all {skipped} images were skipped ({first}); "
-            "the map has no image semantics and `terra build` will find no terrain: map with "
-            "`perception.backend: models` (examples/models.yaml), or give the bag's label topics",
-            err=True,
-        )
+    lacks = _all_skipped(result.stats, result.notes, result.counts.images)
+    if lacks:
+        typer.echo(f"terra map: warning: {lacks}", err=True)
+
+
+def _refuse_without_semantics(stats: dict, notes: dict) -> None:
+    """--strict: the map is not written when every image was skipped (run_mapping's `accept`)."""
+    lacks = _all_skipped(stats, notes, stats.get("images_fused", 0))
+    if lacks:
+        raise TerraError(f"--strict: {lacks}; nothing was written")
 
 
 def _perception_overrides(noise: str | None, cache: Path | None) -> dict:
@@ -236,20 +266,24 @@ def _recorded_mapping(out: Path, overrides: dict):
     return validate_model({**config, "perception": perception}, MappingConfig, Path(out) / "manifest.json")
 
 
-def _map(spec, source, mapping, out: Path, cluster, show_progress: bool, append: bool = False) -> MapResult:
+def _map(
+    spec, source, mapping, out: Path, cluster, show_progress: bool, accept=None, append: bool = False
+) -> MapResult:
     """Map the source into the bundle `out` (on the cluster when one is configured), write the
-    odometry trajectory when KISS-ICP made the poses; the typed summary of it all."""
+    odometry trajectory when KISS-ICP made the poses; the typed summary of it all. `accept`: as
+    run_mapping's."""
     from terra.mapping.results import MapResult, pose_source, source_faults
     from terra.odometry.kiss import OdometryDataset
 
     if cluster.enabled:
         from terra.distributed.phase1 import map_on_cluster
 
-        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress=show_progress)
+        run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress, accept)
     else:
         from terra.mapping.pipeline import run_mapping
 
-        run, on_cluster = run_mapping(source, mapping, out, show_progress=show_progress, append=append), None
+        run = run_mapping(source, mapping, out, show_progress=show_progress, append=append, accept=accept)
+        on_cluster = None
     odometry = None
     if isinstance(source, OdometryDataset):
         odometry = _odometry(out, source.run)

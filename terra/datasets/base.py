@@ -8,7 +8,21 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from terra.errors import TerraError
 from terra.geometry import CameraCalibration
+
+# What a message says to do when a source's own poses are missing or do not connect.
+NO_POSES_REMEDY = "map with --poses odometry (or dataset.poses: odometry) to compute poses from the scans"
+
+
+class PosesUnavailable(TerraError):
+    """A source that can be read, but whose own poses cannot be had (no poses.txt, no OXTS, a TF
+    tree or odometry topic that does not reach the LiDAR frame). Opened without its poses (the
+    loader's `without_poses` options), LiDAR odometry can map it; `terra inspect` describes it."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(f"{reason}; {NO_POSES_REMEDY}")
+        self.reason = reason
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,9 @@ from terra.geometry import make_pose
 
 TEXT_KEYS = frozenset({"calib_time"})
 MAX_CALIB_BYTES = 1 << 20
+# Metres: a sensor mount or a map frame spans at most a few hundred km (the bound of the query
+# coordinates, terra.tasks.lookup); a calibration translation beyond it is a typo or an overflow.
+MAX_TRANSLATION = 1.0e7
 
 # SemanticKITTI's own label table: id -> (name, BGR colour as in semantic-kitti.yaml).
 STANDARD_LABELS: dict[int, tuple[str, tuple[int, int, int]]] = {
@@ -110,6 +113,7 @@ class CalibFile:
         R = self.matrix(rotation_key, (3, 3), "a 3x3 rotation, row-major")
         t = self.matrix(translation_key, (3,), "a translation in metres")
         check_rotation(R, f"{self.where(rotation_key)}: {rotation_key}")
+        check_translation(t, f"{self.where(translation_key)}: {translation_key}")
         return make_pose(R, t)
 
     def pose_3x4(self, key: str) -> np.ndarray:
@@ -117,13 +121,28 @@ class CalibFile:
         T = np.eye(4)
         T[:3] = self.matrix(key, (3, 4), "a 3x4 [R | t] transform, row-major")
         check_rotation(T[:3, :3], f"{self.where(key)}: {key}")
+        check_translation(T[:3, 3], f"{self.where(key)}: {key}'s translation")
         return T
 
 
 def check_rotation(R: np.ndarray, where: str, tolerance: float = 1e-4) -> None:
     """TerraError naming `where` unless R is a rotation (orthonormal, determinant +1)."""
-    if np.abs(R @ R.T - np.eye(3)).max() > tolerance or np.linalg.det(R) < 0:
+    # Entries of a rotation lie in [-1, 1]: checked first, so a huge entry cannot overflow the product.
+    if (
+        not np.all(np.abs(R) <= 1.0 + tolerance)
+        or np.abs(R @ R.T - np.eye(3)).max() > tolerance
+        or np.linalg.det(R) < 0
+    ):
         raise TerraError(f"{where} is not a rotation matrix (rows must be orthonormal with determinant +1)")
+
+
+def check_translation(t: np.ndarray, where: str) -> None:
+    """TerraError naming `where` unless every coordinate of t lies within +-MAX_TRANSLATION metres."""
+    if not np.all(np.abs(t) <= MAX_TRANSLATION):
+        raise TerraError(
+            f"{where} must be within +-{MAX_TRANSLATION:g} m per axis, got {np.abs(t).max():g} m "
+            "(a typo or an overflow)"
+        )
 
 
 def read_calib_file(path: Path) -> CalibFile:

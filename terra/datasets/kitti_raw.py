@@ -37,9 +37,16 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from terra.datasets import oxts
-from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
+from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SourceInfo
 from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_raw, read_rgb
-from terra.datasets.kitti_common import CalibFile, check_rotation, read_calib_file, read_timestamps, standard_classes
+from terra.datasets.kitti_common import (
+    CalibFile,
+    check_rotation,
+    check_translation,
+    read_calib_file,
+    read_timestamps,
+    standard_classes,
+)
 from terra.datasets.registry import Loader
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, make_pose
@@ -58,8 +65,9 @@ class KittiRawConfig(Section):
 
     poses: str = Field(
         default="oxts",
-        description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion), or another "
-        "source registered in terra.datasets.kitti_raw.POSE_SOURCES",
+        description="where T_map_lidar comes from: 'oxts' (GPS/IMU, the devkit's conversion), 'odometry' "
+        "(KISS-ICP on the scans; every scan is a frame, OXTS only measures the error when every scan has a "
+        "packet), or another source registered in terra.datasets.kitti_raw.POSE_SOURCES",
     )
     normalise: oxts.Normalise = Field(
         default="first-position",
@@ -106,6 +114,7 @@ class DriveCalibration:
                 "and K[2, 2] = 1 (a rectified camera)"
             )
         T_cam_rect = make_pose(np.eye(3), np.linalg.solve(K, P[:, 3]))
+        check_translation(T_cam_rect[:3, 3], f"{self.cam_to_cam.where(f'P_rect_{k}')}: P_rect_{k}'s baseline K^-1 t")
         try:
             return CameraCalibration(folder, width, height, K, np.zeros(0), T_cam_rect @ self.T_rect_velo)
         except ValueError as exc:
@@ -186,14 +195,24 @@ PoseSource = Callable[["KittiRawDataset", KittiRawConfig], np.ndarray]
 
 def oxts_poses(drive: KittiRawDataset, config: KittiRawConfig) -> np.ndarray:
     """(F, 4, 4) T_map_lidar of every frame from its OXTS packet (the devkit's conversion)."""
+    if drive.packets is None:
+        raise PosesUnavailable(f"{drive.drive / OXTS / 'data'}: a frame has no OXTS packet")
     T_world_imu = oxts.normalise_poses(oxts.world_poses(drive.packets), config.normalise)
     return T_world_imu @ invert_pose(drive.calibration.T_velo_imu)
 
 
+def odometry_poses(drive: KittiRawDataset, config: KittiRawConfig) -> np.ndarray:
+    """(F, 4, 4) NaN poses for LiDAR odometry to fill; the OXTS poses when every scan has a packet
+    (the odometry then starts from the first and its error is measured against them)."""
+    if drive.packets is not None:
+        return oxts_poses(drive, config)
+    return np.full((len(drive), 4, 4), np.nan)
+
+
 # Where poses come from, by the name `KittiRawConfig.poses` takes: a source is a function of the
 # opened drive (its scans, packets, calibration) and the options returning (F, 4, 4) T_map_lidar.
-# Odometry registers here as another source.
-POSE_SOURCES: dict[str, PoseSource] = {"oxts": oxts_poses}
+# "odometry" leaves them to LiDAR odometry (the drive's `needs_odometry`).
+POSE_SOURCES: dict[str, PoseSource] = {"oxts": oxts_poses, "odometry": odometry_poses}
 
 
 class KittiRawDataset:
@@ -209,6 +228,7 @@ class KittiRawDataset:
         )
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
+        self.needs_odometry = config.poses == "odometry"
         self.indices, self.scans, self.stamps = self._scans()
         self.packets = self._packets()
         self.cameras, self._camera_folders, self._camera_stamps = self._cameras(config.cameras)
@@ -242,16 +262,20 @@ class KittiRawDataset:
         packets = _indexed_files(self.drive / OXTS / "data", ".txt")
         keep = []
         for index, scan in scans.items():
-            if index in packets:
+            if index in packets or self.needs_odometry:
                 keep.append(index)
             else:
                 self._skip("scans_without_oxts", f"{scan}: no {self.drive / OXTS / 'data' / f'{index:010d}.txt'}")
         if not keep:
-            raise TerraError(f"{self.drive / OXTS / 'data'}: no OXTS packet for any scan (poses come from OXTS)")
+            raise PosesUnavailable(f"{self.drive / OXTS / 'data'}: no OXTS packet for any scan (poses come from OXTS)")
         return np.array(keep), [scans[i] for i in keep], stamps[keep]
 
-    def _packets(self) -> np.ndarray:
-        return oxts.read_packets([self.drive / OXTS / "data" / f"{i:010d}.txt" for i in self.indices])
+    def _packets(self) -> np.ndarray | None:
+        """The OXTS packets of the frames (None when odometry makes the poses and a frame has none)."""
+        paths = [self.drive / OXTS / "data" / f"{i:010d}.txt" for i in self.indices]
+        if self.needs_odometry and not all(p.is_file() for p in paths):
+            return None
+        return oxts.read_packets(paths)
 
     def _cameras(self, folders: Sequence[str]) -> tuple[list[CameraCalibration], list[str], list[np.ndarray | None]]:
         """Calibrations of the configured camera folders present, checked against their first image."""
@@ -340,6 +364,10 @@ class KittiRawDataset:
         from terra.datasets.kitti_labels import ground_truth_from_labels, read_drive_labels
 
         labels = read_drive_labels(self.drive)
+        if labels and not np.isfinite(self.poses).all():
+            raise TerraError(
+                f"{self.drive}: KITTI labels give ground truth in the OXTS poses' frame; this drive has none"
+            )
         if not labels:
             raise TerraError(
                 f"{self.drive}: no ground truth (no {GROUND_TRUTH_DIR}/ beside it and no KITTI labels: "
@@ -350,16 +378,19 @@ class KittiRawDataset:
 
     def info(self) -> SourceInfo:
         """What the drive holds (no scan is read)."""
-        lat, lon, alt = (float(v) for v in self.packets[0, :3])
-        details = {
+        details: dict = {
             "date": self.date_folder.name,
             "drive": self.drive.name,
             "calib_time": self.calibration.cam_to_cam.text.get("calib_time", ""),
             "camera_folders": list(self._camera_folders),
-            "oxts_origin": {"lat": lat, "lon": lon, "alt": alt},
-            "mercator_scale": oxts.mercator_scale(lat),
-            "normalise": self.normalise,
         }
+        pose = {"odometry": "odometry (KISS-ICP)"}
+        if self.packets is not None:
+            lat, lon, alt = (float(v) for v in self.packets[0, :3])
+            scale = oxts.mercator_scale(lat)
+            details.update({"oxts_origin": {"lat": lat, "lon": lon, "alt": alt}, "mercator_scale": scale})
+            pose["oxts"] = f"OXTS (Mercator, scale cos({lat:.6f} deg) = {scale:.6f}; origin {self.normalise})"
+        details["normalise"] = self.normalise
         from terra.datasets.kitti_labels import label_files
 
         labels = label_files(self.drive)
@@ -367,8 +398,6 @@ class KittiRawDataset:
             details["labels"] = [str(p.relative_to(self.drive)) for p in labels[:3]] + (
                 ["..."] if len(labels) > 3 else []
             )
-        scale = oxts.mercator_scale(lat)
-        pose = {"oxts": f"OXTS (Mercator, scale cos({lat:.6f} deg) = {scale:.6f}; origin {self.normalise})"}
         return SourceInfo(
             "kitti-raw",
             str(self.drive),
@@ -397,4 +426,5 @@ LOADER = Loader(
     _open,
     KittiRawConfig,
     "KITTI raw drives (DATE/DATE_drive_NNNN_sync/ with velodyne_points, image_02/03, oxts; calib_*.txt in DATE/)",
+    without_poses={"poses": "odometry"},
 )

@@ -28,13 +28,16 @@ class NoOptions(Section):
 @dataclass(frozen=True)
 class Loader:
     """One source format: `open(path, options)` gives its frame stream; `options` is an instance of
-    `config` (defaults unless the user's `dataset` section sets fields)."""
+    `config` (defaults unless the user's `dataset` section sets fields). `without_poses`: the
+    options that open the source without its own poses (frames with NaN poses and `needs_odometry`
+    set, for LiDAR odometry), applied by `--poses odometry` before the loader checks its poses."""
 
     name: str
     detect: Callable[[Path], bool]
     open: Callable[[Path, Any], Dataset]
     config: type[Section] = field(default=NoOptions)
     description: str = ""
+    without_poses: Mapping[str, Any] = field(default_factory=dict)
 
 
 LOADERS: Registry[Loader] = Registry(
@@ -67,21 +70,56 @@ def detect_format(path: str | Path) -> str | None:
     return next((name for name, loader in LOADERS.items() if loader.detect(Path(path))), None)
 
 
-def open_dataset(path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None) -> Dataset:
+def open_dataset(
+    path: str | Path, format: str = "auto", options: Mapping[str, Any] | None = None, poses: str = "source"
+) -> Dataset:
     """Open a dataset (folder or file); `format` is a loader name or 'auto' to detect it.
 
     `options` are the loader's settings (its config section's fields), e.g. from a config file's
-    `dataset` section."""
+    `dataset` section. poses: "source" (the source's own; PosesUnavailable when it has none that
+    reach the LiDAR) or "odometry" (the loader's `without_poses` options override `options`: the
+    frames come without poses, which LiDAR odometry then computes)."""
     from terra.bundle import recover
 
+    if poses not in ("source", "odometry"):
+        raise ValueError(f"poses must be 'source' or 'odometry', got {poses!r}")
     path = Path(path)
     recover(path)  # a dataset folder whose replacement (`terra sim --overwrite`) was cut short
     if not path.exists():
         raise TerraError(f"{path}: dataset does not exist")
     if format != "auto":
-        loader = LOADERS.get(format)
-        return loader.open(path, loader_options(loader, options))
+        return _open_with(LOADERS.get(format), path, options, poses)
     for _, loader in LOADERS.items():
         if loader.detect(path):
-            return loader.open(path, loader_options(loader, options))
-    raise TerraError(f"{path}: not a recognised dataset (expected one of: {', '.join(loader_names())})")
+            return _open_with(loader, path, options, poses)
+    raise TerraError(f"{path}: not a recognised dataset{_kind_note(path)}. Recognised formats: {recognised_formats()}")
+
+
+def _open_with(loader: Loader, path: Path, options: Mapping[str, Any] | None, poses: str) -> Dataset:
+    if poses == "odometry":
+        options = {**(options or {}), **loader.without_poses}
+    return loader.open(path, loader_options(loader, options))
+
+
+# Files people reach for that no loader reads, and what they are.
+_UNREAD_KINDS = {
+    ".pcap": "raw sensor packets, which need the sensor's driver: record its PointCloud2 into a bag",
+    ".pcapng": "raw sensor packets, which need the sensor's driver: record its PointCloud2 into a bag",
+    ".pcd": "one point cloud without poses or images",
+    ".ply": "one point cloud without poses or images",
+    ".las": "one point cloud without poses or images",
+    ".laz": "one point cloud without poses or images",
+    ".bin": "one scan; a KITTI sequence is the folder above velodyne/",
+}
+
+
+def _kind_note(path: Path) -> str:
+    kind = _UNREAD_KINDS.get(path.suffix.lower()) if path.is_file() else None
+    return f" (a {path.suffix.lower()} file is {kind})" if kind else ""
+
+
+def recognised_formats() -> str:
+    """Every loader's name with what it reads, for messages: 'rosbag: ROS 1 .bag, ...; semantickitti: ...'."""
+    return "; ".join(
+        f"{name}: {loader.description}" if loader.description else name for name, loader in LOADERS.items()
+    )

@@ -27,7 +27,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass, SourceInfo
+from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SemanticClass, SourceInfo
 from terra.datasets.folder_io import read_classes
 from terra.datasets.registry import Loader
 from terra.datasets.ros.bag import Bag, bag_paths, is_bag, recording_name
@@ -35,7 +35,7 @@ from terra.datasets.ros.camera_info import camera_from_info
 from terra.datasets.ros.images import decode_compressed, decode_image, decode_labels
 from terra.datasets.ros.index import BagIndex, Stream, index_bag
 from terra.datasets.ros.pointcloud2 import decode_pointcloud2
-from terra.datasets.ros.tf import TfTree
+from terra.datasets.ros.tf import TfTree, quoted
 from terra.datasets.ros.topics import CameraTopics, choose_cameras, choose_lidar, choose_odometry
 from terra.datasets.sync import nearest
 from terra.errors import TerraError
@@ -152,39 +152,65 @@ class RosbagDataset:
         self.calibrations = [self._calibration(cam) for cam in self.camera_topics]
         self._frames = self._pair(scans, poses, valid)
         if not self._frames:
-            raise TerraError(
+            raise PosesUnavailable(
                 f"{self.path}: no scan of {self.lidar_topic} has a pose ({self.pose_source}); "
                 f"first: {self.skipped_notes.get('scans_without_pose', '')}"
             )
 
     # ------------------------------------------------------------------ setup
     def _poses(self, stamps: np.ndarray, odom_topic: str | None):
-        """(poses (S, 4, 4), valid (S,), source in words, needs odometry, map frame) at the scan stamps."""
+        """(poses (S, 4, 4), valid (S,), source in words, needs odometry, map frame) at the scan stamps.
+        PosesUnavailable when the configured (or found) pose source does not reach the LiDAR frame."""
+        if self.config.poses == "odometry":
+            return self._reference_poses(stamps)
+        try:
+            return self._source_poses(stamps, odom_topic)
+        except PosesUnavailable:
+            raise
+        except TerraError as exc:  # a TF tree or odometry topic that does not reach the LiDAR frame
+            raise PosesUnavailable(str(exc)) from None
+
+    def _source_poses(self, stamps: np.ndarray, odom_topic: str | None):
+        """_poses from /tf or the odometry topic (or none at all: then odometry is needed)."""
         mode, tree = self.config.poses, self.index.tf
         map_frame = self.config.map_frame or self._auto_map_frame(tree)
-        use_tf = mode in ("tf", "odometry") or (mode == "auto" and map_frame is not None)
         if mode == "tf" and map_frame is None:
-            raise TerraError(
+            raise PosesUnavailable(
                 f"{self.path}: no moving TF transform above LiDAR frame '{self.lidar_frame}' gives poses "
-                f"(frames: {', '.join(tree.frames()) or 'none'}); set dataset.map_frame or another dataset.poses"
+                f"(frames: {quoted(tree.frames())}); set dataset.map_frame or another dataset.poses"
             )
-        if use_tf and map_frame is not None:
+        if mode in ("tf", "auto") and map_frame is not None:
             poses, valid = tree.lookup(map_frame, self.lidar_frame, stamps, self.config.max_pose_gap)
-            self._pose_lookup = None if mode == "odometry" else (tree, map_frame)
-            return poses, valid, f"tf {map_frame} -> {self.lidar_frame}", mode == "odometry", map_frame
+            self._pose_lookup = (tree, map_frame)
+            return poses, valid, f"tf {map_frame} -> {self.lidar_frame}", False, map_frame
         odometry, odometry_frames = self.index.odometry, self.index.odometry_frames
-        if (
-            mode in ("auto", "topic")
-            and odom_topic is not None
-            and odometry is not None
-            and odometry_frames is not None
-        ):
-            parent, _ = odometry_frames
-            poses, valid = odometry.lookup(parent, self.lidar_frame, stamps, self.config.max_pose_gap)
+        if odom_topic is not None and odometry is not None and odometry_frames is not None:
+            parent, child = odometry_frames
+            try:
+                poses, valid = odometry.lookup(parent, self.lidar_frame, stamps, self.config.max_pose_gap)
+            except TerraError as exc:
+                raise PosesUnavailable(
+                    f"{self.path}: odometry topic {odom_topic} ('{parent}' -> '{child}') does not reach LiDAR "
+                    f"frame '{self.lidar_frame}' ({exc})"
+                ) from None
             self._pose_lookup = (odometry, parent)
             return poses, valid, f"odometry topic {odom_topic} ({parent} -> {self.lidar_frame})", False, parent
         nan = np.full((len(stamps), 4, 4), np.nan)
         return nan, np.ones(len(stamps), bool), "odometry (KISS-ICP)", True, None
+
+    def _reference_poses(self, stamps: np.ndarray):
+        """_poses for `poses: odometry`: every scan is a frame; its pose (NaN where /tf cannot give one)
+        only measures the odometry's error against /tf, so nothing about the TF tree can refuse the bag."""
+        tree = self.index.tf
+        map_frame = self.config.map_frame or self._auto_map_frame(tree)
+        poses = np.full((len(stamps), 4, 4), np.nan)
+        if map_frame is not None:
+            try:
+                found, valid = tree.lookup(map_frame, self.lidar_frame, stamps, self.config.max_pose_gap)
+                poses[valid] = found[valid]
+            except TerraError:
+                pass  # no reference: the odometry's errors are not measured
+        return poses, np.ones(len(stamps), bool), "odometry (KISS-ICP)", True, map_frame
 
     def _auto_map_frame(self, tree) -> str | None:
         """The preferred frame (map, odom, world) above the LiDAR's first moving transform, else the
@@ -382,4 +408,5 @@ LOADER = Loader(
     _open,
     RosbagConfig,
     "ROS 1 .bag, ROS 2 bag folder (sqlite3 or mcap) or .mcap file: PointCloud2, images, CameraInfo, TF",
+    without_poses={"poses": "odometry"},
 )

@@ -25,11 +25,13 @@ import io
 import json
 import warnings
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import yaml
+from pydantic import Field
 
-from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, PosesUnavailable, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (
     calibration_from_json,
     calibration_to_json,
@@ -47,6 +49,7 @@ from terra.datasets.folder_io import (
 from terra.datasets.kitti_common import (
     STANDARD_LABELS,
     STANDARD_TERRAIN,
+    check_translation,
     decompose_projection,
     read_calib_file,
     standard_classes,
@@ -57,6 +60,7 @@ from terra.errors import TerraError
 from terra.fileio import read_text, read_yaml
 from terra.geometry import CameraCalibration, invert_pose, make_pose
 from terra.progress import progress
+from terra.schemas import Section
 
 LEGEND = "semantic-kitti.yaml"
 CAMERAS = "terra_cameras.json"
@@ -199,10 +203,21 @@ def _sequence_dir(path: Path) -> Path:
     raise TerraError(f"{path}: {len(seqs)} sequences; open one of them, e.g. {seqs[0]}")
 
 
+class SemanticKittiConfig(Section):
+    """Options of the KITTI odometry / SemanticKITTI loader."""
+
+    poses: Literal["poses.txt", "odometry"] = Field(
+        default="poses.txt",
+        description="where T_map_lidar comes from: 'poses.txt' (the sequence's ground truth) or 'odometry' "
+        "(KISS-ICP on the scans; poses.txt, when present, only measures its error)",
+    )
+
+
 class SemanticKittiDataset:
     """Frames of one SemanticKITTI / KITTI odometry sequence."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, config: SemanticKittiConfig | None = None) -> None:
+        config = config or SemanticKittiConfig()
         self.seq = seq = _sequence_dir(path)
         root = seq.parent.parent if seq.parent.name == "sequences" else seq
         self.root = root
@@ -220,15 +235,8 @@ class SemanticKittiDataset:
             if "Tr" in calib:
                 self.Tr = calib_file.pose_3x4("Tr")
         self._calib_file = calib_file
-        poses_path = seq / "poses.txt"
-        if not poses_path.is_file():
-            raise TerraError(f"{seq}: no poses.txt (KITTI ground-truth poses are needed; run odometry first)")
-        rows = _read_table(poses_path, 12, len(self.scans), "12 numbers (a 3x4 camera-0 pose, row-major)")
-        # poses.txt holds camera-0 poses P; the LiDAR pose is Tr^-1 P Tr.
-        P = np.zeros((len(rows), 4, 4))
-        P[:, :3, :] = rows.reshape(-1, 3, 4)
-        P[:, 3, 3] = 1.0
-        self.poses = invert_pose(self.Tr) @ P @ self.Tr
+        self.needs_odometry = config.poses == "odometry"
+        self.poses = self._read_poses(seq / "poses.txt")
         times_path = seq / "times.txt"
         if times_path.is_file():
             self.stamps = _read_table(times_path, 1, len(self.scans), "one time in seconds")[:, 0]
@@ -236,6 +244,19 @@ class SemanticKittiDataset:
             self.stamps = np.arange(len(self.scans), dtype=float)
         self.cameras, self._camera_folders = self._cameras(calib)
         self._ids_from_kitti, self.classes = self._class_mapping(root)
+
+    def _read_poses(self, poses_path: Path) -> np.ndarray:
+        """(F, 4, 4) T_map_lidar from poses.txt (NaN without it when odometry makes the poses)."""
+        if not poses_path.is_file():
+            if self.needs_odometry:
+                return np.full((len(self.scans), 4, 4), np.nan)
+            raise PosesUnavailable(f"{self.seq}: no poses.txt (the sequence's ground-truth poses)")
+        rows = _read_table(poses_path, 12, len(self.scans), "12 numbers (a 3x4 camera-0 pose, row-major)")
+        # poses.txt holds camera-0 poses P; the LiDAR pose is Tr^-1 P Tr.
+        P = np.zeros((len(rows), 4, 4))
+        P[:, :3, :] = rows.reshape(-1, 3, 4)
+        P[:, 3, 3] = 1.0
+        return invert_pose(self.Tr) @ P @ self.Tr
 
     def _cameras(self, calib: dict[str, np.ndarray]) -> tuple[list[CameraCalibration], list[str]]:
         """Calibrations and image folders: exact ones from terra_cameras.json (ours, with
@@ -256,12 +277,15 @@ class SemanticKittiDataset:
             try:
                 K, T_k_0 = decompose_projection(calib[f"P{k}"].reshape(3, 4))
             except ValueError as exc:
-                where = self._calib_file.where(f"P{k}") if self._calib_file else str(self.seq / "calib.txt")
-                raise TerraError(f"{where}: P{k} {exc}") from None
+                raise TerraError(f"{self._calib_where(k)}: P{k} {exc}") from None
+            check_translation(T_k_0[:3, 3], f"{self._calib_where(k)}: P{k}'s baseline K^-1 t")
             w, h = image_size(first[0])
             cams.append(CameraCalibration(f"image_{k}", w, h, K, np.zeros(5), T_k_0 @ self.Tr))
             folders.append(f"image_{k}")
         return cams, folders
+
+    def _calib_where(self, k: int) -> str:
+        return self._calib_file.where(f"P{k}") if self._calib_file else str(self.seq / "calib.txt")
 
     def _class_mapping(self, root: Path) -> tuple[np.ndarray, ClassTable]:
         legend_path = root / LEGEND
@@ -343,7 +367,7 @@ class SemanticKittiDataset:
             len(self.scans),
             span,
             list(self.cameras),
-            "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)",
+            "odometry (KISS-ICP)" if self.needs_odometry else "poses.txt (camera-0 poses, LiDAR pose = Tr^-1 P Tr)",
             {},
             {},
             {
@@ -391,6 +415,8 @@ def _detect(path: Path) -> bool:
 LOADER = Loader(
     "semantickitti",
     _detect,
-    lambda path, _options: SemanticKittiDataset(path),
-    description="KITTI odometry / SemanticKITTI sequences (velodyne/, labels/, poses.txt, calib.txt)",
+    lambda path, options: SemanticKittiDataset(path, options),
+    SemanticKittiConfig,
+    "KITTI odometry / SemanticKITTI sequences (velodyne/, labels/, poses.txt, calib.txt)",
+    without_poses={"poses": "odometry"},
 )

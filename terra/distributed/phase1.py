@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import shutil
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,8 +64,10 @@ def map_on_cluster(
     out: Path,
     cluster: ClusterConfig,
     show_progress: bool = True,
+    accept: Callable[[dict, dict], None] | None = None,
 ) -> tuple[MapRun, ClusterRun]:
-    """Map `dataset` (opened from `source`) into the bundle `out`, perception on the cluster."""
+    """Map `dataset` (opened from `source`) into the bundle `out`, perception on the cluster
+    (`accept` as run_mapping's)."""
     out = Path(out)
     timer = StageTimer()
     check_output(out)
@@ -81,7 +84,9 @@ def map_on_cluster(
             connected = stack.enter_context(connect(cluster))
         with timer.stage("workers ready"):
             feed, summary = _start(connected, job, cluster, show_progress)
-        run = run_mapping(dataset, config, out, show_progress, perception=perception, feed=feed, timer=timer)
+        run = run_mapping(
+            dataset, config, out, show_progress, perception=perception, feed=feed, timer=timer, accept=accept
+        )
     if temporary:
         _remove_transient_cache(root)
         run.cache = CacheSummary(str(root), 0, 0) if run.cache is None else run.cache

@@ -65,7 +65,8 @@ class SourceSpec:
             raise TerraError("the source names neither a dataset path nor --sim")
         from terra.datasets.registry import open_dataset
 
-        return open_dataset(self.path, self.format, self.options or None)
+        # With poses from odometry the loader opens without its own (which may be missing or broken).
+        return open_dataset(self.path, self.format, self.options or None, poses=self.poses)
 
     def with_odometry(self) -> SourceSpec:
         """This spec for a source whose poses the client computes with odometry."""

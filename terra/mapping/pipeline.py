@@ -14,7 +14,7 @@ bundle, if any, is touched.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -89,11 +89,14 @@ def run_mapping(
     feed: FrameFeed | None = None,
     timer: StageTimer | None = None,
     append: bool = False,
+    accept: Callable[[dict, dict], None] | None = None,
 ) -> MapRun:
     """`build_map` with its timings and counters (used by `terra map` for the summary). `feed` orders the
     frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default). `append`:
     continue the map already in `out` from its kept fusion state, the frames of `dataset` following its
-    own (the same bytes as one run over both sources); the scene graph, if any, is kept and marked stale."""
+    own (the same bytes as one run over both sources); the scene graph, if any, is kept and marked stale.
+    `accept` sees the finished map's counters and notes before anything is written: a TerraError it
+    raises leaves `out` as it was and no checkpoint behind (`terra map --strict`)."""
     out = Path(out)
     timer = timer if timer is not None else StageTimer()
     feed = feed if feed is not None else SerialFeed(show_progress)
@@ -121,6 +124,12 @@ def run_mapping(
     start = _resume(checkpoint, key, mapper)
     try:
         msm, stats = _fuse_all(dataset, mapper, checkpoint, key, start, feed)
+        if accept is not None:
+            try:
+                accept(stats, dict(mapper.stats.notes))
+            except TerraError:
+                checkpoint.discard()
+                raise
         with timer.stage("write"):
             bundle = _write(out, msm, mapper, run, dataset, sources, base)
     except OutputError as exc:

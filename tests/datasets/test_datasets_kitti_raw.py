@@ -218,6 +218,23 @@ def damage(drive, what):
         path = date / "calib_velo_to_cam.txt"
         path.write_text(path.read_text().replace("R: 7.533745e-03", "R: 1.533745e-01"))
         return rf"{path}:2: R is not a rotation matrix"
+    if what == "imu translation 1e308":
+        path = date / "calib_imu_to_velo.txt"
+        path.write_text(path.read_text().replace("T: -8.086759e-01", "T: 1e308"))
+        return rf"{path}:3: T must be within \+-1e\+07 m per axis, got 1e\+308 m"
+    if what == "velo rotation 1e308":
+        path = date / "calib_velo_to_cam.txt"
+        path.write_text(path.read_text().replace("R: 7.533745e-03", "R: 1e308"))
+        return rf"{path}:2: R is not a rotation matrix"
+    if what == "P_rect baseline 1e308":
+        path = date / "calib_cam_to_cam.txt"
+        path.write_text(
+            path.read_text().replace(
+                "P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01",
+                "P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+300",
+            )
+        )
+        return rf"{path}:13: P_rect_02's baseline K\^-1 t must be within \+-1e\+07 m per axis"
     if what == "missing calib":
         path = date / "calib_imu_to_velo.txt"
         path.unlink()
@@ -247,6 +264,9 @@ def damage(drive, what):
         "calib number",
         "P_rect length",
         "velo rotation",
+        "imu translation 1e308",
+        "velo rotation 1e308",
+        "P_rect baseline 1e308",
         "missing calib",
         "stamp",
         "oxts fields",

@@ -47,7 +47,8 @@ def test_registry_errors(originals, tmp_path):
     (tmp_path / "photos" / "a.txt").write_text("x")
     with pytest.raises(
         TerraError,
-        match=r"photos: not a recognised dataset \(expected one of: kitti-raw, rosbag, semantickitti, terra-folder",
+        match=r"photos: not a recognised dataset\. Recognised formats: terra-folder: .*; semantickitti: .*; "
+        r"kitti-raw: KITTI raw drives .*; rosbag: ROS 1 \.bag",
     ):
         open_dataset(tmp_path / "photos")
     with pytest.raises(TerraError, match="does not exist"):
@@ -125,6 +126,11 @@ def test_terra_folder_corrupt_file_names_the_file(copy, what):
             ds[i]
     message = str(info.value)
     assert message.startswith(str(path)) and "\n" not in message
+    if what == "Tr translation 1e308":
+        assert (
+            message
+            == f"{path}:5: Tr's translation must be within +-1e+07 m per axis, got 1e+308 m (a typo or an overflow)"
+        )
 
 
 def test_terra_folder_missing_images_skip_scans_like_the_reference(copy):
@@ -173,6 +179,12 @@ def damage_kitti(root, what):
     elif what == "calib":
         path = seq / "calib.txt"
         path.write_text("P0: 1 2 3\nTr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    elif what == "Tr translation 1e308":
+        path = seq / "calib.txt"
+        text = path.read_text().splitlines()
+        row = text[-1].split()
+        row[4] = "1e308"  # Tr's x translation: a finite number that overflows any product
+        path.write_text("\n".join(text[:-1] + [" ".join(row)]) + "\n")
     elif what == "cameras json":
         path = seq / "terra_cameras.json"
         path.write_text('{"cameras": [{"name": "x"}]}')
@@ -195,6 +207,7 @@ def damage_kitti(root, what):
         "missing poses",
         "times",
         "calib",
+        "Tr translation 1e308",
         "cameras json",
         "image",
         "legend",
@@ -209,6 +222,11 @@ def test_semantickitti_corrupt_file_names_the_file(copy, what):
             ds[i]
     message = str(info.value)
     assert message.startswith(str(path)) and "\n" not in message
+    if what == "Tr translation 1e308":
+        assert (
+            message
+            == f"{path}:5: Tr's translation must be within +-1e+07 m per axis, got 1e+308 m (a typo or an overflow)"
+        )
 
 
 def test_decompose_projection_recovers_scaled_and_rotated_cameras():
@@ -255,3 +273,17 @@ def test_folder_extracted_by_the_authors_tools(copy):
             np.testing.assert_allclose(cam.calibration.T_cam_lidar, exp.calibration.T_cam_lidar, atol=1e-12)
     global_map = ds.global_map()
     assert global_map is not None and global_map.shape[1] == 3
+
+
+@pytest.mark.parametrize(("name", "kind"), [("drive.pcap", "raw sensor packets"), ("scan.pcd", "one point cloud")])
+def test_unread_file_kinds_are_named_with_the_recognised_formats(tmp_path, capsys, name, kind):
+    """A pcap or PCD file: one line saying what the file is and which formats Terra reads."""
+    from terra.cli import run
+
+    (tmp_path / name).write_bytes(b"\xd4\xc3\xb2\xa1" + bytes(20))
+    assert run(["map", str(tmp_path / name), "--out", str(tmp_path / "x.terra")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{name}: not a recognised dataset" in err and kind in err
+    for format in loader_names():
+        assert f"{format}: " in err
+    assert not (tmp_path / "x.terra").exists()

@@ -642,3 +642,21 @@ def test_a_bag_of_unlabelled_images_warns_that_the_map_has_no_semantics(capsys, 
     assert len(warnings) == 1 and "all 3 images were skipped" in warnings[0], err
     assert "perception.backend: models" in warnings[0] and "no semantic labels" in warnings[0]
     _assert_one_line_exit_2(capsys, ["build", str(out)], "its images gave no terrain semantics")
+
+
+def test_strict_refuses_a_map_whose_images_were_all_skipped(capsys, tmp_path):
+    """`--strict`: exit 2 with one line naming the reason and the remedy, nothing written, and an
+    existing bundle at --out (with --overwrite) left as it was."""
+    bag = _camera_bag(tmp_path)
+    out = tmp_path / "m.terra"
+    assert run(["map", str(bag), "--out", str(out), "--strict", "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("terra: error: --strict: all 3 images were skipped (")
+    assert "perception.backend: models" in err and "label topics" in err and "nothing was written" in err
+    assert not out.exists() and not list(tmp_path.glob("m.terra.*"))
+    assert run(["map", str(bag), "--out", str(out), "-q"]) == 0  # without --strict: written, with the warning
+    capsys.readouterr()
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert run(["map", str(bag), "--out", str(out), "--strict", "--overwrite", "-q"]) == 2
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert not list(tmp_path.glob("m.terra.*"))

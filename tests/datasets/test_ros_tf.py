@@ -65,7 +65,8 @@ def test_disconnected_frames_name_both_and_list_the_frames():
     tf = tree()
     tf.add("odom", "imu", pose_to_xyz_quat(np.eye(4)), None)
     with pytest.raises(
-        TerraError, match=r"does not connect 'odom' and 'lidar'.*frames: base_link, cam, imu, lidar, map, odom"
+        TerraError,
+        match=r"does not connect 'odom' and 'lidar'.*frames: 'base_link', 'cam', 'imu', 'lidar', 'map', 'odom'$",
     ):
         tf.lookup("odom", "lidar", np.array([0.0]))
     with pytest.raises(TerraError, match="does not connect 'map' and 'os_lidar': no transform has frame 'os_lidar'"):

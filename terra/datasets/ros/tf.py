@@ -136,14 +136,14 @@ class TfTree:
             if name not in self.frames():
                 raise TerraError(
                     f"TF does not connect '{target}' and '{source}': no transform has frame '{name}'; "
-                    f"frames: {', '.join(self.frames()) or 'none'}"
+                    f"frames: {quoted(self.frames())}"
                 )
         up_t, up_s = self.ancestors(target), self.ancestors(source)
         common = next((f for f in up_s if f in up_t), None)
         if common is None:
             raise TerraError(
                 f"TF does not connect '{target}' and '{source}' (their trees have roots '{up_t[-1]}' and "
-                f"'{up_s[-1]}'); frames: {', '.join(self.frames())}"
+                f"'{up_s[-1]}'); frames: {quoted(self.frames())}"
             )
         return up_s[: up_s.index(common) + 1], up_t[: up_t.index(common) + 1]
 
@@ -175,6 +175,11 @@ class TfTree:
                 valid &= ok
             T = edge @ T
         return T, valid
+
+
+def quoted(frames: list[str]) -> str:
+    """Frame names for a message, each quoted so an empty name (a header without frame_id) shows."""
+    return ", ".join(f"'{name}'" for name in frames) or "none"
 
 
 def _rigid_inverse(T: np.ndarray) -> np.ndarray:
