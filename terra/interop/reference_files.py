@@ -278,15 +278,21 @@ def _unsafe_globals(path: Path, exc: Exception) -> str:
 # ------------------------------------------------------------------------------ shapes
 
 
+def shown(value: Any) -> str:
+    """`value` for a message: integers past 64 bits by their size (the digits of a huge one are
+    neither readable nor cheap), anything else by a repr cut to 40 characters."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 63:
+        bits = value.bit_length()
+        return f"{value} (a {bits}-bit integer)" if bits <= 128 else f"a {bits}-bit integer"
+    return short(repr(value))
+
+
 def as_index(value: Any, path: Path, what: str) -> int:
     """A non-negative integer up to MAX_INDEX from an int or numpy integer (TerraError otherwise)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 0 <= value <= MAX_INDEX:
-        shown = (
-            short(repr(value))
-            if not isinstance(value, int) or value.bit_length() < 128
-            else f"a {value.bit_length()}-bit integer"
+        raise TerraError(
+            f"{path}: {what} must be integers from 0 to 2**62, found {shown(value)} ({type(value).__name__})"
         )
-        raise TerraError(f"{path}: {what} must be integers from 0 to 2**62, found {shown} ({type(value).__name__})")
     return int(value)
 
 
@@ -299,12 +305,7 @@ def as_range(value: Any, path: Path, key: int) -> float:
         except OverflowError:  # an int beyond float's range
             number = None
     if number is None or not np.isfinite(number) or number < 0:
-        shown = (
-            f"a {value.bit_length()}-bit integer"
-            if isinstance(value, int) and value.bit_length() > 64
-            else short(repr(value))
-        )
-        raise TerraError(f"{path}: entry {key}: expected a finite range in metres >= 0, got {shown}")
+        raise TerraError(f"{path}: entry {key}: expected a finite range in metres >= 0, got {shown(value)}")
     return number
 
 
