@@ -82,6 +82,7 @@ def range_from_name(path: Path, text: str) -> float:
 
 def short(text: str, limit: int = 40) -> str:
     """`text` cut to `limit` characters for a message (a file may hold anything)."""
+    text = " ".join(text.split())  # one line (a numpy array's repr spans several)
     return text if len(text) <= limit else text[:limit] + "..."
 
 
@@ -89,12 +90,12 @@ def unit_rows(vectors: np.ndarray, tolerance: float = 1e-6) -> np.ndarray:
     """float32 rows scaled to unit length where their norm is off by more than `tolerance`; rows
     already unit are kept bit for bit (normalising them again can move the last bit, and an export
     and import would then not give back the same vectors)."""
-    from terra.perception.text import normalize_rows
-
     vectors = np.array(vectors, dtype=np.float32)
-    norms = np.linalg.norm(vectors.astype(np.float64), axis=-1)
-    off = np.abs(norms - 1.0) > tolerance
-    vectors[off] = normalize_rows(vectors[off])
+    wide = vectors.astype(np.float64)  # float32 norms overflow past 1e19 per element
+    norms = np.linalg.norm(wide, axis=-1, keepdims=True)
+    off = np.abs(norms[:, 0] - 1.0) > tolerance
+    scaled = np.divide(wide[off], norms[off], out=np.zeros_like(wide[off]), where=norms[off] > 0)
+    vectors[off] = scaled.astype(np.float32)
     return vectors
 
 
@@ -258,7 +259,12 @@ def load_tensor(path: Path) -> np.ndarray:
         obj.dtype.is_floating_point or obj.dtype in (torch.int8, torch.int16, torch.int32, torch.int64, torch.uint8)
     ):
         raise TerraError(f"{path}: tensor of dtype {obj.dtype}, expected a real-valued tensor")
-    return obj.detach().to(torch.float32).numpy()
+    array = obj.detach().to(torch.float64).numpy()
+    if not np.isfinite(array).all():
+        raise TerraError(f"{path}: holds NaN or infinite values, expected finite embeddings")
+    if np.abs(array).max(initial=0.0) > np.finfo(np.float32).max:
+        raise TerraError(f"{path}: holds values beyond float32's range, expected embeddings")
+    return array.astype(np.float32)
 
 
 def _unsafe_globals(path: Path, exc: Exception) -> str:

@@ -43,6 +43,7 @@ from terra.mapping.visibility import VisibilityIndex
 DEFAULT_EMBEDDER = "clip-vit-b-16"
 MIN_RANGES = 4  # points with a range needed to trilaterate one image position
 MAX_RANGES = 400  # ranges used per image (evenly subsampled)
+MAX_CAMERAS = 1024  # camera numbers in image names (stored as int16)
 
 
 @dataclass
@@ -142,12 +143,15 @@ def _image_names(path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
         )
     camera, stamp = np.zeros(count, np.int16), np.zeros(count, np.float64)
     for i, name in enumerate(names):
-        match = rf.IMAGE_NAME.search(str(name)) if isinstance(name, str) else None
-        if match is None or match.group(1) != match.group(2) or int(match.group(1)) < 1:
+        match = rf.IMAGE_NAME.search(name) if isinstance(name, str) else None
+        n = int(match.group(1)) if match and len(match.group(1)) < 6 else 0
+        t = float(match.group(3)) if match else np.nan
+        if match is None or match.group(1) != match.group(2) or not 1 <= n <= MAX_CAMERAS or not np.isfinite(t):
             raise TerraError(
-                f"{path}: image name {i} is {name!r}, expected 'camera{{n}}_images/cam{{n}}_img_{{t}}.jpg' (n from 1)"
+                f"{path}: image name {i} is {rf.shown(name)}, expected 'camera{{n}}_images/cam{{n}}_img_{{t}}.jpg' "
+                f"(n from 1 to {MAX_CAMERAS}, t finite seconds)"
             )
-        camera[i], stamp[i] = int(match.group(1)) - 1, float(match.group(3))
+        camera[i], stamp[i] = n - 1, t
     return camera, stamp
 
 
