@@ -339,13 +339,13 @@ def is_vit_b16(folder: Path) -> bool:
         config = CLIPConfig.from_pretrained(str(folder), local_files_only=True)
     except (OSError, ValueError):
         return False
-    vision, text = config.vision_config, config.text_config
+    vision, text = config.vision_config, config.text_config  # typed loosely by transformers' stubs
     found = {
         "projection_dim": config.projection_dim,
-        "image_size": vision.image_size,
-        "patch_size": vision.patch_size,
-        "vision_hidden": vision.hidden_size,
-        "text_hidden": text.hidden_size,
+        "image_size": getattr(vision, "image_size", None),
+        "patch_size": getattr(vision, "patch_size", None),
+        "vision_hidden": getattr(vision, "hidden_size", None),
+        "text_hidden": getattr(text, "hidden_size", None),
     }
     return found == VIT_B16
 
