@@ -18,8 +18,10 @@ What they cannot give, and how the bundle copes:
   is recovered by trilateration from the points whose closest image it is (their ranges; at least
   4 points), else taken from the other cameras of the same scan, else the centroid of the points it
   saw; orientation is then unknown (identity). The manifest counts how each position was found;
-- per-image visibility: rebuilt from "images within range" and "closest image" as visibility
-  cells, so Phase 2's 20 m image rule works as on a map Terra made.
+- per-image visibility: from Terra's terra_visibility.npy when the sidecar records it (exact),
+  else rebuilt from "images within range" and "closest image" as visibility cells, so Phase 2's
+  20 m image rule works as on a map Terra made (a point's image set merges the cells around it,
+  so the rebuilt index is somewhat wider than the one that wrote the files).
 """
 
 from __future__ import annotations
