@@ -333,6 +333,9 @@ class ReferenceSidecar(_Written):
     what `terra import` needs and their files do not say."""
 
     embedder: EmbedderInfo | None = None
+    stored_dim: Annotated[int, Field(ge=1, le=MAX_EMBEDDING_DIM)] | None = None  # vector width in the files
+    visibility_pairs: Count | None = None  # rows of terra_visibility.npy
+    image_poses: list[Annotated[list[FiniteFloat], Field(min_length=12, max_length=12)]] | None = None
     terrain_classes: UniqueNames | None = None
     camera_names: list[str] | None = None
     voxel_size: PositiveFloat | None = None

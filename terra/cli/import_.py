@@ -20,7 +20,12 @@ TerrainClassesOpt = Annotated[
 ]
 EmbedderOpt = Annotated[
     str | None,
-    typer.Option("--embedder", help="Name of the embedder the files were made with (default clip-vit-b-16)."),
+    typer.Option(
+        "--embedder",
+        help="Name of the embedder the files were made with (default: the sidecar's, else clip-vit-b-16, the "
+        "authors' CLIP ViT-B/16, whose weights queries find through TERRA_CLIP_PATH). Vectors of another size "
+        "are refused.",
+    ),
 ]
 GlobalPcOpt = Annotated[
     Path | None,

@@ -157,7 +157,12 @@ def render_import(result: ImportResult, folder: Path) -> str:
             f"  terrain classes: {', '.join(result.terrain_classes)}",
             "  image positions: "
             + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in result.image_positions.items())
-            + " (orientation unknown)",
+            + (
+                " (exact poses from terra_reference.json)"
+                if "recorded" in result.image_positions
+                else " (orientation unknown)"
+            ),
+            *(f"  note: {note}" for note in result.notes),
         ]
     )
 

@@ -14,8 +14,15 @@ How Terra's map becomes theirs:
 - images within `image_range` metres that saw a point, and the closest image at any range with its
   distance, from the map's visibility index (distances from the camera centre; theirs measure from
   the LiDAR).
+- vectors (bank and images) of an embedder narrower than their 512 (Terra's default text model is
+  384-d) get zero columns up to 512: their Phase 2 sums into torch.zeros(512); norms and cosines
+  are unchanged.
 Everything is written with pickle protocol 4 and torch.save (tensors on the CPU, float32): that is
-their format. terra_reference.json beside them records the embedder and classes for `terra import`.
+their format. terra_reference.json beside them records what `terra import` needs and their files do
+not say: the embedder and its true dimension (the padding is stripped again), the classes, and each
+image's exact camera pose (their files keep no poses, so an import without it estimates them);
+terra_visibility.npy holds the map's visibility index exactly (their per-point image sets merge
+neighbouring cells, so a visibility rebuilt from them is wider and moves place embeddings).
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ from terra import __version__
 from terra.bundle import Bundle, array_bytes, dumps_json
 from terra.interop import reference_files as rf
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.perception.text import normalize_rows
+from terra.mapping.visibility import VisibilityIndex
 
 PICKLE_PROTOCOL = 4
 
@@ -87,7 +94,8 @@ def _tensor_bytes(array: np.ndarray) -> bytes:
 def reference_files(msm: MetricSemanticMap, image_range: float = 20.0) -> dict[str, bytes]:
     """{relative path: bytes} of every file of the export (no sidecar)."""
     n = scan_index(msm)
-    bank = np.vstack([normalize_rows(msm.terrain_embeddings), normalize_rows(msm.bank)]).reshape(-1, msm.dim)
+    width = stored_dim(msm)
+    bank = np.vstack([rf.unit_rows(msm.terrain_embeddings), rf.unit_rows(msm.bank)]).reshape(-1, msm.dim)
     names = [rf.image_name(int(c), float(t)) for c, t in zip(msm.images.camera, msm.images.stamp)]
     within, closest, distance = image_maps(msm, image_range)
     last = float(msm.images.stamp.max()) if len(msm.images) else 0.0
@@ -97,24 +105,46 @@ def reference_files(msm: MetricSemanticMap, image_range: float = 20.0) -> dict[s
     def pickled(obj: Any) -> bytes:
         return pickle.dumps(obj, protocol=PICKLE_PROTOCOL)
 
-    return {
+    files = {
         rf.COUNTS.format(n=n): pickled(reference_counts(msm)),
-        rf.BANK.format(n=n): _tensor_bytes(bank),
-        rf.IMAGE_EMBEDDINGS.format(n=n): _tensor_bytes(normalize_rows(msm.images.embedding).reshape(-1, msm.dim)),
+        rf.BANK.format(n=n): _tensor_bytes(rf.padded(bank, width)),
+        rf.IMAGE_EMBEDDINGS.format(n=n): _tensor_bytes(
+            rf.padded(rf.unit_rows(msm.images.embedding).reshape(-1, msm.dim), width)
+        ),
         rf.IMAGE_NAMES.format(n=n): pickled(names),
         rf.IMAGES_WITHIN.format(thr=rf.range_text(image_range), n=n): pickled(within),
         rf.CLOSEST_IMAGE.format(n=n): pickled(closest),
         rf.CLOSEST_DISTANCE.format(n=n): pickled(distance),
         rf.GLOBAL_PC.format(t=rf.stamp_text(last)): array_bytes(global_pc),
     }
+    if msm.visibility is not None:
+        files[rf.VISIBILITY] = array_bytes(visibility_pairs(msm.visibility))
+    return files
+
+
+def visibility_pairs(visibility: VisibilityIndex) -> np.ndarray:
+    """(nnz, 2) int64 (cell key, image) pairs of the map's visibility index: what the per-point
+    image sets of their format cannot say exactly (a point's set merges the cells around it)."""
+    counts = np.diff(visibility.indptr)
+    return np.column_stack([np.repeat(visibility.cell_keys, counts), visibility.images.astype(np.int64)])
+
+
+def stored_dim(msm: MetricSemanticMap) -> int:
+    """The width of the exported vectors: the map's dimension, zero-padded to their 512 when narrower."""
+    return max(int(msm.dim), rf.REFERENCE_DIM)
 
 
 def sidecar(msm: MetricSemanticMap, bundle: Bundle, image_range: float) -> dict[str, Any]:
-    """What `terra import` needs and their files do not say (their scripts ignore this file)."""
+    """What `terra import` needs and their files do not say (their scripts ignore this file).
+    `image_poses`: per image its T_map_cam's top three rows, row-major (12 floats; JSON keeps
+    float64 exactly)."""
     return {
         "written_by": f"terra {__version__}",
         "source_bundle": bundle.path.name,
         "embedder": {"name": msm.embedder, "dim": msm.dim},
+        "stored_dim": stored_dim(msm),
+        "visibility_pairs": None if msm.visibility is None else int(msm.visibility.nnz),
+        "image_poses": np.asarray(msm.images.T_map_cam, np.float64)[:, :3, :].reshape(-1, 12).tolist(),
         "terrain_classes": list(msm.terrain_classes),
         "class_rows": len(msm.terrain_classes),
         "itr": scan_index(msm),

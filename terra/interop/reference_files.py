@@ -42,6 +42,9 @@ CLOSEST_IMAGE = "gidx2closestimg_dict_itr{n}.pkl"
 CLOSEST_DISTANCE = "gidx2closestimgdist_dict_itr{n}.pkl"
 GLOBAL_PC = "global_pc/global_pc_{t}.npy"
 SIDECAR = "terra_reference.json"  # written by Terra's export; the authors' scripts ignore it
+VISIBILITY = "terra_visibility.npy"  # Terra's export: (n, 2) int64 (visibility cell key, image) pairs
+REFERENCE_DIM = 512  # their Phase 2 sums embeddings into torch.zeros(512) (CLIP ViT-B/16's width)
+MAX_INDEX = 2**62  # the largest index or count taken from their pickles (int64 arithmetic stays exact)
 
 IMAGE_NAME = re.compile(r"camera(\d+)_images[/\\]cam(\d+)_img_(-?\d+(?:\.\d+)?)\.jpg$")
 
@@ -60,6 +63,49 @@ def stamp_text(stamp: float) -> str:
 def range_text(metres: float) -> str:
     """How the reference writes its image range in file names: the YAML float, e.g. 20.0."""
     return repr(float(metres))
+
+
+def range_from_name(path: Path, text: str) -> float:
+    """The image range (metres) of a gidx2imgs_{thr}m_dict file from its `thr` text (TerraError
+    naming the file unless it is a positive finite number)."""
+    try:
+        metres = float(text)
+    except ValueError:
+        metres = float("nan")
+    if not np.isfinite(metres) or metres <= 0:
+        raise TerraError(
+            f"{path}: the image range in the name must be a positive number of metres "
+            f"(gidx2imgs_{{thr}}m_dict with their YAML float, e.g. 20.0), found {short(text)!r}"
+        )
+    return metres
+
+
+def short(text: str, limit: int = 40) -> str:
+    """`text` cut to `limit` characters for a message (a file may hold anything)."""
+    text = " ".join(text.split())  # one line (a numpy array's repr spans several)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def unit_rows(vectors: np.ndarray, tolerance: float = 1e-6) -> np.ndarray:
+    """float32 rows scaled to unit length where their norm is off by more than `tolerance`; rows
+    already unit are kept bit for bit (normalising them again can move the last bit, and an export
+    and import would then not give back the same vectors)."""
+    vectors = np.array(vectors, dtype=np.float32)
+    wide = vectors.astype(np.float64)  # float32 norms overflow past 1e19 per element
+    norms = np.linalg.norm(wide, axis=-1, keepdims=True)
+    off = np.abs(norms[:, 0] - 1.0) > tolerance
+    scaled = np.divide(wide[off], norms[off], out=np.zeros_like(wide[off]), where=norms[off] > 0)
+    vectors[off] = scaled.astype(np.float32)
+    return vectors
+
+
+def padded(vectors: np.ndarray, width: int) -> np.ndarray:
+    """(n, max(d, width)) float32: the (n, d) rows with zero columns appended (norms and cosines
+    unchanged), so their Phase 2's 512-wide sums accept vectors of a narrower embedder."""
+    vectors = np.asarray(vectors, dtype=np.float32)
+    out = np.zeros((vectors.shape[0], max(vectors.shape[1], width)), dtype=np.float32)
+    out[:, : vectors.shape[1]] = vectors
+    return out
 
 
 # ------------------------------------------------------------------------------ safe pickles
@@ -213,7 +259,12 @@ def load_tensor(path: Path) -> np.ndarray:
         obj.dtype.is_floating_point or obj.dtype in (torch.int8, torch.int16, torch.int32, torch.int64, torch.uint8)
     ):
         raise TerraError(f"{path}: tensor of dtype {obj.dtype}, expected a real-valued tensor")
-    return obj.detach().to(torch.float32).numpy()
+    array = obj.detach().to(torch.float64).numpy()
+    if not np.isfinite(array).all():
+        raise TerraError(f"{path}: holds NaN or infinite values, expected finite embeddings")
+    if np.abs(array).max(initial=0.0) > np.finfo(np.float32).max:
+        raise TerraError(f"{path}: holds values beyond float32's range, expected embeddings")
+    return array.astype(np.float32)
 
 
 def _unsafe_globals(path: Path, exc: Exception) -> str:
@@ -233,11 +284,35 @@ def _unsafe_globals(path: Path, exc: Exception) -> str:
 # ------------------------------------------------------------------------------ shapes
 
 
+def shown(value: Any) -> str:
+    """`value` for a message: integers past 64 bits by their size (the digits of a huge one are
+    neither readable nor cheap), anything else by a repr cut to 40 characters."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 63:
+        bits = value.bit_length()
+        return f"{value} (a {bits}-bit integer)" if bits <= 128 else f"a {bits}-bit integer"
+    return short(repr(value))
+
+
 def as_index(value: Any, path: Path, what: str) -> int:
-    """A non-negative integer from an int or numpy integer (TerraError otherwise)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise TerraError(f"{path}: {what} must be non-negative integers, found {value!r} ({type(value).__name__})")
+    """A non-negative integer up to MAX_INDEX from an int or numpy integer (TerraError otherwise)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 0 <= value <= MAX_INDEX:
+        raise TerraError(
+            f"{path}: {what} must be integers from 0 to 2**62, found {shown(value)} ({type(value).__name__})"
+        )
     return int(value)
+
+
+def as_range(value: Any, path: Path, key: int) -> float:
+    """A finite range in metres >= 0 from an int or float of any kind (TerraError otherwise)."""
+    number: float | None = None
+    if not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating)):
+        try:
+            number = float(value)
+        except OverflowError:  # an int beyond float's range
+            number = None
+    if number is None or not np.isfinite(number) or number < 0:
+        raise TerraError(f"{path}: entry {key}: expected a finite range in metres >= 0, got {shown(value)}")
+    return number
 
 
 def as_dict(obj: Any, path: Path, shape: str) -> dict:

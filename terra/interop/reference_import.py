@@ -11,12 +11,17 @@ What they cannot give, and how the bundle copes:
   `terrain_classes` (the segmentation model's names in order) is required;
 - the embedder's name: from the sidecar, else `embedder` (default "clip-vit-b-16", ViT-B/16 CLIP,
   the paper's model); queries need a text embedder registered under that name;
-- per-image poses: each image's position is recovered by trilateration from the points whose
-  closest image it is (their ranges; at least 4 points), else taken from the other cameras of the
-  same scan, else the centroid of the points it saw; orientation is unknown (identity). The
-  manifest counts how each position was found;
-- per-image visibility: rebuilt from "images within range" and "closest image" as visibility
-  cells, so Phase 2's 20 m image rule works as on a map Terra made.
+- the embedder's dimension: vectors wider than it (Terra's export pads 384-d vectors to their 512
+  with zero columns) are cut back to it when the extra columns are all zero; any other mismatch
+  between the vectors and the named embedder is refused before anything is written;
+- per-image poses: from Terra's sidecar when it records them (exact), else each image's position
+  is recovered by trilateration from the points whose closest image it is (their ranges; at least
+  4 points), else taken from the other cameras of the same scan, else the centroid of the points it
+  saw; orientation is then unknown (identity). The manifest counts how each position was found;
+- per-image visibility: from Terra's terra_visibility.npy when the sidecar records it (exact),
+  else rebuilt from "images within range" and "closest image" as visibility cells, so Phase 2's
+  20 m image rule works as on a map Terra made (a point's image set merges the cells around it,
+  so the rebuilt index is somewhat wider than the one that wrote the files).
 """
 
 from __future__ import annotations
@@ -36,11 +41,11 @@ from terra.interop import reference_files as rf
 from terra.interop.results import ImportResult
 from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
 from terra.mapping.visibility import VisibilityIndex
-from terra.perception.text import normalize_rows
 
 DEFAULT_EMBEDDER = "clip-vit-b-16"
 MIN_RANGES = 4  # points with a range needed to trilaterate one image position
 MAX_RANGES = 400  # ranges used per image (evenly subsampled)
+MAX_CAMERAS = 1024  # camera numbers in image names (stored as int16)
 
 
 @dataclass
@@ -140,12 +145,15 @@ def _image_names(path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
         )
     camera, stamp = np.zeros(count, np.int16), np.zeros(count, np.float64)
     for i, name in enumerate(names):
-        match = rf.IMAGE_NAME.search(str(name)) if isinstance(name, str) else None
-        if match is None or match.group(1) != match.group(2) or int(match.group(1)) < 1:
+        match = rf.IMAGE_NAME.search(name) if isinstance(name, str) else None
+        n = int(match.group(1)) if match and len(match.group(1)) < 6 else 0
+        t = float(match.group(3)) if match else np.nan
+        if match is None or match.group(1) != match.group(2) or not 1 <= n <= MAX_CAMERAS or not np.isfinite(t):
             raise TerraError(
-                f"{path}: image name {i} is {name!r}, expected 'camera{{n}}_images/cam{{n}}_img_{{t}}.jpg' (n from 1)"
+                f"{path}: image name {i} is {rf.shown(name)}, expected 'camera{{n}}_images/cam{{n}}_img_{{t}}.jpg' "
+                f"(n from 1 to {MAX_CAMERAS}, t finite seconds)"
             )
-        camera[i], stamp[i] = int(match.group(1)) - 1, float(match.group(3))
+        camera[i], stamp[i] = n - 1, t
     return camera, stamp
 
 
@@ -181,17 +189,9 @@ def _closest(folder: Path, itr: int, n_points: int, n_images: int) -> tuple[np.n
     ranges = rf.as_dict(rf.load_pickle(dist_path), dist_path, "{global_idx: range_m}")
     for g, d in ranges.items():
         g = rf.as_index(g, dist_path, "global indices")
-        if (
-            g >= n_points
-            or isinstance(d, bool)
-            or not isinstance(d, (int, float, np.integer, np.floating))
-            or not np.isfinite(d)
-            or d < 0
-        ):
-            raise TerraError(
-                f"{dist_path}: entry {g!r}: expected a range in metres >= 0 for a point of the global map, got {d!r}"
-            )
-        distance[g] = float(d)
+        if g >= n_points:
+            raise TerraError(f"{dist_path}: global index {g} is past the global map's {n_points} points")
+        distance[g] = rf.as_range(d, dist_path, g)
     return closest, distance
 
 
@@ -201,10 +201,7 @@ def _within(folder: Path, itr: int, n_points: int, n_images: int) -> tuple[np.nd
         return np.zeros((0, 2), np.int64), None
     path = files[0]
     match = re.fullmatch(rf"gidx2imgs_(.+)m_dict_itr{itr}\.pkl", path.name)
-    try:
-        image_range = float(match.group(1)) if match else None
-    except ValueError:
-        image_range = None
+    image_range = rf.range_from_name(path, match.group(1)) if match else None
     p, i = _image_sets(path, n_points, n_images, "images within range")
     return np.column_stack([p, i]), image_range
 
@@ -263,6 +260,44 @@ def _trilaterate(points: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     fits = [least_squares(residual, s, method="lm") for s in starts]
     best = min(fits, key=lambda f: (round(float(f.cost), 6), -float(f.x[2])))
     return np.asarray(best.x, dtype=np.float64)
+
+
+def recorded_poses(ref: ReferenceFiles) -> np.ndarray | None:
+    """(M, 4, 4) T_map_cam from the sidecar's `image_poses`, None when it records none; TerraError
+    when it records poses for another number of images or rotations that are not rotations."""
+    rows = ref.sidecar.get("image_poses")
+    if rows is None:
+        return None
+    m = ref.image_embedding.shape[0]
+    path = ref.folder / rf.SIDECAR
+    if len(rows) != m:
+        raise TerraError(f"{path}: field 'image_poses' holds {len(rows)} poses for {m} saved images")
+    pose = np.tile(np.eye(4), (m, 1, 1))
+    pose[:, :3, :] = np.asarray(rows, np.float64).reshape(m, 3, 4)
+    rotation = pose[:, :3, :3]
+    error = np.abs(rotation @ rotation.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
+    if error > 1e-6 or (m and np.linalg.det(rotation).min() <= 0):
+        raise TerraError(f"{path}: field 'image_poses': expected rotations (orthonormal, det +1) in each pose")
+    return pose
+
+
+def recorded_visibility(ref: ReferenceFiles, cell_size: float, position: np.ndarray) -> VisibilityIndex | None:
+    """The map's visibility index from Terra's terra_visibility.npy where the sidecar records it
+    (None otherwise: it is rebuilt from the per-point image sets)."""
+    from terra.npy import ArraySpec, read_npy
+
+    count = ref.sidecar.get("visibility_pairs")
+    path = ref.folder / rf.VISIBILITY
+    if count is None:
+        return None
+    if not path.is_file():
+        raise TerraError(f"{path}: missing ({rf.SIDECAR} records {count} visibility pairs in it)")
+    m = ref.image_embedding.shape[0]
+    spec = ArraySpec(("int64",), (int(count), 2), low=0, what="visibility cell key, image")
+    pairs = read_npy(path, spec, what="visibility pairs")
+    if pairs.size and pairs[:, 1].max() >= m:
+        raise TerraError(f"{path}: image index {int(pairs[:, 1].max())} is past the {m} saved images")
+    return VisibilityIndex.from_pairs(pairs[:, 0], pairs[:, 1], cell_size, position)
 
 
 def image_positions(ref: ReferenceFiles) -> tuple[np.ndarray, dict[str, int]]:
@@ -329,9 +364,14 @@ def to_map(
     votes = np.minimum(counts[:, :c].toarray(), np.iinfo(np.uint16).max).astype(np.uint16)
     objects = counts[:, c:].tocsr()
     objects.sort_indices()
-    position, source = image_positions(ref)
-    pose = np.tile(np.eye(4), (len(position), 1, 1))
-    pose[:, :3, 3] = position
+    np.minimum(objects.data, np.iinfo(np.int32).max, out=objects.data)  # stored as int32, as votes as uint16
+    pose = recorded_poses(ref)
+    if pose is not None:
+        position, source = pose[:, :3, 3], {"recorded": len(pose)}
+    else:
+        position, source = image_positions(ref)
+        pose = np.tile(np.eye(4), (len(position), 1, 1))
+        pose[:, :3, 3] = position
     names = ref.sidecar.get("camera_names") or []
     n_cameras = int(ref.image_camera.max()) + 1 if len(ref.image_camera) else 0
     if len(names) != n_cameras:
@@ -340,21 +380,23 @@ def to_map(
         stamp=ref.image_stamp,
         camera=ref.image_camera,
         T_map_cam=pose,
-        embedding=normalize_rows(ref.image_embedding),
+        embedding=rf.unit_rows(ref.image_embedding),
         camera_names=list(names),
     )
-    seen = np.flatnonzero(ref.closest >= 0)
-    pairs = np.vstack([ref.within_pairs, np.column_stack([seen, ref.closest[seen]])])
-    visibility = VisibilityIndex.from_pairs(
-        voxel_keys(ref.points[pairs[:, 0]], cell_size), pairs[:, 1], cell_size, position
-    )
+    visibility = recorded_visibility(ref, cell_size, position)
+    if visibility is None:
+        seen = np.flatnonzero(ref.closest >= 0)
+        pairs = np.vstack([ref.within_pairs, np.column_stack([seen, ref.closest[seen]])])
+        visibility = VisibilityIndex.from_pairs(
+            voxel_keys(ref.points[pairs[:, 0]], cell_size), pairs[:, 1], cell_size, position
+        )
     msm = MetricSemanticMap(
         points=ref.points,
         terrain_classes=list(terrain_classes),
         terrain_votes=votes,
-        terrain_embeddings=normalize_rows(ref.bank[:c]),
+        terrain_embeddings=rf.unit_rows(ref.bank[:c]),
         counts=objects.astype(np.int32),
-        bank=normalize_rows(ref.bank[c:]),
+        bank=rf.unit_rows(ref.bank[c:]),
         images=images,
         embedder=embedder,
         voxel_size=voxel_size,
@@ -373,7 +415,9 @@ def _write_bundle(out: Path, msm: MetricSemanticMap, ref: ReferenceFiles, source
             "folder": ref.folder.name,
             "itr": ref.itr,
             "image_range_m": ref.image_range,
-            "pose_source": "image positions estimated (see stats); orientation unknown",
+            "pose_source": "image poses recorded by Terra's export"
+            if "recorded" in source
+            else "image positions estimated (see stats); orientation unknown",
         }
     }
     classes = [{"id": i, "name": n, "terrain": True} for i, n in enumerate(msm.terrain_classes)]
@@ -407,6 +451,7 @@ def import_reference(
         )
     recorded = ref.sidecar.get("embedder") or {}
     name = embedder or recorded.get("name") or DEFAULT_EMBEDDER
+    ref, unchecked = fit_embedder(ref, name)
     cell = float(ref.sidecar.get("visibility_cell_size") or cell_size)
     voxel = float(voxel_size or ref.sidecar.get("voxel_size") or 1.0)
     msm, source = to_map(ref, classes, name, cell, voxel)
@@ -421,4 +466,48 @@ def import_reference(
         terrain_classes=classes,
         embedder=name,
         image_positions=dict(source),
+        notes=[unchecked] if unchecked else [],
+    )
+
+
+def fit_embedder(ref: ReferenceFiles, name: str) -> tuple[ReferenceFiles, str | None]:
+    """`ref` with its vectors cut to the dimension of embedder `name` (the sidecar's record, else the
+    dimension of the embedder registered under the name) where the columns past it are zero padding;
+    TerraError when the vectors do not fit that embedder. The second value says, where no embedder
+    answers to `name` here, that the dimension went unchecked."""
+    from dataclasses import replace
+
+    from terra.perception.text import text_embedder_dim
+
+    width = int(ref.bank.shape[1])
+    recorded = (ref.sidecar.get("embedder") or {}).get("dim")
+    known = text_embedder_dim(name)
+    dim = int(recorded or known or width)
+    if dim > width:
+        raise TerraError(f"{ref.folder / rf.SIDECAR}: records {dim}-d vectors but the files hold {width} columns")
+    if dim < width:
+        tail = max(
+            float(np.abs(ref.bank[:, dim:]).max(initial=0.0)),
+            float(np.abs(ref.image_embedding[:, dim:]).max(initial=0.0)),
+        )
+        if tail != 0.0:
+            raise _mismatch(ref, name, width, dim)
+        ref = replace(ref, bank=ref.bank[:, :dim].copy(), image_embedding=ref.image_embedding[:, :dim].copy())
+    if known is not None and known != dim:
+        raise _mismatch(ref, name, dim, known)
+    stored = ref.sidecar.get("stored_dim")
+    if stored is not None and int(stored) != width:
+        raise TerraError(f"{ref.folder / rf.SIDECAR}: records vectors {stored} wide but the files hold {width} columns")
+    if known is None:
+        return ref, (
+            f"embedder {name!r} is not available here, so the {dim}-d vectors were not checked against it; "
+            "`terra find` needs it registered (or import with --embedder naming one that is)"
+        )
+    return ref, None
+
+
+def _mismatch(ref: ReferenceFiles, name: str, width: int, dim: int) -> TerraError:
+    return TerraError(
+        f"{ref.folder}: the files hold {width}-d vectors but embedder {name!r} gives {dim}-d ones; give --embedder "
+        "the embedder the files were made with"
     )

@@ -12,8 +12,9 @@ from typing import Any
 @dataclass
 class ImportResult:
     """A bundle made from the reference's MS-map files: which save (`itr`) was read, the map's sizes,
-    its terrain classes and embedder, and how many image positions were recovered by each rule
-    (trilaterated, same_scan, centroid_of_seen_points, unknown)."""
+    its terrain classes and embedder, how many image positions were recovered by each rule
+    (recorded, the exact poses of Terra's export; else trilaterated, same_scan,
+    centroid_of_seen_points, unknown), and notes for the user (what could not be checked)."""
 
     bundle: Path
     itr: int
@@ -24,6 +25,7 @@ class ImportResult:
     terrain_classes: list[str]
     embedder: str
     image_positions: dict[str, int]
+    notes: list[str] = field(default_factory=list)
     format: str = "terra-reference"
 
     def to_json(self) -> dict[str, Any]:
@@ -38,6 +40,7 @@ class ImportResult:
             "images": self.images,
             "image_positions": dict(self.image_positions),
             "observed_points": self.observed_points,
+            "notes": list(self.notes),
         }
 
     @classmethod
@@ -52,6 +55,7 @@ class ImportResult:
             terrain_classes=[str(c) for c in data["terrain_classes"]],
             embedder=str(data["embedder"]),
             image_positions={str(k): int(v) for k, v in data["image_positions"].items()},
+            notes=[str(n) for n in data.get("notes", [])],
             format=str(data["format"]),
         )
 

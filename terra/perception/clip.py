@@ -327,6 +327,48 @@ def _candidate_folders(label: str) -> list[Path]:
     return sorted(dict.fromkeys(found), key=lambda p: p.name.lower() != label)
 
 
+# CLIP ViT-B/16 (openai/clip-vit-base-patch16): the architecture that identifies it in a config.json
+VIT_B16 = {"projection_dim": 512, "image_size": 224, "patch_size": 16, "vision_hidden": 768, "text_hidden": 512}
+
+
+def is_vit_b16(folder: Path) -> bool:
+    """Whether the CLIP model folder `folder` has CLIP ViT-B/16's architecture (its config.json)."""
+    from transformers import CLIPConfig
+
+    try:
+        config = CLIPConfig.from_pretrained(str(folder), local_files_only=True)
+    except (OSError, ValueError):
+        return False
+    vision, text = config.vision_config, config.text_config  # typed loosely by transformers' stubs
+    found = {
+        "projection_dim": config.projection_dim,
+        "image_size": getattr(vision, "image_size", None),
+        "patch_size": getattr(vision, "patch_size", None),
+        "vision_hidden": getattr(vision, "hidden_size", None),
+        "text_hidden": getattr(text, "hidden_size", None),
+    }
+    return found == VIT_B16
+
+
+def vit_b16_text_embedder() -> ClipEmbedder:
+    """Text embedder `clip-vit-b-16`: OpenAI CLIP ViT-B/16, the model the authors' map files are made
+    with (`terra import` names it for their files), from a CLIP model folder of that architecture in
+    TERRA_CLIP_PATH (the `models` perception backend's CLIP model, saved with save_pretrained)."""
+    from terra.perception.text import REFERENCE_CLIP_EMBEDDER
+
+    for folder in _candidate_folders("clip-vit-base-patch16"):
+        if is_vit_b16(folder):
+            embedder = ClipEmbedder(folder, resolve_device("auto", fp16=False))
+            embedder.name = REFERENCE_CLIP_EMBEDDER
+            return embedder
+    looked = f"no folder in {CLIP_PATH_ENV} is one" if os.environ.get(CLIP_PATH_ENV) else f"{CLIP_PATH_ENV} is not set"
+    raise TerraError(
+        f"text embedder {REFERENCE_CLIP_EMBEDDER!r} (OpenAI CLIP ViT-B/16, the authors' model) needs its weights "
+        f"({looked}): save openai/clip-vit-base-patch16 with save_pretrained, the CLIP model folder the `models` "
+        f"perception backend uses, and set {CLIP_PATH_ENV} to it"
+    )
+
+
 def clip_text_embedder(name: str) -> ClipEmbedder:
     """The CLIP embedder called `name` (clip:<folder>@<digest>), found through TERRA_CLIP_PATH; used to
     embed queries for a map built with the `models` backend in another process."""

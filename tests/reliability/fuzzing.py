@@ -400,12 +400,14 @@ class Target:
     """A reader under test. `seed`: which seed to copy ("bundle", a dataset format, "reference",
     "files"); `pick(copy)`: the files that may be mutated; `bundle_file`: mutated files are bundle
     files, re-signed half the time (the manifest then agrees, so only content checks catch them).
+    `mutate(path, rng, outside)`: how to mutate a picked file, when not by its suffix (mutate_file).
     The command that reads them comes from `_command`."""
 
     name: str
     seed: str
     pick: Callable[[Path], list[Path]]
     bundle_file: bool = False
+    mutate: Callable[[Path, random.Random, Path], str] | None = None  # default: mutate_file, by suffix
 
 
 def _bundle_files(pattern: str) -> Callable[[Path], list[Path]]:
@@ -438,6 +440,18 @@ def _bundle_output(argv: list, copy: Path, out: Path) -> Path | None:
     return None
 
 
+def _reference_mutator(kind: str) -> Callable[[Path, random.Random, Path], str]:
+    """The authors' files mutated as values or renamed (tests/reliability/reference_mutations.py)."""
+
+    def mutate(path: Path, rng: random.Random, outside: Path) -> str:
+        from tests.reliability import reference_mutations as rm
+
+        how = rm.mutate_reference_values if kind == "values" else rm.rename_reference_file
+        return how(path, rng, outside)
+
+    return mutate
+
+
 def targets(seeds: Seeds) -> dict[str, Target]:
     """Every reader Terra has, by name."""
     out = [
@@ -454,6 +468,13 @@ def targets(seeds: Seeds) -> dict[str, Target]:
         Target("task file", "files", lambda f: [f / "tasks.yaml"]),
         Target("msmap yaml", "terra-folder", lambda d: [d / "msmap_camera_config.yaml"]),
         Target("reference files", "reference", _files("**/*")),
+        Target("reference values", "reference", _files("*.p[kt]*"), mutate=_reference_mutator("values")),
+        Target(
+            "reference names",
+            "reference",
+            lambda d: _files("gidx2imgs_*")(d) + _files("global_pc/*.npy")(d),
+            mutate=_reference_mutator("names"),
+        ),
     ]
     return {t.name: t for t in out}
 
@@ -489,7 +510,7 @@ def _command(target: Target, seeds: Seeds, copy: Path, case: Path, rng: random.R
         return argv, None
     if name == "msmap yaml":
         return ["map", copy, "--camera-config", copy / "msmap_camera_config.yaml", "--out", out, "-q"], out
-    if name == "reference files":
+    if name.startswith("reference "):
         return [
             "import",
             copy,
@@ -584,7 +605,7 @@ def run_case(target: Target, seeds: Seeds, rng: random.Random, work: Path, timeo
     copy = _copy_seed(target, seeds, case)
     candidates = target.pick(copy)
     victim = rng.choice(candidates)
-    mutation = f"{victim.relative_to(copy)}: {mutate_file(victim, rng, outside)}"
+    mutation = f"{victim.relative_to(copy)}: {(target.mutate or mutate_file)(victim, rng, outside)}"
     if target.bundle_file and rng.random() < 0.5:
         resign(copy, str(victim.relative_to(copy)))
     argv, output = _command(target, seeds, copy, case, rng)

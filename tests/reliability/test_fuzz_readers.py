@@ -1,8 +1,9 @@
 """Fuzzing every reader through the command line (tests/reliability/fuzzing.py): mutated bundle manifests,
 bundle arrays, scene graphs and map metadata; both dataset layouts and KITTI raw; ROS 1 and ROS 2
-bags; config, task and msmap files; the authors' reference files. Each mutated input must give
-exit 0 with a valid result or exit 2 with one line: never another exit code, a traceback, a hang,
-a changed input bundle, or a file written outside the output path.
+bags; config, task and msmap files; the authors' reference files (as bytes, as values: integers past
+64 bits, non-finite ranges, odd dtypes and shapes; and renamed with numbers that are not numbers).
+Each mutated input must give exit 0 with a valid result or exit 2 with one line: never another exit
+code, a traceback, a hang, a changed input bundle, or a file written outside the output path.
 
 Hypothesis draws the mutations (derandomised: the same examples on every run) within a fixed
 budget per reader, so the suite's time stays bounded; benchmarks/fuzz_readers.py runs the same
@@ -34,6 +35,8 @@ BUDGET = {
     "task file": 20,
     "msmap yaml": 15,
     "reference files": 20,
+    "reference values": 40,
+    "reference names": 12,
 }
 FUZZ = settings(
     deadline=None,
