@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from terra.datasets.ground_truth import TerrainRaster
 from terra.eval.config import EvalConfig
 from terra.eval.inputs import EvalInputs
 from terra.eval.regions import MonitoringRun
@@ -13,6 +14,7 @@ from terra.eval.report import ordered, terrain_shares
 from terra.eval.retrieval import RetrievalRun, RetrievalTask
 from terra.graph.scene_graph import SceneGraph
 from terra.viz import figures
+from terra.viz.places import extent_with_places
 from terra.viz.raster import TopDownImage, point_classes, terrain_points_image
 from terra.viz.style import Extent, view_extent
 
@@ -36,7 +38,7 @@ def write_figures(
     written, extent = _terrain_figure(folder, inputs, dpi)
     written.update(_graph_figures(folder, inputs, background, dpi, extent))
     if retrieval:
-        written.update(_boxes_figure(folder, summary, task, retrieval, background, dpi, extent))
+        written.update(_boxes_figure(folder, summary, task, retrieval, background, dpi, extent, msm.terrain_classes))
     written.update(_monitoring_figure(folder, inputs, monitoring, background, dpi, extent))
     written.update(_paths_figure(folder, inputs.graph, summary.get("navigation", {}), background, dpi, extent))
     mem = summary["memory"]
@@ -49,13 +51,12 @@ def write_figures(
 
 def _terrain_figure(folder: Path, inputs: EvalInputs, dpi: int) -> tuple[dict[str, Path], Extent]:
     """The terrain map against the ground truth, and the view every figure shares: the evaluated
-    world (the ground-truth raster, else the map), not every far LiDAR return."""
+    world (the ground-truth raster, else the map) grown to hold every place (shared_extent)."""
     msm = inputs.msm
     raster = inputs.gt.terrain
+    extent = shared_extent(raster, inputs.graph, msm.points)
     if raster is None:
-        return {}, view_extent(msm.points, margin=0.03)
-    corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
-    extent = view_extent(corners, margin=0.03)
+        return {}, extent
     path = figures.terrain_map_figure(
         folder / "1_terrain_map.png",
         msm.terrain_classes,
@@ -67,6 +68,18 @@ def _terrain_figure(folder: Path, inputs: EvalInputs, dpi: int) -> tuple[dict[st
         cell=max(msm.voxel_size, raster.resolution),
     )
     return {"Terrain map vs ground truth": path}, extent
+
+
+def shared_extent(raster: TerrainRaster | None, graph: SceneGraph, points: np.ndarray) -> Extent:
+    """The view every report figure shares (x0, x1, y0, y1 metres, map frame): the evaluated world
+    (the ground-truth terrain raster, else the map's points) grown to hold every place, so no
+    figure crops places built from LiDAR returns beyond the labelled world."""
+    if raster is None:
+        return view_extent(points, margin=0.03)
+    corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
+    extent = extent_with_places(view_extent(corners, margin=0.03), graph)
+    assert extent is not None  # a view stays a view
+    return extent
 
 
 def _graph_figures(
@@ -97,6 +110,7 @@ def _boxes_figure(
     background: TopDownImage,
     dpi: int,
     extent: Extent,
+    terrain_classes: list[str],
 ) -> dict[str, Path]:
     """Each method's retrieved boxes against the ground truth, with Table II's counts per query."""
     gt_boxes, gt_query = task.gt_boxes()
@@ -106,7 +120,16 @@ def _boxes_figure(
         for m, s in summary.get("retrieval", {}).get("methods", {}).items()
     }
     path = figures.boxes_figure(
-        folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts
+        folder / "4_boxes.png",
+        gt_boxes,
+        predictions,
+        task.queries,
+        gt_query,
+        background,
+        dpi,
+        extent,
+        counts,
+        terrain_classes=terrain_classes,
     )
     return {"Retrieved boxes vs ground truth": path}
 

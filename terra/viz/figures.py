@@ -30,12 +30,12 @@ from terra.viz.class_grid import (
     map_class_grid,
 )
 from terra.viz.places import (
+    adjacent_region_colours,
     draw_place_edges,
     draw_places,
     edge_handles,
     extent_with_places,
     marker_size,
-    region_colours,
 )
 from terra.viz.raster import TopDownImage
 from terra.viz.retrieval_figure import boxes_figure  # noqa: F401 (one module of figures for callers)
@@ -158,7 +158,7 @@ def region_levels_figure(
         if background is not None:
             background.show(ax, alpha=0.2)
         assignment = sg.place_region(level)
-        draw_places(ax, sg, colours=region_colours(assignment, seed=level), edges=False)
+        draw_places(ax, sg, colours=adjacent_region_colours(sg, assignment), edges=False)
         centres = sg.regions[level - 1].position
         ax.scatter(centres[:, 0], centres[:, 1], marker="x", c="black", s=25, linewidths=1.0, zorder=3)
         topdown_axis(ax, f"level {level}: {counted(len(sg.regions[level - 1]), 'region')}", extent)

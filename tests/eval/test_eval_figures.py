@@ -1,5 +1,7 @@
 """Figures: rasters colour the right cells, every report figure writes a valid, reproducible PNG."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -145,3 +147,74 @@ def test_places_view_grows_to_hold_places_beyond_the_raster():
     # A view that already holds every place is left as it is; no view stays None.
     assert extent_with_places((-5.0, 25.0, -5.0, 25.0), sg) == (-5.0, 25.0, -5.0, 25.0)
     assert extent_with_places(None, sg) is None
+
+
+def block_graph(side: int, block: int) -> tuple[SceneGraph, np.ndarray]:
+    """A side x side grid of places 1 m apart linked to their 4 neighbours, and a region id per
+    place: square blocks of block x block places, numbered row by row."""
+    xs, ys = np.meshgrid(np.arange(side, dtype=float), np.arange(side, dtype=float))
+    pos = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1)
+    idx = np.arange(len(pos)).reshape(xs.shape)
+    edges = np.concatenate(
+        [np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1), np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1)]
+    )
+    per_row = side // block
+    region = (ys.ravel() // block * per_row + xs.ravel() // block).astype(np.int64)
+    places = Places(pos, np.zeros(len(pos), np.int64), np.ones(len(pos)), np.zeros((len(pos), 3), np.float32))
+    sg = SceneGraph(
+        TERRAIN,
+        np.eye(3, dtype=np.float32),
+        places,
+        edges,
+        np.ones(len(edges)),
+        np.zeros(len(edges), np.int64),
+        [],
+        embedder="test",
+    )
+    return sg, region
+
+
+def test_regions_joined_by_a_place_edge_never_share_a_colour():
+    """64 regions (more than the 40 colours): the 8 x 8 blocks of a grid. Every edge between two
+    blocks must join two colours; the shuffle of a palette gave some neighbours one colour."""
+    from terra.viz.places import adjacent_region_colours
+
+    sg, region = block_graph(32, 4)
+    colours = adjacent_region_colours(sg, region)
+    a, b = sg.place_edges[:, 0], sg.place_edges[:, 1]
+    across = region[a] != region[b]
+    assert across.sum() == 2 * 8 * 7 * 4  # 112 block borders, 4 edges each
+    assert np.all(np.abs(colours[a[across]] - colours[b[across]]).sum(axis=1) > 0.05)
+    # Places of one region share its colour.
+    assert all(len(np.unique(colours[region == r], axis=0)) == 1 for r in range(64))
+
+
+def test_a_level_of_few_regions_gets_distinct_hues():
+    """Three regions side by side (a top level): three different hues, not shades of one blue."""
+    import colorsys
+
+    from terra.viz.places import adjacent_region_colours
+
+    sg, region = block_graph(12, 4)
+    region = region % 3  # three vertical bands of 4 columns
+    colours = np.unique(adjacent_region_colours(sg, region), axis=0)
+    hues = [colorsys.rgb_to_hsv(*c)[0] for c in colours]
+    gaps = [min(abs(h - g), 1 - abs(h - g)) for i, h in enumerate(hues) for g in hues[i + 1 :]]
+    assert len(colours) == 3 and min(gaps) > 0.1
+
+
+def test_the_report_view_holds_every_place():
+    """The shared view is the labelled raster's (-1..29 x -1..19 m here) grown to places beyond it."""
+    from terra.eval.report_figures import shared_extent
+
+    sg = grid_graph()
+    raster = ground_truth().terrain
+    assert raster is not None
+    inside = shared_extent(raster, sg, np.zeros((1, 3)))
+    assert inside == pytest.approx((-1.9, 29.9, -1.9, 19.9))  # the raster with 3 % of 30 m around it
+    far = sg.places.position.copy()
+    far[0, :2] = (-40.0, 60.0)  # a place built from far LiDAR returns
+    moved = dataclasses.replace(sg, places=dataclasses.replace(sg.places, position=far))
+    x0, x1, y0, y1 = shared_extent(raster, moved, np.zeros((1, 3)))
+    xy = far[:, :2]
+    assert x0 < xy[:, 0].min() and x1 >= 29.9 and y0 <= -1.9 and y1 > xy[:, 1].max()
