@@ -272,10 +272,12 @@ def monitoring_figure(
     dpi: int = 120,
     extent: Extent | None = None,
     scores: Sequence[tuple[float, float]] | None = None,
+    parameters: dict | None = None,
 ) -> Path:
     """Per labelled region, a panel titled with its query (the region's description) and, given
     `scores` [(precision, recall)], how well it was answered: the region's polygon (black), its
-    places (black rings) and the places predicted for the query (orange)."""
+    places (black rings) and the places predicted for the query (orange). `parameters` (k,
+    alpha, ...) are named in the title beside the method."""
     n = max(len(regions), 1)
     ncols = min(n, min((3, 4), key=lambda c: (-(-n // c) * c - n, c)))  # 3 or 4 columns, fewest empty panels
     fig, axes = new_figure(
@@ -283,7 +285,8 @@ def monitoring_figure(
         (n + ncols - 1) // ncols,
         panel_size=4.6,
         extent=extent,
-        title=f"Region monitoring ({method}): the places predicted for each region's description",
+        title=f"Region monitoring ({_with_parameters(method, parameters)}): the places predicted for each region's "
+        "description",
     )
     for ax in axes[len(regions) :]:
         ax.set_visible(False)
@@ -307,6 +310,12 @@ def monitoring_figure(
         ncols=3,
     )
     return save_figure(fig, path, dpi)
+
+
+def _with_parameters(method: str, parameters: dict | None) -> str:
+    """'agglomerative, k 5, alpha 0.65' (the method alone without parameters)."""
+    words = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in (parameters or {}).items()]
+    return ", ".join([method, *words])
 
 
 def _monitoring_panel(

@@ -218,3 +218,23 @@ def test_the_report_view_holds_every_place():
     x0, x1, y0, y1 = shared_extent(raster, moved, np.zeros((1, 3)))
     xy = far[:, :2]
     assert x0 < xy[:, 0].min() and x1 >= 29.9 and y0 <= -1.9 and y1 > xy[:, 1].max()
+
+
+def test_the_monitoring_figure_shows_the_bundles_own_hierarchy():
+    """The demo and `terra monitor` rank the bundle's hierarchy (agglomerative by default): the
+    figure shows that one, with its parameters, even where spectral scored better; without it, the
+    best Terra hierarchy."""
+    from terra.eval.metrics.regions import SetScores
+    from terra.eval.regions import MonitoringRun
+    from terra.eval.report_figures import _shown_hierarchy
+
+    runs = {
+        "spectral": MonitoringRun([np.arange(3)], [SetScores(3, 0, 0)], 0.1, parameters={"alpha": 0.3, "k": 1}),
+        "agglomerative": MonitoringRun([np.arange(2)], [SetScores(1, 1, 2)], 0.1, parameters={"alpha": 0.3, "k": 5}),
+        "aib": MonitoringRun([np.arange(1)], [SetScores(1, 0, 2)], 0.1),
+    }
+    assert _shown_hierarchy(runs, "agglomerative") == "agglomerative"
+    assert _shown_hierarchy(runs, "") == "spectral"  # F1 1.0 against 0.4
+    assert figures._with_parameters("agglomerative", runs["agglomerative"].parameters) == (
+        "agglomerative, alpha 0.3, k 5"
+    )
