@@ -167,12 +167,23 @@ def _monitoring_figure(
 def _paths_figure(
     folder: Path, graph: SceneGraph, nav: dict, background: TopDownImage, dpi: int, extent: Extent
 ) -> dict[str, Path]:
-    """The navigation task's plans with their ground-truth terrain shares (none without plans)."""
+    """The navigation task's plans with their ground-truth terrain shares, and below them the pair
+    of places where preferring the terrain changes the path most (the report's navigation case;
+    the task's own plans often coincide). None without plans."""
     if "plans" not in nav:
         return {}
-    ordered_plans = ordered(nav["plans"])
-    plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in ordered_plans.items()]
-    notes = ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in ordered_plans.values()]
+    plans, notes = _plans_and_notes(nav["plans"])
+    case = nav.get("preference_case")
+    row = None
+    if case:
+        case_plans, case_notes = _plans_and_notes(case["plans"])
+        row = figures.PathCase(
+            f"where preferring {', '.join(nav.get('prefer', [])) or 'a terrain'} changes the path",
+            case["start_place"],
+            case["goal_place"],
+            case_plans,
+            case_notes,
+        )
     path = figures.paths_figure(
         folder / "6_paths.png",
         graph,
@@ -184,8 +195,16 @@ def _paths_figure(
         dpi,
         extent,
         notes,
+        case=row,
     )
     return {"Terrain-aware navigation": path}
+
+
+def _plans_and_notes(plans: dict) -> tuple[list[tuple[str, np.ndarray, float]], list[str]]:
+    """(name, place indices, length) per plan in the report's order, and its ground-truth shares."""
+    shown = ordered(plans)
+    rows = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in shown.items()]
+    return rows, ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in shown.values()]
 
 
 def _shown_hierarchy(monitoring: dict[str, MonitoringRun], own: str) -> str | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -227,6 +228,19 @@ def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) ->
     ax.scatter(*xy[goal], s=170, marker="*", c=GOAL_COLOUR, edgecolors="white", linewidths=1.0, zorder=6)
 
 
+@dataclass(frozen=True)
+class PathCase:
+    """One row of the navigation figure: plans from `start` to `goal` (place indices), each
+    (title, place indices, length in metres), with one note per plan (e.g. its terrain shares)
+    and the heading of the row's first panel."""
+
+    heading: str
+    start: int
+    goal: int
+    plans: Sequence[tuple[str, np.ndarray, float]]
+    notes: Sequence[str] | None = None
+
+
 def paths_figure(
     path: str | Path,
     sg: SceneGraph,
@@ -238,21 +252,18 @@ def paths_figure(
     dpi: int = 120,
     extent: Extent | None = None,
     notes: Sequence[str] | None = None,
+    case: PathCase | None = None,
 ) -> Path:
     """Like the paper's navigation figure: (a) terrain-coloured places, then one panel per plan
     given as (title, place indices, length in metres); the path magenta, the start a white disc,
     the goal a black star (no terrain has these colours). `notes`: one line per plan shown under
-    its title (e.g. its terrain shares)."""
-    fig, axes = new_figure(1 + len(plans), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
-    for ax in axes:
-        if background is not None:
-            background.show(ax, alpha=0.2)
-        draw_places(ax, sg, edges="#a0a0a0")
-    topdown_axis(axes[0], "(a) terrain-coloured places", extent)
-    for i, ((title, places, length), ax) in enumerate(zip(plans, axes[1:])):
-        _draw_path(ax, sg, np.asarray(places, dtype=np.int64), start, goal)
-        note = f"\n{notes[i]}" if notes is not None and notes[i] else ""
-        topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m{note}", extent)
+    its title (e.g. its terrain shares). `case`: a second row the same way (e.g. the pair of
+    places where the preference changes the path, when the task's plans coincide)."""
+    rows = [PathCase("terrain-coloured places", start, goal, plans, notes)] + ([case] if case is not None else [])
+    ncols = 1 + max(len(r.plans) for r in rows)
+    fig, axes = new_figure(ncols, len(rows), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
+    for r, row in enumerate(rows):
+        _path_row(axes[r * ncols : (r + 1) * ncols], sg, row, background, extent, r * ncols)
     handles = terrain_handles(sg.terrain_classes, None) + [
         Line2D([], [], marker="o", linestyle="", markerfacecolor=START_COLOUR, markeredgecolor="black", label="start"),
         Line2D([], [], marker="*", linestyle="", markersize=10, color=GOAL_COLOUR, label="goal"),
@@ -260,6 +271,26 @@ def paths_figure(
     ]
     figure_legend(fig, handles, ncols=len(handles))
     return save_figure(fig, path, dpi)
+
+
+def _path_row(
+    axes: list[Axes], sg: SceneGraph, row: PathCase, background: TopDownImage | None, extent: Extent | None, first: int
+) -> None:
+    """One row: the places with the row's start and goal, then a panel per plan, lettered from
+    the `first` panel's letter on."""
+    for ax in axes:
+        if background is not None:
+            background.show(ax, alpha=0.2)
+        draw_places(ax, sg, edges="#a0a0a0")
+    for ax in axes[1 + len(row.plans) :]:
+        ax.set_visible(False)
+    if first:  # rows after the first mark where their plans start and end
+        _draw_path(axes[0], sg, np.zeros(0, dtype=np.int64), row.start, row.goal)
+    topdown_axis(axes[0], f"({chr(ord('a') + first)}) {row.heading}", extent)
+    for i, ((title, places, length), ax) in enumerate(zip(row.plans, axes[1:])):
+        _draw_path(ax, sg, np.asarray(places, dtype=np.int64), row.start, row.goal)
+        note = f"\n{row.notes[i]}" if row.notes is not None and row.notes[i] else ""
+        topdown_axis(ax, f"({chr(ord('a') + first + 1 + i)}) {title}: {length:.1f} m{note}", extent)
 
 
 def monitoring_figure(

@@ -238,3 +238,35 @@ def test_the_monitoring_figure_shows_the_bundles_own_hierarchy():
     assert figures._with_parameters("agglomerative", runs["agglomerative"].parameters) == (
         "agglomerative, alpha 0.3, k 5"
     )
+
+
+def test_the_navigation_figure_shows_the_case_where_the_preference_matters(tmp_path):
+    """The task's two plans may coincide; the pair where preferring sidewalk changes the path is
+    drawn as a second row, its paths magenta like the first row's."""
+    from terra.viz.style import PATH_COLOUR
+
+    sg = grid_graph()
+    plans = [("shortest", np.array([5, 10, 15, 20]), 17.0), ("prefer sidewalk", np.array([5, 10, 15, 20]), 17.0)]
+    case = figures.PathCase(
+        "where preferring sidewalk changes the path",
+        0,
+        29,
+        [
+            ("shortest", np.array([0, 7, 14, 21, 28, 29]), 24.0),
+            ("prefer sidewalk", np.array([0, 6, 12, 18, 24, 25, 26, 27, 28, 29]), 36.0),
+        ],
+        ["ground truth: grass 100 %", "ground truth: sidewalk 80 %"],
+    )
+    one = figures.paths_figure(tmp_path / "one.png", sg, 5, 20, plans, "Get bike", dpi=60)
+    two = figures.paths_figure(tmp_path / "two.png", sg, 5, 20, plans, "Get bike", dpi=60, case=case)
+    magenta = np.array([int(PATH_COLOUR[i : i + 2], 16) for i in (1, 3, 5)])
+
+    def path_rows(png) -> np.ndarray:
+        rgb = np.asarray(Image.open(png).convert("RGB")).astype(int)
+        return np.flatnonzero((np.abs(rgb - magenta).sum(axis=2) < 30).any(axis=1))
+
+    rows_one, rows_two = path_rows(one), path_rows(two)
+    height = np.asarray(Image.open(two)).shape[0]
+    assert np.asarray(Image.open(one)).shape[0] < 0.75 * height
+    # Paths in both halves of the two-row figure; the one-row figure has them in one band only.
+    assert rows_two.min() < height / 2 < rows_two.max() and len(rows_one) > 0
