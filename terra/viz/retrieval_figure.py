@@ -115,7 +115,7 @@ def boxes_figure(
         if counts:
             title += "\n" + ", ".join(f"{m} {counts[m][q][0]}/{counts[m][q][1]}" for m in methods if m in counts)
         _inset_axis(ax, title, window)
-    _boxes_legend(fig, methods, look, bool(counts), terrain_classes)
+    _boxes_legend(fig, methods, look, bool(counts), terrain_classes, same_boxes(predictions))
     fig.suptitle("Object retrieval: ground-truth boxes (solid) and retrieved boxes (dashed)", fontsize=12)
     return save_figure(fig, path, dpi)
 
@@ -152,15 +152,49 @@ def _mark_inset(overview: Axes, window: Extent, letter: str) -> None:
     )
 
 
+def same_boxes(predictions: dict[str, tuple[BoxSet, np.ndarray]]) -> dict[str, str]:
+    """{method: the earlier method whose boxes (centres, sizes, yaws and queries) it repeats
+    exactly}: drawn on top of each other, one set would hide the other without a word."""
+    same: dict[str, str] = {}
+    methods = list(predictions)
+    for i, m in enumerate(methods):
+        boxes, query = predictions[m]
+        for earlier in methods[:i]:
+            other, other_query = predictions[earlier]
+            if (
+                len(boxes) == len(other)
+                and np.array_equal(query, other_query)
+                and all(
+                    np.array_equal(a, b)
+                    for a, b in zip((boxes.center, boxes.size, boxes.yaw), (other.center, other.size, other.yaw))
+                )
+            ):
+                same[m] = same.get(earlier, earlier)
+                break
+    return same
+
+
 def _boxes_legend(
-    fig: FigureBase, methods: list[str], look: _Look, with_counts: bool, terrain_classes: list[str] | None
+    fig: FigureBase,
+    methods: list[str],
+    look: _Look,
+    with_counts: bool,
+    terrain_classes: list[str] | None,
+    same: dict[str, str],
 ) -> None:
     handles = [
         Line2D([], [], color="black", linewidth=1.8, label="ground truth of the query"),
         Line2D([], [], color="#9a9a9a", linewidth=0.8, label="other objects"),
     ]
     handles += [
-        Line2D([], [], color=look.colour[m], linestyle=look.style[m], linewidth=1.6, label=f"{m} boxes")
+        Line2D(
+            [],
+            [],
+            color=look.colour[m],
+            linestyle=look.style[m],
+            linewidth=1.6,
+            label=f"{m} boxes" + (f" (the same as {same[m]}'s, drawn over them)" if m in same else ""),
+        )
         for m in methods
     ]
     ncols = len(handles)

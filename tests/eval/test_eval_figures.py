@@ -270,3 +270,16 @@ def test_the_navigation_figure_shows_the_case_where_the_preference_matters(tmp_p
     assert np.asarray(Image.open(one)).shape[0] < 0.75 * height
     # Paths in both halves of the two-row figure; the one-row figure has them in one band only.
     assert rows_two.min() < height / 2 < rows_two.max() and len(rows_one) > 0
+
+
+def test_a_method_repeating_anothers_boxes_is_named_as_such():
+    """Fig. 4 draws every method's boxes; identical sets (3dsg = ms-avg on the demo) lie exactly
+    on top of each other, so the legend says which repeats which."""
+    from terra.viz.retrieval_figure import same_boxes
+
+    a = BoxSet(np.array([[1.0, 2, 0.5], [5, 5, 0.5]]), np.ones((2, 3)), np.array([0.0, 0.3]))
+    moved = BoxSet(np.array([[1.0, 2, 0.5], [5, 5.1, 0.5]]), np.ones((2, 3)), np.array([0.0, 0.3]))
+    q = np.array([0, 1])
+    predictions = {"ms-avg": (a, q), "ms-max": (moved, q), "3dsg": (a, q.copy())}
+    assert same_boxes(predictions) == {"3dsg": "ms-avg"}
+    assert same_boxes({"ms-avg": (a, q), "3dsg": (a, np.array([1, 0]))}) == {}  # other queries
