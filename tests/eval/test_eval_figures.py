@@ -283,3 +283,19 @@ def test_a_method_repeating_anothers_boxes_is_named_as_such():
     predictions = {"ms-avg": (a, q), "ms-max": (moved, q), "3dsg": (a, q.copy())}
     assert same_boxes(predictions) == {"3dsg": "ms-avg"}
     assert same_boxes({"ms-avg": (a, q), "3dsg": (a, np.array([1, 0]))}) == {}  # other queries
+
+
+def test_a_grid_over_another_grids_extent_has_its_shape():
+    """The terrain figure lays the ground truth's grid over the map grid's (snapped) extent; a
+    report view grown to the places has arbitrary edges, where rounding once added a cell
+    ((217, 197) against (218, 198) on the small campus)."""
+    from terra.viz.class_grid import ClassGrid
+
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        x0, y0 = rng.uniform(-50, 50, 2)
+        w, h = rng.uniform(1, 300, 2)
+        cell = float(rng.choice([0.2, 0.3, 0.4, 0.7, 1.0]))
+        grid = ClassGrid.empty((x0, x0 + w, y0, y0 + h), cell, 3)
+        assert grid.index.shape == (int(np.ceil(h / cell - 1e-6)), int(np.ceil(w / cell - 1e-6)))
+        assert ClassGrid.empty(grid.extent, cell, 3).index.shape == grid.index.shape
