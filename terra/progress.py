@@ -75,6 +75,13 @@ def _emit(line: str) -> None:
         print(f"terra: {line}", file=sys.stderr, flush=True)
 
 
+def note(line: str) -> None:
+    """One line on stderr for a one-off wait the user should know about (a model prepared once),
+    on a terminal and elsewhere alike; nothing with TERRA_PROGRESS=off."""
+    if os.environ.get("TERRA_PROGRESS", "auto").strip().lower() != "off":
+        _emit(line)
+
+
 class Progress:
     """Progress of one stage of `total` steps (None: unknown): `update(n)`, then `close()`.
 

@@ -19,7 +19,7 @@ def monitor_command(
         None, "--method", "-m", help="mix (paper), max, thresh or aib (Clio baseline); default mix."
     ),
     k: int | None = typer.Option(
-        None, "--k", "-k", help="Number of top regions for mix and max (default: the config's tasks.monitoring.k, 3)."
+        None, "--k", "-k", help="Number of top regions for mix and max (default: the config's tasks.monitoring.k, 5)."
     ),
     alpha: float | None = typer.Option(
         None, "--alpha", "-a", help="Cosine threshold; default per embedder (tasks.monitoring.alpha)."

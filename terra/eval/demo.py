@@ -281,17 +281,8 @@ class DemoRun:
         cfg = self.config
         self.out.mkdir(parents=True, exist_ok=True)
         test = self.scene("test", f"{cfg.preset}-seed{cfg.seed}", cfg.preset, cfg.seed, cfg.sim)
-        val = self.scene(
-            "validation",
-            f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}",
-            cfg.validation_preset or cfg.preset,
-            cfg.validation_seed,
-            cfg.validation_sim(),
-        )
-        tuned_path = val.bundle.parent / TUNED
-        tune_key = {"scene": val.key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks)}
-        self.step("validation: tune alpha and k", tune_key, (tuned_path,), lambda: self._tune(val, tuned_path))
-        tuned = TunedParameters.load(tuned_path)
+        val, tune_key = self.validation()
+        tuned = TunedParameters.load(val.bundle.parent / TUNED)
 
         report = self.out / REPORT_DIR
         demo_json = self.out / DEMO_JSON
@@ -312,6 +303,23 @@ class DemoRun:
         demo = json.loads(demo_json.read_text())
         demo["evaluation"] = json.loads((report / SUMMARY).read_text())
         return demo
+
+    def validation(self) -> tuple[Scene, dict]:
+        """The validation scene simulated, mapped and built, and alpha and k tuned on it
+        (`tuned.json` beside its bundle), each step cached; returns the scene and the tuning's key.
+        Also how Terra's shipped defaults are chosen (benchmarks/bench_defaults.py)."""
+        cfg = self.config
+        val = self.scene(
+            "validation",
+            f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}",
+            cfg.validation_preset or cfg.preset,
+            cfg.validation_seed,
+            cfg.validation_sim(),
+        )
+        tuned_path = val.bundle.parent / TUNED
+        tune_key = {"scene": val.key, "eval": _dump(cfg.eval), "tasks": _dump(cfg.tasks)}
+        self.step("validation: tune alpha and k", tune_key, (tuned_path,), lambda: self._tune(val, tuned_path))
+        return val, tune_key
 
     def _tune(self, scene: Scene, path: Path) -> None:
         from terra.eval.inputs import EvalInputs

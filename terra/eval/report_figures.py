@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from terra.datasets.ground_truth import TerrainRaster
 from terra.eval.config import EvalConfig
 from terra.eval.inputs import EvalInputs
 from terra.eval.regions import MonitoringRun
@@ -13,6 +14,7 @@ from terra.eval.report import ordered, terrain_shares
 from terra.eval.retrieval import RetrievalRun, RetrievalTask
 from terra.graph.scene_graph import SceneGraph
 from terra.viz import figures
+from terra.viz.places import extent_with_places
 from terra.viz.raster import TopDownImage, point_classes, terrain_points_image
 from terra.viz.style import Extent, view_extent
 
@@ -36,7 +38,7 @@ def write_figures(
     written, extent = _terrain_figure(folder, inputs, dpi)
     written.update(_graph_figures(folder, inputs, background, dpi, extent))
     if retrieval:
-        written.update(_boxes_figure(folder, summary, task, retrieval, background, dpi, extent))
+        written.update(_boxes_figure(folder, summary, task, retrieval, background, dpi, extent, msm.terrain_classes))
     written.update(_monitoring_figure(folder, inputs, monitoring, background, dpi, extent))
     written.update(_paths_figure(folder, inputs.graph, summary.get("navigation", {}), background, dpi, extent))
     mem = summary["memory"]
@@ -49,13 +51,12 @@ def write_figures(
 
 def _terrain_figure(folder: Path, inputs: EvalInputs, dpi: int) -> tuple[dict[str, Path], Extent]:
     """The terrain map against the ground truth, and the view every figure shares: the evaluated
-    world (the ground-truth raster, else the map), not every far LiDAR return."""
+    world (the ground-truth raster, else the map) grown to hold every place (shared_extent)."""
     msm = inputs.msm
     raster = inputs.gt.terrain
+    extent = shared_extent(raster, inputs.graph, msm.points)
     if raster is None:
-        return {}, view_extent(msm.points, margin=0.03)
-    corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
-    extent = view_extent(corners, margin=0.03)
+        return {}, extent
     path = figures.terrain_map_figure(
         folder / "1_terrain_map.png",
         msm.terrain_classes,
@@ -67,6 +68,18 @@ def _terrain_figure(folder: Path, inputs: EvalInputs, dpi: int) -> tuple[dict[st
         cell=max(msm.voxel_size, raster.resolution),
     )
     return {"Terrain map vs ground truth": path}, extent
+
+
+def shared_extent(raster: TerrainRaster | None, graph: SceneGraph, points: np.ndarray) -> Extent:
+    """The view every report figure shares (x0, x1, y0, y1 metres, map frame): the evaluated world
+    (the ground-truth terrain raster, else the map's points) grown to hold every place, so no
+    figure crops places built from LiDAR returns beyond the labelled world."""
+    if raster is None:
+        return view_extent(points, margin=0.03)
+    corners = raster.origin + np.array([[0.0, 0.0], raster.classes.shape[::-1]]) * raster.resolution
+    extent = extent_with_places(view_extent(corners, margin=0.03), graph)
+    assert extent is not None  # a view stays a view
+    return extent
 
 
 def _graph_figures(
@@ -97,6 +110,7 @@ def _boxes_figure(
     background: TopDownImage,
     dpi: int,
     extent: Extent,
+    terrain_classes: list[str],
 ) -> dict[str, Path]:
     """Each method's retrieved boxes against the ground truth, with Table II's counts per query."""
     gt_boxes, gt_query = task.gt_boxes()
@@ -106,7 +120,16 @@ def _boxes_figure(
         for m, s in summary.get("retrieval", {}).get("methods", {}).items()
     }
     path = figures.boxes_figure(
-        folder / "4_boxes.png", gt_boxes, predictions, task.queries, gt_query, background, dpi, extent, counts
+        folder / "4_boxes.png",
+        gt_boxes,
+        predictions,
+        task.queries,
+        gt_query,
+        background,
+        dpi,
+        extent,
+        counts,
+        terrain_classes=terrain_classes,
     )
     return {"Retrieved boxes vs ground truth": path}
 
@@ -119,8 +142,9 @@ def _monitoring_figure(
     dpi: int,
     extent: Extent,
 ) -> dict[str, Path]:
-    """The places the best Terra hierarchy predicted per region (none without a monitoring run)."""
-    best = _best_terra_hierarchy(monitoring)
+    """The places the bundle's own hierarchy predicted per region, as `terra monitor` answers
+    (none without a monitoring run)."""
+    best = _shown_hierarchy(monitoring, inputs.graph.region_method)
     if best is None:
         return {}
     graph = inputs.hierarchies[best][0] if best in inputs.hierarchies else inputs.graph
@@ -135,6 +159,7 @@ def _monitoring_figure(
         dpi,
         extent,
         [(sc.precision, sc.recall) for sc in run.scores],
+        run.parameters,
     )
     return {f"Region monitoring ({best})": path}
 
@@ -142,12 +167,23 @@ def _monitoring_figure(
 def _paths_figure(
     folder: Path, graph: SceneGraph, nav: dict, background: TopDownImage, dpi: int, extent: Extent
 ) -> dict[str, Path]:
-    """The navigation task's plans with their ground-truth terrain shares (none without plans)."""
+    """The navigation task's plans with their ground-truth terrain shares, and below them the pair
+    of places where preferring the terrain changes the path most (the report's navigation case;
+    the task's own plans often coincide). None without plans."""
     if "plans" not in nav:
         return {}
-    ordered_plans = ordered(nav["plans"])
-    plans = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in ordered_plans.items()]
-    notes = ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in ordered_plans.values()]
+    plans, notes = _plans_and_notes(nav["plans"])
+    case = nav.get("preference_case")
+    row = None
+    if case:
+        case_plans, case_notes = _plans_and_notes(case["plans"])
+        row = figures.PathCase(
+            f"where preferring {', '.join(nav.get('prefer', [])) or 'a terrain'} changes the path",
+            case["start_place"],
+            case["goal_place"],
+            case_plans,
+            case_notes,
+        )
     path = figures.paths_figure(
         folder / "6_paths.png",
         graph,
@@ -159,12 +195,24 @@ def _paths_figure(
         dpi,
         extent,
         notes,
+        case=row,
     )
     return {"Terrain-aware navigation": path}
 
 
-def _best_terra_hierarchy(monitoring: dict[str, MonitoringRun]) -> str | None:
-    """The Terra hierarchy with the best F1 (first on ties), else any monitoring method run."""
+def _plans_and_notes(plans: dict) -> tuple[list[tuple[str, np.ndarray, float]], list[str]]:
+    """(name, place indices, length) per plan in the report's order, and its ground-truth shares."""
+    shown = ordered(plans)
+    rows = [(name, np.asarray(p["place_indices"]), p["length_m"]) for name, p in shown.items()]
+    return rows, ["ground truth: " + terrain_shares(p["gt_terrain_m"], p["length_m"]) for p in shown.values()]
+
+
+def _shown_hierarchy(monitoring: dict[str, MonitoringRun], own: str) -> str | None:
+    """The hierarchy the figure shows: the bundle's own (`own`, what `terra monitor` and the demo
+    rank), when it was evaluated; else the Terra hierarchy with the best F1 (first on ties), else
+    any monitoring method run. Table III lists every method."""
+    if own in monitoring:
+        return own
     candidates = [m for m in ("spectral", "agglomerative") if m in monitoring] or list(monitoring)
     if not candidates:
         return None

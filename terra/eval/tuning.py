@@ -141,3 +141,47 @@ def alpha_grid(config: TuneEval) -> list[float]:
 def best_point(points: list[dict], key: str = "f1") -> dict:
     """The first grid point with the highest `key` (grid order breaks ties)."""
     return points[int(np.argmax([p[key] for p in points]))] if points else {}
+
+
+# ---------------------------------------------------------------- the shipped defaults
+
+
+def defaults_from_tuned(tuned: TunedParameters, region_method: str = "agglomerative") -> dict[str, float | int]:
+    """The task defaults a tuning gives, by the rule Terra's shipped defaults follow
+    (benchmarks/bench_defaults.py runs it on the demo's validation scene): retrieval's one alpha
+    per embedder is the one tuned for the default method (tasks.retrieval.method, MS-Avg), which
+    must also be the planner's method's (3dsg); monitoring's alpha, k and lowest level those tuned
+    for the default hierarchy (`region_method`, build.regions.method); AIB's null-task score the
+    one tuned for "aib"."""
+    from terra.tasks.config import PlanningConfig, RetrievalConfig
+
+    method, planner = RetrievalConfig().method, PlanningConfig().find_method
+    alpha = tuned.retrieval_alpha(method)
+    if alpha is None or tuned.retrieval_alpha(planner) != alpha:
+        raise TerraError(
+            f"tuned retrieval alphas differ between {method} ({alpha}) and {planner} "
+            f"({tuned.retrieval_alpha(planner)}): one default cannot serve both"
+        )
+    monitoring = tuned.monitoring.get(region_method, {})
+    return {
+        "retrieval.alpha": float(alpha),
+        "monitoring.alpha": float(monitoring["alpha"]),
+        "monitoring.k": int(monitoring["k"]),
+        "monitoring.min_level": int(monitoring.get("min_level") or 1),
+        "monitoring.aib.null_score": float(tuned.monitoring["aib"]["alpha"]),
+    }
+
+
+def shipped_defaults(embedder: str) -> dict[str, float | int]:
+    """The same values as the configuration ships them for `embedder` (terra.tasks.config)."""
+    from terra.tasks.config import TasksConfig, alpha_for
+
+    tasks = TasksConfig()
+    r, m = tasks.retrieval, tasks.monitoring
+    return {
+        "retrieval.alpha": alpha_for(r.alpha, r.default_alpha, embedder),
+        "monitoring.alpha": alpha_for(m.alpha, m.default_alpha, embedder),
+        "monitoring.k": m.k,
+        "monitoring.min_level": m.min_level,
+        "monitoring.aib.null_score": alpha_for(m.aib.null_score, m.aib.default_null_score, embedder),
+    }

@@ -226,6 +226,11 @@ def prepare_export(
             return read_export(folder)
         except ExportUnavailable:
             pass
+    from terra.progress import note
+
+    # The export takes about 10 s once per machine; without a word the first query looks hung
+    # (on a terminal and in a log alike).
+    note(f"preparing the text model {name!r} (once, ~10 s)")
     try:
         from filelock import FileLock, Timeout
 

@@ -29,8 +29,10 @@ class ClassGrid:
 
     @classmethod
     def empty(cls, extent: Extent, cell: float, terrain_count: int) -> ClassGrid:
-        w = max(int(np.ceil((extent[1] - extent[0]) / cell)), 1)
-        h = max(int(np.ceil((extent[3] - extent[2]) / cell)), 1)
+        # Whole cells covering the extent; the tolerance keeps a grid's own (snapped) extent from
+        # gaining a cell by rounding, so a grid made over another's extent has its shape.
+        w = max(int(np.ceil((extent[1] - extent[0]) / cell - 1e-6)), 1)
+        h = max(int(np.ceil((extent[3] - extent[2]) / cell - 1e-6)), 1)
         extent = (extent[0], extent[0] + w * cell, extent[2], extent[2] + h * cell)
         return cls(np.full((h, w), -1, dtype=np.int64), extent, float(cell), int(terrain_count))
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,12 +31,12 @@ from terra.viz.class_grid import (
     map_class_grid,
 )
 from terra.viz.places import (
+    adjacent_region_colours,
     draw_place_edges,
     draw_places,
     edge_handles,
     extent_with_places,
     marker_size,
-    region_colours,
 )
 from terra.viz.raster import TopDownImage
 from terra.viz.retrieval_figure import boxes_figure  # noqa: F401 (one module of figures for callers)
@@ -158,7 +159,7 @@ def region_levels_figure(
         if background is not None:
             background.show(ax, alpha=0.2)
         assignment = sg.place_region(level)
-        draw_places(ax, sg, colours=region_colours(assignment, seed=level), edges=False)
+        draw_places(ax, sg, colours=adjacent_region_colours(sg, assignment), edges=False)
         centres = sg.regions[level - 1].position
         ax.scatter(centres[:, 0], centres[:, 1], marker="x", c="black", s=25, linewidths=1.0, zorder=3)
         topdown_axis(ax, f"level {level}: {counted(len(sg.regions[level - 1]), 'region')}", extent)
@@ -227,6 +228,19 @@ def _draw_path(ax, sg: SceneGraph, places: np.ndarray, start: int, goal: int) ->
     ax.scatter(*xy[goal], s=170, marker="*", c=GOAL_COLOUR, edgecolors="white", linewidths=1.0, zorder=6)
 
 
+@dataclass(frozen=True)
+class PathCase:
+    """One row of the navigation figure: plans from `start` to `goal` (place indices), each
+    (title, place indices, length in metres), with one note per plan (e.g. its terrain shares)
+    and the heading of the row's first panel."""
+
+    heading: str
+    start: int
+    goal: int
+    plans: Sequence[tuple[str, np.ndarray, float]]
+    notes: Sequence[str] | None = None
+
+
 def paths_figure(
     path: str | Path,
     sg: SceneGraph,
@@ -238,21 +252,18 @@ def paths_figure(
     dpi: int = 120,
     extent: Extent | None = None,
     notes: Sequence[str] | None = None,
+    case: PathCase | None = None,
 ) -> Path:
     """Like the paper's navigation figure: (a) terrain-coloured places, then one panel per plan
     given as (title, place indices, length in metres); the path magenta, the start a white disc,
     the goal a black star (no terrain has these colours). `notes`: one line per plan shown under
-    its title (e.g. its terrain shares)."""
-    fig, axes = new_figure(1 + len(plans), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
-    for ax in axes:
-        if background is not None:
-            background.show(ax, alpha=0.2)
-        draw_places(ax, sg, edges="#a0a0a0")
-    topdown_axis(axes[0], "(a) terrain-coloured places", extent)
-    for i, ((title, places, length), ax) in enumerate(zip(plans, axes[1:])):
-        _draw_path(ax, sg, np.asarray(places, dtype=np.int64), start, goal)
-        note = f"\n{notes[i]}" if notes is not None and notes[i] else ""
-        topdown_axis(ax, f"({chr(ord('b') + i)}) {title}: {length:.1f} m{note}", extent)
+    its title (e.g. its terrain shares). `case`: a second row the same way (e.g. the pair of
+    places where the preference changes the path, when the task's plans coincide)."""
+    rows = [PathCase("terrain-coloured places", start, goal, plans, notes)] + ([case] if case is not None else [])
+    ncols = 1 + max(len(r.plans) for r in rows)
+    fig, axes = new_figure(ncols, len(rows), panel_size=5.5, title=f'Path planning for "{task}"', extent=extent)
+    for r, row in enumerate(rows):
+        _path_row(axes[r * ncols : (r + 1) * ncols], sg, row, background, extent, r * ncols)
     handles = terrain_handles(sg.terrain_classes, None) + [
         Line2D([], [], marker="o", linestyle="", markerfacecolor=START_COLOUR, markeredgecolor="black", label="start"),
         Line2D([], [], marker="*", linestyle="", markersize=10, color=GOAL_COLOUR, label="goal"),
@@ -260,6 +271,26 @@ def paths_figure(
     ]
     figure_legend(fig, handles, ncols=len(handles))
     return save_figure(fig, path, dpi)
+
+
+def _path_row(
+    axes: list[Axes], sg: SceneGraph, row: PathCase, background: TopDownImage | None, extent: Extent | None, first: int
+) -> None:
+    """One row: the places with the row's start and goal, then a panel per plan, lettered from
+    the `first` panel's letter on."""
+    for ax in axes:
+        if background is not None:
+            background.show(ax, alpha=0.2)
+        draw_places(ax, sg, edges="#a0a0a0")
+    for ax in axes[1 + len(row.plans) :]:
+        ax.set_visible(False)
+    if first:  # rows after the first mark where their plans start and end
+        _draw_path(axes[0], sg, np.zeros(0, dtype=np.int64), row.start, row.goal)
+    topdown_axis(axes[0], f"({chr(ord('a') + first)}) {row.heading}", extent)
+    for i, ((title, places, length), ax) in enumerate(zip(row.plans, axes[1:])):
+        _draw_path(ax, sg, np.asarray(places, dtype=np.int64), row.start, row.goal)
+        note = f"\n{row.notes[i]}" if row.notes is not None and row.notes[i] else ""
+        topdown_axis(ax, f"({chr(ord('a') + first + 1 + i)}) {title}: {length:.1f} m{note}", extent)
 
 
 def monitoring_figure(
@@ -272,10 +303,12 @@ def monitoring_figure(
     dpi: int = 120,
     extent: Extent | None = None,
     scores: Sequence[tuple[float, float]] | None = None,
+    parameters: dict | None = None,
 ) -> Path:
     """Per labelled region, a panel titled with its query (the region's description) and, given
     `scores` [(precision, recall)], how well it was answered: the region's polygon (black), its
-    places (black rings) and the places predicted for the query (orange)."""
+    places (black rings) and the places predicted for the query (orange). `parameters` (k,
+    alpha, ...) are named in the title beside the method."""
     n = max(len(regions), 1)
     ncols = min(n, min((3, 4), key=lambda c: (-(-n // c) * c - n, c)))  # 3 or 4 columns, fewest empty panels
     fig, axes = new_figure(
@@ -283,7 +316,8 @@ def monitoring_figure(
         (n + ncols - 1) // ncols,
         panel_size=4.6,
         extent=extent,
-        title=f"Region monitoring ({method}): the places predicted for each region's description",
+        title=f"Region monitoring ({_with_parameters(method, parameters)}): the places predicted for each region's "
+        "description",
     )
     for ax in axes[len(regions) :]:
         ax.set_visible(False)
@@ -307,6 +341,12 @@ def monitoring_figure(
         ncols=3,
     )
     return save_figure(fig, path, dpi)
+
+
+def _with_parameters(method: str, parameters: dict | None) -> str:
+    """'agglomerative, k 5, alpha 0.65' (the method alone without parameters)."""
+    words = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in (parameters or {}).items()]
+    return ", ".join([method, *words])
 
 
 def _monitoring_panel(

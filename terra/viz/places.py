@@ -117,3 +117,49 @@ def region_colours(assignment: np.ndarray, seed: int = 0) -> np.ndarray:
     n = int(assignment.max()) + 1 if len(assignment) else 0
     order = np.random.default_rng(seed).permutation(max(n, 1))
     return base[order[assignment] % len(base)]
+
+
+def distinct_palette() -> np.ndarray:
+    """(40, 3) qualitative colours, the most different first: tab10's ten hues, then their light
+    variants (tab20's odd entries), then tab20b's. A level of three regions takes the first three
+    (blue, orange, green), never three shades of one hue."""
+    from matplotlib import colormaps
+
+    return np.vstack(
+        [
+            colormaps["tab10"](np.arange(10))[:, :3],
+            colormaps["tab20"](np.arange(1, 20, 2))[:, :3],
+            colormaps["tab20b"](np.arange(20))[:, :3],
+        ]
+    )
+
+
+def region_adjacency(sg: SceneGraph, assignment: np.ndarray) -> list[set[int]]:
+    """Per region id, the ids of the regions that a place edge joins it to."""
+    n = int(assignment.max()) + 1 if len(assignment) else 0
+    neighbours: list[set[int]] = [set() for _ in range(n)]
+    if len(sg.place_edges):
+        a, b = assignment[sg.place_edges[:, 0]], assignment[sg.place_edges[:, 1]]
+        for u, v in zip(a[a != b].tolist(), b[a != b].tolist()):
+            neighbours[u].add(v)
+            neighbours[v].add(u)
+    return neighbours
+
+
+def adjacent_region_colours(sg: SceneGraph, assignment: np.ndarray) -> np.ndarray:
+    """(P, 3) colours per place by its region (`assignment`, region id per place) such that two
+    regions a place edge joins never share a colour (while the palette is larger than a region's
+    number of neighbours), spread over the palette. Greedy colouring, regions with the most
+    neighbours first; each takes the least-used colour none of its neighbours has (the first on
+    ties), so a level of a few regions gets the palette's most distinct first colours."""
+    palette = distinct_palette()
+    neighbours = region_adjacency(sg, assignment)
+    colour = np.full(len(neighbours), -1, dtype=np.int64)
+    used = np.zeros(len(palette), dtype=np.int64)
+    for region in sorted(range(len(neighbours)), key=lambda r: (-len(neighbours[r]), r)):
+        free = np.ones(len(palette), dtype=bool)
+        free[[colour[v] for v in neighbours[region] if colour[v] >= 0]] = False
+        choices = np.flatnonzero(free) if free.any() else np.arange(len(palette))
+        colour[region] = int(choices[np.argmin(used[choices])])
+        used[colour[region]] += 1
+    return palette[colour[assignment]] if len(assignment) else np.zeros((0, 3))

@@ -21,7 +21,15 @@ from matplotlib.typing import LineStyleType
 
 from terra.tasks.boxes import BoxSet
 from terra.viz.raster import TopDownImage
-from terra.viz.style import METHOD_COLOURS, Extent, figure_legend, save_figure, topdown_axis, view_extent
+from terra.viz.style import (
+    METHOD_COLOURS,
+    Extent,
+    figure_legend,
+    save_figure,
+    terrain_handles,
+    topdown_axis,
+    view_extent,
+)
 
 LINE_STYLES: list[LineStyleType] = ["--", ":", "-.", (0, (5, 1, 1, 1)), (0, (1, 2))]
 INSET_MIN_HALF_M = 3.0  # half the side of an inset, metres (larger for large objects)
@@ -71,10 +79,12 @@ def boxes_figure(
     extent: Extent | None = None,
     counts: dict[str, list[tuple[int, int]]] | None = None,
     max_insets: int = 16,
+    terrain_classes: list[str] | None = None,
 ) -> Path:
     """Retrieved boxes against ground truth (see the module docstring). `predictions` maps a
     method to (boxes, query index per box); `gt_query` is the query index of each ground-truth
-    box; `counts` maps a method to (found, hits) per query, as Table II counts them."""
+    box; `counts` maps a method to (found, hits) per query, as Table II counts them. With
+    `terrain_classes` (the background's), the legend names the terrain colours the insets show."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -105,7 +115,7 @@ def boxes_figure(
         if counts:
             title += "\n" + ", ".join(f"{m} {counts[m][q][0]}/{counts[m][q][1]}" for m in methods if m in counts)
         _inset_axis(ax, title, window)
-    _boxes_legend(fig, methods, look, bool(counts))
+    _boxes_legend(fig, methods, look, bool(counts), terrain_classes, same_boxes(predictions))
     fig.suptitle("Object retrieval: ground-truth boxes (solid) and retrieved boxes (dashed)", fontsize=12)
     return save_figure(fig, path, dpi)
 
@@ -142,17 +152,61 @@ def _mark_inset(overview: Axes, window: Extent, letter: str) -> None:
     )
 
 
-def _boxes_legend(fig: FigureBase, methods: list[str], look: _Look, with_counts: bool) -> None:
+def same_boxes(predictions: dict[str, tuple[BoxSet, np.ndarray]]) -> dict[str, str]:
+    """{method: the earlier method whose boxes (centres, sizes, yaws and queries) it repeats
+    exactly}: drawn on top of each other, one set would hide the other without a word."""
+    same: dict[str, str] = {}
+    methods = list(predictions)
+    for i, m in enumerate(methods):
+        boxes, query = predictions[m]
+        for earlier in methods[:i]:
+            other, other_query = predictions[earlier]
+            if (
+                len(boxes) == len(other)
+                and np.array_equal(query, other_query)
+                and all(
+                    np.array_equal(a, b)
+                    for a, b in zip((boxes.center, boxes.size, boxes.yaw), (other.center, other.size, other.yaw))
+                )
+            ):
+                same[m] = same.get(earlier, earlier)
+                break
+    return same
+
+
+def _boxes_legend(
+    fig: FigureBase,
+    methods: list[str],
+    look: _Look,
+    with_counts: bool,
+    terrain_classes: list[str] | None,
+    same: dict[str, str],
+) -> None:
     handles = [
         Line2D([], [], color="black", linewidth=1.8, label="ground truth of the query"),
         Line2D([], [], color="#9a9a9a", linewidth=0.8, label="other objects"),
     ]
     handles += [
-        Line2D([], [], color=look.colour[m], linestyle=look.style[m], linewidth=1.6, label=f"{m} boxes")
+        Line2D(
+            [],
+            [],
+            color=look.colour[m],
+            linestyle=look.style[m],
+            linewidth=1.6,
+            label=f"{m} boxes" + (f" (the same as {same[m]}'s, drawn over them)" if m in same else ""),
+        )
         for m in methods
     ]
+    ncols = len(handles)
+    if terrain_classes:
+        # The insets zoom into the faded terrain background: its colours need naming there too.
+        terrain = terrain_handles(terrain_classes, "not terrain")
+        for patch in terrain:
+            patch.set_alpha(0.45)
+        handles += terrain
+        ncols = max(ncols, (len(handles) + 1) // 2)
     title = "inset titles: method found / hits, as in Table II" if with_counts else None
-    figure_legend(fig, handles, ncols=len(handles), title=title)
+    figure_legend(fig, handles, ncols=ncols, title=title)
 
 
 def _in_window(quads: np.ndarray, window: Extent | None) -> np.ndarray:

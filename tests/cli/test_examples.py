@@ -84,3 +84,51 @@ def test_readme_names_every_extra_of_the_package():
     for name in extras:
         if name != "test":
             assert f"| `{name}` |" in readme, name
+
+
+def walk_lines() -> list[str]:
+    """The command walk (the bash block of the README's "Commands" section), comments removed."""
+    text = (REPO / "README.md").read_text().split("## Commands\n", 1)[1]
+    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
+    return [line.split("  #", 1)[0].rstrip() for line in block.splitlines() if line.strip()]
+
+
+def walk_task_file(lines: list[str]) -> str:
+    """The task file the walk writes with `cat > tasks.yaml <<'EOF'`."""
+    first = lines.index("cat > tasks.yaml <<'EOF'")
+    return "\n".join(lines[first + 1 : lines.index("EOF", first)]) + "\n"
+
+
+def test_the_walk_reads_only_what_it_wrote(tmp_path):
+    """From an empty folder: no file of the repository (examples/) is read, the task file is
+    written before it is used, and `terra node ... O0` comes after a `terra find ... --save`."""
+    lines = walk_lines()
+    assert not any("examples/" in line for line in lines)
+    written = lines.index("cat > tasks.yaml <<'EOF'")
+    used = [i for i, line in enumerate(lines) if "--tasks tasks.yaml" in line]
+    assert used and min(used) > written
+    saved = [i for i, line in enumerate(lines) if line.startswith("terra find") and "--save" in line]
+    objects = [i for i, line in enumerate(lines) if line.startswith("terra node") and " O" in line]
+    assert objects and saved and min(saved) < min(objects)
+    from terra.tasks.task_file import load_task_file
+
+    path = tmp_path / "tasks.yaml"
+    path.write_text(walk_task_file(lines))
+    tasks = load_task_file(path)
+    assert tasks.object_queries() == ["Find the dumpster"]
+    assert tasks.region_queries() == ["Large parking lot surrounded by buildings"]
+
+
+def test_the_walk_maps_with_the_demos_perception_noise():
+    """`terra map` in the walk adds the noise the demo adds (so campus.terra is the demo's map), and
+    monitors with the configured k, which the demo's tuning gives."""
+    from terra.eval.demo import DemoConfig
+    from terra.mapping.config import MappingConfig
+
+    lines = walk_lines()
+    maps = [line for line in lines if line.startswith("terra map")]
+    assert len(maps) == 2 and all("--noise realistic" in line for line in maps)
+    demo = DemoConfig.load(None, "small", 0).mapping.perception.noise
+    walk = MappingConfig.model_validate({"perception": {"noise": "realistic"}}).perception.noise
+    assert demo == walk and demo.enabled
+    assert not any(line.startswith("terra monitor") and "--k" in line for line in lines)

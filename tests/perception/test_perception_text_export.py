@@ -74,6 +74,20 @@ def test_export_matches_sentence_transformers_and_is_reused(tiny_model, tmp_path
     assert again.folder == exported.folder and (again.folder / "model.onnx").stat().st_mtime_ns == stamp
 
 
+def test_the_first_export_says_so_once_when_not_on_a_terminal(tiny_model, tmp_path, capsys, monkeypatch):
+    """The export takes seconds: one line on stderr (captured here, so not a terminal) the first
+    time, nothing when the export is reused; TERRA_PROGRESS=off silences it."""
+    monkeypatch.delenv("TERRA_PROGRESS", raising=False)
+    prepare_export("tiny", tiny_model, root=tmp_path)
+    first = capsys.readouterr()
+    assert first.out == "" and first.err.splitlines() == ["terra: preparing the text model 'tiny' (once, ~10 s)"]
+    prepare_export("tiny", tiny_model, root=tmp_path)
+    assert capsys.readouterr().err == ""
+    monkeypatch.setenv("TERRA_PROGRESS", "off")
+    prepare_export("tiny", tiny_model, root=tmp_path / "other")
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("damage", ["flip", "truncate", "missing_json", "bad_json"])
 def test_a_corrupt_export_is_made_again(tiny_model, tmp_path, damage):
     folder = prepare_export("tiny", tiny_model, root=tmp_path).folder

@@ -85,6 +85,38 @@ def test_3dsg_searches_only_near_places_of_matching_regions(scene, text_embedder
     assert [tuple(np.round(o.center[:2], 6)) for o in found] == [OBJECTS["car"][0][:2]]
 
 
+def test_3dsg_is_ms_avg_when_no_region_or_place_reaches_alpha(scene, text_embedder):
+    """Why the demo's Table II has equal 3dsg and ms-avg rows: there every region and place scores
+    0.16-0.45 against a query (an image embedding mixes everything in view) while alpha is 0.65.
+    With the lot's places and regions all embedded as such a mixture, 3DSG falls back to every
+    place and finds exactly MS-Avg's objects; with a region reaching alpha it searches only there
+    and finds one dumpster of MS-Avg's two (test_3dsg_searches_only_near_places_of_matching_regions)."""
+    from dataclasses import replace
+
+    from terra.tasks.hierarchy import place_similarities, region_similarities
+
+    msm, graph, _ = scene
+    query = ["find the dumpster"]
+    mixture = text_embedder.embed_text(["grass, asphalt and a sidewalk with trees and a car"])[0]
+    diluted = replace(
+        graph,
+        places=replace(graph.places, embedding=np.tile(mixture, (len(graph.places), 1)).astype(np.float32)),
+        regions=[replace(r, embedding=np.tile(mixture, (len(r), 1)).astype(np.float32)) for r in graph.regions],
+    )
+    q = text_embedder.embed_text(query)[0]
+    assert max(float(s.max()) for s in region_similarities(diluted, q)) < 0.4
+    assert float(place_similarities(diluted, q).max()) < 0.4
+
+    def boxes(found):
+        return sorted((tuple(np.round(o.center, 6)), tuple(o.point_indices.tolist())) for o in found)
+
+    ms_avg = find_objects(msm, diluted, query, method="ms-avg", alpha=0.4, embedder=text_embedder)
+    sg = find_objects(msm, diluted, query, method="3dsg", alpha=0.4, embedder=text_embedder)
+    assert len(ms_avg) == 2 and boxes(sg) == boxes(ms_avg)
+    narrowed = find_objects(msm, graph, query, method="3dsg", alpha=0.4, embedder=text_embedder)
+    assert len(narrowed) == 1 and boxes(narrowed) != boxes(ms_avg)
+
+
 def test_point_matches_rules():
     # Columns: 2 terrains, then 2 queries.
     sim = np.array(
