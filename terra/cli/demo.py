@@ -54,6 +54,17 @@ JsonOpt = Annotated[
     bool, typer.Option("--json", help="Print demo.json (tasks, parameters) with the evaluation summary as JSON.")
 ]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars, step log or timing table.")]
+LiveOpt = Annotated[
+    bool,
+    typer.Option(
+        "--live",
+        help="Then replay the test drive live (a snapshot every 2 s of drive), asking the plan's target at each "
+        "quarter of it, each answer beside the final one (report/live.md).",
+    ),
+]
+SpeedOpt = Annotated[
+    float, typer.Option("--speed", min=0.0, help="With --live: times real time (0 = as fast as it maps).")
+]
 
 
 @app.command("demo")
@@ -68,6 +79,8 @@ def demo_command(
     overwrite: OverwriteOpt = False,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
+    live: LiveOpt = False,
+    speed: SpeedOpt = 1.0,
 ) -> None:
     """Run the whole system on a simulated campus and write a report.
 
@@ -98,10 +111,19 @@ def demo_command(
     )
     on_interrupt(run.interrupted)
     demo = run.run()
+    replayed = run.live(speed) if live else None
     if as_json:
-        typer.echo(json.dumps({**demo, "steps": run.steps, "timing": run.timer.to_json()}, indent=1, sort_keys=True))
+        extra = {"live": replayed.to_json()} if replayed is not None else {}
+        typer.echo(
+            json.dumps({**demo, **extra, "steps": run.steps, "timing": run.timer.to_json()}, indent=1, sort_keys=True)
+        )
         return
     for line in format_demo(demo, Path(out)):
         typer.echo(line)
+    if replayed is not None:
+        from terra.live.replay import format_replay
+
+        for line in format_replay(replayed):
+            typer.echo(line)
     if not quiet:
         typer.echo(run.timer.table("terra demo timing"), err=True)

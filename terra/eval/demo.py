@@ -304,6 +304,40 @@ class DemoRun:
         demo["evaluation"] = json.loads((report / SUMMARY).read_text())
         return demo
 
+    def live(self, speed: float, update_every: float = 2.0):
+        """The test scene's drive replayed live (terra.live.replay) into `<scene>/live.terra`, asking the
+        plan's target at each quarter of the drive with the tuned alpha; writes report/live.md and
+        report/live.json and returns the replay. Run after `run()` (the tuned alpha is its output)."""
+        from terra.datasets import open_dataset
+        from terra.live.replay import format_replay, replay
+
+        cfg = self.config
+        test = self.out / f"{cfg.preset}-seed{cfg.seed}"
+        dataset = open_dataset(test / "dataset")
+        folder = f"validation-{cfg.validation_preset}-seed{cfg.validation_seed}"
+        tuned = TunedParameters.load(self.out / folder / TUNED)
+        first, last = float(dataset[0].stamp), float(dataset[len(dataset) - 1].stamp)
+        ask_at = [round((last - first) * q, 3) for q in (0.25, 0.5, 0.75)]
+        method = cfg.tasks.retrieval.method
+        with self.timer.stage("live replay"):
+            result = replay(
+                dataset,
+                test / "live.terra",
+                load_ground_truth(test / "dataset"),
+                PLAN_TARGET,
+                ask_at=ask_at,
+                speed=speed,
+                update_every=update_every,
+                alpha=tuned.retrieval_alpha(method),
+                config=cfg.mapping,
+            )
+        report = self.out / REPORT_DIR
+        report.mkdir(parents=True, exist_ok=True)
+        (report / "live.json").write_text(json.dumps(result.to_json(), indent=1, sort_keys=True) + "\n")
+        lines = ["# Live replay", "", "Each answer during the drive beside the final answer (the batch map's):", ""]
+        (report / "live.md").write_text("\n".join([*lines, "```", *format_replay(result), "```", ""]))
+        return result
+
     def validation(self) -> tuple[Scene, dict]:
         """The validation scene simulated, mapped and built, and alpha and k tuned on it
         (`tuned.json` beside its bundle), each step cached; returns the scene and the tuning's key.

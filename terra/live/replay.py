@@ -22,6 +22,7 @@ from terra.datasets.base import Dataset
 from terra.datasets.ground_truth import GroundTruth
 from terra.errors import TerraError
 from terra.live.session import Session, Snapshot
+from terra.mapping.config import MappingConfig
 
 
 @dataclass
@@ -71,13 +72,15 @@ def replay(
     speed: float = 1.0,
     update_every: float = 2.0,
     alpha: float | None = None,
+    config: MappingConfig | None = None,
     sleep: Callable[[float], None] = time.sleep,
 ) -> LiveReplay:
-    """Replay `dataset` into a new live bundle `out`; ask `query` (find, then plan to it) at the
-    drive times `ask_at` (seconds). `speed`: times real time (0 = as fast as frames fuse)."""
+    """Replay `dataset` into a new live bundle `out` (mapped with `config`, default MappingConfig());
+    ask `query` (find, then plan to it) at the drive times `ask_at` (seconds). `speed`: times real
+    time (0 = as fast as frames fuse)."""
     if len(dataset) == 0:
         raise TerraError(f"dataset {dataset.name!r} has no frames")
-    session = Session(out, dataset.classes, name=dataset.name, overwrite=True)
+    session = Session(out, dataset.classes, config, name=dataset.name, overwrite=True)
     t0: float | None = None
     wall0 = time.monotonic()
     pending = sorted(float(t) for t in ask_at)
