@@ -171,9 +171,11 @@ def build_terrain_grid(
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
 
     Each cell's class is the majority of the cells with terrain points in a square window of half
-    side `support_radius` metres, kept where at least `min_support` of the window's cells have
-    terrain points: this fills the gaps between nearby scan lines and drops the isolated rings of
-    distant, sparsely scanned ground, on which no place should sit.
+    side `support_radius` metres, kept where at least `min_support` of the window's area holds
+    terrain points (counted on squares of `support_cell` metres, see cell_coverage; None: whole
+    cells, where one point of a distant scan ring covers a coarse cell): this fills the gaps
+    between nearby scan lines and drops the isolated rings of distant, sparsely scanned ground,
+    on which no place should sit.
 
     Where the cameras labelled the ground only sparsely (a road seen at a glancing angle, the far
     side of a block), a window with at least `weak_support` (< min_support) of its cells labelled
@@ -182,32 +184,21 @@ def build_terrain_grid(
     (hysteresis, connected through such cells): a strip keeps its class through a sparsely
     labelled stretch, while an isolated patch that one mislabelled image left stays unlabelled
     (None = never), reaching at most `weak_reach` metres from it along the chain (None = any
-    distance: the connection is then global).
-
-    Every share above is a share of the window's area that holds points, measured on squares of
-    `support_cell` metres (None: on the cells themselves; see cell_coverage): counted in whole
-    cells, one point of a sparse distant scan ring covers a whole coarse cell, so the rings a fine
-    grid drops pass on a coarse one and a share would not mean the same ground at every cell size.
+    distance: the connection is then global). Shares are of area, as above.
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
     than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
     `fill_radius` metres when those all agree (0 = never): a road the cameras missed for a few
     metres stays one road instead of breaking in two, and no boundary is guessed.
     """
-    points = np.asarray(points, dtype=np.float64)
-    terrain = np.asarray(terrain)
+    points, terrain = np.asarray(points, dtype=np.float64), np.asarray(terrain)
     is_terrain = terrain >= 0
-    if not is_terrain.any():
-        raise ValueError("the map has no terrain points")
     frame = frame or grid_frame(points, terrain, cell_size, margin_cells)
     grid = empty_grid(frame)
     n_classes, has = _vote_terrain(grid, points[is_terrain], terrain[is_terrain].astype(np.int64))
     other = _scan_other_points(grid, has, points[~is_terrain], obstacle_height)
     window = 2 * int(round(support_radius / frame.cell_size)) + 1
-    labelled = cell_coverage(grid, points[is_terrain], support_cell)
-    low = obstacle_height[0] if obstacle_height is not None else 0.3
-    low_points = points[~is_terrain][other.inside & (other.height < low)]
-    ground = cell_coverage(grid, np.vstack([points[is_terrain][:, :2], low_points[:, :2]]), support_cell)
+    labelled, ground = _coverages(grid, points, is_terrain, other, obstacle_height, support_cell)
     dense = _densely_scanned(ground, window, min_support)
     raw = grid.label.copy()
     if support_radius > 0:
@@ -220,6 +211,23 @@ def build_terrain_grid(
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, other.ground_cells & dense & ~grid.blocked, fill_radius / frame.cell_size)
     return grid
+
+
+def _coverages(
+    grid: TerrainGrid,
+    points: np.ndarray,
+    is_terrain: np.ndarray,
+    other: _OtherPoints,
+    obstacle_height: tuple[float, float] | None,
+    support_cell: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 coverage (cell_coverage) of the terrain points `points[is_terrain]`, and of
+    all ground points: those and the other points low above the ground (`other`, located)."""
+    labelled = cell_coverage(grid, points[is_terrain], support_cell)
+    low = obstacle_height[0] if obstacle_height is not None else 0.3
+    low_points = points[~is_terrain][other.inside & (other.height < low)]
+    ground = cell_coverage(grid, np.vstack([points[is_terrain][:, :2], low_points[:, :2]]), support_cell)
+    return labelled, ground
 
 
 def empty_grid(frame: GridFrame) -> TerrainGrid:
@@ -238,7 +246,9 @@ def empty_grid(frame: GridFrame) -> TerrainGrid:
 def _vote_terrain(grid: TerrainGrid, tp: np.ndarray, tt: np.ndarray) -> tuple[int, np.ndarray]:
     """In place, from the terrain points `tp` (n, 3) and their classes `tt` (n,) int64: each cell's
     majority class and the ground of every cell. Returns the number of classes and the (H, W) bool
-    cells that hold terrain points."""
+    cells that hold terrain points; ValueError without any."""
+    if len(tt) == 0:
+        raise ValueError("the map has no terrain points")
     H, W = grid.shape
     rows, cols, _ = grid.cell_of(tp)
     flat = rows * W + cols
