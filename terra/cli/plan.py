@@ -37,9 +37,12 @@ def plan_command(
     """Plan a terrain-aware path to what a task names.
 
     Plan a path from a start to the place of the object a task names, honouring terrain
-    preferences. Edge cost = length x (1 + mean penalty of its two places' terrains); forbidden
-    terrain is removed. Without --from*, the start is the place nearest the first camera pose.
-    Exit code 3 when no path exists.
+    preferences. Edge cost = the edge's length along the graph (the GVD path between its two
+    places, never shorter than the straight segment) x (1 + mean penalty of its two places'
+    terrains); forbidden terrain is removed. The plan reports the straight length between its
+    waypoints and the length along the graph per terrain, so cost = sum of terrain length along
+    the graph x (1 + its penalty). Without --from*, the start is the place nearest the first
+    camera pose. Exit code 3 when no path exists.
 
     Example: terra plan campus.terra --to "get bike from the bicycle rack" --prefer sidewalk --forbid water --json
     """

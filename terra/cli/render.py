@@ -299,9 +299,10 @@ def render_plan(result: PlanResult) -> str:
                 [f"{k} penalty {v:g}" for k, v in penalised.items()] + [f"{k} forbidden" for k in result.forbidden]
             )
         )
-    by_terrain = ", ".join(f"{k} {v:.1f} m" for k, v in path.length_by_terrain.items())
+    along = ", ".join(f"{k} {v:.1f} m" for k, v in path.edge_length_by_terrain.items())
     lines.append(
-        f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m ({by_terrain}), cost {path.cost:.1f}"
+        f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m straight between them; "
+        f"{path.edge_length_m:.1f} m along the graph ({along}), cost {path.cost:.1f}"
     )
     for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
         lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")

@@ -60,6 +60,15 @@ class GridSection(Section):
             "distant scan rings)"
         ),
     )
+    support_cell: float | None = Field(
+        default=0.4,
+        gt=0.0,
+        description=(
+            "metres; min_support and weak_support are shares of the window's area, counted on sub-cells of about this "
+            "size, so they mean the same ground at every cell size (None = shares of whole cells: a coarse grid then "
+            "keeps sparse distant scan rings a fine one drops)"
+        ),
+    )
     weak_support: float | None = Field(
         default=0.1,
         ge=0.0,

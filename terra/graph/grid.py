@@ -134,7 +134,9 @@ def hysteresis_steps(
     return max(int(round(weak_reach / cell_size)), 1)
 
 
-def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: float, chain: int = 0) -> int:
+def terrain_grid_reach(
+    cell_size: float, support_radius: float, fill_radius: float, chain: int = 0, support_cell: float | None = None
+) -> int:
     """Cells: how far a cell's label and blocked flag in `build_terrain_grid` depend on the points
     around it. The support window (half side w = round(support_radius / cell_size)) decides the
     majority label, the weak majority and, once more, which cells are densely scanned; the
@@ -142,9 +144,12 @@ def terrain_grid_reach(cell_size: float, support_radius: float, fill_radius: flo
     cell of which reads its window; the fill takes labels within fill_radius. Ground is the
     exception (the nearest cell with terrain points or unlabelled ground, at any distance);
     terra.graph.tiled_grid checks it per cell. Keep this in step with the algorithm: the tiled
-    build relies on it (and tests/graph/test_graph_tiling.py compares tiled and whole grids)."""
+    build relies on it (and tests/graph/test_graph_tiling.py compares tiled and whole grids). The
+    coverage shares of every window depend on points within ceil(support_cell / cell_size) cells
+    (cell_coverage)."""
     w = int(round(support_radius / cell_size))
-    return 2 * w + chain + int(np.ceil(fill_radius / cell_size)) + 2
+    coverage = int(np.ceil(support_cell / cell_size)) if support_cell is not None else 0
+    return 2 * w + chain + int(np.ceil(fill_radius / cell_size)) + 2 + 2 * coverage
 
 
 def build_terrain_grid(
@@ -160,14 +165,17 @@ def build_terrain_grid(
     weak_support: float | None = None,
     weak_reach: float | None = None,
     frame: GridFrame | None = None,
+    support_cell: float | None = None,
 ) -> TerrainGrid:
     """Grid over the terrain points (N, 3) map frame, metres, with `terrain` (N,) class index per
     point (-1 = not terrain). Raises ValueError when there is no terrain point.
 
     Each cell's class is the majority of the cells with terrain points in a square window of half
-    side `support_radius` metres, kept where at least `min_support` of the window's cells have
-    terrain points: this fills the gaps between nearby scan lines and drops the isolated rings of
-    distant, sparsely scanned ground, on which no place should sit.
+    side `support_radius` metres, kept where at least `min_support` of the window's area holds
+    terrain points (counted on squares of `support_cell` metres, see cell_coverage; None: whole
+    cells, where one point of a distant scan ring covers a coarse cell): this fills the gaps
+    between nearby scan lines and drops the isolated rings of distant, sparsely scanned ground,
+    on which no place should sit.
 
     Where the cameras labelled the ground only sparsely (a road seen at a glancing angle, the far
     side of a block), a window with at least `weak_support` (< min_support) of its cells labelled
@@ -176,35 +184,50 @@ def build_terrain_grid(
     (hysteresis, connected through such cells): a strip keeps its class through a sparsely
     labelled stretch, while an isolated patch that one mislabelled image left stays unlabelled
     (None = never), reaching at most `weak_reach` metres from it along the chain (None = any
-    distance: the connection is then global).
+    distance: the connection is then global). Shares are of area, as above.
 
     Cells of ground the LiDAR scanned but no camera labelled (points without terrain votes, less
     than `obstacle_height[0]` above the local ground) take the class of the labelled cells within
     `fill_radius` metres when those all agree (0 = never): a road the cameras missed for a few
     metres stays one road instead of breaking in two, and no boundary is guessed.
     """
-    points = np.asarray(points, dtype=np.float64)
-    terrain = np.asarray(terrain)
+    points, terrain = np.asarray(points, dtype=np.float64), np.asarray(terrain)
     is_terrain = terrain >= 0
-    if not is_terrain.any():
-        raise ValueError("the map has no terrain points")
     frame = frame or grid_frame(points, terrain, cell_size, margin_cells)
     grid = empty_grid(frame)
     n_classes, has = _vote_terrain(grid, points[is_terrain], terrain[is_terrain].astype(np.int64))
     other = _scan_other_points(grid, has, points[~is_terrain], obstacle_height)
     window = 2 * int(round(support_radius / frame.cell_size)) + 1
-    dense = _densely_scanned(grid.label, other.ground_cells, window, min_support)
+    labelled, ground = _coverages(grid, points, is_terrain, other, obstacle_height, support_cell)
+    dense = _densely_scanned(ground, window, min_support)
     raw = grid.label.copy()
     if support_radius > 0:
-        grid.label[:] = _window_majority(raw, n_classes, window, min_support)
+        grid.label[:] = _window_majority(raw, n_classes, window, min_support, labelled)
     if obstacle_height is not None:
         _block_obstacles(grid, other, obstacle_height, obstacle_min_points)
     steps = hysteresis_steps(frame.cell_size, support_radius, min_support, weak_support, weak_reach)
     if steps != 0 and weak_support is not None:  # steps is 0 when weak_support is None
-        _extend_weak_labels(grid, raw, n_classes, window, weak_support, dense, steps or 0)
+        _extend_weak_labels(grid, raw, n_classes, window, weak_support, dense, steps or 0, labelled)
     if fill_radius > 0:
         _fill_from_nearest_label(grid.label, other.ground_cells & dense & ~grid.blocked, fill_radius / frame.cell_size)
     return grid
+
+
+def _coverages(
+    grid: TerrainGrid,
+    points: np.ndarray,
+    is_terrain: np.ndarray,
+    other: _OtherPoints,
+    obstacle_height: tuple[float, float] | None,
+    support_cell: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 coverage (cell_coverage) of the terrain points `points[is_terrain]`, and of
+    all ground points: those and the other points low above the ground (`other`, located)."""
+    labelled = cell_coverage(grid, points[is_terrain], support_cell)
+    low = obstacle_height[0] if obstacle_height is not None else 0.3
+    low_points = points[~is_terrain][other.inside & (other.height < low)]
+    ground = cell_coverage(grid, np.vstack([points[is_terrain][:, :2], low_points[:, :2]]), support_cell)
+    return labelled, ground
 
 
 def empty_grid(frame: GridFrame) -> TerrainGrid:
@@ -223,7 +246,9 @@ def empty_grid(frame: GridFrame) -> TerrainGrid:
 def _vote_terrain(grid: TerrainGrid, tp: np.ndarray, tt: np.ndarray) -> tuple[int, np.ndarray]:
     """In place, from the terrain points `tp` (n, 3) and their classes `tt` (n,) int64: each cell's
     majority class and the ground of every cell. Returns the number of classes and the (H, W) bool
-    cells that hold terrain points."""
+    cells that hold terrain points; ValueError without any."""
+    if len(tt) == 0:
+        raise ValueError("the map has no terrain points")
     H, W = grid.shape
     rows, cols, _ = grid.cell_of(tp)
     flat = rows * W + cols
@@ -280,13 +305,57 @@ def _scan_other_points(
     return _OtherPoints(orow, ocol, inside, height, unlabelled_ground)
 
 
-def _densely_scanned(label: np.ndarray, unlabelled_ground: np.ndarray, window: int, min_support: float) -> np.ndarray:
-    """(H, W) bool: densely scanned ground, where enough of the window holds ground points, labelled
-    or not (sparse distant scan rings are not, and are never filled)."""
-    return (
-        ndimage.uniform_filter(((label >= 0) | unlabelled_ground).astype(np.float32), size=window, mode="constant")
-        >= min_support - 1e-6
-    )
+def cell_coverage(grid: TerrainGrid, points: np.ndarray, support_cell: float | None) -> np.ndarray:
+    """(H, W) float32: the share of each cell's area covered by the squares of `support_cell`
+    metres that hold one of the points (n, 2+) (map frame, metres). The squares lie on the lattice
+    of multiples of support_cell nearest the grid's origin, like the map's voxels
+    (terra.geometry.voxel keys), so with support_cell = the map's voxel size they are its occupied
+    voxel columns, whatever the cell size. None, or support_cell = cell_size: 1 where the cell
+    itself holds a point, points outside the grid counting in the border cell they are clipped to
+    (the grid's own rule). The coverage of a cell depends on points within
+    ceil(support_cell / cell_size) cells of it."""
+    H, W = grid.shape
+    if support_cell is None or abs(support_cell - grid.cell_size) < 1e-9 * grid.cell_size or len(points) == 0:
+        covered = np.zeros((H, W), dtype=np.float32)
+        rows, cols, _ = grid.cell_of(points)
+        covered[rows, cols] = 1.0
+        return covered
+    anchor = np.round(grid.origin / support_cell) * support_cell  # depends on the whole grid's origin only
+    squares = np.unique(np.floor((np.asarray(points, dtype=np.float64)[:, :2] - anchor) / support_cell), axis=0)
+    total = np.zeros(H * W, dtype=np.float64)
+    start = anchor - grid.origin  # metres from the grid's origin to square 0's corner
+    xs = _overlaps(squares[:, 0], support_cell, -start[0], grid.cell_size, grid.offset[1], W)
+    ys = _overlaps(squares[:, 1], support_cell, -start[1], grid.cell_size, grid.offset[0], H)
+    for col, width in xs:
+        for row, height in ys:
+            keep = (col >= 0) & (row >= 0) & (width > 0) & (height > 0)
+            total += np.bincount(row[keep] * W + col[keep], weights=width[keep] * height[keep], minlength=H * W)
+    return np.minimum(total / grid.cell_size**2, 1.0).astype(np.float32).reshape(H, W)
+
+
+def _overlaps(
+    index: np.ndarray, size: float, origin: float, cell_size: float, offset: int, n: int
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Along one axis, for squares [index * size, (index + 1) * size) (metres in the map frame):
+    the cells of a grid starting at `origin` (local index, -1 outside 0..n-1) they overlap and the
+    overlap lengths (metres), one (cells, lengths) pair per k-th overlapped cell."""
+    lo, hi = index * size - origin, (index + 1) * size - origin
+    first = np.floor(lo / cell_size + 1e-9).astype(np.int64)
+    out = []
+    for k in range(int(np.ceil(size / cell_size)) + 1):
+        cell = first + k
+        length = np.minimum(hi, (cell + 1) * cell_size) - np.maximum(lo, cell * cell_size)
+        local = cell - offset
+        # Lengths below a nanometre are rounding where a square's edge falls on a cell's edge.
+        out.append((np.where((local >= 0) & (local < n), local, -1), np.where(length > 1e-9, length, 0.0)))
+    return out
+
+
+def _densely_scanned(ground: np.ndarray, window: int, min_support: float) -> np.ndarray:
+    """(H, W) bool: densely scanned ground, where enough of the window's area holds ground points,
+    labelled or not (`ground`: coverage per cell; sparse distant scan rings are not densely
+    scanned, and are never filled)."""
+    return ndimage.uniform_filter(ground, size=window, mode="constant") >= min_support - 1e-6
 
 
 def _block_obstacles(
@@ -309,10 +378,12 @@ def _extend_weak_labels(
     weak_support: float,
     dense: np.ndarray,
     steps: int,
+    coverage: np.ndarray | None = None,
 ) -> None:
     """In place: the hysteresis step, the weak majority of the cells' own labels `raw` carried along
-    densely scanned, unblocked cells at most `steps` cells (0 = any number) from a label."""
-    weak = _window_majority(raw, n_classes, window, weak_support)
+    densely scanned, unblocked cells at most `steps` cells (0 = any number) from a label
+    (`coverage`: the labelled share of each cell, see _window_majority)."""
+    weak = _window_majority(raw, n_classes, window, weak_support, coverage)
     weak = np.where(weak >= 0, weak, raw)  # a labelled cell is evidence for its own class
     _extend_by_hysteresis(grid.label, np.where(dense & ~grid.blocked, weak, -1), steps)
 
@@ -361,9 +432,12 @@ def _extend_by_hysteresis(label: np.ndarray, weak: np.ndarray, max_steps: int = 
         label[reached & (label < 0)] = t
 
 
-def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support: float) -> np.ndarray:
+def _window_majority(
+    label: np.ndarray, n_classes: int, window: int, min_support: float, coverage: np.ndarray | None = None
+) -> np.ndarray:
     """Majority class of each `window` x `window` neighbourhood (ties to the lower class), -1 where
-    less than `min_support` of it is labelled."""
+    less than `min_support` of it is labelled: of its cells, or of its area where `coverage` (H, W)
+    gives the labelled share of each cell (cell_coverage)."""
     best = np.full(label.shape, -1, dtype=np.int16)
     best_count = np.zeros(label.shape, dtype=np.float32)
     support = np.zeros(label.shape, dtype=np.float32)
@@ -373,5 +447,7 @@ def _window_majority(label: np.ndarray, n_classes: int, window: int, min_support
         better = share > best_count + 1e-6
         best[better] = t
         best_count[better] = share[better]
+    if coverage is not None:
+        support = ndimage.uniform_filter(coverage, size=window, mode="constant")
     best[support < min_support - 1e-6] = -1
     return best

@@ -158,7 +158,12 @@ def terrain_grid(
         gc.support_radius,
         gc.min_support,
     )
-    kwargs = {"fill_radius": gc.fill_radius, "weak_support": gc.weak_support, "weak_reach": gc.weak_reach}
+    kwargs = {
+        "fill_radius": gc.fill_radius,
+        "weak_support": gc.weak_support,
+        "weak_reach": gc.weak_reach,
+        "support_cell": gc.support_cell,
+    }
     tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
     if tile is None:
         return build_terrain_grid(*args, **kwargs)

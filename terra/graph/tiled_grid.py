@@ -75,6 +75,7 @@ def build_terrain_grid_tiled(
     fill_radius: float = 0.0,
     weak_support: float | None = None,
     weak_reach: float | None = None,
+    support_cell: float | None = None,
     tile: int = 512,
     margin: int = 64,
     read_radius: int = 2,
@@ -88,7 +89,12 @@ def build_terrain_grid_tiled(
     terrain = np.asarray(terrain)
     stats = stats if stats is not None else TiledGridStats()
     args = (cell_size, obstacle_height, obstacle_min_points, support_radius, min_support)
-    weak = {"fill_radius": fill_radius, "weak_support": weak_support, "weak_reach": weak_reach}
+    weak = {
+        "fill_radius": fill_radius,
+        "weak_support": weak_support,
+        "weak_reach": weak_reach,
+        "support_cell": support_cell,
+    }
     chain = hysteresis_steps(cell_size, support_radius, min_support, weak_support, weak_reach)
     if chain is None:
         stats.one_piece = "build.grid.weak_reach is null: the hysteresis can carry a class across the whole map"
@@ -100,7 +106,7 @@ def build_terrain_grid_tiled(
     def build(rows: np.ndarray, part: GridFrame) -> TerrainGrid:
         return build_terrain_grid(points[rows], terrain[rows], *args, **weak, frame=part)
 
-    reach = terrain_grid_reach(cell_size, support_radius, fill_radius, chain)
+    reach = terrain_grid_reach(cell_size, support_radius, fill_radius, chain, support_cell)
     builder = _CoreBuilder(points, terrain, index, frame, reach, read_radius, build, stats)
     for core in cores(frame.shape, tile):
         builder.fill(grid, core, max(margin, reach))

@@ -174,6 +174,42 @@ def fit_oriented_box(points: np.ndarray, padding: float = 0.0) -> OrientedBox:
     return fit_oriented_boxes(pts, np.zeros(len(pts), dtype=np.int64), padding)[0]
 
 
+def _hull_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (k,) radians and lengths (k,) metres of the edges of the convex hull of xy
+    points (n, 2); none when the hull is a point or a segment."""
+    hull = shapely.convex_hull(shapely.multipoints(xy))
+    if shapely.get_type_id(hull) != shapely.GeometryType.POLYGON:
+        return np.zeros(0), np.zeros(0)
+    ring = shapely.get_coordinates(hull)
+    d = np.diff(ring, axis=0)
+    return np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
+
+
+def edge_yaw(xy: np.ndarray, tolerance: float = 0.15, agree_deg: float = 5.0) -> float | None:
+    """The yaw (radians) of a footprint's dominant edges: of the rectangles square to a hull edge
+    (the minimum-area one is among them) within `tolerance` of the smallest area, the one whose
+    sides run along the most hull-edge length (edges within `agree_deg` of its sides, modulo 90
+    degrees). None for a hull that is a point or a segment.
+
+    An L-shaped footprint (two faces of a box seen from one corner) has a right-triangle hull;
+    the rectangle on its hypotenuse is exactly as small as the one on its legs, so the minimum-area
+    rule alone turns the box by the triangle's angle (about 30 degrees for a 2 x 1.3 m dumpster).
+    The legs are two hull edges, the hypotenuse one: the legs win."""
+    angle, length = _hull_edges(np.asarray(xy, dtype=np.float64)[:, :2])
+    if len(angle) == 0:
+        return None
+    c, s = np.cos(angle), np.sin(angle)
+    hull = np.asarray(xy, dtype=np.float64)[:, :2]
+    u = hull @ np.stack([c, s])  # (n, k): along each candidate
+    v = hull @ np.stack([-s, c])
+    area = np.ptp(u, axis=0) * np.ptp(v, axis=0)
+    off = np.abs((angle[None, :] - angle[:, None] + np.pi / 4) % (np.pi / 2) - np.pi / 4)  # (k, k) mod 90 degrees
+    support = (off <= np.radians(agree_deg)) @ length
+    fits = area <= (1.0 + tolerance) * area.min() + 1e-12
+    best = int(np.flatnonzero(fits)[np.argmax(support[fits])])
+    return float(angle[best])
+
+
 def _extents_at_yaw(points: np.ndarray, groups: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per group, the centre (G, 2) and size (G, 2) of the rectangle with axes at `yaw` (G,)
     radians that bounds its xy points; points sorted by group, every group present."""
@@ -231,6 +267,22 @@ def _z_extent(
     return z_lo, z_hi
 
 
+def _edge_rectangles(xy: np.ndarray, groups: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(yaw (G,), centre (G, 2), size (G, 2)) per group of xy points (n, 2) sorted by group: the
+    rectangle at the footprint's edge yaw (edge_yaw), the x axis along its longer side; the
+    minimum-area rectangle where the hull is a point or a segment."""
+    rect = fit_oriented_boxes(np.column_stack([xy, np.zeros(len(xy))]), groups)
+    yaw = np.array([b.yaw for b in rect])
+    starts = np.searchsorted(groups, np.arange(n_groups + 1))
+    for g in range(n_groups):
+        found = edge_yaw(xy[starts[g] : starts[g + 1]])
+        if found is not None:
+            yaw[g] = found
+    centre, size = _extents_at_yaw(xy, groups, yaw)
+    swap = size[:, 1] > size[:, 0]
+    return wrap_half_turn(np.where(swap, yaw + np.pi / 2, yaw)), centre, np.where(swap[:, None], size[:, ::-1], size)
+
+
 def fit_object_boxes(
     points: np.ndarray,
     groups: np.ndarray,
@@ -247,7 +299,8 @@ def fit_object_boxes(
     - Footprint: from the points at least `lift` metres above the group's ground height
       `ground_z` (G,) (mask bleeding labels ground around an object as the object), unless fewer
       than three are; then from all of them.
-    - Yaw: the minimum-area rectangle's, unless `context_yaw` (G,) (radians; NaN = none: the
+    - Yaw: the footprint's dominant edges' (edge_yaw: of the rectangles close to the smallest,
+      the one most of the hull's edges run along), unless `context_yaw` (G,) (radians; NaN = none: the
       direction of the terrain strips around the object) gives a rectangle at most
       `prefer_context` times larger; a partial view often makes the minimum-area rectangle turn.
     - Height: from the ground (when below the lowest point) to the highest point.
@@ -263,10 +316,7 @@ def fit_object_boxes(
     high = pts[:, 2] >= ground[groups] + lift
     enough = np.bincount(groups[high], minlength=n_groups) >= 3
     foot = high | ~enough[groups]
-    rect = fit_oriented_boxes(pts[foot], groups[foot])
-    yaw = np.array([b.yaw for b in rect])
-    centre = np.array([b.center[:2] for b in rect]).reshape(-1, 2)
-    size_xy = np.array([b.size[:2] for b in rect]).reshape(-1, 2)
+    yaw, centre, size_xy = _edge_rectangles(pts[foot, :2], groups[foot], n_groups)
     if context_yaw is not None:
         yaw, centre, size_xy = _prefer_context(
             pts[foot, :2], groups[foot], np.asarray(context_yaw, dtype=np.float64), prefer_context, yaw, centre, size_xy

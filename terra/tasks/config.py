@@ -160,7 +160,8 @@ class PlanningConfig(Section):
     """Terrain-aware A* on the places layer.
 
     Edge cost = length x (1 + (penalty(terrain_u) + penalty(terrain_v)) / 2), length in metres
-    (never below the straight-line distance, so the straight-line heuristic stays admissible).
+    along the graph (the edge's GVD path; never below the straight-line distance, so the
+    straight-line heuristic stays admissible; terra.tasks.planning).
     With preferred terrains, every other terrain without an explicit penalty gets
     `default_penalty`. The goal is the place linked to the best object for the destination query;
     when that place is forbidden, the nearest allowed place within `goal_radius` metres is used.

@@ -4,8 +4,11 @@ Terrain preferences as edge costs, in metres-equivalent:
 
     cost(u, v) = length(u, v) x (1 + (penalty[terrain u] + penalty[terrain v]) / 2)
 
-- length(u, v) is the graph's edge weight (metres; bridges carry their penalty), never less than
-  the straight-line distance between the two places.
+- length(u, v) is the edge's length along the graph: its weight, the length of the GVD path (or
+  grid path) between the two places in metres, climb included (bridges carry their penalty),
+  never less than the straight-line distance between them. A GVD path follows the middle of the
+  terrain and steps from cell to cell (one step of 1 or sqrt(2) cells), so it is a few per cent
+  longer than the straight segment between its places even on a straight strip.
 - penalty[t] is the explicit `penalties` value for terrain t (>= 0). Terrains in `prefer` get 0
   (preference wins over an explicit penalty, as in the reference's task files). When `prefer` is
   not empty, every other terrain without an explicit penalty gets `default_penalty`: with the
@@ -16,6 +19,14 @@ Terrain preferences as edge costs, in metres-equivalent:
 
 Penalties are non-negative, so every cost is at least the straight-line length and the A*
 straight-line heuristic is admissible: the plan is the cheapest path under these costs.
+
+A plan reports both lengths: `length_m`, the straight segments between its waypoints, and
+`edge_length_m`, the lengths along the graph that the cost uses. Each edge's length is split half
+and half between its two places' terrains (`edge_length_by_terrain`), so that
+
+    cost = sum over terrains t of edge_length_by_terrain[t] x (1 + penalty[t])
+
+exactly; with no penalty on the path's terrains, cost = edge_length_m.
 
 Goals named by a task: every object retrieved for it is a candidate, tried best score first; a
 candidate is skipped when no allowed place lies near it or no path reaches that place, and the
@@ -28,7 +39,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
@@ -116,11 +127,7 @@ class CostGraph:
         n = len(graph.places)
         terrain = np.asarray(graph.places.terrain, dtype=np.int64)
         allowed = ~costs.forbidden[terrain] if n else np.zeros(0, dtype=bool)
-        edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
-        pos = np.asarray(graph.places.position, dtype=np.float64)
-        i, j = edges[:, 0], edges[:, 1]
-        straight = np.linalg.norm(pos[i] - pos[j], axis=1)
-        length = np.maximum(np.asarray(graph.place_edge_weight, dtype=np.float64), straight)
+        i, j, length = edge_lengths(graph)
         cost = length * (1.0 + (costs.penalty[terrain[i]] + costs.penalty[terrain[j]]) / 2)
         keep = allowed[i] & allowed[j] & (i != j)
         # One entry per undirected pair (the cheapest of duplicates), then both directions in
@@ -141,6 +148,31 @@ class CostGraph:
         present = np.unique(terrain[allowed]) if n else np.zeros(0, dtype=np.int64)
         min_factor = 1.0 + float(costs.penalty[present].min()) if present.size else 1.0
         return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed, min_factor=min_factor)
+
+
+def edge_lengths(graph: SceneGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every place edge's endpoints (E,), (E,) and its length along the graph (E,) metres: its
+    weight, at least the straight-line distance between its places (the module docstring)."""
+    edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
+    pos = np.asarray(graph.places.position, dtype=np.float64)
+    i, j = edges[:, 0], edges[:, 1]
+    straight = np.linalg.norm(pos[i] - pos[j], axis=1)
+    return i, j, np.maximum(np.asarray(graph.place_edge_weight, dtype=np.float64), straight)
+
+
+def step_lengths(graph: SceneGraph, places: np.ndarray) -> np.ndarray:
+    """(n - 1,) metres: the length along the graph of each step of a path of places (n,), the
+    shortest of the edges joining its two places (the one the cost graph keeps; NaN where no edge
+    joins them)."""
+    i, j, length = edge_lengths(graph)
+    n = max(len(graph.places), 1)
+    key = np.minimum(i, j) * n + np.maximum(i, j)
+    wanted = np.minimum(places[:-1], places[1:]) * n + np.maximum(places[:-1], places[1:])
+    hit = np.isin(key, wanted)  # only the path's own edges go through Python
+    shortest: dict[int, float] = {}
+    for k, value in zip(key[hit].tolist(), length[hit].tolist()):
+        shortest[k] = min(value, shortest.get(k, np.inf))
+    return np.array([shortest.get(k, np.nan) for k in wanted.tolist()], dtype=np.float64)
 
 
 COST_GRAPHS = 16  # cost graphs kept per scene graph (one per set of terrain preferences)
@@ -187,7 +219,9 @@ class PathPlan:
     """A planned path. places: (n,) place indices from start to goal; waypoints: (n, 3) their
     positions (metres, map frame); length_m: sum of straight segments between waypoints;
     length_by_terrain: metres per terrain name (each segment split half and half between its
-    endpoints' terrains); cost: the A* cost under the terrain preferences."""
+    endpoints' terrains); cost: the A* cost under the terrain preferences; edge_length_m and
+    edge_length_by_terrain: the same for the lengths along the graph the cost is made of (module
+    docstring: cost = sum of edge_length_by_terrain[t] x (1 + penalty[t]))."""
 
     places: np.ndarray
     waypoints: np.ndarray
@@ -195,6 +229,8 @@ class PathPlan:
     length_by_terrain: dict[str, float]
     cost: float
     terrain: list[str]
+    edge_length_m: float = 0.0
+    edge_length_by_terrain: dict[str, float] = field(default_factory=dict)
 
     @property
     def start(self) -> int:
@@ -213,23 +249,40 @@ class PathPlan:
             "terrain": list(self.terrain),
             "length_m": round(self.length_m, 4),
             "length_by_terrain": {k: round(v, 4) for k, v in self.length_by_terrain.items()},
+            "edge_length_m": round(self.edge_length_m, 4),
+            "edge_length_by_terrain": {k: round(v, 4) for k, v in self.edge_length_by_terrain.items()},
             "cost": round(self.cost, 4),
         }
 
 
 def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathPlan:
-    """A PathPlan for a node sequence: waypoints, lengths and terrain breakdown."""
+    """A PathPlan for a node sequence: waypoints, lengths (straight and along the graph) and their
+    terrain breakdown."""
     idx = np.asarray(places, dtype=np.int64)
     waypoints = np.asarray(graph.places.position, dtype=np.float64)[idx]
     terrain = np.asarray(graph.places.terrain, dtype=np.int64)[idx]
     segment = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
-    per_terrain = np.zeros(len(graph.terrain_classes))
-    np.add.at(per_terrain, terrain[:-1], segment / 2)
-    np.add.at(per_terrain, terrain[1:], segment / 2)
-    by_terrain = {graph.terrain_classes[t]: float(per_terrain[t]) for t in np.flatnonzero(per_terrain > 0)}
+    along = step_lengths(graph, idx)
+    along = np.where(np.isfinite(along), along, segment)
     return PathPlan(
-        idx, waypoints, float(segment.sum()), by_terrain, float(cost), [graph.terrain_classes[t] for t in terrain]
+        idx,
+        waypoints,
+        float(segment.sum()),
+        _by_terrain(graph.terrain_classes, terrain, segment),
+        float(cost),
+        [graph.terrain_classes[t] for t in terrain],
+        float(along.sum()),
+        _by_terrain(graph.terrain_classes, terrain, along),
     )
+
+
+def _by_terrain(names: list[str], terrain: np.ndarray, step: np.ndarray) -> dict[str, float]:
+    """Metres per terrain name of a path's steps (n - 1,), each split half and half between the
+    terrains (n,) of its two places."""
+    per_terrain = np.zeros(len(names))
+    np.add.at(per_terrain, terrain[:-1], step / 2)
+    np.add.at(per_terrain, terrain[1:], step / 2)
+    return {names[t]: float(per_terrain[t]) for t in np.flatnonzero(per_terrain > 0)}
 
 
 def _check_place(graph: SceneGraph, place: int, role: str) -> int:

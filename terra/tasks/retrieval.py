@@ -157,12 +157,31 @@ def cluster_matches(points: np.ndarray, eps: float, min_samples: int, min_points
     return groups
 
 
-def instance_groups(points: np.ndarray, groups: list[np.ndarray], cfg: RetrievalConfig) -> list[np.ndarray]:
+def instance_groups(
+    points: np.ndarray,
+    groups: list[np.ndarray],
+    cfg: RetrievalConfig,
+    graph: SceneGraph | None = None,
+    voxel: float = 0.0,
+) -> list[np.ndarray]:
     """DBSCAN clusters (row arrays into `points`) with adjacent instances cut apart
-    (terra.tasks.instances); pieces with fewer than `min_points` points are dropped."""
+    (terra.tasks.instances) at gaps among their points standing above the ground under the
+    nearest place (`graph`; without one, above each cluster's lowest point), measured against
+    the map's voxel size `voxel` (metres); pieces with fewer than `min_points` points are dropped."""
+    ground: list[float | None] = [None] * len(groups)
+    if graph is not None and len(graph.places) and groups:
+        centre = np.array([points[g, :2].mean(axis=0) for g in groups])
+        ground = [float(z) if np.isfinite(z) else None for z in ground_under(graph, centre)]
     out = []
-    for rows in groups:
-        pieces = split_instances(points[rows], min_length=cfg.instance_min_length, gap_factor=cfg.instance_gap_factor)
+    for rows, below in zip(groups, ground):
+        pieces = split_instances(
+            points[rows],
+            min_length=cfg.instance_min_length,
+            gap_factor=cfg.instance_gap_factor,
+            ground=below,
+            lift=cfg.ground_lift,
+            min_spacing=voxel,
+        )
         out += [rows[p] for p in pieces if len(p) >= cfg.min_points]
     return out
 
@@ -226,7 +245,7 @@ def _match_clusters(
         if cfg.standing_only and graph is not None and len(graph.places) and groups:
             groups = grounded_groups(msm.points[cand_rows[local]], groups, graph, cfg, keep_flat)
         if cfg.split_instances:
-            groups = instance_groups(msm.points[cand_rows[local]], groups, cfg)
+            groups = instance_groups(msm.points[cand_rows[local]], groups, cfg, graph, msm.voxel_size)
         clusters += [(q, local[g]) for g in groups]
     return clusters, cand_rows, similarity
 

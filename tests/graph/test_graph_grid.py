@@ -133,3 +133,58 @@ def test_ground_only_the_lidar_saw_keeps_its_own_height():
     rows, cols, _ = grid.cell_of(np.array([[16.0, 3.0], [5.0, 3.0], [16.0, 6.8]]))
     # The last cell (beyond y = 6 m) holds no point: it takes the nearest scanned cell's height.
     assert grid.ground[rows, cols] == pytest.approx([-0.25, 0.0, -0.25], abs=1e-6)
+
+
+def voxel_centres(x0: float, x1: float, y0: float, y1: float, voxel: float = 0.4) -> np.ndarray:
+    """(n, 3) ground points (z = 0), one at the centre of every `voxel` square over [x0, x1) x
+    [y0, y1): what the map holds (one point per 0.4 m voxel) where the LiDAR scanned densely."""
+    return lattice(x0, x1, y0, y1, voxel)
+
+
+def strip_beside_rings() -> tuple[np.ndarray, np.ndarray]:
+    """A densely scanned 40 x 4 m strip of grass, and beside it 40 x 30 m of distant ground the
+    LiDAR saw only on scan rings: one row of voxels in three (a third of its area holds points)."""
+    strip = voxel_centres(0, 40, 0, 4)
+    far = voxel_centres(0, 40, 4, 34)
+    far = far[np.round((far[:, 1] - 4.2) / 0.4).astype(int) % 3 == 0]
+    points = np.vstack([strip, far])
+    return points, np.full(len(points), GRASS)
+
+
+CELL_SIZES = (0.2, 0.4, 0.5, 0.6, 0.8, 1.0, 1.2)
+
+
+@pytest.mark.parametrize("cell_size", CELL_SIZES)
+def test_coverage_counts_the_same_square_metres_at_every_cell_size(cell_size):
+    """The occupied 0.4 m squares of the rings cover 40 m x 0.4 m per ring, 25 rings: 400 m^2,
+    whatever cells they are counted in."""
+    from terra.graph.grid import cell_coverage, empty_grid, grid_frame
+
+    points, terrain = strip_beside_rings()
+    far = points[points[:, 1] > 4]
+    grid = empty_grid(grid_frame(points, terrain, cell_size))
+    covered = cell_coverage(grid, far, 0.4)
+    assert float(covered.sum()) * cell_size**2 == pytest.approx(25 * 40 * 0.4, rel=1e-6)
+    assert float(covered.max()) <= 1.0
+
+
+def test_sparse_rings_stay_unlabelled_and_places_do_not_grow_with_the_cell_size():
+    """min_support is a share of the window's area: the rings (a third of it) never reach 0.6, the
+    strip (all of it) always does. Counted in whole cells, from 0.8 m cells on every cell of the
+    ring ground held a point and it became a 1,200 m^2 field of places (5 places at 0.4 m, 17 at
+    0.8 m); at 0.2 m cells no cell of the strip had the support (0 places)."""
+    from terra.graph.config import BuildConfig
+    from terra.graph.pipeline import terrain_grid, terrain_places
+
+    points, terrain = strip_beside_rings()
+    counts = []
+    for cell_size in CELL_SIZES:
+        config = BuildConfig.model_validate({"grid": {"cell_size": cell_size}})
+        grid = terrain_grid(points, terrain, config)
+        area = float((grid.label == GRASS).sum()) * cell_size**2
+        assert 0.8 * 160 <= area <= 1.2 * 160, (cell_size, area)  # the 40 x 4 m strip, edges within a window
+        assert label_at(grid, 20, 20) == -1 and label_at(grid, 20, 2) == GRASS
+        places, _, _ = terrain_places(grid, [GRASS], config)
+        counts.append(len(places.position))
+    assert counts[0] > 0
+    assert all(b <= a for a, b in zip(counts, counts[1:])), counts

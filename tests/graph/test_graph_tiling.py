@@ -253,6 +253,29 @@ def test_tiled_terrain_grid_equals_the_one_piece_grid_with_the_default_hysteresi
     assert stats.windows >= 20 and stats.one_piece is None
 
 
+@pytest.mark.parametrize("cell_size", [0.3, 0.6, 1.0])
+def test_tiled_terrain_grid_with_area_coverage_equals_the_one_piece_grid(cell_size):
+    """Coverage shares counted on 0.4 m squares that straddle cells (and tile borders)."""
+    points, terrain = hand_placed_points()
+    grid = BuildConfig().grid
+    args = {
+        "cell_size": cell_size,
+        "obstacle_height": (0.3, 2.0),
+        "obstacle_min_points": 2,
+        "support_radius": 1.2,
+        "min_support": 0.6,
+        "fill_radius": 1.0,
+        "weak_support": grid.weak_support,
+        "weak_reach": grid.weak_reach,
+        "support_cell": 0.4,
+    }
+    whole = build_terrain_grid(points, terrain, **args)
+    stats = TiledGridStats()
+    tiled = build_terrain_grid_tiled(points, terrain, **args, tile=20, margin=8, stats=stats)
+    assert_same_grid(tiled, whole, points)
+    assert stats.windows >= 4 and stats.one_piece is None and (whole.label >= 0).any()
+
+
 def sparsely_labelled_strip() -> tuple[np.ndarray, np.ndarray]:
     """A 4 m wide strip along x (0-60 m, y 3-7 m) scanned every 0.2 m, all of it ground without a
     terrain class except: labelled class 0 every 0.2 m for x < 20 and x >= 40, and between them

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -92,6 +94,7 @@ def test_two_adjacent_same_class_boxes_stay_two(text_embedder):
     msm = make_map(
         points, observations, text_embedder.embed_text(["sidewalk", "bicycle rack"]), text_embedder.embed_text(TERRAINS)
     )
+    msm = dataclasses.replace(msm, voxel_size=0.2)  # the points' own sampling
     found = find_objects(msm, None, ["bicycle rack"], alpha=0.4, embedder=text_embedder)
     assert len(found) == 2
     assert sorted(round(float(o.center[0]), 6) for o in found) == [1.6, 5.4]
@@ -158,3 +161,51 @@ def test_strip_directions_from_nearby_gvd_edges():
     assert got[1] == pytest.approx(-np.pi / 4, abs=1e-9)  # 45 degrees is -45 modulo 90
     assert np.isnan(got[2]) and np.isnan(got[3])  # 120 degrees apart in 4x angle: they cancel; nothing near
     np.testing.assert_allclose(ground_under(graph, np.array([[4.0, 1.0], [103.0, 103.0]])), [1.0, 2.0])
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 25.0, -60.0])
+def test_an_l_of_two_faces_gets_the_box_yaw_not_its_hypotenuse(yaw_deg):
+    """Two faces of a 2 x 1.3 m box seen from one corner, sampled every 0.1 m: the hull is a right
+    triangle whose hypotenuse rectangle is exactly as small as the one on its legs (area 2.6 m^2
+    both), so the minimum-area rule alone may turn the box by atan(1.3 / 2) = 33 degrees. The
+    legs are the box's sides: the yaw is the box's, its footprint 2 x 1.3 m."""
+    from terra.tasks.boxes import edge_yaw, fit_object_boxes
+
+    long_face = np.column_stack([np.arange(-1.0, 1.0001, 0.1), np.full(21, 0.65)])
+    short_face = np.column_stack([np.full(14, 1.0), np.arange(-0.65, 0.6501, 0.1)])
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    xy = np.vstack([long_face, short_face]) @ np.array([[c, s], [-s, c]]) + [5.0, -3.0]
+    points = np.vstack([np.column_stack([xy, np.full(len(xy), z)]) for z in (0.4, 0.8, 1.2)])
+    found = edge_yaw(points[:, :2])
+    assert found is not None
+    assert abs((found - np.radians(yaw_deg) + np.pi / 4) % (np.pi / 2) - np.pi / 4) < 1e-6  # a side, modulo 90
+    (box,) = fit_object_boxes(points, np.zeros(len(points), np.int64), ground_z=np.array([0.0]))
+    assert abs(np.degrees(wrap_half_turn(box.yaw - np.radians(yaw_deg)))) < 1e-6
+    np.testing.assert_allclose(box.size[:2], [2.0, 1.3], atol=1e-9)
+
+
+def two_racks_as_voxel_centroids() -> np.ndarray:
+    """Two racks of four hoops 0.8 m apart along y, 3.5 m between the racks' centres (as the
+    simulator's entrance): hoop uprights 0.6 m apart across, up to 0.86 m, every 0.4 m (one
+    point per 0.4 m voxel, as in the map), and at 0.05 m a base bar under each rack plus the
+    pavement a mask bled onto between them: one low layer of points every 0.4 m from end to end."""
+    hoops = [c + (k - 1.5) * 0.8 for c in (0.0, 3.5) for k in range(4)]
+    standing = [(x, y, z) for y in hoops for x in (-0.3, 0.3) for z in (0.2, 0.6)]
+    standing += [(x, y, 0.86) for y in hoops for x in (-0.1, 0.1)]
+    low = [(0.0, y, 0.05) for y in np.arange(-1.6, 5.1 + 1e-9, 0.4)]
+    return np.array(standing + low)
+
+
+def test_racks_joined_by_a_low_layer_split_at_the_gap_between_their_hoops():
+    """Standing points: hoops 0.8 m apart in a rack, 1.1 m across the gap; with the map's 0.4 m
+    voxels, a gap is wider than two voxels (0.8 m). Linking every point, the low layer (0.4 m
+    steps) joined the racks, and the hoops' own spacing (0.2 m across a hoop) was taken for the
+    sampling, so the cluster stayed whole."""
+    from terra.tasks.instances import split_instances
+
+    points = two_racks_as_voxel_centroids()
+    parts = split_instances(points, ground=0.0, lift=0.15, min_spacing=0.4)
+    assert len(parts) == 2
+    centres = sorted(float(points[p, 1].mean()) for p in parts)
+    assert centres == pytest.approx([0.0, 3.5], abs=0.15)
+    assert len(split_instances(points)) == 1  # the old rule: all points linked, the points' own spacing

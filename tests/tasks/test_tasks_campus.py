@@ -51,6 +51,29 @@ def test_every_box_of_a_single_instance_query_overlaps_its_object(campus, text_e
         assert box_iou(BoxSet.from_objects([obj]), BoxSet.from_objects([truth])) > 0.0
 
 
+def test_two_racks_side_by_side_give_two_boxes_and_dumpster_boxes_face_their_truth(campus, text_embedder):
+    """The entrance's two 3.2 m racks stand 3.5 m apart (their base bars 0.3 m apart, one voxel
+    layer at ground level): one box each, centred within 0.5 m of its rack (they were one 6.80 x
+    1.93 m box). The dumpsters, seen from one corner as an L of two faces, get their true yaw
+    within 10 degrees (they were turned about 30 degrees, along the L's hypotenuse)."""
+    _, msm, graph, gt = campus
+    racks = [o for o in gt_boxes(gt, "bicycle rack") if o.center[1] < 60]  # the building entrance's pair
+    assert len(racks) == 2 and abs(racks[0].center[1] - racks[1].center[1]) == pytest.approx(3.5)
+    found = find_objects(msm, graph, ["bicycle rack"], embedder=text_embedder)
+    for rack in racks:
+        near = [o for o in found if np.linalg.norm(o.center[:2] - rack.center[:2]) < 0.5]
+        assert len(near) == 1, [np.round(o.center, 2).tolist() for o in found]
+        assert near[0].size[0] < 4.0
+    dumpsters = gt_boxes(gt, "dumpster")
+    assert len(dumpsters) == 2
+    found = find_objects(msm, graph, ["dumpster"], embedder=text_embedder)
+    for truth in dumpsters:
+        box = min(found, key=lambda o: float(np.linalg.norm(o.center[:2] - truth.center[:2])))
+        assert np.linalg.norm(box.center[:2] - truth.center[:2]) < 0.5
+        turn = (box.yaw - truth.yaw + np.pi / 2) % np.pi - np.pi / 2  # a box is the same turned by 180 degrees
+        assert abs(np.degrees(turn)) < 10.0, np.degrees(turn)
+
+
 def test_monitor_picks_places_inside_the_named_region(campus, text_embedder):
     _, _, graph, gt = campus
     (park,) = [r for r in gt.regions if r.name.startswith("park_")]

@@ -184,6 +184,9 @@ def test_plan_between_nodes_without_queries(lot, capsys):
     assert report["places"][0] == 63 and report["places"][-1] == 0 and report["length_m"] == pytest.approx(70.0)
     code, out, _ = call(["plan", str(bundle), "--to-node", "0", "--from-node", "63"], capsys)
     assert code == 0 and "path: 15 places, 70.0 m" in out
+    # The hand-made graph's weights are the straight lengths: along the graph it is 70 m too, and
+    # the text names the length the cost is made of.
+    assert "70.0 m along the graph" in out and "cost 70.0" in out
 
 
 @pytest.mark.parametrize("command", ["find", "monitor", "plan"])

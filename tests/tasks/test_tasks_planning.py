@@ -105,6 +105,34 @@ def test_preference_cost_is_length_times_one_plus_mean_penalty():
     assert plan.length_by_terrain == pytest.approx({"sidewalk": 20.0})
 
 
+def bent_path_graph():
+    """Three places on one line, 0 (sidewalk) at x = 0, 1 (sidewalk) at x = 4, 2 (grass) at x = 8.
+    The GVD path from 0 to 1 bends round a post: 5 m (a 3-4-5 detour); 1 to 2 is straight, 4 m,
+    but its weight holds a duplicate edge of 6 m too (the cheaper one is used)."""
+    return make_graph([[0, 0], [4, 0], [8, 0]], [SIDEWALK, SIDEWALK, GRASS], [[0, 1], [1, 2], [2, 1]], [5.0, 4.0, 6.0])
+
+
+def test_cost_is_the_length_along_the_graph_times_one_plus_penalty_and_the_plan_reports_it():
+    """By hand: straight segments 4 + 4 = 8 m; along the graph 5 + 4 = 9 m, split half and half
+    per edge: sidewalk 5 + 2 = 7 m, grass 2 m. Grass penalty 5 (preferring sidewalk):
+    cost = 5 x 1 + 4 x (1 + 5 / 2) = 19 = 7 x (1 + 0) + 2 x (1 + 5)."""
+    plan = plan_path(bent_path_graph(), 0, 2, prefer=["sidewalk"])
+    assert plan.places.tolist() == [0, 1, 2]
+    assert plan.length_m == pytest.approx(8.0)
+    assert plan.length_by_terrain == pytest.approx({"sidewalk": 6.0, "grass": 2.0})
+    assert plan.edge_length_m == pytest.approx(9.0)
+    assert plan.edge_length_by_terrain == pytest.approx({"sidewalk": 7.0, "grass": 2.0})
+    assert plan.cost == pytest.approx(19.0)
+    assert plan.cost == pytest.approx(
+        sum(v * (1 + {"sidewalk": 0, "grass": 5}[k]) for k, v in plan.edge_length_by_terrain.items())
+    )
+    # With no penalty on its terrains the cost is the length along the graph, not the straight one.
+    plain = plan_path(bent_path_graph(), 0, 2)
+    assert plain.cost == pytest.approx(9.0) and plain.edge_length_m == pytest.approx(plain.cost)
+    report = plan.to_json()
+    assert report["edge_length_m"] == pytest.approx(9.0) and report["length_m"] == pytest.approx(8.0)
+
+
 def test_forbidden_terrain_is_never_crossed_and_unreachable_goals_say_so():
     g = detour_graph()
     plan = plan_path(g, 0, 3, forbid=["grass"])
