@@ -80,7 +80,8 @@ def replay(
     time (0 = as fast as frames fuse)."""
     if len(dataset) == 0:
         raise TerraError(f"dataset {dataset.name!r} has no frames")
-    session = Session(out, dataset.classes, config, name=dataset.name, overwrite=True)
+    prior = dataset.global_map()  # the source's own map, as `terra map` uses it
+    session = Session(out, dataset.classes, config, name=dataset.name, overwrite=True, global_map=prior)
     t0: float | None = None
     wall0 = time.monotonic()
     pending = sorted(float(t) for t in ask_at)

@@ -70,6 +70,9 @@ class Session:
     build: Phase 2 settings for the graph of each snapshot (default BuildConfig()); graph=False
     commits maps only. resume: continue the map already in `out` (its classes, config and embedder
     must match); otherwise an existing bundle at `out` is refused unless overwrite.
+    global_map: a prior map (M, 3) metres in the map frame (e.g. the source's own, as `terra map`
+    uses a dataset's): scan points then take their nearest prior point within fusion.gate instead
+    of accumulating voxels.
     """
 
     def __init__(
@@ -84,6 +87,7 @@ class Session:
         resume: bool = False,
         overwrite: bool = False,
         name: str = "live",
+        global_map: np.ndarray | None = None,
     ):
         from terra.perception.registry import get_perception
 
@@ -96,7 +100,8 @@ class Session:
         self.perception = perception or get_perception(self.config.perception, classes)
         recover(self.out)
         self._base = _open_base(self.out, resume, overwrite)
-        fusion = MapFusion(self.config, self.perception.terrain_classes, self.perception.dim)
+        prior = _prior_map(global_map) if global_map is not None and self.config.fusion.use_global_map else None
+        fusion = MapFusion(self.config, self.perception.terrain_classes, self.perception.dim, prior)
         self.mapper = Mapper(self.config, self.perception, fusion)
         self._run = run_description(
             self.config.model_dump(mode="json", exclude={"perception": {"cache"}, "checkpoint_every": True}),
@@ -254,3 +259,15 @@ def _sources(base: Bundle | None, source: dict, first_frame: int) -> list[dict]:
     earlier = [s for s in earlier if not (isinstance(s, dict) and s.get("fingerprint") == source["fingerprint"])]
     frames = source["frames"] - first_frame
     return [*earlier, {**source, "frames": frames, "first_frame": int(first_frame)}]
+
+
+def _prior_map(points: np.ndarray) -> np.ndarray:
+    """The finite rows of a prior map as (M, 3) float32 metres (TerraError when none is usable)."""
+    array = np.asarray(points)
+    if array.ndim != 2 or array.shape[1] < 3 or not np.issubdtype(array.dtype, np.number):
+        raise TerraError(f"global_map: expected an (M, 3) array of metres, got shape {array.shape}")
+    array = array[:, :3].astype(np.float32)
+    finite = array[np.isfinite(array).all(axis=1)]
+    if finite.shape[0] == 0:
+        raise TerraError("global_map: no finite point")
+    return finite

@@ -280,3 +280,25 @@ def test_a_renamed_copy_of_the_dataset_evaluates_like_the_original(tiny_demo, tm
         ]
     )
     assert code == 2 and "were tuned on the scene under test" in err
+
+
+def test_demo_live_replays_the_test_drive_to_the_batch_answer(tiny_demo):
+    """`terra demo --live`: the replayed drive's map equals the demo's test map byte for byte, and the final
+    live answer to the plan's target is the demo's own (the same best object, the same distance to truth)."""
+    import json
+
+    from tests.live.test_session import map_files
+
+    code, stdout, stderr = run_cli(["demo", "--out", str(tiny_demo.out), "--preset", "tiny", "--live", "--speed", "0"])
+    assert code == 0, stderr
+    scene = tiny_demo.out / "tiny-seed0"
+    assert map_files(scene / "live.terra") == map_files(scene / "map.terra")
+    live = json.loads((tiny_demo.out / "report" / "live.json").read_text())
+    assert [a["at_s"] for a in live["answers"]] == sorted(a["at_s"] for a in live["answers"]) and len(
+        live["answers"]
+    ) == 3
+    demo = json.loads((tiny_demo.out / "demo.json").read_text())
+    batch = next(f for f in demo["tasks"]["find"] if f["query"] == "Get bike from the bicycle rack")
+    assert live["final"]["found"] == batch["objects"] > 0
+    assert live["final"]["distance_m"] == batch["nearest_gt"]["distance_m"]
+    assert "(final)" in stdout and (tiny_demo.out / "report" / "live.md").is_file()
