@@ -162,13 +162,14 @@ def carry_ids(new: SceneGraph, old: SceneGraph, tolerance: float) -> SceneGraph:
             group_match, old_ids = np.full(len(level), -1, dtype=np.int64), np.zeros(0, dtype=np.int64)
         ids, next_id[char] = carried_ids(group_match, old_ids, next_id.get(char, 0))
         regions.append(replace(level, id=ids))
-    objects = _carried_objects(new.objects, old.objects, next_id)
+    objects, next_id["O"] = carried_objects(new.objects, old.objects, next_id.get("O", 0))
     places = replace(new.places, id=place_ids)
     return replace(new, places=places, regions=regions, objects=objects, next_id=next_id)
 
 
-def _carried_objects(new: Objects, old: Objects, next_id: dict[str, int]) -> Objects:
-    """`new` objects with the ids of the old objects of the same label near their centres."""
+def carried_objects(new: Objects, old: Objects, next_id: int) -> tuple[Objects, int]:
+    """(`new` objects with the ids of the old objects of the same label whose centres lie within
+    OBJECT_TOLERANCE, next free object id)."""
     labels = sorted(set(old.label) | set(new.label))
     match = match_points(
         old.center,
@@ -177,5 +178,5 @@ def _carried_objects(new: Objects, old: Objects, next_id: dict[str, int]) -> Obj
         np.array([labels.index(lb) for lb in new.label], dtype=np.int64),
         OBJECT_TOLERANCE,
     )
-    ids, next_id["O"] = carried_ids(match, old.id, next_id.get("O", 0))
-    return replace(new, id=ids)
+    ids, next_free = carried_ids(match, old.id, next_id)
+    return replace(new, id=ids), next_free
