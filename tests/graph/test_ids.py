@@ -189,3 +189,27 @@ def test_ids_that_disagree_with_the_document_are_refused(tmp_path):
         writer.put_array("graph/place_id", np.array([4, 8]))
     with pytest.raises(TerraError, match=r"scene_graph.json: node ids of symbol 'p' must be the 2 ids of the id array"):
         load_scene_graph(Bundle(path))
+
+
+def test_spark_dsg_reads_the_nodes_by_their_ids(tmp_path):
+    """The export names every node by its id: spark_dsg finds place id 12 (index 2) with its
+    position, terrain and parent region id 2; the new bench (id 6) on place id 4."""
+    dsg = pytest.importorskip("spark_dsg")
+    from terra.interop.spark import export_spark_dsg
+
+    graph = carry_ids(new_graph(), old_graph(), tolerance=0.2)
+    path = tmp_path / "ids.terra"
+    with BundleWriter(path) as writer:
+        write_scene_graph(writer, graph)
+    out = tmp_path / "dsg.json"
+    export_spark_dsg(Bundle(path), out)
+    g = dsg.DynamicSceneGraph.load(str(out))
+    place = g.get_node(dsg.NodeSymbol("p", 12).value)
+    assert np.allclose(place.attributes.position, [2.0, 0.0, 0.0]) and place.attributes.name == "grass"
+    assert place.get_parent() == dsg.NodeSymbol("R", 2).value
+    assert g.get_node(dsg.NodeSymbol("p", 13).value).get_parent() == dsg.NodeSymbol("R", 7).value
+    assert not g.has_node(dsg.NodeSymbol("p", 2).value)
+    bench = g.get_node(dsg.NodeSymbol("O", 6).value)
+    assert np.allclose(bench.attributes.position, [4.0, 0.0, 0.0])
+    assert g.has_edge(dsg.NodeSymbol("p", 4).value, dsg.NodeSymbol("O", 6).value)
+    assert g.has_edge(dsg.NodeSymbol("p", 7).value, dsg.NodeSymbol("p", 3).value)  # indices 0 and 1
