@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from terra.graph.scene_graph import Objects, SceneGraph
 
@@ -29,10 +30,10 @@ OBJECT_TOLERANCE = 1.0  # metres between box centres: a re-found object moves by
 
 
 def match_points(
-    old_position: np.ndarray,
-    old_group: np.ndarray,
-    new_position: np.ndarray,
-    new_group: np.ndarray,
+    old_position: ArrayLike,
+    old_group: ArrayLike,
+    new_position: ArrayLike,
+    new_group: ArrayLike,
     tolerance: float,
 ) -> np.ndarray:
     """(N,) index of the old point each new point is, -1 where none: pairs are of the same group
@@ -40,11 +41,11 @@ def match_points(
     is taken once; the most pairs are made, and among those the smallest total distance."""
     from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
+    old_position = np.asarray(old_position, dtype=np.float64)
+    new_position = np.asarray(new_position, dtype=np.float64)
     match = np.full(len(new_position), -1, dtype=np.int64)
     if len(old_position) == 0 or len(new_position) == 0:
         return match
-    old_position = np.asarray(old_position, dtype=np.float64)
-    new_position = np.asarray(new_position, dtype=np.float64)
     pairs = cKDTree(new_position).sparse_distance_matrix(
         cKDTree(old_position), tolerance, output_type="ndarray"
     )  # rows (i new, j old, distance) within the tolerance

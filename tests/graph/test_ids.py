@@ -140,14 +140,14 @@ def test_ids_survive_the_bundle_and_name_the_nodes(tmp_path):
         node_info(loaded, "p2")
 
 
+def bench(x: float, score: float, place: int) -> FoundObject:
+    return FoundObject(xyz(x)[0], np.ones(3), 0.0, 0, "bench", score, np.ones(1), 10, place, np.arange(3))
+
+
 def test_saving_objects_keeps_their_ids():
     graph = old_graph()
     graph.objects = _objects(["bench", "bin"], [1.0, 3.0], [1, 3], [5, 8])
-    box = dict(size=np.ones(3), yaw=0.0, query=0, scores=np.ones(1), point_count=10, point_indices=np.arange(3))
-    found = [
-        FoundObject(np.array([1.2, 0.0, 0.0]), label="bench", score=0.9, place=1, **box),
-        FoundObject(np.array([4.0, 0.0, 0.0]), label="bench", score=0.8, place=4, **box),
-    ]
+    found = [bench(1.2, 0.9, 1), bench(4.0, 0.8, 4)]
     saved = with_objects(graph, found)
     # The bin is kept (8); the bench found 0.2 m from the old one takes its id 5; the other is new:
     # 9, above the 8 in use.
