@@ -380,7 +380,7 @@ def _layers(doc, levels: int, where: str, stored: dict[str, np.ndarray] | None) 
             ids = np.arange(len(items), dtype=np.int64)
             expected = "number 0..n-1"
         else:
-            expected = f"be the {len(ids)} ids of the id array"
+            expected = f"be those of its id array ({len(ids)} listed there)"
         index = index_of(ids)
         slots: list[object] = [None] * len(ids)
         for node_id, attributes in items:
@@ -389,7 +389,9 @@ def _layers(doc, levels: int, where: str, stored: dict[str, np.ndarray] | None) 
                 break
             slots[position] = attributes
         if len(items) != len(ids) or any(a is None for a in slots):
-            raise TerraError(f"{where}: node ids of symbol {char!r} must {expected}, once each")
+            raise TerraError(
+                f"{where}: node ids of symbol {char!r} must {expected}, once each ({len(items)} such nodes)"
+            )
         out[char] = Layer(slots, ids, index)
     return out
 

@@ -187,7 +187,10 @@ def test_ids_that_disagree_with_the_document_are_refused(tmp_path):
     with BundleWriter(path) as writer:
         write_scene_graph(writer, graph)
         writer.put_array("graph/place_id", np.array([4, 8]))
-    with pytest.raises(TerraError, match=r"scene_graph.json: node ids of symbol 'p' must be the 2 ids of the id array"):
+    with pytest.raises(
+        TerraError,
+        match=r"scene_graph.json: node ids of symbol 'p' must be those of its id array \(2 listed there\), once each",
+    ):
         load_scene_graph(Bundle(path))
 
 
