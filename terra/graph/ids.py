@@ -52,6 +52,13 @@ def match_points(
     rows = pairs[np.asarray(new_group)[pairs["i"]] == np.asarray(old_group)[pairs["j"]]]
     if len(rows) == 0:
         return match
+    new_count = np.bincount(rows["i"], minlength=len(new_position))
+    old_count = np.bincount(rows["j"], minlength=len(old_position))
+    alone = (new_count[rows["i"]] == 1) & (old_count[rows["j"]] == 1)  # the usual case: one candidate each way
+    match[rows["i"][alone]] = rows["j"][alone]
+    rows = rows[~alone]
+    if len(rows) == 0:
+        return match
     for new, old, distance in _candidate_sets(rows["i"], rows["j"], rows["v"]):
         chosen_new, chosen_old = _assign(new, old, distance)
         match[chosen_new] = chosen_old
@@ -113,7 +120,8 @@ def match_groups(
         return result
     pair_new = np.asarray(new_member_of)[kept]
     pair_old = np.asarray(old_member_of)[member_match[kept]]
-    pairs, shared = np.unique(np.stack([pair_new, pair_old], axis=1), axis=0, return_counts=True)
+    keys, shared = np.unique(pair_new.astype(np.int64) * old_count + pair_old, return_counts=True)
+    pairs = np.stack([keys // old_count, keys % old_count], axis=1)
     new_size = np.bincount(new_member_of, minlength=new_count)
     old_size = np.bincount(old_member_of, minlength=old_count)
     jaccard = shared / (new_size[pairs[:, 0]] + old_size[pairs[:, 1]] - shared)
