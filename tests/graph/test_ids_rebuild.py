@@ -13,7 +13,9 @@ from terra.bundle import Bundle, BundleWriter
 from terra.cli import run
 from terra.graph.pipeline import run_build
 from terra.graph.storage import load_scene_graph
+from terra.loaded import LoadedBundle
 from terra.mapping.storage import write_map
+from terra.tasks.retrieval import FoundObject, with_objects
 from tests.tasks.test_tasks_synthetic import BANK, TERRAINS, make_map
 
 WEST_END = 60.0  # metres: the west strip spans x 0..60, the east patch x 70..100
@@ -44,10 +46,17 @@ def rebuilt(text_embedder, tmp_path_factory):
     """The graphs of the first build (grass east) and of the rebuild (asphalt east)."""
     path = tmp_path_factory.mktemp("ids") / "two_part.terra"
     put_map(path, two_part_map(text_embedder, "grass", 30.0))
-    first = run_build(path, show_progress=False).graph
+    run_build(path, show_progress=False)
+    # `terra find --save` stores two benches on the first graph (ids 0, 1).
+    benches = [bench(10.0, 2.0, 0.9), bench(75.0, 2.0, 0.8)]
+    first = LoadedBundle(path).update_graph(lambda graph: with_objects(graph, benches))
     put_map(path, two_part_map(text_embedder, "asphalt", 15.0))
     assert run(["build", str(path), "--overwrite", "--quiet"]) == 0  # the CLI rebuilds over the stored graph
     return path, first, load_scene_graph(Bundle(path))
+
+
+def bench(x: float, y: float, score: float) -> FoundObject:
+    return FoundObject(np.array([x, y, 0.5]), np.ones(3), 0.0, 0, "bench", score, np.ones(1), 10, 0, np.arange(3))
 
 
 def position_key(position: np.ndarray) -> tuple[float, float]:
@@ -85,6 +94,17 @@ def test_places_of_the_changed_area_get_fresh_ids_never_reused(rebuilt):
     assert [len(level) for level in first.regions] == [len(level) for level in second.regions] == [1, 1, 1, 1]
     assert [level.id.tolist() for level in second.regions] == [[0]] * 4
     assert [second.next_ids()[c] for c in "RSTU"] == [1, 1, 1, 1]
+
+
+def test_saved_objects_survive_the_rebuild_with_their_ids(rebuilt):
+    _, first, second = rebuilt
+    assert first.objects.id.tolist() == [0, 1] and second.objects.id.tolist() == [0, 1]
+    assert second.objects.label == ["bench", "bench"] and np.allclose(second.objects.center[:, 0], [10.0, 75.0])
+    # Each is linked to its nearest place of the new graph (2-D).
+    for center, place in zip(second.objects.center, second.objects.place):
+        d = np.linalg.norm(second.places.position[:, :2] - center[:2], axis=1)
+        assert d[place] == d.min()
+    assert second.next_ids()["O"] == 2
 
 
 def test_a_rebuild_of_the_same_map_keeps_every_id(rebuilt):
