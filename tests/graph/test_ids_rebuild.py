@@ -6,10 +6,12 @@ their ids exactly, and the east ones get fresh ids above every id given before."
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
-from terra.bundle import Bundle, BundleWriter
+from terra.bundle import MANIFEST, Bundle, BundleWriter
 from terra.cli import run
 from terra.graph.pipeline import run_build
 from terra.graph.storage import load_scene_graph
@@ -113,3 +115,17 @@ def test_a_rebuild_of_the_same_map_keeps_every_id(rebuilt):
     assert again.places.id.tolist() == second.places.id.tolist()
     assert [level.id.tolist() for level in again.regions] == [level.id.tolist() for level in second.regions]
     assert again.next_ids() == second.next_ids()
+
+
+def test_a_graph_that_cannot_be_read_is_rebuilt_with_fresh_ids(text_embedder, tmp_path):
+    """A rebuild replaces an unsupported or damaged graph (what `terra build --overwrite` is for):
+    it cannot carry ids from it, so the ids are the indices again."""
+    path = tmp_path / "old.terra"
+    put_map(path, two_part_map(text_embedder, "grass", 30.0))
+    run_build(path, show_progress=False)
+    manifest = json.loads((path / MANIFEST).read_text())
+    manifest["components"]["graph"]["format"] = 0
+    (path / MANIFEST).write_text(json.dumps(manifest))
+    graph = run_build(path, show_progress=False).graph
+    assert graph.places.id.tolist() == list(range(len(graph.places))) and len(graph.objects) == 0
+    assert load_scene_graph(Bundle(path)).places.id.tolist() == graph.places.id.tolist()
