@@ -1,7 +1,8 @@
 """Phase 2: the metric-semantic map of a bundle -> terrain places, links, embeddings, regions.
 
 `build_scene_graph` works on a MetricSemanticMap in memory; `build_graph` reads the bundle, runs it
-and adds component `graph/` atomically (the bundle is unchanged when anything fails).
+and adds component `graph/` atomically (the bundle is unchanged when anything fails). A rebuild
+keeps the node ids and the saved objects of the graph it replaces (terra.graph.ids).
 """
 
 from __future__ import annotations
