@@ -256,6 +256,7 @@ class GraphMeta(_Written):
     embedder: str = ""
     region_method: str = ""
     region_levels: Annotated[int, Field(ge=0, le=MAX_REGION_LEVELS)]
+    next_id: dict[str, Count] = Field(default_factory=dict)  # per NodeSymbol char (format 2)
 
 
 class GraphMetadata(_Written):

@@ -1,12 +1,13 @@
 """Phase 2: the metric-semantic map of a bundle -> terrain places, links, embeddings, regions.
 
 `build_scene_graph` works on a MetricSemanticMap in memory; `build_graph` reads the bundle, runs it
-and adds component `graph/` atomically (the bundle is unchanged when anything fails).
+and adds component `graph/` atomically (the bundle is unchanged when anything fails). A rebuild
+keeps the node ids and the saved objects of the graph it replaces (terra.graph.ids).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -301,9 +302,17 @@ def region_assignments(
 
 
 def build_scene_graph(
-    msm: MetricSemanticMap, config: BuildConfig | None = None, show_progress: bool = False
+    msm: MetricSemanticMap,
+    config: BuildConfig | None = None,
+    show_progress: bool = False,
+    previous: SceneGraph | None = None,
 ) -> GraphBuild:
-    """The scene graph of a map. TerraError when the map gives nothing to build on."""
+    """The scene graph of a map. TerraError when the map gives nothing to build on.
+
+    `previous`: the graph an earlier build of the bundle gave; its ids are carried to the nodes that
+    did not change (places within half a grid cell, see terra.graph.ids) and its objects (`terra
+    find --save`) are kept with their ids, each linked to its nearest new place. Without it the
+    ids are the indices."""
     config = config or BuildConfig()
     timer = StageTimer()
     names, terrains = _terrains_to_build(msm, config)
@@ -321,6 +330,8 @@ def build_scene_graph(
         assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
         levels = build_levels(assignments, places.position, embedding)
     graph = _scene_graph(msm, places, embedding, links, levels, config)
+    if previous is not None:
+        graph = _with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
     return GraphBuild(graph, stats, timer)
 
@@ -412,6 +423,20 @@ def _scene_graph(
     )
 
 
+def _with_previous_ids(graph: SceneGraph, previous: SceneGraph, tolerance: float) -> SceneGraph:
+    """`graph` with the previous build's objects (linked to their nearest new place, 2-D) and the
+    ids of the previous build carried over."""
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
+
+    from terra.graph.ids import carry_ids
+
+    kept = previous.objects
+    if len(kept):
+        place = cKDTree(graph.places.position[:, :2]).query(np.asarray(kept.center)[:, :2])[1]
+        graph = replace(graph, objects=replace(kept, place=np.asarray(place, dtype=np.int64)))
+    return carry_ids(graph, previous, tolerance)
+
+
 def _build_stats(
     msm: MetricSemanticMap,
     grid: TerrainGrid,
@@ -463,6 +488,19 @@ def _check_bundle(bundle: Bundle) -> None:
         )
 
 
+def _previous_graph(bundle: Bundle) -> SceneGraph | None:
+    """The bundle's current scene graph, whose ids the rebuild keeps; None when it has none or it
+    cannot be read (a damaged or unsupported graph is what a rebuild replaces; its ids restart)."""
+    from terra.graph.storage import load_scene_graph
+
+    if not bundle.has_component("graph"):
+        return None
+    try:
+        return load_scene_graph(bundle)
+    except TerraError:
+        return None
+
+
 def build_graph(
     bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, progress: bool = True
 ) -> SceneGraph:
@@ -486,7 +524,7 @@ def run_build(
     timer = StageTimer()
     with timer.stage("load map"):
         msm = load_map(bundle, max_ids=False)  # the build never reads the MS-Max ids
-    result = build_scene_graph(msm, config, show_progress)
+    result = build_scene_graph(msm, config, show_progress, previous=_previous_graph(bundle))
     for name, seconds in result.timer.seconds.items():
         timer.add(name, seconds)
     with timer.stage("write"), BundleWriter(bundle.path, base=bundle, drop_components=("graph",)) as writer:

@@ -4,6 +4,11 @@ Frames and units: every position is in the map frame, metres (z is the local gro
 places). Embeddings are float32 unit vectors in the space of the map's embedder.
 Layers follow spark_dsg: objects (2), places (3), regions (4, with levels 1..L above the places),
 and an implicit root above the top region level.
+
+Nodes follow spark_dsg's model too: each has a stable integer id (`id` arrays, int64, one per
+node), which is its name (`p12`, NodeSymbol 'p' << 56 | 12) and survives rebuilds where its
+ground did not change (terra.graph.ids); the arrays are views ordered by index, the position in
+them, which the edges and parent links use. A graph built before ids existed has ids = indices.
 """
 
 from __future__ import annotations
@@ -19,6 +24,34 @@ if TYPE_CHECKING:
 EDGE_GVD = 0  # along one terrain's GVD
 EDGE_CROSS_TERRAIN = 1  # dead end linked to the nearest node of another terrain
 EDGE_BRIDGE = 2  # joins otherwise disconnected components, with a penalty
+MAX_NODE_ID = (1 << 56) - 1  # a NodeSymbol keeps 56 bits for the index
+
+
+def level_char(level: int) -> str:
+    """The NodeSymbol character of region level `level` (1-based): 'R', 'S', ..."""
+    return chr(ord("R") + level - 1)
+
+
+def _no_ids() -> np.ndarray:
+    return np.zeros(0, dtype=np.int64)
+
+
+def node_ids(ids: np.ndarray, count: int, what: str) -> np.ndarray:
+    """`ids` as (count,) int64, or 0..count-1 when none are given (an empty array); ValueError
+    unless they are distinct and within 0..MAX_NODE_ID."""
+    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    if len(ids) == 0 and count:
+        return np.arange(count, dtype=np.int64)
+    if len(ids) != count:
+        raise ValueError(f"{what}: {len(ids)} ids for {count} nodes")
+    if count and (ids.min() < 0 or ids.max() > MAX_NODE_ID or len(np.unique(ids)) != count):
+        raise ValueError(f"{what}: ids must be distinct integers 0..{MAX_NODE_ID}")
+    return ids
+
+
+def index_of(ids: np.ndarray) -> dict[int, int]:
+    """id -> index for one layer's `ids`."""
+    return {int(node_id): index for index, node_id in enumerate(ids.tolist())}
 
 
 @dataclass
@@ -28,12 +61,17 @@ class Places:
     position: (P, 3) metres, map frame; z from the local ground. terrain: (P,) index into
     SceneGraph.terrain_classes. clearance: (P,) metres to the nearest cell not of this terrain.
     embedding: (P, D) image embedding (mean of whole-image embeddings of images that saw the place).
+    id: (P,) stable ids (default 0..P-1).
     """
 
     position: np.ndarray
     terrain: np.ndarray
     clearance: np.ndarray
     embedding: np.ndarray
+    id: np.ndarray = field(default_factory=_no_ids)
+
+    def __post_init__(self) -> None:
+        self.id = node_ids(self.id, len(self), "places")
 
     def __len__(self) -> int:
         return int(self.position.shape[0])
@@ -45,12 +83,22 @@ class RegionLevel:
 
     position: (R, 3) centroid of members, metres. embedding: (R, D) normalised mean of children.
     parent_of_child: (C,) index of this level's region containing each node of the level below.
+    id: (R,) stable ids (default 0..R-1).
     """
 
     level: int
     position: np.ndarray
     embedding: np.ndarray
     parent_of_child: np.ndarray
+    id: np.ndarray = field(default_factory=_no_ids)
+
+    def __post_init__(self) -> None:
+        self.id = node_ids(self.id, len(self), f"region level {self.level}")
+
+    @property
+    def char(self) -> str:
+        """The NodeSymbol character of this level: 'R' for level 1, 'S' for 2, ..."""
+        return level_char(self.level)
 
     def __len__(self) -> int:
         return int(self.position.shape[0])
@@ -62,6 +110,7 @@ class Objects:
 
     center, size: (O, 3) metres (size along the box axes before yaw). yaw: (O,) radians about +z.
     score: (O,) cosine score for `label`. place: (O,) index of the nearest place.
+    id: (O,) stable ids (default 0..O-1).
     """
 
     center: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -71,6 +120,10 @@ class Objects:
     score: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
     point_count: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     place: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    id: np.ndarray = field(default_factory=_no_ids)
+
+    def __post_init__(self) -> None:
+        self.id = node_ids(self.id, len(self), "objects")
 
     def __len__(self) -> int:
         return len(self.label)
@@ -83,6 +136,8 @@ class SceneGraph:
     place_edges: (E, 2) place index pairs (i < j); place_edge_weight: (E,) traversal cost in metres
     (bridges carry their penalty); place_edge_kind: (E,) EDGE_* constants.
     terrain_embeddings: (T, D) text embedding of each terrain class name.
+    next_id: the next free id per NodeSymbol character ('p' places, 'R', 'S', ... region levels,
+    'O' objects): ids at or above it were never given; see `next_ids`.
     """
 
     terrain_classes: list[str]
@@ -95,6 +150,15 @@ class SceneGraph:
     objects: Objects = field(default_factory=Objects)
     embedder: str = ""
     region_method: str = ""
+    next_id: dict[str, int] = field(default_factory=dict)
+
+    def next_ids(self) -> dict[str, int]:
+        """The next free id of every layer: the recorded one, raised above the ids in use."""
+        layers = {"p": self.places.id, "O": self.objects.id} | {level.char: level.id for level in self.regions}
+        out = dict(self.next_id)
+        for char, ids in layers.items():
+            out[char] = max(out.get(char, 0), int(ids.max()) + 1 if len(ids) else 0)
+        return out
 
     def place_adjacency(self) -> sp.csr_matrix:
         """Symmetric (P, P) sparse matrix of place edge weights."""

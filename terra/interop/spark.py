@@ -1,7 +1,7 @@
 """The scene graph as the `spark-dsg` package reads it (Hydra, Clio and their tools).
 
 The bundle already stores its graph in spark_dsg's JSON schema (terra.graph.storage: layers,
-NodeSymbol ids, attributes). The export adds what a reader of the JSON alone needs:
+NodeSymbol ids made of each node's stable id, attributes). The export adds what a reader of the JSON alone needs:
 - semantic_feature on places and regions: their embedding (D floats, the map's embedder);
 - colour (RGBA, 0-255): places by terrain (Terra's figure palette), regions per region, objects
   per label;
@@ -63,8 +63,9 @@ def spark_document(sg: SceneGraph, features: bool = True) -> dict[str, Any]:
     boxes = {level.level: _region_boxes(sg, level.level) for level in sg.regions}
     level_of_char = {chr(ord("R") + level.level - 1): level.level for level in sg.regions}
     for node in doc["nodes"]:
-        char, index = symbol_parts(int(node["id"]))
+        char, _ = symbol_parts(int(node["id"]))  # the id names the node; the index reads its arrays
         attributes = node["attributes"]
+        index = int(attributes["metadata"]["terra"]["index"])
         if char == "p":
             attributes["color"] = _rgba(palette[int(sg.places.terrain[index])])
         elif char == "O":

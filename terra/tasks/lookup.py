@@ -1,9 +1,11 @@
 """Node and region lookups on the scene graph: what a place, region or object is, and where a point
 of the map falls (its nearest place and the regions above it).
 
-Nodes are named as spark_dsg NodeSymbols, either numerically (ord(char) << 56 | index, as in
-graph/scene_graph.json) or in short form: "p12" place 12, "R3" region 3 of level 1, "S0" region 0
-of level 2 (then "T", "U", ...), "O4" object 4, "Z0" the root. Positions are metres, map frame.
+Nodes are named by their stable ids (terra.graph.ids) as spark_dsg NodeSymbols, either numerically
+(ord(char) << 56 | id, as in graph/scene_graph.json) or in short form: "p12" the place of id 12,
+"R3" region 3 of level 1, "S0" region 0 of level 2 (then "T", "U", ...), "O4" object 4, "Z0" the
+root. An answer gives each node's id as its name and its `index` (position in the graph's arrays,
+which changes with every build). Positions are metres, map frame.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ def region_name(level: int, index: int) -> str:
 
 
 def parse_node(ref: str | int) -> tuple[str, int]:
-    """(char, index) of a node reference: short form ("p12") or a numeric NodeSymbol."""
+    """(char, id) of a node reference: short form ("p12") or a numeric NodeSymbol."""
     text = str(ref).strip()
     match = _SHORT.match(text)
     if match:
@@ -57,12 +59,24 @@ def parse_node(ref: str | int) -> tuple[str, int]:
     )
 
 
+def _index(ids: np.ndarray, node_id: int) -> int | None:
+    """The index of the node of id `node_id` among `ids`, None when there is none."""
+    if not 0 <= node_id < 1 << 63:
+        return None
+    found = np.flatnonzero(ids == node_id)
+    return int(found[0]) if len(found) else None
+
+
+def _id_range(ids: np.ndarray) -> str:
+    return f"ids {int(ids.min())}..{int(ids.max())}" if len(ids) else "no ids"
+
+
 def _ancestors(graph: SceneGraph, place: int) -> list[dict[str, Any]]:
-    """The regions above a place, level 1 upwards."""
+    """The regions above a place (index), level 1 upwards."""
     out = []
     for level in range(1, len(graph.regions) + 1):
         index = int(graph.place_region(level)[place])
-        out.append({"id": region_name(level, index), "level": level, "index": index})
+        out.append({"id": region_name(level, int(graph.regions[level - 1].id[index])), "level": level, "index": index})
     return out
 
 
@@ -79,23 +93,26 @@ class NodeInfo:
 
 
 def place_info(graph: SceneGraph, place: int) -> NodeInfo:
+    """The place of index `place` (see `node_info` for ids)."""
     if not 0 <= place < len(graph.places):
-        raise UnknownNode(f"place {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+        raise UnknownNode(f"place index {place} does not exist; the graph has places 0..{len(graph.places) - 1}")
+    ids = graph.places.id
     edges = graph.place_edges
     mine = (
         np.flatnonzero((edges[:, 0] == place) | (edges[:, 1] == place)) if len(edges) else np.zeros(0, dtype=np.int64)
     )
     neighbours = [
         {
-            "place": int(edges[e, 1] if edges[e, 0] == place else edges[e, 0]),
+            "place": int(ids[edges[e, 1] if edges[e, 0] == place else edges[e, 0]]),
             "weight": round(float(graph.place_edge_weight[e]), 4),
             "kind": _KIND.get(int(graph.place_edge_kind[e]), ""),
         }
         for e in mine
     ]
-    objects = [node_name("O", o) for o in np.flatnonzero(np.asarray(graph.objects.place) == place)]
+    mine_objects = np.flatnonzero(np.asarray(graph.objects.place) == place)
+    objects = [node_name("O", graph.objects.id[o]) for o in mine_objects]
     return NodeInfo(
-        node_name("p", place),
+        node_name("p", ids[place]),
         "place",
         {
             "index": place,
@@ -109,20 +126,27 @@ def place_info(graph: SceneGraph, place: int) -> NodeInfo:
     )
 
 
-def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
+def region_info(graph: SceneGraph, level: int, region: int) -> NodeInfo:
+    """The region of id `region` at `level` (1-based)."""
     if not 1 <= level <= len(graph.regions):
         raise UnknownNode(f"region level {level} does not exist; the graph has levels 1..{len(graph.regions)}")
     layer = graph.regions[level - 1]
-    if not 0 <= index < len(layer):
-        raise UnknownNode(f"region {index} of level {level} does not exist; that level has regions 0..{len(layer) - 1}")
-    below = "p" if level == 1 else chr(ord("R") + level - 2)
-    children = [node_name(below, c) for c in np.flatnonzero(layer.parent_of_child == index)]
+    index = _index(layer.id, region)
+    if index is None:
+        raise UnknownNode(
+            f"region {region} of level {level} does not exist; "
+            f"that level has {len(layer)} regions ({_id_range(layer.id)})"
+        )
+    below = graph.places.id if level == 1 else graph.regions[level - 2].id
+    below_char = "p" if level == 1 else graph.regions[level - 2].char
+    children = [node_name(below_char, below[c]) for c in np.flatnonzero(layer.parent_of_child == index)]
     parent = None
     if level < len(graph.regions):
-        parent = region_name(level + 1, int(graph.regions[level].parent_of_child[index]))
-    places = [int(p) for p in np.flatnonzero(graph.place_region(level) == index)]
+        above = graph.regions[level]
+        parent = region_name(level + 1, int(above.id[above.parent_of_child[index]]))
+    places = [int(graph.places.id[p]) for p in np.flatnonzero(graph.place_region(level) == index)]
     return NodeInfo(
-        region_name(level, index),
+        region_name(level, region),
         "region",
         {
             "level": level,
@@ -135,14 +159,17 @@ def region_info(graph: SceneGraph, level: int, index: int) -> NodeInfo:
     )
 
 
-def object_info(graph: SceneGraph, index: int) -> NodeInfo:
+def object_info(graph: SceneGraph, object_id: int) -> NodeInfo:
+    """The object of id `object_id`."""
     o = graph.objects
-    if not 0 <= index < len(o):
+    index = _index(o.id, object_id)
+    if index is None:
         raise UnknownNode(
-            f"object {index} does not exist; the graph has {len(o)} objects (save some with `terra find --save`)"
+            f"object {object_id} does not exist; the graph has {len(o)} objects ({_id_range(o.id)}; save some with "
+            "`terra find --save`)"
         )
     return NodeInfo(
-        node_name("O", index),
+        node_name("O", object_id),
         "object",
         {
             "index": index,
@@ -152,23 +179,30 @@ def object_info(graph: SceneGraph, index: int) -> NodeInfo:
             "yaw": round(float(o.yaw[index]), 6),
             "score": round(float(o.score[index]), 6),
             "point_count": int(o.point_count[index]),
-            "place": node_name("p", int(o.place[index])),
+            "place": node_name("p", graph.places.id[int(o.place[index])]),
         },
     )
 
 
 def node_info(graph: SceneGraph, ref: str | int) -> NodeInfo:
-    """Facts about the node `ref` names (see the module docstring); TerraError when it does not exist."""
-    char, index = parse_node(ref)
+    """Facts about the node `ref` names by its id (see the module docstring); TerraError when it
+    does not exist."""
+    char, node_id = parse_node(ref)
     if char == "p":
+        index = _index(graph.places.id, node_id)
+        if index is None:
+            raise UnknownNode(
+                f"place {node_id} does not exist; "
+                f"the graph has {len(graph.places)} places ({_id_range(graph.places.id)})"
+            )
         return place_info(graph, index)
     if char == "O":
-        return object_info(graph, index)
-    if char == "Z" and index == 0 and graph.regions:
-        top = len(graph.regions)
-        return NodeInfo("Z0", "root", {"children": [region_name(top, r) for r in range(len(graph.regions[-1]))]})
+        return object_info(graph, node_id)
+    if char == "Z" and node_id == 0 and graph.regions:
+        top = graph.regions[-1]
+        return NodeInfo("Z0", "root", {"children": [region_name(top.level, int(r)) for r in top.id]})
     if "R" <= char <= "Y":
-        return region_info(graph, ord(char) - ord("R") + 1, index)
+        return region_info(graph, ord(char) - ord("R") + 1, node_id)
     raise UnknownNode(f"node {ref!r} does not exist in this scene graph")
 
 

@@ -402,7 +402,10 @@ def best_object(found: list[FoundObject], query: int = 0) -> FoundObject | None:
 
 def with_objects(graph: SceneGraph, found: list[FoundObject]) -> SceneGraph:
     """A copy of `graph` whose object layer holds `found`; earlier objects with the same labels are
-    replaced (re-running a query refreshes its objects), others are kept."""
+    replaced (re-running a query refreshes its objects), others are kept. Every object keeps its
+    id, a refreshed one that of the object it replaces (terra.graph.ids.carried_objects)."""
+    from terra.graph.ids import carried_objects
+
     old = graph.objects
     labels = {o.label for o in found}
     keep = np.array([label not in labels for label in old.label], dtype=bool)
@@ -424,4 +427,6 @@ def with_objects(graph: SceneGraph, found: list[FoundObject]) -> SceneGraph:
             [np.asarray(old.place, dtype=np.int64)[keep], np.array([o.place for o in found], dtype=np.int64)]
         ),
     )
-    return replace(graph, objects=objects)
+    next_id = graph.next_ids()
+    objects, next_id["O"] = carried_objects(objects, old, next_id["O"])
+    return replace(graph, objects=objects, next_id=next_id)

@@ -260,7 +260,7 @@ def _first(doc: dict, char: str) -> dict:
         (lambda d: d["metadata"]["terra"].update({"terrain_classes": []}), "terrain_classes"),
         (
             lambda d: d.update({"nodes": [n for n in d["nodes"] if chr(n["id"] >> 56) != "R"]}),
-            "which are not both nodes",
+            "node ids of symbol 'R' must be those of its id array",
         ),
         (lambda d: d["edges"][0].update({"target": float("inf")}), "Infinity is not a JSON number"),
         (lambda d: d["edges"][0].update({"target": 2**70}), "edges.0.target"),
