@@ -103,7 +103,7 @@ def serve_command(
     from terra.cli.task_options import build, load_tasks_config
     from terra.serve.config import LiveConfig, ServeConfig
 
-    uvicorn, _ = _service_modules()
+    _service_modules()  # one line naming the extra before anything is loaded
     values = {"host": host, "port": port, "token": token or None, "max_queries": max_queries}
     settings = build(
         ServeConfig, "command line", {**values, "max_body_bytes": max_body_bytes, "allow_writes": allow_writes}
@@ -120,13 +120,13 @@ def serve_command(
         stopped = f"the service on port {settings.port} stopped; {bundle} is unchanged"
     _announce(bundle, settings)
     on_interrupt(stopped)
+    _run_server(service_app(cfg, settings), settings, access_log)
+
+
+def _run_server(service, settings: ServeConfig, access_log: bool) -> None:
+    uvicorn, _ = _service_modules()
     config = uvicorn.Config(
-        service_app(cfg, settings),
-        host=settings.host,
-        port=settings.port,
-        log_level="warning",
-        access_log=access_log,
-        server_header=False,
+        service, host=settings.host, port=settings.port, log_level="warning", access_log=access_log, server_header=False
     )
     # uvicorn.Server, not uvicorn.run: run() swallows the KeyboardInterrupt that the server re-raises
     # after a graceful shutdown on Ctrl-C, which made `terra serve` exit 0 without a word.
