@@ -14,6 +14,7 @@ from terra.errors import TerraError
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: the service loads on use
     from terra.datasets.base import ClassTable
     from terra.serve.config import LiveConfig, ServeConfig
+    from terra.serve.live import LiveService
     from terra.tasks.config import TasksConfig
 
 BundleArg = Annotated[Path, typer.Argument(help="Bundle folder with a map and a scene graph.")]
@@ -111,7 +112,8 @@ def serve_command(
     cfg = load_tasks_config(config)
     if live:
         live_values = {"update_every": update_every, "update_frames": update_frames, "max_frame_bytes": max_frame_bytes}
-        service_app = _live_app(bundle, classes, config, name, build(LiveConfig, "command line", live_values))
+        service = open_live_service(bundle, classes, config, name, build(LiveConfig, "command line", live_values))
+        service_app = _live_app(service)
         stopped = f"the service on port {settings.port} stopped; {bundle} keeps its last committed version"
     else:
         if classes is not None or update_frames is not None:
@@ -156,12 +158,19 @@ def _static_app(bundle: Path, cfg: TasksConfig):
     return lambda tasks, settings: create_app(loaded, tasks, settings)
 
 
-def _live_app(bundle: Path, classes: Path | None, config: Path | None, name: str, live: LiveConfig):
-    """The app factory of a live service on `bundle`: a new session (classes from --classes) or the
+def _live_app(service: LiveService):
+    from terra.serve.app import create_live_app
+
+    return lambda tasks, settings: create_live_app(service, tasks, settings)
+
+
+def open_live_service(
+    bundle: Path, classes: Path | None, config: Path | None, name: str = "live", live: LiveConfig | None = None
+) -> LiveService:
+    """The live service of `terra serve BUNDLE --live`: a new session (classes from --classes) or the
     bundle's map continued (its classes and mapping configuration, unless --config gives one)."""
     from terra.config import TerraConfig
     from terra.live.session import Session
-    from terra.serve.app import create_live_app
     from terra.serve.live import LiveService
 
     resume = bundle.is_dir() and any(bundle.iterdir())
@@ -172,8 +181,7 @@ def _live_app(bundle: Path, classes: Path | None, config: Path | None, name: str
         mapping = _recorded_mapping(bundle, {})
     else:
         mapping = TerraConfig.read(config).mapping
-    service = LiveService(Session(bundle, table, mapping, resume=resume, name=name), live)
-    return lambda tasks, settings: create_live_app(service, tasks, settings)
+    return LiveService(Session(bundle, table, mapping, resume=resume, name=name), live)
 
 
 def _live_classes(bundle: Path, classes: Path | None, resume: bool) -> ClassTable:

@@ -4,7 +4,7 @@ answers during live mapping name a version whose map and graph belong together; 
 long the source has been silent.
 
 The batch references are tiny_bundle (the simulated tiny campus mapped in memory) and the same
-drive written as a terra-folder and mapped with `run_mapping`; examples/push_frames.py (numpy and
+drive written as a terra-folder and its frames mapped with `run_mapping`; examples/push_frames.py (numpy and
 the standard library only) pushes the folder to a real `terra serve --live` process.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from terra.bundle import Bundle
-from tests.live.test_session import map_files
+from tests.live.test_session import FrameRange, map_files
 from tests.mapping.fixtures import folder_digest
 from tests.serve.test_serve import ROOT, TOKEN, Client, free_port
 
@@ -123,7 +123,7 @@ def malformed_bodies(frame) -> list[tuple[str, bytes, int, str, str]]:
     good = frame_arrays(frame)
     encode = push_frames.encode
     compressed = io.BytesIO()
-    np.savez_compressed(compressed, **good)
+    np.savez_compressed(compressed, allow_pickle=False, **good)
     cases = [
         ("points (N, 2)", {"points": frame.points[:, :2]}, "bad_points", r"(N, 3)"),
         ("points as text", {"points": frame.points.astype(str)}, "bad_points", "expected numbers"),
@@ -256,6 +256,41 @@ def test_a_stalled_source_is_reported_and_the_service_keeps_answering(tiny_campu
         assert client.get("/health").status_code == 200
 
 
+def test_a_live_service_continues_a_bundle_with_its_own_classes(tiny_campus, tiny_bundle, tmp_path):
+    """`terra serve BUNDLE --live` on a bundle it wrote: its classes and kept state, queries answered
+    on the resumed version at once, and the rest of the drive ending with the batch map."""
+    from fastapi.testclient import TestClient
+
+    from terra.cli.serve import open_live_service
+    from terra.datasets.folder_io import write_classes
+    from terra.errors import TerraError
+    from terra.serve.app import create_live_app
+    from terra.serve.config import LiveConfig, ServeConfig
+
+    out, cut = tmp_path / "live.terra", len(tiny_campus) // 2
+    app, _ = live_app(out, tiny_campus)
+    with TestClient(app) as client:  # stopping commits what was fused
+        client.post("/cameras", json=cameras_of(tiny_campus[0]))
+        for i in range(cut):
+            post_frame(client, frame_arrays(tiny_campus[i]))
+    with pytest.raises(TerraError, match="needs its class table"):
+        open_live_service(tmp_path / "new.terra", None, None)
+    other = tmp_path / "other"
+    other.mkdir()
+    write_classes(other, type(tiny_campus.classes)(tiny_campus.classes.classes[:3]))
+    with pytest.raises(TerraError, match="the classes differ"):
+        open_live_service(out, other / "classes.json", None, tiny_campus.name)
+    service = open_live_service(out, None, None, tiny_campus.name, LiveConfig(update_every=3600))
+    assert service.session.classes.to_json() == tiny_campus.classes.to_json() and service.session.frames == cut
+    with TestClient(create_live_app(service, settings=ServeConfig(allow_writes=True))) as client:
+        first = client.get("/health").json()
+        assert first["version"] == Bundle(out).version and first["map_time"] == tiny_campus[cut - 1].stamp
+        client.post("/cameras", json=cameras_of(tiny_campus[0]))
+        for i in range(cut, len(tiny_campus)):
+            assert post_frame(client, frame_arrays(tiny_campus[i])).json()["fused"] is True
+    assert map_files(out) == map_files(tiny_bundle.path)
+
+
 class RecordingService:
     """A LiveService that keeps the manifest of every version it commits (the test's independent record)."""
 
@@ -358,7 +393,10 @@ def test_the_example_pushes_a_folder_to_a_live_service_and_gets_the_batch_map(ti
     from terra.mapping.pipeline import run_mapping
 
     dataset = TerraFolderDataset(tiny_folder)
-    batch = run_mapping(dataset, MappingConfig(), tmp_path / "batch.terra", show_progress=False).bundle.path
+    # The batch of the same frames: FrameRange has no global map (the folder's global_pc, which
+    # `terra map FOLDER` fuses onto by default; a live map grows its own voxels).
+    frames = FrameRange(dataset, 0, len(dataset))
+    batch = run_mapping(frames, MappingConfig(), tmp_path / "batch.terra", show_progress=False).bundle.path
     out, port = tmp_path / "live.terra", free_port()
     command = [
         sys.executable,
