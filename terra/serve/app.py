@@ -11,6 +11,17 @@ Endpoints (JSON; bodies are terra.tasks.requests models, responses the same JSON
     GET  /regions/{level}/{index}      = terra node BUNDLE R3 --json for level 1, index 3
     GET  /locate?x=X&y=Y               = terra node BUNDLE --at X Y --json
 
+With `terra serve --live` (create_live_app, terra.serve.live) the service maps as well:
+
+    POST /frames   .npz body            fuse one frame (terra.live.wire; a write)
+    POST /cameras  {"cameras": {...}}   calibrations of the cameras the frames name (a write)
+    POST /snapshot                      commit what was fused as a version now (a write)
+    GET  /live                          frames received, fused, refused by reason; the latest
+                                        version and map time; seconds since the last frame
+and every answer above adds "version" and "map_time" (s), those of the snapshot it was answered
+on; 503 (kind "not_ready") before the first version; a refused frame is 400 (413 for a size)
+with kind = the reason it is counted under.
+
 Handlers follow the thin-CLI rule: parse, call the typed task API, serialise with to_json().
 Queries only read the loaded bundle and run concurrently in the server's thread pool;
 The service is read-only unless started with --allow-writes; then `"save": true` on /find is
