@@ -134,8 +134,15 @@ def malformed_bodies(frame) -> list[tuple[str, bytes, int, str, str]]:
         ("an image of the wrong size", {"image_0": np.zeros((10, 10, 3), np.uint8)}, "bad_image", "(480, 640, 3)"),
         ("an image file that is none", {"image_0": np.arange(50, dtype=np.uint8)}, "bad_image", "not a JPEG or PNG"),
         ("a camera never calibrated", {"image_7": frame.cameras[0].image}, "bad_camera", "no calibration"),
+        ("two poses", {"pose_xyz_quat": np.array([0, 0, 0, 0, 0, 0, 1.0])}, "bad_pose", "give either"),
+        ("a pose with a stray array", {"colour": np.zeros(3)}, "bad_frame", "not an array of the frame"),
     ]
-    bodies = [(what, encode({**good, **change}), 400, reason, words) for what, change, reason, words in cases]
+    no_pose = {k: v for k, v in good.items() if k != "T_map_lidar"}
+    cases.append(("a quaternion of norm 2", {"pose_xyz_quat": np.array([0, 0, 0, 0, 0, 0, 2.0])}, "bad_pose", "unit"))
+    bodies = [
+        (what, encode({**(no_pose if "quaternion" in what else good), **change}), 400, reason, words)
+        for what, change, reason, words in cases
+    ]
     no_stamp = {k: v for k, v in good.items() if k != "stamp"}
     return bodies + [
         ("no stamp", encode(no_stamp), 400, "bad_frame", "stamp: missing"),
@@ -289,6 +296,40 @@ def test_a_live_service_continues_a_bundle_with_its_own_classes(tiny_campus, tin
         for i in range(cut, len(tiny_campus)):
             assert post_frame(client, frame_arrays(tiny_campus[i])).json()["fused"] is True
     assert map_files(out) == map_files(tiny_bundle.path)
+
+
+def test_the_update_thread_commits_by_frames_and_by_time(tiny_campus, tmp_path):
+    from fastapi.testclient import TestClient
+
+    def wait_for_version(client, version: int) -> dict:
+        deadline = time.monotonic() + 120
+        while (status := client.get("/live").json())["version"] != version:
+            assert time.monotonic() < deadline, status
+            time.sleep(0.1)
+        return status
+
+    app, _ = live_app(tmp_path / "frames.terra", tiny_campus, update_frames=3)
+    with TestClient(app) as client:
+        client.post("/cameras", json=cameras_of(tiny_campus[0]))
+        for i in range(3):
+            post_frame(client, frame_arrays(tiny_campus[i]))
+        status = wait_for_version(client, 1)  # three frames: committed without waiting an hour
+        assert status["frames_pending"] == 0 and status["updates"] == 1 and status["last_update_error"] == ""
+        assert client.get("/health").json()["map_time"] == tiny_campus[2].stamp
+    app, _ = live_app(tmp_path / "time.terra", tiny_campus, update_every=0.5)
+    with TestClient(app) as client:
+        client.post("/cameras", json=cameras_of(tiny_campus[0]))
+        post_frame(client, frame_arrays(tiny_campus[0]))
+        assert wait_for_version(client, 1)["frames_fused"] == 1
+        post_frame(client, frame_arrays(tiny_campus[1]))
+        assert wait_for_version(client, 2)["map_time"] == tiny_campus[1].stamp
+
+
+def test_live_options_without_live_are_refused(tmp_path, capsys):
+    from terra.cli import run
+
+    assert run(["serve", str(tmp_path / "lot.terra"), "--classes", str(tmp_path / "classes.json")]) == 2
+    assert "--classes and --update-frames are for --live" in capsys.readouterr().err
 
 
 class RecordingService:
