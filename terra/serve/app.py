@@ -41,7 +41,7 @@ import hmac
 import json
 import logging
 from collections.abc import Callable
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from fastapi import Body, FastAPI, Query
 from fastapi.exceptions import RequestValidationError
@@ -52,14 +52,15 @@ from starlette.requests import Request
 
 from terra import __version__
 from terra.errors import NoPathError, TerraError
-from terra.live.frames import LiveFrameError
 from terra.loaded import LoadedBundle
 from terra.serve.config import ServeConfig
-from terra.serve.live import LiveService, NotReady
 from terra.tasks import commands
 from terra.tasks.config import TasksConfig
 from terra.tasks.lookup import UnknownNode, locate, node_info, region_info
 from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest
+
+if TYPE_CHECKING:  # the live side (and the mapper behind it) loads only for `terra serve --live`
+    from terra.serve.live import LiveService
 
 log = logging.getLogger("terra.serve")
 FRAMES_PATH = "/frames"
@@ -104,6 +105,7 @@ def create_live_app(
 
     app = _new_app(settings, lifespan)
     app.state.live = service
+    _live_errors(app)
 
     def current() -> tuple[LoadedBundle, dict]:
         snapshot = service.current()
@@ -113,6 +115,19 @@ def create_live_app(
     _live_routes(app, service, app.state.settings)
     _guard(app, app.state.settings, service.settings.max_frame_bytes)
     return app
+
+
+def _live_errors(app: FastAPI) -> None:
+    from terra.live.frames import LiveFrameError
+    from terra.serve.live import NotReady
+
+    @app.exception_handler(LiveFrameError)  # more specific than TerraError's handler: chosen first
+    async def refused(request: Request, exc: LiveFrameError) -> JSONResponse:
+        return error_response(413 if exc.reason == "too_large" else 400, exc.reason, str(exc))
+
+    @app.exception_handler(NotReady)
+    async def not_ready(request: Request, exc: NotReady) -> JSONResponse:
+        return error_response(503, "not_ready", str(exc))
 
 
 def _new_app(settings: ServeConfig | None, lifespan=None) -> FastAPI:
@@ -155,13 +170,12 @@ def _routes(app: FastAPI, current: Current, tasks: TasksConfig, settings: ServeC
 
     @app.get("/health", summary="Bundle, embedder and sizes (also a liveness check)")
     def health() -> JSONResponse:
-        if live:
-            try:
-                loaded, extra = current()
-            except NotReady as exc:
-                return JSONResponse({"status": "waiting", "terra": __version__, "version": None, "note": str(exc)})
-        else:
+        try:
             loaded, extra = current()
+        except TerraError as exc:  # a live service before its first version
+            if not live:
+                raise
+            return JSONResponse({"status": "waiting", "terra": __version__, "version": None, "note": str(exc)})
         return JSONResponse({**_health(loaded), **extra})
 
     @app.post("/find", summary="Objects for text queries (terra find --json)")
@@ -253,10 +267,6 @@ def _live_routes(app: FastAPI, service: LiveService, settings: ServeConfig) -> N
 def _errors(app: FastAPI) -> None:
     @app.exception_handler(TerraError)
     async def terra_error(request: Request, exc: TerraError) -> JSONResponse:
-        if isinstance(exc, LiveFrameError):
-            return error_response(413 if exc.reason == "too_large" else 400, exc.reason, str(exc))
-        if isinstance(exc, NotReady):
-            return error_response(503, "not_ready", str(exc))
         if isinstance(exc, ReadOnly):
             return error_response(403, "read_only", str(exc))
         if isinstance(exc, LimitExceeded):
