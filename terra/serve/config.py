@@ -27,3 +27,17 @@ class ServeConfig(Section):
     max_body_bytes: int = Field(default=65536, ge=256, description="Largest request body accepted, bytes.")
     max_queries: int = Field(default=32, ge=1, description="Most text queries in one request.")
     max_query_chars: int = Field(default=1000, ge=1, description="Longest text query, characters.")
+
+
+class LiveConfig(Section):
+    """`terra serve --live`: how pushed frames are taken and how often the map is committed."""
+
+    update_every: float = Field(
+        default=2.0, gt=0.0, le=3600.0, description="Seconds between snapshots (map and graph committed)."
+    )
+    update_frames: int | None = Field(
+        default=None, ge=1, description="Also commit after this many new fused frames (None: by time only)."
+    )
+    max_frame_bytes: int = Field(
+        default=64 << 20, ge=1024, description="Largest POST /frames body accepted, bytes (more: 413)."
+    )
