@@ -8,8 +8,9 @@ stays valid while later versions are written. A session over an existing bundle 
 continues its kept fusion state, exactly as `terra map --append` does, so a drive fed live gives
 the same map, byte for byte, as the same frames mapped in one batch.
 
-Threads: `add_frame` and `snapshot` take the session's lock (one writer); readers use the
-`latest` snapshot, which is replaced, never changed.
+Threads: `add_frame` and the map commit of `snapshot` take the mapper's lock; a snapshot's graph
+rebuild runs beside new frames (one snapshot at a time). Readers use the `latest` snapshot, which
+is replaced, never changed.
 """
 
 from __future__ import annotations
@@ -114,7 +115,8 @@ class Session:
             restore_mapper(self._base, self.mapper)
         self._first_frame = self.mapper.next_frame
         self.refused = RefusedFrames()
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the mapper: add_frame and the map commit
+        self._snapshot_lock = threading.Lock()  # the bundle: one snapshot at a time
         self._latest: Snapshot | None = None
         self.last_frame_at: float | None = None  # time.monotonic() of the last accepted frame
 
@@ -176,13 +178,16 @@ class Session:
 
     def snapshot(self) -> Snapshot:
         """Commit everything fused so far as the bundle's next version (map, fusion state and, with
-        graph=True, the scene graph rebuilt on it) and return its read view."""
-        with self._lock:
-            if self.mapper.stats.counts.get("frames_fused", 0) == 0:
-                raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
+        graph=True, the scene graph rebuilt on it) and return its read view. Frames wait only while
+        the map is written: the graph is rebuilt (and the view loaded) while they keep fusing."""
+        with self._snapshot_lock:  # one commit at a time
             seconds: dict[str, float] = {}
             start = time.perf_counter()
-            self._commit_map()
+            with self._lock:
+                if self.mapper.stats.counts.get("frames_fused", 0) == 0:
+                    raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
+                frames, map_time = self.mapper.next_frame, self.mapper.last_stamp
+                self._commit_map()
             seconds["map"] = time.perf_counter() - start
             note = self._commit_graph() if self.graph else "graph off"
             seconds["graph"] = time.perf_counter() - start - seconds["map"]
@@ -192,7 +197,7 @@ class Session:
             loaded.require_map()  # read now: the view answers from this version whatever follows
             _ = loaded.graph
             seconds["load"] = time.perf_counter() - start - seconds["map"] - seconds["graph"]
-            snapshot = Snapshot(bundle.version, self.mapper.next_frame, self.mapper.last_stamp, loaded, note, seconds)
+            snapshot = Snapshot(bundle.version, frames, map_time, loaded, note, seconds)
             self._latest = snapshot
             return snapshot
 
