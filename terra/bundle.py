@@ -687,9 +687,13 @@ class BundleWriter:
     def commit(self) -> Bundle:
         """Write the manifest and swap the new version into place."""
         text = dumps_json(manifest_json(self.model)).encode()  # sorted keys: the files in name order
-        with writing(self.path, self.what):
-            _write_new_file(self._tmp / MANIFEST, text)
-            self._staging.commit()
+        try:
+            with writing(self.path, self.what):
+                _write_new_file(self._tmp / MANIFEST, text)
+                self._staging.commit()
+        except BaseException:
+            self.abort()  # e.g. no room for the manifest: a failed commit leaves no staged version behind
+            raise
         self._done = True
         return Bundle(self.path)
 
