@@ -56,8 +56,8 @@ def _argv(command: str, seeds, old: Path, case: Path) -> list:
 def _fresh_case(command: str, seeds, old: Path, case: Path) -> Path:
     shutil.rmtree(case, ignore_errors=True)
     case.mkdir()
-    assert seeds.bundle is not None
-    source = {"export": old / "ref", "sim": old / "data"}.get(command, seeds.bundle)
+    bundle: Path = seeds.bundle
+    source = {"export": old / "ref", "sim": old / "data"}.get(command, bundle)
     shutil.copytree(source, case / "out")
     return case
 
