@@ -10,11 +10,12 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import sys
+import warnings
 from typing import Protocol, runtime_checkable
 
 import typer
 
-from terra.errors import TerraError
+from terra.errors import TerraError, one_line
 
 app = typer.Typer(
     name="terra",
@@ -77,10 +78,39 @@ def note(message: str) -> None:
 
 
 def run(argv: list[str] | None = None) -> int:
-    """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path)."""
+    """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path).
+
+    Warnings raised while the command runs (a library's notes: torch on a file's pickle protocol,
+    numpy on overflow in a value that is then refused) are held back: a command that fails prints
+    its one error line and nothing else; one that succeeds, or meets a defect, shows them after
+    its output, each once, as Python would have."""
+    failed = False
+    held: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            held = caught
+            code = _run(argv)
+        failed = code != 0
+        return code
+    finally:
+        if not failed:  # shown once the recording has stopped
+            _show_warnings(held)
+
+
+def _show_warnings(held: list[warnings.WarningMessage]) -> None:
+    seen: set[tuple] = set()
+    for w in held:
+        key = (str(w.message), w.category, w.filename, w.lineno)
+        if key not in seen:
+            seen.add(key)
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno, w.file, w.line)
+
+
+def _run(argv: list[str] | None) -> int:
     _load_commands()
     from terra.cli.helptext import tidy_help
     from terra.cli.interrupts import Interrupted, catch_interrupts, clear, interrupted_message
+    from terra.fileio import escaped_os_error
 
     clear()
     _NOTES.clear()
@@ -91,9 +121,7 @@ def run(argv: list[str] | None = None) -> int:
             typer.echo(f"note: {message}", err=True)
         return result if isinstance(result, int) else 0
     except TerraError as exc:
-        _close_bars()
-        typer.echo(f"terra: error: {exc}", err=True)
-        return exc.exit_code
+        return _error_line(exc)
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
@@ -102,13 +130,26 @@ def run(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, Interrupted):
         typer.echo(interrupted_message(), err=True)
         return 130
+    except OSError as exc:
+        mapped = escaped_os_error(exc)  # a name too long, a full disk met outside Terra's writers
+        if mapped is None:
+            raise
+        return _error_line(mapped)
     except Exception as exc:
         # Usage errors (unknown command or option, missing argument) from Typer's bundled click:
         # they know how to show themselves and carry their exit code.
         if isinstance(exc, _ShowsItself):
+            if isinstance(getattr(exc, "message", None), str):
+                exc.message = one_line(exc.message)  # type: ignore[attr-defined]  # an echoed value, capped
             exc.show()
             return int(exc.exit_code)
         raise
+
+
+def _error_line(exc: TerraError) -> int:
+    _close_bars()
+    typer.echo(f"terra: error: {exc}", err=True)
+    return exc.exit_code
 
 
 def _close_bars() -> None:
