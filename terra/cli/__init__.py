@@ -11,7 +11,7 @@ import importlib
 import pkgutil
 import sys
 import warnings
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import typer
 
@@ -69,6 +69,7 @@ def fail(message: str, code: int = 2) -> None:
 
 
 _NOTES: list[str] = []
+_COMMAND: Any = None  # the click command tree of `app`, as `run` prepares it
 
 
 def note(message: str) -> None:
@@ -114,7 +115,10 @@ def _run(argv: list[str] | None) -> int:
 
     clear()
     _NOTES.clear()
-    command = catch_interrupts(tidy_help(typer.main.get_command(app)))
+    global _COMMAND
+    if _COMMAND is None:  # built once per process: building it costs ~0.3 s, a query's whole budget
+        _COMMAND = catch_interrupts(tidy_help(typer.main.get_command(app)))
+    command = _COMMAND
     try:
         result = command.main(args=argv, prog_name="terra", standalone_mode=False)
         for message in _NOTES:
@@ -139,11 +143,22 @@ def _run(argv: list[str] | None) -> int:
         # Usage errors (unknown command or option, missing argument) from Typer's bundled click:
         # they know how to show themselves and carry their exit code.
         if isinstance(exc, _ShowsItself):
-            if isinstance(getattr(exc, "message", None), str):
-                exc.message = one_line(exc.message)  # type: ignore[attr-defined]  # an echoed value, capped
-            exc.show()
-            return int(exc.exit_code)
+            return _usage_error(exc)
         raise
+
+
+def _usage_error(exc: _ShowsItself) -> int:
+    """A usage error as one line like any other refusal, naming the command's help; `terra` alone
+    (no command: the help is the answer) shows itself."""
+    describe = getattr(exc, "format_message", None)
+    if type(exc).__name__ == "NoArgsIsHelpError" or not callable(describe):
+        exc.show()
+        return int(exc.exit_code)
+    ctx = getattr(exc, "ctx", None)
+    hint = f" (see {ctx.command_path} -h)" if ctx is not None else ""
+    _close_bars()
+    typer.echo(f"terra: error: {one_line(str(describe()))}{hint}", err=True)
+    return int(exc.exit_code)
 
 
 def _error_line(exc: TerraError) -> int:
