@@ -110,6 +110,7 @@ class CalibFile:
         R = self.matrix(rotation_key, (3, 3), "a 3x3 rotation, row-major")
         t = self.matrix(translation_key, (3,), "a translation in metres")
         check_rotation(R, f"{self.where(rotation_key)}: {rotation_key}")
+        check_translation(t, f"{self.where(translation_key)}: {translation_key}")
         return make_pose(R, t)
 
     def pose_3x4(self, key: str) -> np.ndarray:
@@ -117,7 +118,21 @@ class CalibFile:
         T = np.eye(4)
         T[:3] = self.matrix(key, (3, 4), "a 3x4 [R | t] transform, row-major")
         check_rotation(T[:3, :3], f"{self.where(key)}: {key}")
+        check_translation(T[:3, 3], f"{self.where(key)}: {key}")
         return T
+
+
+MAX_SENSOR_OFFSET = 1.0e3  # metres between two sensors of one vehicle: farther is a corrupt file
+
+
+def check_translation(t: np.ndarray, where: str) -> None:
+    """TerraError naming `where` unless translation `t` (metres, between two sensors of one vehicle)
+    is within MAX_SENSOR_OFFSET: a finite 1e308 would overflow the map's arithmetic to infinity."""
+    if np.abs(t).max() > MAX_SENSOR_OFFSET:
+        raise TerraError(
+            f"{where}: translation {np.abs(t).max():.3g} m is beyond the {MAX_SENSOR_OFFSET:g} m "
+            "two sensors of one vehicle can be apart"
+        )
 
 
 def check_rotation(R: np.ndarray, where: str, tolerance: float = 1e-4) -> None:

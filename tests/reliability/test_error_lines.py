@@ -132,3 +132,16 @@ def test_the_service_caps_an_echoed_input(reliability_seeds):
     assert 400 <= response.status_code < 500
     error = response.json()["error"]
     assert len(error) < 3 * MAX_ECHO and "y" * (MAX_ECHO - 5) + "...' (1,000 characters)" in error, error[:500]
+
+
+def test_a_usage_error_is_one_line_naming_the_help(reliability_seeds):
+    code, _, err = cli(["node", reliability_seeds.bundle, "--at", "١٢", "3"])
+    assert code == 2 and err.strip().splitlines() == [
+        "terra: error: Invalid value for '--at': Input should be a valid number, unable to parse string as a "
+        "number (see terra node -h)"
+    ], err
+
+
+def test_terra_alone_still_shows_its_help():
+    code, out, err = cli([])
+    assert "Usage: terra [OPTIONS] COMMAND" in out + err and "Commands:" in out + err
