@@ -1,12 +1,17 @@
-"""Reliability (issue 13): mutation fuzzing of every reader, and kill -9 during `terra map`.
+"""Reliability (issues 13 and 24): mutation fuzzing of every reader, value families, and kill -9
+during `terra map`.
 
 Fuzzing: the harness of the test suite (tests/reliability/fuzzing.py) on many more inputs. Jobs go round robin
 over the readers (bundle manifest, every bundle array, scene graph, map metadata, the terra-folder,
 SemanticKITTI and KITTI raw layouts, ROS 1 and ROS 2 bags, config, task and msmap files, the authors'
-reference files); each mutates a fresh copy of its 3-frame seed and runs the command that reads it in
-a worker process observed from outside, so a crash (the worker dies) or a hang (no answer within
-`--timeout` s, killed) is counted rather than taking the run down. Targets: over >= 10,000 inputs,
-zero tracebacks, crashes, hangs, changed input bundles and files written outside the output path.
+reference files) and issue 24's value families (node ids, coordinates, queries, tf quaternions,
+oversized images in folders and bags, truncated ROS 1 / ROS 2 bags, KITTI raw / SemanticKITTI /
+terra-folder calibration values, HTTP requests to the service: tests/reliability/families.py); each
+case works on a fresh copy of its 3-frame seed and runs the command that reads it in a worker
+process observed from outside, so a crash (the worker dies) or a hang (no answer within `--timeout`
+s, killed) is counted rather than taking the run down. Targets: over >= 10,000 inputs, zero
+tracebacks (HTTP 5xx), crashes, hangs, partial outputs, changed input bundles and files written
+outside the output path.
 
 Kills: `terra map` of the 3-frame dataset over an existing bundle, SIGKILLed from outside after a
 random share of an uninterrupted run's time, then rerun: the output path must hold the old or the new
@@ -17,6 +22,7 @@ Usage (from the repository root):
   python benchmarks/fuzz_readers.py --cases 10000 --kills 50     # the issue's target (hours on 2 cores)
   python benchmarks/fuzz_readers.py --cases 600 --kills 10        # a quick check
   python benchmarks/fuzz_readers.py --cases 10000 --budget 1800   # stop starting cases after 30 min
+  python benchmarks/fuzz_readers.py --families --cases 10000 --kills 0   # issue 24's value families only
 Writes benchmarks/results/fuzz_readers.json (or --out) and prints a table.
 """
 
@@ -156,6 +162,7 @@ def main() -> None:
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds without an answer that make a hang")
     parser.add_argument("--budget", type=float, default=None, help="start no fuzz case after this many seconds")
     parser.add_argument("--targets", default=None, help="comma-separated readers (default: all)")
+    parser.add_argument("--families", action="store_true", help="only issue 24's value families")
     parser.add_argument("--seed-offset", type=int, default=0, help="first case number of each reader")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "fuzz_readers.json")
     args = parser.parse_args()
@@ -172,6 +179,10 @@ def main() -> None:
         (work / "fuzz").mkdir()
         (work / "kill").mkdir()
         only = args.targets.split(",") if args.targets else None
+        if args.families:
+            from tests.reliability.families import families
+
+            only = [f.name for f in families()]
         if only and set(only) - set(targets(seeds)):
             parser.error(f"unknown readers {sorted(set(only) - set(targets(seeds)))}; known: {sorted(targets(seeds))}")
         result["fuzz"] = fuzz(

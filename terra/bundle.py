@@ -720,9 +720,13 @@ class BundleWriter:
                 f"{self.path}: the bundle changed while this {self.what} was written (version "
                 f"{self._base_version} became {current}); nothing was written, run the command again"
             )
-        with writing(self.path, self.what):
-            _write_new_file(self._tmp / MANIFEST, text)
-            self._staging.commit(reclaim_in_background)
+        try:
+            with writing(self.path, self.what):
+                _write_new_file(self._tmp / MANIFEST, text)
+                self._staging.commit(reclaim_in_background)
+        except BaseException:
+            self.abort()  # e.g. no room for the manifest: a failed commit leaves no staged version behind
+            raise
         self._done = True
         return Bundle(self.path)
 

@@ -70,6 +70,30 @@ def write_error(path: str | Path, exc: OSError, what: str = "output") -> OutputE
     return OutputError(f"{where}: cannot write the {what} ({reason}){tail}; nothing was replaced")
 
 
+# A write failure whose errno only a write can meet (never a read), and a name the system refuses.
+_WRITE_ONLY = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)
+
+
+def escaped_os_error(exc: OSError) -> TerraError | None:
+    """The one line for an OSError that reached the command line outside this module's readers and
+    writers, where its cause is the user's to fix whoever met it: a full disk, quota, size limit or
+    read-only file system (`write_error`), or a file name longer than the system allows (a name the
+    user gave). None for any other OSError: that one is a defect and keeps its traceback."""
+    if exc.errno in _WRITE_ONLY:
+        return write_error(exc.filename or "output", exc)
+    if exc.errno == errno.ENAMETOOLONG:
+        name = os.fsdecode(exc.filename) if exc.filename is not None else "a path"
+        return TerraError(f"{name}: file name too long for this system (at most {_name_max()} bytes a name)")
+    return None
+
+
+def _name_max() -> int:
+    try:
+        return os.pathconf(".", "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
+
+
 @contextmanager
 def writing(path: str | Path, what: str = "output") -> Iterator[None]:
     """Map an OSError raised while writing `path` to one TerraError line (see `write_error`)."""

@@ -10,11 +10,12 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import sys
-from typing import Protocol, runtime_checkable
+import warnings
+from typing import Any, Protocol, runtime_checkable
 
 import typer
 
-from terra.errors import TerraError
+from terra.errors import TerraError, one_line
 
 app = typer.Typer(
     name="terra",
@@ -68,6 +69,7 @@ def fail(message: str, code: int = 2) -> None:
 
 
 _NOTES: list[str] = []
+_COMMAND: Any = None  # the click command tree of `app`, as `run` prepares it
 
 
 def note(message: str) -> None:
@@ -77,23 +79,53 @@ def note(message: str) -> None:
 
 
 def run(argv: list[str] | None = None) -> int:
-    """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path)."""
+    """Run the CLI in-process and return its exit code (0 success, 2 user error, 3 no path).
+
+    Warnings raised while the command runs (a library's notes: torch on a file's pickle protocol,
+    numpy on overflow in a value that is then refused) are held back: a command that fails prints
+    its one error line and nothing else; one that succeeds, or meets a defect, shows them after
+    its output, each once, as Python would have."""
+    failed = False
+    held: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            held = caught
+            code = _run(argv)
+        failed = code != 0
+        return code
+    finally:
+        if not failed:  # shown once the recording has stopped
+            _show_warnings(held)
+
+
+def _show_warnings(held: list[warnings.WarningMessage]) -> None:
+    seen: set[tuple] = set()
+    for w in held:
+        key = (str(w.message), w.category, w.filename, w.lineno)
+        if key not in seen:
+            seen.add(key)
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno, w.file, w.line)
+
+
+def _run(argv: list[str] | None) -> int:
     _load_commands()
     from terra.cli.helptext import tidy_help
     from terra.cli.interrupts import Interrupted, catch_interrupts, clear, interrupted_message
+    from terra.fileio import escaped_os_error
 
     clear()
     _NOTES.clear()
-    command = catch_interrupts(tidy_help(typer.main.get_command(app)))
+    global _COMMAND
+    if _COMMAND is None:  # built once per process: building it costs ~0.3 s, a query's whole budget
+        _COMMAND = catch_interrupts(tidy_help(typer.main.get_command(app)))
+    command = _COMMAND
     try:
         result = command.main(args=argv, prog_name="terra", standalone_mode=False)
         for message in _NOTES:
             typer.echo(f"note: {message}", err=True)
         return result if isinstance(result, int) else 0
     except TerraError as exc:
-        _close_bars()
-        typer.echo(f"terra: error: {exc}", err=True)
-        return exc.exit_code
+        return _error_line(exc)
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
@@ -102,13 +134,37 @@ def run(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, Interrupted):
         typer.echo(interrupted_message(), err=True)
         return 130
+    except OSError as exc:
+        mapped = escaped_os_error(exc)  # a name too long, a full disk met outside Terra's writers
+        if mapped is None:
+            raise
+        return _error_line(mapped)
     except Exception as exc:
         # Usage errors (unknown command or option, missing argument) from Typer's bundled click:
         # they know how to show themselves and carry their exit code.
         if isinstance(exc, _ShowsItself):
-            exc.show()
-            return int(exc.exit_code)
+            return _usage_error(exc)
         raise
+
+
+def _usage_error(exc: _ShowsItself) -> int:
+    """A usage error as one line like any other refusal, naming the command's help; `terra` alone
+    (no command: the help is the answer) shows itself."""
+    describe = getattr(exc, "format_message", None)
+    if type(exc).__name__ == "NoArgsIsHelpError" or not callable(describe):
+        exc.show()
+        return int(exc.exit_code)
+    ctx = getattr(exc, "ctx", None)
+    hint = f" (see {ctx.command_path} -h)" if ctx is not None else ""
+    _close_bars()
+    typer.echo(f"terra: error: {one_line(str(describe()))}{hint}", err=True)
+    return int(exc.exit_code)
+
+
+def _error_line(exc: TerraError) -> int:
+    _close_bars()
+    typer.echo(f"terra: error: {exc}", err=True)
+    return exc.exit_code
 
 
 def _close_bars() -> None:

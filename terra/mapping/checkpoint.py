@@ -33,7 +33,7 @@ class Checkpoint:
 
     def load(self, key: str) -> tuple[int, dict[str, np.ndarray], dict] | None:
         """(next frame, arrays, metadata) of a matching checkpoint, or None."""
-        if not (self.path / "manifest.json").is_file():
+        if not self.exists():
             return None
         try:
             bundle = Bundle(self.path)
@@ -46,8 +46,11 @@ class Checkpoint:
         return int(meta["next_frame"]), arrays, meta["fusion"]
 
     def save(self, key: str, next_frame: int, arrays: dict[str, np.ndarray], fusion_meta: dict) -> None:
-        writer = BundleWriter(self.path, what="mapping checkpoint")
+        """Replace the checkpoint atomically. When that fails (a full disk), the previous checkpoint
+        stays to resume from; without one, the work folder goes too, so a failed run leaves nothing."""
+        writer = None
         try:
+            writer = BundleWriter(self.path, what="mapping checkpoint")
             for name, array in sorted(arrays.items()):
                 writer.put_array(f"state/{name}", array)
             writer.put_json(
@@ -56,8 +59,15 @@ class Checkpoint:
             )
             writer.commit()
         except BaseException:
-            writer.abort()
+            if writer is not None:
+                writer.abort()
+            if not self.exists():
+                self.discard()
             raise
+
+    def exists(self) -> bool:
+        """Whether a complete checkpoint is saved (its manifest is written last)."""
+        return (self.path / "manifest.json").is_file()
 
     def discard(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)

@@ -270,7 +270,7 @@ def _first_name(base: Bundle, dataset: Dataset) -> str:
 
 def _resume_hint(checkpoint: Checkpoint) -> str:
     """What a rerun will do after a write failure: resume from the last checkpoint, if there is one."""
-    if (checkpoint.path / "manifest.json").is_file():
+    if checkpoint.exists():
         return f"; rerun the same command to resume from the checkpoint in {checkpoint.folder}"
     return ""
 

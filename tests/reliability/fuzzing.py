@@ -34,6 +34,8 @@ from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
+from tests.reliability.families import Family, Made, copy_family_seed, families, judge_response, run_request
+
 if TYPE_CHECKING:
     import subprocess
 
@@ -452,8 +454,8 @@ def _reference_mutator(kind: str) -> Callable[[Path, random.Random, Path], str]:
     return mutate
 
 
-def targets(seeds: Seeds) -> dict[str, Target]:
-    """Every reader Terra has, by name."""
+def targets(seeds: Seeds) -> dict[str, Target | Family]:
+    """Every reader Terra has, by name, and the value families of tests/reliability/families.py."""
     out = [
         Target("bundle manifest", "bundle", lambda b: [b / "manifest.json"]),
         Target("bundle arrays", "bundle", _bundle_files("**/*.npy"), bundle_file=True),
@@ -476,7 +478,7 @@ def targets(seeds: Seeds) -> dict[str, Target]:
             mutate=_reference_mutator("names"),
         ),
     ]
-    return {t.name: t for t in out}
+    return {t.name: t for t in [*out, *families()]}
 
 
 def _command(target: Target, seeds: Seeds, copy: Path, case: Path, rng: random.Random) -> tuple[list, Path | None]:
@@ -592,32 +594,31 @@ def deadline(seconds: float):
         signal.signal(signal.SIGALRM, previous)
 
 
-def run_case(target: Target, seeds: Seeds, rng: random.Random, work: Path, timeout: float = 60.0) -> dict:
+def run_case(target: Target | Family, seeds: Seeds, rng: random.Random, work: Path, timeout: float = 60.0) -> dict:
     """Mutate a fresh copy of the target's seed with `rng`, run its command in-process and judge it.
     Returns {"target", "mutation", "argv", "code", "outcome", "detail"}; outcome is "ok" (exit 0,
     valid), "refused" (exit 2, one line) or a failure: "traceback", "bad exit code", "not one line",
-    "invalid result", "changed bundle", "written outside", "hang"."""
+    "invalid result", "changed bundle", "partial output", "written outside", "hang"."""
     case = work / "case"
     shutil.rmtree(case, ignore_errors=True)
     case.mkdir(parents=True)
-    outside = work / "outside.txt"
-    outside.write_text("a file outside the input folder\n")
-    copy = _copy_seed(target, seeds, case)
-    candidates = target.pick(copy)
-    victim = rng.choice(candidates)
-    mutation = f"{victim.relative_to(copy)}: {(target.mutate or mutate_file)(victim, rng, outside)}"
-    if target.bundle_file and rng.random() < 0.5:
-        resign(copy, str(victim.relative_to(copy)))
-    argv, output = _command(target, seeds, copy, case, rng)
+    if isinstance(target, Family):
+        copy = copy_family_seed(target, seeds, case)
+        made = target.make(seeds, copy, case, rng)
+    else:
+        made = _mutated(target, seeds, case, rng)
     before = snapshot(case)
     result = {
         "target": target.name,
-        "mutation": mutation,
-        "argv": [str(a) for a in argv],
+        "mutation": made.mutation,
+        "argv": [str(a) for a in made.argv or made.request or []],
         "code": None,
         "outcome": "ok",
         "detail": "",
     }
+    if made.request is not None:
+        return _run_request(result, made, case, before, timeout)
+    argv, output = made.argv or [], made.output
     try:
         with deadline(timeout):
             code, stdout, stderr = cli(argv)
@@ -645,6 +646,39 @@ def run_case(target: Target, seeds: Seeds, rng: random.Random, work: Path, timeo
     return result
 
 
+def _mutated(target: Target, seeds: Seeds, case: Path, rng: random.Random) -> Made:
+    """A copy of the target's seed with one file mutated, and the command that reads it."""
+    outside = case.parent / "outside.txt"
+    outside.write_text("a file outside the input folder\n")
+    copy = _copy_seed(target, seeds, case)
+    victim = rng.choice(target.pick(copy))
+    mutation = f"{victim.relative_to(copy)}: {(target.mutate or mutate_file)(victim, rng, outside)}"
+    if target.bundle_file and rng.random() < 0.5:
+        resign(copy, str(victim.relative_to(copy)))
+    argv, output = _command(target, seeds, copy, case, rng)
+    return Made(mutation, argv, output)
+
+
+def _run_request(result: dict, made: Made, case: Path, before: dict, timeout: float) -> dict:
+    """One HTTP request to a service over the case's bundle copy, judged (see families.judge_response)."""
+    assert made.request is not None
+    try:
+        with deadline(timeout):
+            status, text = run_request(case / "bundle", made.request)
+    except Timeout as exc:
+        result.update(outcome="hang", detail=str(exc))
+        return result
+    except BaseException as exc:  # noqa: BLE001 - what escapes the service is what a client sees as a 500
+        import traceback
+
+        result.update(outcome="traceback", detail="".join(traceback.format_exception(exc))[-2000:])
+        return result
+    outcome, detail = judge_response(status, text)
+    result.update(code=status, outcome=outcome, detail=detail)
+    result.update(_judge_files(before, snapshot(case), case, None, 0))
+    return result
+
+
 def _copy_seed(target: Target, seeds: Seeds, case: Path) -> Path:
     if target.seed == "bundle":
         assert seeds.bundle is not None
@@ -665,8 +699,10 @@ def _copy_seed(target: Target, seeds: Seeds, case: Path) -> Path:
 
 
 def _judge_files(before: dict, after: dict, case: Path, output: Path | None, code: int) -> dict:
-    """Changes outside the output path are writes outside it; changes to an input bundle (or to the
-    output bundle when the command failed) are changed bundles."""
+    """Changes outside the output path are writes outside it (a staging folder left beside the
+    output among them); changes to an input bundle (or to the output bundle when the command
+    failed) are changed bundles; anything at the output path of a command that failed is a partial
+    output."""
     out_rel = str(output.relative_to(case)) if output is not None else None
 
     def under(rel: str, top: str | None) -> bool:
@@ -679,6 +715,9 @@ def _judge_files(before: dict, after: dict, case: Path, output: Path | None, cod
         bundle_changes += [k for k in changed if under(k, out_rel) and out_rel == "bundle"]
     if bundle_changes:
         return {"outcome": "changed bundle", "detail": ", ".join(bundle_changes[:5])}
+    partial = sorted(k for k in changed if under(k, out_rel)) if code != 0 and out_rel != "bundle" else []
+    if partial:  # a refused command left (part of) its output
+        return {"outcome": "partial output", "detail": ", ".join(partial[:5])}
     if outside:
         return {"outcome": "written outside", "detail": ", ".join(outside[:5])}
     return {}
@@ -686,6 +725,7 @@ def _judge_files(before: dict, after: dict, case: Path, output: Path | None, cod
 
 FAILURES = (
     "traceback",
+    "partial output",
     "bad exit code",
     "not one line",
     "invalid result",
@@ -812,7 +852,7 @@ def worker() -> None:
     limit = 6 << 30  # an allocation a size check missed fails here instead of taking the machine
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     real_stdout = sys.stdout
-    cache: dict[str, tuple[Seeds, dict[str, Target]]] = {}
+    cache: dict[str, tuple[Seeds, dict[str, Target | Family]]] = {}
     for line in sys.stdin:
         job = json.loads(line)
         key = json.dumps(job["seeds"], sort_keys=True)

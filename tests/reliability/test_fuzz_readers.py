@@ -1,8 +1,11 @@
 """Fuzzing every reader through the command line (tests/reliability/fuzzing.py): mutated bundle manifests,
 bundle arrays, scene graphs and map metadata; both dataset layouts and KITTI raw; ROS 1 and ROS 2
 bags; config, task and msmap files; the authors' reference files (as bytes, as values: integers past
-64 bits, non-finite ranges, odd dtypes and shapes; and renamed with numbers that are not numbers).
-Each mutated input must give exit 0 with a valid result or exit 2 with one line: never another exit
+64 bits, non-finite ranges, odd dtypes and shapes; and renamed with numbers that are not numbers);
+and issue 24's value families (node ids, coordinates, queries, tf quaternions, oversized images,
+truncated bags, calibration values, HTTP requests: tests/reliability/families.py). Each input must
+give exit 0 with a valid result or exit 2 with one line (HTTP: 2xx, or 4xx with a one-line JSON
+error): never another exit
 code, a traceback, a hang, a changed input bundle, or a file written outside the output path.
 
 Hypothesis draws the mutations (derandomised: the same examples on every run) within a fixed
@@ -37,6 +40,19 @@ BUDGET = {
     "reference files": 20,
     "reference values": 40,
     "reference names": 12,
+    # Issue 24's value families (tests/reliability/families.py): a few cases each, many in the benchmark.
+    "ids: node": 8,
+    "coordinates": 8,
+    "queries": 5,
+    "tf quaternions": 6,
+    "images: folder": 4,
+    "images: bag": 4,
+    "truncated: rosbag1": 8,
+    "truncated: rosbag2": 8,
+    "calibration: kitti-raw": 5,
+    "calibration: semantickitti": 5,
+    "calibration: terra-folder": 5,
+    "http": 8,
 }
 FUZZ = settings(
     deadline=None,

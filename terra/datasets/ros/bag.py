@@ -260,12 +260,13 @@ def stamps_seconds(msg_stamp) -> float:
 
 
 MAX_TRANSLATION = 1.0e7  # metres: farther is a corrupt message, and would overflow later arithmetic
+MAX_QUATERNION_LENGTH = 1.0e6  # a unit quaternion written by a driver is within 1e-3 of length 1
 
 
 def xyz_quat_of(transform, where: str = "transform") -> np.ndarray:
     """[tx, ty, tz, qx, qy, qz, qw] of a geometry_msgs/Transform or Pose; TerraError naming `where`
     for non-finite values, a translation beyond MAX_TRANSLATION or a quaternion of (near) zero
-    length, which is no rotation at all."""
+    length, which is no rotation at all, or of a length past MAX_QUATERNION_LENGTH."""
     t = getattr(transform, "translation", None) or transform.position
     q = getattr(transform, "rotation", None) or transform.orientation
     values = np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w], float)
@@ -274,4 +275,6 @@ def xyz_quat_of(transform, where: str = "transform") -> np.ndarray:
     norm = float(np.linalg.norm(values[3:]))
     if norm < 1e-6:
         raise TerraError(f"{where}: rotation quaternion has zero length (x, y, z, w all 0); expected a unit quaternion")
+    if norm > MAX_QUATERNION_LENGTH:  # components past 1e154 overflow its length to infinity
+        raise TerraError(f"{where}: rotation quaternion has length {norm:.3g}; expected a unit quaternion")
     return values  # not normalised here: the rotation code does it, and the same bytes give the same map
