@@ -622,7 +622,8 @@ class BundleWriter:
         self.model.version = (base.version if base is not None else 0) + 1
         # A version built on `base` must replace `base` itself: another writer (a live session, a
         # second command) committing in between would otherwise be silently undone.
-        self._base_version = base.version if base is not None else None
+        same = base is not None and os.path.abspath(base.path) == os.path.abspath(self.path)
+        self._base_version = base.version if base is not None and same else None
 
     @property
     def files(self) -> dict[str, FileEntry]:

@@ -169,14 +169,7 @@ def map_command(
     if poses not in POSE_MODES:
         raise TerraError(f"--poses {poses!r}: expected one of: {', '.join(POSE_MODES)}")
     cluster = cluster_config(workers, scheduler, in_flight)
-    if in_flight is not None and not cluster.enabled:
-        raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
-    if (dataset is None) == (sim is None):
-        raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
-    if append and (overwrite or perception_only or cluster.enabled):
-        raise TerraError(
-            "--append continues a bundle in this process: not with --overwrite, --perception-only or a cluster"
-        )
+    _check_options(dataset, sim, in_flight, cluster.enabled, append, overwrite or perception_only)
     if not perception_only and not append:
         _check_out(out, overwrite)
     settings = TerraConfig.read(config, {"mapping": _perception_overrides(noise, cache)})
@@ -203,6 +196,20 @@ def map_command(
         from terra.cli.render import render_map, render_stage_json
 
         typer.echo(render_stage_json(result) if as_json else render_map(result))
+
+
+def _check_options(
+    dataset: Path | None, sim: str | None, in_flight: int | None, on_cluster: bool, append: bool, replacing: bool
+) -> None:
+    """One line for options that do not go together (`replacing`: --overwrite or --perception-only)."""
+    if in_flight is not None and not on_cluster:
+        raise TerraError("--in-flight is for a cluster run (--workers or --scheduler)")
+    if (dataset is None) == (sim is None):
+        raise TerraError("give either a DATASET folder or --sim PRESET[:SEED]")
+    if append and (replacing or on_cluster):
+        raise TerraError(
+            "--append continues a bundle in this process: not with --overwrite, --perception-only or a cluster"
+        )
 
 
 def _all_skipped(stats: dict, notes: dict, images: int) -> str | None:
