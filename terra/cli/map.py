@@ -97,6 +97,20 @@ InFlightOpt = Annotated[
         help="With a cluster: frames handed out and not yet fused (default: 2 per worker, at least 4).",
     ),
 ]
+FollowOpt = Annotated[
+    bool,
+    typer.Option(
+        "--follow",
+        help="Keep reading a ROS 2 bag (folder, .mcap or .db3) while it is being recorded: each frame is fused once "
+        "its images and pose are in, a version is committed every 5 s (queries read it meanwhile), until the "
+        "recorder closes the bag, --idle, or Ctrl-C. The final map equals `terra map` of the finished bag. Any other "
+        "DATASET is mapped frame by frame the same way.",
+    ),
+]
+IdleOpt = Annotated[
+    float | None,
+    typer.Option("--idle", min=0.0, help="With --follow: the recording has ended once it has not grown for SECONDS."),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, faults, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")]
 
@@ -147,6 +161,8 @@ def map_command(
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
     in_flight: InFlightOpt = None,
+    follow: FollowOpt = False,
+    idle: IdleOpt = None,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -170,6 +186,21 @@ def map_command(
     mapping, odometry = settings.mapping, settings.odometry
     if append and config is None:
         mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
+    if follow or idle is not None:
+        plain = sim is None and not perception_only and not cluster.enabled and poses == "auto"
+        _follow(
+            dataset if plain else None,
+            out,
+            mapping,
+            settings.dataset,
+            format,
+            idle if follow else -1.0,
+            overwrite,
+            append,
+            as_json,
+            quiet,
+        )
+        return
     spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
     show = not quiet and not as_json
     source = with_poses(spec.open(), poses, odometry, show_progress=show)
@@ -187,6 +218,66 @@ def map_command(
         from terra.cli.render import render_map, render_stage_json
 
         typer.echo(render_stage_json(result) if as_json else render_map(result))
+
+
+def _follow(
+    dataset: Path | None,
+    out: Path,
+    mapping,
+    options: dict,
+    format: str,
+    idle: float | None,
+    overwrite: bool,
+    append: bool,
+    as_json: bool,
+    quiet: bool,
+) -> None:
+    """`terra map DATASET --follow`: a ROS 2 recording read while it grows (any other dataset frame
+    by frame), fused through a live session that commits a version every 5 s; the summary printed."""
+    from terra.bundle import Bundle
+    from terra.datasets.registry import loader_options
+    from terra.datasets.ros.follow import FollowedBag, is_recording
+    from terra.datasets.rosbag import LOADER, RosbagConfig
+    from terra.datasets.stream import DatasetSource
+    from terra.live.follow import follow
+    from terra.mapping.pipeline import map_counts
+    from terra.mapping.results import MapResult, pose_source, source_faults
+
+    if idle is not None and idle < 0:
+        raise TerraError("--idle is for --follow")
+    if dataset is None:
+        raise TerraError(
+            "--follow maps one DATASET in this process: not --sim, --perception-only, a cluster or --poses odometry"
+        )
+    if format in ("auto", "rosbag") and is_recording(dataset):
+        config = loader_options(LOADER, options)
+        assert isinstance(config, RosbagConfig)
+        source = FollowedBag(dataset, config, idle)
+    else:
+        source = DatasetSource(_source_spec(dataset, None, format, None, options).open())
+    on_interrupt(lambda: f"the versions committed so far are kept in {out}")
+    run = follow(source, out, mapping, resume=append, overwrite=overwrite)
+    mapper, inner = run.session.mapper, source.dataset  # the bag as recorded, or the dataset
+    result = MapResult(
+        bundle=out,
+        counts=map_counts(Bundle(out)),
+        resumed_from=0,
+        cache=None,
+        stats={**mapper.stats.to_json(), **source_faults(inner)[0], **run.session.refused.counts},
+        notes={**mapper.stats.notes, **source_faults(inner)[1], **run.session.refused.notes},
+        seconds=mapper.timer.to_json(),
+        pose_source=pose_source(inner),
+        timer=mapper.timer,
+    )
+    if as_json or not quiet:
+        from terra.cli.render import render_map, render_stage_json
+
+        ended = getattr(source, "ended_by", None) or "the source's last frame"
+        typer.echo(
+            render_stage_json(result)
+            if as_json
+            else f"followed until {ended}: versions {run.versions}\n" + render_map(result)
+        )
 
 
 def _warn_without_semantics(result: MapResult) -> None:
