@@ -186,21 +186,9 @@ def map_command(
     mapping, odometry = settings.mapping, settings.odometry
     if append and config is None:
         mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
-    if follow or idle is not None:
-        plain = sim is None and not perception_only and not cluster.enabled and poses == "auto"
-        _follow(
-            dataset if plain else None,
-            out,
-            mapping,
-            settings.dataset,
-            format,
-            idle if follow else -1.0,
-            overwrite,
-            append,
-            as_json,
-            quiet,
-        )
-        return
+    if follow or idle is not None:  # a recording read while it grows, through a live session
+        how = (sim is None and not perception_only and not cluster.enabled and poses == "auto", overwrite, append)
+        return _follow(dataset, out, mapping, settings.dataset, format, idle if follow else -1.0, *how, as_json, quiet)
     spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
     show = not quiet and not as_json
     source = with_poses(spec.open(), poses, odometry, show_progress=show)
@@ -214,10 +202,15 @@ def map_command(
         on_interrupt(lambda: _kept(out))
         result = _map(spec, source, mapping, out, cluster, show, append)
         _warn_without_semantics(result)
+    _summary(result, as_json, quiet)
+
+
+def _summary(result: MapResult | PerceptionResult, as_json: bool, quiet: bool, head: str = "") -> None:
+    """The summary on stdout (none with --quiet): the text of cli/render.py after `head`, or JSON."""
     if as_json or not quiet:
         from terra.cli.render import render_map, render_stage_json
 
-        typer.echo(render_stage_json(result) if as_json else render_map(result))
+        typer.echo(render_stage_json(result) if as_json else head + render_map(result))
 
 
 def _follow(
@@ -227,13 +220,15 @@ def _follow(
     options: dict,
     format: str,
     idle: float | None,
+    plain: bool,
     overwrite: bool,
     append: bool,
     as_json: bool,
     quiet: bool,
 ) -> None:
     """`terra map DATASET --follow`: a ROS 2 recording read while it grows (any other dataset frame
-    by frame), fused through a live session that commits a version every 5 s; the summary printed."""
+    by frame), fused through a live session that commits a version every 5 s; the summary printed.
+    plain: no option that --follow cannot honour (--sim, --perception-only, a cluster, --poses)."""
     from terra.bundle import Bundle
     from terra.datasets.registry import loader_options
     from terra.datasets.ros.follow import FollowedBag, is_recording
@@ -245,7 +240,7 @@ def _follow(
 
     if idle is not None and idle < 0:
         raise TerraError("--idle is for --follow")
-    if dataset is None:
+    if not plain or dataset is None:
         raise TerraError(
             "--follow maps one DATASET in this process: not --sim, --perception-only, a cluster or --poses odometry"
         )
@@ -269,15 +264,8 @@ def _follow(
         pose_source=pose_source(inner),
         timer=mapper.timer,
     )
-    if as_json or not quiet:
-        from terra.cli.render import render_map, render_stage_json
-
-        ended = getattr(source, "ended_by", None) or "the source's last frame"
-        typer.echo(
-            render_stage_json(result)
-            if as_json
-            else f"followed until {ended}: versions {run.versions}\n" + render_map(result)
-        )
+    ended = getattr(source, "ended_by", None) or "the source's last frame"
+    _summary(result, as_json, quiet, f"followed until {ended}: versions {run.versions}\n")
 
 
 def _warn_without_semantics(result: MapResult) -> None:
