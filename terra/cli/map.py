@@ -101,7 +101,8 @@ FollowOpt = Annotated[
     bool,
     typer.Option(
         "--follow",
-        help="Keep reading a ROS 2 bag (folder, .mcap or .db3) while it is being recorded: each frame is fused once "
+        help="Keep reading a bag while it is being recorded (a ROS 2 folder, .mcap or .db3; a ROS 1 .bag): each "
+        "frame is fused once "
         "its images and pose are in, a version is committed every 5 s (queries read it meanwhile), until the "
         "recorder closes the bag, --idle, or Ctrl-C. The final map equals `terra map` of the finished bag. Any other "
         "DATASET is mapped frame by frame the same way.",
@@ -226,7 +227,7 @@ def _follow(
     as_json: bool,
     quiet: bool,
 ) -> None:
-    """`terra map DATASET --follow`: a ROS 2 recording read while it grows (any other dataset frame
+    """`terra map DATASET --follow`: a ROS recording read while it grows (any other dataset frame
     by frame), fused through a live session that commits a version every 5 s; the summary printed.
     plain: no option that --follow cannot honour (--sim, --perception-only, a cluster, --poses)."""
     from terra.bundle import Bundle

@@ -17,6 +17,7 @@ from terra.cli import run
 from terra.datasets.ros.follow import FollowedBag
 from terra.datasets.rosbag import RosbagDataset
 from terra.datasets.stream import DatasetSource, FrameSource, as_source
+from terra.errors import TerraError
 from terra.live.follow import follow
 from terra.mapping.config import MappingConfig
 from tests.live.test_session import map_files
@@ -173,9 +174,9 @@ def test_follow_refusals_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "not an mcap file" in err
     ros1 = tmp_path / "drive.bag"
-    ros1.write_bytes(b"#ROSBAG V2.0\n")
+    ros1.write_bytes(b"#ROSBAG V1.2\n and more")
     assert run(["map", str(ros1), "--out", str(tmp_path / "b.terra"), "--follow"]) == 2
-    assert "--follow reads ROS 2 recordings" in capsys.readouterr().err
+    assert "not a ROS 1 bag (its first bytes are not #ROSBAG V2.0)" in capsys.readouterr().err
     empty = tmp_path / "recording"
     empty.mkdir()
     assert run(["map", str(empty), "--out", str(tmp_path / "c.terra"), "--follow", "--idle", "0.2"]) == 2
@@ -187,12 +188,18 @@ def test_follow_refusals_are_one_line(tmp_path, capsys):
 
 
 def test_every_dataset_is_a_frame_source(sim_sources):
-    dataset = sim_sources["dataset"]
+    from tests.mapping.fixtures import BoxScene
+
+    dataset = BoxScene()
     source = as_source(dataset)
     assert isinstance(source, DatasetSource) and isinstance(source, FrameSource)
     frames = list(source.frames())
-    assert [f.stamp for f in frames] == [dataset[i].stamp for i in range(len(dataset))]
+    assert (
+        [f.stamp for f in frames] == [dataset[i].stamp for i in range(len(dataset))] == sorted(f.stamp for f in frames)
+    )
     assert np.array_equal(frames[2].points, dataset[2].points)
     assert [f.index for f in DatasetSource(dataset, start=3).frames()] == list(range(3, len(dataset)))
+    with pytest.raises(TerraError, match="start frame must be >= 0"):
+        DatasetSource(dataset, start=-1)
     followed = FollowedBag(sim_sources["rosbag2"])
     assert as_source(followed) is followed and followed.name == NAME

@@ -190,3 +190,22 @@ def test_malformed_messages_name_the_field():
     zero.transform.rotation.w = 0.0
     with pytest.raises(TerraError, match="zero length"):
         pose_of(zero)
+
+
+def test_the_example_node_says_what_it_needs_without_ros(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "ros2_live_node.py"
+    done = subprocess.run(
+        [sys.executable, str(example), "--out", str(tmp_path / "live.terra")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    try:
+        import rclpy  # noqa: F401  # pyright: ignore[reportMissingImports]
+    except ImportError:
+        assert done.returncode == 2 and "needs ROS 2 (rclpy, tf2_ros, sensor_msgs)" in done.stderr
+        assert not (tmp_path / "live.terra").exists()

@@ -1,7 +1,8 @@
-"""Reading a ROS 2 bag while it is being recorded (`terra map SOURCE --follow`).
+"""Reading a ROS bag while it is being recorded (`terra map SOURCE --follow`).
 
 A recorder appends to its storage file and writes the index only when it closes the bag (the mcap
-summary and footer; rosbag2's metadata.yaml), so the readers of terra/datasets/ros/bag.py, which
+summary and footer; rosbag2's metadata.yaml; a ROS 1 bag's index and its position in the bag
+header), so the readers of terra/datasets/ros/bag.py, which
 need that index, cannot open it yet. `GrowingBag` reads the file's complete records as they
 appear instead: each poll parses only the bytes added since the last one and remembers where each
 message is (not the message); `IndexBuilder` keeps the bag's index up to date message by message.
@@ -10,10 +11,13 @@ message is (not the message); `IndexBuilder` keeps the bag's index up to date me
 handed on once it is complete: the recording has gone `settle` seconds past the time its image
 and its pose could still arrive (`max_gap`, `max_pose_gap` of the dataset section).
 
-Storage: an mcap file (chunks uncompressed, or zstd / lz4 compressed), or a sqlite3 `.db3` file
-(read-only, the committed messages). The recording ends when the writer closes it (mcap: its
-data-end record; either: metadata.yaml written beside it), when the file has not grown for `idle`
-seconds, or when the iterator is closed (Ctrl-C).
+Storage: an mcap file (chunks uncompressed, or zstd / lz4 compressed), a sqlite3 `.db3` file
+(read-only, the committed messages), or a ROS 1 `.bag` (`.bag.active` while `rosbag record`
+writes it; chunks uncompressed, bz2 or lz4). The recording ends when the writer closes it (mcap:
+its data-end record; ROS 1: the index position written; ROS 2 folders: metadata.yaml written),
+when the file has not grown for `idle` seconds, or on Ctrl-C while waiting. Messages are indexed
+in the order the file holds them, which is log-time order for the recorders; a split recording
+(several storage files) is refused.
 """
 
 from __future__ import annotations
@@ -41,19 +45,16 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def storage_file(path: Path) -> Path | None:
-    """The storage file of a ROS 2 recording: `path` itself (.mcap / .db3), or the one storage file
-    in the bag folder `path` (None while the recorder has not created it yet). TerraError for a
-    ROS 1 bag or a folder split into several files."""
+    """The file a recording is written to: `path` itself (.mcap, .db3, a ROS 1 .bag or .bag.active),
+    or the one storage file in the ROS 2 bag folder `path`; None while the recorder has not created
+    it yet. TerraError for another file or a folder split into several files."""
     path = Path(path)
-    if path.suffix == ".bag":
-        raise TerraError(
-            f"{path}: --follow reads ROS 2 recordings (.mcap, .db3 or their folder); map a ROS 1 bag when it is closed"
-        )
+    ros1 = path.suffix == ".bag" or path.name.endswith(".bag.active")
     if path.is_file():
-        if path.suffix not in ROS2_SUFFIXES:
-            raise TerraError(f"{path}: not a ROS 2 storage file (expected .mcap or .db3)")
+        if path.suffix not in ROS2_SUFFIXES and not ros1:
+            raise TerraError(f"{path}: not a bag being recorded (expected .mcap, .db3, .bag or .bag.active)")
         return path
-    if not path.is_dir():
+    if ros1 or not path.is_dir():
         return None
     files = sorted(p for p in path.iterdir() if p.suffix in ROS2_SUFFIXES and p.is_file())
     if len(files) > 1:
@@ -65,7 +66,7 @@ def is_recording(path: Path) -> bool:
     """Whether `terra map --follow` reads `path` as a recording: a .mcap, .db3 or .bag file, or a
     folder holding a ROS 2 storage file or nothing yet (the recorder is about to start)."""
     path = Path(path)
-    if path.suffix in (*ROS2_SUFFIXES, ".bag"):
+    if path.suffix in (*ROS2_SUFFIXES, ".bag") or path.name.endswith(".bag.active"):
         return True
     return path.is_dir() and (not any(path.iterdir()) or any(p.suffix in ROS2_SUFFIXES for p in path.iterdir()))
 
@@ -259,17 +260,144 @@ class _Sqlite(_Storage):
         return bytes(row[0])
 
 
+class _Ros1(_Storage):
+    """A ROS 1 bag being written, record by record: chunks (none, bz2 or lz4) holding connection
+    and message records. The writer closes it by writing the index and its position into the bag
+    header (until then 0); the records from there on are the index, not data."""
+
+    def __init__(self, path: Path, on_schema: Callable, on_channel: Callable) -> None:
+        self.path, self.on_schema, self.on_channel = path, on_schema, on_channel
+        self.fd = os.open(path, os.O_RDONLY)
+        self.offset = 0
+        self.chunks: list[tuple[int, int, str]] = []  # compressed chunks: (offset, size, codec)
+        self._cache: tuple[int, bytes] | None = None
+
+    def size(self) -> int:
+        return os.fstat(self.fd).st_size
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+    def poll(self) -> list[tuple[int, int, Any]]:
+        size, found = self.size(), []
+        if self.offset == 0:
+            if size < 13:
+                return found
+            if os.pread(self.fd, 13, 0) != b"#ROSBAG V2.0\n":
+                raise TerraError(f"{self.path}: not a ROS 1 bag (its first bytes are not #ROSBAG V2.0)")
+            self.offset = 13
+        index_pos = self._index_pos(size)
+        end = index_pos if index_pos else size
+        while self.offset < end:
+            record = self._read_record(self.offset, end)
+            if record is None:
+                break  # the writer is still writing this record
+            fields, data_at, data_len = record
+            if fields.get("op") == b"\x05":
+                self._chunk(fields, data_at, data_len, found)
+            self.offset = data_at + data_len
+        self.ended = bool(index_pos) and self.offset >= index_pos
+        return found
+
+    def _index_pos(self, size: int) -> int:
+        """Where the index starts, from the bag header (0 while the writer has not closed the bag)."""
+        record = self._read_record(13, size)
+        if record is None or record[0].get("op") != b"\x03":
+            return 0
+        return struct.unpack("<Q", record[0].get("index_pos", bytes(8)))[0]
+
+    def _read_record(self, at: int, end: int) -> tuple[dict[str, bytes], int, int] | None:
+        """(header fields, data offset, data length) of the record at `at`, None when incomplete."""
+        if at + 4 > end:
+            return None
+        (header_len,) = struct.unpack("<I", os.pread(self.fd, 4, at))
+        if at + 8 + header_len > end:
+            return None
+        header = os.pread(self.fd, header_len + 4, at + 4)
+        (data_len,) = struct.unpack_from("<I", header, header_len)
+        if at + 8 + header_len + data_len > end:
+            return None
+        return _ros1_fields(header[:header_len]), at + 8 + header_len, data_len
+
+    def _chunk(self, fields: dict[str, bytes], data_at: int, data_len: int, found: list) -> None:
+        codec = fields.get("compression", b"none").decode()
+        data = os.pread(self.fd, data_len, data_at)
+        if codec == "none":
+            records, chunk, base = data, -1, data_at
+        else:
+            self.chunks.append((data_at, data_len, codec))
+            chunk, base = len(self.chunks) - 1, 0
+            records = self._decompress(chunk, data)
+        pos = 0
+        while pos + 4 <= len(records):
+            (header_len,) = struct.unpack_from("<I", records, pos)
+            header = _ros1_fields(records[pos + 4 : pos + 4 + header_len])
+            (length,) = struct.unpack_from("<I", records, pos + 4 + header_len)
+            body = pos + 8 + header_len
+            op = header.get("op")
+            if op == b"\x07":
+                self._connection(header, records[body : body + length])
+            elif op == b"\x02":
+                conn = struct.unpack("<I", header["conn"])[0]
+                sec, nsec = struct.unpack("<II", header["time"])
+                found.append((conn, sec * 1_000_000_000 + nsec, (chunk, base + body, length)))
+            pos = body + length
+
+    def _connection(self, header: dict[str, bytes], body: bytes) -> None:
+        from rosbags.typesys.msg import normalize_msgtype
+
+        info = _ros1_fields(body)
+        msgtype = normalize_msgtype(info.get("type", b"").decode())
+        self.on_schema(msgtype, "ros1msg", info.get("message_definition", b"").decode())
+        self.on_channel(struct.unpack("<I", header["conn"])[0], msgtype, header["topic"].decode())
+
+    def _decompress(self, chunk: int, data: bytes) -> bytes:
+        import bz2
+
+        from lz4.frame import decompress as lz4_decompress  # type: ignore[import-untyped]
+
+        codec = self.chunks[chunk][2]
+        if codec not in ("bz2", "lz4"):
+            raise TerraError(f"{self.path}: chunk compression {codec!r}; expected none, bz2 or lz4")
+        with bag_errors(f"{self.path} chunk {chunk}"):
+            records = bz2.decompress(data) if codec == "bz2" else lz4_decompress(data)
+        self._cache = (chunk, records)
+        return records
+
+    def raw(self, location: Any) -> bytes:
+        chunk, offset, length = location
+        if chunk < 0:
+            return os.pread(self.fd, length, offset)
+        if self._cache is None or self._cache[0] != chunk:
+            start, size, _ = self.chunks[chunk]
+            self._decompress(chunk, os.pread(self.fd, size, start))
+        assert self._cache is not None
+        return self._cache[1][offset : offset + length]
+
+
+def _ros1_fields(header: bytes) -> dict[str, bytes]:
+    """The name=value fields of a ROS 1 record header (each: uint32 length, then the bytes)."""
+    fields, pos = {}, 0
+    while pos + 4 <= len(header):
+        (length,) = struct.unpack_from("<I", header, pos)
+        name, _, value = bytes(header[pos + 4 : pos + 4 + length]).partition(b"=")
+        fields[name.decode(errors="replace")] = value
+        pos += 4 + length
+    return fields
+
+
 class GrowingBag(Bag):
-    """A ROS 2 storage file being recorded, read as far as it is complete. It stands in for `Bag`
-    (the same topics, read, fetch and deserialize) so `RosbagDataset` pairs its frames; `poll()`
-    takes in what the writer added since the last poll."""
+    """A storage file being recorded (ROS 2 mcap or sqlite3, ROS 1), read as far as it is complete.
+    It stands in for `Bag` (the same topics, read, fetch and deserialize) so `RosbagDataset` pairs
+    its frames; `poll()` takes in what the writer added since the last poll."""
 
     def __init__(self, path: Path, storage: Path) -> None:
         from rosbags.typesys import Stores, get_typestore
 
         self.path, self.file, self.paths = Path(path), Path(storage), [Path(storage)]
-        self.storage = "rosbag2 (mcap)" if self.file.suffix == ".mcap" else "rosbag2 (sqlite3)"
-        self.ros2 = True
+        ros1 = self.file.suffix == ".bag" or self.file.name.endswith(".bag.active")
+        self.storage = "rosbag1" if ros1 else "rosbag2 (mcap)" if self.file.suffix == ".mcap" else "rosbag2 (sqlite3)"
+        self.ros2 = not ros1
         self.reader = None
         # The bag's own message definitions, as rosbags' AnyReader uses them; Humble's for the rest.
         self.store, self.fallback = get_typestore(Stores.EMPTY), get_typestore(Stores.ROS2_HUMBLE)
@@ -282,7 +410,7 @@ class GrowingBag(Bag):
         self.by_key: dict[tuple[str, int], list[int]] = {}
         self.start_ns, self.end_ns = 0, 0
         self._order: np.ndarray | None = None
-        opener = _Mcap if self.file.suffix == ".mcap" else _Sqlite
+        opener = _Ros1 if ros1 else _Mcap if self.file.suffix == ".mcap" else _Sqlite
         with bag_errors(str(self.file)):
             self.io: _Storage = opener(self.file, self._schema, self._channel)
 
@@ -375,7 +503,7 @@ class GrowingBag(Bag):
         msgtype = self.topics[topic].msgtype
         store = self.store if msgtype in self.store.types else self.fallback
         with bag_errors(where or f"{self.file} {topic}"):
-            return store.deserialize_cdr(raw, msgtype)
+            return store.deserialize_cdr(raw, msgtype) if self.ros2 else store.deserialize_ros1(raw, msgtype)
 
 
 class _FollowDataset(RosbagDataset):
@@ -407,9 +535,10 @@ class _FollowDataset(RosbagDataset):
 
 
 class FollowedBag:
-    """A `FrameSource` over a ROS 2 recording still being written (see the module docstring).
+    """A `FrameSource` over a ROS recording still being written (see the module docstring).
 
-    path: the bag folder or its .mcap / .db3 file. config: the `dataset` section (topics, frames,
+    path: the ROS 2 bag folder, its .mcap / .db3 file, or a ROS 1 .bag / .bag.active file.
+    config: the `dataset` section (topics, frames,
     max_gap, max_pose_gap). idle: seconds without growth after which the recording counts as
     ended (None: wait until the writer closes it, or the iterator is closed). poll: seconds between
     looks at the file. settle: seconds the recording must go past a frame's latest possible image
@@ -561,7 +690,8 @@ class FollowedBag:
 
 def _recording_stem(file: Path) -> str:
     """A recording's name from its storage file, as terra.datasets.ros.bag.recording_name gives it."""
-    return file.stem[:-2] if file.stem.endswith("_0") else file.stem
+    stem = file.name.removesuffix(".bag.active").removesuffix(".bag") if ".bag" in file.name else file.stem
+    return stem[:-2] if stem.endswith("_0") else stem
 
 
 def _check_prefix(path: Path, refs: list, fused: list) -> None:
