@@ -573,6 +573,7 @@ class FollowedBag:
         self.dataset: _FollowDataset | None = None
         self.last_growth = clock()
         self._size = -1
+        self._unpaired, self._paired_at, self._pair_cost = 0, 0.0, 0.0
 
     @property
     def horizon(self) -> float:
@@ -583,8 +584,8 @@ class FollowedBag:
         fused: list[tuple[float, tuple, np.ndarray]] = []
         try:
             while True:
-                ended = self._look()
-                dataset = self._frames_now(ended)
+                ended, taken = self._look()
+                dataset = self._pair_again(ended, taken)
                 if dataset is not None:
                     refs = dataset.refs()
                     _check_prefix(self.path, refs, fused)
@@ -618,8 +619,8 @@ class FollowedBag:
 
     # -- private ------------------------------------------------------------------------------
 
-    def _look(self) -> bool:
-        """Take in what the writer added; whether the recording has ended."""
+    def _look(self) -> tuple[bool, int]:
+        """Take in what the writer added: whether the recording has ended, and how many messages came."""
         closed = recording_closed(self.path)  # read before the file: metadata.yaml comes last
         if self.bag is None:
             file = storage_file(self.path)
@@ -627,17 +628,19 @@ class FollowedBag:
                 self.name = _recording_stem(file)
                 self.bag = GrowingBag(self.path, file)
                 self.builder = IndexBuilder(self.bag, [], self.config.odometry_topic)
+        taken = 0
         if self.bag is not None:
             before = len(self.bag.locations)
             self.bag.poll()
             self._index(before)
+            taken = len(self.bag.locations) - before
         if self.bag is not None and self.bag.ended:
             self.ended_by = "closed"
         elif closed and self.bag is not None:
             self.ended_by = "metadata.yaml"
         elif self.idle is not None and self.waiting_for() >= self.idle:
             self.ended_by = "idle"
-        return self.ended_by is not None
+        return self.ended_by is not None, taken
 
     def _index(self, before: int) -> None:
         bag, builder = self.bag, self.builder
@@ -651,6 +654,20 @@ class FollowedBag:
                 builder.track(topic, odometry=True)
             if topic in builder.rows or topic == builder.odometry_topic or topic in TF_TOPICS:
                 builder.add(topic, int(bag.log_ns[k]), bag.io.raw(bag.locations[k]))
+
+    def _pair_again(self, ended: bool, taken: int) -> _FollowDataset | None:
+        """The frames paired anew when messages came since the last pairing, None otherwise. Pairing
+        costs time in the frames recorded so far (about 90 us a scan): on a long recording it is
+        done at most once per four times its own cost, so it never takes most of the time."""
+        self._unpaired += taken
+        if not ended and (not self._unpaired or self.clock() - self._paired_at < 4 * self._pair_cost):
+            return None
+        started = self.clock()
+        dataset = self._frames_now(ended)
+        self._paired_at, self._pair_cost = self.clock(), self.clock() - started
+        if dataset is not None:
+            self._unpaired = 0
+        return dataset
 
     def _frames_now(self, ended: bool) -> _FollowDataset | None:
         """The frames recorded so far; None while the recording cannot give a frame yet (no scan,
