@@ -251,6 +251,11 @@ def _follow(
         source = FollowedBag(dataset, config, idle)
     else:
         source = DatasetSource(_source_spec(dataset, None, format, None, options).open())
+        if mapping.fusion.use_global_map and source.dataset.global_map() is not None:
+            raise TerraError(
+                f"{dataset}: --follow builds the map from frames as they come, not on the dataset's own "
+                "global map; set mapping.fusion.use_global_map: false to follow it"
+            )
     on_interrupt(lambda: f"the versions committed so far are kept in {out}")
     run = follow(source, out, mapping, resume=append, overwrite=overwrite)
     mapper, inner = run.session.mapper, source.dataset  # the bag as recorded, or the dataset

@@ -203,3 +203,37 @@ def test_every_dataset_is_a_frame_source(sim_sources):
         DatasetSource(dataset, start=-1)
     followed = FollowedBag(sim_sources["rosbag2"])
     assert as_source(followed) is followed and followed.name == NAME
+
+
+def test_ctrl_c_while_waiting_commits_what_was_handed_on(sim_sources, tmp_path):
+    stalled = tmp_path / NAME
+    stalled_copy(sim_sources["rosbag2"], stalled)
+
+    def interrupt(seconds: float) -> None:
+        raise KeyboardInterrupt
+
+    source = FollowedBag(stalled, sleep=interrupt)
+    run_ = follow(source, tmp_path / "live.terra", MappingConfig())
+    stamps = [sim_sources["dataset"][i].stamp for i in range(len(sim_sources["dataset"]))]
+    settled = sum(t <= stamps[-1] - source.horizon for t in stamps)  # the last frames could still change
+    assert source.ended_by == "interrupted" and 0 < settled < len(stamps)
+    assert run_.session.frames == settled and run_.versions == [1]
+    from terra.bundle import Bundle
+
+    info = Bundle(tmp_path / "live.terra").model.components.map
+    assert info is not None and info.frames == settled
+
+
+def test_follow_maps_any_other_dataset_frame_by_frame(tmp_path, capsys):
+    from terra.sim.writer import write_dataset
+    from tests.mapping.fixtures import BoxScene
+
+    folder = write_dataset(BoxScene(), tmp_path / "box", format="terra-folder", progress=False)
+    assert run(["map", str(folder), "--out", str(tmp_path / "follow.terra"), "--follow"]) == 2
+    assert "set mapping.fusion.use_global_map: false to follow it" in capsys.readouterr().err
+    voxels = tmp_path / "voxels.yaml"  # the folder ships a global map: accumulate the scans instead
+    voxels.write_text("mapping:\n  fusion:\n    use_global_map: false\n")
+    assert run(["map", str(folder), "--out", str(tmp_path / "batch.terra"), "-c", str(voxels), "-q"]) == 0
+    assert run(["map", str(folder), "--out", str(tmp_path / "follow.terra"), "-c", str(voxels), "--follow"]) == 0
+    assert "followed until the source's last frame" in capsys.readouterr().out
+    assert map_files(tmp_path / "follow.terra") == map_files(tmp_path / "batch.terra")
