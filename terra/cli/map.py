@@ -110,7 +110,12 @@ FollowOpt = Annotated[
 ]
 IdleOpt = Annotated[
     float | None,
-    typer.Option("--idle", min=0.0, help="With --follow: the recording has ended once it has not grown for SECONDS."),
+    typer.Option(
+        "--idle",
+        min=0.0,
+        metavar="SECONDS",
+        help="With --follow: the recording has ended once it has not grown for SECONDS.",
+    ),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, faults, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")]
