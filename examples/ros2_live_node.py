@@ -19,7 +19,9 @@ from pathlib import Path
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description="Map while the robot drives: terra.live.Session fed from rclpy callbacks.")
+    parser = argparse.ArgumentParser(
+        description="Map while the robot drives: terra.live.Session fed from rclpy callbacks."
+    )
     parser.add_argument("--out", type=Path, required=True, help="bundle folder the live map is committed to")
     parser.add_argument("--cloud", default="/lidar/points")
     parser.add_argument("--image", default="/camera/image_raw")
