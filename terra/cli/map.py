@@ -105,6 +105,26 @@ StrictOpt = Annotated[
         "e.g. the labels backend on images without labels.",
     ),
 ]
+FollowOpt = Annotated[
+    bool,
+    typer.Option(
+        "--follow",
+        help="Keep reading a bag while it is being recorded (a ROS 2 folder, .mcap or .db3; a ROS 1 .bag): each "
+        "frame is fused once "
+        "its images and pose are in, a version is committed every 5 s (queries read it meanwhile), until the "
+        "recorder closes the bag, --idle, or Ctrl-C. The final map equals `terra map` of the finished bag. Any other "
+        "DATASET is mapped frame by frame the same way.",
+    ),
+]
+IdleOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--idle",
+        min=0.0,
+        metavar="SECONDS",
+        help="With --follow: the recording has ended once it has not grown for SECONDS.",
+    ),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, faults, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")]
 
@@ -158,6 +178,8 @@ def map_command(
     scheduler: SchedulerOpt = None,
     in_flight: InFlightOpt = None,
     strict: StrictOpt = False,
+    follow: FollowOpt = False,
+    idle: IdleOpt = None,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -176,6 +198,9 @@ def map_command(
     mapping, odometry = settings.mapping, settings.odometry
     if append and config is None:
         mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
+    if follow or idle is not None:  # a recording read while it grows, through a live session
+        how = (sim is None and not perception_only and not cluster.enabled and poses == "auto", overwrite, append)
+        return _follow(dataset, out, mapping, settings.dataset, format, idle if follow else -1.0, *how, as_json, quiet)
     spec = _source_spec(dataset, sim, format, camera_config, settings.dataset)
     if poses == "odometry":  # before the source is opened, so its own pose check cannot refuse it
         spec = spec.with_odometry()
@@ -192,10 +217,75 @@ def map_command(
         accept = _refuse_without_semantics if strict else None
         result = _map(spec, source, mapping, out, cluster, show, accept, append)
         _warn_without_semantics(result)
+    _summary(result, as_json, quiet)
+
+
+def _summary(result: MapResult | PerceptionResult, as_json: bool, quiet: bool, head: str = "") -> None:
+    """The summary on stdout (none with --quiet): the text of cli/render.py after `head`, or JSON."""
     if as_json or not quiet:
         from terra.cli.render import render_map, render_stage_json
 
-        typer.echo(render_stage_json(result) if as_json else render_map(result))
+        typer.echo(render_stage_json(result) if as_json else head + render_map(result))
+
+
+def _follow(
+    dataset: Path | None,
+    out: Path,
+    mapping,
+    options: dict,
+    format: str,
+    idle: float | None,
+    plain: bool,
+    overwrite: bool,
+    append: bool,
+    as_json: bool,
+    quiet: bool,
+) -> None:
+    """`terra map DATASET --follow`: a ROS recording read while it grows (any other dataset frame
+    by frame), fused through a live session that commits a version every 5 s; the summary printed.
+    plain: no option that --follow cannot honour (--sim, --perception-only, a cluster, --poses)."""
+    from terra.bundle import Bundle
+    from terra.datasets.registry import loader_options
+    from terra.datasets.ros.follow import FollowedBag, is_recording
+    from terra.datasets.rosbag import LOADER, RosbagConfig
+    from terra.datasets.stream import DatasetSource
+    from terra.live.follow import follow
+    from terra.mapping.pipeline import map_counts
+    from terra.mapping.results import MapResult, pose_source, source_faults
+
+    if idle is not None and idle < 0:
+        raise TerraError("--idle is for --follow")
+    if not plain or dataset is None:
+        raise TerraError(
+            "--follow maps one DATASET in this process: not --sim, --perception-only, a cluster or --poses odometry"
+        )
+    if format in ("auto", "rosbag") and is_recording(dataset):
+        config = loader_options(LOADER, options)
+        assert isinstance(config, RosbagConfig)
+        source = FollowedBag(dataset, config, idle)
+    else:
+        source = DatasetSource(_source_spec(dataset, None, format, None, options).open())
+        if mapping.fusion.use_global_map and source.dataset.global_map() is not None:
+            raise TerraError(
+                f"{dataset}: --follow builds the map from frames as they come, not on the dataset's own "
+                "global map; set mapping.fusion.use_global_map: false to follow it"
+            )
+    on_interrupt(lambda: f"the versions committed so far are kept in {out}")
+    run = follow(source, out, mapping, resume=append, overwrite=overwrite)
+    mapper, inner = run.session.mapper, source.dataset  # the bag as recorded, or the dataset
+    result = MapResult(
+        bundle=out,
+        counts=map_counts(Bundle(out)),
+        resumed_from=0,
+        cache=None,
+        stats={**mapper.stats.to_json(), **source_faults(inner)[0], **run.session.refused.counts},
+        notes={**mapper.stats.notes, **source_faults(inner)[1], **run.session.refused.notes},
+        seconds=mapper.timer.to_json(),
+        pose_source=pose_source(inner),
+        timer=mapper.timer,
+    )
+    ended = getattr(source, "ended_by", None) or "the source's last frame"
+    _summary(result, as_json, quiet, f"followed until {ended}: versions {run.versions}\n")
 
 
 def _check_options(

@@ -136,7 +136,7 @@ class RosbagDataset:
                 f"{self.path}: poses: topic needs dataset.odometry_topic (nav_msgs/Odometry topics: {found})"
             )
         stamped = [self.lidar_topic] + [t for c in self.camera_topics for t in (c.image, c.semantic, c.instance) if t]
-        self.index: BagIndex = index_bag(self.bag, stamped, odom_topic, show_progress)
+        self.index: BagIndex = self._index(stamped, odom_topic, show_progress)
         scans = self.index.streams[self.lidar_topic]
         if len(scans) == 0:
             raise TerraError(f"{self.path}: topic {self.lidar_topic} has no messages")
@@ -158,6 +158,11 @@ class RosbagDataset:
             )
 
     # ------------------------------------------------------------------ setup
+    def _index(self, stamped: list[str], odom_topic: str | None, show_progress: bool) -> BagIndex:
+        """Where the messages of the chosen topics are (one pass over the bag; a recording that is
+        still growing keeps its index up to date instead: terra/datasets/ros/follow.py)."""
+        return index_bag(self.bag, stamped, odom_topic, show_progress)
+
     def _poses(self, stamps: np.ndarray, odom_topic: str | None):
         """(poses (S, 4, 4), valid (S,), source in words, needs odometry, map frame) at the scan stamps.
         PosesUnavailable when the configured (or found) pose source does not reach the LiDAR frame."""

@@ -254,6 +254,23 @@ class Bag:
             return self.reader.deserialize(raw, msgtype)
 
 
+def message_bytes(data: object, where: str, field: str = "data") -> np.ndarray:
+    """A message's `uint8[]` field as a flat uint8 array, whatever holds it: a NumPy array (rosbags),
+    bytes, an array.array or a memoryview (rclpy), or a list of ints; TerraError naming the field
+    for anything else (a list with values outside 0..255, text)."""
+    if isinstance(data, np.ndarray):
+        return data.reshape(-1).view(np.uint8) if data.dtype.itemsize == 1 else data.view(np.uint8).reshape(-1)
+    if isinstance(data, list | tuple):
+        values = np.asarray(data)
+        if values.size and (not np.issubdtype(values.dtype, np.integer) or values.min() < 0 or values.max() > 255):
+            raise TerraError(f"{where}: field '{field}' must hold bytes (integers 0..255)")
+        return values.astype(np.uint8).reshape(-1)
+    try:
+        return np.frombuffer(data, np.uint8)  # type: ignore[arg-type]  # bytes, bytearray, array.array, memoryview
+    except TypeError:
+        raise TerraError(f"{where}: field '{field}' must hold bytes, got {type(data).__name__}") from None
+
+
 def stamps_seconds(msg_stamp) -> float:
     """builtin_interfaces/Time (sec, nanosec) as float seconds."""
     return int(msg_stamp.sec) + int(msg_stamp.nanosec) * 1e-9

@@ -14,6 +14,7 @@ import warnings
 
 import numpy as np
 
+from terra.datasets.ros.bag import message_bytes
 from terra.errors import TerraError
 
 CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "mono16": 1}
@@ -27,7 +28,7 @@ def _pixels(msg, encoding: str, where: str) -> np.ndarray:
     item = sizes.get(encoding, 1)
     channels = CHANNELS.get(encoding, 1)
     row = width * channels * item
-    data = np.frombuffer(msg.data, np.uint8) if not isinstance(msg.data, np.ndarray) else msg.data.view(np.uint8)
+    data = message_bytes(msg.data, where)
     if height <= 0 or width <= 0 or step < row or data.size < step * height:
         raise TerraError(
             f"{where}: {width}x{height} {encoding} image with step {step} needs {step * height} bytes "
@@ -79,7 +80,7 @@ def decode_compressed(msg, where: str = "CompressedImage") -> np.ndarray:
 
     if "compresseddepth" in str(msg.format).lower().replace(" ", ""):
         raise TerraError(f"{where}: compressed format '{msg.format}' is a depth image, not a colour image")
-    data = msg.data.tobytes() if isinstance(msg.data, np.ndarray) else bytes(msg.data)
+    data = message_bytes(msg.data, where).tobytes()
     codec = compressed_codec(data)
     if codec is None:
         raise TerraError(f"{where}: compressed data is neither JPEG nor PNG (format field {str(msg.format)[:40]!r})")

@@ -41,49 +41,88 @@ class BagIndex:
     odometry_frames: tuple[str, str] | None = None  # (parent, child) of the odometry topic
 
 
+TF_TOPICS = ("/tf_static", "/tf", "tf_static", "tf")
+
+
 def index_bag(bag: Bag, stamped: list[str], odometry_topic: str | None, show_progress: bool = True) -> BagIndex:
     """Index `stamped` topics (messages that start with a std_msgs/Header) and read the TF and
     odometry topics, in one pass in log-time order."""
-    tf_topics = [t for t in ("/tf_static", "/tf", "tf_static", "tf") if t in bag.topics]
+    tf_topics = [t for t in TF_TOPICS if t in bag.topics]
     wanted = sorted(set(stamped) | set(tf_topics) | ({odometry_topic} if odometry_topic else set()))
-    rows: dict[str, list[tuple[float, int]]] = {t: [] for t in stamped}
-    tree, odom = TfTree(), TfTree() if odometry_topic else None
-    first: dict[str, bytes] = {}
-    odom_frames = None
+    builder = IndexBuilder(bag, stamped, odometry_topic)
     bar = TimeProgress(bag.start_ns * 1e-9, bag.end_ns * 1e-9, "indexing bag", enabled=show_progress)
     try:
         for topic, log_ns, raw in bag.read(wanted):
             bar.update(log_ns * 1e-9)
-            first.setdefault(topic, raw)
-            if topic in rows:
-                with bag_errors(f"{bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"):
-                    rows[topic].append((header_stamp(raw, bag.ros2), log_ns))
-            elif topic == odometry_topic and odom is not None:
-                msg = bag.deserialize(raw, topic)
-                odom_frames = odom_frames or (msg.header.frame_id.lstrip("/"), msg.child_frame_id.lstrip("/"))
-                odom.add(
-                    msg.header.frame_id,
-                    msg.child_frame_id,
-                    xyz_quat_of(msg.pose.pose, f"{bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"),
-                    stamps_seconds(msg.header.stamp),
-                )
-            else:
-                static = topic.lstrip("/") == "tf_static"
-                for tr in bag.deserialize(raw, topic).transforms:
-                    tree.add(
-                        tr.header.frame_id,
-                        tr.child_frame_id,
-                        xyz_quat_of(tr.transform, f"{bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"),
-                        None if static else stamps_seconds(tr.header.stamp),
-                    )
+            builder.add(topic, log_ns, raw)
     finally:
         bar.close()
-    tree.freeze()
-    if odom is not None:
-        for child, (parent, T) in tree.static.items():
-            odom.static.setdefault(child, (parent, T))
-        odom.freeze()
-    return BagIndex({t: _stream(r) for t, r in rows.items()}, tree, odom, first, odom_frames)
+    return builder.result()
+
+
+class IndexBuilder:
+    """`index_bag`'s pass one message at a time, so a recording that is still growing is indexed
+    as its messages arrive (terra/datasets/ros/follow.py) and looked at whenever wanted (`result`).
+    Messages of `stamped` topics are indexed, of the TF topics and `odometry_topic` read into TF
+    trees; any other message is ignored."""
+
+    def __init__(self, bag: Bag, stamped: list[str], odometry_topic: str | None) -> None:
+        self.bag = bag
+        self.rows: dict[str, list[tuple[float, int]]] = {t: [] for t in stamped}
+        self.odometry_topic = odometry_topic
+        self.tree, self.odometry = TfTree(), TfTree() if odometry_topic else None
+        self.first: dict[str, bytes] = {}
+        self.odometry_frames: tuple[str, str] | None = None
+
+    def track(self, topic: str, odometry: bool = False) -> None:
+        """Index `topic` from now on (a recording that grows shows its topics as they appear): its
+        messages start with a std_msgs/Header, or, with `odometry`, it is the odometry topic (one)."""
+        if odometry:
+            if self.odometry_topic is None:
+                self.odometry_topic, self.odometry = topic, TfTree()
+        else:
+            self.rows.setdefault(topic, [])
+
+    def add(self, topic: str, log_ns: int, raw: bytes) -> None:
+        """One message (log time ns, raw bytes), in log-time order."""
+        bag, where = self.bag, f"{self.bag.path} {topic} at log time {log_ns * 1e-9:.3f} s"
+        if topic in self.rows:
+            self.first.setdefault(topic, raw)
+            with bag_errors(where):
+                self.rows[topic].append((header_stamp(raw, bag.ros2), log_ns))
+        elif topic == self.odometry_topic and self.odometry is not None:
+            self.first.setdefault(topic, raw)
+            msg = bag.deserialize(raw, topic)
+            frames = (msg.header.frame_id.lstrip("/"), msg.child_frame_id.lstrip("/"))
+            self.odometry_frames = self.odometry_frames or frames
+            self.odometry.add(
+                msg.header.frame_id,
+                msg.child_frame_id,
+                xyz_quat_of(msg.pose.pose, where),
+                stamps_seconds(msg.header.stamp),
+            )
+        elif topic in TF_TOPICS:
+            self.first.setdefault(topic, raw)
+            static = topic.lstrip("/") == "tf_static"
+            for tr in bag.deserialize(raw, topic).transforms:
+                self.tree.add(
+                    tr.header.frame_id,
+                    tr.child_frame_id,
+                    xyz_quat_of(tr.transform, where),
+                    None if static else stamps_seconds(tr.header.stamp),
+                )
+
+    def result(self) -> BagIndex:
+        """The index of the messages added so far (the builder can take more afterwards)."""
+        tree = self.tree.copy()
+        tree.freeze()
+        odom = self.odometry.copy() if self.odometry is not None else None
+        if odom is not None:
+            for child, (parent, T) in tree.static.items():
+                odom.static.setdefault(child, (parent, T))
+            odom.freeze()
+        streams = {t: _stream(r) for t, r in self.rows.items()}
+        return BagIndex(streams, tree, odom, dict(self.first), self.odometry_frames)
 
 
 def _stream(rows: list[tuple[float, int]]) -> Stream:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from terra.datasets.ros.bag import message_bytes
 from terra.errors import TerraError
 
 # PointField.datatype -> NumPy kind and size (sensor_msgs/PointField constants INT8=1 .. FLOAT64=8).
@@ -87,7 +88,7 @@ def decode_pointcloud2(msg, where: str = "PointCloud2") -> DecodedCloud:
         raise TerraError(f"{where}: no field '{missing[0]}' (fields: {have}); expected x, y, z")
     if point_step <= 0 or row_step < width * point_step:
         raise TerraError(f"{where}: row_step {row_step} is less than width {width} x point_step {point_step}")
-    data = np.frombuffer(msg.data, dtype=np.uint8) if not isinstance(msg.data, np.ndarray) else msg.data.view(np.uint8)
+    data = message_bytes(msg.data, where)
     if data.size < row_step * height:
         raise TerraError(f"{where}: data has {data.size} bytes, expected row_step {row_step} x height {height}")
     time_names = _time_fields(names)

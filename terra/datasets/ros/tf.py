@@ -91,6 +91,17 @@ class TfTree:
             return
         self.dynamic.setdefault(child, _Track(parent)).append(stamp, xyz_quat)
 
+    def copy(self) -> TfTree:
+        """A copy that can be frozen while this tree keeps taking transforms (a recording that grows)."""
+        other = TfTree()
+        other.static = dict(self.static)
+        other.conflicts = list(self.conflicts)
+        for child, track in self.dynamic.items():
+            other.dynamic[child] = _Track(
+                track.parent, array("d", track.stamps), array("d", track.xyz), array("d", track.quat)
+            )
+        return other
+
     def freeze(self) -> None:
         """Sort the time series (call once every transform is added)."""
         for track in self.dynamic.values():
