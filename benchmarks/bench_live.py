@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--preset", default="small")
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--hz", type=float, default=10.0)
