@@ -87,9 +87,14 @@ def calibration_to_json(cal: CameraCalibration) -> dict:
 
 def calibration_from_json(d: dict, source: str) -> CameraCalibration:
     """A CameraCalibration from its JSON form (terra.schemas.CalibrationDoc); TerraError naming `source`."""
+    from terra.datasets.kitti_common import check_rotation, check_translation
     from terra.schemas import CalibrationDoc, validate_model
 
     doc = validate_model(d, CalibrationDoc, source)
+    T = np.asarray(doc.T_cam_lidar, float)
+    # Finite is not enough: a 1e308 translation would reach the map as infinity.
+    check_rotation(T[:3, :3], f"{source}: camera {doc.name!r} T_cam_lidar's rotation")
+    check_translation(T[:3, 3], f"{source}: camera {doc.name!r} T_cam_lidar's translation")
     try:
         return CameraCalibration(
             doc.name,

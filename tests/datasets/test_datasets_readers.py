@@ -1,5 +1,6 @@
 """The loader registry detects both formats; corrupt or missing files give one line naming the file."""
 
+import json
 import shutil
 
 import numpy as np
@@ -99,6 +100,11 @@ def damage_terra_folder(root, what):
     elif what == "classes":
         path = root / "classes.json"
         path.write_text('{"classes": [{"name": "x"}]}')
+    elif what == "camera translation 1e308":
+        path = root / "terra_dataset.json"
+        doc = json.loads(path.read_text())
+        doc["cameras"][0]["T_cam_lidar"][0][3] = -1e308  # finite, but no real mount
+        path.write_text(json.dumps(doc))
     return path
 
 
@@ -115,6 +121,7 @@ def damage_terra_folder(root, what):
         "label image",
         "meta",
         "classes",
+        "camera translation 1e308",
     ],
 )
 def test_terra_folder_corrupt_file_names_the_file(copy, what):
@@ -126,6 +133,8 @@ def test_terra_folder_corrupt_file_names_the_file(copy, what):
             ds[i]
     message = str(info.value)
     assert message.startswith(str(path)) and "\n" not in message
+    if what == "camera translation 1e308":
+        assert "T_cam_lidar's translation must be within +-1e+07 m per axis, got 1e+308 m" in message
     if what == "Tr translation 1e308":
         assert (
             message
@@ -222,6 +231,8 @@ def test_semantickitti_corrupt_file_names_the_file(copy, what):
             ds[i]
     message = str(info.value)
     assert message.startswith(str(path)) and "\n" not in message
+    if what == "camera translation 1e308":
+        assert "T_cam_lidar's translation must be within +-1e+07 m per axis, got 1e+308 m" in message
     if what == "Tr translation 1e308":
         assert (
             message
