@@ -614,6 +614,7 @@ class BundleWriter:
             self._tmp = self._staging.folder
             try:
                 if base is not None:
+                    self._check_base(base)
                     self._start_from(base, drop_components)
             except BaseException:
                 self.abort()
@@ -624,6 +625,7 @@ class BundleWriter:
         # second command) committing in between would otherwise be silently undone.
         same = base is not None and os.path.abspath(base.path) == os.path.abspath(self.path)
         self._base_version = base.version if base is not None and same else None
+        self._base_manifest = manifest_json(base.model) if base is not None and same else None
 
     @property
     def files(self) -> dict[str, FileEntry]:
@@ -721,6 +723,9 @@ class BundleWriter:
                 f"{self.path}: the bundle changed while this {self.what} was written (version "
                 f"{self._base_version} became {current}); nothing was written, run the command again"
             )
+        if self._unchanged():
+            self.abort()  # the same content again (a rerun, an identical rebuild): no new version
+            return Bundle(self.path)
         try:
             with writing(self.path, self.what):
                 _write_new_file(self._tmp / MANIFEST, text)
@@ -730,6 +735,26 @@ class BundleWriter:
             raise
         self._done = True
         return Bundle(self.path)
+
+    def _check_base(self, base: Bundle) -> None:
+        """Refuse to start from `base` when the bundle at the same path is no longer that version."""
+        if os.path.abspath(base.path) != os.path.abspath(self.path):
+            return
+        current = _version_on_disk(self.path)
+        if current != base.version:
+            raise TerraError(
+                f"{self.path}: the bundle changed while this {self.what} was written (version "
+                f"{base.version} became {current}); nothing was written, run the command again"
+            )
+
+    def _unchanged(self) -> bool:
+        """Whether this version holds exactly what its base (the bundle at the same path) holds."""
+        if self._base_manifest is None:
+            return False
+        mine = manifest_json(self.model)
+        mine.pop("version", None)
+        base = {k: v for k, v in self._base_manifest.items() if k != "version"}
+        return mine == base
 
     def abort(self) -> None:
         if not self._done:

@@ -220,7 +220,7 @@ class Session:
             span = self.mapper.time_span()
             writer.update_component(
                 "map",
-                dataset=sources[0],
+                dataset={k: v for k, v in sources[0].items() if k != "first_frame"},  # as before sources
                 sources=sources,
                 frames=int(self.mapper.next_frame),
                 time_span=None if span is None else [span[0], span[1]],

@@ -251,7 +251,7 @@ def _write(
         span = mapper.time_span()
         writer.update_component(
             "map",
-            dataset=sources[0],
+            dataset={k: v for k, v in sources[0].items() if k != "first_frame"},  # as before sources
             sources=sources,
             frames=int(mapper.next_frame),
             time_span=None if span is None else [span[0], span[1]],
