@@ -113,7 +113,11 @@ def kills(seeds, work: Path, count: int, rng: random.Random) -> dict:
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
 
     def argv(out: Path, config: str) -> list[str]:
-        return [sys.executable, "-m", "terra", "map", str(dataset), "--out", str(out), "-q", "-c", str(work / config)]
+        # --overwrite: the run replaces an existing bundle (without it `terra map` refuses at once).
+        return [
+            *(sys.executable, "-m", "terra", "map", str(dataset), "--out", str(out), "--overwrite", "-q"),
+            *("-c", str(work / config)),
+        ]
 
     subprocess.run(argv(work / "old.terra", "old.yaml"), cwd=REPO, env=env, check=True, capture_output=True)
     t0 = time.perf_counter()
