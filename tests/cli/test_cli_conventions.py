@@ -16,6 +16,7 @@ import pytest
 from terra import __version__
 from terra.cli import run
 from terra.words import counted
+from tests.cli.signals import ctrl_c_default
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -147,7 +148,9 @@ def test_ctrl_c_during_map_prints_the_resume_line_and_exits_130(tmp_path):
     config.write_text("mapping:\n  checkpoint_every: 1\n")
     env = {**os.environ, "TERRA_PROGRESS": "lines", "TERRA_PROGRESS_INTERVAL": "0", "PYTHONPATH": str(REPO)}
     argv = [sys.executable, "-m", "terra", "map", "--sim", "tiny", "--out", str(out), "--config", str(config)]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    proc = subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO, preexec_fn=ctrl_c_default
+    )
     assert proc.stderr is not None
     seen = []
     for line in proc.stderr:

@@ -14,6 +14,7 @@ import pytest
 import typer
 
 from terra.cli.interrupts import Interrupted, catch_interrupts
+from tests.cli.signals import ctrl_c_default
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -54,6 +55,7 @@ def test_ctrl_c_stops_the_service_with_one_line_and_130(tiny_graph_bundle):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=ctrl_c_default,
     )
     try:
         deadline = time.monotonic() + 120

@@ -33,6 +33,7 @@ from terra.errors import TerraError
 from terra.mapping.config import MappingConfig
 from terra.perception.cache import CachedPerception, PerceptionCache, cache_identity
 from terra.perception.registry import get_perception
+from tests.cli.signals import ctrl_c_default
 from tests.mapping.fixtures import folder_digest
 from tests.perception.fixtures import models_section
 
@@ -254,6 +255,7 @@ def test_ctrl_c_stops_the_cluster_and_resumes_to_the_same_bytes(tiny_folder, das
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         start_new_session=True,
+        preexec_fn=ctrl_c_default,
     )
     import psutil
 
