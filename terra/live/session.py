@@ -31,8 +31,7 @@ from terra.loaded import LoadedBundle
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
-from terra.mapping.state import check_run, restore_mapper, run_description, write_state
-from terra.mapping.storage import write_map
+from terra.mapping.state import check_run, restore_mapper, run_description, write_fused
 from terra.perception.base import Perception
 
 __all__ = ["LiveFrameError", "Session", "Snapshot"]
@@ -104,12 +103,7 @@ class Session:
         prior = _prior_map(global_map) if global_map is not None and self.config.fusion.use_global_map else None
         fusion = MapFusion(self.config, self.perception.terrain_classes, self.perception.dim, prior)
         self.mapper = Mapper(self.config, self.perception, fusion)
-        self._run = run_description(
-            self.config.model_dump(mode="json", exclude={"perception": {"cache"}, "checkpoint_every": True}),
-            self.perception.embedder,
-            self.perception.dim,
-            list(self.perception.terrain_classes),
-        )
+        self._run = run_description(self.config, self.perception)
         if self._base is not None and resume:
             check_run(self._base, self._run)
             restore_mapper(self._base, self.mapper)
@@ -202,31 +196,12 @@ class Session:
             return snapshot
 
     def _commit_map(self) -> None:
-        msm = self.mapper.finish()
         fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
         source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
         sources = _sources(self._base, source, self._first_frame)
         writer = BundleWriter(self.out, base=self._base, drop_components=("map",))
         try:
-            write_map(
-                writer,
-                msm,
-                config=self.config.model_dump(mode="json"),
-                stats=self.mapper.stats.to_json(),
-                dataset=self.name,
-                classes=self.classes.to_json(),
-            )
-            write_state(writer, self.mapper, self._run)
-            span = self.mapper.time_span()
-            writer.update_component(
-                "map",
-                dataset={k: v for k, v in sources[0].items() if k != "first_frame"},  # as before sources
-                sources=sources,
-                frames=int(self.mapper.next_frame),
-                time_span=None if span is None else [span[0], span[1]],
-                version=writer.model.version,
-            )
-            writer.set_perception(self.perception.describe())
+            write_fused(writer, self.mapper, self._run, self.name, self.classes, sources)
             writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
         except BaseException:
             writer.abort()

@@ -31,8 +31,8 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper, check_frame
 from terra.mapping.results import CacheSummary, MapCounts
-from terra.mapping.state import check_run, restore_mapper, run_description, state_meta, write_state
-from terra.mapping.storage import MAP_FORMAT, write_map
+from terra.mapping.state import check_run, restore_mapper, run_description, state_meta, write_fused
+from terra.mapping.storage import MAP_FORMAT
 from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception, cached
 from terra.perception.registry import get_perception
@@ -109,13 +109,7 @@ def run_mapping(
         raise TerraError(f"dataset {dataset.name!r} has no frames")
     with timer.stage("setup"):
         perception = open_perception(config, dataset, out, perception)
-        run = run_description(
-            # What changes the fused bytes: not where the cache lives, nor how often it checkpoints.
-            config.model_dump(mode="json", exclude={"perception": {"cache"}, "checkpoint_every": True}),
-            perception.embedder,
-            perception.dim,
-            list(perception.terrain_classes),
-        )
+        run = run_description(config, perception)
         mapper, global_map = _new_mapper(dataset, config, perception, timer, base, run)
         source = {"name": dataset.name, "fingerprint": dataset_fingerprint(dataset), "frames": n_frames}
         sources = _sources(base, source, mapper.next_frame)
@@ -123,7 +117,7 @@ def run_mapping(
     checkpoint = Checkpoint(out)
     start = _resume(checkpoint, key, mapper)
     try:
-        msm, stats = _fuse_all(dataset, mapper, checkpoint, key, start, feed)
+        stats = _fuse_all(dataset, mapper, checkpoint, key, start, feed)
         if accept is not None:
             try:
                 accept(stats, dict(mapper.stats.notes))
@@ -131,7 +125,7 @@ def run_mapping(
                 checkpoint.discard()
                 raise
         with timer.stage("write"):
-            bundle = _write(out, msm, mapper, run, dataset, sources, base)
+            bundle = _write(out, mapper, run, dataset, sources, base)
     except OutputError as exc:
         raise OutputError(f"{exc}{_resume_hint(checkpoint)}") from None
     checkpoint.discard()
@@ -190,7 +184,7 @@ def map_counts(bundle: Bundle) -> MapCounts:
 
 def _fuse_all(dataset: Dataset, mapper: Mapper, checkpoint: Checkpoint, key: str, start: int, feed: FrameFeed):
     """Frames `start`.. of `dataset` fused in the order `feed` hands them over (checkpointed every
-    `checkpoint_every`), then the finished map and stats."""
+    `checkpoint_every`), then the stats."""
     n_frames = len(dataset)
     fused_before = mapper.stats.counts.get("frames_fused", 0)
     every = mapper.config.checkpoint_every
@@ -214,7 +208,7 @@ def _fuse_all(dataset: Dataset, mapper: Mapper, checkpoint: Checkpoint, key: str
             f"dataset {dataset.name!r}: none of its {n_frames} frames could be used ({_fault_summary(stats)})"
             + (f"; first: {first}" if first else "")
         )
-    return mapper.finish(), stats
+    return stats
 
 
 def read_frame(dataset: Dataset, i: int, mapper: Mapper) -> Frame | None:
@@ -228,7 +222,6 @@ def read_frame(dataset: Dataset, i: int, mapper: Mapper) -> Frame | None:
 
 def _write(
     out: Path,
-    msm,
     mapper: Mapper,
     run: dict,
     dataset: Dataset,
@@ -237,27 +230,9 @@ def _write(
 ) -> Bundle:
     """The map, its fusion state and its sources as the bundle's next version (`base`'s other
     components kept, the scene graph then stale until rebuilt)."""
-    config, perception = mapper.config, mapper.perception
+    name = dataset.name if base is None else _first_name(base, dataset)
     with BundleWriter(out, base=base, drop_components=("map",)) as writer:
-        write_map(
-            writer,
-            msm,
-            config=config.model_dump(mode="json"),
-            stats=mapper.stats.to_json(),
-            dataset=dataset.name if base is None else _first_name(base, dataset),
-            classes=dataset.classes.to_json(),
-        )
-        write_state(writer, mapper, run)
-        span = mapper.time_span()
-        writer.update_component(
-            "map",
-            dataset={k: v for k, v in sources[0].items() if k != "first_frame"},  # as before sources
-            sources=sources,
-            frames=int(mapper.next_frame),
-            time_span=None if span is None else [span[0], span[1]],
-            version=writer.model.version,
-        )
-        writer.set_perception(perception.describe())
+        write_fused(writer, mapper, run, name, dataset.classes, sources)
     return Bundle(out)
 
 

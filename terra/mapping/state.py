@@ -20,13 +20,16 @@ from typing import Any
 import numpy as np
 
 from terra.bundle import Bundle, BundleWriter
+from terra.datasets.base import ClassTable
 from terra.errors import TerraError
 from terra.mapping.association import FixedMap, VoxelMap
 from terra.mapping.bank import EmbeddingBank
+from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper
-from terra.mapping.storage import smallest_unsigned
+from terra.mapping.storage import smallest_unsigned, write_map
 from terra.npy import ArraySpec
+from terra.perception.base import Perception
 
 STATE_FORMAT = 1
 _U16_MAX = int(np.iinfo(np.uint16).max)
@@ -177,9 +180,40 @@ def _stamp(value: object) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def run_description(config_json: dict[str, Any], embedder: str, dim: int, terrain_classes: list[str]) -> dict:
-    """What a continuation of the map must share with it: everything that changes the fused bytes."""
-    return {"config": config_json, "embedder": [embedder, int(dim)], "terrain_classes": list(terrain_classes)}
+def run_description(config: MappingConfig, perception: Perception) -> dict:
+    """What a continuation of the map must share with it: everything that changes the fused bytes
+    (not where the perception cache lives, nor how often a run checkpoints)."""
+    return {
+        "config": config.model_dump(mode="json", exclude={"perception": {"cache"}, "checkpoint_every": True}),
+        "embedder": [perception.embedder, int(perception.dim)],
+        "terrain_classes": list(perception.terrain_classes),
+    }
+
+
+def write_fused(
+    writer: BundleWriter, mapper: Mapper, run: dict[str, Any], name: str, classes: ClassTable, sources: list[dict]
+) -> None:
+    """Everything `mapper` has fused as component `map/` of the version being written: the map (as
+    `write_map`, `name` the first source's), its fusion state, its sources, frames and time span."""
+    write_map(
+        writer,
+        mapper.finish(),
+        config=mapper.config.model_dump(mode="json"),
+        stats=mapper.stats.to_json(),
+        dataset=name,
+        classes=classes.to_json(),
+    )
+    write_state(writer, mapper, run)
+    span = mapper.time_span()
+    writer.update_component(
+        "map",
+        dataset={k: v for k, v in sources[0].items() if k != "first_frame"},  # as before sources
+        sources=sources,
+        frames=int(mapper.next_frame),
+        time_span=None if span is None else [span[0], span[1]],
+        version=writer.model.version,
+    )
+    writer.set_perception(mapper.perception.describe())
 
 
 def check_run(bundle: Bundle, run: dict[str, Any]) -> None:
