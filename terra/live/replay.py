@@ -118,7 +118,7 @@ def ask(snapshot: Snapshot | None, at: float, gt: GroundTruth, query: str, alpha
 
 
 def _find(snapshot: Snapshot, gt: GroundTruth, query: str, alpha: float | None) -> tuple[int, float | None]:
-    from terra.eval.demo import gt_class_of, nearest_gt_object
+    from terra.eval.judging import gt_class_of, nearest_gt_object
     from terra.tasks.commands import find
     from terra.tasks.requests import FindRequest
 
