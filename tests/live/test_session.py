@@ -210,3 +210,36 @@ def test_a_write_on_an_older_version_is_refused(tiny_graph_bundle, tmp_path):
         reader.update_graph(lambda graph: graph)
     assert folder_digest(copy) == newer
     assert [p.name for p in tmp_path.iterdir()] == ["copy.terra"]
+
+
+def test_live_graph_updates_are_incremental_and_the_closing_graph_is_the_batch_graph(
+    tiny_campus, tiny_graph_bundle, tmp_path
+):
+    """Snapshots after the first update the graph around the new frames only; `close()` builds it
+    whole on the same map as `terra build`, so it is the batch graph (ids aside: the live ones
+    are carried from the updates, the batch ones are a first build's)."""
+    from terra.graph.storage import load_scene_graph
+
+    session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), name=tiny_campus.name)
+    kinds = []
+    for i in range(len(tiny_campus)):
+        session.add(tiny_campus[i])
+        if i >= 2 and i % 3 == 2:
+            snapshot = session.snapshot()
+            if not snapshot.graph_note:
+                kinds.append(snapshot.graph_update["kind"])
+                assert snapshot.bundle.graph is not None
+    assert kinds[0] == "full" and kinds.count("incremental") >= 2
+    closing = session.close()
+    assert closing is not None and closing.graph_update["kind"] == "full"
+    live, batch = load_scene_graph(Bundle(tmp_path / "live.terra")), load_scene_graph(Bundle(tiny_graph_bundle.path))
+    np.testing.assert_array_equal(live.places.position, batch.places.position)
+    np.testing.assert_array_equal(live.places.terrain, batch.places.terrain)
+    np.testing.assert_array_equal(live.places.embedding, batch.places.embedding)
+    np.testing.assert_array_equal(live.place_edges, batch.place_edges)
+    np.testing.assert_array_equal(live.place_edge_weight, batch.place_edge_weight)
+    assert len(live.regions) == len(batch.regions)
+    for level in range(1, len(batch.regions) + 1):
+        np.testing.assert_array_equal(live.place_region(level), batch.place_region(level))
+    info = Bundle(tmp_path / "live.terra").model.components.graph
+    assert info is not None and info.model_dump()["update"]["kind"] == "full"
