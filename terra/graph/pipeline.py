@@ -330,7 +330,7 @@ def build_scene_graph(
     with timer.stage(f"regions ({config.regions.method})"):
         assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
         levels = build_levels(assignments, places.position, embedding)
-    graph = _scene_graph(msm, places, embedding, links, levels, config)
+    graph = scene_graph(msm, places, embedding, links, levels, config)
     if previous is not None:
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
@@ -398,7 +398,7 @@ def place_links(places: TerrainPlaceSet, traversable: np.ndarray, grid: TerrainG
     return PlaceLinks(edges, weight, kind, len(paths), int((~bridge_clear).sum()))
 
 
-def _scene_graph(
+def scene_graph(
     msm: MetricSemanticMap,
     places: TerrainPlaceSet,
     embedding: np.ndarray,
@@ -406,6 +406,7 @@ def _scene_graph(
     levels: list[RegionLevel],
     config: BuildConfig,
 ) -> SceneGraph:
+    """The SceneGraph of built places, their embeddings (P, D), links and region levels (ids = indices)."""
     return SceneGraph(
         terrain_classes=list(msm.terrain_classes),
         terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from terra.errors import TerraError
 from terra.graph.config import BuildConfig
 from terra.graph.linking import bridge_components
 from terra.graph.pipeline import (
@@ -47,14 +48,16 @@ from terra.graph.pipeline import (
     place_embeddings,
     place_links,
     region_assignments,
+    scene_graph,
     terrain_grid,
     terrain_places,
     terrains_to_build,
     unique_typed_edges,
+    with_previous_ids,
 )
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.progress import StageTimer
 
@@ -293,6 +296,8 @@ class GraphUpdater:
             crop = _rebuilt_places(msm, point_terrain, terrains, zone, self.config)
         with timer.stage("stitch"):
             merged, links, stitched = _merge(old, crop, zone, self.config)
+        if len(merged.position) == 0:
+            raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
         stats.places_kept = int((~zone.in_zone(old.places.position)).sum())
         stats.places_new = len(merged.position) - stats.places_kept
         stats.places_removed = len(old.places) - stats.places_kept
@@ -555,20 +560,7 @@ def _graph(
     config: BuildConfig,
 ) -> SceneGraph:
     """The updated SceneGraph with the old graph's ids carried and its saved objects relinked."""
-    from terra.graph.pipeline import with_previous_ids
-
-    graph = SceneGraph(
-        terrain_classes=list(msm.terrain_classes),
-        terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),
-        places=Places(
-            merged.position.astype(np.float64), merged.terrain, merged.clearance.astype(np.float64), embedding
-        ),
-        place_edges=links.edges,
-        place_edge_weight=links.weight,
-        place_edge_kind=links.kind,
-        regions=levels,
-        embedder=msm.embedder,
-        region_method=config.regions.method,
-    )
+    places = TerrainPlaceSet(merged.position, merged.terrain, merged.clearance, *_no_edges())
+    graph = scene_graph(msm, places, embedding, links, levels, config)
     graph = replace(graph, next_id=dict(old.next_id))
     return with_previous_ids(graph, old, config.grid.cell_size / 2)
