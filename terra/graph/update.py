@@ -66,12 +66,12 @@ _HASH = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x
 
 @dataclass(frozen=True)
 class MapDigest:
-    """What a graph was built from: one hash (N,) uint64 per map point of its position, rounded to
-    the digest's step, and terrain class, in the map's order, the same hashes sorted, and the
-    points (N, 3) float32 metres (map frame)."""
+    """What a graph was built from: one hash per map point of its position, rounded to the digest's
+    step, and terrain class, sorted (N,) uint64; `order` (N,) the map point of each; the points
+    (N, 3) float32 metres (map frame) in the map's order."""
 
-    hashes: np.ndarray
     sorted_hashes: np.ndarray
+    order: np.ndarray
     points: np.ndarray
 
 
@@ -86,19 +86,21 @@ def map_digest(points: np.ndarray, terrain: np.ndarray, step: float) -> MapDiges
         for axis in range(3):
             cells = np.rint(points[:, axis] * scale).astype(np.int64).view(np.uint64)
             hashes ^= (cells * _HASH[axis]) >> np.uint64(axis)
-    return MapDigest(hashes, np.sort(hashes), points)
+    order = np.argsort(hashes)
+    return MapDigest(hashes[order], order, points)
 
 
 def changed_points(old: MapDigest, new: MapDigest) -> np.ndarray:
     """(K, 2) x, y metres of the points of either digest that the other lacks: points added,
     removed, re-classed or moved by more than the digest's step (both their places count)."""
-    added = ~_members(new.hashes, old.sorted_hashes)
-    removed = ~_members(old.hashes, new.sorted_hashes)
+    added = new.order[~_members(new.sorted_hashes, old.sorted_hashes)]
+    removed = old.order[~_members(old.sorted_hashes, new.sorted_hashes)]
     return np.vstack([new.points[added, :2], old.points[removed, :2]]).astype(np.float64)
 
 
 def _members(values: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:
-    """(N,) whether each of `values` is in the sorted array `sorted_values`."""
+    """(N,) whether each of the sorted `values` is in the sorted array `sorted_values` (both
+    sorted: the search walks memory in order, several times faster than random look-ups)."""
     if len(sorted_values) == 0:
         return np.zeros(len(values), dtype=bool)
     at = np.minimum(np.searchsorted(sorted_values, values), len(sorted_values) - 1)
