@@ -6,7 +6,7 @@ the map so far is given to a `GraphUpdater` (terra.graph.update) and, side by si
 map, to a full `build_scene_graph`. Reported per update: both times, the rebuilt area, and how
 the incremental graph differs from the full one:
 - places: the share of the full build's places with an incremental place of the same terrain
-  within one grid cell, and the reverse;
+  within one grid cell (and within 2 m), and the reverse;
 - regions: on the places matched both ways, the Rand index of the level-1 assignments (the share
   of place pairs that both graphs put together or both apart), and of the top level.
 The last row is the session's closing full build, which equals the batch graph by construction.
@@ -63,6 +63,7 @@ def compare(full, inc, cell: float) -> dict:
         "places_incremental": len(inc.places),
         "full_matched": float((f2i >= 0).mean()) if len(f2i) else 1.0,
         "incremental_matched": float((i2f >= 0).mean()) if len(i2f) else 1.0,
+        "full_matched_2m": float((_matched(full, inc, 2.0) >= 0).mean()) if len(f2i) else 1.0,
     }
     for name, level in (("level1", 1), ("top", min(len(full.regions), len(inc.regions)))):
         if level < 1:
@@ -158,6 +159,7 @@ def _summary(result: dict) -> list[tuple[str, str, str]]:
         ("incremental / full, median", f"{np.median([r['incremental_s'] / r['full_s'] for r in inc]):.1%}", "<= 10 %"),
         ("rebuilt area, median", f"{med('zone_m2'):,.0f} m^2", ""),
         ("full places matched (worst)", f"{min(r['full_matched'] for r in inc):.3f}", ""),
+        ("full places with one within 2 m (worst)", f"{min(r['full_matched_2m'] for r in inc):.3f}", ""),
         ("incremental places matched (worst)", f"{min(r['incremental_matched'] for r in inc):.3f}", ""),
         (
             "region Rand index level 1, median / worst",
