@@ -15,8 +15,8 @@ graph only there:
 3. places: the old ones outside the zone, with their ids, edges and embeddings, and the crop's
    inside it. An edge cut by the zone's border is stitched: its lost end is replaced by the
    nearest place of the same terrain on the other side within `stitch_distance` (its cost is the
-   straight 3-D length); bridges then join the components, as a full build's do (costed as not
-   clear: there is no whole-map grid to check the line on);
+   straight 3-D length between the places it now joins); bridges then join the components, as
+   a full build's do (costed as not clear: there is no whole-map grid to check the line on);
 4. embeddings: computed for the new places and for the old ones within `embedding.max_range` of
    the zone, the only ones new images can have seen;
 5. regions: each new place joins, at every level, the regions of its nearest kept place; the
@@ -400,24 +400,35 @@ def _merge(old: SceneGraph, crop: _Rebuilt, zone: TileZone, config: BuildConfig)
     parts = [
         _remap(old.place_edges[kept_kind], old.place_edge_weight[kept_kind], old.place_edge_kind[kept_kind], old_to)
     ]
+    reach = config.update.stitch_distance
     stitches = [
         _stitch(
-            old.place_edges,
-            old.place_edge_kind,
+            old.place_edges[kept_kind],
+            old.place_edge_kind[kept_kind],
             old.places.position,
             old.places.terrain,
             old_to,
             merged,
             len(keep),
             None,
+            reach,
         )
     ]
     parts.append(_remap(new_links.edges, new_links.weight, new_links.kind, new_to))
     stitches.append(
-        _stitch(new_links.edges, new_links.kind, new_places.position, new_places.terrain, new_to, merged, 0, len(keep))
+        _stitch(
+            new_links.edges,
+            new_links.kind,
+            new_places.position,
+            new_places.terrain,
+            new_to,
+            merged,
+            0,
+            len(keep),
+            reach,
+        )
     )
-    stitch_distance = config.update.stitch_distance
-    stitched = [_within(s, merged.position, stitch_distance) for s in stitches]
+    stitched = [_costed(s, merged.position) for s in stitches]
     edges = np.vstack([p[0] for p in parts] + [s[0] for s in stitched])
     weight = np.concatenate([p[1] for p in parts] + [s[1] for s in stitched])
     kind = np.concatenate([p[2] for p in parts] + [s[2] for s in stitched])
@@ -461,10 +472,11 @@ def _stitch(
     merged: _Merged,
     first: int,
     last: int | None,
+    reach: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Edges of one part cut by the zone's border: (k, 2) pairs of (the taken end's merged index,
-    the lost end's nearest same-terrain place among merged[first:last]) and their kinds (k,); a
-    lost end with no such place within 1e9 m is left out (filtered by distance afterwards)."""
+    the lost end's replacement: its nearest same-terrain place among merged[first:last], within
+    `reach` metres (2-D)) and their kinds (k,); a lost end with no replacement is left out."""
     from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
     if len(edges) == 0:
@@ -481,20 +493,18 @@ def _stitch(
     spread = 1e9
     tree = cKDTree(np.column_stack([merged.position[candidates, :2], merged.terrain[candidates] * spread]))
     query = np.column_stack([position[lost, :2], terrain[lost] * spread])
-    distance, at = tree.query(query, distance_upper_bound=spread / 2)
+    distance, at = tree.query(query, distance_upper_bound=reach)
     found = np.isfinite(distance)
     pairs = np.column_stack([taken[found], candidates[at[found]]])
     return pairs, kind[cut][found]
 
 
-def _within(
-    stitch: tuple[np.ndarray, np.ndarray], position: np.ndarray, distance: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stitched pairs no longer than `distance` metres (3-D) and not loops, with that length as cost."""
+def _costed(stitch: tuple[np.ndarray, np.ndarray], position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stitched pairs that are not loops, with their straight 3-D length (metres) as cost."""
     pairs, kind = stitch
-    length = np.linalg.norm(position[pairs[:, 0]] - position[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
-    ok = (length <= distance) & (pairs[:, 0] != pairs[:, 1]) if len(pairs) else np.zeros(0, dtype=bool)
-    return pairs[ok], length[ok], kind[ok]
+    ok = pairs[:, 0] != pairs[:, 1]
+    pairs, kind = pairs[ok], kind[ok]
+    return pairs, np.linalg.norm(position[pairs[:, 0]] - position[pairs[:, 1]], axis=1), kind
 
 
 def _embeddings(
