@@ -85,6 +85,8 @@ def render_map(result: MapResult | PerceptionResult) -> str:
         f"{counted(counts.bank, 'bank entry', 'bank entries')}, {counted(counts.images, 'image')} "
         f"-> {result.bundle}"
     )
+    if result.session is not None:
+        lines.append(session_line(result.session, "joined as "))
     if result.cluster is not None:
         lines.append(_cluster_line(result.cluster))
     if result.cache is not None:
@@ -99,6 +101,25 @@ def render_map(result: MapResult | PerceptionResult) -> str:
     if result.timer is not None:
         lines.append(result.timer.table())
     return "\n".join(lines)
+
+
+def session_line(session: dict, head: str = "") -> str:
+    """One session of a map (terra/mapping/sessions.py:session_list): its number, source, frames, time span,
+    T_map_session as x, y, z and yaw, how it was found and its fit."""
+    import numpy as np
+
+    T = np.asarray(session.get("T_map_session", np.eye(4)), dtype=np.float64)
+    yaw = float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))
+    span = session.get("time_span")
+    when = f", {span[0]:.1f} .. {span[1]:.1f} s" if span else ""
+    fit = ""
+    if session.get("fitness") is not None:
+        fit = f", fitness {session['fitness']:.2f}, overlap {session['overlap']:.2f}, rmse {session['rmse']:.3f} m"
+    return (
+        f"{head}session {session.get('session')}: {session.get('name')} ({session.get('frames')} frames{when}), "
+        f"T_map_session x {T[0, 3]:.2f} m, y {T[1, 3]:.2f} m, z {T[2, 3]:.2f} m, yaw {yaw:.2f} deg, "
+        f"{session.get('how')}{fit}"
+    )
 
 
 def _render_perception(result: PerceptionResult) -> str:

@@ -114,6 +114,10 @@ class MapFusion:
         self._vis_cells: list[np.ndarray] = []  # per image: unique visibility cell keys
         self.stats = FusionStats()
         self.dim = int(dim)
+        # LiDAR returns per (map point, session): which session saw which point (change detection
+        # compares only what both saw). Column `session` is the session being fused.
+        self.session_hits = np.zeros((0, 1), dtype=np.int64)
+        self.session = 0
 
     # -- per frame --------------------------------------------------------------------------
 
@@ -122,6 +126,9 @@ class MapFusion:
         points_map = transform_points(np.asarray(T_map_lidar, np.float64), np.asarray(points_lidar, np.float64))
         index = self.geometry.associate(points_map)
         self.votes = grown(self.votes, self.geometry.size)
+        self.session_hits = grown(self.session_hits, self.geometry.size)
+        rows, returns = np.unique(index[index >= 0], return_counts=True)
+        self.session_hits[rows, self.session] += returns
         self.stats.add("points_unassociated", int(np.count_nonzero(index < 0)))
         return points_map, index
 
@@ -175,6 +182,18 @@ class MapFusion:
             points_map[seen.group_point], map_index[seen.group_point], seen.group_index, seen.group_embeddings
         )
 
+    def begin_session(self) -> None:
+        """Count the frames fused from now on as a new session (a new column of `session_hits`)."""
+        self.session_hits = np.concatenate(
+            [self.session_hits, np.zeros((self.session_hits.shape[0], 1), dtype=np.int64)], axis=1
+        )
+        self.session = self.session_hits.shape[1] - 1
+
+    def session_counts(self) -> np.ndarray:
+        """(N, S) LiDAR returns per map point (stored order) and session."""
+        n = self.geometry.size
+        return grown(self.session_hits, n)[:n][self.geometry.final_order()]
+
     def _vote(self, rows: np.ndarray, terrain: np.ndarray) -> None:
         ok = (rows >= 0) & (terrain >= 0)
         np.add.at(self.votes, (rows[ok], terrain[ok].astype(np.int64)), 1)
@@ -219,6 +238,7 @@ class MapFusion:
             "image_embedding": images.embedding,
             "vis_cells": cells,
             "vis_lengths": np.asarray([c.size for c in self._vis_cells], dtype=np.int64),
+            "session_hits": self.session_hits[: self.geometry.size].copy(),
         }
         if isinstance(self.geometry, VoxelMap):
             arrays.update({f"voxel_{k}": v for k, v in self.geometry.state().items()})
@@ -247,6 +267,9 @@ class MapFusion:
         cells = np.array(arrays["vis_cells"], dtype=np.int64)
         self._vis_cells = [cells[bounds[i] : bounds[i + 1]] for i in range(len(bounds) - 1)]
         self.stats = FusionStats(dict(meta["stats"]), dict(meta.get("notes", {})))
+        if "session_hits" in arrays:  # checkpoints written before sessions were counted have none
+            self.session_hits = np.array(arrays["session_hits"], dtype=np.int64).reshape(self.votes.shape[0], -1)
+            self.session = self.session_hits.shape[1] - 1
 
     # -- results ----------------------------------------------------------------------------
 
