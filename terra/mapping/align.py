@@ -152,7 +152,9 @@ def register(
             num_threads=1,
             max_iterations=settings.iterations,
         )
-        T, converged = np.asarray(result.T_target_source, dtype=np.float64), bool(result.converged)
+        # A stage that starts at its optimum takes no step and reports no convergence: it has converged.
+        T = np.asarray(result.T_target_source, dtype=np.float64)
+        converged = bool(result.converged) or int(result.iterations) == 0
     overlap, fitness, rmse = judge(map_points, session_points, T, settings)
     return Alignment(T, f"{how} + GICP", overlap, fitness, rmse, converged)
 
@@ -175,16 +177,14 @@ def judge(
 
 def check_alignment(alignment: Alignment, settings: AlignSettings, what: str) -> None:
     """TerraError (one line with the fitness and overlap; nothing merged) for an alignment not to trust."""
-    reasons = []
-    if not alignment.converged:
-        reasons.append("the registration did not converge")
-    if alignment.overlap < settings.min_overlap:
-        reasons.append(f"overlap {alignment.overlap:.2f} < {settings.min_overlap}")
-    if alignment.fitness < settings.min_fitness:
-        reasons.append(f"fitness {alignment.fitness:.2f} < {settings.min_fitness}")
-    if reasons:
+    good = (
+        alignment.converged and alignment.overlap >= settings.min_overlap and alignment.fitness >= settings.min_fitness
+    )
+    if not good:
+        converged = "converged" if alignment.converged else "did not converge"
         raise TerraError(
-            f"{what}: cannot align the session to the map ({'; '.join(reasons)}; fitness {alignment.fitness:.2f}, "
-            f"overlap {alignment.overlap:.2f}, from {alignment.how}); nothing merged: give --initial-guess x,y,yaw "
+            f"{what}: cannot align the session to the map: fitness {alignment.fitness:.2f} (at least "
+            f"{settings.min_fitness}), overlap {alignment.overlap:.2f} (at least {settings.min_overlap}), the "
+            f"registration from the {alignment.how} {converged}; nothing merged: give --initial-guess x,y,yaw "
             "near the session's start in the map"
         )

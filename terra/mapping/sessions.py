@@ -98,9 +98,15 @@ def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: A
     already in the map, or an alignment that did not converge or overlaps too little."""
     from terra.datasets.fingerprint import dataset_fingerprint
     from terra.mapping.pipeline import append_base
+    from terra.mapping.state import state_meta
 
     settings = settings or AlignSettings()
     base = append_base(Path(out))
+    if state_meta(base)["geometry"] != "voxel":
+        raise TerraError(
+            f"{base.path}: the map is fused on its dataset's own global map, where another drive's points have no "
+            "place; map the first session with mapping.fusion.use_global_map: false to join others to it"
+        )
     _check_classes(base, dataset)
     fingerprint = dataset_fingerprint(dataset)
     for old in (base.model.components.map.sources or []) if base.model.components.map else []:
