@@ -118,6 +118,10 @@ class MapFusion:
         # compares only what both saw). Column `session` is the session being fused.
         self.session_hits = np.zeros((0, 1), dtype=np.int64)
         self.session = 0
+        # Terrain votes per session: the earlier sessions' (each (n, T), rows in creation order) and the
+        # votes as they stood when the current session began (its own are the difference).
+        self.earlier_votes: list[np.ndarray] = []
+        self.votes_before = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
 
     # -- per frame --------------------------------------------------------------------------
 
@@ -184,6 +188,9 @@ class MapFusion:
 
     def begin_session(self) -> None:
         """Count the frames fused from now on as a new session (a new column of `session_hits`)."""
+        n = self.geometry.size
+        self.earlier_votes.append(self._current_votes(n))
+        self.votes_before = grown(self.votes, n)[:n].copy()
         self.session_hits = np.concatenate(
             [self.session_hits, np.zeros((self.session_hits.shape[0], 1), dtype=np.int64)], axis=1
         )
@@ -193,6 +200,23 @@ class MapFusion:
         """(N, S) LiDAR returns per map point (stored order) and session."""
         n = self.geometry.size
         return grown(self.session_hits, n)[:n][self.geometry.final_order()]
+
+    def session_votes(self) -> np.ndarray:
+        """(S, N, T) terrain votes per session, map point (stored order) and terrain class."""
+        n = self.geometry.size
+        parts = [grown(v, n)[:n] for v in self.earlier_votes] + [self._current_votes(n)]
+        return np.stack(parts)[:, self.geometry.final_order()]
+
+    def _earlier_votes_array(self) -> np.ndarray:
+        """(S - 1, n, T) votes of the sessions before the current one, rows in creation order."""
+        n, t = self.geometry.size, len(self.terrain_classes)
+        if not self.earlier_votes:
+            return np.zeros((0, n, t), dtype=np.uint32)
+        return np.stack([grown(v, n)[:n] for v in self.earlier_votes]).astype(np.uint32)
+
+    def _current_votes(self, n: int) -> np.ndarray:
+        """(n, T) votes of the current session, rows in creation order."""
+        return grown(self.votes, n)[:n] - grown(self.votes_before, n)[:n]
 
     def _vote(self, rows: np.ndarray, terrain: np.ndarray) -> None:
         ok = (rows >= 0) & (terrain >= 0)
@@ -239,6 +263,8 @@ class MapFusion:
             "vis_cells": cells,
             "vis_lengths": np.asarray([c.size for c in self._vis_cells], dtype=np.int64),
             "session_hits": self.session_hits[: self.geometry.size].copy(),
+            "votes_before": grown(self.votes_before, self.geometry.size)[: self.geometry.size].copy(),
+            "earlier_votes": self._earlier_votes_array(),
         }
         if isinstance(self.geometry, VoxelMap):
             arrays.update({f"voxel_{k}": v for k, v in self.geometry.state().items()})
@@ -270,6 +296,9 @@ class MapFusion:
         if "session_hits" in arrays:  # checkpoints written before sessions were counted have none
             self.session_hits = np.array(arrays["session_hits"], dtype=np.int64).reshape(self.votes.shape[0], -1)
             self.session = self.session_hits.shape[1] - 1
+        if "votes_before" in arrays:
+            self.votes_before = np.array(arrays["votes_before"], dtype=np.uint32)
+            self.earlier_votes = [np.array(v, dtype=np.uint32) for v in arrays["earlier_votes"]]
 
     # -- results ----------------------------------------------------------------------------
 

@@ -9,7 +9,8 @@ or drops, in the map's stored point order:
   bank (K, D) float32: the bank at full precision (matching uses it; the view stores float16);
   votes (N, T) uint32: only when some vote count exceeds the view's uint16;
   session_hits (N, S) smallest unsigned integer type: LiDAR returns per point and session, only when
-  the map has more than one session (with one, they are the voxel hits).
+  the map has more than one session (with one, they are the voxel hits);
+  session_votes (S, N, T) smallest unsigned integer type: terrain votes per session, likewise.
   meta.json: {format, geometry, next_frame, first_stamp, last_stamp, notes, run}.
 Restoring in stored order rather than first-seen order changes no output: the stored order is the
 voxel-key order, which `finish()` computes from the keys alone.
@@ -52,6 +53,7 @@ def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> No
     writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
     if fusion.session_hits.shape[1] > 1:
         writer.put_array("map/state/session_hits", smallest_unsigned(fusion.session_counts()))
+        writer.put_array("map/state/session_votes", smallest_unsigned(fusion.session_votes()))
     votes = fusion.votes[:n]
     if votes.size and int(votes.max()) > _U16_MAX:
         writer.put_array("map/state/votes", votes[order].astype(np.uint32))
@@ -191,6 +193,12 @@ def _restore_session_hits(raw: _RawMap, fusion: MapFusion) -> None:
     else:
         fusion.session_hits = np.zeros((raw.n, 1), dtype=np.int64)
     fusion.session = fusion.session_hits.shape[1] - 1
+    fusion.earlier_votes, fusion.votes_before = [], np.zeros_like(fusion.votes)
+    if raw.bundle.has("map/state/session_votes"):
+        shape = (fusion.session + 1, raw.n, raw.t)
+        votes = raw.array("map/state/session_votes", ("uint8", "uint16", "uint32", "uint64"), shape).astype(np.uint32)
+        fusion.earlier_votes = list(votes[:-1])
+        fusion.votes_before = fusion.votes[: raw.n] - votes[-1]
 
 
 def _stamp(value: object) -> float | None:

@@ -200,7 +200,7 @@ def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.nd
 
 
 def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, size: float) -> dict[str, Any] | None:
-    """Turn a size x size metre square of lawn (all grass, no object on it, within 15 m of the route) to dirt."""
+    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the route) to dirt."""
     res = terrain.resolution
     cells = max(int(round(size / res)), 1)
     grass, dirt = class_id("grass"), class_id("dirt")
@@ -212,7 +212,7 @@ def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, siz
         block = terrain.classes[r : r + cells, c : c + cells]
         x0, y0 = terrain.origin + np.array([c, r]) * res
         middle = np.array([x0, y0]) + cells * res / 2
-        if not np.all(block == grass) or route.query(middle)[0] > 15.0:
+        if not np.all(block == grass) or route.query(middle)[0] > 8.0:
             continue
         if centres.size and np.any(np.linalg.norm(centres - middle, axis=1) < cells * res):
             continue
