@@ -219,13 +219,10 @@ def map_command(
         raise TerraError(f"--poses {poses!r}: expected one of: {', '.join(POSE_MODES)}")
     cluster = cluster_config(workers, scheduler, in_flight)
     _check_options(dataset, sim, in_flight, cluster.enabled, append, overwrite or perception_only)
-    out, prior = _target(out, into, initial_guess, append or overwrite or perception_only or cluster.enabled, follow)
-    joining = into is not None
-    if not perception_only and not append and not joining:
-        _check_out(out, overwrite)
+    out, join = _target(out, into, initial_guess, (append, overwrite, perception_only, cluster.enabled, follow))
     settings = TerraConfig.read(config, {"mapping": _perception_overrides(noise, cache)})
     mapping, odometry = settings.mapping, settings.odometry
-    if (append or joining) and config is None:
+    if (append or join is not None) and config is None:
         mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
     if follow or idle is not None:  # a recording read while it grows, through a live session
         how = (sim is None and not perception_only and not cluster.enabled and poses == "auto", overwrite, append)
@@ -244,7 +241,6 @@ def map_command(
     else:
         on_interrupt(lambda: _kept(out))
         accept = _refuse_without_semantics if strict else None
-        join = (prior,) if joining else None
         result = _map(spec, source, mapping, out, cluster, show, accept, append, join)
         _warn_without_semantics(result)
     _summary(result, as_json, quiet)
@@ -333,27 +329,30 @@ def _check_options(
 
 
 def _target(
-    out: Path | None, into: Path | None, guess: str | None, other_mode: bool, follow: bool
-) -> tuple[Path, np.ndarray | None]:
-    """The bundle to write (--out, or --into when joining a session) and the parsed --initial-guess
-    (T_map_session, 4x4; None without one). `other_mode`: --append, --overwrite, --perception-only or a
-    cluster, none of which goes with --into."""
+    out: Path | None, into: Path | None, guess: str | None, modes: tuple[bool, bool, bool, bool, bool]
+) -> tuple[Path, tuple[np.ndarray | None] | None]:
+    """The bundle to write (--out, checked as `_check_out` does unless continuing one, or --into when joining
+    a session) and, when joining, (the parsed --initial-guess as T_map_session 4x4, or None,).
+    `modes`: --append, --overwrite, --perception-only, a cluster, --follow; none goes with --into."""
     from terra.mapping.align import parse_guess
 
+    append, overwrite, perception_only, cluster, follow = modes
     if into is None:
         if guess is not None:
             raise TerraError("--initial-guess is for --into (joining a session to a map)")
         if out is None:
             raise TerraError("give --out BUNDLE (a new map) or --into BUNDLE (join a session to a map)")
+        if not perception_only and not append:
+            _check_out(out, overwrite)
         return out, None
     if out is not None:
         raise TerraError("--into writes the joined map into its own bundle: leave --out out")
-    if other_mode or follow:
+    if any(modes):
         raise TerraError(
             "--into joins a finished drive in this process: not with --append, --overwrite, "
             "--perception-only, --follow or a cluster"
         )
-    return into, (parse_guess(guess) if guess is not None else None)
+    return into, (parse_guess(guess) if guess is not None else None,)
 
 
 def _all_skipped(stats: dict, notes: dict, images: int) -> str | None:
