@@ -80,3 +80,25 @@ def test_bad_joins_exit_2_with_one_line_and_the_map_untouched(drives, tmp_path, 
     assert "mapping.fusion.voxel_size = 0.4, this run has 0.8" in capsys.readouterr().err
     assert folder_digest(out) == before
     assert not (tmp_path / "x").exists()
+
+
+def test_get_changes_answers_as_terra_changes(drives, tmp_path, capsys):
+    pytest.importorskip("fastapi")
+    from fastapi.testclient import TestClient
+
+    from terra.loaded import LoadedBundle
+    from terra.serve.app import create_app
+    from terra.serve.config import ServeConfig
+
+    first, second, config = drives
+    out = tmp_path / "campus.terra"
+    assert run(["map", str(first), "--out", str(out), "-c", str(config), "-q"]) == 0
+    assert run(["map", str(second), "--into", str(out), "--initial-guess", "47,-7,84", "-q"]) == 0
+    capsys.readouterr()
+    assert run(["changes", str(out), "--between", "1", "2", "--json"]) == 0
+    expected = json.loads(capsys.readouterr().out)
+    client = TestClient(create_app(LoadedBundle(out), settings=ServeConfig()))
+    answer = client.get("/changes", params={"first": 1, "second": 2})
+    assert answer.status_code == 200 and answer.json() == expected
+    refused = client.get("/changes", params={"first": 1, "second": 3})
+    assert refused.status_code == 400 and "the map has sessions 1 to 2" in refused.json()["error"]
