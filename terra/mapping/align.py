@@ -163,8 +163,14 @@ def register(
 def judge(
     map_points: np.ndarray, session_points: np.ndarray, T_map_session: np.ndarray, settings: AlignSettings
 ) -> tuple[float, float, float]:
-    """(overlap, fitness, rmse in metres) of `session_points` placed by T_map_session against `map_points`."""
-    moved = transform_points(T_map_session, np.asarray(session_points, dtype=np.float64))
+    """(overlap, fitness, rmse in metres) of `session_points` placed by T_map_session against `map_points`,
+    over the session's points that stand out of the ground (more than 0.5 m above the lowest point of their
+    1 m cell) when it has 100 of them: flat ground fits anywhere on flat ground, structure does not."""
+    session_points = np.asarray(session_points, dtype=np.float64)
+    standing = _standing(session_points)
+    if np.count_nonzero(standing) >= 100:
+        session_points = session_points[standing]
+    moved = transform_points(T_map_session, session_points)
     distance, _ = cKDTree(np.asarray(map_points, dtype=np.float64)).query(
         moved, k=1, distance_upper_bound=settings.overlap_distance
     )
@@ -174,6 +180,50 @@ def judge(
         return overlap, 0.0, float("inf")
     fitness = float(np.count_nonzero(distance[near] <= settings.fit_distance)) / float(np.count_nonzero(near))
     return overlap, fitness, float(np.sqrt(np.mean(distance[near] ** 2)))
+
+
+def _standing(points: np.ndarray, cell: float = 1.0, height: float = 0.5) -> np.ndarray:
+    """(N,) points more than `height` metres above the lowest point of their `cell`-metre x-y cell."""
+    _, inverse = np.unique(np.floor(points[:, :2] / cell).astype(np.int64), axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    low = np.full(int(inverse.max(initial=-1)) + 1, np.inf)
+    np.minimum.at(low, inverse, points[:, 2])
+    return points[:, 2] - low[inverse] > height
+
+
+def search_priors(
+    map_points: np.ndarray, session_points: np.ndarray, cell: float = 1.0, step_deg: float = 5.0, keep: int = 3
+) -> list[np.ndarray]:
+    """Candidate T_map_session (4x4, best first) when no guess is given: the x-y footprint of tall things
+    (cells whose points span more than 1 m in height: walls, trees, cars) of the session, turned every
+    `step_deg` degrees, cross-correlated with the map's (FFT); per turn the best shift, then the `keep` best
+    turns. The first is the exhaustive optimum of footprint overlap at `cell` metres."""
+    from scipy.signal import fftconvolve
+
+    target, origin = _tall_cells(np.asarray(map_points, np.float64), cell)
+    scored = []
+    for yaw in np.arange(0.0, 360.0, step_deg):
+        turned = transform_points(pose_from_guess(0.0, 0.0, float(yaw)), np.asarray(session_points, np.float64))
+        source, source_origin = _tall_cells(turned, cell)
+        score = fftconvolve(target, source[::-1, ::-1], mode="full")
+        row, col = np.unravel_index(int(np.argmax(score)), score.shape)
+        shift = (np.array([col, row]) - (np.array(source.shape[::-1]) - 1)) * cell + origin - source_origin
+        scored.append((-float(score[row, col]), float(yaw), float(shift[0]), float(shift[1])))
+    scored.sort()
+    return [pose_from_guess(x, y, yaw) for _, yaw, x, y in scored[:keep]]
+
+
+def _tall_cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rows y, cols x) image of cells whose points span more than 1 m in z (1.0) else 0, and its origin."""
+    origin = np.floor(points[:, :2].min(axis=0) / cell) * cell
+    ij = np.floor((points[:, :2] - origin) / cell).astype(np.int64)
+    shape = (int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1)
+    flat = ij[:, 1] * shape[1] + ij[:, 0]
+    top = np.full(shape[0] * shape[1], -np.inf)
+    low = np.full(shape[0] * shape[1], np.inf)
+    np.maximum.at(top, flat, points[:, 2])
+    np.minimum.at(low, flat, points[:, 2])
+    return ((top - low) > 1.0).reshape(shape).astype(np.float64), origin
 
 
 def check_alignment(alignment: Alignment, settings: AlignSettings, what: str) -> None:
@@ -187,5 +237,5 @@ def check_alignment(alignment: Alignment, settings: AlignSettings, what: str) ->
             f"{what}: cannot align the session to the map: fitness {alignment.fitness:.2f} (at least "
             f"{settings.min_fitness}), overlap {alignment.overlap:.2f} (at least {settings.min_overlap}), the "
             f"registration from the {alignment.how} {converged}; nothing merged: give --initial-guess x,y,yaw "
-            "near the session's start in the map"
+            "(where the session's frame lies in the map)"
         )

@@ -9,13 +9,14 @@ Objects: the map's object points (more object observations than terrain votes) t
 are grouped into clusters (points within `link` metres, at least `min_points`), per session. A cluster of the
 first session with a cluster of the second within `same_distance` (centroids, x and y) or sharing half its
 footprint cells is the same object. An unmatched cluster of the first session is removed when the second
-session observed its footprint (returns in at least `observed_fraction` of its cells) and returned from few
-of its points; an added cluster of the second, likewise the other way round. A removed and an added cluster
+session observed where it stood (returns in at least `observed_fraction` of the inner cells of its footprint,
+or, for a footprint too thin to have inner cells, `thin_observed_fraction` of all) and returned from few of
+its points; an added cluster of the second, likewise the other way round. A removed and an added cluster
 with the same most-observed bank entry within `move_radius` are one object moved (greedy, nearest first).
 
 Terrain: per `terrain_cell` cell, the class with the most votes of each session, over the points both
-sessions voted on at least `min_votes` times; cells whose class differs are changes, summed as area per
-(before, after) pair.
+sessions voted on at least `min_votes` times; cells whose class differs, each with at least `clear_share` of
+its session's votes (not a border between two terrains), are changes, summed as area per (before, after) pair.
 """
 
 from __future__ import annotations
@@ -43,9 +44,11 @@ class ChangeSettings:
     cell: float = 0.5
     same_distance: float = 1.0
     observed_fraction: float = 0.5
+    thin_observed_fraction: float = 0.9
     move_radius: float = 10.0
     terrain_cell: float = 1.0
     min_votes: int = 2
+    clear_share: float = 0.75
 
 
 @dataclass(frozen=True)
@@ -224,7 +227,25 @@ def _gone(cluster: _Cluster, others: list[_Cluster], hits: np.ndarray, seen: np.
             return False
     if np.count_nonzero(hits[cluster.rows] > 0) >= 0.75 * cluster.rows.size:
         return False
-    return np.isin(cluster.cells, seen, assume_unique=True).mean() >= s.observed_fraction
+    inside = _interior(cluster.cells)
+    if inside.size:
+        return np.isin(inside, seen, assume_unique=True).mean() >= s.observed_fraction
+    return np.isin(cluster.cells, seen, assume_unique=True).mean() >= s.thin_observed_fraction
+
+
+def _interior(cells: np.ndarray) -> np.ndarray:
+    """The footprint cells whose four neighbours are in the footprint too: where the object stood, not its
+    edge, whose cell the other session may have hit from the far side (a wall seen from behind)."""
+    i, j = cells >> 32, (cells & 0xFFFFFFFF).astype(np.int64)
+    j = np.where(j >= 1 << 31, j - (1 << 32), j)  # the low half holds a signed 32-bit index
+
+    def key(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (a << 32) ^ (b & 0xFFFFFFFF)
+
+    inner = np.ones(cells.size, dtype=bool)
+    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        inner &= np.isin(key(i + di, j + dj), cells, assume_unique=False)
+    return cells[inner]
 
 
 def _pair_moves(
@@ -273,7 +294,9 @@ def _terrain_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) 
     np.add.at(per_cell_a, cell, votes_a[both])
     np.add.at(per_cell_b, cell, votes_b[both])
     class_a, class_b = per_cell_a.argmax(axis=1), per_cell_b.argmax(axis=1)
-    changed = class_a != class_b
+    clear_a = per_cell_a.max(axis=1) >= settings.clear_share * per_cell_a.sum(axis=1)
+    clear_b = per_cell_b.max(axis=1) >= settings.clear_share * per_cell_b.sum(axis=1)
+    changed = (class_a != class_b) & clear_a & clear_b  # a cell on a border between two terrains is neither
     pair_keys, areas = np.unique(class_a[changed] * t + class_b[changed], return_counts=True)
     names = data.terrain_classes
     out = [

@@ -23,7 +23,7 @@ from terra.bundle import Bundle
 from terra.datasets.base import Dataset, Frame
 from terra.errors import TerraError
 from terra.geometry import invert_pose
-from terra.mapping.align import Alignment, AlignSettings, check_alignment, register, session_cloud
+from terra.mapping.align import Alignment, AlignSettings, check_alignment, register, search_priors, session_cloud
 from terra.npy import ArraySpec
 
 MAP_FRAME = "defines the map frame"
@@ -94,8 +94,9 @@ class JoinPlan:
 def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: AlignSettings | None = None) -> JoinPlan:
     """Align `dataset` (a drive in its own frame) to the map in the bundle `out`, from `prior`
     (T_map_session, 4x4: the user's initial guess) or, without one, the identity (both drives share a
-    frame). TerraError, one line and nothing written, for a bundle that cannot take a session, a source
-    already in the map, or an alignment that did not converge or overlaps too little."""
+    frame) and then a search (`find_alignment`). TerraError, one line and nothing written, for a bundle
+    that cannot take a session, a source already in the map, or an alignment that did not converge or
+    overlaps too little."""
     from terra.datasets.fingerprint import dataset_fingerprint
     from terra.mapping.pipeline import append_base
     from terra.mapping.state import state_meta
@@ -116,11 +117,35 @@ def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: A
                 "nothing merged"
             )
     cloud = session_cloud(dataset, settings.voxel, settings.max_frames)
-    how = "initial guess" if prior is not None else "shared frame"
-    start = np.eye(4) if prior is None else np.asarray(prior, dtype=np.float64)
-    alignment = register(map_points(base), cloud, start, how, settings)
-    check_alignment(alignment, settings, str(dataset.name))
+    alignment = find_alignment(map_points(base), cloud, prior, settings, str(dataset.name))
     return JoinPlan(alignment, SessionFrames(dataset, alignment.T_map_session))
+
+
+def find_alignment(
+    map_cloud: np.ndarray, cloud: np.ndarray, prior: np.ndarray | None, settings: AlignSettings, what: str
+) -> Alignment:
+    """The alignment of `cloud` (session frame) to `map_cloud` from `prior` (T_map_session) when given;
+    without one, from the shared frame (identity), then from the candidates of a search over turns and
+    shifts of the tall things' footprints (`search_priors`): the first that passes `check_alignment`.
+    TerraError naming the best one's fitness and overlap when none does."""
+    if prior is not None:
+        alignment = register(map_cloud, cloud, np.asarray(prior, dtype=np.float64), "initial guess", settings)
+        check_alignment(alignment, settings, what)
+        return alignment
+    tried = []
+    starts = [("shared frame", np.eye(4))]
+    while starts:
+        how, start = starts.pop(0)
+        alignment = register(map_cloud, cloud, start, how, settings)
+        try:
+            check_alignment(alignment, settings, what)
+            return alignment
+        except TerraError:
+            tried.append(alignment)
+        if how == "shared frame":
+            starts = [("place search", T) for T in search_priors(map_cloud, cloud)]
+    check_alignment(max(tried, key=lambda a: a.fitness * a.overlap), settings, what)
+    raise AssertionError("unreachable: the best refused alignment raises")
 
 
 def _check_classes(base: Bundle, dataset: Dataset) -> None:

@@ -17,7 +17,7 @@ from terra.mapping.align import (
     register,
     thin,
 )
-from terra.mapping.sessions import relative_error
+from terra.mapping.sessions import find_alignment, relative_error
 
 
 def scene(seed: int, size: float = 40.0) -> np.ndarray:
@@ -85,3 +85,12 @@ def test_a_session_of_another_place_is_refused_with_its_fitness_and_overlap():
     assert "\n" not in message and message.startswith("visit2: cannot align the session to the map: ")
     assert f"fitness {alignment.fitness:.2f}" in message and f"overlap {alignment.overlap:.2f}" in message
     assert "nothing merged" in message
+
+
+def test_without_a_guess_the_footprint_search_finds_a_drive_50_m_and_90_degrees_away():
+    world = scene(1)
+    T_map_session = pose_from_guess(50.0, -10.0, 90.0)
+    session = thin(transform_points(invert_pose(T_map_session), world[world[:, 0] > 12.0]), 0.2)
+    alignment = find_alignment(world, session, None, AlignSettings(), "session")
+    metres, degrees = relative_error(T_map_session, alignment.T_map_session)
+    assert metres < 0.02 and degrees < 0.05 and alignment.how == "place search + GICP"

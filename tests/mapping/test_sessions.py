@@ -100,7 +100,8 @@ def test_the_joined_map_equals_one_run_over_the_aligned_frames(joined, tiny_camp
     both = Concatenated(FrameRange(tiny_campus, 0, 25), SessionFrames(second, alignment.T_map_session))
     single = tmp_path / "single.terra"
     run_mapping(both, MappingConfig(), single, show_progress=False)
-    found = {k: v for k, v in map_files(out).items() if k != "map/state/session_hits.npy"}
+    per_session = ("map/state/session_hits.npy", "map/state/session_votes.npy")  # a one-session map has neither
+    found = {k: v for k, v in map_files(out).items() if k not in per_session}
     assert found == map_files(single)
 
 
@@ -117,3 +118,11 @@ def test_bad_joins_are_refused_and_leave_the_bundle_untouched(joined, tiny_campu
     with pytest.raises(TerraError, match="class table differs from the map's"):
         plan_join(relabelled, out, GUESS)
     assert folder_digest(out) == before
+
+
+def test_without_a_guess_the_search_finds_the_drive(joined, tiny_campus):
+    _, _, _, first = joined
+    other = SessionFrames(FrameRange(tiny_campus, 16, 40), invert_pose(T_TRUE))
+    plan = plan_join(other, first, None)
+    metres, degrees = relative_error(T_TRUE, plan.alignment.T_map_session)
+    assert metres < 0.05 and degrees < 0.05 and plan.alignment.how == "place search + GICP"
