@@ -42,7 +42,7 @@ class AlignSettings:
     overlap_distance: float = 1.0
     fit_distance: float = 0.3
     min_overlap: float = 0.3
-    min_fitness: float = 0.6
+    min_fitness: float = 0.8
     max_frames: int = 120
 
 

@@ -125,27 +125,18 @@ def find_alignment(
     map_cloud: np.ndarray, cloud: np.ndarray, prior: np.ndarray | None, settings: AlignSettings, what: str
 ) -> Alignment:
     """The alignment of `cloud` (session frame) to `map_cloud` from `prior` (T_map_session) when given;
-    without one, from the shared frame (identity), then from the candidates of a search over turns and
-    shifts of the tall things' footprints (`search_priors`): the first that passes `check_alignment`.
-    TerraError naming the best one's fitness and overlap when none does."""
+    without one, the best (overlap x fitness) of the refinements from the shared frame (identity) and from
+    the candidates of a search over turns and shifts of the tall things' footprints (`search_priors`): a
+    repetitive site (rows of parked cars) has wrong fits that pass the floors, which the right one beats.
+    TerraError naming its fitness and overlap when it does not pass `check_alignment`."""
     if prior is not None:
         alignment = register(map_cloud, cloud, np.asarray(prior, dtype=np.float64), "initial guess", settings)
-        check_alignment(alignment, settings, what)
-        return alignment
-    tried = []
-    starts = [("shared frame", np.eye(4))]
-    while starts:
-        how, start = starts.pop(0)
-        alignment = register(map_cloud, cloud, start, how, settings)
-        try:
-            check_alignment(alignment, settings, what)
-            return alignment
-        except TerraError:
-            tried.append(alignment)
-        if how == "shared frame":
-            starts = [("place search", T) for T in search_priors(map_cloud, cloud)]
-    check_alignment(max(tried, key=lambda a: a.fitness * a.overlap), settings, what)
-    raise AssertionError("unreachable: the best refused alignment raises")
+    else:
+        starts = [("shared frame", np.eye(4))] + [("place search", T) for T in search_priors(map_cloud, cloud)]
+        tried = [register(map_cloud, cloud, start, how, settings) for how, start in starts]
+        alignment = max(tried, key=lambda a: (a.converged, a.overlap * a.fitness))
+    check_alignment(alignment, settings, what)
+    return alignment
 
 
 def _check_classes(base: Bundle, dataset: Dataset) -> None:
