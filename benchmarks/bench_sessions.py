@@ -79,8 +79,15 @@ def _changes(out: Path, truth: dict) -> dict:
     return result
 
 
+def _truth(visit) -> dict:
+    """The simulator's list of changes of a revisit."""
+    if visit.revisit is None:
+        raise ValueError("not a revisit")
+    return visit.revisit.to_json()
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="Sessions (issue 26): a second visit joined, what changed.")
     parser.add_argument("--preset", default="small")
     parser.add_argument("--guess-error", type=float, nargs=2, default=(3.0, 8.0), metavar=("METRES", "DEGREES"))
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sessions.json")
@@ -105,10 +112,10 @@ def main() -> None:
         changed = simulate(args.preset, 0, SimConfig(revisit=RevisitConfig()))
         report["join_identity"] = _join(first, Path(tmp) / "identity.terra", changed, None)
         report["join"] = _join(first, Path(tmp) / "changed.terra", changed, guess)
-        report["join"]["changes"] = _changes(Path(tmp) / "changed.terra", changed.revisit.to_json())
+        report["join"]["changes"] = _changes(Path(tmp) / "changed.terra", _truth(changed))
         same = simulate(args.preset, 0, SimConfig(revisit=none))
         report["join_unchanged"] = _join(first, Path(tmp) / "same.terra", same, guess)
-        report["join_unchanged"]["changes"] = _changes(Path(tmp) / "same.terra", same.revisit.to_json())
+        report["join_unchanged"]["changes"] = _changes(Path(tmp) / "same.terra", _truth(same))
     for key in ("join", "join_unchanged"):
         report[key]["points_ratio"] = report[key]["points"] / report["first"]["points"]
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -13,7 +13,7 @@ The manifest keeps the sessions inside `components.map.sources`: a source that o
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,10 +43,8 @@ class SessionFrames:
         return len(self.source)
 
     def __getitem__(self, index: int) -> Frame:
-        frame = self.source[index]
-        moved = Frame(**{**frame.__dict__})  # the loader's frame (maybe cached) is left as it was
-        moved.T_map_lidar = self.T_map_session @ np.asarray(frame.T_map_lidar, dtype=np.float64)
-        return moved
+        frame = self.source[index]  # a copy is moved: the loader may cache its frames
+        return replace(frame, T_map_lidar=self.T_map_session @ np.asarray(frame.T_map_lidar, dtype=np.float64))
 
     def global_map(self) -> np.ndarray | None:
         return None  # a joined session fuses into the map's own points

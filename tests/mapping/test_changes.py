@@ -49,6 +49,7 @@ def locations(changes: list[dict], before: str, after: str) -> np.ndarray:
 
 def test_the_changes_found_are_the_simulators(first_map, tmp_path, capsys):
     out, visit = joined(first_map, tmp_path, RevisitConfig())
+    assert visit.revisit is not None
     truth = visit.revisit.to_json()
     assert run(["changes", str(out), "--between", "1", "2", "--json"]) == 0
     found = json.loads(capsys.readouterr().out)
@@ -75,6 +76,7 @@ def test_the_changes_found_are_the_simulators(first_map, tmp_path, capsys):
 
 def test_a_revisit_without_changes_has_none(first_map, tmp_path):
     out, visit = joined(first_map, tmp_path, NO_CHANGE)
+    assert visit.revisit is not None
     assert visit.revisit.objects == [] and visit.revisit.terrain == []
     result = detect_changes(out, 1, 2)
     assert result.observed_area_m2 > 1000.0
