@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,8 +23,10 @@ from terra.bundle import Bundle
 from terra.datasets.base import Dataset, Frame
 from terra.errors import TerraError
 from terra.geometry import invert_pose
-from terra.mapping.align import Alignment, AlignSettings, check_alignment, register, search_priors, session_cloud
 from terra.npy import ArraySpec
+
+if TYPE_CHECKING:  # `terra info` lists sessions without loading the registration code
+    from terra.mapping.align import Alignment, AlignSettings
 
 MAP_FRAME = "defines the map frame"
 
@@ -96,6 +98,7 @@ def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: A
     that cannot take a session, a source already in the map, or an alignment that did not converge or
     overlaps too little."""
     from terra.datasets.fingerprint import dataset_fingerprint
+    from terra.mapping.align import AlignSettings, session_cloud
     from terra.mapping.pipeline import append_base
     from terra.mapping.state import state_meta
 
@@ -127,6 +130,8 @@ def find_alignment(
     the candidates of a search over turns and shifts of the tall things' footprints (`search_priors`): a
     repetitive site (rows of parked cars) has wrong fits that pass the floors, which the right one beats.
     TerraError naming its fitness and overlap when it does not pass `check_alignment`."""
+    from terra.mapping.align import check_alignment, register, search_priors
+
     if prior is not None:
         alignment = register(map_cloud, cloud, np.asarray(prior, dtype=np.float64), "initial guess", settings)
     else:
