@@ -73,6 +73,12 @@ def _source_lines(m: dict) -> list[str]:
         lines.append(
             "  sources: " + "; ".join(f"{s['name']} (frames {s['first_frame']}.., {s['frames']})" for s in sources)
         )
+    sessions = m.get("sessions") or []
+    if len(sessions) > 1:
+        from terra.cli.render import session_line
+
+        lines.append(f"  sessions: {len(sessions)}")
+        lines.extend(session_line(s, "    ") for s in sessions)
     if m.get("frames") is not None and not m.get("fusion_state"):
         lines.append("  fusion state: not kept (this map cannot be continued with --append)")
     return lines

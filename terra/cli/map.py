@@ -12,7 +12,10 @@ from terra.cli.interrupts import on_interrupt
 from terra.errors import TerraError
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: the mapping modules load on use
+    import numpy as np
+
     from terra.distributed.phase1 import ClusterRun
+    from terra.mapping.pipeline import MapRun
     from terra.mapping.results import ClusterSummary, MapResult, OdometrySummary, PerceptionResult
     from terra.odometry.kiss import OdometryRun
 
@@ -25,7 +28,27 @@ DatasetArg = Annotated[
     ),
 ]
 OutOpt = Annotated[
-    Path, typer.Option("--out", "-o", help="Bundle folder to write; an existing bundle is kept unless --overwrite.")
+    Path | None,
+    typer.Option("--out", "-o", help="Bundle folder to write; an existing bundle is kept unless --overwrite."),
+]
+IntoOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--into",
+        help="Join DATASET (another drive of the same site, its poses in its own frame) as a new session of the map "
+        "in this bundle: the drive is registered to the map (GICP from --initial-guess, or from the map frame when "
+        "both drives share it), its frames fused in the map frame with their own observation counts. An alignment "
+        "that does not converge or overlaps too little is refused (exit 2, the bundle untouched).",
+    ),
+]
+GuessOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--initial-guess",
+        metavar="X,Y,YAW",
+        help="With --into: where the session's frame lies in the map, roughly: its origin at X, Y metres, its x "
+        "axis turned YAW degrees counter-clockwise.",
+    ),
 ]
 ConfigOpt = Annotated[
     Path | None,
@@ -155,6 +178,8 @@ Example (fail rather than write a map without image semantics): terra map drive.
 
 Example (4 local worker processes): terra map campus-data --out campus.terra --workers 4
 
+Example (a second visit joined to the map): terra map visit2 --into campus.terra --initial-guess 50,0,90
+
 Example (a folder the authors' tools extracted): terra map field-data --camera-config msmap_multicam.yaml --out field.terra
 """  # noqa: E501 - an example is one command line
 
@@ -163,7 +188,9 @@ Example (a folder the authors' tools extracted): terra map field-data --camera-c
 def map_command(
     dataset: DatasetArg = None,
     *,
-    out: OutOpt,
+    out: OutOpt = None,
+    into: IntoOpt = None,
+    initial_guess: GuessOpt = None,
     config: ConfigOpt = None,
     format: FormatOpt = "auto",
     camera_config: CameraConfigOpt = None,
@@ -192,11 +219,10 @@ def map_command(
         raise TerraError(f"--poses {poses!r}: expected one of: {', '.join(POSE_MODES)}")
     cluster = cluster_config(workers, scheduler, in_flight)
     _check_options(dataset, sim, in_flight, cluster.enabled, append, overwrite or perception_only)
-    if not perception_only and not append:
-        _check_out(out, overwrite)
+    out, join = _target(out, into, initial_guess, (append, overwrite, perception_only, cluster.enabled, follow))
     settings = TerraConfig.read(config, {"mapping": _perception_overrides(noise, cache)})
     mapping, odometry = settings.mapping, settings.odometry
-    if append and config is None:
+    if (append or join is not None) and config is None:
         mapping = _recorded_mapping(out, _perception_overrides(noise, cache))
     if follow or idle is not None:  # a recording read while it grows, through a live session
         how = (sim is None and not perception_only and not cluster.enabled and poses == "auto", overwrite, append)
@@ -215,7 +241,7 @@ def map_command(
     else:
         on_interrupt(lambda: _kept(out))
         accept = _refuse_without_semantics if strict else None
-        result = _map(spec, source, mapping, out, cluster, show, accept, append)
+        result = _map(spec, source, mapping, out, cluster, show, accept, append, join)
         _warn_without_semantics(result)
     _summary(result, as_json, quiet)
 
@@ -302,6 +328,33 @@ def _check_options(
         )
 
 
+def _target(
+    out: Path | None, into: Path | None, guess: str | None, modes: tuple[bool, bool, bool, bool, bool]
+) -> tuple[Path, tuple[np.ndarray | None] | None]:
+    """The bundle to write (--out, checked as `_check_out` does unless continuing one, or --into when joining
+    a session) and, when joining, (the parsed --initial-guess as T_map_session 4x4, or None,).
+    `modes`: --append, --overwrite, --perception-only, a cluster, --follow; none goes with --into."""
+    from terra.mapping.align import parse_guess
+
+    append, overwrite, perception_only, cluster, follow = modes
+    if into is None:
+        if guess is not None:
+            raise TerraError("--initial-guess is for --into (joining a session to a map)")
+        if out is None:
+            raise TerraError("give --out BUNDLE (a new map) or --into BUNDLE (join a session to a map)")
+        if not perception_only and not append:
+            _check_out(out, overwrite)
+        return out, None
+    if out is not None:
+        raise TerraError("--into writes the joined map into its own bundle: leave --out out")
+    if any(modes):
+        raise TerraError(
+            "--into joins a finished drive in this process: not with --append, --overwrite, "
+            "--perception-only, --follow or a cluster"
+        )
+    return into, (parse_guess(guess) if guess is not None else None,)
+
+
 def _all_skipped(stats: dict, notes: dict, images: int) -> str | None:
     """What a map lacks when every image was skipped for want of labels (None when not)."""
     skipped = stats.get("images_skipped_no_labels", 0)
@@ -364,15 +417,27 @@ def _recorded_mapping(out: Path, overrides: dict):
 
 
 def _map(
-    spec, source, mapping, out: Path, cluster, show_progress: bool, accept=None, append: bool = False
+    spec,
+    source,
+    mapping,
+    out: Path,
+    cluster,
+    show_progress: bool,
+    accept=None,
+    append: bool = False,
+    join: tuple[np.ndarray | None] | None = None,
 ) -> MapResult:
     """Map the source into the bundle `out` (on the cluster when one is configured), write the
     odometry trajectory when KISS-ICP made the poses; the typed summary of it all. `accept`: as
-    run_mapping's."""
+    run_mapping's. `join`: (prior T_map_session or None,) to join the source as a new session of `out`."""
     from terra.mapping.results import MapResult, pose_source, source_faults
     from terra.odometry.kiss import OdometryDataset
 
-    if cluster.enabled:
+    session = None
+    if join is not None:
+        run, session = _join(source, mapping, out, join[0], show_progress, accept)
+        on_cluster = None
+    elif cluster.enabled:
         from terra.distributed.phase1 import map_on_cluster
 
         run, on_cluster = map_on_cluster(spec, source, mapping, out, cluster, show_progress, accept)
@@ -398,7 +463,31 @@ def _map(
         cluster=_cluster_summary(on_cluster) if on_cluster is not None else None,
         odometry=odometry,
         timer=run.timer,
+        session=session,
     )
+
+
+def _join(source, mapping, out: Path, prior: np.ndarray | None, show_progress: bool, accept) -> tuple[MapRun, dict]:
+    """Register `source` to the map in `out` (from `prior`, T_map_session) and fuse it as a new session;
+    the run and the session as the manifest now lists it."""
+    from terra.mapping.pipeline import run_mapping
+    from terra.mapping.sessions import plan_join, session_list
+    from terra.progress import StageTimer, working
+
+    timer = StageTimer()
+    with timer.stage("align"), working("aligning the session to the map", show_progress):
+        plan = plan_join(source, out, prior)
+    run = run_mapping(
+        plan.frames,
+        mapping,
+        out,
+        show_progress=show_progress,
+        timer=timer,
+        accept=accept,
+        join=plan.alignment.to_json(),
+    )
+    info = run.bundle.model.components.map
+    return run, session_list(list(info.sources or []) if info is not None else [])[-1]
 
 
 def _check_out(out: Path, overwrite: bool) -> None:

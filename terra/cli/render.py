@@ -15,6 +15,7 @@ if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this 
     from terra.eval.results import EvalResult, TerrainTable, TuneResult
     from terra.graph.results import BuildResult
     from terra.interop.results import ExportResult, ImportResult
+    from terra.mapping.changes import ChangesResult
     from terra.mapping.results import ClusterSummary, MapResult, OdometrySummary, PerceptionResult
     from terra.sim.results import SimResult
     from terra.tasks.lookup import Location, NodeInfo
@@ -85,6 +86,8 @@ def render_map(result: MapResult | PerceptionResult) -> str:
         f"{counted(counts.bank, 'bank entry', 'bank entries')}, {counted(counts.images, 'image')} "
         f"-> {result.bundle}"
     )
+    if result.session is not None:
+        lines.append(session_line(result.session, "joined as "))
     if result.cluster is not None:
         lines.append(_cluster_line(result.cluster))
     if result.cache is not None:
@@ -98,6 +101,48 @@ def render_map(result: MapResult | PerceptionResult) -> str:
         lines.append(_odometry_line(result.odometry))
     if result.timer is not None:
         lines.append(result.timer.table())
+    return "\n".join(lines)
+
+
+def session_line(session: dict, head: str = "") -> str:
+    """One session of a map (terra/mapping/sessions.py:session_list): its number, source, frames, time span,
+    T_map_session as x, y, z and yaw, how it was found and its fit."""
+    import numpy as np
+
+    T = np.asarray(session.get("T_map_session", np.eye(4)), dtype=np.float64)
+    yaw = float(np.degrees(np.arctan2(T[1, 0], T[0, 0])))
+    span = session.get("time_span")
+    when = f", {span[0]:.1f} .. {span[1]:.1f} s" if span else ""
+    fit = ""
+    if session.get("fitness") is not None:
+        fit = f", fitness {session['fitness']:.2f}, overlap {session['overlap']:.2f}, rmse {session['rmse']:.3f} m"
+    return (
+        f"{head}session {session.get('session')}: {session.get('name')} ({session.get('frames')} frames{when}), "
+        f"T_map_session x {T[0, 3]:.2f} m, y {T[1, 3]:.2f} m, z {T[2, 3]:.2f} m, yaw {yaw:.2f} deg, "
+        f"{session.get('how')}{fit}"
+    )
+
+
+def render_changes(result: ChangesResult) -> str:
+    """What `terra changes` prints: the area both sessions observed, each object change, terrain per pair."""
+    counts = result.to_json()["counts"]
+    lines = [
+        f"changes from session {result.first} to session {result.second} in {result.bundle} "
+        f"(judged where both observed: {result.observed_area_m2:,.0f} m2)",
+        f"  objects: {counts['added']} added, {counts['removed']} removed, {counts['moved']} moved",
+    ]
+    for change in result.objects:
+        where = change.before if change.after is None else change.after
+        assert where is not None
+        size = " x ".join(f"{v:.1f}" for v in change.size)
+        if change.change == "moved" and change.before is not None:
+            place = f"({change.before[0]:.1f}, {change.before[1]:.1f}) -> ({where[0]:.1f}, {where[1]:.1f}) m, "
+            place += f"{change.distance:.2f} m"
+        else:
+            place = f"at ({where[0]:.1f}, {where[1]:.1f}) m"
+        lines.append(f"    {change.change:8s} object of bank entry {change.entry} ({size} m) {place}")
+    terrain = ", ".join(f"{t.before} -> {t.after} {t.area_m2:,.0f} m2" for t in result.terrain) or "no change"
+    lines.append(f"  terrain: {terrain}")
     return "\n".join(lines)
 
 

@@ -26,6 +26,8 @@ Simulate a robot driving through a generated campus and write the dataset.
 Writes the frames (LiDAR scans with per-point labels, camera images with label images, poses, calibration), ground_truth/ (objects, terrain raster, named regions), classes.json and world.png, a top-down picture of the world and the route.
 
 Example: terra sim --preset small --seed 0 --out campus-small
+
+Example (a second visit of the same campus): terra sim --preset small --seed 0 --revisit --out campus-small-2
 """  # noqa: E501 - the paragraph is one line of help
 
 OutOpt = Annotated[
@@ -53,6 +55,16 @@ OverwriteOpt = Annotated[bool, typer.Option("--overwrite", help="Replace a non-e
 BagImagesOpt = Annotated[
     str, typer.Option("--bag-images", help="Images in a bag: jpeg (sensor_msgs/CompressedImage) or raw (Image rgb8).")
 ]
+RevisitOpt = Annotated[
+    bool,
+    typer.Option(
+        "--revisit",
+        help="Drive the same world (--preset, --seed) again as a second visit: the route reversed from another "
+        "start, poses in another frame, after known changes (cars moved, removed and added, a bench gone, a lawn "
+        "turned to dirt), set by the config's `sim.revisit` section (defaults: the frame 50 m and 90 degrees "
+        "off). Writes revisit.json: the true T_world_session and the list of changes.",
+    ),
+]
 MaxFramesOpt = Annotated[int | None, typer.Option("--max-frames", min=1, help="Stop after this many frames.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or timing table.")]
@@ -68,6 +80,7 @@ def sim(
     overwrite: OverwriteOpt = False,
     bag_images: BagImagesOpt = "jpeg",
     max_frames: MaxFramesOpt = None,
+    revisit: RevisitOpt = False,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -82,7 +95,7 @@ def sim(
     check_format(format)
     check_output(out, overwrite)
     on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
-    cfg = _sim_config(config, max_frames, format)
+    cfg = _sim_config(config, max_frames, format, revisit)
     timer = StageTimer()
     show = not quiet and not as_json
     with timer.stage("world"), working("building the world", show):
@@ -94,11 +107,16 @@ def sim(
         typer.echo(timer.table("terra sim timing"), err=True)
 
 
-def _sim_config(config: Path | None, max_frames: int | None, format: str) -> SimConfig:
-    """The `sim` section with --max-frames applied, without lens distortion for kitti-raw."""
+def _sim_config(config: Path | None, max_frames: int | None, format: str, revisit: bool = False) -> SimConfig:
+    """The `sim` section with --max-frames and --revisit applied, without lens distortion for kitti-raw."""
     from terra.config import TerraConfig
+    from terra.sim.config import RevisitConfig
 
     cfg = TerraConfig.read(config).sim
+    if revisit and cfg.revisit is None:
+        cfg = cfg.model_copy(update={"revisit": RevisitConfig()})
+    elif not revisit and cfg.revisit is not None:
+        raise TerraError(f"{config}: sim.revisit is read with --revisit; add it to drive the second visit")
     if max_frames is not None:
         cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": max_frames})})
     if format == "kitti-raw":  # KITTI raw images are rectified
@@ -122,6 +140,10 @@ def _write(
             traj = dataset.trajectory.T_map_base[:, :2, 3]
             title = f"{dataset.name}: {counted(len(dataset), 'frame')}"
             render_world_png(dataset.ground_truth(), root / "world.png", traj, CLASS_COLORS, title=title)
+        if dataset.revisit is not None:
+            import json
+
+            (root / "revisit.json").write_text(json.dumps(dataset.revisit.to_json(), indent=1) + "\n")
 
     start = time.perf_counter()
     try:

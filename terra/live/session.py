@@ -28,6 +28,7 @@ from terra.datasets.base import CameraFrame, ClassTable, Frame
 from terra.errors import TerraError
 from terra.live.frames import LiveFrameError, check_live_frame
 from terra.loaded import LoadedBundle
+from terra.mapping.align import Alignment
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
@@ -75,6 +76,10 @@ class Session:
     global_map: a prior map (M, 3) metres in the map frame (e.g. the source's own, as `terra map`
     uses a dataset's): scan points then take their nearest prior point within fusion.gate instead
     of accumulating voxels.
+    join: this drive is a new session of the map already in `out` (terra/mapping/sessions.py): its frames'
+    T_map_lidar are in its own frame and are moved by T_map_session, given as an Alignment (e.g. from
+    `plan_join` over a recording of the drive) or as a 4x4 array (then listed as given by the caller); its
+    LiDAR returns are counted apart.
     """
 
     def __init__(
@@ -90,6 +95,7 @@ class Session:
         overwrite: bool = False,
         name: str = "live",
         global_map: np.ndarray | None = None,
+        join: Alignment | np.ndarray | None = None,
     ):
         from terra.perception.registry import get_perception
 
@@ -101,14 +107,15 @@ class Session:
         self.graph = graph
         self.perception = perception or get_perception(self.config.perception, classes)
         recover(self.out)
-        self._base = _open_base(self.out, resume, overwrite)
+        self._base = _open_base(self.out, resume or join is not None, overwrite)
         prior = _prior_map(global_map) if global_map is not None and self.config.fusion.use_global_map else None
         fusion = MapFusion(self.config, self.perception.terrain_classes, self.perception.dim, prior)
         self.mapper = Mapper(self.config, self.perception, fusion)
         self._run = run_description(self.config, self.perception)
-        if self._base is not None and resume:
+        if self._base is not None and (resume or join is not None):
             check_run(self._base, self._run)
             restore_mapper(self._base, self.mapper)
+        self._join = _join_record(self._base, join, self.mapper) if join is not None else None
         self._first_frame = self.mapper.next_frame
         self.refused = RefusedFrames()
         self._lock = threading.Lock()  # the mapper: add_frame and the map commit
@@ -137,6 +144,8 @@ class Session:
         LiveFrameError (one line naming the field; counted in `refused`) for a malformed frame."""
         with self._lock:
             last = self.mapper.last_stamp
+            if self._join is not None and self.mapper.next_frame == self._first_frame:
+                last = None  # a joined drive keeps its own clock
             try:
                 frame = check_live_frame(
                     points, T_map_lidar, stamp, times, images, intensity, labels, instances, last_stamp=last
@@ -144,6 +153,8 @@ class Session:
             except LiveFrameError as exc:
                 self.refused.add(exc.reason, str(exc))
                 raise
+            if self._join is not None:
+                frame.T_map_lidar = np.asarray(self._join["T_map_session"]) @ frame.T_map_lidar
             fused = self.mapper.add(frame)
             self.last_frame_at = time.monotonic()
             return fused
@@ -213,6 +224,8 @@ class Session:
         fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
         source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
         sources = _sources(self._base, source, self._first_frame)
+        if self._join is not None:
+            sources[-1].update(self._join)
         writer = BundleWriter(self.out, base=self._base, drop_components=("map",))
         try:
             msm = write_fused(writer, self.mapper, self._run, self.name, self.classes, sources)
@@ -263,6 +276,23 @@ def _sources(base: Bundle | None, source: dict, first_frame: int) -> list[dict]:
     earlier = [s for s in earlier if not (isinstance(s, dict) and s.get("fingerprint") == source["fingerprint"])]
     frames = source["frames"] - first_frame
     return [*earlier, {**source, "frames": frames, "first_frame": int(first_frame)}]
+
+
+def _join_record(base: Bundle | None, join: Alignment | np.ndarray, mapper: Mapper) -> dict:
+    """The source entry of a joined session (its number and alignment); its returns counted from now on."""
+    from terra.mapping.sessions import session_list
+
+    info = base.model.components.map if base is not None else None
+    number = len(session_list(list(info.sources or []) if info is not None else [])) + 1
+    if isinstance(join, Alignment):
+        record = join.to_json()
+    else:
+        T = np.asarray(join, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all() or not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+            raise TerraError(f"join: expected T_map_session as a 4x4 rigid pose, got shape {T.shape}")
+        record = {"T_map_session": T.tolist(), "how": "given by the caller"}
+    mapper.fusion.begin_session()
+    return {**record, "session": number}
 
 
 def _prior_map(points: np.ndarray) -> np.ndarray:

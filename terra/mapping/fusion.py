@@ -114,6 +114,14 @@ class MapFusion:
         self._vis_cells: list[np.ndarray] = []  # per image: unique visibility cell keys
         self.stats = FusionStats()
         self.dim = int(dim)
+        # LiDAR returns per (map point, session): which session saw which point (change detection
+        # compares only what both saw). Column `session` is the session being fused.
+        self.session_hits = np.zeros((0, 1), dtype=np.int64)
+        self.session = 0
+        # Terrain votes per session: the earlier sessions' (each (n, T), rows in creation order) and the
+        # votes as they stood when the current session began (its own are the difference).
+        self.earlier_votes: list[np.ndarray] = []
+        self.votes_before = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
 
     # -- per frame --------------------------------------------------------------------------
 
@@ -122,6 +130,9 @@ class MapFusion:
         points_map = transform_points(np.asarray(T_map_lidar, np.float64), np.asarray(points_lidar, np.float64))
         index = self.geometry.associate(points_map)
         self.votes = grown(self.votes, self.geometry.size)
+        self.session_hits = grown(self.session_hits, self.geometry.size)
+        rows, returns = np.unique(index[index >= 0], return_counts=True)
+        self.session_hits[rows, self.session] += returns
         self.stats.add("points_unassociated", int(np.count_nonzero(index < 0)))
         return points_map, index
 
@@ -175,6 +186,38 @@ class MapFusion:
             points_map[seen.group_point], map_index[seen.group_point], seen.group_index, seen.group_embeddings
         )
 
+    def begin_session(self) -> None:
+        """Count the frames fused from now on as a new session (a new column of `session_hits`)."""
+        n = self.geometry.size
+        self.earlier_votes.append(self._current_votes(n))
+        self.votes_before = grown(self.votes, n)[:n].copy()
+        self.session_hits = np.concatenate(
+            [self.session_hits, np.zeros((self.session_hits.shape[0], 1), dtype=np.int64)], axis=1
+        )
+        self.session = self.session_hits.shape[1] - 1
+
+    def session_counts(self) -> np.ndarray:
+        """(N, S) LiDAR returns per map point (stored order) and session."""
+        n = self.geometry.size
+        return grown(self.session_hits, n)[:n][self.geometry.final_order()]
+
+    def session_votes(self) -> np.ndarray:
+        """(S, N, T) terrain votes per session, map point (stored order) and terrain class."""
+        n = self.geometry.size
+        parts = [grown(v, n)[:n] for v in self.earlier_votes] + [self._current_votes(n)]
+        return np.stack(parts)[:, self.geometry.final_order()]
+
+    def _earlier_votes_array(self) -> np.ndarray:
+        """(S - 1, n, T) votes of the sessions before the current one, rows in creation order."""
+        n, t = self.geometry.size, len(self.terrain_classes)
+        if not self.earlier_votes:
+            return np.zeros((0, n, t), dtype=np.uint32)
+        return np.stack([grown(v, n)[:n] for v in self.earlier_votes]).astype(np.uint32)
+
+    def _current_votes(self, n: int) -> np.ndarray:
+        """(n, T) votes of the current session, rows in creation order."""
+        return grown(self.votes, n)[:n] - grown(self.votes_before, n)[:n]
+
     def _vote(self, rows: np.ndarray, terrain: np.ndarray) -> None:
         ok = (rows >= 0) & (terrain >= 0)
         np.add.at(self.votes, (rows[ok], terrain[ok].astype(np.int64)), 1)
@@ -219,6 +262,9 @@ class MapFusion:
             "image_embedding": images.embedding,
             "vis_cells": cells,
             "vis_lengths": np.asarray([c.size for c in self._vis_cells], dtype=np.int64),
+            "session_hits": self.session_hits[: self.geometry.size].copy(),
+            "votes_before": grown(self.votes_before, self.geometry.size)[: self.geometry.size].copy(),
+            "earlier_votes": self._earlier_votes_array(),
         }
         if isinstance(self.geometry, VoxelMap):
             arrays.update({f"voxel_{k}": v for k, v in self.geometry.state().items()})
@@ -247,6 +293,12 @@ class MapFusion:
         cells = np.array(arrays["vis_cells"], dtype=np.int64)
         self._vis_cells = [cells[bounds[i] : bounds[i + 1]] for i in range(len(bounds) - 1)]
         self.stats = FusionStats(dict(meta["stats"]), dict(meta.get("notes", {})))
+        if "session_hits" in arrays:  # checkpoints written before sessions were counted have none
+            self.session_hits = np.array(arrays["session_hits"], dtype=np.int64).reshape(self.votes.shape[0], -1)
+            self.session = self.session_hits.shape[1] - 1
+        if "votes_before" in arrays:
+            self.votes_before = np.array(arrays["votes_before"], dtype=np.uint32)
+            self.earlier_votes = [np.array(v, dtype=np.uint32) for v in arrays["earlier_votes"]]
 
     # -- results ----------------------------------------------------------------------------
 

@@ -36,6 +36,7 @@ class Mapper:
         self.next_frame = 0
         self.first_stamp: float | None = None
         self.last_stamp: float | None = None
+        self.run_first_stamp: float | None = None  # first stamp fused by this run (not restored)
 
     @property
     def stats(self) -> FusionStats:
@@ -53,6 +54,7 @@ class Mapper:
         fuse_frame(checked, i, self.config, self.perception, self.fusion, self.timer)
         stamp = float(checked.stamp)
         self.first_stamp = stamp if self.first_stamp is None else self.first_stamp
+        self.run_first_stamp = stamp if self.run_first_stamp is None else self.run_first_stamp
         self.last_stamp = stamp
         return True
 

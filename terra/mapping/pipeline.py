@@ -31,6 +31,7 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper, check_frame
 from terra.mapping.results import CacheSummary, MapCounts
+from terra.mapping.sessions import session_list
 from terra.mapping.state import check_run, restore_mapper, run_description, state_meta, write_fused
 from terra.mapping.storage import MAP_FORMAT
 from terra.perception.base import Perception
@@ -90,18 +91,21 @@ def run_mapping(
     timer: StageTimer | None = None,
     append: bool = False,
     accept: Callable[[dict, dict], None] | None = None,
+    join: dict | None = None,
 ) -> MapRun:
     """`build_map` with its timings and counters (used by `terra map` for the summary). `feed` orders the
     frames (default `SerialFeed`); `timer` collects the stage timings (a new one by default). `append`:
     continue the map already in `out` from its kept fusion state, the frames of `dataset` following its
     own (the same bytes as one run over both sources); the scene graph, if any, is kept and marked stale.
     `accept` sees the finished map's counters and notes before anything is written: a TerraError it
-    raises leaves `out` as it was and no checkpoint behind (`terra map --strict`)."""
+    raises leaves `out` as it was and no checkpoint behind (`terra map --strict`). `join`: the frames are a new
+    session of the map in `out` (as `append`, its poses already in the map's frame), described by this record
+    (T_map_session, how it was found, its fit: terra/mapping/sessions.py); its returns are counted apart."""
     out = Path(out)
     timer = timer if timer is not None else StageTimer()
     feed = feed if feed is not None else SerialFeed(show_progress)
     recover(out)  # leftovers of an interrupted run: a killed final write, a swap cut short
-    base = append_base(out) if append else None
+    base = append_base(out) if append or join is not None else None
     if base is None:
         check_output(out)
     n_frames = len(dataset)
@@ -113,7 +117,11 @@ def run_mapping(
         mapper, global_map = _new_mapper(dataset, config, perception, timer, base, run)
         source = {"name": dataset.name, "fingerprint": dataset_fingerprint(dataset), "frames": n_frames}
         sources = _sources(base, source, mapper.next_frame)
+    if join is not None:
+        mapper.fusion.begin_session()
+        sources[-1].update(join, session=len(session_list(sources[:-1])) + 1)
     key = _run_key(config, source, perception, global_map, base)
+    key = key if join is None else fingerprint({"run": key, "join": join})
     checkpoint = Checkpoint(out)
     start = _resume(checkpoint, key, mapper)
     try:
@@ -197,7 +205,8 @@ def _fuse_all(dataset: Dataset, mapper: Mapper, checkpoint: Checkpoint, key: str
         if done % every == 0 and done < n_frames:
             with mapper.timer.stage("checkpoint"):
                 arrays, meta = mapper.fusion.state()
-                meta["mapper"] = {"next_frame": mapper.next_frame, "stamps": [mapper.first_stamp, mapper.last_stamp]}
+                stamps = [mapper.first_stamp, mapper.last_stamp, mapper.run_first_stamp]
+                meta["mapper"] = {"next_frame": mapper.next_frame, "stamps": stamps}
                 checkpoint.save(key, done, arrays, meta)
 
     stats = mapper.stats.to_json()
@@ -288,6 +297,7 @@ def _resume(checkpoint: Checkpoint, key: str, mapper: Mapper) -> int:
     mapper.next_frame = int(progress.get("next_frame", start))
     stamps = progress.get("stamps", [None, None])
     mapper.first_stamp, mapper.last_stamp = stamps[0], stamps[1]
+    mapper.run_first_stamp = stamps[2] if len(stamps) > 2 else None
     return start
 
 

@@ -174,10 +174,12 @@ class MapResult:
     cluster: ClusterSummary | None = None
     odometry: OdometrySummary | None = None
     timer: StageTimer | None = field(default=None, compare=False, repr=False)
+    session: dict[str, Any] | None = None  # a joined session: its number and alignment (terra/mapping/sessions.py)
 
     def to_json(self) -> dict[str, Any]:
         return {
             "bundle": str(self.bundle),
+            **({"session": dict(self.session)} if self.session is not None else {}),
             **self.counts.to_json(),
             "resumed_from": self.resumed_from,
             "cache": self.cache.to_json() if self.cache is not None else None,
@@ -203,6 +205,7 @@ class MapResult:
             pose_source=data.get("pose_source"),
             cluster=ClusterSummary.from_json(cluster) if cluster is not None else None,
             odometry=OdometrySummary.from_json(odometry) if odometry is not None else None,
+            session=dict(data["session"]) if isinstance(data.get("session"), dict) else None,
         )
 
 

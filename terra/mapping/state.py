@@ -7,7 +7,10 @@ or drops, in the map's stored point order:
   voxel_keys (N,) int64, voxel_sums (N, 3) float64 metres, voxel_hits (N,) smallest unsigned integer type: the exact
   accumulators of the voxel centroids (absent for a map on the dataset's own global map);
   bank (K, D) float32: the bank at full precision (matching uses it; the view stores float16);
-  votes (N, T) uint32: only when some vote count exceeds the view's uint16.
+  votes (N, T) uint32: only when some vote count exceeds the view's uint16;
+  session_hits (N, S) smallest unsigned integer type: LiDAR returns per point and session, only when
+  the map has more than one session (with one, they are the voxel hits);
+  session_votes (S, N, T) smallest unsigned integer type: terrain votes per session, likewise.
   meta.json: {format, geometry, next_frame, first_stamp, last_stamp, notes, run}.
 Restoring in stored order rather than first-seen order changes no output: the stored order is the
 voxel-key order, which `finish()` computes from the keys alone.
@@ -49,6 +52,9 @@ def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> No
         writer.put_array("map/state/voxel_sums", voxels["sums"][order].astype(np.float64))
         writer.put_array("map/state/voxel_hits", smallest_unsigned(voxels["hits"][order]))
     writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
+    if fusion.session_hits.shape[1] > 1:
+        writer.put_array("map/state/session_hits", smallest_unsigned(fusion.session_counts()))
+        writer.put_array("map/state/session_votes", smallest_unsigned(fusion.session_votes()))
     votes = fusion.votes[:n]
     if votes.size and int(votes.max()) > _U16_MAX:
         writer.put_array("map/state/votes", votes[order].astype(np.uint32))
@@ -109,6 +115,7 @@ def restore_mapper(bundle: Bundle, mapper: Mapper) -> None:
         fusion.geometry = FixedMap(raw.array("map/points", ("float32",), (n, 3)), fusion.config.fusion.gate)
     _restore_observations(raw, fusion)
     _restore_images(raw, fusion)
+    _restore_session_hits(raw, fusion)
     stats = bundle.model.components.map.stats if bundle.model.components.map is not None else {}
     notes = {str(k): str(v) for k, v in meta["notes"].items()}
     fusion.stats = FusionStats({k: int(v) for k, v in stats.items()}, notes)
@@ -177,6 +184,24 @@ def _restore_images(raw: _RawMap, fusion: MapFusion) -> None:
     fusion._vis_cells = [sorted_cells[bounds[i] : bounds[i + 1]] for i in range(m)]
 
 
+def _restore_session_hits(raw: _RawMap, fusion: MapFusion) -> None:
+    """Returns per point and session; a one-session map's are its voxel hits (none on a fixed map)."""
+    if raw.bundle.has("map/state/session_hits"):
+        hits = raw.array("map/state/session_hits", ("uint8", "uint16", "uint32", "uint64"), (raw.n, None))
+        fusion.session_hits = np.array(hits, dtype=np.int64)
+    elif isinstance(fusion.geometry, VoxelMap):
+        fusion.session_hits = fusion.geometry.state()["hits"].reshape(-1, 1).astype(np.int64)
+    else:
+        fusion.session_hits = np.zeros((raw.n, 1), dtype=np.int64)
+    fusion.session = fusion.session_hits.shape[1] - 1
+    fusion.earlier_votes, fusion.votes_before = [], np.zeros_like(fusion.votes)
+    if raw.bundle.has("map/state/session_votes"):
+        shape = (fusion.session + 1, raw.n, raw.t)
+        votes = raw.array("map/state/session_votes", ("uint8", "uint16", "uint32", "uint64"), shape).astype(np.uint32)
+        fusion.earlier_votes = list(votes[:-1])
+        fusion.votes_before = fusion.votes[: raw.n] - votes[-1]
+
+
 def _stamp(value: object) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
@@ -208,9 +233,11 @@ def write_fused(
     )
     write_state(writer, mapper, run)
     span = mapper.time_span()
+    if sources and mapper.run_first_stamp is not None and mapper.last_stamp is not None:
+        sources = [*sources[:-1], {**sources[-1], "time_span": [mapper.run_first_stamp, mapper.last_stamp]}]
     writer.update_component(
         "map",
-        dataset={k: v for k, v in sources[0].items() if k != "first_frame"},  # as before sources
+        dataset={k: v for k, v in sources[0].items() if k not in ("first_frame", "time_span", "session")},
         sources=sources,
         frames=int(mapper.next_frame),
         time_span=None if span is None else [span[0], span[1]],

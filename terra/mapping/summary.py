@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from terra.bundle import Bundle
+from terra.mapping.sessions import session_list
 
 
 def terrain_histogram(votes: np.ndarray, terrain_classes: list[str], min_share: float = 0.5) -> dict[str, int]:
@@ -58,6 +59,7 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
                 for source in (info.sources or [])
                 if isinstance(source, dict)
             ],
+            "sessions": session_list([s for s in (info.sources or []) if isinstance(s, dict)]),
             "fusion_state": bundle.has("map/state/meta.json"),
         }
     return out

@@ -205,6 +205,15 @@ def _routes(app: FastAPI, current: Current, tasks: TasksConfig, settings: ServeC
     def region(level: int, index: int) -> JSONResponse:
         return answer(lambda loaded: region_info(loaded.require_graph("region lookups"), level, index))
 
+    @app.get("/changes", summary="What changed between two sessions of the map (terra changes --between A B --json)")
+    def changes(
+        first: int = Query(1, description="the earlier session (1-based)"),
+        second: int = Query(2, description="the later session"),
+    ) -> JSONResponse:
+        from terra.mapping.changes import detect_changes
+
+        return answer(lambda loaded: detect_changes(loaded.bundle.path, first, second))
+
     @app.get("/locate", summary="The place nearest (x, y) and its regions (terra node BUNDLE --at X Y --json)")
     def where(
         x: float = Query(..., description="metres, map frame"), y: float = Query(..., description="metres, map frame")

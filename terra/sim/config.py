@@ -139,6 +139,25 @@ class RouteConfig(Section):
     max_frames: int | None = Field(default=None, ge=1)
 
 
+class RevisitConfig(Section):
+    """A second visit of the same world (terra/sim/revisit.py): the route reversed from `start_fraction`
+    of its length, poses reported in a frame whose origin lies at `frame` = (x, y metres, yaw degrees) in the
+    first visit's map frame, after changes drawn from `seed`: cars moved (along their length, by a distance in
+    `move_distance` metres), removed and added, benches removed, `lawns_to_dirt` lawn squares of
+    `patch_size` metres turned to dirt. All counts 0: a revisit with no change."""
+
+    frame: tuple[float, float, float] = (50.0, 0.0, 90.0)
+    start_fraction: float = Field(default=0.3, ge=0.0, lt=1.0)
+    seed: int = Field(default=1, ge=0)
+    cars_moved: int = Field(default=2, ge=0)
+    cars_removed: int = Field(default=2, ge=0)
+    cars_added: int = Field(default=2, ge=0)
+    benches_removed: int = Field(default=1, ge=0)
+    lawns_to_dirt: int = Field(default=1, ge=0)
+    move_distance: tuple[float, float] = (3.0, 6.0)
+    patch_size: float = Field(default=6.0, gt=0.0)
+
+
 class SimConfig(Section):
     """Everything `simulate` needs besides the preset name and seed."""
 
@@ -152,6 +171,9 @@ class SimConfig(Section):
         default=None, gt=0.0, description="ground-truth raster cell, metres; None = preset"
     )
     frame_cache: int = Field(default=4, ge=0, description="rendered frames kept in memory")
+    revisit: RevisitConfig | None = Field(
+        default=None, description="drive the world again as a second visit, changed (`terra sim --revisit`)"
+    )
 
     @field_validator("cameras")
     @classmethod

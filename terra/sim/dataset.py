@@ -15,6 +15,7 @@ from terra.progress import StageTimer
 from terra.sim.classes import SIM_CLASSES
 from terra.sim.config import SimConfig
 from terra.sim.presets import get_preset
+from terra.sim.revisit import RevisitTruth
 from terra.sim.sensors import Camera, Lidar
 from terra.sim.trajectory import Trajectory, sample_trajectory
 from terra.sim.world import World
@@ -52,6 +53,13 @@ class SimDataset:
             config.route.drift_xy_per_m,
             np.radians(config.route.drift_yaw_deg_per_m),
         )
+        # A revisit reports its poses in its own frame: T_session_lidar = T_session_world @ T_world_lidar.
+        self.revisit: RevisitTruth | None = None
+        self.T_session_world = np.eye(4)
+        if config.revisit is not None:
+            from terra.sim.revisit import session_pose
+
+            self.T_session_world = invert_pose(session_pose(config.revisit))
         self._cache: OrderedDict[int, Frame] = OrderedDict()
         self.timer: StageTimer | None = None  # when set, rendering time is recorded per sensor
 
@@ -115,7 +123,7 @@ class SimDataset:
                         name=image_name(n, stamp),
                     )
                 )
-        T_reported = self.trajectory.T_map_base_odom[index] @ self.lidar.T_base_lidar
+        T_reported = self.T_session_world @ self.trajectory.T_map_base_odom[index] @ self.lidar.T_base_lidar
         return Frame(
             index, stamp, scan["points"], T_reported, cams, scan["intensity"], scan["labels"], scan["instances"]
         )
@@ -161,4 +169,11 @@ def simulate(preset: str = "small", seed: int = 0, config: SimConfig | None = No
         raise TerraError(f"seed must be a non-negative integer, got {seed!r}")
     config = config or SimConfig()
     world = generate_world(preset, int(seed), config)
-    return SimDataset(world, config, preset, int(seed))
+    if config.revisit is None:
+        return SimDataset(world, config, preset, int(seed))
+    from terra.sim.revisit import revisit_world
+
+    world, truth = revisit_world(world, config.revisit)
+    dataset = SimDataset(world, config, preset, int(seed))
+    dataset.revisit = truth
+    return dataset

@@ -1,0 +1,127 @@
+"""Sessions (issue 26): a second visit joined to a map, and what changed between the visits.
+
+The simulator drives `--preset` once (the map) and twice more as revisits (`terra sim --revisit`): the
+route reversed from 30 % of its length, poses in a frame 50 m and 90 degrees from the map's, one revisit
+with the default changes (2 cars moved, 2 removed, 2 added, a bench gone, a lawn turned to dirt) and one
+with none. Each revisit is joined from an initial guess off the truth by (`--guess-error`) metres and
+degrees, and once from the identity (a shared frame that is not shared: expected to be refused).
+
+Reported: alignment error against the simulator's T_world_session, fitness and overlap, the join's time
+(its stages; `load` is the simulator rendering the frames, which a recorded log would not pay), points of
+the joined map over the first map's, object changes against the simulator's list (locations where an
+object was or is, matched within 1.5 m: precision and recall), false object changes per 10,000 m^2 of
+area both visits observed on the revisit without changes, and terrain area changed there.
+
+Usage: python benchmarks/bench_sessions.py --preset small
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _join(first: Path, out: Path, visit, prior) -> dict:
+    """Join `visit` into a copy of the map `first` at `out`; what it took and found."""
+    from terra.errors import TerraError
+    from terra.mapping.config import MappingConfig
+    from terra.mapping.pipeline import run_mapping
+    from terra.mapping.sessions import plan_join, relative_error
+    from terra.progress import StageTimer
+    from terra.sim.revisit import session_pose
+
+    shutil.copytree(first, out)
+    timer = StageTimer()
+    start = time.perf_counter()
+    try:
+        with timer.stage("align"):
+            plan = plan_join(visit, out, prior)
+    except TerraError as exc:
+        return {"refused": str(exc), "seconds": time.perf_counter() - start}
+    run = run_mapping(
+        plan.frames, MappingConfig(), out, show_progress=False, timer=timer, join=plan.alignment.to_json()
+    )
+    metres, degrees = relative_error(session_pose(visit.config.revisit), plan.alignment.T_map_session)
+    return {
+        "error_m": metres,
+        "error_deg": degrees,
+        "fitness": plan.alignment.fitness,
+        "overlap": plan.alignment.overlap,
+        "seconds": time.perf_counter() - start,
+        "stages": timer.to_json(),
+        "points": run.counts.points,
+    }
+
+
+def _changes(out: Path, truth: dict) -> dict:
+    """Object changes found against the simulator's, as locations matched within 1.5 m."""
+    from terra.mapping.changes import detect_changes
+
+    found = detect_changes(out, 1, 2).to_json()
+    seen = [c[k][:2] for c in found["objects"] for k in ("before", "after") if c[k] is not None]
+    true = [c[k][:2] for c in truth["objects"] for k in ("from", "to") if c[k] is not None]
+    result = {"observed_area_m2": found["observed_area_m2"], "counts": found["counts"], "terrain": found["terrain"]}
+    result["found_locations"], result["true_locations"] = len(seen), len(true)
+    if seen and true:
+        distance = np.linalg.norm(np.asarray(seen)[:, None] - np.asarray(true)[None], axis=2)
+        result["precision"] = float(np.mean(distance.min(axis=1) < 1.5))
+        result["recall"] = float(np.mean(distance.min(axis=0) < 1.5))
+    result["changes_per_10000_m2"] = len(found["objects"]) / max(found["observed_area_m2"], 1.0) * 1e4
+    return result
+
+
+def _truth(visit) -> dict:
+    """The simulator's list of changes of a revisit."""
+    if visit.revisit is None:
+        raise ValueError("not a revisit")
+    return visit.revisit.to_json()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="Sessions (issue 26): a second visit joined, what changed.")
+    parser.add_argument("--preset", default="small")
+    parser.add_argument("--guess-error", type=float, nargs=2, default=(3.0, 8.0), metavar=("METRES", "DEGREES"))
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sessions.json")
+    args = parser.parse_args()
+
+    from terra.mapping.align import pose_from_guess
+    from terra.mapping.config import MappingConfig
+    from terra.mapping.pipeline import run_mapping
+    from terra.sim import simulate
+    from terra.sim.config import RevisitConfig, SimConfig
+
+    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0)
+    x, y, yaw = RevisitConfig().frame
+    metres, degrees = args.guess_error
+    guess = pose_from_guess(x + metres * 0.8, y - metres * 0.6, yaw + degrees)
+    report: dict = {"preset": args.preset, "guess": [x + metres * 0.8, y - metres * 0.6, yaw + degrees]}
+    with tempfile.TemporaryDirectory() as tmp:
+        first = Path(tmp) / "first.terra"
+        start = time.perf_counter()
+        run = run_mapping(simulate(args.preset, 0), MappingConfig(), first, show_progress=False)
+        report["first"] = {"seconds": time.perf_counter() - start, "points": run.counts.points}
+        changed = simulate(args.preset, 0, SimConfig(revisit=RevisitConfig()))
+        report["join_identity"] = _join(first, Path(tmp) / "identity.terra", changed, None)
+        report["join"] = _join(first, Path(tmp) / "changed.terra", changed, guess)
+        report["join"]["changes"] = _changes(Path(tmp) / "changed.terra", _truth(changed))
+        same = simulate(args.preset, 0, SimConfig(revisit=none))
+        report["join_unchanged"] = _join(first, Path(tmp) / "same.terra", same, guess)
+        report["join_unchanged"]["changes"] = _changes(Path(tmp) / "same.terra", _truth(same))
+    for key in ("join", "join_unchanged"):
+        report[key]["points_ratio"] = report[key]["points"] / report["first"]["points"]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1, sort_keys=True) + "\n")
+    print(json.dumps(report, indent=1, sort_keys=True))
+
+
+if __name__ == "__main__":
+    main()

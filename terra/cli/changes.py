@@ -1,0 +1,34 @@
+"""`terra changes`: what changed between two sessions of a joined map (terra/mapping/changes.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from terra.cli import app
+
+
+@app.command("changes")
+def changes_command(
+    bundle: Path = typer.Argument(..., help="Bundle folder holding a map of two or more sessions."),
+    between: tuple[int, int] = typer.Option(
+        (1, 2), "--between", help="The two sessions to compare (numbers as `terra info` lists them)."
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print the changes as JSON."),
+) -> None:
+    """What changed between two sessions of a map.
+
+    Objects added, removed and moved (with the distance) and terrain that changed class (area per
+    pair of classes), from the first session given to the second, judged only where both sessions
+    observed: what the second session did not see has not changed.
+
+    Example: terra changes campus.terra --between 1 2 --json
+    """
+    from terra.bundle import Bundle
+    from terra.cli.render import render_changes, render_stage_json
+    from terra.mapping.changes import detect_changes
+
+    Bundle(bundle)  # one line for a folder that is not a bundle
+    result = detect_changes(bundle, between[0], between[1])
+    typer.echo(render_stage_json(result) if as_json else render_changes(result))

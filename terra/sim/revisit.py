@@ -1,0 +1,228 @@
+"""A second visit of a simulated world (issue 26): the same site driven again, on the route reversed from
+another start, its poses reported in another frame, after known changes.
+
+Changes, drawn from `RevisitConfig.seed`: cars moved along their own length (by 3 to 6 m), cars removed,
+cars added (a copy of a parked car on free asphalt near the route), benches removed, and square patches of
+lawn turned to dirt. `revisit_world` returns the changed world and the ground truth of what changed, in the
+first visit's map frame (the world frame): objects by instance id with their old and new centres, terrain
+patches with their polygon and area. The revisit's frames report T_session_lidar = T_session_world @
+T_world_lidar, where T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what
+`terra sim --revisit` writes as revisit.json.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
+
+from terra.datasets.ground_truth import ObjectBox
+from terra.geometry import yaw_rotation
+from terra.sim.classes import class_id
+from terra.sim.config import RevisitConfig
+from terra.sim.primitives import Primitives
+from terra.sim.world import TerrainGrid, World
+
+
+@dataclass
+class RevisitTruth:
+    """T_world_session (4x4, the first visit's map <- the revisit's frame) and the changes made:
+    objects [{change, instance_id, class, from, to, distance}] (centres in metres, world frame) and terrain
+    [{from, to, polygon (K, 2), area_m2}]."""
+
+    T_world_session: np.ndarray
+    objects: list[dict[str, Any]] = field(default_factory=list)
+    terrain: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "frame": "centres and polygons in the first visit's map frame (the world frame)",
+            "T_world_session": np.asarray(self.T_world_session).tolist(),
+            "objects": self.objects,
+            "terrain": self.terrain,
+        }
+
+
+def session_pose(config: RevisitConfig) -> np.ndarray:
+    """T_world_session (4x4) of the revisit's frame: origin at (x, y) metres, turned yaw degrees."""
+    x, y, yaw = config.frame
+    T = np.eye(4)
+    T[:3, :3], T[:2, 3] = yaw_rotation(np.radians(yaw)), [x, y]
+    return T
+
+
+def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTruth]:
+    """`world` after the changes of `config`, driven on its route reversed from `config.start_fraction`."""
+    rng = np.random.default_rng([int(config.seed), world.seed, 26])
+    edit = _Edit(world, rng)
+    truth = RevisitTruth(session_pose(config))
+    cars = [o for o in world.objects if o.class_name == "car"]
+    order = [cars[int(i)] for i in rng.permutation(len(cars))]
+    untouched = []
+    for car in order:  # cars with no free place ahead or behind stay where they are
+        moved = edit.move(car, config.move_distance) if len(truth.objects) < config.cars_moved else None
+        if moved is not None:
+            truth.objects.append(moved)
+        else:
+            untouched.append(car)
+    for car in untouched[: config.cars_removed]:
+        truth.objects.append(edit.remove(car))
+    for _ in range(config.cars_added):
+        added = edit.add_copy(untouched[-1] if untouched else None)
+        if added is not None:
+            truth.objects.append(added)
+    benches = [o for o in world.objects if o.class_name == "bench"]
+    for i in rng.permutation(len(benches))[: config.benches_removed]:
+        truth.objects.append(edit.remove(benches[int(i)]))
+    terrain = TerrainGrid(world.terrain.classes.copy(), world.terrain.origin, world.terrain.resolution)
+    for _ in range(config.lawns_to_dirt):
+        patch = _lawn_patch(terrain, edit, rng, config.patch_size)
+        if patch is not None:
+            truth.terrain.append(patch)
+    changed = replace(
+        world,
+        name=f"{world.name}-revisit{config.seed}",
+        terrain=terrain,
+        prims=edit.primitives(),
+        objects=edit.objects,
+        route=rerouted(world.route, config.start_fraction),
+        _tree=None,
+        _raster_height=None,
+    )
+    return changed, truth
+
+
+def rerouted(route: np.ndarray, start_fraction: float) -> np.ndarray:
+    """The route (K, 2) reversed, starting `start_fraction` of its length from its (reversed) start."""
+    back = np.asarray(route, dtype=np.float64)[::-1]
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(back, axis=0), axis=1))])
+    s = start_fraction * cum[-1]
+    k = int(np.searchsorted(cum, s, side="right"))
+    if k >= back.shape[0]:
+        return back[-2:]
+    t = (s - cum[k - 1]) / max(cum[k] - cum[k - 1], 1e-12)
+    return np.concatenate([[back[k - 1] + t * (back[k] - back[k - 1])], back[k:]])
+
+
+class _Edit:
+    """The world's shapes and objects as they are edited (shape rows kept, moved or dropped per instance)."""
+
+    def __init__(self, world: World, rng: np.random.Generator):
+        self.world, self.rng = world, rng
+        p = world.prims
+        self.rows = [p.kind, p.center.copy(), p.half, p.yaw.copy(), p.class_id, p.instance_id.copy(), p.color]
+        self.keep = np.ones(len(p), dtype=bool)
+        self.extra: list[list[np.ndarray]] = []
+        self.objects: list[ObjectBox] = list(world.objects)
+        self.next_id = max([o.instance_id for o in world.objects] + [int(p.instance_id.max(initial=0))]) + 1
+
+    def primitives(self) -> Primitives:
+        columns = [np.concatenate([c[self.keep], *[e[i] for e in self.extra]]) for i, c in enumerate(self.rows)]
+        return Primitives(*columns)
+
+    def free(self, xy: np.ndarray, radius: float, ignore: int) -> bool:
+        """No other object's footprint disc within `radius` metres of its own, and asphalt under `xy`."""
+        centres = np.array([o.center[:2] for o in self.objects if o.instance_id != ignore])
+        radii = np.array([np.hypot(*o.size[:2]) / 2 for o in self.objects if o.instance_id != ignore])
+        clear = centres.size == 0 or bool(np.all(np.linalg.norm(centres - xy, axis=1) > radii + radius + 0.3))
+        probe = xy + radius * np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]]) * 0.8
+        return clear and bool(np.all(self.world.terrain.class_at(probe) == class_id("asphalt")))
+
+    def move(self, car: ObjectBox, distance: tuple[float, float]) -> dict[str, Any] | None:
+        """Move `car` along its length by a distance drawn in `distance` (metres), if it lands free."""
+        step = self.rng.uniform(*distance)
+        radius = float(np.hypot(*car.size[:2]) / 2)
+        for sign in (1.0, -1.0) if self.rng.random() < 0.5 else (-1.0, 1.0):
+            offset = sign * step * np.array([np.cos(car.yaw), np.sin(car.yaw)])
+            if self.free(car.center[:2] + offset, radius, car.instance_id):
+                break
+        else:
+            return None
+        rows = self.rows[5] == car.instance_id
+        ground = self.world.ground
+        dz = float(ground.height(car.center[None, :2] + offset)[0] - ground.height(car.center[None, :2])[0])
+        self.rows[1][rows] += [offset[0], offset[1], dz]
+        new = replace(car, center=car.center + [offset[0], offset[1], dz])
+        self.objects = [new if o.instance_id == car.instance_id else o for o in self.objects]
+        return _change("moved", car, car.center, new.center)
+
+    def remove(self, thing: ObjectBox) -> dict[str, Any]:
+        self.keep &= self.rows[5] != thing.instance_id
+        self.objects = [o for o in self.objects if o.instance_id != thing.instance_id]
+        return _change("removed", thing, thing.center, None)
+
+    def add_copy(self, car: ObjectBox | None, tries: int = 400) -> dict[str, Any] | None:
+        """A copy of `car` parked, turned a random multiple of 90 degrees, on free asphalt within 20 m of the
+        route (so the revisit sees it)."""
+        if car is None:
+            return None
+        route = cKDTree(self.world.route)
+        x0, y0, x1, y1 = self.world.extent
+        radius = float(np.hypot(*car.size[:2]) / 2)
+        for _ in range(tries):
+            xy = self.rng.uniform([x0, y0], [x1, y1])
+            if route.query(xy)[0] > 20.0 or not self.free(xy, radius, -1):
+                continue
+            turn = float(self.rng.integers(4)) * np.pi / 2
+            return self._place_copy(car, xy, turn)
+        return None
+
+    def _place_copy(self, car: ObjectBox, xy: np.ndarray, turn: float) -> dict[str, Any]:
+        rows = np.flatnonzero(self.rows[5] == car.instance_id)
+        R = yaw_rotation(turn)[:2, :2]
+        centre = self.rows[1][rows].copy()
+        centre[:, :2] = (centre[:, :2] - car.center[:2]) @ R.T + xy
+        ground = self.world.ground
+        centre[:, 2] += float(ground.height(xy[None])[0] - ground.height(car.center[None, :2])[0])
+        iid = self.next_id
+        self.next_id += 1
+        copy = [c[rows].copy() for c in self.rows]
+        copy[1], copy[3], copy[5] = centre, copy[3] + turn, np.full(rows.size, iid, dtype=np.int32)
+        self.extra.append(copy)
+        z = car.center[2] + float(centre[0, 2] - self.rows[1][rows[0], 2])
+        new = ObjectBox(iid, car.class_id, car.class_name, np.array([xy[0], xy[1], z]), car.size.copy(), car.yaw + turn)
+        self.objects.append(new)
+        return _change("added", new, None, new.center)
+
+
+def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.ndarray | None) -> dict[str, Any]:
+    distance = None if before is None or after is None else float(np.linalg.norm((after - before)[:2]))
+    return {
+        "change": kind,
+        "instance_id": int(thing.instance_id),
+        "class": thing.class_name,
+        "from": None if before is None else [round(float(v), 4) for v in before],
+        "to": None if after is None else [round(float(v), 4) for v in after],
+        "distance": None if distance is None else round(distance, 4),
+    }
+
+
+def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, size: float) -> dict[str, Any] | None:
+    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the route) to dirt."""
+    res = terrain.resolution
+    cells = max(int(round(size / res)), 1)
+    grass, dirt = class_id("grass"), class_id("dirt")
+    route = cKDTree(edit.world.route)
+    centres = np.array([o.center[:2] for o in edit.objects]) if edit.objects else np.zeros((0, 2))
+    h, w = terrain.classes.shape
+    for _ in range(400):
+        r, c = int(rng.integers(0, max(h - cells, 1))), int(rng.integers(0, max(w - cells, 1)))
+        block = terrain.classes[r : r + cells, c : c + cells]
+        x0, y0 = terrain.origin + np.array([c, r]) * res
+        middle = np.array([x0, y0]) + cells * res / 2
+        if not np.all(block == grass) or route.query(middle)[0] > 8.0:
+            continue
+        if centres.size and np.any(np.linalg.norm(centres - middle, axis=1) < cells * res):
+            continue
+        terrain.classes[r : r + cells, c : c + cells] = dirt
+        x1, y1 = x0 + cells * res, y0 + cells * res
+        polygon = [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+        return {
+            "from": "grass",
+            "to": "dirt",
+            "polygon": [[round(float(a), 4), round(float(b), 4)] for a, b in polygon],
+            "area_m2": round(float((cells * res) ** 2), 4),
+        }
+    return None
