@@ -56,6 +56,17 @@ def warm(loaded: LoadedBundle) -> None:
     loaded.warm()
 
 
+def require_embeddings(loaded: LoadedBundle, what: str) -> None:
+    """TerraError when the bundle's map holds no embeddings at all (a LiDAR-only log: no camera
+    images and no labelled points to embed), which text queries need."""
+    info = loaded.bundle.model.components.map
+    if info is not None and not info.bank and not info.images:
+        raise TerraError(
+            f"{loaded.path}: the map has no image embeddings (no camera images and no labelled points: a LiDAR-only "
+            f"log), so {what} has nothing to match text against; plan on it with --from-xy/--from-node and --to-node"
+        )
+
+
 def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksConfig:
     if feature is None:
         return config
@@ -93,6 +104,7 @@ def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None 
     from terra.tasks.retrieval import with_objects
 
     config = _with_feature(config or TasksConfig(), request.point_feature)
+    require_embeddings(loaded, "terra find")
     queries = clean_queries(list(request.queries))
     method = request.method or config.retrieval.method
     graph = loaded.require_graph(f"--method {method}") if method == "3dsg" else loaded.graph
@@ -108,6 +120,7 @@ def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None 
 def monitor(loaded: LoadedBundle, request: MonitorRequest, config: TasksConfig | None = None) -> MonitorResults:
     """Regions and places to monitor for every query of the request."""
     config = config or TasksConfig()
+    require_embeddings(loaded, "terra monitor")
     queries = clean_queries(list(request.queries))
     method = request.method or config.monitoring.method
     k = request.k if request.k is not None else config.monitoring.k
@@ -156,6 +169,7 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     )
     found: list[FoundObject] = []
     if object_queries:
+        require_embeddings(loaded, "a plan to or from a text query")
         method = request.method or config.planning.find_method
         found = _find_objects(
             loaded, graph, object_queries, method, _retrieval_alpha(request.alpha, config, loaded), config

@@ -1,0 +1,308 @@
+"""Ground geometry from the LiDAR points alone (DESIGN.md decision 19): which map points are
+ground, and per terrain-grid cell the ground's height, slope, step and roughness.
+
+Frames and units: points and heights are in the map frame, metres; slopes are degrees from the
+horizontal; the grid follows terra.graph.grid (cell (row r, col c) covers x in [x0 + c s, x0 +
+(c + 1) s), y in [y0 + r s, ...), rows grow with y).
+
+Ground segmentation (`segment_ground`) works on the whole map, not per scan: a map keeps no
+sensor origin per point, which scan-based methods (Patchwork++'s concentric zones around the
+sensor) need, and the LiDAR-only maps Terra is asked to build on are already fused. It is a
+progressive morphological filter (Zhang et al., IEEE TGRS 2003): the lowest point of each cell
+forms a surface; grey openings with growing windows remove what stands on the ground (a car
+vanishes under a 2 m window, a building under 8 m), and a cell whose lowest point rises above the
+opened surface by more than the window's allowance (`base_height` + `slope` x the window's
+growth) is not ground. Points at most `tolerance` above the lowest point of the nearest ground
+cell are ground.
+
+Layers (`ground_layers`), per cell, from the ground points in it:
+- height: mean height of its ground points (NaN where none: `observed` False);
+- gradient: dz/dx, dz/dy of the least-squares plane through the heights of the observed cells of
+  its 3 x 3 neighbourhood (NaN with fewer than three, or all on one line); slope = atan |gradient|;
+- step: the height jump at the cell that a smooth surface does not explain, the larger of the two
+  axes: along x, |h[c+1] - h[c-1]| minus twice the mean of the neighbouring differences
+  |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope), floored at 0. A 15 cm curb reads 15 cm
+  on both cells beside it, also when it runs through the middle of a cell; a constant slope reads
+  0 (it is the slope layer's business); stairs read as a steep slope with small steps;
+- roughness: the standard deviation of the cell's ground point heights, less what the plane's
+  tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
+
+Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
+its step is the largest step of the cells it crosses, its rise (fall) the steepest climb (descent)
+along its direction i -> j, from the cells' gradients. Cells without ground count as unknown and
+constrain nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import ndimage
+
+from terra.graph import raster
+from terra.graph.grid import GridFrame, TerrainGrid
+from terra.graph.storage import GROUND_FILES  # prefix of the layer arrays in a bundle
+
+if TYPE_CHECKING:
+    from terra.bundle import BundleWriter
+    from terra.graph.config import GroundSection
+    from terra.mapping.semantic_map import MetricSemanticMap
+
+GROUND_TERRAIN = "ground"  # the terrain class of a map without camera terrain classes
+LAYER_UNITS = {
+    "height": "m, map frame (NaN = no ground points)",
+    "slope": "degrees from horizontal",
+    "gradient": "dz/dx, dz/dy (m/m)",
+    "step": "m",
+    "roughness": "m",
+    "observed": "bool",
+}
+EDGE_GEOMETRY_UNITS = ["step_m", "rise_deg", "fall_deg"]
+
+
+def segment_ground(
+    points: np.ndarray,
+    cell_size: float = 0.5,
+    windows: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0),
+    slope: float = 0.2,
+    base_height: float = 0.1,
+    max_height: float = 2.5,
+    tolerance: float = 0.15,
+) -> np.ndarray:
+    """(N,) bool: which map points (N, 3) (map frame, metres) are ground, by a progressive
+    morphological filter on the lowest point per `cell_size` cell (module docstring). `windows`:
+    opening widths, metres, increasing; `slope`: m of height allowed per m of window growth;
+    `base_height`, `max_height`: the least and most a cell may rise above the opened surface, m;
+    `tolerance`: how far above the ground surface (the lowest point of the nearest ground cell) a
+    point is still ground, m."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=bool)
+    cells = np.floor((pts[:, :2] - pts[:, :2].min(axis=0)) / cell_size).astype(np.int64)
+    W, H = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
+    flat = cells[:, 1] * W + cells[:, 0]
+    lowest = np.full(H * W, np.inf)
+    np.minimum.at(lowest, flat, pts[:, 2])
+    lowest = lowest.reshape(H, W)
+    has = np.isfinite(lowest)
+    rows, cols = raster.nearest_zero(~has)
+    surface = lowest[rows, cols]  # empty cells take the nearest lowest point
+    ground_cell = has.copy()
+    previous = 0.0
+    for width in windows:
+        size = max(3, 2 * int(round(width / (2 * cell_size))) + 1)
+        opened = np.asarray(ndimage.grey_opening(surface, size=(size, size)))
+        allowance = min(base_height + slope * (width - previous), max_height)
+        ground_cell &= surface - opened <= allowance
+        surface, previous = opened, width
+    if not ground_cell.any():
+        return np.zeros(len(pts), dtype=bool)
+    rows, cols = raster.nearest_zero(~ground_cell)
+    floor = lowest[rows, cols].ravel()
+    return pts[:, 2] <= floor[flat] + tolerance
+
+
+@dataclass
+class GroundLayers:
+    """Per-cell ground geometry on a grid frame (module docstring). height, slope (degrees), step,
+    roughness: (H, W) float32 (NaN where unknown); gradient: (H, W, 2) float32 dz/dx, dz/dy;
+    observed: (H, W) bool cells holding ground points; origin (2,) metres and cell_size metres as in
+    terra.graph.grid.TerrainGrid (offset (row, col) of a window's first cell)."""
+
+    height: np.ndarray
+    gradient: np.ndarray
+    slope: np.ndarray
+    step: np.ndarray
+    roughness: np.ndarray
+    observed: np.ndarray
+    origin: np.ndarray
+    cell_size: float
+    offset: tuple[int, int] = (0, 0)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.height.shape
+
+    def cells_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, cols, inside) of map-frame points (n, 2+), metres; rows/cols clipped into the grid."""
+        rc = np.floor((np.asarray(xy, dtype=np.float64)[:, :2] - self.origin) / self.cell_size).astype(np.int64)
+        rows, cols = rc[:, 1] - self.offset[0], rc[:, 0] - self.offset[1]
+        H, W = self.shape
+        inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+        return np.clip(rows, 0, H - 1), np.clip(cols, 0, W - 1), inside
+
+    def info(self) -> dict[str, Any]:
+        """The manifest's description of the layers (components.graph.ground)."""
+        return {
+            "origin": [float(v) for v in self.origin],
+            "cell_size": float(self.cell_size),
+            "offset": [int(v) for v in self.offset],
+            "shape": [int(v) for v in self.shape],
+            "observed_cells": int(self.observed.sum()),
+            "units": dict(LAYER_UNITS),
+            "edge_geometry": list(EDGE_GEOMETRY_UNITS),
+        }
+
+
+def ground_layers(points: np.ndarray, frame: GridFrame) -> GroundLayers:
+    """The layers of the ground points (n, 3) (map frame, metres) on `frame` (points outside it
+    are left out)."""
+    H, W = frame.shape
+    s = float(frame.cell_size)
+    origin = np.asarray(frame.origin, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    rc = np.floor((pts[:, :2] - origin) / s).astype(np.int64)
+    rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
+    inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+    flat, z = rows[inside] * W + cols[inside], pts[inside, 2]
+    count = np.bincount(flat, minlength=H * W).reshape(H, W).astype(np.float64)
+    total = np.bincount(flat, weights=z, minlength=H * W).reshape(H, W)
+    squares = np.bincount(flat, weights=z * z, minlength=H * W).reshape(H, W)
+    observed = count > 0
+    mean = np.divide(total, count, out=np.zeros_like(total), where=observed)
+    height = np.where(observed, mean, np.nan)
+    gradient = plane_gradient(height, s)
+    tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * s * s / 12.0
+    variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
+    roughness = np.where(observed, np.sqrt(np.maximum(variance - tilt, 0.0)), np.nan)
+    slope = np.degrees(np.arctan(np.hypot(gradient[..., 0], gradient[..., 1])))
+    step = np.fmax(axis_step(height, axis=1), axis_step(height, axis=0))
+    return GroundLayers(
+        height.astype(np.float32),
+        gradient.astype(np.float32),
+        slope.astype(np.float32),
+        step.astype(np.float32),
+        roughness.astype(np.float32),
+        observed,
+        origin,
+        s,
+        frame.offset,
+    )
+
+
+def plane_gradient(height: np.ndarray, cell_size: float) -> np.ndarray:
+    """(H, W, 2) dz/dx, dz/dy (m/m) of the least-squares plane through the observed (finite)
+    heights (H, W) of each cell's 3 x 3 neighbourhood, at cell centres `cell_size` metres apart;
+    NaN where fewer than three cells, or only collinear ones, are observed."""
+    w = np.isfinite(height).astype(np.float64)
+    h = np.nan_to_num(height)
+    offsets = np.array([-1.0, 0.0, 1.0]) * cell_size
+    dx = np.tile(offsets, (3, 1))  # columns are x
+    dy = dx.T  # rows are y
+
+    def box(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+        return np.asarray(ndimage.correlate(values, kernel, mode="constant", cval=0.0))
+
+    ones = np.ones((3, 3))
+    n, sx, sy = box(w, ones), box(w, dx), box(w, dy)
+    sxx, syy, sxy = box(w, dx * dx), box(w, dy * dy), box(w, dx * dy)
+    sz, szx, szy = box(w * h, ones), box(w * h, dx), box(w * h, dy)
+    normal = np.stack(
+        [np.stack([n, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], -2
+    )  # (H, W, 3, 3)
+    rhs = np.stack([sz, szx, szy], -1)
+    det = np.linalg.det(normal)
+    solvable = (n >= 3) & (np.abs(det) > 1e-9 * cell_size**8)
+    out = np.full(height.shape + (2,), np.nan)
+    if solvable.any():
+        solution = np.linalg.solve(normal[solvable], rhs[solvable][..., None])[..., 0]
+        out[solvable] = solution[:, 1:]
+    return out
+
+
+def axis_step(height: np.ndarray, axis: int) -> np.ndarray:
+    """(H, W) metres: the step at each cell along one axis (module docstring), NaN where the two
+    cells beside it are not both observed; a missing outer neighbour counts as level ground."""
+    h = np.moveaxis(np.asarray(height, dtype=np.float64), axis, -1)
+    pad = np.full(h.shape[:-1] + (2,), np.nan)
+    p = np.concatenate([pad, h, pad], axis=-1)
+    n = h.shape[-1]
+    before2, before, after, after2 = p[..., 0:n], p[..., 1 : n + 1], p[..., 3 : n + 3], p[..., 4 : n + 4]
+    jump = np.abs(after - before)
+    sides = np.stack([np.abs(before - before2), np.abs(after2 - after)])
+    known = np.isfinite(sides)
+    outer = np.where(known, sides, 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1)
+    step = np.maximum(jump - 2.0 * outer, 0.0)
+    return np.moveaxis(np.where(np.isfinite(jump), step, np.nan), -1, axis)
+
+
+def edge_geometry(layers: GroundLayers, position: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(E, 3) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
+    metres): the largest step it crosses (m), its steepest rise and fall going from edges[:, 0] to
+    edges[:, 1] (degrees, >= 0); 0 where the cells along it hold no ground (module docstring)."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    E = len(edges)
+    if E == 0:
+        return np.zeros((0, 3), dtype=np.float32)
+    a = np.asarray(position, dtype=np.float64)[edges[:, 0], :2]
+    delta = np.asarray(position, dtype=np.float64)[edges[:, 1], :2] - a
+    length = np.linalg.norm(delta, axis=1)
+    direction = np.divide(delta, length[:, None], out=np.zeros_like(delta), where=length[:, None] > 0)
+    samples = np.ceil(length / (layers.cell_size / 2)).astype(np.int64) + 1
+    starts = np.concatenate([[0], np.cumsum(samples)[:-1]])
+    edge = np.repeat(np.arange(E), samples)
+    t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
+    rows, cols, inside = layers.cells_of(a[edge] + t[:, None] * delta[edge])
+    step = np.where(inside, layers.step[rows, cols], np.nan)
+    grad = layers.gradient[rows, cols].astype(np.float64)
+    along = np.where(inside, (grad * direction[edge]).sum(axis=1), np.nan)
+    out = np.stack(
+        [
+            np.fmax.reduceat(step, starts),
+            np.degrees(np.arctan(np.fmax.reduceat(along, starts))),
+            np.degrees(np.arctan(np.fmax.reduceat(-along, starts))),
+        ],
+        axis=1,
+    )
+    return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+# ------------------------------------------------------------------ the build's use of the layers
+
+
+def map_ground(msm: MetricSemanticMap, section: GroundSection) -> np.ndarray | None:
+    """(N,) bool ground flag of the map's points (`segment_ground` with the section's values), or
+    None when nothing needs it (the map has camera terrain classes and `layers` is off)."""
+    if msm.terrain_classes and not section.layers:
+        return None
+    return segment_ground(
+        msm.points,
+        section.cell_size,
+        tuple(section.windows),
+        section.slope,
+        section.base_height,
+        section.max_height,
+        section.tolerance,
+    )
+
+
+def as_ground_terrain(msm: MetricSemanticMap, ground: np.ndarray) -> MetricSemanticMap:
+    """A map without camera terrain classes seen as one with a single terrain class, `ground`,
+    voted once by each ground point (N,) bool. Its terrain embedding is the first unit vector of
+    the embedding space: the map carries no semantics to embed, every place gets the same vector,
+    and regions come from positions alone (terra find and monitor refuse such maps)."""
+    dim = msm.dim
+    embedding = np.zeros((1, dim), dtype=np.float32)
+    embedding[0, 0] = 1.0
+    votes = np.asarray(ground, dtype=np.uint16).reshape(-1, 1)
+    return replace(msm, terrain_classes=[GROUND_TERRAIN], terrain_votes=votes, terrain_embeddings=embedding)
+
+
+def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid) -> GroundLayers:
+    """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's cells."""
+    frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
+    return ground_layers(np.asarray(points)[ground], frame)
+
+
+def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:
+    """The layers as arrays graph/ground_<name> of the bundle being written, described in
+    components.graph.ground (call after terra.graph.storage.write_scene_graph)."""
+    writer.put_array(GROUND_FILES + "height", layers.height)
+    writer.put_array(GROUND_FILES + "gradient", layers.gradient)
+    writer.put_array(GROUND_FILES + "slope", layers.slope)
+    writer.put_array(GROUND_FILES + "step", layers.step)
+    writer.put_array(GROUND_FILES + "roughness", layers.roughness)
+    writer.put_array(GROUND_FILES + "observed", layers.observed)
+    writer.update_component("graph", ground=layers.info())
