@@ -262,10 +262,16 @@ def edge_geometry(layers: GroundLayers, position: np.ndarray, edges: np.ndarray)
 # ------------------------------------------------------------------ the build's use of the layers
 
 
+def has_terrain_votes(msm: MetricSemanticMap) -> bool:
+    """Whether any map point has a terrain vote: a map without (a LiDAR-only log, or a dataset
+    whose legend names terrain classes but whose scans carry no labels) builds on `ground`."""
+    return bool(msm.terrain_classes) and bool(np.any(msm.terrain_votes))
+
+
 def map_ground(msm: MetricSemanticMap, section: GroundSection) -> np.ndarray | None:
     """(N,) bool ground flag of the map's points (`segment_ground` with the section's values), or
-    None when nothing needs it (the map has camera terrain classes and `layers` is off)."""
-    if msm.terrain_classes and not section.layers:
+    None when nothing needs it (the map has terrain votes and `layers` is off)."""
+    if not section.layers and has_terrain_votes(msm):
         return None
     return segment_ground(
         msm.points,
@@ -279,7 +285,7 @@ def map_ground(msm: MetricSemanticMap, section: GroundSection) -> np.ndarray | N
 
 
 def as_ground_terrain(msm: MetricSemanticMap, ground: np.ndarray) -> MetricSemanticMap:
-    """A map without camera terrain classes seen as one with a single terrain class, `ground`,
+    """A map without terrain votes seen as one with a single terrain class, `ground`,
     voted once by each ground point (N,) bool. Its terrain embedding is the first unit vector of
     the embedding space: the map carries no semantics to embed, every place gets the same vector,
     and regions come from positions alone (terra find and monitor refuse such maps)."""

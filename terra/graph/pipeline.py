@@ -19,7 +19,14 @@ from terra.graph.config import BuildConfig, check_region_method
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
-from terra.graph.ground import GroundLayers, as_ground_terrain, edge_geometry, grid_layers, map_ground
+from terra.graph.ground import (
+    GroundLayers,
+    as_ground_terrain,
+    edge_geometry,
+    grid_layers,
+    has_terrain_votes,
+    map_ground,
+)
 from terra.graph.linking import (
     bridge_components,
     grid_gap_length,
@@ -319,7 +326,7 @@ def build_scene_graph(
     timer = StageTimer()
     with timer.stage("ground"):
         ground = map_ground(msm, config.ground)
-    if not msm.terrain_classes and ground is not None:  # LiDAR only: places on the segmented ground
+    if ground is not None and not has_terrain_votes(msm):  # LiDAR only: places on the segmented ground
         msm = as_ground_terrain(msm, ground)
     names, terrains = _terrains_to_build(msm, config)
     with timer.stage("terrain grid"):

@@ -159,6 +159,17 @@ def test_a_map_of_bare_points_builds_places_on_the_ground():
     assert build.ground is not None and build.ground.observed.any()
 
 
+def test_a_map_whose_classes_got_no_votes_builds_on_the_ground():
+    # A SemanticKITTI folder without label files: the legend names terrain classes, no point votes.
+    points, _ = street()
+    msm = points_map(points)
+    msm.terrain_classes = ["road", "sidewalk"]
+    msm.terrain_votes = np.zeros((len(points), 2), dtype=np.uint16)
+    msm.terrain_embeddings = np.eye(2, 8, dtype=np.float32)
+    graph = build_scene_graph(msm).graph
+    assert graph.terrain_classes == ["ground"] and len(graph.places) >= 3
+
+
 def test_a_lidar_only_bag_maps_builds_and_plans(lidar_only_bundle, capsys):
     bundle = Bundle(lidar_only_bundle)
     assert bundle.model.terrain_classes == []  # the map itself is unchanged: no classes, no embeddings
