@@ -52,12 +52,11 @@ if TYPE_CHECKING:
 
 GROUND_TERRAIN = "ground"  # the terrain class of a map without camera terrain classes
 LAYER_UNITS = {
-    "height": "m, map frame (NaN = no ground points)",
-    "slope": "degrees from horizontal",
-    "gradient": "dz/dx, dz/dy (m/m)",
+    "cells": "flat cell index row * W + col of each observed cell (cells holding ground points)",
+    "height": "m, map frame",
+    "gradient": "dz/dx, dz/dy (m/m); slope = atan |gradient|, degrees from horizontal",
     "step": "m",
     "roughness": "m",
-    "observed": "bool",
 }
 EDGE_GEOMETRY_UNITS = ["step_m", "rise_deg", "fall_deg"]
 
@@ -106,32 +105,54 @@ def segment_ground(
 
 @dataclass
 class GroundLayers:
-    """Per-cell ground geometry on a grid frame (module docstring). height, slope (degrees), step,
-    roughness: (H, W) float32 (NaN where unknown); gradient: (H, W, 2) float32 dz/dx, dz/dy;
-    observed: (H, W) bool cells holding ground points; origin (2,) metres and cell_size metres as in
-    terra.graph.grid.TerrainGrid (offset (row, col) of a window's first cell)."""
+    """Ground geometry of the observed cells of a grid frame (module docstring), stored sparsely:
+    a kilometre map has tens of millions of cells. cells: (n,) int64 flat indices row * W + col of
+    the cells holding ground points, increasing; height (n,) float32 metres; gradient (n, 2)
+    float32 dz/dx, dz/dy; step (n,) float32 metres; roughness (n,) float32 metres (NaN where
+    unknown); shape (H, W), origin (2,) metres, cell_size metres and offset (row, col) as in
+    terra.graph.grid.TerrainGrid."""
 
+    cells: np.ndarray
     height: np.ndarray
     gradient: np.ndarray
-    slope: np.ndarray
     step: np.ndarray
     roughness: np.ndarray
-    observed: np.ndarray
+    shape: tuple[int, int]
     origin: np.ndarray
     cell_size: float
     offset: tuple[int, int] = (0, 0)
 
     @property
-    def shape(self) -> tuple[int, int]:
-        return self.height.shape
+    def slope(self) -> np.ndarray:
+        """(n,) degrees from the horizontal (NaN where the gradient is unknown)."""
+        return np.degrees(np.arctan(np.hypot(self.gradient[:, 0], self.gradient[:, 1])))
 
-    def cells_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(rows, cols, inside) of map-frame points (n, 2+), metres; rows/cols clipped into the grid."""
+    @property
+    def observed(self) -> np.ndarray:
+        """(H, W) bool: the cells holding ground points."""
+        out = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
+        out[self.cells] = True
+        return out.reshape(self.shape)
+
+    def as_grid(self, values: np.ndarray) -> np.ndarray:
+        """(H, W, ...) float64 grid of per-cell `values` (n, ...), NaN on unobserved cells."""
+        values = np.asarray(values, dtype=np.float64)
+        out = np.full((self.shape[0] * self.shape[1],) + values.shape[1:], np.nan)
+        out[self.cells] = values
+        return out.reshape(self.shape + values.shape[1:])
+
+    def lookup(self, xy: np.ndarray) -> np.ndarray:
+        """(m,) index into the observed cells of each map-frame point (m, 2+) (metres), -1 where
+        its cell is outside the grid or holds no ground."""
+        H, W = self.shape
         rc = np.floor((np.asarray(xy, dtype=np.float64)[:, :2] - self.origin) / self.cell_size).astype(np.int64)
         rows, cols = rc[:, 1] - self.offset[0], rc[:, 0] - self.offset[1]
-        H, W = self.shape
         inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
-        return np.clip(rows, 0, H - 1), np.clip(cols, 0, W - 1), inside
+        flat = np.where(inside, rows * W + cols, -1)
+        if len(self.cells) == 0:
+            return np.full(len(flat), -1, dtype=np.int64)
+        at = np.minimum(np.searchsorted(self.cells, flat), len(self.cells) - 1)
+        return np.where(inside & (self.cells[at] == flat), at, -1)
 
     def info(self) -> dict[str, Any]:
         """The manifest's description of the layers (components.graph.ground)."""
@@ -140,15 +161,19 @@ class GroundLayers:
             "cell_size": float(self.cell_size),
             "offset": [int(v) for v in self.offset],
             "shape": [int(v) for v in self.shape],
-            "observed_cells": int(self.observed.sum()),
+            "observed_cells": len(self.cells),
             "units": dict(LAYER_UNITS),
             "edge_geometry": list(EDGE_GEOMETRY_UNITS),
         }
 
 
-def ground_layers(points: np.ndarray, frame: GridFrame) -> GroundLayers:
+BAND_CELLS = 1 << 22  # cells per band of rows computed at once (a few float64 temporaries each)
+
+
+def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
     """The layers of the ground points (n, 3) (map frame, metres) on `frame` (points outside it
-    are left out)."""
+    are left out), computed in bands of rows of about `band_cells` cells with two rows of context
+    on each side (what the gradient and the step read), so memory follows the band, not the grid."""
     H, W = frame.shape
     s = float(frame.cell_size)
     origin = np.asarray(frame.origin, dtype=np.float64)
@@ -156,30 +181,54 @@ def ground_layers(points: np.ndarray, frame: GridFrame) -> GroundLayers:
     rc = np.floor((pts[:, :2] - origin) / s).astype(np.int64)
     rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
     inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
-    flat, z = rows[inside] * W + cols[inside], pts[inside, 2]
-    count = np.bincount(flat, minlength=H * W).reshape(H, W).astype(np.float64)
-    total = np.bincount(flat, weights=z, minlength=H * W).reshape(H, W)
-    squares = np.bincount(flat, weights=z * z, minlength=H * W).reshape(H, W)
-    observed = count > 0
-    mean = np.divide(total, count, out=np.zeros_like(total), where=observed)
-    height = np.where(observed, mean, np.nan)
-    gradient = plane_gradient(height, s)
-    tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * s * s / 12.0
-    variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
-    roughness = np.where(observed, np.sqrt(np.maximum(variance - tilt, 0.0)), np.nan)
-    slope = np.degrees(np.arctan(np.hypot(gradient[..., 0], gradient[..., 1])))
-    step = np.fmax(axis_step(height, axis=1), axis_step(height, axis=0))
+    order = np.argsort(rows[inside], kind="stable")
+    rows, cols, z = rows[inside][order], cols[inside][order], pts[inside, 2][order]
+    band = max(1, band_cells // max(W, 1))
+    parts: list[tuple[np.ndarray, ...]] = []
+    for r0 in range(0, H, band):
+        r1 = min(H, r0 + band)
+        lo, hi = max(0, r0 - 2), min(H, r1 + 2)
+        sel = slice(int(np.searchsorted(rows, lo)), int(np.searchsorted(rows, hi)))
+        layers = _band_layers(rows[sel] - lo, cols[sel], z[sel], (hi - lo, W), s)
+        keep = slice(r0 - lo, r0 - lo + (r1 - r0))
+        observed = np.flatnonzero(layers[0][keep].ravel() > 0)
+        parts.append((observed + r0 * W, *(layer[keep].reshape((r1 - r0) * W, -1)[observed] for layer in layers[1:])))
+    cells, height, gradient, step, roughness = (
+        np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in range(5)
+    )
     return GroundLayers(
-        height.astype(np.float32),
-        gradient.astype(np.float32),
-        slope.astype(np.float32),
-        step.astype(np.float32),
-        roughness.astype(np.float32),
-        observed,
+        cells.astype(np.int64),
+        height.reshape(-1).astype(np.float32),
+        gradient.reshape(-1, 2).astype(np.float32),
+        step.reshape(-1).astype(np.float32),
+        roughness.reshape(-1).astype(np.float32),
+        (int(H), int(W)),
         origin,
         s,
         frame.offset,
     )
+
+
+def _band_layers(
+    rows: np.ndarray, cols: np.ndarray, z: np.ndarray, shape: tuple[int, int], cell_size: float
+) -> tuple[np.ndarray, ...]:
+    """Dense (h, w) count, height, gradient (h, w, 2), step, roughness of one band from the
+    band-local cells (rows, cols) and heights z of its ground points."""
+    h, w = shape
+    flat = rows * w + cols
+    count = np.bincount(flat, minlength=h * w).reshape(h, w).astype(np.float64)
+    # float64 also for a band without points (bincount of nothing gives int64)
+    total = np.bincount(flat, weights=z, minlength=h * w).reshape(h, w).astype(np.float64)
+    squares = np.bincount(flat, weights=z * z, minlength=h * w).reshape(h, w).astype(np.float64)
+    observed = count > 0
+    mean = np.divide(total, count, out=np.zeros_like(total), where=observed)
+    height = np.where(observed, mean, np.nan)
+    gradient = plane_gradient(height, cell_size)
+    tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * cell_size**2 / 12.0
+    variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
+    roughness = np.sqrt(np.maximum(variance - tilt, 0.0))
+    step = np.fmax(axis_step(height, axis=1), axis_step(height, axis=0))
+    return count, height, gradient, step, roughness
 
 
 def plane_gradient(height: np.ndarray, cell_size: float) -> np.ndarray:
@@ -234,8 +283,8 @@ def edge_geometry(layers: GroundLayers, position: np.ndarray, edges: np.ndarray)
     edges[:, 1] (degrees, >= 0); 0 where the cells along it hold no ground (module docstring)."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     E = len(edges)
-    if E == 0:
-        return np.zeros((0, 3), dtype=np.float32)
+    if E == 0 or len(layers.cells) == 0:
+        return np.zeros((E, 3), dtype=np.float32)
     a = np.asarray(position, dtype=np.float64)[edges[:, 0], :2]
     delta = np.asarray(position, dtype=np.float64)[edges[:, 1], :2] - a
     length = np.linalg.norm(delta, axis=1)
@@ -244,10 +293,10 @@ def edge_geometry(layers: GroundLayers, position: np.ndarray, edges: np.ndarray)
     starts = np.concatenate([[0], np.cumsum(samples)[:-1]])
     edge = np.repeat(np.arange(E), samples)
     t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
-    rows, cols, inside = layers.cells_of(a[edge] + t[:, None] * delta[edge])
-    step = np.where(inside, layers.step[rows, cols], np.nan)
-    grad = layers.gradient[rows, cols].astype(np.float64)
-    along = np.where(inside, (grad * direction[edge]).sum(axis=1), np.nan)
+    at = layers.lookup(a[edge] + t[:, None] * delta[edge])
+    known = at >= 0
+    step = np.where(known, layers.step[at], np.nan)
+    along = np.where(known, (layers.gradient[at].astype(np.float64) * direction[edge]).sum(axis=1), np.nan)
     out = np.stack(
         [
             np.fmax.reduceat(step, starts),
@@ -303,12 +352,12 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid) -> Gr
 
 
 def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:
-    """The layers as arrays graph/ground_<name> of the bundle being written, described in
+    """The layers as arrays graph/ground_<name> of the bundle being written (one row per observed
+    cell: cells int64, height float32, gradient, step and roughness float16), described in
     components.graph.ground (call after terra.graph.storage.write_scene_graph)."""
-    writer.put_array(GROUND_FILES + "height", layers.height)
-    writer.put_array(GROUND_FILES + "gradient", layers.gradient)
-    writer.put_array(GROUND_FILES + "slope", layers.slope)
-    writer.put_array(GROUND_FILES + "step", layers.step)
-    writer.put_array(GROUND_FILES + "roughness", layers.roughness)
-    writer.put_array(GROUND_FILES + "observed", layers.observed)
+    writer.put_array(GROUND_FILES + "cells", layers.cells.astype(np.int64))
+    writer.put_array(GROUND_FILES + "height", layers.height.astype(np.float32))
+    writer.put_array(GROUND_FILES + "gradient", layers.gradient.astype(np.float16))
+    writer.put_array(GROUND_FILES + "step", layers.step.astype(np.float16))
+    writer.put_array(GROUND_FILES + "roughness", layers.roughness.astype(np.float16))
     writer.update_component("graph", ground=layers.info())

@@ -93,12 +93,12 @@ def test_layers_of_a_ten_degree_slope():
     points = np.column_stack([xy, TAN10 * xy[:, 0] + rng.normal(0, 0.01, len(xy))])
     layers = ground_layers(points, flat_frame(20, 10))
     inner = (slice(2, -2), slice(2, -2))
-    assert layers.observed.all()
-    assert np.nanmedian(layers.slope[inner]) == pytest.approx(10.0, abs=0.2)
-    assert np.nanmedian(layers.gradient[inner][..., 0]) == pytest.approx(TAN10, abs=0.005)
-    assert np.nanmax(layers.step[inner]) < 0.05  # a slope is no step
+    assert layers.observed.all() and len(layers.cells) == 25 * 50
+    assert np.nanmedian(layers.as_grid(layers.slope)[inner]) == pytest.approx(10.0, abs=0.2)
+    assert np.nanmedian(layers.as_grid(layers.gradient)[inner][..., 0]) == pytest.approx(TAN10, abs=0.005)
+    assert np.nanmax(layers.as_grid(layers.step)[inner]) < 0.05  # a slope is no step
     # The noise (1 cm), not the tilt within the cell (0.4 m x tan 10 deg / sqrt(12) = 2 cm).
-    assert np.nanmedian(layers.roughness[inner]) == pytest.approx(0.01, abs=0.003)
+    assert np.nanmedian(layers.as_grid(layers.roughness)[inner]) == pytest.approx(0.01, abs=0.003)
 
 
 def test_a_curb_is_a_step_on_both_cells_beside_it():
@@ -106,7 +106,7 @@ def test_a_curb_is_a_step_on_both_cells_beside_it():
     xy = uniform(rng, [0, 0], [20, 10], 60000)
     points = np.column_stack([xy, np.where(xy[:, 1] >= 5.0, 0.15, 0.0)])
     layers = ground_layers(points, flat_frame(20, 10))
-    column = layers.step[:, 25]
+    column = layers.as_grid(layers.step)[:, 25]
     # The curb at y = 5.0 runs through row 12 (y 4.8..5.2), whose mean height is 0.075: by hand,
     # row 12 reads |0.15 - 0| - 2 x mean(0, 0) = 0.15; rows 11 and 13 read
     # |0.075 - 0| - 2 x mean(0, 0.075) = 0.
@@ -115,7 +115,8 @@ def test_a_curb_is_a_step_on_both_cells_beside_it():
     assert np.all(column[1:11] < 0.01) and np.all(column[14:-1] < 0.01)
     # A curb on a cell boundary (y = 4.8) reads on both cells beside it.
     points[:, 2] = np.where(points[:, 1] >= 4.8, 0.15, 0.0)
-    column = ground_layers(points, flat_frame(20, 10)).step[:, 25]
+    layers = ground_layers(points, flat_frame(20, 10))
+    column = layers.as_grid(layers.step)[:, 25]
     assert column[11] == pytest.approx(0.15, abs=0.01) and column[12] == pytest.approx(0.15, abs=0.01)
     assert column[10] < 0.01 and column[13] < 0.01
 
@@ -157,6 +158,16 @@ def test_a_map_of_bare_points_builds_places_on_the_ground():
     assert np.all(np.abs(z - expected) < 0.1)
     assert not np.any((x > 10) & (x < 14.5) & (y > 1) & (y < 2.8))
     assert build.ground is not None and build.ground.observed.any()
+    # Band by band (three rows at a time) gives the same layers as in one piece.
+    frame = GridFrame(tuple(build.ground.origin), build.ground.shape, build.ground.cell_size, build.ground.offset)
+    ground = segment_ground(points)
+    whole, bands = (
+        ground_layers(points[ground], frame),
+        ground_layers(points[ground], frame, band_cells=3 * frame.shape[1]),
+    )
+    assert np.array_equal(whole.cells, bands.cells)
+    for name in ("height", "gradient", "step", "roughness"):
+        np.testing.assert_array_equal(getattr(whole, name), getattr(bands, name), err_msg=name)
 
 
 def test_a_map_whose_classes_got_no_votes_builds_on_the_ground():
@@ -179,8 +190,10 @@ def test_a_lidar_only_bag_maps_builds_and_plans(lidar_only_bundle, capsys):
     info = bundle.model.components.graph
     assert info is not None and info.model_extra is not None
     ground = info.model_extra["ground"]
-    assert ground["units"]["slope"] == "degrees from horizontal" and ground["observed_cells"] > 1000
-    assert bundle.array("graph/ground_height").shape == tuple(ground["shape"])
+    assert ground["units"]["height"] == "m, map frame" and ground["observed_cells"] > 1000
+    cells = bundle.array("graph/ground_cells")
+    assert cells.shape == (ground["observed_cells"],) and cells.max() < np.prod(ground["shape"])
+    assert bundle.array("graph/ground_gradient").shape == (len(cells), 2)
     capsys.readouterr()
     last = len(graph.places) - 1
     assert run(["plan", str(lidar_only_bundle), "--from-node", "0", "--to-node", str(last), "--json"]) == 0
