@@ -167,7 +167,9 @@ class GroundLayers:
         }
 
 
-BAND_CELLS = 1 << 22  # cells per band of rows computed at once (a few float64 temporaries each)
+BAND_CELLS = (
+    1 << 18
+)  # cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M)
 
 
 def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
@@ -236,29 +238,25 @@ def plane_gradient(height: np.ndarray, cell_size: float) -> np.ndarray:
     heights (H, W) of each cell's 3 x 3 neighbourhood, at cell centres `cell_size` metres apart;
     NaN where fewer than three cells, or only collinear ones, are observed."""
     w = np.isfinite(height).astype(np.float64)
-    h = np.nan_to_num(height)
-    offsets = np.array([-1.0, 0.0, 1.0]) * cell_size
-    dx = np.tile(offsets, (3, 1))  # columns are x
-    dy = dx.T  # rows are y
+    wh = w * np.nan_to_num(height)
+    ones, odd, even = np.ones(3), np.array([-1.0, 0.0, 1.0]), np.array([1.0, 0.0, 1.0])
 
-    def box(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-        return np.asarray(ndimage.correlate(values, kernel, mode="constant", cval=0.0))
+    def sums(values: np.ndarray, along_y: np.ndarray, along_x: np.ndarray) -> np.ndarray:
+        # The 3 x 3 window sums of values x (dy^j dx^i / s^(i+j)) as two 3-tap passes (rows are y).
+        rows = ndimage.correlate1d(values, along_y, axis=0, mode="constant", cval=0.0)
+        return np.asarray(ndimage.correlate1d(rows, along_x, axis=1, mode="constant", cval=0.0))
 
-    ones = np.ones((3, 3))
-    n, sx, sy = box(w, ones), box(w, dx), box(w, dy)
-    sxx, syy, sxy = box(w, dx * dx), box(w, dy * dy), box(w, dx * dy)
-    sz, szx, szy = box(w * h, ones), box(w * h, dx), box(w * h, dy)
-    normal = np.stack(
-        [np.stack([n, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], -2
-    )  # (H, W, 3, 3)
-    rhs = np.stack([sz, szx, szy], -1)
-    det = np.linalg.det(normal)
-    solvable = (n >= 3) & (np.abs(det) > 1e-9 * cell_size**8)
-    out = np.full(height.shape + (2,), np.nan)
-    if solvable.any():
-        solution = np.linalg.solve(normal[solvable], rhs[solvable][..., None])[..., 0]
-        out[solvable] = solution[:, 1:]
-    return out
+    s1, s2 = cell_size, cell_size * cell_size
+    n, sx, sy = sums(w, ones, ones), sums(w, ones, odd) * s1, sums(w, odd, ones) * s1
+    sxx, syy, sxy = sums(w, ones, even) * s2, sums(w, even, ones) * s2, sums(w, odd, odd) * s2
+    sz, szx, szy = sums(wh, ones, ones), sums(wh, ones, odd) * s1, sums(wh, odd, ones) * s1
+    # Cramer's rule on the 3 x 3 normal equations of z = a + gx dx + gy dy, cell by cell.
+    det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
+    det_x = n * (szx * syy - sxy * szy) - sz * (sx * syy - sxy * sy) + sy * (sx * szy - szx * sy)
+    det_y = n * (sxx * szy - szx * sxy) - sx * (sx * szy - szx * sy) + sz * (sx * sxy - sxx * sy)
+    solvable = (n >= 3) & (np.abs(det) > 1e-9 * cell_size**4)  # det ~ n^3 s^4; collinear: rounding
+    safe = np.where(solvable, det, 1.0)
+    return np.stack([np.where(solvable, det_x / safe, np.nan), np.where(solvable, det_y / safe, np.nan)], axis=-1)
 
 
 def axis_step(height: np.ndarray, axis: int) -> np.ndarray:
