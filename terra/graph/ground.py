@@ -16,7 +16,10 @@ growth) is not ground. Points at most `tolerance` above the lowest point of the 
 cell are ground.
 
 Layers (`ground_layers`), per cell, from the ground points in it:
-- height: mean height of its ground points (NaN where none: `observed` False);
+- height: mean height of its ground points, moved from their centroid to the cell's centre along
+  the local gradient (a cell's points are rarely centred in it; on a slope that would read as a
+  step between cells); a cell more than 3 cm above or below all its neighbours takes their median
+  (`despike`: one stray point is no step);
 - gradient: dz/dx, dz/dy of the least-squares plane through the heights of the observed cells of
   its 3 x 3 neighbourhood (NaN with fewer than three, or all on one line); slope = atan |gradient|;
 - step: the height jump at the cell that a smooth surface does not explain, the larger of the two
@@ -167,15 +170,18 @@ class GroundLayers:
         }
 
 
-BAND_CELLS = (
-    1 << 18
-)  # cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M)
+SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
+# Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
+BAND_CELLS = 1 << 18
+# Rows a cell's layers read on each side: the step reads heights 2 rows away, each the median of
+# heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
+CONTEXT = 4
 
 
 def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
     """The layers of the ground points (n, 3) (map frame, metres) on `frame` (points outside it
-    are left out), computed in bands of rows of about `band_cells` cells with two rows of context
-    on each side (what the gradient and the step read), so memory follows the band, not the grid."""
+    are left out), computed in bands of rows of about `band_cells` cells with CONTEXT rows on each
+    side, so memory follows the band, not the grid."""
     H, W = frame.shape
     s = float(frame.cell_size)
     origin = np.asarray(frame.origin, dtype=np.float64)
@@ -184,14 +190,18 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
     rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
     inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
     order = np.argsort(rows[inside], kind="stable")
+    # Where each point lies in its cell, metres from the centre: the mean height of a cell is
+    # that of its points' centroid, which on a slope is not the centre's.
+    within = (pts[:, :2] - origin) - (rc + 0.5) * s
     rows, cols, z = rows[inside][order], cols[inside][order], pts[inside, 2][order]
+    within = within[inside][order]
     band = max(1, band_cells // max(W, 1))
     parts: list[tuple[np.ndarray, ...]] = []
     for r0 in range(0, H, band):
         r1 = min(H, r0 + band)
-        lo, hi = max(0, r0 - 2), min(H, r1 + 2)
+        lo, hi = max(0, r0 - CONTEXT), min(H, r1 + CONTEXT)
         sel = slice(int(np.searchsorted(rows, lo)), int(np.searchsorted(rows, hi)))
-        layers = _band_layers(rows[sel] - lo, cols[sel], z[sel], (hi - lo, W), s)
+        layers = _band_layers(rows[sel] - lo, cols[sel], z[sel], within[sel], (hi - lo, W), s)
         keep = slice(r0 - lo, r0 - lo + (r1 - r0))
         observed = np.flatnonzero(layers[0][keep].ravel() > 0)
         parts.append((observed + r0 * W, *(layer[keep].reshape((r1 - r0) * W, -1)[observed] for layer in layers[1:])))
@@ -212,10 +222,11 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
 
 
 def _band_layers(
-    rows: np.ndarray, cols: np.ndarray, z: np.ndarray, shape: tuple[int, int], cell_size: float
+    rows: np.ndarray, cols: np.ndarray, z: np.ndarray, within: np.ndarray, shape: tuple[int, int], cell_size: float
 ) -> tuple[np.ndarray, ...]:
     """Dense (h, w) count, height, gradient (h, w, 2), step, roughness of one band from the
-    band-local cells (rows, cols) and heights z of its ground points."""
+    band-local cells (rows, cols), heights z and offsets from their cell's centre `within` (n, 2)
+    (x, y metres) of its ground points."""
     h, w = shape
     flat = rows * w + cols
     count = np.bincount(flat, minlength=h * w).reshape(h, w).astype(np.float64)
@@ -224,13 +235,41 @@ def _band_layers(
     squares = np.bincount(flat, weights=z * z, minlength=h * w).reshape(h, w).astype(np.float64)
     observed = count > 0
     mean = np.divide(total, count, out=np.zeros_like(total), where=observed)
-    height = np.where(observed, mean, np.nan)
+    centroid = [
+        np.divide(bins, count, out=np.zeros_like(bins), where=observed)
+        for bins in (
+            np.bincount(flat, weights=within[:, k], minlength=h * w).reshape(h, w).astype(np.float64) for k in (0, 1)
+        )
+    ]
+    # Each cell's mean height moved from its points' centroid to its centre along a first
+    # gradient, then the gradient again from those heights.
+    first = np.nan_to_num(plane_gradient(np.where(observed, mean, np.nan), cell_size))
+    height = despike(np.where(observed, mean - first[..., 0] * centroid[0] - first[..., 1] * centroid[1], np.nan))
     gradient = plane_gradient(height, cell_size)
     tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * cell_size**2 / 12.0
     variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
     roughness = np.sqrt(np.maximum(variance - tilt, 0.0))
     step = np.fmax(axis_step(height, axis=1), axis_step(height, axis=0))
     return count, height, gradient, step, roughness
+
+
+def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
+    """(H, W): each observed (finite) height that lies more than `tolerance` metres above or below
+    all of its observed 4-neighbours (at least three) replaced by their median. One stray point (a
+    car's sill taken for ground, a cell of one point) then makes no step and no slope, while an
+    edge (a curb: every cell beside it has a neighbour on each level), a plane and a smooth hill
+    (a cell between its neighbours, or within centimetres of them) keep their heights."""
+    padded = np.pad(height, 1, constant_values=np.nan)
+    stack = np.stack([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
+    stack.sort(axis=0)  # NaN last
+    known = np.isfinite(stack).sum(axis=0)
+    low = np.take_along_axis(stack, np.maximum(known - 1, 0)[None] // 2, axis=0)[0]
+    high = np.take_along_axis(stack, np.maximum(known, 1)[None] // 2, axis=0)[0]
+    lowest = stack[0]
+    highest = np.take_along_axis(stack, np.maximum(known - 1, 0)[None], axis=0)[0]
+    with np.errstate(invalid="ignore"):  # NaN compares False: cells without neighbours stay
+        spike = (known >= 3) & ((height > highest + tolerance) | (height < lowest - tolerance))
+    return np.where(spike, (low + high) / 2, height)
 
 
 def plane_gradient(height: np.ndarray, cell_size: float) -> np.ndarray:
