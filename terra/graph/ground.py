@@ -241,10 +241,11 @@ def _band_layers(
             np.bincount(flat, weights=within[:, k], minlength=h * w).reshape(h, w).astype(np.float64) for k in (0, 1)
         )
     ]
-    # Each cell's mean height moved from its points' centroid to its centre along a first
-    # gradient, then the gradient again from those heights.
-    first = np.nan_to_num(plane_gradient(np.where(observed, mean, np.nan), cell_size))
-    height = despike(np.where(observed, mean - first[..., 0] * centroid[0] - first[..., 1] * centroid[1], np.nan))
+    # Each cell's height at its centre: the plane through its neighbourhood's mean heights, each
+    # where its points' centroid lies (exact on a plane); the gradient again from those heights.
+    centred, first = plane_fit(np.where(observed, mean, np.nan), cell_size, (centroid[0], centroid[1]))
+    moved = mean - np.nan_to_num(first[..., 0]) * centroid[0] - np.nan_to_num(first[..., 1]) * centroid[1]
+    height = despike(np.where(observed, np.where(np.isfinite(centred), moved, mean), np.nan))
     gradient = plane_gradient(height, cell_size)
     tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * cell_size**2 / 12.0
     variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
@@ -276,26 +277,49 @@ def plane_gradient(height: np.ndarray, cell_size: float) -> np.ndarray:
     """(H, W, 2) dz/dx, dz/dy (m/m) of the least-squares plane through the observed (finite)
     heights (H, W) of each cell's 3 x 3 neighbourhood, at cell centres `cell_size` metres apart;
     NaN where fewer than three cells, or only collinear ones, are observed."""
+    return plane_fit(height, cell_size)[1]
+
+
+def _window_sums(values: np.ndarray, along_y: np.ndarray, along_x: np.ndarray) -> np.ndarray:
+    """The 3 x 3 window sums of values weighted by the taps along y (rows) and x (columns), as
+    two 3-tap passes."""
+    rows = ndimage.correlate1d(values, along_y, axis=0, mode="constant", cval=0.0)
+    return np.asarray(ndimage.correlate1d(rows, along_x, axis=1, mode="constant", cval=0.0))
+
+
+def plane_fit(
+    height: np.ndarray, cell_size: float, offset: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares plane z = a + gx dx + gy dy through the observed (finite) heights (H, W)
+    of each cell's 3 x 3 neighbourhood, dx, dy (metres) from the cell's centre to where each
+    height was measured: the cells' centres, moved by `offset` (x (H, W), y (H, W) metres from
+    each cell's centre) when given. Returns a (H, W), the plane's height at the cell's centre, and
+    (H, W, 2) gx, gy (m/m); NaN where fewer than three cells, or only collinear ones, are observed."""
     w = np.isfinite(height).astype(np.float64)
     wh = w * np.nan_to_num(height)
-    ones, odd, even = np.ones(3), np.array([-1.0, 0.0, 1.0]), np.array([1.0, 0.0, 1.0])
-
-    def sums(values: np.ndarray, along_y: np.ndarray, along_x: np.ndarray) -> np.ndarray:
-        # The 3 x 3 window sums of values x (dy^j dx^i / s^(i+j)) as two 3-tap passes (rows are y).
-        rows = ndimage.correlate1d(values, along_y, axis=0, mode="constant", cval=0.0)
-        return np.asarray(ndimage.correlate1d(rows, along_x, axis=1, mode="constant", cval=0.0))
-
-    s1, s2 = cell_size, cell_size * cell_size
-    n, sx, sy = sums(w, ones, ones), sums(w, ones, odd) * s1, sums(w, odd, ones) * s1
-    sxx, syy, sxy = sums(w, ones, even) * s2, sums(w, even, ones) * s2, sums(w, odd, odd) * s2
-    sz, szx, szy = sums(wh, ones, ones), sums(wh, ones, odd) * s1, sums(wh, odd, ones) * s1
-    # Cramer's rule on the 3 x 3 normal equations of z = a + gx dx + gy dy, cell by cell.
+    one, odd, even = np.ones(3), np.array([-1.0, 0.0, 1.0]), np.array([1.0, 0.0, 1.0])
+    sums, s1, s2 = _window_sums, cell_size, cell_size * cell_size
+    n, sx, sy = sums(w, one, one), sums(w, one, odd) * s1, sums(w, odd, one) * s1
+    sxx, syy, sxy = sums(w, one, even) * s2, sums(w, even, one) * s2, sums(w, odd, odd) * s2
+    sz, szx, szy = sums(wh, one, one), sums(wh, one, odd) * s1, sums(wh, odd, one) * s1
+    if offset is not None:  # dx = column offset + ex, dy = row offset + ey, expanded (w is 0 or 1)
+        ex, ey = (w * np.nan_to_num(o) for o in offset)
+        sx, sy = sx + sums(ex, one, one), sy + sums(ey, one, one)
+        sxx = sxx + 2 * s1 * sums(ex, one, odd) + sums(ex * ex, one, one)
+        syy = syy + 2 * s1 * sums(ey, odd, one) + sums(ey * ey, one, one)
+        sxy = sxy + s1 * (sums(ey, one, odd) + sums(ex, odd, one)) + sums(ex * ey, one, one)
+        hx, hy = ex * np.nan_to_num(height), ey * np.nan_to_num(height)
+        szx, szy = szx + sums(hx, one, one), szy + sums(hy, one, one)
+    # Cramer's rule on the 3 x 3 normal equations, cell by cell.
     det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
+    det_a = sz * (sxx * syy - sxy * sxy) - sx * (szx * syy - sxy * szy) + sy * (szx * sxy - sxx * szy)
     det_x = n * (szx * syy - sxy * szy) - sz * (sx * syy - sxy * sy) + sy * (sx * szy - szx * sy)
     det_y = n * (sxx * szy - szx * sxy) - sx * (sx * szy - szx * sy) + sz * (sx * sxy - sxx * sy)
     solvable = (n >= 3) & (np.abs(det) > 1e-9 * cell_size**4)  # det ~ n^3 s^4; collinear: rounding
     safe = np.where(solvable, det, 1.0)
-    return np.stack([np.where(solvable, det_x / safe, np.nan), np.where(solvable, det_y / safe, np.nan)], axis=-1)
+    intercept = np.where(solvable, det_a / safe, np.nan)
+    gradient = np.stack([np.where(solvable, det_x / safe, np.nan), np.where(solvable, det_y / safe, np.nan)], axis=-1)
+    return intercept, gradient
 
 
 def axis_step(height: np.ndarray, axis: int) -> np.ndarray:

@@ -12,12 +12,13 @@ import pytest
 from terra.bundle import Bundle
 from terra.cli import run
 from terra.graph.grid import GridFrame
-from terra.graph.ground import axis_step, edge_geometry, ground_layers, segment_ground
+from terra.graph.ground import axis_step, despike, edge_geometry, ground_layers, segment_ground
 from terra.graph.pipeline import build_scene_graph
 from terra.graph.storage import load_scene_graph
 from tests.graph.fixtures_ground import points_map
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "kitti"
+CELL = 0.4
 TAN10 = np.tan(np.radians(10.0))
 
 
@@ -119,6 +120,37 @@ def test_a_curb_is_a_step_on_both_cells_beside_it():
     column = layers.as_grid(layers.step)[:, 25]
     assert column[11] == pytest.approx(0.15, abs=0.01) and column[12] == pytest.approx(0.15, abs=0.01)
     assert column[10] < 0.01 and column[13] < 0.01
+
+
+def test_one_off_centre_point_per_cell_on_a_slope_reads_no_step():
+    # A map keeps one point per voxel, anywhere in its cell: the cell's height is moved to its
+    # centre along the gradient (else 9 degrees x up to 0.2 m off-centre reads as a 3 cm step).
+    rng = np.random.default_rng(4)
+    rows, cols = np.mgrid[0:25, 0:50]
+    xy = (np.column_stack([cols.ravel(), rows.ravel()]) + rng.uniform(0.0, 1.0, (rows.size, 2))) * CELL
+    tan9 = np.tan(np.radians(9.0))
+    layers = ground_layers(np.column_stack([xy, tan9 * (xy[:, 0] + 0.5 * xy[:, 1])]), flat_frame(20, 10))
+    inner = (slice(3, -3), slice(3, -3))
+    assert np.nanmax(layers.as_grid(layers.step)[inner]) < 0.005
+    expected = np.degrees(np.arctan(tan9 * np.hypot(1.0, 0.5)))
+    assert np.nanmax(np.abs(layers.as_grid(layers.slope)[inner] - expected)) < 0.05
+    centres = (np.column_stack([cols.ravel(), rows.ravel()]) + 0.5) * CELL
+    truth = tan9 * (centres[:, 0] + 0.5 * centres[:, 1])
+    assert np.allclose(layers.as_grid(layers.height).ravel(), truth, atol=1e-3, equal_nan=False)
+
+
+def test_despike_by_hand():
+    h = np.zeros((5, 6))
+    h[:, 3:] = 0.15  # a curb between columns 2 and 3
+    h[1, 1] = 0.1  # a stray point
+    h[4, 5] = np.nan  # an unobserved cell
+    out = despike(h)
+    assert out[1, 1] == 0.0  # 10 cm above all four neighbours: their median
+    expected = h.copy()
+    expected[1, 1] = 0.0
+    np.testing.assert_array_equal(out, expected)  # the curb and everything else unchanged
+    h[0, 0] = 0.1  # a corner cell has two neighbours: too few to call it a stray
+    assert despike(h)[0, 0] == 0.1
 
 
 def test_axis_step_by_hand():
