@@ -32,8 +32,8 @@ Layers (`ground_layers`), per cell, from the ground points in it:
 
 Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
 its step is the largest step of the cells it crosses, its rise (fall) the steepest climb (descent)
-along its direction i -> j, from the cells' gradients. Cells without ground count as unknown and
-constrain nothing.
+along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
+feels, not one cell's gradient). Cells without ground count as unknown and constrain nothing.
 """
 
 from __future__ import annotations
@@ -157,6 +157,12 @@ class GroundLayers:
         at = np.minimum(np.searchsorted(self.cells, flat), len(self.cells) - 1)
         return np.where(inside & (self.cells[at] == flat), at, -1)
 
+    def centres(self, index: np.ndarray) -> np.ndarray:
+        """(m, 2) map-frame x, y (metres) of the centres of observed cells `index` (m,)."""
+        flat = self.cells[np.asarray(index, dtype=np.int64)]
+        rows, cols = flat // self.shape[1] + self.offset[0], flat % self.shape[1] + self.offset[1]
+        return self.origin + (np.column_stack([cols, rows]).astype(np.float64) + 0.5) * self.cell_size
+
     def info(self) -> dict[str, Any]:
         """The manifest's description of the layers (components.graph.ground)."""
         return {
@@ -171,6 +177,7 @@ class GroundLayers:
 
 
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
+SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
 # Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
 BAND_CELLS = 1 << 18
 # Rows a cell's layers read on each side: the step reads heights 2 rows away, each the median of
@@ -250,7 +257,9 @@ def _band_layers(
     tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * cell_size**2 / 12.0
     variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
     roughness = np.sqrt(np.maximum(variance - tilt, 0.0))
-    step = np.fmax(axis_step(height, axis=1), axis_step(height, axis=0))
+    step = np.fmax(
+        axis_step(height, 1, gradient[..., 0] * cell_size), axis_step(height, 0, gradient[..., 1] * cell_size)
+    )
     return count, height, gradient, step, roughness
 
 
@@ -322,9 +331,12 @@ def plane_fit(
     return intercept, gradient
 
 
-def axis_step(height: np.ndarray, axis: int) -> np.ndarray:
+def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> np.ndarray:
     """(H, W) metres: the step at each cell along one axis (module docstring), NaN where the two
-    cells beside it are not both observed; a missing outer neighbour counts as level ground."""
+    cells beside it are not both observed. Where neither outer neighbour is observed (holes of a
+    sparse map), the local slope comes from `rise` (H, W), metres of height per cell along the
+    axis (the plane's gradient x cell size), and the step is unknown (NaN) where that is NaN too;
+    without `rise`, such a cell's surroundings count as level."""
     h = np.moveaxis(np.asarray(height, dtype=np.float64), axis, -1)
     pad = np.full(h.shape[:-1] + (2,), np.nan)
     p = np.concatenate([pad, h, pad], axis=-1)
@@ -334,14 +346,21 @@ def axis_step(height: np.ndarray, axis: int) -> np.ndarray:
     sides = np.stack([np.abs(before - before2), np.abs(after2 - after)])
     known = np.isfinite(sides)
     outer = np.where(known, sides, 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1)
+    if rise is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
+        fallback = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
+        outer = np.where(known.any(axis=0), outer, fallback)
     step = np.maximum(jump - 2.0 * outer, 0.0)
     return np.moveaxis(np.where(np.isfinite(jump), step, np.nan), -1, axis)
 
 
-def edge_geometry(layers: GroundLayers, position: np.ndarray, edges: np.ndarray) -> np.ndarray:
+def edge_geometry(
+    layers: GroundLayers, position: np.ndarray, edges: np.ndarray, baseline: float = SLOPE_BASELINE
+) -> np.ndarray:
     """(E, 3) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
-    metres): the largest step it crosses (m), its steepest rise and fall going from edges[:, 0] to
-    edges[:, 1] (degrees, >= 0); 0 where the cells along it hold no ground (module docstring)."""
+    metres): the largest step it crosses (m), and its steepest rise and fall going from
+    edges[:, 0] to edges[:, 1] (degrees, >= 0) over `baseline` metres of travel (the whole edge
+    when shorter), from the ground heights along it; 0 where the cells along it hold no ground
+    (module docstring)."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     E = len(edges)
     if E == 0 or len(layers.cells) == 0:
@@ -349,24 +368,47 @@ def edge_geometry(layers: GroundLayers, position: np.ndarray, edges: np.ndarray)
     a = np.asarray(position, dtype=np.float64)[edges[:, 0], :2]
     delta = np.asarray(position, dtype=np.float64)[edges[:, 1], :2] - a
     length = np.linalg.norm(delta, axis=1)
-    direction = np.divide(delta, length[:, None], out=np.zeros_like(delta), where=length[:, None] > 0)
     samples = np.ceil(length / (layers.cell_size / 2)).astype(np.int64) + 1
     starts = np.concatenate([[0], np.cumsum(samples)[:-1]])
     edge = np.repeat(np.arange(E), samples)
     t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
-    at = layers.lookup(a[edge] + t[:, None] * delta[edge])
+    point = a[edge] + t[:, None] * delta[edge]
+    at = layers.lookup(point)
     known = at >= 0
     step = np.where(known, layers.step[at], np.nan)
-    along = np.where(known, (layers.gradient[at].astype(np.float64) * direction[edge]).sum(axis=1), np.nan)
-    out = np.stack(
-        [
-            np.fmax.reduceat(step, starts),
-            np.degrees(np.arctan(np.fmax.reduceat(along, starts))),
-            np.degrees(np.arctan(np.fmax.reduceat(-along, starts))),
-        ],
-        axis=1,
-    )
+    # The ground's height at each sample: its cell's, carried along the cell's gradient.
+    cell = at[known]
+    tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
+    height = layers.height[cell] + (tilt * (point[known] - layers.centres(cell))).sum(axis=1)
+    rise = _rise_along(edge[known], t[known] * length[edge[known]], height, E, baseline)
+    out = np.column_stack([np.fmax.reduceat(step, starts), np.degrees(np.arctan(rise))])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+def _rise_along(edge: np.ndarray, travelled: np.ndarray, height: np.ndarray, edges: int, baseline: float) -> np.ndarray:
+    """(E, 2) steepest rise and fall (m/m, >= 0) of each edge from the heights (n,) of its known
+    samples (edge index (n,), increasing within an edge; metres travelled from its start (n,)):
+    over `baseline` metres, or from its first to its last known sample when it has less."""
+    out = np.zeros((edges, 2))
+    if len(edge) < 2:
+        return out
+    span = float(travelled.max()) + 2.0 * baseline + 1.0
+    coordinate = edge * span + travelled  # edges laid end to end, far apart
+    found = np.searchsorted(coordinate, coordinate + baseline - 1e-9)
+    ahead = np.minimum(found, len(edge) - 1)
+    full = (found < len(edge)) & (edge[ahead] == edge)  # a whole baseline of this edge lies ahead
+    ends = np.concatenate([np.flatnonzero(np.diff(edge)), [len(edge) - 1]])  # each edge's last sample
+    firsts = np.concatenate([[0], ends[:-1] + 1])
+    short = ~np.isin(edge[firsts], edge[full])  # edges with less than a baseline: first to last
+    pairs = np.concatenate([np.flatnonzero(full), firsts[short]])
+    targets = np.concatenate([ahead[full], ends[short]])
+    run = travelled[targets] - travelled[pairs]
+    valid = run > 1e-6
+    pairs, targets, run = pairs[valid], targets[valid], run[valid]
+    slope = (height[targets] - height[pairs]) / run
+    np.fmax.at(out[:, 0], edge[pairs], slope)
+    np.fmax.at(out[:, 1], edge[pairs], -slope)
+    return np.maximum(out, 0.0)
 
 
 # ------------------------------------------------------------------ the build's use of the layers
