@@ -16,17 +16,19 @@ growth) is not ground. Points at most `tolerance` above the lowest point of the 
 cell are ground.
 
 Layers (`ground_layers`), per cell, from the ground points in it:
-- height: mean height of its ground points, moved from their centroid to the cell's centre along
-  the local gradient (a cell's points are rarely centred in it; on a slope that would read as a
-  step between cells); a cell more than 3 cm above or below all its neighbours takes their median
-  (`despike`: one stray point is no step);
-- gradient: dz/dx, dz/dy of the least-squares plane through the heights of the observed cells of
-  its 3 x 3 neighbourhood (NaN with fewer than three, or all on one line); slope = atan |gradient|;
+- gradient: dz/dx, dz/dy of the least-squares plane through the mean heights of the observed
+  cells of its 3 x 3 neighbourhood, each taken where its points' centroid lies (NaN with fewer
+  than three cells, or all on one line); slope = atan |gradient|;
+- height: mean height of its ground points, carried from their centroid to the cell's centre
+  along that gradient (a map keeps one point per voxel, rarely at the centre: on a slope the raw
+  means read as steps between cells); a cell more than 3 cm above or below all its neighbours
+  takes their median (`despike`: one stray point is no step);
 - step: the height jump at the cell that a smooth surface does not explain, the larger of the two
   axes: along x, |h[c+1] - h[c-1]| minus twice the mean of the neighbouring differences
-  |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope), floored at 0. A 15 cm curb reads 15 cm
-  on both cells beside it, also when it runs through the middle of a cell; a constant slope reads
-  0 (it is the slope layer's business); stairs read as a steep slope with small steps;
+  |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope; the gradient's where neither is
+  observed), floored at 0. A 15 cm curb reads 15 cm on both cells beside it, or on the cell it
+  runs through; a constant slope reads 0 (it is the slope layer's business); stairs read as a
+  steep slope with small steps;
 - roughness: the standard deviation of the cell's ground point heights, less what the plane's
   tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
 
@@ -267,7 +269,7 @@ def _band_layers(
 def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
     """(H, W): each observed (finite) height that lies more than `tolerance` metres above or below
     all of its observed 4-neighbours (at least three) replaced by their median. One stray point (a
-    car's sill taken for ground, a cell of one point) then makes no step and no slope, while an
+    car's sill taken for ground, a cell of one point) then makes no step and no edge slope, while an
     edge (a curb: every cell beside it has a neighbour on each level), a plane and a smooth hill
     (a cell between its neighbours, or within centimetres of them) keep their heights."""
     padded = np.pad(height, 1, constant_values=np.nan)
@@ -281,13 +283,6 @@ def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
     with np.errstate(invalid="ignore"):  # NaN compares False: cells without neighbours stay
         spike = (known >= 3) & ((height > highest + tolerance) | (height < lowest - tolerance))
     return np.where(spike, (low + high) / 2, height)
-
-
-def plane_gradient(height: np.ndarray, cell_size: float) -> np.ndarray:
-    """(H, W, 2) dz/dx, dz/dy (m/m) of the least-squares plane through the observed (finite)
-    heights (H, W) of each cell's 3 x 3 neighbourhood, at cell centres `cell_size` metres apart;
-    NaN where fewer than three cells, or only collinear ones, are observed."""
-    return plane_fit(height, cell_size)[1]
 
 
 def _taps(values: np.ndarray, kind: str, axis: int) -> np.ndarray:
