@@ -38,9 +38,12 @@ import tempfile
 import time
 from importlib.metadata import version as package_version
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from terra.bundle import Bundle
 
 RESULTS = Path(__file__).resolve().parent / "results" / "geometry.json"
 
@@ -129,15 +132,18 @@ def lidar_only_build(folder: Path, work: Path) -> dict[str, Any]:
     )
 
 
-def coverage(bundle, places: np.ndarray) -> dict[str, Any]:
+def coverage(bundle: Bundle, places: np.ndarray) -> dict[str, Any]:
     """Share of the largest connected patch of densely observed ground cells within 3, 5, 10 m of a place."""
     from scipy import ndimage
     from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled module
 
-    info = bundle.model.components.graph.model_extra["ground"]
-    observed = np.zeros(int(np.prod(info["shape"])), dtype=bool)
+    graph = bundle.model.components.graph
+    info = graph.ground if graph is not None else None
+    if info is None:
+        return {"skipped": "the graph has no ground layers"}
+    observed = np.zeros(int(np.prod(info.shape)), dtype=bool)
     observed[np.asarray(bundle.array("graph/ground_cells"), dtype=np.int64)] = True
-    observed = observed.reshape(info["shape"])
+    observed = observed.reshape(info.shape)
     dense = observed & (ndimage.uniform_filter(observed.astype(np.float32), 9) >= 0.6)
     from terra.graph.raster import label
 
@@ -145,8 +151,8 @@ def coverage(bundle, places: np.ndarray) -> dict[str, Any]:
     sizes = np.bincount(labels.ravel())
     sizes[0] = 0
     rows, cols = np.nonzero(labels == sizes.argmax())
-    offset = info["offset"]
-    xy = np.asarray(info["origin"]) + (np.column_stack([cols + offset[1], rows + offset[0]]) + 0.5) * info["cell_size"]
+    offset = info.offset
+    xy = np.asarray(info.origin) + (np.column_stack([cols + offset[1], rows + offset[0]]) + 0.5) * info.cell_size
     distance = cKDTree(places[:, :2]).query(xy)[0]
     return {
         "observed_cells": int(observed.sum()),

@@ -220,16 +220,36 @@ def test_a_lidar_only_bag_maps_builds_and_plans(lidar_only_bundle, capsys):
     assert graph.terrain_classes == ["ground"] and len(graph.places) >= 10
     assert graph.has_edge_geometry
     info = bundle.model.components.graph
-    assert info is not None and info.model_extra is not None
-    ground = info.model_extra["ground"]
-    assert ground["units"]["height"] == "m, map frame" and ground["observed_cells"] > 1000
+    assert info is not None and info.ground is not None
+    ground = info.ground
+    assert ground.units["height"] == "m, map frame" and ground.observed_cells > 1000
     cells = bundle.array("graph/ground_cells")
-    assert cells.shape == (ground["observed_cells"],) and cells.max() < np.prod(ground["shape"])
+    assert cells.shape == (ground.observed_cells,) and cells.max() < np.prod(ground.shape)
     assert bundle.array("graph/ground_gradient").shape == (len(cells), 2)
     capsys.readouterr()
     last = len(graph.places) - 1
     assert run(["plan", str(lidar_only_bundle), "--from-node", "0", "--to-node", str(last), "--json"]) == 0
     assert '"goal_place": ' + str(last) in capsys.readouterr().out
+
+
+def test_an_edit_of_the_graph_keeps_the_ground_layers(lidar_only_bundle, tmp_path):
+    # `terra find --save` rewrites the scene graph: the layers of the build stay, with their entry.
+    from terra.bundle import BundleWriter
+    from terra.graph.storage import write_scene_graph
+    from tests.graph.fixtures import copy_bundle
+
+    path = copy_bundle(lidar_only_bundle, tmp_path / "copy.terra")
+    before = Bundle(path)
+    graph = load_scene_graph(before)
+    with BundleWriter(path, base=before) as writer:
+        write_scene_graph(writer, graph)
+    after = Bundle(path)
+    names = [n for n in before.files if n.startswith("graph/ground_")]
+    assert len(names) == 5 and all(after.files[n] == before.files[n] for n in names)
+    kept, built = after.model.components.graph, before.model.components.graph
+    assert kept is not None and built is not None and kept.ground is not None
+    assert kept.ground == built.ground
+    np.testing.assert_array_equal(load_scene_graph(after).place_edge_geometry, graph.place_edge_geometry)
 
 
 @pytest.mark.parametrize("argv", [["find", "bench"], ["monitor", "parking lot"], ["plan", "--to", "the bench"]])
