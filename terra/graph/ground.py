@@ -179,6 +179,7 @@ class GroundLayers:
 
 
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
+BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
 # Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
 BAND_CELLS = 1 << 18
@@ -473,10 +474,17 @@ def as_ground_terrain(msm: MetricSemanticMap, ground: np.ndarray) -> MetricSeman
     return replace(msm, terrain_classes=[GROUND_TERRAIN], terrain_votes=votes, terrain_embeddings=embedding)
 
 
-def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid) -> GroundLayers:
-    """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's cells."""
+def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, beside: int = BESIDE) -> GroundLayers:
+    """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's
+    cells. Steps within `beside` cells of a blocked cell are unknown: there the lowest points of an
+    object (a car's sill, a planter's rim) pass for ground and read as steps of a few centimetres,
+    and the grid keeps places and links clear of the object anyway."""
     frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
-    return ground_layers(np.asarray(points)[ground], frame)
+    layers = ground_layers(np.asarray(points)[ground], frame)
+    if beside > 0 and grid.blocked.any():
+        near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
+        layers.step[near.ravel()[layers.cells]] = np.nan
+    return layers
 
 
 def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:
