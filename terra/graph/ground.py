@@ -483,7 +483,7 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
     layers = ground_layers(np.asarray(points)[ground], frame)
     if beside > 0 and grid.blocked.any():
         near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
-        layers.step[near.ravel()[layers.cells]] = np.nan
+        layers.step[np.flatnonzero(near.ravel()[layers.cells])] = np.nan
     return layers
 
 
