@@ -28,7 +28,8 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope; the gradient's where neither is
   observed), floored at 0. A 15 cm curb reads 15 cm on both cells beside it, or on the cell it
   runs through; a constant slope reads 0 (it is the slope layer's business); stairs read as a
-  steep slope with small steps;
+  steep slope with small steps; unknown within two cells of a blocked cell (`grid_layers`), where
+  an object's lowest points pass for ground;
 - roughness: the standard deviation of the cell's ground point heights, less what the plane's
   tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
 
