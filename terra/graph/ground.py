@@ -282,16 +282,21 @@ def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
     edge (a curb: every cell beside it has a neighbour on each level), a plane and a smooth hill
     (a cell between its neighbours, or within centimetres of them) keep their heights."""
     padded = np.pad(height, 1, constant_values=np.nan)
-    stack = np.stack([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
-    stack.sort(axis=0)  # NaN last
-    known = np.isfinite(stack).sum(axis=0)
-    low = np.take_along_axis(stack, np.maximum(known - 1, 0)[None] // 2, axis=0)[0]
-    high = np.take_along_axis(stack, np.maximum(known, 1)[None] // 2, axis=0)[0]
-    lowest = stack[0]
-    highest = np.take_along_axis(stack, np.maximum(known - 1, 0)[None], axis=0)[0]
+    around = [padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]]
+    known = sum(np.isfinite(a).astype(np.int8) for a in around)
+    lowest = np.fmin(np.fmin(around[0], around[1]), np.fmin(around[2], around[3]))
+    highest = np.fmax(np.fmax(around[0], around[1]), np.fmax(around[2], around[3]))
     with np.errstate(invalid="ignore"):  # NaN compares False: cells without neighbours stay
         spike = (known >= 3) & ((height > highest + tolerance) | (height < lowest - tolerance))
-    return np.where(spike, (low + high) / 2, height)
+    out = height.copy()
+    if spike.any():  # rare: the median only where it is needed
+        rows, cols = np.nonzero(spike)
+        neighbours = np.stack([a[rows, cols] for a in around])  # (4, k), NaN sorts last
+        neighbours.sort(axis=0)
+        count = np.isfinite(neighbours).sum(axis=0)
+        pick = np.arange(len(rows))
+        out[rows, cols] = (neighbours[(count - 1) // 2, pick] + neighbours[count // 2, pick]) / 2
+    return out
 
 
 def _taps(values: np.ndarray, kind: str, axis: int) -> np.ndarray:
