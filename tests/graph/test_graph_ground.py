@@ -84,6 +84,17 @@ def test_segmentation_of_a_real_kitti_scan_agrees_with_patchworkpp():
     assert 0.5 < found.mean() < 0.75  # a street scan: about 60 % of its points hit the ground
 
 
+def test_a_real_kitti_scan_alone_builds_places_on_the_road():
+    # One real scan, no labels, no camera: the LiDAR-only path on real data. The sensor is 1.73 m
+    # above the road (KITTI's mount), so the places' ground lies about 1.73 m below the origin.
+    scan = np.fromfile(DATA / "000000_every12th.bin", dtype=np.float32).reshape(-1, 4)
+    graph = build_scene_graph(points_map(scan[:, :3])).graph
+    assert graph.terrain_classes == ["ground"] and len(graph.places) >= 3 and graph.has_edge_geometry
+    z = graph.places.position[:, 2]
+    assert np.all(np.abs(z + 1.73) < 0.3), z
+    assert np.linalg.norm(graph.places.position[:, :2], axis=1).max() < 30.0  # on the densely scanned road
+
+
 def flat_frame(width: float, depth: float, cell: float = 0.4) -> GridFrame:
     return GridFrame((0.0, 0.0), (int(round(depth / cell)), int(round(width / cell))), cell)
 
