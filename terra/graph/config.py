@@ -409,6 +409,52 @@ class GroundSection(Section):
         return v
 
 
+class UpdateSection(Section):
+    """Incremental updates of a live map's graph (terra.graph.update): only the tiles around what
+    changed since the previous version are rebuilt; a live session's last graph is a full build."""
+
+    tile: float = Field(
+        default=8.0, gt=0.0, description="metres; side of the fixed squares that mark where the map changed"
+    )
+    min_changed_points: int = Field(
+        default=10,
+        ge=1,
+        description=(
+            "a tile is rebuilt once it holds this many changed map points (a few new far returns wait for more, or "
+            "for the closing full build)"
+        ),
+    )
+    max_pending_points: int = Field(
+        default=1_000_000,
+        ge=0,
+        description="changed points waiting in tiles below min_changed_points before a full build",
+    )
+    replace_margin: float = Field(
+        default=8.0, ge=0.0, description="metres around the changed tiles whose places are rebuilt"
+    )
+    context_margin: float = Field(
+        default=16.0,
+        ge=0.0,
+        description="metres of map read around the rebuilt area (the GVD of a free area wider than this may differ)",
+    )
+    move_tolerance: float = Field(
+        default=0.05, ge=0.0, description="metres a map point may move (its voxel mean) before it counts as changed"
+    )
+    stitch_distance: float = Field(
+        default=4.0,
+        gt=0.0,
+        description="metres; an edge cut by the rebuilt area's border joins the nearest place this close",
+    )
+    recluster_fraction: float = Field(
+        default=0.25,
+        gt=0.0,
+        le=1.0,
+        description=(
+            "regions are re-clustered in full once this share of the places changed since the last full clustering"
+        ),
+    )
+
+
 class BuildConfig(Section):
     terrain: TerrainSection = Field(default_factory=TerrainSection)
     grid: GridSection = Field(default_factory=GridSection)
@@ -418,3 +464,4 @@ class BuildConfig(Section):
     embedding: EmbeddingSection = Field(default_factory=EmbeddingSection)
     regions: RegionsSection = Field(default_factory=RegionsSection)
     ground: GroundSection = Field(default_factory=GroundSection)
+    update: UpdateSection = Field(default_factory=UpdateSection)

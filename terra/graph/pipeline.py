@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +55,7 @@ class GraphBuild:
     graph: SceneGraph
     stats: BuildStats = field(default_factory=BuildStats)
     timer: StageTimer = field(default_factory=StageTimer)
-    ground: GroundLayers | None = None  # the ground's geometry layers on the terrain grid
+    ground: GroundLayers | None = field(default=None, kw_only=True)  # the ground's geometry layers on the terrain grid
 
 
 @dataclass
@@ -328,7 +329,7 @@ def build_scene_graph(
         ground = map_ground(msm, config.ground)
     if ground is not None and not has_terrain_votes(msm):  # LiDAR only: places on the segmented ground
         msm = as_ground_terrain(msm, ground)
-    names, terrains = _terrains_to_build(msm, config)
+    names, terrains = terrains_to_build(msm, config)
     with timer.stage("terrain grid"):
         grid, grid_stats = _map_grid(msm, names, terrains, config)
     with timer.stage("ground layers"):
@@ -344,16 +345,16 @@ def build_scene_graph(
     with timer.stage(f"regions ({config.regions.method})"):
         assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
         levels = build_levels(assignments, places.position, embedding)
-    graph = _scene_graph(msm, places, embedding, links, levels, config)
+    graph = scene_graph(msm, places, embedding, links, levels, config)
     if layers is not None:
         graph.place_edge_geometry = edge_geometry(layers, places.position, links.edges)
     if previous is not None:
-        graph = _with_previous_ids(graph, previous, config.grid.cell_size / 2)
+        graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
-    return GraphBuild(graph, stats, timer, layers)
+    return GraphBuild(graph, stats, timer, ground=layers)
 
 
-def _terrains_to_build(msm: MetricSemanticMap, config: BuildConfig) -> tuple[list[str], list[int]]:
+def terrains_to_build(msm: MetricSemanticMap, config: BuildConfig) -> tuple[list[str], list[int]]:
     """The map's terrain class names and the indices of those to build places for
     (`build.terrain.include`, default all); TerraError for a map without terrain classes or an
     included name the map does not have."""
@@ -410,11 +411,11 @@ def place_links(places: TerrainPlaceSet, traversable: np.ndarray, grid: TerrainG
     edges = np.vstack([edges, bridges])
     weight = np.concatenate([weight, bridge_cost])
     kind = np.concatenate([kind, np.full(len(bridges), EDGE_BRIDGE)])
-    edges, weight, kind = _unique_typed_edges(edges, weight, kind)
+    edges, weight, kind = unique_typed_edges(edges, weight, kind)
     return PlaceLinks(edges, weight, kind, len(paths), int((~bridge_clear).sum()))
 
 
-def _scene_graph(
+def scene_graph(
     msm: MetricSemanticMap,
     places: TerrainPlaceSet,
     embedding: np.ndarray,
@@ -422,6 +423,7 @@ def _scene_graph(
     levels: list[RegionLevel],
     config: BuildConfig,
 ) -> SceneGraph:
+    """The SceneGraph of built places, their embeddings (P, D), links and region levels (ids = indices)."""
     return SceneGraph(
         terrain_classes=list(msm.terrain_classes),
         terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),
@@ -440,7 +442,7 @@ def _scene_graph(
     )
 
 
-def _with_previous_ids(graph: SceneGraph, previous: SceneGraph, tolerance: float) -> SceneGraph:
+def with_previous_ids(graph: SceneGraph, previous: SceneGraph, tolerance: float) -> SceneGraph:
     """`graph` with the previous build's objects (linked to their nearest new place, 2-D) and the
     ids of the previous build carried over."""
     from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
@@ -486,7 +488,7 @@ def _build_stats(
     )
 
 
-def _unique_typed_edges(
+def unique_typed_edges(
     edges: np.ndarray, weight: np.ndarray, kind: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unique (i < j) edges keeping the cheapest (lowest kind on ties), ordered by (i, j)."""
@@ -499,7 +501,7 @@ def _check_bundle(bundle: Bundle) -> None:
         raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
 
 
-def _previous_graph(bundle: Bundle) -> SceneGraph | None:
+def previous_graph(bundle: Bundle) -> SceneGraph | None:
     """The bundle's current scene graph, whose ids the rebuild keeps; None when it has none or it
     cannot be read (a damaged or unsupported graph is what a rebuild replaces; its ids restart)."""
     from terra.graph.storage import load_scene_graph
@@ -523,8 +525,6 @@ def run_build(
     bundle_path: Path, config: BuildConfig | None = None, regions: str | None = None, show_progress: bool = True
 ) -> GraphBuild:
     """`build_graph` with its counters and timings (used by `terra build` for the summary)."""
-    from terra.graph.ground import write_ground_layers
-    from terra.graph.storage import write_scene_graph
     from terra.mapping.storage import load_map
 
     config = config or BuildConfig()
@@ -536,18 +536,29 @@ def run_build(
     timer = StageTimer()
     with timer.stage("load map"):
         msm = load_map(bundle, max_ids=False)  # the build never reads the MS-Max ids
-    result = build_scene_graph(msm, config, show_progress, previous=_previous_graph(bundle))
+    result = build_scene_graph(msm, config, show_progress, previous=previous_graph(bundle))
     for name, seconds in result.timer.seconds.items():
         timer.add(name, seconds)
-    with timer.stage("write"), BundleWriter(bundle.path, base=bundle, drop_components=("graph",)) as writer:
+    with timer.stage("write"):
+        commit_graph(bundle, result, config)
+    result.timer = timer
+    return result
+
+
+def commit_graph(bundle: Bundle, result: GraphBuild, config: BuildConfig, **extra: Any) -> None:
+    """Write `result` as component `graph/` of the bundle's next version (atomically), recording
+    the config, the counters, the map version it was built on and any `extra` manifest entries."""
+    from terra.graph.ground import write_ground_layers
+    from terra.graph.storage import write_scene_graph
+
+    with BundleWriter(bundle.path, base=bundle, drop_components=("graph",)) as writer:
         map_info = bundle.model.components.map
         info = {
             "config": config.model_dump(mode="json"),
             "stats": result.stats.to_json(),
             "map_version": map_info.version if map_info is not None and map_info.version is not None else 0,
+            **extra,
         }
         write_scene_graph(writer, result.graph, info)
         if result.ground is not None:
             write_ground_layers(writer, result.ground)
-    result.timer = timer
-    return result

@@ -100,7 +100,9 @@ def replay(
             last_snapshot = drive
         while pending and pending[0] <= drive:
             result.answers.append(ask(session.latest, pending.pop(0), gt, query, alpha))
-    final = session.snapshot()
+    final = session.close()  # the last graph built in full: the batch graph of the map
+    if final is None:
+        raise TerraError(f"{dataset.name}: no frame was fused; nothing to answer on")
     result.snapshots += 1
     result.answers.extend(ask(final, t, gt, query, alpha) for t in pending)
     result.final = ask(final, result.drive_s, gt, query, alpha)

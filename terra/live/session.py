@@ -31,6 +31,7 @@ from terra.loaded import LoadedBundle
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
+from terra.mapping.semantic_map import MetricSemanticMap
 from terra.mapping.state import check_run, restore_mapper, run_description, write_fused
 from terra.perception.base import Perception
 
@@ -48,6 +49,7 @@ class Snapshot:
     bundle: LoadedBundle
     graph_note: str = ""
     seconds: dict[str, float] = field(default_factory=dict)  # commit stages: map, graph, load
+    graph_update: dict = field(default_factory=dict)  # what the graph update did (terra.graph.update.UpdateStats)
 
 
 @dataclass
@@ -112,6 +114,7 @@ class Session:
         self._lock = threading.Lock()  # the mapper: add_frame and the map commit
         self._snapshot_lock = threading.Lock()  # the bundle: one snapshot at a time
         self._latest: Snapshot | None = None
+        self._updater = None  # terra.graph.update.GraphUpdater, made at the first graph commit
         self.last_frame_at: float | None = None  # time.monotonic() of the last accepted frame
 
     # -- frames in --------------------------------------------------------------------------
@@ -170,10 +173,13 @@ class Session:
         """Frames offered to the map so far, over every session of the bundle."""
         return self.mapper.next_frame
 
-    def snapshot(self) -> Snapshot:
+    def snapshot(self, full: bool = False) -> Snapshot:
         """Commit everything fused so far as the bundle's next version (map, fusion state and, with
-        graph=True, the scene graph rebuilt on it) and return its read view. Frames wait only while
-        the map is written: the graph is rebuilt (and the view loaded) while they keep fusing."""
+        graph=True, the scene graph updated on it) and return its read view. Frames wait only while
+        the map is written: the graph is updated (and the view loaded) while they keep fusing.
+
+        The graph is rebuilt only around what changed since the previous snapshot
+        (terra.graph.update); full=True rebuilds it whole, as `terra build` does (`close`)."""
         with self._snapshot_lock:  # one commit at a time
             seconds: dict[str, float] = {}
             start = time.perf_counter()
@@ -181,9 +187,9 @@ class Session:
                 if self.mapper.stats.counts.get("frames_fused", 0) == 0:
                     raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
                 frames, map_time = self.mapper.next_frame, self.mapper.last_stamp
-                self._commit_map()
+                msm = self._commit_map()
             seconds["map"] = time.perf_counter() - start
-            note = self._commit_graph() if self.graph else "graph off"
+            note, update = self._commit_graph(msm, full) if self.graph else ("graph off", {})
             seconds["graph"] = time.perf_counter() - start - seconds["map"]
             bundle = Bundle(self.out)
             self._base = bundle
@@ -191,32 +197,50 @@ class Session:
             loaded.require_map()  # read now: the view answers from this version whatever follows
             _ = loaded.graph
             seconds["load"] = time.perf_counter() - start - seconds["map"] - seconds["graph"]
-            snapshot = Snapshot(bundle.version, frames, map_time, loaded, note, seconds)
+            snapshot = Snapshot(bundle.version, frames, map_time, loaded, note, seconds, update)
             self._latest = snapshot
             return snapshot
 
-    def _commit_map(self) -> None:
+    def close(self) -> Snapshot | None:
+        """End the drive: a last snapshot with the graph built in full, so the session's final graph
+        is the batch graph of its map (`terra build` on the bundle gives the same). None when no
+        frame was fused."""
+        if self.mapper.stats.counts.get("frames_fused", 0) == 0:
+            return None
+        return self.snapshot(full=True)
+
+    def _commit_map(self) -> MetricSemanticMap:
         fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
         source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
         sources = _sources(self._base, source, self._first_frame)
         writer = BundleWriter(self.out, base=self._base, drop_components=("map",))
         try:
-            write_fused(writer, self.mapper, self._run, self.name, self.classes, sources)
+            msm = write_fused(writer, self.mapper, self._run, self.name, self.classes, sources)
             writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
         except BaseException:
             writer.abort()
             raise
+        return msm
 
-    def _commit_graph(self) -> str:
-        """Rebuild the scene graph on the committed map ('' when built, else why not, the map being
-        too young for places: the version keeps the map alone)."""
-        from terra.graph.pipeline import run_build
+    def _commit_graph(self, msm: MetricSemanticMap, full: bool) -> tuple[str, dict]:
+        """Update the scene graph on the committed map `msm` and commit it: ('' when built, else why
+        not, the map being too young for places: the version keeps the map alone; what the update did)."""
+        from terra.graph.pipeline import commit_graph, previous_graph
+        from terra.graph.update import GraphUpdater
 
+        if self._updater is None:  # the bundle's graph (resume): its ids and saved objects are kept
+            self._updater = GraphUpdater(self.build, previous_graph(self._base) if self._base is not None else None)
+        if full:  # as `terra build` reads it (e.g. the bank rounded to float16): the batch graph exactly
+            from terra.mapping.storage import load_map
+
+            msm = load_map(Bundle(self.out), max_ids=False)
         try:
-            run_build(self.out, self.build, show_progress=False)
+            result = self._updater.update(msm, full=full)
         except TerraError as exc:
-            return str(exc)
-        return ""
+            return str(exc), {}
+        update = result.update.to_json()
+        commit_graph(Bundle(self.out), result, self._updater.config, update=update)
+        return "", update
 
 
 def _open_base(out: Path, resume: bool, overwrite: bool) -> Bundle | None:

@@ -1,9 +1,10 @@
 """Per-mask DBSCAN: keep only the largest cluster of a mask's 3D points (paper, Phase 1).
 
 2D masks bleed onto the background through gaps and boundaries; the background points form
-their own clusters away from the object. All masks of an image are clustered in one scikit-learn
-DBSCAN call: each mask's points get a fourth coordinate, the mask number times 3 eps, so points of
-different masks are never neighbours and the result equals one DBSCAN per mask.
+their own clusters away from the object. All masks of an image are clustered in one DBSCAN call
+(terra.dbscan: scikit-learn's labels, weights summed in one vectorised step): each mask's points
+get a fourth coordinate, the mask number times 3 eps, so points of different masks are never
+neighbours and the result equals one DBSCAN per mask.
 
 With `voxel` > 0 a mask's points are first merged per voxel (edge `voxel` metres) into weighted
 samples (DBSCAN's sample_weight), which gives the same clusters up to the voxel size at a
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from terra.dbscan import dbscan_labels
 from terra.geometry import voxel_keys
 
 
@@ -41,10 +43,8 @@ def largest_clusters(
         sample_group[sample] = dense
     else:
         sample, weight, centres, sample_group = np.arange(n), np.ones(n), points, dense
-    from sklearn.cluster import DBSCAN  # here: scikit-learn costs ~0.4 s to import, which `terra build` never needs
-
     lifted = np.column_stack([centres, sample_group * (3.0 * eps)])
-    labels = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(lifted, sample_weight=weight)[sample]
+    labels = dbscan_labels(lifted, eps, min_samples, sample_weight=weight)[sample]
     clustered = np.flatnonzero(labels >= 0)
     if clustered.size == 0:
         return keep

@@ -129,6 +129,16 @@ def ms_avg_norms(counts: sp.csr_matrix, bank: np.ndarray, chunk: int = 65536) ->
     # Only observed rows: most map points (ground, walls) have none, and each row's norm is computed
     # on its own, so leaving the empty ones out changes no value.
     observed = np.flatnonzero(np.diff(counts.indptr))
+    bank = np.asarray(bank)
+    if bank.shape[0] <= bank.shape[1]:
+        # Fewer bank entries than dimensions (the usual live map): |c B|^2 = c (B B^T) c, with the
+        # K x K Gram matrix, costs K per stored count instead of D per observed point.
+        gram = bank.astype(np.float64) @ bank.astype(np.float64).T
+        for start in range(0, observed.size, chunk):
+            rows = counts[observed[start : start + chunk]].astype(np.float64)
+            squared = np.asarray(rows.multiply(rows @ gram).sum(axis=1)).ravel()
+            out[observed[start : start + chunk]] = np.sqrt(np.maximum(squared, 0.0))
+        return out
     for start in range(0, observed.size, chunk):
         rows = observed[start : start + chunk]
         out[rows] = np.linalg.norm(counts[rows] @ bank, axis=1)

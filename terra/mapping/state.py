@@ -27,6 +27,7 @@ from terra.mapping.bank import EmbeddingBank
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper
+from terra.mapping.semantic_map import MetricSemanticMap
 from terra.mapping.storage import smallest_unsigned, write_map
 from terra.npy import ArraySpec
 from terra.perception.base import Perception
@@ -192,12 +193,14 @@ def run_description(config: MappingConfig, perception: Perception) -> dict:
 
 def write_fused(
     writer: BundleWriter, mapper: Mapper, run: dict[str, Any], name: str, classes: ClassTable, sources: list[dict]
-) -> None:
+) -> MetricSemanticMap:
     """Everything `mapper` has fused as component `map/` of the version being written: the map (as
-    `write_map`, `name` the first source's), its fusion state, its sources, frames and time span."""
+    `write_map`, `name` the first source's), its fusion state, its sources, frames and time span.
+    Returns the map written (its own arrays: frames fused later leave it as it is)."""
+    msm = mapper.finish()
     write_map(
         writer,
-        mapper.finish(),
+        msm,
         config=mapper.config.model_dump(mode="json"),
         stats=mapper.stats.to_json(),
         dataset=name,
@@ -214,6 +217,7 @@ def write_fused(
         version=writer.model.version,
     )
     writer.set_perception(mapper.perception.describe())
+    return msm
 
 
 def check_run(bundle: Bundle, run: dict[str, Any]) -> None:

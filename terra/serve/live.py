@@ -90,15 +90,17 @@ class LiveService:
             self._wake.set()
         return fused
 
-    def update(self) -> Snapshot | None:
-        """Commit the frames fused since the last version (None when there are none)."""
+    def update(self, full: bool = False) -> Snapshot | None:
+        """Commit the frames fused since the last version (None when there are none); full=True
+        builds the graph whole (at close: the session's last graph is the batch graph of its map)."""
         with self._update_lock:
             fused = self._fused()
-            if fused == self._committed_fused:
+            incremental = self._latest is not None and self._latest.graph_update.get("kind") == "incremental"
+            if fused == self._committed_fused and not (full and incremental):
                 return None
             began = time.perf_counter()
             try:
-                snapshot = self.session.snapshot()
+                snapshot = self.session.snapshot(full=full)
             except Exception as exc:  # the service stays up; GET /live says why
                 self.counters.last_error = " ".join(str(exc).split()) or type(exc).__name__
                 log.error("live update failed: %s", self.counters.last_error, exc_info=not isinstance(exc, TerraError))
@@ -121,6 +123,7 @@ class LiveService:
             "version": None if latest is None else latest.version,
             "map_time": None if latest is None else latest.map_time,
             "graph_note": "" if latest is None else latest.graph_note,
+            "graph_update": {} if latest is None else latest.graph_update,
             "frames_received": self.counters.received,
             "frames_fused": fused,
             "frames_skipped": self.counters.skipped,
@@ -151,7 +154,7 @@ class LiveService:
             self._thread.join()
             self._thread = None
         with contextlib.suppress(Exception):  # logged by update; the last committed version stays intact
-            self.update()
+            self.update(full=True)
 
     # -- private interface ------------------------------------------------------------------
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from terra.graph.scene_graph import EDGE_GVD, SceneGraph
-from terra.tasks.neighbours import nearest as nearest_points
+from terra.neighbours import nearest as nearest_points
 
 
 def ground_under(graph: SceneGraph, xy: np.ndarray) -> np.ndarray:

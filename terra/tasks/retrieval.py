@@ -22,13 +22,14 @@ from typing import Any
 
 import numpy as np
 
+from terra.dbscan import dbscan_labels
 from terra.errors import TerraError
 from terra.graph.scene_graph import Objects, SceneGraph
 from terra.mapping.semantic_map import MetricSemanticMap
+from terra.neighbours import nearest
 from terra.perception.text import TextEmbedder, check_embedder, resolve_embedder
 from terra.tasks.boxes import fit_object_boxes
 from terra.tasks.config import RETRIEVAL_METHODS, RetrievalConfig, TasksConfig, alpha_for
-from terra.tasks.dbscan import dbscan_labels
 from terra.tasks.hierarchy import (
     check_has_regions,
     place_similarities,
@@ -37,7 +38,6 @@ from terra.tasks.hierarchy import (
     region_similarities,
 )
 from terra.tasks.instances import split_instances
-from terra.tasks.neighbours import nearest
 from terra.tasks.object_context import ground_under, strip_directions
 from terra.tasks.queries import clean_queries, embed_queries
 from terra.tasks.scoring import Feature, PointScorer
@@ -146,7 +146,7 @@ def cluster_matches(points: np.ndarray, eps: float, min_samples: int, min_points
     """DBSCAN clusters of (n, 3) points as arrays of row indices, largest first (ties: lowest row)."""
     if len(points) < max(min_samples, min_points):
         return []
-    # scikit-learn's labels without importing it (about a second of a cold query): terra.tasks.dbscan.
+    # scikit-learn's labels without importing it (about a second of a cold query): terra.dbscan.
     labels = dbscan_labels(points, eps, min_samples)
     keep = labels >= 0
     rows = np.flatnonzero(keep)

@@ -210,3 +210,112 @@ def test_a_write_on_an_older_version_is_refused(tiny_graph_bundle, tmp_path):
         reader.update_graph(lambda graph: graph)
     assert folder_digest(copy) == newer
     assert [p.name for p in tmp_path.iterdir()] == ["copy.terra"]
+
+
+def test_live_graph_updates_are_incremental_and_the_closing_graph_is_the_batch_graph(
+    tiny_campus, tiny_graph_bundle, tmp_path
+):
+    """Snapshots after the first update the graph around the new frames only; `close()` builds it
+    whole on the same map as `terra build`, so it is the batch graph (ids aside: the live ones
+    are carried from the updates, the batch ones are a first build's)."""
+    from terra.graph.storage import load_scene_graph
+
+    session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), name=tiny_campus.name)
+    kinds = []
+    for i in range(len(tiny_campus)):
+        session.add(tiny_campus[i])
+        if i >= 2 and i % 3 == 2:
+            snapshot = session.snapshot()
+            if not snapshot.graph_note:
+                kinds.append(snapshot.graph_update["kind"])
+                assert snapshot.bundle.graph is not None
+    assert kinds[0] == "full" and kinds.count("incremental") >= 2
+    closing = session.close()
+    assert closing is not None and closing.graph_update["kind"] == "full"
+    live, batch = load_scene_graph(Bundle(tmp_path / "live.terra")), load_scene_graph(Bundle(tiny_graph_bundle.path))
+    np.testing.assert_array_equal(live.places.position, batch.places.position)
+    np.testing.assert_array_equal(live.places.terrain, batch.places.terrain)
+    np.testing.assert_array_equal(live.places.embedding, batch.places.embedding)
+    np.testing.assert_array_equal(live.place_edges, batch.place_edges)
+    np.testing.assert_array_equal(live.place_edge_weight, batch.place_edge_weight)
+    assert len(live.regions) == len(batch.regions)
+    for level in range(1, len(batch.regions) + 1):
+        np.testing.assert_array_equal(live.place_region(level), batch.place_region(level))
+    info = Bundle(tmp_path / "live.terra").model.components.graph
+    assert info is not None and info.model_dump()["update"]["kind"] == "full"
+
+
+GRAPH_FEED_SCRIPT = """
+import sys
+from tests.reliability.killpoint import install
+install("write", int(sys.argv[1]))
+from terra.live import Session
+from terra.sim import simulate
+dataset = simulate("tiny", seed=0)
+session = Session(sys.argv[2], dataset.classes, name=dataset.name)
+for i in range(len(dataset)):
+    session.add(dataset[i])
+    if (i + 1) % 4 == 0:
+        session.snapshot()
+"""
+
+
+def test_kill_during_an_incremental_graph_update_keeps_the_last_version(tiny_campus, tiny_bundle, tmp_path):
+    """SIGKILL in the middle of writing the graph of an incremental update (the files counted by a
+    first run in this process): the last version opens whole, with a graph that matches its map
+    version, and a resumed session ends with the batch map and a full graph."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import terra.bundle as bundle_module
+    from terra.graph.storage import load_scene_graph
+
+    # Count the files written up to the first incremental graph commit, and its own.
+    written = {"n": 0}
+    real_write = bundle_module._write_new_file
+
+    def counting(path, data, mode=0o666):
+        written["n"] += 1
+        return real_write(path, data, mode)
+
+    marks = []
+    bundle_module._write_new_file = counting
+    try:
+        session = Session(tmp_path / "dry.terra", tiny_campus.classes, name=tiny_campus.name)
+        for i in range(len(tiny_campus)):
+            session.add(tiny_campus[i])
+            if (i + 1) % 4 == 0:
+                before = written["n"]
+                snapshot = session.snapshot()
+                if snapshot.graph_update.get("kind") == "incremental":
+                    marks.append((before, written["n"]))
+                    break
+    finally:
+        bundle_module._write_new_file = real_write
+    assert marks, "no incremental update in the tiny drive"
+    start, end = marks[0]
+    kill_at = end - 3  # a graph file of the incremental update, after its map commit
+    assert kill_at > start
+    out = tmp_path / "live.terra"
+    child = subprocess.run(
+        [sys.executable, "-c", GRAPH_FEED_SCRIPT, str(kill_at), str(out)],
+        cwd=Path(__file__).parents[2],
+        capture_output=True,
+        timeout=600,
+    )
+    assert child.returncode == -signal.SIGKILL, child.stderr.decode()[-2000:]
+    bundle = Bundle(out)
+    bundle.verify()
+    graph_info, map_info = bundle.model.components.graph, bundle.model.components.map
+    assert map_info is not None and graph_info is not None
+    assert graph_info.map_version is not None and graph_info.map_version <= bundle.version
+    assert len(load_scene_graph(bundle).places) > 0
+    resumed = Session(out, tiny_campus.classes, resume=True, name=tiny_campus.name)
+    for i in range(resumed.frames, len(tiny_campus)):
+        resumed.add(tiny_campus[i])
+    closing = resumed.close()
+    assert closing is not None and closing.graph_update["kind"] == "full"
+    assert map_files(out) == map_files(tiny_bundle.path)
+    assert [p.name for p in tmp_path.iterdir() if p.name not in ("live.terra", "dry.terra")] == []

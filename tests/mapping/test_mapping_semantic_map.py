@@ -121,3 +121,20 @@ def test_images_observing_matches_brute_force(box_map):
     np.testing.assert_allclose(
         msm.images.T_map_cam[2], scene.pose(2) @ np.linalg.inv(scene.camera.T_cam_lidar), atol=1e-9
     )
+
+
+@pytest.mark.parametrize("bank_size", [12, 500])
+def test_ms_avg_norms_equal_the_norms_of_the_dense_features(bank_size):
+    """Row norms of counts @ bank: through the bank's Gram matrix when it has fewer entries than
+    dimensions, directly otherwise; both against the dense product, row by row."""
+    from terra.mapping.semantic_map import ms_avg_norms
+
+    rng = np.random.default_rng(bank_size)
+    bank = rng.normal(size=(bank_size, 64)).astype(np.float32)
+    bank /= np.linalg.norm(bank, axis=1, keepdims=True)
+    dense = np.where(rng.random((400, bank_size)) < 0.05, rng.integers(1, 300, (400, bank_size)), 0)
+    dense[:50] = 0  # rows without observations
+    expected = np.linalg.norm(dense.astype(np.float64) @ bank.astype(np.float64), axis=1)
+    got = ms_avg_norms(sp.csr_matrix(dense.astype(np.int32)), bank)
+    assert got.dtype == np.float32 and (got[:50] == 0).all()
+    np.testing.assert_allclose(got, expected, rtol=1e-6)

@@ -1,14 +1,16 @@
-"""DBSCAN on SciPy alone, with scikit-learn's labels, for the query path.
+"""DBSCAN on SciPy alone, with scikit-learn's labels, for the query path and Phase 1's masks.
 
 Importing scikit-learn's cluster package takes about a second, most of a cold query's budget, and
-its radius search dominated a warm object query. This is the same algorithm on neighbour pairs
-(terra.tasks.neighbours: direct for small sets, SciPy's k-d tree for large ones): a point is core
-when at least `min_samples` points (itself included) lie within `eps` (inclusive); clusters are
-the connected components of core points; a border point joins the cluster found first.
+its radius search dominated a warm object query; with sample weights (Phase 1's voxel-merged mask
+points) it sums each neighbourhood's weights in a Python loop, a third of a frame's fusion. This
+is the same algorithm on neighbour pairs (terra.neighbours: direct for small sets, SciPy's k-d
+tree for large ones): a point is core when the points within `eps` (inclusive), itself included,
+weigh at least `min_samples` (each weighs 1 without weights); clusters are the connected
+components of core points; a border point joins the cluster found first.
 scikit-learn expands clusters in order of their lowest-index core point and a border point takes
 the first cluster that reaches it, so "first" is the adjacent cluster with the lowest first core
 index, and the labels below equal `DBSCAN(eps, min_samples).fit_predict` (tests compare them on
-random and gridded point sets).
+random and gridded point sets, with and without weights).
 """
 
 from __future__ import annotations
@@ -17,14 +19,17 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from terra.tasks.neighbours import pairs_within
+from terra.neighbours import pairs_within
 
 
-def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+def dbscan_labels(
+    points: np.ndarray, eps: float, min_samples: float, sample_weight: np.ndarray | None = None
+) -> np.ndarray:
     """(n,) int64 cluster labels 0..C-1 (numbered by lowest core index), -1 for noise.
 
     points: (n, d) coordinates (metres for map points); eps: neighbourhood radius, same unit;
-    min_samples: neighbours (the point included) that make a point core.
+    min_samples: weight of the neighbourhood (the point included) that makes a point core;
+    sample_weight: (n,) weight of each point (default 1), as scikit-learn's `sample_weight`.
     """
     points = np.asarray(points, dtype=np.float64)
     n = len(points)
@@ -33,7 +38,13 @@ def dbscan_labels(points: np.ndarray, eps: float, min_samples: int) -> np.ndarra
         return labels
     pairs = pairs_within(points, eps)
     i, j = pairs[:, 0], pairs[:, 1]
-    degree = np.bincount(i, minlength=n) + np.bincount(j, minlength=n) + 1
+    if sample_weight is None:
+        degree = np.bincount(i, minlength=n) + np.bincount(j, minlength=n) + 1
+    else:
+        weight = np.asarray(sample_weight, dtype=np.float64)
+        degree = (
+            np.bincount(i, weights=weight[j], minlength=n) + np.bincount(j, weights=weight[i], minlength=n) + weight
+        )
     core = degree >= min_samples
     cores = np.flatnonzero(core)
     if cores.size == 0:

@@ -1,12 +1,12 @@
-"""Neighbour searches (terra.tasks.neighbours): the direct computation for small inputs gives
+"""Neighbour searches (terra.neighbours): the direct computation for small inputs gives
 SciPy's k-d tree answers, which the large inputs use."""
 
 import numpy as np
 import pytest
 from scipy.spatial import KDTree
 
-from terra.tasks import neighbours
-from terra.tasks.neighbours import nearest, pairs_within
+from terra import neighbours
+from terra.neighbours import nearest, pairs_within
 
 
 @pytest.mark.parametrize("seed", range(6))

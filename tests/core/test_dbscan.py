@@ -1,11 +1,11 @@
-"""DBSCAN on SciPy (terra.tasks.dbscan) against scikit-learn's, the reference it replaces on the
+"""DBSCAN on SciPy (terra.dbscan) against scikit-learn's, the reference it replaces on the
 query path: the same labels on random, voxel-gridded and duplicated point sets."""
 
 import numpy as np
 import pytest
 from sklearn.cluster import DBSCAN
 
-from terra.tasks.dbscan import dbscan_labels
+from terra.dbscan import dbscan_labels
 
 
 @pytest.mark.parametrize("seed", range(12))
@@ -37,3 +37,18 @@ def test_border_point_joins_the_first_cluster_and_small_inputs():
     assert dbscan_labels(flipped, eps=0.9, min_samples=6).tolist() == [0] * 6 + [1] * 6 + [0]
     assert dbscan_labels(np.zeros((0, 3)), 1.0, 4).shape == (0,)
     assert dbscan_labels(np.zeros((3, 3)), 1.0, 4).tolist() == [-1, -1, -1]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_weighted_labels_equal_scikit_learn(seed):
+    """Phase 1's use: voxel-merged mask points as weighted samples, masks apart in a fourth
+    coordinate (terra.mapping.clustering)."""
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(1, 3000))
+    points = np.round(rng.uniform(0, rng.uniform(3, 30), (n, 3)) / 0.2) * 0.2
+    eps = float(rng.uniform(0.3, 2.0))
+    points = np.column_stack([points, rng.integers(0, 5, n) * 3.0 * eps])
+    weight = rng.integers(1, 40, n).astype(np.float64)
+    min_samples = int(rng.integers(1, 60))
+    expected = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(points, sample_weight=weight)
+    np.testing.assert_array_equal(dbscan_labels(points, eps, min_samples, sample_weight=weight), expected)

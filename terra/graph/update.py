@@ -1,0 +1,568 @@
+"""Incremental Phase 2: the scene graph of a grown map, rebuilt only around what changed.
+
+A live session commits a map version every few seconds, and most of the map is as it was. A
+`GraphUpdater` keeps what its last graph was built from (per map point: its voxel key, position
+and terrain class), finds the points added, removed, moved or re-classed since, and rebuilds the
+graph only there:
+
+1. changed tiles: the squares of `build.update.tile` metres (a fixed lattice of the map frame,
+   anchored at x = y = 0) that hold at least `min_changed_points` changed points (a few new far
+   returns wait for more, or for the closing full build);
+2. the zone: the changed tiles grown by `replace_margin`; its places are rebuilt. The crop: the
+   zone's bounding box grown by `context_margin`, whose points the rebuild reads: the terrain
+   grid, the per-terrain GVD places and the links of the crop, by the same functions a full
+   build runs on the whole map (terra.graph.pipeline);
+3. places: the old ones outside the zone, with their ids, edges and embeddings, and the crop's
+   inside it. An edge cut by the zone's border is stitched: its lost end is replaced by the
+   nearest place of the same terrain on the other side within `stitch_distance` (its cost is the
+   straight 3-D length); bridges then join the components, as a full build's do (costed as not
+   clear: there is no whole-map grid to check the line on);
+4. embeddings: computed for the new places and for the old ones within `embedding.max_range` of
+   the zone, the only ones new images can have seen;
+5. regions: each new place joins, at every level, the regions of its nearest kept place; the
+   levels are clustered in full when the places replaced since the last full clustering exceed
+   `recluster_fraction` of all places (or nothing old is left). Ids follow terra.graph.ids: kept
+   places keep theirs exactly, regions by shared places.
+
+Against a full build of the same map the update differs in three named ways, measured by
+benchmarks/bench_live_graph.py: the zone's places come from the crop's GVD (the same as the whole
+map's wherever no free area inside the zone reaches past the crop), stitched edges, and regions
+grown rather than re-clustered. A live session ends with a full build (`Session.close`), so the
+graph of a finished drive is the batch graph of its map exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from terra.errors import TerraError
+from terra.graph.config import BuildConfig
+from terra.graph.linking import bridge_components
+from terra.graph.pipeline import (
+    GraphBuild,
+    PlaceLinks,
+    TerrainPlaceSet,
+    build_scene_graph,
+    place_embeddings,
+    place_links,
+    region_assignments,
+    scene_graph,
+    terrain_grid,
+    terrain_places,
+    terrains_to_build,
+    unique_typed_edges,
+    with_previous_ids,
+)
+from terra.graph.regions import build_levels
+from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
+from terra.mapping.semantic_map import MetricSemanticMap
+from terra.progress import StageTimer
+
+_HASH = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x27D4EB2F165667C5], dtype=np.uint64)
+
+
+@dataclass(frozen=True)
+class MapDigest:
+    """What a graph was built from: one hash per map point of its position, rounded to the digest's
+    step, and terrain class, sorted (N,) uint64; `order` (N,) the map point of each; the points
+    (N, 3) float32 metres (map frame) in the map's order."""
+
+    sorted_hashes: np.ndarray
+    order: np.ndarray
+    points: np.ndarray
+
+
+def map_digest(points: np.ndarray, terrain: np.ndarray, step: float) -> MapDigest:
+    """The digest of map points (N, 3) metres with their terrain classes (N,): each point's
+    position rounded to `step` metres (1 mm when 0) and its class, hashed (64 bits: a collision
+    between two of a million points is about one in 10^7, and would only hide one change)."""
+    points = np.asarray(points, dtype=np.float32)
+    scale = np.float32(1.0 / max(step, 1e-3))
+    hashes = np.asarray(terrain, dtype=np.int64).view(np.uint64) * _HASH[3]
+    with np.errstate(over="ignore"):  # wrapping multiplication is the hash
+        for axis in range(3):
+            cells = np.rint(points[:, axis] * scale).astype(np.int64).view(np.uint64)
+            hashes ^= (cells * _HASH[axis]) >> np.uint64(axis)
+    order = np.argsort(hashes)
+    return MapDigest(hashes[order], order, points)
+
+
+def changed_points(old: MapDigest, new: MapDigest) -> np.ndarray:
+    """(K, 2) x, y metres of the points of either digest that the other lacks: points added,
+    removed, re-classed or moved by more than the digest's step (both their places count)."""
+    added = new.order[~_members(new.sorted_hashes, old.sorted_hashes)]
+    removed = old.order[~_members(old.sorted_hashes, new.sorted_hashes)]
+    return np.vstack([new.points[added, :2], old.points[removed, :2]]).astype(np.float64)
+
+
+def _members(values: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:
+    """(N,) whether each of the sorted `values` is in the sorted array `sorted_values` (both
+    sorted: the search walks memory in order, several times faster than random look-ups)."""
+    if len(sorted_values) == 0:
+        return np.zeros(len(values), dtype=bool)
+    at = np.minimum(np.searchsorted(sorted_values, values), len(sorted_values) - 1)
+    return sorted_values[at] == values
+
+
+@dataclass(frozen=True)
+class TileZone:
+    """The rebuilt area on the tile lattice: tiles from `origin` (x, y tile indices) of `tile`
+    metres; `zone` (X, Y) int32 labels the rebuilt tiles by connected part (1..K, 0 elsewhere),
+    `near` (X, Y) bool marks those within the embedding range of the zone; `crops[k - 1]` =
+    (x0, y0, x1, y1) metres, the map part the rebuild of part k reads."""
+
+    tile: float
+    origin: tuple[int, int]
+    zone: np.ndarray
+    near: np.ndarray
+    crops: list[tuple[float, float, float, float]]
+
+    def _lookup(self, mask: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        ij = np.floor(np.asarray(xy, dtype=np.float64)[:, :2] / self.tile).astype(np.int64) - np.asarray(self.origin)
+        inside = (ij >= 0).all(axis=1) & (ij[:, 0] < mask.shape[0]) & (ij[:, 1] < mask.shape[1])
+        out = np.zeros(len(ij), dtype=mask.dtype)
+        out[inside] = mask[ij[inside, 0], ij[inside, 1]]
+        return out
+
+    def in_zone(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) whether each position (N, >=2) metres lies in the rebuilt area."""
+        return self._lookup(self.zone, xy) > 0
+
+    def part(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) the part (1..K) of the rebuilt area each position lies in, 0 outside it."""
+        return self._lookup(self.zone, xy)
+
+    def near_zone(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) whether each position lies within the embedding range of the rebuilt area."""
+        return self._lookup(self.near, xy)
+
+    @property
+    def area(self) -> float:
+        """Square metres of the rebuilt area."""
+        return float((self.zone > 0).sum()) * self.tile * self.tile
+
+    @property
+    def crop_area(self) -> float:
+        """Square metres of map the rebuild reads (the crops, overlaps counted twice)."""
+        return float(sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in self.crops))
+
+
+def tile_zone(changed_xy: np.ndarray, config: BuildConfig) -> TileZone | None:
+    """The zone around changed positions (K, 2) metres (module docstring): the tiles holding at
+    least `update.min_changed_points` of them, grown; None when no tile holds that many."""
+    up = config.update
+    tile = up.tile
+    ij, count = np.unique(np.floor(changed_xy / tile).astype(np.int64), axis=0, return_counts=True)
+    ij = ij[count >= up.min_changed_points]
+    if len(ij) == 0:
+        return None
+    grow = int(np.ceil(up.replace_margin / tile))
+    reach = grow + int(np.ceil(config.embedding.max_range / tile))
+    low = ij.min(axis=0) - reach
+    shape = tuple(int(v) for v in ij.max(axis=0) - low + reach + 1)
+    changed = np.zeros(shape, dtype=bool)
+    changed[ij[:, 0] - low[0], ij[:, 1] - low[1]] = True
+    grown = _grow(changed, grow)
+    near = _grow(grown, reach - grow)
+    zone, parts = _parts(grown)
+    crops = []
+    for rows, cols in parts:
+        x0, x1 = (low[0] + rows.start) * tile - up.context_margin, (low[0] + rows.stop) * tile + up.context_margin
+        y0, y1 = (low[1] + cols.start) * tile - up.context_margin, (low[1] + cols.stop) * tile + up.context_margin
+        crops.append((float(x0), float(y0), float(x1), float(y1)))
+    return TileZone(tile, (int(low[0]), int(low[1])), zone, near, crops)
+
+
+def _parts(mask: np.ndarray) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
+    """8-connected parts of `mask`: (labels 1..K as int32, each part's bounding slices)."""
+    from scipy import ndimage
+
+    labelled = ndimage.label(mask, np.ones((3, 3), dtype=bool))
+    labels = np.asarray(labelled[0], dtype=np.int32)  # pyright: ignore[reportIndexIssue]  # (labels, count)
+    boxes = [box for box in ndimage.find_objects(labels) if box is not None]
+    return labels, [(box[0], box[1]) for box in boxes]
+
+
+def _grow(mask: np.ndarray, tiles: int) -> np.ndarray:
+    """`mask` grown by `tiles` squares in every direction (chessboard)."""
+    from scipy import ndimage
+
+    if tiles <= 0:
+        return mask.copy()
+    return ndimage.binary_dilation(mask, np.ones((3, 3), dtype=bool), iterations=tiles)
+
+
+@dataclass
+class UpdateStats:
+    """What one graph update did: `kind` 'full' or 'incremental' (and why a full build ran), tiles
+    changed, the rebuilt area (m^2) and the crop read (m^2), places kept / rebuilt / removed,
+    edges stitched across the border, whether the regions were re-clustered in full."""
+
+    kind: str = "full"
+    reason: str = ""
+    changed_points: int = 0
+    zone_area: float = 0.0
+    crop_area: float = 0.0
+    places_kept: int = 0
+    places_new: int = 0
+    places_removed: int = 0
+    stitched_edges: int = 0
+    regions_reclustered: bool = True
+
+    def to_json(self) -> dict:
+        return {
+            "kind": self.kind,
+            "reason": self.reason,
+            "changed_points": self.changed_points,
+            "zone_area_m2": round(self.zone_area, 1),
+            "crop_area_m2": round(self.crop_area, 1),
+            "places_kept": self.places_kept,
+            "places_new": self.places_new,
+            "places_removed": self.places_removed,
+            "stitched_edges": self.stitched_edges,
+            "regions_reclustered": self.regions_reclustered,
+        }
+
+
+@dataclass
+class GraphUpdate(GraphBuild):
+    """A GraphBuild made by `GraphUpdater.update`, with what the update did."""
+
+    update: UpdateStats = field(default_factory=UpdateStats)
+
+
+class GraphUpdater:
+    """The scene graph of one growing map, updated version after version (module docstring).
+
+    `update(msm)` returns the graph of the map `msm`: a full build the first time (or `full=True`),
+    then an incremental one around what changed since the previous call. `previous`: a graph an
+    earlier build left (its ids and saved objects are carried, as `terra build` carries them)."""
+
+    def __init__(self, config: BuildConfig | None = None, previous: SceneGraph | None = None) -> None:
+        self.config = config or BuildConfig()
+        self.graph: SceneGraph | None = previous
+        self._digest: MapDigest | None = None
+        self._replaced_since_clustering = 0
+        # Changed points in tiles that held too few to be rebuilt yet: they count again next time.
+        self._pending = np.zeros((0, 2))
+
+    def update(self, msm: MetricSemanticMap, full: bool = False) -> GraphUpdate:
+        """The graph of `msm` (see the class docstring); TerraError when the map gives nothing to build on."""
+        _, terrains = terrains_to_build(msm, self.config)
+        point_terrain = msm.terrain_index(self.config.terrain.min_share, dtype=np.int16)
+        point_terrain[~np.isin(point_terrain, terrains)] = -1
+        digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance)
+        why = self._full_reason(full)
+        if why:
+            result = self._full(msm, why)
+        else:
+            assert self._digest is not None and self.graph is not None
+            changed = np.vstack([self._pending, changed_points(self._digest, digest)])
+            zone = tile_zone(changed, self.config)
+            self._pending = changed if zone is None else changed[~zone.in_zone(changed)]
+            if zone is None:
+                result = GraphUpdate(self.graph, update=UpdateStats("incremental", "nothing changed", 0, 0.0, 0.0))
+                result.update.places_kept = len(self.graph.places)
+                result.update.regions_reclustered = False
+            else:
+                result = self._incremental(msm, point_terrain, terrains, zone)
+                result.update.changed_points = len(changed)
+        self.graph, self._digest = result.graph, digest
+        return result
+
+    def _full_reason(self, full: bool) -> str:
+        if full:
+            return "asked for"
+        if self._digest is None or self.graph is None:
+            return "first build of this session"
+        if len(self._pending) > self.config.update.max_pending_points:
+            return f"more than {self.config.update.max_pending_points:,} changed points were waiting"
+        return ""
+
+    def _full(self, msm: MetricSemanticMap, why: str) -> GraphUpdate:
+        built = build_scene_graph(msm, self.config, previous=self.graph)
+        self._replaced_since_clustering = 0
+        self._pending = np.zeros((0, 2))
+        return GraphUpdate(built.graph, built.stats, built.timer, UpdateStats("full", why))
+
+    def _incremental(
+        self, msm: MetricSemanticMap, point_terrain: np.ndarray, terrains: list[int], zone: TileZone
+    ) -> GraphUpdate:
+        assert self.graph is not None
+        old, timer, stats = self.graph, StageTimer(), UpdateStats("incremental")
+        stats.zone_area, stats.crop_area = zone.area, zone.crop_area
+        with timer.stage("crop places"):
+            crop = _rebuilt_places(msm, point_terrain, terrains, zone, self.config)
+        with timer.stage("stitch"):
+            merged, links, stitched = _merge(old, crop, zone, self.config)
+        if len(merged.position) == 0:
+            raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
+        stats.places_kept = int((~zone.in_zone(old.places.position)).sum())
+        stats.places_new = len(merged.position) - stats.places_kept
+        stats.places_removed = len(old.places) - stats.places_kept
+        stats.stitched_edges = stitched
+        with timer.stage("place embeddings"):
+            embedding, sources = _embeddings(msm, old, merged, stats.places_kept, zone, self.config)
+        with timer.stage("regions"):
+            self._replaced_since_clustering += _places_changed(old, merged, stats.places_kept, self.config)
+            recluster = self._replaced_since_clustering > self.config.update.recluster_fraction * max(
+                len(merged.position), 1
+            )
+            levels = _regions(old, merged, embedding, links, stats.places_kept, recluster, self.config)
+            if recluster:
+                self._replaced_since_clustering = 0
+            stats.regions_reclustered = recluster
+        graph = _graph(msm, old, merged, embedding, links, levels, self.config)
+        build_stats = BuildStats(
+            places_per_terrain={
+                msm.terrain_classes[t]: int((merged.terrain == t).sum()) for t in sorted(set(terrains))
+            },
+            edges=EdgeCounts(*(int((links.kind == k).sum()) for k in (EDGE_GVD, EDGE_CROSS_TERRAIN, EDGE_BRIDGE))),
+            embedding_source=sources,
+            embedding_rule="as the full build's, for the places in or near the rebuilt area",
+        )
+        return GraphUpdate(graph, build_stats, timer, stats)
+
+
+@dataclass
+class _Rebuilt:
+    """The places of every crop (concatenated), their links, and which of them each crop owns
+    (those in its own part of the zone): the places that replace the zone's."""
+
+    places: TerrainPlaceSet
+    links: PlaceLinks
+    take: np.ndarray
+
+
+def _rebuilt_places(
+    msm: MetricSemanticMap, point_terrain: np.ndarray, terrains: list[int], zone: TileZone, config: BuildConfig
+) -> _Rebuilt:
+    """Each part of the zone rebuilt from its crop: the places and links a full build gives on the
+    map points inside the crop, of which those in the part replace the old places there."""
+    xy = msm.points[:, :2]
+    parts: list[tuple[TerrainPlaceSet, PlaceLinks, np.ndarray]] = []
+    for k, (x0, y0, x1, y1) in enumerate(zone.crops, start=1):
+        inside = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1))
+        crop_terrain = point_terrain[inside]
+        if not (crop_terrain >= 0).any():
+            continue
+        grid = terrain_grid(msm.points[inside], crop_terrain, config)
+        places, traversable, _ = terrain_places(grid, terrains, config)
+        if len(places.position):
+            links = place_links(places, traversable, grid, config)
+            parts.append((places, links, zone.part(places.position) == k))
+    offsets = np.cumsum([0] + [len(p.position) for p, _, _ in parts])
+    places = TerrainPlaceSet(
+        np.vstack([np.zeros((0, 3))] + [p.position for p, _, _ in parts]),
+        np.concatenate([np.zeros(0, np.int64)] + [p.terrain for p, _, _ in parts]).astype(np.int64),
+        np.concatenate([np.zeros(0)] + [p.clearance for p, _, _ in parts]),
+        *_no_edges(),
+    )
+    links = PlaceLinks(
+        np.vstack([np.zeros((0, 2), np.int64)] + [lk.edges + o for (_, lk, _), o in zip(parts, offsets)]),
+        np.concatenate([np.zeros(0)] + [lk.weight for _, lk, _ in parts]),
+        np.concatenate([np.zeros(0, np.int64)] + [lk.kind for _, lk, _ in parts]),
+        0,
+        0,
+    )
+    take = np.concatenate([np.zeros(0, dtype=bool)] + [t for _, _, t in parts])
+    return _Rebuilt(places, links, take)
+
+
+@dataclass
+class _Merged:
+    """The places of an update, kept old ones first (in their old order), then the crop's."""
+
+    position: np.ndarray
+    terrain: np.ndarray
+    clearance: np.ndarray
+    old_index: np.ndarray  # (P,) index in the old graph, -1 for new places
+
+
+def _merge(old: SceneGraph, crop: _Rebuilt, zone: TileZone, config: BuildConfig) -> tuple[_Merged, PlaceLinks, int]:
+    """Kept old places + the rebuilt places in the zone, their edges, stitches across the zone's
+    border and bridges between components; and the number of stitched edges."""
+    keep = np.flatnonzero(~zone.in_zone(old.places.position))
+    new_places, new_links = crop.places, crop.links
+    take = np.flatnonzero(crop.take)
+    merged = _Merged(
+        np.vstack([old.places.position[keep], new_places.position[take]]),
+        np.concatenate([old.places.terrain[keep], new_places.terrain[take]]).astype(np.int64),
+        np.concatenate([old.places.clearance[keep], new_places.clearance[take]]),
+        np.concatenate([keep, np.full(len(take), -1)]).astype(np.int64),
+    )
+    old_to = _index_map(len(old.places), keep, 0)
+    new_to = _index_map(len(new_places.position), take, len(keep))
+    kept_kind = old.place_edge_kind != EDGE_BRIDGE  # bridges are recomputed on the merged places
+    parts = [
+        _remap(old.place_edges[kept_kind], old.place_edge_weight[kept_kind], old.place_edge_kind[kept_kind], old_to)
+    ]
+    stitches = [
+        _stitch(
+            old.place_edges,
+            old.place_edge_kind,
+            old.places.position,
+            old.places.terrain,
+            old_to,
+            merged,
+            len(keep),
+            None,
+        )
+    ]
+    parts.append(_remap(new_links.edges, new_links.weight, new_links.kind, new_to))
+    stitches.append(
+        _stitch(new_links.edges, new_links.kind, new_places.position, new_places.terrain, new_to, merged, 0, len(keep))
+    )
+    stitch_distance = config.update.stitch_distance
+    stitched = [_within(s, merged.position, stitch_distance) for s in stitches]
+    edges = np.vstack([p[0] for p in parts] + [s[0] for s in stitched])
+    weight = np.concatenate([p[1] for p in parts] + [s[1] for s in stitched])
+    kind = np.concatenate([p[2] for p in parts] + [s[2] for s in stitched])
+    edges, weight, kind = unique_typed_edges(edges, weight, kind)
+    lk = config.linking
+    never_clear = lambda a, b: np.zeros(len(a), dtype=bool)  # noqa: E731  # no whole-map grid to check a line on
+    bridges, cost, _ = bridge_components(merged.position, edges, lk.bridge_penalty, lk.link_candidates, never_clear)
+    edges = np.vstack([edges, bridges])
+    weight = np.concatenate([weight, cost])
+    kind = np.concatenate([kind, np.full(len(bridges), EDGE_BRIDGE)])
+    edges, weight, kind = unique_typed_edges(edges, weight, kind)
+    return merged, PlaceLinks(edges, weight, kind, 0, len(bridges)), int(sum(len(s[0]) for s in stitched))
+
+
+def _no_edges() -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros((0, 2), np.int64), np.zeros(0)
+
+
+def _index_map(count: int, taken: np.ndarray, offset: int) -> np.ndarray:
+    """(count,) merged index of each place of a part (-1 where it was not taken)."""
+    out = np.full(count, -1, dtype=np.int64)
+    out[taken] = offset + np.arange(len(taken))
+    return out
+
+
+def _remap(
+    edges: np.ndarray, weight: np.ndarray, kind: np.ndarray, to: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edges whose both ends were taken, in merged indices."""
+    ends = to[edges] if len(edges) else np.zeros((0, 2), np.int64)
+    both = (ends >= 0).all(axis=1)
+    return ends[both], weight[both], kind[both]
+
+
+def _stitch(
+    edges: np.ndarray,
+    kind: np.ndarray,
+    position: np.ndarray,
+    terrain: np.ndarray,
+    to: np.ndarray,
+    merged: _Merged,
+    first: int,
+    last: int | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Edges of one part cut by the zone's border: (k, 2) pairs of (the taken end's merged index,
+    the lost end's nearest same-terrain place among merged[first:last]) and their kinds (k,); a
+    lost end with no such place within 1e9 m is left out (filtered by distance afterwards)."""
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
+
+    if len(edges) == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    ends = to[edges]
+    cut = np.flatnonzero((ends >= 0).sum(axis=1) == 1)
+    candidates = np.arange(first, len(merged.position) if last is None else last)
+    if len(cut) == 0 or len(candidates) == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    taken_side = np.where(ends[cut, 0] >= 0, 0, 1)
+    taken = ends[cut, taken_side]
+    lost = edges[cut, 1 - taken_side]
+    # Same terrain only: terrains far apart along a third axis.
+    spread = 1e9
+    tree = cKDTree(np.column_stack([merged.position[candidates, :2], merged.terrain[candidates] * spread]))
+    query = np.column_stack([position[lost, :2], terrain[lost] * spread])
+    distance, at = tree.query(query, distance_upper_bound=spread / 2)
+    found = np.isfinite(distance)
+    pairs = np.column_stack([taken[found], candidates[at[found]]])
+    return pairs, kind[cut][found]
+
+
+def _within(
+    stitch: tuple[np.ndarray, np.ndarray], position: np.ndarray, distance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stitched pairs no longer than `distance` metres (3-D) and not loops, with that length as cost."""
+    pairs, kind = stitch
+    length = np.linalg.norm(position[pairs[:, 0]] - position[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0)
+    ok = (length <= distance) & (pairs[:, 0] != pairs[:, 1]) if len(pairs) else np.zeros(0, dtype=bool)
+    return pairs[ok], length[ok], kind[ok]
+
+
+def _embeddings(
+    msm: MetricSemanticMap, old: SceneGraph, merged: _Merged, kept: int, zone: TileZone, config: BuildConfig
+) -> tuple[np.ndarray, EmbeddingSources]:
+    """(P, D) place embeddings: kept places far from the zone keep theirs, the rest are computed."""
+    embedding = np.zeros((len(merged.position), old.places.embedding.shape[1]), np.float32)
+    embedding[:kept] = old.places.embedding[merged.old_index[:kept]]
+    redo = np.flatnonzero((merged.old_index < 0) | zone.near_zone(merged.position))
+    sources = EmbeddingSources(0, 0, 0)
+    if len(redo):
+        embedding[redo], sources = place_embeddings(
+            msm, merged.position[redo], merged.terrain[redo], config.embedding.max_range
+        )
+    return embedding, sources
+
+
+def _places_changed(old: SceneGraph, merged: _Merged, kept: int, config: BuildConfig) -> int:
+    """Rebuilt places that are not an old place again (same terrain within half a cell, the rule
+    that carries ids), and old places that are gone."""
+    from terra.graph.ids import match_points
+
+    gone = np.setdiff1d(np.arange(len(old.places)), merged.old_index[:kept])
+    match = match_points(
+        old.places.position[gone],
+        old.places.terrain[gone],
+        merged.position[kept:],
+        merged.terrain[kept:],
+        config.grid.cell_size / 2,
+    )
+    return int((match < 0).sum() + len(gone) - (match >= 0).sum())
+
+
+def _regions(
+    old: SceneGraph,
+    merged: _Merged,
+    embedding: np.ndarray,
+    links: PlaceLinks,
+    kept: int,
+    recluster: bool,
+    config: BuildConfig,
+):
+    """Region levels of the merged places: re-clustered in full, or grown (module docstring)."""
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
+
+    if recluster or kept == 0 or not old.regions:
+        assignments = region_assignments(merged.position, embedding, merged.terrain, links.edges, config)
+        return build_levels(assignments, merged.position, embedding)
+    nearest = np.arange(len(merged.position))
+    if len(merged.position) > kept:
+        _, at = cKDTree(merged.position[:kept, :2]).query(merged.position[kept:, :2])
+        nearest[kept:] = at
+    source = merged.old_index[nearest]  # the old place whose regions each place takes
+    assignments = [old.place_region(level.level)[source] for level in old.regions]
+    return build_levels(assignments, merged.position, embedding)
+
+
+def _graph(
+    msm: MetricSemanticMap,
+    old: SceneGraph,
+    merged: _Merged,
+    embedding: np.ndarray,
+    links: PlaceLinks,
+    levels: list,
+    config: BuildConfig,
+) -> SceneGraph:
+    """The updated SceneGraph with the old graph's ids carried and its saved objects relinked."""
+    places = TerrainPlaceSet(merged.position, merged.terrain, merged.clearance, *_no_edges())
+    graph = scene_graph(msm, places, embedding, links, levels, config)
+    graph = replace(graph, next_id=dict(old.next_id))
+    return with_previous_ids(graph, old, config.grid.cell_size / 2)
