@@ -160,6 +160,23 @@ class GraphStats(_Written):
     embedding_rule: str | None = None
 
 
+class GroundInfo(_Written):
+    """components.graph.ground: the ground layers of the build (terra.graph.ground), arrays
+    graph/ground_<name> with one row per observed cell of a grid of `shape` (H, W) cells of
+    `cell_size` metres, whose cell (0, 0) is cell `offset` (row, col) of the grid whose lower-left
+    corner lies at `origin` (x, y metres, map frame); `units` says what each array holds, in which
+    unit (height m; gradient dz/dx, dz/dy; step m; roughness m); `edge_geometry` names the columns
+    of graph/place_edge_geometry (step_m, rise_deg, fall_deg)."""
+
+    origin: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]
+    cell_size: PositiveFloat
+    offset: Annotated[list[Count], Field(min_length=2, max_length=2)]
+    shape: Annotated[list[Count], Field(min_length=2, max_length=2)]
+    observed_cells: Count
+    units: dict[str, str] = Field(default_factory=dict)
+    edge_geometry: list[str] = Field(default_factory=list)
+
+
 class GraphComponent(_Written):
     """components.graph: format, counts of the stored scene graph, config and stats."""
 
@@ -171,6 +188,7 @@ class GraphComponent(_Written):
     config: dict[str, Any] = Field(default_factory=dict)
     stats: GraphStats = Field(default_factory=GraphStats)
     map_version: Count | None = None  # the map version the graph was built on (stale when older)
+    ground: GroundInfo | None = None  # the ground layers, when the build made them
 
 
 class Components(_Written):

@@ -15,6 +15,7 @@ os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
 pytest_plugins = [
     "tests.mapping.fixtures",
     "tests.graph.fixtures",
+    "tests.graph.fixtures_ground",
     "tests.eval.fixtures",
     "tests.perception.fixtures",
     "tests.interop.fixtures",

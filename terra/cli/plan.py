@@ -26,6 +26,12 @@ def plan_command(
         None, "--penalty", help="TERRAIN=W: cost per metre x (1 + W) on that terrain (repeatable)."
     ),
     forbid: list[str] | None = typer.Option(None, "--forbid", help="Terrain never to enter (repeatable)."),
+    robot: str | None = typer.Option(
+        None,
+        "--robot",
+        help="wheelchair, wheeled, legged or a YAML profile file (max_step m, max_slope_up/down deg, min_width m, "
+        "slope_cost, terrain_costs, forbidden_terrain): edges it cannot drive are removed, slopes cost extra.",
+    ),
     method: str | None = typer.Option(None, "--method", "-m", help="Retrieval method for the queries (default 3dsg)."),
     alpha: float | None = typer.Option(None, "--alpha", "-a", help="Cosine threshold for the queries."),
     tasks: Path | None = typer.Option(
@@ -42,14 +48,28 @@ def plan_command(
     terrains); forbidden terrain is removed. The plan reports the straight length between its
     waypoints and the length along the graph per terrain, so cost = sum of terrain length along
     the graph x (1 + its penalty). Without --from*, the start is the place nearest the first
-    camera pose. Exit code 3 when no path exists.
+    camera pose. With --robot, edges whose step or slope is beyond the robot are removed (the map
+    must have ground geometry: any `terra build` of this version), and the plan reports its
+    largest step and slope. Exit code 3 when no path exists.
 
     Example: terra plan campus.terra --to "get bike from the bicycle rack" --prefer sidewalk --forbid water --json
+    Example: terra plan lidar.terra --from-xy 0 0 --to-node 42 --robot wheelchair
     """
     from terra.cli.task_options import load_tasks_config, open_bundle, plan_request
 
     request = plan_request(
-        to, to_node, from_query, from_node, from_xy, prefer or [], penalty or [], forbid or [], method, alpha, tasks
+        to,
+        to_node,
+        from_query,
+        from_node,
+        from_xy,
+        prefer or [],
+        penalty or [],
+        forbid or [],
+        method,
+        alpha,
+        tasks,
+        robot,
     )
     cfg = load_tasks_config(config)
     loaded = open_bundle(bundle, cfg)

@@ -349,6 +349,14 @@ def render_plan(result: PlanResult) -> str:
         f"path: {counted(len(path.places), 'place')}, {path.length_m:.1f} m straight between them; "
         f"{path.edge_length_m:.1f} m along the graph ({along}), cost {path.cost:.1f}"
     )
+    if result.robot is not None:
+        lines.append(result.robot.limits())
+    if path.ground is not None:
+        g = path.ground
+        lines.append(
+            f"ground: largest step {g.max_step_m:.2f} m, steepest climb {g.max_climb_deg:.1f} deg, "
+            f"steepest descent {g.max_descent_deg:.1f} deg"
+        )
     for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
         lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
     return "\n".join(lines)

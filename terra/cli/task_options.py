@@ -143,11 +143,14 @@ def plan_request(
     method: str | None = None,
     alpha: float | None = None,
     tasks: Path | None = None,
+    robot: str | None = None,
 ) -> PlanRequest:
-    """Flags first; the task file's terrain preferences are merged under them and its start and
-    destination fill what the flags leave unset."""
+    """Flags first; the task file's terrain preferences are merged under them and its start,
+    destination and robot fill what the flags leave unset. `robot`: a built-in name or a profile
+    file (terra.tasks.robot.load_robot)."""
     from terra.tasks.config import RETRIEVAL_METHODS
     from terra.tasks.requests import PlanRequest
+    from terra.tasks.robot import load_robot
 
     check_choice("--method", method, RETRIEVAL_METHODS)
     task_file = _task_file(tasks, "plan")
@@ -175,5 +178,6 @@ def plan_request(
             "method": method or file_method,
             "alpha": check_alpha(alpha if alpha is not None else task_file.alpha),
             "point_feature": feature,
+            "robot": load_robot(robot) if robot is not None else task_file.robot,
         },
     )

@@ -374,6 +374,41 @@ class RegionsSection(Section):
         return v
 
 
+class GroundSection(Section):
+    """Ground from the LiDAR points (terra.graph.ground): the segmentation of the map's points and
+    the geometry layers (height, slope, step, roughness) on the terrain grid."""
+
+    cell_size: float = Field(
+        default=0.5, gt=0.0, description="metres per cell of the segmentation's lowest-point surface"
+    )
+    windows: list[float] = Field(
+        default_factory=lambda: [1.0, 2.0, 4.0, 8.0],
+        description="metres: widths of the growing openings that remove what stands on the ground (increasing)",
+    )
+    slope: float = Field(
+        default=0.2, ge=0.0, description="metres of height a cell may rise per metre of window growth and stay ground"
+    )
+    base_height: float = Field(
+        default=0.1, ge=0.0, description="metres a cell may always rise above the opened surface and stay ground"
+    )
+    max_height: float = Field(default=2.5, gt=0.0, description="metres: the most a cell may rise and stay ground")
+    tolerance: float = Field(
+        default=0.15, gt=0.0, description="metres above the ground surface (the cell's lowest point) a point is ground"
+    )
+    layers: bool = Field(
+        default=True,
+        description="compute the geometry layers and per-edge step and slope (false: none, as before; `plan --robot` "
+        "then has nothing to check)",
+    )
+
+    @field_validator("windows")
+    @classmethod
+    def _increasing(cls, v: list[float]) -> list[float]:
+        if not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0:
+            raise ValueError("windows must be a non-empty list of increasing positive widths, metres")
+        return v
+
+
 class UpdateSection(Section):
     """Incremental updates of a live map's graph (terra.graph.update): only the tiles around what
     changed since the previous version are rebuilt; a live session's last graph is a full build."""
@@ -428,4 +463,5 @@ class BuildConfig(Section):
     linking: LinkingSection = Field(default_factory=LinkingSection)
     embedding: EmbeddingSection = Field(default_factory=EmbeddingSection)
     regions: RegionsSection = Field(default_factory=RegionsSection)
+    ground: GroundSection = Field(default_factory=GroundSection)
     update: UpdateSection = Field(default_factory=UpdateSection)

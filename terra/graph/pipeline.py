@@ -20,6 +20,14 @@ from terra.graph.config import BuildConfig, check_region_method
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
+from terra.graph.ground import (
+    GroundLayers,
+    as_ground_terrain,
+    edge_geometry,
+    grid_layers,
+    has_terrain_votes,
+    map_ground,
+)
 from terra.graph.linking import (
     bridge_components,
     grid_gap_length,
@@ -47,6 +55,7 @@ class GraphBuild:
     graph: SceneGraph
     stats: BuildStats = field(default_factory=BuildStats)
     timer: StageTimer = field(default_factory=StageTimer)
+    ground: GroundLayers | None = field(default=None, kw_only=True)  # the ground's geometry layers on the terrain grid
 
 
 @dataclass
@@ -316,9 +325,15 @@ def build_scene_graph(
     ids are the indices."""
     config = config or BuildConfig()
     timer = StageTimer()
+    with timer.stage("ground"):
+        ground = map_ground(msm, config.ground)
+    if ground is not None and not has_terrain_votes(msm):  # LiDAR only: places on the segmented ground
+        msm = as_ground_terrain(msm, ground)
     names, terrains = terrains_to_build(msm, config)
     with timer.stage("terrain grid"):
         grid, grid_stats = _map_grid(msm, names, terrains, config)
+    with timer.stage("ground layers"):
+        layers = grid_layers(msm.points, ground, grid) if ground is not None and config.ground.layers else None
     with timer.stage("GVD places"):
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
     if len(places.position) == 0:
@@ -331,10 +346,12 @@ def build_scene_graph(
         assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
         levels = build_levels(assignments, places.position, embedding)
     graph = scene_graph(msm, places, embedding, links, levels, config)
+    if layers is not None:
+        graph.place_edge_geometry = edge_geometry(layers, places.position, links.edges)
     if previous is not None:
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
-    return GraphBuild(graph, stats, timer)
+    return GraphBuild(graph, stats, timer, ground=layers)
 
 
 def terrains_to_build(msm: MetricSemanticMap, config: BuildConfig) -> tuple[list[str], list[int]]:
@@ -482,12 +499,6 @@ def unique_typed_edges(
 def _check_bundle(bundle: Bundle) -> None:
     if not bundle.has_component("map") or not bundle.has("map/points"):
         raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
-    if not bundle.model.terrain_classes:
-        raise TerraError(
-            f"{bundle.path}: the map has no terrain classes to build places on (manifest.json field "
-            "'terrain_classes' is empty): its images gave no terrain semantics, e.g. the `labels` backend found "
-            "no label images; map it again with `perception.backend: models` or with label topics"
-        )
 
 
 def previous_graph(bundle: Bundle) -> SceneGraph | None:
@@ -537,6 +548,7 @@ def run_build(
 def commit_graph(bundle: Bundle, result: GraphBuild, config: BuildConfig, **extra: Any) -> None:
     """Write `result` as component `graph/` of the bundle's next version (atomically), recording
     the config, the counters, the map version it was built on and any `extra` manifest entries."""
+    from terra.graph.ground import write_ground_layers
     from terra.graph.storage import write_scene_graph
 
     with BundleWriter(bundle.path, base=bundle, drop_components=("graph",)) as writer:
@@ -548,3 +560,5 @@ def commit_graph(bundle: Bundle, result: GraphBuild, config: BuildConfig, **extr
             **extra,
         }
         write_scene_graph(writer, result.graph, info)
+        if result.ground is not None:
+            write_ground_layers(writer, result.ground)

@@ -135,6 +135,10 @@ class SceneGraph:
 
     place_edges: (E, 2) place index pairs (i < j); place_edge_weight: (E,) traversal cost in metres
     (bridges carry their penalty); place_edge_kind: (E,) EDGE_* constants.
+    place_edge_geometry: (E, 3) float32 ground geometry of each edge (terra.graph.ground): the
+    largest step it crosses (m), its steepest rise and fall going from place_edges[:, 0] to
+    place_edges[:, 1] (degrees); (0, 3) when the graph was built without ground layers. Robot
+    profiles read it at planning time (terra.tasks.robot); the graph is the same for every robot.
     terrain_embeddings: (T, D) text embedding of each terrain class name.
     next_id: the next free id per NodeSymbol character ('p' places, 'R', 'S', ... region levels,
     'O' objects): ids at or above it were never given; see `next_ids`.
@@ -151,6 +155,12 @@ class SceneGraph:
     embedder: str = ""
     region_method: str = ""
     next_id: dict[str, int] = field(default_factory=dict)
+    place_edge_geometry: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.float32))
+
+    @property
+    def has_edge_geometry(self) -> bool:
+        """Whether every place edge carries its ground geometry."""
+        return len(self.place_edges) > 0 and self.place_edge_geometry.shape == (len(self.place_edges), 3)
 
     def next_ids(self) -> dict[str, int]:
         """The next free id of every layer: the recorded one, raised above the ids in use."""

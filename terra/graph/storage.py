@@ -46,6 +46,8 @@ GRAPH_FORMAT = 2  # 2: stable node ids (1: ids were the indices; still read)
 READABLE_FORMATS = (1, 2)
 GRAPH_JSON = "graph/scene_graph.json"
 PLACE_IDS, OBJECT_IDS, REGION_IDS = "graph/place_id", "graph/object_id", "graph/region_id_"
+EDGE_GEOMETRY = "graph/place_edge_geometry"  # (E, 3) float32: step m, rise deg, fall deg (terra.graph.ground)
+GROUND_FILES = "graph/ground_"  # the ground layers (terra.graph.ground.GROUND_FILES)
 SPARK_HEADER = {"project_name": "main", "version": {"major": 1, "minor": 1, "patch": 3}}
 LAYER_OBJECTS, LAYER_PLACES, LAYER_REGIONS = 2, 3, 4
 MAX_LEVELS = 8  # region level chars 'R'..'Y'
@@ -283,13 +285,17 @@ def _graph_metadata(sg: SceneGraph) -> dict[str, Any]:
 def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any] | None = None) -> None:
     """Put `sg` into the bundle being written as component `graph/` (replacing any old one).
     `info` (counts, config, stats) goes to manifest components.graph beside the format number."""
-    for name in [n for n in writer.files if n.startswith("graph/")]:
+    # The ground layers (terra.graph.ground) belong to the build, not to the nodes: an edit of the
+    # graph (objects saved by `terra find --save`) keeps them.
+    for name in [n for n in writer.files if n.startswith("graph/") and not n.startswith(GROUND_FILES)]:
         writer.remove(name[:-4] if name.endswith(".npy") else name)
     writer.put_json(GRAPH_JSON, scene_graph_to_spark_json(sg))
     dim = sg.terrain_embeddings.shape[1] if sg.terrain_embeddings.ndim == 2 else 0
     writer.put_array("graph/place_embedding", np.asarray(sg.places.embedding, dtype=np.float32).reshape(-1, dim))
     writer.put_array("graph/terrain_embedding", np.asarray(sg.terrain_embeddings, dtype=np.float32))
     writer.put_array(PLACE_IDS, sg.places.id)
+    if sg.has_edge_geometry:
+        writer.put_array(EDGE_GEOMETRY, np.asarray(sg.place_edge_geometry, dtype=np.float32))
     writer.put_array(OBJECT_IDS, sg.objects.id)
     for level in sg.regions:
         writer.put_array(
@@ -508,7 +514,20 @@ def _from_document(doc, bundle: Bundle, where: str) -> SceneGraph:
         embedder=meta.embedder,
         region_method=meta.region_method,
         next_id=dict(meta.next_id),
+        place_edge_geometry=_edge_geometry(bundle, len(place_edges)),
     )
+
+
+def _edge_geometry(bundle: Bundle, edges: int) -> np.ndarray:
+    """The (E, 3) ground geometry of the place edges, (0, 3) when the graph has none."""
+    from terra.npy import ArraySpec
+
+    if not bundle.has(EDGE_GEOMETRY):
+        return np.zeros((0, 3), dtype=np.float32)
+    spec = ArraySpec(
+        ("float32",), (edges, 3), finite=True, low=0.0, high=1e6, what="per place edge: step m, rise and fall degrees"
+    )
+    return bundle.array(EDGE_GEOMETRY, spec)
 
 
 def _region_levels(

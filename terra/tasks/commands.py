@@ -26,6 +26,7 @@ from terra.tasks.planning import (
 from terra.tasks.queries import clean_queries
 from terra.tasks.requests import FindRequest, MonitorRequest, PlanRequest, PointFeature
 from terra.tasks.results import FindResult, MonitorResults, PlanEnd, PlanResult
+from terra.tasks.robot import RobotProfile, robot_profile
 
 if TYPE_CHECKING:  # retrieval (SciPy, shapely) is imported by the queries that find objects
     from terra.tasks.retrieval import FoundObject
@@ -43,10 +44,11 @@ def point_scorer(loaded: LoadedBundle) -> PointScorer:
     return loaded.derived("tasks.point_scorer", lambda: PointScorer(loaded.msm))
 
 
-def cost_graph_of(loaded: LoadedBundle, costs: TerrainCosts) -> CostGraph:
-    """The places graph under `costs`, built once per set of preferences and scene graph version."""
+def cost_graph_of(loaded: LoadedBundle, costs: TerrainCosts, robot: RobotProfile | None = None) -> CostGraph:
+    """The places graph under `costs` (and a robot's limits), built once per set of preferences,
+    robot and scene graph version."""
     graph = loaded.require_graph("planning")
-    return loaded.derived("tasks.cost_graphs", CostGraphs, of_graph=True).get(graph, costs)
+    return loaded.derived("tasks.cost_graphs", CostGraphs, of_graph=True).get(graph, costs, robot)
 
 
 def warm(loaded: LoadedBundle) -> None:
@@ -54,6 +56,17 @@ def warm(loaded: LoadedBundle) -> None:
     if loaded.has_map:
         _ = point_scorer(loaded).max_ids  # the map and its per-point data
     loaded.warm()
+
+
+def require_embeddings(loaded: LoadedBundle, what: str) -> None:
+    """TerraError when the bundle's map holds no embeddings at all (a LiDAR-only log: no camera
+    images and no labelled points to embed), which text queries need."""
+    info = loaded.bundle.model.components.map
+    if info is not None and not info.bank and not info.images:
+        raise TerraError(
+            f"{loaded.path}: the map has no image embeddings (no camera images and no labelled points: a LiDAR-only "
+            f"log), so {what} has nothing to match text against; plan on it with --from-xy/--from-node and --to-node"
+        )
 
 
 def _with_feature(config: TasksConfig, feature: PointFeature | None) -> TasksConfig:
@@ -93,6 +106,7 @@ def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None 
     from terra.tasks.retrieval import with_objects
 
     config = _with_feature(config or TasksConfig(), request.point_feature)
+    require_embeddings(loaded, "terra find")
     queries = clean_queries(list(request.queries))
     method = request.method or config.retrieval.method
     graph = loaded.require_graph(f"--method {method}") if method == "3dsg" else loaded.graph
@@ -108,6 +122,7 @@ def find(loaded: LoadedBundle, request: FindRequest, config: TasksConfig | None 
 def monitor(loaded: LoadedBundle, request: MonitorRequest, config: TasksConfig | None = None) -> MonitorResults:
     """Regions and places to monitor for every query of the request."""
     config = config or TasksConfig()
+    require_embeddings(loaded, "terra monitor")
     queries = clean_queries(list(request.queries))
     method = request.method or config.monitoring.method
     k = request.k if request.k is not None else config.monitoring.k
@@ -145,10 +160,9 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     if sum(x is not None for x in (request.from_query, request.from_node, request.from_xy)) > 1:
         raise TerraError("give at most one of --from, --from-node and --from-xy")
     graph = loaded.require_graph("terra plan")
-    costs = TerrainCosts.from_preferences(
-        graph.terrain_classes, request.prefer, request.penalty, request.forbid, config.planning.default_penalty
-    )
-    cost_graph = cost_graph_of(loaded, costs)
+    robot = _robot(request, config)
+    costs = plan_costs(graph, request, robot, config.planning.default_penalty)
+    cost_graph = cost_graph_of(loaded, costs, robot)
     object_queries = (
         clean_queries([q for q in (request.to, request.from_query) if q is not None])
         if (request.to is not None or request.from_query is not None)
@@ -156,6 +170,7 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     )
     found: list[FoundObject] = []
     if object_queries:
+        require_embeddings(loaded, "a plan to or from a text query")
         method = request.method or config.planning.find_method
         found = _find_objects(
             loaded, graph, object_queries, method, _retrieval_alpha(request.alpha, config, loaded), config
@@ -166,7 +181,32 @@ def plan(loaded: LoadedBundle, request: PlanRequest, config: TasksConfig | None 
     path, goal = _plan_to_goal(graph, request, found, object_queries, cost_graph, start.place, config)
     penalty = {graph.terrain_classes[t]: float(costs.penalty[t]) for t in range(len(graph.terrain_classes))}
     forbidden = [graph.terrain_classes[t] for t in np.flatnonzero(costs.forbidden)]
-    return PlanResult(loaded.path, path, start, goal, penalty, forbidden)
+    return PlanResult(loaded.path, path, start, goal, penalty, forbidden, robot)
+
+
+def _robot(request: PlanRequest, config: TasksConfig) -> RobotProfile | None:
+    """The request's robot profile, else the configured one, else None."""
+    if request.robot is not None:
+        return robot_profile(request.robot, "robot")
+    if config.planning.robot is not None:
+        return robot_profile(config.planning.robot, "tasks.planning.robot")
+    return None
+
+
+def plan_costs(
+    graph: SceneGraph, request: PlanRequest, robot: RobotProfile | None, default_penalty: float
+) -> TerrainCosts:
+    """The terrain costs of a plan: the robot's terrain costs and forbidden terrains (those the map
+    has) under the request's preferences, which win (a preferred terrain is never forbidden)."""
+    names = {t.lower() for t in graph.terrain_classes}
+    penalty: dict[str, float] = {}
+    forbid = list(request.forbid)
+    if robot is not None:
+        penalty = {t: v for t, v in robot.terrain_costs.items() if t.lower() in names}
+        preferred = {str(t).lower() for t in request.prefer}
+        forbid += [t for t in robot.forbidden_terrain if t.lower() in names and t.lower() not in preferred]
+    penalty.update(request.penalty)
+    return TerrainCosts.from_preferences(graph.terrain_classes, request.prefer, penalty, forbid, default_penalty)
 
 
 def _object_for(found: list[FoundObject], queries: list[str], q: int, role: str) -> FoundObject:

@@ -24,6 +24,7 @@ from typing import Literal, get_args
 from pydantic import Field
 
 from terra.schemas import Section
+from terra.tasks.robot import RobotProfile
 
 RetrievalMethod = Literal["ms-avg", "ms-max", "3dsg"]
 MonitorMethod = Literal["mix", "max", "thresh", "aib"]
@@ -178,6 +179,11 @@ class PlanningConfig(Section):
         "this from every allowed place is refused, naming the nearest one",
     )
     find_method: RetrievalMethod = "3dsg"
+    robot: str | RobotProfile | None = Field(
+        default=None,
+        description="robot profile for every plan: wheelchair, wheeled, legged or a profile mapping "
+        "(terra.tasks.robot); None = no limits on steps and slopes",
+    )
 
 
 class TasksConfig(Section):

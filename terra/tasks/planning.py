@@ -28,6 +28,12 @@ and half between its two places' terrains (`edge_length_by_terrain`), so that
 
 exactly; with no penalty on the path's terrains, cost = edge_length_m.
 
+A robot profile (terra.tasks.robot, `terra plan --robot`) removes the edges whose step or slope,
+in the direction of travel, is beyond the robot and the places too narrow for it, and multiplies
+the cost of a sloped edge by 1 + slope_cost x (its slope / the limit); the graph itself is the
+same for every robot. With ground geometry in the graph, a plan reports the largest step and the
+steepest climb and descent along it (`PathGround`).
+
 Goals named by a task: every object retrieved for it is a candidate, tried best score first; a
 candidate is skipped when no allowed place lies near it or no path reaches that place, and the
 plan says which were skipped and why (`plan_to_objects`). No path exists only when every
@@ -48,6 +54,7 @@ from terra.errors import NoPathError, TerraError
 from terra.graph.scene_graph import SceneGraph
 from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
+from terra.tasks.robot import RobotProfile
 
 TerrainRef = str | int
 # Penalties per terrain name or index (a dict of names alone is not a Mapping[TerrainRef, ...]).
@@ -121,33 +128,58 @@ class CostGraph:
     cost: np.ndarray
     allowed: np.ndarray  # (P,) bool: place not on forbidden terrain
     min_factor: float = 1.0  # every cost >= min_factor x straight-line length (A* heuristic scale)
+    limits: str = ""  # what a robot profile removed, for the no-path message
 
     @classmethod
-    def build(cls, graph: SceneGraph, costs: TerrainCosts) -> CostGraph:
+    def build(cls, graph: SceneGraph, costs: TerrainCosts, robot: RobotProfile | None = None) -> CostGraph:
+        """The cost graph of `graph` under `costs` and, when given, a robot profile's limits on
+        steps, slopes and width (terra.tasks.robot; TerraError when the graph has no ground
+        geometry to check them against)."""
         n = len(graph.places)
         terrain = np.asarray(graph.places.terrain, dtype=np.int64)
         allowed = ~costs.forbidden[terrain] if n else np.zeros(0, dtype=bool)
         i, j, length = edge_lengths(graph)
         cost = length * (1.0 + (costs.penalty[terrain[i]] + costs.penalty[terrain[j]]) / 2)
-        keep = allowed[i] & allowed[j] & (i != j)
-        # One entry per undirected pair (the cheapest of duplicates), then both directions in
-        # CSR order: sorting packed int64 keys is much faster than a multi-key lexsort.
-        a, b, cost = np.minimum(i, j)[keep], np.maximum(i, j)[keep], cost[keep]
-        key = a * n + b
+        # Both directions of every edge: a robot may climb what it cannot descend.
+        src, dst, cost = np.concatenate([i, j]), np.concatenate([j, i]), np.concatenate([cost, cost])
+        keep = src != dst
+        if robot is not None:
+            allowed = allowed & _wide_enough(graph, robot)
+            factor, legal = robot.edge_rules(_edge_geometry(graph, robot))
+            cost, keep = cost * factor, keep & legal
+        keep &= allowed[src] & allowed[dst]
+        src, dst, cost = src[keep], dst[keep], cost[keep]
+        # One entry per directed pair (the cheapest of duplicates), in CSR order: sorting packed
+        # int64 keys is much faster than a multi-key lexsort.
+        key = src * n + dst
         order = np.argsort(key, kind="stable")
-        key, a, b, cost = key[order], a[order], b[order], cost[order]
+        key, src, dst, cost = key[order], src[order], dst[order], cost[order]
         starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, dtype=np.int64)
-        a, b = a[starts], b[starts]
+        src, dst = src[starts], dst[starts]
         cost = np.minimum.reduceat(cost, starts) if len(starts) else cost
-        src, dst, cost = np.concatenate([a, b]), np.concatenate([b, a]), np.concatenate([cost, cost])
-        order = np.argsort(src * n + dst, kind="stable")
-        src, dst, cost = src[order], dst[order], cost[order]
         indptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n))]).astype(np.int64)
         # Every allowed edge costs at least (1 + smallest penalty among allowed terrains) x its
-        # straight-line length, which scales the A* heuristic without losing admissibility.
+        # straight-line length (a robot's factors are >= 1), which scales the A* heuristic without
+        # losing admissibility.
         present = np.unique(terrain[allowed]) if n else np.zeros(0, dtype=np.int64)
         min_factor = 1.0 + float(costs.penalty[present].min()) if present.size else 1.0
-        return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed, min_factor=min_factor)
+        limits = robot.limits() if robot is not None else ""
+        return cls(indptr=indptr, indices=dst, cost=cost, allowed=allowed, min_factor=min_factor, limits=limits)
+
+
+def _wide_enough(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
+    """(P,) bool: places whose passage (twice their clearance, metres) is at least the robot's width."""
+    return 2.0 * np.asarray(graph.places.clearance, dtype=np.float64) >= robot.min_width
+
+
+def _edge_geometry(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
+    """The graph's (E, 3) edge geometry; TerraError when it has none to check the robot against."""
+    if len(graph.place_edges) and not graph.has_edge_geometry:
+        raise TerraError(
+            f"the scene graph has no ground geometry (steps, slopes) to check robot {robot.name!r} against; "
+            "rebuild it with `terra build` (build.ground.layers: true)"
+        )
+    return graph.place_edge_geometry.reshape(-1, 3)
 
 
 def edge_lengths(graph: SceneGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -191,8 +223,8 @@ class CostGraphs:
     def __len__(self) -> int:
         return len(self._graphs)
 
-    def get(self, graph: SceneGraph, costs: TerrainCosts) -> CostGraph:
-        key = (id(graph), costs.penalty.tobytes(), costs.forbidden.tobytes())
+    def get(self, graph: SceneGraph, costs: TerrainCosts, robot: RobotProfile | None = None) -> CostGraph:
+        key = (id(graph), costs.penalty.tobytes(), costs.forbidden.tobytes(), robot.key() if robot else None)
         with self._lock:
             cached = self._graphs.get(key)
             reused = False
@@ -206,7 +238,7 @@ class CostGraphs:
 
                 prepare_adjacency(cached.indptr, cached.indices, cached.cost)
             return cached
-        built = CostGraph.build(graph, costs)
+        built = CostGraph.build(graph, costs, robot)
         with self._lock:
             self._graphs[key] = built
             while len(self._graphs) > COST_GRAPHS:
@@ -231,6 +263,7 @@ class PathPlan:
     terrain: list[str]
     edge_length_m: float = 0.0
     edge_length_by_terrain: dict[str, float] = field(default_factory=dict)
+    ground: PathGround | None = None
 
     @property
     def start(self) -> int:
@@ -252,7 +285,50 @@ class PathPlan:
             "edge_length_m": round(self.edge_length_m, 4),
             "edge_length_by_terrain": {k: round(v, 4) for k, v in self.edge_length_by_terrain.items()},
             "cost": round(self.cost, 4),
+            "ground": self.ground.to_json() if self.ground is not None else None,
         }
+
+
+@dataclass(frozen=True)
+class PathGround:
+    """The ground a path crosses (terra.graph.ground, from its edges' geometry): the largest step
+    (metres) and the steepest climb and descent in the direction of travel (degrees)."""
+
+    max_step_m: float
+    max_climb_deg: float
+    max_descent_deg: float
+
+    @property
+    def max_slope_deg(self) -> float:
+        return max(self.max_climb_deg, self.max_descent_deg)
+
+    def to_json(self) -> dict[str, float]:
+        return {
+            "max_step_m": round(self.max_step_m, 4),
+            "max_climb_deg": round(self.max_climb_deg, 3),
+            "max_descent_deg": round(self.max_descent_deg, 3),
+            "max_slope_deg": round(self.max_slope_deg, 3),
+        }
+
+
+def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
+    """The ground a path of places (n,) crosses, None when the graph has no edge geometry. Each
+    step uses an edge joining its two places (its geometry read in the direction of travel);
+    steps without one count as level."""
+    if not graph.has_edge_geometry or len(places) < 2:
+        return None
+    edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
+    n = max(len(graph.places), 1)
+    keys = edges[:, 0] * n + edges[:, 1]
+    order = np.argsort(keys, kind="stable")
+    a, b = np.asarray(places[:-1], dtype=np.int64), np.asarray(places[1:], dtype=np.int64)
+    geometry = np.asarray(graph.place_edge_geometry, dtype=np.float64)
+    rows = np.zeros((len(a), 3))
+    for wanted, columns in ((b * n + a, [0, 2, 1]), (a * n + b, [0, 1, 2])):  # backwards, then forwards wins
+        at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
+        hit = keys[order][at] == wanted
+        rows[hit] = geometry[order[at[hit]]][:, columns]
+    return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()))
 
 
 def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathPlan:
@@ -273,6 +349,7 @@ def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathP
         [graph.terrain_classes[t] for t in terrain],
         float(along.sum()),
         _by_terrain(graph.terrain_classes, terrain, along),
+        path_ground(graph, idx),
     )
 
 
@@ -300,8 +377,10 @@ def plan_path(
     penalties: Penalties | None = None,
     forbid: Iterable[TerrainRef] = (),
     default_penalty: float = DEFAULT_PENALTY,
+    robot: RobotProfile | None = None,
 ) -> PathPlan:
-    """The cheapest path between two places under terrain preferences (see the module docstring).
+    """The cheapest path between two places under terrain preferences (see the module docstring)
+    and, when given, a robot profile's limits and slope cost (terra.tasks.robot).
 
     Terrains are names (case-insensitive) or indices into graph.terrain_classes. Raises TerraError
     for unknown terrains or places and NoPathError when the goal cannot be reached without
@@ -310,7 +389,7 @@ def plan_path(
     start = _check_place(graph, start_place, "start")
     goal = _check_place(graph, goal_place, "goal")
     costs = TerrainCosts.from_preferences(graph.terrain_classes, prefer, penalties, forbid, default_penalty)
-    cost_graph = CostGraph.build(graph, costs)
+    cost_graph = CostGraph.build(graph, costs, robot)
     return plan_on(graph, cost_graph, start, goal)
 
 
@@ -331,12 +410,13 @@ def plan_on(graph: SceneGraph, cost_graph: CostGraph, start: int, goal: int) -> 
         heuristic_scale=cost_graph.min_factor,
     )
     if result is None:
-        forbidden = sorted({names[t] for t in terrain[~cost_graph.allowed]})
-        why = (
-            f" without crossing forbidden terrain ({', '.join(forbidden)})"
-            if forbidden
-            else " (the places graph is disconnected)"
-        )
+        forbidden = sorted({names[t] for t in terrain[~cost_graph.allowed] if t >= 0})
+        if cost_graph.limits:
+            why = f" for {cost_graph.limits}"
+        elif forbidden:
+            why = f" without crossing forbidden terrain ({', '.join(forbidden)})"
+        else:
+            why = " (the places graph is disconnected)"
         raise NoPathError(
             f"no path from place {start} ({names[terrain[start]]}) to place {goal} ({names[terrain[goal]]}){why}"
         )

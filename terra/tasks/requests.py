@@ -14,6 +14,7 @@ from pydantic import ConfigDict, Field
 
 from terra.schemas import Strict
 from terra.tasks.config import MonitorMethod, RetrievalMethod
+from terra.tasks.robot import RobotProfile
 
 PointFeature = Literal["avg", "max"]
 
@@ -76,6 +77,11 @@ class PlanRequest(TaskRequest):
         default_factory=dict, description="Terrain name (or index) -> penalty >= 0 per metre."
     )
     forbid: list[str] = Field(default_factory=list, description="Terrains never to enter.")
+    robot: str | RobotProfile | None = Field(
+        default=None,
+        description="Robot profile: wheelchair, wheeled, legged, or a profile (max_step, max_slope_up, ...); "
+        "default tasks.planning.robot.",
+    )
     method: RetrievalMethod | None = Field(
         default=None, description="Retrieval method for the queries; default tasks.planning.find_method."
     )

@@ -13,6 +13,7 @@ if TYPE_CHECKING:  # a monitor query must not import retrieval (and with it SciP
     from terra.tasks.monitoring import MonitorResult
     from terra.tasks.planning import PathPlan, SkippedGoal
     from terra.tasks.retrieval import FoundObject
+    from terra.tasks.robot import RobotProfile
 
 
 @dataclass
@@ -78,7 +79,8 @@ def _object_json(end: PlanEnd) -> dict[str, Any] | None:
 
 @dataclass
 class PlanResult:
-    """A planned path with its start, goal and the terrain preferences it honoured."""
+    """A planned path with its start, goal, the terrain preferences it honoured and the robot
+    profile whose limits it kept (None: none)."""
 
     bundle: Path
     plan: PathPlan
@@ -86,6 +88,7 @@ class PlanResult:
     goal: PlanEnd
     penalty: dict[str, float]
     forbidden: list[str]
+    robot: RobotProfile | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -100,4 +103,5 @@ class PlanResult:
                 "skipped": [s.to_json() for s in self.goal.skipped],
             },
             "preferences": {"penalty": dict(self.penalty), "forbidden": list(self.forbidden)},
+            "robot": self.robot.model_dump(mode="json") if self.robot is not None else None,
         }

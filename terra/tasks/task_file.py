@@ -10,6 +10,7 @@ Keys (all optional; the commands' own options win over the file):
 - `terrain_preferences`: {preferred: [...], forbidden: [...], penalties: {terrain: w}}, terrains
   by index into the terrain classes (as the reference writes them) or by name.
 - `queries`: {start: place id | text query | null, destination: text query | place id}.
+- `robot`: for `terra plan`, wheelchair | wheeled | legged or a profile mapping (terra.tasks.robot).
 - `terra`, `trim`, `case`, `bounds`: reference settings with no meaning here; accepted, ignored.
 Items may also be plain strings. Anything else is refused with the file and field named.
 
@@ -27,6 +28,7 @@ from pydantic import Field, ValidationError, field_validator
 
 from terra.errors import TerraError
 from terra.schemas import Strict, validation_message
+from terra.tasks.robot import RobotProfile
 
 OBJECT_METHODS = {
     "ms_avg": ("ms-avg", None),
@@ -41,7 +43,7 @@ REGION_METHODS = ("max", "thresh", "mix", "aib")
 COMMAND_KEYS = {
     "find": {"object_tasks", "tasks", "alpha", "prediction_method"},
     "monitor": {"region_tasks", "alpha", "k", "prediction_method"},
-    "plan": {"terrain_preferences", "queries", "alpha", "prediction_method"},
+    "plan": {"terrain_preferences", "queries", "alpha", "prediction_method", "robot"},
 }
 
 
@@ -85,6 +87,7 @@ class TaskFile(Strict):
     region_tasks: list[TaskItem] = Field(default_factory=list)
     terrain_preferences: TerrainPreferences = Field(default_factory=TerrainPreferences)
     queries: PlanQueries = Field(default_factory=PlanQueries)
+    robot: str | RobotProfile | None = None  # terra plan: a built-in robot name or a profile
 
     @field_validator("object_tasks", "tasks", "region_tasks", mode="before")
     @classmethod

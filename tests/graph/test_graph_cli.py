@@ -63,13 +63,27 @@ def test_build_help_has_an_example(capsys):
     assert "Example: terra build" in capsys.readouterr().out
 
 
-def test_a_map_without_terrain_points(tiny_copy, capsys):
+def test_a_map_without_terrain_points(tiny_copy, tmp_path, capsys):
     base = Bundle(tiny_copy)
-    votes = base.array("map/terrain_votes")
+    votes = np.zeros_like(base.array("map/terrain_votes"))
+    votes[0, 0] = 1  # one vote, for the first class: the map has terrain votes, none of the second
     writer = BundleWriter(tiny_copy, base=base)
-    writer.put_array("map/terrain_votes", np.zeros_like(votes))
+    writer.put_array("map/terrain_votes", votes)
     writer.commit()
-    fails_cleanly(["build", str(tiny_copy)], tiny_copy, capsys, "no terrain points")
+    config = tmp_path / "terra.yaml"
+    config.write_text(f"build:\n  terrain:\n    include: [{base.model.terrain_classes[1]}]\n")
+    fails_cleanly(["build", str(tiny_copy), "--config", str(config)], tiny_copy, capsys, "no terrain points")
+
+
+def test_a_map_whose_votes_were_all_lost_builds_on_lidar_ground(tiny_copy, capsys):
+    # Without a single terrain vote the map is a LiDAR-only one (terra.graph.ground).
+    base = Bundle(tiny_copy)
+    writer = BundleWriter(tiny_copy, base=base)
+    writer.put_array("map/terrain_votes", np.zeros_like(base.array("map/terrain_votes")))
+    writer.commit()
+    assert run(["build", str(tiny_copy)]) == 0
+    graph = load_scene_graph(Bundle(tiny_copy))
+    assert graph.terrain_classes == ["ground"] and len(graph.places) > 10 and graph.has_edge_geometry
 
 
 def test_configured_terrain_classes_missing_from_the_map(tiny_copy, tmp_path, capsys):
@@ -81,11 +95,13 @@ def test_configured_terrain_classes_missing_from_the_map(tiny_copy, tmp_path, ca
     assert "sidewalk" in err  # names what the map has
 
 
-def test_a_map_that_lists_no_terrain_classes(tiny_copy, capsys):
+def test_a_manifest_that_drops_the_maps_terrain_classes(tiny_copy, capsys):
+    # A map without terrain classes builds (on LiDAR ground, tests/graph/test_graph_ground.py);
+    # a manifest that no longer matches its arrays is refused.
     manifest = json.loads((tiny_copy / MANIFEST).read_text())
     manifest["terrain_classes"] = []
     (tiny_copy / MANIFEST).write_text(json.dumps(manifest))
-    fails_cleanly(["build", str(tiny_copy)], tiny_copy, capsys, "terrain_classes")
+    fails_cleanly(["build", str(tiny_copy)], tiny_copy, capsys, "terrain_votes.npy: array of shape")
 
 
 def test_a_bundle_of_an_incompatible_schema_version(tiny_copy, capsys):

@@ -225,6 +225,17 @@ def test_the_token_is_required(served):
         ("POST", "/plan", {"from_node": 0}, 400, "bad_request", "give a destination"),
         ("POST", "/plan", {"to_node": 0, "from_node": 63, "forbid": ["sidewalk"]}, 422, "no_path", "no path"),
         ("POST", "/plan", {"to_node": 500, "from_node": 0}, 400, "bad_request", "goal place 500 does not exist"),
+        # The dumpster lot is hand-made, without ground geometry to check a robot against.
+        ("POST", "/plan", {"to_node": 0, "from_node": 63, "robot": "wheelchair"}, 400, "bad_request", "no ground"),
+        ("POST", "/plan", {"to_node": 0, "from_node": 63, "robot": "tank"}, 400, "bad_request", "unknown robot"),
+        (
+            "POST",
+            "/plan",
+            {"to_node": 0, "robot": {"max_step": -1, "max_slope_up": 8, "max_slope_down": 8}},
+            422,
+            "invalid",
+            "body.robot",
+        ),
         ("GET", "/nodes/p64", None, 404, "not_found", "place 64 does not exist"),
         ("GET", "/nodes/banana", None, 400, "bad_request", "expected a short name"),
         ("GET", "/regions/3/0", None, 404, "not_found", "region level 3"),

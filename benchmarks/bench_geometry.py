@@ -1,0 +1,308 @@
+"""Ground geometry (issue 27): ground segmentation, the LiDAR-only build of real scans, wheelchair
+plans judged against the simulator's ground, and what the geometry layers add to `terra build`.
+
+Sections (each skipped when its input is not given):
+- segmentation: F1 of terra.graph.ground.segment_ground for ground (the simulator's terrain
+  classes and crosswalk paint) against everything else, on `--frames` frames of a simulated
+  preset fused in the map frame; and, with `--kitti DIR` (KITTI .bin scans), its agreement with
+  Patchwork++ (pypatchworkpp, when installed) on each scan.
+- lidar-only: `terra map --poses odometry` (KISS-ICP) and `terra build` of the KITTI scans in
+  `--kitti DIR`, and the share of the largest connected patch of densely observed ground cells
+  (>= 60 % of a 9 x 9 window observed) within 3, 5 and 10 m of a place.
+- wheelchair: `--pairs` random start-goal place pairs on the graph of `--wheelchair-map` (a map
+  of the simulated `--wheelchair-preset` with the `sim:` section of `--sim-config`, e.g. a larger
+  `ground_relief_m` for slopes beyond the wheelchair's), planned with and without the wheelchair
+  profile; each path is judged
+  on the simulator's own ground (its analytic height field, sampled every 0.25 m, slopes over 1 m):
+  paths over the profile's slope, and pairs whose free path is legal on that ground but for which
+  the wheelchair got no path (a legal route missed).
+- build-time: `build_scene_graph` on `--campus-map` with build.ground.layers true and false,
+  best of `--repeat` runs each.
+
+Usage:
+  python benchmarks/bench_geometry.py [--preset tiny] [--frames 40] [--kitti DIR]
+      [--campus-map BUNDLE] [--repeat 3]
+      [--wheelchair-map BUNDLE --wheelchair-preset small --sim-config FILE --pairs 200]
+Writes benchmarks/results/geometry.json and prints it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from importlib.metadata import version as package_version
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from terra.bundle import Bundle
+
+RESULTS = Path(__file__).resolve().parent / "results" / "geometry.json"
+
+
+def f1_score(found: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    tp = int((found & truth).sum())
+    fp, fn = int((found & ~truth).sum()), int((~found & truth).sum())
+    return {
+        "precision": round(tp / max(tp + fp, 1), 4),
+        "recall": round(tp / max(tp + fn, 1), 4),
+        "f1": round(2 * tp / max(2 * tp + fp + fn, 1), 4),
+    }
+
+
+def segmentation_sim(preset: str, seed: int, frames: int) -> dict[str, Any]:
+    """segment_ground on the first `frames` frames of a simulated drive, against its labels."""
+    from terra.datasets.sim_classes import SIM_CLASSES, class_id
+    from terra.graph.ground import segment_ground
+    from terra.sim import simulate
+    from terra.sim.config import SimConfig
+
+    dataset = simulate(preset, seed, SimConfig.model_validate({"route": {"max_frames": frames}, "cameras": []}))
+    ground_ids = [c.id for c in SIM_CLASSES if c.terrain] + [class_id("crosswalk")]
+    points, labels = [], []
+    for i in range(len(dataset)):
+        frame = dataset[i]
+        T = frame.T_map_lidar
+        points.append(frame.points @ T[:3, :3].T + T[:3, 3])
+        labels.append(frame.point_labels)
+    cloud = np.vstack(points)
+    start = time.perf_counter()
+    found = segment_ground(cloud)
+    seconds = time.perf_counter() - start
+    truth = np.isin(np.concatenate(labels), ground_ids)
+    return {"preset": preset, "frames": len(dataset), "points": len(cloud), "seconds": round(seconds, 3)} | f1_score(
+        found, truth
+    )
+
+
+def segmentation_kitti(folder: Path) -> dict[str, Any]:
+    """Agreement of segment_ground with Patchwork++ on every KITTI scan in `folder`."""
+    from terra.graph.ground import segment_ground
+
+    try:
+        import pypatchworkpp  # pyright: ignore[reportMissingImports]  # optional: pip install pypatchworkpp
+    except ImportError:
+        return {"skipped": "pypatchworkpp is not installed"}
+    params = pypatchworkpp.Parameters()
+    params.verbose = False
+    patchwork = pypatchworkpp.patchworkpp(params)
+    rows = []
+    for path in sorted(folder.glob("*.bin")):
+        scan = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
+        patchwork.estimateGround(scan)
+        reference = np.zeros(len(scan), dtype=bool)
+        reference[np.asarray(patchwork.getGroundIndices(), dtype=np.int64)] = True
+        start = time.perf_counter()
+        found = segment_ground(scan[:, :3])
+        seconds = time.perf_counter() - start
+        rows.append({"scan": path.name, "points": len(scan), "seconds": round(seconds, 3)} | f1_score(found, reference))
+    mean = {k: round(float(np.mean([r[k] for r in rows])), 4) for k in ("precision", "recall", "f1")}
+    return {"reference": f"Patchwork++ (pypatchworkpp {package_version('pypatchworkpp')})", "scans": rows, "mean": mean}
+
+
+def lidar_only_build(folder: Path, work: Path) -> dict[str, Any]:
+    """Map the KITTI scans with odometry, build, and measure how much of the ground has places."""
+    from terra.bundle import Bundle
+    from terra.graph.storage import load_scene_graph
+
+    sequence = work / "sequences" / "00" / "velodyne"
+    sequence.mkdir(parents=True)
+    for path in sorted(folder.glob("*.bin")):
+        shutil.copy(path, sequence / path.name)
+    bundle = work / "kitti.terra"
+    seconds = {}
+    for name, argv in (
+        ("map", ["map", str(sequence.parent), "-o", str(bundle), "--poses", "odometry"]),
+        ("build", ["build", str(bundle)]),
+    ):
+        start = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "terra", *argv], check=True, capture_output=True)
+        seconds[name] = round(time.perf_counter() - start, 2)
+    graph = load_scene_graph(Bundle(bundle))
+    return {"scans": len(list(sequence.glob("*.bin"))), "places": len(graph.places), "seconds": seconds} | coverage(
+        Bundle(bundle), graph.places.position
+    )
+
+
+def coverage(bundle: Bundle, places: np.ndarray) -> dict[str, Any]:
+    """Share of the largest connected patch of densely observed ground cells within 3, 5, 10 m of a place."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled module
+
+    graph = bundle.model.components.graph
+    info = graph.ground if graph is not None else None
+    if info is None:
+        return {"skipped": "the graph has no ground layers"}
+    observed = np.zeros(int(np.prod(info.shape)), dtype=bool)
+    observed[np.asarray(bundle.array("graph/ground_cells"), dtype=np.int64)] = True
+    observed = observed.reshape(info.shape)
+    dense = observed & (ndimage.uniform_filter(observed.astype(np.float32), 9) >= 0.6)
+    from terra.graph.raster import label
+
+    labels, _ = label(dense, structure=np.ones((3, 3), dtype=bool))
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    rows, cols = np.nonzero(labels == sizes.argmax())
+    offset = info.offset
+    xy = np.asarray(info.origin) + (np.column_stack([cols + offset[1], rows + offset[0]]) + 0.5) * info.cell_size
+    distance = cKDTree(places[:, :2]).query(xy)[0]
+    return {
+        "observed_cells": int(observed.sum()),
+        "dense_patch_cells": len(rows),
+        "covered_within_m": {str(r): round(float((distance <= r).mean()), 4) for r in (3, 5, 10)},
+    }
+
+
+def truth_slopes(world, waypoints: np.ndarray, spacing: float = 0.25, base: float = 1.0) -> tuple[float, float]:
+    """Steepest climb and descent (degrees) along a path on the simulator's height field: samples
+    every `spacing` m along the waypoints' segments, slopes over `base` m of travel."""
+    xy = np.asarray(waypoints, dtype=np.float64)[:, :2]
+    pieces = [xy[:1]]
+    for a, b in zip(xy[:-1], xy[1:]):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / spacing)), 1)
+        pieces.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    samples = np.vstack(pieces)
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(samples, axis=0), axis=1))])
+    height = world.ground.height(samples)
+    ahead = np.searchsorted(travelled, travelled + base)
+    ok = ahead < len(samples)
+    if not ok.any():
+        return 0.0, 0.0
+    rise = (height[ahead[ok]] - height[ok]) / (travelled[ahead[ok]] - travelled[ok])
+    degrees = np.degrees(np.arctan(rise))
+    return float(max(degrees.max(), 0.0)), float(max(-degrees.min(), 0.0))
+
+
+def wheelchair_pairs(graph, world, pairs: int, seed: int = 0) -> dict[str, Any]:
+    """Plans between random place pairs with and without the wheelchair, judged on the true ground."""
+    from terra.errors import NoPathError
+    from terra.tasks.planning import CostGraph, TerrainCosts, plan_on
+    from terra.tasks.robot import ROBOTS
+
+    chair = ROBOTS["wheelchair"]
+    costs = TerrainCosts.from_preferences(graph.terrain_classes)
+    free_graph, chair_graph = CostGraph.build(graph, costs), CostGraph.build(graph, costs, chair)
+    rng = np.random.default_rng(seed)
+    counts: dict[str, float] = {"pairs": pairs, "free_paths": 0, "wheelchair_paths": 0, "over_limit_on_true_ground": 0}
+    counts |= {"over_limit_by_graph": 0, "legal_route_missed": 0, "no_path_and_free_path_illegal": 0}
+    worst = 0.0
+    start = time.perf_counter()
+    for _ in range(pairs):
+        a, b = (int(v) for v in rng.choice(len(graph.places), 2, replace=False))
+        try:
+            free = plan_on(graph, free_graph, a, b)
+        except NoPathError:
+            free = None
+        try:
+            plan = plan_on(graph, chair_graph, a, b)
+        except NoPathError:
+            plan = None
+        counts["free_paths"] += free is not None
+        if plan is not None:
+            counts["wheelchair_paths"] += 1
+            climb, descent = truth_slopes(world, plan.waypoints)
+            worst = max(worst, climb, descent)
+            counts["over_limit_on_true_ground"] += climb > chair.max_slope_up or descent > chair.max_slope_down
+            g = plan.ground
+            counts["over_limit_by_graph"] += g is not None and (
+                g.max_step_m > chair.max_step or g.max_slope_deg > chair.max_slope_up
+            )
+        elif free is not None:
+            climb, descent = truth_slopes(world, free.waypoints)
+            legal = climb <= chair.max_slope_up and descent <= chair.max_slope_down
+            counts["legal_route_missed" if legal else "no_path_and_free_path_illegal"] += 1
+    counts["steepest_true_slope_on_wheelchair_paths_deg"] = round(worst, 2)
+    counts["seconds"] = round(time.perf_counter() - start, 2)
+    return counts
+
+
+def wheelchair_on_map(bundle: Path, preset: str, seed: int, sim_config: Path | None, pairs: int) -> dict[str, Any]:
+    """`wheelchair_pairs` on the graph built from the map in `bundle`, judged on the ground of the
+    simulated world it was mapped from."""
+    from terra.bundle import Bundle
+    from terra.config import TerraConfig
+    from terra.graph.pipeline import build_scene_graph
+    from terra.mapping.storage import load_map
+    from terra.sim import simulate
+
+    graph = build_scene_graph(load_map(Bundle(bundle), max_ids=False)).graph
+    config = TerraConfig.read(sim_config).sim if sim_config is not None else None
+    world = simulate(preset, seed, config).world
+    result = wheelchair_pairs(graph, world, pairs)
+    steepest = np.degrees(np.arctan(np.linalg.norm(world.ground.gradient(graph.places.position), axis=1)))
+    return {
+        "preset": preset,
+        "places": len(graph.places),
+        "steepest_true_slope_at_a_place_deg": round(float(steepest.max()), 2),
+    } | result
+
+
+def build_time(map_bundle: Path, repeat: int) -> dict[str, Any]:
+    """Best-of-`repeat` build_scene_graph seconds with and without the ground layers."""
+    from terra.bundle import Bundle
+    from terra.graph.config import BuildConfig
+    from terra.graph.pipeline import build_scene_graph
+    from terra.mapping.storage import load_map
+
+    msm = load_map(Bundle(map_bundle), max_ids=False)
+    out: dict[str, Any] = {"points": len(msm)}
+    for layers in (False, True):
+        config = BuildConfig.model_validate({"ground": {"layers": layers}})
+        best = np.inf
+        for _ in range(repeat):
+            start = time.perf_counter()
+            build = build_scene_graph(msm, config)
+            best = min(best, time.perf_counter() - start)
+            if layers:
+                out["places"] = len(build.graph.places)
+                out["ground_stages_s"] = {k: round(v, 3) for k, v in build.timer.seconds.items() if "ground" in k}
+        out["seconds_layers_" + ("on" if layers else "off")] = round(best, 3)
+    out["overhead"] = round(out["seconds_layers_on"] / out["seconds_layers_off"] - 1.0, 4)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", default="tiny")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--kitti", type=Path, default=None)
+    parser.add_argument("--campus-map", type=Path, default=None)
+    parser.add_argument("--wheelchair-map", type=Path, default=None)
+    parser.add_argument("--wheelchair-preset", default="small")
+    parser.add_argument("--sim-config", type=Path, default=None)
+    parser.add_argument("--pairs", type=int, default=200)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    result: dict[str, Any] = {
+        "machine": f"{platform.node()} {platform.machine()} {platform.python_version()}",
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "argv": sys.argv[1:],
+    }
+    if args.frames > 0:
+        result["segmentation_sim"] = segmentation_sim(args.preset, args.seed, args.frames)
+    if args.kitti is not None:
+        result["segmentation_kitti"] = segmentation_kitti(args.kitti)
+        with tempfile.TemporaryDirectory() as work:
+            result["lidar_only_kitti"] = lidar_only_build(args.kitti, Path(work))
+    if args.campus_map is not None:
+        result["build_time"] = build_time(args.campus_map, args.repeat)
+    if args.wheelchair_map is not None:
+        result["wheelchair"] = wheelchair_on_map(
+            args.wheelchair_map, args.wheelchair_preset, args.seed, args.sim_config, args.pairs
+        )
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(result, indent=1) + "\n")
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()

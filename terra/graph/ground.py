@@ -1,0 +1,507 @@
+"""Ground geometry from the LiDAR points alone (DESIGN.md decision 19): which map points are
+ground, and per terrain-grid cell the ground's height, slope, step and roughness.
+
+Frames and units: points and heights are in the map frame, metres; slopes are degrees from the
+horizontal; the grid follows terra.graph.grid (cell (row r, col c) covers x in [x0 + c s, x0 +
+(c + 1) s), y in [y0 + r s, ...), rows grow with y).
+
+Ground segmentation (`segment_ground`) works on the whole map, not per scan: a map keeps no
+sensor origin per point, which scan-based methods (Patchwork++'s concentric zones around the
+sensor) need, and the LiDAR-only maps Terra is asked to build on are already fused. It is a
+progressive morphological filter (Zhang et al., IEEE TGRS 2003): the lowest point of each cell
+forms a surface; grey openings with growing windows remove what stands on the ground (a car
+vanishes under a 2 m window, a building under 8 m), and a cell whose lowest point rises above the
+opened surface by more than the window's allowance (`base_height` + `slope` x the window's
+growth) is not ground. Points at most `tolerance` above the lowest point of the nearest ground
+cell are ground.
+
+Layers (`ground_layers`), per cell, from the ground points in it:
+- gradient: dz/dx, dz/dy of the least-squares plane through the mean heights of the observed
+  cells of its 3 x 3 neighbourhood, each taken where its points' centroid lies (NaN with fewer
+  than three cells, or all on one line); slope = atan |gradient|;
+- height: mean height of its ground points, carried from their centroid to the cell's centre
+  along that gradient (a map keeps one point per voxel, rarely at the centre: on a slope the raw
+  means read as steps between cells); a cell more than 3 cm above or below all its neighbours
+  takes their median (`despike`: one stray point is no step);
+- step: the height jump at the cell that a smooth surface does not explain, the larger of the two
+  axes: along x, |h[c+1] - h[c-1]| minus twice the mean of the neighbouring differences
+  |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope; the gradient's where neither is
+  observed), floored at 0. A 15 cm curb reads 15 cm on both cells beside it, or on the cell it
+  runs through; a constant slope reads 0 (it is the slope layer's business); stairs read as a
+  steep slope with small steps; unknown within two cells of a blocked cell (`grid_layers`), where
+  an object's lowest points pass for ground;
+- roughness: the standard deviation of the cell's ground point heights, less what the plane's
+  tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
+
+Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
+its step is the largest step of the cells it crosses, its rise (fall) the steepest climb (descent)
+along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
+feels, not one cell's gradient). Cells without ground count as unknown and constrain nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import ndimage
+
+from terra.graph import raster
+from terra.graph.grid import GridFrame, TerrainGrid
+from terra.graph.storage import GROUND_FILES  # prefix of the layer arrays in a bundle
+
+if TYPE_CHECKING:
+    from terra.bundle import BundleWriter
+    from terra.graph.config import GroundSection
+    from terra.mapping.semantic_map import MetricSemanticMap
+
+GROUND_TERRAIN = "ground"  # the terrain class of a map without camera terrain classes
+LAYER_UNITS = {
+    "cells": "flat cell index row * W + col of each observed cell (cells holding ground points)",
+    "height": "m, map frame",
+    "gradient": "dz/dx, dz/dy (m/m); slope = atan |gradient|, degrees from horizontal",
+    "step": "m",
+    "roughness": "m",
+}
+EDGE_GEOMETRY_UNITS = ["step_m", "rise_deg", "fall_deg"]
+
+
+def segment_ground(
+    points: np.ndarray,
+    cell_size: float = 0.5,
+    windows: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0),
+    slope: float = 0.2,
+    base_height: float = 0.1,
+    max_height: float = 2.5,
+    tolerance: float = 0.15,
+) -> np.ndarray:
+    """(N,) bool: which map points (N, 3) (map frame, metres) are ground, by a progressive
+    morphological filter on the lowest point per `cell_size` cell (module docstring). `windows`:
+    opening widths, metres, increasing; `slope`: m of height allowed per m of window growth;
+    `base_height`, `max_height`: the least and most a cell may rise above the opened surface, m;
+    `tolerance`: how far above the ground surface (the lowest point of the nearest ground cell) a
+    point is still ground, m."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=bool)
+    cells = np.floor((pts[:, :2] - pts[:, :2].min(axis=0)) / cell_size).astype(np.int64)
+    W, H = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
+    flat = cells[:, 1] * W + cells[:, 0]
+    # float32 relative to the lowest point: the filters below run twice as fast, to 1e-5 m
+    base = float(pts[:, 2].min())
+    lowest = np.full(H * W, np.inf, dtype=np.float32)
+    np.minimum.at(lowest, flat, (pts[:, 2] - base).astype(np.float32))
+    lowest = lowest.reshape(H, W)
+    has = np.isfinite(lowest)
+    rows, cols = raster.nearest_zero(~has)
+    surface = lowest[rows, cols]  # empty cells take the nearest lowest point
+    ground_cell = has.copy()
+    previous = 0.0
+    for width in windows:
+        size = max(3, 2 * int(round(width / (2 * cell_size))) + 1)
+        opened = np.asarray(ndimage.grey_opening(surface, size=(size, size)))
+        allowance = min(base_height + slope * (width - previous), max_height)
+        ground_cell &= surface - opened <= allowance
+        surface, previous = opened, width
+    if not ground_cell.any():
+        return np.zeros(len(pts), dtype=bool)
+    rows, cols = raster.nearest_zero(~ground_cell)
+    floor = lowest[rows, cols].ravel().astype(np.float64) + base
+    return pts[:, 2] <= floor[flat] + tolerance
+
+
+@dataclass
+class GroundLayers:
+    """Ground geometry of the observed cells of a grid frame (module docstring), stored sparsely:
+    a kilometre map has tens of millions of cells. cells: (n,) int64 flat indices row * W + col of
+    the cells holding ground points, increasing; height (n,) float32 metres; gradient (n, 2)
+    float32 dz/dx, dz/dy; step (n,) float32 metres; roughness (n,) float32 metres (NaN where
+    unknown); shape (H, W), origin (2,) metres, cell_size metres and offset (row, col) as in
+    terra.graph.grid.TerrainGrid."""
+
+    cells: np.ndarray
+    height: np.ndarray
+    gradient: np.ndarray
+    step: np.ndarray
+    roughness: np.ndarray
+    shape: tuple[int, int]
+    origin: np.ndarray
+    cell_size: float
+    offset: tuple[int, int] = (0, 0)
+
+    @property
+    def slope(self) -> np.ndarray:
+        """(n,) degrees from the horizontal (NaN where the gradient is unknown)."""
+        return np.degrees(np.arctan(np.hypot(self.gradient[:, 0], self.gradient[:, 1])))
+
+    @property
+    def observed(self) -> np.ndarray:
+        """(H, W) bool: the cells holding ground points."""
+        out = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
+        out[self.cells] = True
+        return out.reshape(self.shape)
+
+    def as_grid(self, values: np.ndarray) -> np.ndarray:
+        """(H, W, ...) float64 grid of per-cell `values` (n, ...), NaN on unobserved cells."""
+        values = np.asarray(values, dtype=np.float64)
+        out = np.full((self.shape[0] * self.shape[1],) + values.shape[1:], np.nan)
+        out[self.cells] = values
+        return out.reshape(self.shape + values.shape[1:])
+
+    def lookup(self, xy: np.ndarray) -> np.ndarray:
+        """(m,) index into the observed cells of each map-frame point (m, 2+) (metres), -1 where
+        its cell is outside the grid or holds no ground."""
+        H, W = self.shape
+        rc = np.floor((np.asarray(xy, dtype=np.float64)[:, :2] - self.origin) / self.cell_size).astype(np.int64)
+        rows, cols = rc[:, 1] - self.offset[0], rc[:, 0] - self.offset[1]
+        inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+        flat = np.where(inside, rows * W + cols, -1)
+        if len(self.cells) == 0:
+            return np.full(len(flat), -1, dtype=np.int64)
+        at = np.minimum(np.searchsorted(self.cells, flat), len(self.cells) - 1)
+        return np.where(inside & (self.cells[at] == flat), at, -1)
+
+    def centres(self, index: np.ndarray) -> np.ndarray:
+        """(m, 2) map-frame x, y (metres) of the centres of observed cells `index` (m,)."""
+        flat = self.cells[np.asarray(index, dtype=np.int64)]
+        rows, cols = flat // self.shape[1] + self.offset[0], flat % self.shape[1] + self.offset[1]
+        return self.origin + (np.column_stack([cols, rows]).astype(np.float64) + 0.5) * self.cell_size
+
+    def info(self) -> dict[str, Any]:
+        """The manifest's description of the layers (components.graph.ground)."""
+        return {
+            "origin": [float(v) for v in self.origin],
+            "cell_size": float(self.cell_size),
+            "offset": [int(v) for v in self.offset],
+            "shape": [int(v) for v in self.shape],
+            "observed_cells": len(self.cells),
+            "units": dict(LAYER_UNITS),
+            "edge_geometry": list(EDGE_GEOMETRY_UNITS),
+        }
+
+
+SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
+BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
+SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
+# Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
+BAND_CELLS = 1 << 18
+# Rows a cell's layers read on each side: the step reads heights 2 rows away, each the median of
+# heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
+CONTEXT = 4
+
+
+def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
+    """The layers of the ground points (n, 3) (map frame, metres) on `frame` (points outside it
+    are left out), computed in bands of rows of about `band_cells` cells with CONTEXT rows on each
+    side, so memory follows the band, not the grid."""
+    H, W = frame.shape
+    s = float(frame.cell_size)
+    origin = np.asarray(frame.origin, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    rc = np.floor((pts[:, :2] - origin) / s).astype(np.int64)
+    rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
+    inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+    order = np.argsort(rows[inside], kind="stable")
+    # Where each point lies in its cell, metres from the centre: the mean height of a cell is
+    # that of its points' centroid, which on a slope is not the centre's.
+    within = (pts[:, :2] - origin) - (rc + 0.5) * s
+    rows, cols, z = rows[inside][order], cols[inside][order], pts[inside, 2][order]
+    within = within[inside][order]
+    reference = float(z.mean()) if len(z) else 0.0  # one for every band: bands equal the whole
+    band = max(1, band_cells // max(W, 1))
+    parts: list[tuple[np.ndarray, ...]] = []
+    for r0 in range(0, H, band):
+        r1 = min(H, r0 + band)
+        lo, hi = max(0, r0 - CONTEXT), min(H, r1 + CONTEXT)
+        sel = slice(int(np.searchsorted(rows, lo)), int(np.searchsorted(rows, hi)))
+        layers = _band_layers(rows[sel] - lo, cols[sel], z[sel], within[sel], (hi - lo, W), s, reference)
+        keep = slice(r0 - lo, r0 - lo + (r1 - r0))
+        observed = np.flatnonzero(layers[0][keep].ravel() > 0)
+        parts.append((observed + r0 * W, *(layer[keep].reshape((r1 - r0) * W, -1)[observed] for layer in layers[1:])))
+    cells, height, gradient, step, roughness = (
+        np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in range(5)
+    )
+    return GroundLayers(
+        cells.astype(np.int64),
+        height.reshape(-1).astype(np.float32),
+        gradient.reshape(-1, 2).astype(np.float32),
+        step.reshape(-1).astype(np.float32),
+        roughness.reshape(-1).astype(np.float32),
+        (int(H), int(W)),
+        origin,
+        s,
+        frame.offset,
+    )
+
+
+def _band_layers(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    z: np.ndarray,
+    within: np.ndarray,
+    shape: tuple[int, int],
+    cell_size: float,
+    reference: float,
+) -> tuple[np.ndarray, ...]:
+    """Dense (h, w) count, height, gradient (h, w, 2), step, roughness of one band from the
+    band-local cells (rows, cols), heights z and offsets from their cell's centre `within` (n, 2)
+    (x, y metres) of its ground points; `reference`: plane_fit's reference height, metres."""
+    h, w = shape
+    flat = rows * w + cols
+    count = np.bincount(flat, minlength=h * w).reshape(h, w).astype(np.float64)
+    # float64 also for a band without points (bincount of nothing gives int64)
+    total = np.bincount(flat, weights=z, minlength=h * w).reshape(h, w).astype(np.float64)
+    squares = np.bincount(flat, weights=z * z, minlength=h * w).reshape(h, w).astype(np.float64)
+    observed = count > 0
+    mean = np.divide(total, count, out=np.zeros_like(total), where=observed)
+    centroid = [
+        np.divide(bins, count, out=np.zeros_like(bins), where=observed)
+        for bins in (
+            np.bincount(flat, weights=within[:, k], minlength=h * w).reshape(h, w).astype(np.float64) for k in (0, 1)
+        )
+    ]
+    # Each cell's height at its centre: its mean height carried along the gradient of the plane
+    # through its neighbourhood's mean heights, each where its points' centroid lies (exact on a
+    # plane); that plane's gradient is the cell's.
+    centred, first = plane_fit(np.where(observed, mean, np.nan), cell_size, (centroid[0], centroid[1]), reference)
+    moved = mean - np.nan_to_num(first[..., 0]) * centroid[0] - np.nan_to_num(first[..., 1]) * centroid[1]
+    height = despike(np.where(observed, np.where(np.isfinite(centred), moved, mean), np.nan))
+    gradient = np.where(observed[..., None], first, np.nan)  # a second fit on `height` costs 25 % of the build
+    tilt = np.nan_to_num(gradient[..., 0] ** 2 + gradient[..., 1] ** 2) * cell_size**2 / 12.0
+    variance = np.divide(squares, count, out=np.zeros_like(squares), where=observed) - mean**2
+    roughness = np.sqrt(np.maximum(variance - tilt, 0.0))
+    step = np.fmax(
+        axis_step(height, 1, gradient[..., 0] * cell_size), axis_step(height, 0, gradient[..., 1] * cell_size)
+    )
+    return count, height, gradient, step, roughness
+
+
+def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
+    """(H, W): each observed (finite) height that lies more than `tolerance` metres above or below
+    all of its observed 4-neighbours (at least three) replaced by their median. One stray point (a
+    car's sill taken for ground, a cell of one point) then makes no step and no edge slope, while an
+    edge (a curb: every cell beside it has a neighbour on each level), a plane and a smooth hill
+    (a cell between its neighbours, or within centimetres of them) keep their heights."""
+    padded = np.pad(height, 1, constant_values=np.nan)
+    around = [padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]]
+    known = sum(np.isfinite(a).astype(np.int8) for a in around)
+    lowest = np.fmin(np.fmin(around[0], around[1]), np.fmin(around[2], around[3]))
+    highest = np.fmax(np.fmax(around[0], around[1]), np.fmax(around[2], around[3]))
+    with np.errstate(invalid="ignore"):  # NaN compares False: cells without neighbours stay
+        spike = (known >= 3) & ((height > highest + tolerance) | (height < lowest - tolerance))
+    out = height.copy()
+    if spike.any():  # rare: the median only where it is needed
+        rows, cols = np.nonzero(spike)
+        neighbours = np.stack([a[rows, cols] for a in around])  # (4, k), NaN sorts last
+        neighbours.sort(axis=0)
+        count = np.isfinite(neighbours).sum(axis=0)
+        pick = np.arange(len(rows))
+        out[rows, cols] = (neighbours[(count - 1) // 2, pick] + neighbours[count // 2, pick]) / 2
+    return out
+
+
+def _taps(values: np.ndarray, kind: str, axis: int) -> np.ndarray:
+    """One 3-tap correlation of `values` along `axis`, zero outside: out[i] = a values[i - 1] +
+    b values[i] + c values[i + 1] with (a, b, c) = (1, 1, 1) for "one", (-1, 0, 1) for "odd",
+    (1, 0, 1) for "even" (slices, not a general filter: these are most of the layers' time)."""
+    v = np.moveaxis(values, axis, 0)
+    out = v.copy() if kind == "one" else np.zeros_like(v)
+    if kind == "odd":
+        out[1:] -= v[:-1]
+    else:
+        out[1:] += v[:-1]
+    out[:-1] += v[1:]
+    return np.moveaxis(out, 0, axis)
+
+
+def _window_sums(values: np.ndarray, along_y: str, along_x: str) -> np.ndarray:
+    """The 3 x 3 window sums of values weighted by the taps (`_taps`) along y (rows) and x (columns)."""
+    return _taps(_taps(values, along_y, 0), along_x, 1)
+
+
+def plane_fit(
+    height: np.ndarray,
+    cell_size: float,
+    offset: tuple[np.ndarray, np.ndarray] | None = None,
+    reference: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares plane z = a + gx dx + gy dy through the observed (finite) heights (H, W)
+    of each cell's 3 x 3 neighbourhood, dx, dy (metres) from the cell's centre to where each
+    height was measured: the cells' centres, moved by `offset` (x (H, W), y (H, W) metres from
+    each cell's centre) when given. Returns a (H, W), the plane's height at the cell's centre, and
+    (H, W, 2) gx, gy (m/m); NaN where fewer than three cells, or only collinear ones, are observed.
+    `reference`: a height (metres) near the heights, subtracted before the float32 sums (default
+    their mean; pass one for the whole map so that bands of it give the same results)."""
+    # float32 on heights relative to the area's mean: twice as fast as float64, and the terms of
+    # the solution stay within 1e-5 of their size (heights within tens of metres of the mean).
+    w = np.isfinite(height).astype(np.float32)
+    if reference is None:
+        reference = float(np.nanmean(height)) if w.any() else 0.0
+    relative = np.nan_to_num(height - reference).astype(np.float32)
+    wh = w * relative
+    one, odd, even = "one", "odd", "even"
+    sums, s1, s2 = _window_sums, cell_size, cell_size * cell_size
+    n, sx, sy = sums(w, one, one), sums(w, one, odd) * s1, sums(w, odd, one) * s1
+    sxx, syy, sxy = sums(w, one, even) * s2, sums(w, even, one) * s2, sums(w, odd, odd) * s2
+    sz, szx, szy = sums(wh, one, one), sums(wh, one, odd) * s1, sums(wh, odd, one) * s1
+    if offset is not None:  # dx = column offset + ex, dy = row offset + ey, expanded (w is 0 or 1)
+        ex, ey = (w * np.nan_to_num(o).astype(np.float32) for o in offset)
+        sx, sy = sx + sums(ex, one, one), sy + sums(ey, one, one)
+        sxx = sxx + 2 * s1 * sums(ex, one, odd) + sums(ex * ex, one, one)
+        syy = syy + 2 * s1 * sums(ey, odd, one) + sums(ey * ey, one, one)
+        sxy = sxy + s1 * (sums(ey, one, odd) + sums(ex, odd, one)) + sums(ex * ey, one, one)
+        hx, hy = ex * relative, ey * relative
+        szx, szy = szx + sums(hx, one, one), szy + sums(hy, one, one)
+    # Cramer's rule on the 3 x 3 normal equations, cell by cell.
+    det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
+    det_a = sz * (sxx * syy - sxy * sxy) - sx * (szx * syy - sxy * szy) + sy * (szx * sxy - sxx * szy)
+    det_x = n * (szx * syy - sxy * szy) - sz * (sx * syy - sxy * sy) + sy * (sx * szy - szx * sy)
+    det_y = n * (sxx * szy - szx * sxy) - sx * (sx * szy - szx * sy) + sz * (sx * sxy - sxx * sy)
+    solvable = (n >= 3) & (np.abs(det) > 1e-9 * cell_size**4)  # det ~ n^3 s^4; collinear: rounding
+    safe = np.where(solvable, det, 1.0)
+    intercept = np.where(solvable, det_a / safe + reference, np.nan)
+    gradient = np.stack([np.where(solvable, det_x / safe, np.nan), np.where(solvable, det_y / safe, np.nan)], axis=-1)
+    return intercept, gradient
+
+
+def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) metres: the step at each cell along one axis (module docstring), NaN where the two
+    cells beside it are not both observed. Where neither outer neighbour is observed (holes of a
+    sparse map), the local slope comes from `rise` (H, W), metres of height per cell along the
+    axis (the plane's gradient x cell size), and the step is unknown (NaN) where that is NaN too;
+    without `rise`, such a cell's surroundings count as level."""
+    h = np.moveaxis(np.asarray(height, dtype=np.float64), axis, -1)
+    pad = np.full(h.shape[:-1] + (2,), np.nan)
+    p = np.concatenate([pad, h, pad], axis=-1)
+    n = h.shape[-1]
+    before2, before, after, after2 = p[..., 0:n], p[..., 1 : n + 1], p[..., 3 : n + 3], p[..., 4 : n + 4]
+    jump = np.abs(after - before)
+    sides = np.stack([np.abs(before - before2), np.abs(after2 - after)])
+    known = np.isfinite(sides)
+    outer = np.where(known, sides, 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1)
+    if rise is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
+        fallback = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
+        outer = np.where(known.any(axis=0), outer, fallback)
+    step = np.maximum(jump - 2.0 * outer, 0.0)
+    return np.moveaxis(np.where(np.isfinite(jump), step, np.nan), -1, axis)
+
+
+def edge_geometry(
+    layers: GroundLayers, position: np.ndarray, edges: np.ndarray, baseline: float = SLOPE_BASELINE
+) -> np.ndarray:
+    """(E, 3) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
+    metres): the largest step it crosses (m), and its steepest rise and fall going from
+    edges[:, 0] to edges[:, 1] (degrees, >= 0) over `baseline` metres of travel (the whole edge
+    when shorter), from the ground heights along it; 0 where the cells along it hold no ground
+    (module docstring)."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    E = len(edges)
+    if E == 0 or len(layers.cells) == 0:
+        return np.zeros((E, 3), dtype=np.float32)
+    a = np.asarray(position, dtype=np.float64)[edges[:, 0], :2]
+    delta = np.asarray(position, dtype=np.float64)[edges[:, 1], :2] - a
+    length = np.linalg.norm(delta, axis=1)
+    samples = np.ceil(length / (layers.cell_size / 2)).astype(np.int64) + 1
+    starts = np.concatenate([[0], np.cumsum(samples)[:-1]])
+    edge = np.repeat(np.arange(E), samples)
+    t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
+    point = a[edge] + t[:, None] * delta[edge]
+    at = layers.lookup(point)
+    known = at >= 0
+    step = np.where(known, layers.step[at], np.nan)
+    # The ground's height at each sample: its cell's, carried along the cell's gradient.
+    cell = at[known]
+    tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
+    height = layers.height[cell] + (tilt * (point[known] - layers.centres(cell))).sum(axis=1)
+    rise = _rise_along(edge[known], t[known] * length[edge[known]], height, E, baseline)
+    out = np.column_stack([np.fmax.reduceat(step, starts), np.degrees(np.arctan(rise))])
+    return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+def _rise_along(edge: np.ndarray, travelled: np.ndarray, height: np.ndarray, edges: int, baseline: float) -> np.ndarray:
+    """(E, 2) steepest rise and fall (m/m, >= 0) of each edge from the heights (n,) of its known
+    samples (edge index (n,), increasing within an edge; metres travelled from its start (n,)):
+    over `baseline` metres, or from its first to its last known sample when it has less."""
+    out = np.zeros((edges, 2))
+    if len(edge) < 2:
+        return out
+    span = float(travelled.max()) + 2.0 * baseline + 1.0
+    coordinate = edge * span + travelled  # edges laid end to end, far apart
+    found = np.searchsorted(coordinate, coordinate + baseline - 1e-9)
+    ahead = np.minimum(found, len(edge) - 1)
+    full = (found < len(edge)) & (edge[ahead] == edge)  # a whole baseline of this edge lies ahead
+    ends = np.concatenate([np.flatnonzero(np.diff(edge)), [len(edge) - 1]])  # each edge's last sample
+    firsts = np.concatenate([[0], ends[:-1] + 1])
+    short = ~np.isin(edge[firsts], edge[full])  # edges with less than a baseline: first to last
+    pairs = np.concatenate([np.flatnonzero(full), firsts[short]])
+    targets = np.concatenate([ahead[full], ends[short]])
+    run = travelled[targets] - travelled[pairs]
+    valid = run > 1e-6
+    pairs, targets, run = pairs[valid], targets[valid], run[valid]
+    slope = (height[targets] - height[pairs]) / run
+    np.fmax.at(out[:, 0], edge[pairs], slope)
+    np.fmax.at(out[:, 1], edge[pairs], -slope)
+    return np.maximum(out, 0.0)
+
+
+# ------------------------------------------------------------------ the build's use of the layers
+
+
+def has_terrain_votes(msm: MetricSemanticMap) -> bool:
+    """Whether any map point has a terrain vote: a map without (a LiDAR-only log, or a dataset
+    whose legend names terrain classes but whose scans carry no labels) builds on `ground`."""
+    return bool(msm.terrain_classes) and bool(np.any(msm.terrain_votes))
+
+
+def map_ground(msm: MetricSemanticMap, section: GroundSection) -> np.ndarray | None:
+    """(N,) bool ground flag of the map's points (`segment_ground` with the section's values), or
+    None when nothing needs it (the map has terrain votes and `layers` is off)."""
+    if not section.layers and has_terrain_votes(msm):
+        return None
+    return segment_ground(
+        msm.points,
+        section.cell_size,
+        tuple(section.windows),
+        section.slope,
+        section.base_height,
+        section.max_height,
+        section.tolerance,
+    )
+
+
+def as_ground_terrain(msm: MetricSemanticMap, ground: np.ndarray) -> MetricSemanticMap:
+    """A map without terrain votes seen as one with a single terrain class, `ground`,
+    voted once by each ground point (N,) bool. Its terrain embedding is the first unit vector of
+    the embedding space: the map carries no semantics to embed, every place gets the same vector,
+    and regions come from positions alone (terra find and monitor refuse such maps)."""
+    dim = msm.dim
+    embedding = np.zeros((1, dim), dtype=np.float32)
+    embedding[0, 0] = 1.0
+    votes = np.asarray(ground, dtype=np.uint16).reshape(-1, 1)
+    return replace(msm, terrain_classes=[GROUND_TERRAIN], terrain_votes=votes, terrain_embeddings=embedding)
+
+
+def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, beside: int = BESIDE) -> GroundLayers:
+    """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's
+    cells. Steps within `beside` cells of a blocked cell are unknown: there the lowest points of an
+    object (a car's sill, a planter's rim) pass for ground and read as steps of a few centimetres,
+    and the grid keeps places and links clear of the object anyway."""
+    frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
+    layers = ground_layers(np.asarray(points)[ground], frame)
+    if beside > 0 and grid.blocked.any():
+        near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
+        layers.step[np.flatnonzero(near.ravel()[layers.cells])] = np.nan
+    return layers
+
+
+def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:
+    """The layers as arrays graph/ground_<name> of the bundle being written (one row per observed
+    cell: cells int64, height float32, gradient, step and roughness float16), described in
+    components.graph.ground (call after terra.graph.storage.write_scene_graph)."""
+    writer.put_array(GROUND_FILES + "cells", layers.cells.astype(np.int64))
+    writer.put_array(GROUND_FILES + "height", layers.height.astype(np.float32))
+    writer.put_array(GROUND_FILES + "gradient", layers.gradient.astype(np.float16))
+    writer.put_array(GROUND_FILES + "step", layers.step.astype(np.float16))
+    writer.put_array(GROUND_FILES + "roughness", layers.roughness.astype(np.float16))
+    writer.update_component("graph", ground=layers.info())
