@@ -459,8 +459,13 @@ def map_ground(msm: MetricSemanticMap, section: GroundSection) -> np.ndarray | N
     None when nothing needs it (the map has terrain votes and `layers` is off)."""
     if not section.layers and has_terrain_votes(msm):
         return None
+    return points_ground(msm.points, section)
+
+
+def points_ground(points: np.ndarray, section: GroundSection) -> np.ndarray:
+    """(N,) bool ground flag of map points (N, 3) (metres), by `segment_ground` with the section's values."""
     return segment_ground(
-        msm.points,
+        points,
         section.cell_size,
         tuple(section.windows),
         section.slope,

@@ -39,6 +39,14 @@ import numpy as np
 
 from terra.errors import TerraError
 from terra.graph.config import BuildConfig
+from terra.graph.ground import (
+    GroundLayers,
+    as_ground_terrain,
+    edge_geometry,
+    grid_layers,
+    has_terrain_votes,
+    points_ground,
+)
 from terra.graph.linking import bridge_components
 from terra.graph.pipeline import (
     GraphBuild,
@@ -251,13 +259,19 @@ class GraphUpdater:
 
     def update(self, msm: MetricSemanticMap, full: bool = False) -> GraphUpdate:
         """The graph of `msm` (see the class docstring); TerraError when the map gives nothing to build on."""
+        full_map, lidar_only = msm, not has_terrain_votes(msm)
+        if lidar_only:  # as a full build sees it: one class, `ground`, from the LiDAR (terra.graph.ground)
+            msm = as_ground_terrain(msm, np.zeros(len(msm.points), dtype=bool))
         _, terrains = terrains_to_build(msm, self.config)
-        point_terrain = msm.terrain_index(self.config.terrain.min_share, dtype=np.int16)
-        point_terrain[~np.isin(point_terrain, terrains)] = -1
+        if lidar_only:  # ground comes from each crop's geometry; the digest needs only the points
+            point_terrain = np.zeros(len(msm.points), dtype=np.int16)
+        else:
+            point_terrain = msm.terrain_index(self.config.terrain.min_share, dtype=np.int16)
+            point_terrain[~np.isin(point_terrain, terrains)] = -1
         digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance)
         why = self._full_reason(full)
         if why:
-            result = self._full(msm, why)
+            result = self._full(full_map, why)
         else:
             assert self._digest is not None and self.graph is not None
             changed = np.vstack([self._pending, changed_points(self._digest, digest)])
@@ -268,7 +282,7 @@ class GraphUpdater:
                 result.update.places_kept = len(self.graph.places)
                 result.update.regions_reclustered = False
             else:
-                result = self._incremental(msm, point_terrain, terrains, zone)
+                result = self._incremental(msm, None if lidar_only else point_terrain, terrains, zone)
                 result.update.changed_points = len(changed)
         self.graph, self._digest = result.graph, digest
         return result
@@ -289,8 +303,10 @@ class GraphUpdater:
         return GraphUpdate(built.graph, built.stats, built.timer, UpdateStats("full", why))
 
     def _incremental(
-        self, msm: MetricSemanticMap, point_terrain: np.ndarray, terrains: list[int], zone: TileZone
+        self, msm: MetricSemanticMap, point_terrain: np.ndarray | None, terrains: list[int], zone: TileZone
     ) -> GraphUpdate:
+        """The update around `zone`; point_terrain (N,) the map points' classes, or None for a
+        LiDAR-only map (each crop's ground is segmented from its points)."""
         assert self.graph is not None
         old, timer, stats = self.graph, StageTimer(), UpdateStats("incremental")
         stats.zone_area, stats.crop_area = zone.area, zone.crop_area
@@ -316,6 +332,8 @@ class GraphUpdater:
                 self._replaced_since_clustering = 0
             stats.regions_reclustered = recluster
         graph = _graph(msm, old, merged, embedding, links, levels, self.config)
+        if self.config.ground.layers and (old.has_edge_geometry or len(old.place_edges) == 0):
+            graph.place_edge_geometry = _edge_geometry(old, merged, links, crop.layers)
         build_stats = BuildStats(
             places_per_terrain={
                 msm.terrain_classes[t]: int((merged.terrain == t).sum()) for t in sorted(set(terrains))
@@ -335,21 +353,33 @@ class _Rebuilt:
     places: TerrainPlaceSet
     links: PlaceLinks
     take: np.ndarray
+    layers: list[GroundLayers] = field(default_factory=list)  # each crop's ground geometry
 
 
 def _rebuilt_places(
-    msm: MetricSemanticMap, point_terrain: np.ndarray, terrains: list[int], zone: TileZone, config: BuildConfig
+    msm: MetricSemanticMap, point_terrain: np.ndarray | None, terrains: list[int], zone: TileZone, config: BuildConfig
 ) -> _Rebuilt:
     """Each part of the zone rebuilt from its crop: the places and links a full build gives on the
-    map points inside the crop, of which those in the part replace the old places there."""
+    map points inside the crop, of which those in the part replace the old places there, and the
+    crop's ground layers when the build computes them (`build.ground.layers`). point_terrain: the
+    points' classes (N,), or None for a LiDAR-only map: its crops' ground, segmented, is class 0."""
     xy = msm.points[:, :2]
     parts: list[tuple[TerrainPlaceSet, PlaceLinks, np.ndarray]] = []
+    layers: list[GroundLayers] = []
     for k, (x0, y0, x1, y1) in enumerate(zone.crops, start=1):
         inside = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1))
-        crop_terrain = point_terrain[inside]
+        points = msm.points[inside]
+        ground = points_ground(points, config.ground) if point_terrain is None or config.ground.layers else None
+        if point_terrain is None:
+            assert ground is not None
+            crop_terrain = np.where(ground, 0, -1).astype(np.int16)
+        else:
+            crop_terrain = point_terrain[inside]
         if not (crop_terrain >= 0).any():
             continue
-        grid = terrain_grid(msm.points[inside], crop_terrain, config)
+        grid = terrain_grid(points, crop_terrain, config)
+        if ground is not None and config.ground.layers:
+            layers.append(grid_layers(points, ground, grid))
         places, traversable, _ = terrain_places(grid, terrains, config)
         if len(places.position):
             links = place_links(places, traversable, grid, config)
@@ -369,7 +399,7 @@ def _rebuilt_places(
         0,
     )
     take = np.concatenate([np.zeros(0, dtype=bool)] + [t for _, _, t in parts])
-    return _Rebuilt(places, links, take)
+    return _Rebuilt(places, links, take, layers)
 
 
 @dataclass
@@ -505,6 +535,31 @@ def _costed(stitch: tuple[np.ndarray, np.ndarray], position: np.ndarray) -> tupl
     ok = pairs[:, 0] != pairs[:, 1]
     pairs, kind = pairs[ok], kind[ok]
     return pairs, np.linalg.norm(position[pairs[:, 0]] - position[pairs[:, 1]], axis=1), kind
+
+
+def _edge_geometry(old: SceneGraph, merged: _Merged, links: PlaceLinks, layers: list[GroundLayers]) -> np.ndarray:
+    """(E, 3) float32 ground geometry of the merged edges (step m, rise and fall degrees from
+    edges[:, 0] to edges[:, 1], as terra.graph.ground.edge_geometry): an old edge between kept
+    places keeps its own (rise and fall swapped when its ends are now the other way round); the
+    others are read on the crops' layers (the largest where crops overlap; 0 where no crop saw
+    the ground under them, as a full build reads unseen ground)."""
+    edges = links.edges
+    out = np.zeros((len(edges), 3), dtype=np.float32)
+    for layer in layers:
+        out = np.maximum(out, edge_geometry(layer, merged.position, edges))
+    if not old.has_edge_geometry or len(edges) == 0:
+        return out
+    ends = merged.old_index[edges]
+    both = np.flatnonzero((ends >= 0).all(axis=1))
+    count = len(old.places)
+    keys = old.place_edges[:, 0] * count + old.place_edges[:, 1]
+    order = np.argsort(keys)
+    for first, second, columns in ((0, 1, [0, 1, 2]), (1, 0, [0, 2, 1])):
+        wanted = ends[both, first] * count + ends[both, second]
+        at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
+        hit = keys[order][at] == wanted
+        out[both[hit]] = old.place_edge_geometry[order[at[hit]]][:, columns]
+    return out
 
 
 def _embeddings(

@@ -137,6 +137,53 @@ def test_the_rebuilt_part_has_the_places_of_a_full_build(updates):
     assert csgraph.connected_components(inc.place_adjacency(), directed=False)[0] == 1
 
 
+def test_kept_edges_keep_their_ground_geometry_and_new_ones_get_theirs(updates):
+    first, second, _, _, full = updates
+    a, b = first.graph, second.graph
+    assert a.has_edge_geometry and b.has_edge_geometry and full.has_edge_geometry
+    np.testing.assert_array_equal(b.place_edges, second.graph.place_edges)
+
+    def by_ids(graph):
+        ids = graph.places.id[graph.place_edges]
+        return {(int(i), int(j)): tuple(g) for (i, j), g in zip(ids.tolist(), graph.place_edge_geometry.tolist())}
+
+    old, new = by_ids(a), by_ids(b)
+    kept = [key for key in new if key in old]
+    assert kept and all(new[key] == old[key] for key in kept)
+    # Flat synthetic ground: every edge, old or new, crosses no step and no slope.
+    assert np.abs(b.place_edge_geometry).max() < 1e-3
+
+
+def test_a_lidar_only_map_updates_on_its_ground(text_embedder):
+    """A map with no terrain votes (a LiDAR-only log): the first update builds on `ground` as a
+    full build does, the next rebuilds the changed part on its crops' segmented ground."""
+    from tests.tasks.test_tasks_synthetic import BANK, make_map
+
+    def lidar_map(east_length: float):
+        msm = two_part_map(text_embedder, "grass", east_length)
+        msm.points = msm.points + np.float32(0.05)
+        return make_map(
+            msm.points, [{}] * len(msm.points), text_embedder.embed_text(BANK), np.zeros((0, 384)), terrain_classes=[]
+        )
+
+    config = BuildConfig.model_validate({"update": UPDATE})
+    updater = GraphUpdater(config)
+    first = updater.update(lidar_map(30.0))
+    second = updater.update(lidar_map(15.0))
+    assert first.update.kind == "full" and second.update.kind == "incremental"
+    assert second.graph.terrain_classes == ["ground"] == first.graph.terrain_classes
+    west_a, west_b = _west(first.graph), _west(second.graph)
+    np.testing.assert_array_equal(second.graph.places.id[west_b], first.graph.places.id[west_a])
+    east = second.graph.places.position[~west_b]
+    assert len(east) >= 1 and east[:, 0].max() < 70.0 + 15.0
+    # Every place of a full build has one of the update within 2 m; with no replace margin, a kept
+    # place just outside the changed tiles (whose GVD path got shorter) may stay as one extra.
+    full = build_scene_graph(lidar_map(15.0), config).graph
+    gap = np.linalg.norm(full.places.position[:, None, :2] - second.graph.places.position[None, :, :2], axis=2)
+    assert (gap.min(axis=1) <= 2.0).all()
+    assert 0 <= len(second.graph.places) - len(full.places) <= 1
+
+
 def test_the_closing_full_update_is_the_full_build(updates):
     _, second, _, closing, full = updates
     assert closing.update.kind == "full"
