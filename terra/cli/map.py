@@ -407,7 +407,7 @@ def _recorded_mapping(out: Path, overrides: dict):
     """The mapping configuration the bundle at `out` was fused with (what --append continues), with the
     command line's --noise / --cache applied."""
     from terra.mapping.config import MappingConfig
-    from terra.mapping.pipeline import append_base
+    from terra.mapping.state import append_base
     from terra.schemas import validate_model
 
     recorded = append_base(Path(out)).model.components.map

@@ -210,7 +210,7 @@ def _live_classes(bundle: Path, classes: Path | None, resume: bool) -> ClassTabl
 def _bundle_classes(bundle: Path) -> ClassTable:
     from terra.bundle import Bundle
     from terra.datasets.base import ClassTable
-    from terra.mapping.pipeline import append_base
+    from terra.mapping.state import append_base
     from terra.schemas import MapMeta
 
     base: Bundle = append_base(bundle)

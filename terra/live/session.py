@@ -33,7 +33,7 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.mapping.state import check_run, restore_mapper, run_description, write_fused
+from terra.mapping.state import append_base, check_run, restore_mapper, run_description, write_fused
 from terra.perception.base import Perception
 
 __all__ = ["LiveFrameError", "Session", "Snapshot"]
@@ -259,7 +259,7 @@ class Session:
 def _open_base(out: Path, resume: bool, overwrite: bool) -> Bundle | None:
     """The bundle a session continues (resume) or will replace (overwrite), after the same checks
     as `terra map` and `--append`."""
-    from terra.mapping.pipeline import append_base, check_output
+    from terra.mapping.pipeline import check_output
 
     if resume:
         return append_base(out)

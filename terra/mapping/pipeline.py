@@ -32,7 +32,7 @@ from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper, check_frame
 from terra.mapping.results import CacheSummary, MapCounts
 from terra.mapping.sessions import session_list
-from terra.mapping.state import check_run, restore_mapper, run_description, state_meta, write_fused
+from terra.mapping.state import append_base, check_run, restore_mapper, run_description, write_fused
 from terra.mapping.storage import MAP_FORMAT
 from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception, cached
@@ -139,17 +139,6 @@ def run_mapping(
     checkpoint.discard()
     notes = dict(mapper.stats.notes)
     return MapRun(bundle, map_counts(bundle), timer, stats, notes, start, cache_summary(perception))
-
-
-def append_base(out: Path) -> Bundle:
-    """The bundle `--append` continues: it must exist and keep its fusion state."""
-    if not (out / MANIFEST).is_file():
-        raise TerraError(f"{out}: no bundle to append to; map the first source without --append")
-    base = Bundle(out)
-    if not base.has_component("map"):
-        raise TerraError(f"{out}: the bundle has no map to append to; map the first source without --append")
-    state_meta(base)  # one line when the map keeps no state
-    return base
 
 
 def _new_mapper(

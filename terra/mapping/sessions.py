@@ -99,8 +99,7 @@ def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: A
     overlaps too little."""
     from terra.datasets.fingerprint import dataset_fingerprint
     from terra.mapping.align import AlignSettings, session_cloud
-    from terra.mapping.pipeline import append_base
-    from terra.mapping.state import state_meta
+    from terra.mapping.state import append_base, state_meta
 
     settings = settings or AlignSettings()
     base = append_base(Path(out))

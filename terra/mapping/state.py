@@ -18,11 +18,12 @@ voxel-key order, which `finish()` computes from the keys alone.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from terra.bundle import Bundle, BundleWriter
+from terra.bundle import MANIFEST, Bundle, BundleWriter
 from terra.datasets.base import ClassTable
 from terra.errors import TerraError
 from terra.mapping.association import FixedMap, VoxelMap
@@ -245,6 +246,17 @@ def write_fused(
     )
     writer.set_perception(mapper.perception.describe())
     return msm
+
+
+def append_base(out: Path) -> Bundle:
+    """The bundle `--append` continues: it must exist and keep its fusion state."""
+    if not (out / MANIFEST).is_file():
+        raise TerraError(f"{out}: no bundle to append to; map the first source without --append")
+    base = Bundle(out)
+    if not base.has_component("map"):
+        raise TerraError(f"{out}: the bundle has no map to append to; map the first source without --append")
+    state_meta(base)  # one line when the map keeps no state
+    return base
 
 
 def check_run(bundle: Bundle, run: dict[str, Any]) -> None:
