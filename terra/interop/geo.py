@@ -70,7 +70,10 @@ class MapToWgs84:
     anchor: Wgs84Anchor
 
     def __post_init__(self) -> None:
-        from pyproj import CRS, Transformer
+        try:
+            from pyproj import CRS, Transformer
+        except ImportError:
+            raise TerraError("the geojson export needs pyproj: pip install 'terra-3dsg[geo]'") from None
 
         a = self.anchor
         if a.projection == "tmerc":
@@ -88,7 +91,7 @@ class MapToWgs84:
     def lon_lat_height(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) [lon, lat, height] (degrees, metres) of (N, 2 or 3) map points (metres); height
         is the anchor's alt + z (alt when the points have no z)."""
-        points = np.asarray(points, dtype=np.float64).reshape(len(points), -1)
+        points = np.atleast_2d(np.asarray(points, dtype=np.float64))
         yaw = math.radians(self.anchor.yaw_deg)
         c, s = math.cos(yaw), math.sin(yaw)
         east = self._origin[0] + c * points[:, 0] - s * points[:, 1]
