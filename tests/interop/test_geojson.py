@@ -217,3 +217,24 @@ def test_export_adds_a_planned_path_as_a_line_string(interop_bundle, tmp_path, c
     assert GEOD.line_length([p[0] for p in line], [p[1] for p in line]) == pytest.approx(horizontal, rel=1e-4)
     (tmp_path / "bad.json").write_text('{"waypoints": [[0, 0, 0]]}')
     assert run([*args[:-1], "--overwrite", "--path", str(tmp_path / "bad.json")]) == 2
+
+
+def test_a_graph_without_objects_or_regions_has_only_places():
+    graph = hand_graph()
+    graph.objects, graph.regions = Objects(), []
+    doc = geojson_document(graph, Wgs84Anchor(lat=0.0, lon=0.0))
+    assert [f["properties"]["kind"] for f in doc["features"]] == ["place"] * 6
+    assert "region_1" not in doc["features"][0]["properties"]
+
+
+def test_export_is_deterministic_and_refuses_to_overwrite(interop_bundle, tmp_path, capsys):
+    out = tmp_path / "a.geojson"
+    args = ["export", str(interop_bundle.path), "-f", "geojson", "-o", str(out), "--anchor", "47,8"]
+    assert run(args) == 0
+    first = out.read_bytes()
+    capsys.readouterr()
+    assert run(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists" in err[0] and "--overwrite" in err[0]
+    assert run([*args, "--overwrite"]) == 0
+    assert out.read_bytes() == first
