@@ -16,6 +16,7 @@ from terra.cli import run
 from terra.graph.scene_graph import Objects, Places, RegionLevel, SceneGraph
 from terra.graph.storage import load_scene_graph
 from terra.interop.geojson import geojson_document
+from terra.mapping.state import wgs84_anchor
 from terra.schemas import Wgs84Anchor
 from tests.graph.fixtures import copy_bundle
 
@@ -184,6 +185,16 @@ def test_export_reads_the_anchor_the_manifest_records(interop_bundle, tmp_path):
     path = copy_bundle(interop_bundle, tmp_path / "anchored.terra")
     with BundleWriter(path, base=Bundle(path)) as writer:
         writer.update_component("map", wgs84_anchor={"lat": 10.0, "lon": 20.0, "alt": 5.0, "source": "test"})
+    # The next version of the map (an append, a joined or live session) keeps it.
+    assert wgs84_anchor(Bundle(path)) == {
+        "lat": 10.0,
+        "lon": 20.0,
+        "alt": 5.0,
+        "yaw_deg": 0.0,
+        "projection": "tmerc",
+        "source": "test",
+    }
+    assert wgs84_anchor(None, object()) is None
     out = tmp_path / "anchored.geojson"
     assert run(["export", str(path), "-f", "geojson", "-o", str(out)]) == 0
     doc = json.loads(out.read_text())
