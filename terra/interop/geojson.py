@@ -63,7 +63,8 @@ def _place_features(sg: SceneGraph, to_wgs84: MapToWgs84) -> list[dict[str, Any]
 
 def _hull(points_xy: np.ndarray) -> tuple[str, np.ndarray]:
     """The convex hull of (N, 2) points as a GeoJSON geometry type and its (M, 2) vertices: a closed
-    counter-clockwise ring for a Polygon, the two ends for a LineString, one point for a Point."""
+    counter-clockwise ring for a Polygon, the two ends for a LineString (points on a line), their
+    mean for a Point (fewer than 3, or all at one spot)."""
     from shapely.geometry import MultiPoint, Polygon
     from shapely.geometry.polygon import orient
 
@@ -72,7 +73,16 @@ def _hull(points_xy: np.ndarray) -> tuple[str, np.ndarray]:
     hull = MultiPoint([tuple(p) for p in points_xy]).convex_hull
     if isinstance(hull, Polygon):
         return "Polygon", np.asarray(orient(hull, sign=1.0).exterior.coords)
-    return ("LineString" if hull.geom_type == "LineString" else "Point"), np.asarray(hull.coords)
+    if hull.geom_type == "LineString":
+        return "LineString", np.asarray(hull.coords)
+    return "Point", points_xy.mean(axis=0, keepdims=True)
+
+
+def _geometry(kind: str, vertices: np.ndarray, to_wgs84: MapToWgs84) -> dict[str, Any]:
+    """The GeoJSON geometry `kind` of (M, 2) map vertices, [lon, lat] positions (no height)."""
+    positions = _coordinates(to_wgs84.lon_lat_height(vertices), height=False)
+    nested = {"Point": positions[0], "LineString": positions, "Polygon": [positions]}
+    return {"type": kind, "coordinates": nested[kind]}
 
 
 def _region_features(sg: SceneGraph, to_wgs84: MapToWgs84) -> list[dict[str, Any]]:
@@ -80,26 +90,10 @@ def _region_features(sg: SceneGraph, to_wgs84: MapToWgs84) -> list[dict[str, Any
     for level in sg.regions:
         place_region = sg.place_region(level.level)
         for r in range(len(level)):
-            members = sg.places.position[place_region == r]
-            kind, vertices = _hull(members[:, :2]) if len(members) else ("Point", level.position[r : r + 1, :2])
-            coordinates = _coordinates(to_wgs84.lon_lat_height(vertices), height=False)
-            geometry = {
-                "type": kind,
-                "coordinates": [coordinates]
-                if kind == "Polygon"
-                else coordinates[0]
-                if kind == "Point"
-                else coordinates,
-            }
-            features.append(
-                _feature(
-                    geometry,
-                    kind="region",
-                    id=f"{level.char}{int(level.id[r])}",
-                    level=level.level,
-                    places=len(members),
-                )
-            )
+            members = sg.places.position[place_region == r, :2]
+            kind, vertices = _hull(members) if len(members) else ("Point", level.position[r : r + 1, :2])
+            region = {"kind": "region", "id": f"{level.char}{int(level.id[r])}", "level": level.level}
+            features.append(_feature(_geometry(kind, vertices, to_wgs84), **region, places=len(members)))
     return features
 
 

@@ -249,3 +249,13 @@ def test_export_is_deterministic_and_refuses_to_overwrite(interop_bundle, tmp_pa
     assert len(err) == 1 and "exists" in err[0] and "--overwrite" in err[0]
     assert run([*args, "--overwrite"]) == 0
     assert out.read_bytes() == first
+
+
+def test_a_region_of_places_on_a_line_is_a_line_string():
+    graph = hand_graph()
+    graph.places.position[:4] = [[0, 0, 0], [5, 0, 0], [10, 0, 0], [2, 0, 0]]
+    doc = geojson_document(graph, Wgs84Anchor(lat=47.0, lon=8.0))
+    line = next(f for f in features_of(doc, "region") if f["properties"]["id"] == "R0")
+    assert line["geometry"]["type"] == "LineString" and len(line["geometry"]["coordinates"]) == 2
+    ends = sorted(azimuth_distance(Wgs84Anchor(lat=47.0, lon=8.0), p)[1] for p in line["geometry"]["coordinates"])
+    assert ends == pytest.approx([0.0, 10.0], abs=1e-3)
