@@ -132,6 +132,22 @@ class EmbedderInfo(_Written):
     dim: Annotated[int, Field(ge=1, le=MAX_EMBEDDING_DIM)]
 
 
+class Wgs84Anchor(_Written):
+    """components.map.wgs84_anchor: where the map frame lies on the Earth. Map origin (0, 0, 0) is
+    at latitude `lat`, longitude `lon` (degrees, WGS84) and height `alt` (metres, the source's
+    datum); the map's +x axis points `yaw_deg` counter-clockwise from east, +z up. `projection`
+    says which plane the map's metres are: 'tmerc' a transverse Mercator centred on the origin
+    (local east/north metres), 'kitti-mercator' the KITTI devkit's spherical Mercator scaled by
+    cos(lat) (the plane its OXTS poses are in). `source` says where the anchor came from."""
+
+    lat: Annotated[float, Field(ge=-90.0, le=90.0)]
+    lon: Annotated[float, Field(ge=-180.0, le=180.0)]
+    alt: FiniteFloat = 0.0
+    yaw_deg: FiniteFloat = 0.0
+    projection: Literal["tmerc", "kitti-mercator"] = "tmerc"
+    source: str = ""
+
+
 class MapComponent(_Written):
     """components.map: counts of the stored map (checked against the arrays), config and stats."""
 
@@ -147,6 +163,7 @@ class MapComponent(_Written):
     frames: Count | None = None  # frames offered to the fusion so far (the next frame's index)
     time_span: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None  # first, last fused stamp, s
     version: Count | None = None  # the bundle version that last changed the map
+    wgs84_anchor: Wgs84Anchor | None = None  # the map frame on the Earth, when the source knew it
     config: dict[str, Any] = Field(default_factory=dict)
     stats: dict[str, Any] = Field(default_factory=dict)
 

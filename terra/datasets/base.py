@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -178,3 +178,12 @@ class InspectableDataset(Dataset, Protocol):
     """A source that can describe itself cheaply (every built-in loader)."""
 
     def info(self) -> SourceInfo: ...
+
+
+@runtime_checkable
+class GeoreferencedDataset(Dataset, Protocol):
+    """A source that may know where its map frame lies on the Earth (KITTI raw drives with OXTS)."""
+
+    def wgs84_anchor(self) -> dict[str, Any] | None:
+        """The fields of terra.schemas.Wgs84Anchor for the map frame of this source's poses, or None."""
+        ...

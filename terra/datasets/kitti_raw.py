@@ -31,7 +31,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -240,6 +240,23 @@ class KittiRawDataset:
         self.pose_source = config.poses
         self.normalise = config.normalise
         self.poses = POSE_SOURCES[config.poses](self, config)
+
+    def wgs84_anchor(self) -> dict[str, Any] | None:
+        """Where the map frame lies on the Earth (terra.schemas.Wgs84Anchor): with OXTS poses
+        normalised to the first position, the map origin is the first frame's IMU at its packet's
+        lat, lon, alt, and the map's x, y are the devkit's Mercator metres (east, north); None
+        otherwise (odometry poses drift from OXTS; 'first-pose' tilts the map by the first roll and pitch)."""
+        if self.pose_source != "oxts" or self.normalise != "first-position" or self.packets is None:
+            return None
+        lat, lon, alt = (float(v) for v in self.packets[0, :3])
+        return {
+            "lat": lat,
+            "lon": lon,
+            "alt": alt,
+            "yaw_deg": 0.0,
+            "projection": "kitti-mercator",
+            "source": f"kitti-raw OXTS, first frame of {self.drive.name}",
+        }
 
     def _skip(self, reason: str, note: str) -> None:
         self.skipped[reason] = self.skipped.get(reason, 0) + 1

@@ -9,9 +9,15 @@ from terra.bundle import Bundle
 from terra.errors import TerraError
 from terra.interop.results import ExportResult
 
-ExportFormat = Literal["spark-dsg", "networkx", "ply", "terra-reference"]
+ExportFormat = Literal["spark-dsg", "networkx", "ply", "terra-reference", "geojson"]
 FORMATS: tuple[ExportFormat, ...] = get_args(ExportFormat)  # the one list of export formats
-DEFAULT_SUFFIX = {"spark-dsg": ".dsg.json", "networkx": ".nx.json", "ply": ".ply", "terra-reference": "-reference"}
+DEFAULT_SUFFIX = {
+    "spark-dsg": ".dsg.json",
+    "networkx": ".nx.json",
+    "ply": ".ply",
+    "terra-reference": "-reference",
+    "geojson": ".geojson",
+}
 
 
 def default_output(bundle: Path, fmt: str) -> Path:
@@ -37,15 +43,24 @@ def export_bundle(
     features: bool = True,
     color: str = "terrain",
     image_range: float = 20.0,
+    anchor: str | None = None,
+    path: str | Path | None = None,
 ) -> ExportResult:
     """Write bundle `bundle` in format `fmt` to `out` (default: `default_output`); returns a summary.
     TerraError (nothing written) for an unknown format, a bundle of another schema version, a
-    missing component, or an existing target without `overwrite`."""
+    missing component, or an existing target without `overwrite`. geojson: `anchor` is the
+    --anchor text (LAT,LON[,ALT[,YAW_DEG]]; default the manifest's), `path` a `terra plan --json` file."""
     fmt = check_format(fmt)
     source = Bundle(bundle)
     target = Path(out) if out is not None else default_output(Path(bundle), fmt)
     if target.resolve() == source.path.resolve():
         raise TerraError(f"{target}: is the bundle itself; give another --out")
+    if fmt == "geojson":
+        from terra.interop.geojson import export_geojson
+
+        return ExportResult.of(export_geojson(source, target, overwrite, anchor, Path(path) if path else None))
+    if anchor is not None or path is not None:
+        raise TerraError(f"--anchor and --path are options of --format geojson, not {fmt}")
     return ExportResult.of(_export(source, fmt, target, overwrite, features, color, image_range))
 
 

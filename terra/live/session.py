@@ -33,7 +33,7 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.mapping.state import append_base, check_run, restore_mapper, run_description, write_fused
+from terra.mapping.state import append_base, check_run, restore_mapper, run_description, wgs84_anchor, write_fused
 from terra.perception.base import Perception
 
 __all__ = ["LiveFrameError", "Session", "Snapshot"]
@@ -228,7 +228,8 @@ class Session:
             sources[-1].update(self._join)
         writer = BundleWriter(self.out, base=self._base, drop_components=("map",))
         try:
-            msm = write_fused(writer, self.mapper, self._run, self.name, self.classes, sources)
+            anchor = wgs84_anchor(self._base)
+            msm = write_fused(writer, self.mapper, self._run, self.name, self.classes, sources, anchor)
             writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
         except BaseException:
             writer.abort()

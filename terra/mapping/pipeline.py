@@ -32,7 +32,7 @@ from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper, check_frame
 from terra.mapping.results import CacheSummary, MapCounts
 from terra.mapping.sessions import session_list
-from terra.mapping.state import append_base, check_run, restore_mapper, run_description, write_fused
+from terra.mapping.state import append_base, check_run, restore_mapper, run_description, wgs84_anchor, write_fused
 from terra.mapping.storage import MAP_FORMAT
 from terra.perception.base import Perception
 from terra.perception.cache import CachedPerception, cached
@@ -230,7 +230,7 @@ def _write(
     components kept, the scene graph then stale until rebuilt)."""
     name = dataset.name if base is None else _first_name(base, dataset)
     with BundleWriter(out, base=base, drop_components=("map",)) as writer:
-        write_fused(writer, mapper, run, name, dataset.classes, sources)
+        write_fused(writer, mapper, run, name, dataset.classes, sources, wgs84_anchor(base, dataset))
     return Bundle(out)
 
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from terra.bundle import MANIFEST, Bundle, BundleWriter
-from terra.datasets.base import ClassTable
+from terra.datasets.base import ClassTable, GeoreferencedDataset
 from terra.errors import TerraError
 from terra.mapping.association import FixedMap, VoxelMap
 from terra.mapping.bank import EmbeddingBank
@@ -217,11 +217,28 @@ def run_description(config: MappingConfig, perception: Perception) -> dict:
     }
 
 
+def wgs84_anchor(base: Bundle | None, source: object = None) -> dict[str, Any] | None:
+    """The map frame's WGS84 anchor (terra.schemas.Wgs84Anchor fields): the base map's (later
+    sources are fused in its frame), else the first source's when it knows one
+    (terra.datasets.base.GeoreferencedDataset), else None."""
+    if base is not None:
+        info = base.model.components.map
+        return None if info is None or info.wgs84_anchor is None else info.wgs84_anchor.model_dump(mode="json")
+    return source.wgs84_anchor() if isinstance(source, GeoreferencedDataset) else None
+
+
 def write_fused(
-    writer: BundleWriter, mapper: Mapper, run: dict[str, Any], name: str, classes: ClassTable, sources: list[dict]
+    writer: BundleWriter,
+    mapper: Mapper,
+    run: dict[str, Any],
+    name: str,
+    classes: ClassTable,
+    sources: list[dict],
+    anchor: dict[str, Any] | None = None,
 ) -> MetricSemanticMap:
     """Everything `mapper` has fused as component `map/` of the version being written: the map (as
-    `write_map`, `name` the first source's), its fusion state, its sources, frames and time span.
+    `write_map`, `name` the first source's), its fusion state, its sources, frames and time span,
+    and the map frame's WGS84 `anchor` when known (`wgs84_anchor`).
     Returns the map written (its own arrays: frames fused later leave it as it is)."""
     msm = mapper.finish()
     write_map(
@@ -243,6 +260,7 @@ def write_fused(
         frames=int(mapper.next_frame),
         time_span=None if span is None else [span[0], span[1]],
         version=writer.model.version,
+        **({"wgs84_anchor": anchor} if anchor is not None else {}),
     )
     writer.set_perception(mapper.perception.describe())
     return msm

@@ -194,3 +194,29 @@ def test_eval_with_a_bad_label_line_is_one_line_and_writes_nothing(bundle, drive
     assert code == 2 and err.strip().count("\n") == 0
     assert f"{path}:3: a KITTI tracking label has 17 fields (18 with a score), got 16" in err
     assert not report.exists()
+
+
+def test_the_map_records_its_wgs84_anchor_and_exports_geojson_with_it(bundle, drive, tmp_path):
+    from terra.bundle import Bundle
+    from terra.datasets.kitti_raw_writer import GEODETIC_ORIGIN
+    from terra.interop.geo import MapToWgs84
+
+    anchor = Bundle(bundle).model.components.map.wgs84_anchor  # pyright: ignore[reportOptionalMemberAccess]
+    assert anchor is not None and anchor.projection == "kitti-mercator" and anchor.yaw_deg == 0.0
+    assert (anchor.lat, anchor.lon, anchor.alt) == pytest.approx(GEODETIC_ORIGIN, abs=1e-9)
+    # Each frame's IMU position in the map, turned into WGS84 under the anchor, is its OXTS packet.
+    ds = open_dataset(drive)
+    assert isinstance(ds, KittiRawDataset)
+    _, T_velo_imu = kitti_rig()
+    to_wgs84 = MapToWgs84(anchor)
+    for i in (0, FRAMES - 1):
+        packet = np.loadtxt(ds.drive / "oxts" / "data" / f"{ds.indices[i]:010d}.txt")
+        lon, lat, alt = to_wgs84.lon_lat_height((ds.poses[i] @ T_velo_imu)[None, :3, 3])[0]
+        assert (lat, lon) == pytest.approx((packet[0], packet[1]), abs=1e-9)  # 0.1 mm
+        assert alt == pytest.approx(packet[2], abs=1e-6)
+    out = tmp_path / "drive.geojson"
+    assert run(["export", str(bundle), "-f", "geojson", "-o", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["terra"]["wgs84_anchor"]["source"].startswith("kitti-raw OXTS")
+    lon, lat, _ = doc["features"][0]["geometry"]["coordinates"]
+    assert abs(lat - GEODETIC_ORIGIN[0]) < 0.01 and abs(lon - GEODETIC_ORIGIN[1]) < 0.01
