@@ -8,6 +8,11 @@ import typer
 
 from terra.cli import app
 
+ANCHOR_HELP = (
+    "geojson: LAT,LON[,ALT[,YAW_DEG]], the WGS84 position of the map origin and the heading of map +x "
+    "(degrees counter-clockwise from east); default the bundle's recorded anchor."
+)
+
 
 @app.command("export")
 def export_command(
@@ -26,12 +31,7 @@ def export_command(
     image_range: float = typer.Option(
         20.0, "--image-range", help="terra-reference: metres for gidx2imgs_RANGEm_dict (the paper's 20 m)."
     ),
-    anchor: str | None = typer.Option(
-        None,
-        "--anchor",
-        help="geojson: LAT,LON[,ALT[,YAW_DEG]], the WGS84 position of the map origin and the heading of map +x "
-        "(degrees counter-clockwise from east); default the bundle's recorded anchor.",
-    ),
+    anchor: str | None = typer.Option(None, "--anchor", help=ANCHOR_HELP),
     path: Path | None = typer.Option(
         None, "--path", help="geojson: add the path of this `terra plan --json` file as a LineString."
     ),
@@ -51,10 +51,9 @@ def export_command(
     """
     from terra.cli.interrupts import on_interrupt
     from terra.interop.export import export_bundle
+    from terra.progress import working
 
     on_interrupt("nothing was written (an existing output is unchanged); run the same command again")
-
-    from terra.progress import working
 
     with working(f"exporting {fmt}", not as_json):
         result = export_bundle(

@@ -8,6 +8,15 @@ import typer
 
 from terra.cli import app
 
+FROM_XY_HELP = "Start at the allowed place nearest X Y (metres, map frame)."
+PREFER_HELP = "Preferred terrain (repeatable); others get the default penalty."
+PENALTY_HELP = "TERRAIN=W: cost per metre x (1 + W) on that terrain (repeatable)."
+ROBOT_HELP = (
+    "wheelchair, wheeled, legged or a YAML profile file (max_step m, max_slope_up/down deg, min_width m, "
+    "slope_cost, terrain_costs, forbidden_terrain): edges it cannot drive are removed, slopes cost extra."
+)
+TASKS_HELP = "YAML task file (terrain_preferences, queries: start/destination)."
+
 
 @app.command("plan")
 def plan_command(
@@ -16,27 +25,14 @@ def plan_command(
     to_node: int | None = typer.Option(None, "--to-node", help="Destination place id instead of a query."),
     from_query: str | None = typer.Option(None, "--from", help="Start at the object a query names."),
     from_node: int | None = typer.Option(None, "--from-node", help="Start place id."),
-    from_xy: tuple[float, float] | None = typer.Option(
-        None, "--from-xy", help="Start at the allowed place nearest X Y (metres, map frame)."
-    ),
-    prefer: list[str] | None = typer.Option(
-        None, "--prefer", help="Preferred terrain (repeatable); others get the default penalty."
-    ),
-    penalty: list[str] | None = typer.Option(
-        None, "--penalty", help="TERRAIN=W: cost per metre x (1 + W) on that terrain (repeatable)."
-    ),
+    from_xy: tuple[float, float] | None = typer.Option(None, "--from-xy", help=FROM_XY_HELP),
+    prefer: list[str] | None = typer.Option(None, "--prefer", help=PREFER_HELP),
+    penalty: list[str] | None = typer.Option(None, "--penalty", help=PENALTY_HELP),
     forbid: list[str] | None = typer.Option(None, "--forbid", help="Terrain never to enter (repeatable)."),
-    robot: str | None = typer.Option(
-        None,
-        "--robot",
-        help="wheelchair, wheeled, legged or a YAML profile file (max_step m, max_slope_up/down deg, min_width m, "
-        "slope_cost, terrain_costs, forbidden_terrain): edges it cannot drive are removed, slopes cost extra.",
-    ),
+    robot: str | None = typer.Option(None, "--robot", help=ROBOT_HELP),
     method: str | None = typer.Option(None, "--method", "-m", help="Retrieval method for the queries (default 3dsg)."),
     alpha: float | None = typer.Option(None, "--alpha", "-a", help="Cosine threshold for the queries."),
-    tasks: Path | None = typer.Option(
-        None, "--tasks", help="YAML task file (terrain_preferences, queries: start/destination)."
-    ),
+    tasks: Path | None = typer.Option(None, "--tasks", help=TASKS_HELP),
     config: Path | None = typer.Option(None, "--config", "-c", help="YAML config; its `tasks` section is used."),
     as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON (as POST /plan)."),
 ) -> None:

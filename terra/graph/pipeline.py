@@ -327,7 +327,9 @@ def build_scene_graph(
     timer = StageTimer()
     with timer.stage("ground"):
         ground = map_ground(msm, config.ground)
-    if ground is not None and not has_terrain_votes(msm):  # LiDAR only: places on the segmented ground
+    lidar_only = ground is not None and not has_terrain_votes(msm)
+    if lidar_only:  # LiDAR only: places on the segmented ground
+        assert ground is not None
         msm = as_ground_terrain(msm, ground)
     names, terrains = terrains_to_build(msm, config)
     with timer.stage("terrain grid"):
@@ -337,7 +339,7 @@ def build_scene_graph(
     with timer.stage("GVD places"):
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
     if len(places.position) == 0:
-        raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
+        raise TerraError(_no_places_reason(lidar_only))
     with timer.stage("links"):
         links = place_links(places, traversable, grid, config)
     with timer.stage("place embeddings"):
@@ -352,6 +354,17 @@ def build_scene_graph(
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
     return GraphBuild(graph, stats, timer, ground=layers)
+
+
+def _no_places_reason(lidar_only: bool) -> str:
+    """The one line for a map that gives no place."""
+    if lidar_only:
+        return (
+            "no patch of LiDAR ground is large enough for a place: the map has no camera terrain semantics (its "
+            "images gave none), so places are built on the ground segmented from its points, and too little was "
+            "seen (see build.grid.min_component_area)"
+        )
+    return "no terrain patch is large enough for a place (see build.grid.min_component_area)"
 
 
 def terrains_to_build(msm: MetricSemanticMap, config: BuildConfig) -> tuple[list[str], list[int]]:

@@ -645,7 +645,7 @@ def test_a_bag_of_unlabelled_images_warns_that_the_map_has_no_semantics(capsys, 
     warnings = [line for line in err.splitlines() if "warning" in line]
     assert len(warnings) == 1 and "all 3 images were skipped" in warnings[0], err
     assert "perception.backend: models" in warnings[0] and "no semantic labels" in warnings[0]
-    _assert_one_line_exit_2(capsys, ["build", str(out)], "its images gave no terrain semantics")
+    _assert_one_line_exit_2(capsys, ["build", str(out)], "the map has no camera terrain semantics")
 
 
 def test_strict_refuses_a_map_whose_images_were_all_skipped(capsys, tmp_path):
