@@ -1,32 +1,35 @@
 """Incremental Phase 2: the scene graph of a grown map, rebuilt only around what changed.
 
 A live session commits a map version every few seconds, and most of the map is as it was. A
-`GraphUpdater` keeps what its last graph was built from (per map point: its voxel key, position
-and terrain class), finds the points added, removed, moved or re-classed since, and rebuilds the
-graph only there:
+`GraphUpdater` keeps what its last graph was built from (per map point, a hash of its position,
+rounded to `build.update.move_tolerance`, and of its terrain class), finds the points added,
+removed, moved or re-classed since, and rebuilds the graph only there:
 
 1. changed tiles: the squares of `build.update.tile` metres (a fixed lattice of the map frame,
-   anchored at x = y = 0) that hold at least `min_changed_points` changed points (a few new far
-   returns wait for more, or for the closing full build);
-2. the zone: the changed tiles grown by `replace_margin`; its places are rebuilt. The crop: the
-   zone's bounding box grown by `context_margin`, whose points the rebuild reads: the terrain
-   grid, the per-terrain GVD places and the links of the crop, by the same functions a full
-   build runs on the whole map (terra.graph.pipeline);
-3. places: the old ones outside the zone, with their ids, edges and embeddings, and the crop's
-   inside it. An edge cut by the zone's border is stitched: its lost end is replaced by the
-   nearest place of the same terrain on the other side within `stitch_distance` (its cost is the
-   straight 3-D length between the places it now joins); bridges then join the components, as
-   a full build's do (costed as not clear: there is no whole-map grid to check the line on);
+   anchored at x = y = 0) that hold at least `min_changed_points` changed points (fewer wait, and
+   count again at the next update);
+2. the zone: the changed tiles grown by `replace_margin`; its places are rebuilt. The crops: each
+   connected part's bounding box grown by `context_margin`, whose points the rebuild reads: the
+   terrain grid, the per-terrain GVD places and the links of the crop, by the same functions a
+   full build runs on the whole map (terra.graph.pipeline); on a LiDAR-only map, on the crop's
+   ground segmented from its points (terra.graph.ground), as a full build does on the whole map;
+3. places: the old ones outside the zone, with their ids, edges, embeddings and edge ground
+   geometry, and the crops' inside it. An edge cut by the zone's border is stitched: its lost end
+   is replaced by the nearest place of the same terrain on the other side within
+   `stitch_distance` (its cost is the straight 3-D length between the places it now joins);
+   bridges then join the components, as a full build's do (costed as not clear: there is no
+   whole-map grid to check the line on); new edges read their ground geometry on the crops;
 4. embeddings: computed for the new places and for the old ones within `embedding.max_range` of
    the zone, the only ones new images can have seen;
 5. regions: each new place joins, at every level, the regions of its nearest kept place; the
-   levels are clustered in full when the places replaced since the last full clustering exceed
-   `recluster_fraction` of all places (or nothing old is left). Ids follow terra.graph.ids: kept
-   places keep theirs exactly, regions by shared places.
+   levels are clustered in full once the places that are not the same places again (terrain and
+   position within half a cell) since the last full clustering exceed `recluster_fraction` of
+   all places (or nothing old is left). Ids follow terra.graph.ids: kept places keep theirs
+   exactly, regions by shared places.
 
 Against a full build of the same map the update differs in three named ways, measured by
-benchmarks/bench_live_graph.py: the zone's places come from the crop's GVD (the same as the whole
-map's wherever no free area inside the zone reaches past the crop), stitched edges, and regions
+benchmarks/bench_live_graph.py: the zone's places come from the crops' GVD (the same as the whole
+map's wherever no free area inside the zone reaches past its crop), stitched edges, and regions
 grown rather than re-clustered. A live session ends with a full build (`Session.close`), so the
 graph of a finished drive is the batch graph of its map exactly.
 """
