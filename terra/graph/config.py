@@ -445,6 +445,15 @@ class UpdateSection(Section):
         gt=0.0,
         description="metres; an edge cut by the rebuilt area's border joins the nearest place this close",
     )
+    full_fraction: float = Field(
+        default=0.6,
+        gt=0.0,
+        le=1.0,
+        description=(
+            "a full build instead, once the crops to read cover this share of the map's extent (an update would cost "
+            "as much, and the full build is exact)"
+        ),
+    )
     recluster_fraction: float = Field(
         default=0.25,
         gt=0.0,

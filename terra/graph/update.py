@@ -12,7 +12,9 @@ removed, moved or re-classed since, and rebuilds the graph only there:
    connected part's bounding box grown by `context_margin`, whose points the rebuild reads: the
    terrain grid, the per-terrain GVD places and the links of the crop, by the same functions a
    full build runs on the whole map (terra.graph.pipeline); on a LiDAR-only map, on the crop's
-   ground segmented from its points (terra.graph.ground), as a full build does on the whole map;
+   ground segmented from its points (terra.graph.ground), as a full build does on the whole map.
+   When the crops cover `full_fraction` of the map's extent (a young map, a small site), the
+   update is a full build: it would cost as much, and the full build is exact;
 3. places: the old ones outside the zone, with their ids, edges, embeddings and edge ground
    geometry, and the crops' inside it. An edge cut by the zone's border is stitched: its lost end
    is replaced by the nearest place of the same terrain on the other side within
@@ -284,6 +286,8 @@ class GraphUpdater:
                 result = GraphUpdate(self.graph, update=UpdateStats("incremental", "nothing changed", 0, 0.0, 0.0))
                 result.update.places_kept = len(self.graph.places)
                 result.update.regions_reclustered = False
+            elif _covered_share(zone, msm.points) >= self.config.update.full_fraction:
+                result = self._full(full_map, "the changed area covers most of the map")
             else:
                 result = self._incremental(msm, None if lidar_only else point_terrain, terrains, zone)
                 result.update.changed_points = len(changed)
@@ -346,6 +350,18 @@ class GraphUpdater:
             embedding_rule="as the full build's, for the places in or near the rebuilt area",
         )
         return GraphUpdate(graph, build_stats, timer, stats)
+
+
+def _covered_share(zone: TileZone, points: np.ndarray) -> float:
+    """The share of the map's x, y extent (points (N, 3) metres) that the zone's crops cover."""
+    low, high = points[:, :2].min(axis=0).astype(np.float64), points[:, :2].max(axis=0).astype(np.float64)
+    extent = float(np.prod(np.maximum(high - low, 1e-9)))
+    covered = 0.0
+    for x0, y0, x1, y1 in zone.crops:
+        width = max(0.0, min(x1, high[0]) - max(x0, low[0]))
+        height = max(0.0, min(y1, high[1]) - max(y0, low[1]))
+        covered += width * height
+    return min(covered / extent, 1.0)
 
 
 @dataclass

@@ -59,7 +59,8 @@ def test_the_zone_is_the_changed_tiles_grown_with_a_crop_around_each_part():
     assert tile_zone(changed[2:], config) is None
 
 
-UPDATE = {"tile": 10.0, "replace_margin": 0.0, "context_margin": 20.0, "min_changed_points": 1}
+# Full builds only when asked: these maps are small, and their crops cover much of them.
+UPDATE = {"tile": 10.0, "replace_margin": 0.0, "context_margin": 20.0, "min_changed_points": 1, "full_fraction": 1.0}
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ import pytest
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
+from terra.graph.config import BuildConfig
 from terra.live import LiveFrameError, Session
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
@@ -220,7 +221,10 @@ def test_live_graph_updates_are_incremental_and_the_closing_graph_is_the_batch_g
     are carried from the updates, the batch ones are a first build's)."""
     from terra.graph.storage import load_scene_graph
 
-    session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), name=tiny_campus.name)
+    # The tiny map is small enough that most updates would cover it: incremental ones are asked for
+    # anyway (full_fraction 1), to check them against the batch graph.
+    build = BuildConfig.model_validate({"update": {"full_fraction": 1.0}})
+    session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), build=build, name=tiny_campus.name)
     kinds = []
     for i in range(len(tiny_campus)):
         session.add(tiny_campus[i])
@@ -249,10 +253,12 @@ GRAPH_FEED_SCRIPT = """
 import sys
 from tests.reliability.killpoint import install
 install("write", int(sys.argv[1]))
+from terra.graph.config import BuildConfig
 from terra.live import Session
 from terra.sim import simulate
 dataset = simulate("tiny", seed=0)
-session = Session(sys.argv[2], dataset.classes, name=dataset.name)
+build = BuildConfig.model_validate({"update": {"full_fraction": 1.0}})
+session = Session(sys.argv[2], dataset.classes, build=build, name=dataset.name)
 for i in range(len(dataset)):
     session.add(dataset[i])
     if (i + 1) % 4 == 0:
@@ -283,7 +289,8 @@ def test_kill_during_an_incremental_graph_update_keeps_the_last_version(tiny_cam
     marks = []
     bundle_module._write_new_file = counting
     try:
-        session = Session(tmp_path / "dry.terra", tiny_campus.classes, name=tiny_campus.name)
+        build = BuildConfig.model_validate({"update": {"full_fraction": 1.0}})
+        session = Session(tmp_path / "dry.terra", tiny_campus.classes, build=build, name=tiny_campus.name)
         for i in range(len(tiny_campus)):
             session.add(tiny_campus[i])
             if (i + 1) % 4 == 0:
@@ -312,7 +319,7 @@ def test_kill_during_an_incremental_graph_update_keeps_the_last_version(tiny_cam
     assert map_info is not None and graph_info is not None
     assert graph_info.map_version is not None and graph_info.map_version <= bundle.version
     assert len(load_scene_graph(bundle).places) > 0
-    resumed = Session(out, tiny_campus.classes, resume=True, name=tiny_campus.name)
+    resumed = Session(out, tiny_campus.classes, build=build, resume=True, name=tiny_campus.name)
     for i in range(resumed.frames, len(tiny_campus)):
         resumed.add(tiny_campus[i])
     closing = resumed.close()
