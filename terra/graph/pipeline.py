@@ -339,7 +339,7 @@ def build_scene_graph(
     with timer.stage("GVD places"):
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
     if len(places.position) == 0:
-        raise TerraError(_no_places_reason(lidar_only))
+        raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
         links = place_links(places, traversable, grid, config)
     with timer.stage("place embeddings"):
@@ -356,7 +356,7 @@ def build_scene_graph(
     return GraphBuild(graph, stats, timer, ground=layers)
 
 
-def _no_places_reason(lidar_only: bool) -> str:
+def no_places_reason(lidar_only: bool) -> str:
     """The one line for a map that gives no place."""
     if lidar_only:
         return (

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from terra.errors import TerraError
+from terra.graph import raster
 from terra.graph.config import BuildConfig
 from terra.graph.ground import (
     GroundLayers,
@@ -52,12 +53,14 @@ from terra.graph.ground import (
     has_terrain_votes,
     points_ground,
 )
+from terra.graph.gvd import EIGHT
 from terra.graph.linking import bridge_components
 from terra.graph.pipeline import (
     GraphBuild,
     PlaceLinks,
     TerrainPlaceSet,
     build_scene_graph,
+    no_places_reason,
     place_embeddings,
     place_links,
     region_assignments,
@@ -193,8 +196,7 @@ def _parts(mask: np.ndarray) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
     """8-connected parts of `mask`: (labels 1..K as int32, each part's bounding slices)."""
     from scipy import ndimage
 
-    labelled = ndimage.label(mask, np.ones((3, 3), dtype=bool))
-    labels = np.asarray(labelled[0], dtype=np.int32)  # pyright: ignore[reportIndexIssue]  # (labels, count)
+    labels, _ = raster.label(mask, EIGHT, np.int32)
     boxes = [box for box in ndimage.find_objects(labels) if box is not None]
     return labels, [(box[0], box[1]) for box in boxes]
 
@@ -205,7 +207,7 @@ def _grow(mask: np.ndarray, tiles: int) -> np.ndarray:
 
     if tiles <= 0:
         return mask.copy()
-    return ndimage.binary_dilation(mask, np.ones((3, 3), dtype=bool), iterations=tiles)
+    return ndimage.binary_dilation(mask, EIGHT, iterations=tiles)
 
 
 @dataclass
@@ -322,8 +324,8 @@ class GraphUpdater:
         with timer.stage("stitch"):
             merged, links, stitched = _merge(old, crop, zone, self.config)
         if len(merged.position) == 0:
-            raise TerraError("no terrain patch is large enough for a place (see build.grid.min_component_area)")
-        stats.places_kept = int((~zone.in_zone(old.places.position)).sum())
+            raise TerraError(no_places_reason(lidar_only=point_terrain is None))
+        stats.places_kept = int((merged.old_index >= 0).sum())
         stats.places_new = len(merged.position) - stats.places_kept
         stats.places_removed = len(old.places) - stats.places_kept
         stats.stitched_edges = stitched
@@ -446,38 +448,28 @@ def _merge(old: SceneGraph, crop: _Rebuilt, zone: TileZone, config: BuildConfig)
     old_to = _index_map(len(old.places), keep, 0)
     new_to = _index_map(len(new_places.position), take, len(keep))
     kept_kind = old.place_edge_kind != EDGE_BRIDGE  # bridges are recomputed on the merged places
-    parts = [
-        _remap(old.place_edges[kept_kind], old.place_edge_weight[kept_kind], old.place_edge_kind[kept_kind], old_to)
-    ]
-    reach = config.update.stitch_distance
-    stitches = [
-        _stitch(
-            old.place_edges[kept_kind],
-            old.place_edge_kind[kept_kind],
-            old.places.position,
-            old.places.terrain,
-            old_to,
-            merged,
-            len(keep),
-            None,
-            reach,
-        )
-    ]
-    parts.append(_remap(new_links.edges, new_links.weight, new_links.kind, new_to))
-    stitches.append(
-        _stitch(
-            new_links.edges,
-            new_links.kind,
-            new_places.position,
-            new_places.terrain,
-            new_to,
-            merged,
-            0,
-            len(keep),
-            reach,
-        )
+    # Each side's edges, costs, kinds, places (positions, terrains), their merged indices, and the
+    # merged places its cut edges are stitched to (the other side's: merged[first:last]).
+    old_edges = (old.place_edges[kept_kind], old.place_edge_weight[kept_kind], old.place_edge_kind[kept_kind])
+    sides = (
+        (*old_edges, old.places, old_to, len(keep), None),
+        (new_links.edges, new_links.weight, new_links.kind, new_places, new_to, 0, len(keep)),
     )
-    stitched = [_costed(s, merged.position) for s in stitches]
+    parts, stitched = [], []
+    for side_edges, side_weight, side_kind, places, to, first, last in sides:
+        parts.append(_remap(side_edges, side_weight, side_kind, to))
+        cut = _stitch(
+            side_edges,
+            side_kind,
+            places.position,
+            places.terrain,
+            to,
+            merged,
+            first,
+            last,
+            config.update.stitch_distance,
+        )
+        stitched.append(_costed(cut, merged.position))
     edges = np.vstack([p[0] for p in parts] + [s[0] for s in stitched])
     weight = np.concatenate([p[1] for p in parts] + [s[1] for s in stitched])
     kind = np.concatenate([p[2] for p in parts] + [s[2] for s in stitched])
