@@ -195,35 +195,59 @@ def search_priors(
     map_points: np.ndarray, session_points: np.ndarray, cell: float = 1.0, step_deg: float = 5.0, keep: int = 3
 ) -> list[np.ndarray]:
     """Candidate T_map_session (4x4, best first) when no guess is given: the x-y footprint of tall things
-    (cells whose points span more than 1 m in height: walls, trees, cars) of the session, turned every
-    `step_deg` degrees, cross-correlated with the map's (FFT); per turn the best shift, then the `keep` best
-    turns. The first is the exhaustive optimum of footprint overlap at `cell` metres."""
-    from scipy.signal import fftconvolve
+    (points of cells whose points span more than 1 m in height: walls, trees, cars) of the session, turned
+    every `step_deg` degrees, cross-correlated with the map's at `cell` metres; per turn the best shift,
+    then the `keep` best turns. The first is the exhaustive optimum of footprint overlap at `cell` metres.
 
-    target, origin = _tall_cells(np.asarray(map_points, np.float64), cell)
+    The map's image is transformed once; each turn only moves the session's tall points (found once, in
+    its own frame) and transforms their image, padded to the map's so that every shift is a linear one."""
+    from scipy import fft
+
+    target, origin = _tall_image(_tall_points(np.asarray(map_points, np.float64), cell), cell)
+    tall = _tall_points(np.asarray(session_points, np.float64), cell)
+    if target.size == 0 or len(tall) == 0:
+        return []
+    side = int(np.ceil(np.linalg.norm(np.ptp(tall, axis=0)) / cell)) + 1  # any turn fits in side x side cells
+    shape = tuple(fft.next_fast_len(n + side - 1, real=True) for n in target.shape)
+    target_f = fft.rfft2(target, shape, workers=1)
     scored = []
     for yaw in np.arange(0.0, 360.0, step_deg):
-        turned = transform_points(pose_from_guess(0.0, 0.0, float(yaw)), np.asarray(session_points, np.float64))
-        source, source_origin = _tall_cells(turned, cell)
-        score = fftconvolve(target, source[::-1, ::-1], mode="full")
+        turned = tall @ yaw_rotation(np.radians(yaw))[:2, :2].T
+        source, source_origin = _tall_image(turned, cell, (side, side))
+        # Convolution with the flipped source is the correlation; the full linear result fits in `shape`.
+        score = fft.irfft2(target_f * fft.rfft2(source[::-1, ::-1], shape, workers=1), shape, workers=1)
         row, col = np.unravel_index(int(np.argmax(score)), score.shape)
-        shift = (np.array([col, row]) - (np.array(source.shape[::-1]) - 1)) * cell + origin - source_origin
-        scored.append((-float(score[row, col]), float(yaw), float(shift[0]), float(shift[1])))
+        shift = (np.array([col, row]) - (side - 1)) * cell + origin - source_origin
+        scored.append((-round(float(score[row, col]), 6), float(yaw), float(shift[0]), float(shift[1])))
     scored.sort()
     return [pose_from_guess(x, y, yaw) for _, yaw, x, y in scored[:keep]]
 
 
-def _tall_cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
-    """(rows y, cols x) image of cells whose points span more than 1 m in z (1.0) else 0, and its origin."""
-    origin = np.floor(points[:, :2].min(axis=0) / cell) * cell
-    ij = np.floor((points[:, :2] - origin) / cell).astype(np.int64)
-    shape = (int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1)
-    flat = ij[:, 1] * shape[1] + ij[:, 0]
-    top = np.full(shape[0] * shape[1], -np.inf)
-    low = np.full(shape[0] * shape[1], np.inf)
-    np.maximum.at(top, flat, points[:, 2])
-    np.minimum.at(low, flat, points[:, 2])
-    return ((top - low) > 1.0).reshape(shape).astype(np.float64), origin
+def _tall_points(points: np.ndarray, cell: float) -> np.ndarray:
+    """(T, 2) x-y metres: one per occupied quarter-`cell` square among the points of `cell`-metre cells
+    whose points span more than 1 m in z."""
+    _, inverse = np.unique(np.floor(points[:, :2] / cell).astype(np.int64), axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    top = np.full(int(inverse.max(initial=-1)) + 1, -np.inf)
+    low = np.full(top.shape, np.inf)
+    np.maximum.at(top, inverse, points[:, 2])
+    np.minimum.at(low, inverse, points[:, 2])
+    tall = points[(top - low)[inverse] > 1.0, :2]
+    fine = np.unique(np.floor(tall / (cell / 4)).astype(np.int64), axis=0)
+    return (fine + 0.5) * (cell / 4)
+
+
+def _tall_image(xy: np.ndarray, cell: float, shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(rows y, cols x) image, 1.0 where a cell holds a point of `xy` (T, 2) metres, and its origin (2,)
+    metres; `shape` (rows, cols) when given, else just large enough."""
+    if len(xy) == 0:
+        return np.zeros((0, 0)), np.zeros(2)
+    origin = np.floor(xy.min(axis=0) / cell) * cell
+    ij = np.floor((xy - origin) / cell).astype(np.int64)
+    rows, cols = shape if shape is not None else (int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1)
+    image = np.zeros((rows, cols))
+    image[np.minimum(ij[:, 1], rows - 1), np.minimum(ij[:, 0], cols - 1)] = 1.0
+    return image, origin
 
 
 def check_alignment(alignment: Alignment, settings: AlignSettings, what: str) -> None:

@@ -125,17 +125,24 @@ def find_alignment(
     map_cloud: np.ndarray, cloud: np.ndarray, prior: np.ndarray | None, settings: AlignSettings, what: str
 ) -> Alignment:
     """The alignment of `cloud` (session frame) to `map_cloud` from `prior` (T_map_session) when given;
-    without one, the best (overlap x fitness) of the refinements from the shared frame (identity) and from
-    the candidates of a search over turns and shifts of the tall things' footprints (`search_priors`): a
-    repetitive site (rows of parked cars) has wrong fits that pass the floors, which the right one beats.
+    without one, the best (overlap x fitness) of the refinements from the shared frame (identity, where it
+    already overlaps the map) and from the candidates of a search over turns and shifts of the tall
+    things' footprints (`search_priors`): a repetitive site (rows of parked cars) has wrong fits that pass
+    the floors, which the right one beats.
     TerraError naming its fitness and overlap when it does not pass `check_alignment`."""
-    from terra.mapping.align import check_alignment, register, search_priors
+    from terra.mapping.align import check_alignment, judge, register, search_priors
 
     if prior is not None:
         alignment = register(map_cloud, cloud, np.asarray(prior, dtype=np.float64), "initial guess", settings)
     else:
-        starts = [("shared frame", np.eye(4))] + [("place search", T) for T in search_priors(map_cloud, cloud)]
+        starts = [("place search", T) for T in search_priors(map_cloud, cloud)]
+        # The shared frame is tried only where it already overlaps the map: from far off, GICP spends its
+        # every iteration on a pose the search has already beaten.
+        if judge(map_cloud, cloud, np.eye(4), settings)[0] >= settings.min_overlap:
+            starts.insert(0, ("shared frame", np.eye(4)))
         tried = [register(map_cloud, cloud, start, how, settings) for how, start in starts]
+        if not tried:
+            tried = [register(map_cloud, cloud, np.eye(4), "shared frame", settings)]
         alignment = max(tried, key=lambda a: (a.converged, a.overlap * a.fitness))
     check_alignment(alignment, settings, what)
     return alignment
