@@ -209,13 +209,14 @@ def search_priors(
         return []
     side = int(np.ceil(np.linalg.norm(np.ptp(tall, axis=0)) / cell)) + 1  # any turn fits in side x side cells
     shape = tuple(fft.next_fast_len(n + side - 1, real=True) for n in target.shape)
-    target_f = fft.rfft2(target, shape, workers=1)
+    target_f = np.asarray(fft.rfft2(target, shape, workers=1))
     scored = []
     for yaw in np.arange(0.0, 360.0, step_deg):
         turned = tall @ yaw_rotation(np.radians(yaw))[:2, :2].T
         source, source_origin = _tall_image(turned, cell, (side, side))
         # Convolution with the flipped source is the correlation; the full linear result fits in `shape`.
-        score = fft.irfft2(target_f * fft.rfft2(source[::-1, ::-1], shape, workers=1), shape, workers=1)
+        source_f = np.asarray(fft.rfft2(source[::-1, ::-1], shape, workers=1))
+        score = np.asarray(fft.irfft2(target_f * source_f, shape, workers=1))
         row, col = np.unravel_index(int(np.argmax(score)), score.shape)
         shift = (np.array([col, row]) - (side - 1)) * cell + origin - source_origin
         scored.append((-round(float(score[row, col]), 6), float(yaw), float(shift[0]), float(shift[1])))
