@@ -65,6 +65,16 @@ RevisitOpt = Annotated[
         "off). Writes revisit.json: the true T_world_session and the list of changes.",
     ),
 ]
+GnssOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--gnss",
+        min=0.0,
+        help="Carry a GNSS receiver whose fixes err by this many metres (standard deviation per horizontal axis, "
+        "per fix; `sim.gnss` sets the rest): writes gnss.csv, which anchors the drive on the Earth and lets "
+        "`terra map --into` start from both drives' GNSS.",
+    ),
+]
 MaxFramesOpt = Annotated[int | None, typer.Option("--max-frames", min=1, help="Stop after this many frames.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary (counts, timings) as JSON.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or timing table.")]
@@ -81,6 +91,7 @@ def sim(
     bag_images: BagImagesOpt = "jpeg",
     max_frames: MaxFramesOpt = None,
     revisit: RevisitOpt = False,
+    gnss: GnssOpt = None,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -95,7 +106,7 @@ def sim(
     check_format(format)
     check_output(out, overwrite)
     on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
-    cfg = _sim_config(config, max_frames, format, revisit)
+    cfg = _sim_config(config, max_frames, format, revisit, gnss)
     timer = StageTimer()
     show = not quiet and not as_json
     with timer.stage("world"), working("building the world", show):
@@ -107,16 +118,22 @@ def sim(
         typer.echo(timer.table("terra sim timing"), err=True)
 
 
-def _sim_config(config: Path | None, max_frames: int | None, format: str, revisit: bool = False) -> SimConfig:
-    """The `sim` section with --max-frames and --revisit applied, without lens distortion for kitti-raw."""
+def _sim_config(
+    config: Path | None, max_frames: int | None, format: str, revisit: bool = False, gnss: float | None = None
+) -> SimConfig:
+    """The `sim` section with --max-frames, --revisit and --gnss applied, without lens distortion for kitti-raw."""
     from terra.config import TerraConfig
-    from terra.sim.config import RevisitConfig
+    from terra.sim.config import GnssConfig, RevisitConfig
 
     cfg = TerraConfig.read(config).sim
     if revisit and cfg.revisit is None:
         cfg = cfg.model_copy(update={"revisit": RevisitConfig()})
     elif not revisit and cfg.revisit is not None:
         raise TerraError(f"{config}: sim.revisit is read with --revisit; add it to drive the second visit")
+    if gnss is not None:
+        if format != "terra-folder":
+            raise TerraError(f"--gnss: GNSS fixes are written to terra-folder datasets (gnss.csv), not to {format}")
+        cfg = cfg.model_copy(update={"gnss": (cfg.gnss or GnssConfig()).model_copy(update={"noise_m": gnss})})
     if max_frames is not None:
         cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": max_frames})})
     if format == "kitti-raw":  # KITTI raw images are rectified

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from terra.errors import TerraError
 from terra.geometry import CameraCalibration
+
+if TYPE_CHECKING:  # the fixes' module imports the WGS84 transforms, which only GNSS sources need
+    from terra.datasets.gnss import GnssFixes
 
 # What a message says to do when a source's own poses are missing or do not connect.
 NO_POSES_REMEDY = "map with --poses odometry (or dataset.poses: odometry) to compute poses from the scans"
@@ -186,4 +189,13 @@ class GeoreferencedDataset(Dataset, Protocol):
 
     def wgs84_anchor(self) -> dict[str, Any] | None:
         """The fields of terra.schemas.Wgs84Anchor for the map frame of this source's poses, or None."""
+        ...
+
+
+@runtime_checkable
+class GnssDataset(Dataset, Protocol):
+    """A source that carries GNSS fixes of its drive (the simulator with `sim.gnss`), which writers keep."""
+
+    def gnss_fixes(self) -> GnssFixes | None:
+        """The drive's fixes (terra.datasets.gnss), or None."""
         ...

@@ -16,7 +16,8 @@ Terra's additions, which the authors' scripts ignore:
 - camera{n}_semantic/cam{n}_sem_{t}.png, camera{n}_instance/cam{n}_inst_{t}.png: 16-bit label images
   (an instance image whose ids exceed 65535 is a 24-bit RGB PNG, id = R + 256 G + 65536 B);
 - terra_dataset.json: name, stamps, exact camera calibrations (lens model and every coefficient);
-  classes.json; ground_truth/.
+  classes.json; ground_truth/;
+- gnss.csv: GNSS fixes of the drive (terra.datasets.gnss), which anchor its frame on the Earth.
 Folders written by Terra before it numbered cameras from 1 (camera0_images, cam0_K) read as well.
 
 Cameras: the exact calibrations of terra_dataset.json, or the intrinsics of an msmap config (the
@@ -40,7 +41,7 @@ import numpy as np
 import yaml
 from pydantic import Field
 
-from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, SemanticClass, SourceInfo
+from terra.datasets.base import CameraFrame, ClassTable, Dataset, Frame, GnssDataset, SemanticClass, SourceInfo
 from terra.datasets.folder_io import (
     calibration_from_json,
     calibration_to_json,
@@ -56,6 +57,7 @@ from terra.datasets.folder_io import (
     write_label_png,
     write_rgb,
 )
+from terra.datasets.gnss import GNSS_CSV, fit_anchor, read_gnss_csv, write_gnss_csv
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
@@ -74,6 +76,7 @@ CAMERA_YAML = "msmap_camera_config.yaml"
 GLOBAL_LEAF = 0.4
 FIRST_CAMERA = 1  # the authors' numbering; Terra's first folders started at 0
 DEFAULT_MAX_GAP = 0.2  # seconds, the authors' simulation configs' unaligned_threshold
+MAX_ANCHOR_POSES = 2000  # poses read (evenly spread) to fit the GNSS anchor: plenty for a heading
 _IMAGE_FOLDER = re.compile(r"^camera(\d+)_images$")
 
 
@@ -194,6 +197,9 @@ def write_terra_folder(dataset: Dataset, root: Path, show_progress: bool = True)
         "cameras": [calibration_to_json(c) for c in cameras],
     }
     (root / META).write_text(json.dumps(meta, indent=1) + "\n")
+    fixes = dataset.gnss_fixes() if isinstance(dataset, GnssDataset) else None
+    if fixes is not None:
+        write_gnss_csv(root / GNSS_CSV, fixes)
     (root / CAMERA_YAML).write_text(yaml.safe_dump(msmap_camera_keys(cameras), sort_keys=False))
 
 
@@ -350,6 +356,19 @@ class TerraFolderDataset:
         semantic = read_label_png(sem_file) if sem_file.is_file() else None
         instance = read_instance_png(inst_file) if inst_file.is_file() else None
         return CameraFrame(cal, stamp, image, semantic, instance, name=str(image_file.relative_to(self.root)))
+
+    def wgs84_anchor(self) -> dict | None:
+        """The anchor of the poses' frame fitted to the folder's GNSS fixes (gnss.csv, terra.datasets.gnss),
+        or None without them or when they do not fix the frame (fewer than 3 in the drive's time span, a
+        drive that hardly moves)."""
+        if not (self.root / GNSS_CSV).is_file():
+            return None
+        fixes = read_gnss_csv(self.root / GNSS_CSV)
+        picks = np.unique(np.linspace(0, len(self._frames) - 1, min(len(self._frames), MAX_ANCHOR_POSES)).astype(int))
+        stamps = np.array([self._frames[i][0] for i in picks])
+        positions = np.array([_read_pose(self._frames[i][1])[:3, 3] for i in picks])
+        fitted = fit_anchor(stamps, positions, fixes, f"GNSS fixes of {self.name} ({GNSS_CSV})")
+        return None if fitted is None else fitted.anchor.model_dump(mode="json")
 
     def global_map(self) -> np.ndarray | None:
         """[:, :3] of the global_pc file with the largest stamp (as the reference uses it)."""

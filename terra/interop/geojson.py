@@ -23,9 +23,10 @@ import numpy as np
 from terra.bundle import Bundle, dumps_json
 from terra.errors import TerraError
 from terra.graph.scene_graph import SceneGraph
-from terra.interop.geo import MapToWgs84, resolve_anchor
+from terra.interop.geo import resolve_anchor
 from terra.interop.output import check_file_target, write_file
 from terra.schemas import Wgs84Anchor
+from terra.wgs84 import MapToWgs84
 
 MAX_PATH_BYTES = 64 << 20
 

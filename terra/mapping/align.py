@@ -251,12 +251,16 @@ def _tall_image(xy: np.ndarray, cell: float, shape: tuple[int, int] | None = Non
     return image, origin
 
 
-def check_alignment(alignment: Alignment, settings: AlignSettings, what: str) -> None:
-    """TerraError (one line with the fitness and overlap; nothing merged) for an alignment not to trust."""
-    good = (
+def trusted(alignment: Alignment, settings: AlignSettings) -> bool:
+    """Whether the registration converged with overlap and fitness at least the settings' floors."""
+    return (
         alignment.converged and alignment.overlap >= settings.min_overlap and alignment.fitness >= settings.min_fitness
     )
-    if not good:
+
+
+def check_alignment(alignment: Alignment, settings: AlignSettings, what: str) -> None:
+    """TerraError (one line with the fitness and overlap; nothing merged) for an alignment not to trust."""
+    if not trusted(alignment, settings):
         converged = "converged" if alignment.converged else "did not converge"
         raise TerraError(
             f"{what}: cannot align the session to the map: fitness {alignment.fitness:.2f} (at least "

@@ -93,8 +93,9 @@ class JoinPlan:
 
 def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: AlignSettings | None = None) -> JoinPlan:
     """Align `dataset` (a drive in its own frame) to the map in the bundle `out`, from `prior`
-    (T_map_session, 4x4: the user's initial guess) or, without one, the identity (both drives share a
-    frame) and then a search (`find_alignment`). TerraError, one line and nothing written, for a bundle
+    (T_map_session, 4x4: the user's initial guess) or, without one, from both drives' GNSS anchors when
+    the map and the session have them, else the identity (both drives share a frame) and a search
+    (`find_alignment`). TerraError, one line and nothing written, for a bundle
     that cannot take a session, a source already in the map, or an alignment that did not converge or
     overlaps too little."""
     from terra.datasets.fingerprint import dataset_fingerprint
@@ -117,35 +118,63 @@ def plan_join(dataset: Dataset, out: Path, prior: np.ndarray | None, settings: A
                 "nothing merged"
             )
     cloud = session_cloud(dataset, settings.voxel, settings.max_frames)
-    alignment = find_alignment(map_points(base), cloud, prior, settings, str(dataset.name))
+    gnss = gnss_prior(base, dataset) if prior is None else None
+    alignment = find_alignment(map_points(base), cloud, prior, settings, str(dataset.name), gnss)
     return JoinPlan(alignment, SessionFrames(dataset, alignment.T_map_session))
 
 
 def find_alignment(
-    map_cloud: np.ndarray, cloud: np.ndarray, prior: np.ndarray | None, settings: AlignSettings, what: str
+    map_cloud: np.ndarray,
+    cloud: np.ndarray,
+    prior: np.ndarray | None,
+    settings: AlignSettings,
+    what: str,
+    gnss: np.ndarray | None = None,
 ) -> Alignment:
-    """The alignment of `cloud` (session frame) to `map_cloud` from `prior` (T_map_session) when given;
-    without one, the best (overlap x fitness) of the refinements from the shared frame (identity, where it
-    already overlaps the map) and from the candidates of a search over turns and shifts of the tall
-    things' footprints (`search_priors`): a repetitive site (rows of parked cars) has wrong fits that pass
-    the floors, which the right one beats.
-    TerraError naming its fitness and overlap when it does not pass `check_alignment`."""
-    from terra.mapping.align import check_alignment, judge, register, search_priors
+    """The alignment of `cloud` (session frame) to `map_cloud`, in this order of evidence:
+    - from `prior` (T_map_session, the user's guess) when given;
+    - else from `gnss` (T_map_session of both frames' GNSS anchors) when given and its refinement
+      passes the floors;
+    - else the best (overlap x fitness) of the refinements from the shared frame (identity, where it
+      already overlaps the map), from the GNSS prior, and from the candidates of a search over turns and
+      shifts of the tall things' footprints (`search_priors`): a repetitive site (rows of parked cars)
+      has wrong fits that pass the floors, which the right one beats.
+    TerraError naming its fitness and overlap when the one chosen does not pass `check_alignment`."""
+    from terra.mapping.align import check_alignment, judge, register, search_priors, trusted
 
     if prior is not None:
         alignment = register(map_cloud, cloud, np.asarray(prior, dtype=np.float64), "initial guess", settings)
-    else:
-        starts = [("place search", T) for T in search_priors(map_cloud, cloud)]
-        # The shared frame is tried only where it already overlaps the map: from far off, GICP spends its
-        # every iteration on a pose the search has already beaten.
-        if judge(map_cloud, cloud, np.eye(4), settings)[0] >= settings.min_overlap:
-            starts.insert(0, ("shared frame", np.eye(4)))
-        tried = [register(map_cloud, cloud, start, how, settings) for how, start in starts]
-        if not tried:
-            tried = [register(map_cloud, cloud, np.eye(4), "shared frame", settings)]
-        alignment = max(tried, key=lambda a: (a.converged, a.overlap * a.fitness))
+        check_alignment(alignment, settings, what)
+        return alignment
+    tried = []
+    if gnss is not None:
+        tried.append(register(map_cloud, cloud, np.asarray(gnss, dtype=np.float64), "GNSS prior", settings))
+        if trusted(tried[0], settings):
+            return tried[0]
+    starts = [("place search", T) for T in search_priors(map_cloud, cloud)]
+    # The shared frame is tried only where it already overlaps the map: from far off, GICP spends its
+    # every iteration on a pose the search has already beaten.
+    if not starts or judge(map_cloud, cloud, np.eye(4), settings)[0] >= settings.min_overlap:
+        starts.insert(0, ("shared frame", np.eye(4)))
+    tried += [register(map_cloud, cloud, start, how, settings) for how, start in starts]
+    alignment = max(tried, key=lambda a: (a.converged, a.overlap * a.fitness))
     check_alignment(alignment, settings, what)
     return alignment
+
+
+def gnss_prior(base: Bundle, dataset: Dataset) -> np.ndarray | None:
+    """T_map_session from the map's WGS84 anchor and the session's (both fitted to GNSS fixes, or a
+    KITTI drive's OXTS), or None when either is unknown."""
+    from terra.datasets.base import GeoreferencedDataset
+    from terra.mapping.state import wgs84_anchor
+    from terra.schemas import Wgs84Anchor
+    from terra.wgs84 import pose_between
+
+    on_map = wgs84_anchor(base)
+    own = dataset.wgs84_anchor() if isinstance(dataset, GeoreferencedDataset) else None
+    if on_map is None or own is None:
+        return None
+    return pose_between(Wgs84Anchor.model_validate(on_map), Wgs84Anchor.model_validate(own))
 
 
 def _check_classes(base: Bundle, dataset: Dataset) -> None:

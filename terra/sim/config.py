@@ -158,6 +158,20 @@ class RevisitConfig(Section):
     patch_size: float = Field(default=6.0, gt=0.0)
 
 
+class GnssConfig(Section):
+    """A GNSS receiver on the robot: one fix per frame at the LiDAR's true position, the world frame
+    anchored at `lat`, `lon` (degrees) and `alt` (metres) with +x east. Horizontal error: a bias per
+    drive (standard deviation `bias_m` metres per axis, as a receiver's slowly wandering error) plus
+    white noise of `noise_m` metres per axis per fix; vertical: the same at twice the size.
+    `terra sim` writes the fixes as gnss.csv (terra-folder)."""
+
+    lat: float = Field(default=47.3769, ge=-89.0, le=89.0)
+    lon: float = Field(default=8.5417, ge=-180.0, le=180.0)
+    alt: float = 408.0
+    noise_m: float = Field(default=2.0, ge=0.0)
+    bias_m: float = Field(default=0.0, ge=0.0)
+
+
 class SimConfig(Section):
     """Everything `simulate` needs besides the preset name and seed."""
 
@@ -174,6 +188,7 @@ class SimConfig(Section):
     revisit: RevisitConfig | None = Field(
         default=None, description="drive the world again as a second visit, changed (`terra sim --revisit`)"
     )
+    gnss: GnssConfig | None = Field(default=None, description="a GNSS receiver's fixes, one per frame (gnss.csv)")
 
     @field_validator("cameras")
     @classmethod

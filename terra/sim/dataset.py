@@ -7,6 +7,7 @@ from collections import OrderedDict
 import numpy as np
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
+from terra.datasets.gnss import GnssFixes, fit_anchor
 from terra.datasets.ground_truth import GroundTruth
 from terra.datasets.terra_folder import image_name
 from terra.errors import TerraError
@@ -134,6 +135,40 @@ class SimDataset:
 
     def ground_truth(self) -> GroundTruth:
         return self.world.ground_truth()
+
+    def reported_positions(self) -> np.ndarray:
+        """(F, 3) metres: the LiDAR's position in each frame's reported pose (the frame's T_map_lidar),
+        without rendering."""
+        T = self.T_session_world @ self.trajectory.T_map_base_odom @ self.lidar.T_base_lidar
+        return T[:, :3, 3]
+
+    def gnss_fixes(self) -> GnssFixes | None:
+        """A fix per frame when `sim.gnss` is set (terra.sim.config.GnssConfig), else None. The noise
+        is drawn from the seed and the visit (a revisit's receiver errs differently)."""
+        gnss = self.config.gnss
+        if gnss is None:
+            return None
+        from terra.schemas import Wgs84Anchor
+        from terra.wgs84 import MapToWgs84
+
+        visit = 0 if self.config.revisit is None else self.config.revisit.seed + 1
+        rng = np.random.default_rng([self.seed, 11, visit])
+        true = (self.trajectory.T_map_base @ self.lidar.T_base_lidar)[:, :3, 3]
+        sigma = np.array([1.0, 1.0, 2.0])
+        error = rng.normal(0.0, gnss.bias_m, 3) * sigma + rng.normal(0.0, gnss.noise_m, (len(true), 3)) * sigma
+        world = Wgs84Anchor(lat=gnss.lat, lon=gnss.lon, alt=gnss.alt, source="simulator")
+        lon_lat_alt = MapToWgs84(world).lon_lat_height(true + error)
+        std = np.full(len(true), float(np.hypot(gnss.noise_m, gnss.bias_m)))
+        return GnssFixes(self.trajectory.stamps.copy(), lon_lat_alt[:, 1], lon_lat_alt[:, 0], lon_lat_alt[:, 2], std)
+
+    def wgs84_anchor(self) -> dict | None:
+        """The anchor of the reported poses' frame fitted to the GNSS fixes (terra.interop.gnss), or
+        None without a receiver."""
+        fixes = self.gnss_fixes()
+        if fixes is None:
+            return None
+        fitted = fit_anchor(self.trajectory.stamps, self.reported_positions(), fixes, f"GNSS fixes of {self.name}")
+        return None if fitted is None else fitted.anchor.model_dump(mode="json")
 
     def global_map(self) -> np.ndarray | None:
         """The simulator ships no prebuilt global map (writers accumulate one from the scans)."""

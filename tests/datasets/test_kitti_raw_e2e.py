@@ -199,7 +199,7 @@ def test_eval_with_a_bad_label_line_is_one_line_and_writes_nothing(bundle, drive
 def test_the_map_records_its_wgs84_anchor_and_exports_geojson_with_it(bundle, drive, tmp_path):
     from terra.bundle import Bundle
     from terra.datasets.kitti_raw_writer import GEODETIC_ORIGIN
-    from terra.interop.geo import MapToWgs84
+    from terra.wgs84 import MapToWgs84
 
     anchor = Bundle(bundle).model.components.map.wgs84_anchor  # pyright: ignore[reportOptionalMemberAccess]
     assert anchor is not None and anchor.projection == "kitti-mercator" and anchor.yaw_deg == 0.0

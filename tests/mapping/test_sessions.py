@@ -18,6 +18,8 @@ from terra.mapping.align import pose_from_guess
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
 from terra.mapping.sessions import SessionFrames, plan_join, relative_error, session_list
+from terra.schemas import Wgs84Anchor
+from terra.wgs84 import MapToWgs84
 from tests.live.test_session import FrameRange, map_files
 from tests.mapping.fixtures import folder_digest
 
@@ -126,3 +128,40 @@ def test_without_a_guess_the_search_finds_the_drive(joined, tiny_campus):
     plan = plan_join(other, first, None)
     metres, degrees = relative_error(T_TRUE, plan.alignment.T_map_session)
     assert metres < 0.05 and degrees < 0.05 and plan.alignment.how == "place search + GICP"
+
+
+class Anchored:
+    """A dataset whose frame is anchored on the Earth, as a source with GNSS fixes is (`wgs84_anchor`)."""
+
+    def __init__(self, dataset, anchor: Wgs84Anchor):
+        self.dataset, self.anchor, self.name, self.classes = dataset, anchor, dataset.name, dataset.classes
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, index: int):
+        return self.dataset[index]
+
+    def global_map(self):
+        return None
+
+    def wgs84_anchor(self) -> dict:
+        return self.anchor.model_dump(mode="json")
+
+
+def test_with_gnss_on_both_drives_the_join_starts_from_it(tiny_campus, tmp_path):
+    """Map anchored at a known place; the second drive's anchor 2 m and 1.5 degrees off where T_TRUE puts
+    it (a receiver's error): the join starts from GNSS, not from the search, and GICP removes the error."""
+    on_earth = Wgs84Anchor(lat=47.3769, lon=8.5417, alt=408.0, yaw_deg=20.0)
+    first = tmp_path / "anchored.terra"
+    run_mapping(Anchored(FrameRange(tiny_campus, 0, 25), on_earth), MappingConfig(), first, show_progress=False)
+    info = Bundle(first).model.components.map
+    assert info is not None and info.wgs84_anchor == on_earth
+    off = T_TRUE[:3, 3] + np.array([1.6, -1.2, 0.0])
+    lon, lat, alt = MapToWgs84(on_earth).lon_lat_height(off[None])[0]
+    session_anchor = Wgs84Anchor(lat=lat, lon=lon, alt=alt, yaw_deg=20.0 + 90.0 + 1.5)
+    second = Anchored(SessionFrames(FrameRange(tiny_campus, 15, 40), invert_pose(T_TRUE)), session_anchor)
+    plan = plan_join(second, first, None)
+    metres, degrees = relative_error(T_TRUE, plan.alignment.T_map_session)
+    assert plan.alignment.how == "GNSS prior + GICP"
+    assert metres < 0.05 and degrees < 0.05
