@@ -79,6 +79,12 @@ def _source_lines(m: dict) -> list[str]:
 
         lines.append(f"  sessions: {len(sessions)}")
         lines.extend(session_line(s, "    ") for s in sessions)
+    anchor = m.get("wgs84_anchor")
+    if anchor:
+        lines.append(
+            f"  on the Earth: origin {anchor['lat']:.7f}, {anchor['lon']:.7f} (degrees), {anchor['alt']:.1f} m, "
+            f"+x {anchor['yaw_deg']:.2f} deg from east ({anchor['projection']}; {anchor['source']})"
+        )
     if m.get("frames") is not None and not m.get("fusion_state"):
         lines.append("  fusion state: not kept (this map cannot be continued with --append)")
     return lines

@@ -61,5 +61,6 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
             ],
             "sessions": session_list([s for s in (info.sources or []) if isinstance(s, dict)]),
             "fusion_state": bundle.has("map/state/meta.json"),
+            "wgs84_anchor": None if info.wgs84_anchor is None else info.wgs84_anchor.model_dump(mode="json"),
         }
     return out
