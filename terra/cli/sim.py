@@ -71,8 +71,8 @@ GnssOpt = Annotated[
         "--gnss",
         min=0.0,
         help="Carry a GNSS receiver whose fixes err by this many metres (standard deviation per horizontal axis, "
-        "per fix; `sim.gnss` sets the rest): writes gnss.csv, which anchors the drive on the Earth and lets "
-        "`terra map --into` start from both drives' GNSS.",
+        "per fix; `sim.gnss` sets the rest): writes gnss.csv (a bag: sensor_msgs/NavSatFix on /gnss/fix), which "
+        "anchors the drive on the Earth and lets `terra map --into` start from both drives' GNSS.",
     ),
 ]
 MaxFramesOpt = Annotated[int | None, typer.Option("--max-frames", min=1, help="Stop after this many frames.")]
@@ -131,8 +131,11 @@ def _sim_config(
     elif not revisit and cfg.revisit is not None:
         raise TerraError(f"{config}: sim.revisit is read with --revisit; add it to drive the second visit")
     if gnss is not None:
-        if format != "terra-folder":
-            raise TerraError(f"--gnss: GNSS fixes are written to terra-folder datasets (gnss.csv), not to {format}")
+        if format not in ("terra-folder", "rosbag1", "rosbag2"):
+            raise TerraError(
+                f"--gnss: GNSS fixes are written to terra-folder datasets (gnss.csv) and bags (NavSatFix), not to "
+                f"{format}"
+            )
         cfg = cfg.model_copy(update={"gnss": (cfg.gnss or GnssConfig()).model_copy(update={"noise_m": gnss})})
     if max_frames is not None:
         cfg = cfg.model_copy(update={"route": cfg.route.model_copy(update={"max_frames": max_frames})})

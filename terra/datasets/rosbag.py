@@ -29,11 +29,13 @@ from pydantic import Field
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SemanticClass, SourceInfo
 from terra.datasets.folder_io import read_classes
+from terra.datasets.gnss import GnssFixes, fit_anchor
 from terra.datasets.registry import Loader
 from terra.datasets.ros.bag import Bag, bag_paths, is_bag, recording_name
 from terra.datasets.ros.camera_info import camera_from_info
 from terra.datasets.ros.images import decode_compressed, decode_image, decode_labels
 from terra.datasets.ros.index import BagIndex, Stream, index_bag
+from terra.datasets.ros.navsat import choose_gnss, read_fixes
 from terra.datasets.ros.pointcloud2 import decode_pointcloud2
 from terra.datasets.ros.tf import TfTree, quoted
 from terra.datasets.ros.topics import CameraTopics, choose_cameras, choose_lidar, choose_odometry
@@ -79,6 +81,11 @@ class RosbagConfig(Section):
         "auto (the first that exists)",
     )
     odometry_topic: str | None = Field(default=None, description="nav_msgs/Odometry topic for poses: topic")
+    gnss_topic: str | None = Field(
+        default=None,
+        description="sensor_msgs/NavSatFix topic whose fixes anchor the drive on the Earth (default: the bag's "
+        "only one)",
+    )
     max_gap: float = Field(default=0.05, gt=0.0, description="seconds an image may lie from its scan's stamp")
     max_pose_gap: float = Field(
         default=0.5, gt=0.0, description="seconds between the two TF samples a scan's pose is interpolated from"
@@ -304,6 +311,36 @@ class RosbagDataset:
         stream = self.index.streams[topic]
         j, gap = nearest(stream.stamps, stamp)
         return stream.key(topic, j) if gap <= 1e-6 else None
+
+    def gnss_fixes(self) -> GnssFixes | None:
+        """The fixes of the bag's NavSatFix topic (terra.datasets.ros.navsat), or None without one."""
+        topic = choose_gnss(self.bag, self.config.gnss_topic)
+        if topic is None:
+            return None
+        fixes, left_out = read_fixes(self.bag, topic)
+        if left_out:
+            self._skip("gnss_without_fix", f"{topic}: NavSatFix messages without a fix (status < 0 or NaN)", left_out)
+        return fixes
+
+    def wgs84_anchor(self) -> dict | None:
+        """The anchor of the poses' frame fitted to the bag's GNSS fixes (terra.datasets.gnss), or None:
+        no NavSatFix topic, too few fixes, or poses that odometry will only compute while mapping.
+        Read once (a pass over the fixes' topic), then kept."""
+        if not hasattr(self, "_anchor"):
+            self._anchor = self._fit_anchor()
+        return self._anchor
+
+    def _fit_anchor(self) -> dict | None:
+        if self.needs_odometry or not self._frames:
+            return None
+        fixes = self.gnss_fixes()
+        if fixes is None or len(fixes) == 0:
+            return None
+        stamps = np.array([f.stamp for f in self._frames])
+        positions = np.array([f.T_map_lidar[:3, 3] for f in self._frames])
+        topic = choose_gnss(self.bag, self.config.gnss_topic)
+        fitted = fit_anchor(stamps, positions, fixes, f"GNSS fixes of {self.name} ({topic})")
+        return None if fitted is None else fitted.anchor.model_dump(mode="json")
 
     def _skip(self, counter: str, note: str, count: int = 1) -> None:
         self.skipped[counter] = self.skipped.get(counter, 0) + count

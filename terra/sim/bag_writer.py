@@ -7,7 +7,8 @@ Topics (log time = header stamp = the frame's stamp):
   simulated LiDAR captures a scan at one instant), label and instance (uint32, the simulator's ids);
 - /<camera>/image_raw/compressed (JPEG, quality 92, no chroma subsampling, as the folder layout
   writes) or /<camera>/image_raw (rgb8); /<camera>/camera_info; /<camera>/semantic and
-  /<camera>/instance (mono16 label images; 32SC1 when an image holds an id above 65535).
+  /<camera>/instance (mono16 label images; 32SC1 when an image holds an id above 65535);
+- /gnss/fix: sensor_msgs/NavSatFix, one per frame, when the simulator carries a receiver (`sim.gnss`).
 The folder also gets classes.json and ground_truth/ (written by terra.sim.writer), which the bag
 loader reads from beside the bag.
 """
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terra.datasets.base import Dataset
+from terra.datasets.base import Dataset, GnssDataset
 from terra.datasets.ros.messages import MessageFactory
 from terra.errors import TerraError
 from terra.geometry import invert_pose
@@ -27,6 +28,7 @@ from terra.progress import progress
 
 MAP, BASE, LIDAR = "map", "base_link", "lidar"
 LIDAR_TOPIC = "/lidar/points"
+GNSS_TOPIC, GNSS_FRAME = "/gnss/fix", "gnss"
 IMAGE_FORMATS = ("jpeg", "raw")
 
 
@@ -54,6 +56,7 @@ def write_bag(
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     factory = MessageFactory(store, ros1)
     name = dataset.name
+    fixes = dataset.gnss_fixes() if isinstance(dataset, GnssDataset) else None  # one per frame
     with _open_writer(root, name, ros1) as writer:
         topics = _Topics(writer, store, ros1)
         T_base_lidar = lidar.T_base_lidar
@@ -75,6 +78,9 @@ def write_bag(
                 factory.tf([(ns, MAP, BASE, frame.T_map_lidar @ T_lidar_base)]),
                 factory,
             )
+            if fixes is not None:
+                fix = factory.navsatfix(ns, GNSS_FRAME, fixes.lat[i], fixes.lon[i], fixes.alt[i], fixes.std[i])
+                topics.write(GNSS_TOPIC, "sensor_msgs/msg/NavSatFix", ns, fix, factory)
             times = np.zeros(len(frame.points), np.uint32)
             cloud = factory.pointcloud2(
                 ns, LIDAR, frame.points, frame.intensity, times, frame.point_labels, frame.point_instances

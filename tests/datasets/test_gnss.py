@@ -7,6 +7,7 @@ to millimetres."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -104,3 +105,23 @@ def test_gnss_csv_round_trips_and_bad_files_name_the_line(tmp_path):
     path.write_text("time,latitude,longitude\n")
     with pytest.raises(TerraError, match="expected the header"):
         read_gnss_csv(path)
+
+
+@pytest.mark.parametrize("store", ["ros2", "ros1"])
+def test_navsatfix_messages_built_by_rosbags_become_fixes(store):
+    """Messages of rosbags' own types: a fix with a diagonal covariance, a fix without one, no fix, NaN."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from terra.datasets.ros.messages import MessageFactory
+    from terra.datasets.ros.navsat import fix_row
+
+    types = get_typestore(Stores.ROS2_HUMBLE if store == "ros2" else Stores.ROS1_NOETIC)
+    factory = MessageFactory(types, store == "ros1")
+    fix = factory.navsatfix(12_500_000_000, "gnss", 47.5, 8.25, 410.0, 1.5)
+    assert fix_row(fix) == (12.5, 47.5, 8.25, 410.0, 1.5)
+    unknown = factory.navsatfix(13_000_000_000, "gnss", 47.5, 8.25, 410.0, float("nan"))
+    row = fix_row(unknown)
+    assert row is not None and row[0] == 13.0 and math.isnan(row[4])
+    status = types.types["sensor_msgs/msg/NavSatStatus"]
+    assert fix_row(replace(fix, status=status(status=-1, service=1))) is None  # no fix yet
+    assert fix_row(replace(fix, latitude=float("nan"))) is None

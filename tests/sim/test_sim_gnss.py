@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from terra.cli import run
+from terra.datasets.base import GeoreferencedDataset
+from terra.datasets.registry import open_dataset
 from terra.datasets.terra_folder import TerraFolderDataset
 from terra.mapping.sessions import relative_error
 from terra.schemas import Wgs84Anchor
@@ -64,7 +66,23 @@ def test_a_written_folder_keeps_the_fixes_and_reads_the_same_anchor(tmp_path):
     assert math.isclose(found["yaw_deg"], expected["yaw_deg"], abs_tol=1e-3)
 
 
+@pytest.mark.parametrize("format", ["rosbag1", "rosbag2"])
+def test_a_bag_carries_the_fixes_as_navsatfix_and_reads_the_same_anchor(tmp_path, format):
+    out = tmp_path / format
+    command = ["sim", "--preset", "tiny", "--max-frames", "12", "--gnss", "1.0", "--format", format]
+    assert run([*command, "--out", str(out), "-q"]) == 0
+    config = SimConfig(gnss=RECEIVER.model_copy(update={"noise_m": 1.0}))
+    config = config.model_copy(update={"route": config.route.model_copy(update={"max_frames": 12})})
+    expected = simulate("tiny", 0, config).wgs84_anchor()
+    bag = open_dataset(out)
+    assert isinstance(bag, GeoreferencedDataset)
+    found = bag.wgs84_anchor()
+    assert expected is not None and found is not None and found["source"].endswith("(/gnss/fix)")
+    for key, tolerance in (("lat", 1e-7), ("lon", 1e-7), ("alt", 1e-3), ("yaw_deg", 1e-3)):
+        assert math.isclose(found[key], expected[key], abs_tol=tolerance)
+
+
 def test_gnss_is_refused_for_formats_without_a_place_for_it(tmp_path):
-    out = tmp_path / "bag"
-    assert run(["sim", "--preset", "tiny", "--gnss", "2", "--format", "rosbag2", "--out", str(out), "-q"]) == 2
+    out = tmp_path / "kitti"
+    assert run(["sim", "--preset", "tiny", "--gnss", "2", "--format", "semantickitti", "--out", str(out), "-q"]) == 2
     assert not out.exists() or not any(out.iterdir())

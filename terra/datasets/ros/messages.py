@@ -165,6 +165,23 @@ class MessageFactory:
             )
         return t["tf2_msgs/msg/TFMessage"](transforms=rows)
 
+    def navsatfix(self, stamp_ns: int, frame_id: str, lat: float, lon: float, alt: float, std: float):
+        """A sensor_msgs/NavSatFix with a GPS fix at lat, lon (degrees), alt (metres) and, when `std`
+        (metres) is finite, a diagonal covariance of std^2 east and north, (2 std)^2 up."""
+        t = self._t
+        status = t["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
+        known = bool(np.isfinite(std))
+        variance = [std**2, std**2, (2 * std) ** 2] if known else [0.0, 0.0, 0.0]
+        return t["sensor_msgs/msg/NavSatFix"](
+            header=self.header(stamp_ns, frame_id),
+            status=status,
+            latitude=float(lat),
+            longitude=float(lon),
+            altitude=float(alt),
+            position_covariance=np.diag(variance).reshape(-1).astype(np.float64),
+            position_covariance_type=2 if known else 0,
+        )
+
     def serialize(self, msg, msgtype: str) -> bytes:
         data = self.store.serialize_ros1(msg, msgtype) if self.ros1 else self.store.serialize_cdr(msg, msgtype)
         return bytes(data)
