@@ -212,7 +212,7 @@ def edge_yaw(xy: np.ndarray, tolerance: float = 0.15, agree_deg: float = 5.0) ->
     return float(angle[best])
 
 
-def closeness_yaw(xy: np.ndarray, floor: float = 0.05, step_deg: float = 1.0) -> float | None:
+def closeness_yaw(xy: np.ndarray, floor: float = 0.1, step_deg: float = 1.0) -> float | None:
     """The yaw (radians) whose bounding rectangle hugs a footprint's points (n, 2) most closely:
     each point scores 1 / max(d, `floor`), d its distance (metres) to the nearest side of the
     rectangle at that yaw, over the hull's edge directions and a `step_deg` grid of [0, 90)
@@ -221,8 +221,9 @@ def closeness_yaw(xy: np.ndarray, floor: float = 0.05, step_deg: float = 1.0) ->
     This is the closeness criterion of L-shape fitting: a partial view of a car (one or two faces,
     rounded corners, the roof and hood inside the outline) puts most points on one or two sides of
     the right rectangle, while the smallest rectangle may hang on a rounded corner's chord.
-    `floor` (about twice the range noise of a LiDAR) keeps one point exactly on a side from
-    outweighing the rest. Hull edges come first, so on ties (clean, exact faces) a hull edge wins
+    `floor` keeps one point exactly on a side from outweighing the rest; 0.1 m (a few times a
+    LiDAR's range noise, about a rounded bumper's bulge) was chosen from 0.02, 0.05, 0.1 and 0.2
+    on three KITTI cars (benchmarks/RESULTS.md, issue 27) and is flat on synthetic ones. Hull edges come first, so on ties (clean, exact faces) a hull edge wins
     and an exact box keeps its exact yaw."""
     xy = np.asarray(xy, dtype=np.float64)[:, :2]
     angle, _ = _hull_edges(xy)
