@@ -223,8 +223,9 @@ def closeness_yaw(xy: np.ndarray, floor: float = 0.1, step_deg: float = 1.0) -> 
     the right rectangle, while the smallest rectangle may hang on a rounded corner's chord.
     `floor` keeps one point exactly on a side from outweighing the rest; 0.1 m (a few times a
     LiDAR's range noise, about a rounded bumper's bulge) was chosen from 0.02, 0.05, 0.1 and 0.2
-    on three KITTI cars (benchmarks/RESULTS.md, issue 27) and is flat on synthetic ones. Hull edges come first, so on ties (clean, exact faces) a hull edge wins
-    and an exact box keeps its exact yaw."""
+    on three KITTI cars (benchmarks/RESULTS.md, issue 27) and is flat on synthetic ones. Hull
+    edges come first, so on ties (clean, exact faces) a hull edge wins and an exact box keeps its
+    exact yaw."""
     xy = np.asarray(xy, dtype=np.float64)[:, :2]
     angle, _ = _hull_edges(xy)
     if len(angle) == 0:
@@ -374,10 +375,11 @@ def fit_object_boxes(
     - Footprint: from the points at least `lift` metres above the group's ground height
       `ground_z` (G,) (mask bleeding labels ground around an object as the object), unless fewer
       than three are; then from all of them.
-    - Yaw: the footprint's dominant edges' (edge_yaw: of the rectangles close to the smallest,
-      the one most of the hull's edges run along), unless `context_yaw` (G,) (radians; NaN = none: the
-      direction of the terrain strips around the object) gives a rectangle at most
-      `prefer_context` times larger; a partial view often makes the minimum-area rectangle turn.
+    - Yaw: the one whose rectangle the footprint hugs closest (closeness_yaw; the hull's dominant
+      edges, edge_yaw, turned real cars seen at an angle by up to 41 degrees), unless
+      `context_yaw` (G,) (radians; NaN = none: the direction of the terrain strips around the
+      object) gives a rectangle at most `prefer_context` times larger; a partial view often
+      makes the minimum-area rectangle turn.
     - Height: from the ground (when below the lowest point) to the highest point.
     - `min_extent` ((3,) or (G, 3): length, width, height in metres; NaN = none), a prior on the
       object's size: a partial view is completed to at least that size, away from `viewpoint`
