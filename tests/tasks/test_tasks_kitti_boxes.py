@@ -49,3 +49,21 @@ def test_a_size_prior_and_the_viewpoint_complete_real_partial_cars(cases):
     bottoms = np.array([b.center[0, 2] - b.size[0, 2] / 2 for b in boxes])
     labels = np.array([c.label.center[0, 2] - c.label.size[0, 2] / 2 for c in cases])
     assert np.all(np.abs(bottoms - labels) < 0.25)
+
+
+def test_kitti_object_folders_fail_with_one_clear_line(tmp_path):
+    from terra.errors import TerraError
+
+    with pytest.raises(TerraError, match="no KITTI object frame"):
+        object_frames(tmp_path)
+    for sub in ("velodyne", "label_2", "calib"):
+        (tmp_path / sub).mkdir()
+    (tmp_path / "velodyne" / "000000.bin").write_bytes(np.zeros(6, np.float32).tobytes())  # 1.5 points
+    (tmp_path / "label_2" / "000000.txt").write_text((FOLDER / "label_2" / "000002.txt").read_text())
+    (tmp_path / "calib" / "000000.txt").write_text("R0_rect: 1 0 0 0 1 0 0 0 1\n")
+    assert object_frames(tmp_path) == ["000000"]
+    with pytest.raises(TerraError, match="not x y z reflectance quadruples"):
+        read_object_frame(tmp_path, "000000")
+    (tmp_path / "velodyne" / "000000.bin").write_bytes(np.zeros(8, np.float32).tobytes())
+    with pytest.raises(TerraError, match="no Tr_velo_to_cam line"):
+        read_object_frame(tmp_path, "000000")
