@@ -16,6 +16,8 @@ import numpy as np
 import shapely
 from numpy.typing import ArrayLike
 
+from terra.errors import TerraError
+
 
 @dataclass(frozen=True)
 class OrientedBox:
@@ -210,6 +212,34 @@ def edge_yaw(xy: np.ndarray, tolerance: float = 0.15, agree_deg: float = 5.0) ->
     return float(angle[best])
 
 
+def closeness_yaw(xy: np.ndarray, floor: float = 0.1, step_deg: float = 1.0) -> float | None:
+    """The yaw (radians) whose bounding rectangle hugs a footprint's points (n, 2) most closely:
+    each point scores 1 / max(d, `floor`), d its distance (metres) to the nearest side of the
+    rectangle at that yaw, over the hull's edge directions and a `step_deg` grid of [0, 90)
+    degrees (a rectangle is the same turned by 90). None for a hull that is a point or a segment.
+
+    This is the closeness criterion of L-shape fitting: a partial view of a car (one or two faces,
+    rounded corners, the roof and hood inside the outline) puts most points on one or two sides of
+    the right rectangle, while the smallest rectangle may hang on a rounded corner's chord.
+    `floor` keeps one point exactly on a side from outweighing the rest; 0.1 m (a few times a
+    LiDAR's range noise, about a rounded bumper's bulge) was chosen from 0.02, 0.05, 0.1 and 0.2
+    on three KITTI cars (benchmarks/RESULTS.md, issue 27) and is flat on synthetic ones. Hull
+    edges come first, so on ties (clean, exact faces) a hull edge wins and an exact box keeps its
+    exact yaw."""
+    xy = np.asarray(xy, dtype=np.float64)[:, :2]
+    angle, _ = _hull_edges(xy)
+    if len(angle) == 0:
+        return None
+    candidates = np.concatenate([angle % (np.pi / 2), np.radians(np.arange(0.0, 90.0, step_deg))])
+    c, s = np.cos(candidates), np.sin(candidates)
+    u = xy @ np.stack([c, s])  # (n, k): along each candidate axis
+    v = xy @ np.stack([-s, c])
+    du = np.minimum(u - u.min(axis=0), u.max(axis=0) - u)
+    dv = np.minimum(v - v.min(axis=0), v.max(axis=0) - v)
+    score = (1.0 / np.maximum(np.minimum(du, dv), floor)).sum(axis=0)
+    return float(candidates[int(np.argmax(score))])
+
+
 def _extents_at_yaw(points: np.ndarray, groups: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per group, the centre (G, 2) and size (G, 2) of the rectangle with axes at `yaw` (G,)
     radians that bounds its xy points; points sorted by group, every group present."""
@@ -269,18 +299,61 @@ def _z_extent(
 
 def _edge_rectangles(xy: np.ndarray, groups: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(yaw (G,), centre (G, 2), size (G, 2)) per group of xy points (n, 2) sorted by group: the
-    rectangle at the footprint's edge yaw (edge_yaw), the x axis along its longer side; the
-    minimum-area rectangle where the hull is a point or a segment."""
+    rectangle at the yaw that hugs the footprint closest (closeness_yaw), the x axis along its
+    longer side; the minimum-area rectangle where the hull is a point or a segment."""
     rect = fit_oriented_boxes(np.column_stack([xy, np.zeros(len(xy))]), groups)
     yaw = np.array([b.yaw for b in rect])
     starts = np.searchsorted(groups, np.arange(n_groups + 1))
     for g in range(n_groups):
-        found = edge_yaw(xy[starts[g] : starts[g + 1]])
+        found = closeness_yaw(xy[starts[g] : starts[g + 1]])
         if found is not None:
             yaw[g] = found
     centre, size = _extents_at_yaw(xy, groups, yaw)
     swap = size[:, 1] > size[:, 0]
     return wrap_half_turn(np.where(swap, yaw + np.pi / 2, yaw)), centre, np.where(swap[:, None], size[:, ::-1], size)
+
+
+def _per_group(value: ArrayLike | None, n_groups: int, what: str) -> np.ndarray | None:
+    """A (3,) or (G, 3) argument as (G, 3) float64 (None stays None); TerraError otherwise."""
+    if value is None:
+        return None
+    array = np.asarray(value, dtype=np.float64)
+    if array.shape == (3,):
+        return np.tile(array, (n_groups, 1))
+    if array.shape != (n_groups, 3):
+        raise TerraError(f"{what}: expected shape (3,) or ({n_groups}, 3), got {array.shape}")
+    return array
+
+
+def complete_extent(
+    yaw: np.ndarray, centre: np.ndarray, size_xy: np.ndarray, min_extent: np.ndarray, viewpoint: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(yaw (G,), centre (G, 2), size (G, 2); the x axis along the longer side): the visible
+    rectangles (yaw (G,) radians, centre, size along the box's x and y axes; metres, map frame)
+    grown to at least `min_extent` (G, 3) (length, width, height; NaN = no prior) in xy, away
+    from the viewer.
+
+    A LiDAR sees the faces of an object that turn towards it: the faces nearest `viewpoint` (G, 3)
+    (the sensor's position per group; None = unknown) are real, the hidden ones lie further away.
+    So each side shorter than its prior keeps its near face and moves its far face away; a side
+    whose slab holds the viewer (seen face-on) or without a viewpoint grows evenly about its
+    centre. The longer visible side takes the prior length (the visible sides are never longer
+    than their prior as this sorts both the same way): a car seen squarely from behind, only its
+    back visible, is therefore turned across (a limit, noted in benchmarks/RESULTS.md)."""
+    prior = np.sort(np.nan_to_num(min_extent[:, :2], nan=0.0), axis=1)[:, ::-1]  # (length, width)
+    want = np.where((size_xy[:, 0] >= size_xy[:, 1])[:, None], prior, prior[:, ::-1])
+    grow = np.clip(want - size_xy, 0.0, None)
+    c, s = np.cos(yaw), np.sin(yaw)
+    shift = np.zeros_like(grow)  # how far the centre moves along the box axes
+    if viewpoint is not None:
+        rel = viewpoint[:, :2] - centre
+        local = np.column_stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]])
+        side = np.where(np.abs(local) > size_xy / 2, -np.sign(local), 0.0)  # away from the viewer
+        shift = side * grow / 2
+    moved = centre + np.column_stack([c * shift[:, 0] - s * shift[:, 1], s * shift[:, 0] + c * shift[:, 1]])
+    size = size_xy + grow
+    swap = size[:, 1] > size[:, 0]  # keep the x axis along the longer side
+    return wrap_half_turn(np.where(swap, yaw + np.pi / 2, yaw)), moved, np.where(swap[:, None], size[:, ::-1], size)
 
 
 def fit_object_boxes(
@@ -292,6 +365,9 @@ def fit_object_boxes(
     min_size: float = 0.05,
     lift: float = 0.15,
     prefer_context: float = 1.2,
+    *,
+    min_extent: ArrayLike | None = None,
+    viewpoint: ArrayLike | None = None,
 ) -> list[OrientedBox]:
     """Boxes of objects standing on the ground, robust to partial views and to masks that bleed
     onto the ground. points: (n, 3) metres, map frame; groups: (n,) ids 0..G-1.
@@ -299,11 +375,16 @@ def fit_object_boxes(
     - Footprint: from the points at least `lift` metres above the group's ground height
       `ground_z` (G,) (mask bleeding labels ground around an object as the object), unless fewer
       than three are; then from all of them.
-    - Yaw: the footprint's dominant edges' (edge_yaw: of the rectangles close to the smallest,
-      the one most of the hull's edges run along), unless `context_yaw` (G,) (radians; NaN = none: the
-      direction of the terrain strips around the object) gives a rectangle at most
-      `prefer_context` times larger; a partial view often makes the minimum-area rectangle turn.
+    - Yaw: the one whose rectangle the footprint hugs closest (closeness_yaw; the hull's dominant
+      edges, edge_yaw, turned real cars seen at an angle by up to 41 degrees), unless
+      `context_yaw` (G,) (radians; NaN = none: the direction of the terrain strips around the
+      object) gives a rectangle at most `prefer_context` times larger; a partial view often
+      makes the minimum-area rectangle turn.
     - Height: from the ground (when below the lowest point) to the highest point.
+    - `min_extent` ((3,) or (G, 3): length, width, height in metres; NaN = none), a prior on the
+      object's size: a partial view is completed to at least that size, away from `viewpoint`
+      ((3,) or (G, 3), map frame: where the sensor saw each object from; complete_extent), and up
+      from its bottom. Without it the box spans what was seen.
     - `padding` (metres) is added to the footprint's sides and above the top (below the bottom
       too where the ground is unknown); then every size is at least `min_size` metres.
     """
@@ -322,6 +403,12 @@ def fit_object_boxes(
             pts[foot, :2], groups[foot], np.asarray(context_yaw, dtype=np.float64), prefer_context, yaw, centre, size_xy
         )
     z_lo, z_hi = _z_extent(pts[:, 2], groups, n_groups, ground, padding)
+    prior = _per_group(min_extent, n_groups, "min_extent")
+    if prior is not None:
+        yaw, centre, size_xy = complete_extent(
+            yaw, centre, size_xy, prior, _per_group(viewpoint, n_groups, "viewpoint")
+        )
+        z_hi = np.maximum(z_hi, z_lo + np.nan_to_num(prior[:, 2], nan=0.0))
     sizes = np.maximum(np.column_stack([size_xy + padding, z_hi - z_lo]), min_size)
     centres = np.column_stack([centre, (z_lo + z_hi) / 2])
     return [OrientedBox(center=centres[g], size=sizes[g], yaw=float(yaw[g])) for g in range(n_groups)]
