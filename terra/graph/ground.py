@@ -36,7 +36,8 @@ Layers (`ground_layers`), per cell, from the ground points in it:
 Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
 its step is the largest step of the cells it crosses, its rise (fall) the steepest climb (descent)
 along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
-feels, not one cell's gradient). Cells without ground count as unknown and constrain nothing.
+feels, not one cell's gradient), leaving out the cells beside an obstacle when the edge has others.
+Cells without ground count as unknown and constrain nothing.
 """
 
 from __future__ import annotations
@@ -129,6 +130,9 @@ class GroundLayers:
     origin: np.ndarray
     cell_size: float
     offset: tuple[int, int] = (0, 0)
+    # (n,) bool, in memory only (not stored): cells within a few cells of a blocked cell (grid_layers),
+    # whose heights may be an object's lowest points; None where no obstacle is known.
+    near_obstacle: np.ndarray | None = None
 
     @property
     def slope(self) -> np.ndarray:
@@ -410,11 +414,18 @@ def edge_geometry(
     at = layers.lookup(point)
     known = at >= 0
     step = np.where(known, layers.step[at], np.nan)
+    # Beside an object the lowest points may be the object's (a bench's feet read as a bump of a few
+    # centimetres, a 10 degree slope on a 5 degree lawn): an edge's slope is read on the samples
+    # away from obstacles when it has two, else on all it has.
+    heights = known
+    if layers.near_obstacle is not None:
+        clear = known & ~layers.near_obstacle[np.maximum(at, 0)]
+        heights = clear | (known & (np.bincount(edge[clear], minlength=E) < 2)[edge])
     # The ground's height at each sample: its cell's, carried along the cell's gradient.
-    cell = at[known]
+    cell = at[heights]
     tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
-    height = layers.height[cell] + (tilt * (point[known] - layers.centres(cell))).sum(axis=1)
-    rise = _rise_along(edge[known], t[known] * length[edge[known]], height, E, baseline)
+    height = layers.height[cell] + (tilt * (point[heights] - layers.centres(cell))).sum(axis=1)
+    rise = _rise_along(edge[heights], t[heights] * length[edge[heights]], height, E, baseline)
     out = np.column_stack([np.fmax.reduceat(step, starts), np.degrees(np.arctan(rise))])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
 
@@ -496,7 +507,8 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
     layers = ground_layers(np.asarray(points)[ground], frame)
     if beside > 0 and grid.blocked.any():
         near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
-        layers.step[np.flatnonzero(near.ravel()[layers.cells])] = np.nan
+        layers.near_obstacle = near.ravel()[layers.cells]
+        layers.step[layers.near_obstacle] = np.nan
     return layers
 
 

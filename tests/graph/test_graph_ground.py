@@ -189,6 +189,25 @@ def test_edge_geometry_of_a_slope_and_a_curb():
     assert geometry[1, 0] < 0.02  # runs beside it, 3 m away
 
 
+def test_an_edge_slope_leaves_out_the_cells_beside_an_obstacle():
+    """A 5 % lawn with a bench's feet: the points under the bench, 8 cm up over 1 m, pass for ground. An
+    edge along the bench reads the lawn's 2.9 degrees once the cells beside it are known to be near an
+    obstacle, and the bump's 7 degrees and more without that."""
+    rng = np.random.default_rng(4)
+    xy = uniform(rng, [0, 0], [20, 10], 60000)
+    z = 0.05 * xy[:, 0] + np.where((xy[:, 0] > 9.0) & (xy[:, 0] < 10.0) & (np.abs(xy[:, 1] - 5.0) < 1.0), 0.08, 0.0)
+    layers = ground_layers(np.column_stack([xy, z]), flat_frame(20, 10))
+    position = np.array([[4.0, 5.0, 0.0], [16.0, 5.0, 0.0]])
+    bumpy = edge_geometry(layers, position, np.array([[0, 1]]))
+    assert bumpy[0, 1] > 6.0  # the bump read as the lawn's slope
+    centres = layers.centres(np.arange(len(layers.cells)))
+    layers.near_obstacle = (np.abs(centres[:, 0] - 9.5) < 1.5) & (np.abs(centres[:, 1] - 5.0) < 1.5)
+    clear = edge_geometry(layers, position, np.array([[0, 1]]))
+    assert clear[0, 1] == pytest.approx(np.degrees(np.arctan(0.05)), abs=0.3) and clear[0, 2] < 0.3
+    layers.near_obstacle = np.ones(len(layers.cells), dtype=bool)  # all of it beside an obstacle: all read
+    np.testing.assert_array_equal(edge_geometry(layers, position, np.array([[0, 1]])), bumpy)
+
+
 def test_a_map_of_bare_points_builds_places_on_the_ground():
     points, truth = street()
     build = build_scene_graph(points_map(points))
