@@ -1,7 +1,8 @@
 """A second visit of a simulated world (issue 26): the same site driven again, on the route reversed from
 another start, its poses reported in another frame, after known changes.
 
-Changes, drawn from `RevisitConfig.seed`: cars moved along their own length (by 3 to 6 m), cars removed,
+Changes, drawn from `RevisitConfig.seed`: cars moved along their own length or across it into a free stall
+(by 3 to 6 m), cars removed,
 cars added (a copy of a parked car on free asphalt near the route), benches removed, and square patches of
 lawn turned to dirt. `revisit_world` returns the changed world and the ground truth of what changed, in the
 first visit's map frame (the world frame): objects by instance id with their old and new centres, terrain
@@ -122,24 +123,32 @@ class _Edit:
         columns = [np.concatenate([c[self.keep], *[e[i] for e in self.extra]]) for i, c in enumerate(self.rows)]
         return Primitives(*columns)
 
-    def free(self, xy: np.ndarray, radius: float, ignore: int) -> bool:
-        """No other object's footprint disc within `radius` metres of its own, and asphalt under `xy`."""
-        centres = np.array([o.center[:2] for o in self.objects if o.instance_id != ignore])
-        radii = np.array([np.hypot(*o.size[:2]) / 2 for o in self.objects if o.instance_id != ignore])
-        clear = centres.size == 0 or bool(np.all(np.linalg.norm(centres - xy, axis=1) > radii + radius + 0.3))
-        probe = xy + radius * np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]]) * 0.8
-        return clear and bool(np.all(self.world.terrain.class_at(probe) == class_id("asphalt")))
+    def free(self, xy: np.ndarray, yaw: float, size: np.ndarray, ignore: int) -> bool:
+        """Whether a footprint of `size` (length, width metres) turned `yaw` radians at `xy` (world frame)
+        stands on asphalt and, grown by `MARGIN` metres, overlaps no other object's footprint. Rectangles, not
+        discs: a car fits the empty stall beside another, which discs around both would refuse."""
+        mine = _footprint(xy, yaw, size[:2] + 2 * MARGIN)
+        for other in self.objects:
+            if other.instance_id != ignore and _overlap(mine, _footprint(other.center[:2], other.yaw, other.size[:2])):
+                return False
+        probe = np.vstack([xy, _footprint(xy, yaw, size[:2])])
+        return bool(np.all(self.world.terrain.class_at(probe) == class_id("asphalt")))
 
-    def move(self, car: ObjectBox, distance: tuple[float, float]) -> dict[str, Any] | None:
-        """Move `car` along its length by a distance drawn in `distance` (metres), if it lands free."""
-        step = self.rng.uniform(*distance)
-        radius = float(np.hypot(*car.size[:2]) / 2)
-        for sign in (1.0, -1.0) if self.rng.random() < 0.5 else (-1.0, 1.0):
-            offset = sign * step * np.array([np.cos(car.yaw), np.sin(car.yaw)])
-            if self.free(car.center[:2] + offset, radius, car.instance_id):
-                break
-        else:
-            return None
+    def move(self, car: ObjectBox, distance: tuple[float, float], tries: int = 6) -> dict[str, Any] | None:
+        """Move `car` by a distance drawn in `distance` (metres) along its length, or, where a full row leaves
+        no room ahead or behind, across it (into a free stall of its row or another), if it lands free."""
+        along = np.array([np.cos(car.yaw), np.sin(car.yaw)])
+        across = np.array([-along[1], along[0]])
+        for _ in range(tries):
+            step = self.rng.uniform(*distance)
+            signs = (1.0, -1.0) if self.rng.random() < 0.5 else (-1.0, 1.0)
+            for offset in [sign * step * axis for axis in (along, across) for sign in signs]:
+                if self.free(car.center[:2] + offset, car.yaw, car.size, car.instance_id):
+                    return self._shift(car, offset)
+        return None
+
+    def _shift(self, car: ObjectBox, offset: np.ndarray) -> dict[str, Any]:
+        """Move `car`'s shapes by `offset` (x, y metres), onto the ground there."""
         rows = self.rows[5] == car.instance_id
         ground = self.world.ground
         dz = float(ground.height(car.center[None, :2] + offset)[0] - ground.height(car.center[None, :2])[0])
@@ -160,12 +169,11 @@ class _Edit:
             return None
         route = cKDTree(self.world.route)
         x0, y0, x1, y1 = self.world.extent
-        radius = float(np.hypot(*car.size[:2]) / 2)
         for _ in range(tries):
             xy = self.rng.uniform([x0, y0], [x1, y1])
-            if route.query(xy)[0] > 20.0 or not self.free(xy, radius, -1):
-                continue
             turn = float(self.rng.integers(4)) * np.pi / 2
+            if route.query(xy)[0] > 20.0 or not self.free(xy, car.yaw + turn, car.size, -1):
+                continue
             return self._place_copy(car, xy, turn)
         return None
 
@@ -185,6 +193,26 @@ class _Edit:
         new = ObjectBox(iid, car.class_id, car.class_name, np.array([xy[0], xy[1], z]), car.size.copy(), car.yaw + turn)
         self.objects.append(new)
         return _change("added", new, None, new.center)
+
+
+MARGIN = 0.3  # metres kept clear around a moved or added car (doors, a parking manoeuvre)
+
+
+def _footprint(xy: np.ndarray, yaw: float, size: np.ndarray) -> np.ndarray:
+    """(4, 2) corners (world frame, metres) of a `size` = (length, width) rectangle centred at `xy`, turned
+    `yaw` radians."""
+    half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * np.asarray(size[:2], np.float64) / 2
+    return half @ yaw_rotation(yaw)[:2, :2].T + xy
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two convex polygons (K, 2) overlap: no edge normal of either separates them."""
+    for poly in (a, b):
+        for normal in (np.roll(poly, -1, axis=0) - poly) @ np.array([[0.0, -1.0], [1.0, 0.0]]):
+            pa, pb = a @ normal, b @ normal
+            if pa.max() <= pb.min() or pb.max() <= pa.min():
+                return False
+    return True
 
 
 def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.ndarray | None) -> dict[str, Any]:
