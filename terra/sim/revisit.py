@@ -1,10 +1,9 @@
 """A second visit of a simulated world (issue 26): the same site driven again, on the route reversed from
 another start, its poses reported in another frame, after known changes.
 
-Changes, drawn from `RevisitConfig.seed`: cars moved along their own length or across it into a free stall
-(by 3 to 6 m), cars removed,
-cars added (a copy of a parked car on free asphalt near the route), benches removed, and square patches of
-lawn turned to dirt. `revisit_world` returns the changed world and the ground truth of what changed, in the
+Changes, drawn from `RevisitConfig.seed` near the route the revisit drives (it cannot see the rest): cars
+moved along their own length or across it into a free stall (by 3 to 6 m), cars removed, cars added (a copy
+of a parked car on free asphalt near the route), benches removed, and square patches of lawn turned to dirt. `revisit_world` returns the changed world and the ground truth of what changed, in the
 first visit's map frame (the world frame): objects by instance id with their old and new centres, terrain
 patches with their polygon and area. The revisit's frames report T_session_lidar = T_session_world @
 T_world_lidar, where T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what
@@ -25,6 +24,9 @@ from terra.sim.classes import class_id
 from terra.sim.config import RevisitConfig
 from terra.sim.primitives import Primitives
 from terra.sim.world import TerrainGrid, World
+
+
+SEEN_RADIUS_M = 15.0  # a car or bench changed within this of the revisit's route: its LiDAR sees it
 
 
 @dataclass
@@ -57,10 +59,11 @@ def session_pose(config: RevisitConfig) -> np.ndarray:
 def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTruth]:
     """`world` after the changes of `config`, driven on its route reversed from `config.start_fraction`."""
     rng = np.random.default_rng([int(config.seed), world.seed, 26])
-    edit = _Edit(world, rng)
+    route = rerouted(world.route, config.start_fraction)
+    edit = _Edit(world, rng, route)
     truth = RevisitTruth(session_pose(config))
     cars = [o for o in world.objects if o.class_name == "car"]
-    order = [cars[int(i)] for i in rng.permutation(len(cars))]
+    order = [c for c in (cars[int(i)] for i in rng.permutation(len(cars))) if edit.near(c.center)]
     untouched = []
     for car in order:  # cars with no free place ahead or behind stay where they are
         moved = edit.move(car, config.move_distance) if len(truth.objects) < config.cars_moved else None
@@ -75,8 +78,9 @@ def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTr
         if added is not None:
             truth.objects.append(added)
     benches = [o for o in world.objects if o.class_name == "bench"]
-    for i in rng.permutation(len(benches))[: config.benches_removed]:
-        truth.objects.append(edit.remove(benches[int(i)]))
+    near_benches = [b for b in (benches[int(i)] for i in rng.permutation(len(benches))) if edit.near(b.center)]
+    for bench in near_benches[: config.benches_removed]:
+        truth.objects.append(edit.remove(bench))
     terrain = TerrainGrid(world.terrain.classes.copy(), world.terrain.origin, world.terrain.resolution)
     for _ in range(config.lawns_to_dirt):
         patch = _lawn_patch(terrain, edit, rng, config.patch_size)
@@ -88,7 +92,7 @@ def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTr
         terrain=terrain,
         prims=edit.primitives(),
         objects=edit.objects,
-        route=rerouted(world.route, config.start_fraction),
+        route=route,
         _tree=None,
         _raster_height=None,
     )
@@ -110,8 +114,9 @@ def rerouted(route: np.ndarray, start_fraction: float) -> np.ndarray:
 class _Edit:
     """The world's shapes and objects as they are edited (shape rows kept, moved or dropped per instance)."""
 
-    def __init__(self, world: World, rng: np.random.Generator):
+    def __init__(self, world: World, rng: np.random.Generator, route: np.ndarray):
         self.world, self.rng = world, rng
+        self.route = cKDTree(route)  # the revisit's own route: a change elsewhere it would never see
         p = world.prims
         self.rows = [p.kind, p.center.copy(), p.half, p.yaw.copy(), p.class_id, p.instance_id.copy(), p.color]
         self.keep = np.ones(len(p), dtype=bool)
@@ -122,6 +127,10 @@ class _Edit:
     def primitives(self) -> Primitives:
         columns = [np.concatenate([c[self.keep], *[e[i] for e in self.extra]]) for i, c in enumerate(self.rows)]
         return Primitives(*columns)
+
+    def near(self, xy: np.ndarray, radius: float = SEEN_RADIUS_M) -> bool:
+        """Whether `xy` (world frame, metres) lies within `radius` of the revisit's route."""
+        return bool(self.route.query(np.asarray(xy, np.float64)[:2])[0] <= radius)
 
     def free(self, xy: np.ndarray, yaw: float, size: np.ndarray, ignore: int) -> bool:
         """Whether a footprint of `size` (length, width metres) turned `yaw` radians at `xy` (world frame)
@@ -164,15 +173,15 @@ class _Edit:
 
     def add_copy(self, car: ObjectBox | None, tries: int = 400) -> dict[str, Any] | None:
         """A copy of `car` parked, turned a random multiple of 90 degrees, on free asphalt within 20 m of the
-        route (so the revisit sees it)."""
+        revisit's route (so the revisit sees it) and clear of it by a metre (not driven through)."""
         if car is None:
             return None
-        route = cKDTree(self.world.route)
         x0, y0, x1, y1 = self.world.extent
         for _ in range(tries):
             xy = self.rng.uniform([x0, y0], [x1, y1])
             turn = float(self.rng.integers(4)) * np.pi / 2
-            if route.query(xy)[0] > 20.0 or not self.free(xy, car.yaw + turn, car.size, -1):
+            clear_of_route = not self.near(xy, float(np.hypot(*car.size[:2])) / 2 + 1.0)  # not driven through
+            if not self.near(xy, 20.0) or not clear_of_route or not self.free(xy, car.yaw + turn, car.size, -1):
                 continue
             return self._place_copy(car, xy, turn)
         return None
@@ -228,11 +237,10 @@ def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.nd
 
 
 def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, size: float) -> dict[str, Any] | None:
-    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the route) to dirt."""
+    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the revisit's route) to dirt."""
     res = terrain.resolution
     cells = max(int(round(size / res)), 1)
     grass, dirt = class_id("grass"), class_id("dirt")
-    route = cKDTree(edit.world.route)
     centres = np.array([o.center[:2] for o in edit.objects]) if edit.objects else np.zeros((0, 2))
     h, w = terrain.classes.shape
     for _ in range(400):
@@ -240,7 +248,7 @@ def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, siz
         block = terrain.classes[r : r + cells, c : c + cells]
         x0, y0 = terrain.origin + np.array([c, r]) * res
         middle = np.array([x0, y0]) + cells * res / 2
-        if not np.all(block == grass) or route.query(middle)[0] > 8.0:
+        if not np.all(block == grass) or not edit.near(middle, 8.0):
             continue
         if centres.size and np.any(np.linalg.norm(centres - middle, axis=1) < cells * res):
             continue
