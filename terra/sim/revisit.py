@@ -3,11 +3,12 @@ another start, its poses reported in another frame, after known changes.
 
 Changes, drawn from `RevisitConfig.seed` near the route the revisit drives (it cannot see the rest): cars
 moved along their own length or across it into a free stall (by 3 to 6 m), cars removed, cars added (a copy
-of a parked car on free asphalt near the route), benches removed, and square patches of lawn turned to dirt. `revisit_world` returns the changed world and the ground truth of what changed, in the
-first visit's map frame (the world frame): objects by instance id with their old and new centres, terrain
-patches with their polygon and area. The revisit's frames report T_session_lidar = T_session_world @
-T_world_lidar, where T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what
-`terra sim --revisit` writes as revisit.json.
+of a parked car on free asphalt near the route), benches removed, and square patches of lawn turned to dirt.
+`revisit_world` returns the changed world and the ground truth of what changed, in the first visit's map
+frame (the world frame): objects by instance id with their old and new centres, terrain patches with their
+polygon and area. The revisit's frames report T_session_lidar = T_session_world @ T_world_lidar, where
+T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what `terra sim --revisit` writes as
+revisit.json.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from terra.sim.classes import class_id
 from terra.sim.config import RevisitConfig
 from terra.sim.primitives import Primitives
 from terra.sim.world import TerrainGrid, World
-
 
 SEEN_RADIUS_M = 15.0  # a car or bench changed within this of the revisit's route: its LiDAR sees it
 
@@ -237,7 +237,8 @@ def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.nd
 
 
 def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, size: float) -> dict[str, Any] | None:
-    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the revisit's route) to dirt."""
+    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the revisit's route)
+    to dirt."""
     res = terrain.resolution
     cells = max(int(round(size / res)), 1)
     grass, dirt = class_id("grass"), class_id("dirt")
