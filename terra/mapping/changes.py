@@ -12,6 +12,7 @@ is removed when the second session's returns show its place empty, judged from p
 clusters (an object seen from another side makes another cluster around the same volume):
 - the second session returned from at least `observed_fraction` of the footprint's cells (its rays got
   there: what it did not see has not changed);
+- the cluster is at least `min_width` wide each way (not a sliver: a car's face seen apart from its body);
 - the object stands on the ground (its bottom at most `max_float` above the terrain points around it, and
   some there: not a roof's edge), and it has at least `min_points` returns in its volume (the footprint
   grown by a cell, from `lift` above the ground to its top; a crosswalk's paint has none);
@@ -20,8 +21,10 @@ clusters (an object seen from another side makes another cluster around the same
   still counts as seeing what stands); or, where the second session looked as closely (`close_share` as
   many cells), it returned only from below the volume in `emptied_share` of the footprint cells the object
   filled (an object moved by less than its length, its new place covering part of the old one).
-An added cluster of the second session, likewise the other way round. A removed and an added cluster with
-the same most-observed bank entry within `move_radius` are one object moved (greedy, nearest first).
+An added cluster of the second session, likewise the other way round. Two removed (or added) clusters of
+one bank entry within `piece_gap` that together fit `piece_extent` are pieces of one object. A removed and
+an added cluster with the same most-observed bank entry within `move_radius` are one object moved (greedy,
+nearest first).
 
 Terrain: per `terrain_cell` cell, the class with the most votes of each session, over the points both
 sessions voted on at least `min_votes` times; cells whose class differs, each with at least `clear_share` of
@@ -31,6 +34,7 @@ its session's votes (not a border between two terrains), are changes, summed as 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from itertools import combinations
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +62,9 @@ class ChangeSettings:
     max_float: float = 1.0
     close_share: float = 0.8
     emptied_share: float = 0.5
+    min_width: float = 0.3
+    piece_gap: float = 2.5
+    piece_extent: tuple[float, float] = (6.0, 3.0)
     move_radius: float = 10.0
     terrain_cell: float = 1.0
     min_votes: int = 2
@@ -315,6 +322,7 @@ def _object_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) -
     after = _clusters(data, np.flatnonzero(object_rows & (data.hits[:, b] > 0)), settings)
     removed = [c for c in before if _gone(c, data.points, index[0], index[1], ground, settings)]
     added = [c for c in after if _gone(c, data.points, index[1], index[0], ground, settings)]
+    removed, added = _join_pieces(removed, data.points, settings), _join_pieces(added, data.points, settings)
     moved, removed, added = _pair_moves(removed, added, settings)
     changes = [_change("moved", old, new) for old, new in moved]
     changes += [_change("removed", c, None) for c in removed] + [_change("added", None, c) for c in added]
@@ -330,8 +338,8 @@ def _gone(
     object's volume (from `lift` above the ground to the object's top) as of the cluster's own session's.
     Shares of each session's own returns, so a session that passed far off (fewer returns) still counts as
     seeing what stands; points, not cluster shapes, so an object seen from another side is still there."""
-    if np.isin(cluster.cells, other.keys).mean() < s.observed_fraction:
-        return False
+    if np.isin(cluster.cells, other.keys).mean() < s.observed_fraction or min(cluster.size[:2]) < s.min_width:
+        return False  # not seen there, or a sliver (a car's face seen edge on, apart from its body)
     around = _dilate(cluster.cells)
     floor = points[ground.rows_in(around), 2]
     # No ground around it, or ground well below it: a part of something taller (a roof's edge), not a
@@ -376,6 +384,41 @@ def _emptied(
     looked = np.intersect1d(full_own, seen_other, assume_unique=True)
     empty = np.setdiff1d(looked, full_other, assume_unique=True)
     return empty.size >= s.emptied_share * full_own.size
+
+
+def _join_pieces(clusters: list[_Cluster], points: np.ndarray, s: ChangeSettings) -> list[_Cluster]:
+    """`clusters` (all gone) with pieces of one object joined: two of one bank entry whose footprints lie
+    within `piece_gap` metres and whose points together still fit an object (`piece_extent`: at most that
+    long and wide along their main axes), as a car seen in two parts, its middle hidden. Two cars parked
+    side by side or end to end together are wider or longer than that."""
+    out = list(clusters)
+    joined = True
+    while joined:
+        joined = False
+        for i, j in combinations(range(len(out)), 2):
+            a, b = out[i], out[j]
+            if a.entry != b.entry:
+                continue
+            gap = cKDTree(_unkey(a.cells) * s.cell).query(_unkey(b.cells) * s.cell)[0]
+            rows = np.concatenate([a.rows, b.rows])
+            if np.min(gap) > s.piece_gap or not _fits(points[rows, :2], s.piece_extent):
+                continue
+            xyz = points[rows]
+            low, high = xyz.min(axis=0), xyz.max(axis=0)
+            cells = np.union1d(a.cells, b.cells)
+            out[i] = _Cluster(rows, xyz.mean(axis=0), high - low, a.entry, cells, float(low[2]), float(high[2]))
+            del out[j]
+            joined = True
+            break
+    return out
+
+
+def _fits(xy: np.ndarray, extent: tuple[float, float]) -> bool:
+    """Whether points `xy` (M, 2) metres span at most `extent` (length, width) along their principal axes."""
+    centred = xy - xy.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    span = np.ptp(centred @ axes.T, axis=0)
+    return bool(span[0] <= extent[0] and span[1] <= extent[1])
 
 
 def _pair_moves(
