@@ -204,7 +204,7 @@ class _Edit:
         return _change("added", new, None, new.center)
 
 
-MARGIN = 0.3  # metres kept clear around a moved or added car (doors, a parking manoeuvre)
+MARGIN = 0.45  # metres kept clear around a moved or added car: the 0.9 m gap of a parking row (doors)
 
 
 def _footprint(xy: np.ndarray, yaw: float, size: np.ndarray) -> np.ndarray:
