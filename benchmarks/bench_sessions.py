@@ -93,7 +93,25 @@ def _changes(out: Path, truth: dict) -> dict:
         result["precision"] = float(np.mean(distance.min(axis=1) < 1.5))
         result["recall"] = float(np.mean(distance.min(axis=0) < 1.5))
     result["changes_per_10000_m2"] = len(found["objects"]) / max(found["observed_area_m2"], 1.0) * 1e4
+    result["moves"] = _moves(found["objects"], truth["objects"])
+    result["named"] = sorted({str(c["name"]) for c in found["objects"]})
     return result
+
+
+def _moves(found: list[dict], true: list[dict]) -> list[dict]:
+    """Each true move and the move found from within 1.5 m of where it was to within 1.5 m of where it is
+    (its distance, metres), if any."""
+    out = []
+    for move in (c for c in true if c["change"] == "moved"):
+        match = [
+            c["distance"]
+            for c in found
+            if c["change"] == "moved"
+            and np.linalg.norm(np.subtract(c["before"][:2], move["from"][:2])) < 1.5
+            and np.linalg.norm(np.subtract(c["after"][:2], move["to"][:2])) < 1.5
+        ]
+        out.append({"true_m": move["distance"], "found_m": match[0] if match else None})
+    return out
 
 
 def _truth(visit) -> dict:
