@@ -28,7 +28,8 @@ nearest first).
 
 Terrain: per `terrain_cell` cell, the class with the most votes of each session, over the points both
 sessions voted on at least `min_votes` times; cells whose class differs, each with at least `clear_share` of
-its session's votes (not a border between two terrains), are changes, summed as area per (before, after) pair.
+its session's votes (not a border between two terrains), in patches of at least `min_patch` cells of one pair
+(a lone cell is a border's wobble), are changes, summed as area per (before, after) pair.
 """
 
 from __future__ import annotations
@@ -69,6 +70,7 @@ class ChangeSettings:
     terrain_cell: float = 1.0
     min_votes: int = 2
     clear_share: float = 0.75
+    min_patch: int = 3
 
 
 @dataclass(frozen=True)
@@ -473,6 +475,7 @@ def _terrain_changes(
     clear_a = per_cell_a.max(axis=1) >= settings.clear_share * per_cell_a.sum(axis=1)
     clear_b = per_cell_b.max(axis=1) >= settings.clear_share * per_cell_b.sum(axis=1)
     changed = (class_a != class_b) & clear_a & clear_b  # a cell on a border between two terrains is neither
+    changed[changed] = _patches(cell_ij[changed], class_a[changed] * t + class_b[changed], settings.min_patch)
     pair_keys, areas = np.unique(class_a[changed] * t + class_b[changed], return_counts=True)
     names = data.terrain_classes
     out = [
@@ -482,3 +485,16 @@ def _terrain_changes(
     centres = (cell_ij[changed] + 0.5) * settings.terrain_cell
     pairs = [f"{names[i]} -> {names[j]}" for i, j in zip(class_a[changed], class_b[changed])]
     return sorted(out, key=lambda c: (-c.area_m2, c.before, c.after)), centres, pairs
+
+
+def _patches(ij: np.ndarray, pair: np.ndarray, min_cells: int) -> np.ndarray:
+    """(M,) whether each changed cell (indices `ij` (M, 2), its class pair `pair`) belongs to a patch of at
+    least `min_cells` cells of its pair touching at edges or corners: a lone cell is a border's wobble
+    between two visits' labels, not a lawn turned to dirt."""
+    if ij.shape[0] == 0 or min_cells <= 1:
+        return np.ones(ij.shape[0], dtype=bool)
+    pairs = cKDTree(ij.astype(np.float64)).query_pairs(1.5, output_type="ndarray")  # the 8 neighbours
+    pairs = pairs[pair[pairs[:, 0]] == pair[pairs[:, 1]]]
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(ij), len(ij)))
+    _, label = connected_components(graph, directed=False)
+    return np.bincount(label)[label] >= min_cells
