@@ -70,7 +70,11 @@ def test_an_added_car_is_found_the_other_way_round():
 
 def test_region_summary_counts_objects_and_sums_terrain_per_region():
     rows = summarise_regions(
-        ["R2", "R10", "R2"], ["added", "moved", "removed"], ["R2", "R2", "R3"], ["a -> b"] * 2 + ["b -> a"], [1, 1, 4]
+        ["R2", "R10", "R2"],
+        ["added", "moved", "removed"],
+        ["R2", "R2", "R3"],
+        ["a -> b"] * 2 + ["b -> a"],
+        np.array([1, 1, 4]),
     )
     assert [r.region for r in rows] == ["R2", "R3", "R10"]
     assert (rows[0].added, rows[0].removed, rows[0].moved, rows[0].terrain_m2) == (1, 1, 0, {"a -> b": 2.0})
