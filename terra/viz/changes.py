@@ -11,6 +11,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from terra.bundle import Bundle
+from terra.errors import TerraError
+from terra.fileio import writing
 from terra.mapping.changes import ChangesResult
 from terra.npy import ArraySpec
 from terra.viz.places import distinct_palette
@@ -30,8 +32,16 @@ def _extent(points: np.ndarray, result: ChangesResult) -> Extent | None:
     return view_extent(both) if both.shape[0] else None
 
 
+def check_figure_path(path: Path) -> None:
+    """TerraError (one line) unless `path` can name a PNG file: not a folder, in an existing folder, `.png`;
+    checked before the changes are computed, so a typo costs nothing."""
+    if path.suffix.lower() != ".png" or path.is_dir() or not path.parent.is_dir():
+        raise TerraError(f"--figure {path}: expected a PNG file name (.png) in an existing folder")
+
+
 def changes_figure(result: ChangesResult, path: Path) -> Path:
-    """Draw `result` over its bundle's map points and write the PNG to `path`."""
+    """Draw `result` over its bundle's map points and write the PNG to `path` (TerraError, one line, when
+    it cannot be written)."""
     bundle = Bundle(result.bundle)
     info = bundle.model.components.map
     n = int(info.points or 0) if info is not None else 0
@@ -69,4 +79,5 @@ def changes_figure(result: ChangesResult, path: Path) -> Path:
         count = sum(o.change == kind for o in result.objects)
         handles.append(Line2D([], [], color=colour, marker=marker, linestyle="", label=f"{kind} ({count})"))
     figure_legend(fig, handles, ncols=3)
-    return save_figure(fig, path)
+    with writing(path, "figure"):
+        return save_figure(fig, path)

@@ -93,6 +93,10 @@ def test_changes_per_region_and_figure(first_map, tmp_path, capsys):
     assert sum(sum(r["terrain_m2"].values()) for r in regions) == pytest.approx(terrain)
     assert run(["changes", str(out)]) == 0
     assert "per region:" in capsys.readouterr().out
+    for bad in (tmp_path / "changes.txt", tmp_path / "missing" / "changes.png", tmp_path):
+        assert run(["changes", str(out), "--figure", str(bad)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "expected a PNG file name" in err
 
 
 def test_a_revisit_without_changes_has_none(first_map, tmp_path):
