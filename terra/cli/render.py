@@ -141,7 +141,10 @@ def render_changes(result: ChangesResult) -> str:
             place += f"{change.distance:.2f} m"
         else:
             place = f"at ({where[0]:.1f}, {where[1]:.1f}) m"
-        what = f"{change.name} (bank entry {change.entry}" if change.name else f"object (bank entry {change.entry}"
+        if change.entry < 0:
+            what = "object (seen by LiDAR only"
+        else:
+            what = f"{change.name or 'object'} (bank entry {change.entry}"
         region = f" in {change.region}" if change.region else ""
         lines.append(f"    {change.change:8s} {what}, {size} m) {place}{region}")
     terrain = ", ".join(f"{t.before} -> {t.after} {t.area_m2:,.0f} m2" for t in result.terrain) or "no change"

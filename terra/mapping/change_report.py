@@ -61,7 +61,9 @@ def entry_names(bundle: Bundle, entries: set[int]) -> dict[int, str]:
         return {}
     bank = bundle.array("map/bank", ArraySpec(("float16", "float32"), (int(info.bank or 0), embedder_info.dim)))
     vectors = normalize_rows(np.asarray(embedder.embed_text(names), np.float32))
-    wanted = sorted(entries)
+    wanted = sorted(e for e in entries if e >= 0)  # -1: an object only the LiDAR saw, no entry to name
+    if not wanted:
+        return {}
     cosine = normalize_rows(np.asarray(bank, np.float32)[wanted]) @ vectors.T
     best = cosine.argmax(axis=1)
     return {e: names[int(b)] for e, b, c in zip(wanted, best, cosine.max(axis=1)) if c >= NAME_COSINE}

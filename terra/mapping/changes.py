@@ -5,11 +5,13 @@ It reads the fusion state a joined map keeps: LiDAR returns per point and sessio
 and terrain votes per session (`map/state/session_votes`), beside the object observations of every point
 (`map/counts_*`). Lengths in metres, positions in the map frame.
 
-Objects: the map's object points (more object observations than terrain votes) that session s returned from
-are grouped into clusters (points within `link` metres, at least `min_points`), per session, each with its
-footprint (the `cell` x-y cells of its points and inside their convex hull). A cluster of the first session
-is removed when the second session's returns show its place empty, judged from points, not from matching
-clusters (an object seen from another side makes another cluster around the same volume):
+Objects: the map's object points (more object observations than terrain votes), and the points no camera
+labelled that stand `standing` metres above the ground (a car only the LiDAR saw: without them its
+camera-labelled part alone is a partial car, off centre), that session s returned from are grouped into
+clusters (points within `link` metres, at least `min_points`), per session, each with its footprint (the
+`cell` x-y cells of its points and inside their convex hull). A cluster of the first session is removed when
+the second session's returns show its place empty, judged from points, not from matching clusters (an object
+seen from another side makes another cluster around the same volume):
 - the second session returned from at least `observed_fraction` of the footprint's cells (its rays got
   there: what it did not see has not changed);
 - the cluster is at least `min_width` wide each way (not a sliver: a car's face seen apart from its body);
@@ -64,6 +66,7 @@ class ChangeSettings:
     close_share: float = 0.8
     emptied_share: float = 0.5
     min_width: float = 0.3
+    standing: tuple[float, float] = (0.3, 2.5)
     piece_gap: float = 2.5
     piece_extent: tuple[float, float] = (6.0, 3.0)
     move_radius: float = 10.0
@@ -75,7 +78,8 @@ class ChangeSettings:
 
 @dataclass(frozen=True)
 class ObjectChange:
-    """An object `added`, `removed` or `moved`: its most-observed bank entry, its centre before and after
+    """An object `added`, `removed` or `moved`: its most-observed bank entry (-1, null in JSON, for an object
+    only the LiDAR saw), its centre before and after
     (x, y, z metres, map frame; None where it was not there), the distance moved (x, y metres), its size,
     the class name of its entry (None where the map cannot name it) and its region (None without a graph)."""
 
@@ -95,7 +99,7 @@ class ObjectChange:
         return {
             "change": self.change,
             "name": self.name,
-            "entry": self.entry,
+            "entry": None if self.entry < 0 else self.entry,
             "before": rounded(self.before),
             "after": rounded(self.after),
             "distance": None if self.distance is None else round(self.distance, 3),
@@ -281,7 +285,8 @@ def _clusters(data: _Sessions, rows: np.ndarray, settings: ChangeSettings) -> li
         if members.size < settings.min_points:
             continue
         mine = rows[members]
-        entry = int(np.asarray(data.counts[mine].sum(axis=0)).ravel().argmax())
+        observed = np.asarray(data.counts[mine].sum(axis=0)).ravel()
+        entry = int(observed.argmax()) if observed.any() else -1  # -1: seen by LiDAR only
         low, high = xyz[members].min(axis=0), xyz[members].max(axis=0)
         footprint = _footprint(xyz[members], settings.cell)
         out.append(
@@ -314,14 +319,35 @@ def _dilate(cells: np.ndarray) -> np.ndarray:
     return np.unique(_keys((ij[:, None, :] + steps[None]).reshape(-1, 2)))
 
 
+def _standing_unlabelled(data: _Sessions, terrain_rows: np.ndarray, s: ChangeSettings) -> np.ndarray:
+    """(N,) the points no camera labelled (no object observation, no terrain vote) that stand `standing`
+    metres (low, high) above the lowest terrain point of their `terrain_cell` cell: an object only the
+    LiDAR saw (a car beside the route, out of the cameras' view), at the height of cars and benches."""
+    unlabelled = (np.asarray(data.counts.sum(axis=1)).ravel() == 0) & (data.votes.sum(axis=(0, 2)) == 0)
+    out = np.zeros(len(data.points), dtype=bool)
+    if not terrain_rows.any() or not unlabelled.any():
+        return out
+    keys = _keys(np.floor(data.points[:, :2] / s.terrain_cell).astype(np.int64))
+    ground_keys, inverse = np.unique(keys[terrain_rows], return_inverse=True)
+    lowest = np.full(ground_keys.size, np.inf)
+    np.minimum.at(lowest, inverse.ravel(), data.points[terrain_rows, 2])
+    rows = np.flatnonzero(unlabelled)
+    at = np.clip(np.searchsorted(ground_keys, keys[rows]), 0, ground_keys.size - 1)
+    known = ground_keys[at] == keys[rows]
+    height = data.points[rows, 2] - np.where(known, lowest[at], np.inf)
+    out[rows] = known & (height >= s.standing[0]) & (height <= s.standing[1])
+    return out
+
+
 def _object_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) -> list[ObjectChange]:
     """Removed, added and moved objects from session a to session b (0-based columns)."""
     object_rows = np.asarray(data.counts.sum(axis=1)).ravel() > data.votes.sum(axis=(0, 2))
     terrain_rows = data.votes.sum(axis=(0, 2)) > np.asarray(data.counts.sum(axis=1)).ravel()
     ground = _CellIndex(data.points, np.flatnonzero(terrain_rows), settings.cell)
     index = [_CellIndex(data.points, np.flatnonzero(data.hits[:, k] > 0), settings.cell) for k in (a, b)]
-    before = _clusters(data, np.flatnonzero(object_rows & (data.hits[:, a] > 0)), settings)
-    after = _clusters(data, np.flatnonzero(object_rows & (data.hits[:, b] > 0)), settings)
+    candidates = object_rows | _standing_unlabelled(data, terrain_rows, settings)
+    before = _clusters(data, np.flatnonzero(candidates & (data.hits[:, a] > 0)), settings)
+    after = _clusters(data, np.flatnonzero(candidates & (data.hits[:, b] > 0)), settings)
     removed = [c for c in before if _gone(c, data.points, index[0], index[1], ground, settings)]
     added = [c for c in after if _gone(c, data.points, index[1], index[0], ground, settings)]
     removed, added = _join_pieces(removed, data.points, settings), _join_pieces(added, data.points, settings)

@@ -73,7 +73,11 @@ def changes_figure(result: ChangesResult, path: Path) -> Path:
             )
         ax.scatter([where[0]], [where[1]], s=60, marker=marker, color=colour, edgecolors="black", linewidths=0.5)
         ax.annotate(
-            change.name or f"entry {change.entry}", where[:2], fontsize=6, xytext=(4, 4), textcoords="offset points"
+            change.name or ("LiDAR only" if change.entry < 0 else f"entry {change.entry}"),
+            where[:2],
+            fontsize=6,
+            xytext=(4, 4),
+            textcoords="offset points",
         )
     for kind, (colour, marker) in KIND_STYLE.items():
         count = sum(o.change == kind for o in result.objects)

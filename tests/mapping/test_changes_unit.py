@@ -30,13 +30,15 @@ def scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return points, is_car, under
 
 
-def sessions(points: np.ndarray, is_car: np.ndarray, hits_1: np.ndarray, hits_2: np.ndarray) -> _Sessions:
-    """The arrays of a joined map: object observations on the car's points (bank entry 0), terrain votes
-    where each session returned from the ground."""
+def sessions(
+    points: np.ndarray, is_car: np.ndarray, hits_1: np.ndarray, hits_2: np.ndarray, labelled: bool = True
+) -> _Sessions:
+    """The arrays of a joined map: object observations on the car's points (bank entry 0; none when not
+    `labelled`: no camera saw it), terrain votes where each session returned from the ground."""
     hits = np.stack([hits_1, hits_2], axis=1).astype(np.int64) * 3
     votes = np.zeros((2, len(points), 1), np.int64)
     votes[:, ~is_car, 0] = hits[~is_car].T
-    counts = sp.csr_matrix((is_car * 3).astype(np.int64)[:, None])
+    counts = sp.csr_matrix((is_car * 3 * labelled).astype(np.int64)[:, None])
     return _Sessions(points, hits, votes, counts, ["asphalt"])
 
 
@@ -46,6 +48,14 @@ def test_a_car_whose_ground_the_second_session_saw_is_removed():
     (change,) = _object_changes(data, 0, 1, ChangeSettings())
     assert change.change == "removed" and change.entry == 0
     assert np.allclose(change.before[:2], (10.2, 9.9), atol=0.3)  # pyright: ignore[reportOptionalSubscript]
+
+
+def test_a_car_only_the_lidar_saw_is_judged_too():
+    points, is_car, under = scene()
+    (change,) = _object_changes(sessions(points, is_car, ~under, ~is_car, labelled=False), 0, 1, ChangeSettings())
+    assert change.change == "removed" and change.entry == -1 and change.to_json()["entry"] is None
+    far = ~is_car & (points[:, 0] < 4.0)
+    assert _object_changes(sessions(points, is_car, ~under, far, labelled=False), 0, 1, ChangeSettings()) == []
 
 
 def test_not_seen_is_not_gone():
