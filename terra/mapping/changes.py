@@ -9,9 +9,9 @@ Objects: the map's object points (more object observations than terrain votes), 
 labelled that stand `standing` metres above the ground (a car only the LiDAR saw: without them its
 camera-labelled part alone is a partial car, off centre), that session s returned from are grouped into
 clusters (points within `link` metres, at least `min_points`), per session, each with its footprint (the
-`cell` x-y cells of its points and inside their convex hull). A cluster of the first session is removed when
-the second session's returns show its place empty, judged from points, not from matching clusters (an object
-seen from another side makes another cluster around the same volume):
+`cell` x-y cells of its points and between them along rows and columns). A cluster of the first session is
+removed when the second session's returns show its place empty, judged from points, not from matching
+clusters (an object seen from another side makes another cluster around the same volume):
 - the second session returned from at least `observed_fraction` of the footprint's cells (its rays got
   there: what it did not see has not changed);
 - the cluster is at least `min_width` wide each way (not a sliver: a car's face seen apart from its body);
@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import Delaunay, QhullError, cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
@@ -261,6 +261,11 @@ class _CellIndex:
         order = np.argsort(keys, kind="stable")
         self.keys, self.rows = keys[order], rows[order]
 
+    def has(self, cells: np.ndarray) -> np.ndarray:
+        """(M,) whether any point lies in each of `cells` (a binary search: the keys are sorted)."""
+        at = np.minimum(np.searchsorted(self.keys, cells), max(self.keys.size - 1, 0))
+        return self.keys[at] == cells if self.keys.size else np.zeros(cells.size, dtype=bool)
+
     def rows_in(self, cells: np.ndarray) -> np.ndarray:
         """Rows of the points in any of `cells` (sorted unique keys)."""
         left = np.searchsorted(self.keys, cells, side="left")
@@ -296,20 +301,23 @@ def _clusters(data: _Sessions, rows: np.ndarray, settings: ChangeSettings) -> li
 
 
 def _footprint(xyz: np.ndarray, cell: float) -> np.ndarray:
-    """Sorted keys of the x-y cells where an object stood: its points' cells and the cells inside their
-    convex hull (a car's LiDAR points cover its roof and sides, not the ground under it)."""
+    """Sorted keys of the x-y cells where an object stood: its points' cells and the cells between them
+    along both the rows and the columns of the grid (a car's LiDAR points cover its roof and sides, not the
+    ground under it). Spans, not a convex hull: exact on a grid and cheap for a building-sized cluster."""
     cells = _cells(xyz, cell)
     ij = _unkey(cells)
-    low, high = ij.min(axis=0), ij.max(axis=0)
-    if np.any(high - low < 1):  # a footprint one cell wide has nothing inside
-        return cells
-    gi, gj = np.meshgrid(np.arange(low[0], high[0] + 1), np.arange(low[1], high[1] + 1), indexing="ij")
-    grid = np.stack([gi.ravel(), gj.ravel()], axis=1)
-    try:
-        inside = Delaunay(xyz[:, :2] / cell).find_simplex(grid + 0.5) >= 0
-    except QhullError:  # points on one line: no hull
-        return cells
-    return np.union1d(cells, _keys(grid[inside]))
+    low = ij.min(axis=0)
+    local = ij - low
+    shape = local.max(axis=0) + 1
+    first = [np.full(shape[k], np.iinfo(np.int64).max) for k in (0, 1)]
+    last = [np.full(shape[k], -1) for k in (0, 1)]
+    for k in (0, 1):  # per row (k = 0) and per column (k = 1): the first and last cell taken
+        np.minimum.at(first[k], local[:, k], local[:, 1 - k])
+        np.maximum.at(last[k], local[:, k], local[:, 1 - k])
+    gi, gj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    inside = (gj >= first[0][gi]) & (gj <= last[0][gi]) & (gi >= first[1][gj]) & (gi <= last[1][gj])
+    grid = np.stack([gi[inside], gj[inside]], axis=1) + low
+    return np.union1d(cells, _keys(grid))
 
 
 def _dilate(cells: np.ndarray) -> np.ndarray:
@@ -366,7 +374,7 @@ def _gone(
     object's volume (from `lift` above the ground to the object's top) as of the cluster's own session's.
     Shares of each session's own returns, so a session that passed far off (fewer returns) still counts as
     seeing what stands; points, not cluster shapes, so an object seen from another side is still there."""
-    if np.isin(cluster.cells, other.keys).mean() < s.observed_fraction or min(cluster.size[:2]) < s.min_width:
+    if other.has(cluster.cells).mean() < s.observed_fraction or min(cluster.size[:2]) < s.min_width:
         return False  # not seen there, or a sliver (a car's face seen edge on, apart from its body)
     around = _dilate(cluster.cells)
     floor = points[ground.rows_in(around), 2]
