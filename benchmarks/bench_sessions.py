@@ -12,7 +12,11 @@ the joined map over the first map's, object changes against the simulator's list
 object was or is, matched within 1.5 m: precision and recall), false object changes per 10,000 m^2 of
 area both visits observed on the revisit without changes, and terrain area changed there.
 
-Usage: python benchmarks/bench_sessions.py --preset small
+Usage: python benchmarks/bench_sessions.py --preset small [--work DIR]
+
+With `--work DIR` the maps are kept in DIR with what each step measured (DIR/steps.json), and a later run
+with the same DIR reuses every map already there (delete one to make it again), so that change detection
+can be measured again in seconds.
 """
 
 from __future__ import annotations
@@ -62,6 +66,19 @@ def _join(first: Path, out: Path, visit, prior) -> dict:
     }
 
 
+def _step(work: Path, name: str, make) -> dict:
+    """What `make()` measured, or what it measured in an earlier run with the same `--work` folder (the
+    bundle `name` and its record both there)."""
+    record_file = work / "steps.json"
+    records = json.loads(record_file.read_text()) if record_file.exists() else {}
+    if name in records and (work / f"{name}.terra").exists():
+        return records[name]
+    shutil.rmtree(work / f"{name}.terra", ignore_errors=True)  # a run stopped half way
+    records[name] = make()
+    record_file.write_text(json.dumps(records, indent=1, sort_keys=True) + "\n")
+    return records[name]
+
+
 def _changes(out: Path, truth: dict) -> dict:
     """Object changes found against the simulator's, as locations matched within 1.5 m."""
     from terra.mapping.changes import detect_changes
@@ -76,7 +93,25 @@ def _changes(out: Path, truth: dict) -> dict:
         result["precision"] = float(np.mean(distance.min(axis=1) < 1.5))
         result["recall"] = float(np.mean(distance.min(axis=0) < 1.5))
     result["changes_per_10000_m2"] = len(found["objects"]) / max(found["observed_area_m2"], 1.0) * 1e4
+    result["moves"] = _moves(found["objects"], truth["objects"])
+    result["named"] = sorted({str(c["name"]) for c in found["objects"]})
     return result
+
+
+def _moves(found: list[dict], true: list[dict]) -> list[dict]:
+    """Each true move and the move found from within 1.5 m of where it was to within 1.5 m of where it is
+    (its distance, metres), if any."""
+    out = []
+    for move in (c for c in true if c["change"] == "moved"):
+        match = [
+            c["distance"]
+            for c in found
+            if c["change"] == "moved"
+            and np.linalg.norm(np.subtract(c["before"][:2], move["from"][:2])) < 1.5
+            and np.linalg.norm(np.subtract(c["after"][:2], move["to"][:2])) < 1.5
+        ]
+        out.append({"true_m": move["distance"], "found_m": match[0] if match else None})
+    return out
 
 
 def _truth(visit) -> dict:
@@ -91,6 +126,8 @@ def main() -> None:
     parser.add_argument("--preset", default="small")
     parser.add_argument("--guess-error", type=float, nargs=2, default=(3.0, 8.0), metavar=("METRES", "DEGREES"))
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sessions.json")
+    parser.add_argument("--work", type=Path, help="keep the maps here and reuse those already made")
+    parser.add_argument("--skip-identity", action="store_true", help="no join from the identity (the slowest)")
     args = parser.parse_args()
 
     from terra.mapping.align import pose_from_guess
@@ -105,17 +142,26 @@ def main() -> None:
     guess = pose_from_guess(x + metres * 0.8, y - metres * 0.6, yaw + degrees)
     report: dict = {"preset": args.preset, "guess": [x + metres * 0.8, y - metres * 0.6, yaw + degrees]}
     with tempfile.TemporaryDirectory() as tmp:
-        first = Path(tmp) / "first.terra"
-        start = time.perf_counter()
-        run = run_mapping(simulate(args.preset, 0), MappingConfig(), first, show_progress=False)
-        report["first"] = {"seconds": time.perf_counter() - start, "points": run.counts.points}
+        work = args.work or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        first = work / "first.terra"
+
+        def first_map() -> dict:
+            start = time.perf_counter()
+            run = run_mapping(simulate(args.preset, 0), MappingConfig(), first, show_progress=False)
+            return {"seconds": time.perf_counter() - start, "points": run.counts.points}
+
+        report["first"] = _step(work, "first", first_map)
         changed = simulate(args.preset, 0, SimConfig(revisit=RevisitConfig()))
-        report["join_identity"] = _join(first, Path(tmp) / "identity.terra", changed, None)
-        report["join"] = _join(first, Path(tmp) / "changed.terra", changed, guess)
-        report["join"]["changes"] = _changes(Path(tmp) / "changed.terra", _truth(changed))
         same = simulate(args.preset, 0, SimConfig(revisit=none))
-        report["join_unchanged"] = _join(first, Path(tmp) / "same.terra", same, guess)
-        report["join_unchanged"]["changes"] = _changes(Path(tmp) / "same.terra", _truth(same))
+        report["join_unchanged"] = _step(work, "same", lambda: _join(first, work / "same.terra", same, guess))
+        report["join_unchanged"]["changes"] = _changes(work / "same.terra", _truth(same))
+        report["join"] = _step(work, "changed", lambda: _join(first, work / "changed.terra", changed, guess))
+        report["join"]["changes"] = _changes(work / "changed.terra", _truth(changed))
+        if not args.skip_identity:
+            report["join_identity"] = _step(
+                work, "identity", lambda: _join(first, work / "identity.terra", changed, None)
+            )
     for key in ("join", "join_unchanged"):
         report[key]["points_ratio"] = report[key]["points"] / report["first"]["points"]
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -16,6 +16,9 @@ def changes_command(
         (1, 2), "--between", help="The two sessions to compare (numbers as `terra info` lists them)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the changes as JSON."),
+    figure: Path | None = typer.Option(
+        None, "--figure", help="Also draw the changes over the map from above into this PNG file."
+    ),
 ) -> None:
     """What changed between two sessions of a map.
 
@@ -23,12 +26,23 @@ def changes_command(
     pair of classes), from the first session given to the second, judged only where both sessions
     observed: what the second session did not see has not changed.
 
-    Example: terra changes campus.terra --between 1 2 --json
+    Each object is named by its class where the map can name it, and with a scene graph in the
+    bundle (`terra build`) the changes are also summed per region.
+
+    Example: terra changes campus.terra --between 1 2 --json --figure changes.png
     """
     from terra.bundle import Bundle
     from terra.cli.render import render_changes, render_stage_json
     from terra.mapping.changes import detect_changes
 
     Bundle(bundle)  # one line for a folder that is not a bundle
+    if figure is not None:
+        from terra.viz.changes import check_figure_path
+
+        check_figure_path(figure)
     result = detect_changes(bundle, between[0], between[1])
+    if figure is not None:
+        from terra.viz.changes import changes_figure
+
+        changes_figure(result, figure)
     typer.echo(render_stage_json(result) if as_json else render_changes(result))

@@ -124,7 +124,8 @@ def session_line(session: dict, head: str = "") -> str:
 
 
 def render_changes(result: ChangesResult) -> str:
-    """What `terra changes` prints: the area both sessions observed, each object change, terrain per pair."""
+    """What `terra changes` prints: the area both sessions observed, each object change (its class where the
+    map names it), terrain per pair, and the changes per region of the scene graph."""
     counts = result.to_json()["counts"]
     lines = [
         f"changes from session {result.first} to session {result.second} in {result.bundle} "
@@ -140,9 +141,22 @@ def render_changes(result: ChangesResult) -> str:
             place += f"{change.distance:.2f} m"
         else:
             place = f"at ({where[0]:.1f}, {where[1]:.1f}) m"
-        lines.append(f"    {change.change:8s} object of bank entry {change.entry} ({size} m) {place}")
+        if change.entry < 0:
+            what = "object (seen by LiDAR only"
+        else:
+            what = f"{change.name or 'object'} (bank entry {change.entry}"
+        region = f" in {change.region}" if change.region else ""
+        lines.append(f"    {change.change:8s} {what}, {size} m) {place}{region}")
     terrain = ", ".join(f"{t.before} -> {t.after} {t.area_m2:,.0f} m2" for t in result.terrain) or "no change"
     lines.append(f"  terrain: {terrain}")
+    if result.regions is not None:
+        lines.append(f"  per region: {len(result.regions)} with changes" if result.regions else "  per region: none")
+    for region in result.regions or []:
+        area = ", ".join(f"{pair} {m2:,.0f} m2" for pair, m2 in sorted(region.terrain_m2.items()))
+        lines.append(
+            f"    {region.region}: {region.added} added, {region.removed} removed, {region.moved} moved"
+            + (f"; terrain {area}" if area else "")
+        )
     return "\n".join(lines)
 
 

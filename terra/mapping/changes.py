@@ -5,23 +5,39 @@ It reads the fusion state a joined map keeps: LiDAR returns per point and sessio
 and terrain votes per session (`map/state/session_votes`), beside the object observations of every point
 (`map/counts_*`). Lengths in metres, positions in the map frame.
 
-Objects: the map's object points (more object observations than terrain votes) that session s returned from
-are grouped into clusters (points within `link` metres, at least `min_points`), per session. A cluster of the
-first session with a cluster of the second within `same_distance` (centroids, x and y) or sharing half its
-footprint cells is the same object. An unmatched cluster of the first session is removed when the second
-session observed where it stood (returns in at least `observed_fraction` of the inner cells of its footprint,
-or, for a footprint too thin to have inner cells, `thin_observed_fraction` of all) and returned from few of
-its points; an added cluster of the second, likewise the other way round. A removed and an added cluster
-with the same most-observed bank entry within `move_radius` are one object moved (greedy, nearest first).
+Objects: the map's object points (more object observations than terrain votes), and the points no camera
+labelled that stand `standing` metres above the ground (a car only the LiDAR saw: without them its
+camera-labelled part alone is a partial car, off centre), that session s returned from are grouped into
+clusters (points within `link` metres, at least `min_points`), per session, each with its footprint (the
+`cell` x-y cells of its points and between them along rows and columns). A cluster of the first session is
+removed when the second session's returns show its place empty, judged from points, not from matching
+clusters (an object seen from another side makes another cluster around the same volume):
+- the second session returned from at least `observed_fraction` of the footprint's cells (its rays got
+  there: what it did not see has not changed);
+- the cluster is at least `min_width` wide each way (not a sliver: a car's face seen apart from its body);
+- the object stands on the ground (its bottom at most `max_float` above the terrain points around it, and
+  some there: not a roof's edge), and it has at least `min_points` returns in its volume (the footprint
+  grown by a cell, from `lift` above the ground to its top; a crosswalk's paint has none);
+- of the second session's returns around the footprint, a share at most `present_share` times the first
+  session's share lies in that volume (shares, so a session that passed farther off, with fewer returns,
+  still counts as seeing what stands); or, where the second session looked as closely (`close_share` as
+  many cells), it returned only from below the volume in `emptied_share` of the footprint cells the object
+  filled (an object moved by less than its length, its new place covering part of the old one).
+An added cluster of the second session, likewise the other way round. Two removed (or added) clusters of
+one bank entry within `piece_gap` that together fit `piece_extent` are pieces of one object. A removed and
+an added cluster with the same most-observed bank entry within `move_radius` are one object moved (greedy,
+nearest first).
 
 Terrain: per `terrain_cell` cell, the class with the most votes of each session, over the points both
 sessions voted on at least `min_votes` times; cells whose class differs, each with at least `clear_share` of
-its session's votes (not a border between two terrains), are changes, summed as area per (before, after) pair.
+its session's votes (not a border between two terrains), in patches of at least `min_patch` cells of one pair
+(a lone cell is a border's wobble), are changes, summed as area per (before, after) pair.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from itertools import combinations
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +48,7 @@ from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
+from terra.mapping.change_report import RegionChanges, entry_names, graph_regions, summarise_regions
 from terra.npy import ArraySpec
 
 
@@ -42,19 +59,29 @@ class ChangeSettings:
     link: float = 0.6
     min_points: int = 12
     cell: float = 0.5
-    same_distance: float = 1.0
     observed_fraction: float = 0.5
-    thin_observed_fraction: float = 0.9
+    present_share: float = 0.3
+    lift: float = 0.25
+    max_float: float = 1.0
+    close_share: float = 0.8
+    emptied_share: float = 0.5
+    min_width: float = 0.3
+    standing: tuple[float, float] = (0.3, 2.5)
+    piece_gap: float = 2.5
+    piece_extent: tuple[float, float] = (6.0, 3.0)
     move_radius: float = 10.0
     terrain_cell: float = 1.0
     min_votes: int = 2
     clear_share: float = 0.75
+    min_patch: int = 3
 
 
 @dataclass(frozen=True)
 class ObjectChange:
-    """An object `added`, `removed` or `moved`: its most-observed bank entry, its centre before and after
-    (x, y, z metres, map frame; None where it was not there), the distance moved (x, y metres) and its size."""
+    """An object `added`, `removed` or `moved`: its most-observed bank entry (-1, null in JSON, for an object
+    only the LiDAR saw), its centre before and after
+    (x, y, z metres, map frame; None where it was not there), the distance moved (x, y metres), its size,
+    the class name of its entry (None where the map cannot name it) and its region (None without a graph)."""
 
     change: str
     entry: int
@@ -62,6 +89,8 @@ class ObjectChange:
     after: tuple[float, float, float] | None
     distance: float | None
     size: tuple[float, float, float]
+    name: str | None = None
+    region: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         def rounded(v):
@@ -69,11 +98,13 @@ class ObjectChange:
 
         return {
             "change": self.change,
-            "entry": self.entry,
+            "name": self.name,
+            "entry": None if self.entry < 0 else self.entry,
             "before": rounded(self.before),
             "after": rounded(self.after),
             "distance": None if self.distance is None else round(self.distance, 3),
             "size": rounded(self.size),
+            "region": self.region,
         }
 
 
@@ -92,7 +123,10 @@ class TerrainChange:
 @dataclass
 class ChangesResult:
     """`terra changes`: the bundle, the two sessions compared, the area both observed (m², x-y cells of
-    `ChangeSettings.cell`), object changes and terrain changes (largest area first)."""
+    `ChangeSettings.cell`), object changes, terrain changes (largest area first), the changes per region of
+    the scene graph (None without one), and the changed terrain cells for the figure: their centres
+    `terrain_cells` (M, 2) metres, map frame, each `terrain_cell_area` m², and their "before -> after"
+    pairs."""
 
     bundle: Path
     first: int
@@ -100,6 +134,10 @@ class ChangesResult:
     observed_area_m2: float
     objects: list[ObjectChange] = field(default_factory=list)
     terrain: list[TerrainChange] = field(default_factory=list)
+    regions: list[RegionChanges] | None = None
+    terrain_cells: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    terrain_pairs: list[str] = field(default_factory=list)
+    terrain_cell_area: float = 1.0
 
     def to_json(self) -> dict[str, Any]:
         counts = {kind: sum(o.change == kind for o in self.objects) for kind in ("added", "removed", "moved")}
@@ -110,6 +148,7 @@ class ChangesResult:
             "counts": counts,
             "objects": [o.to_json() for o in self.objects],
             "terrain": [t.to_json() for t in self.terrain],
+            "regions": None if self.regions is None else [r.to_json() for r in self.regions],
         }
 
 
@@ -130,20 +169,42 @@ class _Cluster:
     centre: np.ndarray
     size: np.ndarray
     entry: int
-    cells: np.ndarray  # sorted unique x-y cell keys
+    cells: np.ndarray  # sorted unique x-y cell keys of its footprint
+    bottom: float  # metres, its lowest and highest point
+    top: float
 
 
 def detect_changes(path: Path, first: int, second: int, settings: ChangeSettings | None = None) -> ChangesResult:
     """Changes from session `first` to session `second` (1-based) of the joined map in bundle `path`."""
     settings = settings or ChangeSettings()
-    data = _load(Bundle(path), first, second)
+    bundle = Bundle(path)
+    data = _load(bundle, first, second)
     a, b = first - 1, second - 1
     seen_a = _cells(data.points[data.hits[:, a] > 0], settings.cell)
     seen_b = _cells(data.points[data.hits[:, b] > 0], settings.cell)
     observed = np.intersect1d(seen_a, seen_b).size * settings.cell**2
-    objects = _object_changes(data, a, b, seen_a, seen_b, settings)
-    terrain = _terrain_changes(data, a, b, settings)
-    return ChangesResult(Path(path), first, second, float(observed), objects, terrain)
+    objects = _object_changes(data, a, b, settings)
+    terrain, cells, pairs = _terrain_changes(data, a, b, settings)
+    result = ChangesResult(Path(path), first, second, float(observed), objects, terrain)
+    result.terrain_cells, result.terrain_pairs, result.terrain_cell_area = cells, pairs, settings.terrain_cell**2
+    _describe(bundle, result)
+    return result
+
+
+def _describe(bundle: Bundle, result: ChangesResult) -> None:
+    """Name each changed object by its class and place it and the terrain cells in the graph's regions."""
+    names = entry_names(bundle, {o.entry for o in result.objects})
+    where = np.array([(o.after or o.before or (0.0, 0.0, 0.0))[:2] for o in result.objects]).reshape(-1, 2)
+    regions = graph_regions(bundle, np.vstack([where, result.terrain_cells]))
+    result.objects = [
+        replace(o, name=names.get(o.entry), region=None if regions is None else regions[i])
+        for i, o in enumerate(result.objects)
+    ]
+    if regions is not None:
+        n = len(result.objects)
+        areas = np.full(len(result.terrain_pairs), result.terrain_cell_area)
+        kinds = [o.change for o in result.objects]
+        result.regions = summarise_regions(regions[:n], kinds, regions[n:], result.terrain_pairs, areas)
 
 
 def _load(bundle: Bundle, first: int, second: int) -> _Sessions:
@@ -178,12 +239,46 @@ def _load(bundle: Bundle, first: int, second: int) -> _Sessions:
 
 def _cells(points: np.ndarray, cell: float) -> np.ndarray:
     """Sorted unique x-y cell keys of `points` (N, >= 2) metres."""
-    ij = np.floor(points[:, :2] / cell).astype(np.int64)
-    return np.unique((ij[:, 0] << 32) ^ (ij[:, 1] & 0xFFFFFFFF))
+    return np.unique(_keys(np.floor(points[:, :2] / cell).astype(np.int64)))
+
+
+def _keys(ij: np.ndarray) -> np.ndarray:
+    """One int64 key per x-y cell index pair (M, 2); the low half holds j as a signed 32-bit number."""
+    return (ij[:, 0] << 32) ^ (ij[:, 1] & 0xFFFFFFFF)
+
+
+def _unkey(keys: np.ndarray) -> np.ndarray:
+    """The (M, 2) cell index pairs of `keys`."""
+    j = (keys & 0xFFFFFFFF).astype(np.int64)
+    return np.stack([keys >> 32, np.where(j >= 1 << 31, j - (1 << 32), j)], axis=1)
+
+
+class _CellIndex:
+    """The rows of some map points by x-y cell, to read which of them lie in a footprint."""
+
+    def __init__(self, points: np.ndarray, rows: np.ndarray, cell: float):
+        keys = _keys(np.floor(points[rows, :2] / cell).astype(np.int64))
+        order = np.argsort(keys, kind="stable")
+        self.keys, self.rows = keys[order], rows[order]
+
+    def has(self, cells: np.ndarray) -> np.ndarray:
+        """(M,) whether any point lies in each of `cells` (a binary search: the keys are sorted)."""
+        at = np.minimum(np.searchsorted(self.keys, cells), max(self.keys.size - 1, 0))
+        return self.keys[at] == cells if self.keys.size else np.zeros(cells.size, dtype=bool)
+
+    def rows_in(self, cells: np.ndarray) -> np.ndarray:
+        """Rows of the points in any of `cells` (sorted unique keys)."""
+        left = np.searchsorted(self.keys, cells, side="left")
+        right = np.searchsorted(self.keys, cells, side="right")
+        lengths = right - left
+        if not lengths.sum():
+            return np.zeros(0, np.int64)
+        starts = np.repeat(left - np.cumsum(lengths) + lengths, lengths)
+        return self.rows[starts + np.arange(int(lengths.sum()))]
 
 
 def _clusters(data: _Sessions, rows: np.ndarray, settings: ChangeSettings) -> list[_Cluster]:
-    """Object clusters of the points `rows` (points within `link` metres joined)."""
+    """Object clusters of the points `rows` (points within `link` metres joined, at least `min_points`)."""
     if rows.size == 0:
         return []
     xyz = data.points[rows]
@@ -195,57 +290,171 @@ def _clusters(data: _Sessions, rows: np.ndarray, settings: ChangeSettings) -> li
         if members.size < settings.min_points:
             continue
         mine = rows[members]
-        entry = int(np.asarray(data.counts[mine].sum(axis=0)).ravel().argmax())
+        observed = np.asarray(data.counts[mine].sum(axis=0)).ravel()
+        entry = int(observed.argmax()) if observed.any() else -1  # -1: seen by LiDAR only
         low, high = xyz[members].min(axis=0), xyz[members].max(axis=0)
-        out.append(_Cluster(mine, xyz[members].mean(axis=0), high - low, entry, _cells(xyz[members], settings.cell)))
+        footprint = _footprint(xyz[members], settings.cell)
+        out.append(
+            _Cluster(mine, xyz[members].mean(axis=0), high - low, entry, footprint, float(low[2]), float(high[2]))
+        )
     return out
 
 
-def _object_changes(
-    data: _Sessions, a: int, b: int, seen_a: np.ndarray, seen_b: np.ndarray, settings: ChangeSettings
-) -> list[ObjectChange]:
+def _footprint(xyz: np.ndarray, cell: float) -> np.ndarray:
+    """Sorted keys of the x-y cells where an object stood: its points' cells and the cells between them
+    along both the rows and the columns of the grid (a car's LiDAR points cover its roof and sides, not the
+    ground under it). Spans, not a convex hull: exact on a grid and cheap for a building-sized cluster."""
+    cells = _cells(xyz, cell)
+    ij = _unkey(cells)
+    low = ij.min(axis=0)
+    local = ij - low
+    shape = local.max(axis=0) + 1
+    first = [np.full(shape[k], np.iinfo(np.int64).max) for k in (0, 1)]
+    last = [np.full(shape[k], -1) for k in (0, 1)]
+    for k in (0, 1):  # per row (k = 0) and per column (k = 1): the first and last cell taken
+        np.minimum.at(first[k], local[:, k], local[:, 1 - k])
+        np.maximum.at(last[k], local[:, k], local[:, 1 - k])
+    gi, gj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    inside = (gj >= first[0][gi]) & (gj <= last[0][gi]) & (gi >= first[1][gj]) & (gi <= last[1][gj])
+    grid = np.stack([gi[inside], gj[inside]], axis=1) + low
+    return np.union1d(cells, _keys(grid))
+
+
+def _dilate(cells: np.ndarray) -> np.ndarray:
+    """`cells` and their eight neighbours (sorted unique keys)."""
+    ij = _unkey(cells)
+    steps = np.array([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)])
+    return np.unique(_keys((ij[:, None, :] + steps[None]).reshape(-1, 2)))
+
+
+def _standing_unlabelled(data: _Sessions, terrain_rows: np.ndarray, s: ChangeSettings) -> np.ndarray:
+    """(N,) the points no camera labelled (no object observation, no terrain vote) that stand `standing`
+    metres (low, high) above the lowest terrain point of their `terrain_cell` cell: an object only the
+    LiDAR saw (a car beside the route, out of the cameras' view), at the height of cars and benches."""
+    unlabelled = (np.asarray(data.counts.sum(axis=1)).ravel() == 0) & (data.votes.sum(axis=(0, 2)) == 0)
+    out = np.zeros(len(data.points), dtype=bool)
+    if not terrain_rows.any() or not unlabelled.any():
+        return out
+    keys = _keys(np.floor(data.points[:, :2] / s.terrain_cell).astype(np.int64))
+    ground_keys, inverse = np.unique(keys[terrain_rows], return_inverse=True)
+    lowest = np.full(ground_keys.size, np.inf)
+    np.minimum.at(lowest, inverse.ravel(), data.points[terrain_rows, 2])
+    rows = np.flatnonzero(unlabelled)
+    at = np.clip(np.searchsorted(ground_keys, keys[rows]), 0, ground_keys.size - 1)
+    known = ground_keys[at] == keys[rows]
+    height = data.points[rows, 2] - np.where(known, lowest[at], np.inf)
+    out[rows] = known & (height >= s.standing[0]) & (height <= s.standing[1])
+    return out
+
+
+def _object_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) -> list[ObjectChange]:
     """Removed, added and moved objects from session a to session b (0-based columns)."""
     object_rows = np.asarray(data.counts.sum(axis=1)).ravel() > data.votes.sum(axis=(0, 2))
-    before = _clusters(data, np.flatnonzero(object_rows & (data.hits[:, a] > 0)), settings)
-    after = _clusters(data, np.flatnonzero(object_rows & (data.hits[:, b] > 0)), settings)
-    removed = [c for c in before if _gone(c, after, data.hits[:, b], seen_b, settings)]
-    added = [c for c in after if _gone(c, before, data.hits[:, a], seen_a, settings)]
+    terrain_rows = data.votes.sum(axis=(0, 2)) > np.asarray(data.counts.sum(axis=1)).ravel()
+    ground = _CellIndex(data.points, np.flatnonzero(terrain_rows), settings.cell)
+    index = [_CellIndex(data.points, np.flatnonzero(data.hits[:, k] > 0), settings.cell) for k in (a, b)]
+    candidates = object_rows | _standing_unlabelled(data, terrain_rows, settings)
+    before = _clusters(data, np.flatnonzero(candidates & (data.hits[:, a] > 0)), settings)
+    after = _clusters(data, np.flatnonzero(candidates & (data.hits[:, b] > 0)), settings)
+    removed = [c for c in before if _gone(c, data.points, index[0], index[1], ground, settings)]
+    added = [c for c in after if _gone(c, data.points, index[1], index[0], ground, settings)]
+    removed, added = _join_pieces(removed, data.points, settings), _join_pieces(added, data.points, settings)
     moved, removed, added = _pair_moves(removed, added, settings)
     changes = [_change("moved", old, new) for old, new in moved]
     changes += [_change("removed", c, None) for c in removed] + [_change("added", None, c) for c in added]
     return sorted(changes, key=lambda c: (c.change, c.before or c.after or ()))
 
 
-def _gone(cluster: _Cluster, others: list[_Cluster], hits: np.ndarray, seen: np.ndarray, s: ChangeSettings) -> bool:
-    """Whether the other session observed `cluster`'s place and saw no object there (no cluster matching it,
-    few returns from its points)."""
-    for other in others:
-        if np.linalg.norm((other.centre - cluster.centre)[:2]) < s.same_distance:
-            return False
-        shared = np.intersect1d(other.cells, cluster.cells, assume_unique=True).size
-        if shared >= 0.5 * min(other.cells.size, cluster.cells.size):
-            return False
-    if np.count_nonzero(hits[cluster.rows] > 0) >= 0.75 * cluster.rows.size:
+def _gone(
+    cluster: _Cluster, points: np.ndarray, own: _CellIndex, other: _CellIndex, ground: _CellIndex, s: ChangeSettings
+) -> bool:
+    """Whether the other session looked where `cluster` stood and found it empty: it returned from most of
+    the footprint's cells (its rays got there: a place it never saw has not changed), and of its returns
+    around the footprint (grown by a cell) at most `present_share` times as large a share lie in the
+    object's volume (from `lift` above the ground to the object's top) as of the cluster's own session's.
+    Shares of each session's own returns, so a session that passed far off (fewer returns) still counts as
+    seeing what stands; points, not cluster shapes, so an object seen from another side is still there."""
+    if other.has(cluster.cells).mean() < s.observed_fraction or min(cluster.size[:2]) < s.min_width:
+        return False  # not seen there, or a sliver (a car's face seen edge on, apart from its body)
+    around = _dilate(cluster.cells)
+    floor = points[ground.rows_in(around), 2]
+    # No ground around it, or ground well below it: a part of something taller (a roof's edge), not a
+    # thing that stands on its own
+    if floor.size == 0 or cluster.bottom > float(np.median(floor)) + s.max_float:
         return False
-    inside = _interior(cluster.cells)
-    if inside.size:
-        return np.isin(inside, seen, assume_unique=True).mean() >= s.observed_fraction
-    return np.isin(cluster.cells, seen, assume_unique=True).mean() >= s.thin_observed_fraction
+    base = float(np.median(floor))
+    low, high = max(base + s.lift, cluster.bottom), cluster.top + s.lift
+    z_own, z_other = points[own.rows_in(around), 2], points[other.rows_in(around), 2]
+    in_own = int(np.count_nonzero((z_own >= low) & (z_own <= high)))
+    in_other = int(np.count_nonzero((z_other >= low) & (z_other <= high)))
+    if in_own < s.min_points or z_other.size < s.min_points:  # flat (a crosswalk) or barely seen: not judged
+        return False
+    if in_other / z_other.size <= s.present_share * in_own / z_own.size:
+        return True
+    return _emptied(cluster, points, own, other, (low, high), s)
 
 
-def _interior(cells: np.ndarray) -> np.ndarray:
-    """The footprint cells whose four neighbours are in the footprint too: where the object stood, not its
-    edge, whose cell the other session may have hit from the far side (a wall seen from behind)."""
-    i, j = cells >> 32, (cells & 0xFFFFFFFF).astype(np.int64)
-    j = np.where(j >= 1 << 31, j - (1 << 32), j)  # the low half holds a signed 32-bit index
+def _emptied(
+    cluster: _Cluster,
+    points: np.ndarray,
+    own: _CellIndex,
+    other: _CellIndex,
+    volume: tuple[float, float],
+    s: ChangeSettings,
+) -> bool:
+    """Whether the other session, looking as closely (at least `close_share` as many returns around the
+    footprint), returned only from below the object's volume `volume` (z from, to) in at least
+    `emptied_share` of the footprint cells where the own session returned from inside it: an object moved
+    by less than its length, whose new place still covers part of its old one."""
 
-    def key(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return (a << 32) ^ (b & 0xFFFFFFFF)
+    def occupied(index: _CellIndex) -> tuple[np.ndarray, np.ndarray]:
+        rows = index.rows_in(cluster.cells)
+        key = _keys(np.floor(points[rows, :2] / s.cell).astype(np.int64))
+        z = points[rows, 2]
+        return np.unique(key), np.unique(key[(z >= volume[0]) & (z <= volume[1])])
 
-    inner = np.ones(cells.size, dtype=bool)
-    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        inner &= np.isin(key(i + di, j + dj), cells, assume_unique=False)
-    return cells[inner]
+    seen_own, full_own = occupied(own)
+    seen_other, full_other = occupied(other)
+    if seen_other.size < s.close_share * seen_own.size or full_own.size < 4:
+        return False
+    looked = np.intersect1d(full_own, seen_other, assume_unique=True)
+    empty = np.setdiff1d(looked, full_other, assume_unique=True)
+    return empty.size >= s.emptied_share * full_own.size
+
+
+def _join_pieces(clusters: list[_Cluster], points: np.ndarray, s: ChangeSettings) -> list[_Cluster]:
+    """`clusters` (all gone) with pieces of one object joined: two of one bank entry whose footprints lie
+    within `piece_gap` metres and whose points together still fit an object (`piece_extent`: at most that
+    long and wide along their main axes), as a car seen in two parts, its middle hidden. Two cars parked
+    side by side or end to end together are wider or longer than that."""
+    out = list(clusters)
+    joined = True
+    while joined:
+        joined = False
+        for i, j in combinations(range(len(out)), 2):
+            a, b = out[i], out[j]
+            if a.entry != b.entry:
+                continue
+            gap = cKDTree(_unkey(a.cells) * s.cell).query(_unkey(b.cells) * s.cell)[0]
+            rows = np.concatenate([a.rows, b.rows])
+            if np.min(gap) > s.piece_gap or not _fits(points[rows, :2], s.piece_extent):
+                continue
+            xyz = points[rows]
+            low, high = xyz.min(axis=0), xyz.max(axis=0)
+            cells = np.union1d(a.cells, b.cells)
+            out[i] = _Cluster(rows, xyz.mean(axis=0), high - low, a.entry, cells, float(low[2]), float(high[2]))
+            del out[j]
+            joined = True
+            break
+    return out
+
+
+def _fits(xy: np.ndarray, extent: tuple[float, float]) -> bool:
+    """Whether points `xy` (M, 2) metres span at most `extent` (length, width) along their principal axes."""
+    centred = xy - xy.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    span = np.ptp(centred @ axes.T, axis=0)
+    return bool(span[0] <= extent[0] and span[1] <= extent[1])
 
 
 def _pair_moves(
@@ -279,14 +488,17 @@ def _change(kind: str, old: _Cluster | None, new: _Cluster | None) -> ObjectChan
     return ObjectChange(kind, some.entry, point(old), point(new), distance, size)
 
 
-def _terrain_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) -> list[TerrainChange]:
-    """Area per (before, after) terrain class pair over the cells both sessions voted on."""
+def _terrain_changes(
+    data: _Sessions, a: int, b: int, settings: ChangeSettings
+) -> tuple[list[TerrainChange], np.ndarray, list[str]]:
+    """Area per (before, after) terrain class pair over the cells both sessions voted on; the changed cells'
+    centres (M, 2) metres and their "before -> after" pairs."""
     votes_a, votes_b = data.votes[a], data.votes[b]
     both = (votes_a.sum(axis=1) >= settings.min_votes) & (votes_b.sum(axis=1) >= settings.min_votes)
     if not both.any():
-        return []
+        return [], np.zeros((0, 2)), []
     ij = np.floor(data.points[both, :2] / settings.terrain_cell).astype(np.int64)
-    _, cell = np.unique(ij, axis=0, return_inverse=True)
+    cell_ij, cell = np.unique(ij, axis=0, return_inverse=True)
     cell = cell.ravel()
     n_cells, t = int(cell.max()) + 1, votes_a.shape[1]
     per_cell_a = np.zeros((n_cells, t), np.int64)
@@ -297,10 +509,26 @@ def _terrain_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) 
     clear_a = per_cell_a.max(axis=1) >= settings.clear_share * per_cell_a.sum(axis=1)
     clear_b = per_cell_b.max(axis=1) >= settings.clear_share * per_cell_b.sum(axis=1)
     changed = (class_a != class_b) & clear_a & clear_b  # a cell on a border between two terrains is neither
+    changed[changed] = _patches(cell_ij[changed], class_a[changed] * t + class_b[changed], settings.min_patch)
     pair_keys, areas = np.unique(class_a[changed] * t + class_b[changed], return_counts=True)
     names = data.terrain_classes
     out = [
         TerrainChange(names[int(k) // t], names[int(k) % t], float(n) * settings.terrain_cell**2)
         for k, n in zip(pair_keys, areas)
     ]
-    return sorted(out, key=lambda c: (-c.area_m2, c.before, c.after))
+    centres = (cell_ij[changed] + 0.5) * settings.terrain_cell
+    pairs = [f"{names[i]} -> {names[j]}" for i, j in zip(class_a[changed], class_b[changed])]
+    return sorted(out, key=lambda c: (-c.area_m2, c.before, c.after)), centres, pairs
+
+
+def _patches(ij: np.ndarray, pair: np.ndarray, min_cells: int) -> np.ndarray:
+    """(M,) whether each changed cell (indices `ij` (M, 2), its class pair `pair`) belongs to a patch of at
+    least `min_cells` cells of its pair touching at edges or corners: a lone cell is a border's wobble
+    between two visits' labels, not a lawn turned to dirt."""
+    if ij.shape[0] == 0 or min_cells <= 1:
+        return np.ones(ij.shape[0], dtype=bool)
+    pairs = cKDTree(ij.astype(np.float64)).query_pairs(1.5, output_type="ndarray")  # the 8 neighbours
+    pairs = pairs[pair[pairs[:, 0]] == pair[pairs[:, 1]]]
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(ij), len(ij)))
+    _, label = connected_components(graph, directed=False)
+    return np.bincount(label)[label] >= min_cells

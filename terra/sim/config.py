@@ -142,9 +142,10 @@ class RouteConfig(Section):
 class RevisitConfig(Section):
     """A second visit of the same world (terra/sim/revisit.py): the route reversed from `start_fraction`
     of its length, poses reported in a frame whose origin lies at `frame` = (x, y metres, yaw degrees) in the
-    first visit's map frame, after changes drawn from `seed`: cars moved (along their length, by a distance in
-    `move_distance` metres), removed and added, benches removed, `lawns_to_dirt` lawn squares of
-    `patch_size` metres turned to dirt. All counts 0: a revisit with no change."""
+    first visit's map frame, after changes drawn from `seed` near the revisit's route: cars moved (along or
+    across their length, by a distance in `move_distance` metres), removed and added, benches removed,
+    `lawns_to_dirt` lawn squares of `patch_size` metres turned to dirt. All counts 0: a revisit with no
+    change."""
 
     frame: tuple[float, float, float] = (50.0, 0.0, 90.0)
     start_fraction: float = Field(default=0.3, ge=0.0, lt=1.0)

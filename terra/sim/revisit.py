@@ -1,13 +1,14 @@
 """A second visit of a simulated world (issue 26): the same site driven again, on the route reversed from
 another start, its poses reported in another frame, after known changes.
 
-Changes, drawn from `RevisitConfig.seed`: cars moved along their own length (by 3 to 6 m), cars removed,
-cars added (a copy of a parked car on free asphalt near the route), benches removed, and square patches of
-lawn turned to dirt. `revisit_world` returns the changed world and the ground truth of what changed, in the
-first visit's map frame (the world frame): objects by instance id with their old and new centres, terrain
-patches with their polygon and area. The revisit's frames report T_session_lidar = T_session_world @
-T_world_lidar, where T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what
-`terra sim --revisit` writes as revisit.json.
+Changes, drawn from `RevisitConfig.seed` near the route the revisit drives (it cannot see the rest): cars
+moved along their own length or across it into a free stall (by 3 to 6 m), cars removed, cars added (a copy
+of a parked car on free asphalt near the route), benches removed, and square patches of lawn turned to dirt.
+`revisit_world` returns the changed world and the ground truth of what changed, in the first visit's map
+frame (the world frame): objects by instance id with their old and new centres, terrain patches with their
+polygon and area. The revisit's frames report T_session_lidar = T_session_world @ T_world_lidar, where
+T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what `terra sim --revisit` writes as
+revisit.json.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from terra.sim.classes import class_id
 from terra.sim.config import RevisitConfig
 from terra.sim.primitives import Primitives
 from terra.sim.world import TerrainGrid, World
+
+SEEN_RADIUS_M = 15.0  # a car or bench changed within this of the revisit's route: its LiDAR sees it
 
 
 @dataclass
@@ -56,10 +59,11 @@ def session_pose(config: RevisitConfig) -> np.ndarray:
 def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTruth]:
     """`world` after the changes of `config`, driven on its route reversed from `config.start_fraction`."""
     rng = np.random.default_rng([int(config.seed), world.seed, 26])
-    edit = _Edit(world, rng)
+    route = rerouted(world.route, config.start_fraction)
+    edit = _Edit(world, rng, route)
     truth = RevisitTruth(session_pose(config))
     cars = [o for o in world.objects if o.class_name == "car"]
-    order = [cars[int(i)] for i in rng.permutation(len(cars))]
+    order = [c for c in (cars[int(i)] for i in rng.permutation(len(cars))) if edit.near(c.center)]
     untouched = []
     for car in order:  # cars with no free place ahead or behind stay where they are
         moved = edit.move(car, config.move_distance) if len(truth.objects) < config.cars_moved else None
@@ -74,8 +78,9 @@ def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTr
         if added is not None:
             truth.objects.append(added)
     benches = [o for o in world.objects if o.class_name == "bench"]
-    for i in rng.permutation(len(benches))[: config.benches_removed]:
-        truth.objects.append(edit.remove(benches[int(i)]))
+    near_benches = [b for b in (benches[int(i)] for i in rng.permutation(len(benches))) if edit.near(b.center)]
+    for bench in near_benches[: config.benches_removed]:
+        truth.objects.append(edit.remove(bench))
     terrain = TerrainGrid(world.terrain.classes.copy(), world.terrain.origin, world.terrain.resolution)
     for _ in range(config.lawns_to_dirt):
         patch = _lawn_patch(terrain, edit, rng, config.patch_size)
@@ -87,7 +92,7 @@ def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTr
         terrain=terrain,
         prims=edit.primitives(),
         objects=edit.objects,
-        route=rerouted(world.route, config.start_fraction),
+        route=route,
         _tree=None,
         _raster_height=None,
     )
@@ -109,8 +114,9 @@ def rerouted(route: np.ndarray, start_fraction: float) -> np.ndarray:
 class _Edit:
     """The world's shapes and objects as they are edited (shape rows kept, moved or dropped per instance)."""
 
-    def __init__(self, world: World, rng: np.random.Generator):
+    def __init__(self, world: World, rng: np.random.Generator, route: np.ndarray):
         self.world, self.rng = world, rng
+        self.route = cKDTree(route)  # the revisit's own route: a change elsewhere it would never see
         p = world.prims
         self.rows = [p.kind, p.center.copy(), p.half, p.yaw.copy(), p.class_id, p.instance_id.copy(), p.color]
         self.keep = np.ones(len(p), dtype=bool)
@@ -122,24 +128,36 @@ class _Edit:
         columns = [np.concatenate([c[self.keep], *[e[i] for e in self.extra]]) for i, c in enumerate(self.rows)]
         return Primitives(*columns)
 
-    def free(self, xy: np.ndarray, radius: float, ignore: int) -> bool:
-        """No other object's footprint disc within `radius` metres of its own, and asphalt under `xy`."""
-        centres = np.array([o.center[:2] for o in self.objects if o.instance_id != ignore])
-        radii = np.array([np.hypot(*o.size[:2]) / 2 for o in self.objects if o.instance_id != ignore])
-        clear = centres.size == 0 or bool(np.all(np.linalg.norm(centres - xy, axis=1) > radii + radius + 0.3))
-        probe = xy + radius * np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]]) * 0.8
-        return clear and bool(np.all(self.world.terrain.class_at(probe) == class_id("asphalt")))
+    def near(self, xy: np.ndarray, radius: float = SEEN_RADIUS_M) -> bool:
+        """Whether `xy` (world frame, metres) lies within `radius` of the revisit's route."""
+        return bool(self.route.query(np.asarray(xy, np.float64)[:2])[0] <= radius)
 
-    def move(self, car: ObjectBox, distance: tuple[float, float]) -> dict[str, Any] | None:
-        """Move `car` along its length by a distance drawn in `distance` (metres), if it lands free."""
-        step = self.rng.uniform(*distance)
-        radius = float(np.hypot(*car.size[:2]) / 2)
-        for sign in (1.0, -1.0) if self.rng.random() < 0.5 else (-1.0, 1.0):
-            offset = sign * step * np.array([np.cos(car.yaw), np.sin(car.yaw)])
-            if self.free(car.center[:2] + offset, radius, car.instance_id):
-                break
-        else:
-            return None
+    def free(self, xy: np.ndarray, yaw: float, size: np.ndarray, ignore: int) -> bool:
+        """Whether a footprint of `size` (length, width metres) turned `yaw` radians at `xy` (world frame)
+        stands on asphalt and, grown by `MARGIN` metres, overlaps no other object's footprint. Rectangles, not
+        discs: a car fits the empty stall beside another, which discs around both would refuse."""
+        mine = _footprint(xy, yaw, size[:2] + 2 * MARGIN)
+        for other in self.objects:
+            if other.instance_id != ignore and _overlap(mine, _footprint(other.center[:2], other.yaw, other.size[:2])):
+                return False
+        probe = np.vstack([xy, _footprint(xy, yaw, size[:2])])
+        return bool(np.all(self.world.terrain.class_at(probe) == class_id("asphalt")))
+
+    def move(self, car: ObjectBox, distance: tuple[float, float], tries: int = 6) -> dict[str, Any] | None:
+        """Move `car` by a distance drawn in `distance` (metres) along its length, or, where a full row leaves
+        no room ahead or behind, across it (into a free stall of its row or another), if it lands free."""
+        along = np.array([np.cos(car.yaw), np.sin(car.yaw)])
+        across = np.array([-along[1], along[0]])
+        for _ in range(tries):
+            step = self.rng.uniform(*distance)
+            signs = (1.0, -1.0) if self.rng.random() < 0.5 else (-1.0, 1.0)
+            for offset in [sign * step * axis for axis in (along, across) for sign in signs]:
+                if self.free(car.center[:2] + offset, car.yaw, car.size, car.instance_id):
+                    return self._shift(car, offset)
+        return None
+
+    def _shift(self, car: ObjectBox, offset: np.ndarray) -> dict[str, Any]:
+        """Move `car`'s shapes by `offset` (x, y metres), onto the ground there."""
         rows = self.rows[5] == car.instance_id
         ground = self.world.ground
         dz = float(ground.height(car.center[None, :2] + offset)[0] - ground.height(car.center[None, :2])[0])
@@ -155,17 +173,16 @@ class _Edit:
 
     def add_copy(self, car: ObjectBox | None, tries: int = 400) -> dict[str, Any] | None:
         """A copy of `car` parked, turned a random multiple of 90 degrees, on free asphalt within 20 m of the
-        route (so the revisit sees it)."""
+        revisit's route (so the revisit sees it) and clear of it by a metre (not driven through)."""
         if car is None:
             return None
-        route = cKDTree(self.world.route)
         x0, y0, x1, y1 = self.world.extent
-        radius = float(np.hypot(*car.size[:2]) / 2)
         for _ in range(tries):
             xy = self.rng.uniform([x0, y0], [x1, y1])
-            if route.query(xy)[0] > 20.0 or not self.free(xy, radius, -1):
-                continue
             turn = float(self.rng.integers(4)) * np.pi / 2
+            clear_of_route = not self.near(xy, float(np.hypot(*car.size[:2])) / 2 + 1.0)  # not driven through
+            if not self.near(xy, 20.0) or not clear_of_route or not self.free(xy, car.yaw + turn, car.size, -1):
+                continue
             return self._place_copy(car, xy, turn)
         return None
 
@@ -187,6 +204,26 @@ class _Edit:
         return _change("added", new, None, new.center)
 
 
+MARGIN = 0.45  # metres kept clear around a moved or added car: the 0.9 m gap of a parking row (doors)
+
+
+def _footprint(xy: np.ndarray, yaw: float, size: np.ndarray) -> np.ndarray:
+    """(4, 2) corners (world frame, metres) of a `size` = (length, width) rectangle centred at `xy`, turned
+    `yaw` radians."""
+    half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * np.asarray(size[:2], np.float64) / 2
+    return half @ yaw_rotation(yaw)[:2, :2].T + xy
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two convex polygons (K, 2) overlap: no edge normal of either separates them."""
+    for poly in (a, b):
+        for normal in (np.roll(poly, -1, axis=0) - poly) @ np.array([[0.0, -1.0], [1.0, 0.0]]):
+            pa, pb = a @ normal, b @ normal
+            if pa.max() <= pb.min() or pb.max() <= pa.min():
+                return False
+    return True
+
+
 def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.ndarray | None) -> dict[str, Any]:
     distance = None if before is None or after is None else float(np.linalg.norm((after - before)[:2]))
     return {
@@ -200,11 +237,11 @@ def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.nd
 
 
 def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, size: float) -> dict[str, Any] | None:
-    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the route) to dirt."""
+    """Turn a size x size metre square of lawn (all grass, no object on it, within 8 m of the revisit's route)
+    to dirt."""
     res = terrain.resolution
     cells = max(int(round(size / res)), 1)
     grass, dirt = class_id("grass"), class_id("dirt")
-    route = cKDTree(edit.world.route)
     centres = np.array([o.center[:2] for o in edit.objects]) if edit.objects else np.zeros((0, 2))
     h, w = terrain.classes.shape
     for _ in range(400):
@@ -212,7 +249,7 @@ def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, siz
         block = terrain.classes[r : r + cells, c : c + cells]
         x0, y0 = terrain.origin + np.array([c, r]) * res
         middle = np.array([x0, y0]) + cells * res / 2
-        if not np.all(block == grass) or route.query(middle)[0] > 8.0:
+        if not np.all(block == grass) or not edit.near(middle, 8.0):
             continue
         if centres.size and np.any(np.linalg.norm(centres - middle, axis=1) < cells * res):
             continue

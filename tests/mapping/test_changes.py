@@ -68,10 +68,36 @@ def test_the_changes_found_are_the_simulators(first_map, tmp_path, capsys):
     (patch,) = truth["terrain"]
     to_dirt = [t for t in found["terrain"] if (t["before"], t["after"]) == ("grass", "dirt")]
     assert to_dirt and 0 < to_dirt[0]["area_m2"] <= patch["area_m2"] + 12.0  # the patch's cells, ~1 m each side
+    truth_classes = {(c["change"], c["class"]) for c in truth["objects"]}
+    named = {(c["change"], c["name"]) for c in found["objects"] if c["name"] is not None}  # None: LiDAR only
+    assert named and named <= truth_classes  # named by class, not by bank entry
+    assert found["regions"] is None  # no scene graph yet
     assert run(["changes", str(out)]) == 0
     text = capsys.readouterr().out
     assert f"objects: {found['counts']['added']} added, {found['counts']['removed']} removed" in text
-    assert "grass -> dirt" in text
+    assert "grass -> dirt" in text and "car (bank entry" in text
+
+
+def test_changes_per_region_and_figure(first_map, tmp_path, capsys):
+    out, _ = joined(first_map, tmp_path, RevisitConfig())
+    assert run(["build", str(out)]) == 0
+    capsys.readouterr()
+    figure = tmp_path / "changes.png"
+    assert run(["changes", str(out), "--json", "--figure", str(figure)]) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    regions = found["regions"]
+    assert regions and all(o["region"] for o in found["objects"])
+    for kind in ("added", "removed", "moved"):  # every change counted once, in the region of its object
+        assert sum(r[kind] for r in regions) == found["counts"][kind]
+    terrain = sum(t["area_m2"] for t in found["terrain"])
+    assert sum(sum(r["terrain_m2"].values()) for r in regions) == pytest.approx(terrain)
+    assert run(["changes", str(out)]) == 0
+    assert "per region:" in capsys.readouterr().out
+    for bad in (tmp_path / "changes.txt", tmp_path / "missing" / "changes.png", tmp_path):
+        assert run(["changes", str(out), "--figure", str(bad)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "expected a PNG file name" in err
 
 
 def test_a_revisit_without_changes_has_none(first_map, tmp_path):

@@ -97,3 +97,26 @@ def test_terra_sim_revisit_writes_the_truth(tmp_path, capsys):
     capsys.readouterr()
     assert run(["sim", "--preset", "tiny", "-c", str(config), "--out", str(tmp_path / "x"), "-q"]) == 2
     assert "sim.revisit is read with --revisit" in capsys.readouterr().err
+
+
+def test_changes_lie_where_the_revisit_drives(revisit):
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled module
+
+    route = cKDTree(revisit.world.route)
+    for change in revisit.revisit.objects:
+        for key in ("from", "to"):
+            if change[key] is not None:
+                assert route.query(change[key][:2])[0] <= 20.0, change  # within what its LiDAR sees
+    for change in revisit.revisit.objects:
+        if change["change"] == "added":  # parked clear of the route, not across it
+            assert route.query(change["to"][:2])[0] > 2.0
+
+
+def test_footprints_side_by_side_in_a_parking_row_do_not_overlap():
+    from terra.sim.revisit import _footprint, _overlap
+
+    size = np.array([4.4, 1.9])
+    car = _footprint(np.array([0.0, 0.0]), np.pi / 2, size)  # facing north: 1.9 m wide along x
+    assert not _overlap(car, _footprint(np.array([2.8, 0.0]), np.pi / 2, size))  # the next stall, 0.9 m apart
+    assert _overlap(car, _footprint(np.array([1.5, 0.0]), np.pi / 2, size))
+    assert _overlap(car, _footprint(np.array([0.0, 3.0]), 0.0, size))  # across its length
