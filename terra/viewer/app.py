@@ -3,7 +3,8 @@
 The server listens on `host:port` (loopback by default). Points are drawn from a fixed subset
 (scene.display_subset); places, each region level and the objects are layers with toggles; the
 query box runs find or monitor and highlights the answer; start and goal (typed, or picked on the
-map) run a terrain-aware plan whose path and per-terrain lengths are shown. Queries run through the
+map) run a terrain-aware plan whose path and per-terrain lengths are shown; a map of several sessions
+gets a Changes folder (terra/viewer/changes.py). Queries run through the
 typed task API (terra.tasks.commands) on the shared LoadedBundle, from viser's worker threads.
 """
 
@@ -128,6 +129,7 @@ class TerraViewer:
         self._gui_ask()
         if self.graph is not None:
             self._gui_plan(self.graph)
+        self._gui_changes()
         self._set_camera()
 
     def refresh(self) -> bool:
@@ -313,6 +315,51 @@ class TerraViewer:
                 self.plan_answer,
             )
         )
+
+    def _gui_changes(self) -> None:
+        """A Changes folder when the map holds two sessions or more (terra map --into)."""
+        from terra.mapping.sessions import session_list
+
+        info = self.loaded.bundle.model.components.map
+        sessions = [str(s["session"]) for s in session_list(list(info.sources or []) if info else [])]
+        if len(sessions) < 2:
+            return
+        gui = self.server.gui
+        with gui.add_folder("Changes", expand_by_default=False):
+            first = gui.add_dropdown("from session", sessions, initial_value=sessions[-2])
+            second = gui.add_dropdown("to session", sessions, initial_value=sessions[-1])
+            button = gui.add_button("Show changes")
+            answer = gui.add_markdown("Objects added, removed and moved, and terrain that changed class.")
+        button.on_click(lambda _: self._guarded(lambda: self.run_changes(int(first.value), int(second.value)), answer))
+
+    def run_changes(self, first: int, second: int) -> str:
+        """Draw what changed from session `first` to `second` (terra changes) and return its summary."""
+        from terra.mapping.changes import detect_changes
+        from terra.viewer.changes import KIND_COLOURS, change_markers, changes_markdown
+
+        self._clear("/results/changes")
+        result = detect_changes(self.loaded.path, first, second)
+        self.last_result = result
+        markers = change_markers(result, self.msm.points[self.rows])
+        for kind, centres in markers.objects.items():
+            for i, centre in enumerate(centres):
+                self.server.scene.add_icosphere(
+                    f"/results/changes/{kind}/{i}", radius=0.8, color=KIND_COLOURS[kind], position=_xyz(centre)
+                )
+        if len(markers.moves):
+            self.server.scene.add_line_segments(
+                "/results/changes/moves", markers.moves, KIND_COLOURS["moved"], thickness=5.0, thickness_units="screen"
+            )
+        if len(markers.cells):
+            self.server.scene.add_point_cloud(
+                "/results/changes/terrain",
+                markers.cells.astype(np.float32),
+                markers.cell_colours,
+                point_size=float(np.sqrt(result.terrain_cell_area)),
+                point_shape="square",
+                precision="float32",
+            )
+        return changes_markdown(result)
 
     def _pick(self, which: str) -> None:
         """The next click on the map sets `which` to the nearest place."""
