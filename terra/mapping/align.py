@@ -34,6 +34,8 @@ class AlignSettings:
     overlap_distance / fit_distance: a session point within these of the map counts as overlapping
     / as fitting. min_overlap / min_fitness: the floors below which an alignment is refused.
     max_frames: scans read (evenly spread over the drive) to build the session's cloud.
+    gnss_apart: a session whose GNSS prior puts it farther than this from the map's points, and whose
+    registration from it fails, is of another site: refused without a search.
     """
 
     voxel: float = 0.4
@@ -44,6 +46,7 @@ class AlignSettings:
     min_overlap: float = 0.3
     min_fitness: float = 0.8
     max_frames: int = 120
+    gnss_apart: float = 1000.0
 
 
 @dataclass(frozen=True)

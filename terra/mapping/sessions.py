@@ -134,7 +134,8 @@ def find_alignment(
     """The alignment of `cloud` (session frame) to `map_cloud`, in this order of evidence:
     - from `prior` (T_map_session, the user's guess) when given;
     - else from `gnss` (T_map_session of both frames' GNSS anchors) when given and its refinement
-      passes the floors;
+      passes the floors; when it does not and GNSS puts the session far from the map (another site),
+      TerraError without a search;
     - else the best (overlap x fitness) of the refinements from the shared frame (identity, where it
       already overlaps the map), from the GNSS prior, and from the candidates of a search over turns and
       shifts of the tall things' footprints (`search_priors`): a repetitive site (rows of parked cars)
@@ -151,6 +152,7 @@ def find_alignment(
         tried.append(register(map_cloud, cloud, np.asarray(gnss, dtype=np.float64), "GNSS prior", settings))
         if trusted(tried[0], settings):
             return tried[0]
+        _refuse_another_site(map_cloud, cloud, np.asarray(gnss, dtype=np.float64), settings, what)
     starts = [("place search", T) for T in search_priors(map_cloud, cloud)]
     # The shared frame is tried only where it already overlaps the map: from far off, GICP spends its
     # every iteration on a pose the search has already beaten.
@@ -160,6 +162,24 @@ def find_alignment(
     alignment = max(tried, key=lambda a: (a.converged, a.overlap * a.fitness))
     check_alignment(alignment, settings, what)
     return alignment
+
+
+def _refuse_another_site(
+    map_cloud: np.ndarray, cloud: np.ndarray, gnss: np.ndarray, settings: AlignSettings, what: str
+) -> None:
+    """TerraError (one line, nothing merged) when the GNSS prior puts the session's centre farther than
+    `settings.gnss_apart` metres from the map's points' x-y bounding box: another site, not a prior a
+    search could correct."""
+    from terra.geometry import transform_points
+
+    centre = transform_points(gnss, np.asarray(cloud, np.float64).mean(axis=0, keepdims=True))[0, :2]
+    low, high = map_cloud[:, :2].min(axis=0), map_cloud[:, :2].max(axis=0)
+    apart = float(np.linalg.norm(np.maximum(np.maximum(low - centre, centre - high), 0.0)))
+    if apart > settings.gnss_apart:
+        raise TerraError(
+            f"{what}: by GNSS the session lies {apart / 1000:.1f} km from the map: a drive of another site; "
+            "nothing merged (give --initial-guess x,y,yaw if its GNSS is wrong)"
+        )
 
 
 def gnss_prior(base: Bundle, dataset: Dataset) -> np.ndarray | None:

@@ -149,19 +149,40 @@ class Anchored:
         return self.anchor.model_dump(mode="json")
 
 
-def test_with_gnss_on_both_drives_the_join_starts_from_it(tiny_campus, tmp_path):
+@pytest.fixture(scope="module")
+def anchored_map(tiny_campus, tmp_path_factory):
+    """The first 25 frames mapped by a source anchored on the Earth; (its folder, the anchor)."""
+    on_earth = Wgs84Anchor(lat=47.3769, lon=8.5417, alt=408.0, yaw_deg=20.0)
+    first = tmp_path_factory.mktemp("anchored") / "anchored.terra"
+    run_mapping(Anchored(FrameRange(tiny_campus, 0, 25), on_earth), MappingConfig(), first, show_progress=False)
+    return first, on_earth
+
+
+def session_anchor(on_earth: Wgs84Anchor, offset: np.ndarray, turn_deg: float) -> Wgs84Anchor:
+    """Where T_TRUE puts the second drive's frame on the Earth, moved by `offset` metres and turned."""
+    lon, lat, alt = MapToWgs84(on_earth).lon_lat_height((T_TRUE[:3, 3] + offset)[None])[0]
+    return Wgs84Anchor(lat=lat, lon=lon, alt=alt, yaw_deg=on_earth.yaw_deg + 90.0 + turn_deg)
+
+
+def test_with_gnss_on_both_drives_the_join_starts_from_it(tiny_campus, anchored_map):
     """Map anchored at a known place; the second drive's anchor 2 m and 1.5 degrees off where T_TRUE puts
     it (a receiver's error): the join starts from GNSS, not from the search, and GICP removes the error."""
-    on_earth = Wgs84Anchor(lat=47.3769, lon=8.5417, alt=408.0, yaw_deg=20.0)
-    first = tmp_path / "anchored.terra"
-    run_mapping(Anchored(FrameRange(tiny_campus, 0, 25), on_earth), MappingConfig(), first, show_progress=False)
+    first, on_earth = anchored_map
     info = Bundle(first).model.components.map
     assert info is not None and info.wgs84_anchor == on_earth
-    off = T_TRUE[:3, 3] + np.array([1.6, -1.2, 0.0])
-    lon, lat, alt = MapToWgs84(on_earth).lon_lat_height(off[None])[0]
-    session_anchor = Wgs84Anchor(lat=lat, lon=lon, alt=alt, yaw_deg=20.0 + 90.0 + 1.5)
-    second = Anchored(SessionFrames(FrameRange(tiny_campus, 15, 40), invert_pose(T_TRUE)), session_anchor)
+    anchor = session_anchor(on_earth, np.array([1.6, -1.2, 0.0]), 1.5)
+    second = Anchored(SessionFrames(FrameRange(tiny_campus, 15, 40), invert_pose(T_TRUE)), anchor)
     plan = plan_join(second, first, None)
     metres, degrees = relative_error(T_TRUE, plan.alignment.T_map_session)
     assert plan.alignment.how == "GNSS prior + GICP"
     assert metres < 0.05 and degrees < 0.05
+
+
+def test_a_drive_of_another_site_by_gnss_is_refused_without_a_search(tiny_campus, anchored_map):
+    first, on_earth = anchored_map
+    before = folder_digest(first)
+    far = session_anchor(on_earth, np.array([5000.0, 0.0, 0.0]), 0.0)
+    second = Anchored(SessionFrames(FrameRange(tiny_campus, 15, 40), invert_pose(T_TRUE)), far)
+    with pytest.raises(TerraError, match=r"by GNSS the session lies 4\.9 km from the map: a drive of another site"):
+        plan_join(second, first, None)
+    assert folder_digest(first) == before
