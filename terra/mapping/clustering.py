@@ -8,7 +8,9 @@ neighbours and the result equals one DBSCAN per mask.
 
 With `voxel` > 0 a mask's points are first merged per voxel (edge `voxel` metres) into weighted
 samples (DBSCAN's sample_weight), which gives the same clusters up to the voxel size at a
-fraction of the cost: a close building wall puts thousands of points in one mask.
+fraction of the cost: a close building wall puts thousands of points in one mask. A mask with more
+than MAX_SAMPLES samples is merged on wider voxels again (so a facade's clusters are found to about
+half a metre instead of a fifth).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import numpy as np
 
 from terra.dbscan import dbscan_labels
 from terra.geometry import voxel_keys
+
+MAX_SAMPLES = 1500  # weighted samples per mask before its voxels widen (_voxel_samples)
 
 
 def largest_clusters(
@@ -62,12 +66,30 @@ def largest_clusters(
     return keep
 
 
-def _voxel_samples(points: np.ndarray, group: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sample number (n,) of each point, one sample per (group, voxel), and each sample's weight."""
-    keys = voxel_keys(points, voxel)
+def _voxel_samples(
+    points: np.ndarray, group: np.ndarray, voxel: float, max_samples: int = MAX_SAMPLES
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sample number (n,) of each point, one sample per (group, voxel), and each sample's weight. A group
+    with more than `max_samples` samples is merged again on voxels wider by the square root of its excess
+    (its samples lie on surfaces): DBSCAN's pairs grow with samples times neighbours, and one close
+    facade with thousands of samples cost most of a frame's fusion."""
+    sample, new = _samples_of(voxel_keys(points, voxel), group)
+    per_group = np.bincount(group[new], minlength=int(group.max()) + 1)
+    excess = per_group / max(max_samples, 1)
+    if max_samples > 0 and (excess > 1.0).any():
+        widen = np.where(excess > 1.0, np.ceil(np.sqrt(excess)), 1.0)
+        cells = np.floor(points / (voxel * widen[group])[:, None]).astype(np.int64) + (1 << 20)
+        sample, _ = _samples_of((cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2], group)
+    return sample, np.bincount(sample).astype(np.float64)
+
+
+def _samples_of(keys: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sample number (n,) per point, one per (group, key); (n,) mask of the points that start a sample)."""
     order = np.lexsort((keys, group))
     new = np.ones(order.size, dtype=bool)
     new[1:] = (keys[order[1:]] != keys[order[:-1]]) | (group[order[1:]] != group[order[:-1]])
     sample = np.empty(order.size, dtype=np.int64)
     sample[order] = np.cumsum(new) - 1
-    return sample, np.bincount(sample).astype(np.float64)
+    first = np.zeros(order.size, dtype=bool)
+    first[order[new]] = True
+    return sample, first

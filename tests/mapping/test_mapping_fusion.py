@@ -87,6 +87,26 @@ def test_largest_cluster_per_group_equals_one_dbscan_per_group():
     assert keep[:12].all() and not keep[12:21].any() and keep[21:30].all() and not keep[30:].any()
 
 
+def test_a_facade_mask_is_merged_on_wider_voxels_and_keeps_the_same_cluster():
+    """A 15 x 5 m wall seen at 0.14 m spacing (1,875 samples on 0.2 m voxels: more than MAX_SAMPLES) and
+    mask bleed 4 m in front of it: the wall is sampled on 0.4 m voxels, and the wall alone is kept, as
+    scikit-learn's DBSCAN on every raw point keeps it."""
+    from terra.mapping.clustering import MAX_SAMPLES, _voxel_samples
+
+    u, v = np.meshgrid(np.arange(0.0, 15.0, 0.14), np.arange(0.0, 5.0, 0.14))
+    wall = np.column_stack([u.ravel(), np.full(u.size, 10.0), v.ravel()])
+    bleed = np.random.default_rng(5).normal([7.0, 6.0, 0.2], 0.2, (40, 3))
+    pts = np.vstack([wall, bleed])
+    group = np.zeros(len(pts), dtype=np.int64)
+    narrow, _ = _voxel_samples(wall, group[: len(wall)], 0.2, max_samples=0)
+    wide, _ = _voxel_samples(wall, group[: len(wall)], 0.2)
+    assert narrow.max() + 1 > MAX_SAMPLES >= wide.max() + 1
+    keep = largest_clusters(pts, group, eps=2.0, min_samples=5, voxel=0.2)
+    labels = DBSCAN(eps=2.0, min_samples=5).fit_predict(pts)
+    np.testing.assert_array_equal(keep, labels == np.bincount(labels[labels >= 0]).argmax())
+    assert keep[: len(wall)].all() and not keep[len(wall) :].any()
+
+
 def _identity_camera(width=20, height=10):
     # Camera frame = LiDAR frame; f = 10 px, centre (10, 5): point (x, y, 10) -> pixel (5 + y, 10 + x).
     return CameraCalibration("cam", width, height, np.array([[10, 0, 10], [0, 10, 5], [0, 0, 1]]))
