@@ -7,10 +7,11 @@ frame; the unrectified camera 0 differs from it by KITTI's own R_rect_00 of 2011
 sits where KITTI's does (calib_imu_to_velo of 2011_09_26), so readers must apply both.
 
 OXTS packets come from the ground-truth LiDAR poses (`gt_T_map_lidar(i)` when the dataset has it,
-else its frames' T_map_lidar) with the first IMU position at a fixed geodetic origin, map x east,
-y north, z up. The reader's map frame then has its origin at that first IMU position:
-`write_kitti_raw` returns the shift to apply to the dataset's map coordinates (ground truth) to
-land in it. Stamps keep their differences; the drive starts at noon of its date (UTC).
+else its frames' T_map_lidar) with the first IMU position at a fixed geodetic origin (or, for the
+simulator's drives, the map origin there: `origin_is_map`), map x east, y north, z up. The
+reader's map frame then has its origin at that first IMU position: `write_kitti_raw` returns the
+shift to apply to the dataset's map coordinates (ground truth) to land in it. Stamps keep their
+differences; the drive starts at noon of its date (UTC).
 
 Ground-truth objects seen by the first camera (at least `LABEL_MIN_PIXELS` pixels of its instance
 image) are written as KITTI tracking labels, `label_02/NNNN.txt` (track id = instance id).
@@ -83,9 +84,13 @@ def write_kitti_raw(
     drive: int = 1,
     origin: tuple[float, float, float] = GEODETIC_ORIGIN,
     show_progress: bool = True,
+    origin_is_map: bool = False,
 ) -> np.ndarray:
     """Write `dataset` under `root` (an empty folder) as one KITTI raw drive; returns the (3,)
-    shift from the dataset's map frame to the drive's (p_drive = p_map + shift)."""
+    shift from the dataset's map frame to the drive's (p_drive = p_map + shift). The first IMU
+    position lies at geodetic `origin`; with `origin_is_map`, the dataset's map origin does instead
+    (the first position where its map coordinates put it), so drives of one simulated world, each
+    written apart, share the Earth as real drives of one place do."""
     folder = Path(root) / date / f"{date}_drive_{drive:04d}_sync"
     (folder / VELODYNE / "data").mkdir(parents=True)
     (folder / OXTS / "data").mkdir(parents=True)
@@ -111,6 +116,8 @@ def write_kitti_raw(
     if np.any(np.diff(stamps_a) <= 0):
         raise TerraError(f"dataset {dataset.name!r}: frame stamps must increase to be written as a KITTI drive")
     T_map_imu = np.array(poses) @ T_velo_imu
+    if origin_is_map:
+        origin = _moved(origin, T_map_imu[0, :3, 3])
     _write_oxts(folder, T_map_imu, stamps_a, origin)
     _write_stamps(folder, date, stamps_a, camera_stamps, len(rig or []))
     _write_calibration(folder.parent, date, rig or [], R_rect, T_velo_imu)
@@ -177,6 +184,15 @@ def _write_images(folder: Path, i: int, frame: Frame, count: int) -> list[float]
                 (camera / extra).mkdir(exist_ok=True)
                 write(camera / extra / f"{i:010d}.png", image)
     return [float(cam.stamp) for cam in frame.cameras]
+
+
+def _moved(origin: tuple[float, float, float], offset: np.ndarray) -> tuple[float, float, float]:
+    """The geodetic point `offset` (3,) metres (east, north, up) from `origin` (lat, lon degrees, alt
+    metres), on the devkit's Mercator scaled at the origin's latitude (as the reader measures)."""
+    scale = oxts.mercator_scale(origin[0])
+    x, y = oxts.lat_lon_to_mercator(np.array([origin[0]]), np.array([origin[1]]), scale)
+    lat, lon = oxts.mercator_to_lat_lon(x + offset[0], y + offset[1], scale)
+    return float(lat[0]), float(lon[0]), float(origin[2] + offset[2])
 
 
 def _write_oxts(folder: Path, T_map_imu: np.ndarray, stamps: np.ndarray, origin: tuple[float, float, float]) -> None:

@@ -56,7 +56,8 @@ def write_dataset(
         elif format == "kitti-raw":
             from terra.datasets.kitti_raw_writer import write_kitti_raw
 
-            shift = write_kitti_raw(dataset, root, show_progress=progress)
+            # The world's origin on the Earth: two drives of one world (a revisit) share it.
+            shift = write_kitti_raw(dataset, root, show_progress=progress, origin_is_map=True)
         elif format in ("rosbag1", "rosbag2"):
             from terra.sim.bag_writer import write_bag
 
