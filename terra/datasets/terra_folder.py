@@ -398,8 +398,17 @@ class TerraFolderDataset:
                 "camera_numbers": list(self.camera_numbers),
                 "max_gap_s": self.max_gap,
                 "global_map": bool(stamped_files(self.root / GLOBAL, "global_pc_*.npy")[1]),
+                **({"gnss": self._gnss_info()} if (self.root / GNSS_CSV).is_file() else {}),
             },
         )
+
+    def _gnss_info(self) -> dict:
+        """The fixes of gnss.csv and the anchor they give the drive's frame (None: they do not fix it)."""
+        return {
+            "file": GNSS_CSV,
+            "fixes": len(read_gnss_csv(self.root / GNSS_CSV)),
+            "wgs84_anchor": self.wgs84_anchor(),
+        }
 
 
 def _read_meta(path: Path) -> dict:
