@@ -81,9 +81,9 @@ def _step(work: Path, name: str, make) -> dict:
 
 def _changes(out: Path, truth: dict) -> dict:
     """Object changes found against the simulator's, as locations matched within 1.5 m."""
-    from terra.mapping.changes import detect_changes
+    from terra.tasks.change_report import report_changes
 
-    found = detect_changes(out, 1, 2).to_json()
+    found = report_changes(out, 1, 2).to_json()
     seen = [c[k][:2] for c in found["objects"] for k in ("before", "after") if c[k] is not None]
     true = [c[k][:2] for c in truth["objects"] for k in ("from", "to") if c[k] is not None]
     result = {"observed_area_m2": found["observed_area_m2"], "counts": found["counts"], "terrain": found["terrain"]}

@@ -33,14 +33,14 @@ def changes_command(
     """
     from terra.bundle import Bundle
     from terra.cli.render import render_changes, render_stage_json
-    from terra.mapping.changes import detect_changes
+    from terra.tasks.change_report import report_changes
 
     Bundle(bundle)  # one line for a folder that is not a bundle
     if figure is not None:
         from terra.viz.changes import check_figure_path
 
         check_figure_path(figure)
-    result = detect_changes(bundle, between[0], between[1])
+    result = report_changes(bundle, between[0], between[1])
     if figure is not None:
         from terra.viz.changes import changes_figure
 

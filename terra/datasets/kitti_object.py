@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from terra.datasets.ground_truth import ObjectBox
 from terra.datasets.kitti_common import read_calib_file
 from terra.datasets.kitti_labels import KittiLabel, box_in_frame, read_label_file
 from terra.errors import TerraError
 from terra.geometry import invert_pose
-from terra.tasks.boxes import BoxSet
 
 
 @dataclass(frozen=True)
@@ -32,14 +32,15 @@ class KittiObjectFrame:
     labels: list[KittiLabel]
     T_velo_rect: np.ndarray
 
-    def boxes(self, types: tuple[str, ...] = ("Car",)) -> tuple[list[KittiLabel], BoxSet]:
+    def boxes(self, types: tuple[str, ...] = ("Car",)) -> tuple[list[KittiLabel], list[ObjectBox]]:
         """The labels of the given types and their boxes in the Velodyne frame (centre, size as
-        length, width, height, yaw of the length axis about +z; metres, radians)."""
+        length, width, height, yaw of the length axis about +z; metres, radians), numbered by their
+        line among the chosen labels (class id 0: KITTI's types are names)."""
         chosen = [label for label in self.labels if label.type in types]
         boxes = [box_in_frame(label, self.T_velo_rect) for label in chosen]
-        if not boxes:
-            return chosen, BoxSet.empty()
-        return chosen, BoxSet([b.center for b in boxes], [b.size for b in boxes], [b.yaw() for b in boxes])
+        return chosen, [
+            ObjectBox(i, 0, label.type, b.center, b.size, b.yaw()) for i, (label, b) in enumerate(zip(chosen, boxes))
+        ]
 
 
 def velo_from_rect(calib_path: Path) -> np.ndarray:

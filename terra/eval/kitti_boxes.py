@@ -59,7 +59,7 @@ def car_cases(
 ) -> list[CarCase]:
     """The frame's labelled cars with at least `min_points` scan points inside their label box."""
     xyz = frame.points[:, :3].astype(np.float64)
-    _, boxes = frame.boxes(("Car",))
+    boxes = BoxSet.from_objects(frame.boxes(("Car",))[1])
     out = []
     for i in range(len(boxes)):
         box = boxes[i : i + 1]

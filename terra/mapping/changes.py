@@ -36,7 +36,7 @@ its session's votes (not a border between two terrains), in patches of at least 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
 from typing import Any
@@ -48,7 +48,6 @@ from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
-from terra.mapping.change_report import RegionChanges, entry_names, graph_regions, summarise_regions
 from terra.npy import ArraySpec
 
 
@@ -121,6 +120,27 @@ class TerrainChange:
 
 
 @dataclass
+class RegionChanges:
+    """The changes in one region: objects added, removed and moved (a move counts where the object now is)
+    and terrain area changed (m²) per "before -> after" pair."""
+
+    region: str
+    added: int = 0
+    removed: int = 0
+    moved: int = 0
+    terrain_m2: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "region": self.region,
+            "added": self.added,
+            "removed": self.removed,
+            "moved": self.moved,
+            "terrain_m2": {pair: round(area, 3) for pair, area in sorted(self.terrain_m2.items())},
+        }
+
+
+@dataclass
 class ChangesResult:
     """`terra changes`: the bundle, the two sessions compared, the area both observed (m², x-y cells of
     `ChangeSettings.cell`), object changes, terrain changes (largest area first), the changes per region of
@@ -187,24 +207,7 @@ def detect_changes(path: Path, first: int, second: int, settings: ChangeSettings
     terrain, cells, pairs = _terrain_changes(data, a, b, settings)
     result = ChangesResult(Path(path), first, second, float(observed), objects, terrain)
     result.terrain_cells, result.terrain_pairs, result.terrain_cell_area = cells, pairs, settings.terrain_cell**2
-    _describe(bundle, result)
     return result
-
-
-def _describe(bundle: Bundle, result: ChangesResult) -> None:
-    """Name each changed object by its class and place it and the terrain cells in the graph's regions."""
-    names = entry_names(bundle, {o.entry for o in result.objects})
-    where = np.array([(o.after or o.before or (0.0, 0.0, 0.0))[:2] for o in result.objects]).reshape(-1, 2)
-    regions = graph_regions(bundle, np.vstack([where, result.terrain_cells]))
-    result.objects = [
-        replace(o, name=names.get(o.entry), region=None if regions is None else regions[i])
-        for i, o in enumerate(result.objects)
-    ]
-    if regions is not None:
-        n = len(result.objects)
-        areas = np.full(len(result.terrain_pairs), result.terrain_cell_area)
-        kinds = [o.change for o in result.objects]
-        result.regions = summarise_regions(regions[:n], kinds, regions[n:], result.terrain_pairs, areas)
 
 
 def _load(bundle: Bundle, first: int, second: int) -> _Sessions:

@@ -210,9 +210,9 @@ def _routes(app: FastAPI, current: Current, tasks: TasksConfig, settings: ServeC
         first: int = Query(1, description="the earlier session (1-based)"),
         second: int = Query(2, description="the later session"),
     ) -> JSONResponse:
-        from terra.mapping.changes import detect_changes
+        from terra.tasks.change_report import report_changes
 
-        return answer(lambda loaded: detect_changes(loaded.bundle.path, first, second))
+        return answer(lambda loaded: report_changes(loaded.bundle.path, first, second))
 
     @app.get("/locate", summary="The place nearest (x, y) and its regions (terra node BUNDLE --at X Y --json)")
     def where(

@@ -334,11 +334,11 @@ class TerraViewer:
 
     def run_changes(self, first: int, second: int) -> str:
         """Draw what changed from session `first` to `second` (terra changes) and return its summary."""
-        from terra.mapping.changes import detect_changes
+        from terra.tasks.change_report import report_changes
         from terra.viewer.changes import KIND_COLOURS, change_markers, changes_markdown
 
         self._clear("/results/changes")
-        result = detect_changes(self.loaded.path, first, second)
+        result = report_changes(self.loaded.path, first, second)
         self.last_result = result
         markers = change_markers(result, self.msm.points[self.rows])
         for kind, centres in markers.objects.items():

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from terra.mapping.change_report import summarise_regions
 from terra.mapping.changes import ChangeSettings, _object_changes, _Sessions
+from terra.tasks.change_report import summarise_regions
 
 STEP = 0.4  # metres between points, the map's voxel size
 

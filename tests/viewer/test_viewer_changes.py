@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from terra.loaded import LoadedBundle
-from terra.mapping.changes import ChangesResult, ObjectChange, TerrainChange, detect_changes
+from terra.mapping.changes import ChangesResult, ObjectChange, TerrainChange
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
 from terra.sim.config import RevisitConfig
+from terra.tasks.change_report import report_changes
 from terra.viewer.changes import KIND_COLOURS, LIFT, change_markers, changes_markdown
 from tests.mapping.test_changes import joined
 
@@ -55,7 +56,7 @@ def test_the_viewer_draws_what_terra_changes_finds(tiny_campus, tmp_path):
     viewer = TerraViewer(LoadedBundle(out), port=free_port("127.0.0.1"))
     try:
         text = viewer.run_changes(1, 2)
-        expected = detect_changes(out, 1, 2)
+        expected = report_changes(out, 1, 2)
         assert viewer.last_result.to_json() == expected.to_json()
         counts = expected.to_json()["counts"]
         assert text.startswith("**Session 1 -> 2**") and f"{counts['added']} added" in text

@@ -1,5 +1,6 @@
 """What `terra changes` adds to the changes found (terra/mapping/changes.py) for a reader: the class name of
-each changed object and a summary per region of the scene graph.
+each changed object and a summary per region of the scene graph (`report_changes`: what the command line,
+the service and the viewer answer). It reads the scene graph, one stage after the map.
 
 Names: a bank entry is an embedding (the text embedding of a class name with the `labels` backend, an image
 embedding with a camera model), so an entry is named by the map's object class (map/meta.json) whose name,
@@ -10,37 +11,17 @@ frame); the region is named by its node symbol (`R12`), as `terra info` and the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
+from terra.mapping.changes import ChangeSettings, ChangesResult, RegionChanges, detect_changes
 from terra.npy import ArraySpec
 
 NAME_COSINE = 0.5  # below this an entry resembles no class name enough to be called by it
-
-
-@dataclass
-class RegionChanges:
-    """The changes in one region: objects added, removed and moved (a move counts where the object now is)
-    and terrain area changed (m²) per "before -> after" pair."""
-
-    region: str
-    added: int = 0
-    removed: int = 0
-    moved: int = 0
-    terrain_m2: dict[str, float] = field(default_factory=dict)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "region": self.region,
-            "added": self.added,
-            "removed": self.removed,
-            "moved": self.moved,
-            "terrain_m2": {pair: round(area, 3) for pair, area in sorted(self.terrain_m2.items())},
-        }
 
 
 def entry_names(bundle: Bundle, entries: set[int]) -> dict[int, str]:
@@ -102,3 +83,27 @@ def summarise_regions(
         row = out.setdefault(region, RegionChanges(region))
         row.terrain_m2[pair] = row.terrain_m2.get(pair, 0.0) + float(area)
     return [out[k] for k in sorted(out, key=lambda name: (len(name), name))]
+
+
+def report_changes(path: Path, first: int, second: int, settings: ChangeSettings | None = None) -> ChangesResult:
+    """`terra changes`: the changes from session `first` to `second` of the joined map in bundle `path`
+    (terra.mapping.changes.detect_changes), each object named by its class and, with a scene graph, placed
+    in its region, with the per-region summary."""
+    return describe_changes(Bundle(path), detect_changes(path, first, second, settings))
+
+
+def describe_changes(bundle: Bundle, result: ChangesResult) -> ChangesResult:
+    """Name each changed object by its class and place it and the terrain cells in the graph's regions."""
+    names = entry_names(bundle, {o.entry for o in result.objects})
+    where = np.array([(o.after or o.before or (0.0, 0.0, 0.0))[:2] for o in result.objects]).reshape(-1, 2)
+    regions = graph_regions(bundle, np.vstack([where, result.terrain_cells]))
+    result.objects = [
+        replace(o, name=names.get(o.entry), region=None if regions is None else regions[i])
+        for i, o in enumerate(result.objects)
+    ]
+    if regions is not None:
+        n = len(result.objects)
+        areas = np.full(len(result.terrain_pairs), result.terrain_cell_area)
+        kinds = [o.change for o in result.objects]
+        result.regions = summarise_regions(regions[:n], kinds, regions[n:], result.terrain_pairs, areas)
+    return result
