@@ -32,6 +32,7 @@ from terra.schemas import Wgs84Anchor
 from terra.wgs84 import MapToWgs84
 
 GNSS_CSV = "gnss.csv"
+NOT_READ = object()  # a source's anchor before it is fitted (sources fit it once)
 HEADER = ("stamp", "lat", "lon", "alt")
 
 

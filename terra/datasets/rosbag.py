@@ -29,7 +29,7 @@ from pydantic import Field
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SemanticClass, SourceInfo
 from terra.datasets.folder_io import read_classes
-from terra.datasets.gnss import GnssFixes, fit_anchor
+from terra.datasets.gnss import NOT_READ, GnssFixes, fit_anchor
 from terra.datasets.registry import Loader
 from terra.datasets.ros.bag import Bag, bag_paths, is_bag, recording_name
 from terra.datasets.ros.camera_info import camera_from_info
@@ -118,6 +118,7 @@ class RosbagDataset:
         self.classes: ClassTable = read_classes(self.root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
+        self._anchor: dict | None | object = NOT_READ  # wgs84_anchor, read once
         self._pose_lookup: tuple[TfTree, str] | None = (
             None  # (TF tree, map frame) when poses come from TF or an odometry topic: deskewing
         )
@@ -326,9 +327,9 @@ class RosbagDataset:
         """The anchor of the poses' frame fitted to the bag's GNSS fixes (terra.datasets.gnss), or None:
         no NavSatFix topic, too few fixes, or poses that odometry will only compute while mapping.
         Read once (a pass over the fixes' topic), then kept."""
-        if not hasattr(self, "_anchor"):
+        if self._anchor is NOT_READ:
             self._anchor = self._fit_anchor()
-        return self._anchor
+        return self._anchor  # pyright: ignore[reportReturnType]  # read: a dict or None
 
     def _fit_anchor(self) -> dict | None:
         if self.needs_odometry or not self._frames:

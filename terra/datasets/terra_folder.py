@@ -57,7 +57,7 @@ from terra.datasets.folder_io import (
     write_label_png,
     write_rgb,
 )
-from terra.datasets.gnss import GNSS_CSV, fit_anchor, read_gnss_csv, write_gnss_csv
+from terra.datasets.gnss import GNSS_CSV, NOT_READ, fit_anchor, read_gnss_csv, write_gnss_csv
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
@@ -233,6 +233,7 @@ class TerraFolderDataset:
         self.classes: ClassTable = read_classes(root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
+        self._anchor: dict | None | object = NOT_READ  # wgs84_anchor, read once
         self._frames = self._pair_streams()
         if not self._frames:
             raise TerraError(
@@ -361,6 +362,11 @@ class TerraFolderDataset:
         """The anchor of the poses' frame fitted to the folder's GNSS fixes (gnss.csv, terra.datasets.gnss),
         or None without them or when they do not fix the frame (fewer than 3 in the drive's time span, a
         drive that hardly moves)."""
+        if self._anchor is NOT_READ:
+            self._anchor = self._fit_anchor()
+        return self._anchor  # pyright: ignore[reportReturnType]  # read: a dict or None
+
+    def _fit_anchor(self) -> dict | None:
         if not (self.root / GNSS_CSV).is_file():
             return None
         fixes = read_gnss_csv(self.root / GNSS_CSV)
