@@ -181,8 +181,9 @@ def pixel_rays(camera: CameraCalibration) -> np.ndarray:
     return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-def voxel_keys(points: np.ndarray, voxel_size: float) -> np.ndarray:
-    """One int64 key per point for the voxel (edge `voxel_size` metres) containing it.
+def voxel_keys(points: np.ndarray, voxel_size: float | np.ndarray) -> np.ndarray:
+    """One int64 key per point for the voxel (edge `voxel_size` metres, or (N, 1) edges, one per point)
+    containing it.
 
     21 bits per axis: unique for |coordinate| < 2^20 voxels (about 400 km at 0.4 m).
     """

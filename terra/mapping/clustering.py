@@ -78,8 +78,7 @@ def _voxel_samples(
     excess = per_group / max(max_samples, 1)
     if max_samples > 0 and (excess > 1.0).any():
         widen = np.where(excess > 1.0, np.ceil(np.sqrt(excess)), 1.0)
-        cells = np.floor(points / (voxel * widen[group])[:, None]).astype(np.int64) + (1 << 20)
-        sample, _ = _samples_of((cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2], group)
+        sample, _ = _samples_of(voxel_keys(points, (voxel * widen[group])[:, None]), group)
     return sample, np.bincount(sample).astype(np.float64)
 
 
