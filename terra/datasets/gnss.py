@@ -142,3 +142,10 @@ def fit_anchor(
     )
     rms = float(np.sqrt(weight @ np.sum(residual**2, axis=1)))
     return FittedAnchor(anchor, rms, int(np.count_nonzero(inside)), spread)
+
+
+def anchor_fields(stamps: np.ndarray, positions: np.ndarray, fixes: GnssFixes, source: str) -> dict[str, object] | None:
+    """`fit_anchor`'s anchor as the fields a source's `wgs84_anchor()` returns (terra.schemas.Wgs84Anchor),
+    or None where the fixes do not fix the frame."""
+    fitted = fit_anchor(stamps, positions, fixes, source)
+    return None if fitted is None else fitted.anchor.model_dump(mode="json")

@@ -29,7 +29,7 @@ from pydantic import Field
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SemanticClass, SourceInfo
 from terra.datasets.folder_io import read_classes
-from terra.datasets.gnss import NOT_READ, GnssFixes, fit_anchor
+from terra.datasets.gnss import NOT_READ, GnssFixes, anchor_fields
 from terra.datasets.registry import Loader
 from terra.datasets.ros.bag import Bag, bag_paths, is_bag, recording_name
 from terra.datasets.ros.camera_info import camera_from_info
@@ -118,7 +118,6 @@ class RosbagDataset:
         self.classes: ClassTable = read_classes(self.root) or ClassTable([SemanticClass(0, "unlabeled")])
         self.skipped: dict[str, int] = {}
         self.skipped_notes: dict[str, str] = {}
-        self._anchor: dict | None | object = NOT_READ  # wgs84_anchor, read once
         self._pose_lookup: tuple[TfTree, str] | None = (
             None  # (TF tree, map frame) when poses come from TF or an odometry topic: deskewing
         )
@@ -136,6 +135,8 @@ class RosbagDataset:
     def _open(self, config: RosbagConfig, show_progress: bool) -> None:
         """Topics, message index, poses, calibrations and frames of the open recording."""
         self.lidar_topic = choose_lidar(self.bag, config.lidar_topic)
+        self.gnss_topic = choose_gnss(self.bag, config.gnss_topic)  # None: no receiver, or several unnamed
+        self._anchor: dict | None | object = NOT_READ  # wgs84_anchor, read once
         self.camera_topics = choose_cameras(self.bag, config.cameras)
         odom_topic = choose_odometry(self.bag, config.odometry_topic) if config.poses in ("auto", "topic") else None
         if config.poses == "topic" and odom_topic is None:
@@ -315,12 +316,12 @@ class RosbagDataset:
 
     def gnss_fixes(self) -> GnssFixes | None:
         """The fixes of the bag's NavSatFix topic (terra.datasets.ros.navsat), or None without one."""
-        topic = choose_gnss(self.bag, self.config.gnss_topic)
-        if topic is None:
+        if self.gnss_topic is None:
             return None
-        fixes, left_out = read_fixes(self.bag, topic)
+        fixes, left_out = read_fixes(self.bag, self.gnss_topic)
         if left_out:
-            self._skip("gnss_without_fix", f"{topic}: NavSatFix messages without a fix (status < 0 or NaN)", left_out)
+            note = f"{self.gnss_topic}: NavSatFix messages without a fix (status < 0 or NaN)"
+            self._skip("gnss_without_fix", note, left_out)
         return fixes
 
     def wgs84_anchor(self) -> dict | None:
@@ -339,9 +340,7 @@ class RosbagDataset:
             return None
         stamps = np.array([f.stamp for f in self._frames])
         positions = np.array([f.T_map_lidar[:3, 3] for f in self._frames])
-        topic = choose_gnss(self.bag, self.config.gnss_topic)
-        fitted = fit_anchor(stamps, positions, fixes, f"GNSS fixes of {self.name} ({topic})")
-        return None if fitted is None else fitted.anchor.model_dump(mode="json")
+        return anchor_fields(stamps, positions, fixes, f"GNSS fixes of {self.name} ({self.gnss_topic})")
 
     def _skip(self, counter: str, note: str, count: int = 1) -> None:
         self.skipped[counter] = self.skipped.get(counter, 0) + count

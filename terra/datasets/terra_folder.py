@@ -57,7 +57,7 @@ from terra.datasets.folder_io import (
     write_label_png,
     write_rgb,
 )
-from terra.datasets.gnss import GNSS_CSV, NOT_READ, fit_anchor, read_gnss_csv, write_gnss_csv
+from terra.datasets.gnss import GNSS_CSV, NOT_READ, anchor_fields, read_gnss_csv, write_gnss_csv
 from terra.datasets.msmap_config import msmap_camera_keys, read_msmap_config
 from terra.datasets.registry import Loader
 from terra.datasets.sync import nearest, stamped_files
@@ -373,8 +373,7 @@ class TerraFolderDataset:
         picks = np.unique(np.linspace(0, len(self._frames) - 1, min(len(self._frames), MAX_ANCHOR_POSES)).astype(int))
         stamps = np.array([self._frames[i][0] for i in picks])
         positions = np.array([_read_pose(self._frames[i][1])[:3, 3] for i in picks])
-        fitted = fit_anchor(stamps, positions, fixes, f"GNSS fixes of {self.name} ({GNSS_CSV})")
-        return None if fitted is None else fitted.anchor.model_dump(mode="json")
+        return anchor_fields(stamps, positions, fixes, f"GNSS fixes of {self.name} ({GNSS_CSV})")
 
     def global_map(self) -> np.ndarray | None:
         """[:, :3] of the global_pc file with the largest stamp (as the reference uses it)."""

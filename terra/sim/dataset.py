@@ -7,7 +7,7 @@ from collections import OrderedDict
 import numpy as np
 
 from terra.datasets.base import CameraFrame, ClassTable, Frame, SourceInfo
-from terra.datasets.gnss import GnssFixes, fit_anchor
+from terra.datasets.gnss import GnssFixes, anchor_fields
 from terra.datasets.ground_truth import GroundTruth
 from terra.datasets.terra_folder import image_name
 from terra.errors import TerraError
@@ -167,8 +167,7 @@ class SimDataset:
         fixes = self.gnss_fixes()
         if fixes is None:
             return None
-        fitted = fit_anchor(self.trajectory.stamps, self.reported_positions(), fixes, f"GNSS fixes of {self.name}")
-        return None if fitted is None else fitted.anchor.model_dump(mode="json")
+        return anchor_fields(self.trajectory.stamps, self.reported_positions(), fixes, f"GNSS fixes of {self.name}")
 
     def global_map(self) -> np.ndarray | None:
         """The simulator ships no prebuilt global map (writers accumulate one from the scans)."""

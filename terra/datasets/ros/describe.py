@@ -8,7 +8,6 @@ from pathlib import Path
 from terra.datasets.base import SourceInfo
 from terra.datasets.ros.bag import Bag
 from terra.datasets.ros.index import index_bag
-from terra.datasets.ros.navsat import choose_gnss
 
 
 def topic_table(bag: Bag) -> list[dict]:
@@ -54,9 +53,8 @@ def dataset_section(dataset) -> dict:
         cameras.append(row)
     section["cameras"] = cameras
     section["max_gap"] = dataset.config.max_gap
-    gnss = choose_gnss(dataset.bag, dataset.config.gnss_topic)
-    if gnss is not None:
-        section["gnss_topic"] = gnss
+    if dataset.gnss_topic is not None:
+        section["gnss_topic"] = dataset.gnss_topic
     return {"dataset": section}
 
 
