@@ -9,13 +9,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from matplotlib.colors import to_rgb
 
 from terra.mapping.changes import ChangesResult
+from terra.viewer.scene import to_uint8
+from terra.viz.changes import KIND_STYLE, pair_colours
 
-KIND_COLOURS = {"added": (44, 160, 44), "removed": (214, 39, 40), "moved": (31, 119, 180)}
-PAIR_COLOURS = np.array(
-    [(255, 127, 14), (148, 103, 189), (140, 86, 75), (227, 119, 194), (188, 189, 34), (23, 190, 207)], np.uint8
-)
+
+def _rgb255(colour: str) -> tuple[int, int, int]:
+    """A matplotlib colour as the 0..255 triple viser takes."""
+    r, g, b = (int(v) for v in to_uint8(np.asarray(to_rgb(colour))))
+    return r, g, b
+
+
+KIND_COLOURS = {kind: _rgb255(colour) for kind, (colour, _) in KIND_STYLE.items()}  # the figure's markers
 LIFT = 0.3  # metres the terrain squares float above the ground, so the points do not hide them
 
 
@@ -49,8 +56,8 @@ def change_markers(result: ChangesResult, ground_xyz: np.ndarray) -> ChangeMarke
 
         _, nearest = cKDTree(np.asarray(ground_xyz, np.float64)[:, :2]).query(cells)
         markers.cells = np.column_stack([cells, np.asarray(ground_xyz)[nearest, 2] + LIFT])
-        colour_of = {pair: PAIR_COLOURS[i % len(PAIR_COLOURS)] for i, pair in enumerate(markers.pairs)}
-        markers.cell_colours = np.array([colour_of[p] for p in result.terrain_pairs], np.uint8).reshape(-1, 3)
+        colour_of = pair_colours(result.terrain_pairs)
+        markers.cell_colours = to_uint8(np.array([colour_of[p] for p in result.terrain_pairs]).reshape(-1, 3))
     return markers
 
 

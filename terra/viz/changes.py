@@ -22,6 +22,14 @@ MAX_GREY_POINTS = 200_000  # enough to read the site's layout; more only slows t
 KIND_STYLE = {"added": ("tab:green", "^"), "removed": ("tab:red", "X"), "moved": ("tab:blue", "o")}
 
 
+def pair_colours(pairs: list[str]) -> dict[str, tuple[float, float, float]]:
+    """An RGB colour in 0..1 per "before -> after" terrain pair, in name order, from the distinct
+    palette past its green, red and blue (the object markers'); the figure's and the viewer's."""
+    palette = distinct_palette()
+    chosen = (palette[(i + 4) % len(palette)] for i in range(len(set(pairs))))
+    return {pair: (float(r), float(g), float(b)) for pair, (r, g, b) in zip(sorted(set(pairs)), chosen)}
+
+
 def _extent(points: np.ndarray, result: ChangesResult) -> Extent | None:
     """The site (the middle 98 % of the map's points each way: a LiDAR's few far returns would shrink it to
     a corner of the figure) and every change, with a margin."""
@@ -54,10 +62,8 @@ def changes_figure(result: ChangesResult, path: Path) -> Path:
     topdown_axis(ax, extent=extent)
     ax.scatter(points[:, 0], points[:, 1], s=0.2, c="0.75", linewidths=0, rasterized=True)
     handles: list = []
-    palette = distinct_palette()
-    for i, pair in enumerate(sorted(set(result.terrain_pairs))):
+    for pair, colour in pair_colours(result.terrain_pairs).items():
         mine = np.array([p == pair for p in result.terrain_pairs])
-        colour = palette[(i + 4) % len(palette)]  # past the markers' green, red and blue
         cells = result.terrain_cells[mine]
         ax.scatter(cells[:, 0], cells[:, 1], s=6, marker="s", color=colour, linewidths=0)
         area = mine.sum() * result.terrain_cell_area
