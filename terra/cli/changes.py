@@ -19,6 +19,7 @@ def changes_command(
     figure: Path | None = typer.Option(
         None, "--figure", help="Also draw the changes over the map from above into this PNG file."
     ),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing PNG at --figure."),
 ) -> None:
     """What changed between two sessions of a map.
 
@@ -37,9 +38,11 @@ def changes_command(
 
     Bundle(bundle)  # one line for a folder that is not a bundle
     if figure is not None:
+        from terra.cli.outputs import refuse_existing
         from terra.viz.changes import check_figure_path
 
         check_figure_path(figure)
+        refuse_existing(figure, overwrite)
     result = report_changes(bundle, between[0], between[1])
     if figure is not None:
         from terra.viz.changes import changes_figure

@@ -94,6 +94,12 @@ def test_changes_per_region_and_figure(first_map, tmp_path, capsys):
     assert sum(sum(r["terrain_m2"].values()) for r in regions) == pytest.approx(terrain)
     assert run(["changes", str(out)]) == 0
     assert "per region:" in capsys.readouterr().out
+    mine = tmp_path / "mine.png"  # a picture Terra did not draw is kept unless --overwrite
+    mine.write_bytes(b"not ours")
+    assert run(["changes", str(out), "--figure", str(mine)]) == 2
+    assert "exists (pass --overwrite to replace it)" in capsys.readouterr().err and mine.read_bytes() == b"not ours"
+    assert run(["changes", str(out), "--figure", str(mine), "--overwrite"]) == 0
+    assert mine.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     for bad in (tmp_path / "changes.txt", tmp_path / "missing" / "changes.png", tmp_path):
         assert run(["changes", str(out), "--figure", str(bad)]) == 2
         err = capsys.readouterr().err.strip()
