@@ -141,15 +141,21 @@ def path_segments(waypoints: np.ndarray, lift: float = 0.6) -> np.ndarray:
     return np.stack([pos[:-1], pos[1:]], axis=1)
 
 
+TRAJECTORY_GAP = 30.0  # seconds between two images of one camera that end a drive (another session)
+
+
 def trajectory_segments(msm: MetricSemanticMap, camera: int = 0, lift: float = 0.3) -> np.ndarray:
-    """(n - 1, 2, 3) segments joining the centres of camera `camera`'s images in stamp order (the
-    drive so far), metres, map frame, lifted `lift` metres; empty without two such images."""
+    """(k, 2, 3) segments joining the centres of camera `camera`'s consecutive images in the order they
+    were fused (the drives so far), metres, map frame, lifted `lift` metres. A drive ends where the
+    next image's stamp is not later or more than TRAJECTORY_GAP seconds later: each session of a joined
+    map runs on its own clock, and a line from one drive's end to the next one's start is no path."""
     images = msm.images
     mine = np.flatnonzero(np.asarray(images.camera) == camera)
     if mine.size < 2:
         return np.zeros((0, 2, 3), dtype=np.float32)
-    order = mine[np.argsort(images.stamp[mine], kind="stable")]
-    return path_segments(images.position[order], lift)
+    segments = path_segments(images.position[mine], lift)
+    step = np.diff(np.asarray(images.stamp, dtype=np.float64)[mine])
+    return segments[(step > 0) & (step <= TRAJECTORY_GAP)]
 
 
 def parse_end(text: str) -> tuple[str, int | str | None]:

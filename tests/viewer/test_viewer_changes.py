@@ -14,6 +14,7 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
 from terra.sim.config import RevisitConfig
 from terra.tasks.change_report import report_changes
+from terra.viewer import scene
 from terra.viewer.changes import KIND_COLOURS, LIFT, change_markers, changes_markdown
 from tests.mapping.test_changes import joined
 
@@ -64,5 +65,8 @@ def test_the_viewer_draws_what_terra_changes_finds(tiny_campus, tmp_path):
         for kind in KIND_COLOURS:
             assert len(markers.objects[kind]) == counts[kind]
         assert sum(counts.values()) > 0
+        # Two drives, each on its own clock: two lines, none from the first drive's end to the second's start.
+        images = viewer.msm.images
+        assert len(scene.trajectory_segments(viewer.msm)) == int(np.count_nonzero(images.camera == 0)) - 2
     finally:
         viewer.stop()
