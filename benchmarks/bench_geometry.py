@@ -6,6 +6,9 @@ Sections (each skipped when its input is not given):
   classes and crosswalk paint) against everything else, on `--frames` frames of a simulated
   preset fused in the map frame; and, with `--kitti DIR` (KITTI .bin scans), its agreement with
   Patchwork++ (pypatchworkpp, when installed) on each scan.
+- labelled: with `--labelled SEQ` (a SemanticKITTI sequence with velodyne/ and labels/), the
+  scores of `terra eval --ground-only` (terra.eval.ground_segmentation) for segment_ground and, when
+  pypatchworkpp is installed, for Patchwork++ on the same scans and labels.
 - lidar-only: `terra map --poses odometry` (KISS-ICP) and `terra build` of the KITTI scans in
   `--kitti DIR`, and the share of the largest connected patch of densely observed ground cells
   (>= 60 % of a 9 x 9 window observed) within 3, 5 and 10 m of a place.
@@ -20,10 +23,10 @@ Sections (each skipped when its input is not given):
   best of `--repeat` runs each.
 
 Usage:
-  python benchmarks/bench_geometry.py [--preset tiny] [--frames 40] [--kitti DIR]
+  python benchmarks/bench_geometry.py [--preset tiny] [--frames 40] [--kitti DIR] [--labelled SEQ]
       [--campus-map BUNDLE] [--repeat 3]
       [--wheelchair-map BUNDLE --wheelchair-preset small --sim-config FILE --pairs 200]
-Writes benchmarks/results/geometry.json and prints it.
+Writes benchmarks/results/geometry.json (or --out) and prints it.
 """
 
 from __future__ import annotations
@@ -106,6 +109,43 @@ def segmentation_kitti(folder: Path) -> dict[str, Any]:
         rows.append({"scan": path.name, "points": len(scan), "seconds": round(seconds, 3)} | f1_score(found, reference))
     mean = {k: round(float(np.mean([r[k] for r in rows])), 4) for k in ("precision", "recall", "f1")}
     return {"reference": f"Patchwork++ (pypatchworkpp {package_version('pypatchworkpp')})", "scans": rows, "mean": mean}
+
+
+def segmentation_labelled(sequence: Path) -> dict[str, Any]:
+    """`terra eval --ground-only` scores of segment_ground, and of Patchwork++ when installed, on the
+    labelled scans of a SemanticKITTI sequence."""
+    from terra.eval.ground_segmentation import ground_table
+
+    tables = {"segment_ground": ground_table(sequence)}
+    try:
+        import pypatchworkpp  # pyright: ignore[reportMissingImports]  # optional: pip install pypatchworkpp
+    except ImportError:
+        pypatchworkpp = None
+    if pypatchworkpp is not None:
+        params = pypatchworkpp.Parameters()
+        params.verbose = False
+        patchwork = pypatchworkpp.patchworkpp(params)
+
+        def patchwork_ground(points: np.ndarray) -> np.ndarray:
+            scan = np.column_stack([points, np.zeros(len(points))]).astype(np.float32)
+            patchwork.estimateGround(scan)
+            found = np.zeros(len(points), dtype=bool)
+            found[np.asarray(patchwork.getGroundIndices(), dtype=np.int64)] = True
+            return found
+
+        name = f"Patchwork++ (pypatchworkpp {package_version('pypatchworkpp')})"
+        tables[name] = ground_table(sequence, segment=patchwork_ground, method=name)
+    out: dict[str, Any] = {}
+    for name, table in tables.items():
+        keys = ("precision", "recall", "f1")
+        out[name] = {
+            "scans": len(table.scans),
+            "points": sum(s.scored for s in table.scans),
+            "pooled": {k: round(v, 4) for k, v in zip(keys, table.pooled())},
+            "mean_per_scan": {k: round(v, 4) for k, v in zip(keys, table.mean())},
+            "seconds_per_scan": round(sum(s.seconds for s in table.scans) / max(len(table.scans), 1), 4),
+        }
+    return {"sequence": str(sequence), "methods": out}
 
 
 def lidar_only_build(folder: Path, work: Path) -> dict[str, Any]:
@@ -275,12 +315,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--kitti", type=Path, default=None)
+    parser.add_argument("--labelled", type=Path, default=None)
     parser.add_argument("--campus-map", type=Path, default=None)
     parser.add_argument("--wheelchair-map", type=Path, default=None)
     parser.add_argument("--wheelchair-preset", default="small")
     parser.add_argument("--sim-config", type=Path, default=None)
     parser.add_argument("--pairs", type=int, default=200)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=RESULTS, help="JSON written (default results/geometry.json)")
     args = parser.parse_args()
     result: dict[str, Any] = {
         "machine": f"{platform.node()} {platform.machine()} {platform.python_version()}",
@@ -293,14 +335,16 @@ def main() -> None:
         result["segmentation_kitti"] = segmentation_kitti(args.kitti)
         with tempfile.TemporaryDirectory() as work:
             result["lidar_only_kitti"] = lidar_only_build(args.kitti, Path(work))
+    if args.labelled is not None:
+        result["segmentation_labelled"] = segmentation_labelled(args.labelled)
     if args.campus_map is not None:
         result["build_time"] = build_time(args.campus_map, args.repeat)
     if args.wheelchair_map is not None:
         result["wheelchair"] = wheelchair_on_map(
             args.wheelchair_map, args.wheelchair_preset, args.seed, args.sim_config, args.pairs
         )
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=1) + "\n")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result, indent=1))
 
 

@@ -1,6 +1,7 @@
 """`terra eval`: the paper's evaluation (Tables I-III, memory, navigation) of a bundle against a
 simulated dataset's ground truth, `--tune` to choose alpha and k on a validation scene, or
-`--terrain-only` for Table I of any terrain segmenters on a labelled dataset."""
+`--terrain-only` for Table I of any terrain segmenters on a labelled dataset, or `--ground-only` for
+LiDAR ground segmentation against SemanticKITTI labels."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from terra.cli import app
 from terra.errors import TerraError
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: the evaluation loads on use
-    from terra.eval.results import EvalResult, TerrainTable, TuneResult
+    from terra.eval.results import EvalResult, GroundTable, TerrainTable, TuneResult
 
 EVAL_HELP = """Score a bundle against ground truth (Tables I-III).
 
@@ -34,7 +35,14 @@ YOLO against YOLOE prompts.
 
 Example: terra eval campus.terra --gt campus-data --tuned val-report/tuned.json --out report
 
+With --ground-only, BUNDLE is a SemanticKITTI sequence (velodyne/ and labels/): each labelled
+scan's LiDAR ground segmentation (the filter `terra build` runs) is scored against its labels,
+ground being road, parking, sidewalk, other-ground, lane-marking and terrain; precision, recall
+and F1 pooled over points and as the mean of scans.
+
 Example: terra eval --terrain-only labelled-data --config yolo.yaml --config yoloe.yaml
+
+Example: terra eval --ground-only sequences/08 --max-images 50
 """
 
 BundleArg = Annotated[
@@ -80,13 +88,23 @@ TerrainOnlyOpt = Annotated[
         help="Only Table I: each configured terrain segmenter on the labelled images of BUNDLE, a dataset.",
     ),
 ]
+GroundOnlyOpt = Annotated[
+    bool,
+    typer.Option(
+        "--ground-only",
+        help="Only LiDAR ground segmentation, scored against the labels of BUNDLE, a SemanticKITTI sequence.",
+    ),
+]
 FormatOpt = Annotated[
     str, typer.Option("--format", help="With --terrain-only: dataset format (auto, terra-folder, semantickitti).")
 ]
 MaxImagesOpt = Annotated[
     int | None,
     typer.Option(
-        "--max-images", min=1, help="With --terrain-only: images evaluated (default: eval.segmentation.max_images)."
+        "--max-images",
+        min=1,
+        help="With --terrain-only: images evaluated (default: eval.segmentation.max_images); with --ground-only: "
+        "scans scored (default: all).",
     ),
 ]
 OverwriteOpt = Annotated[
@@ -105,6 +123,7 @@ def eval_command(
     tune: TuneOpt = False,
     config: ConfigOpt = None,
     terrain_only: TerrainOnlyOpt = False,
+    ground_only: GroundOnlyOpt = False,
     dataset_format: FormatOpt = "auto",
     max_images: MaxImagesOpt = None,
     overwrite: OverwriteOpt = False,
@@ -112,6 +131,11 @@ def eval_command(
     quiet: QuietOpt = False,
 ) -> None:
     """`terra eval` (its help text: EVAL_HELP)."""
+    if terrain_only and ground_only:
+        raise TerraError("--terrain-only scores camera images and --ground-only LiDAR scans; give one of them")
+    if ground_only:
+        _ground_only(bundle, max_images, as_json, quiet)
+        return
     if terrain_only:
         _terrain_only(bundle, config or [], dataset_format, max_images, as_json, quiet)
         return
@@ -184,7 +208,7 @@ def _report(
     _show(result, as_json, quiet)
 
 
-def _show(result: EvalResult | TuneResult | TerrainTable, as_json: bool, quiet: bool) -> None:
+def _show(result: EvalResult | TuneResult | TerrainTable | GroundTable, as_json: bool, quiet: bool) -> None:
     """The result as JSON, or its text summary with the timing table unless --quiet."""
     from terra.cli.render import render_eval, render_stage_json
 
@@ -220,5 +244,17 @@ def _terrain_only(
     with timer.stage("segmentation"):
         table = terrain_table(dataset, segmenters, limit, show_progress=not quiet)
     result = TerrainTable.from_json(table)
+    result.timer = timer
+    _show(result, as_json, quiet)
+
+
+def _ground_only(sequence: Path, max_scans: int | None, as_json: bool, quiet: bool) -> None:
+    """LiDAR ground segmentation scored against the labels of a SemanticKITTI sequence."""
+    from terra.eval.ground_segmentation import ground_table
+    from terra.progress import StageTimer
+
+    timer = StageTimer()
+    with timer.stage("ground segmentation"):
+        result = ground_table(sequence, max_scans=max_scans, show_progress=not quiet and not as_json)
     result.timer = timer
     _show(result, as_json, quiet)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 from terra.words import counted
 
 if TYPE_CHECKING:  # every cli module is imported for `terra --help`: keep this one light
-    from terra.eval.results import EvalResult, TerrainTable, TuneResult
+    from terra.eval.results import EvalResult, GroundTable, TerrainTable, TuneResult
     from terra.graph.results import BuildResult
     from terra.interop.results import ExportResult, ImportResult
     from terra.mapping.changes import ChangesResult
@@ -239,13 +239,15 @@ def render_sim(result: SimResult) -> str:
     )
 
 
-def render_eval(result: EvalResult | TuneResult | TerrainTable) -> str:
-    """What `terra eval` prints: the report's headline, the tuned parameters (--tune) or Table I
-    (--terrain-only); the timing table is the command's."""
-    from terra.eval.results import EvalResult, TerrainTable
+def render_eval(result: EvalResult | TuneResult | TerrainTable | GroundTable) -> str:
+    """What `terra eval` prints: the report's headline, the tuned parameters (--tune), Table I
+    (--terrain-only) or the ground segmentation scores (--ground-only); the timing table is the command's."""
+    from terra.eval.results import EvalResult, GroundTable, TerrainTable
 
     if isinstance(result, TerrainTable):
         return "\n".join(_terrain_lines(result))
+    if isinstance(result, GroundTable):
+        return "\n".join(_ground_lines(result))
     if isinstance(result, EvalResult):
         from terra.eval.report import headline
 
@@ -277,6 +279,25 @@ def _terrain_lines(table: TerrainTable) -> list[str]:
     for name, s in methods.items():
         per_class = ", ".join(f"{c} {'-' if v is None else f'{v:.3f}'}" for c, v in zip(s.classes, s.iou))
         lines.append(f"  IoU per class, {name}: {per_class}")
+    return lines
+
+
+def _ground_lines(table: GroundTable) -> list[str]:
+    """Pooled and per-scan-mean scores, then the worst scans."""
+    p, r, f = table.pooled()
+    mp, mr, mf = table.mean()
+    points = sum(s.scored for s in table.scans)
+    seconds = sum(s.seconds for s in table.scans)
+    lines = [
+        f"ground segmentation ({table.method}) of {table.sequence}: {counted(len(table.scans), 'labelled scan')}, "
+        f"{counted(points, 'scored point')}, ground = SemanticKITTI {', '.join(map(str, table.ground_labels))}",
+        f"  pooled:        F1 {f:.4f}  precision {p:.4f}  recall {r:.4f}",
+        f"  mean per scan: F1 {mf:.4f}  precision {mp:.4f}  recall {mr:.4f}",
+        f"  {seconds / max(len(table.scans), 1) * 1000:.0f} ms a scan",
+    ]
+    worst = sorted(table.scans, key=lambda s: s.f1)[:3]
+    if len(table.scans) > 1:
+        lines.append("  lowest F1: " + ", ".join(f"{s.scan} {s.f1:.4f}" for s in worst))
     return lines
 
 

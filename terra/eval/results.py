@@ -1,5 +1,6 @@
 """What `terra eval` returns: `EvalResult` (a report written), `TuneResult` (`--tune`) and
-`TerrainTable` (`--terrain-only`, Table I). `to_json()` is the command's `--json` output and
+`TerrainTable` (`--terrain-only`, Table I) and `GroundTable` (`--ground-only`: LiDAR ground segmentation
+against SemanticKITTI labels). `to_json()` is the command's `--json` output and
 `from_json` reads it back into an equal result; text rendering lives in terra/cli/render.py.
 
 The report's sections (segmentation, retrieval, regions, memory, places, navigation, figures) stay
@@ -150,3 +151,95 @@ class TerrainTable:
     def from_json(cls, data: dict[str, Any]) -> TerrainTable:
         methods = {str(name): TerrainRow.from_json(row) for name, row in data["methods"].items()}
         return cls(str(data["dataset"]), int(data["images"]), methods)
+
+
+def _scores(tp: int, fp: int, fn: int) -> tuple[float, float, float]:
+    """(precision, recall, F1); 0 where undefined (nothing found, nothing to find)."""
+    return tp / max(tp + fp, 1), tp / max(tp + fn, 1), 2 * tp / max(2 * tp + fp + fn, 1)
+
+
+@dataclass
+class GroundScan:
+    """One labelled scan: its points, those scored (not unlabeled or outlier), ground points found
+    that are ground (tp), found that are not (fp), missed (fn), and the segmentation's seconds."""
+
+    scan: str
+    points: int
+    scored: int
+    tp: int
+    fp: int
+    fn: int
+    seconds: float
+
+    @property
+    def precision(self) -> float:
+        return _scores(self.tp, self.fp, self.fn)[0]
+
+    @property
+    def recall(self) -> float:
+        return _scores(self.tp, self.fp, self.fn)[1]
+
+    @property
+    def f1(self) -> float:
+        return _scores(self.tp, self.fp, self.fn)[2]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "scan": self.scan,
+            "points": self.points,
+            "scored": self.scored,
+            "tp": self.tp,
+            "fp": self.fp,
+            "fn": self.fn,
+            "seconds": self.seconds,
+            "precision": self.precision,
+            "recall": self.recall,
+            "f1": self.f1,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> GroundScan:
+        points, scored, tp, fp, fn = (int(data[k]) for k in ("points", "scored", "tp", "fp", "fn"))
+        return cls(str(data["scan"]), points, scored, tp, fp, fn, float(data["seconds"]))
+
+
+@dataclass
+class GroundTable:
+    """`terra eval --ground-only`: `method` scored on the labelled scans of `sequence`, ground being
+    the SemanticKITTI ids `ground_labels`; pooled scores over every scored point and the mean per
+    scan; `timer` serves the text summary only."""
+
+    sequence: str
+    method: str
+    ground_labels: list[int]
+    scans: list[GroundScan]
+    timer: StageTimer | None = field(default=None, compare=False, repr=False)
+
+    def pooled(self) -> tuple[float, float, float]:
+        """(precision, recall, F1) over the points of every scan together."""
+        return _scores(*(sum(getattr(s, k) for s in self.scans) for k in ("tp", "fp", "fn")))
+
+    def mean(self) -> tuple[float, float, float]:
+        """(precision, recall, F1), each the mean over scans."""
+        n = max(len(self.scans), 1)
+        return (
+            sum(s.precision for s in self.scans) / n,
+            sum(s.recall for s in self.scans) / n,
+            sum(s.f1 for s in self.scans) / n,
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        keys = ("precision", "recall", "f1")
+        return {
+            "sequence": self.sequence,
+            "method": self.method,
+            "ground_labels": list(self.ground_labels),
+            "pooled": dict(zip(keys, self.pooled())),
+            "mean_per_scan": dict(zip(keys, self.mean())),
+            "scans": [s.to_json() for s in self.scans],
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> GroundTable:
+        scans = [GroundScan.from_json(s) for s in data["scans"]]
+        return cls(str(data["sequence"]), str(data["method"]), [int(i) for i in data["ground_labels"]], scans)
