@@ -39,7 +39,7 @@ import shutil
 import stat
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -119,11 +119,13 @@ def dumps_json(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
-def _write_new_file(path: Path, data: bytes, mode: int = 0o666) -> None:
-    """Create file `path` (it must not exist) with `data`, synced to disk; `mode` before the umask."""
+def _write_new_file(path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666) -> None:
+    """Create file `path` (it must not exist) with `data` (or its parts, one after the other), synced
+    to disk; `mode` before the umask."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
     with os.fdopen(fd, "wb") as f:
-        f.write(data)
+        for part in [data] if isinstance(data, bytes) else data:
+            f.write(part)
         f.flush()
         os.fsync(f.fileno())
 
@@ -153,14 +155,27 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
                 os.close(fd)
 
 
-def array_bytes(array: np.ndarray) -> bytes:
-    """The .npy encoding of an array (no pickled objects allowed)."""
+def npy_parts(array: np.ndarray) -> tuple[bytes, memoryview]:
+    """The .npy encoding of an array as its header and a view of its data, bytes for bytes what
+    np.save writes, without copying the data (a map commit writes about 70 MB at a million points;
+    no pickled objects allowed)."""
     array = np.ascontiguousarray(array)
     if array.dtype.hasobject:
         raise TypeError("object arrays cannot be stored in a bundle")
-    buf = io.BytesIO()
-    np.save(buf, array, allow_pickle=False)
-    return buf.getvalue()
+    header = io.BytesIO()
+    fields = np.lib.format.header_data_from_array_1_0(array)
+    try:  # the version np.save picks: 1.0 unless the header outgrows it
+        np.lib.format.write_array_header_1_0(header, fields)
+    except ValueError:
+        header = io.BytesIO()
+        np.lib.format.write_array_header_2_0(header, fields)
+    return header.getvalue(), memoryview(array.reshape(-1).view(np.uint8))
+
+
+def array_bytes(array: np.ndarray) -> bytes:
+    """The .npy encoding of an array (no pickled objects allowed)."""
+    header, data = npy_parts(array)
+    return header + data.tobytes()
 
 
 # ----------------------------------------------------------------------------- folder replacement
@@ -686,20 +701,24 @@ class BundleWriter:
         components = manifest_json(self.model).get("components", {})
         self._edit(components={**components, name: {**components.get(name, {}), **fields}})
 
-    def _put(self, file_name: str, data: bytes) -> None:
+    def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview]) -> None:
         from terra.schemas import FileEntry
 
+        parts = [data] if isinstance(data, bytes) else list(data)
         dst = self._tmp / file_name
         with writing(self.path, self.what):
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
-            _write_new_file(dst, data)
-        self.model.files[file_name] = FileEntry(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+            _write_new_file(dst, parts)
+        digest = hashlib.sha256()
+        for part in parts:
+            digest.update(part)
+        self.model.files[file_name] = FileEntry(bytes=sum(len(p) for p in parts), sha256=digest.hexdigest())
 
     def put_array(self, name: str, array: np.ndarray) -> None:
-        """Store an array as `<name>.npy`, e.g. `map/points`."""
-        self._put(f"{name}.npy", array_bytes(array))
+        """Store an array as `<name>.npy`, e.g. `map/points` (written from the array's own memory)."""
+        self._put(f"{name}.npy", npy_parts(array))
 
     def put_json(self, name: str, obj: Any) -> None:
         """Store canonical JSON as `name` (which ends in .json)."""

@@ -64,19 +64,24 @@ class VoxelMap:
 
     def final_order(self) -> np.ndarray:
         """Permutation listing map points by voxel key: the stored order, independent of the
-        order in which voxels were first seen."""
-        return np.argsort(self._keys[: self.size], kind="stable")
+        order in which voxels were first seen. The key index keeps it already (keys are unique, so
+        it is argsort(keys)); read-only, as every later insertion makes a new array."""
+        order = self._sorted_index[: self.size]
+        order.flags.writeable = False
+        return order
 
     def points(self) -> np.ndarray:
         """(N, 3) float32 voxel centroids in creation order, metres, map frame."""
         return (self._sums[: self.size] / self._hits[: self.size, None]).astype(np.float32)
 
-    def state(self) -> dict[str, np.ndarray]:
-        return {
-            "keys": self._keys[: self.size].copy(),
-            "sums": self._sums[: self.size].copy(),
-            "hits": self._hits[: self.size].copy(),
-        }
+    def state(self, order: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Voxel keys (N,) int64, coordinate sums (N, 3) float64 metres and hits (N,) int64, copies
+        in creation order, or in `order` (e.g. final_order()) without a second copy."""
+        rows = slice(0, self.size) if order is None else order
+        keys, sums, hits = self._keys[rows], self._sums[rows], self._hits[rows]
+        if order is None:
+            keys, sums, hits = keys.copy(), sums.copy(), hits.copy()
+        return {"keys": keys, "sums": sums, "hits": hits}
 
     @classmethod
     def from_state(cls, voxel_size: float, state: dict[str, np.ndarray]) -> VoxelMap:

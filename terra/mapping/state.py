@@ -48,10 +48,10 @@ def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> No
     n = geometry.size
     order = geometry.final_order()
     if isinstance(geometry, VoxelMap):
-        voxels = geometry.state()
-        writer.put_array("map/state/voxel_keys", voxels["keys"][order].astype(np.int64))
-        writer.put_array("map/state/voxel_sums", voxels["sums"][order].astype(np.float64))
-        writer.put_array("map/state/voxel_hits", smallest_unsigned(voxels["hits"][order]))
+        voxels = geometry.state(order)
+        writer.put_array("map/state/voxel_keys", voxels["keys"])
+        writer.put_array("map/state/voxel_sums", voxels["sums"])
+        writer.put_array("map/state/voxel_hits", smallest_unsigned(voxels["hits"]))
     writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
     if fusion.session_hits.shape[1] > 1:
         writer.put_array("map/state/session_hits", smallest_unsigned(fusion.session_counts()))

@@ -99,3 +99,39 @@ def test_outputs_get_the_users_normal_permissions(tmp_path, umask):
     assert stat.S_IMODE((b.path / "map").stat().st_mode) == 0o777 & ~umask
     for path in [b.path / "manifest.json", b.path / "map" / "points.npy", tmp_path / "tuned.json"]:
         assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask, path
+
+
+@pytest.mark.filterwarnings("ignore:Stored array in format 2.0")  # np.save's own note on the long header
+def test_arrays_are_written_as_np_save_writes_them(tmp_path):
+    """put_array streams the header and the array's own memory: the files and their checksums are
+    those of np.save, whatever the dtype, layout, byte order or header size."""
+    import hashlib
+    import io
+
+    from terra.bundle import array_bytes
+
+    rng = np.random.default_rng(0)
+    arrays = {
+        "empty": np.zeros((0, 3)),
+        "scalar": np.array(3.5),
+        "points": rng.random((100, 3)).astype(np.float32),
+        "strided": np.arange(10)[::2],
+        "fortran": rng.random((4, 3)).T,
+        "flags": np.array([True, False]),
+        "half": rng.random(5).astype(np.float16),
+        "big_endian": rng.random((3, 3)).astype(">f8"),
+        "many_axes": np.zeros((1,) * 32, np.int8),
+        "long_header": np.zeros(2, dtype=[(f"field{i}", "<u1") for i in range(5000)]),  # past format 1.0's 64 KiB
+        "record": np.zeros(3, dtype=[("a", "<f4"), ("b", "<i8")]),
+    }
+    with BundleWriter(tmp_path / "b.terra") as writer:
+        for name, array in arrays.items():
+            writer.put_array(f"a/{name}", array)
+    bundle = Bundle(tmp_path / "b.terra")
+    for name, array in arrays.items():
+        expected = io.BytesIO()
+        np.save(expected, np.ascontiguousarray(array), allow_pickle=False)
+        data = (tmp_path / "b.terra" / "a" / f"{name}.npy").read_bytes()
+        assert data == expected.getvalue() == array_bytes(array), name
+        entry = bundle.files[f"a/{name}.npy"]
+        assert entry.bytes == len(data) and entry.sha256 == hashlib.sha256(data).hexdigest()
