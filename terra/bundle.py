@@ -169,7 +169,7 @@ def npy_parts(array: np.ndarray) -> tuple[bytes, memoryview]:
     except ValueError:
         header = io.BytesIO()
         np.lib.format.write_array_header_2_0(header, fields)
-    return header.getvalue(), memoryview(array.reshape(-1).view(np.uint8))
+    return header.getvalue(), array.reshape(-1).view(np.uint8).data
 
 
 def array_bytes(array: np.ndarray) -> bytes:
