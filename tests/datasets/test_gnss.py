@@ -7,6 +7,7 @@ to millimetres."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -125,3 +126,55 @@ def test_navsatfix_messages_built_by_rosbags_become_fixes(store):
     status = types.types["sensor_msgs/msg/NavSatStatus"]
     assert fix_row(replace(fix, status=status(status=-1, service=1))) is None  # no fix yet
     assert fix_row(replace(fix, latitude=float("nan"))) is None
+
+
+REAL_BAG = Path(__file__).resolve().parents[1] / "data" / "ros" / "husky_navsat_fix.bag"
+
+
+def _real_messages(topic: str) -> list:
+    """The messages of `topic` in the real Husky bag (tests/data/README.md), read by rosbags directly."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    with AnyReader([REAL_BAG], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        return [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=connections)]
+
+
+def test_a_real_receivers_fixes_and_the_anchor_of_its_wheel_odometry():
+    """A real recording (a Husky's /fix, 989 SBAS fixes at 2.5 Hz, and its wheel odometry, 359 m in 395 s):
+    every fix read as recorded, and the frame of the odometry anchored where the fixes put it, checked by
+    geodesic distances (pyproj), not by the transverse Mercator the fit uses."""
+    from terra.datasets.ros.bag import Bag
+    from terra.datasets.ros.navsat import choose_gnss, read_fixes
+
+    bag = Bag(REAL_BAG)
+    topic = choose_gnss(bag, None)
+    assert topic == "/fix"
+    fixes, left_out = read_fixes(bag, topic)
+    messages = _real_messages("/fix")
+    assert left_out == 0 and len(fixes) == len(messages) == 989
+    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in messages])
+    np.testing.assert_array_equal(fixes.stamps, stamps)  # recorded in stamp order
+    np.testing.assert_array_equal(fixes.lat, [m.latitude for m in messages])
+    np.testing.assert_array_equal(fixes.lon, [m.longitude for m in messages])
+    np.testing.assert_array_equal(fixes.alt, [m.altitude for m in messages])
+    # status 1 (SBAS), covariance type 1 (approximated): std from the east and north variances (0.8 to 1.7 m)
+    assert {int(m.status.status) for m in messages} == {1} == {int(m.position_covariance_type) for m in messages}
+    east_north = np.array([[m.position_covariance[0], m.position_covariance[4]] for m in messages])
+    np.testing.assert_allclose(fixes.std, np.sqrt(east_north.mean(axis=1)))
+    assert 0.8 <= fixes.std.min() and fixes.std.max() <= 1.7
+
+    odometry = _real_messages("/husky_velocity_controller/odom")
+    when = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in odometry])
+    where = np.array([[m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z] for m in odometry])
+    first_minute = when <= when[0] + 60.0  # wheel odometry drifts: over the whole drive the fit is worse (6.8 m)
+    fitted = fit_anchor(when[first_minute], where[first_minute], fixes, "test")
+    assert fitted is not None and fitted.fixes == 150 and fitted.spread > 15.0
+    inside = (fixes.stamps >= when[0]) & (fixes.stamps <= when[first_minute][-1])
+    at = np.column_stack([np.interp(fixes.stamps[inside], when, where[:, k]) for k in range(3)])
+    lon, lat, _ = MapToWgs84(fitted.anchor).lon_lat_height(at).T
+    _, _, metres = GEOD.inv(lon, lat, fixes.lon[inside], fixes.lat[inside])
+    weight = 1.0 / fixes.std[inside] ** 2  # the fit weighs each fix by its variance
+    assert math.sqrt(np.sum(weight * metres**2) / weight.sum()) == pytest.approx(fitted.rms, abs=0.005)
+    assert fitted.rms < 2.5  # the odometry and the receiver agree to about two fix sigmas over that minute
