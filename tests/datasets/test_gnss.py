@@ -7,8 +7,8 @@ to millimetres."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -163,7 +163,7 @@ def test_a_real_receivers_fixes_and_the_anchor_of_its_wheel_odometry():
     assert {int(m.status.status) for m in messages} == {1} == {int(m.position_covariance_type) for m in messages}
     east_north = np.array([[m.position_covariance[0], m.position_covariance[4]] for m in messages])
     np.testing.assert_allclose(fixes.std, np.sqrt(east_north.mean(axis=1)))
-    assert 0.8 <= fixes.std.min() and fixes.std.max() <= 1.7
+    assert fixes.std.min() >= 0.8 and fixes.std.max() <= 1.7
 
     odometry = _real_messages("/husky_velocity_controller/odom")
     when = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in odometry])
