@@ -136,7 +136,7 @@ def main() -> None:
     from terra.sim import simulate
     from terra.sim.config import RevisitConfig, SimConfig
 
-    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0)
+    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0, fences_added=0)
     x, y, yaw = RevisitConfig().frame
     metres, degrees = args.guess_error
     guess = pose_from_guess(x + metres * 0.8, y - metres * 0.6, yaw + degrees)

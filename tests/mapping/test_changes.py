@@ -21,7 +21,9 @@ from terra.sim.config import RevisitConfig, SimConfig
 from terra.sim.dataset import simulate
 
 GUESS = pose_from_guess(47.0, -3.0, 85.0)  # the revisit's frame lies at (50, 0, 90 degrees)
-NO_CHANGE = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0)
+NO_CHANGE = RevisitConfig(
+    cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0, fences_added=0
+)
 
 
 @pytest.fixture(scope="module")
