@@ -297,14 +297,16 @@ FENCE_NEAR_M = 12.0  # a fence within this of the revisit's route: its LiDAR see
 FENCE_CLEAR_M = 2.0  # and no nearer than this anywhere along it: the route passes it, not through it
 FENCE_WIDTH_M = (1.5, 6.0)  # the sidewalk widths a fence closes (narrower is a kerb, wider a plaza)
 FENCE_POST_M = 0.1  # its posts' side: the width of its footprint
+FENCE_GAP_M = 1.0  # kept clear of every other object: a fence a hand's width from a car's bumper is one
+# cluster of points with the car in change detection (points within 0.6 m join), and judged with it
 
 
 def _fence_across_sidewalk(
     terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, tries: int = 400
 ) -> tuple[dict[str, Any], dict[str, Any]] | None:
     """Put up a fence across a walkway (a strip of sidewalk 1.5 to 6 m wide and at least twice as long)
-    within `FENCE_NEAR_M` of the revisit's route and `FENCE_CLEAR_M` clear of it, clear of every object;
-    the truth's added object and its blocked ground (None where no such place is found)."""
+    within `FENCE_NEAR_M` of the revisit's route and `FENCE_CLEAR_M` clear of it, `FENCE_GAP_M` clear of
+    every object; the truth's added object and its blocked ground (None where no such place is found)."""
     sidewalk, res = class_id("sidewalk"), terrain.resolution
     for _ in range(tries):
         anchor = edit.path[int(rng.integers(len(edit.path)))] + rng.uniform(-FENCE_NEAR_M, FENCE_NEAR_M, 2)
@@ -320,7 +322,7 @@ def _fence_across_sidewalk(
         line = centre + np.outer(steps, np.eye(2)[axis])  # points along the fence, a cell apart
         if not edit.near(centre, FENCE_NEAR_M) or any(edit.near(p, FENCE_CLEAR_M) for p in line):
             continue
-        mine = _footprint(centre, yaw, size + 2 * 0.3)
+        mine = _footprint(centre, yaw, size + 2 * FENCE_GAP_M)
         if any(_overlap(mine, _footprint(o.center[:2], o.yaw, o.size[:2])) for o in edit.objects):
             continue
         thing = edit.place("fence", fence(rng, length=width, post=FENCE_POST_M), (centre[0], centre[1], yaw))
