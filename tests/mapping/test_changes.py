@@ -128,6 +128,27 @@ def test_changes_per_region_and_figure(first_map, tmp_path, capsys):
         assert run(["changes", str(out), "--figure", str(bad)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "expected a PNG file name" in err
+    _served_blocked_ground(out, found)
+
+
+def _served_blocked_ground(out, found: dict) -> None:
+    """GET /changes of `terra serve` answers as `terra changes --json` (`found`), the fence's blocked
+    sidewalk and each region's share of it included."""
+    pytest.importorskip("fastapi")
+    from fastapi.testclient import TestClient
+
+    from terra.loaded import LoadedBundle
+    from terra.serve.app import create_app
+    from terra.serve.config import ServeConfig
+
+    answer = TestClient(create_app(LoadedBundle(out), settings=ServeConfig())).get(
+        "/changes", params={"first": 1, "second": 2}
+    )
+    assert answer.status_code == 200 and answer.json() == found
+    blocked = [t["area_m2"] for t in found["terrain"] if (t["before"], t["after"]) == ("sidewalk", "blocked")]
+    assert blocked and sum(r["terrain_m2"].get("sidewalk -> blocked", 0.0) for r in found["regions"]) == pytest.approx(
+        blocked[0]
+    )
 
 
 def test_a_revisit_without_changes_has_none(first_map, tmp_path):
