@@ -2,15 +2,18 @@
 
 The simulator drives `--preset` once (the map) and twice more as revisits (`terra sim --revisit`): the
 route reversed from 30 % of its length, poses in a frame 50 m and 90 degrees from the map's, one revisit
-with the default changes (2 cars moved, 2 removed, 2 added, a bench gone, a lawn turned to dirt) and one
-with none. Each revisit is joined from an initial guess off the truth by (`--guess-error`) metres and
-degrees, and once from the identity (a shared frame that is not shared: expected to be refused).
+with the default changes (2 cars moved, 2 removed, 2 added, a bench gone, a lawn turned to dirt, a fence put
+up across a sidewalk) and one with none. Each revisit is joined from an initial guess off the truth by
+(`--guess-error`) metres and degrees, and once from the identity (a shared frame that is not shared: expected
+to be refused).
 
 Reported: alignment error against the simulator's T_world_session, fitness and overlap, the join's time
 (its stages; `load` is the simulator rendering the frames, which a recorded log would not pay), points of
 the joined map over the first map's, object changes against the simulator's list (locations where an
 object was or is, matched within 1.5 m: precision and recall), false object changes per 10,000 m^2 of
-area both visits observed on the revisit without changes, and terrain area changed there.
+area both visits observed on the revisit without changes, and terrain area changed there; blocked ground
+(the fence's) found against the simulator's: its area at the raster's cells and at change detection's 1 m
+cells (the cells its strip lies in).
 
 Usage: python benchmarks/bench_sessions.py --preset small [--work DIR]
 
@@ -94,6 +97,7 @@ def _changes(out: Path, truth: dict) -> dict:
         result["recall"] = float(np.mean(distance.min(axis=0) < 1.5))
     result["changes_per_10000_m2"] = len(found["objects"]) / max(found["observed_area_m2"], 1.0) * 1e4
     result["moves"] = _moves(found["objects"], truth["objects"])
+    result["blocked"] = _blocked(found["terrain"], truth["terrain"])
     result["named"] = sorted({str(c["name"]) for c in found["objects"]})
     return result
 
@@ -111,6 +115,22 @@ def _moves(found: list[dict], true: list[dict]) -> list[dict]:
             and np.linalg.norm(np.subtract(c["after"][:2], move["to"][:2])) < 1.5
         ]
         out.append({"true_m": move["distance"], "found_m": match[0] if match else None})
+    return out
+
+
+def _blocked(found: list[dict], truth: list[dict], cell: float = 1.0) -> list[dict]:
+    """Each true blocked strip (a fence's footprint, in raster cells) against the area found for its pair
+    ("sidewalk -> blocked"): its true area, the area of the `cell` metre cells (change detection's terrain
+    cell) its polygon lies in, and the area found (m^2)."""
+    out = []
+    for strip in (t for t in truth if t["to"] == "blocked"):
+        (x0, y0), (x1, y1) = strip["polygon"][0], strip["polygon"][2]
+        cells = (np.ceil(x1 / cell) - np.floor(x0 / cell)) * (np.ceil(y1 / cell) - np.floor(y0 / cell)) * cell**2
+        pair = (strip["from"], "blocked")
+        found_m2 = sum(t["area_m2"] for t in found if (t["before"], t["after"]) == pair)
+        out.append(
+            {"pair": " -> ".join(pair), "true_m2": strip["area_m2"], "true_cells_m2": cells, "found_m2": found_m2}
+        )
     return out
 
 
@@ -136,7 +156,7 @@ def main() -> None:
     from terra.sim import simulate
     from terra.sim.config import RevisitConfig, SimConfig
 
-    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0)
+    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0, fences_added=0)
     x, y, yaw = RevisitConfig().frame
     metres, degrees = args.guess_error
     guess = pose_from_guess(x + metres * 0.8, y - metres * 0.6, yaw + degrees)

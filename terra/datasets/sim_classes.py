@@ -40,6 +40,7 @@ _ROWS: list[tuple[int, str, bool, int | None, tuple[int, int, int], float]] = [
     (35, "planter", False, None, (130, 90, 70), 0.35),
     (36, "bus shelter", False, None, (110, 120, 130), 0.50),
     (37, "parking meter", False, None, (100, 100, 110), 0.60),
+    (38, "fence", False, 51, (225, 120, 35), 0.55),  # a site fence; placed only by a revisit (issue 26)
 ]
 
 SIM_CLASSES = ClassTable([SemanticClass(i, n, t, sk) for i, n, t, sk, _, _ in _ROWS])

@@ -14,7 +14,10 @@ removed when the second session's returns show its place empty, judged from poin
 clusters (an object seen from another side makes another cluster around the same volume):
 - the second session returned from at least `observed_fraction` of the footprint's cells (its rays got
   there: what it did not see has not changed);
-- the cluster is at least `min_width` wide each way (not a sliver: a car's face seen apart from its body);
+- the cluster is at least `min_width` wide each way (not a sliver: a car's face seen apart from its body),
+  or it is a thin wall of its own, a fence: at least `thin_length` long, its top `thin_height` above the
+  ground, and the other session saw open ground on both sides of it (within `thin_side`; a car's side seen
+  apart from its body has the car on one side);
 - the object stands on the ground (its bottom at most `max_float` above the terrain points around it, and
   some there: not a roof's edge), and it has at least `min_points` returns in its volume (the footprint
   grown by a cell, from `lift` above the ground to its top; a crosswalk's paint has none);
@@ -31,7 +34,14 @@ nearest first).
 Terrain: per `terrain_cell` cell, the class with the most votes of each session, over the points both
 sessions voted on at least `min_votes` times; cells whose class differs, each with at least `clear_share` of
 its session's votes (not a border between two terrains), in patches of at least `min_patch` cells of one pair
-(a lone cell is a border's wobble), are changes, summed as area per (before, after) pair.
+(a lone cell is a border's wobble), are changes, summed as area per (before, after) pair. Blocked ground:
+the `terrain_cell` cells of an object judged added (or moved there) that the first session saw as traversable
+ground (a class not in `untraversable`, read from the session's terrain votes nearest the object's points,
+`clear_share` of them agreeing) are "class -> blocked" (a fence across a walkway: "sidewalk -> blocked"), and
+those of an object judged removed (or moved away) that the second session saw as such ground "blocked ->
+class"; a cell blocked in both sessions is neither. Objects, not cells, decide it: only what both sessions
+observed of an object can have changed. Patches as above, or a line of cells at least `thin_length` long (a
+fence's line is one cell wide).
 """
 
 from __future__ import annotations
@@ -50,6 +60,10 @@ from terra.bundle import Bundle
 from terra.errors import TerraError
 from terra.npy import ArraySpec
 
+BLOCKED = "blocked"
+"""The terrain name of ground an obstacle stands on, in "sidewalk -> blocked" (a fence put up across a
+walkway) and "blocked -> asphalt" (a car gone from its stall)."""
+
 
 @dataclass(frozen=True)
 class ChangeSettings:
@@ -65,6 +79,9 @@ class ChangeSettings:
     close_share: float = 0.8
     emptied_share: float = 0.5
     min_width: float = 0.3
+    thin_length: float = 2.0
+    thin_height: float = 0.8
+    thin_side: float = 1.0
     standing: tuple[float, float] = (0.3, 2.5)
     piece_gap: float = 2.5
     piece_extent: tuple[float, float] = (6.0, 3.0)
@@ -73,6 +90,7 @@ class ChangeSettings:
     min_votes: int = 2
     clear_share: float = 0.75
     min_patch: int = 3
+    untraversable: tuple[str, ...] = ("water",)
 
 
 @dataclass(frozen=True)
@@ -203,8 +221,11 @@ def detect_changes(path: Path, first: int, second: int, settings: ChangeSettings
     seen_a = _cells(data.points[data.hits[:, a] > 0], settings.cell)
     seen_b = _cells(data.points[data.hits[:, b] > 0], settings.cell)
     observed = np.intersect1d(seen_a, seen_b).size * settings.cell**2
-    objects = _object_changes(data, a, b, settings)
-    terrain, cells, pairs = _terrain_changes(data, a, b, settings)
+    moved, removed, added = _changed_clusters(data, a, b, settings)
+    objects = _as_changes(moved, removed, added)
+    freed = removed + [old for old, _ in moved]
+    blocked = added + [new for _, new in moved]
+    terrain, cells, pairs = _terrain_changes(data, a, b, settings, (freed, blocked))
     result = ChangesResult(Path(path), first, second, float(observed), objects, terrain)
     result.terrain_cells, result.terrain_pairs, result.terrain_cell_area = cells, pairs, settings.terrain_cell**2
     return result
@@ -352,6 +373,14 @@ def _standing_unlabelled(data: _Sessions, terrain_rows: np.ndarray, s: ChangeSet
 
 def _object_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) -> list[ObjectChange]:
     """Removed, added and moved objects from session a to session b (0-based columns)."""
+    return _as_changes(*_changed_clusters(data, a, b, settings))
+
+
+def _changed_clusters(
+    data: _Sessions, a: int, b: int, settings: ChangeSettings
+) -> tuple[list[tuple[_Cluster, _Cluster]], list[_Cluster], list[_Cluster]]:
+    """The object clusters that changed from session a to session b (0-based columns): pairs (before, after)
+    of moved ones, removed ones (session a's points) and added ones (session b's)."""
     object_rows = np.asarray(data.counts.sum(axis=1)).ravel() > data.votes.sum(axis=(0, 2))
     terrain_rows = data.votes.sum(axis=(0, 2)) > np.asarray(data.counts.sum(axis=1)).ravel()
     ground = _CellIndex(data.points, np.flatnonzero(terrain_rows), settings.cell)
@@ -362,7 +391,13 @@ def _object_changes(data: _Sessions, a: int, b: int, settings: ChangeSettings) -
     removed = [c for c in before if _gone(c, data.points, index[0], index[1], ground, settings)]
     added = [c for c in after if _gone(c, data.points, index[1], index[0], ground, settings)]
     removed, added = _join_pieces(removed, data.points, settings), _join_pieces(added, data.points, settings)
-    moved, removed, added = _pair_moves(removed, added, settings)
+    return _pair_moves(removed, added, settings)
+
+
+def _as_changes(
+    moved: list[tuple[_Cluster, _Cluster]], removed: list[_Cluster], added: list[_Cluster]
+) -> list[ObjectChange]:
+    """The object changes of changed clusters, in (kind, place) order."""
     changes = [_change("moved", old, new) for old, new in moved]
     changes += [_change("removed", c, None) for c in removed] + [_change("added", None, c) for c in added]
     return sorted(changes, key=lambda c: (c.change, c.before or c.after or ()))
@@ -377,8 +412,8 @@ def _gone(
     object's volume (from `lift` above the ground to the object's top) as of the cluster's own session's.
     Shares of each session's own returns, so a session that passed far off (fewer returns) still counts as
     seeing what stands; points, not cluster shapes, so an object seen from another side is still there."""
-    if other.has(cluster.cells).mean() < s.observed_fraction or min(cluster.size[:2]) < s.min_width:
-        return False  # not seen there, or a sliver (a car's face seen edge on, apart from its body)
+    if other.has(cluster.cells).mean() < s.observed_fraction:
+        return False  # not seen there
     around = _dilate(cluster.cells)
     floor = points[ground.rows_in(around), 2]
     # No ground around it, or ground well below it: a part of something taller (a roof's edge), not a
@@ -386,6 +421,8 @@ def _gone(
     if floor.size == 0 or cluster.bottom > float(np.median(floor)) + s.max_float:
         return False
     base = float(np.median(floor))
+    if min(cluster.size[:2]) < s.min_width and not _wall_of_its_own(cluster, points, other, base, s):
+        return False  # a sliver (a car's face seen edge on, apart from its body), not a fence
     low, high = max(base + s.lift, cluster.bottom), cluster.top + s.lift
     z_own, z_other = points[own.rows_in(around), 2], points[other.rows_in(around), 2]
     in_own = int(np.count_nonzero((z_own >= low) & (z_own <= high)))
@@ -395,6 +432,27 @@ def _gone(
     if in_other / z_other.size <= s.present_share * in_own / z_own.size:
         return True
     return _emptied(cluster, points, own, other, (low, high), s)
+
+
+def _wall_of_its_own(cluster: _Cluster, points: np.ndarray, other: _CellIndex, base: float, s: ChangeSettings) -> bool:
+    """Whether a sliver `cluster` (under `min_width` across, so nearly along a grid axis) is a thin wall
+    standing on its own, a fence: at least `thin_length` long, its top `thin_height` above the ground `base`
+    (z, metres), and the other session returned from the ground (below `lift` over `base`) in at least
+    `observed_fraction` of the `cell` cells within `thin_side` metres of it on each side. A car's side seen
+    apart from its body is as long and tall, but on one side of it stands the car: no ground there."""
+    if max(cluster.size[:2]) < s.thin_length or cluster.top - base < s.thin_height:
+        return False
+    across = np.eye(2, dtype=np.int64)[int(np.argmin(cluster.size[:2]))]
+    ij = _unkey(cluster.cells)
+    steps = np.arange(1, int(np.ceil(s.thin_side / s.cell)) + 1)
+    for sign in (-1, 1):
+        side = np.setdiff1d(_keys((ij[None] + sign * steps[:, None, None] * across).reshape(-1, 2)), cluster.cells)
+        rows = other.rows_in(side)
+        low = points[rows, 2] <= base + s.lift
+        ground = np.unique(_keys(np.floor(points[rows[low], :2] / s.cell).astype(np.int64)))
+        if ground.size < s.observed_fraction * side.size:
+            return False
+    return True
 
 
 def _emptied(
@@ -492,46 +550,123 @@ def _change(kind: str, old: _Cluster | None, new: _Cluster | None) -> ObjectChan
 
 
 def _terrain_changes(
-    data: _Sessions, a: int, b: int, settings: ChangeSettings
+    data: _Sessions, a: int, b: int, settings: ChangeSettings, obstacles: tuple[list[_Cluster], list[_Cluster]]
 ) -> tuple[list[TerrainChange], np.ndarray, list[str]]:
-    """Area per (before, after) terrain class pair over the cells both sessions voted on; the changed cells'
-    centres (M, 2) metres and their "before -> after" pairs."""
-    votes_a, votes_b = data.votes[a], data.votes[b]
-    both = (votes_a.sum(axis=1) >= settings.min_votes) & (votes_b.sum(axis=1) >= settings.min_votes)
-    if not both.any():
-        return [], np.zeros((0, 2)), []
-    ij = np.floor(data.points[both, :2] / settings.terrain_cell).astype(np.int64)
-    cell_ij, cell = np.unique(ij, axis=0, return_inverse=True)
-    cell = cell.ravel()
-    n_cells, t = int(cell.max()) + 1, votes_a.shape[1]
-    per_cell_a = np.zeros((n_cells, t), np.int64)
-    per_cell_b = np.zeros((n_cells, t), np.int64)
-    np.add.at(per_cell_a, cell, votes_a[both])
-    np.add.at(per_cell_b, cell, votes_b[both])
-    class_a, class_b = per_cell_a.argmax(axis=1), per_cell_b.argmax(axis=1)
-    clear_a = per_cell_a.max(axis=1) >= settings.clear_share * per_cell_a.sum(axis=1)
-    clear_b = per_cell_b.max(axis=1) >= settings.clear_share * per_cell_b.sum(axis=1)
-    changed = (class_a != class_b) & clear_a & clear_b  # a cell on a border between two terrains is neither
-    changed[changed] = _patches(cell_ij[changed], class_a[changed] * t + class_b[changed], settings.min_patch)
-    pair_keys, areas = np.unique(class_a[changed] * t + class_b[changed], return_counts=True)
-    names = data.terrain_classes
-    out = [
-        TerrainChange(names[int(k) // t], names[int(k) % t], float(n) * settings.terrain_cell**2)
-        for k, n in zip(pair_keys, areas)
-    ]
-    centres = (cell_ij[changed] + 0.5) * settings.terrain_cell
-    pairs = [f"{names[i]} -> {names[j]}" for i, j in zip(class_a[changed], class_b[changed])]
+    """Area per (before, after) terrain pair: cells both sessions voted on whose class changed, and cells an
+    obstacle gone (`obstacles[0]`, session a's clusters) freed or an obstacle come (`obstacles[1]`, session
+    b's) blocked; the changed cells' centres (M, 2) metres and their "before -> after" pairs."""
+    names = [*data.terrain_classes, BLOCKED]
+    n = len(names)
+    ij, before, after = _class_changes(data, a, b, settings)
+    keep = _patches(ij, before * n + after, settings.min_patch)
+    ij, before, after = ij[keep], before[keep], after[keep]
+    bij, bbefore, bafter = _blocked_cells(data, (a, b), obstacles, ij, settings)
+    along = settings.thin_length / settings.terrain_cell  # a fence's line of cells, one wide, counts too
+    keep = _patches(bij, bbefore * n + bafter, settings.min_patch, min_span=along)
+    ij, before = np.vstack([ij, bij[keep]]), np.concatenate([before, bbefore[keep]])
+    after = np.concatenate([after, bafter[keep]])
+    pair_keys, counts = np.unique(before * n + after, return_counts=True)
+    area = settings.terrain_cell**2
+    out = [TerrainChange(names[int(k) // n], names[int(k) % n], float(c) * area) for k, c in zip(pair_keys, counts)]
+    centres = (ij + 0.5) * settings.terrain_cell
+    pairs = [f"{names[i]} -> {names[j]}" for i, j in zip(before, after)]
     return sorted(out, key=lambda c: (-c.area_m2, c.before, c.after)), centres, pairs
 
 
-def _patches(ij: np.ndarray, pair: np.ndarray, min_cells: int) -> np.ndarray:
+def _class_changes(data: _Sessions, a: int, b: int, s: ChangeSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The `terrain_cell` cells (M, 2) int64 indices both sessions voted on whose class changed, each with
+    at least `clear_share` of its session's votes, and their class indices before and after (M,)."""
+    votes_a, votes_b = data.votes[a], data.votes[b]
+    both = (votes_a.sum(axis=1) >= s.min_votes) & (votes_b.sum(axis=1) >= s.min_votes)
+    if not both.any():
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    cell_ij, per_cell_a = _cell_votes(data.points[both], votes_a[both], s.terrain_cell)
+    _, per_cell_b = _cell_votes(data.points[both], votes_b[both], s.terrain_cell)
+    class_a, clear_a = _clear_class(per_cell_a, s.clear_share)
+    class_b, clear_b = _clear_class(per_cell_b, s.clear_share)
+    changed = (class_a != class_b) & clear_a & clear_b  # a cell on a border between two terrains is neither
+    return cell_ij[changed], class_a[changed], class_b[changed]
+
+
+def _cell_votes(points: np.ndarray, votes: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """The x-y cells (C, 2) int64 indices of `points` (N, >= 2) metres and the sum of `votes` (N, T) in each
+    (C, T)."""
+    cell_ij, inverse = np.unique(np.floor(points[:, :2] / cell).astype(np.int64), axis=0, return_inverse=True)
+    per_cell = np.zeros((cell_ij.shape[0], votes.shape[1]), np.int64)
+    np.add.at(per_cell, inverse.ravel(), votes)
+    return cell_ij, per_cell
+
+
+def _clear_class(per_cell: np.ndarray, clear_share: float) -> tuple[np.ndarray, np.ndarray]:
+    """(C,) the most-voted class of each cell's votes (C, T) and whether it has `clear_share` of them."""
+    return per_cell.argmax(axis=1), per_cell.max(axis=1) >= clear_share * per_cell.sum(axis=1)
+
+
+def _blocked_cells(
+    data: _Sessions,
+    sessions: tuple[int, int],
+    obstacles: tuple[list[_Cluster], list[_Cluster]],
+    exclude: np.ndarray,
+    s: ChangeSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cells (M, 2) int64 an obstacle left (the `terrain_cell` cells of its session a points: "blocked ->
+    class") or came to stand on (session b's: "class -> blocked"), where the session that saw the ground free
+    saw a traversable class there (`_free_ground`); not a cell blocked in both sessions (an object moved by
+    less than its length) nor one of `exclude` (indices (K, 2): changed class already). Their class indices
+    before and after (M,), `BLOCKED` as one past the terrain classes."""
+    blocked = len(data.terrain_classes)
+    rows = [np.concatenate([c.rows for c in side]) if side else np.zeros(0, np.int64) for side in obstacles]
+    keys = [_keys(np.floor(data.points[r, :2] / s.terrain_cell).astype(np.int64)) for r in rows]
+    dropped = np.union1d(np.intersect1d(keys[0], keys[1]), _keys(exclude))
+    out = [np.zeros((0, 2), np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for k, free in enumerate(sessions[::-1]):  # gone: session b saw the ground free; come: session a did
+        ij, terrain = _free_ground(data, free, rows[k][~np.isin(keys[k], dropped)], s)
+        out[0].append(ij)
+        out[1].append(np.full(len(ij), blocked) if k == 0 else terrain)
+        out[2].append(terrain if k == 0 else np.full(len(ij), blocked))
+    return np.vstack(out[0]), np.concatenate(out[1]), np.concatenate(out[2])
+
+
+def _free_ground(data: _Sessions, session: int, rows: np.ndarray, s: ChangeSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The `terrain_cell` cells (M, 2) int64 of the obstacle points `rows` and the class (M,) `session`
+    (0-based) saw on the ground there: each point takes the most-voted class of the nearest point that
+    session voted on (`min_votes`) within a cell's length in x-y (the map's terrain votes are sparse: only
+    points a camera labelled), and a cell the class of `clear_share` of its points, if traversable (not in
+    `untraversable`). Beside a fence, the ground under it."""
+    voted = np.flatnonzero(data.votes[session].sum(axis=1) >= s.min_votes)
+    if rows.size == 0 or voted.size == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    distance, nearest = cKDTree(data.points[voted, :2]).query(
+        data.points[rows, :2], distance_upper_bound=s.terrain_cell
+    )
+    seen = np.isfinite(distance)
+    terrain_of_point = data.votes[session][voted[nearest[seen]]].argmax(axis=1)
+    ij = np.floor(data.points[rows[seen], :2] / s.terrain_cell).astype(np.int64)
+    cell_ij, inverse = np.unique(ij, axis=0, return_inverse=True)
+    per_cell = np.zeros((cell_ij.shape[0], data.votes.shape[2]), np.int64)
+    np.add.at(per_cell, (inverse.ravel(), terrain_of_point), 1)
+    terrain, clear = _clear_class(per_cell, s.clear_share)
+    untraversable = [i for i, name in enumerate(data.terrain_classes) if name in s.untraversable]
+    keep = clear & ~np.isin(terrain, untraversable)
+    return cell_ij[keep], terrain[keep]
+
+
+def _patches(ij: np.ndarray, pair: np.ndarray, min_cells: int, min_span: float | None = None) -> np.ndarray:
     """(M,) whether each changed cell (indices `ij` (M, 2), its class pair `pair`) belongs to a patch of at
-    least `min_cells` cells of its pair touching at edges or corners: a lone cell is a border's wobble
-    between two visits' labels, not a lawn turned to dirt."""
+    least `min_cells` cells of its pair touching at edges or corners, or, given `min_span`, one spanning at
+    least that many cells along x or y (a fence's line of cells): a lone cell is a border's wobble between
+    two visits' labels, not a lawn turned to dirt."""
     if ij.shape[0] == 0 or min_cells <= 1:
         return np.ones(ij.shape[0], dtype=bool)
     pairs = cKDTree(ij.astype(np.float64)).query_pairs(1.5, output_type="ndarray")  # the 8 neighbours
     pairs = pairs[pair[pairs[:, 0]] == pair[pairs[:, 1]]]
     graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(ij), len(ij)))
     _, label = connected_components(graph, directed=False)
-    return np.bincount(label)[label] >= min_cells
+    keep = np.bincount(label)[label] >= min_cells
+    if min_span is not None:
+        low = np.full((label.max() + 1, 2), np.iinfo(np.int64).max)
+        high = np.full((label.max() + 1, 2), np.iinfo(np.int64).min)
+        np.minimum.at(low, label, ij)
+        np.maximum.at(high, label, ij)
+        keep |= (high - low + 1).max(axis=1)[label] >= min_span
+    return keep

@@ -14,7 +14,7 @@ from terra.datasets.ground_truth import NamedRegion, ObjectBox
 from terra.geometry import yaw_rotation
 from terra.sim.classes import CLASS_COLORS, class_id
 from terra.sim.heightfield import Heightfield
-from terra.sim.objects import MODELS
+from terra.sim.objects import MODELS, Part
 from terra.sim.primitives import CYLINDER, ELLIPSOID, Primitives
 from terra.sim.route import plan_route
 from terra.sim.world import TerrainGrid, World
@@ -90,51 +90,10 @@ class WorldBuilder:
         parts = MODELS[model or cls](self.rng, **params)
         iid = self._next_instance
         self._next_instance += 1
-        cid = class_id(cls)
-        R = yaw_rotation(yaw)
-        centres = np.array([p[1] for p in parts], float)
-        halves = np.array([p[2] for p in parts], float)
-        world_xy = centres[:, :2] @ R[:2, :2].T + [x, y]
-        if conform:
-            base = self.ground.height(world_xy)
-        else:
-            # Lowest ground under the footprint corners, so no object floats on a slope.
-            lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
-            hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
-            corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[
-                :2, :2
-            ].T + [x, y]
-            base = np.full(len(parts), float(self.ground.height(corners).min()))
-        for (kind, c, h, pyaw, color), wxy, b in zip(parts, world_xy, base):
-            rgb = CLASS_COLORS[cid] if color is None else color
-            self._rows.append((kind, (wxy[0], wxy[1], b + c[2]), h, yaw + pyaw, cid, iid, tuple(int(v) for v in rgb)))
-        # Ground-truth box in the object's frame: part extents (yawed parts use |R| h).
-        ext = []
-        for kind, _c, h, pyaw, _ in parts:
-            if kind in (CYLINDER, ELLIPSOID) and h[0] == h[1]:
-                e = np.array([h[0], h[1]])
-            else:
-                Rp = np.abs(yaw_rotation(pyaw)[:2, :2])
-                e = Rp @ np.array(h[:2])
-            ext.append(e)
-        ext = np.array(ext)
-        lo_xy = (centres[:, :2] - ext).min(axis=0)
-        hi_xy = (centres[:, :2] + ext).max(axis=0)
-        z_lo = (base + centres[:, 2] - halves[:, 2]).min()
-        z_hi = (base + centres[:, 2] + halves[:, 2]).max()
-        c_local = (lo_xy + hi_xy) / 2
-        c_world = R[:2, :2] @ c_local + [x, y]
-        self.objects.append(
-            ObjectBox(
-                iid,
-                cid,
-                cls,
-                np.array([c_world[0], c_world[1], (z_lo + z_hi) / 2]),
-                np.array([hi_xy[0] - lo_xy[0], hi_xy[1] - lo_xy[1], z_hi - z_lo]),
-                float(_wrap(yaw)),
-            )
-        )
-        disc = (float(c_world[0]), float(c_world[1]), float(np.linalg.norm(hi_xy - lo_xy) / 2))
+        rows, thing = place_parts(parts, cls, iid, (x, y, yaw), self.ground, conform)
+        self._rows.extend(rows)
+        self.objects.append(thing)
+        disc = (float(thing.center[0]), float(thing.center[1]), float(np.linalg.norm(thing.size[:2]) / 2))
         for cell in _cells(*disc):
             self._occupied.setdefault(cell, []).append(disc)
         return iid
@@ -203,6 +162,47 @@ class WorldBuilder:
             self.regions,
             route,
         )
+
+
+def place_parts(
+    parts: list[Part], cls: str, iid: int, pose: tuple[float, float, float], ground: Heightfield, conform: bool = False
+) -> tuple[list[tuple], ObjectBox]:
+    """An object's shape rows (kind, centre, half sizes, yaw, class id, instance id, colour; map frame) and
+    its ground-truth box, for `parts` in its own frame placed at `pose` = (x, y metres, yaw radians) on the
+    ground: each part on the ground under it (`conform`), else all on the lowest ground under the
+    footprint's corners and centre, so no object floats on a slope."""
+    x, y, yaw = pose
+    cid = class_id(cls)
+    R = yaw_rotation(yaw)
+    centres = np.array([p[1] for p in parts], float)
+    halves = np.array([p[2] for p in parts], float)
+    world_xy = centres[:, :2] @ R[:2, :2].T + [x, y]
+    if conform:
+        base = ground.height(world_xy)
+    else:
+        lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
+        hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
+        corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[:2, :2].T
+        base = np.full(len(parts), float(ground.height(corners + [x, y]).min()))
+    rows = []
+    for (kind, c, h, pyaw, color), wxy, b in zip(parts, world_xy, base):
+        rgb = CLASS_COLORS[cid] if color is None else color
+        rows.append((kind, (wxy[0], wxy[1], b + c[2]), h, yaw + pyaw, cid, iid, tuple(int(v) for v in rgb)))
+    # Ground-truth box in the object's frame: part extents (yawed parts use |R| h).
+    ext = []
+    for kind, _c, h, pyaw, _ in parts:
+        if kind in (CYLINDER, ELLIPSOID) and h[0] == h[1]:
+            ext.append(np.array([h[0], h[1]]))
+        else:
+            ext.append(np.abs(yaw_rotation(pyaw)[:2, :2]) @ np.array(h[:2]))
+    lo_xy = (centres[:, :2] - np.array(ext)).min(axis=0)
+    hi_xy = (centres[:, :2] + np.array(ext)).max(axis=0)
+    z_lo = (base + centres[:, 2] - halves[:, 2]).min()
+    z_hi = (base + centres[:, 2] + halves[:, 2]).max()
+    c_world = R[:2, :2] @ ((lo_xy + hi_xy) / 2) + [x, y]
+    size = np.array([hi_xy[0] - lo_xy[0], hi_xy[1] - lo_xy[1], z_hi - z_lo])
+    centre = np.array([c_world[0], c_world[1], (z_lo + z_hi) / 2])
+    return rows, ObjectBox(iid, cid, cls, centre, size, float(_wrap(yaw)))
 
 
 _CELL = 8.0  # metres; spatial hash of placed objects

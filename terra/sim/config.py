@@ -144,8 +144,8 @@ class RevisitConfig(Section):
     of its length, poses reported in a frame whose origin lies at `frame` = (x, y metres, yaw degrees) in the
     first visit's map frame, after changes drawn from `seed` near the revisit's route: cars moved (along or
     across their length, by a distance in `move_distance` metres), removed and added, benches removed,
-    `lawns_to_dirt` lawn squares of `patch_size` metres turned to dirt. All counts 0: a revisit with no
-    change."""
+    `lawns_to_dirt` lawn squares of `patch_size` metres turned to dirt, `fences_added` fences put up across
+    a sidewalk (its ground then blocked). All counts 0: a revisit with no change."""
 
     frame: tuple[float, float, float] = (50.0, 0.0, 90.0)
     start_fraction: float = Field(default=0.3, ge=0.0, lt=1.0)
@@ -155,6 +155,7 @@ class RevisitConfig(Section):
     cars_added: int = Field(default=2, ge=0)
     benches_removed: int = Field(default=1, ge=0)
     lawns_to_dirt: int = Field(default=1, ge=0)
+    fences_added: int = Field(default=1, ge=0, description="fences put up across a sidewalk near the route")
     move_distance: tuple[float, float] = (3.0, 6.0)
     patch_size: float = Field(default=6.0, gt=0.0)
 

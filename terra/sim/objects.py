@@ -182,6 +182,19 @@ def parking_meter(rng: np.random.Generator) -> list[Part]:
     return [_cyl(0.0, 0.0, 0.0, 1.15, 0.05), _box(0.0, 0.0, 1.3, 0.2, 0.16, 0.34)]
 
 
+def fence(
+    rng: np.random.Generator, length: float = 3.0, height: float = 1.2, panel: float = 0.06, post: float = 0.1
+) -> list[Part]:
+    """A site fence along x, `length` metres end to end (its end posts' outer faces): square posts of side
+    `post` at both ends and at most 2.5 m apart, `height` tall, and a mesh panel `panel` thick between them
+    from 0.05 m above the ground to 0.05 m below the posts' tops."""
+    span = max(length - post, 0.0)
+    posts = np.linspace(-span / 2, span / 2, max(int(np.ceil(span / 2.5)), 1) + 1)
+    parts = [_box(float(x), 0.0, height / 2, post, post, height, color=_METAL) for x in posts]
+    parts.append(_box(0.0, 0.0, 0.05 + (height - 0.1) / 2, span, panel, height - 0.1))
+    return parts
+
+
 def tree(rng: np.random.Generator, scale: float = 1.0) -> list[Part]:
     trunk = rng.uniform(2.6, 3.4) * scale
     r = rng.uniform(2.0, 3.0) * scale
@@ -229,6 +242,7 @@ MODELS: dict[str, Callable[..., list[Part]]] = {
     "planter": planter,
     "bus shelter": bus_shelter,
     "parking meter": parking_meter,
+    "fence": fence,
     "tree": tree,
     "building": building,
 }

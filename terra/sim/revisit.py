@@ -3,12 +3,20 @@ another start, its poses reported in another frame, after known changes.
 
 Changes, drawn from `RevisitConfig.seed` near the route the revisit drives (it cannot see the rest): cars
 moved along their own length or across it into a free stall (by 3 to 6 m), cars removed, cars added (a copy
-of a parked car on free asphalt near the route), benches removed, and square patches of lawn turned to dirt.
-`revisit_world` returns the changed world and the ground truth of what changed, in the first visit's map
-frame (the world frame): objects by instance id with their old and new centres, terrain patches with their
-polygon and area. The revisit's frames report T_session_lidar = T_session_world @ T_world_lidar, where
-T_world_session is `RevisitConfig.frame`; `RevisitTruth.to_json()` is what `terra sim --revisit` writes as
-revisit.json.
+of a parked car on free asphalt near the route), benches removed, square patches of lawn turned to dirt, and
+fences put up across a sidewalk the route passes but does not drive along (end to end over the walkway's
+width, turned across it). `revisit_world` returns the changed world and the ground truth of what changed, in
+the first visit's map frame (the world frame): objects by instance id with their old and new centres, extent
+and yaw, terrain patches with their polygon and area.
+
+Blocked ground: a fence leaves the sidewalk's class in the terrain raster as it was (the ground is still
+paved) but stands on it; the truth lists it as terrain {from: "sidewalk", to: "blocked"} over the cells of
+the terrain raster (`TerrainGrid.resolution`, 0.25 m on the presets) that the fence's footprint (its posts'
+width, 0.1 m) overlaps: a strip the walkway's width long and one cell wide where the fence stands inside one
+row of cells, as it does here (its centre line is put on a cell's centre).
+
+The revisit's frames report T_session_lidar = T_session_world @ T_world_lidar, where T_world_session is
+`RevisitConfig.frame`; `RevisitTruth.to_json()` is what `terra sim --revisit` writes as revisit.json.
 """
 
 from __future__ import annotations
@@ -21,8 +29,10 @@ from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 
 from terra.datasets.ground_truth import ObjectBox
 from terra.geometry import yaw_rotation
+from terra.sim.builder import place_parts
 from terra.sim.classes import class_id
 from terra.sim.config import RevisitConfig
+from terra.sim.objects import fence
 from terra.sim.primitives import Primitives
 from terra.sim.world import TerrainGrid, World
 
@@ -86,6 +96,11 @@ def revisit_world(world: World, config: RevisitConfig) -> tuple[World, RevisitTr
         patch = _lawn_patch(terrain, edit, rng, config.patch_size)
         if patch is not None:
             truth.terrain.append(patch)
+    for _ in range(config.fences_added):  # after the rest: a revisit without fences draws what it drew before
+        fenced = _fence_across_sidewalk(terrain, edit, rng)
+        if fenced is not None:
+            truth.objects.append(fenced[0])
+            truth.terrain.append(fenced[1])
     changed = replace(
         world,
         name=f"{world.name}-revisit{config.seed}",
@@ -116,6 +131,7 @@ class _Edit:
 
     def __init__(self, world: World, rng: np.random.Generator, route: np.ndarray):
         self.world, self.rng = world, rng
+        self.path = np.asarray(route, np.float64)
         self.route = cKDTree(route)  # the revisit's own route: a change elsewhere it would never see
         p = world.prims
         self.rows = [p.kind, p.center.copy(), p.half, p.yaw.copy(), p.class_id, p.instance_id.copy(), p.color]
@@ -203,6 +219,16 @@ class _Edit:
         self.objects.append(new)
         return _change("added", new, None, new.center)
 
+    def place(self, cls: str, parts: list, pose: tuple[float, float, float]) -> ObjectBox:
+        """A new object of class `cls` from model `parts` at `pose` (x, y metres, yaw radians; world frame),
+        on the ground there, with the next free instance id."""
+        rows, thing = place_parts(parts, cls, self.next_id, pose, self.world.ground)
+        self.next_id += 1
+        p = Primitives.from_rows(rows)
+        self.extra.append([p.kind, p.center, p.half, p.yaw, p.class_id, p.instance_id, p.color])
+        self.objects.append(thing)
+        return thing
+
 
 MARGIN = 0.45  # metres kept clear around a moved or added car: the 0.9 m gap of a parking row (doors)
 
@@ -233,6 +259,8 @@ def _change(kind: str, thing: ObjectBox, before: np.ndarray | None, after: np.nd
         "from": None if before is None else [round(float(v), 4) for v in before],
         "to": None if after is None else [round(float(v), 4) for v in after],
         "distance": None if distance is None else round(distance, 4),
+        "extent": [round(float(v), 4) for v in thing.size],
+        "yaw": round(float(thing.yaw), 4),
     }
 
 
@@ -263,3 +291,84 @@ def _lawn_patch(terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, siz
             "area_m2": round(float((cells * res) ** 2), 4),
         }
     return None
+
+
+FENCE_NEAR_M = 12.0  # a fence within this of the revisit's route: its LiDAR sees the panel from the side
+FENCE_CLEAR_M = 2.0  # and no nearer than this anywhere along it: the route passes it, not through it
+FENCE_WIDTH_M = (1.5, 6.0)  # the sidewalk widths a fence closes (narrower is a kerb, wider a plaza)
+FENCE_POST_M = 0.1  # its posts' side: the width of its footprint
+FENCE_GAP_M = 1.0  # kept clear of every other object: a fence a hand's width from a car's bumper is one
+# cluster of points with the car in change detection (points within 0.6 m join), and judged with it
+
+
+def _fence_across_sidewalk(
+    terrain: TerrainGrid, edit: _Edit, rng: np.random.Generator, tries: int = 400
+) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """Put up a fence across a walkway (a strip of sidewalk 1.5 to 6 m wide and at least twice as long)
+    within `FENCE_NEAR_M` of the revisit's route and `FENCE_CLEAR_M` clear of it, `FENCE_GAP_M` clear of
+    every object; the truth's added object and its blocked ground (None where no such place is found)."""
+    sidewalk, res = class_id("sidewalk"), terrain.resolution
+    for _ in range(tries):
+        anchor = edit.path[int(rng.integers(len(edit.path)))] + rng.uniform(-FENCE_NEAR_M, FENCE_NEAR_M, 2)
+        if terrain.class_at(anchor[None])[0] != sidewalk:
+            continue
+        crossing = _crossing(terrain, anchor)
+        if crossing is None:
+            continue
+        centre, width, axis = crossing
+        yaw = 0.0 if axis == 0 else np.pi / 2
+        size = np.array([width, FENCE_POST_M])
+        steps = np.linspace(-width / 2, width / 2, int(np.ceil(width / res)) + 1)
+        line = centre + np.outer(steps, np.eye(2)[axis])  # points along the fence, a cell apart
+        if not edit.near(centre, FENCE_NEAR_M) or any(edit.near(p, FENCE_CLEAR_M) for p in line):
+            continue
+        mine = _footprint(centre, yaw, size + 2 * FENCE_GAP_M)
+        if any(_overlap(mine, _footprint(o.center[:2], o.yaw, o.size[:2])) for o in edit.objects):
+            continue
+        thing = edit.place("fence", fence(rng, length=width, post=FENCE_POST_M), (centre[0], centre[1], yaw))
+        return _change("added", thing, None, thing.center), _blocked(terrain, centre, width, axis)
+    return None
+
+
+def _crossing(terrain: TerrainGrid, xy: np.ndarray) -> tuple[np.ndarray, float, int] | None:
+    """Where a fence closes the walkway through `xy` (world frame, metres): its centre (2,) on the middle of
+    the walkway's cross-section through `xy`'s cell, the walkway's width (metres, sidewalk cells end to end)
+    and the grid axis it is crossed along (0: x, the walkway running north-south; 1: y); None unless the
+    sidewalk there is a walkway: `FENCE_WIDTH_M` wide one way and at least twice that the other."""
+    res, sidewalk = terrain.resolution, class_id("sidewalk")
+    c, r = (int(v) for v in np.floor((np.asarray(xy) - terrain.origin) / res))
+    runs = [_run(terrain.classes[r, :] == sidewalk, c), _run(terrain.classes[:, c] == sidewalk, r)]
+    spans = [(hi - lo + 1) * res for lo, hi in runs]
+    axis = int(np.argmin(spans))
+    width = spans[axis]
+    if not FENCE_WIDTH_M[0] <= width <= FENCE_WIDTH_M[1] or spans[1 - axis] < 2 * width:
+        return None
+    centre = terrain.origin + (np.array([c, r]) + 0.5) * res  # its own cell's centre along the walkway
+    lo, hi = runs[axis]
+    centre[axis] = terrain.origin[axis] + (lo + hi + 1) / 2 * res  # the walkway's middle across it
+    return centre, float(width), axis
+
+
+def _run(mask: np.ndarray, i: int) -> tuple[int, int]:
+    """First and last index of the run of True in `mask` (1-D) that holds index `i`."""
+    breaks = np.flatnonzero(~mask)
+    before, after = breaks[breaks < i], breaks[breaks > i]
+    return (int(before.max()) + 1 if before.size else 0), (int(after.min()) - 1 if after.size else mask.size - 1)
+
+
+def _blocked(terrain: TerrainGrid, centre: np.ndarray, width: float, axis: int) -> dict[str, Any]:
+    """The truth's blocked ground of a fence `width` metres long centred at `centre` across grid axis
+    `axis`: the terrain raster's cells its footprint (`FENCE_POST_M` wide) overlaps, as their outline."""
+    res = terrain.resolution
+    half = np.full(2, FENCE_POST_M / 2)
+    half[axis] = width / 2
+    first = np.floor((centre - half - terrain.origin) / res + 1e-9)
+    last = np.ceil((centre + half - terrain.origin) / res - 1e-9)
+    (x0, y0), (x1, y1) = terrain.origin + first * res, terrain.origin + last * res
+    polygon = [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+    return {
+        "from": "sidewalk",
+        "to": "blocked",
+        "polygon": [[round(float(a), 4), round(float(b), 4)] for a, b in polygon],
+        "area_m2": round(float((x1 - x0) * (y1 - y0)), 4),
+    }

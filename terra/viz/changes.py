@@ -1,5 +1,6 @@
 """The figure of `terra changes --figure`: the map from above in grey, terrain cells that changed class as
-coloured squares (one colour per "before -> after" pair), and objects added (green triangles), removed (red
+coloured squares (one colour per "before -> after" pair; ground an obstacle now blocks black, ground one
+freed gold), and objects added (green triangles), removed (red
 crosses) and moved (blue arrows from where they were, a hollow circle, to where they are). Map frame, metres."""
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from matplotlib.patches import Patch
 from terra.bundle import Bundle
 from terra.errors import TerraError
 from terra.fileio import writing
-from terra.mapping.changes import ChangesResult
+from terra.mapping.changes import BLOCKED, ChangesResult
 from terra.npy import ArraySpec
 from terra.viz.places import distinct_palette
 from terra.viz.style import Extent, figure_legend, new_figure, save_figure, topdown_axis, view_extent
@@ -22,12 +23,26 @@ MAX_GREY_POINTS = 200_000  # enough to read the site's layout; more only slows t
 KIND_STYLE = {"added": ("tab:green", "^"), "removed": ("tab:red", "X"), "moved": ("tab:blue", "o")}
 
 
+BLOCKED_STYLE = {"to": (0.0, 0.0, 0.0), "from": (1.0, 0.84, 0.0)}
+"""RGB 0..1 of ground an obstacle came to stand on ("sidewalk -> blocked": black, as a wall is drawn) and of
+ground one left ("blocked -> asphalt": gold); neither is in the distinct palette."""
+
+
 def pair_colours(pairs: list[str]) -> dict[str, tuple[float, float, float]]:
-    """An RGB colour in 0..1 per "before -> after" terrain pair, in name order, from the distinct
-    palette past its green, red and blue (the object markers'); the figure's and the viewer's."""
+    """An RGB colour in 0..1 per "before -> after" terrain pair: `BLOCKED_STYLE` for a pair to or from
+    blocked ground, and for the others, in name order, one from the distinct palette past its green, red
+    and blue (the object markers'); the figure's and the viewer's."""
     palette = distinct_palette()
-    chosen = (palette[(i + 4) % len(palette)] for i in range(len(set(pairs))))
-    return {pair: (float(r), float(g), float(b)) for pair, (r, g, b) in zip(sorted(set(pairs)), chosen)}
+    out: dict[str, tuple[float, float, float]] = {}
+    drawn = 0  # palette colours given so far
+    for pair in sorted(set(pairs)):
+        before, _, after = pair.partition(" -> ")
+        if BLOCKED in (before, after):
+            out[pair] = BLOCKED_STYLE["to" if after == BLOCKED else "from"]
+            continue
+        r, g, b = palette[(drawn + 4) % len(palette)]
+        out[pair], drawn = (float(r), float(g), float(b)), drawn + 1
+    return out
 
 
 def _extent(points: np.ndarray, result: ChangesResult) -> Extent | None:

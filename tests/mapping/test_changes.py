@@ -13,7 +13,7 @@ import pytest
 from terra.bundle import Bundle
 from terra.cli import run
 from terra.mapping.align import pose_from_guess
-from terra.mapping.changes import detect_changes
+from terra.mapping.changes import ChangeSettings, detect_changes
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
 from terra.mapping.sessions import plan_join
@@ -21,7 +21,9 @@ from terra.sim.config import RevisitConfig, SimConfig
 from terra.sim.dataset import simulate
 
 GUESS = pose_from_guess(47.0, -3.0, 85.0)  # the revisit's frame lies at (50, 0, 90 degrees)
-NO_CHANGE = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0)
+NO_CHANGE = RevisitConfig(
+    cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0, fences_added=0
+)
 
 
 @pytest.fixture(scope="module")
@@ -65,9 +67,15 @@ def test_the_changes_found_are_the_simulators(first_map, tmp_path, capsys):
         for moved in (c for c in truth["objects"] if c["change"] == "moved"):
             if np.linalg.norm(np.subtract(moved["from"][:2], change["before"][:2])) < 1.5:
                 assert abs(change["distance"] - moved["distance"]) < 1.0
-    (patch,) = truth["terrain"]
+    (patch,) = [t for t in truth["terrain"] if t["to"] == "dirt"]
     to_dirt = [t for t in found["terrain"] if (t["before"], t["after"]) == ("grass", "dirt")]
     assert to_dirt and 0 < to_dirt[0]["area_m2"] <= patch["area_m2"] + 12.0  # the patch's cells, ~1 m each side
+    _the_fence_is_found(truth, found)
+    # Its voxels spread it 0.3 to 0.4 m wide here; as a sliver too (0.5 m), it is judged, as a wall of its own
+    (fence,) = [c["to"][:2] for c in truth["objects"] if c["class"] == "fence"]
+    slivers = [o.to_json() for o in detect_changes(out, 1, 2, ChangeSettings(min_width=0.5)).objects]
+    near = [c["change"] for c in slivers if np.linalg.norm(np.subtract((c["after"] or c["before"])[:2], fence)) < 1.5]
+    assert near == ["added"]
     truth_classes = {(c["change"], c["class"]) for c in truth["objects"]}
     named = {(c["change"], c["name"]) for c in found["objects"] if c["name"] is not None}  # None: LiDAR only
     assert named and named <= truth_classes  # named by class, not by bank entry
@@ -75,7 +83,23 @@ def test_the_changes_found_are_the_simulators(first_map, tmp_path, capsys):
     assert run(["changes", str(out)]) == 0
     text = capsys.readouterr().out
     assert f"objects: {found['counts']['added']} added, {found['counts']['removed']} removed" in text
-    assert "grass -> dirt" in text and "car (bank entry" in text
+    assert "grass -> dirt" in text and "sidewalk -> blocked" in text and "car (bank entry" in text
+
+
+def _the_fence_is_found(truth: dict, found: dict) -> None:
+    """The fence the revisit put up across a sidewalk: found as an added fence where it stands, and the ground
+    under it as sidewalk -> blocked over the 1 m cells (change detection's `terrain_cell`) that the truth's
+    blocked cells (0.25 m raster cells under its footprint) lie in, give or take a cell at each end."""
+    (fence,) = [c for c in truth["objects"] if c["class"] == "fence"]
+    (added,) = [
+        c for c in found["objects"] if c["after"] and np.linalg.norm(np.subtract(c["after"][:2], fence["to"][:2])) < 1.5
+    ]
+    assert added["change"] == "added" and added["name"] == "fence"
+    (blocked,) = [t for t in truth["terrain"] if t["to"] == "blocked"]
+    (x0, y0), (x1, y1) = blocked["polygon"][0], blocked["polygon"][2]
+    cells = (np.ceil(x1) - np.floor(x0)) * (np.ceil(y1) - np.floor(y0))  # 1 m cells the strip lies in
+    area = sum(t["area_m2"] for t in found["terrain"] if (t["before"], t["after"]) == ("sidewalk", "blocked"))
+    assert abs(area - cells) <= 2.0, (area, cells)
 
 
 def test_changes_per_region_and_figure(first_map, tmp_path, capsys):
@@ -104,6 +128,27 @@ def test_changes_per_region_and_figure(first_map, tmp_path, capsys):
         assert run(["changes", str(out), "--figure", str(bad)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "expected a PNG file name" in err
+    _served_blocked_ground(out, found)
+
+
+def _served_blocked_ground(out, found: dict) -> None:
+    """GET /changes of `terra serve` answers as `terra changes --json` (`found`), the fence's blocked
+    sidewalk and each region's share of it included."""
+    pytest.importorskip("fastapi")
+    from fastapi.testclient import TestClient
+
+    from terra.loaded import LoadedBundle
+    from terra.serve.app import create_app
+    from terra.serve.config import ServeConfig
+
+    answer = TestClient(create_app(LoadedBundle(out), settings=ServeConfig())).get(
+        "/changes", params={"first": 1, "second": 2}
+    )
+    assert answer.status_code == 200 and answer.json() == found
+    blocked = [t["area_m2"] for t in found["terrain"] if (t["before"], t["after"]) == ("sidewalk", "blocked")]
+    assert blocked and sum(r["terrain_m2"].get("sidewalk -> blocked", 0.0) for r in found["regions"]) == pytest.approx(
+        blocked[0]
+    )
 
 
 def test_a_revisit_without_changes_has_none(first_map, tmp_path):
@@ -113,6 +158,7 @@ def test_a_revisit_without_changes_has_none(first_map, tmp_path):
     result = detect_changes(out, 1, 2)
     assert result.observed_area_m2 > 1000.0
     assert result.objects == []
+    assert not [t for t in result.terrain if "blocked" in (t.before, t.after)]  # no object changed, none blocked
     false_area = sum(t.area_m2 for t in result.terrain)
     assert false_area <= 0.005 * result.observed_area_m2  # boundary cells between two terrains, at most 0.5 %
     bundle = Bundle(out)

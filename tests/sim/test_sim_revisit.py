@@ -25,7 +25,7 @@ def test_the_listed_object_changes_are_made_in_the_world(tiny_campus, revisit):
     before, after = tiny_campus.world, revisit.world
     truth = revisit.revisit
     kinds = [c["change"] for c in truth.objects]
-    assert kinds.count("moved") == 2 and kinds.count("removed") == 3 and kinds.count("added") == 2
+    assert kinds.count("moved") == 2 and kinds.count("removed") == 3 and kinds.count("added") == 3  # 2 cars, a fence
     ids_after = {o.instance_id for o in after.objects}
     for change in truth.objects:
         iid = change["instance_id"]
@@ -49,7 +49,7 @@ def test_the_listed_object_changes_are_made_in_the_world(tiny_campus, revisit):
 
 def test_the_lawn_patch_turns_to_dirt_and_nothing_else_changes(tiny_campus, revisit):
     before, after = tiny_campus.world.terrain, revisit.world.terrain
-    (patch,) = revisit.revisit.terrain
+    (patch,) = [t for t in revisit.revisit.terrain if t["to"] == "dirt"]  # a fence blocks ground, not repaints it
     changed = before.classes != after.classes
     assert np.all(before.classes[changed] == class_id("grass")) and np.all(after.classes[changed] == class_id("dirt"))
     assert changed.sum() * before.resolution**2 == pytest.approx(patch["area_m2"])
@@ -57,6 +57,40 @@ def test_the_lawn_patch_turns_to_dirt_and_nothing_else_changes(tiny_campus, revi
     xs, ys = before.cell_centres()
     inside = np.outer((ys > y0) & (ys < y1), (xs > x0) & (xs < x1))
     np.testing.assert_array_equal(changed, inside)
+
+
+def test_a_fence_closes_a_sidewalk_end_to_end(tiny_campus, revisit):
+    before, after, truth = tiny_campus.world, revisit.world, revisit.revisit
+    fence = class_id("fence")
+    assert not np.isin(fence, before.prims.class_id)  # no first visit has a fence: its worlds are as they were
+    (added,) = [c for c in truth.objects if c["class"] == "fence"]
+    assert added["change"] == "added" and added["from"] is None
+    (blocked,) = [t for t in truth.terrain if t["to"] == "blocked"]
+    assert blocked["from"] == "sidewalk"
+    parts = after.prims.instance_id == added["instance_id"]
+    assert np.all(after.prims.class_id[parts] == fence) and parts.sum() == 4  # 3 posts <= 2.5 m apart, a panel
+    length, width, height = added["extent"]
+    assert width == pytest.approx(0.1) and 1.0 <= height <= 1.5
+    # Turned across the walkway: its length runs over the sidewalk's width, from one edge to the other.
+    (x0, y0), (x1, y1) = blocked["polygon"][0], blocked["polygon"][2]
+    across = int(np.argmax([x1 - x0, y1 - y0]))  # the axis the fence runs along
+    assert [x1 - x0, y1 - y0][across] == pytest.approx(length)
+    assert [x1 - x0, y1 - y0][1 - across] == pytest.approx(before.terrain.resolution)  # one row of cells
+    assert blocked["area_m2"] == pytest.approx(length * before.terrain.resolution)
+    assert x0 < added["to"][0] < x1 and y0 < added["to"][1] < y1
+    terrain = before.terrain
+    middle = (np.array([x0, y0]) + [x1, y1]) / 2
+    step = np.eye(2)[across] * (length / 2 + terrain.resolution / 2)
+    cells = middle + np.outer(np.linspace(-length / 2 + 0.1, length / 2 - 0.1, 12), np.eye(2)[across])
+    assert np.all(terrain.class_at(cells) == class_id("sidewalk"))  # it stands on sidewalk all along
+    assert np.all(terrain.class_at(np.array([middle - step, middle + step])) != class_id("sidewalk"))  # edge to edge
+    np.testing.assert_array_equal(after.terrain.class_at(cells), terrain.class_at(cells))  # still paved, blocked
+    walkway = middle + np.outer([-4.0, 4.0], np.eye(2)[1 - across])  # sidewalk goes on both ways past it
+    assert np.all(terrain.class_at(walkway) == class_id("sidewalk"))
+    from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled module
+
+    distance = cKDTree(after.route).query(cells)[0]
+    assert distance.min() >= 2.0 and distance.max() <= 14.0  # passed, not driven through; within its LiDAR's reach
 
 
 def test_poses_are_reported_in_the_revisit_frame_on_another_route(tiny_campus, revisit):
@@ -79,7 +113,7 @@ def test_rerouted_starts_at_the_fraction_of_the_reversed_route():
 
 
 def test_a_revisit_without_changes_changes_nothing(tiny_campus):
-    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0)
+    none = RevisitConfig(cars_moved=0, cars_removed=0, cars_added=0, benches_removed=0, lawns_to_dirt=0, fences_added=0)
     same = simulate("tiny", 0, SimConfig(revisit=none))
     assert same.revisit is not None and same.revisit.objects == [] and same.revisit.terrain == []
     np.testing.assert_array_equal(same.world.prims.center, tiny_campus.world.prims.center)

@@ -48,6 +48,20 @@ def test_markers_of_a_hand_made_result():
     assert "added: car at (10.0, 2.0) (R1)" in text and "terrain grass -> dirt: 2 m²" in text
 
 
+def test_blocked_ground_has_its_own_colours():
+    """Ground a fence now stands on is black, ground a car left gold, whatever the other pairs are."""
+    result = hand_made()
+    result.terrain = [TerrainChange("sidewalk", "blocked", 1.0), TerrainChange("blocked", "asphalt", 1.0)]
+    result.terrain_pairs = ["sidewalk -> blocked", "blocked -> asphalt"]
+    markers = change_markers(result, np.array([[5.4, 5.6, 0.2], [6.6, 5.4, 0.4]]))
+    assert markers.cell_colours.tolist() == [[0, 0, 0], [255, 214, 0]]
+    text = changes_markdown(result)
+    assert "terrain sidewalk -> blocked: 1 m²" in text and "terrain blocked -> asphalt: 1 m²" in text
+    result.terrain_pairs = ["grass -> dirt", "blocked -> asphalt"]  # the palette's first colour stays grass's
+    alone = change_markers(hand_made(), np.array([[5.4, 5.6, 0.2], [6.6, 5.4, 0.4]]))
+    assert change_markers(result, alone.cells).cell_colours[0].tolist() == alone.cell_colours[0].tolist()
+
+
 def test_the_viewer_draws_what_terra_changes_finds(tiny_campus, tmp_path):
     from terra.viewer.app import TerraViewer, free_port
 
