@@ -73,6 +73,53 @@ class TerrainRaster:
         rows, cols, inside = self.cell_of(xy)
         return np.where(inside, self.ground_height[rows, cols], np.nan)
 
+    def neighbour_geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """`neighbour_geometry` of this raster's ground heights: step (H, W, 4) metres and slope
+        (H, W, 4) degrees of the move to each neighbour in NEIGHBOURS order."""
+        return neighbour_geometry(self.ground_height, self.resolution)
+
+
+NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))
+"""(row, column) offsets of a cell's four neighbours: +x, +y, -x, -y (rows grow with y)."""
+
+
+def neighbour_geometry(height: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Step and slope of the move from each cell to each of its four neighbours (NEIGHBOURS order)
+    on a raster of true ground heights at cell centres (H, W) metres, `resolution` metres apart.
+
+    The height difference `jump` between two neighbours splits into what the surface on both sides
+    explains and a step: `outer` is the smaller of the two differences that continue the line on
+    either side (the cell before the first and after the second; the one inside at the raster's
+    edge, 0 on a raster two cells long), the
+    slope is atan(min(|jump|, outer) / resolution) in degrees and the step max(|jump| - outer, 0)
+    in metres. A curb between flat road and flat walk is a step of its height and slope 0; a
+    constant slope or a ramp of small risers is that slope and step 0; a flight of stairs is steps.
+    Returns step (H, W, 4) float64 metres and slope (H, W, 4) float64 degrees, NaN where the
+    neighbour lies outside the raster; a move and its reverse share both values."""
+    height = np.asarray(height, dtype=np.float64)
+    step = np.full(height.shape + (4,), np.nan)
+    slope = np.full(height.shape + (4,), np.nan)
+    for axis, forward, backward in ((1, 0, 2), (0, 1, 3)):
+        h = np.moveaxis(height, axis, -1)
+        jump = np.abs(np.diff(h, axis=-1))  # (..., W - 1): between cell c and c + 1
+        pad = np.full(h.shape[:-1] + (1,), np.nan)
+        before = np.concatenate([pad, jump[..., :-1]], axis=-1)
+        after = np.concatenate([jump[..., 1:], pad], axis=-1)
+        outer = np.nan_to_num(np.fmin(before, after), nan=0.0)
+        smooth = np.minimum(jump, outer)
+        edge_step, edge_slope = jump - smooth, np.degrees(np.arctan(smooth / resolution))
+        for out, values in ((step, edge_step), (slope, edge_slope)):
+            view = np.moveaxis(out, axis, -2)  # (..., W, 4)
+            view[..., :-1, forward] = values
+            view[..., 1:, backward] = values
+    return step, slope
+
+
+def cell_slope(height: np.ndarray, resolution: float) -> np.ndarray:
+    """(H, W) degrees: the steepest slope (`neighbour_geometry`) of a cell's moves to its neighbours."""
+    _, slope = neighbour_geometry(height, resolution)
+    return np.nanmax(np.where(np.isnan(slope), -np.inf, slope), axis=-1)
+
 
 @dataclass
 class GroundTruth:

@@ -13,7 +13,9 @@ from shapely.geometry import Polygon, box
 from terra.datasets.ground_truth import NamedRegion, ObjectBox
 from terra.geometry import yaw_rotation
 from terra.sim.classes import CLASS_COLORS, class_id
-from terra.sim.heightfield import Heightfield
+from terra.sim.config import GeometryConfig
+from terra.sim.geometry import Flight, build_steps
+from terra.sim.heightfield import Heightfield, StepRaster
 from terra.sim.objects import MODELS
 from terra.sim.primitives import CYLINDER, ELLIPSOID, Primitives
 from terra.sim.route import plan_route
@@ -48,6 +50,9 @@ class WorldBuilder:
         self.waypoints: list[tuple[float, float]] = []
         self._occupied: dict[tuple[int, int], list[tuple[float, float, float]]] = {}  # cell -> (x, y, radius)
         self._next_instance = 1
+        # Per object: its first and last row + 1, the points its base was taken at, whether it conforms.
+        self._placements: list[tuple[int, int, np.ndarray, bool]] = []
+        self.flights: list[Flight] = []
 
     # ----------------------------------------------------------------- terrain
     def _window(self, bounds: tuple[float, float, float, float]) -> tuple[slice, slice, np.ndarray, np.ndarray]:
@@ -97,6 +102,7 @@ class WorldBuilder:
         world_xy = centres[:, :2] @ R[:2, :2].T + [x, y]
         if conform:
             base = self.ground.height(world_xy)
+            probe = world_xy
         else:
             # Lowest ground under the footprint corners, so no object floats on a slope.
             lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
@@ -105,6 +111,11 @@ class WorldBuilder:
                 :2, :2
             ].T + [x, y]
             base = np.full(len(parts), float(self.ground.height(corners).min()))
+            probe = corners
+        self._placements.append((len(self._rows), len(self._rows) + len(parts), probe, conform))
+        if cls == "stairs":
+            top = max(c[2] + h[2] for _k, c, h, _y, _c in parts)
+            self.flights.append(Flight(x, y, yaw, float(halves[:, 0].max()), float(halves[:, 1].max()), float(top)))
         for (kind, c, h, pyaw, color), wxy, b in zip(parts, world_xy, base):
             rgb = CLASS_COLORS[cid] if color is None else color
             self._rows.append((kind, (wxy[0], wxy[1], b + c[2]), h, yaw + pyaw, cid, iid, tuple(int(v) for v in rgb)))
@@ -190,8 +201,13 @@ class WorldBuilder:
         """Points the route passes through, in order (each on a walkway)."""
         self.waypoints.extend((float(x), float(y)) for x, y in points)
 
-    def finish(self, route_length: float | None = None) -> World:
+    def finish(self, route_length: float | None = None, geometry: GeometryConfig | None = None) -> World:
+        """The World, with the route cut to `route_length` metres (None: whole) and, with `geometry`,
+        the ground's step offsets (terra/sim/geometry.py) under the objects, which rise with them."""
         route = plan_route(self.walkways, self.waypoints, route_length)
+        if geometry is not None:
+            self.ground.steps = build_steps(self.terrain, self.walkways, self.flights, self._occupied_cells(), geometry)
+            self._lift_objects(self.ground.steps)
         return World(
             self.name,
             self.seed,
@@ -203,6 +219,32 @@ class WorldBuilder:
             self.regions,
             route,
         )
+
+
+    def _occupied_cells(self, margin: float = 1.0) -> np.ndarray:
+        """(H, W) bool: terrain cells within `margin` metres of a placed object's disc."""
+        xs, ys = self.terrain.cell_centres()
+        out = np.zeros(self.terrain.classes.shape, bool)
+        discs = {disc for cell in self._occupied.values() for disc in cell}
+        for x, y, r in discs:
+            cols = np.flatnonzero(np.abs(xs - x) <= r + margin)
+            rows = np.flatnonzero(np.abs(ys - y) <= r + margin)
+            if cols.size and rows.size:
+                d = np.hypot(xs[cols][None, :] - x, ys[rows][:, None] - y)
+                out[rows[:, None], cols[None, :]] |= d <= r + margin
+        return out
+
+    def _lift_objects(self, steps: StepRaster) -> None:
+        """Raise every placed object by the step offset under it, as `add` based it: a conforming
+        object's parts each by the offset under them, any other by the lowest under its footprint."""
+        for index, (start, stop, probe, conform) in enumerate(self._placements):
+            lift = steps.at(probe)
+            lifts = lift if conform else np.full(stop - start, float(lift.min()))
+            for row, dz in zip(range(start, stop), lifts):
+                kind, (cx, cy, cz), *rest = self._rows[row]
+                self._rows[row] = (kind, (cx, cy, cz + float(dz)), *rest)
+            box = self.objects[index]
+            box.center[2] += float(lifts.min())
 
 
 _CELL = 8.0  # metres; spatial hash of placed objects
