@@ -500,16 +500,49 @@ def as_ground_terrain(msm: MetricSemanticMap, ground: np.ndarray) -> MetricSeman
 
 def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, beside: int = BESIDE) -> GroundLayers:
     """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's
-    cells. Steps within `beside` cells of a blocked cell are unknown: there the lowest points of an
-    object (a car's sill, a planter's rim) pass for ground and read as steps of a few centimetres,
-    and the grid keeps places and links clear of the object anyway."""
+    cells. Within `beside` cells of a blocked cell (`near_obstacle`) a step is read only along an
+    axis whose heights (the cell and two on each side, or one on each side: `steps_clear_of`) are
+    all clear of blocked cells, and is unknown where neither axis is: in a blocked cell the lowest points of an object (a car's sill, a
+    planter's rim) pass for ground and read as steps of a few centimetres, while a curb in the gap
+    between two cars parked nose to it is read across the curb, clear of both cars."""
     frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
     layers = ground_layers(np.asarray(points)[ground], frame)
     if beside > 0 and grid.blocked.any():
         near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
         layers.near_obstacle = near.ravel()[layers.cells]
-        layers.step[layers.near_obstacle] = np.nan
+        index = np.flatnonzero(layers.near_obstacle)
+        layers.step[index] = steps_clear_of(layers, grid.blocked, index)
     return layers
+
+
+def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """(m,) float32 metres: the step (`axis_step`, the larger of the two axes) of the observed
+    cells `index` (m,) read only along the axes whose five heights (the cell, two on each side)
+    lie in cells that are not `blocked` (H, W) bool, on the layers' grid; along an axis where only
+    the cell and its two neighbours are clear, the larger of their two height differences less the
+    smaller; NaN where no axis is clear."""
+    H, W = layers.shape
+    flat = layers.cells[index]
+    rows, cols = flat // W, flat % W
+    taps = np.arange(-2, 3)
+    out = np.full(len(index), np.nan)
+    for axis, gradient in ((0, layers.gradient[index, 1]), (1, layers.gradient[index, 0])):
+        r = rows[:, None] + (taps if axis == 0 else 0)
+        c = cols[:, None] + (taps if axis == 1 else 0)
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        r, c = np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)
+        clear = (inside & ~blocked[r, c]).all(axis=1)
+        at = np.minimum(np.searchsorted(layers.cells, r * W + c), len(layers.cells) - 1)
+        height = np.where(inside & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
+        rise = np.repeat(gradient.astype(np.float64)[:, None] * layers.cell_size, 5, axis=1)
+        step = axis_step(height, 1, rise)[:, 2]
+        # With an obstacle two cells away, the cell and its two neighbours: the larger of the two
+        # differences less the smaller (a slope cancels, a curb beside a car's nose stays).
+        near = (inside & ~blocked[r, c])[:, 1:4].all(axis=1) & ~clear
+        jumps = np.abs(np.diff(height[:, 1:4], axis=1))
+        step = np.where(near, np.abs(jumps[:, 1] - jumps[:, 0]), step)
+        out = np.fmax(out, np.where(clear | near, step, np.nan))
+    return out.astype(np.float32)
 
 
 def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:
