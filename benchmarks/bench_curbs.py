@@ -37,7 +37,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster
+from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster, path_geometry
 from terra.tasks.robot import RobotProfile
 from terra.sim.world import World
 
@@ -106,45 +106,11 @@ def _components(free: np.ndarray, legal: np.ndarray) -> np.ndarray:
 
 
 def judge_path(truth: TrueGround, waypoints: np.ndarray) -> dict[str, Any]:
-    """The largest true step (m) and slope (degrees) of the cell moves a path makes (sampled every
-    quarter cell; a diagonal move takes the better of its two 4-neighbour detours) and which
-    features (truth.features) it passes over."""
-    res = truth.raster.resolution
-    xy = np.asarray(waypoints, dtype=np.float64)[:, :2]
-    pieces = [xy[:1]]
-    for a, b in zip(xy[:-1], xy[1:]):
-        n = max(int(np.ceil(np.linalg.norm(b - a) / (res / 4))), 1)
-        pieces.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
-    rows, cols, _ = truth.raster.cell_of(np.vstack(pieces))
-    keep = np.concatenate([[True], (np.diff(rows) != 0) | (np.diff(cols) != 0)])
-    rows, cols = rows[keep], cols[keep]
-    worst_step = worst_slope = 0.0
-    for r0, c0, r1, c1 in zip(rows[:-1], cols[:-1], rows[1:], cols[1:]):
-        routes = [[(r0, c0, r1, c1)]] if abs(r1 - r0) + abs(c1 - c0) == 1 else _detours(r0, c0, r1, c1)
-        best = min((max(_move(truth, *m) for m in route) for route in routes), key=lambda v: v[0] + v[1] / 90.0)
-        worst_step, worst_slope = max(worst_step, best[0]), max(worst_slope, best[1])
-    over = {name: int(mask[rows, cols].any()) for name, mask in truth.features.items()}
-    return {"step": worst_step, "slope": worst_slope} | over
-
-
-def _detours(r0: int, c0: int, r1: int, c1: int) -> list[list[tuple[int, int, int, int]]]:
-    """The two 4-neighbour routes of a diagonal cell move (longer jumps: a straight row-then-column walk)."""
-    if abs(r1 - r0) == 1 and abs(c1 - c0) == 1:
-        return [[(r0, c0, r0, c1), (r0, c1, r1, c1)], [(r0, c0, r1, c0), (r1, c0, r1, c1)]]
-    moves, r, c = [], r0, c0
-    while c != c1:
-        moves.append((r, c, r, c + np.sign(c1 - c)))
-        c += np.sign(c1 - c)
-    while r != r1:
-        moves.append((r, c, r + np.sign(r1 - r), c))
-        r += np.sign(r1 - r)
-    return [moves]
-
-
-def _move(truth: TrueGround, r0: int, c0: int, r1: int, c1: int) -> tuple[float, float]:
-    """True (step m, slope degrees) of the move between two 4-neighbour cells."""
-    k = NEIGHBOURS.index((int(r1 - r0), int(c1 - c0)))
-    return float(truth.step[r0, c0, k]), float(truth.slope[r0, c0, k])
+    """The largest true step (m) and slope (degrees) of the cell moves a path makes
+    (terra.datasets.ground_truth.path_geometry) and which features (truth.features) it passes over."""
+    found = path_geometry(truth.raster, truth.step, truth.slope, waypoints)
+    over = {name: int(mask[found.rows, found.cols].any()) for name, mask in truth.features.items()}
+    return {"step": found.step, "slope": found.slope} | over
 
 
 def simulate_map_build(preset: str, seed: int, frames: int, relief: float, work: Path) -> tuple[Path, Path]:

@@ -115,6 +115,53 @@ def neighbour_geometry(height: np.ndarray, resolution: float) -> tuple[np.ndarra
     return step, slope
 
 
+@dataclass
+class PathGeometry:
+    """What a path meets on a true ground raster: its largest step (metres) and steepest slope
+    (degrees) over the cell moves it makes, the two cells (row, col) of the move with the largest
+    step, and the cells (rows, cols) (k,) it passes, in order."""
+
+    step: float
+    slope: float
+    step_cells: tuple[tuple[int, int], tuple[int, int]]
+    rows: np.ndarray
+    cols: np.ndarray
+
+
+def path_geometry(raster: TerrainRaster, step: np.ndarray, slope: np.ndarray, waypoints: np.ndarray) -> PathGeometry:
+    """The true geometry of a path of straight segments between `waypoints` (n, 2+) (map frame,
+    metres) on `raster`, whose moves' step and slope (H, W, 4) come from `neighbour_geometry`. The
+    path is sampled every quarter cell; a move between cells that share only a corner takes the
+    better of its two detours through a neighbour (a robot may pass either side of the corner);
+    unknown moves (off the raster) count as 0."""
+    xy = np.asarray(waypoints, dtype=np.float64)[:, :2]
+    pieces = [xy[:1]]
+    for a, b in zip(xy[:-1], xy[1:]):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / (raster.resolution / 4))), 1)
+        pieces.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    rows, cols, _ = raster.cell_of(np.vstack(pieces))
+    keep = np.concatenate([[True], (np.diff(rows) != 0) | (np.diff(cols) != 0)])
+    rows, cols = rows[keep], cols[keep]
+    worst = (0.0, 0.0)
+    step_cells = ((int(rows[0]), int(cols[0])), (int(rows[0]), int(cols[0])))
+    for r0, c0, r1, c1 in zip(rows[:-1], cols[:-1], rows[1:], cols[1:]):
+        dr, dc = int(r1 - r0), int(c1 - c0)
+        if abs(dr) + abs(dc) == 1:
+            detours = [[(r0, c0, dr, dc)]]
+        else:  # a corner: through (r0, c1) or (r1, c0)
+            detours = [[(r0, c0, 0, dc), (r0, c1, dr, 0)], [(r0, c0, dr, 0), (r1, c0, 0, dc)]]
+        options = []
+        for moves in detours:
+            k = [NEIGHBOURS.index((mr, mc)) for _, _, mr, mc in moves]
+            pairs = [(step[r, c, j], slope[r, c, j]) for (r, c, _, _), j in zip(moves, k)]
+            options.append((max(float(np.nan_to_num(p[0])) for p in pairs), max(float(np.nan_to_num(p[1])) for p in pairs)))
+        best = min(options, key=lambda v: v[0] + v[1] / 90.0)
+        if best[0] > worst[0]:
+            step_cells = ((int(r0), int(c0)), (int(r1), int(c1)))
+        worst = (max(worst[0], best[0]), max(worst[1], best[1]))
+    return PathGeometry(worst[0], worst[1], step_cells, rows, cols)
+
+
 def cell_slope(height: np.ndarray, resolution: float) -> np.ndarray:
     """(H, W) degrees: the steepest slope (`neighbour_geometry`) of a cell's moves to its neighbours."""
     _, slope = neighbour_geometry(height, resolution)

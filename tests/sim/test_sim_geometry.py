@@ -106,3 +106,44 @@ def test_stairs_are_steps_and_the_ramp_beside_them_is_not(flat_world):
     assert np.nanmax(slope[st.ramp]) == pytest.approx(GRADE, abs=0.05)
     stairs_box = next(o for o in flat_world.objects if o.class_name == "stairs")
     assert stairs_box.center[2] - stairs_box.size[2] / 2 == pytest.approx(0.15, abs=1e-6)  # on the raised plaza
+
+
+def test_a_wheelchair_reaches_the_sidewalk_from_the_lot_only_through_a_curb_cut(flat_world):
+    """On the true raster, the shortest legal route (5 cm steps, 8 degrees) from the parking lot to
+    the sidewalk leaves the asphalt only inside a curb cut; with the cuts raised back to full curb
+    height no legal route is left (the lot is ringed by curbs)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    raster = flat_world.ground_truth().terrain
+    st = flat_world.ground.steps
+    h, w = raster.classes.shape
+    road = raster.classes == class_id("asphalt")
+    start = (int(12.0 / RES), int(30.0 / RES))  # (row, col) of (30, 12) in the lot
+    goal = (int(22.5 / RES), int(30.0 / RES))  # (30, 22.5) on the sidewalk, 1.5 m past the curb
+
+    def route(height: np.ndarray) -> np.ndarray | None:
+        step, slope = neighbour_geometry(height, RES)
+        index = np.arange(h * w).reshape(h, w)
+        src, dst = [], []
+        for k, (dr, dc) in enumerate(NEIGHBOURS[:2]):
+            ok = (step[: h - dr, : w - dc, k] <= 0.05) & (slope[: h - dr, : w - dc, k] <= 8.0)
+            src.append(index[: h - dr, : w - dc][ok])
+            dst.append(index[dr:, dc:][ok])
+        s, d = np.concatenate(src), np.concatenate(dst)
+        graph = coo_matrix((np.ones(len(s)), (s, d)), shape=(h * w, h * w)).tocsr()
+        dist, pred = dijkstra(graph, directed=False, indices=index[start], return_predecessors=True)
+        if not np.isfinite(dist[index[goal]]):
+            return None
+        path = [index[goal]]
+        while path[-1] != index[start]:
+            path.append(pred[path[-1]])
+        return np.array(path[::-1])
+
+    height = raster.ground_height.astype(np.float64)
+    path = route(height)
+    assert path is not None
+    on_road = road.ravel()[path]
+    leaves = path[1:][on_road[:-1] & ~on_road[1:]]  # first raised cell after a road cell
+    assert len(leaves) >= 1 and np.all(st.curb_cut.ravel()[leaves])
+    assert route(np.where(st.curb_cut, height + (0.15 - height) * ~road, height)) is None
