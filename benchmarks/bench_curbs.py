@@ -30,7 +30,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy import ndimage
@@ -38,8 +38,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster, path_geometry
-from terra.tasks.robot import RobotProfile
 from terra.sim.world import World
+from terra.tasks.robot import RobotProfile
 
 RESULTS = Path(__file__).resolve().parent / "results" / "curbs.json"
 
@@ -76,7 +76,7 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
         c, s = np.cos(box.yaw), np.sin(box.yaw)
         rx, ry = gx - box.center[0], gy - box.center[1]
         blocked |= (np.abs(c * rx + s * ry) <= box.size[0] / 2) & (np.abs(-s * rx + c * ry) <= box.size[1] / 2)
-    clearance = ndimage.distance_transform_edt(~blocked) * raster.resolution
+    clearance = cast(np.ndarray, ndimage.distance_transform_edt(~blocked)) * raster.resolution
     free = (np.asarray(clearance) > robot.min_width / 2) & (raster.classes != class_id("water"))
     legal = (np.nan_to_num(step, nan=np.inf) <= robot.max_step) & (
         np.nan_to_num(slope, nan=np.inf) <= min(robot.max_slope_up, robot.max_slope_down)

@@ -154,7 +154,9 @@ def path_geometry(raster: TerrainRaster, step: np.ndarray, slope: np.ndarray, wa
         for moves in detours:
             k = [NEIGHBOURS.index((mr, mc)) for _, _, mr, mc in moves]
             pairs = [(step[r, c, j], slope[r, c, j]) for (r, c, _, _), j in zip(moves, k)]
-            options.append((max(float(np.nan_to_num(p[0])) for p in pairs), max(float(np.nan_to_num(p[1])) for p in pairs)))
+            options.append(
+                (max(float(np.nan_to_num(p[0])) for p in pairs), max(float(np.nan_to_num(p[1])) for p in pairs))
+            )
         best = min(options, key=lambda v: v[0] + v[1] / 90.0)
         if best[0] > worst[0]:
             step_cells = ((int(r0), int(c0)), (int(r1), int(c1)))

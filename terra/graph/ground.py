@@ -502,9 +502,10 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
     """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's
     cells. Within `beside` cells of a blocked cell (`near_obstacle`) a step is read only along an
     axis whose heights (the cell and two on each side, or one on each side: `steps_clear_of`) are
-    all clear of blocked cells, and is unknown where neither axis is: in a blocked cell the lowest points of an object (a car's sill, a
-    planter's rim) pass for ground and read as steps of a few centimetres, while a curb in the gap
-    between two cars parked nose to it is read across the curb, clear of both cars."""
+    all clear of blocked cells, and is unknown where neither axis is: in a blocked cell the lowest
+    points of an object (a car's sill, a planter's rim) pass for ground and read as steps of a few
+    centimetres, while a curb in the gap between two cars parked nose to it is read across the
+    curb, clear of both cars."""
     frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
     layers = ground_layers(np.asarray(points)[ground], frame)
     if beside > 0 and grid.blocked.any():

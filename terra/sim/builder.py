@@ -100,19 +100,7 @@ class WorldBuilder:
         centres = np.array([p[1] for p in parts], float)
         halves = np.array([p[2] for p in parts], float)
         world_xy = centres[:, :2] @ R[:2, :2].T + [x, y]
-        if conform:
-            base = self.ground.height(world_xy)
-            probe = world_xy
-        else:
-            # Lowest ground under the footprint corners, so no object floats on a slope.
-            lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
-            hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
-            corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[
-                :2, :2
-            ].T + [x, y]
-            base = np.full(len(parts), float(self.ground.height(corners).min()))
-            probe = corners
-        self._placements.append((len(self._rows), len(self._rows) + len(parts), probe, conform))
+        base = self._base(world_xy, centres, halves, R, (x, y), conform, len(parts))
         if cls == "stairs":
             top = max(c[2] + h[2] for _k, c, h, _y, _c in parts)
             self.flights.append(Flight(x, y, yaw, float(halves[:, 0].max()), float(halves[:, 1].max()), float(top)))
@@ -149,6 +137,31 @@ class WorldBuilder:
         for cell in _cells(*disc):
             self._occupied.setdefault(cell, []).append(disc)
         return iid
+
+    def _base(
+        self,
+        world_xy: np.ndarray,
+        centres: np.ndarray,
+        halves: np.ndarray,
+        R: np.ndarray,
+        at: tuple[float, float],
+        conform: bool,
+        count: int,
+    ) -> np.ndarray:
+        """Ground height (count,) metres under each of an object's parts: with `conform`, under each
+        part (map-frame xy (count, 2)); otherwise the lowest under the footprint's corners (parts'
+        centres and half sizes in the object's frame, turned by R and placed at `at`), so no object
+        floats on a slope. Records where it was taken for `_lift_objects`."""
+        if conform:
+            base, probe = self.ground.height(world_xy), world_xy
+        else:
+            lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
+            hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
+            corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]])
+            probe = corners @ R[:2, :2].T + list(at)
+            base = np.full(count, float(self.ground.height(probe).min()))
+        self._placements.append((len(self._rows), len(self._rows) + count, probe, conform))
+        return base
 
     def is_free(self, x: float, y: float, radius: float, on: tuple[str, ...] = ("grass",)) -> bool:
         """True when a disc of `radius` at (x, y) lies on the given terrain and clear of objects."""
@@ -219,7 +232,6 @@ class WorldBuilder:
             self.regions,
             route,
         )
-
 
     def _occupied_cells(self, margin: float = 1.0) -> np.ndarray:
         """(H, W) bool: terrain cells within `margin` metres of a placed object's disc."""

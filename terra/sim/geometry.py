@@ -19,6 +19,7 @@ Offsets are constant per cell, so a slope is a staircase of small risers (1:12 o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy import ndimage
@@ -138,15 +139,17 @@ def _stairs_ramp(offsets: np.ndarray, mask: np.ndarray, cells: _Cells, flight: F
     rx, ry = cells.x - flight.x, cells.y - flight.y
     lx, ly = c * rx + s * ry, -s * rx + c * ry
     beyond = lx - flight.half_width
-    inside = (beyond >= 0.0) & (beyond < run) & (ly <= flight.half_depth) & (ly > flight.half_depth - config.ramp_width_m)
+    inside = (
+        (beyond >= 0.0) & (beyond < run) & (ly <= flight.half_depth) & (ly > flight.half_depth - config.ramp_width_m)
+    )
     offsets[inside] += flight.rise * (1.0 - beyond[inside] / run)
     mask |= inside
 
 
 def _near_walkways(terrain: TerrainGrid, walkways: list[np.ndarray], margin: float) -> np.ndarray:
     """(H, W) bool: cells within `margin` metres of a walkway's vertices or segments (sampled every half cell)."""
-    near = np.zeros(terrain.classes.shape, bool)
-    h, w = near.shape
+    h, w = terrain.classes.shape
+    near = np.zeros((h, w), bool)
     for line in walkways:
         for a, b in zip(line[:-1], line[1:]):
             n = max(int(np.ceil(np.linalg.norm(b - a) / (terrain.resolution / 2))), 1)
@@ -154,8 +157,8 @@ def _near_walkways(terrain: TerrainGrid, walkways: list[np.ndarray], margin: flo
             rc = np.floor((samples - terrain.origin) / terrain.resolution).astype(np.int64)
             ok = (rc[:, 0] >= 0) & (rc[:, 0] < w) & (rc[:, 1] >= 0) & (rc[:, 1] < h)
             near[rc[ok, 1], rc[ok, 0]] = True
-    distance = ndimage.distance_transform_edt(~near) * terrain.resolution
-    return np.asarray(distance <= margin)
+    distance = cast(np.ndarray, ndimage.distance_transform_edt(~near)) * terrain.resolution
+    return distance <= margin
 
 
 def _mound(
@@ -171,8 +174,9 @@ def _mound(
     `slope_deg` as its steepest slope (lower than `height` where the lawn is narrower than the
     mound would be); mark it in `mask` and take it and a 2 m margin out of `open_lawn`. Nothing
     where the widest open lawn is under 2 m in radius."""
-    room = np.asarray(ndimage.distance_transform_edt(np.pad(open_lawn, 1)))[1:-1, 1:-1] * resolution  # edge: no lawn
-    r, c = np.unravel_index(int(np.argmax(room)), room.shape)
+    padded = np.pad(open_lawn, 1)  # beyond the raster's edge is no lawn
+    room = cast(np.ndarray, ndimage.distance_transform_edt(padded))[1:-1, 1:-1] * resolution
+    r, c = (int(v) for v in np.unravel_index(int(np.argmax(room)), room.shape))
     tangent = np.tan(np.radians(slope_deg))
     radius = min(np.pi * height / (2.0 * tangent), float(room[r, c]))
     if radius < 2.0:

@@ -129,6 +129,36 @@ def _exit(pos, d, lo, size):
 
 
 @njit(cache=True)
+def _within_cell(ox, oy, oz, dx, dy, dz, t, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base):
+    """The ray's hit with the smooth ground raised by `offset` between t and `leave` (where it leaves
+    the cell): Lipschitz steps, then Newton within 5 cm. Returns (t, hit, left, normal): hit with
+    its normal; else left (t past the cell), or neither (out of iterations at t; t_end passed)."""
+    x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
+    h, dh = _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base)
+    gap = z - h - offset
+    for _ in range(64):
+        if abs(gap) < tolerance:
+            if t > t_end:
+                return t, False, False, 0.0, 0.0, 0.0
+            gx, gy, gz = _smooth_normal(x, y, amp, kx, ky, phase)
+            return t, True, False, gx, gy, gz
+        slope = dz - dh
+        if gap < 0.05 and slope < -1e-3:
+            t_next = max(t - gap / slope, 0.0)
+        elif rate > 1e-9:
+            t_next = t + gap / rate
+        else:
+            t_next = math.inf
+        if t_next >= leave:
+            return t, False, True, 0.0, 0.0, 0.0
+        t = t_next
+        x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
+        h, dh = _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base)
+        gap = z - h - offset
+    return t, False, False, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
 def _stepped_ground(  # noqa: C901 - a compiled ray walk: numba needs the branches inline
     ox, oy, oz, dx, dy, dz, t_end, amp, kx, ky, phase, base, slope_bound, tolerance, steps, block_max, grid
 ):
@@ -169,37 +199,16 @@ def _stepped_ground(  # noqa: C901 - a compiled ray walk: numba needs the branch
         cx, cy = math.floor((x - x0) / res), math.floor((y - y0) / res)
         offset = steps[min(max(int(cy), 0), rows - 1), min(max(int(cx), 0), cols - 1)]
         gap = z - h - offset
-        if gap < -tolerance:  # below this cell's ground where the ray enters it: its raised edge
-            if wall == 0:
-                return t, -math.copysign(1.0, dx), 0.0, 0.0
-            if wall == 1:
-                return t, 0.0, -math.copysign(1.0, dy), 0.0
-            gx, gy, gz = _smooth_normal(x, y, amp, kx, ky, phase)
-            return t, gx, gy, gz
+        if gap < -tolerance and wall >= 0:  # below this cell's ground where the ray enters it: its raised edge
+            return t, -math.copysign(1.0, dx) * (wall == 0), -math.copysign(1.0, dy) * (wall == 1), 0.0
         ex = _exit(x, dx, x0 + cx * res, res)
         ey = _exit(y, dy, y0 + cy * res, res)
         leave = t + max(min(ex, ey), 0.0)
-        left = False
-        for _ in range(64):  # within the cell the ground is smooth: Lipschitz steps, then Newton
-            if abs(gap) < tolerance:
-                if t > t_end:
-                    return math.inf, 0.0, 0.0, 0.0
-                gx, gy, gz = _smooth_normal(x, y, amp, kx, ky, phase)
-                return t, gx, gy, gz
-            slope = dz - dh
-            if gap < 0.05 and slope < -1e-3:
-                t_next = max(t - gap / slope, 0.0)
-            elif rate > 1e-9:
-                t_next = t + gap / rate
-            else:
-                t_next = math.inf
-            if t_next >= leave:
-                left = True
-                break
-            t = t_next
-            x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
-            h, dh = _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base)
-            gap = z - h - offset
+        t, hit, left, gx, gy, gz = _within_cell(
+            ox, oy, oz, dx, dy, dz, t, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base
+        )
+        if hit:
+            return t, gx, gy, gz
         if left:
             t = leave + 1e-6
             wall = 0 if ex <= ey else 1
@@ -321,7 +330,22 @@ def cast_kernel(  # noqa: C901 - a compiled per-ray loop: numba needs the branch
                             break
             else:
                 t, gx, gy, gz = _stepped_ground(
-                    ox, oy, oz, dx, dy, dz, best, amp, kx, ky, phase, base, slope_bound, tolerance, steps, block_max,
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    best,
+                    amp,
+                    kx,
+                    ky,
+                    phase,
+                    base,
+                    slope_bound,
+                    tolerance,
+                    steps,
+                    block_max,
                     step_grid,
                 )
                 if t <= best:

@@ -45,7 +45,9 @@ def test_geometry_is_off_unless_asked():
     xs, ys = world.terrain.cell_centres()
     gx, gy = np.meshgrid(xs, ys)
     smooth = world.ground.height(np.stack([gx.ravel(), gy.ravel()], 1)).reshape(gx.shape).astype(np.float32)
-    np.testing.assert_array_equal(world.ground_truth().terrain.ground_height, smooth)
+    raster = world.ground_truth().terrain
+    assert raster is not None
+    np.testing.assert_array_equal(raster.ground_height, smooth)
 
 
 def test_sidewalk_stands_a_curb_above_the_road(flat_world):
