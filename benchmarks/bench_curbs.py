@@ -7,8 +7,9 @@ start-goal place pairs and plans each with the wheelchair profile. Each path is 
 ground raster (terra.datasets.ground_truth.neighbour_geometry: the step and slope of every move
 between 4-neighbour cells): a path crosses a true step above the profile's limit or a true slope
 above it (expected: 0). Independently, the true raster is searched for legal routes: cells free of
-objects by the profile's half width and not water, joined where the move's true step and slope are
-within the limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
+objects by the profile's half width, not water and not within the half width of a true step above
+the limit (the wheels would meet it), joined where the move's true step and slope are within the
+limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
 Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
 and paths over the steep hill.
@@ -16,7 +17,7 @@ and paths over the steep hill.
 Usage:
   python benchmarks/bench_curbs.py [--preset tiny] [--seed 0] [--frames 0] [--relief 0.3]
       [--pairs 200] [--work DIR]
-Writes benchmarks/results/curbs.json and prints it.
+Writes benchmarks/results/curbs-<preset>.json and prints it.
 """
 
 from __future__ import annotations
@@ -41,19 +42,22 @@ from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster, path_geometry
 from terra.sim.world import World
 from terra.tasks.robot import RobotProfile
 
-RESULTS = Path(__file__).resolve().parent / "results" / "curbs.json"
+RESULTS = Path(__file__).resolve().parent / "results"  # curbs-<preset>.json
 
 
 @dataclass
 class TrueGround:
     """The true per-cell geometry of a world: raster, step and slope (H, W, 4) of each move
-    (NEIGHBOURS order), legal (H, W, 4) moves for the robot, free (H, W) cells, the component
+    (NEIGHBOURS order), legal (H, W, 4) moves for the robot, edge (H, W) cells whose centre lies
+    within the robot's half width of a step above its limit (its wheels would meet the step),
+    free (H, W) cells (clear of objects by the half width, not water, not edge), the component
     (H, W) int of each free cell (-1: not free) and the masks of what the world has where."""
 
     raster: TerrainRaster
     step: np.ndarray
     slope: np.ndarray
     legal: np.ndarray
+    edge: np.ndarray
     free: np.ndarray
     component: np.ndarray
     features: dict[str, np.ndarray]
@@ -77,7 +81,8 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
         rx, ry = gx - box.center[0], gy - box.center[1]
         blocked |= (np.abs(c * rx + s * ry) <= box.size[0] / 2) & (np.abs(-s * rx + c * ry) <= box.size[1] / 2)
     clearance = cast(np.ndarray, ndimage.distance_transform_edt(~blocked)) * raster.resolution
-    free = (np.asarray(clearance) > robot.min_width / 2) & (raster.classes != class_id("water"))
+    edge = _near_steps(step, robot.max_step, robot.min_width / 2, raster.resolution)
+    free = (clearance > robot.min_width / 2) & (raster.classes != class_id("water")) & ~edge
     legal = (np.nan_to_num(step, nan=np.inf) <= robot.max_step) & (
         np.nan_to_num(slope, nan=np.inf) <= min(robot.max_slope_up, robot.max_slope_down)
     )
@@ -85,7 +90,15 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     stairs = np.isfinite(world.stairs_tops(gx, gy))
     st = world.ground.steps
     features = {"curb_cut": st.curb_cut, "stairs": stairs, "ramp": st.ramp, "hill": st.hill}
-    return TrueGround(raster, step, slope, legal, free, component, features)
+    return TrueGround(raster, step, slope, legal, edge, free, component, features)
+
+
+def _near_steps(step: np.ndarray, limit: float, reach: float, resolution: float) -> np.ndarray:
+    """(H, W) bool: cells whose centre lies within `reach` metres of a cell edge with a step above
+    `limit` metres (the edge lies half a cell beyond the centres of the two cells beside it)."""
+    beside = (np.nan_to_num(step) > limit).any(axis=-1)
+    cells = cast(np.ndarray, ndimage.distance_transform_edt(~beside))
+    return cells * resolution + resolution / 2 <= reach
 
 
 def _components(free: np.ndarray, legal: np.ndarray) -> np.ndarray:
@@ -107,10 +120,12 @@ def _components(free: np.ndarray, legal: np.ndarray) -> np.ndarray:
 
 def judge_path(truth: TrueGround, waypoints: np.ndarray) -> dict[str, Any]:
     """The largest true step (m) and slope (degrees) of the cell moves a path makes
-    (terra.datasets.ground_truth.path_geometry) and which features (truth.features) it passes over."""
+    (terra.datasets.ground_truth.path_geometry), whether it passes within the robot's half width of
+    a step above its limit (truth.edge), and which features (truth.features) it passes over."""
     found = path_geometry(truth.raster, truth.step, truth.slope, waypoints)
     over = {name: int(mask[found.rows, found.cols].any()) for name, mask in truth.features.items()}
-    return {"step": found.step, "slope": found.slope} | over
+    beside = bool(truth.edge[found.rows, found.cols].any())
+    return {"step": found.step, "slope": found.slope, "beside_step": beside} | over
 
 
 def simulate_map_build(preset: str, seed: int, frames: int, relief: float, work: Path) -> tuple[Path, Path]:
@@ -141,6 +156,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     place_component = truth.component[rows, cols]
     rng = np.random.default_rng(seed)
     counts: dict[str, Any] = {"pairs": pairs, "wheelchair_paths": 0, "over_step_limit": 0, "over_slope_limit": 0}
+    counts["within_half_width_of_a_step_over_the_limit"] = 0
     counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
     worst = {"step_m": 0.0, "slope_deg": 0.0}
@@ -158,6 +174,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         judged = judge_path(truth, plan.waypoints)
         counts["over_step_limit"] += bool(judged["step"] > chair.max_step + 1e-9)
         counts["over_slope_limit"] += bool(judged["slope"] > chair.max_slope_up + 1e-9)
+        counts["within_half_width_of_a_step_over_the_limit"] += judged["beside_step"]
         worst = {"step_m": max(worst["step_m"], judged["step"]), "slope_deg": max(worst["slope_deg"], judged["slope"])}
         for name in truth.features:
             counts[f"paths_over_{name}"] += judged[name]
@@ -213,8 +230,8 @@ def main() -> None:
         start = time.perf_counter()
         result["wheelchair"] = wheelchair_pairs(graph, truth, args.pairs, args.seed)
         result["wheelchair"]["seconds"] = round(time.perf_counter() - start, 2)
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=1) + "\n")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"curbs-{args.preset}.json").write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result, indent=1))
 
 

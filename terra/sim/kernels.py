@@ -129,13 +129,12 @@ def _exit(pos, d, lo, size):
 
 
 @njit(cache=True)
-def _within_cell(ox, oy, oz, dx, dy, dz, t, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base):
-    """The ray's hit with the smooth ground raised by `offset` between t and `leave` (where it leaves
-    the cell): Lipschitz steps, then Newton within 5 cm. Returns (t, hit, left, normal): hit with
-    its normal; else left (t past the cell), or neither (out of iterations at t; t_end passed)."""
-    x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
-    h, dh = _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base)
-    gap = z - h - offset
+def _within_cell(ox, oy, oz, dx, dy, dz, t, gap, dh, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base):
+    """The ray's hit with the smooth ground raised by `offset` between t (where the ray is `gap` above
+    it, the ground changing by dh per metre along the ray) and `leave` (where it leaves the cell):
+    Lipschitz steps, then Newton within 5 cm. Returns (t, hit, left, normal): hit with its normal;
+    else left (t past the cell), or neither (out of iterations at t; t_end passed)."""
+    x, y = ox + t * dx, oy + t * dy
     for _ in range(64):
         if abs(gap) < tolerance:
             if t > t_end:
@@ -205,7 +204,7 @@ def _stepped_ground(  # noqa: C901 - a compiled ray walk: numba needs the branch
         ey = _exit(y, dy, y0 + cy * res, res)
         leave = t + max(min(ex, ey), 0.0)
         t, hit, left, gx, gy, gz = _within_cell(
-            ox, oy, oz, dx, dy, dz, t, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base
+            ox, oy, oz, dx, dy, dz, t, gap, dh, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base
         )
         if hit:
             return t, gx, gy, gz
