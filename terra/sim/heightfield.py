@@ -21,8 +21,9 @@ class StepRaster:
     (r, c) covers x in [x0 + c res, x0 + (c+1) res), y in [y0 + r res, ...) (the terrain raster's
     layout); a point beyond the raster takes the nearest edge cell's offset (no wall at the edge).
 
-    block_max (Hb, Wb): the largest offset of each block of `block` x `block` cells (32: 8 m on 0.25 m cells, the fastest of 4 to 64 on the tiny site), the envelope
-    the ray caster marches against before it walks cells. Masks (H, W) bool of what was built:
+    block_max (Hb, Wb): the largest offset of each block of `block` x `block` cells (32: 8 m on
+    0.25 m cells, the fastest of 4 to 64 on the tiny site), the envelope the ray caster marches
+    against before it walks cells. Masks (H, W) bool of what was built:
     curb_cut (ramps from a road up to a raised walk), ramp (ramps beside stairs), hill (the steep
     hill), lawn (gently sloped lawns)."""
 
