@@ -12,7 +12,7 @@ the limit (the wheels would meet it), joined where the move's true step and slop
 limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
 Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
-and paths over the steep hill.
+paths over the steep hill, and the same pairs planned without a profile (over steps, over stairs).
 
 Usage:
   python benchmarks/bench_curbs.py [--preset tiny] [--seed 0] [--frames 0] [--relief 0.3]
@@ -151,7 +151,8 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     from terra.tasks.robot import ROBOTS
 
     chair = ROBOTS["wheelchair"]
-    cost_graph = CostGraph.build(graph, TerrainCosts.from_preferences(graph.terrain_classes), chair)
+    costs = TerrainCosts.from_preferences(graph.terrain_classes)
+    cost_graph, free_graph = CostGraph.build(graph, costs, chair), CostGraph.build(graph, costs)
     rows, cols, _ = truth.raster.cell_of(graph.places.position)
     place_component = truth.component[rows, cols]
     rng = np.random.default_rng(seed)
@@ -160,8 +161,10 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
     worst = {"step_m": 0.0, "slope_deg": 0.0}
+    counts |= {"free_paths": 0, "free_paths_over_step_limit": 0, "free_paths_over_stairs": 0}
     for _ in range(pairs):
         a, b = (int(v) for v in rng.choice(len(graph.places), 2, replace=False))
+        _count_free(graph, free_graph, truth, a, b, chair.max_step, counts)
         legal = bool(place_component[a] >= 0 and place_component[a] == place_component[b])
         counts["legal_route_on_truth"] += legal
         counts["place_off_the_legal_truth_grid"] += bool(place_component[a] < 0 or place_component[b] < 0)
@@ -181,6 +184,22 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
     counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
     return counts
+
+
+def _count_free(graph, free_graph, truth: TrueGround, a: int, b: int, max_step: float, counts: dict) -> None:
+    """Count the plan without a robot profile between places a and b: found, over the step limit on
+    the true ground, over stairs (what the profile avoids)."""
+    from terra.errors import NoPathError
+    from terra.tasks.planning import plan_on
+
+    try:
+        plan = plan_on(graph, free_graph, a, b)
+    except NoPathError:
+        return
+    judged = judge_path(truth, plan.waypoints)
+    counts["free_paths"] += 1
+    counts["free_paths_over_step_limit"] += bool(judged["step"] > max_step + 1e-9)
+    counts["free_paths_over_stairs"] += judged["stairs"]
 
 
 def world_figures(truth: TrueGround, world: World) -> dict[str, Any]:
