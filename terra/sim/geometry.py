@@ -50,6 +50,14 @@ class _Cells:
     x: np.ndarray
     y: np.ndarray
 
+    def near(self, x: float, y: float, radius: float) -> tuple[slice, slice]:
+        """(rows, cols) of the cells whose centres lie within `radius` metres of (x, y) along both
+        axes: a feature touches only these, so a kilometre raster is not swept per feature."""
+        xs, ys = self.x[0], self.y[:, 0]
+        cols = slice(int(np.searchsorted(xs, x - radius)), int(np.searchsorted(xs, x + radius, side="right")))
+        rows = slice(int(np.searchsorted(ys, y - radius)), int(np.searchsorted(ys, y + radius, side="right")))
+        return rows, cols
+
 
 def build_steps(
     terrain: TerrainGrid,
@@ -124,26 +132,29 @@ def _curb_cut(
 ) -> None:
     """Lower the raised cells of one curb cut (module docstring) in place and mark them in `mask`."""
     run = config.curb_height_m / config.curb_cut_grade
-    rx, ry = cells.x - point[0], cells.y - point[1]
+    win = cells.near(float(point[0]), float(point[1]), run + config.curb_cut_width_m)
+    rx, ry = cells.x[win] - point[0], cells.y[win] - point[1]
     along = rx * direction[0] + ry * direction[1]
     across = -rx * direction[1] + ry * direction[0]
-    inside = raised & (along > -run / 4) & (along <= run) & (np.abs(across) <= config.curb_cut_width_m / 2)
-    offsets[inside] = np.minimum(offsets[inside], config.curb_height_m * np.clip(along[inside], 0.0, run) / run)
-    mask |= inside
+    inside = raised[win] & (along > -run / 4) & (along <= run) & (np.abs(across) <= config.curb_cut_width_m / 2)
+    lowered = np.minimum(offsets[win], config.curb_height_m * np.clip(along, 0.0, run) / run)
+    offsets[win] = np.where(inside, lowered, offsets[win])
+    mask[win] |= inside
 
 
 def _stairs_ramp(offsets: np.ndarray, mask: np.ndarray, cells: _Cells, flight: Flight, config: GeometryConfig) -> None:
     """Add the ramp beside one flight of stairs (module docstring) in place and mark it in `mask`."""
     run = flight.rise / config.ramp_grade
     c, s = np.cos(flight.yaw), np.sin(flight.yaw)
-    rx, ry = cells.x - flight.x, cells.y - flight.y
+    win = cells.near(flight.x, flight.y, flight.half_width + run + flight.half_depth + config.ramp_width_m)
+    rx, ry = cells.x[win] - flight.x, cells.y[win] - flight.y
     lx, ly = c * rx + s * ry, -s * rx + c * ry
     beyond = lx - flight.half_width
     inside = (
         (beyond >= 0.0) & (beyond < run) & (ly <= flight.half_depth) & (ly > flight.half_depth - config.ramp_width_m)
     )
-    offsets[inside] += flight.rise * (1.0 - beyond[inside] / run)
-    mask |= inside
+    offsets[win] += np.where(inside, flight.rise * (1.0 - beyond / run), 0.0)
+    mask[win] |= inside
 
 
 def _near_walkways(terrain: TerrainGrid, walkways: list[np.ndarray], margin: float) -> np.ndarray:
