@@ -73,6 +73,102 @@ class TerrainRaster:
         rows, cols, inside = self.cell_of(xy)
         return np.where(inside, self.ground_height[rows, cols], np.nan)
 
+    def neighbour_geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """`neighbour_geometry` of this raster's ground heights: step (H, W, 4) metres and slope
+        (H, W, 4) degrees of the move to each neighbour in NEIGHBOURS order."""
+        return neighbour_geometry(self.ground_height, self.resolution)
+
+
+NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))
+"""(row, column) offsets of a cell's four neighbours: +x, +y, -x, -y (rows grow with y)."""
+
+
+def neighbour_geometry(height: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Step and slope of the move from each cell to each of its four neighbours (NEIGHBOURS order)
+    on a raster of true ground heights at cell centres (H, W) metres, `resolution` metres apart.
+
+    The height difference `jump` between two neighbours splits into what the surface on both sides
+    explains and a step: `outer` is the smaller of the two differences that continue the line on
+    either side (the cell before the first and after the second; the one inside at the raster's
+    edge, 0 on a raster two cells long), the
+    slope is atan(min(|jump|, outer) / resolution) in degrees and the step max(|jump| - outer, 0)
+    in metres. A curb between flat road and flat walk is a step of its height and slope 0; a
+    constant slope or a ramp of small risers is that slope and step 0; a flight of stairs is steps.
+    Returns step (H, W, 4) float64 metres and slope (H, W, 4) float64 degrees, NaN where the
+    neighbour lies outside the raster; a move and its reverse share both values."""
+    height = np.asarray(height, dtype=np.float64)
+    step = np.full(height.shape + (4,), np.nan)
+    slope = np.full(height.shape + (4,), np.nan)
+    for axis, forward, backward in ((1, 0, 2), (0, 1, 3)):
+        h = np.moveaxis(height, axis, -1)
+        jump = np.abs(np.diff(h, axis=-1))  # (..., W - 1): between cell c and c + 1
+        pad = np.full(h.shape[:-1] + (1,), np.nan)
+        before = np.concatenate([pad, jump[..., :-1]], axis=-1)
+        after = np.concatenate([jump[..., 1:], pad], axis=-1)
+        outer = np.nan_to_num(np.fmin(before, after), nan=0.0)
+        smooth = np.minimum(jump, outer)
+        edge_step, edge_slope = jump - smooth, np.degrees(np.arctan(smooth / resolution))
+        for out, values in ((step, edge_step), (slope, edge_slope)):
+            view = np.moveaxis(out, axis, -2)  # (..., W, 4)
+            view[..., :-1, forward] = values
+            view[..., 1:, backward] = values
+    return step, slope
+
+
+@dataclass
+class PathGeometry:
+    """What a path meets on a true ground raster: its largest step (metres) and steepest slope
+    (degrees) over the cell moves it makes, the two cells (row, col) of the move with the largest
+    step, and the cells (rows, cols) (k,) it passes, in order."""
+
+    step: float
+    slope: float
+    step_cells: tuple[tuple[int, int], tuple[int, int]]
+    rows: np.ndarray
+    cols: np.ndarray
+
+
+def path_geometry(raster: TerrainRaster, step: np.ndarray, slope: np.ndarray, waypoints: np.ndarray) -> PathGeometry:
+    """The true geometry of a path of straight segments between `waypoints` (n, 2+) (map frame,
+    metres) on `raster`, whose moves' step and slope (H, W, 4) come from `neighbour_geometry`. The
+    path is sampled every quarter cell; a move between cells that share only a corner takes the
+    better of its two detours through a neighbour (a robot may pass either side of the corner);
+    unknown moves (off the raster) count as 0."""
+    xy = np.asarray(waypoints, dtype=np.float64)[:, :2]
+    pieces = [xy[:1]]
+    for a, b in zip(xy[:-1], xy[1:]):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / (raster.resolution / 4))), 1)
+        pieces.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    rows, cols, _ = raster.cell_of(np.vstack(pieces))
+    keep = np.concatenate([[True], (np.diff(rows) != 0) | (np.diff(cols) != 0)])
+    rows, cols = rows[keep], cols[keep]
+    worst = (0.0, 0.0)
+    step_cells = ((int(rows[0]), int(cols[0])), (int(rows[0]), int(cols[0])))
+    for r0, c0, r1, c1 in zip(rows[:-1], cols[:-1], rows[1:], cols[1:]):
+        dr, dc = int(r1 - r0), int(c1 - c0)
+        if abs(dr) + abs(dc) == 1:
+            detours = [[(r0, c0, dr, dc)]]
+        else:  # a corner: through (r0, c1) or (r1, c0)
+            detours = [[(r0, c0, 0, dc), (r0, c1, dr, 0)], [(r0, c0, dr, 0), (r1, c0, 0, dc)]]
+        options = []
+        for moves in detours:
+            k = [NEIGHBOURS.index((mr, mc)) for _, _, mr, mc in moves]
+            pairs = [(step[r, c, j], slope[r, c, j]) for (r, c, _, _), j in zip(moves, k)]
+            options.append(
+                (max(float(np.nan_to_num(p[0])) for p in pairs), max(float(np.nan_to_num(p[1])) for p in pairs))
+            )
+        best = min(options, key=lambda v: v[0] + v[1] / 90.0)
+        if best[0] > worst[0]:
+            step_cells = ((int(r0), int(c0)), (int(r1), int(c1)))
+        worst = (max(worst[0], best[0]), max(worst[1], best[1]))
+    return PathGeometry(worst[0], worst[1], step_cells, rows, cols)
+
+
+def cell_slope(height: np.ndarray, resolution: float) -> np.ndarray:
+    """(H, W) degrees: the steepest slope (`neighbour_geometry`) of a cell's moves to its neighbours."""
+    _, slope = neighbour_geometry(height, resolution)
+    return np.nanmax(np.where(np.isnan(slope), -np.inf, slope), axis=-1)
+
 
 @dataclass
 class GroundTruth:

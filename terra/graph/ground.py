@@ -28,8 +28,11 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope; the gradient's where neither is
   observed), floored at 0. A 15 cm curb reads 15 cm on both cells beside it, or on the cell it
   runs through; a constant slope reads 0 (it is the slope layer's business); stairs read as a
-  steep slope with small steps; unknown within two cells of a blocked cell (`grid_layers`), where
-  an object's lowest points pass for ground;
+  steep slope with small steps. Where a neighbour holds no ground (the road in a curb's own LiDAR
+  shadow), the difference between the nearest observed cells up to three cells away on each side,
+  less the cell's gradient over the cells between. Within two cells of a blocked cell, where an
+  object's lowest points pass for ground, read only along an axis clear of blocked cells
+  (`grid_layers`);
 - roughness: the standard deviation of the cell's ground point heights, less what the plane's
   tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
 
@@ -190,9 +193,10 @@ BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
 # Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
 BAND_CELLS = 1 << 18
-# Rows a cell's layers read on each side: the step reads heights 2 rows away, each the median of
-# heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
-CONTEXT = 4
+# Rows a cell's layers read on each side: the step reads heights up to BRIDGE rows away, each the
+# median of heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
+BRIDGE = 3  # cells a step may look across for the nearest observed height (axis_step)
+CONTEXT = BRIDGE + 2
 
 
 def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
@@ -374,7 +378,8 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     cells beside it are not both observed. Where neither outer neighbour is observed (holes of a
     sparse map), the local slope comes from `rise` (H, W), metres of height per cell along the
     axis (the plane's gradient x cell size), and the step is unknown (NaN) where that is NaN too;
-    without `rise`, such a cell's surroundings count as level."""
+    without `rise`, such a cell's surroundings count as level. With `rise`, a step unknown for a
+    missing neighbour is read across the gap (`_bridge_gaps`)."""
     h = np.moveaxis(np.asarray(height, dtype=np.float64), axis, -1)
     pad = np.full(h.shape[:-1] + (2,), np.nan)
     p = np.concatenate([pad, h, pad], axis=-1)
@@ -387,8 +392,32 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     if rise is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
         fallback = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
         outer = np.where(known.any(axis=0), outer, fallback)
-    step = np.maximum(jump - 2.0 * outer, 0.0)
-    return np.moveaxis(np.where(np.isfinite(jump), step, np.nan), -1, axis)
+    step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
+    if rise is not None:
+        step = _bridge_gaps(h, step, np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1)))
+    return np.moveaxis(step, -1, axis)
+
+
+def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
+    """`step` (..., n) where an observed cell's step along the last axis is unknown because a
+    neighbour holds no ground: the height difference between the nearest observed cells within
+    `bridge` cells on each side, less what the cell's slope (`rise`, metres per cell) explains over
+    the cells between them, floored at 0. A curb's low side lies in its own LiDAR shadow (the road
+    within a few decimetres of it holds no point when seen from the walk), which left every curb
+    seen from its top unknown."""
+    n = h.shape[-1]
+    p = np.concatenate([np.full(h.shape[:-1] + (bridge,), np.nan), h, np.full(h.shape[:-1] + (bridge,), np.nan)], -1)
+    sides = []
+    for sign in (-1, 1):
+        value, distance = np.full(h.shape, np.nan), np.zeros(h.shape)
+        for k in range(bridge, 0, -1):  # the nearest observed cell wins
+            v = p[..., bridge + sign * k : bridge + sign * k + n]
+            value, distance = np.where(np.isfinite(v), v, value), np.where(np.isfinite(v), k, distance)
+        sides.append((value, distance))
+    (before, db), (after, da) = sides
+    gap = np.isfinite(h) & np.isnan(step) & np.isfinite(before) & np.isfinite(after) & np.isfinite(rise)
+    bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(rise), 0.0)
+    return np.where(gap, bridged, step)
 
 
 def edge_geometry(
@@ -500,16 +529,50 @@ def as_ground_terrain(msm: MetricSemanticMap, ground: np.ndarray) -> MetricSeman
 
 def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, beside: int = BESIDE) -> GroundLayers:
     """The layers of the ground points (`points` (N, 3) where `ground` (N,)) on the terrain grid's
-    cells. Steps within `beside` cells of a blocked cell are unknown: there the lowest points of an
-    object (a car's sill, a planter's rim) pass for ground and read as steps of a few centimetres,
-    and the grid keeps places and links clear of the object anyway."""
+    cells. Within `beside` cells of a blocked cell (`near_obstacle`) a step is read only along an
+    axis whose heights (the cell and two on each side, or one on each side: `steps_clear_of`) are
+    all clear of blocked cells, and is unknown where neither axis is: in a blocked cell the lowest
+    points of an object (a car's sill, a planter's rim) pass for ground and read as steps of a few
+    centimetres, while a curb in the gap between two cars parked nose to it is read across the
+    curb, clear of both cars."""
     frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
     layers = ground_layers(np.asarray(points)[ground], frame)
     if beside > 0 and grid.blocked.any():
         near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
         layers.near_obstacle = near.ravel()[layers.cells]
-        layers.step[layers.near_obstacle] = np.nan
+        index = np.flatnonzero(layers.near_obstacle)
+        layers.step[index] = steps_clear_of(layers, grid.blocked, index)
     return layers
+
+
+def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """(m,) float32 metres: the step (`axis_step`, the larger of the two axes) of the observed
+    cells `index` (m,) read only along the axes whose five heights (the cell, two on each side)
+    lie in cells that are not `blocked` (H, W) bool, on the layers' grid; along an axis where only
+    the cell and its two neighbours are clear, the larger of their two height differences less the
+    smaller; NaN where no axis is clear."""
+    H, W = layers.shape
+    flat = layers.cells[index]
+    rows, cols = flat // W, flat % W
+    taps = np.arange(-2, 3)
+    out = np.full(len(index), np.nan)
+    for axis, gradient in ((0, layers.gradient[index, 1]), (1, layers.gradient[index, 0])):
+        r = rows[:, None] + (taps if axis == 0 else 0)
+        c = cols[:, None] + (taps if axis == 1 else 0)
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        r, c = np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)
+        clear = (inside & ~blocked[r, c]).all(axis=1)
+        at = np.minimum(np.searchsorted(layers.cells, r * W + c), len(layers.cells) - 1)
+        height = np.where(inside & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
+        rise = np.repeat(gradient.astype(np.float64)[:, None] * layers.cell_size, 5, axis=1)
+        step = axis_step(height, 1, rise)[:, 2]
+        # With an obstacle two cells away, the cell and its two neighbours: the larger of the two
+        # differences less the smaller (a slope cancels, a curb beside a car's nose stays).
+        near = (inside & ~blocked[r, c])[:, 1:4].all(axis=1) & ~clear
+        jumps = np.abs(np.diff(height[:, 1:4], axis=1))
+        step = np.where(near, np.abs(jumps[:, 1] - jumps[:, 0]), step)
+        out = np.fmax(out, np.where(clear | near, step, np.nan))
+    return out.astype(np.float32)
 
 
 def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:

@@ -13,7 +13,9 @@ from shapely.geometry import Polygon, box
 from terra.datasets.ground_truth import NamedRegion, ObjectBox
 from terra.geometry import yaw_rotation
 from terra.sim.classes import CLASS_COLORS, class_id
-from terra.sim.heightfield import Heightfield
+from terra.sim.config import GeometryConfig
+from terra.sim.geometry import Flight, build_steps
+from terra.sim.heightfield import Heightfield, StepRaster
 from terra.sim.objects import MODELS, Part
 from terra.sim.primitives import CYLINDER, ELLIPSOID, Primitives
 from terra.sim.route import plan_route
@@ -48,6 +50,9 @@ class WorldBuilder:
         self.waypoints: list[tuple[float, float]] = []
         self._occupied: dict[tuple[int, int], list[tuple[float, float, float]]] = {}  # cell -> (x, y, radius)
         self._next_instance = 1
+        # Per object: its first and last row + 1, the points its base was taken at, whether it conforms.
+        self._placements: list[tuple[int, int, np.ndarray, bool]] = []
+        self.flights: list[Flight] = []
 
     # ----------------------------------------------------------------- terrain
     def _window(self, bounds: tuple[float, float, float, float]) -> tuple[slice, slice, np.ndarray, np.ndarray]:
@@ -90,7 +95,16 @@ class WorldBuilder:
         parts = MODELS[model or cls](self.rng, **params)
         iid = self._next_instance
         self._next_instance += 1
-        rows, thing = place_parts(parts, cls, iid, (x, y, yaw), self.ground, conform)
+        pose = (x, y, yaw)
+        rows, thing = place_parts(parts, cls, iid, pose, self.ground, conform)
+        # Where its base was read, for `_lift_objects` when the ground gets its steps at `finish`.
+        self._placements.append(
+            (len(self._rows), len(self._rows) + len(rows), base_probe(parts, pose, conform), conform)
+        )
+        if cls == "stairs":
+            halves = np.array([p[2] for p in parts], float)
+            top = max(c[2] + h[2] for _k, c, h, _y, _c in parts)
+            self.flights.append(Flight(x, y, yaw, float(halves[:, 0].max()), float(halves[:, 1].max()), float(top)))
         self._rows.extend(rows)
         self.objects.append(thing)
         disc = (float(thing.center[0]), float(thing.center[1]), float(np.linalg.norm(thing.size[:2]) / 2))
@@ -149,8 +163,13 @@ class WorldBuilder:
         """Points the route passes through, in order (each on a walkway)."""
         self.waypoints.extend((float(x), float(y)) for x, y in points)
 
-    def finish(self, route_length: float | None = None) -> World:
+    def finish(self, route_length: float | None = None, geometry: GeometryConfig | None = None) -> World:
+        """The World, with the route cut to `route_length` metres (None: whole) and, with `geometry`,
+        the ground's step offsets (terra/sim/geometry.py) under the objects, which rise with them."""
         route = plan_route(self.walkways, self.waypoints, route_length)
+        if geometry is not None:
+            self.ground.steps = build_steps(self.terrain, self.walkways, self.flights, self._occupied_cells(), geometry)
+            self._lift_objects(self.ground.steps)
         return World(
             self.name,
             self.seed,
@@ -162,6 +181,31 @@ class WorldBuilder:
             self.regions,
             route,
         )
+
+    def _occupied_cells(self, margin: float = 1.0) -> np.ndarray:
+        """(H, W) bool: terrain cells within `margin` metres of a placed object's disc."""
+        xs, ys = self.terrain.cell_centres()
+        out = np.zeros(self.terrain.classes.shape, bool)
+        discs = {disc for cell in self._occupied.values() for disc in cell}
+        for x, y, r in discs:
+            cols = np.flatnonzero(np.abs(xs - x) <= r + margin)
+            rows = np.flatnonzero(np.abs(ys - y) <= r + margin)
+            if cols.size and rows.size:
+                d = np.hypot(xs[cols][None, :] - x, ys[rows][:, None] - y)
+                out[rows[:, None], cols[None, :]] |= d <= r + margin
+        return out
+
+    def _lift_objects(self, steps: StepRaster) -> None:
+        """Raise every placed object by the step offset under it, as `add` based it: a conforming
+        object's parts each by the offset under them, any other by the lowest under its footprint."""
+        for index, (start, stop, probe, conform) in enumerate(self._placements):
+            lift = steps.at(probe)
+            lifts = lift if conform else np.full(stop - start, float(lift.min()))
+            for row, dz in zip(range(start, stop), lifts):
+                kind, (cx, cy, cz), *rest = self._rows[row]
+                self._rows[row] = (kind, (cx, cy, cz + float(dz)), *rest)
+            box = self.objects[index]
+            box.center[2] += float(lifts.min())
 
 
 def place_parts(
@@ -177,13 +221,8 @@ def place_parts(
     centres = np.array([p[1] for p in parts], float)
     halves = np.array([p[2] for p in parts], float)
     world_xy = centres[:, :2] @ R[:2, :2].T + [x, y]
-    if conform:
-        base = ground.height(world_xy)
-    else:
-        lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
-        hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
-        corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R[:2, :2].T
-        base = np.full(len(parts), float(ground.height(corners + [x, y]).min()))
+    heights = ground.height(base_probe(parts, pose, conform))
+    base = heights if conform else np.full(len(parts), float(heights.min()))
     rows = []
     for (kind, c, h, pyaw, color), wxy, b in zip(parts, world_xy, base):
         rgb = CLASS_COLORS[cid] if color is None else color
@@ -203,6 +242,21 @@ def place_parts(
     size = np.array([hi_xy[0] - lo_xy[0], hi_xy[1] - lo_xy[1], z_hi - z_lo])
     centre = np.array([c_world[0], c_world[1], (z_lo + z_hi) / 2])
     return rows, ObjectBox(iid, cid, cls, centre, size, float(_wrap(yaw)))
+
+
+def base_probe(parts: list[Part], pose: tuple[float, float, float], conform: bool) -> np.ndarray:
+    """Map-frame x, y (metres) where an object's base is read from the ground: under each part's centre
+    (`conform`), else at the corners and the centre of its parts' footprint, for `parts` in its own frame
+    placed at `pose` = (x, y metres, yaw radians)."""
+    x, y, yaw = pose
+    R = yaw_rotation(yaw)[:2, :2]
+    centres = np.array([p[1] for p in parts], float)
+    if conform:
+        return centres[:, :2] @ R.T + [x, y]
+    halves = np.array([p[2] for p in parts], float)
+    lo = (centres[:, :2] - halves[:, :2]).min(axis=0)
+    hi = (centres[:, :2] + halves[:, :2]).max(axis=0)
+    return np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]], [0, 0]]) @ R.T + [x, y]
 
 
 _CELL = 8.0  # metres; spatial hash of placed objects

@@ -174,6 +174,37 @@ class GnssConfig(Section):
     bias_m: float = Field(default=0.0, ge=0.0)
 
 
+class GeometryConfig(Section):
+    """Ground geometry beyond the smooth height field (terra/sim/geometry.py), built as step offsets
+    on the terrain raster's cells. Off unless the `geometry` section is given.
+
+    - curbs: everything that is not asphalt (sidewalks, lawns, plazas) stands `curb_height_m` above
+      the asphalt of roads and parking lots; where a walkway (a path the robot drives, e.g. a
+      crosswalk or a driveway) crosses a curb, a curb cut `curb_cut_width_m` wide climbs from the
+      road at `curb_cut_grade` (rise over run; 1:12 as accessibility codes ask);
+    - stairs_ramps: beside each flight of stairs, a ramp `ramp_width_m` wide climbs at `ramp_grade`
+      along the building's front to the stairs' top;
+    - steep_hill: one mound on the widest open lawn whose flank reaches `hill_slope_deg` (steeper
+      than a wheelchair's 8 degrees), `hill_height_m` high where the lawn is wide enough (lower
+      where it is not, keeping the slope); `sloped_lawns` gentler mounds (`lawn_slope_deg`,
+      `lawn_height_m`) on the next widest lawns.
+    """
+
+    curbs: bool = True
+    curb_height_m: float = Field(default=0.15, ge=0.05, le=0.3, description="curb height, metres")
+    curb_cut_grade: float = Field(default=1 / 12, gt=0.0, le=0.5, description="curb cut rise over run")
+    curb_cut_width_m: float = Field(default=3.0, gt=0.0, le=10.0, description="curb cut width, metres")
+    stairs_ramps: bool = True
+    ramp_grade: float = Field(default=1 / 12, gt=0.0, le=0.5, description="ramp rise over run beside stairs")
+    ramp_width_m: float = Field(default=1.2, gt=0.0, le=5.0, description="ramp width, metres")
+    steep_hill: bool = True
+    hill_slope_deg: float = Field(default=14.0, gt=0.0, lt=60.0, description="steepest slope of the hill, degrees")
+    hill_height_m: float = Field(default=1.0, gt=0.0, le=5.0, description="hill height, metres")
+    sloped_lawns: int = Field(default=2, ge=0, le=20, description="gently sloped lawn mounds")
+    lawn_slope_deg: float = Field(default=4.0, gt=0.0, lt=60.0, description="steepest slope of a lawn mound")
+    lawn_height_m: float = Field(default=0.4, gt=0.0, le=5.0, description="lawn mound height, metres")
+
+
 class SimConfig(Section):
     """Everything `simulate` needs besides the preset name and seed."""
 
@@ -191,6 +222,9 @@ class SimConfig(Section):
         default=None, description="drive the world again as a second visit, changed (`terra sim --revisit`)"
     )
     gnss: GnssConfig | None = Field(default=None, description="a GNSS receiver's fixes, one per frame (gnss.csv)")
+    geometry: GeometryConfig | None = Field(
+        default=None, description="curbs, curb cuts, ramps beside stairs, a steep hill and sloped lawns (off: None)"
+    )
 
     @field_validator("cameras")
     @classmethod

@@ -92,6 +92,130 @@ def _ground_height(x, y, amp, kx, ky, phase, base):
     return h
 
 
+@njit(cache=True)
+def _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base):
+    """Smooth ground height at (x, y) and its rate of change along the horizontal direction (dx, dy)."""
+    h = base
+    dh = 0.0
+    for i in range(amp.shape[0]):
+        arg = kx[i] * x + ky[i] * y + phase[i]
+        h += amp[i] * math.sin(arg)
+        dh += amp[i] * math.cos(arg) * (kx[i] * dx + ky[i] * dy)
+    return h, dh
+
+
+@njit(cache=True)
+def _smooth_normal(x, y, amp, kx, ky, phase):
+    """Upward unit normal of the smooth ground at (x, y)."""
+    gx = 0.0
+    gy = 0.0
+    for i in range(amp.shape[0]):
+        cw = amp[i] * math.cos(kx[i] * x + ky[i] * y + phase[i])
+        gx += cw * kx[i]
+        gy += cw * ky[i]
+    norm = math.sqrt(gx * gx + gy * gy + 1.0)
+    return -gx / norm, -gy / norm, 1.0 / norm
+
+
+@njit(cache=True, inline="always")
+def _exit(pos, d, lo, size):
+    """Ray parameter (metres from pos) at which a coordinate moving by d per metre leaves the
+    interval [lo, lo + size); inf when it does not move."""
+    if d > 1e-12:
+        return (lo + size - pos) / d
+    if d < -1e-12:
+        return (lo - pos) / d
+    return math.inf
+
+
+@njit(cache=True)
+def _within_cell(ox, oy, oz, dx, dy, dz, t, gap, dh, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base):
+    """The ray's hit with the smooth ground raised by `offset` between t (where the ray is `gap` above
+    it, the ground changing by dh per metre along the ray) and `leave` (where it leaves the cell):
+    Lipschitz steps, then Newton within 5 cm. Returns (t, hit, left, normal): hit with its normal;
+    else left (t past the cell), or neither (out of iterations at t; t_end passed)."""
+    x, y = ox + t * dx, oy + t * dy
+    for _ in range(64):
+        if abs(gap) < tolerance:
+            if t > t_end:
+                return t, False, False, 0.0, 0.0, 0.0
+            gx, gy, gz = _smooth_normal(x, y, amp, kx, ky, phase)
+            return t, True, False, gx, gy, gz
+        slope = dz - dh
+        if gap < 0.05 and slope < -1e-3:
+            t_next = max(t - gap / slope, 0.0)
+        elif rate > 1e-9:
+            t_next = t + gap / rate
+        else:
+            t_next = math.inf
+        if t_next >= leave:
+            return t, False, True, 0.0, 0.0, 0.0
+        t = t_next
+        x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
+        h, dh = _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base)
+        gap = z - h - offset
+    return t, False, False, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def _stepped_ground(  # noqa: C901 - a compiled ray walk: numba needs the branches inline
+    ox, oy, oz, dx, dy, dz, t_end, amp, kx, ky, phase, base, slope_bound, tolerance, steps, block_max, grid
+):
+    """First hit (t, normal) of the ray o + t d with the smooth ground plus the step offsets, t <= t_end
+    (inf: none). Above a block's envelope (smooth height + the block's largest offset) the ray takes safe
+    Lipschitz steps, clipped at the block's edge; below it, it walks the block's cells one by one: within a
+    cell the ground is smooth (Lipschitz steps, then Newton), and a cell whose ground stands above the ray
+    where the ray enters it is hit on its vertical wall (normal against the ray's horizontal direction)."""
+    x0, y0, res, omax = grid[0], grid[1], grid[2], grid[4]
+    bres = res * grid[3]
+    rows, cols = steps.shape[0], steps.shape[1]
+    brows, bcols = block_max.shape[0], block_max.shape[1]
+    rate = slope_bound * math.sqrt(dx * dx + dy * dy) - dz
+    h, dh = _smooth_height(ox, oy, dx, dy, amp, kx, ky, phase, base)
+    if rate <= 1e-9 and oz - h > omax:
+        return math.inf, 0.0, 0.0, 0.0  # the ray rises away from the highest ground it could meet
+    t = 0.0
+    wall = -1  # the axis whose cell edge the ray has just crossed (-1: none)
+    for _ in range(100000):
+        if t > t_end:
+            break
+        x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
+        h, dh = _smooth_height(x, y, dx, dy, amp, kx, ky, phase, base)
+        bx, by = math.floor((x - x0) / bres), math.floor((y - y0) / bres)
+        envelope = block_max[min(max(int(by), 0), brows - 1), min(max(int(bx), 0), bcols - 1)]
+        gap = z - h - envelope
+        if gap > 0.05:  # above every cell of the block: a safe step, at most to the block's edge
+            ex = _exit(x, dx, x0 + bx * bres, bres)
+            ey = _exit(y, dy, y0 + by * bres, bres)
+            step = gap / rate if rate > 1e-9 else math.inf
+            if step < min(ex, ey):
+                t += step
+                wall = -1
+            else:
+                t += max(min(ex, ey), 0.0) + 1e-6
+                wall = 0 if ex <= ey else 1
+            continue
+        cx, cy = math.floor((x - x0) / res), math.floor((y - y0) / res)
+        offset = steps[min(max(int(cy), 0), rows - 1), min(max(int(cx), 0), cols - 1)]
+        gap = z - h - offset
+        if gap < -tolerance and wall >= 0:  # below this cell's ground where the ray enters it: its raised edge
+            return t, -math.copysign(1.0, dx) * (wall == 0), -math.copysign(1.0, dy) * (wall == 1), 0.0
+        ex = _exit(x, dx, x0 + cx * res, res)
+        ey = _exit(y, dy, y0 + cy * res, res)
+        leave = t + max(min(ex, ey), 0.0)
+        t, hit, left, gx, gy, gz = _within_cell(
+            ox, oy, oz, dx, dy, dz, t, gap, dh, t_end, leave, offset, rate, tolerance, amp, kx, ky, phase, base
+        )
+        if hit:
+            return t, gx, gy, gz
+        if left:
+            t = leave + 1e-6
+            wall = 0 if ex <= ey else 1
+        else:
+            wall = -1
+    return math.inf, 0.0, 0.0, 0.0
+
+
 @njit(cache=True, parallel=True)
 def cast_kernel(  # noqa: C901 - a compiled per-ray loop: numba needs the branches inline, not in steps
     origin,
@@ -110,6 +234,9 @@ def cast_kernel(  # noqa: C901 - a compiled per-ray loop: numba needs the branch
     phase,
     base,
     slope_bound,
+    steps,
+    block_max,
+    step_grid,
     max_range,
     tolerance,
     out_t,
@@ -118,7 +245,9 @@ def cast_kernel(  # noqa: C901 - a compiled per-ray loop: numba needs the branch
 ):
     """First hit per ray among its tile's candidate shapes and the ground.
 
-    out_prim: shape index, -1 for the ground, -2 for nothing within max_range. out_normal: map frame.
+    steps (H, W): the ground's step offsets (shape (0, 0): the smooth field alone), block_max and
+    step_grid as `StepRaster.block_max` and `StepRaster.grid()`. out_prim: shape index, -1 for the
+    ground, -2 for nothing within max_range. out_normal: map frame.
     """
     ox, oy, oz = origin[0], origin[1], origin[2]
     n_waves = amp.shape[0]
@@ -165,38 +294,62 @@ def cast_kernel(  # noqa: C901 - a compiled per-ray loop: numba needs the branch
                         lz = (loz + t * ldz) / (az * az)
                         norm = math.sqrt(lx * lx + ly * ly + lz * lz)
                         nx, ny, nz = (c * lx - s * ly) / norm, (s * lx + c * ly) / norm, lz / norm
-            # Ground: safe (Lipschitz) steps until within 5 cm, then Newton, up to the best hit so far.
-            rate = slope_bound * math.sqrt(dx * dx + dy * dy) - dz
-            if rate > 1e-9:
-                t = 0.0
-                for _ in range(200):
-                    x, y = ox + t * dx, oy + t * dy
-                    h = base
-                    dh = 0.0
-                    for i in range(n_waves):
-                        arg = kx[i] * x + ky[i] * y + phase[i]
-                        h += amp[i] * math.sin(arg)
-                        dh += amp[i] * math.cos(arg) * (kx[i] * dx + ky[i] * dy)
-                    gap = oz + t * dz - h
-                    if abs(gap) < tolerance:
-                        if t <= best:
-                            best, best_p = t, -1
-                            gx = 0.0
-                            gy = 0.0
-                            for i in range(n_waves):
-                                cw = amp[i] * math.cos(kx[i] * x + ky[i] * y + phase[i])
-                                gx += cw * kx[i]
-                                gy += cw * ky[i]
-                            norm = math.sqrt(gx * gx + gy * gy + 1.0)
-                            nx, ny, nz = -gx / norm, -gy / norm, 1.0 / norm
-                        break
-                    slope = dz - dh
-                    if gap < 0.05 and slope < -1e-3:
-                        t = max(t - gap / slope, 0.0)
-                    else:
-                        t += gap / rate
-                    if t > best:
-                        break
+            if steps.shape[0] == 0:
+                # Ground: safe (Lipschitz) steps until within 5 cm, then Newton, up to the best hit so far.
+                rate = slope_bound * math.sqrt(dx * dx + dy * dy) - dz
+                if rate > 1e-9:
+                    t = 0.0
+                    for _ in range(200):
+                        x, y = ox + t * dx, oy + t * dy
+                        h = base
+                        dh = 0.0
+                        for i in range(n_waves):
+                            arg = kx[i] * x + ky[i] * y + phase[i]
+                            h += amp[i] * math.sin(arg)
+                            dh += amp[i] * math.cos(arg) * (kx[i] * dx + ky[i] * dy)
+                        gap = oz + t * dz - h
+                        if abs(gap) < tolerance:
+                            if t <= best:
+                                best, best_p = t, -1
+                                gx = 0.0
+                                gy = 0.0
+                                for i in range(n_waves):
+                                    cw = amp[i] * math.cos(kx[i] * x + ky[i] * y + phase[i])
+                                    gx += cw * kx[i]
+                                    gy += cw * ky[i]
+                                norm = math.sqrt(gx * gx + gy * gy + 1.0)
+                                nx, ny, nz = -gx / norm, -gy / norm, 1.0 / norm
+                            break
+                        slope = dz - dh
+                        if gap < 0.05 and slope < -1e-3:
+                            t = max(t - gap / slope, 0.0)
+                        else:
+                            t += gap / rate
+                        if t > best:
+                            break
+            else:
+                t, gx, gy, gz = _stepped_ground(
+                    ox,
+                    oy,
+                    oz,
+                    dx,
+                    dy,
+                    dz,
+                    best,
+                    amp,
+                    kx,
+                    ky,
+                    phase,
+                    base,
+                    slope_bound,
+                    tolerance,
+                    steps,
+                    block_max,
+                    step_grid,
+                )
+                if t <= best:
+                    best, best_p = t, -1
+                    nx, ny, nz = gx, gy, gz
             out_t[r] = best if best_p != -2 else math.inf
             out_prim[r] = best_p
             out_normal[r, 0] = nx

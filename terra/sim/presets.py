@@ -70,4 +70,4 @@ def generate_world(preset: str, seed: int = 0, config: SimConfig | None = None) 
             kinds = list(rng.permutation(np.resize(np.array(BLOCK_KINDS), n * n)))
         grid_layout(b, n, block, kinds, p.row_stride, p.full_tours)
     length = config.route.length_m or p.route_length
-    return b.finish(length)
+    return b.finish(length, config.geometry)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from terra.sim.classes import CLASS_COLORS
+from terra.sim.heightfield import Heightfield
 from terra.sim.kernels import cast_kernel, cull_kernel
 from terra.sim.world import World
 
@@ -137,6 +138,7 @@ def _first_hits(
         hf.phase,
         float(hf.base),
         hf.slope_bound,
+        *_step_arrays(hf),
         float(max_range),
         1e-3,
         t,
@@ -144,6 +146,17 @@ def _first_hits(
         normal,
     )
     return t, prim, normal
+
+
+_NO_STEPS = (np.zeros((0, 0)), np.zeros((1, 1)), np.zeros(5))
+
+
+def _step_arrays(ground: Heightfield) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ground's step offsets, block maxima and grid as cast_kernel reads them (empty: none)."""
+    if ground.steps is None:
+        return _NO_STEPS
+    st = ground.steps
+    return np.ascontiguousarray(st.offsets, np.float64), np.ascontiguousarray(st.block_max, np.float64), st.grid()
 
 
 def _hit_labels(

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 from terra.datasets.ground_truth import GroundTruth, NamedRegion, ObjectBox, TerrainRaster
 from terra.sim.classes import SIM_CLASSES, class_id
 from terra.sim.heightfield import Heightfield
-from terra.sim.primitives import Primitives
+from terra.sim.primitives import BOX, Primitives
 
 OUTSIDE_TERRAIN = class_id("grass")
 """Terrain class of the ground beyond the raster: the campus is surrounded by fields."""
@@ -83,12 +83,28 @@ class World:
         d = np.linalg.norm(self.prims.center[idx] - position, axis=1)
         return idx[d - self.bounding_radius[idx] <= radius]
 
+    def stairs_tops(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Height (metres, map frame) of the highest stairs tread over each point (x, y arrays of one
+        shape); NaN where no stairs are."""
+        top = np.full(x.shape, np.nan)
+        stairs = np.flatnonzero((self.prims.class_id == class_id("stairs")) & (self.prims.kind == BOX))
+        for p in stairs:
+            c, s = self.cos_yaw[p], self.sin_yaw[p]
+            rx, ry = x - self.prims.center[p, 0], y - self.prims.center[p, 1]
+            hx, hy, hz = self.prims.half[p]
+            inside = (np.abs(c * rx + s * ry) <= hx) & (np.abs(-s * rx + c * ry) <= hy)
+            top[inside] = np.fmax(top[inside], self.prims.center[p, 2] + hz)
+        return top
+
     def ground_truth(self) -> GroundTruth:
-        """Objects, terrain raster with ground heights at cell centres, named regions."""
+        """Objects, terrain raster with ground heights at cell centres, named regions. With step
+        offsets (the `geometry` option) the heights include them and the stairs' treads."""
         if self._raster_height is None:  # 41 M cells on the huge preset: computed once, not per caller
             xs, ys = self.terrain.cell_centres()
             gx, gy = np.meshgrid(xs, ys)
             height = self.ground.height(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
+            if self.ground.steps is not None:  # the stairs' treads are ground a robot meets
+                height = np.fmax(height, self.stairs_tops(gx, gy))
             self._raster_height = height.astype(np.float32)
         legend = {c.id: c.name for c in SIM_CLASSES if c.terrain or c.id == 0}
         raster = TerrainRaster(

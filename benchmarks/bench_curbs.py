@@ -1,0 +1,258 @@
+"""Wheelchair plans on a simulated world with curbs, curb cuts, stairs with ramps and a steep hill
+(issue 27), judged on the simulator's true per-cell geometry.
+
+Simulates `--preset` with `sim.geometry` on (and `--relief` for the smooth hills, `--frames`
+frames), maps it (`terra map`, labels backend), builds it (`terra build`), draws `--pairs` random
+start-goal place pairs and plans each with the wheelchair profile. Each path is judged on the true
+ground raster (terra.datasets.ground_truth.neighbour_geometry: the step and slope of every move
+between 4-neighbour cells): a path crosses a true step above the profile's limit or a true slope
+above it (expected: 0). Independently, the true raster is searched for legal routes: cells free of
+objects by the profile's half width, not water and not within the half width of a true step above
+the limit (the wheels would meet it), joined where the move's true step and slope are within the
+limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
+component has a legal route, and one that got no path is a legal route missed (expected: 0).
+Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
+paths over the steep hill, and the same pairs planned without a profile (over steps, over stairs).
+
+Usage:
+  python benchmarks/bench_curbs.py [--preset tiny] [--seed 0] [--frames 0] [--relief 0.3]
+      [--pairs 200] [--work DIR]
+Writes benchmarks/results/curbs-<preset>.json and prints it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster, path_geometry
+from terra.sim.world import World
+from terra.tasks.robot import RobotProfile
+
+RESULTS = Path(__file__).resolve().parent / "results"  # curbs-<preset>.json
+
+
+@dataclass
+class TrueGround:
+    """The true per-cell geometry of a world: raster, step and slope (H, W, 4) of each move
+    (NEIGHBOURS order), legal (H, W, 4) moves for the robot, edge (H, W) cells whose centre lies
+    within the robot's half width of a step above its limit (its wheels would meet the step),
+    free (H, W) cells (clear of objects by the half width, not water, not edge), the component
+    (H, W) int of each free cell (-1: not free) and the masks of what the world has where."""
+
+    raster: TerrainRaster
+    step: np.ndarray
+    slope: np.ndarray
+    legal: np.ndarray
+    edge: np.ndarray
+    free: np.ndarray
+    component: np.ndarray
+    features: dict[str, np.ndarray]
+
+
+def true_ground(world: World, robot: RobotProfile) -> TrueGround:
+    """Legal moves and their connected components on the world's ground truth (module docstring)."""
+    from terra.sim.classes import class_id
+
+    raster = world.ground_truth().terrain
+    assert raster is not None and world.ground.steps is not None
+    step, slope = raster.neighbour_geometry()
+    blocked = np.zeros(raster.classes.shape, bool)
+    xs = raster.origin[0] + (np.arange(raster.classes.shape[1]) + 0.5) * raster.resolution
+    ys = raster.origin[1] + (np.arange(raster.classes.shape[0]) + 0.5) * raster.resolution
+    gx, gy = np.meshgrid(xs, ys)
+    for box in world.objects:
+        if box.class_name in ("crosswalk", "stairs"):  # paint and treads: ground, judged by its steps
+            continue
+        c, s = np.cos(box.yaw), np.sin(box.yaw)
+        rx, ry = gx - box.center[0], gy - box.center[1]
+        blocked |= (np.abs(c * rx + s * ry) <= box.size[0] / 2) & (np.abs(-s * rx + c * ry) <= box.size[1] / 2)
+    clearance = cast(np.ndarray, ndimage.distance_transform_edt(~blocked)) * raster.resolution
+    edge = _near_steps(step, robot.max_step, robot.min_width / 2, raster.resolution)
+    free = (clearance > robot.min_width / 2) & (raster.classes != class_id("water")) & ~edge
+    legal = (np.nan_to_num(step, nan=np.inf) <= robot.max_step) & (
+        np.nan_to_num(slope, nan=np.inf) <= min(robot.max_slope_up, robot.max_slope_down)
+    )
+    component = _components(free, legal)
+    stairs = np.isfinite(world.stairs_tops(gx, gy))
+    st = world.ground.steps
+    features = {"curb_cut": st.curb_cut, "stairs": stairs, "ramp": st.ramp, "hill": st.hill}
+    return TrueGround(raster, step, slope, legal, edge, free, component, features)
+
+
+def _near_steps(step: np.ndarray, limit: float, reach: float, resolution: float) -> np.ndarray:
+    """(H, W) bool: cells whose centre lies within `reach` metres of a cell edge with a step above
+    `limit` metres (the edge lies half a cell beyond the centres of the two cells beside it)."""
+    beside = (np.nan_to_num(step) > limit).any(axis=-1)
+    cells = cast(np.ndarray, ndimage.distance_transform_edt(~beside))
+    return cells * resolution + resolution / 2 <= reach
+
+
+def _components(free: np.ndarray, legal: np.ndarray) -> np.ndarray:
+    """(H, W) int: the connected component of each free cell over legal moves between free cells, -1 elsewhere."""
+    h, w = free.shape
+    index = np.arange(h * w).reshape(h, w)
+    src, dst = [], []
+    for k, (dr, dc) in enumerate(NEIGHBOURS[:2]):  # +x and +y: each move once (they are symmetric)
+        a = index[: h - dr, : w - dc]
+        b = index[dr:, dc:]
+        ok = legal[: h - dr, : w - dc, k] & free[: h - dr, : w - dc] & free[dr:, dc:]
+        src.append(a[ok])
+        dst.append(b[ok])
+    s, d = np.concatenate(src), np.concatenate(dst)
+    graph = coo_matrix((np.ones(len(s)), (s, d)), shape=(h * w, h * w))
+    _, labels = connected_components(graph, directed=False)
+    return np.where(free, labels.reshape(h, w), -1)
+
+
+def judge_path(truth: TrueGround, waypoints: np.ndarray) -> dict[str, Any]:
+    """The largest true step (m) and slope (degrees) of the cell moves a path makes
+    (terra.datasets.ground_truth.path_geometry), whether it passes within the robot's half width of
+    a step above its limit (truth.edge), and which features (truth.features) it passes over."""
+    found = path_geometry(truth.raster, truth.step, truth.slope, waypoints)
+    over = {name: int(mask[found.rows, found.cols].any()) for name, mask in truth.features.items()}
+    beside = bool(truth.edge[found.rows, found.cols].any())
+    return {"step": found.step, "slope": found.slope, "beside_step": beside} | over
+
+
+def simulate_map_build(preset: str, seed: int, frames: int, relief: float, work: Path) -> tuple[Path, Path]:
+    """`terra sim` (geometry on), `terra map` and `terra build` into `work`; (config, bundle)."""
+    config = work / "curbs.yaml"
+    route = f"  route: {{max_frames: {frames}}}\n" if frames > 0 else ""
+    config.write_text(f"sim:\n  ground_relief_m: {relief}\n  geometry: {{}}\n{route}")
+    dataset, bundle = work / "dataset", work / "map.terra"
+    for argv in (
+        ["sim", "--preset", preset, "--seed", str(seed), "-c", str(config), "--out", str(dataset), "--overwrite"],
+        ["map", str(dataset), "-o", str(bundle), "--overwrite"],
+        ["build", str(bundle), "--overwrite"],
+    ):
+        if argv[0] == "build" or not (bundle if argv[0] == "map" else dataset).exists():
+            subprocess.run([sys.executable, "-m", "terra", *argv], check=True, capture_output=True)
+    return config, bundle
+
+
+def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dict[str, Any]:
+    """Plans between random place pairs with the wheelchair, judged on the true geometry."""
+    from terra.errors import NoPathError
+    from terra.tasks.planning import CostGraph, TerrainCosts, plan_on
+    from terra.tasks.robot import ROBOTS
+
+    chair = ROBOTS["wheelchair"]
+    costs = TerrainCosts.from_preferences(graph.terrain_classes)
+    cost_graph, free_graph = CostGraph.build(graph, costs, chair), CostGraph.build(graph, costs)
+    rows, cols, _ = truth.raster.cell_of(graph.places.position)
+    place_component = truth.component[rows, cols]
+    rng = np.random.default_rng(seed)
+    counts: dict[str, Any] = {"pairs": pairs, "wheelchair_paths": 0, "over_step_limit": 0, "over_slope_limit": 0}
+    counts["within_half_width_of_a_step_over_the_limit"] = 0
+    counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
+    counts |= {f"paths_over_{name}": 0 for name in truth.features}
+    worst = {"step_m": 0.0, "slope_deg": 0.0}
+    counts |= {"free_paths": 0, "free_paths_over_step_limit": 0, "free_paths_over_stairs": 0}
+    for _ in range(pairs):
+        a, b = (int(v) for v in rng.choice(len(graph.places), 2, replace=False))
+        _count_free(graph, free_graph, truth, a, b, chair.max_step, counts)
+        legal = bool(place_component[a] >= 0 and place_component[a] == place_component[b])
+        counts["legal_route_on_truth"] += legal
+        counts["place_off_the_legal_truth_grid"] += bool(place_component[a] < 0 or place_component[b] < 0)
+        try:
+            plan = plan_on(graph, cost_graph, a, b)
+        except NoPathError:
+            counts["legal_route_missed"] += legal
+            continue
+        counts["wheelchair_paths"] += 1
+        judged = judge_path(truth, plan.waypoints)
+        counts["over_step_limit"] += bool(judged["step"] > chair.max_step + 1e-9)
+        counts["over_slope_limit"] += bool(judged["slope"] > chair.max_slope_up + 1e-9)
+        counts["within_half_width_of_a_step_over_the_limit"] += judged["beside_step"]
+        worst = {"step_m": max(worst["step_m"], judged["step"]), "slope_deg": max(worst["slope_deg"], judged["slope"])}
+        for name in truth.features:
+            counts[f"paths_over_{name}"] += judged[name]
+    counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
+    counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
+    return counts
+
+
+def _count_free(graph, free_graph, truth: TrueGround, a: int, b: int, max_step: float, counts: dict) -> None:
+    """Count the plan without a robot profile between places a and b: found, over the step limit on
+    the true ground, over stairs (what the profile avoids)."""
+    from terra.errors import NoPathError
+    from terra.tasks.planning import plan_on
+
+    try:
+        plan = plan_on(graph, free_graph, a, b)
+    except NoPathError:
+        return
+    judged = judge_path(truth, plan.waypoints)
+    counts["free_paths"] += 1
+    counts["free_paths_over_step_limit"] += bool(judged["step"] > max_step + 1e-9)
+    counts["free_paths_over_stairs"] += judged["stairs"]
+
+
+def world_figures(truth: TrueGround, world: World) -> dict[str, Any]:
+    """What the world holds: cells of each feature, curb cut and hill slopes, steps > 5 cm."""
+    st = world.ground.steps
+    assert st is not None
+    return {
+        "cells": int(truth.free.size),
+        "free_cells": int(truth.free.sum()),
+        "legal_components_over_100_cells": int((np.bincount(truth.component[truth.free]) >= 100).sum()),
+        "cell_moves_with_step_over_5cm": int((np.nan_to_num(truth.step[..., :2]) > 0.05).sum()),
+        "steepest_slope_in_curb_cuts_deg": round(float(np.nanmax(truth.slope[st.curb_cut])), 2),
+        "steepest_slope_on_hill_deg": round(float(np.nanmax(truth.slope[st.hill])), 2) if st.hill.any() else None,
+    } | {f"{name}_cells": int(mask.sum()) for name, mask in truth.features.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", default="tiny")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--frames", type=int, default=0, help="frames to simulate (0: the preset's)")
+    parser.add_argument("--relief", type=float, default=0.3, help="sim.ground_relief_m")
+    parser.add_argument("--pairs", type=int, default=200)
+    parser.add_argument("--work", type=Path, default=None, help="keep (and reuse) the dataset and map here")
+    args = parser.parse_args()
+    from terra.bundle import Bundle
+    from terra.config import TerraConfig
+    from terra.graph.storage import load_scene_graph
+    from terra.sim.presets import generate_world
+    from terra.tasks.robot import ROBOTS
+
+    result: dict[str, Any] = {
+        "machine": f"{platform.node()} {platform.machine()} {platform.python_version()}",
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "argv": sys.argv[1:],
+    }
+    with tempfile.TemporaryDirectory() as scratch:
+        work = args.work or Path(scratch)
+        work.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        config, bundle = simulate_map_build(args.preset, args.seed, args.frames, args.relief, work)
+        result["sim_map_build_s"] = round(time.perf_counter() - start, 1)
+        world = generate_world(args.preset, args.seed, TerraConfig.read(config).sim)
+        truth = true_ground(world, ROBOTS["wheelchair"])
+        graph = load_scene_graph(Bundle(bundle))
+        result["world"] = world_figures(truth, world) | {"places": len(graph.places)}
+        start = time.perf_counter()
+        result["wheelchair"] = wheelchair_pairs(graph, truth, args.pairs, args.seed)
+        result["wheelchair"]["seconds"] = round(time.perf_counter() - start, 2)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"curbs-{args.preset}.json").write_text(json.dumps(result, indent=1) + "\n")
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
