@@ -6,10 +6,11 @@ segmented on its own, in its sensor frame, by `terra.graph.ground.segment_ground
 
 Ground is what a ground robot drives or walks on, in SemanticKITTI's ids: road (40), parking (44),
 sidewalk (48), other-ground (49), terrain (72), and lane-marking (60, paint on the road), the
-classes Patchwork++'s authors score as ground. Points labelled unlabeled (0) or outlier (1) are left
-out of the scores (they are neither); everything else is non-ground. Precision, recall and F1 are
-given pooled over every scored point and as the mean over scans (Patchwork++ reports the mean of
-scans). A folder written by `terra sim --format semantickitti` uses the same ids for its terrain.
+classes Patchwork++'s authors score as ground. Points labelled unlabeled (0) or outlier (1), and
+points without a finite position, are left out of the scores (they are neither); everything else is
+non-ground. Precision, recall and F1 are given pooled over every scored point and as the mean over
+scans (Patchwork++ reports the mean of scans). A folder written by `terra sim --format
+semantickitti` uses the same ids for its terrain.
 """
 
 from __future__ import annotations
@@ -76,10 +77,12 @@ def read_labelled_scan(scan: Path, label: Path) -> tuple[np.ndarray, np.ndarray]
     return points, (value & 0xFFFF).astype(np.int64)
 
 
-def score_scan(found: np.ndarray, labels: np.ndarray) -> tuple[int, int, int, int]:
+def score_scan(found: np.ndarray, labels: np.ndarray, finite: np.ndarray | None = None) -> tuple[int, int, int, int]:
     """(true positives, false positives, false negatives, points scored) of ground mask `found`
-    (N,) against SemanticKITTI ids `labels` (N,), unscored ids left out."""
+    (N,) against SemanticKITTI ids `labels` (N,), unscored ids and the points not `finite` (N,) left out."""
     scored = ~np.isin(labels, list(UNSCORED_LABELS))
+    if finite is not None:
+        scored &= np.asarray(finite, dtype=bool)
     truth = np.isin(labels, list(GROUND_LABELS))
     found = np.asarray(found, dtype=bool)
     tp = int(np.count_nonzero(found & truth & scored))
@@ -110,6 +113,6 @@ def ground_table(
         seconds = time.perf_counter() - start
         if found.shape != labels.shape:
             raise TerraError(f"{method} returned {found.shape[0]} flags for {len(labels)} points of {scan}")
-        tp, fp, fn, scored = score_scan(found, labels)
+        tp, fp, fn, scored = score_scan(found, labels, np.asarray(np.isfinite(points).all(axis=1)))
         rows.append(GroundScan(scan.name, len(points), scored, tp, fp, fn, seconds))
     return GroundTable(str(sequence), method, sorted(GROUND_LABELS), rows)

@@ -85,8 +85,13 @@ def segment_ground(
     opening widths, metres, increasing; `slope`: m of height allowed per m of window growth;
     `base_height`, `max_height`: the least and most a cell may rise above the opened surface, m;
     `tolerance`: how far above the ground surface (the lowest point of the nearest ground cell) a
-    point is still ground, m."""
+    point is still ground, m. A point without a finite position is not ground."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():  # a scan's NaN returns (no echo): judged apart, never ground
+        out = np.zeros(len(pts), dtype=bool)
+        out[finite] = segment_ground(pts[finite], cell_size, windows, slope, base_height, max_height, tolerance)
+        return out
     if len(pts) == 0:
         return np.zeros(0, dtype=bool)
     cells = np.floor((pts[:, :2] - pts[:, :2].min(axis=0)) / cell_size).astype(np.int64)

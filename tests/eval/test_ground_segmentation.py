@@ -32,6 +32,31 @@ def test_scan_counts_by_hand():
     found = np.array([True, False, True, True, True, False, True, True])
     # scored: all but 0 and 1; ground found: 40, 72, 60 (tp 3); 48 missed (fn 1); the car found (fp 1)
     assert score_scan(found, labels) == (3, 1, 1, 6)
+    # A point without a position (a NaN return) is not scored: here the road point.
+    finite = np.array([False, True, True, True, True, True, True, True])
+    assert score_scan(found, labels, finite) == (2, 1, 1, 5)
+
+
+def test_scans_with_nan_returns_are_segmented_and_scored(sequence, tmp_path):
+    """A scan whose sensor wrote NaN for missing returns (as some drivers do): those points are never
+    ground and never scored; the others score as in the scan without them."""
+    from terra.graph.ground import segment_ground
+
+    points = np.fromfile(sequence / "velodyne" / "000000.bin", dtype="<f4").reshape(-1, 4)
+    labels = np.fromfile(sequence / "labels" / "000000.label", dtype="<u4")
+    holes = points.copy()
+    holes[::50, :3] = np.nan
+    seq = tmp_path / "seq"
+    (seq / "velodyne").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    holes.astype("<f4").tofile(seq / "velodyne" / "000000.bin")
+    labels.astype("<u4").tofile(seq / "labels" / "000000.label")
+    found = segment_ground(holes[:, :3])
+    assert not found[::50].any()
+    (scan,) = ground_table(seq).scans
+    kept = np.isfinite(holes[:, 0])
+    expected = score_scan(segment_ground(holes[kept, :3]), labels[kept] & 0xFFFF)
+    assert (scan.tp, scan.fp, scan.fn, scan.scored) == expected
 
 
 def test_scores_against_independent_counts(sequence):
