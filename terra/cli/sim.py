@@ -61,8 +61,8 @@ RevisitOpt = Annotated[
         "--revisit",
         help="Drive the same world (--preset, --seed) again as a second visit: the route reversed from another "
         "start, poses in another frame, after known changes (cars moved, removed and added, a bench gone, a lawn "
-        "turned to dirt), set by the config's `sim.revisit` section (defaults: the frame 50 m and 90 degrees "
-        "off). Writes revisit.json: the true T_world_session and the list of changes.",
+        "turned to dirt, a fence across a sidewalk), set by the config's `sim.revisit` section (defaults: the "
+        "frame 50 m and 90 degrees off). Writes revisit.json: the true T_world_session and the list of changes.",
     ),
 ]
 GnssOpt = Annotated[
@@ -73,6 +73,16 @@ GnssOpt = Annotated[
         help="Carry a GNSS receiver whose fixes err by this many metres (standard deviation per horizontal axis, "
         "per fix; `sim.gnss` sets the rest): writes gnss.csv (a bag: sensor_msgs/NavSatFix on /gnss/fix), which "
         "anchors the drive on the Earth and lets `terra map --into` start from both drives' GNSS.",
+    ),
+]
+GeometryOpt = Annotated[
+    bool,
+    typer.Option(
+        "--geometry",
+        help="Build the ground's geometry: 15 cm curbs between roads and everything else with curb cuts where "
+        "walkways cross, a ramp beside each flight of stairs, a hill steeper than a wheelchair's limit and gently "
+        "sloped lawns (`sim.geometry` sets them; given there, it is on without this flag). The ground truth's "
+        "heights carry them.",
     ),
 ]
 MaxFramesOpt = Annotated[int | None, typer.Option("--max-frames", min=1, help="Stop after this many frames.")]
@@ -92,6 +102,7 @@ def sim(
     max_frames: MaxFramesOpt = None,
     revisit: RevisitOpt = False,
     gnss: GnssOpt = None,
+    geometry: GeometryOpt = False,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -106,7 +117,7 @@ def sim(
     check_format(format)
     check_output(out, overwrite)
     on_interrupt(f"nothing was written ({out} is unchanged); run the same command again")
-    cfg = _sim_config(config, max_frames, format, revisit, gnss)
+    cfg = _sim_config(config, max_frames, format, revisit, gnss, geometry)
     timer = StageTimer()
     show = not quiet and not as_json
     with timer.stage("world"), working("building the world", show):
@@ -119,13 +130,21 @@ def sim(
 
 
 def _sim_config(
-    config: Path | None, max_frames: int | None, format: str, revisit: bool = False, gnss: float | None = None
+    config: Path | None,
+    max_frames: int | None,
+    format: str,
+    revisit: bool = False,
+    gnss: float | None = None,
+    geometry: bool = False,
 ) -> SimConfig:
-    """The `sim` section with --max-frames, --revisit and --gnss applied, without lens distortion for kitti-raw."""
+    """The `sim` section with --max-frames, --revisit, --gnss and --geometry applied, without lens
+    distortion for kitti-raw."""
     from terra.config import TerraConfig
-    from terra.sim.config import GnssConfig, RevisitConfig
+    from terra.sim.config import GeometryConfig, GnssConfig, RevisitConfig
 
     cfg = TerraConfig.read(config).sim
+    if geometry and cfg.geometry is None:
+        cfg = cfg.model_copy(update={"geometry": GeometryConfig()})
     if revisit and cfg.revisit is None:
         cfg = cfg.model_copy(update={"revisit": RevisitConfig()})
     elif not revisit and cfg.revisit is not None:

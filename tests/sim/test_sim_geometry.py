@@ -149,3 +149,27 @@ def test_a_wheelchair_reaches_the_sidewalk_from_the_lot_only_through_a_curb_cut(
     leaves = path[1:][on_road[:-1] & ~on_road[1:]]  # first raised cell after a road cell
     assert len(leaves) >= 1 and np.all(st.curb_cut.ravel()[leaves])
     assert route(np.where(st.curb_cut, height + (0.15 - height) * ~road, height)) is None
+
+
+def test_terra_sim_geometry_flag_raises_the_curbs(tmp_path):
+    """`terra sim --geometry` turns the geometry on with its defaults: in the written ground truth, the
+    typical height jump from an asphalt cell to the cell of another terrain beside it (a verge, a
+    walk) is the 15 cm curb (cuts and the smooth hills aside); without the flag there is none."""
+    from terra.cli import run
+    from terra.datasets import open_dataset
+
+    def curb_jumps(folder):
+        truth = open_dataset(folder).ground_truth()  # pyright: ignore[reportAttributeAccessIssue]  # a sim folder's
+        raster = truth.terrain
+        road = raster.classes == class_id("asphalt")
+        h = raster.ground_height.astype(np.float64)
+        jumps = []
+        for a, b, ha, hb in ((road[:, :-1], road[:, 1:], h[:, :-1], h[:, 1:]), (road[:-1], road[1:], h[:-1], h[1:])):
+            jumps += [(hb - ha)[a & ~b], (ha - hb)[~a & b]]  # up from the road onto the other side
+        return np.concatenate(jumps)
+
+    for flag, expected in ((["--geometry"], 0.15), ([], 0.0)):
+        out = tmp_path / f"sim{len(flag)}"
+        assert run(["sim", "--preset", "tiny", "--max-frames", "1", "--out", str(out), "-q", *flag]) == 0
+        jumps = curb_jumps(out)
+        assert len(jumps) > 20 and np.median(jumps) == pytest.approx(expected, abs=0.02)
