@@ -34,6 +34,7 @@ from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.mapping.state import append_base, check_run, restore_mapper, run_description, wgs84_anchor, write_fused
+from terra.mapping.storage import load_map
 from terra.perception.base import Perception
 
 __all__ = ["LiveFrameError", "Session", "Snapshot"]
@@ -200,6 +201,11 @@ class Session:
                 frames, map_time = self.mapper.next_frame, self.mapper.last_stamp
                 msm = self._commit_map()
             seconds["map"] = time.perf_counter() - start
+            if full and self.graph:
+                # As `terra build` reads it (e.g. the bank rounded to float16): the batch graph exactly. The
+                # fused copy goes first: one copy of the map beside the whole-map build, not two.
+                del msm
+                msm = load_map(Bundle(self.out), max_ids=False)
             note, update = self._commit_graph(msm, full) if self.graph else ("graph off", {})
             seconds["graph"] = time.perf_counter() - start - seconds["map"]
             bundle = Bundle(self.out)
@@ -237,17 +243,14 @@ class Session:
         return msm
 
     def _commit_graph(self, msm: MetricSemanticMap, full: bool) -> tuple[str, dict]:
-        """Update the scene graph on the committed map `msm` and commit it: ('' when built, else why
-        not, the map being too young for places: the version keeps the map alone; what the update did)."""
+        """Update the scene graph on the committed map `msm` (with `full`, the map as stored) and commit it:
+        ('' when built, else why not, the map being too young for places: the version keeps the map alone;
+        what the update did)."""
         from terra.graph.pipeline import commit_graph, previous_graph
         from terra.graph.update import GraphUpdater
 
         if self._updater is None:  # the bundle's graph (resume): its ids and saved objects are kept
             self._updater = GraphUpdater(self.build, previous_graph(self._base) if self._base is not None else None)
-        if full:  # as `terra build` reads it (e.g. the bank rounded to float16): the batch graph exactly
-            from terra.mapping.storage import load_map
-
-            msm = load_map(Bundle(self.out), max_ids=False)
         try:
             result = self._updater.update(msm, full=full)
         except TerraError as exc:
