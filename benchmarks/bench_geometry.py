@@ -39,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from importlib.metadata import version as package_version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -86,29 +87,46 @@ def segmentation_sim(preset: str, seed: int, frames: int) -> dict[str, Any]:
     )
 
 
+def patchwork() -> tuple[Callable[[np.ndarray], np.ndarray], str] | None:
+    """Patchwork++ (pypatchworkpp, default parameters) as a ground segmenter of one scan, (N, 4) x, y,
+    z, reflectance or (N, 3) without it (then 0), and its name; None when it is not installed."""
+    try:
+        import pypatchworkpp  # pyright: ignore[reportMissingImports]  # optional: pip install pypatchworkpp
+    except ImportError:
+        return None
+    params = pypatchworkpp.Parameters()
+    params.verbose = False
+    estimator = pypatchworkpp.patchworkpp(params)
+
+    def ground(scan: np.ndarray) -> np.ndarray:
+        if scan.shape[1] == 3:
+            scan = np.column_stack([scan, np.zeros(len(scan))])
+        estimator.estimateGround(np.asarray(scan, dtype=np.float32))
+        found = np.zeros(len(scan), dtype=bool)
+        found[np.asarray(estimator.getGroundIndices(), dtype=np.int64)] = True
+        return found
+
+    return ground, f"Patchwork++ (pypatchworkpp {package_version('pypatchworkpp')})"
+
+
 def segmentation_kitti(folder: Path) -> dict[str, Any]:
     """Agreement of segment_ground with Patchwork++ on every KITTI scan in `folder`."""
     from terra.graph.ground import segment_ground
 
-    try:
-        import pypatchworkpp  # pyright: ignore[reportMissingImports]  # optional: pip install pypatchworkpp
-    except ImportError:
+    reference_method = patchwork()
+    if reference_method is None:
         return {"skipped": "pypatchworkpp is not installed"}
-    params = pypatchworkpp.Parameters()
-    params.verbose = False
-    patchwork = pypatchworkpp.patchworkpp(params)
+    reference_ground, name = reference_method
     rows = []
     for path in sorted(folder.glob("*.bin")):
         scan = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
-        patchwork.estimateGround(scan)
-        reference = np.zeros(len(scan), dtype=bool)
-        reference[np.asarray(patchwork.getGroundIndices(), dtype=np.int64)] = True
+        reference = reference_ground(scan)
         start = time.perf_counter()
         found = segment_ground(scan[:, :3])
         seconds = time.perf_counter() - start
         rows.append({"scan": path.name, "points": len(scan), "seconds": round(seconds, 3)} | f1_score(found, reference))
     mean = {k: round(float(np.mean([r[k] for r in rows])), 4) for k in ("precision", "recall", "f1")}
-    return {"reference": f"Patchwork++ (pypatchworkpp {package_version('pypatchworkpp')})", "scans": rows, "mean": mean}
+    return {"reference": name, "scans": rows, "mean": mean}
 
 
 def segmentation_labelled(sequence: Path) -> dict[str, Any]:
@@ -117,24 +135,10 @@ def segmentation_labelled(sequence: Path) -> dict[str, Any]:
     from terra.eval.ground_segmentation import ground_table
 
     tables = {"segment_ground": ground_table(sequence)}
-    try:
-        import pypatchworkpp  # pyright: ignore[reportMissingImports]  # optional: pip install pypatchworkpp
-    except ImportError:
-        pypatchworkpp = None
-    if pypatchworkpp is not None:
-        params = pypatchworkpp.Parameters()
-        params.verbose = False
-        patchwork = pypatchworkpp.patchworkpp(params)
-
-        def patchwork_ground(points: np.ndarray) -> np.ndarray:
-            scan = np.column_stack([points, np.zeros(len(points))]).astype(np.float32)
-            patchwork.estimateGround(scan)
-            found = np.zeros(len(points), dtype=bool)
-            found[np.asarray(patchwork.getGroundIndices(), dtype=np.int64)] = True
-            return found
-
-        name = f"Patchwork++ (pypatchworkpp {package_version('pypatchworkpp')})"
-        tables[name] = ground_table(sequence, segment=patchwork_ground, method=name)
+    reference_method = patchwork()
+    if reference_method is not None:
+        reference_ground, name = reference_method
+        tables[name] = ground_table(sequence, segment=reference_ground, method=name)
     out: dict[str, Any] = {}
     for name, table in tables.items():
         keys = ("precision", "recall", "f1")

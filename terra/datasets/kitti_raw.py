@@ -38,13 +38,15 @@ from pydantic import Field, field_validator
 
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SourceInfo
-from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_raw, read_rgb
+from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_rgb
 from terra.datasets.kitti_common import (
     CalibFile,
     check_rotation,
     check_translation,
     read_calib_file,
+    read_point_labels,
     read_timestamps,
+    read_velodyne_scan,
     standard_classes,
 )
 from terra.datasets.registry import Loader
@@ -326,16 +328,11 @@ class KittiRawDataset:
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
         scan_path, number = self.scans[index], int(self.indices[index])
-        raw = read_raw(scan_path, "<f4", "LiDAR scan")
-        if raw.size % 4:
-            raise TerraError(f"{scan_path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
-        raw = raw.reshape(-1, 4)
+        raw = read_velodyne_scan(scan_path)
         labels = instances = None
         label_path = self.drive / VELODYNE / "labels" / f"{number:010d}.label"
         if label_path.exists():
-            value = read_raw(label_path, "<u4", "label file")
-            if value.size != raw.shape[0]:
-                raise TerraError(f"{label_path}: {value.size} labels for {raw.shape[0]} points")
+            value = read_point_labels(label_path, raw.shape[0])
             labels, instances = (value & 0xFFFF).astype(np.int32), (value >> 16).astype(np.int32)
         stamp = float(self.stamps[index])
         cams = [

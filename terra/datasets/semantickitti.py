@@ -40,7 +40,6 @@ from terra.datasets.folder_io import (
     read_instance_png,
     read_json,
     read_label_png,
-    read_raw,
     read_rgb,
     write_instance_png,
     write_label_png,
@@ -52,6 +51,8 @@ from terra.datasets.kitti_common import (
     check_translation,
     decompose_projection,
     read_calib_file,
+    read_point_labels,
+    read_velodyne_scan,
     standard_classes,
 )
 from terra.datasets.registry import Loader
@@ -187,7 +188,9 @@ def _sim_colors() -> dict[str, tuple[int, int, int]]:
 
 
 # ------------------------------------------------------------------------------------------ reader
-def _sequence_dir(path: Path) -> Path:
+def sequence_dir(path: Path) -> Path:
+    """The sequence folder (the one holding velodyne/) at `path`: itself, or the only
+    `sequences/NN/` of a dataset root; TerraError naming `path` otherwise."""
     path = Path(path)
     if (path / "velodyne").is_dir():
         return path
@@ -218,7 +221,7 @@ class SemanticKittiDataset:
 
     def __init__(self, path: Path, config: SemanticKittiConfig | None = None) -> None:
         config = config or SemanticKittiConfig()
-        self.seq = seq = _sequence_dir(path)
+        self.seq = seq = sequence_dir(path)
         root = seq.parent.parent if seq.parent.name == "sequences" else seq
         self.root = root
         self.name = f"{root.name}/{seq.name}" if root != seq else seq.name
@@ -312,17 +315,12 @@ class SemanticKittiDataset:
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
         scan_path = self.scans[index]
-        raw = read_raw(scan_path, "<f4", "LiDAR scan")
-        if raw.size % 4:
-            raise TerraError(f"{scan_path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
-        raw = raw.reshape(-1, 4)
+        raw = read_velodyne_scan(scan_path)
         stem = scan_path.stem
         labels = instances = None
         label_path = self.seq / "labels" / f"{stem}.label"
         if label_path.exists():
-            value = read_raw(label_path, "<u4", "SemanticKITTI label file")
-            if value.size != raw.shape[0]:
-                raise TerraError(f"{label_path}: {value.size} labels for {raw.shape[0]} points")
+            value = read_point_labels(label_path, raw.shape[0])
             labels = self._ids_from_kitti[value & 0xFFFF].astype(np.int32)
             instances = (value >> 16).astype(np.int32)
         stamp = float(self.stamps[index])

@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from terra.datasets.folder_io import read_raw
+from terra.datasets.kitti_common import read_point_labels, read_velodyne_scan
+from terra.datasets.semantickitti import sequence_dir
 from terra.errors import TerraError
 from terra.eval.results import GroundScan, GroundTable
 from terra.progress import progress
@@ -45,14 +46,7 @@ Segmenter = Callable[[np.ndarray], np.ndarray]
 def labelled_scans(path: Path) -> tuple[Path, list[tuple[Path, Path]]]:
     """The sequence folder under `path` (itself, or the one `sequences/NN/` of a dataset root) and its
     (scan, label file) pairs in scan order; TerraError naming the folder when there are none."""
-    path = Path(path)
-    sequence = path
-    if not (path / "velodyne").is_dir():
-        found = sorted(p for p in (path / "sequences").glob("*") if (p / "velodyne").is_dir())
-        if len(found) != 1:
-            count = "no sequences/NN/velodyne/ folder" if not found else f"{len(found)} sequences; give one of them"
-            raise TerraError(f"{path}: {count} (expected a SemanticKITTI sequence with velodyne/ and labels/)")
-        sequence = found[0]
+    sequence = sequence_dir(path)
     pairs = [
         (scan, sequence / "labels" / f"{scan.stem}.label") for scan in sorted((sequence / "velodyne").glob("*.bin"))
     ]
@@ -67,14 +61,8 @@ def labelled_scans(path: Path) -> tuple[Path, list[tuple[Path, Path]]]:
 
 def read_labelled_scan(scan: Path, label: Path) -> tuple[np.ndarray, np.ndarray]:
     """Points (N, 3) float32 (sensor frame, metres) and SemanticKITTI class ids (N,) of one scan."""
-    raw = read_raw(scan, "<f4", "LiDAR scan")
-    if raw.size % 4:
-        raise TerraError(f"{scan}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
-    points = raw.reshape(-1, 4)[:, :3]
-    value = read_raw(label, "<u4", "SemanticKITTI label file")
-    if value.size != len(points):
-        raise TerraError(f"{label}: {value.size} labels for {len(points)} points in {scan.name}")
-    return points, (value & 0xFFFF).astype(np.int64)
+    points = read_velodyne_scan(scan)[:, :3]
+    return points, (read_point_labels(label, len(points)) & 0xFFFF).astype(np.int64)
 
 
 def score_scan(found: np.ndarray, labels: np.ndarray, finite: np.ndarray | None = None) -> tuple[int, int, int, int]:
