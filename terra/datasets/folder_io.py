@@ -263,6 +263,24 @@ def read_raw(path: Path, dtype: str, what: str) -> np.ndarray:
     return np.frombuffer(data, dtype=dtype)
 
 
+def read_velodyne_scan(path: Path) -> np.ndarray:
+    """A KITTI Velodyne scan file: (N, 4) float32 x, y, z (metres, sensor frame) and reflectance;
+    TerraError naming the file when it cannot be read or is not whole points."""
+    raw = read_raw(path, "<f4", "LiDAR scan")
+    if raw.size % 4:
+        raise TerraError(f"{path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
+    return raw.reshape(-1, 4)
+
+
+def read_point_labels(path: Path, points: int) -> np.ndarray:
+    """A SemanticKITTI .label file: (N,) uint32, one per point of its scan of `points` points (class =
+    value & 0xFFFF, instance = value >> 16); TerraError naming the file otherwise."""
+    value = read_raw(path, "<u4", "SemanticKITTI label file")
+    if value.size != points:
+        raise TerraError(f"{path}: {value.size} labels for {points} points")
+    return value
+
+
 def read_json(path: Path) -> dict:
     """A JSON object from `path`; TerraError naming the file when it is unreadable or not an object."""
     value = read_json_file(path, "JSON file")

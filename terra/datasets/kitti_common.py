@@ -227,25 +227,3 @@ def read_timestamps(path: Path) -> np.ndarray:
                 f"{path}:{number}: expected a stamp like 2011-09-26 13:02:25.964389445, got {line.strip()[:40]!r}"
             ) from None
     return stamps
-
-
-def read_velodyne_scan(path: Path) -> np.ndarray:
-    """A KITTI Velodyne scan file: (N, 4) float32 x, y, z (metres, sensor frame) and reflectance;
-    TerraError naming the file when it cannot be read or is not whole points."""
-    from terra.datasets.folder_io import read_raw
-
-    raw = read_raw(path, "<f4", "LiDAR scan")
-    if raw.size % 4:
-        raise TerraError(f"{path}: size is not a multiple of 4 float32 (x, y, z, reflectance)")
-    return raw.reshape(-1, 4)
-
-
-def read_point_labels(path: Path, points: int) -> np.ndarray:
-    """A SemanticKITTI .label file: (N,) uint32, one per point of its scan of `points` points (class =
-    value & 0xFFFF, instance = value >> 16); TerraError naming the file otherwise."""
-    from terra.datasets.folder_io import read_raw
-
-    value = read_raw(path, "<u4", "SemanticKITTI label file")
-    if value.size != points:
-        raise TerraError(f"{path}: {value.size} labels for {points} points")
-    return value

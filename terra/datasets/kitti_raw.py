@@ -38,15 +38,21 @@ from pydantic import Field, field_validator
 
 from terra.datasets import oxts
 from terra.datasets.base import CameraFrame, ClassTable, Frame, PosesUnavailable, SourceInfo
-from terra.datasets.folder_io import image_size, read_classes, read_instance_png, read_label_png, read_rgb
+from terra.datasets.folder_io import (
+    image_size,
+    read_classes,
+    read_instance_png,
+    read_label_png,
+    read_point_labels,
+    read_rgb,
+    read_velodyne_scan,
+)
 from terra.datasets.kitti_common import (
     CalibFile,
     check_rotation,
     check_translation,
     read_calib_file,
-    read_point_labels,
     read_timestamps,
-    read_velodyne_scan,
     standard_classes,
 )
 from terra.datasets.registry import Loader

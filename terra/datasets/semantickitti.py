@@ -40,7 +40,9 @@ from terra.datasets.folder_io import (
     read_instance_png,
     read_json,
     read_label_png,
+    read_point_labels,
     read_rgb,
+    read_velodyne_scan,
     write_instance_png,
     write_label_png,
     write_rgb,
@@ -51,8 +53,6 @@ from terra.datasets.kitti_common import (
     check_translation,
     decompose_projection,
     read_calib_file,
-    read_point_labels,
-    read_velodyne_scan,
     standard_classes,
 )
 from terra.datasets.registry import Loader

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terra.datasets.kitti_common import read_point_labels, read_velodyne_scan
+from terra.datasets.folder_io import read_point_labels, read_velodyne_scan
 from terra.datasets.semantickitti import sequence_dir
 from terra.errors import TerraError
 from terra.eval.results import GroundScan, GroundTable
