@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Literal, get_args
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from terra.errors import TerraError
 from terra.schemas import Section
@@ -244,6 +244,25 @@ class LinkingSection(Section):
     grid_link_max_length: float = Field(
         default=30.0, gt=0.0, description="metres; and be at most this long (the link costs the path's length)"
     )
+    curb_gap_max_step: float | None = Field(
+        default=0.04,
+        ge=0.0,
+        description=(
+            "metres; a stretch of the boundary between two terrains whose step is at most this, inside a line of "
+            "higher steps (a curb cut, a driveway), gets a place linked level to both sides (terra.graph.crossings; "
+            "needs ground.layers; None = never)"
+        ),
+    )
+    curb_gap_min_width: float = Field(default=1.0, gt=0.0, description="metres; the narrowest such gap")
+    curb_gap_max_width: float = Field(
+        default=12.0, gt=0.0, description="metres; the widest (a longer level stretch is no gap in a curb)"
+    )
+
+    @model_validator(mode="after")
+    def _gap_widths(self) -> LinkingSection:
+        if self.curb_gap_min_width > self.curb_gap_max_width:
+            raise ValueError("curb_gap_min_width must be at most curb_gap_max_width")
+        return self
 
 
 class EmbeddingSection(Section):

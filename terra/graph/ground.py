@@ -30,9 +30,10 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   runs through; a constant slope reads 0 (it is the slope layer's business); stairs read as a
   steep slope with small steps. Where a neighbour holds no ground (the road in a curb's own LiDAR
   shadow), the difference between the nearest observed cells up to three cells away on each side,
-  less the cell's gradient over the cells between. Within two cells of a blocked cell, where an
-  object's lowest points pass for ground, read only along an axis clear of blocked cells
-  (`grid_layers`);
+  less the slope over the cells between: the one read just beyond those two cells, else the
+  cell's gradient (a plane fitted on a curb's face takes the curb for a slope). Within two cells
+  of a blocked cell, where an object's lowest points pass for ground, read only along an axis
+  clear of blocked cells, and across a gap from heights that are not blocked (`grid_layers`);
 - roughness: the standard deviation of the cell's ground point heights, less what the plane's
   tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
 
@@ -198,10 +199,10 @@ BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
 # Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
 BAND_CELLS = 1 << 18
-# Rows a cell's layers read on each side: the step reads heights up to BRIDGE rows away, each the
+# Rows a cell's layers read on each side: the step reads heights up to BRIDGE + 1 rows away, each the
 # median of heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
 BRIDGE = 3  # cells a step may look across for the nearest observed height (axis_step)
-CONTEXT = BRIDGE + 2
+CONTEXT = BRIDGE + 3
 
 
 def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
@@ -406,22 +407,34 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
 def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
     """`step` (..., n) where an observed cell's step along the last axis is unknown because a
     neighbour holds no ground: the height difference between the nearest observed cells within
-    `bridge` cells on each side, less what the cell's slope (`rise`, metres per cell) explains over
-    the cells between them, floored at 0. A curb's low side lies in its own LiDAR shadow (the road
-    within a few decimetres of it holds no point when seen from the walk), which left every curb
-    seen from its top unknown."""
+    `bridge` cells on each side, less what the ground's slope explains over the cells between
+    them, floored at 0. The slope is the mean of the differences just beyond those two cells (each
+    with its next cell outwards, where observed), as `axis_step` reads it, else the cell's own
+    (`rise`, metres per cell): a curb's low side lies in its own LiDAR shadow (the road within a
+    few decimetres of it holds no point when seen from the walk), which left every curb seen from
+    its top unknown, and the plane fitted at a cell on the curb's face takes the curb for a slope."""
     n = h.shape[-1]
-    p = np.concatenate([np.full(h.shape[:-1] + (bridge,), np.nan), h, np.full(h.shape[:-1] + (bridge,), np.nan)], -1)
+    pad = np.full(h.shape[:-1] + (bridge + 1,), np.nan)
+    p = np.concatenate([pad, h, pad], -1)
     sides = []
     for sign in (-1, 1):
-        value, distance = np.full(h.shape, np.nan), np.zeros(h.shape)
+        value, distance, beyond = np.full(h.shape, np.nan), np.zeros(h.shape), np.full(h.shape, np.nan)
         for k in range(bridge, 0, -1):  # the nearest observed cell wins
-            v = p[..., bridge + sign * k : bridge + sign * k + n]
-            value, distance = np.where(np.isfinite(v), v, value), np.where(np.isfinite(v), k, distance)
-        sides.append((value, distance))
-    (before, db), (after, da) = sides
-    gap = np.isfinite(h) & np.isnan(step) & np.isfinite(before) & np.isfinite(after) & np.isfinite(rise)
-    bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(rise), 0.0)
+            at = bridge + 1 + sign * k
+            v, w = p[..., at : at + n], p[..., at + sign : at + sign + n]
+            found = np.isfinite(v)
+            value, distance, beyond = (
+                np.where(found, v, value),
+                np.where(found, k, distance),
+                np.where(found, w, beyond),
+            )
+        sides.append((value, distance, np.abs(beyond - value)))
+    (before, db, out_b), (after, da, out_a) = sides
+    known = np.isfinite(np.stack([out_b, out_a]))
+    outer = np.where(known, np.stack([out_b, out_a]), 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1)
+    slope = np.where(known.any(axis=0), outer, rise)
+    gap = np.isfinite(h) & np.isnan(step) & np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
+    bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(slope), 0.0)
     return np.where(gap, bridged, step)
 
 
@@ -553,28 +566,32 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
 def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray) -> np.ndarray:
     """(m,) float32 metres: the step (`axis_step`, the larger of the two axes) of the observed
     cells `index` (m,) read only along the axes whose five heights (the cell, two on each side)
-    lie in cells that are not `blocked` (H, W) bool, on the layers' grid; along an axis where only
-    the cell and its two neighbours are clear, the larger of their two height differences less the
-    smaller; NaN where no axis is clear."""
+    lie in cells that are not `blocked` (H, W) bool, on the layers' grid, and across a gap
+    without ground from heights further out that are not blocked either; along an axis where
+    only the cell and its two neighbours are clear, the larger of their two height differences
+    less the smaller; NaN where no axis is clear."""
     H, W = layers.shape
     flat = layers.cells[index]
     rows, cols = flat // W, flat % W
-    taps = np.arange(-2, 3)
+    reach = BRIDGE + 1  # a step across a gap reads up to BRIDGE cells away, and its slope one further
+    taps = np.arange(-reach, reach + 1)
+    inner = slice(reach - 2, reach + 3)
     out = np.full(len(index), np.nan)
     for axis, gradient in ((0, layers.gradient[index, 1]), (1, layers.gradient[index, 0])):
         r = rows[:, None] + (taps if axis == 0 else 0)
         c = cols[:, None] + (taps if axis == 1 else 0)
         inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
         r, c = np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)
-        clear = (inside & ~blocked[r, c]).all(axis=1)
+        free = inside & ~blocked[r, c]
+        clear = free[:, inner].all(axis=1)
         at = np.minimum(np.searchsorted(layers.cells, r * W + c), len(layers.cells) - 1)
-        height = np.where(inside & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
-        rise = np.repeat(gradient.astype(np.float64)[:, None] * layers.cell_size, 5, axis=1)
-        step = axis_step(height, 1, rise)[:, 2]
+        height = np.where(free & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
+        rise = np.repeat(gradient.astype(np.float64)[:, None] * layers.cell_size, len(taps), axis=1)
+        step = axis_step(height, 1, rise)[:, reach]
         # With an obstacle two cells away, the cell and its two neighbours: the larger of the two
         # differences less the smaller (a slope cancels, a curb beside a car's nose stays).
-        near = (inside & ~blocked[r, c])[:, 1:4].all(axis=1) & ~clear
-        jumps = np.abs(np.diff(height[:, 1:4], axis=1))
+        near = free[:, reach - 1 : reach + 2].all(axis=1) & ~clear
+        jumps = np.abs(np.diff(height[:, reach - 1 : reach + 2], axis=1))
         step = np.where(near, np.abs(jumps[:, 1] - jumps[:, 0]), step)
         out = np.fmax(out, np.where(clear | near, step, np.nan))
     return out.astype(np.float32)

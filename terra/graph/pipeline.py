@@ -17,6 +17,7 @@ from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
 from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig, check_region_method
+from terra.graph.crossings import CrossingRule, gap_places
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
@@ -61,13 +62,21 @@ class GraphBuild:
 @dataclass
 class TerrainPlaceSet:
     """Places of all terrains before linking: positions (P, 3) m, terrain (P,), clearance (P,) m,
-    GVD edges (E, 2) with costs (E,) m, and whether each place is a dead end of its GVD."""
+    GVD edges (E, 2) with costs (E,) m. The last `gap_places` places sit on gaps in curbs
+    (terra.graph.crossings), linked to both sides by `gap_links` (k, 2), not by a GVD."""
 
     position: np.ndarray
     terrain: np.ndarray
     clearance: np.ndarray
     edges: np.ndarray
     weight: np.ndarray
+    gap_places: int = 0
+    gap_links: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+
+    def gvd_places(self) -> TerrainPlaceSet:
+        """The places of the terrain GVDs alone (those before the gap places)."""
+        n = len(self.position) - self.gap_places
+        return TerrainPlaceSet(self.position[:n], self.terrain[:n], self.clearance[:n], self.edges, self.weight)
 
 
 @dataclass
@@ -145,6 +154,38 @@ def terrain_places(
     if tile_stats.windows:
         counts.gvd_tiles = GvdTiles(tile_stats.windows, round(tile_stats.max_margin * s, 3), tile_stats.rounds)
     return place_set, traversable, counts
+
+
+def with_gap_places(
+    places: TerrainPlaceSet,
+    traversable: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers | None,
+    config: BuildConfig,
+) -> TerrainPlaceSet:
+    """`places` with a place on each gap in a curb appended, linked level to both sides
+    (terra.graph.crossings); unchanged without ground layers, or with `linking.curb_gap_max_step` None."""
+    lk = config.linking
+    if layers is None or lk.curb_gap_max_step is None or len(places.position) == 0:
+        return places
+    rule = CrossingRule(
+        lk.curb_gap_max_step, lk.curb_gap_min_width, lk.curb_gap_max_width, lk.max_link_distance, lk.link_candidates
+    )
+    position, terrain, clearance, links = gap_places(
+        grid, traversable, layers, places.position[:, :2], places.terrain, rule
+    )
+    if len(position) == 0:
+        return places
+    n = len(places.position)
+    return TerrainPlaceSet(
+        np.vstack([places.position, position]),
+        np.concatenate([places.terrain, terrain]).astype(np.int64),
+        np.concatenate([places.clearance, clearance]),
+        places.edges,
+        places.weight,
+        gap_places=len(position),
+        gap_links=np.column_stack([links[:, 0] + n, links[:, 1]]).astype(np.int64),
+    )
 
 
 def _tile_cells(config: BuildConfig, shape: tuple[int, int]) -> int | None:
@@ -338,6 +379,7 @@ def build_scene_graph(
         layers = grid_layers(msm.points, ground, grid) if ground is not None and config.ground.layers else None
     with timer.stage("GVD places"):
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
+        places = with_gap_places(places, traversable, grid, layers, config)
     if len(places.position) == 0:
         raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
@@ -408,16 +450,24 @@ def place_links(places: TerrainPlaceSet, traversable: np.ndarray, grid: TerrainG
     lk = config.linking
     clear = grid_line_clear(traversable, grid.origin, grid.cell_size) if lk.require_clear_line else None
     kwargs = {"clear": clear} if clear is not None else {}
-    strips, strip_len = strip_links(places, grid, config)
+    gvd = places.gvd_places()  # gap places are no pieces of a terrain's strip
+    strips, strip_len = strip_links(gvd, grid, config)
     gvd_edges, gvd_weight = np.vstack([places.edges, strips]), np.concatenate([places.weight, strip_len])
-    paths, path_len = grid_links(places, gvd_edges, grid, config)
+    paths, path_len = grid_links(gvd, gvd_edges, grid, config)
     gvd_edges, gvd_weight = np.vstack([gvd_edges, paths]), np.concatenate([gvd_weight, path_len])
+    gaps = places.gap_links
+    gap_len = np.linalg.norm(places.position[gaps[:, 0]] - places.position[gaps[:, 1]], axis=1)
     links, link_len = link_dead_ends(
-        places.position, places.terrain, gvd_edges, lk.max_link_distance, lk.link_candidates, **kwargs
+        places.position,
+        places.terrain,
+        np.vstack([gvd_edges, gaps]),
+        lk.max_link_distance,
+        lk.link_candidates,
+        **kwargs,
     )
-    edges = np.vstack([gvd_edges, links])
-    weight = np.concatenate([gvd_weight, link_len])
-    kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(links), EDGE_CROSS_TERRAIN)])
+    edges = np.vstack([gvd_edges, gaps, links])
+    weight = np.concatenate([gvd_weight, gap_len, link_len])
+    kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(gaps) + len(links), EDGE_CROSS_TERRAIN)])
     bridges, bridge_cost, bridge_clear = bridge_components(
         places.position, edges, lk.bridge_penalty, lk.link_candidates, **kwargs
     )

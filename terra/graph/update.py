@@ -69,6 +69,7 @@ from terra.graph.pipeline import (
     terrain_places,
     terrains_to_build,
     unique_typed_edges,
+    with_gap_places,
     with_previous_ids,
 )
 from terra.graph.regions import build_levels
@@ -401,9 +402,11 @@ def _rebuilt_places(
         if not (crop_terrain >= 0).any():
             continue
         grid = terrain_grid(points, crop_terrain, config)
-        if ground is not None and config.ground.layers:
-            layers.append(grid_layers(points, ground, grid))
+        crop_layers = grid_layers(points, ground, grid) if ground is not None and config.ground.layers else None
+        if crop_layers is not None:
+            layers.append(crop_layers)
         places, traversable, _ = terrain_places(grid, terrains, config)
+        places = with_gap_places(places, traversable, grid, crop_layers, config)
         if len(places.position):
             links = place_links(places, traversable, grid, config)
             parts.append((places, links, zone.part(places.position) == k))

@@ -1,0 +1,220 @@
+"""Places at the gaps of a curb: where two terrains meet level inside a line of steps (a curb cut,
+a driveway, a ramp), a place on the gap linked to the nearest places on each side.
+
+Why: places of different terrains are otherwise joined only from dead ends of one terrain's GVD
+(the paper's rule, terra.graph.linking.link_dead_ends) and by bridges. A walk that meets the road
+through a 3 m curb cut ends in no dead end near the cut, so no edge ran through it, and a robot
+that cannot climb the curb (terra.tasks.robot: a wheelchair's 5 cm) found no way across the road
+although one was there. The graph stays the same for every robot: a crossing is geometry (where
+the ground is level across the boundary), and a robot's profile still judges every edge.
+
+Frames and units: the grid's (terra.graph.grid: cell (row r, col c), rows grow with y); positions
+in the map frame, metres; steps in metres (terra.graph.ground's step layer).
+
+Rule (`curb_gaps`): a boundary cell is a traversable cell with a 4-neighbour of another terrain
+(both inside `traversable`). Boundary cells joined 8-connected form boundary lines; a line is a
+curb when at least `min_width` metres of its cells read a step above `max_step`. A gap is a run
+(8-connected) of cells of a curb whose step is known and at most `max_step`, at least
+`min_width` and at most `max_width` metres across. Its place sits on the run's cell nearest the
+run's centroid, with that cell's terrain and ground height, and clearance half the run's width
+(the passage). Each of the run's terrains is linked to the gap (`crossing_links`): the nearest
+of its places within `max_distance` whose straight line crosses only traversable cells and no
+step above `max_step`; a gap that reaches fewer than two terrains so is dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
+
+from terra.graph import raster
+from terra.graph.ground import edge_geometry
+from terra.graph.gvd import EIGHT
+from terra.graph.linking import first_passing, grid_line_clear
+
+if TYPE_CHECKING:
+    from terra.graph.grid import TerrainGrid
+    from terra.graph.ground import GroundLayers
+
+GAP_MARGIN = 0.4  # metres from any step above the limit that a gap's cells keep
+
+
+@dataclass(frozen=True)
+class CrossingRule:
+    """What counts as a gap in a curb and how far it reaches (module docstring): steps in metres
+    (`max_step`), widths in metres, the link range `max_distance` metres and the `candidates`
+    tried per terrain."""
+
+    max_step: float
+    min_width: float
+    max_width: float
+    max_distance: float
+    candidates: int
+
+
+@dataclass
+class CurbGaps:
+    """Gaps found in curbs: the cell (k, 2) row/col of each gap's place, its terrain (k,), its
+    width (k,) metres, and the terrains (k, T) bool each gap touches."""
+
+    cell: np.ndarray
+    terrain: np.ndarray
+    width: np.ndarray
+    touches: np.ndarray
+
+
+def boundary_cells(label: np.ndarray) -> np.ndarray:
+    """(H, W) bool: cells with a terrain (label >= 0) that have a 4-neighbour of another terrain."""
+    out = np.zeros(label.shape, dtype=bool)
+    for axis in (0, 1):
+        a = np.take(label, np.arange(label.shape[axis] - 1), axis=axis)
+        b = np.take(label, np.arange(1, label.shape[axis]), axis=axis)
+        differ = (a >= 0) & (b >= 0) & (a != b)
+        lo = [slice(None), slice(None)]
+        hi = [slice(None), slice(None)]
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        out[tuple(lo)] |= differ
+        out[tuple(hi)] |= differ
+    return out
+
+
+def curb_gaps(
+    label: np.ndarray,
+    step: np.ndarray,
+    cell_size: float,
+    max_step: float,
+    min_width: float,
+    max_width: float,
+    terrains: int,
+    margin: float = GAP_MARGIN,
+) -> CurbGaps:
+    """The gaps in the curbs of a grid (module docstring). label: (H, W) terrain index of each
+    traversable cell, -1 elsewhere; step: (H, W) metres, NaN where unknown; `terrains`: the number
+    of terrain classes."""
+    boundary = boundary_cells(label)
+    lines, count = raster.label(boundary, EIGHT)
+    empty = CurbGaps(np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, terrains), bool))
+    if count == 0:
+        return empty
+    # A curb reads its step unevenly along its length (a cell straddling the face holds points of
+    # both levels and reads two half steps, or none): a cell is level only when no cell within
+    # `margin` metres reads a step above the limit.
+    reach = 2 * max(int(round(margin / cell_size)), 0) + 1
+    nearby = ndimage.maximum_filter(np.where(np.isfinite(step), step, -1.0), size=reach)
+    stepped = boundary & (nearby > max_step)
+    stepped_length = np.bincount(lines[stepped], minlength=count + 1) * cell_size
+    curb = stepped_length >= min_width
+    curb[0] = False
+    level = curb[lines] & np.isfinite(step) & (nearby <= max_step)
+    runs, found = raster.label(level, EIGHT)
+    if found == 0:
+        return empty
+    rows, cols = np.nonzero(runs)
+    run = runs[rows, cols] - 1
+    # The passage between the steps: the run and the margin it keeps from them on each side.
+    width = _run_widths(run, rows, cols, found) * cell_size + 2.0 * (reach // 2) * cell_size
+    keep = (width >= min_width) & (width <= max_width)
+    anchor = _nearest_to_centroid(run, rows, cols, found)
+    touches = np.zeros((found, terrains), dtype=bool)
+    touches[run, label[rows, cols]] = True
+    cell = np.column_stack([rows[anchor], cols[anchor]])[keep]
+    return CurbGaps(cell, label[cell[:, 0], cell[:, 1]].astype(np.int64), width[keep], touches[keep])
+
+
+def _run_widths(run: np.ndarray, rows: np.ndarray, cols: np.ndarray, count: int) -> np.ndarray:
+    """(count,) cells: the diagonal of each run's bounding box, plus one cell (a run of one cell
+    is one cell wide)."""
+    spans = []
+    for v in (rows, cols):
+        lo = np.full(count, np.iinfo(np.int64).max)
+        hi = np.full(count, np.iinfo(np.int64).min)
+        np.minimum.at(lo, run, v)
+        np.maximum.at(hi, run, v)
+        spans.append(hi - lo)
+    return np.hypot(spans[0], spans[1]) + 1.0
+
+
+def _nearest_to_centroid(run: np.ndarray, rows: np.ndarray, cols: np.ndarray, count: int) -> np.ndarray:
+    """(count,) index into rows/cols of each run's cell nearest the run's centroid."""
+    size = np.bincount(run, minlength=count)
+    centre_r = np.bincount(run, weights=rows, minlength=count) / size
+    centre_c = np.bincount(run, weights=cols, minlength=count) / size
+    d = (rows - centre_r[run]) ** 2 + (cols - centre_c[run]) ** 2
+    order = np.lexsort((d, run))  # by run, nearest first
+    first = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
+    return order[first]
+
+
+def crossing_links(
+    gap_xy: np.ndarray,
+    touches: np.ndarray,
+    place_xy: np.ndarray,
+    place_terrain: np.ndarray,
+    traversable: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers,
+    max_step: float,
+    max_distance: float,
+    candidates: int,
+) -> np.ndarray:
+    """For gaps at `gap_xy` (k, 2) metres touching terrains `touches` (k, T): pairs (m, 2) of
+    (gap index, place index) linking each gap to the nearest place of each terrain it touches
+    (module docstring), among `candidates` nearest within `max_distance` metres."""
+    clear = grid_line_clear(traversable, grid.origin, grid.cell_size)
+    found = []
+    for t in np.flatnonzero(touches.any(axis=0)):
+        gaps, places = np.flatnonzero(touches[:, t]), np.flatnonzero(place_terrain == t)
+        if places.size == 0:
+            continue
+        k = min(candidates, places.size)
+        dist, idx = cKDTree(place_xy[places]).query(gap_xy[gaps], k=k, distance_upper_bound=max_distance)
+        dist, idx = dist.reshape(len(gaps), k), idx.reshape(len(gaps), k)
+
+        def passes(rows: np.ndarray, c: int, gaps=gaps, places=places, idx=idx) -> np.ndarray:
+            a, b = gap_xy[gaps[rows]], place_xy[places[idx[rows, c]]]
+            ok = clear(a, b)
+            if ok.any():  # no step above the gap's own along the line
+                ends = np.vstack([a[ok], b[ok]])
+                ends = np.column_stack([ends, np.zeros(len(ends))])
+                pairs = np.column_stack([np.arange(ok.sum()), np.arange(ok.sum()) + ok.sum()])
+                ok[ok] = edge_geometry(layers, ends, pairs)[:, 0] <= max_step
+            return ok
+
+        first = first_passing(np.isfinite(dist), passes)
+        has = first >= 0
+        found.append(np.column_stack([gaps[has], places[idx[has, first[has]]]]))
+    return np.vstack(found) if found else np.zeros((0, 2), dtype=np.int64)
+
+
+def gap_places(
+    grid: TerrainGrid,
+    traversable: np.ndarray,
+    layers: GroundLayers,
+    place_xy: np.ndarray,
+    place_terrain: np.ndarray,
+    settings: CrossingRule,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The places on the curb gaps of `grid` that reach two terrains or more: positions (k, 3)
+    metres, terrain (k,), clearance (k,) metres, and their links (m, 2) as (gap index, index into
+    the existing places at `place_xy` (P, 2) of terrains `place_terrain` (P,))."""
+    label = np.where(traversable, grid.label, -1)
+    step = layers.as_grid(layers.step)
+    terrains = int(max(label.max(initial=-1), place_terrain.max(initial=-1))) + 1
+    gaps = curb_gaps(label, step, grid.cell_size, settings.max_step, settings.min_width, settings.max_width, terrains)
+    xy = grid.cell_centres(gaps.cell)
+    links = crossing_links(
+        xy, gaps.touches, place_xy, place_terrain, traversable, grid, layers,
+        settings.max_step, settings.max_distance, settings.candidates,
+    )  # fmt: skip
+    reached = np.bincount(links[:, 0], minlength=len(xy)) >= 2
+    keep = np.flatnonzero(reached)
+    renumber = np.full(len(xy), -1, dtype=np.int64)
+    renumber[keep] = np.arange(len(keep))
+    links = links[reached[links[:, 0]]]
+    links[:, 0] = renumber[links[:, 0]]
+    position = np.column_stack([xy[keep], grid.ground_at(gaps.cell[keep])])
+    return position, gaps.terrain[keep], gaps.width[keep] / 2, links

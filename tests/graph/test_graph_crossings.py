@@ -1,0 +1,117 @@
+"""Places at the gaps of a curb (terra.graph.crossings): gaps found on hand-made grids, and a
+street with a curb cut built end to end, where a wheelchair must cross at the cut."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from terra.errors import NoPathError
+from terra.graph.config import BuildConfig
+from terra.graph.crossings import curb_gaps
+from terra.graph.pipeline import build_scene_graph
+from terra.tasks.planning import plan_path
+from terra.tasks.robot import ROBOTS
+from tests.graph.fixtures_ground import points_map
+
+CELL = 0.4
+SIDEWALK, GRASS, ASPHALT = 0, 1, 2
+
+
+def street_grid(gap_cols: range, step: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
+    """Labels (30, 60): asphalt rows 0-14, sidewalk rows 15-29; steps (30, 60) metres: `step` on
+    the two rows beside the curb (14 and 15), 0.01 in the columns `gap_cols` and elsewhere."""
+    label = np.full((30, 60), SIDEWALK, dtype=np.int16)
+    label[:15] = ASPHALT
+    steps = np.full(label.shape, 0.01)
+    steps[14:16] = step
+    steps[14:16, gap_cols.start : gap_cols.stop] = 0.01
+    return label, steps
+
+
+def test_a_gap_in_a_curb_gets_one_place_at_its_middle():
+    label, steps = street_grid(range(20, 28))  # 8 cells: a 3.2 m curb cut
+    gaps = curb_gaps(label, steps, CELL, max_step=0.04, min_width=1.0, max_width=12.0, terrains=3)
+    assert len(gaps.cell) == 1
+    # By hand: level cells keep one cell from the curb's steps, so the run is rows 14-15, columns
+    # 21-26: its cell nearest the centroid (14.5, 23.5) is on row 14 or 15, column 23 or 24; its
+    # width is the run's diagonal, hypot(1, 5) + 1 = 6.1 cells, plus the cell it keeps on each
+    # side: 8.1 cells, 3.24 m.
+    row, col = gaps.cell[0]
+    assert row in (14, 15) and col in (23, 24)
+    assert gaps.width[0] == pytest.approx((np.hypot(1, 5) + 1 + 2) * CELL)
+    assert gaps.terrain[0] == label[row, col]
+    assert set(np.flatnonzero(gaps.touches[0])) == {SIDEWALK, ASPHALT}
+
+
+@pytest.mark.parametrize(
+    ("gap", "step", "why"),
+    [
+        (range(20, 22), 0.15, "two cells: no cell of it keeps clear of the steps"),
+        (range(0, 60), 0.15, "no curb: the whole boundary is level"),
+        (range(20, 28), 0.01, "no curb: a boundary without steps is no curb"),
+        (range(5, 45), 0.15, "16 m: wider than 12 m, a level stretch between two curbs, no gap"),
+    ],
+)
+def test_no_gap(gap: range, step: float, why: str):
+    label, steps = street_grid(gap, step)
+    gaps = curb_gaps(label, steps, CELL, max_step=0.04, min_width=1.0, max_width=12.0, terrains=3)
+    assert len(gaps.cell) == 0, why
+
+
+def test_unknown_steps_make_no_gap():
+    label, steps = street_grid(range(20, 28))
+    steps[14:16, 20:28] = np.nan  # the cut unobserved: nothing says it is level
+    assert len(curb_gaps(label, steps, CELL, 0.04, 1.0, 12.0, terrains=3).cell) == 0
+
+
+def curb_street(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A road (y < 5, z = 0) and a sidewalk 15 cm up beyond a curb at y = 5 (x 0..30, y 0..12,
+    metres), with a 3 m curb cut at x 12..15 ramping at 1:12 from the road to the sidewalk over
+    y 5..6.8. Points (N, 3) and their terrain (N,) (SIDEWALK or ASPHALT)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform([0.0, 0.0], [30.0, 12.0], (90000, 2))
+    x, y = xy.T
+    z = np.where(y >= 5.0, 0.15, 0.0)
+    cut = (x >= 12.0) & (x <= 15.0) & (y >= 5.0) & (y < 6.8)
+    z = np.where(cut, 0.15 * (y - 5.0) / 1.8, z)
+    terrain = np.where(y >= 5.0, SIDEWALK, ASPHALT)
+    return np.column_stack([xy, z + rng.normal(0.0, 0.005, len(z))]), terrain
+
+
+def street_map(points: np.ndarray, terrain: np.ndarray):
+    """A map of the points with terrain votes for sidewalk, grass and asphalt (one vote per point)."""
+    msm = points_map(points)
+    votes = np.zeros((len(points), 3), dtype=np.uint16)
+    votes[np.arange(len(points)), terrain] = 1
+    embeddings = np.eye(3, msm.dim, dtype=np.float32)
+    return replace(
+        msm, terrain_classes=["sidewalk", "grass", "asphalt"], terrain_votes=votes, terrain_embeddings=embeddings
+    )
+
+
+def nearest(graph, x: float, y: float, terrain: int) -> int:
+    position, on = graph.places.position, graph.places.terrain == terrain
+    d = np.hypot(position[:, 0] - x, position[:, 1] - y)
+    return int(np.argmin(np.where(on, d, np.inf)))
+
+
+def test_a_wheelchair_crosses_a_built_street_at_its_curb_cut():
+    msm = street_map(*curb_street())
+    graph = build_scene_graph(msm).graph
+    position = graph.places.position
+    at_cut = np.flatnonzero((np.abs(position[:, 0] - 13.5) < 1.5) & (np.abs(position[:, 1] - 5.0) < 1.0))
+    assert len(at_cut) == 1  # the gap's place, on the curb line
+    start, goal = nearest(graph, 3.0, 2.5, ASPHALT), nearest(graph, 27.0, 9.0, SIDEWALK)
+    chair = plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
+    assert at_cut[0] in chair.places
+    assert chair.ground is not None and chair.ground.max_step_m <= 0.05
+    # Without places at gaps the road and the sidewalk meet only over the curb: no wheelchair path.
+    config = BuildConfig.model_validate({"linking": {"curb_gap_max_step": None}})
+    without = build_scene_graph(msm, config).graph
+    assert len(without.places) == len(graph.places) - 1
+    start, goal = nearest(without, 3.0, 2.5, ASPHALT), nearest(without, 27.0, 9.0, SIDEWALK)
+    with pytest.raises(NoPathError):
+        plan_path(without, start, goal, robot=ROBOTS["wheelchair"])
