@@ -414,6 +414,12 @@ class GroundSection(Section):
     tolerance: float = Field(
         default=0.15, gt=0.0, description="metres above the ground surface (the cell's lowest point) a point is ground"
     )
+    standing_tolerance: float | None = Field(
+        default=0.05,
+        gt=0.0,
+        description="metres: the same in a cell where something stands (a point 0.3-2 m above its lowest), whose "
+        "foot would pass for ground (null: `tolerance` everywhere)",
+    )
     layers: bool = Field(
         default=True,
         description="compute the geometry layers and per-edge step and slope (false: none, as before; `plan --robot` "

@@ -80,18 +80,23 @@ def segment_ground(
     base_height: float = 0.1,
     max_height: float = 2.5,
     tolerance: float = 0.15,
+    standing_tolerance: float | None = 0.05,
 ) -> np.ndarray:
     """(N,) bool: which map points (N, 3) (map frame, metres) are ground, by a progressive
     morphological filter on the lowest point per `cell_size` cell (module docstring). `windows`:
     opening widths, metres, increasing; `slope`: m of height allowed per m of window growth;
     `base_height`, `max_height`: the least and most a cell may rise above the opened surface, m;
     `tolerance`: how far above the ground surface (the lowest point of the nearest ground cell) a
-    point is still ground, m. A point without a finite position is not ground."""
+    point is still ground, m; `standing_tolerance`: the same in a cell where something stands (a
+    point STANDING[0] to STANDING[1] m above the cell's lowest point), at most `tolerance`; None
+    for `tolerance` everywhere. A point without a finite position is not ground."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     finite = np.isfinite(pts).all(axis=1)
     if not finite.all():  # a scan's NaN returns (no echo): judged apart, never ground
         out = np.zeros(len(pts), dtype=bool)
-        out[finite] = segment_ground(pts[finite], cell_size, windows, slope, base_height, max_height, tolerance)
+        out[finite] = segment_ground(
+            pts[finite], cell_size, windows, slope, base_height, max_height, tolerance, standing_tolerance
+        )
         return out
     if len(pts) == 0:
         return np.zeros(0, dtype=bool)
@@ -117,8 +122,18 @@ def segment_ground(
     if not ground_cell.any():
         return np.zeros(len(pts), dtype=bool)
     rows, cols = raster.nearest_zero(~ground_cell)
-    floor = lowest[rows, cols].ravel().astype(np.float64) + base
-    return pts[:, 2] <= floor[flat] + tolerance
+    floor = lowest[rows, cols]
+    allowed = np.full(H * W, tolerance)
+    if standing_tolerance is not None:
+        # The foot of what stands in a cell (a car's sills and wheels, a bush, a wall's base, a fence)
+        # lies within `tolerance` of the ground: on real labelled scans most false ground was the
+        # lowest 15 cm of vegetation, buildings, cars and fences. Where something stands, only the
+        # points just above the floor are ground.
+        above = pts[:, 2] - base - lowest.ravel()[flat]
+        standing = np.zeros(H * W, dtype=bool)
+        standing[flat[(above > STANDING[0]) & (above <= STANDING[1])]] = True
+        allowed[standing] = min(tolerance, standing_tolerance)
+    return pts[:, 2] <= floor.ravel().astype(np.float64)[flat] + base + allowed[flat]
 
 
 @dataclass
@@ -194,6 +209,7 @@ class GroundLayers:
         }
 
 
+STANDING = (0.3, 2.0)  # metres above a cell's lowest point: something stands there (the grid's obstacle band)
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
 BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
@@ -530,6 +546,7 @@ def points_ground(points: np.ndarray, section: GroundSection) -> np.ndarray:
         section.base_height,
         section.max_height,
         section.tolerance,
+        section.standing_tolerance,
     )
 
 
