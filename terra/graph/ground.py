@@ -122,18 +122,23 @@ def segment_ground(
     if not ground_cell.any():
         return np.zeros(len(pts), dtype=bool)
     rows, cols = raster.nearest_zero(~ground_cell)
-    floor = lowest[rows, cols]
+    floor = lowest[rows, cols].ravel().astype(np.float64) + base
     allowed = np.full(H * W, tolerance)
     if standing_tolerance is not None:
-        # The foot of what stands in a cell (a car's sills and wheels, a bush, a wall's base, a fence)
-        # lies within `tolerance` of the ground: on real labelled scans most false ground was the
-        # lowest 15 cm of vegetation, buildings, cars and fences. Where something stands, only the
-        # points just above the floor are ground.
-        above = pts[:, 2] - base - lowest.ravel()[flat]
-        standing = np.zeros(H * W, dtype=bool)
-        standing[flat[(above > STANDING[0]) & (above <= STANDING[1])]] = True
-        allowed[standing] = min(tolerance, standing_tolerance)
-    return pts[:, 2] <= floor.ravel().astype(np.float64)[flat] + base + allowed[flat]
+        allowed[_standing_cells(pts[:, 2] - base - lowest.ravel()[flat], flat, H * W)] = min(
+            tolerance, standing_tolerance
+        )
+    return pts[:, 2] <= floor[flat] + allowed[flat]
+
+
+def _standing_cells(above: np.ndarray, flat: np.ndarray, cells: int) -> np.ndarray:
+    """(cells,) bool: cells where something stands, from each point's height (N,) above its cell's
+    lowest point and its cell (N,). The foot of what stands in a cell (a car's sills and wheels, a
+    bush, a wall's base, a fence) lies within `tolerance` of the ground: on real labelled scans most
+    false ground was the lowest 15 cm of vegetation, buildings, cars and fences."""
+    standing = np.zeros(cells, dtype=bool)
+    standing[flat[(above > STANDING[0]) & (above <= STANDING[1])]] = True
+    return standing
 
 
 @dataclass
