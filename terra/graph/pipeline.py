@@ -82,7 +82,7 @@ class TerrainPlaceSet:
 @dataclass
 class PlaceCounts:
     """What `terrain_places` counted: places per terrain index, patches too small for a place, and
-    the GVD tiling when it was used."""
+    the GVD tiling when it was used; places on gaps in curbs count with their terrain."""
 
     per_terrain: dict[int, int] = field(default_factory=dict)
     patches_dropped: int = 0
@@ -380,6 +380,8 @@ def build_scene_graph(
     with timer.stage("GVD places"):
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
         places = with_gap_places(places, traversable, grid, layers, config)
+        for t in places.terrain[len(places.position) - places.gap_places :]:
+            counts.per_terrain[int(t)] = counts.per_terrain.get(int(t), 0) + 1
     if len(places.position) == 0:
         raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
