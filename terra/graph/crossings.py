@@ -13,13 +13,15 @@ in the map frame, metres; steps in metres (terra.graph.ground's step layer).
 
 Rule (`curb_gaps`): a boundary cell is a traversable cell with a 4-neighbour of another terrain
 (both inside `traversable`). Boundary cells joined 8-connected form boundary lines; a line is a
-curb when at least `min_width` metres of its cells read a step above `max_step`. A gap is a run
-(8-connected) of cells of a curb whose step is known and at most `max_step`, at least
-`min_width` and at most `max_width` metres across. Its place sits on the run's cell nearest the
-run's centroid, with that cell's terrain and ground height, and clearance half the run's width
-(the passage). Each of the run's terrains is linked to the gap (`crossing_links`): the nearest
-of its places within `max_distance` whose straight line crosses only traversable cells and no
-step above `max_step`; a gap that reaches fewer than two terrains so is dropped.
+curb when at least `min_width` metres of its cells have a step above `max_step` within
+GAP_MARGIN of them (a curb reads its step unevenly). A gap is a run (8-connected) of cells of a
+curb whose step is known and, with every step within GAP_MARGIN, at most `max_step`; its width,
+the run's diagonal plus the margin it keeps on each side, lies between `min_width` and
+`max_width` metres. Its place sits on the run's cell nearest the run's centroid, with that
+cell's terrain and ground height, and clearance half the gap's width (the passage). Each of the
+run's terrains is linked to the gap (`crossing_links`): the nearest of its places within
+`max_distance` whose straight line crosses only traversable cells and no step above `max_step`;
+a gap that reaches fewer than two terrains so is dropped.
 """
 
 from __future__ import annotations
@@ -96,7 +98,7 @@ def curb_gaps(
     traversable cell, -1 elsewhere; step: (H, W) metres, NaN where unknown; `terrains`: the number
     of terrain classes."""
     boundary = boundary_cells(label)
-    lines, count = raster.label(boundary, EIGHT)
+    lines, count = raster.label(boundary, EIGHT, np.int32)
     empty = CurbGaps(np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, terrains), bool))
     if count == 0:
         return empty
@@ -104,13 +106,13 @@ def curb_gaps(
     # both levels and reads two half steps, or none): a cell is level only when no cell within
     # `margin` metres reads a step above the limit.
     reach = 2 * max(int(round(margin / cell_size)), 0) + 1
-    nearby = ndimage.maximum_filter(np.where(np.isfinite(step), step, -1.0), size=reach)
+    nearby = ndimage.maximum_filter(np.where(np.isfinite(step), step, np.float32(-1.0)), size=reach)
     stepped = boundary & (nearby > max_step)
     stepped_length = np.bincount(lines[stepped], minlength=count + 1) * cell_size
     curb = stepped_length >= min_width
     curb[0] = False
     level = curb[lines] & np.isfinite(step) & (nearby <= max_step)
-    runs, found = raster.label(level, EIGHT)
+    runs, found = raster.label(level, EIGHT, np.int32)
     if found == 0:
         return empty
     rows, cols = np.nonzero(runs)
@@ -201,8 +203,10 @@ def gap_places(
     """The places on the curb gaps of `grid` that reach two terrains or more: positions (k, 3)
     metres, terrain (k,), clearance (k,) metres, and their links (m, 2) as (gap index, index into
     the existing places at `place_xy` (P, 2) of terrains `place_terrain` (P,))."""
-    label = np.where(traversable, grid.label, -1)
-    step = layers.as_grid(layers.step)
+    label = np.where(traversable, grid.label, np.int16(-1))
+    step = np.full(grid.shape[0] * grid.shape[1], np.nan, dtype=np.float32)  # a full grid, as small as the grid's own
+    step[layers.cells] = layers.step
+    step = step.reshape(grid.shape)
     terrains = int(max(label.max(initial=-1), place_terrain.max(initial=-1))) + 1
     gaps = curb_gaps(label, step, grid.cell_size, settings.max_step, settings.min_width, settings.max_width, terrains)
     xy = grid.cell_centres(gaps.cell)
