@@ -8,6 +8,13 @@ file names that cannot leave the bundle), arrays are checked header first (terra
 read with one-line errors (terra.fileio). No timestamps are written: the same input gives the same
 bytes.
 
+Versions share files. A version written on a base (`BundleWriter(base=...)`) starts from hard links
+of the base's files (`keep_from_base` carries single files of a dropped component); a file is never
+written through a link (a changed file is a new file under its name), so the base stays as it was
+for readers holding it. A live map version stores its per-point arrays in row chunks
+(`map/chunks/NNNNN/*.npy`, terra/mapping/chunks.py) so that the next version rewrites only the
+chunks in which a point changed and links the rest: a version costs what changed, not the map.
+
 Replacing a folder (`Staging`, `replace_folder`, `recover`, `atomic_folder`). A new version is
 assembled in a hidden sibling `.NAME.<token>.tmp` (created with the user's umask, like any folder
 the user makes) and then takes the place of NAME in one step:
@@ -636,11 +643,17 @@ class BundleWriter:
                 raise
         self.model.written_by = f"terra {__version__}"
         self.model.version = (base.version if base is not None else 0) + 1
+        self._base = base
         # A version built on `base` must replace `base` itself: another writer (a live session, a
         # second command) committing in between would otherwise be silently undone.
         same = base is not None and os.path.abspath(base.path) == os.path.abspath(self.path)
         self._base_version = base.version if base is not None and same else None
         self._base_manifest = manifest_json(base.model) if base is not None and same else None
+
+    @property
+    def base(self) -> Bundle | None:
+        """The version this one starts from (None for a first version)."""
+        return self._base
 
     @property
     def files(self) -> dict[str, FileEntry]:
@@ -653,19 +666,34 @@ class BundleWriter:
         for component in drop_components:
             data.get("components", {}).pop(component, None)
         self.model = _manifest(data)
-        for file_name, entry in base.files.items():
-            if file_name.split("/", 1)[0] in drop_components:
-                continue
-            # Checksummed: a damaged file of the same size must not be carried into a version
-            # whose manifest vouches for it.
-            source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
-            dst = self._tmp / file_name
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                os.link(source, dst)
-            except OSError:
-                shutil.copy2(source, dst)
-            self.model.files[file_name] = entry
+        for file_name in base.files:
+            if file_name.split("/", 1)[0] not in drop_components:
+                self._link(base, file_name)
+
+    def _link(self, base: Bundle, file_name: str) -> None:
+        """File `file_name` of `base` into this version as it is: a hard link (a copy where links
+        fail), never written through (`_put` unlinks before writing)."""
+        # Checksummed: a damaged file of the same size must not be carried into a version whose
+        # manifest vouches for it (hashed once per file identity: a file carried on is not hashed again).
+        source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
+        dst = self._tmp / file_name
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.link(source, dst)
+        except OSError:
+            shutil.copy2(source, dst)
+        self.model.files[file_name] = base.files[file_name]
+
+    def keep_from_base(self, file_names: Sequence[str]) -> bool:
+        """Carry files of the base version (e.g. a map chunk dropped with its component) into this
+        version unchanged, when the base has all of them; False (nothing carried) otherwise."""
+        base = self._base
+        if base is None or not all(name in base.files for name in file_names):
+            return False
+        with writing(self.path, self.what):
+            for name in file_names:
+                self._link(base, name)
+        return True
 
     def _edit(self, **changes: Any) -> None:
         """Set top-level manifest fields (JSON values), validated as the manifest model: a value

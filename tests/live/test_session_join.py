@@ -19,6 +19,7 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
 from terra.mapping.sessions import SessionFrames, plan_join, session_list
 from tests.live.test_session import FrameRange, map_files
+from tests.mapping.fixtures import assert_same_map
 
 T_TRUE = pose_from_guess(50.0, -10.0, 90.0)
 
@@ -56,6 +57,8 @@ def test_a_live_join_equals_the_batch_join(tiny_campus, tmp_path):
     for i in range(len(second)):
         assert session.add(second[i])
     session.snapshot()
+    assert_same_map(live, batch)  # a live version (row chunks) as load_map reads it
+    session.close()
     # map/meta.json names the live session's source (as a resumed live map does); the map itself is the same.
     assert {k: v for k, v in map_files(live).items() if k != "map/meta.json"} == {
         k: v for k, v in map_files(batch).items() if k != "map/meta.json"
