@@ -84,7 +84,9 @@ def _sha256(path: Path) -> str:
 
 # Files whose digest this process has checked, by identity (device, inode, size, mtime): a long-lived
 # reader (the service, the viewer) or a second load hashes a file once, and a file replaced or
-# rewritten since has another identity, so it is checked again.
+# rewritten since has another identity, so it is checked again. A file this process wrote is entered
+# with the digest of the bytes it wrote (reading it back would hash the same bytes from the page
+# cache): a live session loads each version it commits.
 _VERIFIED: dict[tuple[int, int, int, int], str] = {}
 
 
@@ -126,15 +128,19 @@ def dumps_json(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
-def _write_new_file(path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666) -> None:
+def _write_new_file(
+    path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666
+) -> tuple[int, int, int, int]:
     """Create file `path` (it must not exist) with `data` (or its parts, one after the other), synced
-    to disk; `mode` before the umask."""
+    to disk; `mode` before the umask. Returns its identity (device, inode, size, mtime)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
     with os.fdopen(fd, "wb") as f:
         for part in [data] if isinstance(data, bytes) else data:
             f.write(part)
         f.flush()
         os.fsync(f.fileno())
+        info = os.fstat(f.fileno())
+    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -738,10 +744,11 @@ class BundleWriter:
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
-            _write_new_file(dst, parts)
+            identity = _write_new_file(dst, parts)
         digest = hashlib.sha256()
         for part in parts:
             digest.update(part)
+        _VERIFIED[identity] = digest.hexdigest()
         self.model.files[file_name] = FileEntry(bytes=sum(len(p) for p in parts), sha256=digest.hexdigest())
 
     def put_array(self, name: str, array: np.ndarray) -> None:

@@ -191,7 +191,7 @@ def sorted_view(bundle: Bundle, n: int, k: int, t: int) -> tuple[np.ndarray, np.
     )
     if not voxel:
         return rows["points"], _capped(rows["votes"]), counts
-    order = np.argsort(rows["keys"], kind="stable")
+    order = np.argsort(rows["keys"])  # keys are unique (checked below): any sort gives the one order
     if n > 1 and np.any(np.diff(rows["keys"][order]) == 0):
         raise TerraError(f"{bundle.path}/map/chunks: a voxel key is stored twice (corrupt bundle)")
     votes = _capped(rows["votes"][order])
