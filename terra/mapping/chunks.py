@@ -90,7 +90,7 @@ def _put_chunk(writer: BundleWriter, fusion: MapFusion, c: int, start: int, stop
     """Chunk `c`: rows [start, stop) of the fusion state (module docstring)."""
     folder, geometry, n = chunk_folder(c), fusion.geometry, fusion.geometry.size
     if isinstance(geometry, VoxelMap):
-        voxels = geometry.state(np.arange(start, stop))
+        voxels = geometry.state(slice(start, stop))  # views: written from the fusion's own memory
         writer.put_array(f"{folder}/keys", voxels["keys"])
         writer.put_array(f"{folder}/sums", voxels["sums"])
         writer.put_array(f"{folder}/hits", smallest_unsigned(voxels["hits"]))
@@ -191,10 +191,18 @@ def sorted_view(bundle: Bundle, n: int, k: int, t: int) -> tuple[np.ndarray, np.
     )
     if not voxel:
         return rows["points"], _capped(rows["votes"]), counts
-    order = np.argsort(rows["keys"])  # keys are unique (checked below): any sort gives the one order
-    if n > 1 and np.any(np.diff(rows["keys"][order]) == 0):
+    # Keys are unique (checked below): any sort gives the one order. int32 row numbers gather faster.
+    order = np.argsort(rows["keys"]).astype(np.int32 if n < 2**31 else np.int64)
+    if n > 1 and np.any(np.diff(_gather_rows(rows["keys"], order)) == 0):
         raise TerraError(f"{bundle.path}/map/chunks: a voxel key is stored twice (corrupt bundle)")
-    votes = _capped(rows["votes"][order])
-    ordered = counts[order]
-    ordered.sort_indices()
-    return rows["points"][order], votes, ordered  # pyright: ignore[reportReturnType]  # csr indexing stays csr
+    votes = _capped(_gather_rows(rows["votes"], order))
+    ordered = counts[order]  # rows keep their sorted bank ids
+    return _gather_rows(rows["points"], order), votes, ordered  # pyright: ignore[reportReturnType]  # stays csr
+
+
+def _gather_rows(array: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """array[order] along the first axis, each row moved as one opaque item (several times faster than
+    NumPy's fancy indexing of a 2-D array with few columns)."""
+    array = np.ascontiguousarray(array)
+    row = np.dtype((np.void, array.dtype.itemsize * int(np.prod(array.shape[1:], dtype=np.int64))))
+    return array.view(row).reshape(-1)[order].view(array.dtype).reshape(-1, *array.shape[1:])
