@@ -61,6 +61,7 @@ def test_a_snapshot_rewrites_only_the_chunks_that_changed(tiny_campus, tmp_path)
     chunked = tmp_path / "chunked.terra"
     shutil.copytree(out, chunked)
     assert Bundle(chunked).version == second.version == first.version + 1
+    assert_same_map(second.bundle.msm, chunked)  # the session's view is the version as stored
     session.close()
     assert not Bundle(out).has("map/chunks/00000/points") and Bundle(out).has("map/points")
     assert_same_map(chunked, out)

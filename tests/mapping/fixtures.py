@@ -22,12 +22,13 @@ from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays
 
 
 def assert_same_map(a, b) -> None:
-    """The maps of bundles `a` and `b` (paths) are equal as `load_map` reads them: every array,
-    the MS-Avg norms and MS-Max ids included."""
+    """The maps `a` and `b` (bundle paths, read by `load_map`, or MetricSemanticMaps) are equal: every
+    array, the MS-Avg norms and MS-Max ids included."""
     from terra.bundle import Bundle
+    from terra.mapping.semantic_map import MetricSemanticMap
     from terra.mapping.storage import load_map
 
-    x, y = load_map(Bundle(a)), load_map(Bundle(b))
+    x, y = (m if isinstance(m, MetricSemanticMap) else load_map(Bundle(m)) for m in (a, b))
     for name in ("points", "terrain_votes", "terrain_embeddings", "bank"):
         np.testing.assert_array_equal(getattr(x, name), getattr(y, name), err_msg=name)
         assert getattr(x, name).dtype == getattr(y, name).dtype, name
