@@ -173,7 +173,7 @@ def _empty(name: str, t: int) -> np.ndarray:
     return np.zeros(shapes.get(name, (0,)), dtype=dtype)
 
 
-def _capped(votes: np.ndarray) -> np.ndarray:
+def capped_votes(votes: np.ndarray) -> np.ndarray:
     """Terrain votes as the read view stores them: uint16, capped at 65,535."""
     if votes.dtype.itemsize > 2:
         votes = np.minimum(votes, np.asarray(_U16_MAX, dtype=votes.dtype))
@@ -190,12 +190,12 @@ def sorted_view(bundle: Bundle, n: int, k: int, t: int) -> tuple[np.ndarray, np.
         (rows["counts_data"].astype(np.int32), rows["counts_indices"], rows["counts_indptr"]), shape=(n, k)
     )
     if not voxel:
-        return rows["points"], _capped(rows["votes"]), counts
+        return rows["points"], capped_votes(rows["votes"]), counts
     # Keys are unique (checked below): any sort gives the one order. int32 row numbers gather faster.
     order = np.argsort(rows["keys"]).astype(np.int32 if n < 2**31 else np.int64)
     if n > 1 and np.any(np.diff(_gather_rows(rows["keys"], order)) == 0):
         raise TerraError(f"{bundle.path}/map/chunks: a voxel key is stored twice (corrupt bundle)")
-    votes = _capped(_gather_rows(rows["votes"], order))
+    votes = capped_votes(_gather_rows(rows["votes"], order))
     ordered = counts[order]  # rows keep their sorted bank ids
     return _gather_rows(rows["points"], order), votes, ordered  # pyright: ignore[reportReturnType]  # stays csr
 

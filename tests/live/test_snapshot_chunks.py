@@ -16,6 +16,7 @@ from terra.live import Session
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
 from terra.mapping.storage import load_map
+from terra.mapping.summary import map_summary
 from tests.live.test_session import FrameRange, map_files
 from tests.mapping.fixtures import assert_same_map
 
@@ -65,6 +66,9 @@ def test_a_snapshot_rewrites_only_the_chunks_that_changed(tiny_campus, tmp_path)
     session.close()
     assert not Bundle(out).has("map/chunks/00000/points") and Bundle(out).has("map/points")
     assert_same_map(chunked, out)
+    summaries = [map_summary(Bundle(path))["map"] for path in (chunked, out)]  # `terra info`
+    assert summaries[0]["terrain_points"] == summaries[1]["terrain_points"]
+    assert summaries[0]["points"] == summaries[1]["points"] > 0
     np.testing.assert_array_equal(second.bundle.msm.points, load_map(Bundle(out)).points)
 
 
