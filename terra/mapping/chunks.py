@@ -206,3 +206,22 @@ def _gather_rows(array: np.ndarray, order: np.ndarray) -> np.ndarray:
     array = np.ascontiguousarray(array)
     row = np.dtype((np.void, array.dtype.itemsize * int(np.prod(array.shape[1:], dtype=np.int64))))
     return array.view(row).reshape(-1)[order].view(array.dtype).reshape(-1, *array.shape[1:])
+
+
+def stored_rows(bundle: Bundle, names: tuple[str, ...], n: int, k: int, t: int) -> dict[str, np.ndarray]:
+    """`read_rows` of a chunked map with its rows in the read view's order (by voxel key), as the flat
+    layout stores them: points, votes (exact), session_hits, session_votes and "counts" (a CSR
+    matrix), for readers of a joined map's sessions (terra/mapping/changes.py, sessions.py)."""
+    voxel = n > 0 and bundle.has(f"{chunk_folder(0)}/keys")
+    rows = read_rows(bundle, (*names, *(("keys",) if voxel else ())), n, k, t)
+    order = np.argsort(rows["keys"]) if voxel else np.arange(n)
+    out: dict[str, np.ndarray] = {}
+    for name in names:
+        if name == "counts":
+            counts = sp.csr_matrix((rows["counts_data"], rows["counts_indices"], rows["counts_indptr"]), shape=(n, k))
+            out[name] = counts[order]  # pyright: ignore[reportArgumentType]  # csr indexing stays csr
+        elif name == "session_votes":
+            out[name] = rows[name][:, order]
+        else:
+            out[name] = _gather_rows(rows[name], order)
+    return out
