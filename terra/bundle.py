@@ -735,25 +735,49 @@ class BundleWriter:
         components = manifest_json(self.model).get("components", {})
         self._edit(components={**components, name: {**components.get(name, {}), **fields}})
 
-    def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview]) -> None:
+    def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview], share: bool = False) -> None:
         from terra.schemas import FileEntry
 
         parts = [data] if isinstance(data, bytes) else list(data)
+        hasher = hashlib.sha256()
+        for part in parts:
+            hasher.update(part)
+        digest, size = hasher.hexdigest(), sum(len(p) for p in parts)
+        if share and self._same_in_base(file_name, size, digest):
+            return
         dst = self._tmp / file_name
         with writing(self.path, self.what):
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
             identity = _write_new_file(dst, parts)
-        digest = hashlib.sha256()
-        for part in parts:
-            digest.update(part)
-        _VERIFIED[identity] = digest.hexdigest()
-        self.model.files[file_name] = FileEntry(bytes=sum(len(p) for p in parts), sha256=digest.hexdigest())
+        _VERIFIED[identity] = digest
+        self.model.files[file_name] = FileEntry(bytes=size, sha256=digest)
 
-    def put_array(self, name: str, array: np.ndarray) -> None:
-        """Store an array as `<name>.npy`, e.g. `map/points` (written from the array's own memory)."""
-        self._put(f"{name}.npy", npy_parts(array))
+    def _same_in_base(self, file_name: str, size: int, digest: str) -> bool:
+        """Whether the base version holds `file_name` with these bytes (`size`, SHA-256 `digest`): then
+        this version shares its file (a hard link) instead of writing the same bytes again, e.g. the
+        unchanged arrays of a map chunk in which some points changed."""
+        base = self._base
+        entry = base.files.get(file_name) if base is not None else None
+        if base is None or entry is None or entry.bytes != size or entry.sha256 != digest:
+            return False
+        dst = self._tmp / file_name
+        if self.model.files.get(file_name) == entry and dst.exists():
+            return True  # carried over from the base already
+        try:
+            with writing(self.path, self.what):
+                dst.unlink(missing_ok=True)
+                self._link(base, file_name)
+        except TerraError:
+            return False  # the base's copy is damaged: the bytes are written again
+        return True
+
+    def put_array(self, name: str, array: np.ndarray, share: bool = False) -> None:
+        """Store an array as `<name>.npy`, e.g. `map/points` (written from the array's own memory).
+        share: when the base version holds the same bytes under that name, link its file instead
+        (a map chunk in which some arrays did not change: terra/mapping/chunks.py)."""
+        self._put(f"{name}.npy", npy_parts(array), share)
 
     def put_json(self, name: str, obj: Any) -> None:
         """Store canonical JSON as `name` (which ends in .json)."""

@@ -89,25 +89,29 @@ def write_chunks(writer: BundleWriter, fusion: MapFusion, base: Bundle | None, r
 def _put_chunk(writer: BundleWriter, fusion: MapFusion, c: int, start: int, stop: int, count_rows: np.ndarray) -> None:
     """Chunk `c`: rows [start, stop) of the fusion state (module docstring)."""
     folder, geometry, n = chunk_folder(c), fusion.geometry, fusion.geometry.size
+
+    def put(name: str, array: np.ndarray) -> None:  # an array that did not change keeps its file
+        writer.put_array(name, array, share=True)
+
     if isinstance(geometry, VoxelMap):
         voxels = geometry.state(slice(start, stop))  # views: written from the fusion's own memory
-        writer.put_array(f"{folder}/keys", voxels["keys"])
-        writer.put_array(f"{folder}/sums", voxels["sums"])
-        writer.put_array(f"{folder}/hits", smallest_unsigned(voxels["hits"]))
+        put(f"{folder}/keys", voxels["keys"])
+        put(f"{folder}/sums", voxels["sums"])
+        put(f"{folder}/hits", smallest_unsigned(voxels["hits"]))
         points = (voxels["sums"] / voxels["hits"][:, None]).astype(np.float32)  # as VoxelMap.points()
     else:
         points = geometry.points()[start:stop]
-    writer.put_array(f"{folder}/points", points)
-    writer.put_array(f"{folder}/votes", smallest_unsigned(grown(fusion.votes, n)[start:stop]))
+    put(f"{folder}/points", points)
+    put(f"{folder}/votes", smallest_unsigned(grown(fusion.votes, n)[start:stop]))
     lo, hi = np.searchsorted(count_rows, [start, stop])
     local = count_rows[lo:hi] - start
     indptr = np.concatenate([[0], np.cumsum(np.bincount(local, minlength=stop - start))]).astype(np.int64)
-    writer.put_array(f"{folder}/counts_indptr", indptr)
-    writer.put_array(f"{folder}/counts_indices", (fusion.counts.keys[lo:hi] & _ENTRY_MASK).astype(np.int32))
-    writer.put_array(f"{folder}/counts_data", smallest_unsigned(fusion.counts.values[lo:hi]))
+    put(f"{folder}/counts_indptr", indptr)
+    put(f"{folder}/counts_indices", (fusion.counts.keys[lo:hi] & _ENTRY_MASK).astype(np.int32))
+    put(f"{folder}/counts_data", smallest_unsigned(fusion.counts.values[lo:hi]))
     if fusion.session_hits.shape[1] > 1:
-        writer.put_array(f"{folder}/session_hits", smallest_unsigned(grown(fusion.session_hits, n)[start:stop]))
-        writer.put_array(f"{folder}/session_votes", smallest_unsigned(fusion.row_session_votes(start, stop)))
+        put(f"{folder}/session_hits", smallest_unsigned(grown(fusion.session_hits, n)[start:stop]))
+        put(f"{folder}/session_votes", smallest_unsigned(fusion.row_session_votes(start, stop)))
 
 
 def is_chunked(bundle: Bundle) -> bool:

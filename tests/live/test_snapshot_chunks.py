@@ -57,6 +57,9 @@ def test_a_snapshot_rewrites_only_the_chunks_that_changed(tiny_campus, tmp_path)
     assert rewritten == changed and 0 < len(changed) < len(chunks) / 2
     shared = [name for name in after if name.split("/")[2] not in changed]
     assert shared and all(after[name] == before[name] for name in shared)  # the same files, hard-linked
+    full = len(first.bundle.msm) // ROWS  # chunks whose points were all there before
+    kept = [f"map/chunks/{c}/keys.npy" for c in changed if int(c) < full]
+    assert kept and all(after[name] == before[name] for name in kept)  # in a changed chunk, unchanged keys
     Bundle(out).verify()
     # The read view of the shared chunks is the map the flat layout stores for the same fusion.
     chunked = tmp_path / "chunked.terra"
