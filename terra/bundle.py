@@ -8,6 +8,13 @@ file names that cannot leave the bundle), arrays are checked header first (terra
 read with one-line errors (terra.fileio). No timestamps are written: the same input gives the same
 bytes.
 
+Versions share files. A version written on a base (`BundleWriter(base=...)`) starts from hard links
+of the base's files (`keep_from_base` carries single files of a dropped component); a file is never
+written through a link (a changed file is a new file under its name), so the base stays as it was
+for readers holding it. A live map version stores its per-point arrays in row chunks
+(`map/chunks/NNNNN/*.npy`, terra/mapping/chunks.py) so that the next version rewrites only the
+chunks in which a point changed and links the rest: a version costs what changed, not the map.
+
 Replacing a folder (`Staging`, `replace_folder`, `recover`, `atomic_folder`). A new version is
 assembled in a hidden sibling `.NAME.<token>.tmp` (created with the user's umask, like any folder
 the user makes) and then takes the place of NAME in one step:
@@ -77,7 +84,9 @@ def _sha256(path: Path) -> str:
 
 # Files whose digest this process has checked, by identity (device, inode, size, mtime): a long-lived
 # reader (the service, the viewer) or a second load hashes a file once, and a file replaced or
-# rewritten since has another identity, so it is checked again.
+# rewritten since has another identity, so it is checked again. A file this process wrote is entered
+# with the digest of the bytes it wrote (reading it back would hash the same bytes from the page
+# cache): a live session loads each version it commits.
 _VERIFIED: dict[tuple[int, int, int, int], str] = {}
 
 
@@ -119,15 +128,19 @@ def dumps_json(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
-def _write_new_file(path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666) -> None:
+def _write_new_file(
+    path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666
+) -> tuple[int, int, int, int]:
     """Create file `path` (it must not exist) with `data` (or its parts, one after the other), synced
-    to disk; `mode` before the umask."""
+    to disk; `mode` before the umask. Returns its identity (device, inode, size, mtime)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
     with os.fdopen(fd, "wb") as f:
         for part in [data] if isinstance(data, bytes) else data:
             f.write(part)
         f.flush()
         os.fsync(f.fileno())
+        info = os.fstat(f.fileno())
+    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -636,11 +649,17 @@ class BundleWriter:
                 raise
         self.model.written_by = f"terra {__version__}"
         self.model.version = (base.version if base is not None else 0) + 1
+        self._base = base
         # A version built on `base` must replace `base` itself: another writer (a live session, a
         # second command) committing in between would otherwise be silently undone.
         same = base is not None and os.path.abspath(base.path) == os.path.abspath(self.path)
         self._base_version = base.version if base is not None and same else None
         self._base_manifest = manifest_json(base.model) if base is not None and same else None
+
+    @property
+    def base(self) -> Bundle | None:
+        """The version this one starts from (None for a first version)."""
+        return self._base
 
     @property
     def files(self) -> dict[str, FileEntry]:
@@ -653,19 +672,34 @@ class BundleWriter:
         for component in drop_components:
             data.get("components", {}).pop(component, None)
         self.model = _manifest(data)
-        for file_name, entry in base.files.items():
-            if file_name.split("/", 1)[0] in drop_components:
-                continue
-            # Checksummed: a damaged file of the same size must not be carried into a version
-            # whose manifest vouches for it.
-            source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
-            dst = self._tmp / file_name
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                os.link(source, dst)
-            except OSError:
-                shutil.copy2(source, dst)
-            self.model.files[file_name] = entry
+        for file_name in base.files:
+            if file_name.split("/", 1)[0] not in drop_components:
+                self._link(base, file_name)
+
+    def _link(self, base: Bundle, file_name: str) -> None:
+        """File `file_name` of `base` into this version as it is: a hard link (a copy where links
+        fail), never written through (`_put` unlinks before writing)."""
+        # Checksummed: a damaged file of the same size must not be carried into a version whose
+        # manifest vouches for it (hashed once per file identity: a file carried on is not hashed again).
+        source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
+        dst = self._tmp / file_name
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.link(source, dst)
+        except OSError:
+            shutil.copy2(source, dst)
+        self.model.files[file_name] = base.files[file_name]
+
+    def keep_from_base(self, file_names: Sequence[str]) -> bool:
+        """Carry files of the base version (e.g. a map chunk dropped with its component) into this
+        version unchanged, when the base has all of them; False (nothing carried) otherwise."""
+        base = self._base
+        if base is None or not all(name in base.files for name in file_names):
+            return False
+        with writing(self.path, self.what):
+            for name in file_names:
+                self._link(base, name)
+        return True
 
     def _edit(self, **changes: Any) -> None:
         """Set top-level manifest fields (JSON values), validated as the manifest model: a value
@@ -701,24 +735,49 @@ class BundleWriter:
         components = manifest_json(self.model).get("components", {})
         self._edit(components={**components, name: {**components.get(name, {}), **fields}})
 
-    def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview]) -> None:
+    def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview], share: bool = False) -> None:
         from terra.schemas import FileEntry
 
         parts = [data] if isinstance(data, bytes) else list(data)
+        hasher = hashlib.sha256()
+        for part in parts:
+            hasher.update(part)
+        digest, size = hasher.hexdigest(), sum(len(p) for p in parts)
+        if share and self._same_in_base(file_name, size, digest):
+            return
         dst = self._tmp / file_name
         with writing(self.path, self.what):
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
-            _write_new_file(dst, parts)
-        digest = hashlib.sha256()
-        for part in parts:
-            digest.update(part)
-        self.model.files[file_name] = FileEntry(bytes=sum(len(p) for p in parts), sha256=digest.hexdigest())
+            identity = _write_new_file(dst, parts)
+        _VERIFIED[identity] = digest
+        self.model.files[file_name] = FileEntry(bytes=size, sha256=digest)
 
-    def put_array(self, name: str, array: np.ndarray) -> None:
-        """Store an array as `<name>.npy`, e.g. `map/points` (written from the array's own memory)."""
-        self._put(f"{name}.npy", npy_parts(array))
+    def _same_in_base(self, file_name: str, size: int, digest: str) -> bool:
+        """Whether the base version holds `file_name` with these bytes (`size`, SHA-256 `digest`): then
+        this version shares its file (a hard link) instead of writing the same bytes again, e.g. the
+        unchanged arrays of a map chunk in which some points changed."""
+        base = self._base
+        entry = base.files.get(file_name) if base is not None else None
+        if base is None or entry is None or entry.bytes != size or entry.sha256 != digest:
+            return False
+        dst = self._tmp / file_name
+        if self.model.files.get(file_name) == entry and dst.exists():
+            return True  # carried over from the base already
+        try:
+            with writing(self.path, self.what):
+                dst.unlink(missing_ok=True)
+                self._link(base, file_name)
+        except TerraError:
+            return False  # the base's copy is damaged: the bytes are written again
+        return True
+
+    def put_array(self, name: str, array: np.ndarray, share: bool = False) -> None:
+        """Store an array as `<name>.npy`, e.g. `map/points` (written from the array's own memory).
+        share: when the base version holds the same bytes under that name, link its file instead
+        (a map chunk in which some arrays did not change: terra/mapping/chunks.py)."""
+        self._put(f"{name}.npy", npy_parts(array), share)
 
     def put_json(self, name: str, obj: Any) -> None:
         """Store canonical JSON as `name` (which ends in .json)."""

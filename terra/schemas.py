@@ -164,6 +164,8 @@ class MapComponent(_Written):
     time_span: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None  # first, last fused stamp, s
     version: Count | None = None  # the bundle version that last changed the map
     wgs84_anchor: Wgs84Anchor | None = None  # the map frame on the Earth, when the source knew it
+    # Rows per chunk of a live version's per-point arrays (terra/mapping/chunks.py); None: the flat layout.
+    chunk_rows: Count | None = None
     config: dict[str, Any] = Field(default_factory=dict)
     stats: dict[str, Any] = Field(default_factory=dict)
 

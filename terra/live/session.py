@@ -29,11 +29,20 @@ from terra.errors import TerraError
 from terra.live.frames import LiveFrameError, check_live_frame
 from terra.loaded import LoadedBundle
 from terra.mapping.align import Alignment
+from terra.mapping.chunks import CHUNK_ROWS
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.mapping.state import append_base, check_run, restore_mapper, run_description, wgs84_anchor, write_fused
+from terra.mapping.state import (
+    append_base,
+    check_run,
+    restore_mapper,
+    run_description,
+    wgs84_anchor,
+    write_fused,
+    write_live,
+)
 from terra.mapping.storage import load_map
 from terra.perception.base import Perception
 
@@ -81,6 +90,8 @@ class Session:
     T_map_lidar are in its own frame and are moved by T_map_session, given as an Alignment (e.g. from
     `plan_join` over a recording of the drive) or as a 4x4 array (then listed as given by the caller); its
     LiDAR returns are counted apart.
+    chunk_rows: rows per chunk of the per-point arrays of a snapshot's version (terra/mapping/chunks.py):
+    a snapshot writes again only the chunks in which a point changed.
     """
 
     def __init__(
@@ -97,6 +108,7 @@ class Session:
         name: str = "live",
         global_map: np.ndarray | None = None,
         join: Alignment | np.ndarray | None = None,
+        chunk_rows: int = CHUNK_ROWS,
     ):
         from terra.perception.registry import get_perception
 
@@ -106,6 +118,9 @@ class Session:
         self.config = config if config is not None else MappingConfig()
         self.build = build
         self.graph = graph
+        if chunk_rows < 1:
+            raise TerraError(f"chunk_rows: expected at least 1 row per chunk, got {chunk_rows}")
+        self.chunk_rows = int(chunk_rows)
         self.perception = perception or get_perception(self.config.perception, classes)
         recover(self.out)
         self._base = _open_base(self.out, resume or join is not None, overwrite)
@@ -199,14 +214,15 @@ class Session:
                 if self.mapper.stats.counts.get("frames_fused", 0) == 0:
                     raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
                 frames, map_time = self.mapper.next_frame, self.mapper.last_stamp
-                msm = self._commit_map()
+                self._commit_map(finished=full)
+                # The graph update reads the map as fused (full: as `terra build` reads it, below).
+                msm = self.mapper.finish() if self.graph and not full else None
             seconds["map"] = time.perf_counter() - start
             if full and self.graph:
-                # As `terra build` reads it (e.g. the bank rounded to float16): the batch graph exactly. The
-                # fused copy goes first: one copy of the map beside the whole-map build, not two.
-                del msm
+                # As `terra build` reads it (e.g. the bank rounded to float16): the batch graph exactly,
+                # one copy of the map beside the whole-map build.
                 msm = load_map(Bundle(self.out), max_ids=False)
-            note, update = self._commit_graph(msm, full) if self.graph else ("graph off", {})
+            note, update = self._commit_graph(msm, full) if msm is not None else ("graph off", {})
             seconds["graph"] = time.perf_counter() - start - seconds["map"]
             bundle = Bundle(self.out)
             self._base = bundle
@@ -226,7 +242,9 @@ class Session:
             return None
         return self.snapshot(full=True)
 
-    def _commit_map(self) -> MetricSemanticMap:
+    def _commit_map(self, finished: bool) -> None:
+        """Commit the map and its fusion state as the bundle's next version: in row chunks shared with
+        the version before (terra/mapping/chunks.py), or `finished`, in the flat layout batch runs write."""
         fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
         source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
         sources = _sources(self._base, source, self._first_frame)
@@ -235,12 +253,16 @@ class Session:
         writer = BundleWriter(self.out, base=self._base, drop_components=("map",))
         try:
             anchor = wgs84_anchor(self._base)
-            msm = write_fused(writer, self.mapper, self._run, self.name, self.classes, sources, anchor)
+            args = (writer, self.mapper, self._run, self.name, self.classes, sources, anchor)
+            if finished:
+                write_fused(*args)
+            else:
+                write_live(*args, chunk_rows=self.chunk_rows)
             writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
         except BaseException:
             writer.abort()
             raise
-        return msm
+        self.mapper.fusion.untouch()  # the next version starts from this one
 
     def _commit_graph(self, msm: MetricSemanticMap, full: bool) -> tuple[str, dict]:
         """Update the scene graph on the committed map `msm` (with `full`, the map as stored) and commit it:

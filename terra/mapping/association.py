@@ -74,13 +74,17 @@ class VoxelMap:
         """(N, 3) float32 voxel centroids in creation order, metres, map frame."""
         return (self._sums[: self.size] / self._hits[: self.size, None]).astype(np.float32)
 
-    def state(self, order: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def state(self, order: np.ndarray | slice | None = None) -> dict[str, np.ndarray]:
         """Voxel keys (N,) int64, coordinate sums (N, 3) float64 metres and hits (N,) int64, copies
-        in creation order, or in `order` (e.g. final_order()) without a second copy."""
+        in creation order, or in `order` (e.g. final_order()) without a second copy; a slice of
+        rows gives read-only views (valid until the next `associate`)."""
         rows = slice(0, self.size) if order is None else order
         keys, sums, hits = self._keys[rows], self._sums[rows], self._hits[rows]
         if order is None:
             keys, sums, hits = keys.copy(), sums.copy(), hits.copy()
+        elif isinstance(order, slice):
+            for view in (keys, sums, hits):
+                view.flags.writeable = False
         return {"keys": keys, "sums": sums, "hits": hits}
 
     @classmethod

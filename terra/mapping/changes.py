@@ -58,6 +58,7 @@ from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]
 
 from terra.bundle import Bundle
 from terra.errors import TerraError
+from terra.mapping.chunks import chunk_folder, is_chunked, stored_rows
 from terra.npy import ArraySpec
 
 BLOCKED = "blocked"
@@ -231,19 +232,8 @@ def detect_changes(path: Path, first: int, second: int, settings: ChangeSettings
     return result
 
 
-def _load(bundle: Bundle, first: int, second: int) -> _Sessions:
-    """The joined map's arrays, after checking both sessions exist (TerraError naming the bundle)."""
-    info = bundle.model.components.map
-    if info is None or not bundle.has("map/state/session_hits") or not bundle.has("map/state/session_votes"):
-        raise TerraError(f"{bundle.path}: the map has one session; join another with `terra map SESSION --into`")
-    n, k, nnz = int(info.points or 0), int(info.bank or 0), int(info.observations or 0)
-    hits = bundle.array("map/state/session_hits", ArraySpec(("uint8", "uint16", "uint32", "uint64"), (n, None)))
-    sessions = int(hits.shape[1])
-    for value in (first, second):
-        if not 1 <= value <= sessions:
-            raise TerraError(f"--between {first} {second}: the map has sessions 1 to {sessions}")
-    if first == second:
-        raise TerraError(f"--between {first} {second}: give two different sessions")
+def _flat_rows(bundle: Bundle, n: int, k: int, nnz: int, sessions: int) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
+    """(points, terrain votes per session, counts) of the flat layout."""
     t = len(bundle.model.terrain_classes)
     unsigned = ("uint8", "uint16", "uint32", "uint64")
     votes = bundle.array("map/state/session_votes", ArraySpec(unsigned, (sessions, n, t)))
@@ -251,7 +241,33 @@ def _load(bundle: Bundle, first: int, second: int) -> _Sessions:
     indptr = bundle.array("map/counts_indptr", ArraySpec(("int64",), (n + 1,)))
     indices = bundle.array("map/counts_indices", ArraySpec(("int32",), (nnz,)))
     values = bundle.array("map/counts_data", ArraySpec(unsigned, (nnz,)))
-    counts = sp.csr_matrix((np.asarray(values, np.int64), indices, indptr), shape=(n, k))
+    return points, votes, sp.csr_matrix((np.asarray(values, np.int64), indices, indptr), shape=(n, k))
+
+
+def _load(bundle: Bundle, first: int, second: int) -> _Sessions:
+    """The joined map's arrays, after checking both sessions exist (TerraError naming the bundle)."""
+    info = bundle.model.components.map
+    chunked = is_chunked(bundle) and bool(info and info.points) and bundle.has(f"{chunk_folder(0)}/session_hits")
+    flat = bundle.has("map/state/session_hits") and bundle.has("map/state/session_votes")
+    if info is None or not (chunked or flat):
+        raise TerraError(f"{bundle.path}: the map has one session; join another with `terra map SESSION --into`")
+    n, k, nnz = int(info.points or 0), int(info.bank or 0), int(info.observations or 0)
+    if chunked:  # a live version (terra/mapping/chunks.py)
+        names = ("points", "session_hits", "session_votes", "counts")
+        rows = stored_rows(bundle, names, n, k, len(bundle.model.terrain_classes))
+        hits, points, votes = rows["session_hits"], rows["points"], rows["session_votes"]
+        counts = sp.csr_matrix(rows["counts"])
+    else:
+        hits = bundle.array("map/state/session_hits", ArraySpec(("uint8", "uint16", "uint32", "uint64"), (n, None)))
+        points, votes, counts = _flat_rows(bundle, n, k, nnz, int(hits.shape[1]))
+    sessions = int(hits.shape[1])
+    for value in (first, second):
+        if not 1 <= value <= sessions:
+            raise TerraError(f"--between {first} {second}: the map has sessions 1 to {sessions}")
+    if first == second:
+        raise TerraError(f"--between {first} {second}: give two different sessions")
+    if votes.shape[0] != sessions:
+        raise TerraError(f"{bundle.path}/map: terrain votes of {votes.shape[0]} sessions, expected {sessions}")
     return _Sessions(
         np.asarray(points, np.float64),
         np.asarray(hits, np.int64),

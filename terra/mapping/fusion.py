@@ -122,6 +122,10 @@ class MapFusion:
         # votes as they stood when the current session began (its own are the difference).
         self.earlier_votes: list[np.ndarray] = []
         self.votes_before = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
+        # Per map point (creation order): whether anything of its row changed since the last
+        # committed version, so a version rewrites only the row chunks that changed
+        # (terra/mapping/chunks.py). Every change of a row comes from a scan point associated to it.
+        self.touched = np.zeros(0, dtype=bool)
 
     # -- per frame --------------------------------------------------------------------------
 
@@ -133,6 +137,8 @@ class MapFusion:
         self.session_hits = grown(self.session_hits, self.geometry.size)
         rows, returns = np.unique(index[index >= 0], return_counts=True)
         self.session_hits[rows, self.session] += returns
+        self.touched = grown(self.touched, self.geometry.size)
+        self.touched[rows] = True
         self.stats.add("points_unassociated", int(np.count_nonzero(index < 0)))
         return points_map, index
 
@@ -195,6 +201,19 @@ class MapFusion:
             [self.session_hits, np.zeros((self.session_hits.shape[0], 1), dtype=np.int64)], axis=1
         )
         self.session = self.session_hits.shape[1] - 1
+        self.touch_all()  # every row gains a session column
+
+    def touch_all(self) -> None:
+        """Mark every row changed (its next version rewrites all of them)."""
+        self.touched = np.ones(max(self.geometry.size, self.touched.shape[0]), dtype=bool)
+
+    def untouch(self) -> None:
+        """Forget the changes: the version they went into is committed."""
+        self.touched[:] = False
+
+    def touched_rows(self) -> np.ndarray:
+        """Rows (creation order) changed since the last `untouch`."""
+        return np.flatnonzero(self.touched[: self.geometry.size])
 
     def session_counts(self) -> np.ndarray:
         """(N, S) LiDAR returns per map point (stored order) and session."""
@@ -206,6 +225,12 @@ class MapFusion:
         n = self.geometry.size
         parts = [grown(v, n)[:n] for v in self.earlier_votes] + [self._current_votes(n)]
         return np.stack(parts)[:, self.geometry.final_order()]
+
+    def row_session_votes(self, start: int, stop: int) -> np.ndarray:
+        """(S, stop - start, T) terrain votes per session of rows [start, stop) in creation order."""
+        n = self.geometry.size
+        current = grown(self.votes, n)[start:stop] - grown(self.votes_before, n)[start:stop]
+        return np.stack([grown(v, n)[start:stop] for v in self.earlier_votes] + [current])
 
     def _earlier_votes_array(self) -> np.ndarray:
         """(S - 1, n, T) votes of the sessions before the current one, rows in creation order."""
@@ -299,6 +324,7 @@ class MapFusion:
         if "votes_before" in arrays:
             self.votes_before = np.array(arrays["votes_before"], dtype=np.uint32)
             self.earlier_votes = [np.array(v, dtype=np.uint32) for v in arrays["earlier_votes"]]
+        self.touch_all()  # nothing is known of the versions written before the checkpoint
 
     # -- results ----------------------------------------------------------------------------
 

@@ -211,8 +211,12 @@ def _check_classes(base: Bundle, dataset: Dataset) -> None:
 
 def map_points(base: Bundle) -> np.ndarray:
     """The stored map's points (N, 3) float32, metres, map frame."""
+    from terra.mapping.chunks import is_chunked, stored_rows
+
     info = base.model.components.map
     n = int(info.points or 0) if info is not None else 0
+    if is_chunked(base) and info is not None:  # a live version (terra/mapping/chunks.py)
+        return stored_rows(base, ("points",), n, int(info.bank or 0), len(base.model.terrain_classes))["points"]
     return base.array("map/points", ArraySpec(("float32",), (n, 3), finite=True, what="x, y, z metres"))
 
 

@@ -14,6 +14,9 @@ or drops, in the map's stored point order:
   meta.json: {format, geometry, next_frame, first_stamp, last_stamp, notes, run}.
 Restoring in stored order rather than first-seen order changes no output: the stored order is the
 voxel-key order, which `finish()` computes from the keys alone.
+A live version (`write_live`) keeps these per-point parts (keys, sums, hits, exact votes, session
+hits and votes) in its row chunks, in creation order (terra/mapping/chunks.py); `map/state/` then
+holds the bank and meta.json only, and `restore_mapper` restores the fusion in creation order.
 """
 
 from __future__ import annotations
@@ -28,11 +31,13 @@ from terra.datasets.base import ClassTable, GeoreferencedDataset
 from terra.errors import TerraError
 from terra.mapping.association import FixedMap, VoxelMap
 from terra.mapping.bank import EmbeddingBank
+from terra.mapping.chunks import CHUNK_ROWS, is_chunked, read_rows, write_chunks
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.mapping.storage import smallest_unsigned, write_map
+from terra.mapping.storage import MapTables, set_map_component, smallest_unsigned, write_map, write_map_tables
+from terra.mapping.visibility import VisibilityIndex
 from terra.npy import ArraySpec
 from terra.perception.base import Perception
 
@@ -40,25 +45,33 @@ STATE_FORMAT = 1
 _U16_MAX = int(np.iinfo(np.uint16).max)
 
 
-def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> None:
+def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any], chunked: bool = False) -> None:
     """Put the fusion state of `mapper` under `map/state/` (after `write_map` of its finished map).
-    `run`: what a continuation must match (config, embedder, terrain classes; see `check_run`)."""
+    `run`: what a continuation must match (config, embedder, terrain classes; see `check_run`).
+    chunked: the per-point parts are in the version's row chunks (terra/mapping/chunks.py)."""
     fusion = mapper.fusion
     geometry = fusion.geometry
     n = geometry.size
     order = geometry.final_order()
+    _put_meta(writer, mapper, run)
+    writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
+    if chunked:
+        return
     if isinstance(geometry, VoxelMap):
         voxels = geometry.state(order)
         writer.put_array("map/state/voxel_keys", voxels["keys"])
         writer.put_array("map/state/voxel_sums", voxels["sums"])
         writer.put_array("map/state/voxel_hits", smallest_unsigned(voxels["hits"]))
-    writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
     if fusion.session_hits.shape[1] > 1:
         writer.put_array("map/state/session_hits", smallest_unsigned(fusion.session_counts()))
         writer.put_array("map/state/session_votes", smallest_unsigned(fusion.session_votes()))
     votes = fusion.votes[:n]
     if votes.size and int(votes.max()) > _U16_MAX:
         writer.put_array("map/state/votes", votes[order].astype(np.uint32))
+
+
+def _put_meta(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> None:
+    geometry = mapper.fusion.geometry
     writer.put_json(
         "map/state/meta.json",
         {
@@ -67,7 +80,7 @@ def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any]) -> No
             "next_frame": int(mapper.next_frame),
             "first_stamp": mapper.first_stamp,
             "last_stamp": mapper.last_stamp,
-            "notes": dict(sorted(fusion.stats.notes.items())),
+            "notes": dict(sorted(mapper.stats.notes.items())),
             "run": run,
         },
     )
@@ -101,34 +114,40 @@ def restore_mapper(bundle: Bundle, mapper: Mapper) -> None:
     and terrain classes: `check_run` first), so its next frame continues the drive exactly."""
     meta = state_meta(bundle)
     fusion = mapper.fusion
-    raw = _RawMap(bundle, fusion)
-    n = raw.n
+    raw = _RawMap(bundle, fusion, meta["geometry"] == "voxel")
     if meta["geometry"] == "voxel":
-        keys = raw.array("map/state/voxel_keys", ("int64",), (n,))
-        sums = raw.array("map/state/voxel_sums", ("float64",), (n, 3))
-        hits = raw.array("map/state/voxel_hits", ("uint8", "uint16", "uint32", "uint64"), (n,))
-        if n and (int(hits.min()) < 1 or np.any(np.diff(keys) <= 0)):
-            raise TerraError(f"{bundle.path}/map/state/voxel_*.npy: voxel keys must increase and hits be >= 1")
+        keys, sums, hits = raw.row("keys"), raw.row("sums"), raw.row("hits")
+        if raw.n and int(hits.min()) < 1:
+            raise TerraError(f"{bundle.path}/map: voxel hits must be >= 1")
         fusion.geometry = VoxelMap.from_state(
             fusion.config.fusion.voxel_size, {"keys": keys, "sums": sums, "hits": hits.astype(np.int64)}
         )
+        sorted_keys = fusion.geometry.state(fusion.geometry.final_order())["keys"]
+        if raw.n > 1 and np.any(np.diff(sorted_keys) <= 0):
+            raise TerraError(f"{bundle.path}/map: a voxel key is stored twice (corrupt bundle)")
     else:
-        fusion.geometry = FixedMap(raw.array("map/points", ("float32",), (n, 3)), fusion.config.fusion.gate)
+        fusion.geometry = FixedMap(raw.row("points"), fusion.config.fusion.gate)
     _restore_observations(raw, fusion)
     _restore_images(raw, fusion)
     _restore_session_hits(raw, fusion)
     stats = bundle.model.components.map.stats if bundle.model.components.map is not None else {}
     notes = {str(k): str(v) for k, v in meta["notes"].items()}
     fusion.stats = FusionStats({k: int(v) for k, v in stats.items()}, notes)
+    fusion.untouch()  # the fusion now holds what the bundle's version holds
     mapper.next_frame = int(meta["next_frame"])
     mapper.first_stamp = _stamp(meta.get("first_stamp"))
     mapper.last_stamp = _stamp(meta.get("last_stamp"))
 
 
-class _RawMap:
-    """The stored map's arrays as written (no renormalising), checked against the manifest's sizes."""
+_UNSIGNED = ("uint8", "uint16", "uint32", "uint64")
 
-    def __init__(self, bundle: Bundle, fusion: MapFusion):
+
+class _RawMap:
+    """The stored map's arrays as written (no renormalising), checked against the manifest's sizes;
+    the per-point ones (`row`) in the order they are stored: by voxel key in the flat layout, in
+    creation order in row chunks (terra/mapping/chunks.py)."""
+
+    def __init__(self, bundle: Bundle, fusion: MapFusion, voxel: bool):
         info = bundle.model.components.map
         if info is None or info.points is None or info.bank is None or info.images is None:
             raise TerraError(f"{bundle.path}/manifest.json: components.map lacks the map's sizes")
@@ -137,23 +156,51 @@ class _RawMap:
         self.nnz = int(info.observations or 0)
         self.dim = fusion.dim
         self.t = len(fusion.terrain_classes)
+        self._rows: dict[str, np.ndarray] | None = None
+        if is_chunked(bundle):
+            names = ["points", "votes", "counts", *(["keys", "sums", "hits"] if voxel else [])]
+            if self.n and bundle.has("map/chunks/00000/session_hits"):
+                names += ["session_hits", "session_votes"]
+            self._rows = read_rows(bundle, tuple(names), self.n, self.k, self.t)
 
     def array(self, name: str, dtypes: tuple[str, ...], shape: tuple[int | None, ...]) -> np.ndarray:
         return self.bundle.array(name, ArraySpec(dtypes, shape, what="the map's fusion state"))
 
+    def has_row(self, name: str) -> bool:
+        if self._rows is not None:
+            return name in self._rows
+        return self.bundle.has(f"map/state/{name}")
+
+    def row(self, name: str) -> np.ndarray:
+        """Per-point array `name` (keys, sums, hits, points, votes, counts_indptr, counts_indices,
+        counts_data, session_hits, session_votes)."""
+        if self._rows is not None:
+            return self._rows[name]
+        n, t, nnz = self.n, self.t, self.nnz
+        flat = {
+            "keys": ("map/state/voxel_keys", ("int64",), (n,)),
+            "sums": ("map/state/voxel_sums", ("float64",), (n, 3)),
+            "hits": ("map/state/voxel_hits", _UNSIGNED, (n,)),
+            "points": ("map/points", ("float32",), (n, 3)),
+            "counts_indptr": ("map/counts_indptr", ("int64",), (n + 1,)),
+            "counts_indices": ("map/counts_indices", ("int32",), (nnz,)),
+            "counts_data": ("map/counts_data", _UNSIGNED, (nnz,)),
+            "session_hits": ("map/state/session_hits", _UNSIGNED, (n, None)),
+            "session_votes": ("map/state/session_votes", _UNSIGNED, (None, n, t)),
+        }
+        if name == "votes":  # exact votes where some count passed uint16, else the read view's
+            if self.bundle.has("map/state/votes"):
+                return self.array("map/state/votes", ("uint32",), (n, t))
+            return self.array("map/terrain_votes", ("uint16",), (n, t))
+        return self.array(*flat[name])
+
 
 def _restore_observations(raw: _RawMap, fusion: MapFusion) -> None:
     """Terrain votes, the bank at full precision and the (point, entry) counts."""
-    if raw.bundle.has("map/state/votes"):
-        votes = raw.array("map/state/votes", ("uint32",), (raw.n, raw.t))
-    else:
-        votes = raw.array("map/terrain_votes", ("uint16",), (raw.n, raw.t))
-    fusion.votes = np.array(votes, dtype=np.uint32)
+    fusion.votes = np.array(raw.row("votes"), dtype=np.uint32)
     bank = raw.array("map/state/bank", ("float32",), (raw.k, raw.dim))
     fusion.bank = EmbeddingBank(fusion.dim, fusion.config.fusion.match_threshold, bank)
-    indptr = raw.array("map/counts_indptr", ("int64",), (raw.n + 1,))
-    indices = raw.array("map/counts_indices", ("int32",), (raw.nnz,))
-    data = raw.array("map/counts_data", ("uint8", "uint16", "uint32", "uint64"), (raw.nnz,))
+    indptr, indices, data = raw.row("counts_indptr"), raw.row("counts_indices"), raw.row("counts_data")
     rows = np.repeat(np.arange(raw.n, dtype=np.int64), np.diff(indptr))
     fusion.counts.keys = (rows << 32) | indices.astype(np.int64)
     fusion.counts.values = data.astype(np.int64)
@@ -187,18 +234,19 @@ def _restore_images(raw: _RawMap, fusion: MapFusion) -> None:
 
 def _restore_session_hits(raw: _RawMap, fusion: MapFusion) -> None:
     """Returns per point and session; a one-session map's are its voxel hits (none on a fixed map)."""
-    if raw.bundle.has("map/state/session_hits"):
-        hits = raw.array("map/state/session_hits", ("uint8", "uint16", "uint32", "uint64"), (raw.n, None))
-        fusion.session_hits = np.array(hits, dtype=np.int64)
+    if raw.has_row("session_hits"):
+        fusion.session_hits = np.array(raw.row("session_hits"), dtype=np.int64)
     elif isinstance(fusion.geometry, VoxelMap):
         fusion.session_hits = fusion.geometry.state()["hits"].reshape(-1, 1).astype(np.int64)
     else:
         fusion.session_hits = np.zeros((raw.n, 1), dtype=np.int64)
     fusion.session = fusion.session_hits.shape[1] - 1
     fusion.earlier_votes, fusion.votes_before = [], np.zeros_like(fusion.votes)
-    if raw.bundle.has("map/state/session_votes"):
-        shape = (fusion.session + 1, raw.n, raw.t)
-        votes = raw.array("map/state/session_votes", ("uint8", "uint16", "uint32", "uint64"), shape).astype(np.uint32)
+    if raw.has_row("session_votes"):
+        votes = raw.row("session_votes").astype(np.uint32)
+        if votes.shape[0] != fusion.session + 1:
+            where, sessions = f"{raw.bundle.path}/map", fusion.session + 1
+            raise TerraError(f"{where}: terrain votes of {votes.shape[0]} sessions, expected {sessions}")
         fusion.earlier_votes = list(votes[:-1])
         fusion.votes_before = fusion.votes[: raw.n] - votes[-1]
 
@@ -250,6 +298,48 @@ def write_fused(
         classes=classes.to_json(),
     )
     write_state(writer, mapper, run)
+    _record_run(writer, mapper, sources, anchor)
+    return msm
+
+
+def write_live(
+    writer: BundleWriter,
+    mapper: Mapper,
+    run: dict[str, Any],
+    name: str,
+    classes: ClassTable,
+    sources: list[dict],
+    anchor: dict[str, Any] | None = None,
+    chunk_rows: int = CHUNK_ROWS,
+) -> int:
+    """`write_fused` for a live version: the per-point arrays in chunks of `chunk_rows` rows in
+    creation order, only the chunks changed since the version the writer starts from written again
+    (terra/mapping/chunks.py); the map is not finished here (that is a sort of the whole map).
+    Returns the chunks written."""
+    fusion = mapper.fusion
+    images = fusion.image_table()
+    cells, image_ids = fusion.visibility_pairs()
+    visibility = VisibilityIndex.from_pairs(cells, image_ids, mapper.config.visibility.cell_size, images.position)
+    tables = MapTables(
+        fusion.bank.vectors, mapper.perception.terrain_embeddings(), images, visibility, mapper.perception.embedder,
+        list(fusion.terrain_classes), mapper.config.fusion.voxel_size,
+    )  # fmt: skip
+    write_map_tables(writer, tables, name, classes.to_json())
+    written = write_chunks(writer, fusion, writer.base, chunk_rows)
+    fusion.counts.compact()
+    rows = fusion.counts.keys >> 32
+    observed = int(np.count_nonzero(np.diff(rows))) + 1 if rows.size else 0
+    sizes = {"points": fusion.geometry.size, "observations": rows.size}
+    set_map_component(writer, fusion.bank.vectors, len(images), sizes, observed)
+    config = mapper.config.model_dump(mode="json")
+    writer.update_component("map", config=config, stats=mapper.stats.to_json(), chunk_rows=chunk_rows)
+    write_state(writer, mapper, run, chunked=True)
+    _record_run(writer, mapper, sources, anchor)
+    return written
+
+
+def _record_run(writer: BundleWriter, mapper: Mapper, sources: list[dict], anchor: dict[str, Any] | None) -> None:
+    """The map's sources, frames, time span, WGS84 anchor and perception, in the manifest."""
     span = mapper.time_span()
     if sources and mapper.run_first_stamp is not None and mapper.last_stamp is not None:
         sources = [*sources[:-1], {**sources[-1], "time_span": [mapper.run_first_stamp, mapper.last_stamp]}]
@@ -263,7 +353,6 @@ def write_fused(
         **({"wgs84_anchor": anchor} if anchor is not None else {}),
     )
     writer.set_perception(mapper.perception.describe())
-    return msm
 
 
 def append_base(out: Path) -> Bundle:

@@ -12,10 +12,15 @@ bundles without them compute them on load): ms_avg_norm (N,) float32 row norms o
 with the bank as stored, ms_max_id (N,) int32 most observed bank id (-1 unobserved).
 JSON: map/meta.json {voxel_size, visibility_cell_size, camera_names, classes, dataset}.
 Manifest: "embedder" {name, dim}, "terrain_classes", "components" {"map": counts, config, stats}.
+This is the flat layout, which batch runs and a live session's closing version write. A live
+version (components.map.chunk_rows set) stores points, terrain votes and counts in row chunks
+instead (terra/mapping/chunks.py), without ms_avg_norm / ms_max_id; `load_map` reads both layouts
+into the same map.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -41,6 +46,27 @@ def smallest_unsigned(values: np.ndarray) -> np.ndarray:
     return values.astype(np.uint64)
 
 
+@dataclass
+class MapTables:
+    """The parts of a map stored the same way in both layouts (flat, and chunked:
+    terra/mapping/chunks.py): everything but the per-point arrays."""
+
+    bank: np.ndarray  # (K, D) float32 unit rows
+    terrain_embeddings: np.ndarray  # (T, D)
+    images: ImageTable
+    visibility: VisibilityIndex | None
+    embedder: str
+    terrain_classes: list[str]
+    voxel_size: float
+
+    @classmethod
+    def of(cls, msm: MetricSemanticMap) -> MapTables:
+        return cls(
+            msm.bank, msm.terrain_embeddings, msm.images, msm.visibility, msm.embedder, list(msm.terrain_classes),
+            msm.voxel_size,
+        )  # fmt: skip
+
+
 def write_map(
     writer: BundleWriter,
     msm: MetricSemanticMap,
@@ -57,45 +83,58 @@ def write_map(
     writer.put_array("map/counts_indptr", counts.indptr.astype(np.int64))
     writer.put_array("map/counts_indices", counts.indices.astype(np.int32))
     writer.put_array("map/counts_data", smallest_unsigned(counts.data))
-    stored_bank = np.asarray(msm.bank, dtype=np.float16).reshape(-1, msm.dim)
-    writer.put_array("map/bank", stored_bank)
+    stored_bank = write_map_tables(writer, MapTables.of(msm), dataset, classes)
     # From the bank as load_map will see it (float16, renormalised), so loaded norms are exact.
     writer.put_array("map/ms_avg_norm", ms_avg_norms(counts, normalize_rows(stored_bank.astype(np.float32))))
     writer.put_array("map/ms_max_id", ms_max_ids(counts).astype(np.int32))
-    writer.put_array("map/terrain_embeddings", np.asarray(msm.terrain_embeddings, dtype=np.float32))
-    images = msm.images
+    sizes = {"points": len(msm), "observations": int(counts.nnz)}
+    set_map_component(writer, msm.bank, len(msm.images), sizes, int(np.count_nonzero(np.diff(counts.indptr))))
+    writer.update_component("map", config=config or {}, stats=stats or {})
+
+
+def set_map_component(writer: BundleWriter, bank: np.ndarray, images: int, sizes: dict, observed: int) -> None:
+    """Manifest entry components.map with the stored map's counts (sizes: points, observations)."""
+    writer.set_component(
+        "map",
+        {
+            "points": int(sizes["points"]),
+            "bank": int(bank.shape[0]),
+            "images": int(images),
+            "observations": int(sizes["observations"]),
+            "observed_points": observed,
+        },
+    )
+
+
+def write_map_tables(writer: BundleWriter, tables: MapTables, dataset: str, classes: list[dict] | None) -> np.ndarray:
+    """Put the map's bank, terrain embeddings, image table, visibility index and map/meta.json
+    into the version being written; set the embedder and terrain classes. Returns the bank as stored."""
+    dim = int(tables.terrain_embeddings.shape[1]) if tables.bank.ndim != 2 else int(tables.bank.shape[1])
+    stored_bank = np.asarray(tables.bank, dtype=np.float16).reshape(-1, dim)
+    writer.put_array("map/bank", stored_bank)
+    writer.put_array("map/terrain_embeddings", np.asarray(tables.terrain_embeddings, dtype=np.float32))
+    images = tables.images
     writer.put_array("map/images/stamp", images.stamp.astype(np.float64))
     writer.put_array("map/images/camera", images.camera.astype(np.int16))
     writer.put_array("map/images/T_map_cam", images.T_map_cam.astype(np.float64))
-    writer.put_array("map/images/embedding", images.embedding.astype(np.float16).reshape(-1, msm.dim))
-    vis = msm.visibility
+    writer.put_array("map/images/embedding", images.embedding.astype(np.float16).reshape(-1, dim))
+    vis = tables.visibility
     if vis is not None:
         writer.put_array("map/visibility/cells", vis.cell_keys.astype(np.int64))
         writer.put_array("map/visibility/indptr", vis.indptr.astype(np.int64))
         writer.put_array("map/visibility/images", vis.images.astype(np.int32))
     meta = {
         "format": MAP_FORMAT,
-        "voxel_size": float(msm.voxel_size),
+        "voxel_size": float(tables.voxel_size),
         "visibility_cell_size": None if vis is None else float(vis.cell_size),
         "camera_names": list(images.camera_names),
         "dataset": dataset,
         "classes": classes or [],
     }
     writer.put_json("map/meta.json", meta)
-    writer.set_embedder(msm.embedder, msm.dim)
-    writer.set_terrain_classes(list(msm.terrain_classes))
-    writer.set_component(
-        "map",
-        {
-            "points": len(msm),
-            "bank": int(msm.bank.shape[0]),
-            "images": len(images),
-            "observations": int(counts.nnz),
-            "observed_points": int(np.count_nonzero(np.diff(counts.indptr))),
-            "config": config or {},
-            "stats": stats or {},
-        },
-    )
+    writer.set_embedder(tables.embedder, dim)
+    writer.set_terrain_classes(list(tables.terrain_classes))
+    return stored_bank
 
 
 def _map_info(bundle: Bundle) -> tuple[dict[str, int], MapMeta]:
@@ -158,7 +197,10 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     structure of the sparse counts and visibility index. max_ids: False checks the stored MS-Max
     ids but does not keep them (8 bytes a point; `ms_max_ids` computes them if asked), for callers
     that never use them, such as `terra build`."""
-    if not bundle.has("map/points"):
+    from terra.mapping.chunks import is_chunked, sorted_view
+
+    chunked = is_chunked(bundle)
+    if not bundle.has("map/points") and not chunked:
         raise TerraError(f"{bundle.path}: bundle has no map component; build one with `terra map`")
     sizes, meta = _map_info(bundle)
     embedder = bundle.model.embedder
@@ -173,9 +215,13 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     def array(name: str) -> np.ndarray:
         return bundle.array(name, specs[name])
 
-    points = array("map/points")
+    if chunked:  # a live version: rows in creation order, sorted here (terra/mapping/chunks.py)
+        points, votes, counts = sorted_view(bundle, sizes["N"], sizes["K"], sizes["T"])
+        if counts.nnz != sizes["nnz"]:
+            raise TerraError(f"{bundle.path}/map/chunks: {counts.nnz} observations, the manifest says {sizes['nnz']}")
+    else:
+        points, votes, counts = array("map/points"), array("map/terrain_votes"), _counts(bundle, array, sizes)
     bank = normalize_rows(array("map/bank").astype(np.float32))
-    counts = _counts(bundle, array, sizes)
     images = ImageTable(
         stamp=array("map/images/stamp"),
         camera=array("map/images/camera"),
@@ -186,7 +232,7 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     msm = MetricSemanticMap(
         points=points,
         terrain_classes=list(bundle.model.terrain_classes),
-        terrain_votes=array("map/terrain_votes"),
+        terrain_votes=votes,
         terrain_embeddings=array("map/terrain_embeddings").astype(np.float32),
         counts=counts,
         bank=bank,

@@ -7,7 +7,9 @@ from typing import Any
 import numpy as np
 
 from terra.bundle import Bundle
+from terra.mapping.chunks import capped_votes, is_chunked, read_rows
 from terra.mapping.sessions import session_list
+from terra.npy import ArraySpec
 
 
 def terrain_histogram(votes: np.ndarray, terrain_classes: list[str], min_share: float = 0.5) -> dict[str, int]:
@@ -23,6 +25,14 @@ def terrain_histogram(votes: np.ndarray, terrain_classes: list[str], min_share: 
     return out
 
 
+def _terrain_votes(bundle: Bundle, n: int, k: int, t: int) -> np.ndarray:
+    """(N, T) uint16 votes as the read view has them, from either map layout (terra/mapping/chunks.py)."""
+    if is_chunked(bundle):
+        return capped_votes(read_rows(bundle, ("votes",), n, k, t)["votes"])
+    spec = ArraySpec(("uint16",), (n, t), what="votes per point and terrain class")
+    return bundle.array("map/terrain_votes", spec, mmap=True)
+
+
 def map_summary(bundle: Bundle) -> dict[str, Any]:
     """Counts, terrain histogram, skipped-frame counters and bytes per component of `bundle`."""
     manifest = bundle.model
@@ -36,13 +46,8 @@ def map_summary(bundle: Bundle) -> dict[str, Any]:
         "bytes": bundle.component_bytes(),
     }
     info = bundle.model.components.map
-    if info is not None and bundle.has("map/terrain_votes"):
-        from terra.npy import ArraySpec
-
-        spec = ArraySpec(
-            ("uint16",), (info.points, len(out["terrain_classes"])), what="votes per point and terrain class"
-        )
-        votes = bundle.array("map/terrain_votes", spec, mmap=True)
+    if info is not None and info.points is not None and (bundle.has("map/terrain_votes") or is_chunked(bundle)):
+        votes = _terrain_votes(bundle, info.points, info.bank or 0, len(out["terrain_classes"]))
         out["map"] = {
             "points": info.points,
             "bank_entries": info.bank,

@@ -15,7 +15,7 @@ from terra.bundle import Bundle
 from terra.errors import TerraError
 from terra.fileio import writing
 from terra.mapping.changes import BLOCKED, ChangesResult
-from terra.npy import ArraySpec
+from terra.mapping.sessions import map_points
 from terra.viz.places import distinct_palette
 from terra.viz.style import Extent, figure_legend, new_figure, save_figure, topdown_axis, view_extent
 
@@ -66,9 +66,8 @@ def changes_figure(result: ChangesResult, path: Path) -> Path:
     """Draw `result` over its bundle's map points and write the PNG to `path` (TerraError, one line, when
     it cannot be written)."""
     bundle = Bundle(result.bundle)
-    info = bundle.model.components.map
-    n = int(info.points or 0) if info is not None else 0
-    points = np.asarray(bundle.array("map/points", ArraySpec(("float32",), (n, 3), finite=True)), np.float64)
+    points = np.asarray(map_points(bundle), np.float64)  # either map layout
+    n = points.shape[0]
     if n > MAX_GREY_POINTS:  # an even spread, the same on every run
         points = points[np.linspace(0, n - 1, MAX_GREY_POINTS).astype(np.int64)]
     extent = _extent(points, result)

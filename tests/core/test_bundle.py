@@ -75,6 +75,31 @@ def test_corruption_and_bad_schema_are_one_line_errors(tmp_path):
         Bundle(tmp_path)
 
 
+def test_a_version_shares_the_files_whose_bytes_did_not_change(tmp_path):
+    """Shared arrays whose bytes equal the base's file are a hard link to it, even in a dropped
+    component; changed bytes are a new file; a damaged base file is written again, never linked."""
+    b = _write(tmp_path / "b", np.ones((3, 3), dtype=np.float32))
+    inode = (b.path / "map/points.npy").stat().st_ino
+    with BundleWriter(b.path, base=b, drop_components=("map",)) as w:
+        w.set_component("map", {"points": 3})
+        w.put_array("map/points", np.ones((3, 3), dtype=np.float32), share=True)
+        w.put_json("map/meta.json", {"voxel_size": 0.5})
+    b2 = Bundle(b.path)
+    assert (b2.path / "map/points.npy").stat().st_ino == inode
+    assert b2.json("map/meta.json") == {"voxel_size": 0.5}
+    b2.verify()
+    damaged = b2.path / "map/points.npy"
+    data = bytearray(damaged.read_bytes())
+    data[-1] ^= 1
+    damaged.write_bytes(bytes(data))
+    with BundleWriter(b.path, base=Bundle(b.path), drop_components=("map",)) as w:
+        w.set_component("map", {"points": 3})
+        w.put_array("map/points", np.ones((3, 3), dtype=np.float32), share=True)
+    b3 = Bundle(b.path)
+    b3.verify()
+    np.testing.assert_array_equal(b3.array("map/points"), np.ones((3, 3), dtype=np.float32))
+
+
 def test_object_arrays_are_refused(tmp_path):
     w = BundleWriter(tmp_path / "b")
     with pytest.raises(TypeError):

@@ -1,8 +1,10 @@
 """The live map (terra.live.Session) and `terra map --append` against one batch run of the same frames.
 
 The batch reference is `tiny_bundle`: simulate('tiny', 0) mapped in one `build_map` run with the
-default MappingConfig. A drive fed frame by frame, or mapped in two parts, must give the same map
-files byte for byte (map/meta.json too: the same source name), fusion state included.
+default MappingConfig. A drive fed frame by frame, or mapped in two parts, must give the same map:
+a live snapshot (row chunks, terra/mapping/chunks.py) as `load_map` reads it, and a closed session or
+a batch continuation the same map files byte for byte (map/meta.json too: the same source name),
+fusion state included.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from terra.graph.config import BuildConfig
 from terra.live import LiveFrameError, Session
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
-from tests.mapping.fixtures import folder_digest
+from tests.mapping.fixtures import assert_same_map, folder_digest
 
 
 class FrameRange:
@@ -53,7 +55,8 @@ def test_batch_map_keeps_its_fusion_state(tiny_campus, tiny_bundle):
 
 
 def test_live_fed_drive_equals_the_batch_map(tiny_campus, tiny_bundle, tmp_path):
-    session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), graph=False, name=tiny_campus.name)
+    out = tmp_path / "live.terra"
+    session = Session(out, tiny_campus.classes, MappingConfig(), graph=False, name=tiny_campus.name, chunk_rows=4096)
     half = len(tiny_campus) // 2
     for i in range(half):
         session.add(tiny_campus[i])
@@ -64,7 +67,11 @@ def test_live_fed_drive_equals_the_batch_map(tiny_campus, tiny_bundle, tmp_path)
         session.add(tiny_campus[i])
     final = session.snapshot()
     assert final.version == 2 and len(early.bundle.msm) == early_points < len(final.bundle.msm)
-    assert map_files(tmp_path / "live.terra") == map_files(tiny_bundle.path)
+    assert Bundle(out).has("map/chunks/00009/points") and not Bundle(out).has("map/points")
+    assert_same_map(out, tiny_bundle.path)
+    closing = session.close()  # the closing version in the flat layout batch runs write
+    assert closing is not None and closing.version == 3
+    assert map_files(out) == map_files(tiny_bundle.path)
 
 
 def test_append_in_two_parts_equals_one_run(tiny_campus, tiny_bundle, tmp_path):
@@ -112,6 +119,8 @@ def test_a_resumed_session_continues_the_drive(tiny_campus, tiny_bundle, tmp_pat
     for i in range(cut, len(tiny_campus)):
         resumed.add(tiny_campus[i])
     resumed.snapshot()
+    assert_same_map(out, tiny_bundle.path)
+    resumed.close()
     assert map_files(out) == map_files(tiny_bundle.path)
 
 
@@ -154,7 +163,7 @@ install(sys.argv[1], int(sys.argv[2]))
 from terra.live import Session
 from terra.sim import simulate
 dataset = simulate("tiny", seed=0)
-session = Session(sys.argv[3], dataset.classes, graph=False, name=dataset.name)
+session = Session(sys.argv[3], dataset.classes, graph=False, name=dataset.name, chunk_rows=4096)
 for i in range(len(dataset)):
     session.add(dataset[i])
     if (i + 1) % 4 == 0:
@@ -162,7 +171,7 @@ for i in range(len(dataset)):
 """
 
 
-@pytest.mark.parametrize("nth_write", [30, 75])
+@pytest.mark.parametrize("nth_write", [60, 200])
 def test_kill_during_a_snapshot_keeps_the_last_version_and_resumes(tiny_campus, tiny_bundle, tmp_path, nth_write):
     """SIGKILL the feeding process in the middle of writing a snapshot (the Nth file written); the bundle
     still opens at its last committed version, and a resumed session re-fed from its next frame ends
@@ -184,11 +193,13 @@ def test_kill_during_a_snapshot_keeps_the_last_version_and_resumes(tiny_campus, 
     bundle.verify()
     info = bundle.model.components.map
     assert info is not None and info.frames is not None and info.frames % 4 == 0 and bundle.version >= 1
-    resumed = Session(out, tiny_campus.classes, graph=False, resume=True, name=tiny_campus.name)
+    resumed = Session(out, tiny_campus.classes, graph=False, resume=True, name=tiny_campus.name, chunk_rows=4096)
     assert resumed.frames == info.frames
     for i in range(resumed.frames, len(tiny_campus)):
         resumed.add(tiny_campus[i])
     resumed.snapshot()
+    assert_same_map(out, tiny_bundle.path)
+    resumed.close()
     assert map_files(out) == map_files(tiny_bundle.path)
     leftovers = [p.name for p in tmp_path.iterdir() if p.name != "live.terra"]
     assert leftovers == []

@@ -15,10 +15,12 @@ from terra.errors import TerraError
 from terra.geometry import invert_pose
 from terra.live import Session
 from terra.mapping.align import pose_from_guess
+from terra.mapping.changes import detect_changes
 from terra.mapping.config import MappingConfig
 from terra.mapping.pipeline import run_mapping
-from terra.mapping.sessions import SessionFrames, plan_join, session_list
+from terra.mapping.sessions import SessionFrames, map_points, plan_join, session_list
 from tests.live.test_session import FrameRange, map_files
+from tests.mapping.fixtures import assert_same_map
 
 T_TRUE = pose_from_guess(50.0, -10.0, 90.0)
 
@@ -56,6 +58,14 @@ def test_a_live_join_equals_the_batch_join(tiny_campus, tmp_path):
     for i in range(len(second)):
         assert session.add(second[i])
     session.snapshot()
+    assert_same_map(live, batch)  # a live version (row chunks) as load_map reads it
+    np.testing.assert_array_equal(map_points(Bundle(live)), map_points(Bundle(batch)))
+    changed, expected = detect_changes(live, 1, 2), detect_changes(batch, 1, 2)  # `terra changes` on both layouts
+    assert changed.observed_area_m2 == expected.observed_area_m2 > 0
+    assert [o.to_json() for o in changed.objects] == [o.to_json() for o in expected.objects]
+    assert changed.terrain_pairs == expected.terrain_pairs
+    np.testing.assert_array_equal(changed.terrain_cells, expected.terrain_cells)
+    session.close()
     # map/meta.json names the live session's source (as a resumed live map does); the map itself is the same.
     assert {k: v for k, v in map_files(live).items() if k != "map/meta.json"} == {
         k: v for k, v in map_files(batch).items() if k != "map/meta.json"

@@ -21,6 +21,29 @@ from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass
 from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays, transform_points
 
 
+def assert_same_map(a, b) -> None:
+    """The maps `a` and `b` (bundle paths, read by `load_map`, or MetricSemanticMaps) are equal: every
+    array, the MS-Avg norms and MS-Max ids included."""
+    from terra.bundle import Bundle
+    from terra.mapping.semantic_map import MetricSemanticMap
+    from terra.mapping.storage import load_map
+
+    x, y = (m if isinstance(m, MetricSemanticMap) else load_map(Bundle(m)) for m in (a, b))
+    for name in ("points", "terrain_votes", "terrain_embeddings", "bank"):
+        np.testing.assert_array_equal(getattr(x, name), getattr(y, name), err_msg=name)
+        assert getattr(x, name).dtype == getattr(y, name).dtype, name
+    for name in ("indptr", "indices", "data"):
+        np.testing.assert_array_equal(getattr(x.counts, name), getattr(y.counts, name), err_msg=name)
+    np.testing.assert_array_equal(x.ms_avg_norms(), y.ms_avg_norms())
+    np.testing.assert_array_equal(x.ms_max_ids(), y.ms_max_ids())
+    for name in ("stamp", "camera", "T_map_cam", "embedding"):
+        np.testing.assert_array_equal(getattr(x.images, name), getattr(y.images, name), err_msg=name)
+    assert x.visibility is not None and y.visibility is not None
+    for name in ("cell_keys", "indptr", "images"):
+        np.testing.assert_array_equal(getattr(x.visibility, name), getattr(y.visibility, name), err_msg=name)
+    assert (x.embedder, x.terrain_classes, x.voxel_size) == (y.embedder, y.terrain_classes, y.voxel_size)
+
+
 def folder_digest(path) -> dict[str, str]:
     """SHA-256 per file of a folder (relative path -> hex), to compare bundles byte for byte."""
     import hashlib

@@ -1,0 +1,231 @@
+"""Row chunks: how a live map version stores its per-point arrays, so that the next version shares
+with it every chunk in which no point changed (issue 25: a snapshot costs what changed, not the map).
+
+The flat layout (terra/mapping/storage.py, terra/mapping/state.py) stores every per-point array in
+the voxel-key order of the read view; one new voxel shifts every row after it, so each version
+wrote the whole map again. A chunked version (components.map.chunk_rows = R) keeps them instead
+in creation order (the order in which the fusion first saw each point: new points are appended),
+cut into chunks of R rows; chunk c holds rows [c R, (c + 1) R), under `map/chunks/<c, 5 digits>/`:
+  keys (r,) int64 voxel keys, sums (r, 3) float64 metres, hits (r,) smallest unsigned type:
+  the voxel accumulators (voxel maps only; a fixed map's point order is its own);
+  points (r, 3) float32 metres, map frame (sums / hits on a voxel map);
+  votes (r, T) smallest unsigned type: terrain votes, exact (the read view caps them at 65,535);
+  counts_indptr (r + 1,) int64, counts_indices (nnz_c,) int32, counts_data (nnz_c,) smallest
+  unsigned type: the chunk's rows of the sparse (N, K) observation counts;
+  session_hits (r, S), session_votes (S, r, T), smallest unsigned type: only with S > 1 sessions.
+The rest of `map/` (bank, terrain embeddings, images, visibility, meta.json, state/bank,
+state/meta.json) is stored as in the flat layout, and the flat per-point files are absent.
+
+A version rewrites the chunks holding a row the fusion touched since the version before
+(`MapFusion.touched`: every change of a row comes from a scan point associated to it; a new
+session touches every row) and the last, growing one, and hard-links the others from the version
+it starts from (BundleWriter.keep_from_base). Each file is verified by its SHA-256 as any bundle file.
+Readers derive the flat read view on load (`sorted_view`): rows sorted by voxel key, exactly the
+arrays of the flat layout; MS-Avg norms and MS-Max ids are computed when first asked.
+Live sessions write chunked versions; batch runs (`terra map`, `--append`) and a session's closing
+version write the flat layout, which every reader of finished bundles expects.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse as sp
+
+from terra.errors import TerraError
+from terra.mapping.association import VoxelMap, grown
+from terra.mapping.fusion import MapFusion
+from terra.mapping.storage import smallest_unsigned
+from terra.npy import ArraySpec, check_csr
+
+if TYPE_CHECKING:
+    from terra.bundle import Bundle, BundleWriter
+
+CHUNK_ROWS = 1 << 16  # 65,536 points: about 4 MB a chunk; a campus snapshot rewrites a third of them
+_UNSIGNED = ("uint8", "uint16", "uint32", "uint64")
+_U16_MAX = int(np.iinfo(np.uint16).max)
+_ENTRY_MASK = (1 << 32) - 1
+
+
+def chunk_folder(c: int) -> str:
+    return f"map/chunks/{c:05d}"
+
+
+def chunk_files(c: int, voxel: bool, sessions: bool) -> list[str]:
+    """The file names of chunk `c` (module docstring)."""
+    names = ["points", "votes", "counts_indptr", "counts_indices", "counts_data"]
+    names += ["keys", "sums", "hits"] if voxel else []
+    names += ["session_hits", "session_votes"] if sessions else []
+    return [f"{chunk_folder(c)}/{name}.npy" for name in names]
+
+
+def chunk_count(n: int, rows: int) -> int:
+    return (n + rows - 1) // rows
+
+
+def write_chunks(writer: BundleWriter, fusion: MapFusion, base: Bundle | None, rows: int = CHUNK_ROWS) -> int:
+    """Put the per-point arrays of `fusion` into the version being written as chunks of `rows`
+    rows, carrying unchanged chunks over from `base` (the version the writer starts from, whose
+    chunks hold the fusion's rows as they were when it was committed). Returns the chunks written."""
+    n = fusion.geometry.size
+    count = chunk_count(n, rows)
+    changed = np.zeros(count, dtype=bool)
+    changed[fusion.touched_rows() // rows] = True
+    info = base.model.components.map if base is not None else None
+    shareable = info is not None and info.chunk_rows == rows
+    voxel, sessions = isinstance(fusion.geometry, VoxelMap), fusion.session_hits.shape[1] > 1
+    fusion.counts.compact()
+    count_rows = fusion.counts.keys >> 32
+    written = 0
+    for c in range(count):
+        if shareable and not changed[c] and writer.keep_from_base(chunk_files(c, voxel, sessions)):
+            continue
+        _put_chunk(writer, fusion, c, c * rows, min(n, (c + 1) * rows), count_rows)
+        written += 1
+    return written
+
+
+def _put_chunk(writer: BundleWriter, fusion: MapFusion, c: int, start: int, stop: int, count_rows: np.ndarray) -> None:
+    """Chunk `c`: rows [start, stop) of the fusion state (module docstring)."""
+    folder, geometry, n = chunk_folder(c), fusion.geometry, fusion.geometry.size
+
+    def put(name: str, array: np.ndarray) -> None:  # an array that did not change keeps its file
+        writer.put_array(name, array, share=True)
+
+    if isinstance(geometry, VoxelMap):
+        voxels = geometry.state(slice(start, stop))  # views: written from the fusion's own memory
+        put(f"{folder}/keys", voxels["keys"])
+        put(f"{folder}/sums", voxels["sums"])
+        put(f"{folder}/hits", smallest_unsigned(voxels["hits"]))
+        points = (voxels["sums"] / voxels["hits"][:, None]).astype(np.float32)  # as VoxelMap.points()
+    else:
+        points = geometry.points()[start:stop]
+    put(f"{folder}/points", points)
+    put(f"{folder}/votes", smallest_unsigned(grown(fusion.votes, n)[start:stop]))
+    lo, hi = np.searchsorted(count_rows, [start, stop])
+    local = count_rows[lo:hi] - start
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(local, minlength=stop - start))]).astype(np.int64)
+    put(f"{folder}/counts_indptr", indptr)
+    put(f"{folder}/counts_indices", (fusion.counts.keys[lo:hi] & _ENTRY_MASK).astype(np.int32))
+    put(f"{folder}/counts_data", smallest_unsigned(fusion.counts.values[lo:hi]))
+    if fusion.session_hits.shape[1] > 1:
+        put(f"{folder}/session_hits", smallest_unsigned(grown(fusion.session_hits, n)[start:stop]))
+        put(f"{folder}/session_votes", smallest_unsigned(fusion.row_session_votes(start, stop)))
+
+
+def is_chunked(bundle: Bundle) -> bool:
+    info = bundle.model.components.map
+    return info is not None and info.chunk_rows is not None
+
+
+def read_rows(bundle: Bundle, names: tuple[str, ...], n: int, k: int, t: int) -> dict[str, np.ndarray]:
+    """The arrays `names` of a chunked map (e.g. "points", "votes", "counts", "keys") over its `n`
+    rows in creation order, each chunk checked against its size and SHA-256 and its shape and
+    dtype; "counts" gives counts_indptr, counts_indices, counts_data of the whole (n, k) matrix."""
+    info = bundle.model.components.map
+    rows = int(info.chunk_rows or 0) if info is not None else 0
+    if rows < 1:
+        raise TerraError(f"{bundle.path}/manifest.json: field 'components.map.chunk_rows' must be at least 1")
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in names if name != "counts"}
+    indptr, indices, data = [np.zeros(1, np.int64)], [np.zeros(0, np.int32)], [np.zeros(0, np.uint8)]
+    for c in range(chunk_count(n, rows)):
+        r = min(rows, n - c * rows)
+        for name in parts:
+            parts[name].append(bundle.array(f"{chunk_folder(c)}/{name}", _spec(name, r, t)))
+        if "counts" in names:
+            p, i, d = _chunk_counts(bundle, c, r, k)
+            indptr.append(p[1:] + indptr[-1][-1])
+            indices.append(i)
+            data.append(d)
+    out = {name: np.concatenate(arrays) if arrays else _empty(name, t) for name, arrays in parts.items()}
+    if "session_votes" in out and parts["session_votes"]:
+        out["session_votes"] = np.concatenate(parts["session_votes"], axis=1)
+    if "counts" in names:
+        out.update(counts_indptr=np.concatenate(indptr), counts_indices=np.concatenate(indices))
+        out["counts_data"] = np.concatenate([d.astype(np.int64) for d in data])
+    return out
+
+
+def _chunk_counts(bundle: Bundle, c: int, r: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    folder = chunk_folder(c)
+    indptr = bundle.array(f"{folder}/counts_indptr", ArraySpec(("int64",), (r + 1,), what="chunk row pointer"))
+    indices = bundle.array(f"{folder}/counts_indices", ArraySpec(("int32",), (None,), what="bank ids"))
+    data = bundle.array(
+        f"{folder}/counts_data", ArraySpec(_UNSIGNED, (indices.shape[0],), low=0, high=2**31 - 1, what="counts")
+    )
+    check_csr(indptr, indices, r, k, f"{bundle.path}/{folder}/counts_*.npy")
+    return indptr, indices, data
+
+
+def _spec(name: str, r: int, t: int) -> ArraySpec:
+    specs = {
+        "keys": ArraySpec(("int64",), (r,), what="voxel keys"),
+        "sums": ArraySpec(("float64",), (r, 3), finite=True, what="voxel coordinate sums, metres"),
+        "hits": ArraySpec(_UNSIGNED, (r,), low=1, what="returns per voxel"),
+        "points": ArraySpec(("float32",), (r, 3), finite=True, what="x, y, z metres, map frame"),
+        "votes": ArraySpec(_UNSIGNED, (r, t), what="votes per point and terrain class"),
+        "session_hits": ArraySpec(_UNSIGNED, (r, None), what="returns per point and session"),
+        "session_votes": ArraySpec(_UNSIGNED, (None, r, t), what="terrain votes per session"),
+    }
+    return specs[name]
+
+
+def _empty(name: str, t: int) -> np.ndarray:
+    shapes = {"sums": (0, 3), "points": (0, 3), "votes": (0, t), "session_hits": (0, 1), "session_votes": (1, 0, t)}
+    dtype = {"keys": np.int64, "sums": np.float64, "points": np.float32}.get(name, np.uint8)
+    return np.zeros(shapes.get(name, (0,)), dtype=dtype)
+
+
+def capped_votes(votes: np.ndarray) -> np.ndarray:
+    """Terrain votes as the read view stores them: uint16, capped at 65,535."""
+    if votes.dtype.itemsize > 2:
+        votes = np.minimum(votes, np.asarray(_U16_MAX, dtype=votes.dtype))
+    return votes.astype(np.uint16)
+
+
+def sorted_view(bundle: Bundle, n: int, k: int, t: int) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
+    """(points (N, 3) float32, terrain votes (N, T) uint16, counts (N, K) CSR int32) of a chunked
+    map in the read view's order (by voxel key; a fixed map's own order): the arrays the flat
+    layout stores for the same map."""
+    voxel = n > 0 and bundle.has(f"{chunk_folder(0)}/keys")
+    rows = read_rows(bundle, ("points", "votes", "counts", *(("keys",) if voxel else ())), n, k, t)
+    counts = sp.csr_matrix(
+        (rows["counts_data"].astype(np.int32), rows["counts_indices"], rows["counts_indptr"]), shape=(n, k)
+    )
+    if not voxel:
+        return rows["points"], capped_votes(rows["votes"]), counts
+    # Keys are unique (checked below): any sort gives the one order. int32 row numbers gather faster.
+    order = np.argsort(rows["keys"]).astype(np.int32 if n < 2**31 else np.int64)
+    if n > 1 and np.any(np.diff(_gather_rows(rows["keys"], order)) == 0):
+        raise TerraError(f"{bundle.path}/map/chunks: a voxel key is stored twice (corrupt bundle)")
+    votes = capped_votes(_gather_rows(rows["votes"], order))
+    ordered = counts[order]  # rows keep their sorted bank ids
+    return _gather_rows(rows["points"], order), votes, ordered  # pyright: ignore[reportReturnType]  # stays csr
+
+
+def _gather_rows(array: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """array[order] along the first axis, each row moved as one opaque item (several times faster than
+    NumPy's fancy indexing of a 2-D array with few columns)."""
+    array = np.ascontiguousarray(array)
+    row = np.dtype((np.void, array.dtype.itemsize * int(np.prod(array.shape[1:], dtype=np.int64))))
+    return array.view(row).reshape(-1)[order].view(array.dtype).reshape(-1, *array.shape[1:])
+
+
+def stored_rows(bundle: Bundle, names: tuple[str, ...], n: int, k: int, t: int) -> dict[str, np.ndarray]:
+    """`read_rows` of a chunked map with its rows in the read view's order (by voxel key), as the flat
+    layout stores them: points, votes (exact), session_hits, session_votes and "counts" (a CSR
+    matrix), for readers of a joined map's sessions (terra/mapping/changes.py, sessions.py)."""
+    voxel = n > 0 and bundle.has(f"{chunk_folder(0)}/keys")
+    rows = read_rows(bundle, (*names, *(("keys",) if voxel else ())), n, k, t)
+    order = np.argsort(rows["keys"]) if voxel else np.arange(n)
+    out: dict[str, np.ndarray] = {}
+    for name in names:
+        if name == "counts":
+            counts = sp.csr_matrix((rows["counts_data"], rows["counts_indices"], rows["counts_indptr"]), shape=(n, k))
+            out[name] = counts[order]  # pyright: ignore[reportArgumentType]  # csr indexing stays csr
+        elif name == "session_votes":
+            out[name] = rows[name][:, order]
+        else:
+            out[name] = _gather_rows(rows[name], order)
+    return out
