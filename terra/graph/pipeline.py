@@ -562,7 +562,9 @@ def unique_typed_edges(
 
 
 def _check_bundle(bundle: Bundle) -> None:
-    if not bundle.has_component("map") or not bundle.has("map/points"):
+    from terra.mapping.chunks import is_chunked  # a live version keeps its map in row chunks
+
+    if not bundle.has_component("map") or not (bundle.has("map/points") or is_chunked(bundle)):
         raise TerraError(f"{bundle.path}: the bundle has no map; build one with `terra map` first")
 
 
