@@ -5,7 +5,8 @@ and the byte count against the file's size before anything is allocated, so a he
 10^12 rows is one line, not a 10 TiB allocation. Object, datetime, string and structured dtypes are
 refused (no pickle, nothing the numeric code below cannot use). `ArraySpec` states what an array
 must be (dtypes, shape, finiteness, a value range); `check_csr` checks the structure of a sparse
-row-compressed matrix before SciPy or a compiled kernel trusts it.
+row-compressed matrix before SciPy or a compiled kernel trusts it. `smallest_unsigned` picks the
+dtype counts are stored in.
 """
 
 from __future__ import annotations
@@ -177,3 +178,12 @@ def write_npy(path: str | Path, array: np.ndarray) -> None:
     buf = io.BytesIO()
     np.save(buf, array, allow_pickle=False)  # the same bytes as np.save to a path
     Path(path).write_bytes(buf.getvalue())
+
+
+def smallest_unsigned(values: np.ndarray) -> np.ndarray:
+    """`values` (non-negative integers) in the smallest unsigned dtype that holds them."""
+    top = int(values.max(initial=0))
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        if top <= np.iinfo(dtype).max:
+            return values.astype(dtype)
+    return values.astype(np.uint64)

@@ -36,8 +36,7 @@ import scipy.sparse as sp
 from terra.errors import TerraError
 from terra.mapping.association import VoxelMap, grown
 from terra.mapping.fusion import MapFusion
-from terra.mapping.storage import smallest_unsigned
-from terra.npy import ArraySpec, check_csr
+from terra.npy import ArraySpec, check_csr, smallest_unsigned
 
 if TYPE_CHECKING:
     from terra.bundle import Bundle, BundleWriter

@@ -36,9 +36,9 @@ from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
-from terra.mapping.storage import MapTables, set_map_component, smallest_unsigned, write_map, write_map_tables
+from terra.mapping.storage import MapTables, set_map_component, write_map, write_map_tables
 from terra.mapping.visibility import VisibilityIndex
-from terra.npy import ArraySpec
+from terra.npy import ArraySpec, smallest_unsigned
 from terra.perception.base import Perception
 
 STATE_FORMAT = 1

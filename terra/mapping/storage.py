@@ -30,20 +30,11 @@ from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
 from terra.mapping.semantic_map import ImageTable, MetricSemanticMap, ms_avg_norms, ms_max_ids
 from terra.mapping.visibility import VisibilityIndex
-from terra.npy import ArraySpec, check_csr
+from terra.npy import ArraySpec, check_csr, smallest_unsigned
 from terra.perception.text import normalize_rows
 from terra.schemas import MapMeta
 
 MAP_FORMAT = 1
-
-
-def smallest_unsigned(values: np.ndarray) -> np.ndarray:
-    """`values` (non-negative integers) in the smallest unsigned dtype that holds them."""
-    top = int(values.max(initial=0))
-    for dtype in (np.uint8, np.uint16, np.uint32):
-        if top <= np.iinfo(dtype).max:
-            return values.astype(dtype)
-    return values.astype(np.uint64)
 
 
 @dataclass
