@@ -2,7 +2,8 @@
 seconds (`terra map SOURCE --follow`).
 
 The session is opened on the first frame (a recording still to start has no name yet); each
-`snapshot_every` seconds with new frames, and once more at the end, the map and its fusion state
+`snapshot_every` seconds with new frames (in row chunks shared between versions), and once more
+at the end (as `Session.close`, in the flat layout batch runs write), the map and its fusion state
 are committed as the bundle's next version, so readers (`terra serve`, `terra find`) see the map
 grow and a crash keeps the last version. Frames reach `Session.add` exactly as `terra map` hands
 them to its mapper, so the final map equals the batch map of the same frames byte for byte.
@@ -72,5 +73,9 @@ def follow(
         commit(due=True)
     if run is None:
         raise TerraError(f"{source.name}: the source gave no frame; nothing mapped")
-    commit(due=False)
+    # The recording ended: the last version in the flat layout batch runs write (the versions before
+    # it share row chunks, terra/mapping/chunks.py), so the bundle is the batch map's, file for file.
+    closed = run.session.close()
+    if closed is not None:
+        run.versions.append(closed.version)
     return run
