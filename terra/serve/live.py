@@ -22,6 +22,7 @@ from terra.live.frames import LiveFrameError
 from terra.live.session import Session, Snapshot
 from terra.live.wire import decode_frame, parse_cameras
 from terra.loaded import LoadedBundle
+from terra.mapping.chunks import is_chunked
 from terra.serve.config import LiveConfig
 
 log = logging.getLogger("terra.serve")
@@ -52,6 +53,9 @@ class LiveService:
         self.cameras: dict[int, CameraCalibration] = {}
         self.counters = Counters()
         self._latest: Snapshot | None = _resumed_snapshot(session)
+        # Whether the latest version is final (flat map, whole graph): a resumed bundle that was
+        # closed is; one a crash left chunked is not.
+        self._final = self._latest is None or not is_chunked(self._latest.bundle.bundle)
         self._committed_fused = self._fused()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -95,8 +99,9 @@ class LiveService:
         builds the graph whole (at close: the session's last graph is the batch graph of its map)."""
         with self._update_lock:
             fused = self._fused()
-            incremental = self._latest is not None and self._latest.graph_update.get("kind") == "incremental"
-            if fused == self._committed_fused and not (full and incremental):
+            # At close, a version that is not yet final is written once more: in the flat layout
+            # batch runs write (a live version keeps row chunks) with the graph built whole.
+            if fused == self._committed_fused and not (full and self._latest is not None and not self._final):
                 return None
             began = time.perf_counter()
             try:
@@ -109,7 +114,7 @@ class LiveService:
             self.counters.updates += 1
             self.counters.last_error = ""
             self._committed_fused = fused
-            self._latest = snapshot
+            self._latest, self._final = snapshot, full
             return snapshot
 
     def status(self) -> dict:
