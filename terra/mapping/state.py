@@ -50,13 +50,13 @@ def write_state(writer: BundleWriter, mapper: Mapper, run: dict[str, Any], chunk
     `run`: what a continuation must match (config, embedder, terrain classes; see `check_run`).
     chunked: the per-point parts are in the version's row chunks (terra/mapping/chunks.py)."""
     fusion = mapper.fusion
-    geometry = fusion.geometry
-    n = geometry.size
-    order = geometry.final_order()
     _put_meta(writer, mapper, run)
     writer.put_array("map/state/bank", np.asarray(fusion.bank.vectors, dtype=np.float32).reshape(-1, fusion.dim))
     if chunked:
         return
+    geometry = fusion.geometry
+    n = geometry.size
+    order = geometry.final_order()
     if isinstance(geometry, VoxelMap):
         voxels = geometry.state(order)
         writer.put_array("map/state/voxel_keys", voxels["keys"])
