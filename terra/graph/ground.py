@@ -414,8 +414,7 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     before2, before, after, after2 = p[..., 0:n], p[..., 1 : n + 1], p[..., 3 : n + 3], p[..., 4 : n + 4]
     jump = np.abs(after - before)
     sides = np.stack([np.abs(before - before2), np.abs(after2 - after)])
-    known = np.isfinite(sides)
-    outer = np.where(known, sides, 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1)
+    outer, known = _side_slope(sides)
     if rise is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
         fallback = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
         outer = np.where(known.any(axis=0), outer, fallback)
@@ -423,6 +422,13 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     if rise is not None:
         step = _bridge_gaps(h, step, np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1)))
     return np.moveaxis(step, -1, axis)
+
+
+def _side_slope(sides: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean of the height differences (2, ...) metres on the two sides of each cell where known
+    (0 where neither is), and which are known (2, ...)."""
+    known = np.isfinite(sides)
+    return np.where(known, sides, 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1), known
 
 
 def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
@@ -451,8 +457,7 @@ def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int 
             )
         sides.append((value, distance, np.abs(beyond - value)))
     (before, db, out_b), (after, da, out_a) = sides
-    known = np.isfinite(np.stack([out_b, out_a]))
-    outer = np.where(known, np.stack([out_b, out_a]), 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1)
+    outer, known = _side_slope(np.stack([out_b, out_a]))
     slope = np.where(known.any(axis=0), outer, rise)
     gap = np.isfinite(h) & np.isnan(step) & np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
     bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(slope), 0.0)
