@@ -442,11 +442,19 @@ class UpdateSection(Section):
         default=8.0, gt=0.0, description="metres; side of the fixed squares that mark where the map changed"
     )
     min_changed_points: int = Field(
-        default=10,
+        default=200,
         ge=1,
         description=(
-            "a tile is rebuilt once it holds this many changed map points (a few new far returns wait for more, or "
-            "for the closing full build)"
+            "a tile is rebuilt once it holds this many changed map points (the ground and objects near the robot); "
+            "sparser changes (far returns, voxel means that moved) wait for more, or for the next sweep"
+        ),
+    )
+    sweep_every: int = Field(
+        default=10,
+        ge=0,
+        description=(
+            "every this many updates, the tiles holding fewer than min_changed_points changed points are rebuilt "
+            "too, so no change waits longer (0: they wait for more, or for the closing full build)"
         ),
     )
     max_pending_points: int = Field(
@@ -458,7 +466,7 @@ class UpdateSection(Section):
         default=8.0, ge=0.0, description="metres around the changed tiles whose places are rebuilt"
     )
     context_margin: float = Field(
-        default=16.0,
+        default=8.0,
         ge=0.0,
         description="metres of map read around the rebuilt area (the GVD of a free area wider than this may differ)",
     )

@@ -75,27 +75,47 @@ from terra.graph.pipeline import (
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
-from terra.mapping.semantic_map import MetricSemanticMap
+from terra.mapping.semantic_map import FusionRows, MetricSemanticMap
 from terra.progress import StageTimer
 
 _HASH = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x27D4EB2F165667C5], dtype=np.uint64)
 
 
-@dataclass(frozen=True)
+@dataclass
 class MapDigest:
-    """What a graph was built from: one hash per map point of its position, rounded to the digest's
-    step, and terrain class, sorted (N,) uint64; `order` (N,) the map point of each; the points
-    (N, 3) float32 metres (map frame) in the map's order."""
+    """What a graph was built from: one hash per map point (N,) uint64, in the map's order, of its
+    position rounded to the digest's step and of its terrain class; the points (N, 3) float32
+    metres (map frame); and, for a map a fusion made, the points' rows in it (`rows`), by which
+    the next version of the same fusion is compared without sorting either."""
 
-    sorted_hashes: np.ndarray
-    order: np.ndarray
+    hashes: np.ndarray
     points: np.ndarray
+    rows: FusionRows | None = None
+    _sorted: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    _by_row: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    def sorted(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the hashes sorted, the map point of each), computed once."""
+        if self._sorted is None:
+            order = np.argsort(self.hashes)
+            self._sorted = (self.hashes[order], order)
+        return self._sorted
+
+    def by_row(self) -> tuple[np.ndarray, np.ndarray]:
+        """(each fusion row's hash, the map point of each row), computed once; needs `rows`."""
+        assert self.rows is not None
+        if self._by_row is None:
+            point = np.empty(len(self.hashes), dtype=np.int64)
+            point[self.rows.rows] = np.arange(len(self.hashes))
+            self._by_row = (self.hashes[point], point)
+        return self._by_row
 
 
-def map_digest(points: np.ndarray, terrain: np.ndarray, step: float) -> MapDigest:
+def map_digest(points: np.ndarray, terrain: np.ndarray, step: float, rows: FusionRows | None = None) -> MapDigest:
     """The digest of map points (N, 3) metres with their terrain classes (N,): each point's
     position rounded to `step` metres (1 mm when 0) and its class, hashed (64 bits: a collision
-    between two of a million points is about one in 10^7, and would only hide one change)."""
+    between two of a million points is about one in 10^7, and would only hide one change);
+    `rows`: the points' rows in the fusion that made them, when known."""
     points = np.asarray(points, dtype=np.float32)
     scale = np.float32(1.0 / max(step, 1e-3))
     hashes = np.asarray(terrain, dtype=np.int64).view(np.uint64) * _HASH[3]
@@ -103,16 +123,33 @@ def map_digest(points: np.ndarray, terrain: np.ndarray, step: float) -> MapDiges
         for axis in range(3):
             cells = np.rint(points[:, axis] * scale).astype(np.int64).view(np.uint64)
             hashes ^= (cells * _HASH[axis]) >> np.uint64(axis)
-    order = np.argsort(hashes)
-    return MapDigest(hashes[order], order, points)
+    if rows is not None and len(rows.rows) != len(points):
+        rows = None
+    return MapDigest(hashes, points, rows)
 
 
 def changed_points(old: MapDigest, new: MapDigest) -> np.ndarray:
     """(K, 2) x, y metres of the points of either digest that the other lacks: points added,
     removed, re-classed or moved by more than the digest's step (both their places count)."""
-    added = new.order[~_members(new.sorted_hashes, old.sorted_hashes)]
-    removed = old.order[~_members(old.sorted_hashes, new.sorted_hashes)]
+    same_fusion = old.rows is not None and new.rows is not None and old.rows.fusion == new.rows.fusion
+    if same_fusion and len(new.hashes) >= len(old.hashes):
+        return _changed_rows(old, new)
+    old_sorted, old_order = old.sorted()
+    new_sorted, new_order = new.sorted()
+    added = new_order[~_members(new_sorted, old_sorted)]
+    removed = old_order[~_members(old_sorted, new_sorted)]
     return np.vstack([new.points[added, :2], old.points[removed, :2]]).astype(np.float64)
+
+
+def _changed_rows(old: MapDigest, new: MapDigest) -> np.ndarray:
+    """changed_points of two maps of one fusion, row by row: a fusion only appends rows, so a row
+    past the old map's is added, and one whose hash differs moved or was re-classed."""
+    old_hash, old_point = old.by_row()
+    new_hash, new_point = new.by_row()
+    kept = len(old_hash)
+    differ = np.flatnonzero(old_hash != new_hash[:kept])
+    now = np.concatenate([new_point[differ], new_point[kept:]])
+    return np.vstack([new.points[now, :2], old.points[old_point[differ], :2]]).astype(np.float64)
 
 
 def _members(values: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:
@@ -167,13 +204,14 @@ class TileZone:
         return float(sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in self.crops))
 
 
-def tile_zone(changed_xy: np.ndarray, config: BuildConfig) -> TileZone | None:
+def tile_zone(changed_xy: np.ndarray, config: BuildConfig, min_points: int | None = None) -> TileZone | None:
     """The zone around changed positions (K, 2) metres (module docstring): the tiles holding at
-    least `update.min_changed_points` of them, grown; None when no tile holds that many."""
+    least `min_points` of them (default `update.min_changed_points`), grown; None when no tile
+    holds that many."""
     up = config.update
     tile = up.tile
     ij, count = np.unique(np.floor(changed_xy / tile).astype(np.int64), axis=0, return_counts=True)
-    ij = ij[count >= up.min_changed_points]
+    ij = ij[count >= (up.min_changed_points if min_points is None else min_points)]
     if len(ij) == 0:
         return None
     grow = int(np.ceil(up.replace_margin / tile))
@@ -227,6 +265,7 @@ class UpdateStats:
     places_removed: int = 0
     stitched_edges: int = 0
     regions_reclustered: bool = True
+    sweep: bool = False
 
     def to_json(self) -> dict:
         return {
@@ -240,6 +279,7 @@ class UpdateStats:
             "places_removed": self.places_removed,
             "stitched_edges": self.stitched_edges,
             "regions_reclustered": self.regions_reclustered,
+            "sweep": self.sweep,
         }
 
 
@@ -264,6 +304,7 @@ class GraphUpdater:
         self._replaced_since_clustering = 0
         # Changed points in tiles that held too few to be rebuilt yet: they count again next time.
         self._pending = np.zeros((0, 2))
+        self._since_sweep = 0  # updates since the last that rebuilt every waiting change
 
     def update(self, msm: MetricSemanticMap, full: bool = False) -> GraphUpdate:
         """The graph of `msm` (see the class docstring); TerraError when the map gives nothing to build on."""
@@ -276,15 +317,13 @@ class GraphUpdater:
         else:
             point_terrain = msm.terrain_index(self.config.terrain.min_share, dtype=np.int16)
             point_terrain[~np.isin(point_terrain, terrains)] = -1
-        digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance)
+        digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance, msm.fusion_rows)
         why = self._full_reason(full)
         if why:
             result = self._full(full_map, why)
         else:
             assert self._digest is not None and self.graph is not None
-            changed = np.vstack([self._pending, changed_points(self._digest, digest)])
-            zone = tile_zone(changed, self.config)
-            self._pending = changed if zone is None else changed[~zone.in_zone(changed)]
+            zone, changed, sweep = self._zone(digest)
             if zone is None:
                 result = GraphUpdate(self.graph, update=UpdateStats("incremental", "nothing changed", 0, 0.0, 0.0))
                 result.update.places_kept = len(self.graph.places)
@@ -293,9 +332,24 @@ class GraphUpdater:
                 result = self._full(full_map, "the changed area covers most of the map")
             else:
                 result = self._incremental(msm, None if lidar_only else point_terrain, terrains, zone)
-                result.update.changed_points = len(changed)
+                result.update.changed_points, result.update.sweep = len(changed), sweep
         self.graph, self._digest = result.graph, digest
         return result
+
+    def _zone(self, digest: MapDigest) -> tuple[TileZone | None, np.ndarray, bool]:
+        """The rebuilt area of this update, the changed positions (K, 2) metres it counted, and
+        whether it is a sweep: every `update.sweep_every` updates, tiles with fewer changed points
+        than `min_changed_points` are rebuilt too, so no change waits longer than that."""
+        assert self._digest is not None
+        changed = np.vstack([self._pending, changed_points(self._digest, digest)])
+        every = self.config.update.sweep_every
+        self._since_sweep += 1
+        sweep = every > 0 and self._since_sweep >= every
+        zone = tile_zone(changed, self.config, min_points=1 if sweep else None)
+        if sweep:
+            self._since_sweep = 0
+        self._pending = changed if zone is None else changed[~zone.in_zone(changed)]
+        return zone, changed, sweep
 
     def _full_reason(self, full: bool) -> str:
         if full:
@@ -308,7 +362,7 @@ class GraphUpdater:
 
     def _full(self, msm: MetricSemanticMap, why: str) -> GraphUpdate:
         built = build_scene_graph(msm, self.config, previous=self.graph)
-        self._replaced_since_clustering = 0
+        self._replaced_since_clustering = self._since_sweep = 0
         self._pending = np.zeros((0, 2))
         return GraphUpdate(built.graph, built.stats, built.timer, UpdateStats("full", why))
 

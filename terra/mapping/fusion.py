@@ -16,6 +16,7 @@ steps 2, 4 and 5.
 
 from __future__ import annotations
 
+import uuid
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,7 +28,7 @@ from terra.mapping.bank import EmbeddingBank
 from terra.mapping.clustering import largest_clusters
 from terra.mapping.config import MappingConfig
 from terra.mapping.projection import VisiblePoints, visible_points
-from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
+from terra.mapping.semantic_map import FusionRows, ImageTable, MetricSemanticMap
 from terra.mapping.visibility import VisibilityIndex
 from terra.perception.base import ImagePerception, PointPerception
 
@@ -126,6 +127,7 @@ class MapFusion:
         # committed version, so a version rewrites only the row chunks that changed
         # (terra/mapping/chunks.py). Every change of a row comes from a scan point associated to it.
         self.touched = np.zeros(0, dtype=bool)
+        self.id = uuid.uuid4().hex  # names this fusion's rows in the maps it makes (FusionRows)
 
     # -- per frame --------------------------------------------------------------------------
 
@@ -364,4 +366,5 @@ class MapFusion:
             embedder=embedder,
             voxel_size=self.config.fusion.voxel_size,
             visibility=VisibilityIndex.from_pairs(cells, image_ids, self.config.visibility.cell_size, images.position),
+            fusion_rows=FusionRows(self.id, np.asarray(order, dtype=np.int64)),
         )

@@ -34,6 +34,17 @@ class ImageTable:
         return self.T_map_cam[:, :3, 3]
 
 
+@dataclass(frozen=True)
+class FusionRows:
+    """Which fusion made a map and each map point's row in it: `fusion` an id the fusion took when
+    it started, `rows` (N,) int64 the creation-order row of each point (a permutation of 0..N-1).
+    Rows are only ever appended, so two maps of one fusion pair their points by row, without a
+    search (terra.graph.update compares a live map's versions this way)."""
+
+    fusion: str
+    rows: np.ndarray
+
+
 @dataclass
 class MetricSemanticMap:
     """points: (N, 3) float32. terrain_votes: (N, T) uint16 votes per terrain class.
@@ -41,6 +52,7 @@ class MetricSemanticMap:
     bank: (K, D) float32 unit embeddings. terrain_embeddings: (T, D) text embeddings of the terrain
     class names. images: the image table (may be empty for LiDAR-only sources).
     visibility: which images saw which part of the map (None = unknown, e.g. LiDAR-only).
+    fusion_rows: the points' rows in the fusion that made the map (None for a map read from a file).
     """
 
     points: np.ndarray
@@ -53,6 +65,7 @@ class MetricSemanticMap:
     embedder: str
     voxel_size: float = 0.4
     visibility: VisibilityIndex | None = None
+    fusion_rows: FusionRows | None = field(default=None, repr=False)
     _avg_norm: np.ndarray | None = field(default=None, repr=False)
     _max_id: np.ndarray | None = field(default=None, repr=False)
 

@@ -11,6 +11,7 @@ import pytest
 from terra.graph.config import BuildConfig
 from terra.graph.pipeline import build_scene_graph
 from terra.graph.update import GraphUpdater, changed_points, map_digest, tile_zone
+from terra.mapping.semantic_map import FusionRows
 from tests.graph.test_ids_rebuild import WEST_END, two_part_map
 
 
@@ -39,6 +40,34 @@ def test_changed_points_are_the_added_removed_moved_and_reclassed():
     both = np.concatenate([terrain_before, terrain_before])
     changed = changed_points(map_digest(twice, both, 0.05), map_digest(moved, both, 0.05))
     assert sorted(changed[:, 0].round(3).tolist()) == [4.3, 4.4]
+
+
+def test_two_versions_of_one_fusion_are_compared_row_by_row_as_by_search():
+    """A fusion appends rows and lists them in voxel order: the row-paired comparison gives the
+    changed points the sorted search gives, whatever order each version lists its points in."""
+    rng = np.random.default_rng(3)
+    before = rng.uniform(0.0, 50.0, (400, 3))
+    before[40:50] = np.round(before[40:50] / 0.05) * 0.05  # on the step: a 1 cm move stays in its rounding
+    terrain_before = rng.integers(-1, 3, 400)
+    after = np.vstack([before, rng.uniform(0.0, 50.0, (60, 3))])  # 60 rows appended
+    terrain_after = np.concatenate([terrain_before, rng.integers(-1, 3, 60)])
+    after[10:30] += [0.2, 0.0, 0.0]  # 20 moved past the step
+    after[40:50] += [0.01, 0.0, 0.0]  # 10 moved within it
+    terrain_after[60:65] = 5  # 5 re-classed
+    # Each version lists its rows in its own order, as fusion.finish lists them by voxel key.
+    rows_before, rows_after = rng.permutation(400), rng.permutation(460)
+    old = map_digest(before[rows_before], terrain_before[rows_before], 0.05, FusionRows("f", rows_before))
+    new = map_digest(after[rows_after], terrain_after[rows_after], 0.05, FusionRows("f", rows_after))
+    by_row = changed_points(old, new)
+    # Moved and re-classed rows count twice (where they were, where they are), added ones once.
+    assert len(by_row) == 2 * 20 + 2 * 5 + 60
+    expected = np.vstack([after[10:30, :2], before[10:30, :2], after[60:65, :2], before[60:65, :2], after[400:, :2]])
+    np.testing.assert_allclose(np.sort(by_row, axis=0), np.sort(expected, axis=0))
+    # Another fusion's map, or no rows: the sorted search, with the same answer.
+    other = map_digest(after[rows_after], terrain_after[rows_after], 0.05, FusionRows("g", rows_after))
+    plain = map_digest(after[rows_after], terrain_after[rows_after], 0.05)
+    for searched in (changed_points(old, other), changed_points(old, plain)):
+        np.testing.assert_allclose(np.sort(searched, axis=0), np.sort(by_row, axis=0))
 
 
 def test_the_zone_is_the_changed_tiles_grown_with_a_crop_around_each_part():
@@ -234,3 +263,26 @@ def test_a_strip_cut_by_the_rebuilt_area_stays_one_piece_without_bridges(text_em
     # differ from a full build's by a place or two (a named difference; the closing build has none).
     full = build_scene_graph(strip(True), config).graph
     assert abs(len(graph.places) - len(full.places)) <= 2
+
+
+def test_sparse_changes_wait_for_the_sweep_and_are_rebuilt_then(text_embedder):
+    """Changes too sparse for `min_changed_points` wait; every `sweep_every` updates they are
+    rebuilt whatever their number, to the places the dense rule would have given."""
+    sparse = BuildConfig.model_validate({"update": {**UPDATE, "min_changed_points": 10**6, "sweep_every": 2}})
+    first_map = two_part_map(text_embedder, "grass", 30.0)
+    second_map = two_part_map(text_embedder, "asphalt", 15.0)
+    for msm in (first_map, second_map):
+        msm.points = msm.points + np.float32(0.05)  # off the cell boundaries, as in `updates`
+    updater = GraphUpdater(sparse)
+    first = updater.update(first_map)
+    waiting = updater.update(second_map)
+    assert waiting.update.reason == "nothing changed" and waiting.graph is first.graph
+    swept = updater.update(second_map)  # the map is as it was; the waiting changes are rebuilt now
+    assert swept.update.kind == "incremental" and swept.update.sweep
+    dense = GraphUpdater(BuildConfig.model_validate({"update": UPDATE}))
+    dense.update(first_map)
+    expected = dense.update(second_map).graph
+    np.testing.assert_allclose(
+        np.sort(swept.graph.places.position, axis=0), np.sort(expected.places.position, axis=0), atol=1e-9
+    )
+    assert updater.update(second_map).update.reason == "nothing changed"
