@@ -210,8 +210,8 @@ def tile_zone(changed_xy: np.ndarray, config: BuildConfig, min_points: int | Non
     holds that many."""
     up = config.update
     tile = up.tile
-    ij, count = np.unique(np.floor(changed_xy / tile).astype(np.int64), axis=0, return_counts=True)
-    ij = ij[count >= (up.min_changed_points if min_points is None else min_points)]
+    ij = _tile_counts(np.floor(changed_xy / tile).astype(np.int64))
+    ij = ij[0][ij[1] >= (up.min_changed_points if min_points is None else min_points)]
     if len(ij) == 0:
         return None
     grow = int(np.ceil(up.replace_margin / tile))
@@ -229,6 +229,17 @@ def tile_zone(changed_xy: np.ndarray, config: BuildConfig, min_points: int | Non
         y0, y1 = (low[1] + cols.start) * tile - up.context_margin, (low[1] + cols.stop) * tile + up.context_margin
         crops.append((float(x0), float(y0), float(x1), float(y1)))
     return TileZone(tile, (int(low[0]), int(low[1])), zone, near, crops)
+
+
+def _tile_counts(ij: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct tiles (T, 2) of tile indices (K, 2) and how many of them fall in each (T,), in
+    (x, y) order: one key per tile, as np.unique(axis=0) sorts rows several times slower."""
+    if len(ij) == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    low = ij.min(axis=0)
+    span = int(ij[:, 1].max() - low[1]) + 1
+    keys, count = np.unique((ij[:, 0] - low[0]) * span + (ij[:, 1] - low[1]), return_counts=True)
+    return np.column_stack([keys // span + low[0], keys % span + low[1]]), count
 
 
 def _parts(mask: np.ndarray) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
@@ -317,11 +328,13 @@ class GraphUpdater:
         else:
             point_terrain = msm.terrain_index(self.config.terrain.min_share, dtype=np.int16)
             point_terrain[~np.isin(point_terrain, terrains)] = -1
-        digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance, msm.fusion_rows)
         why = self._full_reason(full)
         if why:
+            self._digest = None  # not compared: its memory goes before the whole-map build
             result = self._full(full_map, why)
+            digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance, msm.fusion_rows)
         else:
+            digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance, msm.fusion_rows)
             assert self._digest is not None and self.graph is not None
             zone, changed, sweep = self._zone(digest)
             if zone is None:

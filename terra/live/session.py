@@ -137,6 +137,7 @@ class Session:
         self._lock = threading.Lock()  # the mapper: add_frame and the map commit
         self._snapshot_lock = threading.Lock()  # the bundle: one snapshot at a time
         self._latest: Snapshot | None = None
+        self._closed = False  # close() committed the last version and let go of the fusion state
         self._updater = None  # terra.graph.update.GraphUpdater, made at the first graph commit
         self.last_frame_at: float | None = None  # time.monotonic() of the last accepted frame
 
@@ -159,6 +160,7 @@ class Session:
         Returns whether it was fused (False: skipped as `terra map` skips, e.g. no finite point);
         LiveFrameError (one line naming the field; counted in `refused`) for a malformed frame."""
         with self._lock:
+            self._check_open()
             last = self.mapper.last_stamp
             if self._join is not None and self.mapper.next_frame == self._first_frame:
                 last = None  # a joined drive keeps its own clock
@@ -207,14 +209,24 @@ class Session:
 
         The graph is rebuilt only around what changed since the previous snapshot
         (terra.graph.update); full=True rebuilds it whole, as `terra build` does (`close`)."""
+        return self._snapshot(full, closing=False)
+
+    def _snapshot(self, full: bool, closing: bool) -> Snapshot:
+        """snapshot(); `closing`: the last one, after which the fusion state is let go of before the
+        whole-map build, so the build's working set does not sit beside it."""
         with self._snapshot_lock:  # one commit at a time
             seconds: dict[str, float] = {}
             start = time.perf_counter()
             with self._lock:
+                self._check_open()
                 if self.mapper.stats.counts.get("frames_fused", 0) == 0:
                     raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
                 frames, map_time = self.mapper.next_frame, self.mapper.last_stamp
                 self._commit_map(finished=full)
+                if closing:
+                    self._closed = True
+                    self.mapper.fusion.release()
+                    self._latest = None  # a reader holding it keeps it; the session needs it no more
                 # The graph update reads the map as fused (full: as `terra build` reads it, below).
                 msm = self.mapper.finish() if self.graph and not full else None
             seconds["map"] = time.perf_counter() - start
@@ -237,10 +249,18 @@ class Session:
     def close(self) -> Snapshot | None:
         """End the drive: a last snapshot with the graph built in full, so the session's final graph
         is the batch graph of its map (`terra build` on the bundle gives the same). None when no
-        frame was fused."""
+        frame was fused. The fusion state is let go of before that build (it would double the peak
+        memory of a large map); a closed session fuses nothing more, and a second close() returns
+        the same snapshot."""
+        if self._closed:
+            return self._latest
         if self.mapper.stats.counts.get("frames_fused", 0) == 0:
             return None
-        return self.snapshot(full=True)
+        return self._snapshot(full=True, closing=True)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise TerraError(f"{self.out}: the session is closed; a new Session(..., resume=True) continues the drive")
 
     def _commit_map(self, finished: bool) -> None:
         """Commit the map and its fusion state as the bundle's next version: in row chunks shared with

@@ -128,6 +128,22 @@ class MapFusion:
         # (terra/mapping/chunks.py). Every change of a row comes from a scan point associated to it.
         self.touched = np.zeros(0, dtype=bool)
         self.id = uuid.uuid4().hex  # names this fusion's rows in the maps it makes (FusionRows)
+        self.released = False
+
+    def release(self) -> None:
+        """Let go of the fusion state (the map's rows, votes, counts, bank and image table) once the
+        map is committed for the last time, so a closing whole-map build does not hold it beside the
+        stored map it reads; the stats are kept. A released fusion fuses nothing more."""
+        self.geometry = VoxelMap(self.config.fusion.voxel_size)
+        self.bank = EmbeddingBank(self.dim, self.config.fusion.match_threshold)
+        self.counts = CountAccumulator()
+        empty_votes = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
+        self.votes, self.votes_before, self.earlier_votes = empty_votes, empty_votes.copy(), []
+        self.session_hits = np.zeros((0, 1), dtype=np.int64)
+        self.touched = np.zeros(0, dtype=bool)
+        for images in (self._image_stamp, self._image_camera, self._image_pose, self._image_embedding, self._vis_cells):
+            images.clear()
+        self.released = True
 
     # -- per frame --------------------------------------------------------------------------
 

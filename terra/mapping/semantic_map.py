@@ -118,17 +118,27 @@ class MetricSemanticMap:
             return [np.zeros(0, dtype=np.int32) for _ in range(p)], np.full(p, -1, dtype=np.int64)
         return self.visibility.images_observing(positions, max_range=max_range)
 
-    def terrain_index(self, min_share: float = 0.5, dtype: type = np.int64, chunk: int = 1 << 18) -> np.ndarray:
-        """(N,) terrain class index by majority vote, -1 where no vote or the winner's share of the
-        point's votes is below `min_share`. Computed in chunks of rows so that the temporaries
-        (sums, shares) cost memory for a chunk, not for the map; `dtype` must hold the class count."""
+    def terrain_index(self, min_share: float = 0.5, dtype: type = np.int64, chunk: int = 1 << 16) -> np.ndarray:
+        """(N,) terrain class index by majority vote (ties: the lowest index), -1 where no vote or
+        the winner's share of the point's votes is below `min_share`. Computed in chunks of rows,
+        one class column at a time (for a few classes, comparisons per column cost less than a
+        row-wise argmax), so the temporaries cost memory for a chunk, not for the map; `dtype`
+        must hold the class count."""
         votes = self.terrain_votes
-        out = np.empty(len(votes), dtype=dtype)
+        out = np.full(len(votes), -1, dtype=dtype)
+        if votes.ndim != 2 or votes.shape[1] == 0:
+            return out
         for start in range(0, len(votes), chunk):
             part = votes[start : start + chunk]
-            total = part.sum(axis=1)
-            best = part.argmax(axis=1)
-            share = np.divide(part[np.arange(len(part)), best], total, out=np.zeros(len(part)), where=total > 0)
+            top = part[:, 0].astype(np.int64)
+            best = np.zeros(len(part), dtype=dtype)
+            total = top.copy()
+            for column in range(1, part.shape[1]):
+                count = part[:, column]
+                total += count
+                best[count > top] = column  # strictly greater: a tie keeps the lower class, as argmax does
+                np.maximum(top, count, out=top)
+            share = np.divide(top, total, out=np.zeros(len(part)), where=total > 0)
             out[start : start + chunk] = np.where((total > 0) & (share >= min_share), best, -1)
         return out
 

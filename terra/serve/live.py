@@ -94,9 +94,10 @@ class LiveService:
             self._wake.set()
         return fused
 
-    def update(self, full: bool = False) -> Snapshot | None:
+    def update(self, full: bool = False, closing: bool = False) -> Snapshot | None:
         """Commit the frames fused since the last version (None when there are none); full=True
-        builds the graph whole (at close: the session's last graph is the batch graph of its map)."""
+        builds the graph whole (at close: the session's last graph is the batch graph of its map);
+        `closing`: as the session's close(), the last version, the fusion state let go of first."""
         with self._update_lock:
             fused = self._fused()
             # At close, a version that is not yet final is written once more: in the flat layout
@@ -105,7 +106,7 @@ class LiveService:
                 return None
             began = time.perf_counter()
             try:
-                snapshot = self.session.snapshot(full=full)
+                snapshot = self.session.close() if closing else self.session.snapshot(full=full)
             except Exception as exc:  # the service stays up; GET /live says why
                 self.counters.last_error = " ".join(str(exc).split()) or type(exc).__name__
                 log.error("live update failed: %s", self.counters.last_error, exc_info=not isinstance(exc, TerraError))
@@ -159,7 +160,7 @@ class LiveService:
             self._thread.join()
             self._thread = None
         with contextlib.suppress(Exception):  # logged by update; the last committed version stays intact
-            self.update(full=True)
+            self.update(full=True, closing=True)
 
     # -- private interface ------------------------------------------------------------------
 

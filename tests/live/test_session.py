@@ -72,6 +72,13 @@ def test_live_fed_drive_equals_the_batch_map(tiny_campus, tiny_bundle, tmp_path)
     closing = session.close()  # the closing version in the flat layout batch runs write
     assert closing is not None and closing.version == 3
     assert map_files(out) == map_files(tiny_bundle.path)
+    # Closed: the fusion state is let go of, the snapshots read on, and nothing more is fused.
+    assert session.mapper.fusion.geometry.size == 0 and len(early.bundle.msm) == early_points
+    assert session.close() is closing and Bundle(out).version == 3
+    with pytest.raises(TerraError, match=r"live\.terra: the session is closed; a new Session\(\.\.\., resume=True\)"):
+        session.add(tiny_campus[0])
+    with pytest.raises(TerraError, match="the session is closed"):
+        session.snapshot()
 
 
 def test_append_in_two_parts_equals_one_run(tiny_campus, tiny_bundle, tmp_path):
