@@ -110,6 +110,14 @@ class GridSection(Section):
         description="non-terrain points this many metres above the local ground block a cell (None = never)",
     )
     obstacle_min_points: int = Field(default=2, ge=1, description="points in the height band needed to block a cell")
+    object_extent: float | None = Field(
+        default=6.0,
+        gt=0.0,
+        description=(
+            "metres; free cells inside the convex hull of a blocked outline at most this long on each side (a parked "
+            "car seen from one side: its near side blocked, the ground under its body free) are blocked (None = never)"
+        ),
+    )
     min_component_area: float = Field(
         default=2.0, ge=0.0, description="terrain patches smaller than this (m^2) get no place (reported as dropped)"
     )

@@ -19,7 +19,7 @@ from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig, check_region_method
 from terra.graph.crossings import CrossingRule, gap_places
 from terra.graph.embedding import image_embeddings, point_embeddings
-from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
+from terra.graph.grid import TerrainGrid, block_under_objects, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
 from terra.graph.ground import (
     GroundLayers,
@@ -199,7 +199,8 @@ def terrain_grid(
 ) -> TerrainGrid:
     """The terrain grid of the map's points (build_terrain_grid), tile by tile when
     `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid, which
-    falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null)."""
+    falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null), with the
+    ground under object outlines blocked (`build.grid.object_extent`, grid.block_under_objects)."""
     gc = config.grid
     args = (
         points,
@@ -218,11 +219,15 @@ def terrain_grid(
     }
     tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
     if tile is None:
-        return build_terrain_grid(*args, **kwargs)
-    margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
-    return build_terrain_grid_tiled(
-        *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats
-    )
+        grid = build_terrain_grid(*args, **kwargs)
+    else:
+        margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
+        grid = build_terrain_grid_tiled(
+            *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats
+        )
+    if gc.object_extent is not None:  # on the whole grid: an outline may straddle two tiles
+        block_under_objects(grid, gc.object_extent)
+    return grid
 
 
 def _tiled_gvd(
