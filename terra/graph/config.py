@@ -262,6 +262,15 @@ class LinkingSection(Section):
         ),
     )
     curb_gap_min_width: float = Field(default=1.0, gt=0.0, description="metres; the narrowest such gap")
+    level_link_distance: float | None = Field(
+        default=6.0,
+        gt=0.0,
+        description=(
+            "metres; a place that the edges whose step is at most curb_gap_max_step cannot take to another terrain "
+            "nearby links to the nearest place of another terrain within this range along a clear line over observed, "
+            "level ground (terra.graph.crossings.level_links; needs ground.layers; None = never)"
+        ),
+    )
     curb_gap_max_width: float = Field(
         default=12.0, gt=0.0, description="metres; the widest (a longer level stretch is no gap in a curb)"
     )

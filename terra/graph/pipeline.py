@@ -17,7 +17,7 @@ from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
 from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig, check_region_method
-from terra.graph.crossings import CrossingRule, gap_places
+from terra.graph.crossings import CrossingRule, gap_places, level_links
 from terra.graph.embedding import image_embeddings, point_embeddings
 from terra.graph.grid import TerrainGrid, block_under_objects, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
@@ -390,7 +390,9 @@ def build_scene_graph(
     if len(places.position) == 0:
         raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
-        links = place_links(places, traversable, grid, config)
+        links = with_level_links(
+            place_links(places, traversable, grid, config), places, traversable, grid, layers, config
+        )
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
     with timer.stage(f"regions ({config.regions.method})"):
@@ -403,6 +405,33 @@ def build_scene_graph(
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
     return GraphBuild(graph, stats, timer, ground=layers)
+
+
+def with_level_links(
+    links: PlaceLinks,
+    places: TerrainPlaceSet,
+    traversable: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers | None,
+    config: BuildConfig,
+) -> PlaceLinks:
+    """`links` with the level links of terra.graph.crossings.level_links appended (cross-terrain
+    edges costing their straight 3-D length, metres); unchanged without ground layers, or with
+    `linking.curb_gap_max_step` or `linking.level_link_distance` None."""
+    lk = config.linking
+    if layers is None or lk.curb_gap_max_step is None or lk.level_link_distance is None or len(places.position) < 2:
+        return links
+    new = level_links(
+        places.position, places.terrain, links.edges, traversable, grid, layers,
+        lk.curb_gap_max_step, lk.level_link_distance, lk.link_candidates,
+    )  # fmt: skip
+    length = np.linalg.norm(places.position[new[:, 0]] - places.position[new[:, 1]], axis=1)
+    return replace(
+        links,
+        edges=np.vstack([links.edges, new]),
+        weight=np.concatenate([links.weight, length]),
+        kind=np.concatenate([links.kind, np.full(len(new), EDGE_CROSS_TERRAIN, dtype=links.kind.dtype)]),
+    )
 
 
 def no_places_reason(lidar_only: bool) -> str:
