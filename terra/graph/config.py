@@ -110,6 +110,14 @@ class GridSection(Section):
         description="non-terrain points this many metres above the local ground block a cell (None = never)",
     )
     obstacle_min_points: int = Field(default=2, ge=1, description="points in the height band needed to block a cell")
+    object_extent: float | None = Field(
+        default=6.0,
+        gt=0.0,
+        description=(
+            "metres; free cells inside the convex hull of a blocked outline at most this long on each side (a parked "
+            "car seen from one side: its near side blocked, the ground under its body free) are blocked (None = never)"
+        ),
+    )
     min_component_area: float = Field(
         default=2.0, ge=0.0, description="terrain patches smaller than this (m^2) get no place (reported as dropped)"
     )
@@ -254,6 +262,15 @@ class LinkingSection(Section):
         ),
     )
     curb_gap_min_width: float = Field(default=1.0, gt=0.0, description="metres; the narrowest such gap")
+    level_link_distance: float | None = Field(
+        default=6.0,
+        gt=0.0,
+        description=(
+            "metres; a place that the edges whose step is at most curb_gap_max_step cannot take to another terrain "
+            "nearby links to the nearest place of another terrain within this range along a clear line over observed, "
+            "level ground (terra.graph.crossings.level_links; needs ground.layers; None = never)"
+        ),
+    )
     curb_gap_max_width: float = Field(
         default=12.0, gt=0.0, description="metres; the widest (a longer level stretch is no gap in a curb)"
     )

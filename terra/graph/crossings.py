@@ -22,6 +22,13 @@ cell's terrain and ground height, and clearance half the gap's width (the passag
 run's terrains is linked to the gap (`crossing_links`): the nearest of its places within
 `max_distance` whose straight line crosses only traversable cells and no step above `max_step`;
 a gap that reaches fewer than two terrains so is dropped.
+
+Level links (`level_links`): a strip of one terrain can meet another level along its whole length
+and still reach it only over a curb (a grass verge between a curb and a walk: its GVD runs along
+it with no dead end, and its boundary with the walk holds no step, so no gap). Each place tries
+the nearest places of other terrains that the graph's level edges (step at most `max_step`) do
+not already join it to, and links to the first whose straight line is clear, observed all along,
+away from obstacles, and level.
 """
 
 from __future__ import annotations
@@ -222,3 +229,71 @@ def gap_places(
     links[:, 0] = renumber[links[:, 0]]
     position = np.column_stack([xy[keep], grid.ground_at(gaps.cell[keep])])
     return position, gaps.terrain[keep], gaps.width[keep] / 2, links
+
+
+def level_links(
+    position: np.ndarray,
+    terrain: np.ndarray,
+    edges: np.ndarray,
+    traversable: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers,
+    max_step: float,
+    max_distance: float,
+    candidates: int,
+) -> np.ndarray:
+    """Links (m, 2) (i < j, unique) from places that the level edges cannot take to a place of
+    another terrain nearby: each place at `position` (P, 3) metres of `terrain` (P,) tries its
+    `candidates` nearest places of other terrains within `max_distance` metres that lie in another
+    component of the graph of `edges` (E, 2) whose step reads at most `max_step` metres, and links
+    to the first whose straight line crosses only traversable cells and observed ground, with no
+    step above `max_step` (a strip of grass between a curb and a walk, whose GVD runs along it with
+    no dead end, reached the walk only across the curb)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(position)
+    xy = np.asarray(position, dtype=np.float64)[:, :2]
+    flat = np.column_stack([xy, np.zeros(n)])
+    level = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    level = level[edge_geometry(layers, flat, level)[:, 0] <= max_step]
+    graph = coo_matrix((np.ones(len(level)), (level[:, 0], level[:, 1])), shape=(n, n))
+    _, component = connected_components(graph, directed=False)
+    k = min(candidates + 1, n)
+    dist, idx = cKDTree(xy).query(xy, k=k, distance_upper_bound=max_distance)
+    dist, idx = dist.reshape(n, k), idx.reshape(n, k)
+    other = np.minimum(idx, n - 1)
+    valid = np.isfinite(dist) & (terrain[other] != terrain[:, None]) & (component[other] != component[:, None])
+    clear = grid_line_clear(traversable, grid.origin, grid.cell_size)
+
+    def passes(rows: np.ndarray, c: int) -> np.ndarray:
+        a, b = rows, other[rows, c]
+        ok = clear(xy[a], xy[b])
+        pairs = np.column_stack([a[ok], b[ok]])
+        ok[ok] = (edge_geometry(layers, flat, pairs)[:, 0] <= max_step) & _observed_line(layers, xy, pairs)
+        return ok
+
+    first = first_passing(valid, passes)
+    has = np.flatnonzero(first >= 0)
+    pairs = np.sort(np.column_stack([has, other[has, first[has]]]), axis=1)
+    return np.unique(pairs, axis=0).reshape(-1, 2).astype(np.int64)
+
+
+def _observed_line(layers: GroundLayers, xy: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """(m,) bool: whether every cell the straight segment of each pair (m, 2) of places at `xy`
+    (P, 2) metres crosses (sampled every half cell) holds ground with a known step, away from
+    obstacles: across unobserved ground nothing says a link is level (a curb in its own LiDAR
+    shadow), and beside an obstacle a curb's step is read along one axis only, maybe along the
+    curb (`grid_layers`)."""
+    if len(pairs) == 0:
+        return np.zeros(0, dtype=bool)
+    a, delta = xy[pairs[:, 0]], xy[pairs[:, 1]] - xy[pairs[:, 0]]
+    samples = np.ceil(np.linalg.norm(delta, axis=1) / (layers.cell_size / 2)).astype(np.int64) + 1
+    starts = np.concatenate([[0], np.cumsum(samples)[:-1]])
+    which = np.repeat(np.arange(len(pairs)), samples)
+    t = (np.arange(int(samples.sum())) - starts[which]) / np.maximum(samples[which] - 1, 1)
+    at = layers.lookup(a[which] + t[:, None] * delta[which])
+    known = (at >= 0) & np.isfinite(layers.step[np.maximum(at, 0)])
+    if layers.near_obstacle is not None:  # beside an obstacle a curb's step may read along the curb only
+        known &= ~layers.near_obstacle[np.maximum(at, 0)]
+    return np.logical_and.reduceat(known, starts)

@@ -451,3 +451,45 @@ def _window_majority(
         support = ndimage.uniform_filter(coverage, size=window, mode="constant")
     best[support < min_support - 1e-6] = -1
     return best
+
+
+def block_under_objects(grid: TerrainGrid, max_extent: float) -> int:
+    """In place: block the free cells inside the convex hull of each object-sized outline of
+    blocked cells (an 8-connected blocked component whose bounding box is at most `max_extent`
+    metres on each side), and take their label; returns how many cells it blocked.
+
+    A LiDAR that sees a parked car from the road sees its near side and the ground under its body
+    through the gap beneath the sills, but not its roof: the car is a ring of blocked cells around
+    free ground, and a place there would sit under the car, linked out across its sides (and
+    across the curb it stands against). Larger outlines (buildings, hedges, fences) are left alone:
+    the hull of an L-shaped building would swallow the yard it frames."""
+    labels, _ = raster.label(grid.blocked, EIGHT)
+    limit = max_extent / grid.cell_size
+    added = 0
+    for k, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is None:
+            continue
+        rows, cols = box[0].stop - box[0].start, box[1].stop - box[1].start
+        if rows < 3 or cols < 3 or max(rows, cols) > limit:
+            continue  # nothing can lie inside a strip one or two cells wide
+        inside = _inside_hull(labels[box] == k) & ~grid.blocked[box]
+        if inside.any():
+            grid.blocked[box] |= inside
+            grid.label[box][inside] = -1
+            added += int(inside.sum())
+    return added
+
+
+def _inside_hull(mask: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the cells whose centre lies in the convex hull of the centres of `mask`'s
+    (h, w) True cells (on its boundary included); all False when they lie on one line."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    cells = np.argwhere(mask).astype(np.float64)
+    try:
+        hull = ConvexHull(cells)
+    except QhullError:  # collinear: a straight wall encloses nothing
+        return np.zeros_like(mask)
+    grid = np.indices(mask.shape).reshape(2, -1).T.astype(np.float64)
+    distance = grid @ hull.equations[:, :2].T + hull.equations[:, 2]
+    return (distance <= 1e-9).all(axis=1).reshape(mask.shape)

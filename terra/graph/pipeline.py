@@ -17,9 +17,9 @@ from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
 from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
 from terra.graph.config import BuildConfig, check_region_method
-from terra.graph.crossings import CrossingRule, gap_places
+from terra.graph.crossings import CrossingRule, gap_places, level_links
 from terra.graph.embedding import image_embeddings, point_embeddings
-from terra.graph.grid import TerrainGrid, build_terrain_grid, grid_frame
+from terra.graph.grid import TerrainGrid, block_under_objects, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
 from terra.graph.ground import (
     GroundLayers,
@@ -199,7 +199,8 @@ def terrain_grid(
 ) -> TerrainGrid:
     """The terrain grid of the map's points (build_terrain_grid), tile by tile when
     `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid, which
-    falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null)."""
+    falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null), with the
+    ground under object outlines blocked (`build.grid.object_extent`, grid.block_under_objects)."""
     gc = config.grid
     args = (
         points,
@@ -218,11 +219,15 @@ def terrain_grid(
     }
     tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
     if tile is None:
-        return build_terrain_grid(*args, **kwargs)
-    margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
-    return build_terrain_grid_tiled(
-        *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats
-    )
+        grid = build_terrain_grid(*args, **kwargs)
+    else:
+        margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
+        grid = build_terrain_grid_tiled(
+            *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats
+        )
+    if gc.object_extent is not None:  # on the whole grid: an outline may straddle two tiles
+        block_under_objects(grid, gc.object_extent)
+    return grid
 
 
 def _tiled_gvd(
@@ -385,7 +390,9 @@ def build_scene_graph(
     if len(places.position) == 0:
         raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
-        links = place_links(places, traversable, grid, config)
+        links = with_level_links(
+            place_links(places, traversable, grid, config), places, traversable, grid, layers, config
+        )
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
     with timer.stage(f"regions ({config.regions.method})"):
@@ -398,6 +405,33 @@ def build_scene_graph(
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
     return GraphBuild(graph, stats, timer, ground=layers)
+
+
+def with_level_links(
+    links: PlaceLinks,
+    places: TerrainPlaceSet,
+    traversable: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers | None,
+    config: BuildConfig,
+) -> PlaceLinks:
+    """`links` with the level links of terra.graph.crossings.level_links appended (cross-terrain
+    edges costing their straight 3-D length, metres); unchanged without ground layers, or with
+    `linking.curb_gap_max_step` or `linking.level_link_distance` None."""
+    lk = config.linking
+    if layers is None or lk.curb_gap_max_step is None or lk.level_link_distance is None or len(places.position) < 2:
+        return links
+    new = level_links(
+        places.position, places.terrain, links.edges, traversable, grid, layers,
+        lk.curb_gap_max_step, lk.level_link_distance, lk.link_candidates,
+    )  # fmt: skip
+    length = np.linalg.norm(places.position[new[:, 0]] - places.position[new[:, 1]], axis=1)
+    return replace(
+        links,
+        edges=np.vstack([links.edges, new]),
+        weight=np.concatenate([links.weight, length]),
+        kind=np.concatenate([links.kind, np.full(len(new), EDGE_CROSS_TERRAIN, dtype=links.kind.dtype)]),
+    )
 
 
 def no_places_reason(lidar_only: bool) -> str:

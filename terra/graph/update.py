@@ -70,6 +70,7 @@ from terra.graph.pipeline import (
     terrains_to_build,
     unique_typed_edges,
     with_gap_places,
+    with_level_links,
     with_previous_ids,
 )
 from terra.graph.regions import build_levels
@@ -475,7 +476,9 @@ def _rebuilt_places(
         places, traversable, _ = terrain_places(grid, terrains, config)
         places = with_gap_places(places, traversable, grid, crop_layers, config)
         if len(places.position):
-            links = place_links(places, traversable, grid, config)
+            links = with_level_links(
+                place_links(places, traversable, grid, config), places, traversable, grid, crop_layers, config
+            )
             parts.append((places, links, zone.part(places.position) == k))
     offsets = np.cumsum([0] + [len(p.position) for p, _, _ in parts])
     places = TerrainPlaceSet(

@@ -115,3 +115,50 @@ def test_a_wheelchair_crosses_a_built_street_at_its_curb_cut():
     start, goal = nearest(without, 3.0, 2.5, ASPHALT), nearest(without, 27.0, 9.0, SIDEWALK)
     with pytest.raises(NoPathError):
         plan_path(without, start, goal, robot=ROBOTS["wheelchair"])
+
+
+def verge_street(verge_rise: float = 0.0, unseen: tuple[float, float] | None = None):
+    """A road (y < 5, z = 0), a 15 cm curb, a grass verge (y 5..7, z = 0.15) and a sidewalk
+    (y >= 7, `verge_rise` metres above the verge) over x 0..30: its terrain grid, ground layers
+    (every point is ground), and traversable cells; no ground points in y `unseen` (lo, hi)."""
+    from terra.graph.ground import grid_layers
+    from terra.graph.pipeline import terrain_grid
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([0.0, 0.0], [30.0, 12.0], (90000, 2))
+    if unseen is not None:
+        xy = xy[(xy[:, 1] < unseen[0]) | (xy[:, 1] >= unseen[1])]
+    y = xy[:, 1]
+    z = np.where(y >= 5.0, 0.15, 0.0) + np.where(y >= 7.0, verge_rise, 0.0) + rng.normal(0.0, 0.005, len(y))
+    terrain = np.where(y < 5.0, ASPHALT, np.where(y < 7.0, GRASS, SIDEWALK)).astype(np.int16)
+    points = np.column_stack([xy, z])
+    grid = terrain_grid(points, terrain, BuildConfig())
+    return grid, grid_layers(points, np.ones(len(points), bool), grid), grid.label >= 0
+
+
+# Verge places A (10, 6.2), B (20, 6.2); sidewalk C (10, 9.5), D (20, 9.5); road E (10, 2.5),
+# F (20, 2.5). Edges A-B, C-D, E-F and B-F, the verge's one link, over the curb.
+VERGE_PLACES = np.array(
+    [[10, 6.2, 0.15], [20, 6.2, 0.15], [10, 9.5, 0.15], [20, 9.5, 0.15], [10, 2.5, 0], [20, 2.5, 0]]
+)
+VERGE_TERRAIN = np.array([GRASS, GRASS, SIDEWALK, SIDEWALK, ASPHALT, ASPHALT])
+VERGE_EDGES = np.array([[0, 1], [2, 3], [4, 5], [1, 5]])
+
+
+def verge_links(**street) -> np.ndarray:
+    from terra.graph.crossings import level_links
+
+    grid, layers, traversable = verge_street(**street)
+    return level_links(VERGE_PLACES, VERGE_TERRAIN, VERGE_EDGES, traversable, grid, layers, 0.04, 6.0, 8)
+
+
+def test_a_verge_reached_only_over_a_curb_is_linked_level_to_the_walk_beside_it():
+    # A's nearest other place in another level piece is C (3.3 m, level), then E (3.7 m, over the
+    # curb: refused); B's is D. C and D are already level with each other, E and F too; E's only
+    # place within 6 m of another piece is A, across the curb; B-F's own line reads the curb.
+    assert verge_links().tolist() == [[0, 2], [1, 3]]
+
+
+def test_no_level_link_over_a_step_or_across_unobserved_ground():
+    assert len(verge_links(verge_rise=0.15)) == 0  # a second curb between the verge and the walk
+    assert len(verge_links(unseen=(6.6, 7.6))) == 0  # their boundary never seen: nothing says it is level
