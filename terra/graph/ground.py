@@ -440,15 +440,23 @@ def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int 
     (`rise`, metres per cell): a curb's low side lies in its own LiDAR shadow (the road within a
     few decimetres of it holds no point when seen from the walk), which left every curb seen from
     its top unknown, and the plane fitted at a cell on the curb's face takes the curb for a slope."""
-    n = h.shape[-1]
-    pad = np.full(h.shape[:-1] + (bridge + 1,), np.nan)
-    p = np.concatenate([pad, h, pad], -1)
+    # Only the cells whose step is unknown are read (a few percent of a map's observed cells): a
+    # pass over the whole raster per look-up cost more than the rest of the step.
+    at = np.nonzero(np.isfinite(h) & np.isnan(step))
+    if len(at[0]) == 0:
+        return step
+    lead, index, n = at[:-1], at[-1], h.shape[-1]
+
+    def height(k: int) -> np.ndarray:
+        """Heights k cells along the last axis from each gap cell, NaN beyond the ends."""
+        j = index + k
+        return np.where((j >= 0) & (j < n), h[(*lead, np.clip(j, 0, n - 1))], np.nan)
+
     sides = []
     for sign in (-1, 1):
-        value, distance, beyond = np.full(h.shape, np.nan), np.zeros(h.shape), np.full(h.shape, np.nan)
+        value, distance, beyond = np.full(len(index), np.nan), np.zeros(len(index)), np.full(len(index), np.nan)
         for k in range(bridge, 0, -1):  # the nearest observed cell wins
-            at = bridge + 1 + sign * k
-            v, w = p[..., at : at + n], p[..., at + sign : at + sign + n]
+            v, w = height(sign * k), height(sign * (k + 1))
             found = np.isfinite(v)
             value, distance, beyond = (
                 np.where(found, v, value),
@@ -458,10 +466,12 @@ def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int 
         sides.append((value, distance, np.abs(beyond - value)))
     (before, db, out_b), (after, da, out_a) = sides
     outer, known = _side_slope(np.stack([out_b, out_a]))
-    slope = np.where(known.any(axis=0), outer, rise)
-    gap = np.isfinite(h) & np.isnan(step) & np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
+    slope = np.where(known.any(axis=0), outer, rise[at])
+    gap = np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
     bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(slope), 0.0)
-    return np.where(gap, bridged, step)
+    out = step.copy()
+    out[tuple(a[gap] for a in at)] = bridged[gap]
+    return out
 
 
 def edge_geometry(
