@@ -408,27 +408,31 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     without `rise`, such a cell's surroundings count as level. With `rise`, a step unknown for a
     missing neighbour is read across the gap (`_bridge_gaps`)."""
     h = np.moveaxis(np.asarray(height, dtype=np.float64), axis, -1)
-    pad = np.full(h.shape[:-1] + (2,), np.nan)
-    p = np.concatenate([pad, h, pad], axis=-1)
     n = h.shape[-1]
-    before2, before, after, after2 = p[..., 0:n], p[..., 1 : n + 1], p[..., 3 : n + 3], p[..., 4 : n + 4]
-    jump = np.abs(after - before)
-    sides = np.stack([np.abs(before - before2), np.abs(after2 - after)])
-    outer, known = _side_slope(sides)
+    jump = np.full(h.shape, np.nan)  # |h[i + 1] - h[i - 1]|
+    jump[..., 1:-1] = np.abs(h[..., 2:] - h[..., :-2])
+    # |h[i + 1] - h[i]| at index i + 2: the difference beyond each side of cell i is this one read at
+    # i (|h[i - 1] - h[i - 2]|) and at i + 3 (|h[i + 2] - h[i + 1]|), one pass for both sides.
+    differences = np.full(h.shape[:-1] + (n + 3,), np.nan)
+    differences[..., 2 : n + 1] = np.abs(h[..., 1:] - h[..., :-1])
+    outer, known = _side_slope(differences[..., 0:n], differences[..., 3 : n + 3])
+    level = None
     if rise is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
-        fallback = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
-        outer = np.where(known.any(axis=0), outer, fallback)
+        level = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
+        outer = np.where(known, outer, level)
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
-    if rise is not None:
-        step = _bridge_gaps(h, step, np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1)))
+    if level is not None:
+        step = _bridge_gaps(h, step, level)
     return np.moveaxis(step, -1, axis)
 
 
-def _side_slope(sides: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The mean of the height differences (2, ...) metres on the two sides of each cell where known
-    (0 where neither is), and which are known (2, ...)."""
-    known = np.isfinite(sides)
-    return np.where(known, sides, 0.0).sum(axis=0) / np.maximum(known.sum(axis=0), 1), known
+def _side_slope(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean of the height differences (metres) on the two sides of each cell, `before` and
+    `after` (same shapes), where known (0 where neither is), and where either is known (bool)."""
+    known_before, known_after = np.isfinite(before), np.isfinite(after)
+    total = np.where(known_before, before, 0.0) + np.where(known_after, after, 0.0)
+    count = np.add(known_before, known_after, dtype=np.int8)
+    return total / np.maximum(count, 1), known_before | known_after
 
 
 def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
@@ -445,18 +449,17 @@ def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int 
     at = np.nonzero(np.isfinite(h) & np.isnan(step))
     if len(at[0]) == 0:
         return step
-    lead, index, n = at[:-1], at[-1], h.shape[-1]
-
-    def height(k: int) -> np.ndarray:
-        """Heights k cells along the last axis from each gap cell, NaN beyond the ends."""
-        j = index + k
-        return np.where((j >= 0) & (j < n), h[(*lead, np.clip(j, 0, n - 1))], np.nan)
-
+    n, reach = h.shape[-1], np.arange(1, bridge + 2)
+    # (m, 2 bridge + 2): the heights 1 .. bridge + 1 cells before each gap cell, then after it
+    j = at[-1][:, None] + np.concatenate([-reach, reach])
+    around = h[(*(a[:, None] for a in at[:-1]), np.clip(j, 0, n - 1))]
+    around[(j < 0) | (j >= n)] = np.nan
     sides = []
     for sign in (-1, 1):
-        value, distance, beyond = np.full(len(index), np.nan), np.zeros(len(index)), np.full(len(index), np.nan)
+        value, distance, beyond = np.full(len(j), np.nan), np.zeros(len(j)), np.full(len(j), np.nan)
+        first = 0 if sign < 0 else bridge + 1  # column of the cell 1 away on this side
         for k in range(bridge, 0, -1):  # the nearest observed cell wins
-            v, w = height(sign * k), height(sign * (k + 1))
+            v, w = around[:, first + k - 1], around[:, first + k]
             found = np.isfinite(v)
             value, distance, beyond = (
                 np.where(found, v, value),
@@ -465,8 +468,8 @@ def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int 
             )
         sides.append((value, distance, np.abs(beyond - value)))
     (before, db, out_b), (after, da, out_a) = sides
-    outer, known = _side_slope(np.stack([out_b, out_a]))
-    slope = np.where(known.any(axis=0), outer, rise[at])
+    outer, known = _side_slope(out_b, out_a)
+    slope = np.where(known, outer, rise[at])
     gap = np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
     bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(slope), 0.0)
     out = step.copy()
