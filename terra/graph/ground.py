@@ -339,20 +339,28 @@ def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
 def _taps(values: np.ndarray, kind: str, axis: int) -> np.ndarray:
     """One 3-tap correlation of `values` along `axis`, zero outside: out[i] = a values[i - 1] +
     b values[i] + c values[i + 1] with (a, b, c) = (1, 1, 1) for "one", (-1, 0, 1) for "odd",
-    (1, 0, 1) for "even" (slices, not a general filter: these are most of the layers' time)."""
-    v = np.moveaxis(values, axis, 0)
-    out = v.copy() if kind == "one" else np.zeros_like(v)
+    (1, 0, 1) for "even" (slices, not a general filter: these are most of the layers' time; they
+    keep the values' memory layout, where a copy of an axis moved to the front transposed it)."""
+    lower = tuple(slice(None, -1) if a == axis else slice(None) for a in range(values.ndim))
+    upper = tuple(slice(1, None) if a == axis else slice(None) for a in range(values.ndim))
+    out = values.copy() if kind == "one" else np.zeros_like(values)
     if kind == "odd":
-        out[1:] -= v[:-1]
+        out[upper] -= values[lower]
     else:
-        out[1:] += v[:-1]
-    out[:-1] += v[1:]
-    return np.moveaxis(out, 0, axis)
+        out[upper] += values[lower]
+    out[lower] += values[upper]
+    return out
 
 
 def _window_sums(values: np.ndarray, along_y: str, along_x: str) -> np.ndarray:
     """The 3 x 3 window sums of values weighted by the taps (`_taps`) along y (rows) and x (columns)."""
     return _taps(_taps(values, along_y, 0), along_x, 1)
+
+
+def _row_passes(values: np.ndarray, *kinds: str) -> list[np.ndarray]:
+    """`_taps` of values along y (rows) for each kind: the first half of `_window_sums`, shared by
+    the sums that differ only along x."""
+    return [_taps(values, kind, 0) for kind in kinds]
 
 
 def plane_fit(
@@ -376,28 +384,55 @@ def plane_fit(
     relative = np.nan_to_num(height - reference).astype(np.float32)
     wh = w * relative
     one, odd, even = "one", "odd", "even"
-    sums, s1, s2 = _window_sums, cell_size, cell_size * cell_size
-    n, sx, sy = sums(w, one, one), sums(w, one, odd) * s1, sums(w, odd, one) * s1
-    sxx, syy, sxy = sums(w, one, even) * s2, sums(w, even, one) * s2, sums(w, odd, odd) * s2
-    sz, szx, szy = sums(wh, one, one), sums(wh, one, odd) * s1, sums(wh, odd, one) * s1
-    if offset is not None:  # dx = column offset + ex, dy = row offset + ey, expanded (w is 0 or 1)
-        ex, ey = (w * np.nan_to_num(o).astype(np.float32) for o in offset)
-        sx, sy = sx + sums(ex, one, one), sy + sums(ey, one, one)
-        sxx = sxx + 2 * s1 * sums(ex, one, odd) + sums(ex * ex, one, one)
-        syy = syy + 2 * s1 * sums(ey, odd, one) + sums(ey * ey, one, one)
-        sxy = sxy + s1 * (sums(ey, one, odd) + sums(ex, odd, one)) + sums(ex * ey, one, one)
-        hx, hy = ex * relative, ey * relative
-        szx, szy = szx + sums(hx, one, one), szy + sums(hy, one, one)
-    # Cramer's rule on the 3 x 3 normal equations, cell by cell.
-    det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
-    det_a = sz * (sxx * syy - sxy * sxy) - sx * (szx * syy - sxy * szy) + sy * (szx * sxy - sxx * szy)
-    det_x = n * (szx * syy - sxy * szy) - sz * (sx * syy - sxy * sy) + sy * (sx * szy - szx * sy)
-    det_y = n * (sxx * szy - szx * sxy) - sx * (sx * szy - szx * sy) + sz * (sx * sxy - sxx * sy)
+    s1, s2 = cell_size, cell_size * cell_size
+    w_one, w_odd, w_even = _row_passes(w, one, odd, even)
+    wh_one, wh_odd = _row_passes(wh, one, odd)
+    n, sx, sxx = _taps(w_one, one, 1), _taps(w_one, odd, 1) * s1, _taps(w_one, even, 1) * s2
+    sy, sxy, syy = _taps(w_odd, one, 1) * s1, _taps(w_odd, odd, 1) * s2, _taps(w_even, one, 1) * s2
+    sz, szx, szy = _taps(wh_one, one, 1), _taps(wh_one, odd, 1) * s1, _taps(wh_odd, one, 1) * s1
+    if offset is not None:
+        sx, sy, sxx, syy, sxy, szx, szy = _offset_sums(w, relative, offset, s1, (sx, sy, sxx, syy, sxy, szx, szy))
+    # Cramer's rule on the 3 x 3 normal equations, cell by cell; the 2 x 2 minors that two
+    # determinants share are computed once.
+    syy_xx = sxx * syy - sxy * sxy
+    x_yy = sx * syy - sxy * sy
+    x_xy = sx * sxy - sxx * sy
+    zx_yy = szx * syy - sxy * szy
+    x_zy = sx * szy - szx * sy
+    det = n * syy_xx - sx * x_yy + sy * x_xy
+    det_a = sz * syy_xx - sx * zx_yy + sy * (szx * sxy - sxx * szy)
+    det_x = n * zx_yy - sz * x_yy + sy * x_zy
+    det_y = n * (sxx * szy - szx * sxy) - sx * x_zy + sz * x_xy
     solvable = (n >= 3) & (np.abs(det) > 1e-9 * cell_size**4)  # det ~ n^3 s^4; collinear: rounding
     safe = np.where(solvable, det, 1.0)
     intercept = np.where(solvable, det_a / safe + reference, np.nan)
     gradient = np.stack([np.where(solvable, det_x / safe, np.nan), np.where(solvable, det_y / safe, np.nan)], axis=-1)
     return intercept, gradient
+
+
+def _offset_sums(
+    w: np.ndarray,
+    relative: np.ndarray,
+    offset: tuple[np.ndarray, np.ndarray],
+    s1: float,
+    centred: tuple[np.ndarray, ...],
+) -> tuple[np.ndarray, ...]:
+    """plane_fit's window sums sx, sy, sxx, syy, sxy, szx, szy (`centred`, from the cells' centres)
+    with each height measured at its cell's centre moved by `offset` (x, y (H, W) metres): dx =
+    column offset + ex, dy = row offset + ey, expanded (w (H, W) is 0 or 1; `relative` (H, W) the
+    heights less the reference, metres; s1 the cell size, metres)."""
+    sx, sy, sxx, syy, sxy, szx, szy = centred
+    one, odd = "one", "odd"
+    ex, ey = (w * np.nan_to_num(o).astype(np.float32) for o in offset)
+    ex_one, ex_odd = _row_passes(ex, one, odd)
+    ey_one, ey_odd = _row_passes(ey, one, odd)
+    sx, sy = sx + _taps(ex_one, one, 1), sy + _taps(ey_one, one, 1)
+    sxx = sxx + 2 * s1 * _taps(ex_one, odd, 1) + _window_sums(ex * ex, one, one)
+    syy = syy + 2 * s1 * _taps(ey_odd, one, 1) + _window_sums(ey * ey, one, one)
+    sxy = sxy + s1 * (_taps(ey_one, odd, 1) + _taps(ex_odd, one, 1)) + _window_sums(ex * ey, one, one)
+    hx, hy = ex * relative, ey * relative
+    szx, szy = szx + _window_sums(hx, one, one), szy + _window_sums(hy, one, one)
+    return sx, sy, sxx, syy, sxy, szx, szy
 
 
 def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> np.ndarray:
