@@ -236,13 +236,12 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     rc = np.floor((pts[:, :2] - origin) / s).astype(np.int64)
     rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
-    inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
-    order = np.argsort(rows[inside], kind="stable")
+    inside = np.flatnonzero((rows >= 0) & (rows < H) & (cols >= 0) & (cols < W))
+    order = inside[np.argsort(rows[inside], kind="stable")]  # the points inside, by row
+    rows, cols, z, rc = rows[order], cols[order], pts[order, 2], rc[order]
     # Where each point lies in its cell, metres from the centre: the mean height of a cell is
     # that of its points' centroid, which on a slope is not the centre's.
-    within = (pts[:, :2] - origin) - (rc + 0.5) * s
-    rows, cols, z = rows[inside][order], cols[inside][order], pts[inside, 2][order]
-    within = within[inside][order]
+    within = (pts[order, :2] - origin) - (rc + 0.5) * s
     reference = float(z.mean()) if len(z) else 0.0  # one for every band: bands equal the whole
     band = max(1, band_cells // max(W, 1))
     parts: list[tuple[np.ndarray, ...]] = []
@@ -348,11 +347,16 @@ def _taps(values: np.ndarray, kind: str, axis: int) -> np.ndarray:
     keep the values' memory layout, where a copy of an axis moved to the front transposed it)."""
     lower = tuple(slice(None, -1) if a == axis else slice(None) for a in range(values.ndim))
     upper = tuple(slice(1, None) if a == axis else slice(None) for a in range(values.ndim))
-    out = values.copy() if kind == "one" else np.zeros_like(values)
-    if kind == "odd":
-        out[upper] -= values[lower]
+    first = tuple(slice(0, 1) if a == axis else slice(None) for a in range(values.ndim))
+    # Each term written where a copy or zeros and an update in place read and wrote twice; the
+    # same operations on the same operands (values[i] + values[i - 1], 0 + values[i - 1], ...).
+    out = np.empty_like(values)
+    if kind == "one":
+        out[first] = values[first]
+        np.add(values[upper], values[lower], out=out[upper])
     else:
-        out[upper] += values[lower]
+        out[first] = 0.0
+        (np.subtract if kind == "odd" else np.add)(0.0, values[lower], out=out[upper])
     out[lower] += values[upper]
     return out
 
