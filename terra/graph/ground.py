@@ -302,18 +302,18 @@ def _band_layers(
     centred, first = plane_fit(np.where(observed, mean, np.nan), cell_size, (centroid[0], centroid[1]), reference)
     moved = mean - np.nan_to_num(first[..., 0]) * centroid[0] - np.nan_to_num(first[..., 1]) * centroid[1]
     height = despike(np.where(observed, np.where(np.isfinite(centred), moved, mean), np.nan))
-    # A cell's step reads the gradient only at the cell itself, and only observed cells are kept:
-    # the plane's gradient serves unmasked (a second fit on `height` costs 25 % of the build).
-    step = np.fmax(axis_step(height, 1, first[..., 0] * cell_size), axis_step(height, 0, first[..., 1] * cell_size))
     # Everything below is per cell: computed on the kept observed cells only.
     cells = np.flatnonzero(observed[keep])
     at = cells + (keep.start or 0) * w
     gradient = first.reshape(h * w, 2)[at]
+    r, c = np.divmod(at, w)
+    rise = np.abs((gradient * cell_size).astype(np.float64))  # metres per cell along x, y
+    step = np.fmax(steps_at(height, (r, c), rise[:, 0]), steps_at(height.T, (c, r), rise[:, 1]))
     tilt = np.nan_to_num(gradient[:, 0] ** 2 + gradient[:, 1] ** 2) * cell_size**2 / 12.0
     n, mean_at = count.ravel()[at], mean.ravel()[at]
     squares = np.bincount(flat, weights=z * z, minlength=h * w).astype(np.float64, copy=False)[at]
     roughness = np.sqrt(np.maximum(squares / n - mean_at**2 - tilt, 0.0))
-    return cells, height.ravel()[at], gradient, step.ravel()[at], roughness
+    return cells, height.ravel()[at], gradient, step, roughness
 
 
 def despike(height: np.ndarray, tolerance: float = SPIKE) -> np.ndarray:
@@ -452,22 +452,33 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     without `rise`, such a cell's surroundings count as level. With `rise`, a step unknown for a
     missing neighbour is read across the gap (`_bridge_gaps`)."""
     h = np.moveaxis(np.asarray(height, dtype=np.float64), axis, -1)
-    n = h.shape[-1]
-    jump = np.full(h.shape, np.nan)  # |h[i + 1] - h[i - 1]|
-    jump[..., 1:-1] = np.abs(h[..., 2:] - h[..., :-2])
-    # |h[i + 1] - h[i]| at index i + 2: the difference beyond each side of cell i is this one read at
-    # i (|h[i - 1] - h[i - 2]|) and at i + 3 (|h[i + 2] - h[i + 1]|), one pass for both sides.
-    differences = np.full(h.shape[:-1] + (n + 3,), np.nan)
-    differences[..., 2 : n + 1] = np.abs(h[..., 1:] - h[..., :-1])
-    outer, known = _side_slope(differences[..., 0:n], differences[..., 3 : n + 3])
+    at = tuple(np.indices(h.shape).reshape(h.ndim, -1))
     level = None
-    if rise is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
-        level = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1))
+    if rise is not None:
+        level = np.abs(np.moveaxis(np.asarray(rise, dtype=np.float64), axis, -1)[at])
+    return np.moveaxis(steps_at(h, at, level).reshape(h.shape), -1, axis)
+
+
+def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None = None) -> np.ndarray:
+    """(m,) metres: `axis_step` along the last axis of heights h (..., n) (metres, NaN where
+    unobserved) at the cells `at` (index arrays (m,), one per axis of h), with `level` (m,) the
+    cells' |rise| (metres per cell) or None. The layers keep only observed cells, about a quarter
+    of a map's: reading each one's nine heights along the axis at once costs less than passes over
+    the whole raster."""
+    h = np.asarray(h, dtype=np.float64)  # the layers store float32; steps are read in float64
+    reach, n = BRIDGE + 1, h.shape[-1]
+    j = at[-1][:, None] + np.arange(-reach, reach + 1)  # (m, 2 reach + 1) around each cell
+    around = h[(*(a[:, None] for a in at[:-1]), np.clip(j, 0, n - 1))]
+    around[(j < 0) | (j >= n)] = np.nan
+    before2, before, after, after2 = (around[:, reach + k] for k in (-2, -1, 1, 2))
+    jump = np.abs(after - before)
+    outer, known = _side_slope(np.abs(before - before2), np.abs(after2 - after))
+    if level is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
         outer = np.where(known, outer, level)
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
     if level is not None:
-        step = _bridge_gaps(h, step, level)
-    return np.moveaxis(step, -1, axis)
+        _bridge_gaps(around, step, level)
+    return step
 
 
 def _side_slope(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -479,31 +490,24 @@ def _side_slope(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.n
     return total / np.maximum(count, 1), known_before | known_after
 
 
-def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
-    """`step` (..., n) where an observed cell's step along the last axis is unknown because a
-    neighbour holds no ground: the height difference between the nearest observed cells within
-    `bridge` cells on each side, less what the ground's slope explains over the cells between
-    them, floored at 0. The slope is the mean of the differences just beyond those two cells (each
-    with its next cell outwards, where observed), as `axis_step` reads it, else the cell's own
-    (`rise`, metres per cell): a curb's low side lies in its own LiDAR shadow (the road within a
-    few decimetres of it holds no point when seen from the walk), which left every curb seen from
-    its top unknown, and the plane fitted at a cell on the curb's face takes the curb for a slope."""
-    # Only the cells whose step is unknown are read (a few percent of a map's observed cells): a
-    # pass over the whole raster per look-up cost more than the rest of the step.
-    at = np.nonzero(np.isfinite(h) & np.isnan(step))
-    if len(at[0]) == 0:
-        return step
-    n, reach = h.shape[-1], np.arange(1, bridge + 2)
-    # (m, 2 bridge + 2): the heights 1 .. bridge + 1 cells before each gap cell, then after it
-    j = at[-1][:, None] + np.concatenate([-reach, reach])
-    around = h[(*(a[:, None] for a in at[:-1]), np.clip(j, 0, n - 1))]
-    around[(j < 0) | (j >= n)] = np.nan
+def _bridge_gaps(around: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> None:
+    """Fills in `step` (m,) where an observed cell's step is unknown because a neighbour holds no
+    ground, from its heights `around` (m, 2 reach + 1) along the axis (the cell in the middle,
+    reach > bridge): the height difference between the nearest observed cells within `bridge`
+    cells on each side, less what the ground's slope explains over the cells between them,
+    floored at 0. The slope is the mean of the differences just beyond those two cells (each with
+    its next cell outwards, where observed), as `axis_step` reads it, else the cell's own (`rise`
+    (m,), metres per cell): a curb's low side lies in its own LiDAR shadow (the road within a few
+    decimetres of it holds no point when seen from the walk), which left every curb seen from its
+    top unknown, and the plane fitted at a cell on the curb's face takes the curb for a slope."""
+    centre = around.shape[1] // 2
+    gaps = np.flatnonzero(np.isfinite(around[:, centre]) & np.isnan(step))
+    near = around[gaps]
     sides = []
     for sign in (-1, 1):
-        value, distance, beyond = np.full(len(j), np.nan), np.zeros(len(j)), np.full(len(j), np.nan)
-        first = 0 if sign < 0 else bridge + 1  # column of the cell 1 away on this side
+        value, distance, beyond = np.full(len(gaps), np.nan), np.zeros(len(gaps)), np.full(len(gaps), np.nan)
         for k in range(bridge, 0, -1):  # the nearest observed cell wins
-            v, w = around[:, first + k - 1], around[:, first + k]
+            v, w = near[:, centre + sign * k], near[:, centre + sign * (k + 1)]
             found = np.isfinite(v)
             value, distance, beyond = (
                 np.where(found, v, value),
@@ -513,12 +517,10 @@ def _bridge_gaps(h: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int 
         sides.append((value, distance, np.abs(beyond - value)))
     (before, db, out_b), (after, da, out_a) = sides
     outer, known = _side_slope(out_b, out_a)
-    slope = np.where(known, outer, rise[at])
+    slope = np.where(known, outer, rise[gaps])
     gap = np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
     bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(slope), 0.0)
-    out = step.copy()
-    out[tuple(a[gap] for a in at)] = bridged[gap]
-    return out
+    step[gaps[gap]] = bridged[gap]
 
 
 def edge_geometry(
@@ -670,8 +672,8 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
         clear = free[:, inner].all(axis=1)
         at = np.minimum(np.searchsorted(layers.cells, r * W + c), len(layers.cells) - 1)
         height = np.where(free & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
-        rise = np.repeat(gradient.astype(np.float64)[:, None] * layers.cell_size, len(taps), axis=1)
-        step = axis_step(height, 1, rise)[:, reach]
+        level = np.abs(gradient.astype(np.float64) * layers.cell_size)
+        step = steps_at(height, (np.arange(len(index)), np.full(len(index), reach)), level)
         # With an obstacle two cells away, the cell and its two neighbours: the larger of the two
         # differences less the smaller (a slope cancels, a curb beside a car's nose stays).
         near = free[:, reach - 1 : reach + 2].all(axis=1) & ~clear
