@@ -249,9 +249,15 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
         r1 = min(H, r0 + band)
         lo, hi = max(0, r0 - CONTEXT), min(H, r1 + CONTEXT)
         sel = slice(int(np.searchsorted(rows, lo)), int(np.searchsorted(rows, hi)))
-        keep = slice(r0 - lo, r1 - lo)
-        observed, *layers = _band_layers(rows[sel] - lo, cols[sel], z[sel], within[sel], (hi - lo, W), s, reference, keep)
-        parts.append((observed + r0 * W, *layers))
+        if sel.start == sel.stop:
+            continue
+        # Only the columns within CONTEXT of the band's points: the cells beyond hold no ground and
+        # reach no kept cell (on the campus map a band's points span 35 to 95 % of its width).
+        c0, c1 = max(0, int(cols[sel].min()) - CONTEXT), min(W, int(cols[sel].max()) + 1 + CONTEXT)
+        shape, keep = (hi - lo, c1 - c0), slice(r0 - lo, r1 - lo)
+        observed, *layers = _band_layers(rows[sel] - lo, cols[sel] - c0, z[sel], within[sel], shape, s, reference, keep)
+        row, col = np.divmod(observed, c1 - c0)
+        parts.append(((r0 + row) * W + col + c0, *layers))
     cells, height, gradient, step, roughness = (
         np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in range(5)
     )
