@@ -20,11 +20,12 @@ Sections (each skipped when its input is not given):
   paths over the profile's slope, and pairs whose free path is legal on that ground but for which
   the wheelchair got no path (a legal route missed).
 - build-time: `build_scene_graph` on `--campus-map` with build.ground.layers true and false,
-  best of `--repeat` runs each.
+  alternating, best of `--repeat` runs each (wall and CPU seconds); with `--ground-before FILE`
+  (terra/graph/ground.py of another commit) its segmentation and layers as a third run.
 
 Usage:
   python benchmarks/bench_geometry.py [--preset tiny] [--frames 40] [--kitti DIR] [--labelled SEQ]
-      [--campus-map BUNDLE] [--repeat 3]
+      [--campus-map BUNDLE] [--repeat 3] [--ground-before FILE]
       [--wheelchair-map BUNDLE --wheelchair-preset small --sim-config FILE --pairs 200]
 Writes benchmarks/results/geometry.json (or --out) and prints it.
 """
@@ -289,27 +290,56 @@ def wheelchair_on_map(bundle: Path, preset: str, seed: int, sim_config: Path | N
     } | result
 
 
-def build_time(map_bundle: Path, repeat: int) -> dict[str, Any]:
-    """Best-of-`repeat` build_scene_graph seconds with and without the ground layers."""
+def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dict[str, Any]:
+    """build_scene_graph seconds with the ground layers off and on, the runs alternating (one of
+    each per round, the order turning), best of `repeat` wall and CPU (process) seconds: on a
+    loaded 2-core machine the wall time of one run moves by a third. `before`: a ground.py of
+    another commit (`git show REV:terra/graph/ground.py > FILE`) whose segmentation and layers
+    (map_ground, grid_layers) run a third configuration, "on_before", in the same process."""
+    import importlib.util
+
     from terra.bundle import Bundle
+    from terra.graph import ground, pipeline
     from terra.graph.config import BuildConfig
-    from terra.graph.pipeline import build_scene_graph
     from terra.mapping.storage import load_map
 
     msm = load_map(Bundle(map_bundle), max_ids=False)
     out: dict[str, Any] = {"points": len(msm)}
-    for layers in (False, True):
-        config = BuildConfig.model_validate({"ground": {"layers": layers}})
-        best = np.inf
-        for _ in range(repeat):
-            start = time.perf_counter()
-            build = build_scene_graph(msm, config)
-            best = min(best, time.perf_counter() - start)
-            if layers:
+    runs: dict[str, tuple[Any, BuildConfig]] = {
+        "off": (ground, BuildConfig.model_validate({"ground": {"layers": False}})),
+        "on": (ground, BuildConfig()),
+    }
+    if before is not None:
+        spec = importlib.util.spec_from_file_location("ground_before", before)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["ground_before"] = module  # dataclasses look their module up
+        spec.loader.exec_module(module)
+        runs["on_before"] = (module, BuildConfig())
+    seconds: dict[str, list[tuple[float, float, float]]] = {name: [] for name in runs}
+    names = list(runs)
+    for round_ in range(repeat + 1):  # round 0 warms the caches and is not counted
+        for name in names[round_ % len(names) :] + names[: round_ % len(names)]:
+            module, config = runs[name]
+            pipeline.grid_layers, pipeline.map_ground = module.grid_layers, module.map_ground
+            wall, cpu = time.perf_counter(), time.process_time()
+            build = pipeline.build_scene_graph(msm, config)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+            stages = sum(v for k, v in build.timer.seconds.items() if k in ("ground", "ground layers"))
+            if round_ > 0:
+                seconds[name].append((wall, cpu, stages))
+            if name == "on":
                 out["places"] = len(build.graph.places)
-                out["ground_stages_s"] = {k: round(v, 3) for k, v in build.timer.seconds.items() if "ground" in k}
-        out["seconds_layers_" + ("on" if layers else "off")] = round(best, 3)
-    out["overhead"] = round(out["seconds_layers_on"] / out["seconds_layers_off"] - 1.0, 4)
+    pipeline.grid_layers, pipeline.map_ground = ground.grid_layers, ground.map_ground
+    for name, values in seconds.items():
+        best = np.min(np.array(values), axis=0)
+        out[name] = {"wall_s": round(float(best[0]), 3), "cpu_s": round(float(best[1]), 3)}
+        out[name]["ground_stages_s"] = round(float(best[2]), 3)
+        out[name]["cpu_median_s"] = round(float(np.median([v[1] for v in values])), 3)
+    for name in names[1:]:
+        out["overhead_" + name] = {
+            key: round(out[name][key] / out["off"][key] - 1.0, 4) for key in ("wall_s", "cpu_s", "cpu_median_s")
+        }
     return out
 
 
@@ -326,6 +356,7 @@ def main() -> None:
     parser.add_argument("--sim-config", type=Path, default=None)
     parser.add_argument("--pairs", type=int, default=200)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--ground-before", type=Path, default=None, help="a ground.py to time beside (build-time)")
     parser.add_argument("--out", type=Path, default=RESULTS, help="JSON written (default results/geometry.json)")
     args = parser.parse_args()
     result: dict[str, Any] = {
@@ -342,7 +373,7 @@ def main() -> None:
     if args.labelled is not None:
         result["segmentation_labelled"] = segmentation_labelled(args.labelled)
     if args.campus_map is not None:
-        result["build_time"] = build_time(args.campus_map, args.repeat)
+        result["build_time"] = build_time(args.campus_map, args.repeat, args.ground_before)
     if args.wheelchair_map is not None:
         result["wheelchair"] = wheelchair_on_map(
             args.wheelchair_map, args.wheelchair_preset, args.seed, args.sim_config, args.pairs

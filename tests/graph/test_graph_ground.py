@@ -232,6 +232,26 @@ def test_a_map_of_bare_points_builds_places_on_the_ground():
         np.testing.assert_array_equal(getattr(whole, name), getattr(bands, name), err_msg=name)
 
 
+def test_layers_do_not_depend_on_the_empty_cells_around_the_points():
+    """Each band is computed only over the columns near its points, and steps only at its observed
+    cells: the same points on a frame with wide empty margins, cut into bands of a few rows, give
+    the same layers to the last bit as on a tight frame in one piece (holes in the ground make
+    steps read across gaps)."""
+    points, truth = street()
+    ground = points[truth]
+    holes = (np.abs(ground[:, 0] % 3.0 - 1.5) < 0.3) & (ground[:, 1] > 5.0)  # curb-side shadows
+    ground = ground[~holes]
+    tight = flat_frame(30, 10)
+    wide = GridFrame((0.0, 0.0), (tight.shape[0] + 40, tight.shape[1] + 60), CELL, (-20, -30))
+    a = ground_layers(ground, tight)
+    b = ground_layers(ground, wide, band_cells=4 * wide.shape[1])
+    rows, cols = np.divmod(a.cells, tight.shape[1])
+    np.testing.assert_array_equal(b.cells, (rows + 20) * wide.shape[1] + cols + 30)
+    assert np.isfinite(a.step).sum() > 0.9 * len(a.step)
+    for name in ("height", "gradient", "step", "roughness"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
 def test_a_map_whose_classes_got_no_votes_builds_on_the_ground():
     # A SemanticKITTI folder without label files: the legend names terrain classes, no point votes.
     points, _ = street()
