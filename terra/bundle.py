@@ -46,6 +46,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -378,9 +379,9 @@ class Staging:
         self._done = True
         self._release()
         if replaced is not None and reclaim_in_background:
-            import threading
-
-            threading.Thread(target=_reclaim, args=(replaced, held), name="terra-reclaim", daemon=True).start()
+            thread = threading.Thread(target=_reclaim, args=(replaced, held), name="terra-reclaim", daemon=True)
+            _RECLAIMS[:] = [t for t in _RECLAIMS if t.is_alive()] + [thread]
+            thread.start()
         else:
             _close(held)
             if replaced is not None:
@@ -396,6 +397,17 @@ class Staging:
         if self._lock is not None:
             os.close(self._lock)
             self._lock = None
+
+
+_RECLAIMS: list[threading.Thread] = []  # deletions of replaced versions running in the background
+
+
+def wait_for_reclaims(timeout: float | None = None) -> None:
+    """Wait (at most `timeout` seconds per deletion) until the replaced versions this process is
+    deleting in the background are gone: a live session's `close` leaves its folder clean."""
+    for thread in list(_RECLAIMS):
+        thread.join(timeout)
+    _RECLAIMS[:] = [t for t in _RECLAIMS if t.is_alive()]
 
 
 def _close(fd: int | None) -> None:

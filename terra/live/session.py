@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terra.bundle import MANIFEST, Bundle, BundleWriter, recover
+from terra.bundle import MANIFEST, Bundle, BundleWriter, recover, wait_for_reclaims
 from terra.datasets.base import CameraFrame, ClassTable, Frame
 from terra.errors import TerraError
 from terra.live.frames import LiveFrameError, check_live_frame
@@ -240,7 +240,9 @@ class Session:
         frame was fused."""
         if self.mapper.stats.counts.get("frames_fused", 0) == 0:
             return None
-        return self.snapshot(full=True)
+        snapshot = self.snapshot(full=True)
+        wait_for_reclaims()  # the folder holds the closing version alone when close returns
+        return snapshot
 
     def _commit_map(self, finished: bool) -> None:
         """Commit the map and its fusion state as the bundle's next version: in row chunks shared with
