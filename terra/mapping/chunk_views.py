@@ -44,6 +44,10 @@ _VIEW_FILES = ("points", "votes", "counts_indptr", "counts_indices", "counts_dat
 _MEMOS: OrderedDict[str, _Memo] = OrderedDict()  # by the bundle folder's real path, most recent last
 _MEMO_LIMIT = 4  # bundle folders remembered (a process serves one live map, or a few)
 _LOCK = threading.Lock()
+# Above this share of the rows to read again, the full derivation is faster: it gathers every row
+# anyway, without the merge (on the campus drive, a version that rewrote every chunk loaded in
+# 80 ms from the previous view against 42 ms in full).
+MOST_CHANGED = 0.5
 
 
 @dataclass(frozen=True)
@@ -173,7 +177,7 @@ def _from_previous(bundle: Bundle, memo: _Memo, n: int, k: int, t: int, voxel: b
     if previous is None or not fits or memo.k > k:  # the bank only grows
         return None
     changed = _changed_chunks(bundle, memo, n, voxel)
-    if changed is None:
+    if changed is None or len(changed) * memo.rows > MOST_CHANGED * max(n, 1):
         return None
     rows = memo.rows
     fresh = read_rows(bundle, ("points", "votes", "counts", *(("keys",) if voxel else ())), n, k, t, changed)

@@ -30,6 +30,7 @@ def full_derivations(monkeypatch) -> list[str]:
         return full(bundle, *args)
 
     monkeypatch.setattr(chunk_views, "full_view", counted)
+    monkeypatch.setattr(chunk_views, "MOST_CHANGED", float("inf"))  # from the view before, however much changed
     return calls
 
 
@@ -117,3 +118,17 @@ def test_a_damaged_chunk_is_refused_when_the_view_comes_from_the_one_before(tiny
     with pytest.raises(TerraError, match="00001/points.npy: checksum mismatch"):
         load_map(Bundle(out))  # no chunk changed since `first`: none is read, each is checked
     assert len(first.bundle.msm) > 1024
+
+
+def test_a_version_whose_changed_chunks_hold_most_rows_is_derived_in_full(tiny_campus, tmp_path, full_derivations):
+    out = tmp_path / "live.terra"
+    session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name, chunk_rows=1024)
+    for i in range(6):
+        session.add(tiny_campus[i])
+    session.snapshot()
+    for i in range(6, 12):  # new ground and old: most chunks change
+        session.add(tiny_campus[i])
+    chunk_views.MOST_CHANGED = 0.0  # (restored by monkeypatch) any changed chunk is too many
+    second = session.snapshot()
+    assert full_derivations.count(str(out)) == 2
+    _assert_full_view(second.bundle.msm, out, tmp_path)
