@@ -46,6 +46,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -129,18 +130,49 @@ def dumps_json(obj: Any) -> str:
 
 
 def _write_new_file(
-    path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666
+    path: Path, data: bytes | Sequence[bytes | memoryview], mode: int = 0o666, sync: bool = True
 ) -> tuple[int, int, int, int]:
     """Create file `path` (it must not exist) with `data` (or its parts, one after the other), synced
-    to disk; `mode` before the umask. Returns its identity (device, inode, size, mtime)."""
+    to disk unless `sync` is False (the caller syncs it later: `sync_paths`); `mode` before the
+    umask. Returns its identity (device, inode, size, mtime)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
     with os.fdopen(fd, "wb") as f:
         for part in [data] if isinstance(data, bytes) else data:
             f.write(part)
         f.flush()
-        os.fsync(f.fileno())
+        if sync:
+            os.fsync(f.fileno())
         info = os.fstat(f.fileno())
     return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
+
+
+_SYNC_THREADS = 16
+
+
+def sync_paths(paths: Sequence[Path], folders: bool = False) -> None:
+    """fsync files (or with `folders`, folders) `paths`, several at once: the file system then
+    writes them back in one journal commit instead of one each (a live snapshot syncs some 60
+    files and folders: 0.15-0.25 s one after the other on this project's machine, 0.03 s at once).
+    A folder that cannot be synced is skipped (some file systems refuse; the rename still orders
+    the data); an error syncing a file is raised."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def sync(path: Path) -> None:
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        except OSError:
+            if not folders:
+                raise
+        finally:
+            os.close(fd)
+
+    if len(paths) < 2:
+        for path in paths:
+            sync(path)
+        return
+    with ThreadPoolExecutor(min(_SYNC_THREADS, len(paths)), thread_name_prefix="terra-sync") as pool:
+        list(pool.map(sync, paths))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -335,15 +367,25 @@ class Staging:
         _sync_tree(self.folder)
         if os.path.isdir(self.target) and not os.path.islink(self.target):
             os.chmod(self.folder, stat.S_IMODE(os.stat(self.target).st_mode))
-        replaced = replace_folder(self.folder, self.target)
+        # The version replaced stays locked until the reclaim thread has deleted it: unlocked, the
+        # next `recover` (every bundle open) took it for a dead writer's leftover and deleted it
+        # itself, on the committing thread (about 10 ms of each live snapshot).
+        held = _try_lock(self.target) if reclaim_in_background else None
+        try:
+            replaced = replace_folder(self.folder, self.target)
+        except BaseException:
+            _close(held)
+            raise
         self._done = True
         self._release()
         if replaced is not None and reclaim_in_background:
-            import threading
-
-            threading.Thread(target=_remove, args=(replaced,), name="terra-reclaim", daemon=True).start()
-        elif replaced is not None:
-            _remove(replaced)
+            thread = threading.Thread(target=_reclaim, args=(replaced, held), name="terra-reclaim", daemon=True)
+            _RECLAIMS[:] = [t for t in _RECLAIMS if t.is_alive()] + [thread]
+            thread.start()
+        else:
+            _close(held)
+            if replaced is not None:
+                _remove(replaced)
 
     def discard(self) -> None:
         if not self._done:
@@ -355,6 +397,30 @@ class Staging:
         if self._lock is not None:
             os.close(self._lock)
             self._lock = None
+
+
+_RECLAIMS: list[threading.Thread] = []  # deletions of replaced versions running in the background
+
+
+def wait_for_reclaims(timeout: float | None = None) -> None:
+    """Wait (at most `timeout` seconds per deletion) until the replaced versions this process is
+    deleting in the background are gone: a live session's `close` leaves its folder clean."""
+    for thread in list(_RECLAIMS):
+        thread.join(timeout)
+    _RECLAIMS[:] = [t for t in _RECLAIMS if t.is_alive()]
+
+
+def _close(fd: int | None) -> None:
+    if fd is not None:
+        os.close(fd)
+
+
+def _reclaim(folder: Path, lock: int | None) -> None:
+    """Delete a replaced version, then release the lock that kept `recover` off it."""
+    try:
+        _remove(folder)
+    finally:
+        _close(lock)
 
 
 def replace_folder(new: Path, target: Path) -> Path | None:
@@ -381,16 +447,9 @@ def replace_folder(new: Path, target: Path) -> Path | None:
 
 
 def _sync_tree(folder: Path) -> None:
-    """fsync every folder of a staged tree (files are synced as they are written), so the new
-    version is on disk before it replaces the old one."""
-    for root, _, _ in os.walk(folder):
-        fd = os.open(root, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        except OSError:
-            pass  # some file systems cannot sync a folder; the rename still orders the data
-        finally:
-            os.close(fd)
+    """fsync every folder of a staged tree (its files are synced before: as they are written, or
+    by BundleWriter.commit), so the new version is on disk before it replaces the old one."""
+    sync_paths([Path(root) for root, _, _ in os.walk(folder)], folders=True)
 
 
 def check_output_folder(
@@ -513,6 +572,8 @@ class Bundle:
                 f"(expected {SCHEMA_VERSION}); rebuild the bundle"
             )
         self.model: BundleManifest = validate_model(manifest, BundleManifest, manifest_path)
+        self._real_root: Path | None = None  # the folder with links followed (`_inside`)
+        self._real_folders: dict[Path, Path] = {}
 
     @property
     def manifest(self) -> dict[str, Any]:
@@ -553,6 +614,17 @@ class Bundle:
     def _file_name(name: str) -> str:
         return name if name.endswith(".json") else f"{name}.npy"
 
+    def _inside(self, path: Path) -> bool:
+        """Whether file `path` (lstat found it a regular file, not a link) lies inside the bundle once
+        links among its folders are followed. Each folder is resolved once per Bundle: a live load
+        checks some 100 chunk files, and resolving every path again took about 10 ms of it."""
+        if self._real_root is None:
+            self._real_root = self.path.resolve()
+        folder = self._real_folders.get(path.parent)
+        if folder is None:
+            folder = self._real_folders[path.parent] = path.parent.resolve()
+        return folder.is_relative_to(self._real_root)
+
     def _checked_path(self, name: str, verify: bool) -> Path:
         file_name = self._file_name(name)
         entry = self.files.get(file_name)
@@ -561,7 +633,7 @@ class Bundle:
         path = self.path / file_name
         try:
             info = os.lstat(path)
-            inside = path.resolve().is_relative_to(self.path.resolve())
+            inside = self._inside(path)
         except FileNotFoundError:
             raise TerraError(f"{path}: listed in the manifest but missing (corrupt bundle)") from None
         except OSError as exc:
@@ -578,6 +650,12 @@ class Bundle:
             if digest != entry.sha256:
                 raise TerraError(f"{path}: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)")
         return path
+
+    def check(self, name: str) -> None:
+        """Check file `name` (as `array` or `json` name it) against the manifest's size and SHA-256
+        without reading it (hashed once per file identity in a process): for a reader that takes
+        the file's content from a view it derived before (terra/mapping/chunk_views.py)."""
+        self._checked_path(name, verify=True)
 
     def array(self, name: str, spec: ArraySpec | None = None, verify: bool = True, mmap: bool = False) -> np.ndarray:
         """Load an array by name, e.g. `map/points`, checked against the manifest's size and SHA-256
@@ -647,6 +725,7 @@ class BundleWriter:
             except BaseException:
                 self.abort()
                 raise
+        self._unsynced: dict[Path, None] = {}  # files written, to sync before the manifest (in order)
         self.model.written_by = f"terra {__version__}"
         self.model.version = (base.version if base is not None else 0) + 1
         self._base = base
@@ -750,7 +829,8 @@ class BundleWriter:
             dst.parent.mkdir(parents=True, exist_ok=True)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
-            identity = _write_new_file(dst, parts)
+            identity = _write_new_file(dst, parts, sync=False)  # synced at commit, with the others
+        self._unsynced[dst] = None
         _VERIFIED[identity] = digest
         self.model.files[file_name] = FileEntry(bytes=size, sha256=digest)
 
@@ -806,6 +886,7 @@ class BundleWriter:
             return Bundle(self.path)
         try:
             with writing(self.path, self.what):
+                sync_paths([path for path in self._unsynced if os.path.lexists(path)])  # before the manifest
                 _write_new_file(self._tmp / MANIFEST, text)
                 self._staging.commit(reclaim_in_background)
         except BaseException:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terra.bundle import MANIFEST, Bundle, BundleWriter, recover
+from terra.bundle import MANIFEST, Bundle, BundleWriter, recover, wait_for_reclaims
 from terra.datasets.base import CameraFrame, ClassTable, Frame
 from terra.errors import TerraError
 from terra.live.frames import LiveFrameError, check_live_frame
@@ -256,7 +256,9 @@ class Session:
             return self._latest
         if self.mapper.stats.counts.get("frames_fused", 0) == 0:
             return None
-        return self._snapshot(full=True, closing=True)
+        snapshot = self._snapshot(full=True, closing=True)
+        wait_for_reclaims()  # the folder holds the closing version alone when close returns
+        return snapshot
 
     def _check_open(self) -> None:
         if self._closed:

@@ -20,7 +20,7 @@ A version rewrites the chunks holding a row the fusion touched since the version
 (`MapFusion.touched`: every change of a row comes from a scan point associated to it; a new
 session touches every row) and the last, growing one, and hard-links the others from the version
 it starts from (BundleWriter.keep_from_base). Each file is verified by its SHA-256 as any bundle file.
-Readers derive the flat read view on load (`sorted_view`): rows sorted by voxel key, exactly the
+Readers derive the flat read view on load (terra/mapping/chunk_views.py): rows sorted by voxel key, exactly the
 arrays of the flat layout; MS-Avg norms and MS-Max ids are computed when first asked.
 Live sessions write chunked versions; batch runs (`terra map`, `--append`) and a session's closing
 version write the flat layout, which every reader of finished bundles expects.
@@ -28,6 +28,7 @@ version write the flat layout, which every reader of finished bundles expects.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -118,17 +119,26 @@ def is_chunked(bundle: Bundle) -> bool:
     return info is not None and info.chunk_rows is not None
 
 
-def read_rows(bundle: Bundle, names: tuple[str, ...], n: int, k: int, t: int) -> dict[str, np.ndarray]:
-    """The arrays `names` of a chunked map (e.g. "points", "votes", "counts", "keys") over its `n`
-    rows in creation order, each chunk checked against its size and SHA-256 and its shape and
-    dtype; "counts" gives counts_indptr, counts_indices, counts_data of the whole (n, k) matrix."""
+def stored_chunk_rows(bundle: Bundle) -> int:
+    """components.map.chunk_rows of a chunked map (TerraError when it is below 1)."""
     info = bundle.model.components.map
     rows = int(info.chunk_rows or 0) if info is not None else 0
     if rows < 1:
         raise TerraError(f"{bundle.path}/manifest.json: field 'components.map.chunk_rows' must be at least 1")
+    return rows
+
+
+def read_rows(
+    bundle: Bundle, names: tuple[str, ...], n: int, k: int, t: int, chunks: Sequence[int] | None = None
+) -> dict[str, np.ndarray]:
+    """The arrays `names` of a chunked map (e.g. "points", "votes", "counts", "keys") over its `n`
+    rows in creation order, each chunk checked against its size and SHA-256 and its shape and
+    dtype; "counts" gives counts_indptr, counts_indices, counts_data of the whole (n, k) matrix.
+    chunks: only these chunks (ascending), their rows one after the other (default: all)."""
+    rows = stored_chunk_rows(bundle)
     parts: dict[str, list[np.ndarray]] = {name: [] for name in names if name != "counts"}
     indptr, indices, data = [np.zeros(1, np.int64)], [np.zeros(0, np.int32)], [np.zeros(0, np.uint8)]
-    for c in range(chunk_count(n, rows)):
+    for c in range(chunk_count(n, rows)) if chunks is None else chunks:
         r = min(rows, n - c * rows)
         for name in parts:
             parts[name].append(bundle.array(f"{chunk_folder(c)}/{name}", _spec(name, r, t)))
@@ -183,27 +193,7 @@ def capped_votes(votes: np.ndarray) -> np.ndarray:
     return votes.astype(np.uint16)
 
 
-def sorted_view(bundle: Bundle, n: int, k: int, t: int) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
-    """(points (N, 3) float32, terrain votes (N, T) uint16, counts (N, K) CSR int32) of a chunked
-    map in the read view's order (by voxel key; a fixed map's own order): the arrays the flat
-    layout stores for the same map."""
-    voxel = n > 0 and bundle.has(f"{chunk_folder(0)}/keys")
-    rows = read_rows(bundle, ("points", "votes", "counts", *(("keys",) if voxel else ())), n, k, t)
-    counts = sp.csr_matrix(
-        (rows["counts_data"].astype(np.int32), rows["counts_indices"], rows["counts_indptr"]), shape=(n, k)
-    )
-    if not voxel:
-        return rows["points"], capped_votes(rows["votes"]), counts
-    # Keys are unique (checked below): any sort gives the one order. int32 row numbers gather faster.
-    order = np.argsort(rows["keys"]).astype(np.int32 if n < 2**31 else np.int64)
-    if n > 1 and np.any(np.diff(_gather_rows(rows["keys"], order)) == 0):
-        raise TerraError(f"{bundle.path}/map/chunks: a voxel key is stored twice (corrupt bundle)")
-    votes = capped_votes(_gather_rows(rows["votes"], order))
-    ordered = counts[order]  # rows keep their sorted bank ids
-    return _gather_rows(rows["points"], order), votes, ordered  # pyright: ignore[reportReturnType]  # stays csr
-
-
-def _gather_rows(array: np.ndarray, order: np.ndarray) -> np.ndarray:
+def gather_rows(array: np.ndarray, order: np.ndarray) -> np.ndarray:
     """array[order] along the first axis, each row moved as one opaque item (several times faster than
     NumPy's fancy indexing of a 2-D array with few columns)."""
     array = np.ascontiguousarray(array)
@@ -226,5 +216,5 @@ def stored_rows(bundle: Bundle, names: tuple[str, ...], n: int, k: int, t: int) 
         elif name == "session_votes":
             out[name] = rows[name][:, order]
         else:
-            out[name] = _gather_rows(rows[name], order)
+            out[name] = gather_rows(rows[name], order)
     return out

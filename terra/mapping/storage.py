@@ -188,7 +188,8 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     structure of the sparse counts and visibility index. max_ids: False checks the stored MS-Max
     ids but does not keep them (8 bytes a point; `ms_max_ids` computes them if asked), for callers
     that never use them, such as `terra build`."""
-    from terra.mapping.chunks import is_chunked, sorted_view
+    from terra.mapping.chunk_views import sorted_view
+    from terra.mapping.chunks import is_chunked
 
     chunked = is_chunked(bundle)
     if not bundle.has("map/points") and not chunked:

@@ -300,9 +300,9 @@ def test_kill_during_an_incremental_graph_update_keeps_the_last_version(tiny_cam
     written = {"n": 0}
     real_write = bundle_module._write_new_file
 
-    def counting(path, data, mode=0o666):
+    def counting(path, data, mode=0o666, **options):
         written["n"] += 1
-        return real_write(path, data, mode)
+        return real_write(path, data, mode, **options)
 
     marks = []
     bundle_module._write_new_file = counting

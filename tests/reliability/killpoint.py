@@ -54,10 +54,10 @@ def _kill_on_write(bundle, counter: _Counter) -> None:
     """Die before the n-th new file of a bundle is written."""
     real_write = bundle._write_new_file
 
-    def write(path, data, mode=0o666):
+    def write(path, data, mode=0o666, **options):
         if counter.hit():
             _kill()
-        return real_write(path, data, mode)
+        return real_write(path, data, mode, **options)
 
     bundle._write_new_file = write
 

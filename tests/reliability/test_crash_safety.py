@@ -248,11 +248,11 @@ def _enospc_at(monkeypatch, calls: int, code: int = errno.ENOSPC):
     real = bundle._write_new_file
     seen = []
 
-    def failing(path, data, mode=0o666):
+    def failing(path, data, mode=0o666, **options):
         seen.append(path)
         if len(seen) == calls:
             raise OSError(code, os.strerror(code), str(path))
-        return real(path, data, mode)
+        return real(path, data, mode, **options)
 
     monkeypatch.setattr(bundle, "_write_new_file", failing)
 

@@ -411,10 +411,10 @@ def test_a_full_disk_during_map_keeps_the_checkpoint_and_the_rerun_resumes(relia
     argv = ["map", reliability_seeds.datasets["terra-folder"], "--out", out, "-q", "-c", config]
     real = bundle_module._write_new_file
 
-    def full(path, data, mode=0o666):
+    def full(path, data, mode=0o666, **options):
         if ".o.terra." in str(path):  # the final bundle, not the checkpoints
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(path, data, mode)
+        return real(path, data, mode, **options)
 
     monkeypatch.setattr(bundle_module, "_write_new_file", full)
     line = refused(argv, "No space left on device", "free some space", "resume from the checkpoint")
