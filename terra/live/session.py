@@ -29,6 +29,7 @@ from terra.errors import TerraError
 from terra.live.frames import LiveFrameError, check_live_frame
 from terra.loaded import LoadedBundle
 from terra.mapping.align import Alignment
+from terra.mapping.chunk_views import forget as forget_view
 from terra.mapping.chunks import CHUNK_ROWS
 from terra.mapping.config import MappingConfig
 from terra.mapping.fusion import MapFusion
@@ -226,6 +227,7 @@ class Session:
                 if closing:
                     self._closed = True
                     self.mapper.fusion.release()
+                    forget_view(self.out)
                     self._latest = None  # a reader holding it keeps it; the session needs it no more
                 # The graph update reads the map as fused (full: as `terra build` reads it, below).
                 msm = self.mapper.finish() if self.graph and not full else None

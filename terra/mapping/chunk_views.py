@@ -123,6 +123,13 @@ def full_view(bundle: Bundle, n: int, k: int, t: int, voxel: bool) -> View:
     return View(gather_rows(rows["points"], order), votes, ordered, rows["keys"], sorted_keys, order)
 
 
+def forget(folder: str | os.PathLike[str]) -> None:
+    """Let go of what this process kept of the last view of the bundle `folder` (20 bytes a point):
+    a live session's close, whose last version is in the flat layout, derives no view from it."""
+    with _LOCK:
+        _MEMOS.pop(os.path.realpath(folder), None)
+
+
 def _index_type(n: int) -> type:
     return np.int32 if n < 2**31 else np.int64
 
