@@ -9,6 +9,8 @@ fusion state included.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -74,6 +76,9 @@ def test_live_fed_drive_equals_the_batch_map(tiny_campus, tiny_bundle, tmp_path)
     assert map_files(out) == map_files(tiny_bundle.path)
     # Closed: the fusion state is let go of, the snapshots read on, and nothing more is fused.
     assert session.mapper.fusion.geometry.size == 0 and len(early.bundle.msm) == early_points
+    from terra.mapping import chunk_views
+
+    assert os.path.realpath(out) not in chunk_views._MEMOS  # nor what the process kept of its last view
     assert session.close() is closing and Bundle(out).version == 3
     with pytest.raises(TerraError, match=r"live\.terra: the session is closed; a new Session\(\.\.\., resume=True\)"):
         session.add(tiny_campus[0])
