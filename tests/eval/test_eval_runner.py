@@ -137,7 +137,7 @@ def test_tuned_parameters_are_the_best_on_the_validation_scene_and_reproduce_the
     truth = region_truth(val.graph, val.gt.regions)
     for method in ("aib", "agglomerative"):
         entry = tuned.monitoring[method]
-        params = MonitorParams(entry["alpha"], entry.get("k"), entry.get("levels"))
+        params = MonitorParams(entry["alpha"], entry.get("k"), entry.get("levels"), entry.get("min_level"))
         run = monitoring_run(val, method, truth, params, config.regions.monitor_method)
         assert run.total.f1 == pytest.approx(entry["f1"])
 
