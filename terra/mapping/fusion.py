@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from terra.errors import TerraError
 from terra.geometry import CameraCalibration, invert_pose, transform_points, voxel_keys
 from terra.mapping.association import FixedMap, VoxelMap, grown
 from terra.mapping.bank import EmbeddingBank
@@ -149,6 +150,10 @@ class MapFusion:
 
     def associate(self, points_lidar: np.ndarray, T_map_lidar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Scan (n, 3) LiDAR frame -> (points in the map frame (n, 3) float64, map index (n,))."""
+        if self.released:  # its rows are gone: a new point would start another map
+            raise TerraError(
+                "this map's fusion state was let go of when its session closed; resume the bundle to go on"
+            )
         points_map = transform_points(np.asarray(T_map_lidar, np.float64), np.asarray(points_lidar, np.float64))
         index = self.geometry.associate(points_map)
         self.votes = grown(self.votes, self.geometry.size)

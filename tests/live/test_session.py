@@ -84,6 +84,8 @@ def test_live_fed_drive_equals_the_batch_map(tiny_campus, tiny_bundle, tmp_path)
         session.add(tiny_campus[0])
     with pytest.raises(TerraError, match="the session is closed"):
         session.snapshot()
+    with pytest.raises(TerraError, match="fusion state was let go of when its session closed"):
+        session.mapper.fusion.associate(np.zeros((1, 3)), np.eye(4))
 
 
 def test_append_in_two_parts_equals_one_run(tiny_campus, tiny_bundle, tmp_path):
