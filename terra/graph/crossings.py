@@ -33,6 +33,7 @@ away from obstacles, and level.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -184,14 +185,8 @@ def crossing_links(
         dist, idx = dist.reshape(len(gaps), k), idx.reshape(len(gaps), k)
 
         def passes(rows: np.ndarray, c: int, gaps=gaps, places=places, idx=idx) -> np.ndarray:
-            a, b = gap_xy[gaps[rows]], place_xy[places[idx[rows, c]]]
-            ok = clear(a, b)
-            if ok.any():  # no step above the gap's own along the line
-                ends = np.vstack([a[ok], b[ok]])
-                ends = np.column_stack([ends, np.zeros(len(ends))])
-                pairs = np.column_stack([np.arange(ok.sum()), np.arange(ok.sum()) + ok.sum()])
-                ok[ok] = edge_geometry(layers, ends, pairs)[:, 0] <= max_step
-            return ok
+            # no step above the gap's own along the line
+            return _clear_and_level(clear, layers, gap_xy[gaps[rows]], place_xy[places[idx[rows, c]]], max_step)
 
         first = first_passing(np.isfinite(dist), passes)
         has = first >= 0
@@ -268,15 +263,31 @@ def level_links(
 
     def passes(rows: np.ndarray, c: int) -> np.ndarray:
         a, b = rows, other[rows, c]
-        ok = clear(xy[a], xy[b])
-        pairs = np.column_stack([a[ok], b[ok]])
-        ok[ok] = (edge_geometry(layers, flat, pairs)[:, 0] <= max_step) & _observed_line(layers, xy, pairs)
+        ok = _clear_and_level(clear, layers, xy[a], xy[b], max_step)
+        ok[ok] = _observed_line(layers, xy, np.column_stack([a[ok], b[ok]]))
         return ok
 
     first = first_passing(valid, passes)
     has = np.flatnonzero(first >= 0)
     pairs = np.sort(np.column_stack([has, other[has, first[has]]]), axis=1)
     return np.unique(pairs, axis=0).reshape(-1, 2).astype(np.int64)
+
+
+def _clear_and_level(
+    clear: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    layers: GroundLayers,
+    a: np.ndarray,
+    b: np.ndarray,
+    max_step: float,
+) -> np.ndarray:
+    """(m,) bool: whether each straight line from `a` to `b` (m, 2) metres crosses only the cells
+    `clear` (grid_line_clear) passes and no step above `max_step` metres (edge_geometry)."""
+    ok = clear(a, b)
+    if ok.any():
+        m = int(ok.sum())
+        ends = np.column_stack([np.vstack([a[ok], b[ok]]), np.zeros(2 * m)])
+        ok[ok] = edge_geometry(layers, ends, np.column_stack([np.arange(m), np.arange(m) + m]))[:, 0] <= max_step
+    return ok
 
 
 def _observed_line(layers: GroundLayers, xy: np.ndarray, pairs: np.ndarray) -> np.ndarray:
