@@ -715,6 +715,7 @@ class BundleWriter:
         self.what = what  # for messages: "bundle", "mapping checkpoint"
         self.model: BundleManifest = _manifest({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}})
         self._done = False
+        self._folders: set[Path] = set()  # folders of the staged version made so far (`_folder`)
         with writing(self.path, what):
             self._staging = Staging(self.path)
             self._tmp = self._staging.folder
@@ -762,12 +763,18 @@ class BundleWriter:
         # manifest vouches for it (hashed once per file identity: a file carried on is not hashed again).
         source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
         dst = self._tmp / file_name
-        dst.parent.mkdir(parents=True, exist_ok=True)
+        self._folder(dst.parent)
         try:
             os.link(source, dst)
         except OSError:
             shutil.copy2(source, dst)
         self.model.files[file_name] = base.files[file_name]
+
+    def _folder(self, folder: Path) -> None:
+        """Make `folder` of the staged version once (a live version links some 200 chunk files)."""
+        if folder not in self._folders:
+            folder.mkdir(parents=True, exist_ok=True)
+            self._folders.add(folder)
 
     def keep_from_base(self, file_names: Sequence[str]) -> bool:
         """Carry files of the base version (e.g. a map chunk dropped with its component) into this
@@ -826,7 +833,7 @@ class BundleWriter:
             return
         dst = self._tmp / file_name
         with writing(self.path, self.what):
-            dst.parent.mkdir(parents=True, exist_ok=True)
+            self._folder(dst.parent)
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
             identity = _write_new_file(dst, parts, sync=False)  # synced at commit, with the others

@@ -36,10 +36,12 @@ class LoadedBundle:
     tasks.embedder), refused when it is not the map's; `embedder`: an already loaded one to use
     (checked against the map's name and dimension)."""
 
-    def __init__(self, path: str | Path, embedder_name: str | None = None, embedder: TextEmbedder | None = None):
+    def __init__(
+        self, path: str | Path | Bundle, embedder_name: str | None = None, embedder: TextEmbedder | None = None
+    ):
         from terra.perception.text import check_configured_embedder, check_embedder
 
-        self.bundle = Bundle(path)
+        self.bundle = path if isinstance(path, Bundle) else Bundle(path)  # a version just opened is not read again
         recorded = self.bundle.model.embedder
         if recorded is None:
             raise TerraError(

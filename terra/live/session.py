@@ -223,7 +223,7 @@ class Session:
                 if self.mapper.stats.counts.get("frames_fused", 0) == 0:
                     raise TerraError(f"{self.out}: no frame fused yet; nothing to commit")
                 frames, map_time = self.mapper.next_frame, self.mapper.last_stamp
-                self._commit_map(finished=full)
+                committed = self._commit_map(finished=full)
                 if closing:
                     self._closed = True
                     self.mapper.fusion.release()
@@ -238,9 +238,9 @@ class Session:
                 msm = load_map(Bundle(self.out), max_ids=False)
             note, update = self._commit_graph(msm, full) if msm is not None else ("graph off", {})
             seconds["graph"] = time.perf_counter() - start - seconds["map"]
-            bundle = Bundle(self.out)
+            bundle = Bundle(self.out) if msm is not None and not note else committed  # a graph version came after
             self._base = bundle
-            loaded = LoadedBundle(self.out)
+            loaded = LoadedBundle(bundle)
             loaded.require_map()  # read now: the view answers from this version whatever follows
             _ = loaded.graph
             seconds["load"] = time.perf_counter() - start - seconds["map"] - seconds["graph"]
@@ -266,9 +266,10 @@ class Session:
         if self._closed:
             raise TerraError(f"{self.out}: the session is closed; a new Session(..., resume=True) continues the drive")
 
-    def _commit_map(self, finished: bool) -> None:
+    def _commit_map(self, finished: bool) -> Bundle:
         """Commit the map and its fusion state as the bundle's next version: in row chunks shared with
-        the version before (terra/mapping/chunks.py), or `finished`, in the flat layout batch runs write."""
+        the version before (terra/mapping/chunks.py), or `finished`, in the flat layout batch runs write.
+        Returns the committed version."""
         fingerprint = f"live:{self.name}:{self._first_frame}"  # one entry per session, updated per snapshot
         source = {"name": self.name, "fingerprint": fingerprint, "frames": self.mapper.next_frame}
         sources = _sources(self._base, source, self._first_frame)
@@ -282,11 +283,12 @@ class Session:
                 write_fused(*args)
             else:
                 write_live(*args, chunk_rows=self.chunk_rows)
-            writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
+            committed = writer.commit(reclaim_in_background=True)  # the replaced version is deleted off the hot path
         except BaseException:
             writer.abort()
             raise
         self.mapper.fusion.untouch()  # the next version starts from this one
+        return committed
 
     def _commit_graph(self, msm: MetricSemanticMap, full: bool) -> tuple[str, dict]:
         """Update the scene graph on the committed map `msm` (with `full`, the map as stored) and commit it:

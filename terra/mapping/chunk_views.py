@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from terra.bundle import Bundle
 
 _VIEW_FILES = ("points", "votes", "counts_indptr", "counts_indices", "counts_data")
+_PATCH_VIEW_FILES = tuple(f"patch_{name}" for name in _VIEW_FILES) + ("patch_rows",)
 _MEMOS: OrderedDict[str, _Memo] = OrderedDict()  # by the bundle folder's real path, most recent last
 _MEMO_LIMIT = 4  # bundle folders remembered (a process serves one live map, or a few)
 _LOCK = threading.Lock()
@@ -85,8 +86,14 @@ class _Memo:
 
 
 def view_files(c: int, voxel: bool) -> list[str]:
-    """The files of chunk `c` the read view is made of."""
-    return [f"{chunk_folder(c)}/{name}.npy" for name in (*_VIEW_FILES, *(("keys",) if voxel else ()))]
+    """The files of chunk `c` the read view can be made of (those of its row patch included)."""
+    names = (*_VIEW_FILES, *(("keys",) if voxel else ()), *_PATCH_VIEW_FILES)
+    return [f"{chunk_folder(c)}/{name}.npy" for name in names]
+
+
+def _digests(files: dict, c: int, voxel: bool) -> dict[str, str]:
+    """File name -> SHA-256 of the view files of chunk `c` that `files` (a manifest's files) holds."""
+    return {name: files[name].sha256 for name in view_files(c, voxel) if name in files}
 
 
 def sorted_view(bundle: Bundle, n: int, k: int, t: int) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
@@ -140,9 +147,9 @@ def _remember(key: str, bundle: Bundle, view: View, voxel: bool, t: int) -> None
     for array in arrays:
         array.flags.writeable = False
     rows = stored_chunk_rows(bundle)
-    names = [name for c in range(chunk_count(view.keys.size, rows)) for name in view_files(c, voxel)]
+    digests = [_digests(bundle.files, c, voxel) for c in range(chunk_count(view.keys.size, rows))]
     memo = _Memo(
-        {name: bundle.files[name].sha256 for name in names},
+        {name: sha for chunk in digests for name, sha in chunk.items()},
         rows,
         t,
         int(view.counts.get_shape()[1]),
@@ -165,11 +172,11 @@ def _changed_chunks(bundle: Bundle, memo: _Memo, n: int, voxel: bool) -> list[in
     unchanged chunk would hold rows the previous view did not have."""
     changed = []
     for c in range(chunk_count(n, memo.rows)):
-        names = view_files(c, voxel)
-        if all(name in bundle.files and bundle.files[name].sha256 == memo.digests.get(name) for name in names):
+        now = _digests(bundle.files, c, voxel)
+        if now and now == {name: memo.digests[name] for name in view_files(c, voxel) if name in memo.digests}:
             if min(n, (c + 1) * memo.rows) > memo.keys.size:
                 return None
-            for name in names:
+            for name in now:
                 bundle.check(name[: -len(".npy")])
         else:
             changed.append(c)

@@ -19,7 +19,9 @@ state/meta.json) is stored as in the flat layout, and the flat per-point files a
 A version rewrites the chunks holding a row the fusion touched since the version before
 (`MapFusion.touched`: every change of a row comes from a scan point associated to it; a new
 session touches every row) and the last, growing one, and hard-links the others from the version
-it starts from (BundleWriter.keep_from_base). Each file is verified by its SHA-256 as any bundle file.
+it starts from (BundleWriter.keep_from_base). A full chunk in which few rows changed since it was
+written keeps its files too and gets a row patch beside them (terra/mapping/chunk_patches.py),
+which readers apply. Each file is verified by its SHA-256 as any bundle file.
 Readers derive the flat read view on load (terra/mapping/chunk_views.py): rows sorted by voxel key, exactly the
 arrays of the flat layout; MS-Avg norms and MS-Max ids are computed when first asked.
 Live sessions write chunked versions; batch runs (`terra map`, `--append`) and a session's closing
@@ -36,6 +38,15 @@ import scipy.sparse as sp
 
 from terra.errors import TerraError
 from terra.mapping.association import VoxelMap, grown
+from terra.mapping.chunk_patches import (
+    PATCH_ROWS,
+    PATCH_SHARE,
+    csr_rows,
+    patch_names,
+    patched,
+    patched_counts,
+    stored_patch_rows,
+)
 from terra.mapping.fusion import MapFusion
 from terra.npy import ArraySpec, check_csr, smallest_unsigned
 
@@ -67,23 +78,68 @@ def chunk_count(n: int, rows: int) -> int:
 def write_chunks(writer: BundleWriter, fusion: MapFusion, base: Bundle | None, rows: int = CHUNK_ROWS) -> int:
     """Put the per-point arrays of `fusion` into the version being written as chunks of `rows`
     rows, carrying unchanged chunks over from `base` (the version the writer starts from, whose
-    chunks hold the fusion's rows as they were when it was committed). Returns the chunks written."""
+    chunks hold the fusion's rows as they were when it was committed) and patching full chunks in
+    which few rows changed (terra/mapping/chunk_patches.py). Returns the chunks written whole."""
     n = fusion.geometry.size
     count = chunk_count(n, rows)
+    touched = fusion.touched_rows()
     changed = np.zeros(count, dtype=bool)
-    changed[fusion.touched_rows() // rows] = True
+    changed[touched // rows] = True
     info = base.model.components.map if base is not None else None
     shareable = info is not None and info.chunk_rows == rows
+    full_in_base = int(info.points or 0) // rows if shareable and info is not None else 0
     voxel, sessions = isinstance(fusion.geometry, VoxelMap), fusion.session_hits.shape[1] > 1
     fusion.counts.compact()
     count_rows = fusion.counts.keys >> 32
     written = 0
     for c in range(count):
-        if shareable and not changed[c] and writer.keep_from_base(chunk_files(c, voxel, sessions)):
-            continue
+        files = chunk_files(c, voxel, sessions)
+        if shareable and base is not None and c < full_in_base:
+            patch = [f"{chunk_folder(c)}/{name}.npy" for name in patch_names(voxel, sessions)]
+            if not changed[c] and writer.keep_from_base(files + (patch if base.has(patch[0][:-4]) else [])):
+                continue
+            local = touched[(touched >= c * rows) & (touched < (c + 1) * rows)] - c * rows
+            if changed[c] and _patch_chunk(writer, fusion, base, c, rows, local, files):
+                continue
         _put_chunk(writer, fusion, c, c * rows, min(n, (c + 1) * rows), count_rows)
         written += 1
     return written
+
+
+def _patch_chunk(
+    writer: BundleWriter, fusion: MapFusion, base: Bundle, c: int, rows: int, local: np.ndarray, files: list[str]
+) -> bool:
+    """Chunk `c` (full, `rows` rows) as the base's files and a patch of its rows changed since they
+    were written: those of the base's patch and `local` (chunk-local, ascending); False (nothing
+    written) when they are over PATCH_SHARE of the rows or the base lacks a file of the chunk."""
+    folder = chunk_folder(c)
+    try:
+        before = stored_patch_rows(base, folder, rows)
+    except TerraError:
+        return False  # a damaged patch: the chunk is written whole again
+    patch = np.union1d(before, local)
+    if patch.size > PATCH_SHARE * rows or not writer.keep_from_base(files):
+        return False
+    put = lambda name, array: writer.put_array(f"{folder}/{name}", array, share=True)  # noqa: E731
+    put(PATCH_ROWS, patch.astype(np.int32))
+    at = c * rows + patch  # the rows in creation order
+    if isinstance(fusion.geometry, VoxelMap):
+        voxels = fusion.geometry.state(at)
+        put("patch_sums", voxels["sums"])
+        put("patch_hits", smallest_unsigned(voxels["hits"]))
+        put("patch_points", (voxels["sums"] / voxels["hits"][:, None]).astype(np.float32))  # as _put_chunk
+    else:
+        put("patch_points", fusion.geometry.points()[at])
+    n = fusion.geometry.size
+    put("patch_votes", smallest_unsigned(grown(fusion.votes, n)[at]))
+    indptr, columns, values = csr_rows(fusion.counts.keys, fusion.counts.values, at)
+    put("patch_counts_indptr", indptr)
+    put("patch_counts_indices", columns)
+    put("patch_counts_data", smallest_unsigned(values))
+    if fusion.session_hits.shape[1] > 1:
+        put("patch_session_hits", smallest_unsigned(grown(fusion.session_hits, n)[at]))
+        put("patch_session_votes", smallest_unsigned(fusion.row_session_votes(c * rows, (c + 1) * rows)[:, patch]))
+    return True
 
 
 def _put_chunk(writer: BundleWriter, fusion: MapFusion, c: int, start: int, stop: int, count_rows: np.ndarray) -> None:
@@ -133,17 +189,20 @@ def read_rows(
 ) -> dict[str, np.ndarray]:
     """The arrays `names` of a chunked map (e.g. "points", "votes", "counts", "keys") over its `n`
     rows in creation order, each chunk checked against its size and SHA-256 and its shape and
-    dtype; "counts" gives counts_indptr, counts_indices, counts_data of the whole (n, k) matrix.
+    dtype, with each chunk's row patch applied (terra/mapping/chunk_patches.py); "counts" gives
+    counts_indptr, counts_indices, counts_data of the whole (n, k) matrix.
     chunks: only these chunks (ascending), their rows one after the other (default: all)."""
     rows = stored_chunk_rows(bundle)
     parts: dict[str, list[np.ndarray]] = {name: [] for name in names if name != "counts"}
     indptr, indices, data = [np.zeros(1, np.int64)], [np.zeros(0, np.int32)], [np.zeros(0, np.uint8)]
     for c in range(chunk_count(n, rows)) if chunks is None else chunks:
-        r = min(rows, n - c * rows)
+        r, folder = min(rows, n - c * rows), chunk_folder(c)
+        patch = stored_patch_rows(bundle, folder, r)  # rows changed since the chunk was written
         for name in parts:
-            parts[name].append(bundle.array(f"{chunk_folder(c)}/{name}", _spec(name, r, t)))
+            array = bundle.array(f"{folder}/{name}", _spec(name, r, t))
+            parts[name].append(array if name == "keys" else patched(bundle, folder, name, array, patch, t))
         if "counts" in names:
-            p, i, d = _chunk_counts(bundle, c, r, k)
+            p, i, d = patched_counts(bundle, folder, _chunk_counts(bundle, c, r, k), patch, k)
             indptr.append(p[1:] + indptr[-1][-1])
             indices.append(i)
             data.append(d)

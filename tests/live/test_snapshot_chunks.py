@@ -112,3 +112,66 @@ def test_append_continues_a_live_version_and_a_session_continues_a_batch_map(tin
     resumed.snapshot()
     assert Bundle(batch).has("map/chunks/00000/keys")
     assert_same_map(batch, tiny_bundle.path)
+
+
+def _patched_chunks(out) -> dict[str, np.ndarray]:
+    """Chunk folder -> its patched rows (chunk-local), for the chunks of `out` with a row patch."""
+    bundle = Bundle(out)
+    names = [name for name in bundle.files if name.endswith("/patch_rows.npy")]
+    return {name.split("/")[2]: bundle.array(name[: -len(".npy")]) for name in names}
+
+
+def test_a_chunk_in_which_few_rows_changed_keeps_its_files_and_gets_a_row_patch(tiny_campus, tmp_path):
+    """Old chunks with a few rows seen again keep their files (the same inodes) and store those rows
+    in a patch, cumulative over versions; the map read is the flat map of the same fusion, and a
+    session resumed from a patched version continues it exactly."""
+    out = tmp_path / "live.terra"
+    session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name, chunk_rows=ROWS)
+    for i in range(20):
+        session.add(tiny_campus[i])
+    first = session.snapshot()
+    before = _chunk_inodes(out)
+    full = len(first.bundle.msm) // ROWS
+    versions = []
+    for frame in (20, 21):
+        _add_near_part(session, tiny_campus[frame], 4.0)
+        touched = session.mapper.fusion.touched_rows()
+        session.snapshot()
+        versions.append((touched, _patched_chunks(out)))
+    (touched, patches), (touched2, patches2) = versions
+    assert patches and all(int(c) < full for c in patches)  # only chunks that were full are patched
+    for c, rows in patches.items():
+        local = touched[touched // ROWS == int(c)] % ROWS
+        np.testing.assert_array_equal(rows, local)  # the rows seen again, and only those
+        assert 0 < rows.size <= 0.25 * ROWS
+        assert _chunk_inodes(out)[f"map/chunks/{c}/points.npy"] == before[f"map/chunks/{c}/points.npy"]
+    for c, rows in patches2.items():  # cumulative: the rows of the patch before are still there
+        earlier = patches.get(c, np.zeros(0, np.int32))
+        local = touched2[touched2 // ROWS == int(c)] % ROWS
+        np.testing.assert_array_equal(rows, np.union1d(earlier, local))
+    Bundle(out).verify()
+    chunked = tmp_path / "chunked.terra"
+    shutil.copytree(out, chunked)
+    assert_same_map(session.snapshot().bundle.msm, chunked)  # the session's view is the version as read
+    resumed = Session(chunked, tiny_campus.classes, graph=False, resume=True, name=tiny_campus.name, chunk_rows=ROWS)
+    for live in (session, resumed):
+        live.add(tiny_campus[22])
+        live.close()
+    assert map_files(chunked) == map_files(out)  # the patched version restored the fusion exactly
+
+
+def test_a_damaged_row_patch_is_refused(tiny_campus, tmp_path):
+    out = tmp_path / "live.terra"
+    session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name, chunk_rows=ROWS)
+    for i in range(20):
+        session.add(tiny_campus[i])
+    session.snapshot()
+    _add_near_part(session, tiny_campus[20], 4.0)
+    session.snapshot()
+    chunk = sorted(_patched_chunks(out))[0]
+    damaged = out / f"map/chunks/{chunk}/patch_votes.npy"
+    data = bytearray(damaged.read_bytes())
+    data[-1] ^= 1
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(TerraError, match=f"{chunk}/patch_votes.npy: checksum mismatch"):
+        load_map(Bundle(out))
