@@ -487,6 +487,14 @@ class UpdateSection(Section):
         ge=0.0,
         description="metres of map read around the rebuilt area (the GVD of a free area wider than this may differ)",
     )
+    max_crop_side: float = Field(
+        default=96.0,
+        gt=0.0,
+        description=(
+            "metres; a rebuilt part longer than this whose bounding box it fills less than half of (a band along the "
+            "drive, as a sweep gives) is cut into squares of this side, each read with a crop of its own"
+        ),
+    )
     move_tolerance: float = Field(
         default=0.05, ge=0.0, description="metres a map point may move (its voxel mean) before it counts as changed"
     )

@@ -9,7 +9,9 @@ removed, moved or re-classed since, and rebuilds the graph only there:
    anchored at x = y = 0) that hold at least `min_changed_points` changed points (fewer wait, and
    count again at the next update);
 2. the zone: the changed tiles grown by `replace_margin`; its places are rebuilt. The crops: each
-   connected part's bounding box grown by `context_margin`, whose points the rebuild reads: the
+   connected part's bounding box grown by `context_margin` (a long part that fills less than half
+   of its box, as the band a sweep rebuilds, cut into squares of `max_crop_side` first, each a part
+   of its own whose cut edges are stitched to its neighbours' places), whose points the rebuild reads: the
    terrain grid, the per-terrain GVD places and the links of the crop, by the same functions a
    full build runs on the whole map (terra.graph.pipeline); on a LiDAR-only map, on the crop's
    ground segmented from its points (terra.graph.ground), as a full build does on the whole map.
@@ -223,7 +225,7 @@ def tile_zone(changed_xy: np.ndarray, config: BuildConfig, min_points: int | Non
     changed[ij[:, 0] - low[0], ij[:, 1] - low[1]] = True
     grown = _grow(changed, grow)
     near = _grow(grown, reach - grow)
-    zone, parts = _parts(grown)
+    zone, parts = _cut_long(*_parts(grown), max(1, int(up.max_crop_side // tile)))
     crops = []
     for rows, cols in parts:
         x0, x1 = (low[0] + rows.start) * tile - up.context_margin, (low[0] + rows.stop) * tile + up.context_margin
@@ -250,6 +252,31 @@ def _parts(mask: np.ndarray) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
     labels, _ = raster.label(mask, EIGHT, np.int32)
     boxes = [box for box in ndimage.find_objects(labels) if box is not None]
     return labels, [(box[0], box[1]) for box in boxes]
+
+
+def _cut_long(
+    zone: np.ndarray, boxes: list[tuple[slice, slice]], block: int
+) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
+    """The parts (labels 1..K, their bounding slices) with each part longer than `block` tiles that
+    fills less than half of its bounding box cut into squares of `block` tiles, each piece a part of
+    its own (labels 1..K' again). A sweep rebuilds the band the robot drove since the last one: its
+    bounding box, read as one crop, was mostly map far from any change."""
+    from scipy import ndimage
+
+    out = np.zeros_like(zone)
+    count = 0
+    for label, (rows, cols) in enumerate(boxes, start=1):
+        part = zone[rows, cols] == label
+        r, c = np.nonzero(part)
+        if max(part.shape) > block and r.size < part.size / 2:
+            _, piece = np.unique((r // block) * part.shape[1] + c // block, return_inverse=True)
+        else:
+            piece = np.zeros(r.size, dtype=np.int64)
+        window = out[rows, cols]  # a view: the parts' boxes may overlap, their tiles do not
+        window[r, c] = count + 1 + piece
+        count += int(piece.max()) + 1 if r.size else 0
+    cut = [box for box in ndimage.find_objects(out) if box is not None]
+    return out, [(box[0], box[1]) for box in cut]
 
 
 def _grow(mask: np.ndarray, tiles: int) -> np.ndarray:
@@ -523,26 +550,21 @@ def _merge(old: SceneGraph, crop: _Rebuilt, zone: TileZone, config: BuildConfig)
     old_to = _index_map(len(old.places), keep, 0)
     new_to = _index_map(len(new_places.position), take, len(keep))
     kept_kind = old.place_edge_kind != EDGE_BRIDGE  # bridges are recomputed on the merged places
-    # Each side's edges, costs, kinds, places (positions, terrains), their merged indices, and the
-    # merged places its cut edges are stitched to (the other side's: merged[first:last]).
+    # Each side's edges, costs, kinds, places (positions, terrains) and their merged indices. A cut
+    # edge is stitched to a merged place of another group than its taken end's: the kept places are
+    # group 0, the rebuilt ones their part's number (the old side's to rebuilt places, as before; a
+    # part's to kept places and to the parts beside it, where a long part was cut: `_cut_long`).
     old_edges = (old.place_edges[kept_kind], old.place_edge_weight[kept_kind], old.place_edge_kind[kept_kind])
+    group = np.concatenate([np.zeros(len(keep), np.int64), zone.part(new_places.position[take]).astype(np.int64)])
     sides = (
-        (*old_edges, old.places, old_to, len(keep), None),
-        (new_links.edges, new_links.weight, new_links.kind, new_places, new_to, 0, len(keep)),
+        (*old_edges, old.places, old_to),
+        (new_links.edges, new_links.weight, new_links.kind, new_places, new_to),
     )
     parts, stitched = [], []
-    for side_edges, side_weight, side_kind, places, to, first, last in sides:
+    for side_edges, side_weight, side_kind, places, to in sides:
         parts.append(_remap(side_edges, side_weight, side_kind, to))
         cut = _stitch(
-            side_edges,
-            side_kind,
-            places.position,
-            places.terrain,
-            to,
-            merged,
-            first,
-            last,
-            config.update.stitch_distance,
+            side_edges, side_kind, places.position, places.terrain, to, merged, group, config.update.stitch_distance
         )
         stitched.append(_costed(cut, merged.position))
     edges = np.vstack([p[0] for p in parts] + [s[0] for s in stitched])
@@ -586,33 +608,37 @@ def _stitch(
     terrain: np.ndarray,
     to: np.ndarray,
     merged: _Merged,
-    first: int,
-    last: int | None,
+    group: np.ndarray,
     reach: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Edges of one part cut by the zone's border: (k, 2) pairs of (the taken end's merged index,
-    the lost end's replacement: its nearest same-terrain place among merged[first:last], within
-    `reach` metres (2-D)) and their kinds (k,); a lost end with no replacement is left out."""
+    """Edges of one side cut by a border (one end taken into the merged places, the other not): (k, 2)
+    pairs of (the taken end's merged index, the lost end's replacement: its nearest same-terrain
+    merged place of another `group` (M,) than the taken end's, within `reach` metres (2-D)) and
+    their kinds (k,); a lost end with no replacement is left out."""
     from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
+    none = np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     if len(edges) == 0:
-        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+        return none
     ends = to[edges]
     cut = np.flatnonzero((ends >= 0).sum(axis=1) == 1)
-    candidates = np.arange(first, len(merged.position) if last is None else last)
-    if len(cut) == 0 or len(candidates) == 0:
-        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     taken_side = np.where(ends[cut, 0] >= 0, 0, 1)
     taken = ends[cut, taken_side]
     lost = edges[cut, 1 - taken_side]
-    # Same terrain only: terrains far apart along a third axis.
-    spread = 1e9
-    tree = cKDTree(np.column_stack([merged.position[candidates, :2], merged.terrain[candidates] * spread]))
-    query = np.column_stack([position[lost, :2], terrain[lost] * spread])
-    distance, at = tree.query(query, distance_upper_bound=reach)
-    found = np.isfinite(distance)
-    pairs = np.column_stack([taken[found], candidates[at[found]]])
-    return pairs, kind[cut][found]
+    spread = 1e9  # same terrain only: terrains far apart along a third axis
+    pairs, kinds = [none[0]], [none[1]]
+    for g in np.unique(group[taken]):
+        candidates = np.flatnonzero(group != g)
+        mine = np.flatnonzero(group[taken] == g)
+        if len(candidates) == 0:
+            continue
+        tree = cKDTree(np.column_stack([merged.position[candidates, :2], merged.terrain[candidates] * spread]))
+        query = np.column_stack([position[lost[mine], :2], terrain[lost[mine]] * spread])
+        distance, at = tree.query(query, distance_upper_bound=reach)
+        found = np.isfinite(distance)
+        pairs.append(np.column_stack([taken[mine][found], candidates[at[found]]]))
+        kinds.append(kind[cut][mine][found])
+    return np.vstack(pairs), np.concatenate(kinds)
 
 
 def _costed(stitch: tuple[np.ndarray, np.ndarray], position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -88,6 +88,30 @@ def test_the_zone_is_the_changed_tiles_grown_with_a_crop_around_each_part():
     assert tile_zone(changed[2:], config) is None
 
 
+def test_a_long_mostly_empty_part_is_cut_into_squares_each_read_with_its_own_crop():
+    """A diagonal band of changed tiles (a drive since the last sweep): one bounding box would read
+    the whole square around it; cut into squares of max_crop_side, the crops read the band and its
+    margins, and every rebuilt tile is still rebuilt, inside the crop of its own part."""
+    update = {"tile": 10.0, "replace_margin": 0.0, "context_margin": 5.0, "min_changed_points": 1}
+    along = np.arange(5.0, 400.0, 10.0)
+    changed = np.column_stack([along, along])  # one point in each of 40 diagonal tiles
+    whole = tile_zone(changed, BuildConfig.model_validate({"update": {**update, "max_crop_side": 1000.0}}))
+    cut = tile_zone(changed, BuildConfig.model_validate({"update": {**update, "max_crop_side": 40.0}}))
+    assert whole is not None and cut is not None
+    assert len(whole.crops) == 1 and whole.crop_area == pytest.approx(410.0**2)
+    assert len(cut.crops) == 10  # 4 x 4 tile squares along the diagonal hold 4 tiles each
+    assert cut.crop_area == pytest.approx(10 * 50.0**2)
+    assert cut.area == whole.area == pytest.approx(40 * 100.0)
+    np.testing.assert_array_equal(cut.in_zone(changed), np.ones(len(changed), dtype=bool))
+    for (x, y), k in zip(changed, cut.part(changed)):
+        x0, y0, x1, y1 = cut.crops[k - 1]
+        assert x0 + 5.0 <= x - 5.0 and x + 5.0 <= x1 - 5.0 and y0 + 5.0 <= y - 5.0 and y + 5.0 <= y1 - 5.0
+    # A compact part is not cut, however large: its box is the area it rebuilds.
+    block = np.array([[x, y] for x in along[:12] for y in along[:12]])
+    square = tile_zone(block, BuildConfig.model_validate({"update": {**update, "max_crop_side": 40.0}}))
+    assert square is not None and len(square.crops) == 1
+
+
 # Full builds only when asked: these maps are small, and their crops cover much of them.
 UPDATE = {"tile": 10.0, "replace_margin": 0.0, "context_margin": 20.0, "min_changed_points": 1, "full_fraction": 1.0}
 
@@ -263,6 +287,49 @@ def test_a_strip_cut_by_the_rebuilt_area_stays_one_piece_without_bridges(text_em
     # differ from a full build's by a place or two (a named difference; the closing build has none).
     full = build_scene_graph(strip(True), config).graph
     assert abs(len(graph.places) - len(full.places)) <= 2
+
+
+def test_a_long_change_rebuilt_in_cut_parts_stays_one_piece_as_a_full_build(text_embedder):
+    """A dirt strip 8 m wide along a 150 m diagonal that widens along 110 m of it: the rebuilt band's
+    bounding box is mostly empty, so it is cut into parts (`max_crop_side` 30 m), each read with its
+    own crop; the edges between neighbouring parts are stitched to each other's places, so the strip
+    stays one piece without bridges, with the places of the full build but a few at the parts' borders."""
+    import scipy.sparse.csgraph as csgraph
+
+    from terra.graph.scene_graph import EDGE_BRIDGE
+    from tests.tasks.test_tasks_synthetic import BANK, TERRAINS, make_map
+
+    along, across = np.array([1.0, 1.0]) / np.sqrt(2.0), np.array([-1.0, 1.0]) / np.sqrt(2.0)
+
+    def band(t0: float, t1: float, s0: float, s1: float) -> np.ndarray:
+        t, u = np.meshgrid(np.arange(t0, t1, 0.15), np.arange(s0, s1, 0.15), indexing="ij")
+        xy = t.reshape(-1, 1) * along + u.reshape(-1, 1) * across
+        return np.column_stack([xy, np.zeros(len(xy))])
+
+    def strip(wide: bool):
+        points = band(0.0, 150.0, -4.0, 4.0)
+        if wide:
+            points = np.vstack([points, band(20.0, 130.0, 4.0, 10.0)])
+        msm = make_map(
+            points + 0.05, [{}] * len(points), text_embedder.embed_text(BANK), text_embedder.embed_text(TERRAINS)
+        )
+        votes = np.zeros((len(points), len(TERRAINS)), dtype=np.uint16)
+        votes[:, TERRAINS.index("dirt")] = 5
+        msm.terrain_votes = votes
+        return msm
+
+    config = BuildConfig.model_validate({"update": {**UPDATE, "context_margin": 10.0, "max_crop_side": 30.0}})
+    updater = GraphUpdater(config)
+    updater.update(strip(False))
+    second = updater.update(strip(True))
+    assert second.update.kind == "incremental", second.update.reason
+    zone = tile_zone(band(20.0, 130.0, 4.0, 10.0)[:, :2], config)
+    assert zone is not None and len(zone.crops) >= 4  # the cut, not one box around the diagonal
+    graph = second.graph
+    assert (graph.place_edge_kind == EDGE_BRIDGE).sum() == 0
+    assert csgraph.connected_components(graph.place_adjacency(), directed=False)[0] == 1
+    full = build_scene_graph(strip(True), config).graph
+    assert abs(len(graph.places) - len(full.places)) <= 3
 
 
 def test_sparse_changes_wait_for_the_sweep_and_are_rebuilt_then(text_embedder):
