@@ -16,8 +16,10 @@ paths over the steep hill, and the same pairs planned without a profile (over st
 
 Usage:
   python benchmarks/bench_curbs.py [--preset tiny] [--seed 0] [--frames 0] [--relief 0.3]
-      [--pairs 200] [--work DIR]
-Writes benchmarks/results/curbs-<preset>.json and prints it.
+      [--pairs 200] [--work DIR] [--lidar-only]
+Writes benchmarks/results/curbs-<preset>.json (curbs-<preset>-lidar.json with `--lidar-only`: the
+world simulated without cameras and mapped without the simulator's point labels, so the map has no
+terrain classes and its places stand on the ground segmented from its points) and prints it.
 """
 
 from __future__ import annotations
@@ -128,11 +130,17 @@ def judge_path(truth: TrueGround, waypoints: np.ndarray) -> dict[str, Any]:
     return {"step": found.step, "slope": found.slope, "beside_step": beside} | over
 
 
-def simulate_map_build(preset: str, seed: int, frames: int, relief: float, work: Path) -> tuple[Path, Path]:
-    """`terra sim` (geometry on), `terra map` and `terra build` into `work`; (config, bundle)."""
+def simulate_map_build(
+    preset: str, seed: int, frames: int, relief: float, work: Path, lidar_only: bool = False
+) -> tuple[Path, Path]:
+    """`terra sim` (geometry on), `terra map` and `terra build` into `work`; (config, bundle).
+    `lidar_only`: no camera, and the simulator's per-point labels moved out of the dataset before
+    mapping (to `work/lidar_labels.withheld`), as a LiDAR-only log has none: the map has no
+    terrain classes and its places stand on the ground segmented from its points."""
     config = work / "curbs.yaml"
     route = f"  route: {{max_frames: {frames}}}\n" if frames > 0 else ""
-    config.write_text(f"sim:\n  ground_relief_m: {relief}\n  geometry: {{}}\n{route}")
+    cameras = "  cameras: []\n" if lidar_only else ""
+    config.write_text(f"sim:\n  ground_relief_m: {relief}\n  geometry: {{}}\n{route}{cameras}")
     dataset, bundle = work / "dataset", work / "map.terra"
     for argv in (
         ["sim", "--preset", preset, "--seed", str(seed), "-c", str(config), "--out", str(dataset), "--overwrite"],
@@ -141,6 +149,8 @@ def simulate_map_build(preset: str, seed: int, frames: int, relief: float, work:
     ):
         if argv[0] == "build" or not (bundle if argv[0] == "map" else dataset).exists():
             subprocess.run([sys.executable, "-m", "terra", *argv], check=True, capture_output=True)
+        if argv[0] == "sim" and lidar_only and (dataset / "lidar_labels").exists():
+            (dataset / "lidar_labels").rename(work / "lidar_labels.withheld")
     return config, bundle
 
 
@@ -181,9 +191,28 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         worst = {"step_m": max(worst["step_m"], judged["step"]), "slope_deg": max(worst["slope_deg"], judged["slope"])}
         for name in truth.features:
             counts[f"paths_over_{name}"] += judged[name]
+    counts |= all_pairs_missed(cost_graph, place_component)
     counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
     counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
     return counts
+
+
+def all_pairs_missed(cost_graph, place_component: np.ndarray) -> dict[str, Any]:
+    """Over every ordered pair of places in one legal component of the truth (the steadier
+    figure: random pairs follow the places drawn), the share the wheelchair cannot reach from the
+    first (directed reachability on its cost graph, scipy.sparse.csgraph)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    n = len(place_component)
+    adjacency = csr_matrix((np.ones(len(cost_graph.indices)), cost_graph.indices, cost_graph.indptr), shape=(n, n))
+    reach = np.isfinite(shortest_path(adjacency, method="D", unweighted=True))
+    same = (place_component[:, None] == place_component[None, :]) & (place_component[:, None] >= 0)
+    np.fill_diagonal(same, False)
+    return {
+        "all_pairs_with_legal_route": int(same.sum()),
+        "all_pairs_legal_route_missed_share": round(float((same & ~reach).sum() / max(int(same.sum()), 1)), 4),
+    }
 
 
 def _count_free(graph, free_graph, truth: TrueGround, a: int, b: int, max_step: float, counts: dict) -> None:
@@ -224,6 +253,7 @@ def main() -> None:
     parser.add_argument("--relief", type=float, default=0.3, help="sim.ground_relief_m")
     parser.add_argument("--pairs", type=int, default=200)
     parser.add_argument("--work", type=Path, default=None, help="keep (and reuse) the dataset and map here")
+    parser.add_argument("--lidar-only", action="store_true", help="simulate no camera: places on the LiDAR ground")
     args = parser.parse_args()
     from terra.bundle import Bundle
     from terra.config import TerraConfig
@@ -240,7 +270,7 @@ def main() -> None:
         work = args.work or Path(scratch)
         work.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
-        config, bundle = simulate_map_build(args.preset, args.seed, args.frames, args.relief, work)
+        config, bundle = simulate_map_build(args.preset, args.seed, args.frames, args.relief, work, args.lidar_only)
         result["sim_map_build_s"] = round(time.perf_counter() - start, 1)
         world = generate_world(args.preset, args.seed, TerraConfig.read(config).sim)
         truth = true_ground(world, ROBOTS["wheelchair"])
@@ -250,7 +280,8 @@ def main() -> None:
         result["wheelchair"] = wheelchair_pairs(graph, truth, args.pairs, args.seed)
         result["wheelchair"]["seconds"] = round(time.perf_counter() - start, 2)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"curbs-{args.preset}.json").write_text(json.dumps(result, indent=1) + "\n")
+    name = f"curbs-{args.preset}{'-lidar' if args.lidar_only else ''}.json"
+    (RESULTS / name).write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result, indent=1))
 
 

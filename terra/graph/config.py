@@ -271,6 +271,16 @@ class LinkingSection(Section):
             "level ground (terra.graph.crossings.level_links; needs ground.layers; None = never)"
         ),
     )
+    step_link_distance: float | None = Field(
+        default=15.0,
+        gt=0.0,
+        description=(
+            "LiDAR-only maps, metres: every place links to the nearest place beyond a line of steps that split the "
+            "ground's GVD (ground.barrier_step) within this range along a clear line; each robot's profile judges the "
+            "step, read at least barrier_step (a legged robot takes a curb, a wheelchair does not; None = no links "
+            "across the lines: the ground's sides meet where it is level, and by bridges)"
+        ),
+    )
     curb_gap_max_width: float = Field(
         default=12.0, gt=0.0, description="metres; the widest (a longer level stretch is no gap in a curb)"
     )
@@ -441,6 +451,13 @@ class GroundSection(Section):
         default=True,
         description="compute the geometry layers and per-edge step and slope (false: none, as before; `plan --robot` "
         "then has nothing to check)",
+    )
+    barrier_step: float | None = Field(
+        default=0.08,
+        gt=0.0,
+        description="LiDAR-only maps, metres: a line of ground cells whose step reads above this (a curb, the foot "
+        "of a low wall) splits the ground's GVD, so places keep to each level and pass between levels where the "
+        "ground is level (a curb cut); needs `layers` (null: the GVD of the ground crosses steps)",
     )
 
     @field_validator("windows")

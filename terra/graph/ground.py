@@ -38,9 +38,11 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   tilt explains within the cell (s^2 |gradient|^2 / 12), metres.
 
 Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
-its step is the largest step of the cells it crosses, its rise (fall) the steepest climb (descent)
-along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
-feels, not one cell's gradient), leaving out the cells beside an obstacle when the edge has others.
+its step is the largest step of the cells it crosses (at least `line_step` where it crosses one of
+the layers' `lines`, the lines of steps of a LiDAR-only ground, `step_lines`), its rise (fall)
+the steepest climb (descent) along its direction i -> j over 1 m of travel, from the cells'
+heights (a slope a wheelchair feels, not one cell's gradient), leaving out the cells beside an
+obstacle when the edge has others.
 Cells without ground count as unknown and constrain nothing.
 """
 
@@ -162,6 +164,10 @@ class GroundLayers:
     # (n,) bool, in memory only (not stored): cells within a few cells of a blocked cell (grid_layers),
     # whose heights may be an object's lowest points; None where no obstacle is known.
     near_obstacle: np.ndarray | None = None
+    # (H, W) bool, in memory only: lines of steps (step_lines) that split a LiDAR-only ground's GVD;
+    # an edge over one climbs at least `line_step` metres (edge_geometry). None: no lines.
+    lines: np.ndarray | None = None
+    line_step: float = 0.0
 
     @property
     def slope(self) -> np.ndarray:
@@ -182,18 +188,23 @@ class GroundLayers:
         out[self.cells] = values
         return out.reshape(self.shape + values.shape[1:])
 
-    def lookup(self, xy: np.ndarray) -> np.ndarray:
-        """(m,) index into the observed cells of each map-frame point (m, 2+) (metres), -1 where
-        its cell is outside the grid or holds no ground."""
+    def flat_cells(self, xy: np.ndarray) -> np.ndarray:
+        """(m,) flat cell index row * W + col of each map-frame point (m, 2+) (metres), -1 where
+        it lies outside the grid."""
         H, W = self.shape
         rc = np.floor((np.asarray(xy, dtype=np.float64)[:, :2] - self.origin) / self.cell_size).astype(np.int64)
         rows, cols = rc[:, 1] - self.offset[0], rc[:, 0] - self.offset[1]
         inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
-        flat = np.where(inside, rows * W + cols, -1)
+        return np.where(inside, rows * W + cols, -1)
+
+    def lookup(self, xy: np.ndarray) -> np.ndarray:
+        """(m,) index into the observed cells of each map-frame point (m, 2+) (metres), -1 where
+        its cell is outside the grid or holds no ground."""
+        flat = self.flat_cells(xy)
         if len(self.cells) == 0:
             return np.full(len(flat), -1, dtype=np.int64)
         at = np.minimum(np.searchsorted(self.cells, flat), len(self.cells) - 1)
-        return np.where(inside & (self.cells[at] == flat), at, -1)
+        return np.where((flat >= 0) & (self.cells[at] == flat), at, -1)
 
     def centres(self, index: np.ndarray) -> np.ndarray:
         """(m, 2) map-frame x, y (metres) of the centres of observed cells `index` (m,)."""
@@ -224,6 +235,8 @@ BAND_CELLS = 1 << 18
 # median of heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
 BRIDGE = 3  # cells a step may look across for the nearest observed height (axis_step)
 CONTEXT = BRIDGE + 3
+STEP_LINE_CELLS = 3  # cells of a line of steps that splits a LiDAR-only ground's GVD (step_lines): 1.2 m at 0.4 m
+STEP_LINE_CLOSE = 1  # closing iterations of those lines: gaps of up to 2 cells (0.8 m) filled; a curb cut is 3 m
 
 
 def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_CELLS) -> GroundLayers:
@@ -555,6 +568,10 @@ def edge_geometry(
     at = layers.lookup(point)
     known = at >= 0
     step = np.where(known, layers.step[at], np.nan)
+    if layers.lines is not None:  # a line of steps: its cells read unevenly, or not at all in its shadow
+        flat = layers.flat_cells(point)
+        on_line = (flat >= 0) & layers.lines.ravel()[np.maximum(flat, 0)]
+        step = np.where(on_line, np.fmax(step, layers.line_step), step)
     # Beside an object the lowest points may be the object's (a bench's feet read as a bump of a few
     # centimetres, a 10 degree slope on a 5 degree lawn): an edge's slope is read on the samples
     # away from obstacles when it has two, else on all it has.
@@ -690,6 +707,28 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
         step = np.where(near, np.abs(jumps[:, 1] - jumps[:, 0]), step)
         out = np.fmax(out, np.where(clear | near, step, np.nan))
     return out.astype(np.float32)
+
+
+def step_lines(
+    layers: GroundLayers, min_step: float, min_cells: int = STEP_LINE_CELLS, close: int = STEP_LINE_CLOSE
+) -> np.ndarray:
+    """(H, W) bool on the layers' grid: the observed cells whose step reads above `min_step`
+    metres, with gaps of up to 2 x `close` cells between them filled (a binary closing: a curb
+    reads its step unevenly along its length, and its LiDAR shadow holds no ground, so its cells
+    come as two broken rows), in 8-connected lines of at least `min_cells` cells (a curb, the foot
+    of a low wall; a lone cell is a stone or a stray height, no line a robot meets)."""
+    out = np.zeros(layers.shape[0] * layers.shape[1], dtype=bool)
+    out[layers.cells[np.nan_to_num(layers.step, nan=0.0) > min_step]] = True
+    out = out.reshape(layers.shape)
+    if close > 0:  # padded: a closing erodes from outside the grid too
+        padded = ndimage.binary_closing(np.pad(out, close), np.ones((3, 3), bool), iterations=close)
+        out = np.asarray(padded)[close:-close, close:-close]
+    lines, count = raster.label(out, np.ones((3, 3), bool), np.int32)
+    if count == 0:
+        return out
+    long_enough = np.bincount(lines.ravel(), minlength=count + 1) >= min_cells
+    long_enough[0] = False
+    return long_enough[lines]
 
 
 def write_ground_layers(writer: BundleWriter, layers: GroundLayers) -> None:

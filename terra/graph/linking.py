@@ -123,6 +123,16 @@ def _length_on(
     return out
 
 
+def grid_line_crosses(cells: np.ndarray, origin: np.ndarray, cell_size: float) -> ClearFn:
+    """A ClearFn that passes the segments touching a True cell of `cells` (H, W) (a line of
+    steps), sampling each every half cell."""
+
+    def crosses(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return _length_on(cells, a, b, origin, cell_size) > 0
+
+    return crosses
+
+
 def grid_line_clear(traversable: np.ndarray, origin: np.ndarray, cell_size: float) -> ClearFn:
     """A ClearFn over a boolean (H, W) grid (grid.py convention), sampling each segment every
     half cell."""
@@ -197,6 +207,35 @@ def link_dead_ends(
         found_pairs.append(np.stack([a, b], axis=1))
         found_len.append(np.linalg.norm(position[a] - position[b], axis=1))
     return _unique_links(found_pairs, found_len)
+
+
+def link_across(
+    position: np.ndarray,
+    max_distance: float,
+    candidates: int,
+    across: ClearFn,
+    clear: ClearFn = always_clear,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Links (k, 2) (i < j, unique) and their lengths (k,) metres: each place at `position`
+    (P, 2+) metres to the nearest of its `candidates` nearest places within `max_distance` metres
+    whose straight line passes `across` (it crosses what the links are for) and `clear`."""
+    position = np.asarray(position, dtype=np.float64)
+    n = len(position)
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    k = min(candidates + 1, n)  # the place itself comes first
+    dist, idx = cKDTree(position[:, :2]).query(position[:, :2], k=k, distance_upper_bound=max_distance)
+    dist, idx = dist.reshape(n, k), idx.reshape(n, k)
+    valid = np.isfinite(dist) & (idx != np.arange(n)[:, None])
+
+    def passes(rows: np.ndarray, c: int) -> np.ndarray:
+        a, b = position[rows, :2], position[idx[rows, c], :2]
+        return across(a, b) & clear(a, b)
+
+    first = first_passing(valid, passes)
+    has = first >= 0
+    a, b = np.flatnonzero(has), idx[has, first[has]]
+    return _unique_links([np.stack([a, b], axis=1)], [np.linalg.norm(position[a] - position[b], axis=1)])
 
 
 def _unique_links(found_pairs: list[np.ndarray], found_len: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -28,12 +28,15 @@ from terra.graph.ground import (
     grid_layers,
     has_terrain_votes,
     map_ground,
+    step_lines,
 )
 from terra.graph.linking import (
     bridge_components,
     grid_gap_length,
     grid_line_clear,
+    grid_line_crosses,
     grid_line_passable,
+    link_across,
     link_dead_ends,
     link_strip_gaps,
 )
@@ -102,10 +105,15 @@ class PlaceLinks:
 
 
 def terrain_places(
-    grid: TerrainGrid, terrains: list[int], config: BuildConfig, show_progress: bool = False
+    grid: TerrainGrid,
+    terrains: list[int],
+    config: BuildConfig,
+    show_progress: bool = False,
+    barrier: np.ndarray | None = None,
 ) -> tuple[TerrainPlaceSet, np.ndarray, PlaceCounts]:
     """Places and GVD edges of every terrain in `terrains`, the union of the cleaned terrain masks
-    (traversable cells), and per-terrain counters."""
+    (traversable cells), and per-terrain counters. `barrier` (H, W) bool: cells no terrain's GVD
+    runs over (`gvd_barrier`); they stay traversable, so links may still cross them."""
     g, s = config.gvd, grid.cell_size
     positions, terrain_ids, clearances, edges, weights = [], [], [], [], []
     traversable = np.zeros(grid.shape, dtype=bool)
@@ -121,6 +129,8 @@ def terrain_places(
             counts.per_terrain[t] = 0
             del mask  # before the next terrain's mask: one full-grid mask at a time
             continue
+        if barrier is not None:
+            mask = mask & ~barrier
         cp = extract_places(
             mask,
             min_clearance=g.min_clearance / s,
@@ -154,6 +164,24 @@ def terrain_places(
     if tile_stats.windows:
         counts.gvd_tiles = GvdTiles(tile_stats.windows, round(tile_stats.max_margin * s, 3), tile_stats.rounds)
     return place_set, traversable, counts
+
+
+def gvd_barrier(layers: GroundLayers | None, config: BuildConfig, lidar_only: bool) -> np.ndarray | None:
+    """(H, W) bool: on a LiDAR-only map, the lines of cells whose ground step reads above
+    `build.ground.barrier_step` (terra.graph.ground.step_lines), which the ground's GVD does not
+    cross. Why: a camera map's terrains meet at a curb (sidewalk, road), so each terrain's GVD keeps
+    to one level; a LiDAR-only map has one terrain, `ground`, whose GVD ran across curbs anywhere,
+    and a wheelchair, refused every such edge, found no way across a road. Split at its steps, the
+    ground's GVD keeps to each level and passes between levels where the ground is level (a curb
+    cut); each place links to the nearest place across them (place_links). The lines are also
+    kept on `layers` (`lines`, `line_step`): an edge over one reads a step of at least
+    `barrier_step` (edge_geometry), as the line's own cells read unevenly, and not at all in its
+    LiDAR shadow. None on a camera map, without layers, or with `barrier_step` null."""
+    step = config.ground.barrier_step
+    if not lidar_only or layers is None or step is None:
+        return None
+    layers.lines, layers.line_step = step_lines(layers, step), step
+    return layers.lines
 
 
 def with_gap_places(
@@ -383,7 +411,8 @@ def build_scene_graph(
     with timer.stage("ground layers"):
         layers = grid_layers(msm.points, ground, grid) if ground is not None and config.ground.layers else None
     with timer.stage("GVD places"):
-        places, traversable, counts = terrain_places(grid, terrains, config, show_progress)
+        barrier = gvd_barrier(layers, config, lidar_only)
+        places, traversable, counts = terrain_places(grid, terrains, config, show_progress, barrier)
         places = with_gap_places(places, traversable, grid, layers, config)
         for t in places.terrain[len(places.position) - places.gap_places :]:
             counts.per_terrain[int(t)] = counts.per_terrain.get(int(t), 0) + 1
@@ -391,7 +420,7 @@ def build_scene_graph(
         raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
         links = with_level_links(
-            place_links(places, traversable, grid, config), places, traversable, grid, layers, config
+            place_links(places, traversable, grid, config, barrier), places, traversable, grid, layers, config
         )
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
@@ -480,9 +509,18 @@ def _map_grid(
     return grid, grid_stats  # point_terrain, which no later stage reads, goes here
 
 
-def place_links(places: TerrainPlaceSet, traversable: np.ndarray, grid: TerrainGrid, config: BuildConfig) -> PlaceLinks:
+def place_links(
+    places: TerrainPlaceSet,
+    traversable: np.ndarray,
+    grid: TerrainGrid,
+    config: BuildConfig,
+    barrier: np.ndarray | None = None,
+) -> PlaceLinks:
     """Every edge between places: the GVD edges, strip and grid-path links within a terrain, then
-    dead-end links across terrains and bridges between components; unique, cheapest kept."""
+    dead-end links across terrains, links across the lines of steps of `barrier` (H, W) bool
+    (`gvd_barrier`: each place to the nearest place beyond one within
+    `build.linking.step_link_distance`, for the robots that climb them), and bridges between
+    components; unique, cheapest kept."""
     lk = config.linking
     clear = grid_line_clear(traversable, grid.origin, grid.cell_size) if lk.require_clear_line else None
     kwargs = {"clear": clear} if clear is not None else {}
@@ -501,6 +539,10 @@ def place_links(places: TerrainPlaceSet, traversable: np.ndarray, grid: TerrainG
         lk.link_candidates,
         **kwargs,
     )
+    if barrier is not None and lk.step_link_distance is not None:  # across the lines of steps
+        across = grid_line_crosses(barrier, grid.origin, grid.cell_size)
+        steps, step_len = link_across(places.position, lk.step_link_distance, lk.link_candidates, across, **kwargs)
+        links, link_len = np.vstack([links, steps]), np.concatenate([link_len, step_len])
     edges = np.vstack([gvd_edges, gaps, links])
     weight = np.concatenate([gvd_weight, gap_len, link_len])
     kind = np.concatenate([np.full(len(gvd_edges), EDGE_GVD), np.full(len(gaps) + len(links), EDGE_CROSS_TERRAIN)])

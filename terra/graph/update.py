@@ -62,6 +62,7 @@ from terra.graph.pipeline import (
     PlaceLinks,
     TerrainPlaceSet,
     build_scene_graph,
+    gvd_barrier,
     no_places_reason,
     place_embeddings,
     place_links,
@@ -500,11 +501,17 @@ def _rebuilt_places(
         crop_layers = grid_layers(points, ground, grid) if ground is not None and config.ground.layers else None
         if crop_layers is not None:
             layers.append(crop_layers)
-        places, traversable, _ = terrain_places(grid, terrains, config)
+        barrier = gvd_barrier(crop_layers, config, lidar_only=point_terrain is None)
+        places, traversable, _ = terrain_places(grid, terrains, config, barrier=barrier)
         places = with_gap_places(places, traversable, grid, crop_layers, config)
         if len(places.position):
             links = with_level_links(
-                place_links(places, traversable, grid, config), places, traversable, grid, crop_layers, config
+                place_links(places, traversable, grid, config, barrier),
+                places,
+                traversable,
+                grid,
+                crop_layers,
+                config,
             )
             parts.append((places, links, zone.part(places.position) == k))
     offsets = np.cumsum([0] + [len(p.position) for p, _, _ in parts])

@@ -117,6 +117,46 @@ def test_a_wheelchair_crosses_a_built_street_at_its_curb_cut():
         plan_path(without, start, goal, robot=ROBOTS["wheelchair"])
 
 
+def test_a_lidar_only_street_keeps_places_to_each_level_and_a_wheelchair_crosses_at_the_cut():
+    # The same street without terrain classes (a LiDAR-only log): one terrain, `ground`, whose
+    # GVD is split at the curb's line of steps (build.ground.barrier_step), so places stand on the
+    # road and on the sidewalk, and the GVD passes between them only through the curb cut.
+    points, _ = curb_street()
+    graph = build_scene_graph(points_map(points)).graph
+    position = graph.places.position
+    road, walk = position[:, 1] < 4.5, position[:, 1] > 5.5
+    assert road.any() and walk.any()
+    assert np.all(np.abs(position[road, 2]) < 0.03) and np.all(np.abs(position[walk, 2] - 0.15) < 0.03)
+    start, goal = nearest_of(position, 3.0, 2.5), nearest_of(position, 27.0, 9.0)
+    chair = plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
+    assert chair.ground is not None and chair.ground.max_step_m <= 0.05
+    a, b = chair.waypoints[:-1], chair.waypoints[1:]
+    crosses = (a[:, 1] - 5.0) * (b[:, 1] - 5.0) < 0
+    assert crosses.sum() == 1  # one segment over the curb line, where the ground is level: the cut
+    ((a, b),) = zip(a[crosses], b[crosses])
+    x = a[0] + (5.0 - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+    assert 12.0 <= x <= 15.0
+    # Places also link straight across the curb (build.linking.step_link_distance), each such edge
+    # reading at least the barrier's 8 cm: a legged robot (20 cm) takes the curb where it stands,
+    # the wheelchair does not.
+    ends = position[graph.place_edges]
+    over = (ends[:, 0, 1] - 5.0) * (ends[:, 1, 1] - 5.0) < 0
+    beside_cut = over & (np.minimum(ends[:, 0, 0], ends[:, 1, 0]) > 15.5) | over & (ends.max(axis=1)[:, 0] < 11.5)
+    assert beside_cut.any() and np.all(graph.place_edge_geometry[beside_cut, 0] >= 0.08)
+    start, goal = nearest_of(position, 3.0, 2.5), nearest_of(position, 3.0, 9.0)
+    legged = plan_path(graph, start, goal, robot=ROBOTS["legged"])
+    chair = plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
+    assert legged.waypoints[:, 0].max() < 11.5 < 12.0 < chair.waypoints[:, 0].max()  # the chair goes by the cut
+    assert legged.ground is not None and 0.1 < legged.ground.max_step_m <= 0.2
+    # Not split, the ground's GVD is the street's middle line, on the curb: no place on the road.
+    flat = build_scene_graph(points_map(points), BuildConfig.model_validate({"ground": {"barrier_step": None}}))
+    assert not (flat.graph.places.position[:, 1] < 4.5).any()
+
+
+def nearest_of(position: np.ndarray, x: float, y: float) -> int:
+    return int(np.argmin(np.hypot(position[:, 0] - x, position[:, 1] - y)))
+
+
 def verge_street(verge_rise: float = 0.0, unseen: tuple[float, float] | None = None):
     """A road (y < 5, z = 0), a 15 cm curb, a grass verge (y 5..7, z = 0.15) and a sidewalk
     (y >= 7, `verge_rise` metres above the verge) over x 0..30: its terrain grid, ground layers

@@ -6,7 +6,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from terra.graph.linking import bridge_components, grid_line_clear, link_dead_ends
+from terra.graph.linking import bridge_components, grid_line_clear, grid_line_crosses, link_across, link_dead_ends
 
 
 def xy(*points):
@@ -17,6 +17,21 @@ def xy(*points):
 POSITION = xy((0, 0), (10, 0), (20, 0), (25, 0), (22, 15), (100, 0))
 TERRAIN = np.array([0, 0, 0, 1, 1, 1])
 EDGES = np.array([[0, 1], [1, 2]])
+
+
+def test_places_link_to_the_nearest_place_across_a_line():
+    # A line of cells along y = 1.6..2.0 m (row 4 of a 0.4 m grid) from x = 0 to 8 m; places A
+    # (1, 0) and C (5, 0) below it, B (1, 3) above it, D (20, 3) above it but past its end.
+    line = np.zeros((10, 60), dtype=bool)
+    line[4, :20] = True
+    position = xy((1, 0), (1, 3), (5, 0), (20, 3))
+    across = grid_line_crosses(line, np.zeros(2), 0.4)
+    links, length = link_across(position, max_distance=6.0, candidates=8, across=across)
+    # A's nearest is B (3 m, across); C's nearest across is B (5 m; A, 4 m away, is on its side);
+    # B's is A; D crosses nothing within 6 m (C's line to it, 15.3 m, is too long anyway).
+    assert links.tolist() == [[0, 1], [1, 2]]
+    assert np.allclose(length, [3.0, 5.0])
+    assert link_across(position, 2.0, 8, across)[0].shape == (0, 2)  # nothing across within 2 m
 
 
 def test_dead_ends_link_to_the_nearest_other_terrain_place_within_the_bound():
