@@ -22,7 +22,9 @@ if TYPE_CHECKING:
     import scipy.sparse as sp  # imported in the bodies that use it: lookups load the graph without SciPy
 
 EDGE_GVD = 0  # along one terrain's GVD
-EDGE_CROSS_TERRAIN = 1  # dead end linked to the nearest node of another terrain
+# A link between GVDs: a dead end to the nearest place of another terrain, a curb gap's place to
+# each side, a level link, or (LiDAR-only ground) a link across a line of steps.
+EDGE_CROSS_TERRAIN = 1
 EDGE_BRIDGE = 2  # joins otherwise disconnected components, with a penalty
 MAX_NODE_ID = (1 << 56) - 1  # a NodeSymbol keeps 56 bits for the index
 
