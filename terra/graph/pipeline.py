@@ -40,7 +40,7 @@ from terra.graph.linking import (
     link_dead_ends,
     link_strip_gaps,
 )
-from terra.graph.places import extract_places, unique_edge_rows
+from terra.graph.places import CellPlaces, extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources, GridTiles, GvdTiles
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, RegionLevel, SceneGraph
@@ -114,7 +114,7 @@ def terrain_places(
     """Places and GVD edges of every terrain in `terrains`, the union of the cleaned terrain masks
     (traversable cells), and per-terrain counters. `barrier` (H, W) bool: cells no terrain's GVD
     runs over (`gvd_barrier`); they stay traversable, so links may still cross them."""
-    g, s = config.gvd, grid.cell_size
+    s = grid.cell_size
     positions, terrain_ids, clearances, edges, weights = [], [], [], [], []
     traversable = np.zeros(grid.shape, dtype=bool)
     counts = PlaceCounts()
@@ -129,20 +129,7 @@ def terrain_places(
             counts.per_terrain[t] = 0
             del mask  # before the next terrain's mask: one full-grid mask at a time
             continue
-        if barrier is not None:
-            mask = mask & ~barrier
-        cp = extract_places(
-            mask,
-            min_clearance=g.min_clearance / s,
-            min_gap=g.min_gap / s,
-            gvd_result=_tiled_gvd(mask, config, s, tile_stats),
-            prune_ratio=g.prune_ratio,
-            prune_length=g.prune_length / s,
-            junction_merge=g.junction_merge,
-            max_deviation=g.max_deviation / s,
-            max_distance=g.max_distance / s,
-            cover_radius=g.cover_radius / s if g.cover_radius is not None else np.inf,
-        )
+        cp = _mask_places(mask & ~barrier if barrier is not None else mask, config, s, tile_stats)
         xy = grid.cell_centres(cp.cells)
         z = grid.ground_at(cp.cells)
         positions.append(np.column_stack([xy, z]))
@@ -164,6 +151,23 @@ def terrain_places(
     if tile_stats.windows:
         counts.gvd_tiles = GvdTiles(tile_stats.windows, round(tile_stats.max_margin * s, 3), tile_stats.rounds)
     return place_set, traversable, counts
+
+
+def _mask_places(mask: np.ndarray, config: BuildConfig, cell_size: float, tile_stats: TiledGvdStats) -> CellPlaces:
+    """The places of one terrain mask (extract_places with `build.gvd`, in cells of `cell_size` m)."""
+    g, s = config.gvd, cell_size
+    return extract_places(
+        mask,
+        min_clearance=g.min_clearance / s,
+        min_gap=g.min_gap / s,
+        gvd_result=_tiled_gvd(mask, config, s, tile_stats),
+        prune_ratio=g.prune_ratio,
+        prune_length=g.prune_length / s,
+        junction_merge=g.junction_merge,
+        max_deviation=g.max_deviation / s,
+        max_distance=g.max_distance / s,
+        cover_radius=g.cover_radius / s if g.cover_radius is not None else np.inf,
+    )
 
 
 def gvd_barrier(layers: GroundLayers | None, config: BuildConfig, lidar_only: bool) -> np.ndarray | None:
