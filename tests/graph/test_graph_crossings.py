@@ -141,7 +141,8 @@ def test_a_lidar_only_street_keeps_places_to_each_level_and_a_wheelchair_crosses
     # the wheelchair does not.
     ends = position[graph.place_edges]
     over = (ends[:, 0, 1] - 5.0) * (ends[:, 1, 1] - 5.0) < 0
-    beside_cut = over & (np.minimum(ends[:, 0, 0], ends[:, 1, 0]) > 15.5) | over & (ends.max(axis=1)[:, 0] < 11.5)
+    west, east = ends[:, :, 0].min(axis=1), ends[:, :, 0].max(axis=1)
+    beside_cut = over & ((west > 15.5) | (east < 11.5))  # both ends clear of the cut (x 12..15) by 0.5 m
     assert beside_cut.any() and np.all(graph.place_edge_geometry[beside_cut, 0] >= 0.08)
     start, goal = nearest_of(position, 3.0, 2.5), nearest_of(position, 3.0, 9.0)
     legged = plan_path(graph, start, goal, robot=ROBOTS["legged"])
