@@ -46,6 +46,11 @@ def render_build(result: BuildResult) -> str:
     ]
     if src.images == 0 and src.points:
         lines.append("  (the map has no images: place embeddings come from the map points instead)")
+    if stats.step_line_cells is not None:
+        lines.append(
+            f"  ground split at lines of steps ({counted(stats.step_line_cells, 'cell')}): places keep to each "
+            "level and meet where the ground is level (build.ground.barrier_step)"
+        )
     cells = stats.grid_cells
     lines.append(
         f"  terrain grid: {cells[0]} x {cells[1]} cells, computed {_grid_where(result)}; GVD {_gvd_where(result)}"

@@ -437,6 +437,7 @@ def build_scene_graph(
     if previous is not None:
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
+    stats.step_line_cells = int(barrier.sum()) if barrier is not None else None
     return GraphBuild(graph, stats, timer, ground=layers)
 
 

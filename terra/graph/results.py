@@ -83,7 +83,8 @@ class GvdTiles:
 class BuildStats:
     """The counters of one build: places per terrain name, terrain patches too small for a place,
     grid size (rows, cols) and blocked cells, edges by kind, grid-path links, bridges without a clear
-    line, where the place embeddings came from (and the rule, in words), and the tiling when used."""
+    line, where the place embeddings came from (and the rule, in words), the tiling when used, and
+    on a LiDAR-only map the cells of the lines of steps that split its ground's GVD."""
 
     places_per_terrain: dict[str, int] = field(default_factory=dict)
     patches_dropped: int = 0
@@ -96,6 +97,8 @@ class BuildStats:
     embedding_rule: str = ""
     grid_tiles: GridTiles | None = None
     gvd_tiles: GvdTiles | None = None
+    # LiDAR-only maps: cells of the lines of steps that split the ground's GVD (pipeline.gvd_barrier)
+    step_line_cells: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         data: dict[str, Any] = {
@@ -113,6 +116,8 @@ class BuildStats:
             data["grid_tiles"] = self.grid_tiles.to_json()
         if self.gvd_tiles is not None:
             data["gvd_tiles"] = self.gvd_tiles.to_json()
+        if self.step_line_cells is not None:
+            data["step_line_cells"] = self.step_line_cells
         return data
 
     @classmethod
@@ -131,6 +136,7 @@ class BuildStats:
             embedding_rule=str(data["embedding_rule"]),
             grid_tiles=GridTiles.from_json(grid_tiles) if grid_tiles is not None else None,
             gvd_tiles=GvdTiles.from_json(gvd_tiles) if gvd_tiles is not None else None,
+            step_line_cells=int(data["step_line_cells"]) if data.get("step_line_cells") is not None else None,
         )
 
 

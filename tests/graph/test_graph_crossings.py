@@ -12,6 +12,7 @@ from terra.errors import NoPathError
 from terra.graph.config import BuildConfig
 from terra.graph.crossings import curb_gaps
 from terra.graph.pipeline import build_scene_graph
+from terra.graph.results import BuildStats
 from terra.tasks.planning import plan_path
 from terra.tasks.robot import ROBOTS
 from tests.graph.fixtures_ground import points_map
@@ -122,7 +123,12 @@ def test_a_lidar_only_street_keeps_places_to_each_level_and_a_wheelchair_crosses
     # GVD is split at the curb's line of steps (build.ground.barrier_step), so places stand on the
     # road and on the sidewalk, and the GVD passes between them only through the curb cut.
     points, _ = curb_street()
-    graph = build_scene_graph(points_map(points)).graph
+    build = build_scene_graph(points_map(points))
+    graph = build.graph
+    # The curb's line as the build reports it: 27 m of curb (30 m less the 3 m cut) in one or two
+    # rows of 0.4 m cells, about 68 to 135 cells (its ends a cell short or long).
+    assert build.stats.step_line_cells is not None and 60 <= build.stats.step_line_cells <= 140
+    assert BuildStats.from_json(build.stats.to_json()) == build.stats
     position = graph.places.position
     road, walk = position[:, 1] < 4.5, position[:, 1] > 5.5
     assert road.any() and walk.any()
