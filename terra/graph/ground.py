@@ -56,6 +56,7 @@ from scipy import ndimage
 
 from terra.graph import raster
 from terra.graph.grid import GridFrame, TerrainGrid
+from terra.graph.gvd import EIGHT, component_sizes, label_components
 from terra.graph.storage import GROUND_FILES  # prefix of the layer arrays in a bundle
 
 if TYPE_CHECKING:
@@ -721,12 +722,12 @@ def step_lines(
     out[layers.cells[np.nan_to_num(layers.step, nan=0.0) > min_step]] = True
     out = out.reshape(layers.shape)
     if close > 0:  # padded: a closing erodes from outside the grid too
-        padded = ndimage.binary_closing(np.pad(out, close), np.ones((3, 3), bool), iterations=close)
+        padded = ndimage.binary_closing(np.pad(out, close), EIGHT, iterations=close)
         out = np.asarray(padded)[close:-close, close:-close]
-    lines, count = raster.label(out, np.ones((3, 3), bool), np.int32)
+    lines, count = label_components(out)
     if count == 0:
         return out
-    long_enough = np.bincount(lines.ravel(), minlength=count + 1) >= min_cells
+    long_enough = component_sizes(lines, count) >= min_cells
     long_enough[0] = False
     return long_enough[lines]
 
