@@ -201,7 +201,11 @@ class GroundLayers:
     def lookup(self, xy: np.ndarray) -> np.ndarray:
         """(m,) index into the observed cells of each map-frame point (m, 2+) (metres), -1 where
         its cell is outside the grid or holds no ground."""
-        flat = self.flat_cells(xy)
+        return self.observed_index(self.flat_cells(xy))
+
+    def observed_index(self, flat: np.ndarray) -> np.ndarray:
+        """(m,) index into the observed cells of flat cell indices (m,) (`flat_cells`), -1 where
+        the cell is -1 (outside the grid) or holds no ground."""
         if len(self.cells) == 0:
             return np.full(len(flat), -1, dtype=np.int64)
         at = np.minimum(np.searchsorted(self.cells, flat), len(self.cells) - 1)
@@ -566,11 +570,11 @@ def edge_geometry(
     edge = np.repeat(np.arange(E), samples)
     t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
     point = a[edge] + t[:, None] * delta[edge]
-    at = layers.lookup(point)
+    flat = layers.flat_cells(point)
+    at = layers.observed_index(flat)
     known = at >= 0
     step = np.where(known, layers.step[at], np.nan)
     if layers.lines is not None:  # a line of steps: its cells read unevenly, or not at all in its shadow
-        flat = layers.flat_cells(point)
         on_line = (flat >= 0) & layers.lines.ravel()[np.maximum(flat, 0)]
         step = np.where(on_line, np.fmax(step, layers.line_step), step)
     # Beside an object the lowest points may be the object's (a bench's feet read as a bump of a few
