@@ -2,7 +2,7 @@
 with it every chunk in which no point changed (issue 25: a snapshot costs what changed, not the map).
 
 The flat layout (terra/mapping/storage.py, terra/mapping/state.py) stores every per-point array in
-the voxel-key order of the read view; one new voxel shifts every row after it, so each version
+voxel-key order; one new voxel shifts every row after it, so each version
 wrote the whole map again. A chunked version (components.map.chunk_rows = R) keeps them instead
 in creation order (the order in which the fusion first saw each point: new points are appended),
 cut into chunks of R rows; chunk c holds rows [c R, (c + 1) R), under `map/chunks/<c, 5 digits>/`:
@@ -22,8 +22,8 @@ session touches every row) and the last, growing one, and hard-links the others 
 it starts from (BundleWriter.keep_from_base). A full chunk in which few rows changed since it was
 written keeps its files too and gets a row patch beside them (terra/mapping/chunk_patches.py),
 which readers apply. Each file is verified by its SHA-256 as any bundle file.
-Readers derive the flat read view on load (terra/mapping/chunk_views.py): rows sorted by voxel key, exactly the
-arrays of the flat layout; MS-Avg norms and MS-Max ids are computed when first asked.
+Readers see the rows in creation order (terra/mapping/chunk_views.py), the flat layout's arrays in
+another row order; MS-Avg norms and MS-Max ids are computed when first asked.
 Live sessions write chunked versions; batch runs (`terra map`, `--append`) and a session's closing
 version write the flat layout, which every reader of finished bundles expects.
 """

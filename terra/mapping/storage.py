@@ -185,10 +185,11 @@ def _specs(sizes: dict[str, int], cameras: int) -> dict[str, ArraySpec]:
 def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     """The MetricSemanticMap stored in `bundle`; TerraError (one line naming the file) when it has
     none or anything in it disagrees with the manifest: dtype, shape, finiteness, ranges, and the
-    structure of the sparse counts and visibility index. max_ids: False checks the stored MS-Max
+    structure of the sparse counts and visibility index. Rows in voxel-key order (the flat layout),
+    or in creation order in a live version (terra/mapping/chunk_views.py). max_ids: False checks the stored MS-Max
     ids but does not keep them (8 bytes a point; `ms_max_ids` computes them if asked), for callers
     that never use them, such as `terra build`."""
-    from terra.mapping.chunk_views import sorted_view
+    from terra.mapping.chunk_views import chunk_view
     from terra.mapping.chunks import is_chunked
 
     chunked = is_chunked(bundle)
@@ -207,8 +208,8 @@ def load_map(bundle: Bundle, max_ids: bool = True) -> MetricSemanticMap:
     def array(name: str) -> np.ndarray:
         return bundle.array(name, specs[name])
 
-    if chunked:  # a live version: rows in creation order, sorted here (terra/mapping/chunks.py)
-        points, votes, counts = sorted_view(bundle, sizes["N"], sizes["K"], sizes["T"])
+    if chunked:  # a live version: rows in creation order (terra/mapping/chunk_views.py)
+        points, votes, counts = chunk_view(bundle, sizes["N"], sizes["K"], sizes["T"])
         if counts.nnz != sizes["nnz"]:
             raise TerraError(f"{bundle.path}/map/chunks: {counts.nnz} observations, the manifest says {sizes['nnz']}")
     else:

@@ -1,6 +1,7 @@
 """The read view of a live version derived from the view before it (terra/mapping/chunk_views.py):
-the same arrays as a full derivation (every chunk read, the keys sorted in full), on random drives
-and on the tiny campus, whose closed session is still the batch map byte for byte."""
+rows in creation order, the same arrays as a process reading every chunk of the version gives, only
+the chunks whose files changed read again; on random drives and on the tiny campus, whose last live
+view holds the batch map's rows and whose closed session is the batch map byte for byte."""
 
 from __future__ import annotations
 
@@ -14,24 +15,29 @@ from terra.bundle import Bundle
 from terra.errors import TerraError
 from terra.live import Session
 from terra.mapping import chunk_views
+from terra.mapping.chunks import read_rows
 from terra.mapping.storage import load_map
 from tests.live.test_session import map_files
 from tests.mapping.fixtures import assert_same_map
 
 
 @pytest.fixture
-def full_derivations(monkeypatch) -> list[str]:
-    """The bundle folders whose view was derived in full (every chunk read, all keys sorted)."""
-    calls: list[str] = []
-    full = chunk_views.full_view
+def chunks_read(monkeypatch) -> list[tuple[str, list[int]]]:
+    """(bundle folder, chunks read) of every view derived."""
+    calls: list[tuple[str, list[int]]] = []
 
-    def counted(bundle, *args):
-        calls.append(str(bundle.path))
-        return full(bundle, *args)
+    def counted(bundle, names, n, k, t, chunks=None):
+        calls.append((str(bundle.path), list(chunks) if chunks is not None else []))
+        return read_rows(bundle, names, n, k, t, chunks)
 
-    monkeypatch.setattr(chunk_views, "full_view", counted)
-    monkeypatch.setattr(chunk_views, "MOST_CHANGED", float("inf"))  # from the view before, however much changed
+    monkeypatch.setattr(chunk_views, "read_rows", counted)
     return calls
+
+
+def _changed_chunks(before: dict, after: dict) -> list[int]:
+    """The chunks whose view files differ between two manifests' files (or are new)."""
+    count = 1 + max((int(name.split("/")[2]) for name in after if name.startswith("map/chunks/")), default=-1)
+    return [c for c in range(count) if chunk_views._digests(before, c) != chunk_views._digests(after, c)]
 
 
 def _assert_full_view(view, out, tmp_path) -> None:
@@ -50,10 +56,10 @@ def _random_frame(rng: np.random.Generator, labels: np.ndarray, centre: np.ndarr
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_view_derived_from_the_one_before_equals_a_full_derivation_on_random_drives(
-    tiny_campus, tmp_path, full_derivations, seed
+    tiny_campus, tmp_path, chunks_read, seed
 ):
     """A drive that grows the map at one end and comes back over old ground at random: after the
-    first, every view is derived from the one before, and each equals the full derivation."""
+    first, every view reads only the chunks whose files changed, and each equals the full derivation."""
     rng = np.random.default_rng(seed)
     labels = np.unique(tiny_campus[0].point_labels)
     out = tmp_path / "live.terra"
@@ -67,14 +73,17 @@ def test_a_view_derived_from_the_one_before_equals_a_full_derivation_on_random_d
                 stamp += 0.1
                 frame = _random_frame(rng, labels, centre)
                 session.add_frame(frame["points"], frame["T_map_lidar"], stamp, labels=frame["labels"])
+        before = dict(Bundle(out).files) if step else {}
         snapshot = session.snapshot()
+        reads = [chunks for folder, chunks in chunks_read if folder == str(out)]
+        assert reads[-1] == _changed_chunks(before, snapshot.bundle.bundle.files)
         _assert_full_view(snapshot.bundle.msm, out, tmp_path)
-    assert full_derivations.count(str(out)) == 1  # the first view only
     assert len(snapshot.bundle.msm) > 4 * 256
+    assert 0 < len(reads[-1]) < len(snapshot.bundle.msm) // 256  # old ground seen again: some chunks, not all
 
 
 def test_live_views_derived_one_from_another_and_the_closed_map_equal_the_batch_map(
-    tiny_campus, tiny_bundle, tmp_path, full_derivations
+    tiny_campus, tiny_bundle, tmp_path, chunks_read
 ):
     out = tmp_path / "live.terra"
     session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name, chunk_rows=1024)
@@ -82,14 +91,16 @@ def test_live_views_derived_one_from_another_and_the_closed_map_equal_the_batch_
         session.add(tiny_campus[i])
         if (i + 1) % 4 == 0:
             _assert_full_view(session.snapshot().bundle.msm, out, tmp_path)
-    assert full_derivations.count(str(out)) == 1
     last = session.snapshot()
-    assert_same_map(last.bundle.msm, tiny_bundle.path)  # the live view of the whole drive is the batch map
+    assert len(chunks_read[-1][1]) < len(last.bundle.msm) // 1024  # not every chunk read again
+    # The live view of the whole drive holds the batch map's rows, in the order they were first seen.
+    assert_same_map(last.bundle.msm, tiny_bundle.path, any_order=True)
+    assert not np.array_equal(last.bundle.msm.points, load_map(Bundle(tiny_bundle.path)).points)
     session.close()
     assert map_files(out) == map_files(tiny_bundle.path)  # byte for byte
 
 
-def test_a_view_whose_arrays_were_freed_is_derived_in_full(tiny_campus, tmp_path, full_derivations):
+def test_a_view_whose_arrays_were_freed_is_derived_in_full(tiny_campus, tmp_path, chunks_read):
     out = tmp_path / "live.terra"
     session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name, chunk_rows=1024)
     for i in range(6):
@@ -99,7 +110,7 @@ def test_a_view_whose_arrays_were_freed_is_derived_in_full(tiny_campus, tmp_path
     gc.collect()
     session.add(tiny_campus[6])
     second = session.snapshot()
-    assert full_derivations.count(str(out)) == 2
+    assert chunks_read[-1][1] == list(range(1 + (len(second.bundle.msm) - 1) // 1024))  # every chunk
     _assert_full_view(second.bundle.msm, out, tmp_path)
     with pytest.raises(ValueError):  # views are read-only: the next one takes rows from them
         second.bundle.msm.points[0, 0] = 1.0
@@ -118,17 +129,3 @@ def test_a_damaged_chunk_is_refused_when_the_view_comes_from_the_one_before(tiny
     with pytest.raises(TerraError, match="00001/points.npy: checksum mismatch"):
         load_map(Bundle(out))  # no chunk changed since `first`: none is read, each is checked
     assert len(first.bundle.msm) > 1024
-
-
-def test_a_version_whose_changed_chunks_hold_most_rows_is_derived_in_full(tiny_campus, tmp_path, full_derivations):
-    out = tmp_path / "live.terra"
-    session = Session(out, tiny_campus.classes, graph=False, name=tiny_campus.name, chunk_rows=1024)
-    for i in range(6):
-        session.add(tiny_campus[i])
-    session.snapshot()
-    for i in range(6, 12):  # new ground and old: most chunks change
-        session.add(tiny_campus[i])
-    chunk_views.MOST_CHANGED = 0.0  # (restored by monkeypatch) any changed chunk is too many
-    second = session.snapshot()
-    assert full_derivations.count(str(out)) == 2
-    _assert_full_view(second.bundle.msm, out, tmp_path)

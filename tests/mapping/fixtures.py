@@ -21,14 +21,36 @@ from terra.datasets.base import CameraFrame, ClassTable, Frame, SemanticClass
 from terra.geometry import CameraCalibration, invert_pose, make_pose, pixel_rays, transform_points
 
 
-def assert_same_map(a, b) -> None:
+def in_point_order(msm):
+    """`msm` with its rows sorted by point (x, then y, then z): a live version's map (rows in
+    creation order) and the batch map of the same frames (in voxel-key order) become equal."""
+    import dataclasses
+
+    order = np.lexsort(msm.points.T[::-1])
+    sorted_points = msm.points[order]
+    assert not np.any(np.all(sorted_points[1:] == sorted_points[:-1], axis=1)), "two rows at one point"
+    return dataclasses.replace(
+        msm,
+        points=sorted_points,
+        terrain_votes=msm.terrain_votes[order],
+        counts=msm.counts[order],
+        fusion_rows=None,
+        _avg_norm=None if msm._avg_norm is None else msm._avg_norm[order],
+        _max_id=None if msm._max_id is None else msm._max_id[order],
+    )
+
+
+def assert_same_map(a, b, any_order: bool = False) -> None:
     """The maps `a` and `b` (bundle paths, read by `load_map`, or MetricSemanticMaps) are equal: every
-    array, the MS-Avg norms and MS-Max ids included."""
+    array, the MS-Avg norms and MS-Max ids included. any_order: the same rows in any order (a live
+    version beside a batch map)."""
     from terra.bundle import Bundle
     from terra.mapping.semantic_map import MetricSemanticMap
     from terra.mapping.storage import load_map
 
     x, y = (m if isinstance(m, MetricSemanticMap) else load_map(Bundle(m)) for m in (a, b))
+    if any_order:
+        x, y = in_point_order(x), in_point_order(y)
     for name in ("points", "terrain_votes", "terrain_embeddings", "bank"):
         np.testing.assert_array_equal(getattr(x, name), getattr(y, name), err_msg=name)
         assert getattr(x, name).dtype == getattr(y, name).dtype, name
