@@ -37,7 +37,6 @@ from terra.mapping.fusion import FusionStats, MapFusion
 from terra.mapping.mapper import Mapper
 from terra.mapping.semantic_map import MetricSemanticMap
 from terra.mapping.storage import MapTables, set_map_component, write_map, write_map_tables
-from terra.mapping.visibility import VisibilityIndex
 from terra.npy import ArraySpec, smallest_unsigned
 from terra.perception.base import Perception
 
@@ -318,8 +317,7 @@ def write_live(
     Returns the chunks written."""
     fusion = mapper.fusion
     images = fusion.image_table()
-    cells, image_ids = fusion.visibility_pairs()
-    visibility = VisibilityIndex.from_pairs(cells, image_ids, mapper.config.visibility.cell_size, images.position)
+    visibility = fusion.visibility_index(images.position)
     tables = MapTables(
         fusion.bank.vectors, mapper.perception.terrain_embeddings(), images, visibility, mapper.perception.embedder,
         list(fusion.terrain_classes), mapper.config.fusion.voxel_size,
