@@ -149,30 +149,31 @@ def _write_new_file(
 _SYNC_THREADS = 16
 
 
-def sync_paths(paths: Sequence[Path], folders: bool = False) -> None:
-    """fsync files (or with `folders`, folders) `paths`, several at once: the file system then
-    writes them back in one journal commit instead of one each (a live snapshot syncs some 60
-    files and folders: 0.15-0.25 s one after the other on this project's machine, 0.03 s at once).
-    A folder that cannot be synced is skipped (some file systems refuse; the rename still orders
-    the data); an error syncing a file is raised."""
+def sync_paths(files: Sequence[Path], folders: Sequence[Path] = ()) -> None:
+    """fsync `files` and `folders`, several at once: the file system then writes them back in one
+    journal commit instead of one each (a live snapshot syncs some 60 files and 25 folders: 0.15-0.25
+    s one after the other on this project's machine, 0.03 s at once; files, then folders, in two
+    rounds, 0.05-0.06 s). A folder that cannot be synced is skipped (some file systems refuse; the
+    rename still orders the data); an error syncing a file is raised."""
     from concurrent.futures import ThreadPoolExecutor
 
-    def sync(path: Path) -> None:
+    def sync(path: Path, folder: bool) -> None:
         fd = os.open(path, os.O_RDONLY)
         try:
             os.fsync(fd)
         except OSError:
-            if not folders:
+            if not folder:
                 raise
         finally:
             os.close(fd)
 
-    if len(paths) < 2:
-        for path in paths:
-            sync(path)
+    tasks = [(path, False) for path in files] + [(path, True) for path in folders]
+    if len(tasks) < 2:
+        for path, folder in tasks:
+            sync(path, folder)
         return
-    with ThreadPoolExecutor(min(_SYNC_THREADS, len(paths)), thread_name_prefix="terra-sync") as pool:
-        list(pool.map(sync, paths))
+    with ThreadPoolExecutor(min(_SYNC_THREADS, len(tasks)), thread_name_prefix="terra-sync") as pool:
+        list(pool.map(lambda task: sync(*task), tasks))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -360,11 +361,12 @@ class Staging:
         self.folder, self._lock = _locked_sibling(self.target, lambda p: os.mkdir(p, 0o777))
         self._done = False
 
-    def commit(self, reclaim_in_background: bool = False) -> None:
+    def commit(self, reclaim_in_background: bool = False, unsynced: Sequence[Path] = ()) -> None:
         """Put the staged folder at the target atomically, then delete the version it replaced (in a
         daemon thread with `reclaim_in_background`, for writers that commit often: a process that
-        ends first leaves an unlocked leftover, which the next `recover` removes)."""
-        _sync_tree(self.folder)
+        ends first leaves an unlocked leftover, which the next `recover` removes). `unsynced`: files
+        of the staged folder written without a sync, synced here with its folders."""
+        _sync_tree(self.folder, unsynced)
         if os.path.isdir(self.target) and not os.path.islink(self.target):
             os.chmod(self.folder, stat.S_IMODE(os.stat(self.target).st_mode))
         # The version replaced stays locked until the reclaim thread has deleted it: unlocked, the
@@ -446,10 +448,10 @@ def replace_folder(new: Path, target: Path) -> Path | None:
     return old
 
 
-def _sync_tree(folder: Path) -> None:
-    """fsync every folder of a staged tree (its files are synced before: as they are written, or
-    by BundleWriter.commit), so the new version is on disk before it replaces the old one."""
-    sync_paths([Path(root) for root, _, _ in os.walk(folder)], folders=True)
+def _sync_tree(folder: Path, files: Sequence[Path] = ()) -> None:
+    """fsync every folder of a staged tree and its `files` not synced yet (the others were synced as
+    they were written), so the new version is on disk before it replaces the old one."""
+    sync_paths(files, [Path(root) for root, _, _ in os.walk(folder)])
 
 
 def check_output_folder(
@@ -893,9 +895,11 @@ class BundleWriter:
             return Bundle(self.path)
         try:
             with writing(self.path, self.what):
-                sync_paths([path for path in self._unsynced if os.path.lexists(path)])  # before the manifest
-                _write_new_file(self._tmp / MANIFEST, text)
-                self._staging.commit(reclaim_in_background)
+                # Every file and folder of the version is synced in one round before it is swapped in
+                # (a staged folder is never rolled forward, so the manifest needs no sync of its own).
+                _write_new_file(self._tmp / MANIFEST, text, sync=False)
+                unsynced = [path for path in self._unsynced if os.path.lexists(path)] + [self._tmp / MANIFEST]
+                self._staging.commit(reclaim_in_background, unsynced)
         except BaseException:
             self.abort()  # e.g. no room for the manifest: a failed commit leaves no staged version behind
             raise

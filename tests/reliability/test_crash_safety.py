@@ -395,3 +395,41 @@ def test_info_names_a_damaged_file(reliability_seeds, tmp_path):
         == f"terra: error: {out}/map/bank.npy: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)"
     )
     assert cli(["info", out, "--no-verify"])[0] == 0
+
+
+def test_every_file_and_folder_of_a_version_is_synced_before_it_is_swapped_in(tmp_path, monkeypatch):
+    """A power cut right after the swap must find the new version whole: every file (the manifest
+    and the arrays written without a sync of their own) and every folder of the staged version is
+    fsynced before `replace_folder` puts it in place, in the one round BundleWriter.commit makes."""
+    import numpy as np
+
+    import terra.bundle as bundle_module
+    from terra.bundle import Bundle, BundleWriter
+
+    synced: set[tuple[int, int]] = set()
+    real_fsync, real_replace = os.fsync, bundle_module.replace_folder
+    seen_at_swap: list[set[tuple[int, int]]] = []
+
+    def recording_fsync(fd: int) -> None:
+        info = os.fstat(fd)
+        synced.add((info.st_dev, info.st_ino))
+        real_fsync(fd)
+
+    def recording_replace(new: Path, target: Path):
+        inodes = {(os.lstat(p).st_dev, os.lstat(p).st_ino) for p in [new, *new.rglob("*")]}
+        seen_at_swap.append(inodes - synced)  # what would be lost: on disk only in the page cache
+        return real_replace(new, target)
+
+    monkeypatch.setattr(os, "fsync", recording_fsync)
+    monkeypatch.setattr(bundle_module, "replace_folder", recording_replace)
+    out = tmp_path / "b.terra"
+    writer = BundleWriter(out)
+    writer.put_array("map/chunks/00000/points", np.arange(12, dtype=np.float32).reshape(4, 3))
+    writer.put_array("map/chunks/00001/points", np.ones((2, 3), dtype=np.float32))
+    writer.put_json("graph/scene_graph.json", {"places": []})
+    writer.commit()
+    second = BundleWriter(out, base=Bundle(out))  # a version that links most files from the one before
+    second.put_array("map/chunks/00001/points", np.zeros((2, 3), dtype=np.float32))
+    second.commit(reclaim_in_background=True)
+    assert len(seen_at_swap) == 2 and seen_at_swap == [set(), set()]
+    assert Bundle(out).version == 2
