@@ -797,10 +797,15 @@ class BundleWriter:
 
         from terra.schemas import validation_message
 
+        # The files (some 200 entries in a live version) are Terra's own, each a FileEntry made when
+        # it was written: they are not validated again at each of a version's half dozen edits.
+        fields = self.model.model_dump(mode="json", by_alias=True, exclude_unset=True, exclude={"files"})
         try:
-            self.model = _manifest({**manifest_json(self.model), **changes})
+            model = _manifest({**fields, **changes, "files": {}})
         except ValidationError as exc:
             raise TerraError(validation_message(f"{self.path / MANIFEST}", exc)) from None
+        model.files = self.model.files
+        self.model = model
 
     def set_embedder(self, name: str, dim: int) -> None:
         """The text embedder whose space the stored embeddings are in."""
@@ -815,12 +820,12 @@ class BundleWriter:
 
     def set_component(self, name: str, info: dict[str, Any]) -> None:
         """Manifest entry components.<name> (counts, config, stats), replacing any earlier one."""
-        components = manifest_json(self.model).get("components", {})
+        components = self.model.components.model_dump(mode="json", by_alias=True, exclude_unset=True)
         self._edit(components={**components, name: info})
 
     def update_component(self, name: str, **fields: Any) -> None:
         """Set `fields` of the existing entry components.<name>, keeping its others."""
-        components = manifest_json(self.model).get("components", {})
+        components = self.model.components.model_dump(mode="json", by_alias=True, exclude_unset=True)
         self._edit(components={**components, name: {**components.get(name, {}), **fields}})
 
     def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview], share: bool = False) -> None:
