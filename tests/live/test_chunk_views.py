@@ -96,6 +96,7 @@ def test_live_views_derived_one_from_another_and_the_closed_map_equal_the_batch_
     # The live view of the whole drive holds the batch map's rows, in the order they were first seen.
     assert_same_map(last.bundle.msm, tiny_bundle.path, any_order=True)
     assert not np.array_equal(last.bundle.msm.points, load_map(Bundle(tiny_bundle.path)).points)
+    np.testing.assert_array_equal(last.bundle.msm.points, session.mapper.fusion.geometry.points())  # the fusion's rows
     session.close()
     assert map_files(out) == map_files(tiny_bundle.path)  # byte for byte
 
