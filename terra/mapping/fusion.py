@@ -116,7 +116,7 @@ class MapFusion:
         self._vis_cells: list[np.ndarray] = []  # per image: unique visibility cell keys
         # The visibility pairs of the first `_vis_sorted[0]` images, sorted (visibility.sorted_pairs):
         # the next index merges only the images added since (`visibility_index`).
-        self._vis_sorted: tuple[int, np.ndarray, np.ndarray] = (0, np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self._vis_sorted: tuple[int, np.ndarray, np.ndarray] = (0, np.zeros(0, np.int64), np.zeros(0, np.int32))
         self.stats = FusionStats()
         self.dim = int(dim)
         # LiDAR returns per (map point, session): which session saw which point (change detection
@@ -147,7 +147,7 @@ class MapFusion:
         self.touched = np.zeros(0, dtype=bool)
         for images in (self._image_stamp, self._image_camera, self._image_pose, self._image_embedding, self._vis_cells):
             images.clear()
-        self._vis_sorted = (0, np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self._vis_sorted = (0, np.zeros(0, np.int64), np.zeros(0, np.int32))
         self.released = True
 
     # -- per frame --------------------------------------------------------------------------
@@ -344,7 +344,7 @@ class MapFusion:
         bounds = np.concatenate([[0], np.cumsum(arrays["vis_lengths"])]).astype(np.int64)
         cells = np.array(arrays["vis_cells"], dtype=np.int64)
         self._vis_cells = [cells[bounds[i] : bounds[i + 1]] for i in range(len(bounds) - 1)]
-        self._vis_sorted = (0, np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self._vis_sorted = (0, np.zeros(0, np.int64), np.zeros(0, np.int32))
         self.stats = FusionStats(dict(meta["stats"]), dict(meta.get("notes", {})))
         if "session_hits" in arrays:  # checkpoints written before sessions were counted have none
             self.session_hits = np.array(arrays["session_hits"], dtype=np.int64).reshape(self.votes.shape[0], -1)
@@ -379,7 +379,7 @@ class MapFusion:
         15-25 ms of a live snapshot at a million points."""
         done, cells, images = self._vis_sorted
         if done > len(self._vis_cells):  # a state restored or released since: start over
-            done, cells, images = 0, np.zeros(0, np.int64), np.zeros(0, np.int64)
+            done, cells, images = 0, np.zeros(0, np.int64), np.zeros(0, np.int32)
         added = self._vis_cells[done:]
         lengths = [c.size for c in added]
         new = sorted_pairs(

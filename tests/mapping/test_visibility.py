@@ -36,7 +36,7 @@ def test_an_index_grown_by_the_images_added_since_equals_the_index_built_at_once
     per_image = [
         np.unique(rng.integers(-30, 30, rng.integers(0, 40)) * (1 << 21) + rng.integers(0, 3)) for _ in range(60)
     ]
-    grown = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    grown = (np.zeros(0, np.int64), np.zeros(0, np.int32))
     done = 0
     for stop in (1, 2, 9, 9, 30, 60):  # two calls without new images among them
         lengths = [c.size for c in per_image[done:stop]]
