@@ -47,6 +47,7 @@ import stat
 import sys
 import tempfile
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -56,7 +57,7 @@ import numpy as np
 from terra import __version__
 from terra.errors import TerraError
 from terra.fileio import read_error, read_json, writing
-from terra.npy import ArraySpec, read_npy
+from terra.npy import ArraySpec, check_array, read_npy
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -75,7 +76,7 @@ MAX_MANIFEST_BYTES = 64 << 20
 M = TypeVar("M", bound="BaseModel")
 
 
-def _sha256(path: Path) -> str:
+def _sha256(path: str | Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -91,7 +92,7 @@ def _sha256(path: Path) -> str:
 _VERIFIED: dict[tuple[int, int, int, int], str] = {}
 
 
-def _verified_digest(path: Path, info: os.stat_result) -> str:
+def _verified_digest(path: str | Path, info: os.stat_result) -> str:
     """The SHA-256 of file `path` (with stat `info`), computed once per file identity."""
     identity = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
     digest = _VERIFIED.get(identity)
@@ -99,6 +100,32 @@ def _verified_digest(path: Path, info: os.stat_result) -> str:
         digest = _sha256(path)
         _VERIFIED[identity] = digest
     return digest
+
+
+# Arrays this process wrote and handed over to the next reader of their file (BundleWriter.put_array
+# with hand_over=True), by file identity as above: a live session reads back the chunks of each
+# version it commits (terra/mapping/chunk_views.py), and parsing and checking some 20 .npy files
+# costs more than the bytes in them. Each is the writer's own copy, taken once (the next read of
+# the file reads it), and the oldest go first beyond HAND_OVER_BYTES: a version that nobody reads
+# costs memory only until later ones push it out.
+_HANDED: OrderedDict[tuple[int, int, int, int], np.ndarray] = OrderedDict()
+_HANDED_LOCK = threading.Lock()
+HAND_OVER_BYTES = 256 << 20
+
+
+def _hand_over(identity: tuple[int, int, int, int], array: np.ndarray) -> None:
+    """Keep `array` (the writer's own copy), written as the file with `identity`, for its next reader."""
+    with _HANDED_LOCK:
+        _HANDED[identity] = array
+        total = sum(a.nbytes for a in _HANDED.values())
+        while total > HAND_OVER_BYTES:
+            total -= _HANDED.popitem(last=False)[1].nbytes
+
+
+def _handed(info: os.stat_result) -> np.ndarray | None:
+    """The array handed over for the file with stat `info`, once (None when there is none)."""
+    with _HANDED_LOCK:
+        return _HANDED.pop((info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns), None)
 
 
 def process_umask() -> int:
@@ -574,8 +601,8 @@ class Bundle:
                 f"(expected {SCHEMA_VERSION}); rebuild the bundle"
             )
         self.model: BundleManifest = validate_model(manifest, BundleManifest, manifest_path)
-        self._real_root: Path | None = None  # the folder with links followed (`_inside`)
-        self._real_folders: dict[Path, Path] = {}
+        self._real_root: str | None = None  # the folder with links followed, and a separator (`_inside`)
+        self._real_folders: dict[str, str] = {}
 
     @property
     def manifest(self) -> dict[str, Any]:
@@ -616,23 +643,30 @@ class Bundle:
     def _file_name(name: str) -> str:
         return name if name.endswith(".json") else f"{name}.npy"
 
-    def _inside(self, path: Path) -> bool:
+    def _inside(self, path: str) -> bool:
         """Whether file `path` (lstat found it a regular file, not a link) lies inside the bundle once
-        links among its folders are followed. Each folder is resolved once per Bundle: a live load
-        checks some 100 chunk files, and resolving every path again took about 10 ms of it."""
+        links among its folders are followed. Each folder is resolved once per Bundle, on strings: a
+        live snapshot checks some 300 chunk files, and pathlib's resolving and parsing of every path
+        took about 10 ms of it."""
         if self._real_root is None:
-            self._real_root = self.path.resolve()
-        folder = self._real_folders.get(path.parent)
+            self._real_root = os.path.join(os.path.realpath(self.path), "")  # with its trailing separator
+        parent = os.path.dirname(path)
+        folder = self._real_folders.get(parent)
         if folder is None:
-            folder = self._real_folders[path.parent] = path.parent.resolve()
-        return folder.is_relative_to(self._real_root)
+            folder = self._real_folders[parent] = os.path.join(os.path.realpath(parent), "")
+        return folder.startswith(self._real_root)
 
-    def _checked_path(self, name: str, verify: bool) -> Path:
+    def _checked_path(self, name: str, verify: bool) -> str:
+        return self._checked(name, verify)[0]
+
+    def _checked(self, name: str, verify: bool) -> tuple[str, os.stat_result]:
+        """The path of file `name` and its stat, checked against the manifest (size, SHA-256 with
+        `verify`) and to be a regular file inside the bundle; TerraError otherwise."""
         file_name = self._file_name(name)
         entry = self.files.get(file_name)
         if entry is None:
             raise TerraError(f"{self.path}: bundle has no '{file_name}'")
-        path = self.path / file_name
+        path = os.path.join(self.path, file_name)
         try:
             info = os.lstat(path)
             inside = self._inside(path)
@@ -651,7 +685,7 @@ class Bundle:
                 raise read_error(path, exc, "bundle file") from None
             if digest != entry.sha256:
                 raise TerraError(f"{path}: checksum mismatch: the file is damaged (corrupt bundle; rebuild it)")
-        return path
+        return path, info
 
     def check(self, name: str) -> None:
         """Check file `name` (as `array` or `json` name it) against the manifest's size and SHA-256
@@ -661,8 +695,14 @@ class Bundle:
 
     def array(self, name: str, spec: ArraySpec | None = None, verify: bool = True, mmap: bool = False) -> np.ndarray:
         """Load an array by name, e.g. `map/points`, checked against the manifest's size and SHA-256
-        (hashed once per file identity in a process) and against `spec` before its data is read."""
-        return read_npy(self._checked_path(name, verify), spec, mmap=mmap, what="bundle array")
+        (hashed once per file identity in a process) and against `spec` before its data is read.
+        An array this process wrote with hand_over=True comes from memory, checked against `spec`
+        all the same, when the file is still the one written (the same identity)."""
+        path, info = self._checked(name, verify)
+        handed = _handed(info) if verify and not mmap else None
+        if handed is not None:
+            return check_array(handed, spec, path)
+        return read_npy(path, spec, mmap=mmap, what="bundle array")
 
     def json(self, name: str, verify: bool = True, max_depth: int | None = 64) -> Any:
         """Load a JSON file by name, e.g. `graph/scene_graph.json`."""
@@ -717,7 +757,9 @@ class BundleWriter:
         self.what = what  # for messages: "bundle", "mapping checkpoint"
         self.model: BundleManifest = _manifest({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "files": {}})
         self._done = False
-        self._folders: set[Path] = set()  # folders of the staged version made so far (`_folder`)
+        self._folders: set[str] = set()  # folders of the staged version made so far (`_folder`)
+        self._unsynced: dict[Path, None] = {}  # files written, to sync before the manifest (in order)
+        self._handed: list[tuple[tuple[int, int, int, int], np.ndarray]] = []  # put_array(hand_over=True)
         with writing(self.path, what):
             self._staging = Staging(self.path)
             self._tmp = self._staging.folder
@@ -728,7 +770,6 @@ class BundleWriter:
             except BaseException:
                 self.abort()
                 raise
-        self._unsynced: dict[Path, None] = {}  # files written, to sync before the manifest (in order)
         self.model.written_by = f"terra {__version__}"
         self.model.version = (base.version if base is not None else 0) + 1
         self._base = base
@@ -764,18 +805,18 @@ class BundleWriter:
         # Checksummed: a damaged file of the same size must not be carried into a version whose
         # manifest vouches for it (hashed once per file identity: a file carried on is not hashed again).
         source = base._checked_path(file_name[:-4] if file_name.endswith(".npy") else file_name, verify=True)
-        dst = self._tmp / file_name
-        self._folder(dst.parent)
+        dst = os.path.join(self._tmp, file_name)  # strings: a live version links some 200 files
+        self._folder(os.path.dirname(dst))
         try:
             os.link(source, dst)
         except OSError:
             shutil.copy2(source, dst)
         self.model.files[file_name] = base.files[file_name]
 
-    def _folder(self, folder: Path) -> None:
+    def _folder(self, folder: str) -> None:
         """Make `folder` of the staged version once (a live version links some 200 chunk files)."""
         if folder not in self._folders:
-            folder.mkdir(parents=True, exist_ok=True)
+            os.makedirs(folder, exist_ok=True)
             self._folders.add(folder)
 
     def keep_from_base(self, file_names: Sequence[str]) -> bool:
@@ -828,7 +869,10 @@ class BundleWriter:
         components = self.model.components.model_dump(mode="json", by_alias=True, exclude_unset=True)
         self._edit(components={**components, name: {**components.get(name, {}), **fields}})
 
-    def _put(self, file_name: str, data: bytes | Sequence[bytes | memoryview], share: bool = False) -> None:
+    def _put(
+        self, file_name: str, data: bytes | Sequence[bytes | memoryview], share: bool = False
+    ) -> tuple[int, int, int, int] | None:
+        """Write file `file_name` of the version (or link the base's, `share`); its identity when written."""
         from terra.schemas import FileEntry
 
         parts = [data] if isinstance(data, bytes) else list(data)
@@ -837,16 +881,17 @@ class BundleWriter:
             hasher.update(part)
         digest, size = hasher.hexdigest(), sum(len(p) for p in parts)
         if share and self._same_in_base(file_name, size, digest):
-            return
+            return None
         dst = self._tmp / file_name
         with writing(self.path, self.what):
-            self._folder(dst.parent)
+            self._folder(str(dst.parent))
             if dst.exists():
                 dst.unlink()  # may be a hard link into the base bundle: never write through it
             identity = _write_new_file(dst, parts, sync=False)  # synced at commit, with the others
         self._unsynced[dst] = None
         _VERIFIED[identity] = digest
         self.model.files[file_name] = FileEntry(bytes=size, sha256=digest)
+        return identity
 
     def _same_in_base(self, file_name: str, size: int, digest: str) -> bool:
         """Whether the base version holds `file_name` with these bytes (`size`, SHA-256 `digest`): then
@@ -867,11 +912,15 @@ class BundleWriter:
             return False  # the base's copy is damaged: the bytes are written again
         return True
 
-    def put_array(self, name: str, array: np.ndarray, share: bool = False) -> None:
+    def put_array(self, name: str, array: np.ndarray, share: bool = False, hand_over: bool = False) -> None:
         """Store an array as `<name>.npy`, e.g. `map/points` (written from the array's own memory).
         share: when the base version holds the same bytes under that name, link its file instead
-        (a map chunk in which some arrays did not change: terra/mapping/chunks.py)."""
-        self._put(f"{name}.npy", npy_parts(array), share)
+        (a map chunk in which some arrays did not change: terra/mapping/chunks.py). hand_over: once
+        the version is committed, the next `Bundle.array` of the file in this process takes a copy of
+        `array` instead of reading it back (a live session's view of the version it committed)."""
+        identity = self._put(f"{name}.npy", npy_parts(array), share)
+        if hand_over and identity is not None:
+            self._handed.append((identity, array.copy()))
 
     def put_json(self, name: str, obj: Any) -> None:
         """Store canonical JSON as `name` (which ends in .json)."""
@@ -909,6 +958,9 @@ class BundleWriter:
             self.abort()  # e.g. no room for the manifest: a failed commit leaves no staged version behind
             raise
         self._done = True
+        for identity, array in self._handed:
+            _hand_over(identity, array)
+        self._handed.clear()
         return Bundle(self.path)
 
     def _check_base(self, base: Bundle) -> None:
@@ -935,6 +987,7 @@ class BundleWriter:
         if not self._done:
             self._staging.discard()
             self._done = True
+        self._handed.clear()
 
     def __enter__(self) -> BundleWriter:
         return self

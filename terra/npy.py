@@ -75,7 +75,7 @@ def _header(f, path: Path) -> tuple[tuple[int, ...], bool, np.dtype]:
     return shape, bool(fortran), dtype
 
 
-def _check_header(path: Path, shape: tuple[int, ...], dtype: np.dtype, spec: ArraySpec | None) -> None:
+def _check_header(path: str | Path, shape: tuple[int, ...], dtype: np.dtype, spec: ArraySpec | None) -> None:
     if dtype.hasobject or dtype.kind not in NUMERIC_KINDS or dtype.fields is not None or dtype.subdtype is not None:
         raise TerraError(f"{path}: array of dtype {dtype}, expected numbers (no objects, dates, strings or records)")
     if spec is None:
@@ -124,6 +124,15 @@ def read_npy(path: str | Path, spec: ArraySpec | None = None, mmap: bool = False
         array = array.astype(dtype.newbyteorder("="))
     if spec is not None:
         check_values(array, spec, path)
+    return array
+
+
+def check_array(array: np.ndarray, spec: ArraySpec | None, where: str | Path) -> np.ndarray:
+    """`array` (an array in memory, such as one a writer handed over in place of its file) after
+    the checks `read_npy` makes of a file's header and values, naming `where`."""
+    _check_header(where, tuple(array.shape), array.dtype, spec)
+    if spec is not None:
+        check_values(array, spec, where)
     return array
 
 

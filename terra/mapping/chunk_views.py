@@ -12,6 +12,11 @@ took about 0.1 s of a snapshot at a million points.) A live version's map is thu
 map's rows in another order; the closing version of a session is in the flat layout, sorted by
 voxel key, file for file the batch map's (terra/live/session.py).
 
+The files of the changed chunks that the version itself wrote come from the writer's memory when it
+ran in this process (a live session's own snapshot: BundleWriter.put_array with hand_over=True), still
+checked against their size, identity and spec; only the files it kept from the version before
+(such as a patched chunk's base files) are read.
+
 A chunk is taken from the previous view when its view files (points, votes, counts, and its row
 patch: terra/mapping/chunk_patches.py) have the SHA-256 of those the view was derived from; such a
 chunk is still checked against its size and SHA-256 here, as a read would. A process keeps, per
@@ -32,13 +37,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
-from terra.mapping.chunks import capped_votes, chunk_count, chunk_folder, read_rows, stored_chunk_rows
+from terra.mapping.chunks import (
+    PATCH_VIEW_FILES,
+    VIEW_FILES,
+    capped_votes,
+    chunk_count,
+    chunk_folder,
+    read_rows,
+    stored_chunk_rows,
+)
 
 if TYPE_CHECKING:
     from terra.bundle import Bundle
 
-_VIEW_FILES = ("points", "votes", "counts_indptr", "counts_indices", "counts_data")
-_PATCH_VIEW_FILES = tuple(f"patch_{name}" for name in _VIEW_FILES) + ("patch_rows",)
 _MEMOS: OrderedDict[str, _Memo] = OrderedDict()  # by the bundle folder's real path, most recent last
 _MEMO_LIMIT = 4  # bundle folders remembered (a process serves one live map, or a few)
 _LOCK = threading.Lock()
@@ -66,7 +77,7 @@ class _Memo:
 
 def view_files(c: int) -> list[str]:
     """The files of chunk `c` the read view is made of (those of its row patch included)."""
-    return [f"{chunk_folder(c)}/{name}.npy" for name in (*_VIEW_FILES, *_PATCH_VIEW_FILES)]
+    return [f"{chunk_folder(c)}/{name}.npy" for name in (*VIEW_FILES, *PATCH_VIEW_FILES)]
 
 
 def _digests(files: dict, c: int) -> dict[str, str]:

@@ -59,6 +59,12 @@ _U16_MAX = int(np.iinfo(np.uint16).max)
 _ENTRY_MASK = (1 << 32) - 1
 
 
+# The files of a chunk the read view is made of (terra/mapping/chunk_views.py), those of its row patch
+# included: handed over to the view of the process that writes them (BundleWriter.put_array).
+VIEW_FILES = ("points", "votes", "counts_indptr", "counts_indices", "counts_data")
+PATCH_VIEW_FILES = tuple(f"patch_{name}" for name in VIEW_FILES) + (PATCH_ROWS,)
+
+
 def chunk_folder(c: int) -> str:
     return f"map/chunks/{c:05d}"
 
@@ -120,7 +126,10 @@ def _patch_chunk(
     patch = np.union1d(before, local)
     if patch.size > PATCH_SHARE * rows or not writer.keep_from_base(files):
         return False
-    put = lambda name, array: writer.put_array(f"{folder}/{name}", array, share=True)  # noqa: E731
+
+    def put(name: str, array: np.ndarray) -> None:
+        writer.put_array(f"{folder}/{name}", array, share=True, hand_over=name in PATCH_VIEW_FILES)
+
     put(PATCH_ROWS, patch.astype(np.int32))
     at = c * rows + patch  # the rows in creation order
     if isinstance(fusion.geometry, VoxelMap):
@@ -147,7 +156,7 @@ def _put_chunk(writer: BundleWriter, fusion: MapFusion, c: int, start: int, stop
     folder, geometry, n = chunk_folder(c), fusion.geometry, fusion.geometry.size
 
     def put(name: str, array: np.ndarray) -> None:  # an array that did not change keeps its file
-        writer.put_array(name, array, share=True)
+        writer.put_array(name, array, share=True, hand_over=name.rsplit("/", 1)[-1] in VIEW_FILES)
 
     if isinstance(geometry, VoxelMap):
         voxels = geometry.state(slice(start, stop))  # views: written from the fusion's own memory

@@ -100,6 +100,53 @@ def test_a_version_shares_the_files_whose_bytes_did_not_change(tmp_path):
     np.testing.assert_array_equal(b3.array("map/points"), np.ones((3, 3), dtype=np.float32))
 
 
+def test_an_array_handed_over_is_read_from_memory_once_and_never_once_its_file_changed(tmp_path, monkeypatch):
+    """put_array(hand_over=True): once committed, the next read of the file in this process takes the
+    writer's copy (the caller's array may change after the put) checked against the spec, the read
+    after it reads the file; a file changed since it was written is read and its damage found; an
+    aborted version hands nothing over."""
+    import terra.bundle as bundle_module
+    from terra.npy import ArraySpec
+
+    reads: list[str] = []
+    real_read = bundle_module.read_npy
+    monkeypatch.setattr(
+        bundle_module, "read_npy", lambda path, *a, **k: reads.append(str(path)) or real_read(path, *a, **k)
+    )
+    monkeypatch.setattr(bundle_module, "_HANDED", type(bundle_module._HANDED)())
+    points = np.arange(12, dtype=np.float32).reshape(4, 3)
+    with BundleWriter(tmp_path / "b") as w:
+        w.put_array("map/points", points, hand_over=True)
+        w.put_array("map/other", points)
+    points[0, 0] = 99.0  # after the put: not what was written
+    spec = ArraySpec(("float32",), (4, 3), finite=True)
+    b = Bundle(tmp_path / "b")
+    first = b.array("map/points", spec)
+    assert first[0, 0] == 0.0 and reads == []
+    np.testing.assert_array_equal(b.array("map/points", spec), first)
+    assert len(reads) == 1 and reads[0].endswith("map/points.npy")
+
+    with BundleWriter(b.path, base=b) as w:
+        w.put_array("map/points", np.ones((4, 3), dtype=np.float32), hand_over=True)
+    with pytest.raises(TerraError, match=r"points.npy: array of dtype float32, expected int64"):
+        Bundle(b.path).array("map/points", ArraySpec(("int64",), (4, 3)))  # the spec holds for a handed array
+
+    with BundleWriter(b.path, base=Bundle(b.path)) as w:
+        w.put_array("map/points", np.full((4, 3), 2.0, dtype=np.float32), hand_over=True)
+    damaged = b.path / "map/points.npy"
+    data = bytearray(damaged.read_bytes())
+    data[-1] ^= 1
+    damaged.write_bytes(bytes(data))  # same size, another modification time
+    with pytest.raises(TerraError, match="points.npy: checksum mismatch"):
+        Bundle(b.path).array("map/points", spec)
+
+    bundle_module._HANDED.clear()  # the damaged file's array waits for a file that is gone: pushed out by size
+    w = BundleWriter(tmp_path / "c")
+    w.put_array("map/points", np.zeros((4, 3), dtype=np.float32), hand_over=True)
+    w.abort()
+    assert len(bundle_module._HANDED) == 0
+
+
 def test_object_arrays_are_refused(tmp_path):
     w = BundleWriter(tmp_path / "b")
     with pytest.raises(TypeError):

@@ -34,6 +34,32 @@ def chunks_read(monkeypatch) -> list[tuple[str, list[int]]]:
     return calls
 
 
+@pytest.fixture
+def files_read(monkeypatch) -> list[str]:
+    """The bundle files (paths) read from disk while a view is derived."""
+    import terra.bundle
+
+    paths: list[str] = []
+    deriving = [False]
+    real_read, real_view = terra.bundle.read_npy, chunk_views.chunk_view
+
+    def read(path, *args, **kwargs):
+        if deriving[0]:
+            paths.append(str(path))
+        return real_read(path, *args, **kwargs)
+
+    def view(*args, **kwargs):
+        deriving[0] = True
+        try:
+            return real_view(*args, **kwargs)
+        finally:
+            deriving[0] = False
+
+    monkeypatch.setattr(terra.bundle, "read_npy", read)
+    monkeypatch.setattr(chunk_views, "chunk_view", view)
+    return paths
+
+
 def _changed_chunks(before: dict, after: dict) -> list[int]:
     """The chunks whose view files differ between two manifests' files (or are new)."""
     count = 1 + max((int(name.split("/")[2]) for name in after if name.startswith("map/chunks/")), default=-1)
@@ -56,10 +82,12 @@ def _random_frame(rng: np.random.Generator, labels: np.ndarray, centre: np.ndarr
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_view_derived_from_the_one_before_equals_a_full_derivation_on_random_drives(
-    tiny_campus, tmp_path, chunks_read, seed
+    tiny_campus, tmp_path, chunks_read, files_read, seed
 ):
     """A drive that grows the map at one end and comes back over old ground at random: after the
-    first, every view reads only the chunks whose files changed, and each equals the full derivation."""
+    first, every view reads only the chunks whose files changed, and of those only the files the
+    version kept from the one before (those it wrote are handed over in memory), and each equals the
+    full derivation."""
     rng = np.random.default_rng(seed)
     labels = np.unique(tiny_campus[0].point_labels)
     out = tmp_path / "live.terra"
@@ -74,9 +102,15 @@ def test_a_view_derived_from_the_one_before_equals_a_full_derivation_on_random_d
                 frame = _random_frame(rng, labels, centre)
                 session.add_frame(frame["points"], frame["T_map_lidar"], stamp, labels=frame["labels"])
         before = dict(Bundle(out).files) if step else {}
+        files_read.clear()
         snapshot = session.snapshot()
         reads = [chunks for folder, chunks in chunks_read if folder == str(out)]
-        assert reads[-1] == _changed_chunks(before, snapshot.bundle.bundle.files)
+        after = snapshot.bundle.bundle.files
+        assert reads[-1] == _changed_chunks(before, after)
+        from_disk = [path.split("/live.terra/")[1] for path in files_read if "/map/chunks/" in path]
+        assert all(before.get(name) == after[name] for name in from_disk)
+        written = [name for name in after if name.startswith("map/chunks/") and before.get(name) != after[name]]
+        assert written and not set(written) & set(from_disk)
         _assert_full_view(snapshot.bundle.msm, out, tmp_path)
     assert len(snapshot.bundle.msm) > 4 * 256
     assert 0 < len(reads[-1]) < len(snapshot.bundle.msm) // 256  # old ground seen again: some chunks, not all
