@@ -177,10 +177,10 @@ _SYNC_THREADS = 16
 
 
 def sync_paths(files: Sequence[Path], folders: Sequence[Path] = ()) -> None:
-    """fsync `files` and `folders`, several at once: the file system then writes them back in one
-    journal commit instead of one each (a live snapshot syncs some 60 files and 25 folders: 0.15-0.25
-    s one after the other on this project's machine, 0.03 s at once; files, then folders, in two
-    rounds, 0.05-0.06 s). A folder that cannot be synced is skipped (some file systems refuse; the
+    """fsync `files` and `folders`, all in one round of threads: the file system then writes them
+    back in one journal commit instead of one each (a live snapshot syncs some 60 files and 25
+    folders: 0.15-0.25 s one after the other on this project's machine, 0.03 s at once; files, then
+    folders, in two rounds, 0.05-0.06 s). A folder that cannot be synced is skipped (some file systems refuse; the
     rename still orders the data); an error syncing a file is raised."""
     from concurrent.futures import ThreadPoolExecutor
 

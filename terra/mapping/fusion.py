@@ -366,27 +366,20 @@ class MapFusion:
             camera_names=list(self.camera_names),
         )
 
-    def visibility_pairs(self) -> tuple[np.ndarray, np.ndarray]:
-        """(cell keys, image ids) of every image's visibility cells."""
-        lengths = [c.size for c in self._vis_cells]
-        cells = np.concatenate(self._vis_cells) if self._vis_cells else np.zeros(0, np.int64)
-        return cells, np.repeat(np.arange(len(lengths), dtype=np.int64), lengths)
+    def visibility_pairs(self, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(cell keys, image ids) of the visibility cells of every image from image `first` on."""
+        added = self._vis_cells[first:]
+        lengths = [c.size for c in added]
+        cells = np.concatenate(added) if added else np.zeros(0, np.int64)
+        return cells, np.repeat(np.arange(first, first + len(added), dtype=np.int64), lengths)
 
     def visibility_index(self, image_positions: np.ndarray) -> VisibilityIndex:
         """The visibility index of every image so far (camera centres `image_positions` (M, 3), metres,
         map frame): the pairs of the images added since the last call are sorted alone and merged
         into those of the images before (visibility.merged_pairs); every pair sorted again took
         15-25 ms of a live snapshot at a million points."""
-        done, cells, images = self._vis_sorted
-        if done > len(self._vis_cells):  # a state restored or released since: start over
-            done, cells, images = 0, np.zeros(0, np.int64), np.zeros(0, np.int32)
-        added = self._vis_cells[done:]
-        lengths = [c.size for c in added]
-        new = sorted_pairs(
-            np.concatenate(added) if added else np.zeros(0, np.int64),
-            np.repeat(np.arange(done, done + len(added), dtype=np.int64), lengths),
-        )
-        cells, images = merged_pairs((cells, images), new)
+        done, cells, images = self._vis_sorted  # reset wherever the images are (release, restore)
+        cells, images = merged_pairs((cells, images), sorted_pairs(*self.visibility_pairs(done)))
         self._vis_sorted = (len(self._vis_cells), cells, images)
         return VisibilityIndex.from_sorted_pairs(cells, images, self.config.visibility.cell_size, image_positions)
 
