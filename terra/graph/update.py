@@ -40,6 +40,7 @@ graph of a finished drive is the batch graph of its map exactly.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -79,7 +80,7 @@ from terra.graph.pipeline import (
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
-from terra.mapping.semantic_map import FusionRows, MetricSemanticMap
+from terra.mapping.semantic_map import FusionRows, MetricSemanticMap, terrain_winners
 from terra.progress import StageTimer
 
 _HASH = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x27D4EB2F165667C5], dtype=np.uint64)
@@ -87,39 +88,40 @@ _HASH = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x
 
 @dataclass
 class MapDigest:
-    """What a graph was built from: one hash per map point (N,) uint64, in the map's order, of its
-    position rounded to the digest's step and of its terrain class; the points (N, 3) float32
-    metres (map frame); and, for a map a fusion made, the points' rows in it (`rows`), by which
-    the next version of the same fusion is compared without sorting either."""
+    """What a graph was built from, one entry per map point: a hash (N,) uint64 of its position
+    rounded to the digest's step and of its terrain class, its x, y (N, 2) float32 metres (map
+    frame) and its class (N,) int16 (-1: none the graph builds on).
+
+    For a map a fusion made, entry r is the fusion's row r (creation order; `fusion` and `serial`
+    name the fusion and which of its maps this is, `rows` (N,) the entry of each map point): the
+    next map of the same fusion is compared entry by entry, and hashed again only at the rows it
+    changed (`next_digest`). For any other map, entry i is map point i (`rows` None), and two
+    digests are compared through their sorted hashes."""
 
     hashes: np.ndarray
-    points: np.ndarray
-    rows: FusionRows | None = None
+    xy: np.ndarray
+    terrain: np.ndarray
+    rows: np.ndarray | None = None
+    fusion: str | None = None
+    serial: int = 0
     _sorted: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
-    _by_row: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     def sorted(self) -> tuple[np.ndarray, np.ndarray]:
-        """(the hashes sorted, the map point of each), computed once."""
+        """(the hashes sorted, the entry of each), computed once."""
         if self._sorted is None:
             order = np.argsort(self.hashes)
             self._sorted = (self.hashes[order], order)
         return self._sorted
 
-    def by_row(self) -> tuple[np.ndarray, np.ndarray]:
-        """(each fusion row's hash, the map point of each row), computed once; needs `rows`."""
-        assert self.rows is not None
-        if self._by_row is None:
-            point = np.empty(len(self.hashes), dtype=np.int64)
-            point[self.rows.rows] = np.arange(len(self.hashes))
-            self._by_row = (self.hashes[point], point)
-        return self._by_row
+    def point_terrain(self, points: np.ndarray) -> np.ndarray:
+        """(K,) int16 the classes of map points `points` (K,) (indices in the map's order)."""
+        return self.terrain[points if self.rows is None else self.rows[points]]
 
 
-def map_digest(points: np.ndarray, terrain: np.ndarray, step: float, rows: FusionRows | None = None) -> MapDigest:
-    """The digest of map points (N, 3) metres with their terrain classes (N,): each point's
-    position rounded to `step` metres (1 mm when 0) and its class, hashed (64 bits: a collision
-    between two of a million points is about one in 10^7, and would only hide one change);
-    `rows`: the points' rows in the fusion that made them, when known."""
+def point_hashes(points: np.ndarray, terrain: np.ndarray, step: float) -> np.ndarray:
+    """(N,) uint64 hashes of points (N, 3) metres with their terrain classes (N,): each point's
+    position rounded to `step` metres (1 mm when 0) and its class (64 bits: a collision between two
+    of a million points is about one in 10^7, and would only hide one change)."""
     points = np.asarray(points, dtype=np.float32)
     scale = np.float32(1.0 / max(step, 1e-3))
     hashes = np.asarray(terrain, dtype=np.int64).view(np.uint64) * _HASH[3]
@@ -127,33 +129,84 @@ def map_digest(points: np.ndarray, terrain: np.ndarray, step: float, rows: Fusio
         for axis in range(3):
             cells = np.rint(points[:, axis] * scale).astype(np.int64).view(np.uint64)
             hashes ^= (cells * _HASH[axis]) >> np.uint64(axis)
-    if rows is not None and len(rows.rows) != len(points):
-        rows = None
-    return MapDigest(hashes, points, rows)
+    return hashes
+
+
+def map_digest(points: np.ndarray, terrain: np.ndarray, step: float, rows: FusionRows | None = None) -> MapDigest:
+    """The digest of map points (N, 3) metres with their terrain classes (N,) int16, hashed at
+    `step` metres (point_hashes); `rows`: the points' rows in the fusion that made them, when known
+    (the digest's entries are then the fusion's rows)."""
+    points = np.asarray(points, dtype=np.float32)
+    terrain = np.asarray(terrain, dtype=np.int16)
+    hashes = point_hashes(points, terrain, step)
+    if rows is None or len(rows.rows) != len(points):
+        return MapDigest(hashes, points[:, :2].copy(), terrain)
+    by_row = np.empty_like(hashes), np.empty((len(points), 2), np.float32), np.empty_like(terrain)
+    for out, values in zip(by_row, (hashes, points[:, :2], terrain)):
+        out[rows.rows] = values
+    return MapDigest(*by_row, rows=rows.rows, fusion=rows.fusion, serial=rows.serial)
+
+
+def next_digest(
+    old: MapDigest | None, msm: MetricSemanticMap, terrain_of: Callable[[np.ndarray], np.ndarray], step: float
+) -> MapDigest:
+    """The digest of `msm` whose points' classes are `terrain_of(votes)` (votes (K, T) -> (K,)
+    int16): when `old` is the digest of the same fusion's map before this one, its entries are
+    copied and only the rows the fusion changed since are hashed again (a live map changes a
+    fraction of its rows between two updates); otherwise the whole map is hashed."""
+    rows = msm.fusion_rows
+    chained = (
+        old is not None
+        and rows is not None
+        and rows.changed is not None
+        and rows.index is not None
+        and old.fusion == rows.fusion
+        and rows.serial == old.serial + 1
+        and len(rows.rows) == len(msm.points) >= len(old.hashes)
+        and _covers_new_rows(rows.changed, len(old.hashes), len(msm.points))
+    )
+    if not chained:
+        return map_digest(msm.points, terrain_of(msm.terrain_votes), step, rows)
+    assert old is not None and rows is not None and rows.changed is not None and rows.index is not None
+    n, changed = len(msm.points), rows.changed
+    at = rows.index[changed]
+    terrain = _grown_copy(old.terrain, n)
+    terrain[changed] = terrain_of(msm.terrain_votes[at])
+    hashes = _grown_copy(old.hashes, n)
+    hashes[changed] = point_hashes(msm.points[at], terrain[changed], step)
+    xy = _grown_copy(old.xy, n)
+    xy[changed] = msm.points[at, :2]
+    return MapDigest(hashes, xy, terrain, rows=rows.rows, fusion=rows.fusion, serial=rows.serial)
+
+
+def _covers_new_rows(changed: np.ndarray, old: int, n: int) -> bool:
+    """Whether the sorted distinct rows `changed` include every row from `old` to `n` (the rows a
+    fusion added since the map of `old` rows: each was made by a scan point, so each changed)."""
+    added = n - old
+    return added == 0 or (len(changed) >= added and int(changed[-added]) == old and int(changed[-1]) == n - 1)
+
+
+def _grown_copy(array: np.ndarray, n: int) -> np.ndarray:
+    """A copy of `array` with n rows (rows past its own uninitialised: the caller sets them)."""
+    out = np.empty((n, *array.shape[1:]), dtype=array.dtype)
+    out[: len(array)] = array
+    return out
 
 
 def changed_points(old: MapDigest, new: MapDigest) -> np.ndarray:
     """(K, 2) x, y metres of the points of either digest that the other lacks: points added,
     removed, re-classed or moved by more than the digest's step (both their places count)."""
-    same_fusion = old.rows is not None and new.rows is not None and old.rows.fusion == new.rows.fusion
-    if same_fusion and len(new.hashes) >= len(old.hashes):
-        return _changed_rows(old, new)
+    if old.fusion is not None and old.fusion == new.fusion and len(new.hashes) >= len(old.hashes):
+        # One fusion's maps, entry by entry: a fusion only appends rows, so a row past the old
+        # map's is added, and one whose hash differs moved or was re-classed.
+        kept = len(old.hashes)
+        differ = np.flatnonzero(old.hashes != new.hashes[:kept])
+        return np.vstack([new.xy[differ], new.xy[kept:], old.xy[differ]]).astype(np.float64)
     old_sorted, old_order = old.sorted()
     new_sorted, new_order = new.sorted()
     added = new_order[~_members(new_sorted, old_sorted)]
     removed = old_order[~_members(old_sorted, new_sorted)]
-    return np.vstack([new.points[added, :2], old.points[removed, :2]]).astype(np.float64)
-
-
-def _changed_rows(old: MapDigest, new: MapDigest) -> np.ndarray:
-    """changed_points of two maps of one fusion, row by row: a fusion only appends rows, so a row
-    past the old map's is added, and one whose hash differs moved or was re-classed."""
-    old_hash, old_point = old.by_row()
-    new_hash, new_point = new.by_row()
-    kept = len(old_hash)
-    differ = np.flatnonzero(old_hash != new_hash[:kept])
-    now = np.concatenate([new_point[differ], new_point[kept:]])
-    return np.vstack([new.points[now, :2], old.points[old_point[differ], :2]]).astype(np.float64)
+    return np.vstack([new.xy[added], old.xy[removed]]).astype(np.float64)
 
 
 def _members(values: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:
@@ -341,6 +394,7 @@ class GraphUpdater:
         self.config = config or BuildConfig()
         self.graph: SceneGraph | None = previous
         self._digest: MapDigest | None = None
+        self._classes: tuple = ()  # what the digest's classes were computed from (_digest_of)
         self._replaced_since_clustering = 0
         # Changed points in tiles that held too few to be rebuilt yet: they count again next time.
         self._pending = np.zeros((0, 2))
@@ -352,18 +406,13 @@ class GraphUpdater:
         if lidar_only:  # as a full build sees it: one class, `ground`, from the LiDAR (terra.graph.ground)
             msm = as_ground_terrain(msm, np.zeros(len(msm.points), dtype=bool))
         _, terrains = terrains_to_build(msm, self.config)
-        if lidar_only:  # ground comes from each crop's geometry; the digest needs only the points
-            point_terrain = np.zeros(len(msm.points), dtype=np.int16)
-        else:
-            point_terrain = msm.terrain_index(self.config.terrain.min_share, dtype=np.int16)
-            point_terrain[~np.isin(point_terrain, terrains)] = -1
         why = self._full_reason(full)
         if why:
             self._digest = None  # not compared: its memory goes before the whole-map build
             result = self._full(full_map, why)
-            digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance, msm.fusion_rows)
+            digest = self._digest_of(msm, terrains, lidar_only)
         else:
-            digest = map_digest(msm.points, point_terrain, self.config.update.move_tolerance, msm.fusion_rows)
+            digest = self._digest_of(msm, terrains, lidar_only)
             assert self._digest is not None and self.graph is not None
             zone, changed, sweep = self._zone(digest)
             if zone is None:
@@ -373,10 +422,28 @@ class GraphUpdater:
             elif _covered_share(zone, msm.points) >= self.config.update.full_fraction:
                 result = self._full(full_map, "the changed area covers most of the map")
             else:
-                result = self._incremental(msm, None if lidar_only else point_terrain, terrains, zone)
+                result = self._incremental(msm, None if lidar_only else digest, terrains, zone)
                 result.update.changed_points, result.update.sweep = len(changed), sweep
         self.graph, self._digest = result.graph, digest
         return result
+
+    def _digest_of(self, msm: MetricSemanticMap, terrains: list[int], lidar_only: bool) -> MapDigest:
+        """The digest of `msm`, chained to the previous one where both are of one fusion and classed
+        alike (next_digest). A LiDAR-only map's classes are all 0: its ground comes from each crop's
+        geometry, and the digest needs only the points."""
+        classes = (lidar_only, tuple(terrains))
+        share = self.config.terrain.min_share
+
+        def terrain_of(votes: np.ndarray) -> np.ndarray:
+            if lidar_only:
+                return np.zeros(len(votes), dtype=np.int16)
+            winners = terrain_winners(votes, share, np.int16)
+            winners[~np.isin(winners, terrains)] = -1
+            return winners
+
+        old = self._digest if classes == self._classes else None
+        self._classes = classes
+        return next_digest(old, msm, terrain_of, self.config.update.move_tolerance)
 
     def _zone(self, digest: MapDigest) -> tuple[TileZone | None, np.ndarray, bool]:
         """The rebuilt area of this update, the changed positions (K, 2) metres it counted, and
@@ -409,19 +476,19 @@ class GraphUpdater:
         return GraphUpdate(built.graph, built.stats, built.timer, UpdateStats("full", why))
 
     def _incremental(
-        self, msm: MetricSemanticMap, point_terrain: np.ndarray | None, terrains: list[int], zone: TileZone
+        self, msm: MetricSemanticMap, digest: MapDigest | None, terrains: list[int], zone: TileZone
     ) -> GraphUpdate:
-        """The update around `zone`; point_terrain (N,) the map points' classes, or None for a
+        """The update around `zone`; `digest` the map's (its points' classes), or None for a
         LiDAR-only map (each crop's ground is segmented from its points)."""
         assert self.graph is not None
         old, timer, stats = self.graph, StageTimer(), UpdateStats("incremental")
         stats.zone_area, stats.crop_area = zone.area, zone.crop_area
         with timer.stage("crop places"):
-            crop = _rebuilt_places(msm, point_terrain, terrains, zone, self.config)
+            crop = _rebuilt_places(msm, digest, terrains, zone, self.config)
         with timer.stage("stitch"):
             merged, links, stitched = _merge(old, crop, zone, self.config)
         if len(merged.position) == 0:
-            raise TerraError(no_places_reason(lidar_only=point_terrain is None))
+            raise TerraError(no_places_reason(lidar_only=digest is None))
         stats.places_kept = int((merged.old_index >= 0).sum())
         stats.places_new = len(merged.position) - stats.places_kept
         stats.places_removed = len(old.places) - stats.places_kept
@@ -477,31 +544,34 @@ class _Rebuilt:
 
 
 def _rebuilt_places(
-    msm: MetricSemanticMap, point_terrain: np.ndarray | None, terrains: list[int], zone: TileZone, config: BuildConfig
+    msm: MetricSemanticMap, digest: MapDigest | None, terrains: list[int], zone: TileZone, config: BuildConfig
 ) -> _Rebuilt:
     """Each part of the zone rebuilt from its crop: the places and links a full build gives on the
     map points inside the crop, of which those in the part replace the old places there, and the
-    crop's ground layers when the build computes them (`build.ground.layers`). point_terrain: the
-    points' classes (N,), or None for a LiDAR-only map: its crops' ground, segmented, is class 0."""
-    xy = msm.points[:, :2]
+    crop's ground layers when the build computes them (`build.ground.layers`). digest: the map's,
+    whose classes the crop's points take, or None for a LiDAR-only map: its crops' ground,
+    segmented, is class 0."""
+    # Contiguous columns: a comparison over a strided column of the (N, 3) points costs about four
+    # times as much, and each crop scans the whole map.
+    x, y = np.ascontiguousarray(msm.points[:, 0]), np.ascontiguousarray(msm.points[:, 1])
     parts: list[tuple[TerrainPlaceSet, PlaceLinks, np.ndarray]] = []
     layers: list[GroundLayers] = []
     for k, (x0, y0, x1, y1) in enumerate(zone.crops, start=1):
-        inside = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1))
+        inside = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1))
         points = msm.points[inside]
-        ground = points_ground(points, config.ground) if point_terrain is None or config.ground.layers else None
-        if point_terrain is None:
+        ground = points_ground(points, config.ground) if digest is None or config.ground.layers else None
+        if digest is None:
             assert ground is not None
             crop_terrain = np.where(ground, 0, -1).astype(np.int16)
         else:
-            crop_terrain = point_terrain[inside]
+            crop_terrain = digest.point_terrain(inside)
         if not (crop_terrain >= 0).any():
             continue
         grid = terrain_grid(points, crop_terrain, config)
         crop_layers = grid_layers(points, ground, grid) if ground is not None and config.ground.layers else None
         if crop_layers is not None:
             layers.append(crop_layers)
-        barrier = gvd_barrier(crop_layers, config, lidar_only=point_terrain is None)
+        barrier = gvd_barrier(crop_layers, config, lidar_only=digest is None)
         places, traversable, _ = terrain_places(grid, terrains, config, barrier=barrier)
         places = with_gap_places(places, traversable, grid, crop_layers, config)
         if len(places.position):

@@ -131,6 +131,10 @@ class MapFusion:
         # committed version, so a version rewrites only the row chunks that changed
         # (terra/mapping/chunks.py). Every change of a row comes from a scan point associated to it.
         self.touched = np.zeros(0, dtype=bool)
+        # The same since the last `finish`, and how many maps it made: the next map names the rows it
+        # changed (FusionRows.changed), so a graph update recomputes only those (terra.graph.update).
+        self.unfinished = np.zeros(0, dtype=bool)
+        self.finished = 0
         self.id = uuid.uuid4().hex  # names this fusion's rows in the maps it makes (FusionRows)
         self.released = False
 
@@ -144,7 +148,7 @@ class MapFusion:
         empty_votes = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
         self.votes, self.votes_before, self.earlier_votes = empty_votes, empty_votes.copy(), []
         self.session_hits = np.zeros((0, 1), dtype=np.int64)
-        self.touched = np.zeros(0, dtype=bool)
+        self.touched = self.unfinished = np.zeros(0, dtype=bool)
         for images in (self._image_stamp, self._image_camera, self._image_pose, self._image_embedding, self._vis_cells):
             images.clear()
         self._vis_sorted = (0, np.zeros(0, np.int64), np.zeros(0, np.int32))
@@ -164,8 +168,10 @@ class MapFusion:
         self.session_hits = grown(self.session_hits, self.geometry.size)
         rows, returns = np.unique(index[index >= 0], return_counts=True)
         self.session_hits[rows, self.session] += returns
-        self.touched = grown(self.touched, self.geometry.size)
-        self.touched[rows] = True
+        for changed in ("touched", "unfinished"):
+            mask = grown(getattr(self, changed), self.geometry.size)
+            mask[rows] = True
+            setattr(self, changed, mask)
         self.stats.add("points_unassociated", int(np.count_nonzero(index < 0)))
         return points_map, index
 
@@ -233,6 +239,7 @@ class MapFusion:
     def touch_all(self) -> None:
         """Mark every row changed (its next version rewrites all of them)."""
         self.touched = np.ones(max(self.geometry.size, self.touched.shape[0]), dtype=bool)
+        self.unfinished = np.ones_like(self.touched)
 
     def untouch(self) -> None:
         """Forget the changes: the version they went into is committed."""
@@ -390,6 +397,9 @@ class MapFusion:
         self.votes = grown(self.votes, n)
         new_row = np.empty(n, dtype=np.int64)
         new_row[order] = np.arange(n)
+        changed = np.flatnonzero(grown(self.unfinished, n)[:n])
+        self.unfinished = np.zeros_like(self.unfinished)
+        self.finished += 1
         images = self.image_table()
         return MetricSemanticMap(
             points=self.geometry.points()[order],
@@ -402,5 +412,5 @@ class MapFusion:
             embedder=embedder,
             voxel_size=self.config.fusion.voxel_size,
             visibility=self.visibility_index(images.position),
-            fusion_rows=FusionRows(self.id, np.asarray(order, dtype=np.int64)),
+            fusion_rows=FusionRows(self.id, np.asarray(order, dtype=np.int64), new_row, self.finished, changed),
         )

@@ -39,10 +39,18 @@ class FusionRows:
     """Which fusion made a map and each map point's row in it: `fusion` an id the fusion took when
     it started, `rows` (N,) int64 the creation-order row of each point (a permutation of 0..N-1).
     Rows are only ever appended, so two maps of one fusion pair their points by row, without a
-    search (terra.graph.update compares a live map's versions this way)."""
+    search (terra.graph.update compares a live map's versions this way).
+
+    From the fusion's `finish`, also: `index` (N,) int64 the map point of each row (the inverse of
+    `rows`), `serial` which of the fusion's maps this is (1, 2, ...), and `changed` the sorted rows
+    whose position or votes changed since its map `serial - 1` (new rows included), so a consumer
+    that read that map recomputes only those rows."""
 
     fusion: str
     rows: np.ndarray
+    index: np.ndarray | None = None
+    serial: int = 0
+    changed: np.ndarray | None = None
 
 
 @dataclass
@@ -118,29 +126,35 @@ class MetricSemanticMap:
             return [np.zeros(0, dtype=np.int32) for _ in range(p)], np.full(p, -1, dtype=np.int64)
         return self.visibility.images_observing(positions, max_range=max_range)
 
-    def terrain_index(self, min_share: float = 0.5, dtype: type = np.int64, chunk: int = 1 << 16) -> np.ndarray:
-        """(N,) terrain class index by majority vote (ties: the lowest index), -1 where no vote or
-        the winner's share of the point's votes is below `min_share`. Computed in chunks of rows,
-        one class column at a time (for a few classes, comparisons per column cost less than a
-        row-wise argmax), so the temporaries cost memory for a chunk, not for the map; `dtype`
-        must hold the class count."""
-        votes = self.terrain_votes
-        out = np.full(len(votes), -1, dtype=dtype)
-        if votes.ndim != 2 or votes.shape[1] == 0:
-            return out
-        for start in range(0, len(votes), chunk):
-            part = votes[start : start + chunk]
-            top = part[:, 0].astype(np.int64)
-            best = np.zeros(len(part), dtype=dtype)
-            total = top.copy()
-            for column in range(1, part.shape[1]):
-                count = part[:, column]
-                total += count
-                best[count > top] = column  # strictly greater: a tie keeps the lower class, as argmax does
-                np.maximum(top, count, out=top)
-            share = np.divide(top, total, out=np.zeros(len(part)), where=total > 0)
-            out[start : start + chunk] = np.where((total > 0) & (share >= min_share), best, -1)
+    def terrain_index(self, min_share: float = 0.5, dtype: type = np.int64) -> np.ndarray:
+        """(N,) terrain class index of every point by majority vote (terrain_winners)."""
+        return terrain_winners(self.terrain_votes, min_share, dtype)
+
+
+def terrain_winners(
+    votes: np.ndarray, min_share: float = 0.5, dtype: type = np.int64, chunk: int = 1 << 16
+) -> np.ndarray:
+    """(N,) terrain class index by majority vote of votes (N, T) (ties: the lowest index), -1 where
+    no vote or the winner's share of the point's votes is below `min_share`. Computed in chunks of
+    rows, one class column at a time (for a few classes, comparisons per column cost less than a
+    row-wise argmax), so the temporaries cost memory for a chunk, not for the map; `dtype` must
+    hold the class count."""
+    out = np.full(len(votes), -1, dtype=dtype)
+    if votes.ndim != 2 or votes.shape[1] == 0:
         return out
+    for start in range(0, len(votes), chunk):
+        part = votes[start : start + chunk]
+        top = part[:, 0].astype(np.int64)
+        best = np.zeros(len(part), dtype=dtype)
+        total = top.copy()
+        for column in range(1, part.shape[1]):
+            count = part[:, column]
+            total += count
+            best[count > top] = column  # strictly greater: a tie keeps the lower class, as argmax does
+            np.maximum(top, count, out=top)
+        share = np.divide(top, total, out=np.zeros(len(part)), where=total > 0)
+        out[start : start + chunk] = np.where((total > 0) & (share >= min_share), best, -1)
+    return out
 
 
 def ms_avg_norms(counts: sp.csr_matrix, bank: np.ndarray, chunk: int = 65536) -> np.ndarray:

@@ -5,7 +5,7 @@ import scipy.sparse as sp
 
 from terra.graph.embedding import unique_cells
 from terra.graph.gvd import EIGHT, component_sizes, label_components
-from terra.mapping.semantic_map import ImageTable, MetricSemanticMap
+from terra.mapping.semantic_map import ImageTable, MetricSemanticMap, terrain_winners
 from tests.graph.fixtures import label_parts
 
 
@@ -56,6 +56,6 @@ def test_terrain_index_in_chunks_equals_the_hand_worked_majority():
     # winner share: -, 3/4, 1/2 (tie: lowest class), 1/2, 1, 1/2
     expected = [-1, 0, 0, 1, 2, 0]
     for chunk in (1, 4, 100):
-        got = msm.terrain_index(0.5, dtype=np.int16, chunk=chunk)
+        got = terrain_winners(msm.terrain_votes, 0.5, dtype=np.int16, chunk=chunk)
         assert got.dtype == np.int16 and got.tolist() == expected
     assert msm.terrain_index(0.6).tolist() == [-1, 0, -1, -1, 2, -1]

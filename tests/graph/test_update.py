@@ -10,8 +10,9 @@ import pytest
 
 from terra.graph.config import BuildConfig
 from terra.graph.pipeline import build_scene_graph
-from terra.graph.update import GraphUpdater, changed_points, map_digest, tile_zone
-from terra.mapping.semantic_map import FusionRows
+from terra.graph.update import GraphUpdater, changed_points, map_digest, next_digest, tile_zone
+from terra.live import Session
+from terra.mapping.semantic_map import FusionRows, terrain_winners
 from tests.graph.test_ids_rebuild import WEST_END, two_part_map
 
 
@@ -68,6 +69,51 @@ def test_two_versions_of_one_fusion_are_compared_row_by_row_as_by_search():
     plain = map_digest(after[rows_after], terrain_after[rows_after], 0.05)
     for searched in (changed_points(old, other), changed_points(old, plain)):
         np.testing.assert_allclose(np.sort(searched, axis=0), np.sort(by_row, axis=0))
+
+
+def test_a_chained_digest_hashes_only_the_changed_rows_and_equals_a_fresh_one(tiny_campus, tmp_path):
+    """A live fusion's maps name the rows each changed since the one before: the digest chained
+    through them classes and hashes only those rows, and equals the digest of the whole map; a map
+    the chain missed (or another fusion's) is digested whole, with the same result."""
+    from tests.live.test_chunk_views import _random_frame
+
+    rng = np.random.default_rng(5)
+    labels = np.unique(tiny_campus[0].point_labels)
+    session = Session(tmp_path / "live.terra", tiny_campus.classes, graph=False, name="chain")
+    classed: list[int] = []
+
+    def terrain_of(votes: np.ndarray) -> np.ndarray:
+        classed.append(len(votes))
+        winners = terrain_winners(votes, 0.5, np.int16)
+        winners[winners == 1] = -1  # a class the graph does not build on
+        return winners
+
+    digest, stamp, frames = None, 0.0, []
+    for step in range(5):
+        if step == 3:  # old ground alone, seen again with other labels: no new row, votes change
+            frames = [{**frame, "labels": rng.choice(labels, 400)} for frame in frames[:2]]
+        else:
+            centres = ([10.0 * step, 0.0, 0.0], [rng.uniform(0.0, 10.0 * step + 1.0), 0.0, 0.0])
+            frames = [_random_frame(rng, labels, np.asarray(centre)) for centre in centres] + frames
+        for frame in frames[:2]:
+            stamp += 0.1
+            session.add_frame(frame["points"], frame["T_map_lidar"], stamp, labels=frame["labels"])
+        msm = session.mapper.finish()
+        if step == 3:
+            assert digest is not None and len(msm) == len(digest.hashes)
+            continue  # a map the chain does not see: the next is digested whole
+        classed.clear()
+        digest = next_digest(digest, msm, terrain_of, 0.05)
+        fresh = map_digest(msm.points, terrain_of(msm.terrain_votes), 0.05, msm.fusion_rows)
+        for name in ("hashes", "xy", "terrain", "rows"):
+            np.testing.assert_array_equal(getattr(digest, name), getattr(fresh, name))
+        assert classed[-1] == len(msm)  # the fresh one
+        if step in (1, 2):  # chained: only the rows the new frames touched
+            assert msm.fusion_rows is not None and msm.fusion_rows.changed is not None
+            assert classed[0] == len(msm.fusion_rows.changed) < len(msm)
+        else:  # the first, and the one after the missed map
+            assert classed[0] == len(msm)
+    session.close()
 
 
 def test_the_zone_is_the_changed_tiles_grown_with_a_crop_around_each_part():
