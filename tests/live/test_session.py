@@ -239,18 +239,30 @@ def test_a_write_on_an_older_version_is_refused(tiny_graph_bundle, tmp_path):
 
 
 def test_live_graph_updates_are_incremental_and_the_closing_graph_is_the_batch_graph(
-    tiny_campus, tiny_graph_bundle, tmp_path
+    tiny_campus, tiny_graph_bundle, tmp_path, monkeypatch
 ):
-    """Snapshots after the first update the graph around the new frames only; `close()` builds it
-    whole on the same map as `terra build`, so it is the batch graph (ids aside: the live ones
-    are carried from the updates, the batch ones are a first build's)."""
+    """Snapshots after the first update the graph around the new frames only, each reading of the
+    map only the rows the fusion changed since the snapshot before (the digest of the whole map is
+    computed at full builds alone); `close()` builds it whole on the same map as `terra build`, so
+    it is the batch graph (ids aside: the live ones are carried from the updates, the batch ones are
+    a first build's)."""
+    from terra.graph import update
     from terra.graph.storage import load_scene_graph
+
+    whole_digests = []
+    real_digest = update.map_digest
+
+    def counted(points, *args, **kwargs):
+        whole_digests.append(len(points))
+        return real_digest(points, *args, **kwargs)
+
+    monkeypatch.setattr(update, "map_digest", counted)
 
     # The tiny map is small enough that most updates would cover it: incremental ones are asked for
     # anyway (full_fraction 1), to check them against the batch graph.
     build = BuildConfig.model_validate({"update": {"full_fraction": 1.0}})
     session = Session(tmp_path / "live.terra", tiny_campus.classes, MappingConfig(), build=build, name=tiny_campus.name)
-    kinds = []
+    kinds, whole_reads = [], 0
     for i in range(len(tiny_campus)):
         session.add(tiny_campus[i])
         if i >= 2 and i % 3 == 2:
@@ -258,7 +270,11 @@ def test_live_graph_updates_are_incremental_and_the_closing_graph_is_the_batch_g
             if not snapshot.graph_note:
                 kinds.append(snapshot.graph_update["kind"])
                 assert snapshot.bundle.graph is not None
+                # A full build for its own reason (the first) reads the map whole; one because the
+                # change covers the map compared the map's changed rows first.
+                whole_reads += snapshot.graph_update["reason"] == "first build of this session"
     assert kinds[0] == "full" and kinds.count("incremental") >= 2
+    assert len(whole_digests) == whole_reads == 1
     closing = session.close()
     assert closing is not None and closing.graph_update["kind"] == "full"
     live, batch = load_scene_graph(Bundle(tmp_path / "live.terra")), load_scene_graph(Bundle(tiny_graph_bundle.path))
