@@ -148,7 +148,7 @@ class MapFusion:
         empty_votes = np.zeros((0, len(self.terrain_classes)), dtype=np.uint32)
         self.votes, self.votes_before, self.earlier_votes = empty_votes, empty_votes.copy(), []
         self.session_hits = np.zeros((0, 1), dtype=np.int64)
-        self.touched = self.unfinished = np.zeros(0, dtype=bool)
+        self.touched, self.unfinished = np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
         for images in (self._image_stamp, self._image_camera, self._image_pose, self._image_embedding, self._vis_cells):
             images.clear()
         self._vis_sorted = (0, np.zeros(0, np.int64), np.zeros(0, np.int32))
