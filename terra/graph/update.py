@@ -2,8 +2,9 @@
 
 A live session commits a map version every few seconds, and most of the map is as it was. A
 `GraphUpdater` keeps what its last graph was built from (per map point, a hash of its position,
-rounded to `build.update.move_tolerance`, and of its terrain class), finds the points added,
-removed, moved or re-classed since, and rebuilds the graph only there:
+rounded to `build.update.move_tolerance`, and of its terrain class; for a live fusion's maps kept per
+fusion row and hashed again only at the rows the fusion changed, `next_digest`), finds the points
+added, removed, moved or re-classed since, and rebuilds the graph only there:
 
 1. changed tiles: the squares of `build.update.tile` metres (a fixed lattice of the map frame,
    anchored at x = y = 0) that hold at least `min_changed_points` changed points (fewer wait, and
