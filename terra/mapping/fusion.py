@@ -93,6 +93,13 @@ class CountAccumulator:
         return m  # pyright: ignore[reportReturnType]  # scipy infers csr_array for coo_matrix.tocsr()
 
 
+def _marked(mask: np.ndarray, rows: np.ndarray, size: int) -> np.ndarray:
+    """Row mask `mask` with room for `size` rows and `rows` set (the array itself when it had room)."""
+    mask = grown(mask, size)
+    mask[rows] = True
+    return mask
+
+
 class MapFusion:
     """The incremental fusion state. `integrate_*` add observations; `finish()` gives the map."""
 
@@ -168,10 +175,8 @@ class MapFusion:
         self.session_hits = grown(self.session_hits, self.geometry.size)
         rows, returns = np.unique(index[index >= 0], return_counts=True)
         self.session_hits[rows, self.session] += returns
-        for changed in ("touched", "unfinished"):
-            mask = grown(getattr(self, changed), self.geometry.size)
-            mask[rows] = True
-            setattr(self, changed, mask)
+        self.touched = _marked(self.touched, rows, self.geometry.size)
+        self.unfinished = _marked(self.unfinished, rows, self.geometry.size)
         self.stats.add("points_unassociated", int(np.count_nonzero(index < 0)))
         return points_map, index
 
