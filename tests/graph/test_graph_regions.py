@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terra.graph.agglomerative import agglomerative_assignments, gap_cuts, weighted_average_linkage
+from terra.graph.agglomerative import (
+    agglomerative_assignments,
+    condensed_sqeuclidean,
+    gap_cuts,
+    weighted_average_linkage,
+)
 from terra.graph.regions import build_levels, paper_weight
 from terra.graph.spectral import SpectralStop, semantic_difference, should_stop, spectral_assignments
 
@@ -68,6 +73,20 @@ def test_dense_average_linkage_cuts_match_a_naive_reference():
         assert partition(labels) == naive_average_linkage_cut(W, cut)
     sizes = [len(partition(labels)) for labels in out]
     assert sizes == sorted(sizes, reverse=True) and sizes[0] > sizes[-1]
+
+
+def test_condensed_squared_distances_from_products_equal_pdists():
+    """Across row blocks, with a zero row (an unembedded place) and twin rows: scipy's values."""
+    from scipy.spatial.distance import pdist
+
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(600, 24))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    x[7] = 0.0
+    x[300] = x[299]
+    for block in (1, 256, 1000):
+        np.testing.assert_allclose(condensed_sqeuclidean(x, block), pdist(x, "sqeuclidean"), rtol=0, atol=1e-12)
+    assert condensed_sqeuclidean(x[:1]).shape == (0,)
 
 
 def test_the_semantic_term_separates_co_located_places():
