@@ -12,6 +12,7 @@ the incremental graph differs from the full one:
 The last row is the session's closing full build, which equals the batch graph by construction.
 
 Usage: python benchmarks/bench_live_graph.py --dataset campus-sim --update-every 2 --frames 300
+       [--update tile=4 --update context_margin=4 ...]  (build.update settings to try)
 """
 
 from __future__ import annotations
@@ -30,6 +31,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.benchtable import report  # noqa: E402
+
+
+def _setting(text: str) -> tuple[str, float]:
+    """KEY=VALUE of `--update` (a field of build.update, a number)."""
+    key, _, value = text.partition("=")
+    return key, float(value)
 
 
 def _matched(a, b, cell: float) -> np.ndarray:
@@ -81,7 +88,7 @@ def run(args: argparse.Namespace) -> dict:
 
     dataset = open_dataset(args.dataset)
     count = min(args.frames, len(dataset))
-    config = BuildConfig()
+    config = BuildConfig.model_validate({"update": dict(_setting(text) for text in args.update)})
     updater = GraphUpdater(config)
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -139,6 +146,12 @@ def run(args: argparse.Namespace) -> dict:
     return {"dataset": str(args.dataset), "frames": count, "rows": rows, "closing": final}
 
 
+def _percentiles(seconds: list[float]) -> str:
+    if not seconds:
+        return "none"
+    return f"{np.median(seconds) * 1e3:.0f} / {np.percentile(seconds, 90) * 1e3:.0f} ms ({len(seconds)})"
+
+
 def _summary(result: dict) -> list[tuple[str, str, str]]:
     every = [r for r in result["rows"] if r.get("kind") == "incremental"]
     inc = [r for r in every if "full_s" in r]
@@ -155,6 +168,11 @@ def _summary(result: dict) -> list[tuple[str, str, str]]:
             f"{np.percentile([r['incremental_s'] for r in every], 90) * 1e3:.0f} ms",
             "<= 150 ms median",
         ),
+        (
+            "of which rebuilt an area: median / p90 (count)",
+            _percentiles([r["incremental_s"] for r in every if r.get("zone_m2")]),
+            "",
+        ),
         ("full build of the same map, median", f"{med('full_s') * 1e3:.0f} ms", ""),
         ("incremental / full, median", f"{np.median([r['incremental_s'] / r['full_s'] for r in inc]):.1%}", "<= 10 %"),
         (
@@ -163,7 +181,7 @@ def _summary(result: dict) -> list[tuple[str, str, str]]:
             f"{inc[-1]['full_s'] * 1e3:.0f} ms)",
             "<= 10 % on 1 M points",
         ),
-        ("rebuilt area, median", f"{med('zone_m2'):,.0f} m^2", ""),
+        ("rebuilt area, median over every update", f"{np.median([r['zone_m2'] for r in every]):,.0f} m^2", ""),
         ("full places matched (worst)", f"{min(r['full_matched'] for r in inc):.3f}", ""),
         ("full places with one within 2 m (worst)", f"{min(r['full_matched_2m'] for r in inc):.3f}", ""),
         ("incremental places matched (worst)", f"{min(r['incremental_matched'] for r in inc):.3f}", ""),
@@ -186,11 +204,15 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--update-every", type=float, default=2.0, help="seconds of drive between updates")
     parser.add_argument("--compare-every", type=int, default=10, help="a full build beside every Nth update")
+    parser.add_argument(
+        "--update", action="append", default=[], metavar="KEY=VALUE", help="a build.update setting, e.g. tile=4"
+    )
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "live_graph.json")
     args = parser.parse_args()
     load = os.getloadavg()[0]
     result = run(args)
     result["load_average_1min_at_start"] = load
+    result["update_settings"] = args.update
     result["cpus"] = os.cpu_count()
     result["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -3,8 +3,9 @@
 A live session commits a map version every few seconds, and most of the map is as it was. A
 `GraphUpdater` keeps what its last graph was built from (per map point, a hash of its position,
 rounded to `build.update.move_tolerance`, and of its terrain class; for a live fusion's maps kept per
-fusion row and hashed again only at the rows the fusion changed, `next_digest`), finds the points
-added, removed, moved or re-classed since, and rebuilds the graph only there:
+fusion row, compared only at the rows the fusion changed, and moved once a row is the tolerance
+away from where it last counted, `next_digest`), finds the points added, removed, moved or
+re-classed since, and rebuilds the graph only there:
 
 1. changed tiles: the squares of `build.update.tile` metres (a fixed lattice of the map frame,
    anchored at x = y = 0) that hold at least `min_changed_points` changed points (fewer wait, and
@@ -90,17 +91,19 @@ _HASH = np.array([0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x
 @dataclass
 class MapDigest:
     """What a graph was built from, one entry per map point: a hash (N,) uint64 of its position
-    rounded to the digest's step and of its terrain class, its x, y (N, 2) float32 metres (map
+    rounded to the digest's step and of its terrain class, its position (N, 3) float32 metres (map
     frame) and its class (N,) int16 (-1: none the graph builds on).
 
     For a map a fusion made, entry r is the fusion's row r (creation order; `fusion` and `serial`
     name the fusion and which of its maps this is, `rows` (N,) the entry of each map point): the
-    next map of the same fusion is compared entry by entry, and hashed again only at the rows it
-    changed (`next_digest`). For any other map, entry i is map point i (`rows` None), and two
-    digests are compared through their sorted hashes."""
+    next map of the same fusion is compared entry by entry at the rows it changed (`next_digest`),
+    and an entry is the row as it was last counted as changed, so a voxel mean that drifts a
+    little with every scan counts once it has moved the step from there, not whenever it crosses
+    a rounding boundary. For any other map, entry i is map point i (`rows` None), and two digests
+    are compared through their sorted hashes."""
 
     hashes: np.ndarray
-    xy: np.ndarray
+    position: np.ndarray
     terrain: np.ndarray
     rows: np.ndarray | None = None
     fusion: str | None = None
@@ -141,9 +144,9 @@ def map_digest(points: np.ndarray, terrain: np.ndarray, step: float, rows: Fusio
     terrain = np.asarray(terrain, dtype=np.int16)
     hashes = point_hashes(points, terrain, step)
     if rows is None or len(rows.rows) != len(points):
-        return MapDigest(hashes, points[:, :2].copy(), terrain)
-    by_row = np.empty_like(hashes), np.empty((len(points), 2), np.float32), np.empty_like(terrain)
-    for out, values in zip(by_row, (hashes, points[:, :2], terrain)):
+        return MapDigest(hashes, points.copy(), terrain)
+    by_row = np.empty_like(hashes), np.empty_like(points), np.empty_like(terrain)
+    for out, values in zip(by_row, (hashes, points, terrain)):
         out[rows.rows] = values
     return MapDigest(*by_row, rows=rows.rows, fusion=rows.fusion, serial=rows.serial)
 
@@ -153,8 +156,9 @@ def next_digest(
 ) -> MapDigest:
     """The digest of `msm` whose points' classes are `terrain_of(votes)` (votes (K, T) -> (K,)
     int16): when `old` is the digest of the same fusion's map before this one, its entries are
-    copied and only the rows the fusion changed since are hashed again (a live map changes a
-    fraction of its rows between two updates); otherwise the whole map is hashed."""
+    copied and only the rows the fusion changed since are classed, compared and, where they count
+    as changed (`_counted`), replaced (a live map changes a fraction of its rows between two
+    updates); otherwise the whole map is hashed."""
     rows = msm.fusion_rows
     chained = (
         old is not None
@@ -169,15 +173,27 @@ def next_digest(
     if not chained:
         return map_digest(msm.points, terrain_of(msm.terrain_votes), step, rows)
     assert old is not None and rows is not None and rows.changed is not None and rows.index is not None
-    n, changed = len(msm.points), rows.changed
-    at = rows.index[changed]
-    terrain = _grown_copy(old.terrain, n)
-    terrain[changed] = terrain_of(msm.terrain_votes[at])
-    hashes = _grown_copy(old.hashes, n)
-    hashes[changed] = point_hashes(msm.points[at], terrain[changed], step)
-    xy = _grown_copy(old.xy, n)
-    xy[changed] = msm.points[at, :2]
-    return MapDigest(hashes, xy, terrain, rows=rows.rows, fusion=rows.fusion, serial=rows.serial)
+    at = rows.index[rows.changed]
+    now = np.asarray(msm.points[at], dtype=np.float32)
+    classes = terrain_of(msm.terrain_votes[at])
+    counted = _counted(old, rows.changed, now, classes, step)
+    n, where = len(msm.points), rows.changed[counted]
+    position, terrain, hashes = (_grown_copy(a, n) for a in (old.position, old.terrain, old.hashes))
+    position[where], terrain[where] = now[counted], classes[counted]
+    hashes[where] = point_hashes(now[counted], classes[counted], step)
+    return MapDigest(hashes, position, terrain, rows=rows.rows, fusion=rows.fusion, serial=rows.serial)
+
+
+def _counted(old: MapDigest, changed: np.ndarray, now: np.ndarray, classes: np.ndarray, step: float) -> np.ndarray:
+    """(K,) which of the rows `changed` (K,) the fusion changed, now at positions (K, 3) metres
+    with classes (K,), count as changed against `old`: rows added since, re-classed, or moved by
+    more than `step` metres along an axis from where `old` last counted them."""
+    counted = np.ones(len(changed), dtype=bool)
+    seen = np.flatnonzero(changed < len(old.hashes))
+    rows = changed[seen]
+    moved = np.abs(now[seen] - old.position[rows]).max(axis=1) > np.float32(step)
+    counted[seen] = moved | (classes[seen] != old.terrain[rows])
+    return counted
 
 
 def _covers_new_rows(changed: np.ndarray, old: int, n: int) -> bool:
@@ -202,12 +218,14 @@ def changed_points(old: MapDigest, new: MapDigest) -> np.ndarray:
         # map's is added, and one whose hash differs moved or was re-classed.
         kept = len(old.hashes)
         differ = np.flatnonzero(old.hashes != new.hashes[:kept])
-        return np.vstack([new.xy[differ], new.xy[kept:], old.xy[differ]]).astype(np.float64)
+        return np.vstack([new.position[differ, :2], new.position[kept:, :2], old.position[differ, :2]]).astype(
+            np.float64
+        )
     old_sorted, old_order = old.sorted()
     new_sorted, new_order = new.sorted()
     added = new_order[~_members(new_sorted, old_sorted)]
     removed = old_order[~_members(old_sorted, new_sorted)]
-    return np.vstack([new.xy[added], old.xy[removed]]).astype(np.float64)
+    return np.vstack([new.position[added, :2], old.position[removed, :2]]).astype(np.float64)
 
 
 def _members(values: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:

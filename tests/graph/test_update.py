@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from terra.graph.config import BuildConfig
 from terra.graph.pipeline import build_scene_graph
-from terra.graph.update import GraphUpdater, changed_points, map_digest, next_digest, tile_zone
+from terra.graph.update import GraphUpdater, changed_points, map_digest, next_digest, point_hashes, tile_zone
 from terra.live import Session
-from terra.mapping.semantic_map import FusionRows, terrain_winners
+from terra.mapping.semantic_map import FusionRows, ImageTable, MetricSemanticMap, terrain_winners
 from tests.graph.test_ids_rebuild import WEST_END, two_part_map
 
 
@@ -71,10 +72,55 @@ def test_two_versions_of_one_fusion_are_compared_row_by_row_as_by_search():
         np.testing.assert_allclose(np.sort(searched, axis=0), np.sort(by_row, axis=0))
 
 
-def test_a_chained_digest_hashes_only_the_changed_rows_and_equals_a_fresh_one(tiny_campus, tmp_path):
+def _drifting_map(
+    points: np.ndarray, votes: np.ndarray, serial: int, changed: np.ndarray | list[int]
+) -> MetricSemanticMap:
+    """A live fusion's map `serial` of points (N, 3) metres listed in row order, whose rows `changed` changed."""
+    n = len(points)
+    rows = FusionRows("drift", np.arange(n), np.arange(n), serial, np.asarray(changed, dtype=np.int64))
+    return MetricSemanticMap(
+        points.astype(np.float32),
+        ["asphalt", "grass"],
+        votes.astype(np.uint16),
+        np.zeros((2, 4), np.float32),
+        sp.csr_matrix((n, 0), dtype=np.int32),
+        np.zeros((0, 4), np.float32),
+        ImageTable(np.zeros(0), np.zeros(0, np.int16), np.zeros((0, 4, 4)), np.zeros((0, 4), np.float32)),
+        "test",
+        fusion_rows=rows,
+    )
+
+
+def test_a_row_counts_as_moved_once_it_is_the_tolerance_from_where_it_last_counted():
+    """A voxel mean drifts a little with every scan: it counts as moved when it is more than the
+    tolerance from where the digest last counted it (3 cm + 3 cm = 6 cm > 5 cm), not when a 1 cm
+    move crosses a rounding boundary of the hash; a re-classed or added row always counts."""
+    votes = np.array([[5, 0], [5, 0], [5, 0], [0, 5]])
+    start = np.array([[0.0, 0.0, 0.0], [1.024, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    terrain_of = lambda v: terrain_winners(v, 0.5, np.int16)  # noqa: E731
+    digest = next_digest(None, _drifting_map(start, votes, 1, np.arange(4)), terrain_of, 0.05)
+    second = start + [[0.03, 0.0, 0.0], [0.002, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]  # 1.026 rounds up
+    new = next_digest(digest, _drifting_map(second, votes, 2, [0, 1]), terrain_of, 0.05)
+    assert len(changed_points(digest, new)) == 0
+    assert len(changed_points(map_digest(start, terrain_of(votes), 0.05), map_digest(second, terrain_of(votes), 0.05)))
+    third = np.vstack([second + [[0.03, 0.0, 0.0], [0.0] * 3, [0.0] * 3, [0.0] * 3], [[4.0, 0.0, 0.0]]])
+    votes3 = np.vstack([votes, [[0, 5]]])
+    votes3[2] = [0, 5]  # row 2 re-classed in place
+    newer = next_digest(new, _drifting_map(third, votes3, 3, [0, 2, 4]), terrain_of, 0.05)
+    # Rows 0 (6 cm from where it counted) and 2 (re-classed) where they were and are; row 4 added.
+    assert sorted(changed_points(new, newer)[:, 0].round(3).tolist()) == [0.0, 0.06, 2.0, 2.0, 4.0]
+    expected = third.astype(np.float32)
+    expected[1] = start[1]  # moved 2 mm since it counted: where it was then
+    np.testing.assert_array_equal(newer.position, expected)
+    np.testing.assert_array_equal(newer.terrain, [0, 0, 1, 1, 1])
+
+
+def test_a_chained_digest_classes_only_the_changed_rows_and_agrees_with_a_fresh_one(tiny_campus, tmp_path):
     """A live fusion's maps name the rows each changed since the one before: the digest chained
-    through them classes and hashes only those rows, and equals the digest of the whole map; a map
-    the chain missed (or another fusion's) is digested whole, with the same result."""
+    through them classes and compares only those rows; its classes equal those of the whole map,
+    and each entry is where the row last moved by more than the step (within the step of where it
+    is now; row by row as the rule replayed here gives); a map the chain missed (or another
+    fusion's) is digested whole."""
     from tests.live.test_chunk_views import _random_frame
 
     rng = np.random.default_rng(5)
@@ -88,7 +134,7 @@ def test_a_chained_digest_hashes_only_the_changed_rows_and_equals_a_fresh_one(ti
         winners[winners == 1] = -1  # a class the graph does not build on
         return winners
 
-    digest, stamp, frames = None, 0.0, []
+    digest, stamp, frames, counted_at = None, 0.0, [], np.zeros((0, 3), np.float32)
     for step in range(5):
         if step == 3:  # old ground alone, seen again with other labels: no new row, votes change
             frames = [{**frame, "labels": rng.choice(labels, 400)} for frame in frames[:2]]
@@ -99,20 +145,33 @@ def test_a_chained_digest_hashes_only_the_changed_rows_and_equals_a_fresh_one(ti
             stamp += 0.1
             session.add_frame(frame["points"], frame["T_map_lidar"], stamp, labels=frame["labels"])
         msm = session.mapper.finish()
+        assert msm.fusion_rows is not None
         if step == 3:
             assert digest is not None and len(msm) == len(digest.hashes)
             continue  # a map the chain does not see: the next is digested whole
         classed.clear()
+        previous = digest
         digest = next_digest(digest, msm, terrain_of, 0.05)
         fresh = map_digest(msm.points, terrain_of(msm.terrain_votes), 0.05, msm.fusion_rows)
-        for name in ("hashes", "xy", "terrain", "rows"):
-            np.testing.assert_array_equal(getattr(digest, name), getattr(fresh, name))
+        np.testing.assert_array_equal(digest.terrain, fresh.terrain)
+        np.testing.assert_array_equal(digest.rows, fresh.rows)
+        assert np.abs(digest.position - fresh.position).max() <= 0.05
+        np.testing.assert_array_equal(digest.hashes, point_hashes(digest.position, digest.terrain, 0.05))
         assert classed[-1] == len(msm)  # the fresh one
         if step in (1, 2):  # chained: only the rows the new frames touched
-            assert msm.fusion_rows is not None and msm.fusion_rows.changed is not None
+            assert previous is not None and msm.fusion_rows.changed is not None
             assert classed[0] == len(msm.fusion_rows.changed) < len(msm)
+            kept = len(counted_at)
+            moved = np.abs(fresh.position[:kept] - counted_at).max(axis=1) > np.float32(0.05)
+            moved |= fresh.terrain[:kept] != previous.terrain
+            counted_at = np.vstack([np.where(moved[:, None], fresh.position[:kept], counted_at), fresh.position[kept:]])
+            np.testing.assert_array_equal(digest.position, counted_at)
+            held = np.intersect1d(msm.fusion_rows.changed, np.flatnonzero(~moved))  # changed, not counted
+            assert moved.any() and (len(held) > 0 or step == 1)
         else:  # the first, and the one after the missed map
             assert classed[0] == len(msm)
+            np.testing.assert_array_equal(digest.position, fresh.position)
+            counted_at = fresh.position.copy()
     session.close()
 
 
