@@ -11,6 +11,8 @@ objects by the profile's half width, not water and not within the half width of 
 the limit (the wheels would meet it), joined where the move's true step and slope are within the
 limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
+Pairs are drawn among the places inside the world's square: the sensor sees ground past its edge,
+where the truth says nothing (counted: places beyond the world, paths that leave it).
 Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
 paths over the steep hill, and the same pairs planned without a profile (over steps, over stairs).
 
@@ -163,8 +165,11 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     chair = ROBOTS["wheelchair"]
     costs = TerrainCosts.from_preferences(graph.terrain_classes)
     cost_graph, free_graph = CostGraph.build(graph, costs, chair), CostGraph.build(graph, costs)
-    rows, cols, _ = truth.raster.cell_of(graph.places.position)
-    place_component = truth.component[rows, cols]
+    # Places beyond the world's square (ground the sensor saw past its edge) have no truth: a clipped
+    # look-up would give them the border cell's component. Pairs are drawn among the others.
+    rows, cols, inside = truth.raster.cell_of(graph.places.position)
+    place_component = np.where(inside, truth.component[rows, cols], -1)
+    in_world = np.flatnonzero(inside)
     rng = np.random.default_rng(seed)
     counts: dict[str, Any] = {"pairs": pairs, "wheelchair_paths": 0, "over_step_limit": 0, "over_slope_limit": 0}
     counts["within_half_width_of_a_step_over_the_limit"] = 0
@@ -172,8 +177,9 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
     worst = {"step_m": 0.0, "slope_deg": 0.0}
     counts |= {"free_paths": 0, "free_paths_over_step_limit": 0, "free_paths_over_stairs": 0}
+    counts |= {"places_beyond_the_world": int((~inside).sum()), "paths_leaving_the_world": 0}
     for _ in range(pairs):
-        a, b = (int(v) for v in rng.choice(len(graph.places), 2, replace=False))
+        a, b = (int(v) for v in rng.choice(in_world, 2, replace=False))
         _count_free(graph, free_graph, truth, a, b, chair.max_step, counts)
         legal = bool(place_component[a] >= 0 and place_component[a] == place_component[b])
         counts["legal_route_on_truth"] += legal
@@ -184,6 +190,8 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
             counts["legal_route_missed"] += legal
             continue
         counts["wheelchair_paths"] += 1
+        # a path whose waypoints lie in the square stays in it (straight segments)
+        counts["paths_leaving_the_world"] += bool(not truth.raster.cell_of(plan.waypoints)[2].all())
         judged = judge_path(truth, plan.waypoints)
         counts["over_step_limit"] += bool(judged["step"] > chair.max_step + 1e-9)
         counts["over_slope_limit"] += bool(judged["slope"] > chair.max_slope_up + 1e-9)
