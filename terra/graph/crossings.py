@@ -251,7 +251,7 @@ def level_links(
     xy = np.asarray(position, dtype=np.float64)[:, :2]
     flat = np.column_stack([xy, np.zeros(n)])
     level = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    level = level[edge_geometry(layers, flat, level)[:, 0] <= max_step]
+    level = level[edge_geometry(layers, flat, level, unseen_ends=False)[:, 0] <= max_step]
     graph = coo_matrix((np.ones(len(level)), (level[:, 0], level[:, 1])), shape=(n, n))
     _, component = connected_components(graph, directed=False)
     k = min(candidates + 1, n)
@@ -286,7 +286,8 @@ def _clear_and_level(
     if ok.any():
         m = int(ok.sum())
         ends = np.column_stack([np.vstack([a[ok], b[ok]]), np.zeros(2 * m)])
-        ok[ok] = edge_geometry(layers, ends, np.column_stack([np.arange(m), np.arange(m) + m]))[:, 0] <= max_step
+        pairs = np.column_stack([np.arange(m), np.arange(m) + m])
+        ok[ok] = edge_geometry(layers, ends, pairs, unseen_ends=False)[:, 0] <= max_step
     return ok
 
 

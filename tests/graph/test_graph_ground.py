@@ -209,6 +209,32 @@ def test_an_edge_over_a_line_of_steps_reads_at_least_its_step():
     assert np.allclose(edge_geometry(layers, position, edges)[:, 0], [0.08, 0.0])  # across / beside
 
 
+def test_an_edge_from_a_place_without_ground_steps_to_the_first_ground_along_it():
+    """A curb's low side in its own LiDAR shadow: on a 10 x 10 grid of 0.4 m cells, columns 0-2 (x
+    < 1.2 m) are ground at 0 m, columns 3-4 hold no ground, columns 5-9 (x >= 2.0 m) are the top
+    at 0.15 m. A place on column 3 took its height (0 m) from the nearest ground; its edge to the
+    top sees only the top, level, and steps by the 0.15 m between them."""
+    shape = (10, 10)
+    col = np.arange(100) % 10
+    cells = np.flatnonzero((col <= 2) | (col >= 5))
+    n = len(cells)
+    height = np.where(col[cells] >= 5, 0.15, 0.0).astype(np.float32)
+    zeros = np.zeros(n, np.float32)
+    layers = GroundLayers(cells, height, np.zeros((n, 2), np.float32), zeros, zeros, shape, np.zeros(2), CELL)
+    position = np.array(
+        [
+            [1.4, 2.0, 0.0],  # 0: column 3, no ground
+            [3.0, 2.0, 0.15],  # 1: the top
+            [3.8, 2.0, 0.15],  # 2: the top
+            [-1.0, 2.0, 0.0],  # 3: outside the grid: nothing known of its cell
+            [1.4, 3.0, 0.15],  # 4: column 3 again, at the top's height
+        ]
+    )
+    edges = np.array([[0, 1], [1, 0], [1, 2], [3, 1], [4, 2]])
+    np.testing.assert_allclose(edge_geometry(layers, position, edges)[:, 0], [0.15, 0.15, 0.0, 0.0, 0.0], atol=1e-6)
+    assert np.allclose(edge_geometry(layers, position, edges, unseen_ends=False)[:, 0], 0.0)
+
+
 def test_despike_by_hand():
     h = np.zeros((5, 6))
     h[:, 3:] = 0.15  # a curb between columns 2 and 3
