@@ -43,6 +43,8 @@ def run(args: argparse.Namespace) -> dict:
     count = min(args.frames or len(dataset), len(dataset))
     rows: list[dict] = []
     started = time.perf_counter()
+    if args.work is not None:
+        args.work.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.work) as tmp:
         session = Session(Path(tmp) / "live.terra", dataset.classes, name="bench")
         for i in range(count):
