@@ -403,7 +403,7 @@ class MapFusion:
         new_row = np.empty(n, dtype=np.int64)
         new_row[order] = np.arange(n)
         changed = np.flatnonzero(grown(self.unfinished, n)[:n])
-        self.unfinished = np.zeros_like(self.unfinished)
+        self.unfinished[:] = False
         self.finished += 1
         images = self.image_table()
         return MetricSemanticMap(
