@@ -11,6 +11,10 @@ objects by the profile's half width, not water and not within the half width of 
 the limit (the wheels would meet it), joined where the move's true step and slope are within the
 limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
+The same again over the ground the map's cameras labelled only (`with_labelled_ground`: a legal
+route on labelled ground; missed; on a LiDAR-only map, its ground): a camera map's places stand on
+labelled terrain (the paper's rule), so a route that needs ground only the LiDAR saw (beside and
+behind a forward camera) is none its graph could give; the figure tells those misses from the graph's.
 Pairs are drawn among the places inside the world's square: the sensor sees ground past its edge,
 where the truth says nothing (counted: places beyond the world, paths that leave it).
 Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
@@ -33,7 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -65,6 +69,10 @@ class TrueGround:
     free: np.ndarray
     component: np.ndarray
     features: dict[str, np.ndarray]
+    labelled_component: np.ndarray | None = None
+
+
+GROUND_RETURN = 0.3  # metres: a map point this close to the true ground is a return from it
 
 
 def true_ground(world: World, robot: RobotProfile) -> TrueGround:
@@ -95,6 +103,21 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     st = world.ground.steps
     features = {"curb_cut": st.curb_cut, "stairs": stairs, "ramp": st.ramp, "hill": st.hill}
     return TrueGround(raster, step, slope, legal, edge, free, component, features)
+
+
+def with_labelled_ground(truth: TrueGround, points: np.ndarray, fill: float = 1.0) -> TrueGround:
+    """`truth` with `labelled_component`: the legal components again, over the free cells holding a
+    labelled map point (points (N, 3) metres, map frame: those with a terrain vote; on a LiDAR-only
+    map, every point) within GROUND_RETURN of the cell's true ground height, the cells so found
+    closed by a disk of radius `fill` metres (the gaps between a LiDAR's rings)."""
+    rows, cols, inside = truth.raster.cell_of(points)
+    near = np.abs(points[:, 2] - truth.raster.ground_height[rows, cols]) <= GROUND_RETURN
+    labelled = np.zeros(truth.free.shape, dtype=bool)
+    labelled[rows[inside & near], cols[inside & near]] = True
+    r = int(np.ceil(fill / truth.raster.resolution))
+    disk = np.hypot(*np.mgrid[-r : r + 1, -r : r + 1]) <= r
+    labelled = ndimage.binary_closing(np.pad(labelled, r), structure=disk)[r:-r, r:-r]
+    return replace(truth, labelled_component=_components(truth.free & labelled, truth.legal))
 
 
 def _near_steps(step: np.ndarray, limit: float, reach: float, resolution: float) -> np.ndarray:
@@ -169,11 +192,14 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     # look-up would give them the border cell's component. Pairs are drawn among the others.
     rows, cols, inside = truth.raster.cell_of(graph.places.position)
     place_component = np.where(inside, truth.component[rows, cols], -1)
+    labelled = truth.labelled_component if truth.labelled_component is not None else truth.component
+    place_labelled = np.where(inside, labelled[rows, cols], -1)
     in_world = np.flatnonzero(inside)
     rng = np.random.default_rng(seed)
     counts: dict[str, Any] = {"pairs": pairs, "wheelchair_paths": 0, "over_step_limit": 0, "over_slope_limit": 0}
     counts["within_half_width_of_a_step_over_the_limit"] = 0
     counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
+    counts |= {"legal_route_on_labelled_ground": 0, "labelled_legal_route_missed": 0}
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
     worst = {"step_m": 0.0, "slope_deg": 0.0}
     counts |= {"free_paths": 0, "free_paths_over_step_limit": 0, "free_paths_over_stairs": 0}
@@ -184,10 +210,13 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         legal = bool(place_component[a] >= 0 and place_component[a] == place_component[b])
         counts["legal_route_on_truth"] += legal
         counts["place_off_the_legal_truth_grid"] += bool(place_component[a] < 0 or place_component[b] < 0)
+        labelled_legal = bool(place_labelled[a] >= 0 and place_labelled[a] == place_labelled[b])
+        counts["legal_route_on_labelled_ground"] += labelled_legal
         try:
             plan = plan_on(graph, cost_graph, a, b)
         except NoPathError:
             counts["legal_route_missed"] += legal
+            counts["labelled_legal_route_missed"] += labelled_legal
             continue
         counts["wheelchair_paths"] += 1
         # a path whose waypoints lie in the square stays in it (straight segments)
@@ -200,6 +229,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         for name in truth.features:
             counts[f"paths_over_{name}"] += judged[name]
     counts |= all_pairs_missed(cost_graph, place_component)
+    counts |= {f"{k}_on_labelled_ground": v for k, v in all_pairs_missed(cost_graph, place_labelled).items()}
     counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
     counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
     return counts
@@ -266,6 +296,7 @@ def main() -> None:
     from terra.bundle import Bundle
     from terra.config import TerraConfig
     from terra.graph.storage import load_scene_graph
+    from terra.mapping.storage import load_map
     from terra.sim.presets import generate_world
     from terra.tasks.robot import ROBOTS
 
@@ -282,6 +313,10 @@ def main() -> None:
         result["sim_map_build_s"] = round(time.perf_counter() - start, 1)
         world = generate_world(args.preset, args.seed, TerraConfig.read(config).sim)
         truth = true_ground(world, ROBOTS["wheelchair"])
+        msm = load_map(Bundle(bundle))
+        voted = msm.terrain_votes.any(axis=1) if msm.terrain_votes.size else np.ones(len(msm.points), bool)
+        truth = with_labelled_ground(truth, msm.points[voted] if voted.any() else msm.points)
+        del msm
         graph = load_scene_graph(Bundle(bundle))
         result["world"] = world_figures(truth, world) | {"places": len(graph.places)}
         start = time.perf_counter()
