@@ -59,7 +59,8 @@ class TrueGround:
     (NEIGHBOURS order), legal (H, W, 4) moves for the robot, edge (H, W) cells whose centre lies
     within the robot's half width of a step above its limit (its wheels would meet the step),
     free (H, W) cells (clear of objects by the half width, not water, not edge), the component
-    (H, W) int of each free cell (-1: not free) and the masks of what the world has where."""
+    (H, W) int of each free cell (-1: not free), the masks of what the world has where, and
+    labelled_component: the same components over the ground the cameras labelled (with_labelled_ground)."""
 
     raster: TerrainRaster
     step: np.ndarray
