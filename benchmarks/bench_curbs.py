@@ -296,6 +296,7 @@ def main() -> None:
     args = parser.parse_args()
     from terra.bundle import Bundle
     from terra.config import TerraConfig
+    from terra.graph.ground import has_terrain_votes
     from terra.graph.storage import load_scene_graph
     from terra.mapping.storage import load_map
     from terra.sim.presets import generate_world
@@ -315,9 +316,9 @@ def main() -> None:
         world = generate_world(args.preset, args.seed, TerraConfig.read(config).sim)
         truth = true_ground(world, ROBOTS["wheelchair"])
         msm = load_map(Bundle(bundle))
-        voted = msm.terrain_votes.any(axis=1) if msm.terrain_votes.size else np.ones(len(msm.points), bool)
-        truth = with_labelled_ground(truth, msm.points[voted] if voted.any() else msm.points)
-        del msm
+        labelled = msm.points[msm.terrain_votes.any(axis=1)] if has_terrain_votes(msm) else msm.points
+        truth = with_labelled_ground(truth, labelled)
+        del msm, labelled
         graph = load_scene_graph(Bundle(bundle))
         result["world"] = world_figures(truth, world) | {"places": len(graph.places)}
         start = time.perf_counter()
