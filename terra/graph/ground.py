@@ -39,10 +39,12 @@ Layers (`ground_layers`), per cell, from the ground points in it:
 
 Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
 its step is the largest step of the cells it crosses (at least `line_step` where it crosses one of
-the layers' `lines`, the lines of steps of a LiDAR-only ground, `step_lines`), its rise (fall)
-the steepest climb (descent) along its direction i -> j over 1 m of travel, from the cells'
-heights (a slope a wheelchair feels, not one cell's gradient), leaving out the cells beside an
-obstacle when the edge has others.
+the layers' `lines`, the lines of steps of a LiDAR-only ground, `step_lines`), or the step it
+hides beside an obstacle: the height difference across a stretch of cells beside an obstacle
+between clear ground on both sides, less what the ground's slope on either side explains
+(`_steps_across_gaps`; a curb beside a parked car); its rise (fall) the steepest climb (descent)
+along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
+feels, not one cell's gradient), leaving out the cells beside an obstacle when the edge has others.
 Cells without ground count as unknown and constrain nothing.
 """
 
@@ -586,7 +588,7 @@ def edge_geometry(
     # Beside an object the lowest points may be the object's (a bench's feet read as a bump of a few
     # centimetres, a 10 degree slope on a 5 degree lawn): an edge's slope is read on the samples
     # away from obstacles when it has two, else on all it has.
-    heights = known
+    clear, heights = known, known
     if layers.near_obstacle is not None:
         clear = known & ~layers.near_obstacle[np.maximum(at, 0)]
         heights = clear | (known & (np.bincount(edge[clear], minlength=E) < 2)[edge])
@@ -594,13 +596,104 @@ def edge_geometry(
     cell = at[heights]
     tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
     height = layers.height[cell] + (tilt * (point[heights] - layers.centres(cell))).sum(axis=1)
-    rise = _rise_along(edge[heights], t[heights] * length[edge[heights]], height, E, baseline)
+    travelled = t * length[edge]
+    rise = _rise_along(edge[heights], travelled[heights], height, E, baseline)
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
         z = np.asarray(position, dtype=np.float64)[:, 2]
         largest = np.fmax(largest, _unseen_end_steps(layers, at, flat, starts, samples, z[edges]))
+        unit = delta / np.maximum(length, 1e-9)[:, None]
+        along = np.where(known, (layers.gradient[np.maximum(at, 0)] * unit[edge]).sum(axis=1), np.nan)
+        profile = EdgeProfile(
+            edge[clear], travelled[clear], height[clear[heights]], along[clear], np.flatnonzero(clear)
+        )
+        profile = profile.with_place_ends(known, along, starts, samples, length, z[edges])
+        largest = np.fmax(largest, _steps_across_gaps(profile, known, E, layers.cell_size, baseline))
     out = np.column_stack([largest, np.degrees(np.arctan(rise))])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+@dataclass
+class EdgeProfile:
+    """The clear ground along place edges, one row per sample, ordered by edge and travel: edge
+    index (n,), metres travelled from its start (n,), ground height (n,) metres, the ground's
+    gradient along the edge (n,) (dimensionless, NaN where unknown), and the sample's index
+    (n,) among all samples of the edges (edge_geometry)."""
+
+    edge: np.ndarray
+    travelled: np.ndarray
+    height: np.ndarray
+    along: np.ndarray
+    sample: np.ndarray
+
+    def with_place_ends(
+        self,
+        known: np.ndarray,
+        along: np.ndarray,
+        starts: np.ndarray,
+        samples: np.ndarray,
+        length: np.ndarray,
+        z: np.ndarray,
+    ) -> EdgeProfile:
+        """The profile with the places' heights z (E, 2) metres added at each end whose sample's
+        cell holds no ground (`known` (S,) bool), with that sample's gradient `along` (S,) the
+        edge (NaN there): a place beside a car on the raised side of a curb, in a cell the car hid
+        from the sensor, has no other height. `starts`/`samples`/`length` (E,): each edge's first
+        sample, samples and length (metres). An added end counts as lying just beyond its sample."""
+        ends = np.arange(len(starts))
+        tail = starts + samples - 1
+        first, last = ~known[starts], ~known[tail]
+        rows = (
+            np.concatenate([self.edge, ends[first], ends[last]]),
+            np.concatenate([self.travelled, np.zeros(int(first.sum())), length[last]]),
+            np.concatenate([self.height, z[first, 0], z[last, 1]]),
+            np.concatenate([self.along, along[starts[first]], along[tail[last]]]),
+            np.concatenate([self.sample, starts[first] - 1, tail[last] + 1]),
+        )
+        order = np.lexsort((rows[1], rows[0]))
+        return EdgeProfile(*(r[order] for r in rows))
+
+
+def _steps_across_gaps(
+    profile: EdgeProfile, known: np.ndarray, edges: int, cell_size: float, baseline: float
+) -> np.ndarray:
+    """(E,) metres: the largest step each edge hides beside an obstacle, across a gap of more
+    than a cell between two samples of its clear-ground `profile` in which some sample holds
+    ground (`known` (S,) bool, every sample of the edges): the height difference across the gap
+    less what the ground's slope explains over it. The slope (along the edge, signed) of each
+    side is read over `baseline` metres of the profile beside the gap, else (less than half of
+    it) from the gradient at the gap's end; the step is the least any slope between the two
+    sides' leaves (a valley or a ridge hides none, one noisy side makes none up), and is not read
+    where neither side's slope is known. Why: beside a parked car the step layer reads a curb only
+    along it (grid_layers), and an edge from the road past the car onto the raised side of the
+    curb read level; across the car, 15 cm of height is not what the road's slope explains. A gap
+    without ground constrains nothing (module docstring): over metres of unobserved far ground,
+    a slope carried across makes up steps."""
+    out = np.zeros(edges)
+    p = profile
+    run = np.diff(p.travelled)
+    seen = np.concatenate([[0], np.cumsum(known)])  # seen[k]: samples holding ground before sample k
+    observed = seen[np.minimum(p.sample[1:], len(known))] - seen[np.maximum(p.sample[:-1] + 1, 0)] > 0
+    gaps = np.flatnonzero((p.edge[1:] == p.edge[:-1]) & (run > cell_size) & observed)
+    if len(gaps) == 0:
+        return out
+    span = float(p.travelled.max()) + 2.0 * baseline + 1.0  # edges laid end to end, far apart
+    coordinate = p.edge * span + p.travelled
+    first, last = gaps, gaps + 1
+    back = np.searchsorted(coordinate, coordinate[first] - baseline)
+    ahead = np.searchsorted(coordinate, coordinate[last] + baseline, side="right") - 1
+    sides = []
+    for near, far in ((first, back), (last, ahead)):
+        rise, distance = p.height[far] - p.height[near], p.travelled[far] - p.travelled[near]
+        wide = np.abs(distance) >= baseline / 2
+        sides.append(np.where(wide, rise / np.where(wide, distance, 1.0), p.along[near]))
+    low, high = np.fmin(*sides), np.fmax(*sides)
+    read = np.isfinite(low)
+    first, rise, gap = first[read], (p.height[last] - p.height[first])[read], run[first][read]
+    to_low, to_high = rise - gap * low[read], rise - gap * high[read]
+    hidden = np.where(to_low * to_high <= 0, 0.0, np.minimum(np.abs(to_low), np.abs(to_high)))
+    np.fmax.at(out, p.edge[first], hidden)
+    return out
 
 
 def _unseen_end_steps(

@@ -235,6 +235,77 @@ def test_an_edge_from_a_place_without_ground_steps_to_the_first_ground_along_it(
     assert np.allclose(edge_geometry(layers, position, edges, unseen_ends=False)[:, 0], 0.0)
 
 
+def street_beside_a_car(rise: float = 0.15, slope: float = 0.0) -> GroundLayers:
+    """A 12 x 4 m grid of 0.4 m cells: a road (y < 2 m) and its raised side (y >= 2 m, `rise`
+    metres up), on a ground sloping `slope` metres per metre along y. A car parked at x 4..8 m
+    against the curb: its cells and those beside it are near an obstacle, where the step layer
+    reads the curb along its length only (grid_layers), so 0; elsewhere the curb's two cells
+    read `rise`, the rest 0, and every gradient is the slope's."""
+    shape = (10, 30)
+    rows, cols = np.divmod(np.arange(300), 30)
+    y, x = (rows + 0.5) * CELL, (cols + 0.5) * CELL
+    height = (slope * y + np.where(y >= 2.0, rise, 0.0)).astype(np.float32)
+    near = (x > 4.0) & (x < 8.0)
+    step = np.where((rows == 4) | (rows == 5), rise, 0.0)
+    step = np.where(near, 0.0, step).astype(np.float32)
+    gradient = np.column_stack([np.zeros(300), np.full(300, slope)]).astype(np.float32)
+    layers = GroundLayers(np.arange(300), height, gradient, step, np.zeros(300, np.float32), shape, np.zeros(2), CELL)
+    layers.near_obstacle = near
+    return layers
+
+
+def only_cells(layers: GroundLayers, keep: np.ndarray) -> GroundLayers:
+    """The layers of the observed cells where `keep` (n,) bool: the others hold no ground."""
+    index = np.flatnonzero(keep)
+    out = GroundLayers(
+        layers.cells[index], layers.height[index], layers.gradient[index], layers.step[index],
+        layers.roughness[index], layers.shape, layers.origin, layers.cell_size,
+    )  # fmt: skip
+    if layers.near_obstacle is not None:
+        out.near_obstacle = layers.near_obstacle[index]
+    return out
+
+
+def test_an_edge_past_a_parked_car_reads_the_curb_it_hides():
+    """From the road before the car to the raised side after it, the edge crosses the curb beside
+    the car, where no cell reads its step: the 0.15 m between the clear ground on both sides of
+    the car, which the flat road does not explain, is a step. The same edge on a 5 % slope with
+    no curb climbs 0.15 m as well, explained by the slope on both sides: no step."""
+    position = np.array([[3.0, 0.6, 0.0], [9.0, 3.4, 0.15]])
+    edges = np.array([[0, 1], [1, 0]])
+    np.testing.assert_allclose(edge_geometry(street_beside_a_car(), position, edges)[:, 0], 0.15, atol=0.005)
+    hill = street_beside_a_car(rise=0.0, slope=0.05)
+    position[:, 2] = 0.05 * position[:, 1]
+    assert np.all(edge_geometry(hill, position, edges)[:, 0] < 0.005)
+    # Along the road past the car (level, clear both sides): nothing hidden.
+    along = np.array([[1.0, 0.6, 0.0], [11.0, 0.6, 0.0]])
+    assert edge_geometry(street_beside_a_car(), along, np.array([[0, 1]]))[0, 0] < 0.005
+
+
+def test_a_place_the_car_hid_keeps_its_own_height_across_the_gap():
+    """A place on the raised side right behind the car, in a cell without ground (its height
+    0.15 m), linked to the road before the car: the place's height is the far side of the gap."""
+    layers = street_beside_a_car()
+    x, y = layers.centres(np.arange(300)).T
+    cut = only_cells(layers, ~((x > 6.0) & (x < 8.0) & (y > 2.0)))
+    position = np.array([[2.0, 0.6, 0.0], [7.0, 2.6, 0.15]])
+    assert edge_geometry(cut, position, np.array([[0, 1]]))[0, 0] == pytest.approx(0.15, abs=0.005)
+    # Without heights on the places (the crossings' straight lines), nothing is read across.
+    assert edge_geometry(cut, position, np.array([[0, 1]]), unseen_ends=False)[0, 0] < 0.005
+
+
+def test_a_gap_without_ground_hides_no_step():
+    """Unobserved ground constrains nothing: 4 m without a point between the road and the raised
+    side (far ground between two rings, not a car's side) reads no step, though the heights on its
+    two sides differ by 0.15 m."""
+    layers = street_beside_a_car()
+    x = layers.centres(np.arange(300))[:, 0]
+    cut = only_cells(layers, (x < 4.0) | (x > 8.0))
+    cut.near_obstacle = None
+    position = np.array([[3.0, 0.6, 0.0], [9.0, 3.4, 0.15]])
+    assert edge_geometry(cut, position, np.array([[0, 1]]))[0, 0] < 0.005
+
+
 def test_despike_by_hand():
     h = np.zeros((5, 6))
     h[:, 3:] = 0.15  # a curb between columns 2 and 3
