@@ -24,12 +24,14 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   means read as steps between cells); a cell more than 3 cm above or below all its neighbours
   takes their median (`despike`: one stray point is no step);
 - step: the height jump at the cell that a smooth surface does not explain, the larger of the two
-  axes: along x, |h[c+1] - h[c-1]| minus twice the mean of the neighbouring differences
+  axes: along x, |h[c+1] - h[c-1]| minus twice the larger of the neighbouring differences
   |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope; the gradient's where neither is
   observed), floored at 0. A 15 cm curb reads 15 cm on both cells beside it, or on the cell it
-  runs through; a constant slope reads 0 (it is the slope layer's business); stairs read as a
-  steep slope with small steps. Where a neighbour holds no ground (the road in a curb's own LiDAR
-  shadow), the difference between the nearest observed cells up to three cells away on each side,
+  runs through; a constant slope reads 0 (it is the slope layer's business), and so do the top
+  and the bottom of a ramp (a curb cut's 7 degrees met the level there and read 4-6 cm with the
+  mean of the two sides: the wheelchair's own ramps closed to it); stairs read as a steep slope
+  with small steps. Where a neighbour holds no ground (the road in a curb's own LiDAR shadow),
+  the difference between the nearest observed cells up to four cells away on each side,
   less the slope over the cells between: the one read just beyond those two cells, else the
   cell's gradient (a plane fitted on a curb's face takes the curb for a slope). Within two cells
   of a blocked cell, where an object's lowest points pass for ground, read only along an axis
@@ -240,7 +242,9 @@ SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured ov
 BAND_CELLS = 1 << 18
 # Rows a cell's layers read on each side: the step reads heights up to BRIDGE + 1 rows away, each the
 # median of heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
-BRIDGE = 3  # cells a step may look across for the nearest observed height (axis_step)
+# Cells a step may look across for the nearest observed height (axis_step): a 15 cm curb seen from its
+# top leaves up to four cells of road in its shadow on the simulated campus, whose step three left unread.
+BRIDGE = 4
 CONTEXT = BRIDGE + 3
 STEP_LINE_CELLS = 3  # cells of a line of steps that splits a LiDAR-only ground's GVD (step_lines): 1.2 m at 0.4 m
 STEP_LINE_CLOSE = 1  # closing iterations of those lines: gaps of up to 2 cells (0.8 m) filled; a curb cut is 3 m
@@ -501,7 +505,10 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
     around = padded.reshape(-1)[(lead * (n + 2 * reach) + at[-1])[:, None] + np.arange(2 * reach + 1)]
     before2, before, after, after2 = (around[:, reach + k] for k in (-2, -1, 1, 2))
     jump = np.abs(after - before)
-    outer, known = _side_slope(np.abs(before - before2), np.abs(after2 - after))
+    # The local slope: the steeper side's (a ramp's ends, where its slope meets the level, read no step).
+    sides = (np.abs(before - before2), np.abs(after2 - after))
+    _, known = _side_slope(*sides)
+    outer = np.where(known, np.fmax(*sides), 0.0)
     if level is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
         outer = np.where(known, outer, level)
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)

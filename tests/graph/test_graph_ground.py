@@ -330,6 +330,30 @@ def test_axis_step_by_hand():
     assert np.isnan(step[0, 0]) and np.isnan(step[0, -1])  # one neighbour missing: unknown
 
 
+def test_a_curb_cut_ramp_reads_no_step_where_it_meets_the_level():
+    """A curb cut: 15 cm down a ramp of three 0.4 m cells (5 cm a cell, 7.1 degrees, under the
+    wheelchair's 8) between two level walks. Each cell's jump is what the steeper of its two
+    sides' slopes explains: no step anywhere (with the mean of the two sides, the cells at the
+    ramp's top and bottom read 5 cm, the wheelchair's limit). The same 15 cm as a curb: 15 cm."""
+    ramp = np.array([[0.0, 0.0, 0.0, 0.0, 0.05, 0.10, 0.15, 0.15, 0.15, 0.15]])
+    np.testing.assert_allclose(axis_step(ramp, axis=1)[0, 1:-1], 0.0, atol=1e-12)
+    curb = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.15, 0.15, 0.15, 0.15, 0.15]])
+    np.testing.assert_allclose(axis_step(curb, axis=1)[0, 4:6], 0.15)
+
+
+def test_a_step_reads_across_three_cells_of_shadow():
+    """Seen from its top, a 15 cm curb hid three cells (1.2 m) of the road beyond it on the
+    simulated campus; the cells on both sides of the shadow read the step across it, from the
+    nearest heights four cells apart, less the level ground's slope (0). Four cells of shadow
+    are more than a step is read across: unknown."""
+    h = np.array([[0.15, 0.15, 0.15, 0.15, np.nan, np.nan, np.nan, 0.0, 0.0, 0.0]])
+    step = axis_step(h, axis=1, rise=np.zeros_like(h))
+    assert step[0, 3] == pytest.approx(0.15) and step[0, 7] == pytest.approx(0.15)
+    assert step[0, 1] == pytest.approx(0.0) and step[0, 8] == pytest.approx(0.0)
+    wider = np.insert(h, 4, np.nan, axis=1)
+    assert np.isnan(axis_step(wider, axis=1, rise=np.zeros_like(wider))[0, 3])
+
+
 def test_edge_geometry_of_a_slope_and_a_curb():
     rng = np.random.default_rng(3)
     xy = uniform(rng, [0, 0], [20, 10], 60000)
