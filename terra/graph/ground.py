@@ -243,7 +243,8 @@ BAND_CELLS = 1 << 18
 # Rows a cell's layers read on each side: the step reads heights up to BRIDGE + 1 rows away, each the
 # median of heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
 # Cells a step may look across for the nearest observed height (axis_step): a 15 cm curb seen from its
-# top leaves up to four cells of road in its shadow on the simulated campus, whose step three left unread.
+# top hid three cells of road in its shadow on the simulated campus (heights four cells apart), which
+# a reach of three left unread.
 BRIDGE = 4
 CONTEXT = BRIDGE + 3
 STEP_LINE_CELLS = 3  # cells of a line of steps that splits a LiDAR-only ground's GVD (step_lines): 1.2 m at 0.4 m
@@ -493,7 +494,7 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
     """(m,) metres: `axis_step` along the last axis of heights h (..., n) (metres, NaN where
     unobserved) at the cells `at` (index arrays (m,), one per axis of h), with `level` (m,) the
     cells' |rise| (metres per cell) or None. The layers keep only observed cells (28 % of the campus
-    grid's): reading each one's nine heights along the axis at once costs less than twenty passes
+    grid's): reading each one's eleven heights along the axis at once costs less than twenty passes
     over the whole raster."""
     reach, n = BRIDGE + 1, h.shape[-1]
     # float64 (the layers store float32), padded with `reach` unobserved cells at both ends of the
