@@ -333,8 +333,9 @@ def test_axis_step_by_hand():
 def test_a_curb_cut_ramp_reads_no_step_where_it_meets_the_level():
     """A curb cut: 15 cm down a ramp of three 0.4 m cells (5 cm a cell, 7.1 degrees, under the
     wheelchair's 8) between two level walks. Each cell's jump is what the steeper of its two
-    sides' slopes explains: no step anywhere (with the mean of the two sides, the cells at the
-    ramp's top and bottom read 5 cm, the wheelchair's limit). The same 15 cm as a curb: 15 cm."""
+    sides' slopes explains: no step anywhere (with the mean of the two sides, the ramp's cells at
+    5 and 10 cm, each with a level side, read 5 cm, the wheelchair's limit). The same 15 cm as a
+    curb: 15 cm."""
     ramp = np.array([[0.0, 0.0, 0.0, 0.0, 0.05, 0.10, 0.15, 0.15, 0.15, 0.15]])
     np.testing.assert_allclose(axis_step(ramp, axis=1)[0, 1:-1], 0.0, atol=1e-12)
     curb = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.15, 0.15, 0.15, 0.15, 0.15]])
