@@ -397,6 +397,11 @@ def render_plan(result: PlanResult) -> str:
             f"ground: largest step {g.max_step_m:.2f} m, steepest climb {g.max_climb_deg:.1f} deg, "
             f"steepest descent {g.max_descent_deg:.1f} deg"
         )
+    if path.bridges:
+        lines.append(
+            f"bridges: {counted(path.bridges, 'step')} ({path.bridge_length_m:.1f} m) only a bridge joins, over ground "
+            "the map did not join: what lies there, steps included, is unknown"
+        )
     for i, (p, w, t) in enumerate(zip(path.places, path.waypoints, path.terrain)):
         lines.append(f"  {i:3d}  place {int(p):<6d} ({w[0]:8.2f}, {w[1]:8.2f}, {w[2]:6.2f})  {t}")
     return "\n".join(lines)

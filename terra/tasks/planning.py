@@ -28,6 +28,10 @@ and half between its two places' terrains (`edge_length_by_terrain`), so that
 
 exactly; with no penalty on the path's terrains, cost = edge_length_m.
 
+A plan also says which of its steps only a bridge joins (`bridges`, `bridge_length_m`): a bridge
+links two parts of the graph that nothing else links, over ground the map did not join (unobserved,
+or cut by obstacles); what lies on it is unknown, a robot's limits included.
+
 A robot profile (terra.tasks.robot, `terra plan --robot`) removes the edges whose step or slope,
 in the direction of travel, is beyond the robot and the places too narrow for it, and multiplies
 the cost of a sloped edge by 1 + slope_cost x (its slope / the limit); the graph itself is the
@@ -51,7 +55,7 @@ from typing import Any, Generic, Protocol, TypeVar
 import numpy as np
 
 from terra.errors import NoPathError, TerraError
-from terra.graph.scene_graph import SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, SceneGraph
 from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
 from terra.tasks.robot import RobotProfile
@@ -264,6 +268,8 @@ class PathPlan:
     edge_length_m: float = 0.0
     edge_length_by_terrain: dict[str, float] = field(default_factory=dict)
     ground: PathGround | None = None
+    bridges: int = 0  # steps only a bridge edge joins (module docstring)
+    bridge_length_m: float = 0.0  # their straight length, metres
 
     @property
     def start(self) -> int:
@@ -286,6 +292,8 @@ class PathPlan:
             "edge_length_by_terrain": {k: round(v, 4) for k, v in self.edge_length_by_terrain.items()},
             "cost": round(self.cost, 4),
             "ground": self.ground.to_json() if self.ground is not None else None,
+            "bridges": self.bridges,
+            "bridge_length_m": round(self.bridge_length_m, 4),
         }
 
 
@@ -331,6 +339,18 @@ def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
     return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()))
 
 
+def bridge_steps(graph: SceneGraph, places: np.ndarray) -> np.ndarray:
+    """(n - 1,) bool: the steps of a path of places (n,) that no edge but a bridge (EDGE_BRIDGE)
+    joins."""
+    edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
+    n = max(len(graph.places), 1)
+    key = edges.min(axis=1) * n + edges.max(axis=1)
+    places = np.asarray(places, dtype=np.int64)
+    wanted = np.minimum(places[:-1], places[1:]) * n + np.maximum(places[:-1], places[1:])
+    bridge = np.asarray(graph.place_edge_kind) == EDGE_BRIDGE
+    return np.isin(wanted, key[bridge]) & ~np.isin(wanted, key[~bridge])
+
+
 def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathPlan:
     """A PathPlan for a node sequence: waypoints, lengths (straight and along the graph) and their
     terrain breakdown."""
@@ -340,6 +360,7 @@ def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathP
     segment = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
     along = step_lengths(graph, idx)
     along = np.where(np.isfinite(along), along, segment)
+    bridged = bridge_steps(graph, idx)
     return PathPlan(
         idx,
         waypoints,
@@ -350,6 +371,8 @@ def path_from_places(graph: SceneGraph, places: list[int], cost: float) -> PathP
         float(along.sum()),
         _by_terrain(graph.terrain_classes, terrain, along),
         path_ground(graph, idx),
+        int(bridged.sum()),
+        float(segment[bridged].sum()),
     )
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -131,6 +132,27 @@ def test_cost_is_the_length_along_the_graph_times_one_plus_penalty_and_the_plan_
     assert plain.cost == pytest.approx(9.0) and plain.edge_length_m == pytest.approx(plain.cost)
     report = plan.to_json()
     assert report["edge_length_m"] == pytest.approx(9.0) and report["length_m"] == pytest.approx(8.0)
+
+
+def test_a_plan_says_which_steps_only_a_bridge_joins():
+    """Four sidewalk places on a line, 4 m apart: 0-1 a GVD edge, 1-2 a bridge only (27 m of
+    ground the map did not join would be the same), 2-3 a bridge and a GVD edge (the step has an
+    edge the map joined). The plan 0 -> 3 takes one bridge step, 4 m; its report and its text say so."""
+    from terra.cli.render import render_plan
+    from terra.graph.scene_graph import EDGE_BRIDGE
+    from terra.tasks.results import PlanEnd, PlanResult
+
+    g = make_graph([[0, 0], [4, 0], [8, 0], [12, 0]], [SIDEWALK] * 4, [[0, 1], [1, 2], [2, 3], [3, 2]])
+    g.place_edge_kind = np.array([0, EDGE_BRIDGE, EDGE_BRIDGE, 0])
+    plan = plan_path(g, 0, 3)
+    assert plan.places.tolist() == [0, 1, 2, 3]
+    assert plan.bridges == 1 and plan.bridge_length_m == pytest.approx(4.0)
+    assert plan.to_json()["bridges"] == 1 and plan.to_json()["bridge_length_m"] == pytest.approx(4.0)
+    result = PlanResult(Path("map.terra"), plan, PlanEnd(0, "place"), PlanEnd(3, "place"), {}, [])
+    assert "bridges: 1 step (4.0 m) only a bridge joins" in render_plan(result)
+    assert plan_path(g, 0, 1).bridges == 0 and "bridges" not in render_plan(
+        PlanResult(Path("map.terra"), plan_path(g, 0, 1), PlanEnd(0, "place"), PlanEnd(1, "place"), {}, [])
+    )
 
 
 def test_forbidden_terrain_is_never_crossed_and_unreachable_goals_say_so():
