@@ -507,9 +507,9 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
     before2, before, after, after2 = (around[:, reach + k] for k in (-2, -1, 1, 2))
     jump = np.abs(after - before)
     # The local slope: the steeper side's (a ramp's ends, where its slope meets the level, read no step).
-    sides = (np.abs(before - before2), np.abs(after2 - after))
-    _, known = _side_slope(*sides)
-    outer = np.where(known, np.fmax(*sides), 0.0)
+    outer = np.fmax(np.abs(before - before2), np.abs(after2 - after))
+    known = np.isfinite(outer)
+    outer = np.where(known, outer, 0.0)
     if level is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
         outer = np.where(known, outer, level)
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
@@ -681,7 +681,7 @@ def _steps_across_gaps(
     p = profile
     run = np.diff(p.travelled)
     seen = np.concatenate([[0], np.cumsum(known)])  # seen[k]: samples holding ground before sample k
-    observed = seen[np.minimum(p.sample[1:], len(known))] - seen[np.maximum(p.sample[:-1] + 1, 0)] > 0
+    observed = seen[p.sample[1:]] - seen[p.sample[:-1] + 1] > 0  # samples -1 .. S (added place ends)
     gaps = np.flatnonzero((p.edge[1:] == p.edge[:-1]) & (run > cell_size) & observed)
     if len(gaps) == 0:
         return out
