@@ -200,10 +200,8 @@ def step_lengths(graph: SceneGraph, places: np.ndarray) -> np.ndarray:
     """(n - 1,) metres: the length along the graph of each step of a path of places (n,), the
     shortest of the edges joining its two places (the one the cost graph keeps; NaN where no edge
     joins them)."""
-    i, j, length = edge_lengths(graph)
-    n = max(len(graph.places), 1)
-    key = np.minimum(i, j) * n + np.maximum(i, j)
-    wanted = np.minimum(places[:-1], places[1:]) * n + np.maximum(places[:-1], places[1:])
+    _, _, length = edge_lengths(graph)
+    key, wanted = _pair_keys(graph, places)
     hit = np.isin(key, wanted)  # only the path's own edges go through Python
     shortest: dict[int, float] = {}
     for k, value in zip(key[hit].tolist(), length[hit].tolist()):
@@ -339,14 +337,21 @@ def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
     return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()))
 
 
+def _pair_keys(graph: SceneGraph, places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Undirected keys (low x P + high) of every place edge (E,) and of each step of a path of
+    places (n,): (n - 1,)."""
+    edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
+    n = max(len(graph.places), 1)
+    places = np.asarray(places, dtype=np.int64)
+    key = edges.min(axis=1) * n + edges.max(axis=1)
+    wanted = np.minimum(places[:-1], places[1:]) * n + np.maximum(places[:-1], places[1:])
+    return key, wanted
+
+
 def bridge_steps(graph: SceneGraph, places: np.ndarray) -> np.ndarray:
     """(n - 1,) bool: the steps of a path of places (n,) that no edge but a bridge (EDGE_BRIDGE)
     joins."""
-    edges = np.asarray(graph.place_edges, dtype=np.int64).reshape(-1, 2)
-    n = max(len(graph.places), 1)
-    key = edges.min(axis=1) * n + edges.max(axis=1)
-    places = np.asarray(places, dtype=np.int64)
-    wanted = np.minimum(places[:-1], places[1:]) * n + np.maximum(places[:-1], places[1:])
+    key, wanted = _pair_keys(graph, places)
     bridge = np.asarray(graph.place_edge_kind) == EDGE_BRIDGE
     return np.isin(wanted, key[bridge]) & ~np.isin(wanted, key[~bridge])
 
