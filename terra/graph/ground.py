@@ -98,8 +98,8 @@ def segment_ground(
     point STANDING[0] to STANDING[1] m above the cell's lowest point), at most `tolerance`; None
     for `tolerance` everywhere. A point without a finite position is not ground."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    finite = np.isfinite(pts).all(axis=1)
-    if not finite.all():  # a scan's NaN returns (no echo): judged apart, never ground
+    if not np.isfinite(pts).all():  # a scan's NaN returns (no echo): judged apart, never ground
+        finite = np.isfinite(pts).all(axis=1)
         out = np.zeros(len(pts), dtype=bool)
         out[finite] = segment_ground(
             pts[finite], cell_size, windows, slope, base_height, max_height, tolerance, standing_tolerance
@@ -107,7 +107,7 @@ def segment_ground(
         return out
     if len(pts) == 0:
         return np.zeros(0, dtype=bool)
-    cells = np.floor((pts[:, :2] - pts[:, :2].min(axis=0)) / cell_size).astype(np.int64)
+    cells = _cell_of(pts, np.array([pts[:, 0].min(), pts[:, 1].min()]), cell_size)
     W, H = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
     flat = cells[:, 1] * W + cells[:, 0]
     # float32 relative to the lowest point: the filters below run twice as fast, to 1e-5 m
@@ -136,6 +136,16 @@ def segment_ground(
             tolerance, standing_tolerance
         )
     return pts[:, 2] <= floor[flat] + allowed[flat]
+
+
+def _cell_of(points: np.ndarray, origin: np.ndarray, cell_size: float) -> np.ndarray:
+    """(N, 2) int64 column and row of the `cell_size` cell of each point (N, 3+) (metres) on a
+    grid whose cell (0, 0) starts at `origin` (x, y metres): floor((xy - origin) / cell_size)."""
+    # In place on one (N, 2) copy: numpy's operations on the strided (N, 2) view of an (N, 3) array
+    # (a reduction along axis 0 above all) take several times as long as these.
+    cells = points[:, :2] - origin
+    cells /= cell_size
+    return np.floor(cells, out=cells).astype(np.int64)
 
 
 def _standing_cells(above: np.ndarray, flat: np.ndarray, cells: int) -> np.ndarray:
@@ -259,10 +269,12 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
     s = float(frame.cell_size)
     origin = np.asarray(frame.origin, dtype=np.float64)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    rc = np.floor((pts[:, :2] - origin) / s).astype(np.int64)
+    rc = _cell_of(pts, origin, s)
     rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
     inside = np.flatnonzero((rows >= 0) & (rows < H) & (cols >= 0) & (cols < W))
-    order = inside[np.argsort(rows[inside], kind="stable")]  # the points inside, by row
+    # The points inside, by row: numpy sorts 16-bit integers by radix, several times faster.
+    key = rows[inside].astype(np.int16) if H < 1 << 15 else rows[inside]
+    order = inside[np.argsort(key, kind="stable")]
     rows, cols, z, rc = rows[order], cols[order], pts[order, 2], rc[order]
     # Where each point lies in its cell, metres from the centre: the mean height of a cell is
     # that of its points' centroid, which on a slope is not the centre's.
@@ -494,17 +506,18 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
     """(m,) metres: `axis_step` along the last axis of heights h (..., n) (metres, NaN where
     unobserved) at the cells `at` (index arrays (m,), one per axis of h), with `level` (m,) the
     cells' |rise| (metres per cell) or None. The layers keep only observed cells (28 % of the campus
-    grid's): reading each one's eleven heights along the axis at once costs less than twenty passes
-    over the whole raster."""
+    grid's): reading each one's five heights along the axis at once costs less than passes over
+    the whole raster, and the heights up to `BRIDGE` + 1 cells away only for the cells beside a
+    gap (`_bridge_gaps`)."""
     reach, n = BRIDGE + 1, h.shape[-1]
     # float64 (the layers store float32), padded with `reach` unobserved cells at both ends of the
-    # axis: the (m, 2 reach + 1) heights around the cells are one gather, without clipping and
-    # masking at the ends (40 % faster on a band of the campus grid's size).
+    # axis: the heights around the cells are one gather, without clipping and masking at the ends.
     padded = np.full(h.shape[:-1] + (n + 2 * reach,), np.nan)
     padded[..., reach : n + reach] = h
     lead = np.ravel_multi_index(at[:-1], h.shape[:-1]) if h.ndim > 1 else np.zeros_like(at[-1])
-    around = padded.reshape(-1)[(lead * (n + 2 * reach) + at[-1])[:, None] + np.arange(2 * reach + 1)]
-    before2, before, after, after2 = (around[:, reach + k] for k in (-2, -1, 1, 2))
+    centre = lead * (n + 2 * reach) + at[-1] + reach  # each cell's index in the flat padded heights
+    flat = padded.reshape(-1)
+    before2, before, middle, after, after2 = (flat[centre + k] for k in (-2, -1, 0, 1, 2))
     jump = np.abs(after - before)
     # The local slope: the steeper side's (a ramp's ends, where its slope meets the level, read no step).
     outer = np.fmax(np.abs(before - before2), np.abs(after2 - after))
@@ -514,7 +527,9 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
         outer = np.where(known, outer, level)
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
     if level is not None:
-        _bridge_gaps(around, step, level)
+        gaps = np.flatnonzero(np.isfinite(middle) & np.isnan(step))
+        around = flat[centre[gaps, None] + np.arange(-reach, reach + 1)]
+        step[gaps] = _bridge_gaps(around, level[gaps])
     return step
 
 
@@ -527,24 +542,23 @@ def _side_slope(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.n
     return total / np.maximum(count, 1), known_before | known_after
 
 
-def _bridge_gaps(around: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> None:
-    """Fills in `step` (m,) where an observed cell's step is unknown because a neighbour holds no
-    ground, from its heights `around` (m, 2 reach + 1) along the axis (the cell in the middle,
-    reach > bridge): the height difference between the nearest observed cells within `bridge`
-    cells on each side, less what the ground's slope explains over the cells between them,
-    floored at 0. The slope is the mean of the differences just beyond those two cells (each with
-    its next cell outwards, where observed), as `axis_step` reads it, else the cell's own (`rise`
-    (m,), metres per cell): a curb's low side lies in its own LiDAR shadow (the road within a few
-    decimetres of it holds no point when seen from the walk), which left every curb seen from its
-    top unknown, and the plane fitted at a cell on the curb's face takes the curb for a slope."""
-    centre = around.shape[1] // 2
-    gaps = np.flatnonzero(np.isfinite(around[:, centre]) & np.isnan(step))
-    near = around[gaps]
+def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
+    """(m,) metres: the step of observed cells whose step is unknown because a neighbour holds no
+    ground (NaN where it stays unknown), from their heights `around` (m, 2 reach + 1) along the
+    axis (the cell in the middle, reach > bridge): the height difference between the nearest
+    observed cells within `bridge` cells on each side, less what the ground's slope explains over
+    the cells between them, floored at 0. The slope is the mean of the differences just beyond
+    those two cells (each with its next cell outwards, where observed), as `axis_step` reads it,
+    else the cell's own (`rise` (m,), metres per cell): a curb's low side lies in its own LiDAR
+    shadow (the road within a few decimetres of it holds no point when seen from the walk), which
+    left every curb seen from its top unknown, and the plane fitted at a cell on the curb's face
+    takes the curb for a slope."""
+    centre, m = around.shape[1] // 2, len(around)
     sides = []
     for sign in (-1, 1):
-        value, distance, beyond = np.full(len(gaps), np.nan), np.zeros(len(gaps)), np.full(len(gaps), np.nan)
+        value, distance, beyond = np.full(m, np.nan), np.zeros(m), np.full(m, np.nan)
         for k in range(bridge, 0, -1):  # the nearest observed cell wins
-            v, w = near[:, centre + sign * k], near[:, centre + sign * (k + 1)]
+            v, w = around[:, centre + sign * k], around[:, centre + sign * (k + 1)]
             found = np.isfinite(v)
             value, distance, beyond = (
                 np.where(found, v, value),
@@ -554,10 +568,9 @@ def _bridge_gaps(around: np.ndarray, step: np.ndarray, rise: np.ndarray, bridge:
         sides.append((value, distance, np.abs(beyond - value)))
     (before, db, out_b), (after, da, out_a) = sides
     outer, known = _side_slope(out_b, out_a)
-    slope = np.where(known, outer, rise[gaps])
-    gap = np.isfinite(before) & np.isfinite(after) & np.isfinite(slope)
-    bridged = np.maximum(np.abs(after - before) - (da + db) * np.nan_to_num(slope), 0.0)
-    step[gaps[gap]] = bridged[gap]
+    slope = np.where(known, outer, rise)
+    bridged = np.maximum(np.abs(after - before) - (da + db) * slope, 0.0)
+    return np.where(np.isfinite(before) & np.isfinite(after) & np.isfinite(slope), bridged, np.nan)
 
 
 def edge_geometry(
