@@ -393,9 +393,11 @@ def render_plan(result: PlanResult) -> str:
         lines.append(result.robot.limits())
     if path.ground is not None:
         g = path.ground
+        unobserved = g.max_unobserved_m
         lines.append(
             f"ground: largest step {g.max_step_m:.2f} m, steepest climb {g.max_climb_deg:.1f} deg, "
             f"steepest descent {g.max_descent_deg:.1f} deg"
+            + ("" if unobserved is None else f", longest stretch over unobserved ground {unobserved:.1f} m")
         )
     if path.bridges:
         lines.append(

@@ -47,7 +47,10 @@ between clear ground on both sides, less what the ground's slope on either side 
 (`_steps_across_gaps`; a curb beside a parked car); its rise (fall) the steepest climb (descent)
 along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
 feels, not one cell's gradient), leaving out the cells beside an obstacle when the edge has others.
-Cells without ground count as unknown and constrain nothing.
+Cells without ground count as unknown and constrain nothing; how far an edge runs over them is its
+fourth figure, `unobserved_m`: the longest stretch of it (metres) whose cells in the grid hold no
+ground, over which nothing is known (a bridge across ground the sensor never saw may cross a
+curb that no layer reads), for robot profiles to refuse (terra.tasks.robot).
 """
 
 from __future__ import annotations
@@ -61,6 +64,7 @@ from scipy import ndimage
 from terra.graph import raster
 from terra.graph.grid import GridFrame, TerrainGrid
 from terra.graph.gvd import EIGHT, component_sizes, label_components
+from terra.graph.scene_graph import EDGE_GEOMETRY_COLUMNS
 from terra.graph.storage import GROUND_FILES  # prefix of the layer arrays in a bundle
 
 if TYPE_CHECKING:
@@ -76,7 +80,7 @@ LAYER_UNITS = {
     "step": "m",
     "roughness": "m",
 }
-EDGE_GEOMETRY_UNITS = ["step_m", "rise_deg", "fall_deg"]
+EDGE_GEOMETRY_UNITS = list(EDGE_GEOMETRY_COLUMNS)  # the columns of each place edge's geometry
 
 
 def segment_ground(
@@ -580,17 +584,18 @@ def edge_geometry(
     baseline: float = SLOPE_BASELINE,
     unseen_ends: bool = True,
 ) -> np.ndarray:
-    """(E, 3) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
-    metres): the largest step it crosses (m), and its steepest rise and fall going from
-    edges[:, 0] to edges[:, 1] (degrees, >= 0) over `baseline` metres of travel (the whole edge
-    when shorter), from the ground heights along it; 0 where the cells along it hold no ground
-    (module docstring). With `unseen_ends`, an end whose cell (inside the layers' grid) holds no
-    ground steps by the difference between its place's height and the first ground along the
-    edge (`_unseen_end_steps`); callers whose `position` carries no heights pass False."""
+    """(E, 4) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
+    metres): the largest step it crosses (m), its steepest rise and fall going from edges[:, 0] to
+    edges[:, 1] (degrees, >= 0) over `baseline` metres of travel (the whole edge when shorter),
+    from the ground heights along it (0 where the cells along it hold no ground), and the longest
+    stretch of it over cells of the grid that hold no ground (m) (module docstring). With
+    `unseen_ends`, an end whose cell (inside the layers' grid) holds no ground steps by the
+    difference between its place's height and the first ground along the edge
+    (`_unseen_end_steps`); callers whose `position` carries no heights pass False."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     E = len(edges)
-    if E == 0 or len(layers.cells) == 0:
-        return np.zeros((E, 3), dtype=np.float32)
+    if E == 0:
+        return np.zeros((0, len(EDGE_GEOMETRY_COLUMNS)), dtype=np.float32)
     a = np.asarray(position, dtype=np.float64)[edges[:, 0], :2]
     delta = np.asarray(position, dtype=np.float64)[edges[:, 1], :2] - a
     length = np.linalg.norm(delta, axis=1)
@@ -600,19 +605,13 @@ def edge_geometry(
     t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
     point = a[edge] + t[:, None] * delta[edge]
     flat = layers.flat_cells(point)
-    at = layers.observed_index(flat)
+    at = layers.observed_index(flat) if len(layers.cells) else np.full(len(flat), -1)
     known = at >= 0
-    step = np.where(known, layers.step[at], np.nan)
-    if layers.lines is not None:  # a line of steps: its cells read unevenly, or not at all in its shadow
-        on_line = (flat >= 0) & layers.lines.ravel()[np.maximum(flat, 0)]
-        step = np.where(on_line, np.fmax(step, layers.line_step), step)
-    # Beside an object the lowest points may be the object's (a bench's feet read as a bump of a few
-    # centimetres, a 10 degree slope on a 5 degree lawn): an edge's slope is read on the samples
-    # away from obstacles when it has two, else on all it has.
-    clear, heights = known, known
-    if layers.near_obstacle is not None:
-        clear = known & ~layers.near_obstacle[np.maximum(at, 0)]
-        heights = clear | (known & (np.bincount(edge[clear], minlength=E) < 2)[edge])
+    unseen = _longest_unobserved(known | (flat < 0), starts, length / np.maximum(samples - 1, 1))
+    if len(layers.cells) == 0:
+        return np.column_stack([np.zeros((E, 3)), unseen]).astype(np.float32)
+    step = _sampled_steps(layers, at, flat)
+    clear, heights = _slope_samples(layers, at, edge, E)
     # The ground's height at each sample: its cell's, carried along the cell's gradient.
     cell = at[heights]
     tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
@@ -630,8 +629,44 @@ def edge_geometry(
         )
         profile = profile.with_place_ends(known, along, starts, samples, length, z[edges])
         largest = np.fmax(largest, _steps_across_gaps(profile, known, E, layers.cell_size, baseline))
-    out = np.column_stack([largest, np.degrees(np.arctan(rise))])
+    out = np.column_stack([largest, np.degrees(np.arctan(rise)), unseen])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+def _sampled_steps(layers: GroundLayers, at: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """(S,) metres: the step layer at samples whose observed cell is `at` (S,) (-1: none, NaN) and
+    grid cell `flat` (S,) (-1: outside), at least the layers' `line_step` on their lines of steps."""
+    step = np.where(at >= 0, layers.step[at], np.nan)
+    if layers.lines is not None:  # a line of steps: its cells read unevenly, or not at all in its shadow
+        on_line = (flat >= 0) & layers.lines.ravel()[np.maximum(flat, 0)]
+        step = np.where(on_line, np.fmax(step, layers.line_step), step)
+    return step
+
+
+def _slope_samples(layers: GroundLayers, at: np.ndarray, edge: np.ndarray, edges: int) -> tuple[np.ndarray, ...]:
+    """(S,) bool twice: the samples (observed cell `at` (S,), -1 for none; edge index `edge` (S,) of
+    `edges`) on ground clear of obstacles, and those an edge's slope is read on. Beside an object
+    the lowest points may be the object's (a bench's feet read as a bump of a few centimetres, a 10
+    degree slope on a 5 degree lawn): an edge's slope is read on the samples away from obstacles
+    when it has two, else on all it has."""
+    known = at >= 0
+    if layers.near_obstacle is None:
+        return known, known
+    clear = known & ~layers.near_obstacle[np.maximum(at, 0)]
+    return clear, clear | (known & (np.bincount(edge[clear], minlength=edges) < 2)[edge])
+
+
+def _longest_unobserved(seen: np.ndarray, starts: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """(E,) metres: the longest run of samples of each edge that are not `seen` (S,) bool (samples
+    of the edges in order, edge k's from starts[k], `spacing` (E,) metres apart), each sample
+    standing for `spacing` metres of travel."""
+    index = np.arange(len(seen))
+    # The last seen sample at or before each sample, or the sample before its edge's first: a
+    # running maximum that each edge's first sample resets (the previous edge's samples lie before).
+    marker = np.where(seen, index, -1)
+    marker[starts] = np.maximum(marker[starts], starts - 1)
+    run = index - np.maximum.accumulate(marker)
+    return np.maximum.reduceat(run, starts) * spacing
 
 
 @dataclass

@@ -26,6 +26,10 @@ EDGE_GVD = 0  # along one terrain's GVD
 # each side, a level link, or (LiDAR-only ground) a link across a line of steps.
 EDGE_CROSS_TERRAIN = 1
 EDGE_BRIDGE = 2  # joins otherwise disconnected components, with a penalty
+# The ground geometry of a place edge (terra.graph.ground.edge_geometry), one column each: the
+# largest step it crosses (m), its steepest rise and fall from its first place to its second
+# (degrees), the longest stretch of it over ground the map never observed (m).
+EDGE_GEOMETRY_COLUMNS = ("step_m", "rise_deg", "fall_deg", "unobserved_m")
 MAX_NODE_ID = (1 << 56) - 1  # a NodeSymbol keeps 56 bits for the index
 
 
@@ -137,9 +141,11 @@ class SceneGraph:
 
     place_edges: (E, 2) place index pairs (i < j); place_edge_weight: (E,) traversal cost in metres
     (bridges carry their penalty); place_edge_kind: (E,) EDGE_* constants.
-    place_edge_geometry: (E, 3) float32 ground geometry of each edge (terra.graph.ground): the
-    largest step it crosses (m), its steepest rise and fall going from place_edges[:, 0] to
-    place_edges[:, 1] (degrees); (0, 3) when the graph was built without ground layers. Robot
+    place_edge_geometry: (E, 4) float32 ground geometry of each edge (terra.graph.ground,
+    EDGE_GEOMETRY_COLUMNS): the largest step it crosses (m), its steepest rise and fall going from
+    place_edges[:, 0] to place_edges[:, 1] (degrees), the longest stretch of it over unobserved
+    ground (m; NaN, unknown, in a bundle written before it was recorded); (0, 4) when the graph was
+    built without ground layers. Robot
     profiles read it at planning time (terra.tasks.robot); the graph is the same for every robot.
     terrain_embeddings: (T, D) text embedding of each terrain class name.
     next_id: the next free id per NodeSymbol character ('p' places, 'R', 'S', ... region levels,
@@ -157,12 +163,17 @@ class SceneGraph:
     embedder: str = ""
     region_method: str = ""
     next_id: dict[str, int] = field(default_factory=dict)
-    place_edge_geometry: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.float32))
+    place_edge_geometry: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, len(EDGE_GEOMETRY_COLUMNS)), dtype=np.float32)
+    )
 
     @property
     def has_edge_geometry(self) -> bool:
         """Whether every place edge carries its ground geometry."""
-        return len(self.place_edges) > 0 and self.place_edge_geometry.shape == (len(self.place_edges), 3)
+        return len(self.place_edges) > 0 and self.place_edge_geometry.shape == (
+            len(self.place_edges),
+            len(EDGE_GEOMETRY_COLUMNS),
+        )
 
     def next_ids(self) -> dict[str, int]:
         """The next free id of every layer: the recorded one, raised above the ids in use."""

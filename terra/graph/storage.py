@@ -32,6 +32,7 @@ from terra.errors import TerraError
 from terra.graph.scene_graph import (
     EDGE_BRIDGE,
     EDGE_CROSS_TERRAIN,
+    EDGE_GEOMETRY_COLUMNS,
     EDGE_GVD,
     MAX_NODE_ID,
     Objects,
@@ -46,7 +47,7 @@ GRAPH_FORMAT = 2  # 2: stable node ids (1: ids were the indices; still read)
 READABLE_FORMATS = (1, 2)
 GRAPH_JSON = "graph/scene_graph.json"
 PLACE_IDS, OBJECT_IDS, REGION_IDS = "graph/place_id", "graph/object_id", "graph/region_id_"
-EDGE_GEOMETRY = "graph/place_edge_geometry"  # (E, 3) float32: step m, rise deg, fall deg (terra.graph.ground)
+EDGE_GEOMETRY = "graph/place_edge_geometry"  # (E, 4) float32: EDGE_GEOMETRY_COLUMNS (terra.graph.ground)
 GROUND_FILES = "graph/ground_"  # the ground layers (terra.graph.ground.GROUND_FILES)
 SPARK_HEADER = {"project_name": "main", "version": {"major": 1, "minor": 1, "patch": 3}}
 LAYER_OBJECTS, LAYER_PLACES, LAYER_REGIONS = 2, 3, 4
@@ -519,15 +520,31 @@ def _from_document(doc, bundle: Bundle, where: str) -> SceneGraph:
 
 
 def _edge_geometry(bundle: Bundle, edges: int) -> np.ndarray:
-    """The (E, 3) ground geometry of the place edges, (0, 3) when the graph has none."""
+    """The (E, 4) ground geometry of the place edges (EDGE_GEOMETRY_COLUMNS), (0, 4) when the graph
+    has none. A bundle written before the unobserved stretch was recorded (E, 3) reads it as NaN:
+    unknown, which no robot profile refuses."""
     from terra.npy import ArraySpec
 
+    columns = len(EDGE_GEOMETRY_COLUMNS)
     if not bundle.has(EDGE_GEOMETRY):
-        return np.zeros((0, 3), dtype=np.float32)
+        return np.zeros((0, columns), dtype=np.float32)
     spec = ArraySpec(
-        ("float32",), (edges, 3), finite=True, low=0.0, high=1e6, what="per place edge: step m, rise and fall degrees"
+        ("float32",),
+        (edges, None),
+        finite=True,
+        low=0.0,
+        high=1e6,
+        what=f"per place edge: {', '.join(EDGE_GEOMETRY_COLUMNS)} (the first three at least)",
     )
-    return bundle.array(EDGE_GEOMETRY, spec)
+    geometry = bundle.array(EDGE_GEOMETRY, spec)
+    if geometry.shape[1] not in (columns - 1, columns):
+        raise TerraError(
+            f"{bundle.path / EDGE_GEOMETRY}.npy: expected {columns - 1} or {columns} columns "
+            f"({', '.join(EDGE_GEOMETRY_COLUMNS)}), found {geometry.shape[1]}"
+        )
+    if geometry.shape[1] < columns:
+        geometry = np.column_stack([geometry, np.full(edges, np.nan, dtype=np.float32)])
+    return geometry
 
 
 def _region_levels(

@@ -33,10 +33,11 @@ links two parts of the graph that nothing else links, over ground the map did no
 or cut by obstacles); what lies on it is unknown, a robot's limits included.
 
 A robot profile (terra.tasks.robot, `terra plan --robot`) removes the edges whose step or slope,
-in the direction of travel, is beyond the robot and the places too narrow for it, and multiplies
-the cost of a sloped edge by 1 + slope_cost x (its slope / the limit); the graph itself is the
-same for every robot. With ground geometry in the graph, a plan reports the largest step and the
-steepest climb and descent along it (`PathGround`).
+in the direction of travel, is beyond the robot, those that cross more unobserved ground in one
+stretch than it accepts, and the places too narrow for it, and multiplies the cost of a sloped
+edge by 1 + slope_cost x (its slope / the limit); the graph itself is the same for every robot.
+With ground geometry in the graph, a plan reports the largest step, the steepest climb and
+descent and the longest stretch over unobserved ground along it (`PathGround`).
 
 Goals named by a task: every object retrieved for it is a candidate, tried best score first; a
 candidate is skipped when no allowed place lies near it or no path reaches that place, and the
@@ -55,7 +56,7 @@ from typing import Any, Generic, Protocol, TypeVar
 import numpy as np
 
 from terra.errors import NoPathError, TerraError
-from terra.graph.scene_graph import EDGE_BRIDGE, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, SceneGraph
 from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
 from terra.tasks.robot import RobotProfile
@@ -177,13 +178,13 @@ def _wide_enough(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
 
 
 def _edge_geometry(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
-    """The graph's (E, 3) edge geometry; TerraError when it has none to check the robot against."""
+    """The graph's (E, 4) edge geometry; TerraError when it has none to check the robot against."""
     if len(graph.place_edges) and not graph.has_edge_geometry:
         raise TerraError(
             f"the scene graph has no ground geometry (steps, slopes) to check robot {robot.name!r} against; "
             "rebuild it with `terra build` (build.ground.layers: true)"
         )
-    return graph.place_edge_geometry.reshape(-1, 3)
+    return graph.place_edge_geometry.reshape(-1, len(EDGE_GEOMETRY_COLUMNS))
 
 
 def edge_lengths(graph: SceneGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -298,22 +299,27 @@ class PathPlan:
 @dataclass(frozen=True)
 class PathGround:
     """The ground a path crosses (terra.graph.ground, from its edges' geometry): the largest step
-    (metres) and the steepest climb and descent in the direction of travel (degrees)."""
+    (metres), the steepest climb and descent in the direction of travel (degrees) and the longest
+    stretch of one edge over ground the map never observed (metres; None where the graph does not
+    record it)."""
 
     max_step_m: float
     max_climb_deg: float
     max_descent_deg: float
+    max_unobserved_m: float | None = None
 
     @property
     def max_slope_deg(self) -> float:
         return max(self.max_climb_deg, self.max_descent_deg)
 
-    def to_json(self) -> dict[str, float]:
+    def to_json(self) -> dict[str, float | None]:
+        unseen = None if self.max_unobserved_m is None else round(self.max_unobserved_m, 3)
         return {
             "max_step_m": round(self.max_step_m, 4),
             "max_climb_deg": round(self.max_climb_deg, 3),
             "max_descent_deg": round(self.max_descent_deg, 3),
             "max_slope_deg": round(self.max_slope_deg, 3),
+            "max_unobserved_m": unseen,
         }
 
 
@@ -329,12 +335,14 @@ def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
     order = np.argsort(keys, kind="stable")
     a, b = np.asarray(places[:-1], dtype=np.int64), np.asarray(places[1:], dtype=np.int64)
     geometry = np.asarray(graph.place_edge_geometry, dtype=np.float64)
-    rows = np.zeros((len(a), 3))
-    for wanted, columns in ((b * n + a, [0, 2, 1]), (a * n + b, [0, 1, 2])):  # backwards, then forwards wins
+    rows = np.zeros((len(a), len(EDGE_GEOMETRY_COLUMNS)))
+    for wanted, columns in ((b * n + a, [0, 2, 1, 3]), (a * n + b, [0, 1, 2, 3])):  # backwards, then forwards wins
         at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
         hit = keys[order][at] == wanted
         rows[hit] = geometry[order[at[hit]]][:, columns]
-    return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()))
+    unseen = rows[:, 3]  # NaN: a bundle that does not record it
+    largest = float(np.nanmax(unseen)) if np.isfinite(unseen).any() else None
+    return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()), largest)
 
 
 def _pair_keys(graph: SceneGraph, places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -370,6 +370,21 @@ def test_edge_geometry_of_a_slope_and_a_curb():
     assert geometry[1, 0] < 0.02  # runs beside it, 3 m away
 
 
+def test_edge_geometry_measures_the_stretch_over_unobserved_ground():
+    """Flat ground 20 x 10 m whose points leave out x in [8, 14) (the cells 20 to 34 at 0.4 m): an
+    edge across it runs 6 m over unobserved ground, sampled every 0.2 m; one that ends in it counts
+    the part it crosses; ground beyond the grid is not the map's to observe and counts as nothing."""
+    rng = np.random.default_rng(6)
+    xy = uniform(rng, [0, 0], [20, 10], 60000)
+    xy = xy[(xy[:, 0] < 8.0) | (xy[:, 0] >= 14.0)]
+    layers = ground_layers(np.column_stack([xy, np.zeros(len(xy))]), flat_frame(20, 10))
+    position = np.array([[2.0, 5.0, 0.0], [18.0, 5.0, 0.0], [7.0, 5.0, 0.0], [10.0, 5.0, 0.0], [25.0, 5.0, 0.0]])
+    edges = np.array([[0, 1], [1, 0], [0, 2], [3, 1], [1, 4]])
+    unobserved = edge_geometry(layers, position, edges)[:, 3]
+    np.testing.assert_allclose(unobserved, [6.0, 6.0, 0.0, 4.0, 0.0], atol=0.21)
+    assert np.all(edge_geometry(layers, position, edges)[:, 0] < 0.01)  # and the gap makes no step
+
+
 def test_an_edge_slope_leaves_out_the_cells_beside_an_obstacle():
     """A 5 % lawn with a bench's feet: the points under the bench, 8 cm up over 1 m, pass for ground. An
     edge along the bench reads the lawn's 2.9 degrees once the cells beside it are known to be near an
@@ -481,6 +496,32 @@ def test_an_edit_of_the_graph_keeps_the_ground_layers(lidar_only_bundle, tmp_pat
     assert kept is not None and built is not None and kept.ground is not None
     assert kept.ground == built.ground
     np.testing.assert_array_equal(load_scene_graph(after).place_edge_geometry, graph.place_edge_geometry)
+
+
+def test_edge_geometry_of_an_older_bundle_reads_the_unobserved_stretch_as_unknown(lidar_only_bundle, tmp_path, capsys):
+    """A bundle written before the stretch over unobserved ground was recorded holds three columns:
+    read as NaN (unknown; no robot refuses on it, a plan reports none), and a plan still runs; five
+    columns are one line naming the file, exit 2."""
+    from terra.bundle import BundleWriter
+    from tests.graph.fixtures import copy_bundle
+
+    path = copy_bundle(lidar_only_bundle, tmp_path / "old.terra")
+    graph = load_scene_graph(Bundle(path))
+    assert np.isfinite(graph.place_edge_geometry).all() and graph.place_edge_geometry.shape[1] == 4
+    with BundleWriter(path, base=Bundle(path)) as writer:
+        writer.put_array("graph/place_edge_geometry", graph.place_edge_geometry[:, :3].copy())
+    old = load_scene_graph(Bundle(path))
+    np.testing.assert_array_equal(old.place_edge_geometry[:, :3], graph.place_edge_geometry[:, :3])
+    assert np.isnan(old.place_edge_geometry[:, 3]).all() and old.has_edge_geometry
+    capsys.readouterr()
+    last = str(len(graph.places) - 1)
+    assert run(["plan", str(path), "--from-node", "0", "--to-node", last, "--json"]) == 0
+    assert '"max_unobserved_m": null' in capsys.readouterr().out
+    with BundleWriter(path, base=Bundle(path)) as writer:
+        writer.put_array("graph/place_edge_geometry", np.zeros((len(graph.place_edges), 5), np.float32))
+    assert run(["plan", str(path), "--from-node", "0", "--to-node", last, "--json"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "place_edge_geometry.npy" in err and "4 columns" in err
 
 
 @pytest.mark.parametrize("argv", [["find", "bench"], ["monitor", "parking lot"], ["plan", "--to", "the bench"]])

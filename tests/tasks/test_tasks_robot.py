@@ -115,7 +115,7 @@ def test_stairs_are_avoided_by_wheels_and_taken_by_legs():
         assert plan.ground.max_step_m <= ROBOTS[name].max_step
 
 
-def two_places(rise: float, fall: float = 0.0, step: float = 0.0) -> SceneGraph:
+def two_places(rise: float, fall: float = 0.0, step: float = 0.0, unobserved: float = 0.0) -> SceneGraph:
     """Two places 10 m apart on one edge whose ground geometry is given by hand."""
     position = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
     return SceneGraph(
@@ -127,7 +127,7 @@ def two_places(rise: float, fall: float = 0.0, step: float = 0.0) -> SceneGraph:
         place_edges=np.array([[0, 1]]),
         place_edge_weight=np.array([10.0]),
         place_edge_kind=np.array([EDGE_GVD]),
-        place_edge_geometry=np.array([[step, rise, fall]], dtype=np.float32),
+        place_edge_geometry=np.array([[step, rise, fall, unobserved]], dtype=np.float32),
     )
 
 
@@ -151,9 +151,27 @@ def test_slope_cost_by_hand():
         plan_path(graph, 0, 1, robot=narrow)  # clearance 2 m: a 4 m passage for a 4.5 m robot
 
 
+def test_an_edge_over_a_long_unobserved_stretch_is_refused():
+    """The edge's 10 m, 6 of them over ground the map never observed: beyond the built-in profiles'
+    5 m, within a profile's 8; a graph that does not record the stretch (NaN) is planned as before."""
+    chair = ROBOTS["wheelchair"]
+    assert chair.max_unobserved == 5.0
+    with pytest.raises(NoPathError, match="unobserved ground up to 5 m"):
+        plan_path(two_places(rise=0.0, unobserved=6.0), 0, 1, robot=chair)
+    plan = plan_path(two_places(rise=0.0, unobserved=4.0), 0, 1, robot=chair)
+    assert plan.ground is not None and plan.ground.max_unobserved_m == pytest.approx(4.0)
+    assert plan.cost == pytest.approx(10.0)
+    trusting = chair.model_copy(update={"max_unobserved": 8.0})
+    assert plan_path(two_places(rise=0.0, unobserved=6.0), 0, 1, robot=trusting).cost == pytest.approx(10.0)
+    unrecorded = plan_path(two_places(rise=0.0, unobserved=np.nan), 0, 1, robot=chair)
+    assert unrecorded.ground is not None and unrecorded.ground.max_unobserved_m is None
+    assert unrecorded.ground.to_json()["max_unobserved_m"] is None
+    assert plan_path(two_places(rise=0.0, unobserved=6.0), 0, 1).cost == pytest.approx(10.0)  # no robot, no rule
+
+
 def test_a_graph_without_ground_geometry_refuses_a_robot():
     graph = two_places(rise=0.0)
-    graph.place_edge_geometry = np.zeros((0, 3), dtype=np.float32)
+    graph.place_edge_geometry = np.zeros((0, 4), dtype=np.float32)
     with pytest.raises(TerraError, match="no ground geometry"):
         plan_path(graph, 0, 1, robot=ROBOTS["wheelchair"])
     assert plan_path(graph, 0, 1).ground is None
