@@ -868,8 +868,9 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
     cells `index` (m,) read only along the axes whose five heights (the cell, two on each side)
     lie in cells that are not `blocked` (H, W) bool, on the layers' grid, and across a gap
     without ground from heights further out that are not blocked either; along an axis where
-    only the cell and its two neighbours are clear, the larger of their two height differences
-    less the smaller; NaN where no axis is clear."""
+    the cell, its two neighbours and the next cell on one side only are clear, the jump between
+    the neighbours less twice the slope on that side; where only the cell and its two neighbours
+    are, the larger of their two height differences less the smaller; NaN where no axis is clear."""
     H, W = layers.shape
     flat = layers.cells[index]
     rows, cols = flat // W, flat % W
@@ -888,11 +889,17 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
         height = np.where(free & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
         level = np.abs(gradient.astype(np.float64) * layers.cell_size)
         step = steps_at(height, (np.arange(len(index)), np.full(len(index), reach)), level)
-        # With an obstacle two cells away, the cell and its two neighbours: the larger of the two
+        # With an obstacle two cells away on one side only, the jump across the cell less the slope
+        # of the clear side (a curb through a cell holding both its levels, a wall beyond it);
+        # with obstacles on both sides, the cell and its two neighbours: the larger of the two
         # differences less the smaller (a slope cancels, a curb beside a car's nose stays).
         near = free[:, reach - 1 : reach + 2].all(axis=1) & ~clear
+        before2, before, _, after, after2 = height[:, reach - 2 : reach + 3].T
+        outer = np.where(free[:, reach - 2], np.abs(before - before2), np.abs(after2 - after))
+        one_side = near & (free[:, reach - 2] | free[:, reach + 2]) & np.isfinite(outer)
         jumps = np.abs(np.diff(height[:, reach - 1 : reach + 2], axis=1))
         step = np.where(near, np.abs(jumps[:, 1] - jumps[:, 0]), step)
+        step = np.where(one_side, np.maximum(np.abs(after - before) - 2.0 * outer, 0.0), step)
         out = np.fmax(out, np.where(clear | near, step, np.nan))
     return out.astype(np.float32)
 

@@ -17,6 +17,7 @@ from terra.graph.ground import (
     axis_step,
     despike,
     edge_geometry,
+    grid_layers,
     ground_layers,
     segment_ground,
     step_lines,
@@ -353,6 +354,39 @@ def test_a_step_reads_across_three_cells_of_shadow():
     assert step[0, 1] == pytest.approx(0.0) and step[0, 8] == pytest.approx(0.0)
     wider = np.insert(h, 4, np.nan, axis=1)
     assert np.isnan(axis_step(wider, axis=1, rise=np.zeros_like(wider))[0, 3])
+
+
+def curb_before_a_wall(rise: float, slope: float = 0.0) -> np.ndarray:
+    """(12, 30) metres: the step layer of grid_layers on 0.4 m cells, of a road whose curb (`rise`
+    metres) runs along x at y = 2.2 m, halfway across row 5 (whose points are of both levels), on
+    ground sloping `slope` m/m along y, before a wall in row 7 (blocked, no ground): NaN where
+    unknown."""
+    from terra.graph.grid import TerrainGrid
+
+    rng = np.random.default_rng(7)
+    xy = uniform(rng, [0, 0], [12, 4.8], 40000)
+    xy = xy[(xy[:, 1] < 2.8) | (xy[:, 1] >= 3.2)]
+    z = slope * xy[:, 1] + np.where(xy[:, 1] >= 2.2, rise, 0.0)
+    shape = (12, 30)
+    blocked = np.zeros(shape, dtype=bool)
+    blocked[7] = True
+    grid = TerrainGrid(np.zeros(shape, np.int16), np.zeros(shape, np.float32), blocked, np.zeros(2), CELL)
+    layers = grid_layers(np.column_stack([xy, z]), np.ones(len(xy), dtype=bool), grid)
+    out = np.full(shape[0] * shape[1], np.nan)
+    out[layers.cells] = layers.step
+    return out.reshape(shape)
+
+
+def test_a_curb_through_a_cell_before_a_wall_reads_its_whole_step():
+    """Row 5 holds both of the curb's levels and the wall lies two rows up: across the row, rows 4
+    and 6 differ by the whole curb, and the road's side (rows 3 and 4) tells the slope, which the
+    wall hides on the other side. Read as the cell and its two neighbours alone, the two halves of
+    the curb cancelled (0 where the curb is 15 cm). On a 5 % slope without a curb: no step."""
+    curb = curb_before_a_wall(0.15)
+    np.testing.assert_allclose(curb[5, 2:-2], 0.15, atol=0.015)
+    assert np.all(curb[[0, 1, 2, 9, 10, 11], 2:-2] < 0.01)
+    slope = curb_before_a_wall(0.0, slope=0.05)
+    assert np.all(slope[5, 2:-2] < 0.01)
 
 
 def test_edge_geometry_of_a_slope_and_a_curb():
