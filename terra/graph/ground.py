@@ -42,15 +42,15 @@ Layers (`ground_layers`), per cell, from the ground points in it:
 Edges (`edge_geometry`): each place edge is sampled along its straight segment every half cell;
 its step is the largest step of the cells it crosses (at least `line_step` where it crosses one of
 the layers' `lines`, the lines of steps of a LiDAR-only ground, `step_lines`), or the step it
-hides beside an obstacle: the height difference across a stretch of cells beside an obstacle
+hides: the height difference across a stretch of cells beside an obstacle or without ground,
 between clear ground on both sides, less what the ground's slope on either side explains
-(`_steps_across_gaps`; a curb beside a parked car); its rise (fall) the steepest climb (descent)
-along its direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair
-feels, not one cell's gradient), leaving out the cells beside an obstacle when the edge has others.
-Cells without ground count as unknown and constrain nothing; how far an edge runs over them is its
-fourth figure, `unobserved_m`: the longest stretch of it (metres) whose cells in the grid hold no
-ground, over which nothing is known (a bridge across ground the sensor never saw may cross a
-curb that no layer reads), for robot profiles to refuse (terra.tasks.robot).
+(`_steps_across_gaps`; a curb beside a parked car, or in a stretch the sensor never saw); its rise
+(fall) the steepest climb (descent) along its direction i -> j over 1 m of travel, from the cells'
+heights (a slope a wheelchair feels, not one cell's gradient), leaving out the cells beside an
+obstacle when the edge has others. How far an edge runs over cells without ground is its fourth
+figure, `unobserved_m`: the longest stretch of it (metres) whose cells in the grid hold no ground,
+where nothing but the heights on its two sides is known (a curb in it reads only if they differ),
+for robot profiles to refuse (terra.tasks.robot).
 """
 
 from __future__ import annotations
@@ -624,11 +624,9 @@ def edge_geometry(
         largest = np.fmax(largest, _unseen_end_steps(layers, at, flat, starts, samples, z[edges]))
         unit = delta / np.maximum(length, 1e-9)[:, None]
         along = np.where(known, (layers.gradient[np.maximum(at, 0)] * unit[edge]).sum(axis=1), np.nan)
-        profile = EdgeProfile(
-            edge[clear], travelled[clear], height[clear[heights]], along[clear], np.flatnonzero(clear)
-        )
+        profile = EdgeProfile(edge[clear], travelled[clear], height[clear[heights]], along[clear])
         profile = profile.with_place_ends(known, along, starts, samples, length, z[edges])
-        largest = np.fmax(largest, _steps_across_gaps(profile, known, E, layers.cell_size, baseline))
+        largest = np.fmax(largest, _steps_across_gaps(profile, E, layers.cell_size, baseline))
     out = np.column_stack([largest, np.degrees(np.arctan(rise)), unseen])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
 
@@ -672,15 +670,13 @@ def _longest_unobserved(seen: np.ndarray, starts: np.ndarray, spacing: np.ndarra
 @dataclass
 class EdgeProfile:
     """The clear ground along place edges, one row per sample, ordered by edge and travel: edge
-    index (n,), metres travelled from its start (n,), ground height (n,) metres, the ground's
-    gradient along the edge (n,) (dimensionless, NaN where unknown), and the sample's index
-    (n,) among all samples of the edges (edge_geometry)."""
+    index (n,), metres travelled from its start (n,), ground height (n,) metres and the ground's
+    gradient along the edge (n,) (dimensionless, NaN where unknown) (edge_geometry)."""
 
     edge: np.ndarray
     travelled: np.ndarray
     height: np.ndarray
     along: np.ndarray
-    sample: np.ndarray
 
     def with_place_ends(
         self,
@@ -695,7 +691,7 @@ class EdgeProfile:
         cell holds no ground (`known` (S,) bool), with that sample's gradient `along` (S,) the
         edge (NaN there): a place beside a car on the raised side of a curb, in a cell the car hid
         from the sensor, has no other height. `starts`/`samples`/`length` (E,): each edge's first
-        sample, samples and length (metres). An added end counts as lying just beyond its sample."""
+        sample, samples and length (metres)."""
         ends = np.arange(len(starts))
         tail = starts + samples - 1
         first, last = ~known[starts], ~known[tail]
@@ -704,33 +700,27 @@ class EdgeProfile:
             np.concatenate([self.travelled, np.zeros(int(first.sum())), length[last]]),
             np.concatenate([self.height, z[first, 0], z[last, 1]]),
             np.concatenate([self.along, along[starts[first]], along[tail[last]]]),
-            np.concatenate([self.sample, starts[first] - 1, tail[last] + 1]),
         )
         order = np.lexsort((rows[1], rows[0]))
         return EdgeProfile(*(r[order] for r in rows))
 
 
-def _steps_across_gaps(
-    profile: EdgeProfile, known: np.ndarray, edges: int, cell_size: float, baseline: float
-) -> np.ndarray:
-    """(E,) metres: the largest step each edge hides beside an obstacle, across a gap of more
-    than a cell between two samples of its clear-ground `profile` in which some sample holds
-    ground (`known` (S,) bool, every sample of the edges): the height difference across the gap
-    less what the ground's slope explains over it. The slope (along the edge, signed) of each
-    side is read over `baseline` metres of the profile beside the gap, else (less than half of
-    it) from the gradient at the gap's end; the step is the least any slope between the two
-    sides' leaves (a valley or a ridge hides none, one noisy side makes none up), and is not read
-    where neither side's slope is known. Why: beside a parked car the step layer reads a curb only
-    along it (grid_layers), and an edge from the road past the car onto the raised side of the
-    curb read level; across the car, 15 cm of height is not what the road's slope explains. A gap
-    without ground constrains nothing (module docstring): over metres of unobserved far ground,
-    a slope carried across makes up steps."""
+def _steps_across_gaps(profile: EdgeProfile, edges: int, cell_size: float, baseline: float) -> np.ndarray:
+    """(E,) metres: the largest step each edge hides across a gap of more than a cell between two
+    samples of its clear-ground `profile` (cells beside an obstacle, or without ground): the
+    height difference across the gap less what the ground's slope explains over it. The slope
+    (along the edge, signed) of each side is read over `baseline` metres of the profile beside the
+    gap, else (less than half of it) from the gradient at the gap's end; the step is the least any
+    slope between the two sides' leaves (a valley or a ridge hides none, one noisy side makes none
+    up), and is not read where neither side's slope is known. Why: beside a parked car the step
+    layer reads a curb only along it (grid_layers), and an edge from the road past the car onto
+    the raised side of the curb read level; across the car, 15 cm of height is not what the road's
+    slope explains. The same across ground the sensor never saw: two bridges on the LiDAR-only
+    campus crossed 3.5 m without ground with a 15 cm curb in it, and read level."""
     out = np.zeros(edges)
     p = profile
     run = np.diff(p.travelled)
-    seen = np.concatenate([[0], np.cumsum(known)])  # seen[k]: samples holding ground before sample k
-    observed = seen[p.sample[1:]] - seen[p.sample[:-1] + 1] > 0  # samples -1 .. S (added place ends)
-    gaps = np.flatnonzero((p.edge[1:] == p.edge[:-1]) & (run > cell_size) & observed)
+    gaps = np.flatnonzero((p.edge[1:] == p.edge[:-1]) & (run > cell_size))
     if len(gaps) == 0:
         return out
     span = float(p.travelled.max()) + 2.0 * baseline + 1.0  # edges laid end to end, far apart

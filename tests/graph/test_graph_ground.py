@@ -214,7 +214,9 @@ def test_an_edge_from_a_place_without_ground_steps_to_the_first_ground_along_it(
     """A curb's low side in its own LiDAR shadow: on a 10 x 10 grid of 0.4 m cells, columns 0-2 (x
     < 1.2 m) are ground at 0 m, columns 3-4 hold no ground, columns 5-9 (x >= 2.0 m) are the top
     at 0.15 m. A place on column 3 took its height (0 m) from the nearest ground; its edge to the
-    top sees only the top, level, and steps by the 0.15 m between them."""
+    top sees only the top, level, and steps by the 0.15 m between them. A place outside the grid
+    steps by nothing of its own (edge 3-5); its edge to the top crosses the shadow between the two
+    levels, which reads the curb (3-1)."""
     shape = (10, 10)
     col = np.arange(100) % 10
     cells = np.flatnonzero((col <= 2) | (col >= 5))
@@ -229,10 +231,12 @@ def test_an_edge_from_a_place_without_ground_steps_to_the_first_ground_along_it(
             [3.8, 2.0, 0.15],  # 2: the top
             [-1.0, 2.0, 0.0],  # 3: outside the grid: nothing known of its cell
             [1.4, 3.0, 0.15],  # 4: column 3 again, at the top's height
+            [0.6, 2.0, 0.0],  # 5: the low side
         ]
     )
-    edges = np.array([[0, 1], [1, 0], [1, 2], [3, 1], [4, 2]])
-    np.testing.assert_allclose(edge_geometry(layers, position, edges)[:, 0], [0.15, 0.15, 0.0, 0.0, 0.0], atol=1e-6)
+    edges = np.array([[0, 1], [1, 0], [1, 2], [3, 5], [4, 2], [3, 1]])
+    expected = [0.15, 0.15, 0.0, 0.0, 0.0, 0.15]
+    np.testing.assert_allclose(edge_geometry(layers, position, edges)[:, 0], expected, atol=1e-6)
     assert np.allclose(edge_geometry(layers, position, edges, unseen_ends=False)[:, 0], 0.0)
 
 
@@ -295,16 +299,19 @@ def test_a_place_the_car_hid_keeps_its_own_height_across_the_gap():
     assert edge_geometry(cut, position, np.array([[0, 1]]), unseen_ends=False)[0, 0] < 0.005
 
 
-def test_a_gap_without_ground_hides_no_step():
-    """Unobserved ground constrains nothing: 4 m without a point between the road and the raised
-    side (far ground between two rings, not a car's side) reads no step, though the heights on its
-    two sides differ by 0.15 m."""
-    layers = street_beside_a_car()
-    x = layers.centres(np.arange(300))[:, 0]
-    cut = only_cells(layers, (x < 4.0) | (x > 8.0))
-    cut.near_obstacle = None
-    position = np.array([[3.0, 0.6, 0.0], [9.0, 3.4, 0.15]])
-    assert edge_geometry(cut, position, np.array([[0, 1]]))[0, 0] < 0.005
+def test_a_gap_without_ground_reads_the_step_its_sides_leave_unexplained():
+    """4 m without a point between the road and the raised side (ground the sensor never saw, no
+    car's side): the 0.15 m between the level ground on its two sides is a step; on a 5 % slope
+    without a curb, the same 0.15 m over 3 m is the slope's."""
+    xy = np.array([[3.0, 0.6], [9.0, 3.4]])
+    curb = (street_beside_a_car(), np.array([0.0, 0.15]), 0.15)
+    slope = (street_beside_a_car(rise=0.0, slope=0.05), 0.05 * xy[:, 1], 0.0)
+    for layers, z, step in (curb, slope):
+        x = layers.centres(np.arange(300))[:, 0]
+        cut = only_cells(layers, (x < 4.0) | (x > 8.0))
+        cut.near_obstacle = None
+        position = np.column_stack([xy, z])
+        assert edge_geometry(cut, position, np.array([[0, 1], [1, 0]]))[:, 0] == pytest.approx(step, abs=0.005)
 
 
 def test_despike_by_hand():
