@@ -21,7 +21,10 @@ Sections (each skipped when its input is not given):
   the wheelchair got no path (a legal route missed).
 - build-time: `build_scene_graph` on `--campus-map` with build.ground.layers true and false,
   alternating, best of `--repeat` runs each (wall and CPU seconds); with `--ground-before FILE`
-  (terra/graph/ground.py of another commit) its segmentation and layers as a third run.
+  (terra/graph/ground.py of another commit) its segmentation and layers as a third run. Then the
+  whole `terra build` command, layers false and true, `--repeat` runs each in turn: the medians
+  and the median of the paired ratios (what a user waits for: the map's loading and the
+  bundle's writing included).
 
 Usage:
   python benchmarks/bench_geometry.py [--preset tiny] [--frames 40] [--kitti DIR] [--labelled SEQ]
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -343,6 +347,37 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
     return out
 
 
+def command_time(map_bundle: Path, repeat: int) -> dict[str, Any]:
+    """The whole `terra build --overwrite` command (a fresh process: imports, the map's loading,
+    the build and the bundle's writing) with build.ground.layers false and true, each on its own
+    copy of `map_bundle`, the runs alternating after one warm-up round each: wall and CPU
+    (children's user + system) seconds, their medians and the medians of the paired ratios on/off."""
+    runs: dict[str, list[tuple[float, float]]] = {"off": [], "on": []}
+    with tempfile.TemporaryDirectory() as scratch:
+        work = Path(scratch)
+        for name in runs:
+            shutil.copytree(map_bundle, work / f"{name}.terra")
+            (work / f"{name}.yaml").write_text(f"build:\n  ground:\n    layers: {str(name == 'on').lower()}\n")
+        for round_ in range(repeat + 1):
+            for name in runs:
+                argv = ["build", str(work / f"{name}.terra"), "--overwrite", "-q", "-c", str(work / f"{name}.yaml")]
+                before, wall = os.times(), time.perf_counter()
+                subprocess.run([sys.executable, "-m", "terra", *argv], check=True, capture_output=True)
+                wall, after = time.perf_counter() - wall, os.times()
+                cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
+                if round_ > 0:
+                    runs[name].append((wall, cpu))
+    out: dict[str, Any] = {}
+    for name, values in runs.items():
+        array = np.array(values)
+        out[name] = {"wall_median_s": round(float(np.median(array[:, 0])), 3)}
+        out[name]["cpu_median_s"] = round(float(np.median(array[:, 1])), 3)
+    ratio = np.array(runs["on"]) / np.array(runs["off"])
+    out["overhead_on"] = {"wall": round(float(np.median(ratio[:, 0])) - 1.0, 4)}
+    out["overhead_on"]["cpu"] = round(float(np.median(ratio[:, 1])) - 1.0, 4)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--preset", default="tiny")
@@ -374,6 +409,7 @@ def main() -> None:
         result["segmentation_labelled"] = segmentation_labelled(args.labelled)
     if args.campus_map is not None:
         result["build_time"] = build_time(args.campus_map, args.repeat, args.ground_before)
+        result["build_command_time"] = command_time(args.campus_map, args.repeat)
     if args.wheelchair_map is not None:
         result["wheelchair"] = wheelchair_on_map(
             args.wheelchair_map, args.wheelchair_preset, args.seed, args.sim_config, args.pairs
