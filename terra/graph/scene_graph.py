@@ -145,8 +145,8 @@ class SceneGraph:
     EDGE_GEOMETRY_COLUMNS): the largest step it crosses (m), its steepest rise and fall going from
     place_edges[:, 0] to place_edges[:, 1] (degrees), the longest stretch of it over unobserved
     ground (m; NaN, unknown, in a bundle written before it was recorded); (0, 4) when the graph was
-    built without ground layers. Robot
-    profiles read it at planning time (terra.tasks.robot); the graph is the same for every robot.
+    built without ground layers. Robot profiles read it at planning time (terra.tasks.robot); the
+    graph is the same for every robot.
     terrain_embeddings: (T, D) text embedding of each terrain class name.
     next_id: the next free id per NodeSymbol character ('p' places, 'R', 'S', ... region levels,
     'O' objects): ids at or above it were never given; see `next_ids`.

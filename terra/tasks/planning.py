@@ -313,13 +313,13 @@ class PathGround:
         return max(self.max_climb_deg, self.max_descent_deg)
 
     def to_json(self) -> dict[str, float | None]:
-        unseen = None if self.max_unobserved_m is None else round(self.max_unobserved_m, 3)
+        unobserved = None if self.max_unobserved_m is None else round(self.max_unobserved_m, 3)
         return {
             "max_step_m": round(self.max_step_m, 4),
             "max_climb_deg": round(self.max_climb_deg, 3),
             "max_descent_deg": round(self.max_descent_deg, 3),
             "max_slope_deg": round(self.max_slope_deg, 3),
-            "max_unobserved_m": unseen,
+            "max_unobserved_m": unobserved,
         }
 
 
@@ -340,8 +340,8 @@ def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
         at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
         hit = keys[order][at] == wanted
         rows[hit] = geometry[order[at[hit]]][:, columns]
-    unseen = rows[:, 3]  # NaN: a bundle that does not record it
-    largest = float(np.nanmax(unseen)) if np.isfinite(unseen).any() else None
+    unobserved = rows[:, 3]  # NaN: a bundle that does not record it
+    largest = float(np.nanmax(unobserved)) if np.isfinite(unobserved).any() else None
     return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()), largest)
 
 

@@ -26,7 +26,8 @@ crosses, metres; its steepest rise and fall in the direction of travel, degrees)
 Every factor is >= 1, so A*'s straight-line heuristic stays admissible. The built-in profiles:
 `wheelchair` (5 cm step, 8 degrees: a powered wheelchair on ramps steeper than the 1:12 of
 building codes, 4.8 degrees), `wheeled` (10 cm, 15 degrees) and `legged` (20 cm, 35 degrees:
-stairs are a slope of about 30 to 35 degrees).
+stairs are a slope of about 30 to 35 degrees); each accepts at most MAX_UNOBSERVED (5 m) of
+unobserved ground in one stretch, as does a profile file that does not say.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from terra.errors import TerraError
 from terra.schemas import NonEmptyStr, Strict, validation_message
 
 Degrees = Annotated[float, Field(ge=0.0, le=90.0)]
-MAX_UNOBSERVED = 5.0  # metres: every built-in profile's (module docstring)
+MAX_UNOBSERVED = 5.0  # metres (module docstring)
 
 
 class RobotProfile(Strict):
