@@ -607,9 +607,9 @@ def edge_geometry(
     flat = layers.flat_cells(point)
     at = layers.observed_index(flat) if len(layers.cells) else np.full(len(flat), -1)
     known = at >= 0
-    unseen = _longest_unobserved(known | (flat < 0), starts, length / np.maximum(samples - 1, 1))
+    unobserved = _longest_unobserved(known | (flat < 0), starts, length / np.maximum(samples - 1, 1))
     if len(layers.cells) == 0:
-        return np.column_stack([np.zeros((E, 3)), unseen]).astype(np.float32)
+        return np.column_stack([np.zeros((E, 3)), unobserved]).astype(np.float32)
     step = _sampled_steps(layers, at, flat)
     clear, heights = _slope_samples(layers, at, edge, E)
     # The ground's height at each sample: its cell's, carried along the cell's gradient.
@@ -627,7 +627,7 @@ def edge_geometry(
         profile = EdgeProfile(edge[clear], travelled[clear], height[clear[heights]], along[clear])
         profile = profile.with_place_ends(known, along, starts, samples, length, z[edges])
         largest = np.fmax(largest, _steps_across_gaps(profile, E, layers.cell_size, baseline))
-    out = np.column_stack([largest, np.degrees(np.arctan(rise)), unseen])
+    out = np.column_stack([largest, np.degrees(np.arctan(rise)), unobserved])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
 
 
