@@ -7,10 +7,10 @@ crosses, metres; its steepest rise and fall in the direction of travel, degrees)
 - an edge is removed, in one direction, when its step exceeds `max_step` or, going that way, its
   rise exceeds `max_slope_up` or its fall exceeds `max_slope_down`;
 - an edge is removed when it crosses more than `max_unobserved` metres of ground the map never
-  observed in one stretch: there its step and slope are unknown (the step layer reads across a
-  curb's LiDAR shadow of a metre or two, not across a street the sensor never saw; a bridge over
-  27 m of unseen ground on the simulated campus crossed a 15 cm curb). A graph whose bundle does
-  not record the stretch (written before it was) is read without this rule;
+  observed in one stretch: there only the heights at the stretch's two ends are known (a curb up
+  and another down cancel out; a bridge over 27 m of unseen ground on the simulated campus crossed
+  a 15 cm curb). A graph whose bundle does not record the stretch (written before it was) is read
+  without this rule;
 - a kept edge costs more the steeper it is: its cost (terra.tasks.planning) is multiplied by
 
       1 + slope_cost x max(rise / max_slope_up, fall / max_slope_down)
