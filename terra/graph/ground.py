@@ -525,10 +525,9 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
     jump = np.abs(after - before)
     # The local slope: the steeper side's (a ramp's ends, where its slope meets the level, read no step).
     outer = np.fmax(np.abs(before - before2), np.abs(after2 - after))
-    known = np.isfinite(outer)
-    outer = np.where(known, outer, 0.0)
-    if level is not None:  # unknown (NaN) where the neighbourhood does not fix a plane either
-        outer = np.where(known, outer, level)
+    # Where neither side is observed, the cell's own |rise|: unknown (NaN) where the neighbourhood
+    # does not fix a plane either; level without it.
+    outer = np.where(np.isfinite(outer), outer, 0.0 if level is None else level)
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
     if level is not None:
         gaps = np.flatnonzero(np.isfinite(middle) & np.isnan(step))
@@ -552,11 +551,11 @@ def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> 
     axis (the cell in the middle, reach > bridge): the height difference between the nearest
     observed cells within `bridge` cells on each side, less what the ground's slope explains over
     the cells between them, floored at 0. The slope is the mean of the differences just beyond
-    those two cells (each with its next cell outwards, where observed), as `axis_step` reads it,
-    else the cell's own (`rise` (m,), metres per cell): a curb's low side lies in its own LiDAR
-    shadow (the road within a few decimetres of it holds no point when seen from the walk), which
-    left every curb seen from its top unknown, and the plane fitted at a cell on the curb's face
-    takes the curb for a slope."""
+    those two cells (each with its next cell outwards, where observed; not the steeper of the two,
+    as `steps_at` reads a cell's own sides), else the cell's own (`rise` (m,), metres per cell): a
+    curb's low side lies in its own LiDAR shadow (the road within a few decimetres of it holds no
+    point when seen from the walk), which left every curb seen from its top unknown, and the plane
+    fitted at a cell on the curb's face takes the curb for a slope."""
     centre, m = around.shape[1] // 2, len(around)
     sides = []
     for sign in (-1, 1):
@@ -884,11 +883,10 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
         # with obstacles on both sides, the cell and its two neighbours: the larger of the two
         # differences less the smaller (a slope cancels, a curb beside a car's nose stays).
         near = free[:, reach - 1 : reach + 2].all(axis=1) & ~clear
-        before2, before, _, after, after2 = height[:, reach - 2 : reach + 3].T
+        before2, before, middle, after, after2 = height[:, reach - 2 : reach + 3].T
         outer = np.where(free[:, reach - 2], np.abs(before - before2), np.abs(after2 - after))
         one_side = near & (free[:, reach - 2] | free[:, reach + 2]) & np.isfinite(outer)
-        jumps = np.abs(np.diff(height[:, reach - 1 : reach + 2], axis=1))
-        step = np.where(near, np.abs(jumps[:, 1] - jumps[:, 0]), step)
+        step = np.where(near, np.abs(np.abs(after - middle) - np.abs(middle - before)), step)
         step = np.where(one_side, np.maximum(np.abs(after - before) - 2.0 * outer, 0.0), step)
         out = np.fmax(out, np.where(clear | near, step, np.nan))
     return out.astype(np.float32)
