@@ -216,7 +216,8 @@ def test_an_edge_from_a_place_without_ground_steps_to_the_first_ground_along_it(
     at 0.15 m. A place on column 3 took its height (0 m) from the nearest ground; its edge to the
     top sees only the top, level, and steps by the 0.15 m between them. A place outside the grid
     steps by nothing of its own (edge 3-5); its edge to the top crosses the shadow between the two
-    levels, which reads the curb (3-1)."""
+    levels, which reads the curb (3-1). A place on column 3 at the top's height is no surer of its
+    level: the low side 0.4 m behind it, past its edge's start, says it may stand below (4-2)."""
     shape = (10, 10)
     col = np.arange(100) % 10
     cells = np.flatnonzero((col <= 2) | (col >= 5))
@@ -235,9 +236,36 @@ def test_an_edge_from_a_place_without_ground_steps_to_the_first_ground_along_it(
         ]
     )
     edges = np.array([[0, 1], [1, 0], [1, 2], [3, 5], [4, 2], [3, 1]])
-    expected = [0.15, 0.15, 0.0, 0.0, 0.0, 0.15]
+    expected = [0.15, 0.15, 0.0, 0.0, 0.15, 0.15]
     np.testing.assert_allclose(edge_geometry(layers, position, edges)[:, 0], expected, atol=1e-6)
     assert np.allclose(edge_geometry(layers, position, edges, unseen_ends=False)[:, 0], 0.0)
+
+
+def test_an_edge_to_a_place_in_a_hole_reads_the_ground_past_the_place():
+    """Sparsely scanned ground: on a 10 x 10 grid of 0.4 m cells, columns 0-3 (x < 1.6 m) are a
+    curb's top at 0.15 m, columns 4-6 hold no ground (a hole between scan rings), columns 7-9 (x
+    >= 2.8 m) are the road at 0 m. A place on column 5 (x 2.2 m) took its height from the nearest
+    ground, the top. Its edge from the top sees only the top and its own place, level; the road
+    1 m past the place says the place may stand below the curb: 0.15 m, both ways. With the road
+    at the top's height, or no ground within 2 m past the place, nothing is read."""
+    shape = (10, 10)
+    col = np.arange(100) % 10
+    cells = np.flatnonzero((col <= 3) | (col >= 7))
+    n = len(cells)
+    zeros = np.zeros(n, np.float32)
+
+    def layers(road: float, last: int = 7) -> GroundLayers:
+        keep = (col[cells] <= 3) | (col[cells] >= last)
+        height = np.where(col[cells] <= 3, 0.15, road).astype(np.float32)
+        full = GroundLayers(cells, height, np.zeros((n, 2), np.float32), zeros, zeros, shape, np.zeros(2), CELL)
+        return only_cells(full, keep)
+
+    position = np.array([[0.6, 2.0, 0.15], [2.2, 2.0, 0.15]])
+    edges = np.array([[0, 1], [1, 0]])
+    np.testing.assert_allclose(edge_geometry(layers(0.0), position, edges)[:, 0], 0.15, atol=1e-6)
+    np.testing.assert_allclose(edge_geometry(layers(0.15), position, edges)[:, 0], 0.0, atol=1e-6)
+    assert layers(0.0, last=10).cells.size == 40  # the road gone from the grid: 2.4 m of hole past the place
+    np.testing.assert_allclose(edge_geometry(layers(0.0, last=10), position, edges)[:, 0], 0.0, atol=1e-6)
 
 
 def street_beside_a_car(rise: float = 0.15, slope: float = 0.0) -> GroundLayers:
