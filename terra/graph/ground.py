@@ -726,9 +726,11 @@ def _ground_past_unseen_ends(
     start, > the edge's length past its end). Edges run from `a` (E, 2) along `unit` (E, 2); `known`
     (S,) and `flat` (S,) say which samples' cells hold ground and are in the grid. Why: a place in
     a cell without ground takes the nearest ground's height, and may stand across a curb from it.
-    On sparsely scanned ground an edge from a curb's top to a place on the road below, in a hole
-    between scan rings, saw only the top and read level (12 paths over a 15 cm curb on the small
-    LiDAR-only world); the road just past the place tells."""
+    On the simulated camera campus two places at a curb's top edge, in cells without points, took
+    the road's height, and their edges from the road read level; with places on ground scanned in
+    sparse rings (tried, benchmarks/RESULTS.md), edges from a curb's top to places on the road
+    below, in holes between the rings, read level too. The ground just past the place tells; 1 m
+    of it was too little between sparse rings."""
     step = layers.cell_size / 2
     reach = np.arange(1, int(np.ceil(BEYOND / step)) + 1) * step
     tail = ends.starts + ends.samples - 1
