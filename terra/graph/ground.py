@@ -237,6 +237,13 @@ class GroundLayers:
         rows, cols = flat // self.shape[1] + self.offset[0], flat % self.shape[1] + self.offset[1]
         return self.origin + (np.column_stack([cols, rows]).astype(np.float64) + 0.5) * self.cell_size
 
+    def height_at(self, index: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """(m,) float64 metres: the ground height at map-frame points `xy` (m, 2) (metres) in the
+        observed cells `index` (m,): each cell's height carried along its gradient (level where
+        the gradient is unknown) from the cell's centre to the point."""
+        tilt = np.nan_to_num(self.gradient[index].astype(np.float64))
+        return self.height[index] + (tilt * (np.asarray(xy, dtype=np.float64) - self.centres(index))).sum(axis=1)
+
     def info(self) -> dict[str, Any]:
         """The manifest's description of the layers (components.graph.ground)."""
         return {
@@ -607,7 +614,7 @@ def edge_geometry(
     t = (np.arange(int(samples.sum())) - starts[edge]) / np.maximum(samples[edge] - 1, 1)
     point = a[edge] + t[:, None] * delta[edge]
     flat = layers.flat_cells(point)
-    at = layers.observed_index(flat) if len(layers.cells) else np.full(len(flat), -1)
+    at = layers.observed_index(flat)
     known = at >= 0
     unobserved = _longest_unobserved(known | (flat < 0), starts, length / np.maximum(samples - 1, 1))
     if len(layers.cells) == 0:
@@ -615,9 +622,7 @@ def edge_geometry(
     step = _sampled_steps(layers, at, flat)
     clear, heights = _slope_samples(layers, at, edge, E)
     # The ground's height at each sample: its cell's, carried along the cell's gradient.
-    cell = at[heights]
-    tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
-    height = layers.height[cell] + (tilt * (point[heights] - layers.centres(cell))).sum(axis=1)
+    height = layers.height_at(at[heights], point[heights])
     travelled = t * length[edge]
     rise = _rise_along(edge[heights], travelled[heights], height, E, baseline)
     largest = np.fmax.reduceat(step, starts)
@@ -742,10 +747,9 @@ def _ground_past_unseen_ends(
         at = layers.observed_index(layers.flat_cells(point.reshape(-1, 2))).reshape(len(todo), len(reach))
         found = (at >= 0).any(axis=1)
         k = np.argmax(at >= 0, axis=1)[found]
-        cell, point, todo = at[found, k], point[found, k], todo[found]
-        tilt = np.nan_to_num(layers.gradient[cell].astype(np.float64))
-        height = layers.height[cell] + (tilt * (point - layers.centres(cell))).sum(axis=1)
+        cell, todo = at[found, k], todo[found]
         along = (layers.gradient[cell] * unit[todo]).sum(axis=1)
+        height = layers.height_at(cell, point[found, k])
         parts.append((todo, base * ends.length[todo] + sign * reach[k], height, along))
     return EdgeProfile(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
 
