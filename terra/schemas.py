@@ -321,7 +321,7 @@ class ObjectTerra(_Written):
 class EdgeTerra(_Written):
     """metadata.terra of a place-place edge."""
 
-    kind: Literal["gvd", "cross_terrain", "bridge"]
+    kind: Literal["gvd", "cross_terrain", "bridge", "level_route"]
 
 
 # --------------------------------------------------------------------------------- dataset files

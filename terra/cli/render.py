@@ -39,7 +39,7 @@ def render_build(result: BuildResult) -> str:
     lines = [
         f"graph: {counted(result.places, 'place')} ({per_terrain}) -> {result.bundle}",
         f"  place edges: {result.place_edges} (gvd {edges.gvd}, cross-terrain {edges.cross_terrain}, "
-        f"bridge {edges.bridge})",
+        f"bridge {edges.bridge}, level route {edges.level_route})",
         f"  regions ({result.region_method}): " + " / ".join(str(n) for n in result.regions_per_level) + " per level",
         f"  place embeddings: {src.images} from images, {src.points} from points, "
         f"{src.terrain_text} from the terrain name",

@@ -284,6 +284,27 @@ class LinkingSection(Section):
     curb_gap_max_width: float = Field(
         default=12.0, gt=0.0, description="metres; the widest (a longer level stretch is no gap in a curb)"
     )
+    level_route_length: float | None = Field(
+        default=40.0,
+        gt=0.0,
+        description=(
+            "metres; pieces of the places graph that no level edge joins are joined by routes of at most this length "
+            "over level ground, with a place at each bend (terra.graph.level_routes; needs ground.layers; None = never)"
+        ),
+    )
+    level_route_max_step: float = Field(
+        default=0.05,
+        ge=0.0,
+        description="metres; the largest step a level edge or route crosses (the wheelchair profile's, the strictest)",
+    )
+    level_route_max_slope: float = Field(
+        default=8.0, ge=0.0, le=90.0, description="degrees; the steepest rise or fall of a level edge or route"
+    )
+    level_route_clearance: float = Field(
+        default=0.45,
+        ge=0.0,
+        description="metres of level ground a route keeps on each side (half the wheelchair profile's width)",
+    )
 
     @model_validator(mode="after")
     def _gap_widths(self) -> LinkingSection:

@@ -30,6 +30,7 @@ from terra.graph.ground import (
     map_ground,
     step_lines,
 )
+from terra.graph.level_routes import MAX_UNOBSERVED, RouteRule, level_routes
 from terra.graph.linking import (
     bridge_components,
     grid_gap_length,
@@ -43,7 +44,15 @@ from terra.graph.linking import (
 from terra.graph.places import CellPlaces, extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources, GridTiles, GvdTiles
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, Places, RegionLevel, SceneGraph
+from terra.graph.scene_graph import (
+    EDGE_BRIDGE,
+    EDGE_CROSS_TERRAIN,
+    EDGE_GVD,
+    EDGE_LEVEL_ROUTE,
+    Places,
+    RegionLevel,
+    SceneGraph,
+)
 from terra.graph.spectral import SpectralStop, spectral_assignments
 from terra.graph.tiled_grid import TiledGridStats, build_terrain_grid_tiled
 from terra.graph.tiled_gvd import TiledGvdStats, tiled_gvd
@@ -65,8 +74,10 @@ class GraphBuild:
 @dataclass
 class TerrainPlaceSet:
     """Places of all terrains before linking: positions (P, 3) m, terrain (P,), clearance (P,) m,
-    GVD edges (E, 2) with costs (E,) m. The last `gap_places` places sit on gaps in curbs
-    (terra.graph.crossings), linked to both sides by `gap_links` (k, 2), not by a GVD."""
+    GVD edges (E, 2) with costs (E,) m. After the GVD places, `gap_places` places sit on gaps in
+    curbs (terra.graph.crossings), linked to both sides by `gap_links` (k, 2), not by a GVD; the
+    last `route_places` places, added once linked, on the bends of level routes
+    (terra.graph.level_routes)."""
 
     position: np.ndarray
     terrain: np.ndarray
@@ -75,10 +86,11 @@ class TerrainPlaceSet:
     weight: np.ndarray
     gap_places: int = 0
     gap_links: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    route_places: int = 0
 
     def gvd_places(self) -> TerrainPlaceSet:
         """The places of the terrain GVDs alone (those before the gap places)."""
-        n = len(self.position) - self.gap_places
+        n = len(self.position) - self.gap_places - self.route_places
         return TerrainPlaceSet(self.position[:n], self.terrain[:n], self.clearance[:n], self.edges, self.weight)
 
 
@@ -102,6 +114,7 @@ class PlaceLinks:
     kind: np.ndarray
     grid_links: int
     bridges_not_clear: int
+    geometry: np.ndarray | None = None  # (E, 4) ground geometry of each edge, once computed
 
 
 def terrain_places(
@@ -418,27 +431,35 @@ def build_scene_graph(
         barrier = gvd_barrier(layers, config, lidar_only)
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress, barrier)
         places = with_gap_places(places, traversable, grid, layers, config)
-        for t in places.terrain[len(places.position) - places.gap_places :]:
-            counts.per_terrain[int(t)] = counts.per_terrain.get(int(t), 0) + 1
+        _count_places(counts, places.terrain[len(places.position) - places.gap_places :])
     if len(places.position) == 0:
         raise TerraError(no_places_reason(lidar_only))
     with timer.stage("links"):
         links = with_level_links(
             place_links(places, traversable, grid, config, barrier), places, traversable, grid, layers, config
         )
+    with timer.stage("edge ground, level routes"):
+        places, links = with_level_routes(places, links, grid, layers, config)
+        _count_places(counts, places.terrain[len(places.position) - places.route_places :])
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
     with timer.stage(f"regions ({config.regions.method})"):
         assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
         levels = build_levels(assignments, places.position, embedding)
     graph = scene_graph(msm, places, embedding, links, levels, config)
-    if layers is not None:
-        graph.place_edge_geometry = edge_geometry(layers, places.position, links.edges)
+    if links.geometry is not None:
+        graph.place_edge_geometry = links.geometry
     if previous is not None:
         graph = with_previous_ids(graph, previous, config.grid.cell_size / 2)
     stats = _build_stats(msm, grid, grid_stats, counts, links, sources, config)
     stats.step_line_cells = int(barrier.sum()) if barrier is not None else None
     return GraphBuild(graph, stats, timer, ground=layers)
+
+
+def _count_places(counts: PlaceCounts, terrain: np.ndarray) -> None:
+    """Adds places of `terrain` (k,) to the counts per terrain (gap and route places count with theirs)."""
+    for t in terrain:
+        counts.per_terrain[int(t)] = counts.per_terrain.get(int(t), 0) + 1
 
 
 def with_level_links(
@@ -466,6 +487,45 @@ def with_level_links(
         weight=np.concatenate([links.weight, length]),
         kind=np.concatenate([links.kind, np.full(len(new), EDGE_CROSS_TERRAIN, dtype=links.kind.dtype)]),
     )
+
+
+def with_level_routes(
+    places: TerrainPlaceSet, links: PlaceLinks, grid: TerrainGrid, layers: GroundLayers | None, config: BuildConfig
+) -> tuple[TerrainPlaceSet, PlaceLinks]:
+    """`places` and `links` with every edge's ground geometry, and the places and edges of the
+    routes that join the pieces of the graph over level ground (terra.graph.level_routes)
+    appended; unchanged without ground layers, and without routes with
+    `linking.level_route_length` None."""
+    if layers is None or len(places.position) < 2:
+        return places, links
+    geometry = edge_geometry(layers, places.position, links.edges)
+    links = replace(links, geometry=geometry)
+    lk = config.linking
+    if lk.level_route_length is None:
+        return places, links
+    rule = RouteRule(
+        lk.level_route_max_step,
+        lk.level_route_max_slope,
+        MAX_UNOBSERVED,
+        lk.level_route_clearance,
+        lk.level_route_length,
+    )
+    new = level_routes(places.position, places.terrain, places.clearance, links.edges, geometry, grid, layers, rule)
+    places = replace(
+        places,
+        position=np.vstack([places.position, new.position]),
+        terrain=np.concatenate([places.terrain, new.terrain]),
+        clearance=np.concatenate([places.clearance, new.clearance]),
+        route_places=len(new.position),
+    )
+    links = replace(
+        links,
+        edges=np.vstack([links.edges, new.edges]),
+        weight=np.concatenate([links.weight, new.length]),
+        kind=np.concatenate([links.kind, np.full(len(new.edges), EDGE_LEVEL_ROUTE, dtype=links.kind.dtype)]),
+        geometry=np.vstack([geometry, new.geometry]),
+    )
+    return places, links
 
 
 def no_places_reason(lidar_only: bool) -> str:
@@ -622,9 +682,7 @@ def _build_stats(
         patches_dropped=counts.patches_dropped,
         grid_cells=(int(grid.shape[0]), int(grid.shape[1])),
         blocked_cells=int(grid.blocked.sum()),
-        edges=EdgeCounts(
-            int((kind == EDGE_GVD).sum()), int((kind == EDGE_CROSS_TERRAIN).sum()), int((kind == EDGE_BRIDGE).sum())
-        ),
+        edges=EdgeCounts.of(kind),
         grid_links=links.grid_links,
         bridges_not_clear=links.bridges_not_clear,
         embedding_source=sources,

@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # a result is built and read without the graph modules
+    import numpy as np
+
     from terra.graph.scene_graph import SceneGraph
     from terra.progress import StageTimer
 
@@ -21,13 +23,27 @@ class EdgeCounts:
     gvd: int = 0
     cross_terrain: int = 0
     bridge: int = 0
+    level_route: int = 0
 
     def to_json(self) -> dict[str, int]:
-        return {"gvd": self.gvd, "cross_terrain": self.cross_terrain, "bridge": self.bridge}
+        return {
+            "gvd": self.gvd,
+            "cross_terrain": self.cross_terrain,
+            "bridge": self.bridge,
+            "level_route": self.level_route,
+        }
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> EdgeCounts:
-        return cls(int(data["gvd"]), int(data["cross_terrain"]), int(data["bridge"]))
+        # level_route: absent from manifests written before routes were built
+        return cls(int(data["gvd"]), int(data["cross_terrain"]), int(data["bridge"]), int(data.get("level_route", 0)))
+
+    @classmethod
+    def of(cls, kind: np.ndarray) -> EdgeCounts:
+        """The counts of place edge kinds (E,) (terra.graph.scene_graph.EDGE_KINDS, in field order)."""
+        from terra.graph.scene_graph import EDGE_KINDS
+
+        return cls(*(int((kind == k).sum()) for k in EDGE_KINDS))
 
 
 @dataclass

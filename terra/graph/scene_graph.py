@@ -26,6 +26,8 @@ EDGE_GVD = 0  # along one terrain's GVD
 # each side, a level link, or (LiDAR-only ground) a link across a line of steps.
 EDGE_CROSS_TERRAIN = 1
 EDGE_BRIDGE = 2  # joins otherwise disconnected components, with a penalty
+EDGE_LEVEL_ROUTE = 3  # one straight leg of a route over level ground between pieces (terra.graph.level_routes)
+EDGE_KINDS = (EDGE_GVD, EDGE_CROSS_TERRAIN, EDGE_BRIDGE, EDGE_LEVEL_ROUTE)
 # The ground geometry of a place edge (terra.graph.ground.edge_geometry), one column each: the
 # largest step it crosses (m), its steepest rise and fall from its first place to its second
 # (degrees), the longest stretch of it over ground the map never observed (m).

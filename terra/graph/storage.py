@@ -11,7 +11,7 @@ header version 1.1.3), so spark_dsg loads it as is:
   regions  RoomNodeAttributes: position = centroid of the children;
   objects  ObjectNodeAttributes with a RAABB bounding box (size, centre, yaw about +z);
   edges    place-place with weight = traversal cost (m) and metadata kind gvd | cross_terrain |
-           bridge; parent -> child between layers (unweighted).
+           bridge | level_route; parent -> child between layers (unweighted).
 Terra's own attributes sit in each node's `metadata.terra`. Embeddings are arrays beside it
 (float32): graph/place_embedding (P, D), graph/terrain_embedding (T, D), graph/region_embedding_<k>
 (R_k, D). Node ids are int64 arrays in index order: graph/place_id (P,), graph/region_id_<k>
@@ -34,6 +34,7 @@ from terra.graph.scene_graph import (
     EDGE_CROSS_TERRAIN,
     EDGE_GEOMETRY_COLUMNS,
     EDGE_GVD,
+    EDGE_LEVEL_ROUTE,
     MAX_NODE_ID,
     Objects,
     Places,
@@ -52,7 +53,12 @@ GROUND_FILES = "graph/ground_"  # the ground layers (terra.graph.ground.GROUND_F
 SPARK_HEADER = {"project_name": "main", "version": {"major": 1, "minor": 1, "patch": 3}}
 LAYER_OBJECTS, LAYER_PLACES, LAYER_REGIONS = 2, 3, 4
 MAX_LEVELS = 8  # region level chars 'R'..'Y'
-EDGE_KIND_NAMES = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge"}
+EDGE_KIND_NAMES = {
+    EDGE_GVD: "gvd",
+    EDGE_CROSS_TERRAIN: "cross_terrain",
+    EDGE_BRIDGE: "bridge",
+    EDGE_LEVEL_ROUTE: "level_route",
+}
 EDGE_KIND_CODES = {v: k for k, v in EDGE_KIND_NAMES.items()}
 _INDEX_MASK = (1 << 56) - 1
 

@@ -77,11 +77,12 @@ from terra.graph.pipeline import (
     unique_typed_edges,
     with_gap_places,
     with_level_links,
+    with_level_routes,
     with_previous_ids,
 )
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GEOMETRY_COLUMNS, EDGE_GVD, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, SceneGraph
 from terra.mapping.semantic_map import FusionRows, MetricSemanticMap, terrain_winners
 from terra.progress import StageTimer
 
@@ -530,7 +531,7 @@ class GraphUpdater:
             places_per_terrain={
                 msm.terrain_classes[t]: int((merged.terrain == t).sum()) for t in sorted(set(terrains))
             },
-            edges=EdgeCounts(*(int((links.kind == k).sum()) for k in (EDGE_GVD, EDGE_CROSS_TERRAIN, EDGE_BRIDGE))),
+            edges=EdgeCounts.of(links.kind),
             embedding_source=sources,
             embedding_rule="as the full build's, for the places in or near the rebuilt area",
         )
@@ -602,6 +603,7 @@ def _rebuilt_places(
                 crop_layers,
                 config,
             )
+            places, links = with_level_routes(places, links, grid, crop_layers, config)
             parts.append((places, links, zone.part(places.position) == k))
     offsets = np.cumsum([0] + [len(p.position) for p, _, _ in parts])
     places = TerrainPlaceSet(

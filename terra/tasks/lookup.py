@@ -17,14 +17,14 @@ from typing import Any
 import numpy as np
 
 from terra.errors import TerraError
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, EDGE_LEVEL_ROUTE, SceneGraph
 
 
 class UnknownNode(TerraError):
     """A node, region or place that the scene graph does not hold."""
 
 
-_KIND = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge"}
+_KIND = {EDGE_GVD: "gvd", EDGE_CROSS_TERRAIN: "cross_terrain", EDGE_BRIDGE: "bridge", EDGE_LEVEL_ROUTE: "level_route"}
 _SHORT = re.compile(r"^([A-Za-z])([0-9]{1,18})$", re.ASCII)  # ASCII digits: '²' is a digit to str.isdigit
 _NUMERIC = re.compile(r"^[0-9]{1,20}$", re.ASCII)  # a spark_dsg id is an unsigned 64-bit integer
 MAX_COORDINATE = 1.0e7  # metres: a map frame spans at most a few hundred km; farther is a typo or overflow

@@ -7,7 +7,7 @@ from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 from matplotlib.typing import LineStyleType
 
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_CROSS_TERRAIN, EDGE_GVD, EDGE_LEVEL_ROUTE, SceneGraph
 from terra.viz.style import Extent, terrain_palette
 
 
@@ -21,6 +21,7 @@ EDGE_STYLES: dict[int, tuple[str, str, float, LineStyleType]] = {
     EDGE_GVD: ("along one terrain", "#8c8c8c", 0.6, "solid"),
     EDGE_CROSS_TERRAIN: ("cross-terrain link", "#000000", 1.3, "solid"),
     EDGE_BRIDGE: ("bridge (joins components)", "#000000", 1.0, "dashed"),
+    EDGE_LEVEL_ROUTE: ("route over level ground", "#1f77b4", 1.1, "solid"),
 }
 
 

@@ -109,8 +109,9 @@ def test_a_wheelchair_crosses_a_built_street_at_its_curb_cut():
     chair = plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
     assert at_cut[0] in chair.places
     assert chair.ground is not None and chair.ground.max_step_m <= 0.05
-    # Without places at gaps the road and the sidewalk meet only over the curb: no wheelchair path.
-    config = BuildConfig.model_validate({"linking": {"curb_gap_max_step": None}})
+    # Without places at gaps (and without level routes, which find the cut on their own:
+    # tests/graph/test_level_routes.py) the road and the sidewalk meet only over the curb.
+    config = BuildConfig.model_validate({"linking": {"curb_gap_max_step": None, "level_route_length": None}})
     without = build_scene_graph(msm, config).graph
     assert len(without.places) == len(graph.places) - 1
     start, goal = nearest(without, 3.0, 2.5, ASPHALT), nearest(without, 27.0, 9.0, SIDEWALK)

@@ -1,0 +1,437 @@
+"""Level routes: pieces of the places graph that no level edge joins, joined along a path over
+level ground, with a place at each bend.
+
+Why: places stand on the GVD of each terrain (and on gaps in curbs), and their edges are straight
+lines. A robot that cannot climb a curb reaches the other side only where the graph has an edge
+through a curb cut, along a walk that bends to it, or over ground no terrain class covers (the
+ground a forward camera never labelled). The ground layers (terra.graph.ground) know where the
+ground is level; where two pieces of the graph meet on it, a path over it links them, and a
+place at each bend makes every edge of the path a straight line over level ground, which each
+robot's profile judges as it judges any edge (the graph stays the same for every robot).
+
+Rule (`level_routes`):
+- Pieces: connected components of the graph restricted to level edges (step at most `max_step`
+  metres, rise and fall at most `max_slope` degrees, at most `max_unobserved` metres of unobserved
+  ground in one stretch) between places with at least `clearance` metres of room.
+- Level cells: observed cells of the ground layers, not blocked, whose step is known and at most
+  `max_step` and whose slope is at most `max_slope`. Bad cells: blocked cells, and observed cells
+  that are not level. Cells without ground are neither: a curb hidden in a LiDAR shadow reads on
+  the cells beside the shadow (the step layer reads across it), which are bad.
+- Routes run on blocks of BLOCK x BLOCK cells (the search costs a quarter of what cells would): a
+  block is open when it holds a level cell, or lies in a run of at most 2 x HOLE blocks without
+  ground between blocks that do (ground scanned in rings), and no bad cell lies within
+  `clearance` metres of its cells. From each place, through the open block it stands in (else the
+  nearest open block within SNAP metres whose line from it is level), the cheapest 8-connected
+  path over open blocks (a diagonal move needs both blocks beside it open) reaches every block
+  within `max_length` metres; where two neighbouring blocks are reached from places of different
+  pieces, those two places could be joined by a route of that length. The cheapest route per pair
+  of pieces, cheapest first, is kept while it joins pieces not yet joined (Kruskal) and every
+  straight edge of it is level (terra.graph.ground.edge_geometry).
+- A route's blocks become a polyline: from each vertex, the farthest later block whose straight
+  line from it crosses only open cells (those of open blocks); each interior vertex is a new
+  place (the terrain of its cell, else of the route's nearer end; the ground height there; its
+  distance to the nearest bad cell as clearance).
+
+Only the neighbourhood of the pieces other than the largest is searched (blocks within
+`max_length` of their places): the largest piece is reached there or not at all.
+
+Frames and units: the grid's (terra.graph.grid); positions in the map frame, metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import ndimage
+from scipy import sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from terra.graph.ground import edge_geometry
+from terra.graph.gvd import EIGHT
+
+if TYPE_CHECKING:
+    from terra.graph.grid import TerrainGrid
+    from terra.graph.ground import GroundLayers
+
+MAX_UNOBSERVED = 5.0  # metres of unobserved ground a level edge crosses in one stretch (the built-in robots')
+BLOCK = 2  # cells per side of a route's block (0.8 m at the default 0.4 m cells)
+HOLE = 1  # blocks: runs of up to twice this blocks without ground, among level ones, count as level
+ROOM = 5.0  # metres: the largest clearance a route's place reads (a passage wider than 10 m is wide)
+SNAP = 1.2  # metres from a place to the open block it enters by (a place beside a curb or a wall)
+_NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))  # increasing flat offset
+
+
+@dataclass(frozen=True)
+class RouteRule:
+    """What counts as level and how far a route runs (module docstring): max_step metres,
+    max_slope degrees, max_unobserved metres, clearance metres, max_length metres."""
+
+    max_step: float
+    max_slope: float
+    max_unobserved: float
+    clearance: float
+    max_length: float
+
+
+@dataclass
+class LevelRoutes:
+    """New places at the bends of the routes: position (k, 3) metres, terrain (k,), clearance (k,)
+    metres; the routes' edges (m, 2) (i < j) between old (index < P) and new (P + i) places, their
+    lengths (m,) metres (3-D) and ground geometry (m, 4) (terra.graph.ground.edge_geometry)."""
+
+    position: np.ndarray
+    terrain: np.ndarray
+    clearance: np.ndarray
+    edges: np.ndarray
+    length: np.ndarray
+    geometry: np.ndarray
+
+    @classmethod
+    def none(cls) -> LevelRoutes:
+        z = np.zeros(0)
+        return cls(np.zeros((0, 3)), z.astype(np.int64), z, np.zeros((0, 2), np.int64), z, np.zeros((0, 4), np.float32))
+
+
+def level_routes(
+    position: np.ndarray,
+    terrain: np.ndarray,
+    clearance: np.ndarray,
+    edges: np.ndarray,
+    geometry: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers,
+    rule: RouteRule,
+) -> LevelRoutes:
+    """The routes that join the pieces of the graph of places (`position` (P, 3) metres, `terrain`
+    (P,), `clearance` (P,) metres) and `edges` (E, 2) with their ground `geometry` (E, 4)
+    (terra.graph.ground.edge_geometry) over the level ground of `layers` (module docstring)."""
+    position = np.asarray(position, dtype=np.float64)
+    piece = _pieces(len(position), edges, geometry, clearance, rule)
+    blocks = RouteBlocks.of(grid, layers, rule)
+    entry = blocks.entries(position, layers, rule)
+    source = np.flatnonzero((entry >= 0) & (clearance >= rule.clearance))
+    if len(np.unique(piece[source])) < 2:
+        return LevelRoutes.none()
+    largest = np.bincount(piece[source]).argmax()
+    graph, node, cell = blocks.graph(entry[source[piece[source] != largest]], rule.max_length)
+    cells, first = np.unique(entry[source], return_index=True)  # one place per block: the first
+    inside = node[cells] >= 0
+    owner_place = np.full(len(cell), -1, dtype=np.int64)
+    owner_place[node[cells[inside]]] = source[first[inside]]
+    dist, pred, origin = dijkstra(
+        graph, indices=node[cells[inside]], min_only=True, return_predecessors=True, limit=rule.max_length
+    )
+    owner = np.where(origin >= 0, owner_place[np.maximum(origin, 0)], -1)
+    pairs = _candidates(graph, dist, owner, piece, rule.max_length)
+    routes = [
+        route_through(blocks, layers, position, cell[_route_nodes(pred, u, v)], (int(owner[u]), int(owner[v])))
+        for u, v in pairs.tolist()
+    ]
+    level = _judge(routes, position, layers, rule)
+    built = RouteBuilder(position, terrain, blocks)
+    root = np.arange(len(piece))
+
+    def find(k: int) -> int:
+        while root[k] != k:
+            root[k] = root[root[k]]
+            k = int(root[k])
+        return k
+
+    for route, ok in zip(routes, level, strict=True):  # cheapest first, while it joins new pieces
+        a, b = find(int(piece[route.ends[0]])), find(int(piece[route.ends[1]]))
+        if ok and a != b:
+            built.add(route)
+            root[max(a, b)] = min(a, b)
+    return built.result()
+
+
+def _level(geometry: np.ndarray, rule: RouteRule) -> np.ndarray:
+    """(E,) bool: edges whose ground geometry (E, 4) is level under `rule` both ways."""
+    g = np.asarray(geometry, dtype=np.float64).reshape(-1, 4)
+    level = (g[:, 0] <= rule.max_step) & (g[:, 1] <= rule.max_slope) & (g[:, 2] <= rule.max_slope)
+    return level & ~(g[:, 3] > rule.max_unobserved)
+
+
+def _pieces(n: int, edges: np.ndarray, geometry: np.ndarray, clearance: np.ndarray, rule: RouteRule) -> np.ndarray:
+    """(P,) piece of every place: components of the graph over level edges between places with room."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    level = _level(geometry, rule)
+    level &= (clearance[edges[:, 0]] >= rule.clearance) & (clearance[edges[:, 1]] >= rule.clearance)
+    kept = edges[level]
+    graph = sp.coo_matrix((np.ones(len(kept)), (kept[:, 0], kept[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+@dataclass
+class RouteBlocks:
+    """The blocks routes run on (module docstring): open (h, w) bool blocks of BLOCK x BLOCK cells
+    of `grid` (block (R, C) holds cells rows BLOCK R .. BLOCK R + BLOCK - 1, likewise columns);
+    bad (H, W) bool cells."""
+
+    grid: TerrainGrid
+    open: np.ndarray
+    bad: np.ndarray
+
+    @classmethod
+    def of(cls, grid: TerrainGrid, layers: GroundLayers, rule: RouteRule) -> RouteBlocks:
+        ok = (np.nan_to_num(layers.step, nan=np.inf) <= rule.max_step) & (
+            np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
+        )
+        H, W = grid.shape
+        level = np.zeros(H * W, dtype=bool)
+        level[layers.cells[ok]] = True
+        bad = np.zeros(H * W, dtype=bool)
+        bad[layers.cells[~ok]] = True
+        level, bad = level.reshape(H, W) & ~grid.blocked, bad.reshape(H, W) | grid.blocked
+        # No bad cell within `margin` cells of an open block's cells.
+        margin = max(int(np.ceil(rule.clearance / grid.cell_size - BLOCK / 2)), 0)
+        near_bad = _grown(bad, margin)
+        clear = ~_per_block(near_bad, True)
+        has_level = _per_block(level, False)
+        if HOLE > 0:  # blocks without ground among level ones (padded: a closing erodes from outside too)
+            closed = np.asarray(ndimage.binary_closing(np.pad(has_level, HOLE), EIGHT, iterations=HOLE))
+            has_level |= closed[HOLE:-HOLE, HOLE:-HOLE]
+        return cls(grid, has_level & clear, bad)
+
+    def centres(self, blocks: np.ndarray) -> np.ndarray:
+        """(k, 2) map-frame x, y (metres) of the centres of blocks (k,) (flat R w + C)."""
+        R, C = np.divmod(np.asarray(blocks, dtype=np.int64), self.open.shape[1])
+        g = self.grid
+        corner = np.column_stack([C, R]) * BLOCK + BLOCK / 2 + np.asarray(g.offset[::-1], dtype=np.float64)
+        return g.origin + corner * g.cell_size
+
+    def entries(self, position: np.ndarray, layers: GroundLayers, rule: RouteRule) -> np.ndarray:
+        """(P,) the open block (flat) each place enters the routes by: its own, else the nearest
+        within SNAP metres whose straight line from the place is level; -1 where none."""
+        h, w = self.open.shape
+        rows, cols, inside = self.grid.cell_of(position)
+        reach = int(np.ceil(SNAP / (BLOCK * self.grid.cell_size)))
+        dr, dc = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing="ij")
+        R = np.clip(rows[:, None] // BLOCK + dr.ravel(), 0, h - 1)
+        C = np.clip(cols[:, None] // BLOCK + dc.ravel(), 0, w - 1)
+        flat = R * w + C
+        d = np.linalg.norm(self.centres(flat.ravel()).reshape(*flat.shape, 2) - position[:, None, :2], axis=2)
+        own = rows // BLOCK * w + cols // BLOCK
+        d = np.where(flat == own[:, None], 0.0, d)  # a place's own block first
+        d = np.where(self.open.ravel()[flat] & inside[:, None], d, np.inf)
+        best = np.argmin(d, axis=1)
+        entry = np.where(d[np.arange(len(d)), best] <= SNAP, flat[np.arange(len(d)), best], -1)
+        moved = np.flatnonzero((entry >= 0) & (entry != own))
+        if len(moved):
+            xy = self.centres(entry[moved])
+            ends = np.vstack([position[moved], np.column_stack([xy, ground_height(self.grid, layers, xy)])])
+            pairs = np.column_stack([np.arange(len(moved)), np.arange(len(moved)) + len(moved)])
+            entry[moved[~_level(edge_geometry(layers, ends, pairs), rule)]] = -1
+        return entry
+
+    def graph(self, near: np.ndarray, reach: float) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+        """The 8-connected graph (metres) of the open blocks within `reach` metres (a square) of the
+        blocks `near` (k,); node (h w,) of each block (-1: none) and block (n,) of each node."""
+        h, w = self.open.shape
+        k = int(np.ceil(reach / (BLOCK * self.grid.cell_size)))
+        seed = np.zeros(h * w, dtype=bool)
+        seed[near] = True
+        area = ndimage.maximum_filter(seed.reshape(h, w), size=2 * k + 1) & self.open
+        block = np.flatnonzero(area.ravel())
+        node = np.full(h * w, -1, dtype=np.int64)
+        node[block] = np.arange(len(block))
+        padded = np.pad(area, 1)
+        R, C = np.divmod(block, w)
+        neighbours, lengths = [], []
+        for dr, dc in _NEIGHBOURS:
+            ok = padded[R + 1 + dr, C + 1 + dc]
+            if dr and dc:  # a diagonal move needs both blocks beside it open
+                ok = ok & padded[R + 1 + dr, C + 1] & padded[R + 1, C + 1 + dc]
+            neighbours.append(np.where(ok, node[np.where(ok, block + dr * w + dc, 0)], -1))
+            lengths.append(BLOCK * self.grid.cell_size * np.hypot(dr, dc))
+        nb = np.column_stack(neighbours)
+        valid = nb >= 0
+        data = np.broadcast_to(np.asarray(lengths), nb.shape)[valid]
+        indptr = np.concatenate([[0], np.cumsum(valid.sum(axis=1))])
+        return sp.csr_matrix((data, nb[valid], indptr), shape=(len(block), len(block))), node, block
+
+
+def _grown(mask: np.ndarray, cells: int) -> np.ndarray:
+    """`mask` (H, W) bool grown by `cells` in each of the 8 directions (a square dilation)."""
+    out = mask.copy()
+    for _ in range(cells):
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        out = grown.copy()
+        out[:, 1:] |= grown[:, :-1]
+        out[:, :-1] |= grown[:, 1:]
+    return out
+
+
+def _per_block(mask: np.ndarray, pad: bool) -> np.ndarray:
+    """(h, w) bool: whether any cell of each BLOCK x BLOCK block of `mask` (H, W) is set (cells
+    past the grid's edge count as `pad`)."""
+    H, W = mask.shape
+    full = np.full((-(-H // BLOCK) * BLOCK, -(-W // BLOCK) * BLOCK), pad)
+    full[:H, :W] = mask
+    out = np.zeros((full.shape[0] // BLOCK, full.shape[1] // BLOCK), dtype=bool)
+    for dr in range(BLOCK):
+        for dc in range(BLOCK):
+            out |= full[dr::BLOCK, dc::BLOCK]
+    return out
+
+
+def ground_height(grid: TerrainGrid, layers: GroundLayers, xy: np.ndarray) -> np.ndarray:
+    """(k,) metres: the ground height at map-frame points `xy` (k, 2): the layers' where the point's
+    cell holds ground, else the grid's."""
+    at = layers.lookup(xy)
+    rows, cols, _ = grid.cell_of(xy)
+    height = layers.height_at(np.maximum(at, 0), xy) if len(layers.cells) else np.zeros(len(xy))
+    return np.where(at >= 0, height, grid.ground[rows, cols]).astype(np.float64)
+
+
+def _candidates(
+    graph: sp.csr_matrix, dist: np.ndarray, owner: np.ndarray, piece: np.ndarray, max_length: float
+) -> np.ndarray:
+    """(k, 2) pairs of neighbouring nodes (u, v) reached from places of different pieces: the
+    cheapest per pair of pieces (the path's length through them at most `max_length` metres),
+    cheapest first."""
+    coo = graph.tocoo()
+    u, v, step = coo.row, coo.col, coo.data
+    ok = (u < v) & (owner[u] >= 0) & (owner[v] >= 0)
+    u, v, step = u[ok], v[ok], step[ok]
+    ok = piece[owner[u]] != piece[owner[v]]
+    u, v, cost = u[ok], v[ok], dist[u[ok]] + dist[v[ok]] + step[ok]
+    keep = cost <= max_length
+    u, v, cost = u[keep], v[keep], cost[keep]
+    order = np.argsort(cost, kind="stable")
+    u, v = u[order], v[order]
+    pair = np.sort(np.column_stack([piece[owner[u]], piece[owner[v]]]), axis=1)
+    _, first = np.unique(pair, axis=0, return_index=True)
+    first = np.sort(first)
+    return np.column_stack([u[first], v[first]])
+
+
+def _route_nodes(pred: np.ndarray, u: int, v: int) -> np.ndarray:
+    """(k,) nodes of the route through neighbours u, v: from u's source node to v's."""
+    back = [u]
+    while pred[back[-1]] >= 0:
+        back.append(int(pred[back[-1]]))
+    ahead = [v]
+    while pred[ahead[-1]] >= 0:
+        ahead.append(int(pred[ahead[-1]]))
+    return np.asarray(back[::-1] + ahead, dtype=np.int64)
+
+
+def _lines_open(blocks: RouteBlocks, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k,) bool: whether each straight line from map-frame point a (2,) to b (k, 2) crosses only
+    open blocks (sampled every quarter cell)."""
+    g = blocks.grid
+    k = int(np.ceil(np.linalg.norm(b - a, axis=1).max(initial=0.0) / (g.cell_size / 4))) + 1
+    t = np.linspace(0.0, 1.0, k)[None, :, None]
+    point = a + t * (b[:, None, :] - a)  # (k lines, samples, 2)
+    rows, cols, inside = g.cell_of(point.reshape(-1, 2))
+    h, w = blocks.open.shape
+    ok = inside & blocks.open.ravel()[np.minimum(rows // BLOCK, h - 1) * w + np.minimum(cols // BLOCK, w - 1)]
+    return np.asarray(ok.reshape(len(b), k).all(axis=1))
+
+
+@dataclass
+class Route:
+    """One candidate route between places `ends`: its new places at xyz (k, 3) metres, each the
+    route's point `index` (k,) of `points` points, and its edges' ground geometry (k + 1, 4)."""
+
+    ends: tuple[int, int]
+    xyz: np.ndarray
+    index: np.ndarray
+    points: int
+    geometry: np.ndarray | None = None
+
+
+def route_through(
+    blocks: RouteBlocks, layers: GroundLayers, position: np.ndarray, path: np.ndarray, ends: tuple[int, int]
+) -> Route:
+    """The polyline of a route over blocks `path` (k,) (flat) between places `ends` (module
+    docstring): each place stands in its end block, or is linked to that block's centre (SNAP)."""
+    g = blocks.grid
+    xy = blocks.centres(path)
+    rows, cols, _ = g.cell_of(position[list(ends)])
+    own = rows // BLOCK * blocks.open.shape[1] + cols // BLOCK == path[[0, -1]]
+    for k, end in ((0, 0), (1, -1)):
+        if own[k]:
+            xy[end] = position[ends[k], :2]
+    vertex, i = [0], 0
+    while i < len(xy) - 1:  # from each vertex, the farthest point in a straight open line
+        seen = np.flatnonzero(_lines_open(blocks, xy[i], xy[i + 1 :]))
+        i = i + 1 + (int(seen[-1]) if len(seen) else 0)
+        vertex.append(i)
+    index = np.asarray(vertex, dtype=np.int64)
+    index = index[((index > 0) | ~own[0]) & ((index < len(xy) - 1) | ~own[1])]
+    return Route(ends, np.column_stack([xy[index], ground_height(g, layers, xy[index])]), index, len(xy))
+
+
+def _judge(routes: list[Route], position: np.ndarray, layers: GroundLayers, rule: RouteRule) -> np.ndarray:
+    """(r,) bool: whether every edge of each route is level; sets each route's edge geometry."""
+    points, pairs, at = [], [], 0
+    for r in routes:
+        chain = np.vstack([position[r.ends[0]], r.xyz, position[r.ends[1]]])
+        points.append(chain)
+        pairs.append(at + np.column_stack([np.arange(len(chain) - 1), np.arange(1, len(chain))]))
+        at += len(chain)
+    if not routes:
+        return np.zeros(0, dtype=bool)
+    geometry = edge_geometry(layers, np.vstack(points), np.vstack(pairs))
+    split = np.cumsum([len(r.xyz) + 1 for r in routes])[:-1]
+    level = []
+    for r, g in zip(routes, np.split(geometry, split), strict=True):
+        r.geometry = g
+        level.append(bool(_level(g, rule).all()))
+    return np.asarray(level, dtype=bool)
+
+
+class RouteBuilder:
+    """Collects the places and edges of accepted routes (module docstring)."""
+
+    def __init__(self, position: np.ndarray, terrain: np.ndarray, blocks: RouteBlocks) -> None:
+        self.position, self.terrain, self.blocks = position, terrain, blocks
+        self.parts: list[tuple[np.ndarray, ...]] = []
+        self.count = 0
+
+    def add(self, route: Route) -> None:
+        """Appends a judged route's places (terrain of their cell, else of the route's nearer end;
+        their room as clearance) and the chain of edges along it."""
+        g = self.blocks.grid
+        n = len(self.position) + self.count
+        chain = np.concatenate([[route.ends[0]], n + np.arange(len(route.xyz)), [route.ends[1]]])
+        rows, cols, _ = g.cell_of(route.xyz)
+        label = g.label[rows, cols].astype(np.int64)
+        nearer = np.where(route.index < route.points / 2, self.terrain[route.ends[0]], self.terrain[route.ends[1]])
+        edges = np.column_stack([chain[:-1], chain[1:]])
+        assert route.geometry is not None
+        self.parts.append(
+            (route.xyz, np.where(label >= 0, label, nearer), self._room(route.xyz), edges, route.geometry)
+        )
+        self.count += len(route.xyz)
+
+    def _room(self, xyz: np.ndarray) -> np.ndarray:
+        """(k,) metres from each point to the nearest bad cell's centre, less half a cell, at most ROOM."""
+        g = self.blocks.grid
+        k = int(np.ceil(ROOM / g.cell_size))
+        rows, cols, _ = g.cell_of(xyz)
+        out = np.full(len(xyz), ROOM)
+        for i, (r, c) in enumerate(zip(rows, cols, strict=True)):
+            r0, c0 = max(r - k, 0), max(c - k, 0)
+            found = np.argwhere(self.blocks.bad[r0 : r + k + 1, c0 : c + k + 1])
+            if len(found):
+                d = np.hypot(found[:, 0] + r0 - r, found[:, 1] + c0 - c).min()
+                out[i] = min(ROOM, d * g.cell_size - g.cell_size / 2)
+        return out
+
+    def result(self) -> LevelRoutes:
+        if not self.parts:
+            return LevelRoutes.none()
+        xyz, terrain, room, edges, geometry = (np.concatenate([p[k] for p in self.parts]) for k in range(5))
+        everything = np.vstack([self.position, xyz])
+        length = np.linalg.norm(everything[edges[:, 0]] - everything[edges[:, 1]], axis=1)
+        swap = edges[:, 0] > edges[:, 1]
+        geometry = geometry.copy()
+        geometry[swap] = geometry[swap][:, [0, 2, 1, 3]]  # rise and fall read the other way
+        return LevelRoutes(xyz, terrain.astype(np.int64), room, np.sort(edges, axis=1), length, geometry)

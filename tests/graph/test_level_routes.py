@@ -1,0 +1,206 @@
+"""Level routes (terra.graph.level_routes): pieces of the places graph joined along level ground,
+checked against the hand-made street's own surface, on hand-made layers, and end to end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from terra.errors import NoPathError
+from terra.graph.config import BuildConfig
+from terra.graph.grid import TerrainGrid
+from terra.graph.ground import GroundLayers, grid_layers
+from terra.graph.level_routes import RouteBlocks, RouteRule, level_routes
+from terra.graph.pipeline import build_scene_graph, terrain_grid
+from terra.graph.scene_graph import EDGE_LEVEL_ROUTE
+from terra.graph.storage import scene_graph_to_spark_json
+from terra.schemas import EdgeTerra
+from terra.tasks.planning import plan_path
+from terra.tasks.robot import ROBOTS
+from tests.graph.test_graph_crossings import ASPHALT, SIDEWALK, nearest, street_map
+
+RULE = RouteRule(max_step=0.05, max_slope=8.0, max_unobserved=5.0, clearance=0.45, max_length=40.0)
+CUT = (12.0, 15.0)  # metres: the curb cut's x extent
+NO_GAP_PLACES = {"linking": {"curb_gap_max_step": None}}
+
+
+def street_height(x: np.ndarray, y: np.ndarray, cut: bool = True) -> np.ndarray:
+    """The street's surface (metres): a road at 0 for y < 5, a sidewalk at 0.15 beyond a curb at
+    y = 5, and (with `cut`) a 3 m curb cut at x 12..15 ramping at 1:12 over y 5..6.8."""
+    z = np.where(y >= 5.0, 0.15, 0.0)
+    if cut:
+        ramp = (x >= CUT[0]) & (x <= CUT[1]) & (y >= 5.0) & (y < 6.8)
+        z = np.where(ramp, 0.15 * (y - 5.0) / 1.8, z)
+    return z
+
+
+def street(cut: bool = True, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) on `street_height` (x 0..30, y 0..12 m, 5 mm noise) and their terrain (N,)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform([0.0, 0.0], [30.0, 12.0], (90000, 2))
+    z = street_height(xy[:, 0], xy[:, 1], cut) + rng.normal(0.0, 0.005, len(xy))
+    return np.column_stack([xy, z]), np.where(xy[:, 1] >= 5.0, SIDEWALK, ASPHALT)
+
+
+def street_ground(cut: bool = True) -> tuple[TerrainGrid, GroundLayers]:
+    points, terrain = street(cut)
+    grid = terrain_grid(points, terrain.astype(np.int16), BuildConfig())
+    return grid, grid_layers(points, np.ones(len(points), dtype=bool), grid)
+
+
+def largest_true_step(waypoints: np.ndarray, cut: bool = True, spacing: float = 0.05) -> float:
+    """The largest jump of the street's own surface between samples `spacing` metres apart along
+    a polyline of waypoints (n, 2+) (a ramp of 1:12 rises 4 mm a sample; the curb 15 cm)."""
+    jumps = [0.0]
+    for a, b in zip(waypoints[:-1, :2], waypoints[1:, :2], strict=True):
+        t = np.linspace(0.0, 1.0, max(int(np.linalg.norm(b - a) / spacing), 1) + 1)[:, None]
+        xy = a + t * (b - a)
+        jumps.append(float(np.abs(np.diff(street_height(xy[:, 0], xy[:, 1], cut))).max(initial=0.0)))
+    return max(jumps)
+
+
+def curb_crossings(waypoints: np.ndarray) -> np.ndarray:
+    """x (metres) where each segment of a polyline (n, 2+) crosses the curb's line y = 5."""
+    a, b = waypoints[:-1], waypoints[1:]
+    across = (a[:, 1] - 5.0) * (b[:, 1] - 5.0) < 0
+    t = (5.0 - a[across, 1]) / (b[across, 1] - a[across, 1])
+    return a[across, 0] + t * (b[across, 0] - a[across, 0])
+
+
+def test_a_route_joins_the_road_to_the_walk_through_the_cut_and_bends_there():
+    grid, layers = street_ground()
+    # Two places with no edge between them: one on the road far west, one on the walk far east.
+    position = np.array([[3.0, 2.5, 0.0], [27.0, 9.0, 0.15]])
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    routes = level_routes(
+        position, np.array([ASPHALT, SIDEWALK]), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE
+    )
+    assert len(routes.position) >= 1  # the straight line crosses the curb: the route bends
+    chain = np.vstack([position, routes.position])
+    path = [0, *range(2, 2 + len(routes.position)), 1]
+    assert [tuple(e) for e in routes.edges] == [tuple(sorted(p)) for p in zip(path[:-1], path[1:], strict=True)]
+    waypoints = chain[path]
+    crossings = curb_crossings(waypoints)
+    assert len(crossings) == 1 and CUT[0] <= crossings[0] <= CUT[1]
+    assert largest_true_step(waypoints) <= 0.05
+    assert np.all(routes.geometry[:, 0] <= RULE.max_step)
+    assert np.all(routes.geometry[:, 1:3] <= RULE.max_slope)
+    assert np.all(routes.clearance >= RULE.clearance)
+    # Each new place stands on the surface, with the terrain of its cell.
+    assert np.allclose(routes.position[:, 2], street_height(routes.position[:, 0], routes.position[:, 1]), atol=0.03)
+    assert np.array_equal(routes.terrain, np.where(routes.position[:, 1] >= 5.0, SIDEWALK, ASPHALT))
+    # The length is the polyline's, at least the straight line's.
+    assert np.isclose(routes.length.sum(), np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum())
+    assert routes.length.sum() >= np.linalg.norm(position[1] - position[0])
+
+
+def test_no_route_over_a_curb_without_a_cut():
+    grid, layers = street_ground(cut=False)
+    position = np.array([[3.0, 2.5, 0.0], [27.0, 9.0, 0.15]])
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    routes = level_routes(
+        position, np.array([ASPHALT, SIDEWALK]), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE
+    )
+    assert len(routes.edges) == 0 and len(routes.position) == 0
+
+
+def test_routes_join_each_piece_once_cheapest_first():
+    # Three places in a row on level ground, no edges: pieces {0}, {1}, {2}. Routes 0-1 and 1-2
+    # (10 m each) join them; 0-2 (20 m) would join nothing new. Straight lines: no new places.
+    grid, layers = street_ground()
+    position = np.array([[5.0, 9.5, 0.15], [15.0, 9.5, 0.15], [25.0, 9.5, 0.15]])
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    routes = level_routes(position, np.full(3, SIDEWALK), np.full(3, 2.0), edges, geometry, grid, layers, RULE)
+    assert len(routes.position) == 0
+    assert sorted(map(tuple, routes.edges.tolist())) == [(0, 1), (1, 2)]
+    assert np.allclose(routes.length, 10.0, atol=0.01)
+    # Places already joined by a level edge make one piece: nothing to route.
+    level = np.zeros((2, 4), np.float32)
+    joined = level_routes(
+        position, np.full(3, SIDEWALK), np.full(3, 2.0), np.array([[0, 1], [1, 2]]), level, grid, layers, RULE
+    )
+    assert len(joined.edges) == 0
+    # An edge over the curb is no level edge: its places stay apart.
+    steep = np.array([[0.15, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]], np.float32)
+    apart = level_routes(
+        position, np.full(3, SIDEWALK), np.full(3, 2.0), np.array([[0, 1], [1, 2]]), steep, grid, layers, RULE
+    )
+    assert sorted(map(tuple, apart.edges.tolist())) == [(0, 1)]
+
+
+def flat_layers(shape: tuple[int, int], observed: np.ndarray, bad: np.ndarray) -> tuple[TerrainGrid, GroundLayers]:
+    """A level grid of 0.4 m cells: ground on the `observed` (H, W) cells, a 15 cm step on `bad` ones."""
+    H, W = shape
+    cells = np.flatnonzero(observed.ravel())
+    step = np.where(bad.ravel()[cells], 0.15, 0.0).astype(np.float32)
+    n = len(cells)
+    origin = np.zeros(2)
+    layers = GroundLayers(
+        cells, np.zeros(n, np.float32), np.zeros((n, 2), np.float32), step, np.zeros(n, np.float32), (H, W), origin, 0.4
+    )
+    grid = TerrainGrid(np.zeros(shape, np.int16), np.zeros(shape, np.float32), np.zeros(shape, bool), origin, 0.4)
+    return grid, layers
+
+
+def test_blocks_keep_clear_of_steps_and_cross_short_holes_only():
+    H, W = 20, 40
+    observed, bad = np.ones((H, W), bool), np.zeros((H, W), bool)
+    bad[10, 10] = True  # one cell of a step
+    observed[:, 20:22] = False  # a hole one block (0.8 m) wide: ground scanned in rings
+    observed[:, 30:38] = False  # a stretch four blocks (3.2 m) wide the sensor never saw
+    grid, layers = flat_layers((H, W), observed, bad)
+    blocks = RouteBlocks.of(grid, layers, RULE).open
+    # The step's block and the blocks within one cell of it (0.45 m of clearance) are closed.
+    assert not blocks[5, 5] and not blocks[4, 4] and not blocks[5, 4]
+    assert blocks[3, 3] and blocks[7, 7] and blocks[5, 7]
+    assert blocks[:, 10].all()  # the one-block hole, between level blocks
+    assert not blocks[2:-2, 15:19].any()  # the wide stretch, away from the grid's edges
+    # A route crosses the short hole and not the wide stretch; it bends around the step's cell,
+    # which the straight line from place 0 to place 1 (along y = 4.2) crosses.
+    position = np.array([[2.0, 4.2, 0.0], [11.0, 4.2, 0.0], [15.8, 4.2, 0.0]])
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    routes = level_routes(position, np.zeros(3, np.int64), np.full(3, 2.0), edges, geometry, grid, layers, RULE)
+    assert len(routes.position) >= 1 and not (routes.edges == 2).any()
+    chain = np.vstack([position, routes.position])
+    ends = np.bincount(routes.edges.ravel(), minlength=len(chain))
+    assert ends[0] == 1 and ends[1] == 1 and np.all(ends[3:] == 2)  # one chain from 0 to 1
+    step_cell = np.array([4.2, 4.2])
+    for a, b in chain[routes.edges][:, :, :2]:  # no leg passes within 0.45 m of the step's cell centre
+        t = np.clip(np.dot(step_cell - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+        assert np.linalg.norm(a + t * (b - a) - step_cell) > 0.45
+
+
+def test_a_built_street_without_gap_places_is_crossed_by_a_route():
+    msm = street_map(*street())
+    build = build_scene_graph(msm, BuildConfig.model_validate(NO_GAP_PLACES))
+    graph = build.graph
+    route = graph.place_edge_kind == EDGE_LEVEL_ROUTE
+    assert route.any() and build.stats.edges.level_route == int(route.sum())
+    start, goal = nearest(graph, 3.0, 2.5, ASPHALT), nearest(graph, 27.0, 9.0, SIDEWALK)
+    chair = plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
+    crossings = curb_crossings(chair.waypoints)
+    assert len(crossings) == 1 and CUT[0] <= crossings[0] <= CUT[1]
+    assert largest_true_step(chair.waypoints) <= 0.05
+    assert chair.ground is not None and chair.ground.max_step_m <= 0.05
+    # The places of a route count with their terrain; the stored edges name their kind.
+    assert sum(build.stats.places_per_terrain.values()) == len(graph.places)
+    stored = scene_graph_to_spark_json(graph)["edges"]
+    kinds = {e["info"]["metadata"]["terra"]["kind"] for e in stored if e["info"]["metadata"]}
+    assert "level_route" in kinds and EdgeTerra.model_validate({"kind": "level_route"}).kind == "level_route"
+    # Without routes as well, the road and the walk meet only over the curb.
+    config = BuildConfig.model_validate({"linking": {"curb_gap_max_step": None, "level_route_length": None}})
+    without = build_scene_graph(msm, config).graph
+    assert not (without.place_edge_kind == EDGE_LEVEL_ROUTE).any()
+    start, goal = nearest(without, 3.0, 2.5, ASPHALT), nearest(without, 27.0, 9.0, SIDEWALK)
+    with pytest.raises(NoPathError):
+        plan_path(without, start, goal, robot=ROBOTS["wheelchair"])
+
+
+def test_a_street_without_a_cut_gets_no_route_and_no_wheelchair_path():
+    graph = build_scene_graph(street_map(*street(cut=False)), BuildConfig.model_validate(NO_GAP_PLACES)).graph
+    assert not (graph.place_edge_kind == EDGE_LEVEL_ROUTE).any()
+    start, goal = nearest(graph, 3.0, 2.5, ASPHALT), nearest(graph, 27.0, 9.0, SIDEWALK)
+    with pytest.raises(NoPathError):
+        plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
+    legged = plan_path(graph, start, goal, robot=ROBOTS["legged"])  # 20 cm: the curb is a step it takes
+    assert legged.ground is not None and legged.ground.max_step_m > 0.05
