@@ -48,7 +48,7 @@ from scipy import ndimage
 from scipy import sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-from terra.graph.ground import edge_geometry
+from terra.graph.ground import BRIDGE, edge_geometry
 from terra.graph.gvd import EIGHT
 
 if TYPE_CHECKING:
@@ -58,6 +58,10 @@ if TYPE_CHECKING:
 MAX_UNOBSERVED = 5.0  # metres of unobserved ground a level edge crosses in one stretch (the built-in robots')
 BLOCK = 2  # cells per side of a route's block (0.8 m at the default 0.4 m cells)
 HOLE = 1  # blocks: runs of up to twice this blocks without ground, among level ones, count as level
+# Cells without ground a leg of a route crosses in one stretch: the step layer reads a curb across
+# a stretch of up to BRIDGE - 1 cells (terra.graph.ground), not across a longer one (a 1.6 m
+# stretch in a curb's LiDAR shadow on the simulated campus read level on both sides).
+UNSEEN_CELLS = BRIDGE - 1
 ROOM = 5.0  # metres: the largest clearance a route's place reads (a passage wider than 10 m is wide)
 SNAP = 1.2  # metres from a place to the open block it enters by (a place beside a curb or a wall)
 _NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))  # increasing flat offset
@@ -369,7 +373,9 @@ def route_through(
 
 
 def _judge(routes: list[Route], position: np.ndarray, layers: GroundLayers, rule: RouteRule) -> np.ndarray:
-    """(r,) bool: whether every edge of each route is level; sets each route's edge geometry."""
+    """(r,) bool: whether every edge of each route is level, and where it crosses more than
+    UNSEEN_CELLS cells without ground in one stretch, level across it (`_level_across`); sets each
+    route's edge geometry."""
     points, pairs, at = [], [], 0
     for r in routes:
         chain = np.vstack([position[r.ends[0]], r.xyz, position[r.ends[1]]])
@@ -380,11 +386,35 @@ def _judge(routes: list[Route], position: np.ndarray, layers: GroundLayers, rule
         return np.zeros(0, dtype=bool)
     geometry = edge_geometry(layers, np.vstack(points), np.vstack(pairs))
     split = np.cumsum([len(r.xyz) + 1 for r in routes])[:-1]
+    unseen = UNSEEN_CELLS * layers.cell_size + 1e-6
+    legs = np.vstack(points)[np.vstack(pairs)]
     level = []
-    for r, g in zip(routes, np.split(geometry, split), strict=True):
+    for r, g, leg in zip(routes, np.split(geometry, split), np.split(legs, split), strict=True):
         r.geometry = g
-        level.append(bool(_level(g, rule).all()))
+        ok = bool(_level(g, rule).all())
+        for k in np.flatnonzero(g[:, 3] > unseen) if ok else ():
+            ok = _level_across(layers, leg[k, 0, :2], leg[k, 1, :2], unseen, rule.max_step)
+            if not ok:
+                break
+        level.append(ok)
     return np.asarray(level, dtype=bool)
+
+
+def _level_across(layers: GroundLayers, a: np.ndarray, b: np.ndarray, longer: float, max_step: float) -> bool:
+    """Whether the ground heights on the two sides of each stretch without ground longer than
+    `longer` metres, along the straight line from map-frame point a to b (2,) (sampled every half
+    cell), differ by at most `max_step` metres, with no slope read into them: across such a stretch
+    the step layer reads nothing, and a slope read beside a curb explains it away."""
+    spacing = layers.cell_size / 2
+    k = int(np.ceil(np.linalg.norm(b - a) / spacing)) + 1
+    point = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)
+    at = layers.lookup(point)
+    known = np.flatnonzero(at >= 0)
+    if len(known) < 2:
+        return False
+    height = layers.height_at(at[known], point[known])
+    across = np.diff(known) * (np.linalg.norm(b - a) / max(k - 1, 1)) > longer
+    return bool((np.abs(np.diff(height))[across] <= max_step).all())
 
 
 class RouteBuilder:

@@ -43,6 +43,7 @@ def street(cut: bool = True, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def street_ground(cut: bool = True) -> tuple[TerrainGrid, GroundLayers]:
+    """The street's terrain grid and ground layers."""
     points, terrain = street(cut)
     grid = terrain_grid(points, terrain.astype(np.int16), BuildConfig())
     return grid, grid_layers(points, np.ones(len(points), dtype=bool), grid)
@@ -102,6 +103,35 @@ def test_no_route_over_a_curb_without_a_cut():
         position, np.array([ASPHALT, SIDEWALK]), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE
     )
     assert len(routes.edges) == 0 and len(routes.position) == 0
+
+
+def gutter_ground(gap: tuple[float, float]) -> tuple[TerrainGrid, GroundLayers]:
+    """Level ground (x 0..20, y 0..12 m) rising at 4 degrees over y 3..4.4 to a 15 cm curb at
+    y = 5.2 beyond it, and no points over y in `gap` (a curb's LiDAR shadow)."""
+    rng = np.random.default_rng(1)
+    xy = rng.uniform([0.0, 0.0], [20.0, 12.0], (70000, 2))
+    xy = xy[(xy[:, 1] < gap[0]) | (xy[:, 1] >= gap[1])]
+    y = xy[:, 1]
+    rise = np.tan(np.radians(4.0)) * np.clip(y - 3.0, 0.0, 1.4)
+    z = rise + np.where(y >= 5.2, 0.15, 0.0) + rng.normal(0.0, 0.003, len(y))
+    points = np.column_stack([xy, z])
+    grid = terrain_grid(points, np.zeros(len(points), np.int16), BuildConfig())
+    return grid, grid_layers(points, np.ones(len(points), dtype=bool), grid)
+
+
+@pytest.mark.parametrize(("gap", "joined"), [((4.4, 6.0), False), ((4.4, 5.2), False), ((8.0, 8.8), True)])
+def test_a_route_crosses_ground_without_points_only_where_a_step_would_read(gap, joined):
+    # A curb in a 1.6 m stretch the sensor never saw (four cells): the step layer reads across
+    # three cells at most, and the slope before the stretch explains most of the curb away, so
+    # no route crosses it; nor a 0.8 m one, where the step reads. A 0.8 m stretch of the level
+    # top (ground scanned in rings) is crossed.
+    grid, layers = gutter_ground(gap)
+    position = np.array([[10.0, 1.5, 0.0], [10.0, 10.0, 0.25]])
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    if joined:
+        position = np.array([[10.0, 7.0, 0.25], [10.0, 10.0, 0.25]])
+    routes = level_routes(position, np.zeros(2, np.int64), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE)
+    assert (len(routes.edges) > 0) == joined
 
 
 def test_routes_join_each_piece_once_cheapest_first():
