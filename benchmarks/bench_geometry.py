@@ -19,8 +19,9 @@ Sections (each skipped when its input is not given):
   on the simulator's own ground (its analytic height field, sampled every 0.25 m, slopes over 1 m):
   paths over the profile's slope, and pairs whose free path is legal on that ground but for which
   the wheelchair got no path (a legal route missed).
-- build-time: `build_scene_graph` on `--campus-map` with build.ground.layers true and false,
-  alternating, best of `--repeat` runs each (wall and CPU seconds); with `--ground-before FILE`
+- build-time: `build_scene_graph` on `--campus-map` with build.ground.layers true and false, and
+  true without the level routes (build.linking.level_route_length null), alternating, best of
+  `--repeat` runs each (wall and CPU seconds); with `--ground-before FILE`
   (terra/graph/ground.py of another commit) its segmentation and layers as a third run. Then the
   whole `terra build` command, layers false and true, `--repeat` runs each in turn: the medians
   and the median of the paired ratios (what a user waits for: the map's loading and the
@@ -295,9 +296,9 @@ def wheelchair_on_map(bundle: Path, preset: str, seed: int, sim_config: Path | N
 
 
 def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dict[str, Any]:
-    """build_scene_graph seconds with the ground layers off and on, the runs alternating (one of
-    each per round, the order turning), best of `repeat` wall and CPU (process) seconds: on a
-    loaded 2-core machine the wall time of one run moves by a third. `before`: a ground.py of
+    """build_scene_graph seconds with the ground layers off, on, and on without level routes, the
+    runs alternating (one of each per round, the order turning), best of `repeat` wall and CPU
+    (process) seconds: on a loaded 2-core machine the wall time of one run moves by a third. `before`: a ground.py of
     another commit (`git show REV:terra/graph/ground.py > FILE`) whose segmentation and layers
     (map_ground, grid_layers) run a third configuration, "on_before", in the same process."""
     import importlib.util
@@ -312,6 +313,8 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
     runs: dict[str, tuple[Any, BuildConfig]] = {
         "off": (ground, BuildConfig.model_validate({"ground": {"layers": False}})),
         "on": (ground, BuildConfig()),
+        # the layers without the level routes over them (terra.graph.level_routes)
+        "on_without_routes": (ground, BuildConfig.model_validate({"linking": {"level_route_length": None}})),
     }
     if before is not None:
         spec = importlib.util.spec_from_file_location("ground_before", before)
