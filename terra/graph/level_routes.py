@@ -20,13 +20,17 @@ Rule (`level_routes`):
 - Routes run on blocks of BLOCK x BLOCK cells (the search costs a quarter of what cells would): a
   block is open when it holds a level cell, or lies in a run of at most 2 x HOLE blocks without
   ground between blocks that do (ground scanned in rings), and no bad cell lies within
-  `clearance` metres of its cells. From each place, through the open block it stands in (else the
+  `clearance` metres of its centre (in whole cells: at the defaults, the block and the ring of
+  cells around it). From each place, through the open block it stands in (else the
   nearest open block within SNAP metres whose line from it is level), the cheapest 8-connected
   path over open blocks (a diagonal move needs both blocks beside it open) reaches every block
   within `max_length` metres; where two neighbouring blocks are reached from places of different
   pieces, those two places could be joined by a route of that length. The cheapest route per pair
   of pieces, cheapest first, is kept while it joins pieces not yet joined (Kruskal) and every
-  straight edge of it is level (terra.graph.ground.edge_geometry).
+  straight edge of it is level (terra.graph.ground.edge_geometry); an edge that crosses more than
+  UNSEEN_CELLS cells without ground in one stretch, more than the step layer reads a curb across,
+  also needs the heights on the stretch's two sides within `max_step`, with no slope read into
+  them (a slope read beside a curb explains it away).
 - A route's blocks become a polyline: from each vertex, the farthest later block whose straight
   line from it crosses only open cells (those of open blocks); each interior vertex is a new
   place (the terrain of its cell, else of the route's nearer end; the ground height there; its
@@ -119,18 +123,18 @@ def level_routes(
     if len(np.unique(piece[source])) < 2:
         return LevelRoutes.none()
     largest = np.bincount(piece[source]).argmax()
-    graph, node, cell = blocks.graph(entry[source[piece[source] != largest]], rule.max_length)
-    cells, first = np.unique(entry[source], return_index=True)  # one place per block: the first
-    inside = node[cells] >= 0
-    owner_place = np.full(len(cell), -1, dtype=np.int64)
-    owner_place[node[cells[inside]]] = source[first[inside]]
+    graph, node, block_of = blocks.graph(entry[source[piece[source] != largest]], rule.max_length)
+    entered, first = np.unique(entry[source], return_index=True)  # one place per block: the first
+    inside = node[entered] >= 0
+    owner_place = np.full(len(block_of), -1, dtype=np.int64)
+    owner_place[node[entered[inside]]] = source[first[inside]]
     dist, pred, origin = dijkstra(
-        graph, indices=node[cells[inside]], min_only=True, return_predecessors=True, limit=rule.max_length
+        graph, indices=node[entered[inside]], min_only=True, return_predecessors=True, limit=rule.max_length
     )
     owner = np.where(origin >= 0, owner_place[np.maximum(origin, 0)], -1)
     pairs = _candidates(graph, dist, owner, piece, rule.max_length)
     routes = [
-        route_through(blocks, layers, position, cell[_route_nodes(pred, u, v)], (int(owner[u]), int(owner[v])))
+        route_through(blocks, layers, position, block_of[_route_nodes(pred, u, v)], (int(owner[u]), int(owner[v])))
         for u, v in pairs.tolist()
     ]
     level = _judge(routes, position, layers, rule)
@@ -189,7 +193,7 @@ class RouteBlocks:
         bad = np.zeros(H * W, dtype=bool)
         bad[layers.cells[~ok]] = True
         level, bad = level.reshape(H, W) & ~grid.blocked, bad.reshape(H, W) | grid.blocked
-        # No bad cell within `margin` cells of an open block's cells.
+        # No bad cell within `margin` cells of an open block's cells: BLOCK / 2 + margin cells >= clearance.
         margin = max(int(np.ceil(rule.clearance / grid.cell_size - BLOCK / 2)), 0)
         near_bad = _grown(bad, margin)
         clear = ~_per_block(near_bad, True)
