@@ -26,7 +26,8 @@ Rule (`level_routes`):
   path over open blocks (a diagonal move needs both blocks beside it open) reaches every block
   within `max_length` metres; where two neighbouring blocks are reached from places of different
   pieces, those two places could be joined by a route of that length. The cheapest route per pair
-  of pieces, cheapest first, is kept while it joins pieces not yet joined (Kruskal) and every
+  of pieces (before them, a straight edge from each place to the place of another piece that
+  entered its block first), cheapest first, is kept while it joins pieces not yet joined (Kruskal) and every
   straight edge of it is level (terra.graph.ground.edge_geometry); an edge that crosses more than
   UNSEEN_CELLS cells without ground in one stretch, more than the step layer reads a curb across,
   also needs the heights on the stretch's two sides within `max_step`, with no slope read into
@@ -132,8 +133,15 @@ def level_routes(
         graph, indices=node[entered[inside]], min_only=True, return_predecessors=True, limit=rule.max_length
     )
     owner = np.where(origin >= 0, owner_place[np.maximum(origin, 0)], -1)
-    pairs = _candidates(graph, dist, owner, piece, rule.max_length)
+    # A place whose block another place of another piece entered first: a straight edge to it.
+    holder = source[first][np.searchsorted(entered, entry[source])]
+    shared = (holder != source) & (piece[holder] != piece[source])
     routes = [
+        Route((int(a), int(b)), np.zeros((0, 3)), np.zeros(0, np.int64), 2)
+        for a, b in zip(holder[shared], source[shared])
+    ]
+    pairs = _candidates(graph, dist, owner, piece, rule.max_length)
+    routes += [
         route_through(blocks, layers, position, block_of[_route_nodes(pred, u, v)], (int(owner[u]), int(owner[v])))
         for u, v in pairs.tolist()
     ]

@@ -150,6 +150,10 @@ def test_routes_join_each_piece_once_cheapest_first():
         position, np.full(3, SIDEWALK), np.full(3, 2.0), np.array([[0, 1], [1, 2]]), level, grid, layers, RULE
     )
     assert len(joined.edges) == 0
+    # Two places of different pieces in one block: a straight edge joins them.
+    close = np.array([[5.0, 9.5, 0.15], [5.3, 9.3, 0.15], [15.0, 9.5, 0.15]])
+    both = level_routes(close, np.full(3, SIDEWALK), np.full(3, 2.0), edges, geometry, grid, layers, RULE)
+    assert sorted(map(tuple, both.edges.tolist())) == [(0, 1), (0, 2)]
     # An edge over the curb is no level edge: its places stay apart.
     steep = np.array([[0.15, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]], np.float32)
     apart = level_routes(
