@@ -196,16 +196,17 @@ class RouteBlocks:
             np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
         )
         H, W = grid.shape
-        level = np.zeros(H * W, dtype=bool)
-        level[layers.cells[ok]] = True
-        bad = np.zeros(H * W, dtype=bool)
-        bad[layers.cells[~ok]] = True
-        level, bad = level.reshape(H, W) & ~grid.blocked, bad.reshape(H, W) | grid.blocked
+        # Whole-grid masks are a byte a cell: built in place, one at a time (a 2 km site has 25 M cells).
+        level = np.zeros((H, W), dtype=bool)
+        level.ravel()[layers.cells[ok]] = True
+        level[grid.blocked] = False
+        has_level = _per_block(level, False)
+        del level
+        bad = grid.blocked.copy()
+        bad.ravel()[layers.cells[~ok]] = True
         # No bad cell within `margin` cells of an open block's cells: BLOCK / 2 + margin cells >= clearance.
         margin = max(int(np.ceil(rule.clearance / grid.cell_size - BLOCK / 2)), 0)
-        near_bad = _grown(bad, margin)
-        clear = ~_per_block(near_bad, True)
-        has_level = _per_block(level, False)
+        clear = ~_per_block(_grown(bad, margin), True)
         if HOLE > 0:  # blocks without ground among level ones (padded: a closing erodes from outside too)
             closed = np.asarray(ndimage.binary_closing(np.pad(has_level, HOLE), EIGHT, iterations=HOLE))
             has_level |= closed[HOLE:-HOLE, HOLE:-HOLE]
@@ -251,7 +252,7 @@ class RouteBlocks:
         seed[near] = True
         area = ndimage.maximum_filter(seed.reshape(h, w), size=2 * k + 1) & self.open
         block = np.flatnonzero(area.ravel())
-        node = np.full(h * w, -1, dtype=np.int64)
+        node = np.full(h * w, -1, dtype=np.int32 if len(block) < 2**31 else np.int64)
         node[block] = np.arange(len(block))
         padded = np.pad(area, 1)
         R, C = np.divmod(block, w)
@@ -271,14 +272,15 @@ class RouteBlocks:
 
 def _grown(mask: np.ndarray, cells: int) -> np.ndarray:
     """`mask` (H, W) bool grown by `cells` in each of the 8 directions (a square dilation)."""
-    out = mask.copy()
+    out = mask
     for _ in range(cells):
-        grown = out.copy()
-        grown[1:] |= out[:-1]
-        grown[:-1] |= out[1:]
-        out = grown.copy()
-        out[:, 1:] |= grown[:, :-1]
-        out[:, :-1] |= grown[:, 1:]
+        rows = out.copy()
+        rows[1:] |= out[:-1]
+        rows[:-1] |= out[1:]
+        out = rows.copy()
+        out[:, 1:] |= rows[:, :-1]
+        out[:, :-1] |= rows[:, 1:]
+        del rows
     return out
 
 
