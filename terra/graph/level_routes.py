@@ -68,6 +68,7 @@ HOLE = 1  # blocks: runs of up to twice this blocks without ground, among level 
 # stretch in a curb's LiDAR shadow on the simulated campus read level on both sides).
 UNSEEN_CELLS = BRIDGE - 1
 ROOM = 5.0  # metres: the largest clearance a route's place reads (a passage wider than 10 m is wide)
+CANDIDATES = 3  # routes tried per pair of pieces, cheapest first, each between another pair of places
 SNAP = 1.2  # metres from a place to the open block it enters by (a place beside a curb or a wall)
 _NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))  # increasing flat offset
 
@@ -309,8 +310,9 @@ def ground_height(grid: TerrainGrid, layers: GroundLayers, xy: np.ndarray) -> np
 def _candidates(
     graph: sp.csr_matrix, dist: np.ndarray, owner: np.ndarray, piece: np.ndarray, max_length: float
 ) -> np.ndarray:
-    """(k, 2) pairs of neighbouring nodes (u, v) reached from places of different pieces: the
-    cheapest per pair of pieces (the path's length through them at most `max_length` metres),
+    """(k, 2) pairs of neighbouring nodes (u, v) reached from places of different pieces: per pair
+    of places the cheapest, and of those the CANDIDATES cheapest per pair of pieces (the path's
+    length through them at most `max_length` metres; the next is tried where one is not level),
     cheapest first."""
     coo = graph.tocoo()
     u, v, step = coo.row, coo.col, coo.data
@@ -322,10 +324,19 @@ def _candidates(
     u, v, cost = u[keep], v[keep], cost[keep]
     order = np.argsort(cost, kind="stable")
     u, v = u[order], v[order]
-    pair = np.sort(np.column_stack([piece[owner[u]], piece[owner[v]]]), axis=1)
-    _, first = np.unique(pair, axis=0, return_index=True)
+    places = np.sort(np.column_stack([owner[u], owner[v]]), axis=1)
+    _, first = np.unique(places, axis=0, return_index=True)  # the cheapest meeting of two places
     first = np.sort(first)
-    return np.column_stack([u[first], v[first]])
+    u, v = u[first], v[first]
+    pieces = np.sort(np.column_stack([piece[owner[u]], piece[owner[v]]]), axis=1)
+    _, group, count = np.unique(pieces, axis=0, return_inverse=True, return_counts=True)
+    group = group.ravel()
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    by_group = np.argsort(group, kind="stable")  # cheapest first within each pair of pieces
+    rank = np.empty(len(group), dtype=np.int64)
+    rank[by_group] = np.arange(len(group)) - start[group[by_group]]
+    keep = rank < CANDIDATES
+    return np.column_stack([u[keep], v[keep]])
 
 
 def _route_nodes(pred: np.ndarray, u: int, v: int) -> np.ndarray:
