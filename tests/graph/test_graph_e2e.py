@@ -12,6 +12,7 @@ from terra.bundle import Bundle, BundleWriter
 from terra.geometry import voxel_centres, voxel_keys
 from terra.graph.config import BuildConfig
 from terra.graph.pipeline import build_graph, build_scene_graph
+from terra.graph.scene_graph import EDGE_KINDS, EDGE_LEVEL_ROUTE
 from terra.graph.storage import GRAPH_JSON, load_scene_graph, scene_graph_to_spark_json, symbol_parts, write_scene_graph
 from terra.mapping.storage import load_map
 from terra.perception.text import normalize_rows
@@ -76,7 +77,11 @@ def test_places_graph_is_connected_with_typed_weighted_edges(small_graph):
     gvd = small_graph.place_edge_kind == 0
     chord = np.linalg.norm(np.diff(small_graph.places.position[e[gvd]], axis=1)[:, 0], axis=1)
     assert (small_graph.place_edge_weight[gvd] >= chord - 1e-9).all()
-    assert set(np.unique(small_graph.place_edge_kind)) <= {0, 1, 2}
+    assert set(np.unique(small_graph.place_edge_kind)) <= set(EDGE_KINDS)
+    # A leg of a level route costs its straight 3-D length (terra.graph.level_routes).
+    leg = small_graph.place_edge_kind == EDGE_LEVEL_ROUTE
+    straight = np.linalg.norm(np.diff(small_graph.places.position[e[leg]], axis=1)[:, 0], axis=1)
+    assert np.allclose(small_graph.place_edge_weight[leg], straight)
     assert (small_graph.place_edge_kind == 1).any()  # terrains are linked to each other
 
 
