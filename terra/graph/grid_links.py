@@ -159,7 +159,7 @@ def _grid_path(
         return None
     (src_place, src_cell), (dst_place, dst_cell) = ends
     free[np.unravel_index(np.concatenate([src_cell, dst_cell]), free.shape)] = True  # places sit on their mask
-    graph, step_len, step_off = cell_graph(free, ~on, s)
+    graph, step_len, step_off = _cell_graph(free, ~on, s)
     limit = rules.max_length + OFF_TERRAIN_WEIGHT * rules.max_gap
     dist, pred, _ = dijkstra(graph, indices=np.unique(src_cell), min_only=True, return_predecessors=True, limit=limit)
     reached = np.isfinite(dist[dst_cell])
@@ -205,7 +205,7 @@ def _places_in_window(
     return tuple(out)
 
 
-def cell_graph(free: np.ndarray, off: np.ndarray, s: float) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix]:
+def _cell_graph(free: np.ndarray, off: np.ndarray, s: float) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix]:
     """Symmetric 8-connected graphs over the free cells (h, w) (flat indices): the cost of each step
     (its length plus OFF_TERRAIN_WEIGHT times its length on `off` cells, half a step per end cell),
     its length and its length on `off` cells (metres)."""
