@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.cluster.hierarchy import DisjointSet
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
@@ -112,24 +113,16 @@ def link_pieces_on_grid(
     position = np.asarray(position, dtype=np.float64)
     terrain = np.asarray(terrain, dtype=np.int64)
     piece = terrain_pieces(terrain, edges)
-    root = np.arange(piece.max() + 1 if len(piece) else 0)
-
-    def find(k: int) -> int:
-        while root[k] != k:
-            root[k] = root[root[k]]
-            k = root[k]
-        return int(k)
-
+    joined = DisjointSet(range(piece.max() + 1 if len(piece) else 0))
     found, cost = [], []
     for a, b in candidate_pairs(position, terrain, piece, reach, candidates):
-        ra, rb = find(int(piece[a])), find(int(piece[b]))
-        if ra == rb:
+        if joined.connected(int(piece[a]), int(piece[b])):
             continue
         path = _grid_path(position, terrain, piece, a, b, rules)
         if path is None:
             continue
         i, j, length = path
-        root[max(ra, rb)] = min(ra, rb)
+        joined.merge(int(piece[a]), int(piece[b]))
         found.append((min(i, j), max(i, j)))
         cost.append(float(np.hypot(length, position[i, 2] - position[j, 2])))
     if not found:

@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import ndimage
 from scipy import sparse as sp
+from scipy.cluster.hierarchy import DisjointSet
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from terra.graph.ground import BRIDGE, edge_geometry
@@ -148,19 +149,10 @@ def level_routes(
     ]
     level = _judge(routes, position, layers, rule)
     built = RouteBuilder(position, terrain, blocks)
-    root = np.arange(len(piece))
-
-    def find(k: int) -> int:
-        while root[k] != k:
-            root[k] = root[root[k]]
-            k = int(root[k])
-        return k
-
+    joined = DisjointSet(range(int(piece.max()) + 1))
     for route, ok in zip(routes, level, strict=True):  # cheapest first, while it joins new pieces
-        a, b = find(int(piece[route.ends[0]])), find(int(piece[route.ends[1]]))
-        if ok and a != b:
+        if ok and joined.merge(int(piece[route.ends[0]]), int(piece[route.ends[1]])):
             built.add(route)
-            root[max(a, b)] = min(a, b)
     return built.result()
 
 
