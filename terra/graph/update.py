@@ -355,11 +355,9 @@ def _cut_long(
 
 def _grow(mask: np.ndarray, tiles: int) -> np.ndarray:
     """`mask` grown by `tiles` squares in every direction (chessboard)."""
-    from scipy import ndimage
-
     if tiles <= 0:
         return mask.copy()
-    return ndimage.binary_dilation(mask, EIGHT, iterations=tiles)
+    return raster.grown(mask, tiles)
 
 
 @dataclass

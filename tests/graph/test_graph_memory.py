@@ -59,3 +59,18 @@ def test_terrain_index_in_chunks_equals_the_hand_worked_majority():
         got = terrain_winners(msm.terrain_votes, 0.5, dtype=np.int16, chunk=chunk)
         assert got.dtype == np.int16 and got.tolist() == expected
     assert msm.terrain_index(0.6).tolist() == [-1, 0, -1, -1, 2, -1]
+
+
+def test_grown_equals_binary_dilation_with_eight_neighbours():
+    from scipy import ndimage
+
+    from terra.graph import raster
+
+    rng = np.random.default_rng(5)
+    for shape, cells in (((1, 1), 1), ((7, 3), 2), ((40, 55), 1), ((40, 55), 3), ((23, 31), 9)):
+        mask = rng.random(shape) < 0.03
+        mask[0, -1] = True  # a corner: nothing beyond the edge counts
+        expected = ndimage.binary_dilation(mask, EIGHT, iterations=cells)
+        assert np.array_equal(raster.grown(mask, cells), expected), (shape, cells)
+    mask = rng.random((9, 9)) < 0.2
+    assert raster.grown(mask, 0) is mask
