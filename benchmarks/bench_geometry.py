@@ -296,11 +296,13 @@ def wheelchair_on_map(bundle: Path, preset: str, seed: int, sim_config: Path | N
 
 
 def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dict[str, Any]:
-    """build_scene_graph seconds with the ground layers off, on, and on without level routes, the
-    runs alternating (one of each per round, the order turning), best of `repeat` wall and CPU
+    """build_scene_graph seconds with the ground layers off, on, on without level routes, and on
+    with the layers after the terrain grid instead of beside it on a second thread, the runs
+    alternating (one of each per round, the order turning), best of `repeat` wall and CPU
     (process) seconds: on a loaded 2-core machine the wall time of one run moves by a third. `before`: a ground.py of
     another commit (`git show REV:terra/graph/ground.py > FILE`) whose segmentation and layers
-    (map_ground, grid_layers) run a third configuration, "on_before", in the same process."""
+    (points_ground, ground_layers, and beside_obstacles where it has one) run one more
+    configuration, "on_before", in the same process."""
     import importlib.util
 
     from terra.bundle import Bundle
@@ -315,6 +317,8 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
         "on": (ground, BuildConfig()),
         # the layers without the level routes over them (terra.graph.level_routes)
         "on_without_routes": (ground, BuildConfig.model_validate({"linking": {"level_route_length": None}})),
+        # the segmentation and the layers after the terrain grid, not beside it on a second thread
+        "on_one_thread": (ground, BuildConfig.model_validate({"ground": {"beside_grid_points": 0}})),
     }
     if before is not None:
         spec = importlib.util.spec_from_file_location("ground_before", before)
@@ -328,7 +332,8 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
     for round_ in range(repeat + 1):  # round 0 warms the caches and is not counted
         for name in names[round_ % len(names) :] + names[: round_ % len(names)]:
             module, config = runs[name]
-            pipeline.grid_layers, pipeline.map_ground = module.grid_layers, module.map_ground
+            pipeline.points_ground, pipeline.ground_layers = module.points_ground, module.ground_layers
+            pipeline.beside_obstacles = getattr(module, "beside_obstacles", ground.beside_obstacles)
             wall, cpu = time.perf_counter(), time.process_time()
             build = pipeline.build_scene_graph(msm, config)
             wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
@@ -337,7 +342,8 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
                 seconds[name].append((wall, cpu, stages))
             if name == "on":
                 out["places"] = len(build.graph.places)
-    pipeline.grid_layers, pipeline.map_ground = ground.grid_layers, ground.map_ground
+    pipeline.points_ground, pipeline.ground_layers = ground.points_ground, ground.ground_layers
+    pipeline.beside_obstacles = ground.beside_obstacles
     for name, values in seconds.items():
         best = np.min(np.array(values), axis=0)
         out[name] = {"wall_s": round(float(best[0]), 3), "cpu_s": round(float(best[1]), 3)}

@@ -148,7 +148,8 @@ def map_bundle(old: ModuleType, path: Path) -> None:
     mine, t_new = timed(new.points_ground, msm.points, config.ground)
     same(f"segment {path}", ground, mine)
     names, terrains = pipeline.terrains_to_build(msm, config)
-    grid, _ = pipeline._map_grid(msm, names, terrains, config)  # pyright: ignore[reportPrivateUsage]
+    point_terrain = pipeline._point_terrain(msm, names, terrains, config)  # pyright: ignore[reportPrivateUsage]
+    grid = pipeline.terrain_grid(msm.points, point_terrain, config)
     a, l_old = timed(old.grid_layers, msm.points, ground, grid)
     b, l_new = timed(new.grid_layers, msm.points, ground, grid)
     same_layers(f"grid_layers {path}", a, b)

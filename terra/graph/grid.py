@@ -36,6 +36,11 @@ class TerrainGrid:
     def shape(self) -> tuple[int, int]:
         return self.label.shape
 
+    @property
+    def frame(self) -> GridFrame:
+        """Where the grid lies (origin, shape, cell size, offset)."""
+        return GridFrame((float(self.origin[0]), float(self.origin[1])), self.shape, self.cell_size, self.offset)
+
     def cell_centres(self, cells: np.ndarray) -> np.ndarray:
         """(n, 2) map-frame x, y (metres) of the centres of (n, 2) row/col cells."""
         cells = np.asarray(cells, dtype=np.float64).reshape(-1, 2) + np.asarray(self.offset, dtype=np.float64)

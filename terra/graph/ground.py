@@ -894,13 +894,19 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
     points of an object (a car's sill, a planter's rim) pass for ground and read as steps of a few
     centimetres, while a curb in the gap between two cars parked nose to it is read across the
     curb, clear of both cars."""
-    frame = GridFrame((float(grid.origin[0]), float(grid.origin[1])), grid.shape, grid.cell_size, grid.offset)
-    layers = ground_layers(np.asarray(points)[ground], frame)
-    if beside > 0 and grid.blocked.any():
-        near = raster.grown(grid.blocked, beside)
+    return beside_obstacles(ground_layers(np.asarray(points)[ground], grid.frame), grid.blocked, beside)
+
+
+def beside_obstacles(layers: GroundLayers, blocked: np.ndarray, beside: int = BESIDE) -> GroundLayers:
+    """`layers` (of the ground points alone, `ground_layers`) with the steps within `beside` cells
+    of a `blocked` (H, W) bool cell of their grid read again clear of the blocked cells, and
+    those cells flagged `near_obstacle` (`grid_layers`); in place, and returned. The only part of
+    the layers that needs the terrain grid: the rest is computed beside it (terra.graph.pipeline)."""
+    if beside > 0 and blocked.any():
+        near = raster.grown(blocked, beside)
         layers.near_obstacle = near.ravel()[layers.cells]
         index = np.flatnonzero(layers.near_obstacle)
-        layers.step[index] = steps_clear_of(layers, grid.blocked, index)
+        layers.step[index] = steps_clear_of(layers, blocked, index)
     return layers
 
 

@@ -13,21 +13,23 @@ from typing import Any
 
 import numpy as np
 
+from terra.background import Background, usable_cores
 from terra.bundle import Bundle, BundleWriter
 from terra.errors import TerraError
 from terra.graph.agglomerative import AdaptiveCuts, agglomerative_assignments
-from terra.graph.config import BuildConfig, check_region_method
+from terra.graph.config import BuildConfig, GroundSection, check_region_method
 from terra.graph.crossings import CrossingRule, gap_places, level_links
 from terra.graph.embedding import image_embeddings, point_embeddings
-from terra.graph.grid import TerrainGrid, block_under_objects, build_terrain_grid, grid_frame
+from terra.graph.grid import GridFrame, TerrainGrid, block_under_objects, build_terrain_grid, grid_frame
 from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
 from terra.graph.ground import (
     GroundLayers,
     as_ground_terrain,
+    beside_obstacles,
     edge_geometry,
-    grid_layers,
+    ground_layers,
     has_terrain_votes,
-    map_ground,
+    points_ground,
     step_lines,
 )
 from terra.graph.level_routes import MAX_UNOBSERVED, RouteRule, level_routes
@@ -416,17 +418,14 @@ def build_scene_graph(
     ids are the indices."""
     config = config or BuildConfig()
     timer = StageTimer()
-    with timer.stage("ground"):
-        ground = map_ground(msm, config.ground)
-    lidar_only = ground is not None and not has_terrain_votes(msm)
-    if lidar_only:  # LiDAR only: places on the segmented ground
-        assert ground is not None
+    lidar_only = not has_terrain_votes(msm)
+    ground = None
+    if lidar_only:  # LiDAR only: places on the segmented ground, which the grid needs first
+        with timer.stage("ground"):
+            ground = points_ground(msm.points, config.ground)
         msm = as_ground_terrain(msm, ground)
     names, terrains = terrains_to_build(msm, config)
-    with timer.stage("terrain grid"):
-        grid, grid_stats = _map_grid(msm, names, terrains, config)
-    with timer.stage("ground layers"):
-        layers = grid_layers(msm.points, ground, grid) if ground is not None and config.ground.layers else None
+    grid, grid_stats, layers = _grid_and_layers(msm, ground, names, terrains, config, timer)
     with timer.stage("GVD places"):
         barrier = gvd_barrier(layers, config, lidar_only)
         places, traversable, counts = terrain_places(grid, terrains, config, show_progress, barrier)
@@ -558,10 +557,42 @@ def terrains_to_build(msm: MetricSemanticMap, config: BuildConfig) -> tuple[list
     return names, [names.index(n) for n in config.terrain.include]
 
 
-def _map_grid(
-    msm: MetricSemanticMap, names: list[str], terrains: list[int], config: BuildConfig
-) -> tuple[TerrainGrid, TiledGridStats]:
-    """The terrain grid of the map points whose terrain is one of `terrains`, and how it was tiled."""
+def _grid_and_layers(
+    msm: MetricSemanticMap,
+    ground: np.ndarray | None,
+    names: list[str],
+    terrains: list[int],
+    config: BuildConfig,
+    timer: StageTimer,
+) -> tuple[TerrainGrid, TiledGridStats, GroundLayers | None]:
+    """The terrain grid of the map points whose terrain is one of `terrains`, how it was tiled, and
+    with `build.ground.layers` the ground layers on it (None without). The layers need of the grid
+    only its frame, known before it, and its blocked cells (`beside_obstacles`, at the end): the
+    ground's segmentation (unless `ground` (N,) bool gives it, as for a LiDAR-only map, whose grid
+    is built on it) and the layers run on a second thread while the grid is built, and on two cores
+    add to a build's wall time only what outlasts the grid."""
+    point_terrain = _point_terrain(msm, names, terrains, config)
+    frame = grid_frame(msm.points, point_terrain, config.grid.cell_size)
+    section = config.ground
+    beside = None
+    if section.layers and len(msm.points) <= section.beside_grid_points and usable_cores() > 1:
+        beside = Background(_layers_on_frame, msm.points, ground, frame, section, name="terra-ground")
+    with timer.stage("terrain grid"):
+        grid_stats = TiledGridStats()
+        grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
+    del point_terrain  # no later stage reads it
+    if not section.layers:
+        return grid, grid_stats, None
+    with timer.stage("ground layers"):
+        layers = beside.result() if beside is not None else _layers_on_frame(msm.points, ground, frame, section)
+        if grid.frame != frame:  # terrain_grid and grid_frame disagree: a defect, never a user's error
+            raise RuntimeError(f"the terrain grid's frame {grid.frame} is not the one the layers took, {frame}")
+        return grid, grid_stats, beside_obstacles(layers, grid.blocked)
+
+
+def _point_terrain(msm: MetricSemanticMap, names: list[str], terrains: list[int], config: BuildConfig) -> np.ndarray:
+    """(N,) int16 terrain index of each map point that the grid is built on (one of `terrains`,
+    with a vote share of at least `terrain.min_share`), -1 for the others; TerraError when none is."""
     point_terrain = msm.terrain_index(config.terrain.min_share, dtype=np.int16)  # 2 bytes a point
     point_terrain[~np.isin(point_terrain, terrains)] = -1
     if not (point_terrain >= 0).any():
@@ -569,9 +600,17 @@ def _map_grid(
             f"the map has no terrain points (of {', '.join(names[t] for t in terrains)}) "
             f"with a vote share >= {config.terrain.min_share}"
         )
-    grid_stats = TiledGridStats()
-    grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
-    return grid, grid_stats  # point_terrain, which no later stage reads, goes here
+    return point_terrain
+
+
+def _layers_on_frame(
+    points: np.ndarray, ground: np.ndarray | None, frame: GridFrame, section: GroundSection
+) -> GroundLayers:
+    """The ground layers of the map points (N, 3) (metres) on `frame`, before the grid's blocked
+    cells are known (`ground_layers`); `ground` (N,) bool, or None to segment the points first."""
+    if ground is None:
+        ground = points_ground(points, section)
+    return ground_layers(np.asarray(points)[ground], frame)
 
 
 def place_links(

@@ -10,6 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from terra.bundle import Bundle, BundleWriter
 from terra.geometry import voxel_centres, voxel_keys
+from terra.graph import pipeline
 from terra.graph.config import BuildConfig
 from terra.graph.pipeline import build_graph, build_scene_graph
 from terra.graph.scene_graph import EDGE_KINDS, EDGE_LEVEL_ROUTE
@@ -45,6 +46,25 @@ def assert_proper_hierarchy(graph) -> None:
         region = graph.place_region(k)
         counts = np.bincount(region, minlength=len(graph.regions[k - 1]))
         assert counts.sum() == len(graph.places) and (counts > 0).all()
+
+
+def test_ground_layers_beside_the_grid_equal_those_after_it(small_map, monkeypatch):
+    """The segmentation and the layers on a second thread while the terrain grid is built (the
+    default on two cores) give the layers and the graph, to the last bit, that they give after
+    the grid on one thread."""
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 2)
+    started = []
+    background = pipeline.Background
+    monkeypatch.setattr(pipeline, "Background", lambda *a, **k: started.append(1) or background(*a, **k))
+    beside = build_scene_graph(small_map)
+    after = build_scene_graph(small_map, BuildConfig.model_validate({"ground": {"beside_grid_points": 0}}))
+    assert started == [1]  # the first build only
+    assert beside.ground is not None and after.ground is not None
+    assert beside.ground.near_obstacle is not None and beside.ground.near_obstacle.any()
+    for name in ("cells", "height", "gradient", "step", "roughness", "near_obstacle"):
+        np.testing.assert_array_equal(getattr(beside.ground, name), getattr(after.ground, name), err_msg=name)
+    np.testing.assert_array_equal(beside.graph.places.position, after.graph.places.position)
+    np.testing.assert_array_equal(beside.graph.place_edge_geometry, after.graph.place_edge_geometry)
 
 
 def test_places_lie_on_their_own_terrain_in_the_ground_truth(small_graph, small_campus):

@@ -11,6 +11,8 @@ import pytest
 
 from terra.bundle import Bundle
 from terra.cli import run
+from terra.graph import pipeline
+from terra.graph.config import BuildConfig
 from terra.graph.grid import GridFrame
 from terra.graph.ground import (
     GroundLayers,
@@ -495,6 +497,18 @@ def test_a_map_of_bare_points_builds_places_on_the_ground():
     assert np.array_equal(whole.cells, bands.cells)
     for name in ("height", "gradient", "step", "roughness"):
         np.testing.assert_array_equal(getattr(whole, name), getattr(bands, name), err_msg=name)
+
+
+def test_a_lidar_only_maps_layers_beside_its_grid_equal_those_after_it(monkeypatch):
+    """A LiDAR-only map segments its ground first (its grid is built on it); its layers, computed
+    on a second thread while that grid is built, are those computed after it, to the last bit."""
+    monkeypatch.setattr(pipeline, "usable_cores", lambda: 2)
+    points, _ = street()
+    beside = build_scene_graph(points_map(points)).ground
+    after = build_scene_graph(points_map(points), BuildConfig.model_validate({"ground": {"beside_grid_points": 0}}))
+    assert beside is not None and after.ground is not None and beside.near_obstacle is not None
+    for name in ("cells", "height", "gradient", "step", "roughness", "near_obstacle"):
+        np.testing.assert_array_equal(getattr(beside, name), getattr(after.ground, name), err_msg=name)
 
 
 def test_layers_do_not_depend_on_the_empty_cells_around_the_points():
