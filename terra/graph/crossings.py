@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import ndimage
 from scipy.spatial import cKDTree  # pyright: ignore[reportAttributeAccessIssue]  # stubless compiled scipy module
 
 from terra.graph import raster
@@ -114,12 +113,13 @@ def curb_gaps(
     # both levels and reads two half steps, or none): a cell is level only when no cell within
     # `margin` metres reads a step above the limit.
     reach = 2 * max(int(round(margin / cell_size)), 0) + 1
-    nearby = ndimage.maximum_filter(np.where(np.isfinite(step), step, np.float32(-1.0)), size=reach)
-    stepped = boundary & (nearby > max_step)
+    with np.errstate(invalid="ignore"):  # NaN (unknown) is no step
+        near_step = raster.grown(step > max_step, reach // 2)
+    stepped = boundary & near_step
     stepped_length = np.bincount(lines[stepped], minlength=count + 1) * cell_size
     curb = stepped_length >= min_width
     curb[0] = False
-    level = curb[lines] & np.isfinite(step) & (nearby <= max_step)
+    level = curb[lines] & np.isfinite(step) & ~near_step
     runs, found = raster.label(level, EIGHT, np.int32)
     if found == 0:
         return empty
