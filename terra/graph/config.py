@@ -478,7 +478,7 @@ class GroundSection(Section):
         ge=0,
         description="maps of at most this many points segment their ground and compute the layers on a second "
         "thread while the terrain grid is built: on two cores the layers then add about half as much to a build's "
-        "wall time, and about 150 bytes a map point to its peak memory; larger maps (and 0, or a single core) "
+        "wall time, and about 90 bytes a map point to its peak memory; larger maps (and 0, or a single core) "
         "compute them one after the other, the peak first",
     )
     barrier_step: float | None = Field(

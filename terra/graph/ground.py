@@ -103,7 +103,7 @@ def segment_ground(
     point is still ground, m; `standing_tolerance`: the same in a cell where something stands (a
     point STANDING[0] to STANDING[1] m above the cell's lowest point), at most `tolerance`; None
     for `tolerance` everywhere. A point without a finite position is not ground."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = _float_points(points)
     if not np.isfinite(pts).all():  # a scan's NaN returns (no echo): judged apart, never ground
         finite = np.isfinite(pts).all(axis=1)
         out = np.zeros(len(pts), dtype=bool)
@@ -113,17 +113,20 @@ def segment_ground(
         return out
     if len(pts) == 0:
         return np.zeros(0, dtype=bool)
-    cells = _cell_of(pts, np.array([pts[:, 0].min(), pts[:, 1].min()]), cell_size)
+    cells = _cell_of(pts, np.array([pts[:, 0].min(), pts[:, 1].min()], dtype=np.float64), cell_size)
     W, H = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
     flat = cells[:, 1] * W + cells[:, 0]
+    del cells
+    z = pts[:, 2].astype(np.float64)  # the heights in float64, whatever the points' type
     # float32 relative to the lowest point: the filters below run twice as fast, to 1e-5 m
-    base = float(pts[:, 2].min())
+    base = float(z.min())
     lowest = np.full(H * W, np.inf, dtype=np.float32)
-    np.minimum.at(lowest, flat, (pts[:, 2] - base).astype(np.float32))
+    np.minimum.at(lowest, flat, (z - base).astype(np.float32))
     lowest = lowest.reshape(H, W)
     has = np.isfinite(lowest)
     rows, cols = raster.nearest_zero(~has)
     surface = lowest[rows, cols]  # empty cells take the nearest lowest point
+    del rows, cols
     ground_cell = has.copy()
     previous = 0.0
     for width in windows:
@@ -136,17 +139,28 @@ def segment_ground(
         return np.zeros(len(pts), dtype=bool)
     rows, cols = raster.nearest_zero(~ground_cell)
     floor = lowest[rows, cols].ravel().astype(np.float64) + base
+    del rows, cols
     allowed = np.full(H * W, tolerance)
     if standing_tolerance is not None:
-        allowed[_standing_cells(pts[:, 2] - base - lowest.ravel()[flat], flat, H * W)] = min(
-            tolerance, standing_tolerance
-        )
-    return pts[:, 2] <= floor[flat] + allowed[flat]
+        allowed[_standing_cells(z - base - lowest.ravel()[flat], flat, H * W)] = min(tolerance, standing_tolerance)
+    floor += allowed  # the highest ground height of each cell (the floor's and the allowance's sum, as per point)
+    return z <= floor[flat]
+
+
+def _float_points(points: np.ndarray) -> np.ndarray:
+    """Points (N, 3) as an (N, 3) float32 or float64 array: a map's float32 points stay as they
+    are, without a float64 copy of the whole map (their coordinates are exact in float64, which
+    every computation on them is promoted to); anything else becomes float64."""
+    pts = np.asarray(points)
+    if pts.dtype not in (np.float32, np.float64):
+        pts = pts.astype(np.float64)
+    return pts.reshape(-1, 3)
 
 
 def _cell_of(points: np.ndarray, origin: np.ndarray, cell_size: float) -> np.ndarray:
     """(N, 2) int64 column and row of the `cell_size` cell of each point (N, 3+) (metres) on a
-    grid whose cell (0, 0) starts at `origin` (x, y metres): floor((xy - origin) / cell_size)."""
+    grid whose cell (0, 0) starts at `origin` (x, y metres, float64): floor((xy - origin) /
+    cell_size), in float64 (float32 points are promoted by the float64 origin)."""
     # In place on one (N, 2) copy: numpy's operations on the strided (N, 2) view of an (N, 3) array
     # (a reduction along axis 0 above all) take several times as long as these.
     cells = points[:, :2] - origin
@@ -262,8 +276,9 @@ SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before
 BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
 BEYOND = 2.0  # metres past an edge's end without ground its line is read for ground (_ground_past_unseen_ends)
-# Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M).
-BAND_CELLS = 1 << 18
+# Cells per band of rows computed at once: its temporaries stay in the CPU caches (2x faster than 4M),
+# about 185 bytes a cell at their peak; 2^16 to 2^18 take the same time on the campus map.
+BAND_CELLS = 1 << 17
 # Rows a cell's layers read on each side: the step reads heights up to BRIDGE + 1 rows away, each the
 # median of heights 1 row further, each moved to its cell's centre by a gradient reading 1 row further.
 # Cells a step may look across for the nearest observed height (axis_step): a 15 cm curb seen from its
@@ -282,17 +297,22 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
     H, W = frame.shape
     s = float(frame.cell_size)
     origin = np.asarray(frame.origin, dtype=np.float64)
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = _float_points(points)
     rc = _cell_of(pts, origin, s)
     rows, cols = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1]
     inside = np.flatnonzero((rows >= 0) & (rows < H) & (cols >= 0) & (cols < W))
+    del rows, cols
     # The points inside, by row: numpy sorts 16-bit integers by radix, several times faster.
-    key = rows[inside].astype(np.int16) if H < 1 << 15 else rows[inside]
-    order = inside[np.argsort(key, kind="stable")]
-    rows, cols, z, rc = rows[order], cols[order], pts[order, 2], rc[order]
+    key = rc[inside, 1] - frame.offset[0]
+    order = inside[np.argsort(key.astype(np.int16) if H < 1 << 15 else key, kind="stable")]
+    del inside, key
+    rc, ordered = rc[order], pts[order]
+    del order
+    rows, cols, z = rc[:, 1] - frame.offset[0], rc[:, 0] - frame.offset[1], ordered[:, 2].astype(np.float64)
     # Where each point lies in its cell, metres from the centre: the mean height of a cell is
     # that of its points' centroid, which on a slope is not the centre's.
-    within = (pts[order, :2] - origin) - (rc + 0.5) * s
+    within = (ordered[:, :2] - origin) - (rc + 0.5) * s
+    del rc, ordered
     reference = float(z.mean()) if len(z) else 0.0  # one for every band: bands equal the whole
     band = max(1, band_cells // max(W, 1))
     parts: list[tuple[np.ndarray, ...]] = []
@@ -308,16 +328,19 @@ def ground_layers(points: np.ndarray, frame: GridFrame, band_cells: int = BAND_C
         shape, keep = (hi - lo, c1 - c0), slice(r0 - lo, r1 - lo)
         observed, *layers = _band_layers(rows[sel] - lo, cols[sel] - c0, z[sel], within[sel], shape, s, reference, keep)
         row, col = np.divmod(observed, c1 - c0)
-        parts.append(((r0 + row) * W + col + c0, *layers))
+        # Stored as float32 band by band: the whole map's float64 layers are never held at once.
+        parts.append(((r0 + row) * W + col + c0, *(layer.astype(np.float32) for layer in layers)))
+    del rows, cols, z, within
     cells, height, gradient, step, roughness = (
-        np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in range(5)
+        np.concatenate([p[k] for p in parts]) if parts else np.zeros(0, np.float32) for k in range(5)
     )
+    parts.clear()
     return GroundLayers(
-        cells.astype(np.int64),
-        height.reshape(-1).astype(np.float32),
-        gradient.reshape(-1, 2).astype(np.float32),
-        step.reshape(-1).astype(np.float32),
-        roughness.reshape(-1).astype(np.float32),
+        cells.astype(np.int64, copy=False),
+        height.reshape(-1),
+        gradient.reshape(-1, 2),
+        step.reshape(-1),
+        roughness.reshape(-1),
         (int(H), int(W)),
         origin,
         s,
