@@ -123,18 +123,7 @@ def segment_ground(
     lowest = np.full(H * W, np.inf, dtype=np.float32)
     np.minimum.at(lowest, flat, (z - base).astype(np.float32))
     lowest = lowest.reshape(H, W)
-    has = np.isfinite(lowest)
-    rows, cols = raster.nearest_zero(~has)
-    surface = lowest[rows, cols]  # empty cells take the nearest lowest point
-    del rows, cols
-    ground_cell = has.copy()
-    previous = 0.0
-    for width in windows:
-        size = max(3, 2 * int(round(width / (2 * cell_size))) + 1)
-        opened = np.asarray(ndimage.grey_opening(surface, size=(size, size)))
-        allowance = min(base_height + slope * (width - previous), max_height)
-        ground_cell &= surface - opened <= allowance
-        surface, previous = opened, width
+    ground_cell = _ground_cells(lowest, cell_size, windows, slope, base_height, max_height)
     if not ground_cell.any():
         return np.zeros(len(pts), dtype=bool)
     rows, cols = raster.nearest_zero(~ground_cell)
@@ -145,6 +134,31 @@ def segment_ground(
         allowed[_standing_cells(z - base - lowest.ravel()[flat], flat, H * W)] = min(tolerance, standing_tolerance)
     floor += allowed  # the highest ground height of each cell (the floor's and the allowance's sum, as per point)
     return z <= floor[flat]
+
+
+def _ground_cells(
+    lowest: np.ndarray,
+    cell_size: float,
+    windows: tuple[float, ...],
+    slope: float,
+    base_height: float,
+    max_height: float,
+) -> np.ndarray:
+    """(H, W) bool: the cells of the lowest-point surface `lowest` (H, W) (metres, +inf where a cell
+    holds no point) that the progressive openings keep as ground (`segment_ground`'s arguments)."""
+    has = np.isfinite(lowest)
+    rows, cols = raster.nearest_zero(~has)
+    surface = lowest[rows, cols]  # empty cells take the nearest lowest point
+    del rows, cols
+    ground_cell = has
+    previous = 0.0
+    for width in windows:
+        size = max(3, 2 * int(round(width / (2 * cell_size))) + 1)
+        opened = np.asarray(ndimage.grey_opening(surface, size=(size, size)))
+        allowance = min(base_height + slope * (width - previous), max_height)
+        ground_cell &= surface - opened <= allowance
+        surface, previous = opened, width
+    return ground_cell
 
 
 def _float_points(points: np.ndarray) -> np.ndarray:
