@@ -13,10 +13,15 @@ Rule (`level_routes`):
 - Pieces: connected components of the graph restricted to level edges (step at most `max_step`
   metres, rise and fall at most `max_slope` degrees, at most `max_unobserved` metres of unobserved
   ground in one stretch) between places with at least `clearance` metres of room.
-- Level cells: observed cells of the ground layers, not blocked, whose step is known and at most
-  `max_step` and whose slope is at most `max_slope`. Bad cells: blocked cells, and observed cells
-  that are not level. Cells without ground are neither: a curb hidden in a LiDAR shadow reads on
-  the cells beside the shadow (the step layer reads across it), which are bad.
+- Level cells: observed cells of the ground layers, not blocked, whose slope is at most
+  `max_slope` and whose step is at most `max_step` or unknown. A step is unknown where no ground
+  lies within the step layer's reach on either side along both axes: ground far from the sensor,
+  scanned in sparse rings. Such a cell is no evidence of a step, and the legs over it are judged
+  on the heights across the gaps between rings, as any leg over ground without points. (Read as
+  bad, these cells closed the open ground between rings on the LiDAR-only campus.) Bad cells:
+  blocked cells, and observed cells that are not level. Cells without ground are neither: a curb
+  hidden in a LiDAR shadow reads on the cells beside the shadow (the step layer reads across it),
+  which are bad.
 - Routes run on blocks of BLOCK x BLOCK cells (the search costs a quarter of what cells would): a
   block is open when it holds a level cell, or lies in a run of at most 2 x HOLE blocks without
   ground between blocks that do (ground scanned in rings), and no bad cell lies within
@@ -186,9 +191,10 @@ class RouteBlocks:
 
     @classmethod
     def of(cls, grid: TerrainGrid, layers: GroundLayers, rule: RouteRule) -> RouteBlocks:
-        ok = (np.nan_to_num(layers.step, nan=np.inf) <= rule.max_step) & (
-            np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
-        )
+        slope_ok = np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
+        ok = (np.nan_to_num(layers.step, nan=np.inf) <= rule.max_step) & slope_ok
+        # A cell whose step is unknown (sparse rings: module docstring) is no step either.
+        ok |= np.isnan(layers.step) & slope_ok
         H, W = grid.shape
         # Whole-grid masks are a byte a cell: built in place, one at a time (a 2 km site has 25 M cells).
         level = np.zeros((H, W), dtype=bool)

@@ -204,6 +204,40 @@ def test_blocks_keep_clear_of_steps_and_cross_short_holes_only():
         assert np.linalg.norm(a + t * (b - a) - step_cell) > 0.45
 
 
+def ring_layers(curb: bool) -> tuple[TerrainGrid, GroundLayers]:
+    """Level ground (x 0..24, y 0..8 m, 0.4 m cells) seen only in diagonal rings two cells wide,
+    six cells apart (far from the sensor): no cell has ground within four cells along x or y on
+    both sides, so every step reads unknown (NaN), while each ring's own cells fix the slope (0).
+    With `curb`, the ground beyond x = 12 m stands 15 cm higher."""
+    H, W = 20, 60
+    rows, cols = np.indices((H, W))
+    observed = ((rows + cols) % 6 < 2).ravel()
+    cells = np.flatnonzero(observed)
+    n = len(cells)
+    height = np.where(curb & (cells % W >= 30), 0.15, 0.0).astype(np.float32)
+    step = np.full(n, np.nan, np.float32)
+    layers = GroundLayers(
+        cells, height, np.zeros((n, 2), np.float32), step, np.zeros(n, np.float32), (H, W), np.zeros(2), 0.4
+    )
+    grid = TerrainGrid(
+        np.zeros((H, W), np.int16), np.zeros((H, W), np.float32), np.zeros((H, W), bool), np.zeros(2), 0.4
+    )
+    return grid, layers
+
+
+@pytest.mark.parametrize("curb", [False, True])
+def test_a_route_crosses_ground_seen_in_sparse_rings_unless_the_rings_differ_by_a_step(curb):
+    # The rings' unknown steps are no steps: their blocks open, and each leg is judged on the
+    # heights across the gaps between rings, where a curb between two rings reads 15 cm.
+    grid, layers = ring_layers(curb)
+    position = np.array([[2.0, 4.0, 0.0], [22.0, 4.0, 0.15 if curb else 0.0]])
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    routes = level_routes(position, np.zeros(2, np.int64), np.full(2, 2.0), edges, geometry, grid, layers, RULE)
+    assert (len(routes.edges) > 0) != curb
+    if not curb:
+        assert np.all(routes.geometry[:, 0] <= RULE.max_step) and np.all(routes.geometry[:, 3] <= RULE.max_unobserved)
+
+
 def test_a_built_street_without_gap_places_is_crossed_by_a_route():
     msm = street_map(*street())
     build = build_scene_graph(msm, BuildConfig.model_validate(NO_GAP_PLACES))
