@@ -889,14 +889,6 @@ def has_terrain_votes(msm: MetricSemanticMap) -> bool:
     return bool(msm.terrain_classes) and bool(np.any(msm.terrain_votes))
 
 
-def map_ground(msm: MetricSemanticMap, section: GroundSection) -> np.ndarray | None:
-    """(N,) bool ground flag of the map's points (`segment_ground` with the section's values), or
-    None when nothing needs it (the map has terrain votes and `layers` is off)."""
-    if not section.layers and has_terrain_votes(msm):
-        return None
-    return points_ground(msm.points, section)
-
-
 def points_ground(points: np.ndarray, section: GroundSection) -> np.ndarray:
     """(N,) bool ground flag of map points (N, 3) (metres), by `segment_ground` with the section's values."""
     return segment_ground(
