@@ -191,10 +191,10 @@ class RouteBlocks:
 
     @classmethod
     def of(cls, grid: TerrainGrid, layers: GroundLayers, rule: RouteRule) -> RouteBlocks:
-        slope_ok = np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
-        ok = (np.nan_to_num(layers.step, nan=np.inf) <= rule.max_step) & slope_ok
-        # A cell whose step is unknown (sparse rings: module docstring) is no step either.
-        ok |= np.isnan(layers.step) & slope_ok
+        # A cell whose step is unknown (sparse rings: module docstring) is no step; an unknown slope is.
+        ok = (np.nan_to_num(layers.step, nan=0.0) <= rule.max_step) & (
+            np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
+        )
         H, W = grid.shape
         # Whole-grid masks are a byte a cell: built in place, one at a time (a 2 km site has 25 M cells).
         level = np.zeros((H, W), dtype=bool)
