@@ -242,12 +242,17 @@ def _tile_cells(config: BuildConfig, shape: tuple[int, int]) -> int | None:
 
 
 def terrain_grid(
-    points: np.ndarray, point_terrain: np.ndarray, config: BuildConfig, stats: TiledGridStats | None = None
+    points: np.ndarray,
+    point_terrain: np.ndarray,
+    config: BuildConfig,
+    stats: TiledGridStats | None = None,
+    frame: GridFrame | None = None,
 ) -> TerrainGrid:
     """The terrain grid of the map's points (build_terrain_grid), tile by tile when
     `build.tiles.size` is smaller than the grid (the same grid: terra.graph.tiled_grid, which
     falls back to one piece, saying why in `stats`, when `build.grid.weak_reach` is null), with the
-    ground under object outlines blocked (`build.grid.object_extent`, grid.block_under_objects)."""
+    ground under object outlines blocked (`build.grid.object_extent`, grid.block_under_objects).
+    `frame`: `grid_frame` of the points, when the caller has it already (the grid lies on it)."""
     gc = config.grid
     args = (
         points,
@@ -264,13 +269,14 @@ def terrain_grid(
         "weak_reach": gc.weak_reach,
         "support_cell": gc.support_cell,
     }
-    tile = _tile_cells(config, grid_frame(points, point_terrain, gc.cell_size).shape)
+    frame = frame or grid_frame(points, point_terrain, gc.cell_size)
+    tile = _tile_cells(config, frame.shape)
     if tile is None:
-        grid = build_terrain_grid(*args, **kwargs)
+        grid = build_terrain_grid(*args, **kwargs, frame=frame)
     else:
         margin = int(np.ceil(config.tiles.overlap / gc.cell_size))
         grid = build_terrain_grid_tiled(
-            *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats
+            *args, **kwargs, tile=tile, margin=margin, read_radius=gc.close_iterations + 1, stats=stats, frame=frame
         )
     if gc.object_extent is not None:  # on the whole grid: an outline may straddle two tiles
         block_under_objects(grid, gc.object_extent)
@@ -579,14 +585,12 @@ def _grid_and_layers(
         beside = Background(_layers_on_frame, msm.points, ground, frame, section, name="terra-ground")
     with timer.stage("terrain grid"):
         grid_stats = TiledGridStats()
-        grid = terrain_grid(msm.points, point_terrain, config, grid_stats)
+        grid = terrain_grid(msm.points, point_terrain, config, grid_stats, frame)  # on the layers' frame
     del point_terrain  # no later stage reads it
     if not section.layers:
         return grid, grid_stats, None
     with timer.stage("ground layers"):
         layers = beside.result() if beside is not None else _layers_on_frame(msm.points, ground, frame, section)
-        if grid.frame != frame:  # terrain_grid and grid_frame disagree: a defect, never a user's error
-            raise RuntimeError(f"the terrain grid's frame {grid.frame} is not the one the layers took, {frame}")
         return grid, grid_stats, beside_obstacles(layers, grid.blocked)
 
 

@@ -78,10 +78,12 @@ def build_terrain_grid_tiled(
     margin: int = 64,
     read_radius: int = 2,
     stats: TiledGridStats | None = None,
+    frame: GridFrame | None = None,
 ) -> TerrainGrid:
     """`build_terrain_grid(points (N, 3), terrain (N,), ...)` one core of `tile` x `tile` cells at a
     time (see the module docstring); margin: the first overlap tried, cells (at least the reach);
-    read_radius: cells around labelled cells whose ground must be exact (the masks' closing).
+    read_radius: cells around labelled cells whose ground must be exact (the masks' closing);
+    frame: `grid_frame` of the points, when the caller has it already.
     With an unbounded hysteresis (weak_reach None) the grid is built in one piece (stats says so)."""
     points = np.asarray(points)
     terrain = np.asarray(terrain)
@@ -93,11 +95,11 @@ def build_terrain_grid_tiled(
         "weak_reach": weak_reach,
         "support_cell": support_cell,
     }
+    frame = frame or grid_frame(points, terrain, cell_size)
     chain = hysteresis_steps(cell_size, support_radius, min_support, weak_support, weak_reach)
     if chain is None:
         stats.one_piece = "build.grid.weak_reach is null: the hysteresis can carry a class across the whole map"
-        return build_terrain_grid(points, terrain, *args, **weak)
-    frame = grid_frame(points, terrain, cell_size)
+        return build_terrain_grid(points, terrain, *args, **weak, frame=frame)
     index = _PointIndex(points, frame)  # before the grid: its sorting temporaries come and go first
     grid = empty_grid(frame)
 
