@@ -6,15 +6,20 @@ frames), maps it (`terra map`, labels backend), builds it (`terra build`), draws
 start-goal place pairs and plans each with the wheelchair profile. Each path is judged on the true
 ground raster (terra.datasets.ground_truth.neighbour_geometry: the step and slope of every move
 between 4-neighbour cells): a path crosses a true step above the profile's limit or a true slope
-above it (expected: 0). Independently, the true raster is searched for legal routes: cells free of
-objects by the profile's half width, not water and not within the half width of a true step above
-the limit (the wheels would meet it), joined where the move's true step and slope are within the
-limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
+above it (expected: 0). Independently, the true raster is searched for legal routes: cells farther
+than the profile's half width from every object (the exact distance from the cell's centre to the
+box), not water and not within the half width of a true step above the limit (the wheels would
+meet it), joined where the move's true step and slope are within the limits
+(scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
 The same again over the ground the map's cameras labelled only (`with_labelled_ground`: a legal
 route on labelled ground; missed; on a LiDAR-only map, its ground): a camera map's places stand on
 labelled terrain (the paper's rule), so a route that needs ground only the LiDAR saw (beside and
 behind a forward camera) is none its graph could give; the figure tells those misses from the graph's.
+The all-pairs share once more over labelled ground that is level in every direction (`level`): a
+true move is judged by its own slope, so a contour across the steep hill's flank is a legal route
+there, while the graph's routes keep to ground no steeper than the limit in any direction (a
+wheelchair tipped sideways by 12 degrees is no safer than one climbing them).
 Pairs are drawn among the places inside the world's square: the sensor sees ground past its edge,
 where the truth says nothing (counted: places beyond the world, paths that leave it).
 Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
@@ -60,7 +65,11 @@ class TrueGround:
     within the robot's half width of a step above its limit (its wheels would meet the step),
     free (H, W) cells (clear of objects by the half width, not water, not edge), the component
     (H, W) int of each free cell (-1: not free), the masks of what the world has where, and
-    labelled_component: the same components over the ground the cameras labelled (with_labelled_ground)."""
+    labelled_component: the same components over the ground the cameras labelled (with_labelled_ground);
+    level (H, W) cells whose ground is no steeper than the robot's slope limit in any direction
+    (the per-move slopes of `legal` let a path cross a slope steeper than the limit along its
+    contour, in moves that each climb less), and level_labelled_component: the components over
+    labelled cells that are level."""
 
     raster: TerrainRaster
     step: np.ndarray
@@ -71,6 +80,8 @@ class TrueGround:
     component: np.ndarray
     features: dict[str, np.ndarray]
     labelled_component: np.ndarray | None = None
+    level: np.ndarray | None = None
+    level_labelled_component: np.ndarray | None = None
 
 
 GROUND_RETURN = 0.3  # metres: a map point this close to the true ground is a return from it
@@ -83,27 +94,42 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     raster = world.ground_truth().terrain
     assert raster is not None and world.ground.steps is not None
     step, slope = raster.neighbour_geometry()
-    blocked = np.zeros(raster.classes.shape, bool)
     xs = raster.origin[0] + (np.arange(raster.classes.shape[1]) + 0.5) * raster.resolution
     ys = raster.origin[1] + (np.arange(raster.classes.shape[0]) + 0.5) * raster.resolution
     gx, gy = np.meshgrid(xs, ys)
-    for box in world.objects:
-        if box.class_name in ("crosswalk", "stairs"):  # paint and treads: ground, judged by its steps
-            continue
-        c, s = np.cos(box.yaw), np.sin(box.yaw)
-        rx, ry = gx - box.center[0], gy - box.center[1]
-        blocked |= (np.abs(c * rx + s * ry) <= box.size[0] / 2) & (np.abs(-s * rx + c * ry) <= box.size[1] / 2)
-    clearance = cast(np.ndarray, ndimage.distance_transform_edt(~blocked)) * raster.resolution
+    clearance = object_distance(world, xs, ys, reach=robot.min_width)
     edge = _near_steps(step, robot.max_step, robot.min_width / 2, raster.resolution)
     free = (clearance > robot.min_width / 2) & (raster.classes != class_id("water")) & ~edge
-    legal = (np.nan_to_num(step, nan=np.inf) <= robot.max_step) & (
-        np.nan_to_num(slope, nan=np.inf) <= min(robot.max_slope_up, robot.max_slope_down)
-    )
+    limit = min(robot.max_slope_up, robot.max_slope_down)
+    legal = (np.nan_to_num(step, nan=np.inf) <= robot.max_step) & (np.nan_to_num(slope, nan=np.inf) <= limit)
     component = _components(free, legal)
+    dz_dy, dz_dx = np.gradient(raster.ground_height, raster.resolution)
+    level = np.degrees(np.arctan(np.nan_to_num(np.hypot(dz_dx, dz_dy)))) <= limit
     stairs = np.isfinite(world.stairs_tops(gx, gy))
     st = world.ground.steps
     features = {"curb_cut": st.curb_cut, "stairs": stairs, "ramp": st.ramp, "hill": st.hill}
-    return TrueGround(raster, step, slope, legal, edge, free, component, features)
+    return TrueGround(raster, step, slope, legal, edge, free, component, features, level=level)
+
+
+def object_distance(world: World, xs: np.ndarray, ys: np.ndarray, reach: float) -> np.ndarray:
+    """(H, W) metres from each cell centre (xs (W,), ys (H,), map frame) to the nearest object's
+    footprint (its box seen from above; crosswalk paint and stairs treads are ground, judged by
+    their steps), exact: a distance transform of the cells whose centre lies in a box would read a
+    cell beside a car's side as a whole cell clear of it. Beyond `reach` metres of every box: inf."""
+    distance = np.full((len(ys), len(xs)), np.inf)
+    res = xs[1] - xs[0] if len(xs) > 1 else 1.0
+    for box in world.objects:
+        if box.class_name in ("crosswalk", "stairs"):
+            continue
+        half = np.hypot(box.size[0], box.size[1]) / 2 + reach
+        cols = slice(*np.searchsorted(xs, [box.center[0] - half - res, box.center[0] + half + res]))
+        rows = slice(*np.searchsorted(ys, [box.center[1] - half - res, box.center[1] + half + res]))
+        rx, ry = np.meshgrid(xs[cols] - box.center[0], ys[rows] - box.center[1])
+        c, s = np.cos(box.yaw), np.sin(box.yaw)
+        u = np.maximum(np.abs(c * rx + s * ry) - box.size[0] / 2, 0.0)
+        v = np.maximum(np.abs(-s * rx + c * ry) - box.size[1] / 2, 0.0)
+        np.minimum(distance[rows, cols], np.hypot(u, v), out=distance[rows, cols])
+    return distance
 
 
 def with_labelled_ground(truth: TrueGround, points: np.ndarray, fill: float = 1.0) -> TrueGround:
@@ -118,7 +144,12 @@ def with_labelled_ground(truth: TrueGround, points: np.ndarray, fill: float = 1.
     r = int(np.ceil(fill / truth.raster.resolution))
     disk = np.hypot(*np.mgrid[-r : r + 1, -r : r + 1]) <= r
     labelled = ndimage.binary_closing(np.pad(labelled, r), structure=disk)[r:-r, r:-r]
-    return replace(truth, labelled_component=_components(truth.free & labelled, truth.legal))
+    assert truth.level is not None
+    return replace(
+        truth,
+        labelled_component=_components(truth.free & labelled, truth.legal),
+        level_labelled_component=_components(truth.free & labelled & truth.level, truth.legal),
+    )
 
 
 def _near_steps(step: np.ndarray, limit: float, reach: float, resolution: float) -> np.ndarray:
@@ -231,6 +262,10 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
             counts[f"paths_over_{name}"] += judged[name]
     counts |= all_pairs_missed(cost_graph, place_component)
     counts |= {f"{k}_on_labelled_ground": v for k, v in all_pairs_missed(cost_graph, place_labelled).items()}
+    if truth.level_labelled_component is not None:
+        level = truth.level_labelled_component[rows, cols]
+        level = np.where(inside, level, -1)
+        counts |= {f"{k}_on_labelled_level_ground": v for k, v in all_pairs_missed(cost_graph, level).items()}
     counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
     counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
     return counts
