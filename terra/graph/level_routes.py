@@ -69,7 +69,10 @@ if TYPE_CHECKING:
 
 MAX_UNOBSERVED = 5.0  # metres of unobserved ground a level edge crosses in one stretch (the built-in robots')
 BLOCK = 2  # cells per side of a route's block (0.8 m at the default 0.4 m cells)
-HOLE = 1  # blocks: runs of up to twice this blocks without ground, among level ones, count as level
+# Blocks: runs of up to twice this blocks without ground (3.2 m at the defaults), among level ones,
+# count as level. Rings of a LiDAR 15-20 m away lay 4.8 m apart on a sidewalk of the LiDAR-only
+# campus, 3.2 m without ground between them; the legs over such runs are judged (`_judge`).
+HOLE = 2
 # Cells without ground a leg of a route crosses in one stretch: the step layer reads a curb across
 # a stretch of up to BRIDGE - 1 cells (terra.graph.ground), not across a longer one (a 1.6 m
 # stretch in a curb's LiDAR shadow on the simulated campus read level on both sides).

@@ -10,7 +10,7 @@ from terra.errors import NoPathError
 from terra.graph.config import BuildConfig
 from terra.graph.grid import TerrainGrid
 from terra.graph.ground import GroundLayers, grid_layers
-from terra.graph.level_routes import RouteBlocks, RouteRule, level_routes
+from terra.graph.level_routes import HOLE, RouteBlocks, RouteRule, level_routes
 from terra.graph.pipeline import build_scene_graph, terrain_grid
 from terra.graph.scene_graph import EDGE_LEVEL_ROUTE
 from terra.graph.storage import scene_graph_to_spark_json
@@ -181,14 +181,14 @@ def test_blocks_keep_clear_of_steps_and_cross_short_holes_only():
     observed, bad = np.ones((H, W), bool), np.zeros((H, W), bool)
     bad[10, 10] = True  # one cell of a step
     observed[:, 20:22] = False  # a hole one block (0.8 m) wide: ground scanned in rings
-    observed[:, 30:38] = False  # a stretch four blocks (3.2 m) wide the sensor never saw
+    observed[:, 28:38] = False  # a stretch five blocks (4 m) wide the sensor never saw
     grid, layers = flat_layers((H, W), observed, bad)
     blocks = RouteBlocks.of(grid, layers, RULE).open
     # The step's block and the blocks within one cell of it (0.45 m of clearance) are closed.
     assert not blocks[5, 5] and not blocks[4, 4] and not blocks[5, 4]
     assert blocks[3, 3] and blocks[7, 7] and blocks[5, 7]
     assert blocks[:, 10].all()  # the one-block hole, between level blocks
-    assert not blocks[2:-2, 15:19].any()  # the wide stretch, away from the grid's edges
+    assert not blocks[2:-2, 14:19].any()  # the wide stretch, away from the grid's edges
     # A route crosses the short hole and not the wide stretch; it bends around the step's cell,
     # which the straight line from place 0 to place 1 (along y = 4.2) crosses.
     position = np.array([[2.0, 4.2, 0.0], [11.0, 4.2, 0.0], [15.8, 4.2, 0.0]])
@@ -202,6 +202,19 @@ def test_blocks_keep_clear_of_steps_and_cross_short_holes_only():
     for a, b in chain[routes.edges][:, :, :2]:  # no leg passes within 0.45 m of the step's cell centre
         t = np.clip(np.dot(step_cell - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
         assert np.linalg.norm(a + t * (b - a) - step_cell) > 0.45
+
+
+def test_blocks_cross_holes_up_to_twice_hole_blocks_wide():
+    """A run of 2 HOLE blocks without ground between level blocks (3.2 m: far rings) is open; one
+    block more is not."""
+    H, W = 12, 48
+    observed = np.ones((H, W), bool)
+    observed[:, 4 : 4 + 4 * HOLE] = False  # 2 HOLE blocks
+    observed[:, 24 : 26 + 4 * HOLE] = False  # 2 HOLE + 1 blocks
+    grid, layers = flat_layers((H, W), observed, np.zeros((H, W), bool))
+    blocks = RouteBlocks.of(grid, layers, RULE).open
+    assert blocks[:, 2 : 2 + 2 * HOLE].all()
+    assert not blocks[HOLE:-HOLE, 12 : 13 + 2 * HOLE].any()
 
 
 def ring_layers(curb: bool) -> tuple[TerrainGrid, GroundLayers]:
