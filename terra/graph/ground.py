@@ -21,7 +21,8 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   than three cells, or all on one line); slope = atan |gradient|;
 - height: mean height of its ground points, carried from their centroid to the cell's centre
   along that gradient (a map keeps one point per voxel, rarely at the centre: on a slope the raw
-  means read as steps between cells); a cell more than 3 cm above or below all its neighbours
+  means read as steps between cells), unless the gradient is steeper than 45 degrees
+  (`STEEPEST_FIT`: a fit on cells nearly in a line, its mean is kept); a cell more than 3 cm above or below all its neighbours
   takes their median (`despike`: one stray point is no step);
 - step: the height jump at the cell that a smooth surface does not explain, the larger of the two
   axes: along x, |h[c+1] - h[c-1]| minus twice the larger of the neighbouring differences
@@ -286,6 +287,11 @@ class GroundLayers:
 
 
 STANDING = (0.3, 2.0)  # metres above a cell's lowest point: something stands there (the grid's obstacle band)
+# Steepest plane (|gradient|, 45 degrees) along which a cell's mean height is carried to its centre.
+# Steeper fits come from three or four cells nearly on a line (the ground beside a pole or a wall):
+# carried 20 cm off its centroid such a plane put a flat cell 86 cm below its neighbours, a step
+# that cut places off; ground that steep is no one's route, and its mean height is as good.
+STEEPEST_FIT = 1.0
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
 BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
@@ -395,7 +401,9 @@ def _band_layers(
     # plane); that plane's gradient is the cell's.
     centred, first = plane_fit(np.where(observed, mean, np.nan), cell_size, (centroid[0], centroid[1]), reference)
     moved = mean - np.nan_to_num(first[..., 0]) * centroid[0] - np.nan_to_num(first[..., 1]) * centroid[1]
-    height = despike(np.where(observed, np.where(np.isfinite(centred), moved, mean), np.nan))
+    with np.errstate(invalid="ignore"):  # NaN gradients compare False: those cells keep their mean
+        carried = np.isfinite(centred) & (np.hypot(first[..., 0], first[..., 1]) <= STEEPEST_FIT)
+    height = despike(np.where(observed, np.where(carried, moved, mean), np.nan))
     # Everything below is per cell: computed on the kept observed cells only.
     cells = np.flatnonzero(observed[keep])
     at = cells + (keep.start or 0) * w

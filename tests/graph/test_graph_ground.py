@@ -344,6 +344,33 @@ def test_a_gap_without_ground_reads_the_step_its_sides_leave_unexplained():
         assert edge_geometry(cut, position, np.array([[0, 1], [1, 0]]))[:, 0] == pytest.approx(step, abs=0.005)
 
 
+def test_a_cell_beside_a_pole_whose_neighbours_lie_in_a_line_keeps_its_height():
+    """Flat ground (z = 0, one point per cell near its centre) with a pole's footprint and shadow
+    emptying the cells above and below cell (12, 25): its 3 x 3 neighbourhood holds three cells,
+    their points all 17-18 cm off-centre in y and 1.5 cm apart in height. The plane through them
+    climbs 1.5 cm over 1 cm (56 degrees); carried along it the cell would sit 25 cm below its
+    neighbours, a step that cuts the ground in two. Fits steeper than 45 degrees keep the mean."""
+    rows, cols = np.mgrid[0:25, 0:50]
+    keep = ~((np.abs(rows - 12) == 1) & (np.abs(cols - 25) <= 1))
+    offset = np.zeros((25, 50, 2))
+    offset[12, 24:27, 1] = [0.18, 0.17, 0.18]
+    z = np.zeros((25, 50))
+    z[12, [24, 26]] = 0.015
+    xy = (np.stack([cols, rows], axis=-1) + 0.5) * CELL + offset
+    points = np.column_stack([xy[keep], z[keep]])
+    layers = ground_layers(points, flat_frame(20, 10))
+    assert np.degrees(np.arctan(np.hypot(*layers.as_grid(layers.gradient)[12, 25]))) == pytest.approx(56.3, abs=0.1)
+    height = layers.as_grid(layers.height)
+    assert height[12, 25] == pytest.approx(0.0, abs=1e-9)  # its mean, not 0 - 1.5 x 0.17
+    assert np.nanmax(layers.as_grid(layers.step)[11:14, 23:28]) < 0.03
+    # A plane under 45 degrees still carries the mean to the centre (2 cm off-centre, 30 degrees).
+    tan30 = np.tan(np.radians(30.0))
+    ramp = np.column_stack([xy.reshape(-1, 2) + [0.02, 0.0], tan30 * (xy.reshape(-1, 2)[:, 0] + 0.02)])
+    slope = ground_layers(ramp, flat_frame(20, 10))
+    centres = (cols + 0.5) * CELL
+    assert np.allclose(slope.as_grid(slope.height)[3:-3, 3:-3], tan30 * centres[3:-3, 3:-3], atol=1e-6)
+
+
 def test_despike_by_hand():
     h = np.zeros((5, 6))
     h[:, 3:] = 0.15  # a curb between columns 2 and 3
