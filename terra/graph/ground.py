@@ -22,8 +22,8 @@ Layers (`ground_layers`), per cell, from the ground points in it:
 - height: mean height of its ground points, carried from their centroid to the cell's centre
   along that gradient (a map keeps one point per voxel, rarely at the centre: on a slope the raw
   means read as steps between cells), unless the gradient is steeper than 45 degrees
-  (`STEEPEST_FIT`: a fit on cells nearly in a line, its mean is kept); a cell more than 3 cm above or below all its neighbours
-  takes their median (`despike`: one stray point is no step);
+  (`STEEPEST_FIT`: a fit on cells nearly in a line, its mean is kept); a cell more than 3 cm
+  above or below all its neighbours takes their median (`despike`: one stray point is no step);
 - step: the height jump at the cell that a smooth surface does not explain, the larger of the two
   axes: along x, |h[c+1] - h[c-1]| minus twice the larger of the neighbouring differences
   |h[c-1] - h[c-2]|, |h[c+2] - h[c+1]| (the local slope; the gradient's where neither is
