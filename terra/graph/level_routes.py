@@ -33,10 +33,11 @@ Rule (`level_routes`):
   pieces, those two places could be joined by a route of that length. The cheapest route per pair
   of pieces (before them, a straight edge from each place to the place of another piece that
   entered its block first), cheapest first, is kept while it joins pieces not yet joined (Kruskal) and every
-  straight edge of it is level (terra.graph.ground.edge_geometry); an edge that crosses more than
-  UNSEEN_CELLS cells without ground in one stretch, more than the step layer reads a curb across,
-  also needs the heights on the stretch's two sides within `max_step`, with no slope read into
-  them (a slope read beside a curb explains it away).
+  straight edge of it is level (terra.graph.ground.edge_geometry); where the route crosses more
+  than UNSEEN_CELLS cells without ground in one stretch (measured along the whole route, bends
+  included), more than the step layer reads a curb across, it also needs the heights on the
+  stretch's two sides within `max_step`, with no slope read into them (a slope read beside a curb
+  explains it away), and the stretch at most `max_unobserved` long (`level_along`).
 - A route's blocks become a polyline: from each vertex, the farthest later block whose straight
   line from it crosses only open cells (those of open blocks); each interior vertex is a new
   place (the terrain of its cell, else of the route's nearer end; the ground height there; its
@@ -386,9 +387,8 @@ def route_through(
 
 
 def _judge(routes: list[Route], position: np.ndarray, layers: GroundLayers, rule: RouteRule) -> np.ndarray:
-    """(r,) bool: whether every edge of each route is level, and where it crosses more than
-    UNSEEN_CELLS cells without ground in one stretch, level across it (`_level_across`); sets each
-    route's edge geometry."""
+    """(r,) bool: whether every edge of each route is level, and the route as a whole level across
+    its stretches without ground (`level_along`); sets each route's edge geometry."""
     points, pairs, at = [], [], 0
     for r in routes:
         chain = np.vstack([position[r.ends[0]], r.xyz, position[r.ends[1]]])
@@ -399,35 +399,39 @@ def _judge(routes: list[Route], position: np.ndarray, layers: GroundLayers, rule
         return np.zeros(0, dtype=bool)
     geometry = edge_geometry(layers, np.vstack(points), np.vstack(pairs))
     split = np.cumsum([len(r.xyz) + 1 for r in routes])[:-1]
-    unseen = UNSEEN_CELLS * layers.cell_size + 1e-6
-    legs = np.vstack(points)[np.vstack(pairs)]
     level = []
-    for r, g, leg in zip(routes, np.split(geometry, split), np.split(legs, split), strict=True):
+    for r, g, chain in zip(routes, np.split(geometry, split), points, strict=True):
         r.geometry = g
-        ok = bool(_level(g, rule).all())
-        for k in np.flatnonzero(g[:, 3] > unseen) if ok else ():
-            ok = _level_across(layers, leg[k, 0, :2], leg[k, 1, :2], unseen, rule.max_step)
-            if not ok:
-                break
-        level.append(ok)
+        level.append(bool(_level(g, rule).all()) and level_along(layers, chain[:, :2], rule))
     return np.asarray(level, dtype=bool)
 
 
-def _level_across(layers: GroundLayers, a: np.ndarray, b: np.ndarray, longer: float, max_step: float) -> bool:
-    """Whether the ground heights on the two sides of each stretch without ground longer than
-    `longer` metres, along the straight line from map-frame point a to b (2,) (sampled every half
-    cell), differ by at most `max_step` metres, with no slope read into them: across such a stretch
-    the step layer reads nothing, and a slope read beside a curb explains it away."""
+def level_along(layers: GroundLayers, chain: np.ndarray, rule: RouteRule) -> bool:
+    """Whether the ground along a polyline `chain` (k, 2) (map frame, metres; sampled every half
+    cell) is level across each stretch without ground longer than UNSEEN_CELLS cells: the heights
+    on its two sides differ by at most `rule.max_step` (with no slope read into them: a slope read
+    beside a curb explains it away) and it is at most `rule.max_unobserved` long. Across such a
+    stretch the step layer reads nothing. The stretch is measured along the whole polyline: one
+    without ground around a bend is one stretch (a bend in a run of blocks without ground left a
+    leg without any ground, which alone could not be judged), and False where the polyline holds
+    fewer than two samples with ground."""
     spacing = layers.cell_size / 2
-    k = int(np.ceil(np.linalg.norm(b - a) / spacing)) + 1
-    point = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)
+    legs = np.diff(chain, axis=0)
+    counts = np.maximum(np.ceil(np.linalg.norm(legs, axis=1) / spacing).astype(np.int64), 1)
+    t = np.concatenate([np.arange(n) / n for n in counts] + [np.zeros(0)])
+    leg = np.repeat(np.arange(len(legs)), counts)
+    point = np.vstack([chain[leg] + t[:, None] * legs[leg], chain[-1:]])
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(point, axis=0), axis=1))])
     at = layers.lookup(point)
     known = np.flatnonzero(at >= 0)
     if len(known) < 2:
         return False
     height = layers.height_at(at[known], point[known])
-    across = np.diff(known) * (np.linalg.norm(b - a) / max(k - 1, 1)) > longer
-    return bool((np.abs(np.diff(height))[across] <= max_step).all())
+    gap = np.diff(along[known])
+    across = gap > UNSEEN_CELLS * layers.cell_size + 1e-6
+    if (gap[across] > rule.max_unobserved + spacing).any():
+        return False
+    return bool((np.abs(np.diff(height))[across] <= rule.max_step).all())
 
 
 class RouteBuilder:

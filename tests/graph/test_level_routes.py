@@ -10,7 +10,7 @@ from terra.errors import NoPathError
 from terra.graph.config import BuildConfig
 from terra.graph.grid import TerrainGrid
 from terra.graph.ground import GroundLayers, grid_layers
-from terra.graph.level_routes import HOLE, RouteBlocks, RouteRule, level_routes
+from terra.graph.level_routes import HOLE, RouteBlocks, RouteRule, level_along, level_routes
 from terra.graph.pipeline import build_scene_graph, terrain_grid
 from terra.graph.scene_graph import EDGE_LEVEL_ROUTE
 from terra.graph.storage import scene_graph_to_spark_json
@@ -215,6 +215,26 @@ def test_blocks_cross_holes_up_to_twice_hole_blocks_wide():
     blocks = RouteBlocks.of(grid, layers, RULE).open
     assert blocks[:, 2 : 2 + 2 * HOLE].all()
     assert not blocks[HOLE:-HOLE, 12 : 13 + 2 * HOLE].any()
+
+
+@pytest.mark.parametrize(
+    ("hole", "far", "level"),
+    [((4.0, 8.0), 0.0, True), ((4.0, 8.0), 0.15, False), ((4.0, 8.0), 0.04, True), ((2.0, 8.0), 0.0, False)],
+)
+def test_a_route_is_judged_across_a_stretch_without_ground_that_spans_its_bends(hole, far, level):
+    """Level ground along y (0.4 m cells) with no ground over x in `hole` and the ground beyond it
+    at `far` metres; a route from x = 1 to x = 11 bends twice inside the stretch, so its middle leg
+    holds no ground at all. Judged along the whole route, the stretch (4 m) is level when the
+    heights on its two sides are within the 5 cm step; a 15 cm curb in it is not, nor a 6 m
+    stretch (more than the profile's 5 m of unobserved ground), level as its sides are."""
+    H, W = 10, 30
+    x = (np.arange(W) + 0.5) * 0.4
+    observed = np.broadcast_to((x < hole[0]) | (x > hole[1]), (H, W)).copy()
+    grid, layers = flat_layers((H, W), observed, np.zeros((H, W), bool))
+    layers.height[:] = np.where(layers.cells % W >= int(hole[1] / 0.4), far, 0.0)
+    chain = np.array([[1.0, 2.0], [5.0, 2.0], [7.0, 2.4], [11.0, 2.0]])
+    assert level_along(layers, chain, RULE) == level
+    assert not level_along(layers, chain[1:3], RULE)  # the middle leg alone holds no ground
 
 
 def ring_layers(curb: bool) -> tuple[TerrainGrid, GroundLayers]:
