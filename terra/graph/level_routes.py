@@ -19,12 +19,15 @@ Rule (`level_routes`):
   scanned in sparse rings. Such a cell is no evidence of a step, and the legs over it are judged
   on the heights across the gaps between rings, as any leg over ground without points. (Read as
   bad, these cells closed the open ground between rings on the LiDAR-only campus.) Bad cells:
-  blocked cells, and observed cells that are not level. Cells without ground are neither: a curb
-  hidden in a LiDAR shadow reads on the cells beside the shadow (the step layer reads across it),
-  which are bad.
+  blocked cells, and observed cells whose step or slope is known and above the limit. Cells
+  without ground are neither: a curb hidden in a LiDAR shadow reads on the cells beside the
+  shadow (the step layer reads across it), which are bad. Nor are cells whose slope is unknown
+  (single cells far out, without the neighbours a plane needs) and step is not above the limit:
+  read as bad, 120 such cells, within millimetres of the true ground, closed a plaza of the
+  LiDAR-only campus; a leg over them is judged on their heights, as every leg is.
 - Routes run on blocks of BLOCK x BLOCK cells (the search costs a quarter of what cells would): a
   block is open when it holds a level cell, or lies in a run of at most 2 x HOLE blocks without
-  ground between blocks that do (ground scanned in rings), and no bad cell lies within
+  level ground between blocks that do (ground scanned in rings), and no bad cell lies within
   `clearance` metres of its centre (in whole cells: at the defaults, the block and the ring of
   cells around it). From each place, through the open block it stands in (else the
   nearest open block within SNAP metres whose line from it is level), the cheapest 8-connected
@@ -195,14 +198,15 @@ class RouteBlocks:
 
     @classmethod
     def of(cls, grid: TerrainGrid, layers: GroundLayers, rule: RouteRule) -> RouteBlocks:
-        # A cell whose step is unknown (sparse rings: module docstring) is no step; an unknown slope is.
+        # An unknown step or slope (sparse rings: module docstring) is no evidence of either: a cell
+        # whose slope is unknown is not level, and not bad unless its step is.
         ok = (np.nan_to_num(layers.step, nan=0.0) <= rule.max_step) & (
-            np.nan_to_num(layers.slope, nan=np.inf) <= rule.max_slope
+            np.nan_to_num(layers.slope, nan=0.0) <= rule.max_slope
         )
         H, W = grid.shape
         # Whole-grid masks are a byte a cell: built in place, one at a time (a 2 km site has 25 M cells).
         level = np.zeros((H, W), dtype=bool)
-        level.ravel()[layers.cells[ok]] = True
+        level.ravel()[layers.cells[ok & np.isfinite(layers.slope)]] = True
         level[grid.blocked] = False
         has_level = _per_block(level, False)
         del level

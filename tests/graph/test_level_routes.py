@@ -217,6 +217,30 @@ def test_blocks_cross_holes_up_to_twice_hole_blocks_wide():
     assert not blocks[HOLE:-HOLE, 12 : 13 + 2 * HOLE].any()
 
 
+def test_cells_of_unknown_slope_neither_open_nor_close_blocks_unless_their_step_is_known():
+    """Far ground seen in single cells: a band (columns 16..23) whose every fourth cell holds
+    ground without neighbours for a plane (slope unknown, NaN), between level ground. Such a cell
+    is no evidence of a slope: the band's blocks open as a run without ground would (2 HOLE blocks
+    wide at most), where an unknown slope read as bad closed them and the blocks around them. One
+    of them whose step is known, 15 cm, stays bad."""
+    H, W = 16, 40
+    observed = np.ones((H, W), bool)
+    observed[:, 16:24] = False
+    rows, cols = np.indices((H, W))
+    lone = (cols >= 16) & (cols < 24) & (rows % 4 == 1) & (cols % 4 == 1)
+    grid, layers = flat_layers((H, W), observed | lone, np.zeros((H, W), bool))
+    unknown = lone.ravel()[layers.cells]
+    layers.gradient[unknown] = np.nan
+    layers.step[unknown] = np.nan
+    assert np.isnan(layers.slope[unknown]).all()
+    blocks = RouteBlocks.of(grid, layers, RULE)
+    assert blocks.open[:, 8:12].all() and not blocks.bad[:, 16:24].any()
+    at = np.flatnonzero(layers.cells == 9 * W + 21)
+    layers.step[at] = 0.15
+    blocks = RouteBlocks.of(grid, layers, RULE)
+    assert blocks.bad[9, 21] and not blocks.open[4, 10]
+
+
 @pytest.mark.parametrize(
     ("hole", "far", "level"),
     [((4.0, 8.0), 0.0, True), ((4.0, 8.0), 0.15, False), ((4.0, 8.0), 0.04, True), ((2.0, 8.0), 0.0, False)],
