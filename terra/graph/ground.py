@@ -50,10 +50,10 @@ in a cell without ground reads the gap it stands in, to the first ground up to `
 past it, `_ground_past_unseen_ends`); its rise
 (fall) the steepest climb (descent) along its direction i -> j over 1 m of travel, from the cells'
 heights (a slope a wheelchair feels, not one cell's gradient), leaving out the cells beside an
-obstacle when the edge has others. How far an edge runs over cells without ground is its fourth
-figure, `unobserved_m`: the longest stretch of it (metres) whose cells in the grid hold no ground,
-where nothing but the heights on its two sides is known (a curb in it reads only if they differ),
-for robot profiles to refuse (terra.tasks.robot).
+obstacle when the edge has others near both of its ends (`_slope_samples`). How far an edge runs
+over cells without ground is its fourth figure, `unobserved_m`: the longest stretch of it (metres)
+whose cells in the grid hold no ground, where nothing but the heights on its two sides is known (a
+curb in it reads only if they differ), for robot profiles to refuse (terra.tasks.robot).
 """
 
 from __future__ import annotations
@@ -665,10 +665,10 @@ def edge_geometry(
     if len(layers.cells) == 0:
         return np.column_stack([np.zeros((E, 3)), unobserved]).astype(np.float32)
     step = _sampled_steps(layers, at, flat)
-    clear, heights = _slope_samples(layers, at, edge, E)
+    travelled = t * length[edge]
+    clear, heights = _slope_samples(layers, at, edge, travelled, length, baseline)
     # The ground's height at each sample: its cell's, carried along the cell's gradient.
     height = layers.height_at(at[heights], point[heights])
-    travelled = t * length[edge]
     rise = _rise_along(edge[heights], travelled[heights], height, E, baseline)
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
@@ -695,17 +695,26 @@ def _sampled_steps(layers: GroundLayers, at: np.ndarray, flat: np.ndarray) -> np
     return step
 
 
-def _slope_samples(layers: GroundLayers, at: np.ndarray, edge: np.ndarray, edges: int) -> tuple[np.ndarray, ...]:
-    """(S,) bool twice: the samples (observed cell `at` (S,), -1 for none; edge index `edge` (S,) of
-    `edges`) on ground clear of obstacles, and those an edge's slope is read on. Beside an object
-    the lowest points may be the object's (a bench's feet read as a bump of a few centimetres, a 10
-    degree slope on a 5 degree lawn): an edge's slope is read on the samples away from obstacles
-    when it has two, else on all it has."""
+def _slope_samples(
+    layers: GroundLayers, at: np.ndarray, edge: np.ndarray, travelled: np.ndarray, length: np.ndarray, baseline: float
+) -> tuple[np.ndarray, ...]:
+    """(S,) bool twice: the samples (observed cell `at` (S,), -1 for none; edge index `edge` (S,)
+    of the edges of `length` (E,) metres, `travelled` (S,) metres from its start) on ground clear
+    of obstacles, and those an edge's slope is read on. Beside an object the lowest points may be
+    the object's (a bench's feet read as a bump of a few centimetres, a 10 degree slope on a 5
+    degree lawn): an edge's slope is read on the samples away from obstacles when it has two and
+    some within `baseline` metres of each end, else on all it has. Clear samples at one end only
+    say nothing of the rest: an edge from the top of a curb down past a planter beside it, every
+    sample past its first 0.4 m beside the planter, read 0.2 degrees over a 14 cm drop."""
     known = at >= 0
     if layers.near_obstacle is None:
         return known, known
     clear = known & ~layers.near_obstacle[np.maximum(at, 0)]
-    return clear, clear | (known & (np.bincount(edge[clear], minlength=edges) < 2)[edge])
+    edges = len(length)
+    head = np.bincount(edge[clear & (travelled <= baseline)], minlength=edges) > 0
+    tail = np.bincount(edge[clear & (travelled >= length[edge] - baseline)], minlength=edges) > 0
+    enough = (np.bincount(edge[clear], minlength=edges) >= 2) & head & tail
+    return clear, clear | (known & ~enough[edge])
 
 
 def _longest_unobserved(seen: np.ndarray, starts: np.ndarray, spacing: np.ndarray) -> np.ndarray:

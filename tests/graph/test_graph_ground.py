@@ -502,6 +502,29 @@ def test_an_edge_slope_leaves_out_the_cells_beside_an_obstacle():
     np.testing.assert_array_equal(edge_geometry(layers, position, np.array([[0, 1]])), bumpy)
 
 
+def test_an_edge_clear_of_obstacles_at_one_end_only_reads_its_slope_beside_them():
+    """A curb 14 cm high at x = 10 (level ground on each side) with a planter along its foot: every
+    cell from x = 5 on lies beside an obstacle. An edge from x = 3 on the top to x = 14 below has
+    clear samples over its first 2 m only; read on those alone it was level (0.2 degrees in the
+    simulated case), read on all it falls by the curb. The same edge with clear ground at both
+    ends still leaves the cells beside the planter out."""
+    rng = np.random.default_rng(6)
+    xy = uniform(rng, [0, 0], [20, 10], 60000)
+    z = np.where(xy[:, 0] < 10.0, 0.14, 0.0)
+    layers = ground_layers(np.column_stack([xy, z]), flat_frame(20, 10))
+    centres = layers.centres(np.arange(len(layers.cells)))
+    layers.near_obstacle = centres[:, 0] > 5.0
+    position = np.array([[3.0, 5.0, 0.14], [14.0, 5.0, 0.0]])
+    down = edge_geometry(layers, position, np.array([[0, 1]]), unseen_ends=False)
+    # 14 cm over the 1 m baseline: 8 degrees of fall
+    assert down[0, 2] == pytest.approx(np.degrees(np.arctan(0.14)), abs=0.5) and down[0, 1] < 0.5
+    layers.near_obstacle = (centres[:, 0] > 5.0) & (centres[:, 0] < 12.0)  # clear again past x = 12
+    both = edge_geometry(layers, position, np.array([[0, 1]]), unseen_ends=False)
+    # Read on the clear ends (14 cm over the 7 m between them: 1.1 degrees); the gap reads the step.
+    assert both[0, 2] < 1.5
+    assert both[0, 0] == pytest.approx(0.14, abs=0.02)
+
+
 def test_a_map_of_bare_points_builds_places_on_the_ground():
     points, truth = street()
     build = build_scene_graph(points_map(points))
