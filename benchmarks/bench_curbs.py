@@ -30,7 +30,8 @@ Usage:
       [--pairs 200] [--work DIR] [--lidar-only]
 Writes benchmarks/results/curbs-<preset>.json (curbs-<preset>-lidar.json with `--lidar-only`: the
 world simulated without cameras and mapped without the simulator's point labels, so the map has no
-terrain classes and its places stand on the ground segmented from its points) and prints it.
+terrain classes and its places stand on the ground segmented from its points; a `--seed` other
+than 0 adds -seed<N>, so other worlds do not replace the default one's figures) and prints it.
 """
 
 from __future__ import annotations
@@ -360,7 +361,7 @@ def main() -> None:
         result["wheelchair"] = wheelchair_pairs(graph, truth, args.pairs, args.seed)
         result["wheelchair"]["seconds"] = round(time.perf_counter() - start, 2)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    name = f"curbs-{args.preset}{'-lidar' if args.lidar_only else ''}.json"
+    name = f"curbs-{args.preset}{'-lidar' if args.lidar_only else ''}{f'-seed{args.seed}' if args.seed else ''}.json"
     (RESULTS / name).write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result, indent=1))
 
