@@ -47,13 +47,14 @@ hides: the height difference across a stretch of cells beside an obstacle or wit
 between clear ground on both sides, less what the ground's slope on either side explains
 (`_steps_across_gaps`; a curb beside a parked car, or in a stretch the sensor never saw; an end
 in a cell without ground reads the gap it stands in, to the first ground up to `BEYOND` metres
-past it, `_ground_past_unseen_ends`); its rise
-(fall) the steepest climb (descent) along its direction i -> j over 1 m of travel, from the cells'
-heights (a slope a wheelchair feels, not one cell's gradient), leaving out the cells beside an
-obstacle when the edge has others near both of its ends (`_slope_samples`). How far an edge runs
-over cells without ground is its fourth figure, `unobserved_m`: the longest stretch of it (metres)
-whose cells in the grid hold no ground, where nothing but the heights on its two sides is known (a
-curb in it reads only if they differ), for robot profiles to refuse (terra.tasks.robot).
+past it, `_ground_past_unseen_ends`); its rise (fall) the steepest climb (descent) along its
+direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair feels), and at
+least the steepest climb (descent) of those cells' own planes along it (`_steepest_along`: a curb
+read as a ramp over two cells), leaving out the cells beside an obstacle when the edge has others
+near both of its ends (`_slope_samples`). How far an edge runs over cells without ground is its
+fourth figure, `unobserved_m`: the longest stretch of it (metres) whose cells in the grid hold no
+ground, where nothing but the heights on its two sides is known (a curb in it reads only if they
+differ), for robot profiles to refuse (terra.tasks.robot).
 """
 
 from __future__ import annotations
@@ -641,7 +642,8 @@ def edge_geometry(
     """(E, 4) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
     metres): the largest step it crosses (m), its steepest rise and fall going from edges[:, 0] to
     edges[:, 1] (degrees, >= 0) over `baseline` metres of travel (the whole edge when shorter),
-    from the ground heights along it (0 where the cells along it hold no ground), and the longest
+    from the ground heights along it, and at least the cells' own gradients along it (0 where the
+    cells along it hold no ground), and the longest
     stretch of it over cells of the grid that hold no ground (m) (module docstring). With
     `unseen_ends`, an end whose cell (inside the layers' grid) holds no ground steps by the
     difference between its place's height and the first ground along the edge
@@ -670,12 +672,13 @@ def edge_geometry(
     # The ground's height at each sample: its cell's, carried along the cell's gradient.
     height = layers.height_at(at[heights], point[heights])
     rise = _rise_along(edge[heights], travelled[heights], height, E, baseline)
+    unit = delta / np.maximum(length, 1e-9)[:, None]
+    along = np.where(known, (layers.gradient[np.maximum(at, 0)] * unit[edge]).sum(axis=1), np.nan)
+    rise = np.fmax(rise, _steepest_along(edge[heights], along[heights], E))
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
         z = np.asarray(position, dtype=np.float64)[:, 2]
         largest = np.fmax(largest, _unseen_end_steps(layers, at, flat, starts, samples, z[edges]))
-        unit = delta / np.maximum(length, 1e-9)[:, None]
-        along = np.where(known, (layers.gradient[np.maximum(at, 0)] * unit[edge]).sum(axis=1), np.nan)
         profile = EdgeProfile(edge[clear], travelled[clear], height[clear[heights]], along[clear])
         ends = EdgeEnds(starts, samples, length)
         past = _ground_past_unseen_ends(layers, a, unit, ends, known, flat)
@@ -869,6 +872,19 @@ def _unseen_end_steps(
         ground = layers.height[at[nearest[unseen]]].astype(np.float64)
         out[unseen] = np.fmax(out[unseen], np.abs(ground - z[unseen, side]))
     return out
+
+
+def _steepest_along(edge: np.ndarray, along: np.ndarray, edges: int) -> np.ndarray:
+    """(E, 2) the steepest rise and fall (m/m, >= 0) of the cells' own planes along each edge, from
+    the gradient along its direction `along` (n,) (m/m; NaN unknown) at its samples (edge index
+    (n,)). Why: a curb the step layer reads as a ramp (16 cm over two cells: their planes climb 11
+    degrees along the edge) reads 7.7 degrees over the 1 m baseline when it lies at the edge's end,
+    under a wheelchair's 8."""
+    out = np.zeros((edges, 2))
+    known = np.isfinite(along)
+    np.fmax.at(out[:, 0], edge[known], along[known])
+    np.fmax.at(out[:, 1], edge[known], -along[known])
+    return np.maximum(out, 0.0)
 
 
 def _rise_along(edge: np.ndarray, travelled: np.ndarray, height: np.ndarray, edges: int, baseline: float) -> np.ndarray:

@@ -516,13 +516,41 @@ def test_an_edge_clear_of_obstacles_at_one_end_only_reads_its_slope_beside_them(
     layers.near_obstacle = centres[:, 0] > 5.0
     position = np.array([[3.0, 5.0, 0.14], [14.0, 5.0, 0.0]])
     down = edge_geometry(layers, position, np.array([[0, 1]]), unseen_ends=False)
-    # 14 cm over the 1 m baseline: 8 degrees of fall
-    assert down[0, 2] == pytest.approx(np.degrees(np.arctan(0.14)), abs=0.5) and down[0, 1] < 0.5
+    # 14 cm over the 1 m baseline: 8 degrees of fall, more on the planes fitted across the curb
+    assert down[0, 2] > np.degrees(np.arctan(0.14)) - 0.5 and down[0, 1] < 0.5
     layers.near_obstacle = (centres[:, 0] > 5.0) & (centres[:, 0] < 12.0)  # clear again past x = 12
     both = edge_geometry(layers, position, np.array([[0, 1]]), unseen_ends=False)
     # Read on the clear ends (14 cm over the 7 m between them: 1.1 degrees); the gap reads the step.
     assert both[0, 2] < 1.5
     assert both[0, 0] == pytest.approx(0.14, abs=0.02)
+
+
+def test_a_curb_read_as_a_ramp_at_an_edges_end_reads_its_cells_slope():
+    """Layers as read at a 13 cm curb on the simulated campus: level ground, then two cells 6.5 and
+    13 cm up whose planes (fitted across the curb) climb 11.3 degrees along x, no step. An edge
+    ending on the top climbs 13 cm over its last metre, 7.4 degrees, under a wheelchair's 8; the
+    cells' own planes climb 11.3 along it, and that is its rise (its fall the other way)."""
+    W = 30
+    cells = np.arange(5 * W)
+    col = cells % W
+    height = np.select([col == 25, col >= 26], [0.065, 0.13], 0.0).astype(np.float32)
+    gradient = np.zeros((len(cells), 2), np.float32)
+    gradient[(col == 25) | (col == 26), 0] = 0.2
+    layers = GroundLayers(
+        cells,
+        height,
+        gradient,
+        np.zeros(len(cells), np.float32),
+        np.zeros(len(cells), np.float32),
+        (5, W),
+        np.zeros(2),
+        CELL,
+    )
+    position = np.array([[4.0, 1.0, 0.0], [10.6, 1.0, 0.13]])
+    geometry = edge_geometry(layers, position, np.array([[0, 1], [1, 0]]), unseen_ends=False)
+    planes = np.degrees(np.arctan(0.2))
+    assert geometry[0, 1] == pytest.approx(planes, abs=0.01) and geometry[0, 2] == 0.0
+    assert geometry[1, 2] == pytest.approx(planes, abs=0.01) and geometry[1, 1] == 0.0
 
 
 def test_a_map_of_bare_points_builds_places_on_the_ground():
