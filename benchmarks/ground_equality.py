@@ -32,6 +32,7 @@ from terra.graph import ground as new
 from terra.graph import pipeline
 from terra.graph.config import BuildConfig
 from terra.graph.grid import GridFrame, TerrainGrid
+from terra.graph.ground import as_ground_terrain, has_terrain_votes
 from terra.mapping.storage import load_map
 
 SCANS = Path(__file__).resolve().parents[1] / "tests" / "data" / "semantickitti" / "sequences"
@@ -147,6 +148,8 @@ def map_bundle(old: ModuleType, path: Path) -> None:
     ground, t_old = timed(old.points_ground, msm.points, config.ground)
     mine, t_new = timed(new.points_ground, msm.points, config.ground)
     same(f"segment {path}", ground, mine)
+    if not has_terrain_votes(msm):  # a LiDAR-only map: its grid is built on its ground (as terra build)
+        msm = as_ground_terrain(msm, mine)
     names, terrains = pipeline.terrains_to_build(msm, config)
     point_terrain = pipeline._point_terrain(msm, names, terrains, config)  # pyright: ignore[reportPrivateUsage]
     grid = pipeline.terrain_grid(msm.points, point_terrain, config)
