@@ -200,13 +200,12 @@ class RouteBlocks:
     def of(cls, grid: TerrainGrid, layers: GroundLayers, rule: RouteRule) -> RouteBlocks:
         # An unknown step or slope (sparse rings: module docstring) is no evidence of either: a cell
         # whose slope is unknown is not level, and not bad unless its step is.
-        ok = (np.nan_to_num(layers.step, nan=0.0) <= rule.max_step) & (
-            np.nan_to_num(layers.slope, nan=0.0) <= rule.max_slope
-        )
+        slope = layers.slope  # computed from the gradient on each read
+        ok = (np.nan_to_num(layers.step, nan=0.0) <= rule.max_step) & (np.nan_to_num(slope, nan=0.0) <= rule.max_slope)
         H, W = grid.shape
         # Whole-grid masks are a byte a cell: built in place, one at a time (a 2 km site has 25 M cells).
         level = np.zeros((H, W), dtype=bool)
-        level.ravel()[layers.cells[ok & np.isfinite(layers.slope)]] = True
+        level.ravel()[layers.cells[ok & np.isfinite(slope)]] = True
         level[grid.blocked] = False
         has_level = _per_block(level, False)
         del level
@@ -422,8 +421,8 @@ def level_along(layers: GroundLayers, chain: np.ndarray, rule: RouteRule) -> boo
     spacing = layers.cell_size / 2
     legs = np.diff(chain, axis=0)
     counts = np.maximum(np.ceil(np.linalg.norm(legs, axis=1) / spacing).astype(np.int64), 1)
-    t = np.concatenate([np.arange(n) / n for n in counts] + [np.zeros(0)])
     leg = np.repeat(np.arange(len(legs)), counts)
+    t = (np.arange(len(leg)) - np.repeat(np.cumsum(counts) - counts, counts)) / counts[leg]
     point = np.vstack([chain[leg] + t[:, None] * legs[leg], chain[-1:]])
     along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(point, axis=0), axis=1))])
     at = layers.lookup(point)
