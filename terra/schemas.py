@@ -185,8 +185,8 @@ class GroundInfo(_Written):
     `cell_size` metres, whose cell (0, 0) is cell `offset` (row, col) of the grid whose lower-left
     corner lies at `origin` (x, y metres, map frame); `units` says what each array holds, in which
     unit (height m; gradient dz/dx, dz/dy; step m; roughness m); `edge_geometry` names the columns
-    of graph/place_edge_geometry (step_m, rise_deg, fall_deg, unobserved_m; bundles written
-    before unobserved_m was recorded name the first three)."""
+    of graph/place_edge_geometry (step_m, rise_deg, fall_deg, unobserved_m, cross_deg; bundles
+    written before unobserved_m or cross_deg was recorded name the first three or four)."""
 
     origin: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]
     cell_size: PositiveFloat

@@ -397,6 +397,7 @@ def render_plan(result: PlanResult) -> str:
         lines.append(
             f"ground: largest step {g.max_step_m:.2f} m, steepest climb {g.max_climb_deg:.1f} deg, "
             f"steepest descent {g.max_descent_deg:.1f} deg"
+            + ("" if g.max_cross_slope_deg is None else f", steepest side slope {g.max_cross_slope_deg:.1f} deg")
             + ("" if unobserved is None else f", longest stretch over unobserved ground {unobserved:.1f} m")
         )
     if path.bridges:

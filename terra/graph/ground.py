@@ -54,7 +54,15 @@ read as a ramp over two cells), leaving out the cells beside an obstacle when th
 near both of its ends (`_slope_samples`). How far an edge runs over cells without ground is its
 fourth figure, `unobserved_m`: the longest stretch of it (metres) whose cells in the grid hold no
 ground, where nothing but the heights on its two sides is known (a curb in it reads only if they
-differ), for robot profiles to refuse (terra.tasks.robot).
+differ), for robot profiles to refuse (terra.tasks.robot). Its fifth, `cross_deg`, is the
+steepest slope of the ground across it: the largest |gradient . normal| of the planes of the cells
+it crosses whose step and whose neighbours' steps read at most `CROSS_STEP` (a plane fitted across
+a curb takes the curb for a slope; the step is the step column's business) and whose
+neighbourhood holds ground in at least `CROSS_CELLS` of its nine cells (a plane through three
+cells in a near line is no plane), away from obstacles (an object's foot tilted the planes
+beside a bench 10 degrees on ground 0.5 degrees steep). A contour
+across a 13 degree hillside climbs 6 degrees along the edge and tips a wheelchair 11.5 degrees
+sideways; the profile's `max_cross_slope` refuses it.
 """
 
 from __future__ import annotations
@@ -293,6 +301,10 @@ STANDING = (0.3, 2.0)  # metres above a cell's lowest point: something stands th
 # carried 20 cm off its centroid such a plane put a flat cell 86 cm below its neighbours, a step
 # that cut places off; ground that steep is no one's route, and its mean height is as good.
 STEEPEST_FIT = 1.0
+# metres: a cell whose step reads more than this holds a step (a curb), and its plane, fitted across
+# the step, is no slope across an edge (edge_geometry's cross slope).
+CROSS_STEP = 0.05
+CROSS_CELLS = 6  # of the 9 cells of a neighbourhood with ground, for its plane to tell a slope across
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
 BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
@@ -639,12 +651,14 @@ def edge_geometry(
     baseline: float = SLOPE_BASELINE,
     unseen_ends: bool = True,
 ) -> np.ndarray:
-    """(E, 4) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
+    """(E, 5) float32 per place edge (E, 2) between places at `position` (P, 3+) (map frame,
     metres): the largest step it crosses (m), its steepest rise and fall going from edges[:, 0] to
     edges[:, 1] (degrees, >= 0) over `baseline` metres of travel (the whole edge when shorter),
     from the ground heights along it, and at least the cells' own gradients along it (0 where the
-    cells along it hold no ground), and the longest
-    stretch of it over cells of the grid that hold no ground (m) (module docstring). With
+    cells along it hold no ground), the longest stretch of it over cells of the grid that hold no
+    ground (m), and the steepest slope across it (degrees, >= 0) of the planes of the cells it
+    crosses that neither hold a step nor lie beside one or an obstacle, on enough ground (module
+    docstring). With
     `unseen_ends`, an end whose cell (inside the layers' grid) holds no ground steps by the
     difference between its place's height and the first ground along the edge
     (`_unseen_end_steps`); callers whose `position` carries no heights pass False."""
@@ -665,7 +679,7 @@ def edge_geometry(
     known = at >= 0
     unobserved = _longest_unobserved(known | (flat < 0), starts, length / np.maximum(samples - 1, 1))
     if len(layers.cells) == 0:
-        return np.column_stack([np.zeros((E, 3)), unobserved]).astype(np.float32)
+        return np.column_stack([np.zeros((E, 3)), unobserved, np.zeros(E)]).astype(np.float32)
     step = _sampled_steps(layers, at, flat)
     travelled = t * length[edge]
     clear, heights = _slope_samples(layers, at, edge, travelled, length, baseline)
@@ -675,6 +689,12 @@ def edge_geometry(
     unit = delta / np.maximum(length, 1e-9)[:, None]
     along = np.where(known, (layers.gradient[np.maximum(at, 0)] * unit[edge]).sum(axis=1), np.nan)
     rise = np.fmax(rise, _steepest_along(edge[heights], along[heights], E))
+    normal = np.column_stack([-unit[:, 1], unit[:, 0]])
+    across = np.where(known, (layers.gradient[np.maximum(at, 0)] * normal[edge]).sum(axis=1), np.nan)
+    level = clear & (np.nan_to_num(step, nan=np.inf) <= CROSS_STEP)
+    cells, inverse = np.unique(flat[level], return_inverse=True)  # two samples a cell: judge each cell once
+    level[level] = _plane_across_holds(layers, cells)[inverse]
+    cross = _steepest_along(edge[level], np.abs(across[level]), E)[:, 0]
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
         z = np.asarray(position, dtype=np.float64)[:, 2]
@@ -684,7 +704,7 @@ def edge_geometry(
         past = _ground_past_unseen_ends(layers, a, unit, ends, known, flat)
         profile = profile.with_place_ends(known, along, ends, z[edges], past)
         largest = np.fmax(largest, _steps_across_gaps(profile, E, layers.cell_size, baseline))
-    out = np.column_stack([largest, np.degrees(np.arctan(rise)), unobserved])
+    out = np.column_stack([largest, np.degrees(np.arctan(rise)), unobserved, np.degrees(np.arctan(cross))])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
 
 
@@ -696,6 +716,28 @@ def _sampled_steps(layers: GroundLayers, at: np.ndarray, flat: np.ndarray) -> np
         on_line = (flat >= 0) & layers.lines.ravel()[np.maximum(flat, 0)]
         step = np.where(on_line, np.fmax(step, layers.line_step), step)
     return step
+
+
+def _plane_across_holds(layers: GroundLayers, flat: np.ndarray) -> np.ndarray:
+    """(m,) bool: grid cells `flat` (m,) (inside the grid) whose plane, fitted on their 3 x 3
+    neighbourhood, tells the slope across an edge: at least CROSS_CELLS of its cells hold ground
+    (a plane through three cells, nearly in a line, read 22 degrees on ground 0.5 degrees steep)
+    and none of its neighbours' steps reads more than CROSS_STEP metres (`_sampled_steps`: a cell
+    on a curb's top beside the cell the curb runs through read 8.5 degrees across an edge along
+    the curb)."""
+    H, W = layers.shape
+    rows, cols = flat // W, flat % W
+    observed = np.zeros(len(flat), dtype=np.int64)
+    beside = np.zeros(len(flat), dtype=bool)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            r, c = rows + dr, cols + dc
+            near = np.where((r >= 0) & (r < H) & (c >= 0) & (c < W), r * W + c, -1)
+            at = layers.observed_index(near)
+            observed += at >= 0
+            if dr != 0 or dc != 0:
+                beside |= np.nan_to_num(_sampled_steps(layers, at, near), nan=0.0) > CROSS_STEP
+    return (observed >= CROSS_CELLS) & ~beside
 
 
 def _slope_samples(

@@ -66,6 +66,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from terra.graph import raster
 from terra.graph.ground import BRIDGE, edge_geometry
 from terra.graph.gvd import EIGHT
+from terra.graph.scene_graph import EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED
 
 if TYPE_CHECKING:
     from terra.graph.grid import TerrainGrid
@@ -103,7 +104,7 @@ class RouteRule:
 class LevelRoutes:
     """New places at the bends of the routes: position (k, 3) metres, terrain (k,), clearance (k,)
     metres; the routes' edges (m, 2) (i < j) between old (index < P) and new (P + i) places, their
-    lengths (m,) metres (3-D) and ground geometry (m, 4) (terra.graph.ground.edge_geometry)."""
+    lengths (m,) metres (3-D) and ground geometry (m, 5) (terra.graph.ground.edge_geometry)."""
 
     position: np.ndarray
     terrain: np.ndarray
@@ -115,7 +116,8 @@ class LevelRoutes:
     @classmethod
     def none(cls) -> LevelRoutes:
         z = np.zeros(0)
-        return cls(np.zeros((0, 3)), z.astype(np.int64), z, np.zeros((0, 2), np.int64), z, np.zeros((0, 4), np.float32))
+        geometry = np.zeros((0, len(EDGE_GEOMETRY_COLUMNS)), np.float32)
+        return cls(np.zeros((0, 3)), z.astype(np.int64), z, np.zeros((0, 2), np.int64), z, geometry)
 
 
 def level_routes(
@@ -129,7 +131,7 @@ def level_routes(
     rule: RouteRule,
 ) -> LevelRoutes:
     """The routes that join the pieces of the graph of places (`position` (P, 3) metres, `terrain`
-    (P,), `clearance` (P,) metres) and `edges` (E, 2) with their ground `geometry` (E, 4)
+    (P,), `clearance` (P,) metres) and `edges` (E, 2) with their ground `geometry` (E, 5)
     (terra.graph.ground.edge_geometry) over the level ground of `layers` (module docstring)."""
     position = np.asarray(position, dtype=np.float64)
     piece = _pieces(len(position), edges, geometry, clearance, rule)
@@ -170,10 +172,10 @@ def level_routes(
 
 
 def _level(geometry: np.ndarray, rule: RouteRule) -> np.ndarray:
-    """(E,) bool: edges whose ground geometry (E, 4) is level under `rule` both ways."""
-    g = np.asarray(geometry, dtype=np.float64).reshape(-1, 4)
+    """(E,) bool: edges whose ground geometry (E, 5) is level under `rule` both ways and across."""
+    g = np.asarray(geometry, dtype=np.float64).reshape(-1, len(EDGE_GEOMETRY_COLUMNS))
     level = (g[:, 0] <= rule.max_step) & (g[:, 1] <= rule.max_slope) & (g[:, 2] <= rule.max_slope)
-    return level & ~(g[:, 3] > rule.max_unobserved)
+    return level & ~(g[:, 3] > rule.max_unobserved) & ~(g[:, 4] > rule.max_slope)
 
 
 def _pieces(n: int, edges: np.ndarray, geometry: np.ndarray, clearance: np.ndarray, rule: RouteRule) -> np.ndarray:
@@ -483,5 +485,5 @@ class RouteBuilder:
         length = np.linalg.norm(everything[edges[:, 0]] - everything[edges[:, 1]], axis=1)
         swap = edges[:, 0] > edges[:, 1]
         geometry = geometry.copy()
-        geometry[swap] = geometry[swap][:, [0, 2, 1, 3]]  # rise and fall read the other way
+        geometry[swap] = geometry[swap][:, EDGE_GEOMETRY_REVERSED]  # rise and fall read the other way
         return LevelRoutes(xyz, terrain.astype(np.int64), room, np.sort(edges, axis=1), length, geometry)

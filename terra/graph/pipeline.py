@@ -116,7 +116,7 @@ class PlaceLinks:
     kind: np.ndarray
     grid_links: int
     bridges_not_clear: int
-    geometry: np.ndarray | None = None  # (E, 4) ground geometry of each edge, once computed
+    geometry: np.ndarray | None = None  # (E, 5) ground geometry of each edge, once computed
 
 
 def terrain_places(

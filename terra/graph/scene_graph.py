@@ -30,8 +30,11 @@ EDGE_LEVEL_ROUTE = 3  # one straight leg of a route over level ground between pi
 EDGE_KINDS = (EDGE_GVD, EDGE_CROSS_TERRAIN, EDGE_BRIDGE, EDGE_LEVEL_ROUTE)
 # The ground geometry of a place edge (terra.graph.ground.edge_geometry), one column each: the
 # largest step it crosses (m), its steepest rise and fall from its first place to its second
-# (degrees), the longest stretch of it over ground the map never observed (m).
-EDGE_GEOMETRY_COLUMNS = ("step_m", "rise_deg", "fall_deg", "unobserved_m")
+# (degrees), the longest stretch of it over ground the map never observed (m), the steepest slope
+# of the ground across it (degrees, either side: a wheel on the low side tips the robot).
+EDGE_GEOMETRY_COLUMNS = ("step_m", "rise_deg", "fall_deg", "unobserved_m", "cross_deg")
+# The columns of an edge's geometry read from its second place to its first: rise and fall swap.
+EDGE_GEOMETRY_REVERSED = [0, 2, 1, 3, 4]
 MAX_NODE_ID = (1 << 56) - 1  # a NodeSymbol keeps 56 bits for the index
 
 
@@ -143,12 +146,13 @@ class SceneGraph:
 
     place_edges: (E, 2) place index pairs (i < j); place_edge_weight: (E,) traversal cost in metres
     (bridges carry their penalty); place_edge_kind: (E,) EDGE_* constants.
-    place_edge_geometry: (E, 4) float32 ground geometry of each edge (terra.graph.ground,
+    place_edge_geometry: (E, 5) float32 ground geometry of each edge (terra.graph.ground,
     EDGE_GEOMETRY_COLUMNS): the largest step it crosses (m), its steepest rise and fall going from
     place_edges[:, 0] to place_edges[:, 1] (degrees), the longest stretch of it over unobserved
-    ground (m; NaN, unknown, in a bundle written before it was recorded); (0, 4) when the graph was
-    built without ground layers. Robot profiles read it at planning time (terra.tasks.robot); the
-    graph is the same for every robot.
+    ground (m) and the steepest slope across it (degrees) (the last two NaN, unknown, in a bundle
+    written before they were recorded); (0, 5) when the graph was built without ground layers.
+    Robot profiles read it at planning time (terra.tasks.robot); the graph is the same for every
+    robot.
     terrain_embeddings: (T, D) text embedding of each terrain class name.
     next_id: the next free id per NodeSymbol character ('p' places, 'R', 'S', ... region levels,
     'O' objects): ids at or above it were never given; see `next_ids`.

@@ -48,7 +48,7 @@ GRAPH_FORMAT = 2  # 2: stable node ids (1: ids were the indices; still read)
 READABLE_FORMATS = (1, 2)
 GRAPH_JSON = "graph/scene_graph.json"
 PLACE_IDS, OBJECT_IDS, REGION_IDS = "graph/place_id", "graph/object_id", "graph/region_id_"
-EDGE_GEOMETRY = "graph/place_edge_geometry"  # (E, 4) float32: EDGE_GEOMETRY_COLUMNS (terra.graph.ground)
+EDGE_GEOMETRY = "graph/place_edge_geometry"  # (E, 5) float32: EDGE_GEOMETRY_COLUMNS (terra.graph.ground)
 GROUND_FILES = "graph/ground_"  # the ground layers (terra.graph.ground.GROUND_FILES)
 SPARK_HEADER = {"project_name": "main", "version": {"major": 1, "minor": 1, "patch": 3}}
 LAYER_OBJECTS, LAYER_PLACES, LAYER_REGIONS = 2, 3, 4
@@ -302,7 +302,7 @@ def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any]
     writer.put_array("graph/terrain_embedding", np.asarray(sg.terrain_embeddings, dtype=np.float32))
     writer.put_array(PLACE_IDS, sg.places.id)
     if sg.has_edge_geometry:
-        writer.put_array(EDGE_GEOMETRY, np.asarray(sg.place_edge_geometry, dtype=np.float32))
+        writer.put_array(EDGE_GEOMETRY, _recorded_columns(np.asarray(sg.place_edge_geometry, dtype=np.float32)))
     writer.put_array(OBJECT_IDS, sg.objects.id)
     for level in sg.regions:
         writer.put_array(
@@ -525,10 +525,19 @@ def _from_document(doc, bundle: Bundle, where: str) -> SceneGraph:
     )
 
 
+def _recorded_columns(geometry: np.ndarray) -> np.ndarray:
+    """The edge geometry (E, 5) without its trailing columns that hold NaN (unknown: a graph read
+    from a bundle written before they were recorded), so that what is written reads back."""
+    columns = geometry.shape[1]
+    while columns > 3 and np.isnan(geometry[:, columns - 1]).any():
+        columns -= 1
+    return geometry[:, :columns]
+
+
 def _edge_geometry(bundle: Bundle, edges: int) -> np.ndarray:
-    """The (E, 4) ground geometry of the place edges (EDGE_GEOMETRY_COLUMNS), (0, 4) when the graph
-    has none. A bundle written before the unobserved stretch was recorded (E, 3) reads it as NaN:
-    unknown, which no robot profile refuses."""
+    """The (E, 5) ground geometry of the place edges (EDGE_GEOMETRY_COLUMNS), (0, 5) when the graph
+    has none. A bundle written before the unobserved stretch (E, 3) or the cross slope (E, 4) was
+    recorded reads the missing columns as NaN: unknown, which no robot profile refuses."""
     from terra.npy import ArraySpec
 
     columns = len(EDGE_GEOMETRY_COLUMNS)
@@ -543,13 +552,14 @@ def _edge_geometry(bundle: Bundle, edges: int) -> np.ndarray:
         what=f"per place edge: {', '.join(EDGE_GEOMETRY_COLUMNS)} (the first three at least)",
     )
     geometry = bundle.array(EDGE_GEOMETRY, spec)
-    if geometry.shape[1] not in (columns - 1, columns):
+    if not 3 <= geometry.shape[1] <= columns:
         raise TerraError(
-            f"{bundle.path / EDGE_GEOMETRY}.npy: expected {columns - 1} or {columns} columns "
+            f"{bundle.path / EDGE_GEOMETRY}.npy: expected 3 to {columns} columns "
             f"({', '.join(EDGE_GEOMETRY_COLUMNS)}), found {geometry.shape[1]}"
         )
-    if geometry.shape[1] < columns:
-        geometry = np.column_stack([geometry, np.full(edges, np.nan, dtype=np.float32)])
+    missing = columns - geometry.shape[1]
+    if missing:
+        geometry = np.column_stack([geometry, np.full((edges, missing), np.nan, dtype=np.float32)])
     return geometry
 
 

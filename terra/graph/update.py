@@ -82,7 +82,7 @@ from terra.graph.pipeline import (
 )
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED, SceneGraph
 from terra.mapping.semantic_map import FusionRows, MetricSemanticMap, terrain_winners
 from terra.progress import StageTimer
 
@@ -746,12 +746,13 @@ def _costed(stitch: tuple[np.ndarray, np.ndarray], position: np.ndarray) -> tupl
 
 
 def _edge_geometry(old: SceneGraph, merged: _Merged, links: PlaceLinks, layers: list[GroundLayers]) -> np.ndarray:
-    """(E, 4) float32 ground geometry of the merged edges (step m, rise and fall degrees from
-    edges[:, 0] to edges[:, 1], unobserved stretch m, as terra.graph.ground.edge_geometry): an old
-    edge between kept places keeps its own (rise and fall swapped when its ends are now the other
-    way round); the others are read on the crops' layers (the largest where crops overlap; 0 where
-    no crop saw the ground under them, as a full build reads unseen ground; the unobserved stretch
-    of an edge beyond one crop is the longest any crop holds)."""
+    """(E, 5) float32 ground geometry of the merged edges (step m, rise and fall degrees from
+    edges[:, 0] to edges[:, 1], unobserved stretch m, cross slope degrees, as
+    terra.graph.ground.edge_geometry): an old edge between kept places keeps its own (rise and fall
+    swapped when its ends are now the other way round); the others are read on the crops' layers
+    (the largest where crops overlap; 0 where no crop saw the ground under them, as a full build
+    reads unseen ground; the unobserved stretch of an edge beyond one crop is the longest any crop
+    holds)."""
     edges = links.edges
     out = np.zeros((len(edges), len(EDGE_GEOMETRY_COLUMNS)), dtype=np.float32)
     for layer in layers:
@@ -763,11 +764,14 @@ def _edge_geometry(old: SceneGraph, merged: _Merged, links: PlaceLinks, layers: 
     count = len(old.places)
     keys = old.place_edges[:, 0] * count + old.place_edges[:, 1]
     order = np.argsort(keys)
-    for first, second, columns in ((0, 1, [0, 1, 2, 3]), (1, 0, [0, 2, 1, 3])):
+    forwards = list(range(len(EDGE_GEOMETRY_COLUMNS)))
+    for first, second, columns in ((0, 1, forwards), (1, 0, EDGE_GEOMETRY_REVERSED)):
         wanted = ends[both, first] * count + ends[both, second]
         at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
         hit = keys[order][at] == wanted
-        out[both[hit]] = old.place_edge_geometry[order[at[hit]]][:, columns]
+        kept = old.place_edge_geometry[order[at[hit]]][:, columns]
+        # A column an older bundle did not record (NaN) is read on the layers like a new edge's.
+        out[both[hit]] = np.where(np.isnan(kept), out[both[hit]], kept)
     return out
 
 

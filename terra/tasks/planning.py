@@ -56,7 +56,7 @@ from typing import Any, Generic, Protocol, TypeVar
 import numpy as np
 
 from terra.errors import NoPathError, TerraError
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, SceneGraph
+from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED, SceneGraph
 from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
 from terra.tasks.robot import RobotProfile
@@ -178,7 +178,7 @@ def _wide_enough(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
 
 
 def _edge_geometry(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
-    """The graph's (E, 4) edge geometry; TerraError when it has none to check the robot against."""
+    """The graph's (E, 5) edge geometry; TerraError when it has none to check the robot against."""
     if len(graph.place_edges) and not graph.has_edge_geometry:
         raise TerraError(
             f"the scene graph has no ground geometry (steps, slopes) to check robot {robot.name!r} against; "
@@ -299,14 +299,15 @@ class PathPlan:
 @dataclass(frozen=True)
 class PathGround:
     """The ground a path crosses (terra.graph.ground, from its edges' geometry): the largest step
-    (metres), the steepest climb and descent in the direction of travel (degrees) and the longest
-    stretch of one edge over ground the map never observed (metres; None where the graph does not
-    record it)."""
+    (metres), the steepest climb and descent in the direction of travel (degrees), the longest
+    stretch of one edge over ground the map never observed (metres) and the steepest slope across
+    its way (degrees) (the last two None where the graph does not record them)."""
 
     max_step_m: float
     max_climb_deg: float
     max_descent_deg: float
     max_unobserved_m: float | None = None
+    max_cross_slope_deg: float | None = None
 
     @property
     def max_slope_deg(self) -> float:
@@ -320,6 +321,7 @@ class PathGround:
             "max_descent_deg": round(self.max_descent_deg, 3),
             "max_slope_deg": round(self.max_slope_deg, 3),
             "max_unobserved_m": unobserved,
+            "max_cross_slope_deg": None if self.max_cross_slope_deg is None else round(self.max_cross_slope_deg, 3),
         }
 
 
@@ -336,13 +338,14 @@ def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
     a, b = np.asarray(places[:-1], dtype=np.int64), np.asarray(places[1:], dtype=np.int64)
     geometry = np.asarray(graph.place_edge_geometry, dtype=np.float64)
     rows = np.zeros((len(a), len(EDGE_GEOMETRY_COLUMNS)))
-    for wanted, columns in ((b * n + a, [0, 2, 1, 3]), (a * n + b, [0, 1, 2, 3])):  # backwards, then forwards wins
+    forwards = list(range(len(EDGE_GEOMETRY_COLUMNS)))
+    for wanted, columns in ((b * n + a, EDGE_GEOMETRY_REVERSED), (a * n + b, forwards)):  # forwards wins
         at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
         hit = keys[order][at] == wanted
         rows[hit] = geometry[order[at[hit]]][:, columns]
-    unobserved = rows[:, 3]  # NaN: a bundle that does not record it
-    largest = float(np.nanmax(unobserved)) if np.isfinite(unobserved).any() else None
-    return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()), largest)
+    # NaN: a bundle that does not record the column
+    unobserved, cross = (float(np.nanmax(c)) if np.isfinite(c).any() else None for c in (rows[:, 3], rows[:, 4]))
+    return PathGround(float(rows[:, 0].max()), float(rows[:, 1].max()), float(rows[:, 2].max()), unobserved, cross)
 
 
 def _pair_keys(graph: SceneGraph, places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

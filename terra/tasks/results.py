@@ -103,5 +103,10 @@ class PlanResult:
                 "skipped": [s.to_json() for s in self.goal.skipped],
             },
             "preferences": {"penalty": dict(self.penalty), "forbidden": list(self.forbidden)},
-            "robot": self.robot.model_dump(mode="json") if self.robot is not None else None,
+            # The side slope limit it applies, where the profile leaves it to its climbs and descents.
+            "robot": (
+                self.robot.model_dump(mode="json") | {"max_cross_slope": self.robot.cross_limit}
+                if self.robot is not None
+                else None
+            ),
         }

@@ -6,6 +6,10 @@ crosses, metres; its steepest rise and fall in the direction of travel, degrees)
 
 - an edge is removed, in one direction, when its step exceeds `max_step` or, going that way, its
   rise exceeds `max_slope_up` or its fall exceeds `max_slope_down`;
+- an edge is removed, both ways, when the ground across it is steeper than `max_cross_slope`
+  (a contour along a hillside climbs little and tips the robot sideways; by default the steeper of
+  `max_slope_up` and `max_slope_down`: ground no steeper than that in any direction is safe to
+  cross). A graph whose bundle does not record it is read without this rule;
 - an edge is removed when it crosses more than `max_unobserved` metres of ground the map never
   observed in one stretch: there only the heights at the stretch's two ends are known (a curb up
   and another down cancel out; a bridge over 27 m of unseen ground on the simulated campus crossed
@@ -27,7 +31,8 @@ Every factor is >= 1, so A*'s straight-line heuristic stays admissible. The buil
 `wheelchair` (5 cm step, 8 degrees: a powered wheelchair on ramps steeper than the 1:12 of
 building codes, 4.8 degrees), `wheeled` (10 cm, 15 degrees) and `legged` (20 cm, 35 degrees:
 stairs are a slope of about 30 to 35 degrees); each accepts at most MAX_UNOBSERVED (5 m) of
-unobserved ground in one stretch, as does a profile file that does not say.
+unobserved ground in one stretch, as does a profile file that does not say, and each takes side
+slopes as steep as its climbs.
 """
 
 from __future__ import annotations
@@ -52,6 +57,9 @@ class RobotProfile(Strict):
     max_step: float = Field(ge=0.0, le=2.0, description="metres: the highest step (curb) the robot can climb")
     max_slope_up: Degrees = Field(description="degrees: the steepest climb")
     max_slope_down: Degrees = Field(description="degrees: the steepest descent")
+    max_cross_slope: Degrees | None = Field(
+        default=None, description="degrees: the steepest side slope (None: the steeper of max_slope_up, max_slope_down)"
+    )
     min_width: float = Field(default=0.0, ge=0.0, le=20.0, description="metres: the narrowest passage")
     max_unobserved: float = Field(
         default=MAX_UNOBSERVED,
@@ -71,23 +79,29 @@ class RobotProfile(Strict):
         """One phrase naming the profile's limits, for messages."""
         return (
             f"robot {self.name!r} (steps up to {self.max_step:g} m, climbs up to {self.max_slope_up:g} deg, descents "
-            f"up to {self.max_slope_down:g} deg, passages from {self.min_width:g} m, unobserved ground up to "
-            f"{self.max_unobserved:g} m)"
+            f"up to {self.max_slope_down:g} deg, side slopes up to {self.cross_limit:g} deg, passages from "
+            f"{self.min_width:g} m, unobserved ground up to {self.max_unobserved:g} m)"
         )
+
+    @property
+    def cross_limit(self) -> float:
+        """Degrees: the steepest slope across an edge the robot may drive along."""
+        return max(self.max_slope_up, self.max_slope_down) if self.max_cross_slope is None else self.max_cross_slope
 
     def key(self) -> str:
         """A text that identifies the profile's values (for caches of cost graphs)."""
         return self.model_dump_json()
 
     def edge_rules(self, geometry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """For place edges with ground geometry (E, 4) (step m, rise deg, fall deg, from edge[:, 0]
-        to edge[:, 1], unobserved stretch m, NaN where not recorded): the cost factor (2E,) >= 1 and
-        whether the edge is legal (2E,), first for every edge forwards, then backwards (module
-        docstring)."""
-        step, rise, fall, unobserved = (np.asarray(geometry, dtype=np.float64)[:, k] for k in range(4))
+        """For place edges with ground geometry (E, 5) (step m, rise deg, fall deg, from edge[:, 0]
+        to edge[:, 1], unobserved stretch m, cross slope deg; the last two NaN where not recorded):
+        the cost factor (2E,) >= 1 and whether the edge is legal (2E,), first for every edge
+        forwards, then backwards (module docstring)."""
+        step, rise, fall, unobserved, cross = (np.asarray(geometry, dtype=np.float64)[:, k] for k in range(5))
         up, down = np.concatenate([rise, fall]), np.concatenate([fall, rise])
         steps = np.concatenate([step, step])
-        seen = np.tile(~(unobserved > self.max_unobserved), 2)  # NaN, not recorded: no rule
+        # NaN, not recorded: no rule
+        seen = np.tile(~(unobserved > self.max_unobserved) & ~(cross > self.cross_limit), 2)
         legal = (steps <= self.max_step) & (up <= self.max_slope_up) & (down <= self.max_slope_down) & seen
         ratio = np.maximum(_share(up, self.max_slope_up), _share(down, self.max_slope_down))
         return 1.0 + self.slope_cost * np.where(legal, ratio, 0.0), legal

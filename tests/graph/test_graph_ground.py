@@ -462,10 +462,37 @@ def test_edge_geometry_of_a_slope_and_a_curb():
     assert geometry[0, 1] == pytest.approx(10.0, abs=0.5) and geometry[0, 2] == pytest.approx(0.0, abs=0.5)
     assert geometry[1, 1] == pytest.approx(0.0, abs=0.5) and geometry[1, 2] == pytest.approx(10.0, abs=0.5)
     assert geometry[2, 1] < 0.5 and geometry[2, 2] < 0.5  # across the slope: level
+    # The slope across: 10 degrees on the contour (2, 3), none straight up or down.
+    assert geometry[2, 4] == pytest.approx(10.0, abs=0.5) and np.all(geometry[:2, 4] < 0.5)
+    # At 45 degrees to the slope: tan a = tan 10 x cos 45 along it and as much across.
+    diagonal = edge_geometry(slope, np.array([[4.0, 1.0, 0.0], [12.0, 9.0, 0.0]]), np.array([[0, 1]]))[0]
+    expected = np.degrees(np.arctan(TAN10 * np.cos(np.radians(45.0))))
+    assert diagonal[1] == pytest.approx(expected, abs=0.5) and diagonal[4] == pytest.approx(expected, abs=0.5)
     curb = ground_layers(np.column_stack([xy, np.where(xy[:, 1] >= 5.0, 0.15, 0.0)]), flat_frame(20, 10))
     geometry = edge_geometry(curb, position, np.array([[2, 3], [0, 1]]))
     assert geometry[0, 0] == pytest.approx(0.15, abs=0.02)  # crosses the curb
     assert geometry[1, 0] < 0.02  # runs beside it, 3 m away
+    assert np.all(geometry[:, 4] < 0.5)  # a curb is a step, not a slope across the edge (nor along the road)
+    # Along the curb on its top, on the cells beside it whose planes take in the curb: no slope
+    # steeper than a wheelchair's 8 degrees (the curb's own cells are the step column's business).
+    for y in (4.7, 5.1, 5.3):
+        beside = edge_geometry(curb, np.array([[2.0, y, 0.0], [18.0, y, 0.0]]), np.array([[0, 1]]))[0]
+        assert beside[4] < 8.0, y
+
+
+def test_a_plane_through_cells_nearly_in_a_line_reads_no_slope_across():
+    """Level ground seen as one row of cells (a far ring: points near the row's top, y 2.35..2.4 m)
+    and one cell above it, 1 cm higher, seen at its bottom (y 2.4..2.45): the planes of the row's
+    cells beside it, through four cells whose centroids nearly line up, climb 11 degrees across the
+    row (read, the edge along the row would read so). Too few cells (4 of 9) to tell a slope
+    across an edge along the row: it reads none."""
+    rng = np.random.default_rng(5)
+    row = np.column_stack([uniform(rng, [2.0, 2.35], [8.0, 2.4], 3000), np.zeros(3000)])
+    above = np.column_stack([uniform(rng, [4.0, 2.4], [4.4, 2.45], 200), np.full(200, 0.01)])
+    layers = ground_layers(np.vstack([row, above]), flat_frame(10, 5))
+    assert np.all(layers.as_grid(layers.slope)[5, 9:12] > 10.0)  # the row's cells below the higher one
+    position = np.array([[2.5, 2.38, 0.0], [7.5, 2.38, 0.0]])
+    assert edge_geometry(layers, position, np.array([[0, 1]]))[0, 4] < 0.5
 
 
 def test_edge_geometry_measures_the_stretch_over_unobserved_ground():
@@ -498,8 +525,11 @@ def test_an_edge_slope_leaves_out_the_cells_beside_an_obstacle():
     layers.near_obstacle = (np.abs(centres[:, 0] - 9.5) < 1.5) & (np.abs(centres[:, 1] - 5.0) < 1.5)
     clear = edge_geometry(layers, position, np.array([[0, 1]]))
     assert clear[0, 1] == pytest.approx(np.degrees(np.arctan(0.05)), abs=0.3) and clear[0, 2] < 0.3
+    assert clear[0, 4] < 0.3  # level across, with or without the bump
     layers.near_obstacle = np.ones(len(layers.cells), dtype=bool)  # all of it beside an obstacle: all read
-    np.testing.assert_array_equal(edge_geometry(layers, position, np.array([[0, 1]])), bumpy)
+    np.testing.assert_array_equal(edge_geometry(layers, position, np.array([[0, 1]]))[:, :4], bumpy[:, :4])
+    # ... but for the slope across, read only on planes clear of obstacles: none here.
+    assert edge_geometry(layers, position, np.array([[0, 1]]))[0, 4] == 0.0
 
 
 def test_an_edge_clear_of_obstacles_at_one_end_only_reads_its_slope_beside_them():
@@ -659,30 +689,39 @@ def test_an_edit_of_the_graph_keeps_the_ground_layers(lidar_only_bundle, tmp_pat
     np.testing.assert_array_equal(load_scene_graph(after).place_edge_geometry, graph.place_edge_geometry)
 
 
-def test_edge_geometry_of_an_older_bundle_reads_the_unobserved_stretch_as_unknown(lidar_only_bundle, tmp_path, capsys):
-    """A bundle written before the stretch over unobserved ground was recorded holds three columns:
-    read as NaN (unknown; no robot refuses on it, a plan reports none), and a plan still runs; five
-    columns are one line naming the file, exit 2."""
+@pytest.mark.parametrize("recorded", [3, 4])
+def test_edge_geometry_of_an_older_bundle_reads_what_it_lacks_as_unknown(lidar_only_bundle, tmp_path, capsys, recorded):
+    """A bundle written before the stretch over unobserved ground (three columns) or the cross slope
+    (four) was recorded: the missing columns read as NaN (unknown; no robot refuses on them, a plan
+    reports none), a plan still runs, and the graph written again reads back with the columns it
+    knows; six columns are one line naming the file, exit 2."""
     from terra.bundle import BundleWriter
+    from terra.graph.storage import write_scene_graph
     from tests.graph.fixtures import copy_bundle
 
     path = copy_bundle(lidar_only_bundle, tmp_path / "old.terra")
     graph = load_scene_graph(Bundle(path))
-    assert np.isfinite(graph.place_edge_geometry).all() and graph.place_edge_geometry.shape[1] == 4
+    assert np.isfinite(graph.place_edge_geometry).all() and graph.place_edge_geometry.shape[1] == 5
     with BundleWriter(path, base=Bundle(path)) as writer:
-        writer.put_array("graph/place_edge_geometry", graph.place_edge_geometry[:, :3].copy())
+        writer.put_array("graph/place_edge_geometry", graph.place_edge_geometry[:, :recorded].copy())
     old = load_scene_graph(Bundle(path))
-    np.testing.assert_array_equal(old.place_edge_geometry[:, :3], graph.place_edge_geometry[:, :3])
-    assert np.isnan(old.place_edge_geometry[:, 3]).all() and old.has_edge_geometry
+    np.testing.assert_array_equal(old.place_edge_geometry[:, :recorded], graph.place_edge_geometry[:, :recorded])
+    assert np.isnan(old.place_edge_geometry[:, recorded:]).all() and old.has_edge_geometry
     capsys.readouterr()
     last = str(len(graph.places) - 1)
     assert run(["plan", str(path), "--from-node", "0", "--to-node", last, "--json"]) == 0
-    assert '"max_unobserved_m": null' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert '"max_cross_slope_deg": null' in out and ('"max_unobserved_m": null' in out) == (recorded == 3)
     with BundleWriter(path, base=Bundle(path)) as writer:
-        writer.put_array("graph/place_edge_geometry", np.zeros((len(graph.place_edges), 5), np.float32))
+        write_scene_graph(writer, old)
+    again = load_scene_graph(Bundle(path)).place_edge_geometry
+    np.testing.assert_array_equal(again[:, :recorded], graph.place_edge_geometry[:, :recorded])
+    assert np.isnan(again[:, recorded:]).all()
+    with BundleWriter(path, base=Bundle(path)) as writer:
+        writer.put_array("graph/place_edge_geometry", np.zeros((len(graph.place_edges), 6), np.float32))
     assert run(["plan", str(path), "--from-node", "0", "--to-node", last, "--json"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "place_edge_geometry.npy" in err and "4 columns" in err
+    assert len(err.splitlines()) == 1 and "place_edge_geometry.npy" in err and "3 to 5 columns" in err
 
 
 @pytest.mark.parametrize("argv", [["find", "bench"], ["monitor", "parking lot"], ["plan", "--to", "the bench"]])

@@ -72,7 +72,7 @@ def test_a_route_joins_the_road_to_the_walk_through_the_cut_and_bends_there():
     grid, layers = street_ground()
     # Two places with no edge between them: one on the road far west, one on the walk far east.
     position = np.array([[3.0, 2.5, 0.0], [27.0, 9.0, 0.15]])
-    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 5), np.float32)
     routes = level_routes(
         position, np.array([ASPHALT, SIDEWALK]), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE
     )
@@ -98,7 +98,7 @@ def test_a_route_joins_the_road_to_the_walk_through_the_cut_and_bends_there():
 def test_no_route_over_a_curb_without_a_cut():
     grid, layers = street_ground(cut=False)
     position = np.array([[3.0, 2.5, 0.0], [27.0, 9.0, 0.15]])
-    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 5), np.float32)
     routes = level_routes(
         position, np.array([ASPHALT, SIDEWALK]), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE
     )
@@ -127,7 +127,7 @@ def test_a_route_crosses_ground_without_points_only_where_a_step_would_read(gap,
     # top (ground scanned in rings) is crossed.
     grid, layers = gutter_ground(gap)
     position = np.array([[10.0, 1.5, 0.0], [10.0, 10.0, 0.25]])
-    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 5), np.float32)
     if joined:
         position = np.array([[10.0, 7.0, 0.25], [10.0, 10.0, 0.25]])
     routes = level_routes(position, np.zeros(2, np.int64), np.array([2.0, 2.0]), edges, geometry, grid, layers, RULE)
@@ -139,13 +139,13 @@ def test_routes_join_each_piece_once_cheapest_first():
     # (10 m each) join them; 0-2 (20 m) would join nothing new. Straight lines: no new places.
     grid, layers = street_ground()
     position = np.array([[5.0, 9.5, 0.15], [15.0, 9.5, 0.15], [25.0, 9.5, 0.15]])
-    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 5), np.float32)
     routes = level_routes(position, np.full(3, SIDEWALK), np.full(3, 2.0), edges, geometry, grid, layers, RULE)
     assert len(routes.position) == 0
     assert sorted(map(tuple, routes.edges.tolist())) == [(0, 1), (1, 2)]
     assert np.allclose(routes.length, 10.0, atol=0.01)
     # Places already joined by a level edge make one piece: nothing to route.
-    level = np.zeros((2, 4), np.float32)
+    level = np.zeros((2, 5), np.float32)
     joined = level_routes(
         position, np.full(3, SIDEWALK), np.full(3, 2.0), np.array([[0, 1], [1, 2]]), level, grid, layers, RULE
     )
@@ -155,7 +155,7 @@ def test_routes_join_each_piece_once_cheapest_first():
     both = level_routes(close, np.full(3, SIDEWALK), np.full(3, 2.0), edges, geometry, grid, layers, RULE)
     assert sorted(map(tuple, both.edges.tolist())) == [(0, 1), (0, 2)]
     # An edge over the curb is no level edge: its places stay apart.
-    steep = np.array([[0.15, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]], np.float32)
+    steep = np.array([[0.15, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0]], np.float32)
     apart = level_routes(
         position, np.full(3, SIDEWALK), np.full(3, 2.0), np.array([[0, 1], [1, 2]]), steep, grid, layers, RULE
     )
@@ -192,7 +192,7 @@ def test_blocks_keep_clear_of_steps_and_cross_short_holes_only():
     # A route crosses the short hole and not the wide stretch; it bends around the step's cell,
     # which the straight line from place 0 to place 1 (along y = 4.2) crosses.
     position = np.array([[2.0, 4.2, 0.0], [11.0, 4.2, 0.0], [15.8, 4.2, 0.0]])
-    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 5), np.float32)
     routes = level_routes(position, np.zeros(3, np.int64), np.full(3, 2.0), edges, geometry, grid, layers, RULE)
     assert len(routes.position) >= 1 and not (routes.edges == 2).any()
     chain = np.vstack([position, routes.position])
@@ -288,7 +288,7 @@ def test_a_route_crosses_ground_seen_in_sparse_rings_unless_the_rings_differ_by_
     # heights across the gaps between rings, where a curb between two rings reads 15 cm.
     grid, layers = ring_layers(curb)
     position = np.array([[2.0, 4.0, 0.0], [22.0, 4.0, 0.15 if curb else 0.0]])
-    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 4), np.float32)
+    edges, geometry = np.zeros((0, 2), np.int64), np.zeros((0, 5), np.float32)
     routes = level_routes(position, np.zeros(2, np.int64), np.full(2, 2.0), edges, geometry, grid, layers, RULE)
     assert (len(routes.edges) > 0) != curb
     if not curb:

@@ -115,7 +115,9 @@ def test_stairs_are_avoided_by_wheels_and_taken_by_legs():
         assert plan.ground.max_step_m <= ROBOTS[name].max_step
 
 
-def two_places(rise: float, fall: float = 0.0, step: float = 0.0, unobserved: float = 0.0) -> SceneGraph:
+def two_places(
+    rise: float, fall: float = 0.0, step: float = 0.0, unobserved: float = 0.0, cross: float = 0.0
+) -> SceneGraph:
     """Two places 10 m apart on one edge whose ground geometry is given by hand."""
     position = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
     return SceneGraph(
@@ -127,7 +129,7 @@ def two_places(rise: float, fall: float = 0.0, step: float = 0.0, unobserved: fl
         place_edges=np.array([[0, 1]]),
         place_edge_weight=np.array([10.0]),
         place_edge_kind=np.array([EDGE_GVD]),
-        place_edge_geometry=np.array([[step, rise, fall, unobserved]], dtype=np.float32),
+        place_edge_geometry=np.array([[step, rise, fall, unobserved, cross]], dtype=np.float32),
     )
 
 
@@ -169,9 +171,32 @@ def test_an_edge_over_a_long_unobserved_stretch_is_refused():
     assert plan_path(two_places(rise=0.0, unobserved=6.0), 0, 1).cost == pytest.approx(10.0)  # no robot, no rule
 
 
+def test_an_edge_along_a_side_slope_steeper_than_the_limit_is_refused():
+    """An edge climbing 2 degrees along a hillside 11 degrees steep across it: refused both ways by
+    the wheelchair (side slopes up to its climbs' 8 degrees) and by a profile limiting side slopes
+    to 10; kept by one allowing 12; a graph that does not record it (NaN) is planned as before."""
+    chair = ROBOTS["wheelchair"]
+    assert chair.cross_limit == 8.0
+    hillside = two_places(rise=2.0, cross=11.0)
+    for a, b in ((0, 1), (1, 0)):
+        with pytest.raises(NoPathError, match="side slopes up to 8 deg"):
+            plan_path(hillside, a, b, robot=chair)
+    assert RobotProfile(name="s", max_step=0.1, max_slope_up=12, max_slope_down=4).cross_limit == 12.0
+    tippy = RobotProfile(name="tippy", max_step=0.1, max_slope_up=12, max_slope_down=12, max_cross_slope=10)
+    with pytest.raises(NoPathError):
+        plan_path(hillside, 0, 1, robot=tippy)
+    steady = tippy.model_copy(update={"max_cross_slope": 12.0})
+    plan = plan_path(hillside, 0, 1, robot=steady)
+    # The side slope adds no cost: 10 m x (1 + 1 x 2 / 12).
+    assert plan.cost == pytest.approx(10.0 * (1 + 2.0 / 12.0))
+    assert plan.ground is not None and plan.ground.max_cross_slope_deg == pytest.approx(11.0)
+    unrecorded = plan_path(two_places(rise=2.0, cross=np.nan), 0, 1, robot=chair)
+    assert unrecorded.ground is not None and unrecorded.ground.to_json()["max_cross_slope_deg"] is None
+
+
 def test_a_graph_without_ground_geometry_refuses_a_robot():
     graph = two_places(rise=0.0)
-    graph.place_edge_geometry = np.zeros((0, 4), dtype=np.float32)
+    graph.place_edge_geometry = np.zeros((0, 5), dtype=np.float32)
     with pytest.raises(TerraError, match="no ground geometry"):
         plan_path(graph, 0, 1, robot=ROBOTS["wheelchair"])
     assert plan_path(graph, 0, 1).ground is None
@@ -189,6 +214,7 @@ def test_robot_from_flag_file_task_file_and_config(lidar_only_bundle, tmp_path, 
     out = plan_json(capsys, [*base, "--robot", "wheelchair"])
     assert out["robot"]["name"] == "wheelchair" and out["ground"]["max_step_m"] <= 0.05
     assert out["ground"]["max_slope_deg"] <= 8.0
+    assert out["robot"]["max_cross_slope"] == 8.0 and out["ground"]["max_cross_slope_deg"] <= 8.0
     profile = tmp_path / "scooter.yaml"
     profile.write_text("max_step: 0.08\nmax_slope_up: 10\nmax_slope_down: 12\nterrain_costs: {ground: 0.5}\n")
     out = plan_json(capsys, [*base, "--robot", str(profile)])
@@ -220,6 +246,10 @@ def test_a_request_carries_a_profile_as_json():
         ("max_step: -0.05\nmax_slope_up: 8\nmax_slope_down: 8\n", "field 'max_step': Input should be greater"),
         ("max_step: 0.05\nmax_slope_up: 95\nmax_slope_down: 8\n", "field 'max_slope_up': Input should be less"),
         ("max_step: 0.05\nmax_slope_up: 8\n", "field 'max_slope_down': Field required"),
+        (
+            "max_step: 0.05\nmax_slope_up: 8\nmax_slope_down: 8\nmax_cross_slope: -1\n",
+            "field 'max_cross_slope': Input should be greater",
+        ),
         ("- 0.05\n", "expected a mapping"),
     ],
 )
