@@ -8,10 +8,12 @@ Sections (each skipped when its input is not given):
   Patchwork++ (pypatchworkpp, when installed) on each scan.
 - labelled: with `--labelled SEQ` (a SemanticKITTI sequence with velodyne/ and labels/), the
   scores of `terra eval --ground-only` (terra.eval.ground_segmentation) for segment_ground and, when
-  pypatchworkpp is installed, for Patchwork++ on the same scans and labels.
+  pypatchworkpp is installed, for Patchwork++ on the same scans and labels; and the step layer
+  on each scan's road, where the labels say what it should read (`steps_on_labelled_road`).
 - lidar-only: `terra map --poses odometry` (KISS-ICP) and `terra build` of the KITTI scans in
   `--kitti DIR`, and the share of the largest connected patch of densely observed ground cells
-  (>= 60 % of a 9 x 9 window observed) within 3, 5 and 10 m of a place.
+  (>= 60 % of a 9 x 9 window observed) within 3, 5 and 10 m of a place; and the share of its
+  place edges each of the wheelchair's rules refuses.
 - wheelchair: `--pairs` random start-goal place pairs on the graph of `--wheelchair-map` (a map
   of the simulated `--wheelchair-preset` with the `sim:` section of `--sim-config`, e.g. a larger
   `ground_relief_m` for slopes beyond the wheelchair's), planned with and without the wheelchair
@@ -135,6 +137,57 @@ def segmentation_kitti(folder: Path) -> dict[str, Any]:
     return {"reference": name, "scans": rows, "mean": mean}
 
 
+ROAD, SIDEWALK = 40, 48  # SemanticKITTI ids
+
+
+def steps_on_labelled_road(sequence: Path, cell_size: float = 0.4) -> dict[str, Any]:
+    """The step layer (terra.graph.ground.ground_layers on segment_ground's ground, one scan at a
+    time, cells of `cell_size` metres) on real labelled scans, where the labels say what it should
+    read: cells whose ground points are all road with no other labelled ground within two cells
+    (a road's interior: no step there), and road cells beside a sidewalk cell (where curbs are).
+    Per scan: the cells, the 50th/90th/99th percentiles of their step (metres) and the share
+    above the wheelchair's 5 cm."""
+    from scipy import ndimage
+
+    from terra.eval.ground_segmentation import labelled_scans, read_labelled_scan
+    from terra.graph.ground import ground_layers, segment_ground
+    from terra.graph.grid import GridFrame
+
+    _, pairs = labelled_scans(sequence)
+    rows = []
+    for scan, label in pairs:
+        points, labels = read_labelled_scan(scan, label)
+        ground = segment_ground(points)
+        xy, labels = points[ground, :2].astype(np.float64), labels[ground]
+        low = xy.min(axis=0) - 2 * cell_size
+        shape = tuple(int(v) for v in np.ceil((xy.max(axis=0) + 2 * cell_size - low) / cell_size)[::-1])
+        layers = ground_layers(points[ground], GridFrame((float(low[0]), float(low[1])), shape, cell_size))
+        cell = np.floor((xy - low) / cell_size).astype(np.int64)
+        flat = cell[:, 1] * shape[1] + cell[:, 0]
+        road = np.bincount(flat, labels == ROAD, shape[0] * shape[1]) == np.bincount(flat, None, shape[0] * shape[1])
+        held = np.bincount(flat, None, shape[0] * shape[1]) > 0
+        road, held = (road & held).reshape(shape), held.reshape(shape)
+        walk = (np.bincount(flat[labels == SIDEWALK], None, shape[0] * shape[1]) > 0).reshape(shape)
+        other = held & ~road
+        kinds = {
+            "road_interior": road & ~ndimage.binary_dilation(other, np.ones((5, 5), dtype=bool)),
+            "road_beside_sidewalk": road & ndimage.binary_dilation(walk, np.ones((3, 3), dtype=bool)),
+        }
+        step = layers.as_grid(layers.step)
+        row: dict[str, Any] = {"scan": f"{scan.parent.parent.name}/{scan.stem}"}
+        for name, mask in kinds.items():
+            read = step[mask & np.isfinite(step)]
+            row[name] = {
+                "cells": len(read),
+                "step_m_percentiles_50_90_99": [round(float(v), 3) for v in np.percentile(read, [50, 90, 99])]
+                if len(read)
+                else None,
+                "share_over_5cm": round(float(np.mean(read > 0.05)), 4) if len(read) else None,
+            }
+        rows.append(row)
+    return {"sequence": str(sequence), "scans": rows}
+
+
 def segmentation_labelled(sequence: Path) -> dict[str, Any]:
     """`terra eval --ground-only` scores of segment_ground, and of Patchwork++ when installed, on the
     labelled scans of a SemanticKITTI sequence."""
@@ -177,9 +230,40 @@ def lidar_only_build(folder: Path, work: Path) -> dict[str, Any]:
         subprocess.run([sys.executable, "-m", "terra", *argv], check=True, capture_output=True)
         seconds[name] = round(time.perf_counter() - start, 2)
     graph = load_scene_graph(Bundle(bundle))
-    return {"scans": len(list(sequence.glob("*.bin"))), "places": len(graph.places), "seconds": seconds} | coverage(
-        Bundle(bundle), graph.places.position
+    return (
+        {"scans": len(list(sequence.glob("*.bin"))), "places": len(graph.places), "seconds": seconds}
+        | coverage(Bundle(bundle), graph.places.position)
+        | {"wheelchair_edges": wheelchair_edge_rules(graph.place_edge_geometry)}
     )
+
+
+def wheelchair_edge_rules(geometry: np.ndarray) -> dict[str, Any]:
+    """How the place edges' ground geometry (E, 5) (terra.graph.ground.edge_geometry) reads on real
+    scans, and the share of edges each of the wheelchair's rules refuses (an edge can fail several):
+    the step, the climb or descent either way, the side slope, the unobserved stretch."""
+    from terra.tasks.robot import ROBOTS
+
+    chair = ROBOTS["wheelchair"]
+    g = np.asarray(geometry, dtype=np.float64)
+    if len(g) == 0:
+        return {"edges": 0}
+    rules = {
+        "step": g[:, 0] > chair.max_step,
+        "slope_along": np.maximum(g[:, 1], g[:, 2]) > chair.max_slope_up,
+        "side_slope": g[:, 4] > chair.cross_limit,
+        "unobserved": g[:, 3] > chair.max_unobserved,
+    }
+    _, legal = chair.edge_rules(g)
+    return {
+        "edges": len(g),
+        "refused_share_by": {k: round(float(v.mean()), 4) for k, v in rules.items()},
+        "refused_only_by_side_slope": int((rules["side_slope"] & ~rules["step"] & ~rules["slope_along"]).sum()),
+        "legal_both_ways_share": round(float((legal[: len(g)] & legal[len(g) :]).mean()), 4),
+        "side_slope_deg_percentiles_50_90_99": [round(float(v), 2) for v in np.percentile(g[:, 4], [50, 90, 99])],
+        "slope_along_deg_percentiles_50_90_99": [
+            round(float(v), 2) for v in np.percentile(np.maximum(g[:, 1], g[:, 2]), [50, 90, 99])
+        ],
+    }
 
 
 def coverage(bundle: Bundle, places: np.ndarray) -> dict[str, Any]:
@@ -416,6 +500,7 @@ def main() -> None:
             result["lidar_only_kitti"] = lidar_only_build(args.kitti, Path(work))
     if args.labelled is not None:
         result["segmentation_labelled"] = segmentation_labelled(args.labelled)
+        result["steps_on_labelled_road"] = steps_on_labelled_road(args.labelled)
     if args.campus_map is not None:
         result["build_time"] = build_time(args.campus_map, args.repeat, args.ground_before)
         result["build_command_time"] = command_time(args.campus_map, args.repeat)
