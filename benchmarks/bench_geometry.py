@@ -150,8 +150,8 @@ def steps_on_labelled_road(sequence: Path, cell_size: float = 0.4) -> dict[str, 
     from scipy import ndimage
 
     from terra.eval.ground_segmentation import labelled_scans, read_labelled_scan
-    from terra.graph.ground import ground_layers, segment_ground
     from terra.graph.grid import GridFrame
+    from terra.graph.ground import ground_layers, segment_ground
 
     _, pairs = labelled_scans(sequence)
     rows = []
@@ -160,17 +160,19 @@ def steps_on_labelled_road(sequence: Path, cell_size: float = 0.4) -> dict[str, 
         ground = segment_ground(points)
         xy, labels = points[ground, :2].astype(np.float64), labels[ground]
         low = xy.min(axis=0) - 2 * cell_size
-        shape = tuple(int(v) for v in np.ceil((xy.max(axis=0) + 2 * cell_size - low) / cell_size)[::-1])
+        size = np.ceil((xy.max(axis=0) + 2 * cell_size - low) / cell_size).astype(int)
+        shape = (int(size[1]), int(size[0]))
         layers = ground_layers(points[ground], GridFrame((float(low[0]), float(low[1])), shape, cell_size))
         cell = np.floor((xy - low) / cell_size).astype(np.int64)
         flat = cell[:, 1] * shape[1] + cell[:, 0]
         road = np.bincount(flat, labels == ROAD, shape[0] * shape[1]) == np.bincount(flat, None, shape[0] * shape[1])
         held = np.bincount(flat, None, shape[0] * shape[1]) > 0
-        road, held = (road & held).reshape(shape), held.reshape(shape)
+        road, held = np.asarray(road & held, dtype=bool).reshape(shape), held.reshape(shape)
         walk = (np.bincount(flat[labels == SIDEWALK], None, shape[0] * shape[1]) > 0).reshape(shape)
         other = held & ~road
         kinds = {
-            "road_interior": road & ~ndimage.binary_dilation(other, np.ones((5, 5), dtype=bool)),
+            "road_interior": road
+            & ~np.asarray(ndimage.binary_dilation(other, np.ones((5, 5), dtype=bool)), dtype=bool),
             "road_beside_sidewalk": road & ndimage.binary_dilation(walk, np.ones((3, 3), dtype=bool)),
         }
         step = layers.as_grid(layers.step)

@@ -112,14 +112,15 @@ def test_a_real_roads_interior_reads_no_step_and_its_curbs_do(scan):
     ground = segment_ground(points)
     xy, labels = points[ground, :2].astype(np.float64), labels[ground]
     low = xy.min(axis=0) - 1.0
-    shape = tuple(int(v) for v in np.ceil((xy.max(axis=0) + 1.0 - low) / CELL)[::-1])
+    size = np.ceil((xy.max(axis=0) + 1.0 - low) / CELL).astype(int)
+    shape = (int(size[1]), int(size[0]))
     layers = ground_layers(points[ground], GridFrame((float(low[0]), float(low[1])), shape, CELL))
     cell = np.floor((xy - low) / CELL).astype(np.int64)
     flat = cell[:, 1] * shape[1] + cell[:, 0]
     count = np.bincount(flat, minlength=shape[0] * shape[1])
-    road = ((np.bincount(flat, labels == 40, len(count)) == count) & (count > 0)).reshape(shape)
+    road = np.asarray((np.bincount(flat, labels == 40, len(count)) == count) & (count > 0), dtype=bool).reshape(shape)
     other = (count > 0).reshape(shape) & ~road
-    interior = road & ~ndimage.binary_dilation(other, np.ones((5, 5), dtype=bool))
+    interior = road & ~np.asarray(ndimage.binary_dilation(other, np.ones((5, 5), dtype=bool)), dtype=bool)
     step = layers.as_grid(layers.step)
     read = step[interior & np.isfinite(step)]
     assert len(read) > 100 and np.mean(read > 0.05) <= 0.02
