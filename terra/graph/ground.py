@@ -689,12 +689,7 @@ def edge_geometry(
     unit = delta / np.maximum(length, 1e-9)[:, None]
     along = np.where(known, (layers.gradient[np.maximum(at, 0)] * unit[edge]).sum(axis=1), np.nan)
     rise = np.fmax(rise, _steepest_along(edge[heights], along[heights], E))
-    normal = np.column_stack([-unit[:, 1], unit[:, 0]])
-    across = np.where(known, (layers.gradient[np.maximum(at, 0)] * normal[edge]).sum(axis=1), np.nan)
-    level = clear & (np.nan_to_num(step, nan=np.inf) <= CROSS_STEP)
-    cells, inverse = np.unique(flat[level], return_inverse=True)  # two samples a cell: judge each cell once
-    level[level] = _plane_across_holds(layers, cells)[inverse]
-    cross = _steepest_along(edge[level], np.abs(across[level]), E)[:, 0]
+    cross = _steepest_across(layers, SampleCells(at, flat, step, edge), clear, unit, E)
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
         z = np.asarray(position, dtype=np.float64)[:, 2]
@@ -716,6 +711,33 @@ def _sampled_steps(layers: GroundLayers, at: np.ndarray, flat: np.ndarray) -> np
         on_line = (flat >= 0) & layers.lines.ravel()[np.maximum(flat, 0)]
         step = np.where(on_line, np.fmax(step, layers.line_step), step)
     return step
+
+
+@dataclass
+class SampleCells:
+    """What edge_geometry knows of its samples' cells: the observed cell `at` (S,) (-1: none), the
+    grid cell `flat` (S,) (-1: outside the grid), the step read there `step` (S,) metres (NaN:
+    unknown) and the edge `edge` (S,) each sample belongs to."""
+
+    at: np.ndarray
+    flat: np.ndarray
+    step: np.ndarray
+    edge: np.ndarray
+
+
+def _steepest_across(
+    layers: GroundLayers, samples: SampleCells, clear: np.ndarray, unit: np.ndarray, edges: int
+) -> np.ndarray:
+    """(E,) m/m: the steepest slope across each edge (direction `unit` (E, 2)) of the planes of
+    its samples' cells that are `clear` (S,) of obstacles, hold no step above CROSS_STEP and whose
+    plane tells a slope across (`_plane_across_holds`); 0 where none does."""
+    normal = np.column_stack([-unit[:, 1], unit[:, 0]])
+    level = clear & (np.nan_to_num(samples.step, nan=np.inf) <= CROSS_STEP)
+    cells, inverse = np.unique(samples.flat[level], return_inverse=True)  # two samples a cell: judge each once
+    level[level] = _plane_across_holds(layers, cells)[inverse]
+    edge = samples.edge[level]
+    across = np.abs((layers.gradient[samples.at[level]] * normal[edge]).sum(axis=1))
+    return _steepest_along(edge, across, edges)[:, 0]
 
 
 def _plane_across_holds(layers: GroundLayers, flat: np.ndarray) -> np.ndarray:
