@@ -46,6 +46,7 @@ from terra.graph.linking import (
 from terra.graph.places import CellPlaces, extract_places, unique_edge_rows
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources, GridTiles, GvdTiles
+from terra.graph.room import obstacle_points, place_room
 from terra.graph.scene_graph import (
     EDGE_BRIDGE,
     EDGE_CROSS_TERRAIN,
@@ -446,12 +447,13 @@ def build_scene_graph(
     with timer.stage("edge ground, level routes"):
         places, links = with_level_routes(places, links, grid, layers, config)
         _count_places(counts, places.terrain[len(places.position) - places.route_places :])
+        room = place_room(places.position, obstacle_points(msm.points, grid, config.grid.obstacle_height))
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
     with timer.stage(f"regions ({config.regions.method})"):
         assignments = region_assignments(places.position, embedding, places.terrain, links.edges, config)
         levels = build_levels(assignments, places.position, embedding)
-    graph = scene_graph(msm, places, embedding, links, levels, config)
+    graph = scene_graph(msm, places, embedding, links, levels, config, room)
     if links.geometry is not None:
         graph.place_edge_geometry = links.geometry
     if previous is not None:
@@ -671,8 +673,10 @@ def scene_graph(
     links: PlaceLinks,
     levels: list[RegionLevel],
     config: BuildConfig,
+    room: np.ndarray | None = None,
 ) -> SceneGraph:
-    """The SceneGraph of built places, their embeddings (P, D), links and region levels (ids = indices)."""
+    """The SceneGraph of built places, their embeddings (P, D), links and region levels (ids =
+    indices); `room` (P,) metres to the nearest obstacle (terra.graph.room), unknown without."""
     return SceneGraph(
         terrain_classes=list(msm.terrain_classes),
         terrain_embeddings=np.asarray(msm.terrain_embeddings, dtype=np.float32),
@@ -681,6 +685,7 @@ def scene_graph(
             places.terrain.astype(np.int64),
             places.clearance.astype(np.float64),
             embedding.astype(np.float32),
+            room=None if room is None else np.asarray(room, dtype=np.float64),
         ),
         place_edges=links.edges,
         place_edge_weight=links.weight,

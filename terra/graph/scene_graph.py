@@ -73,6 +73,8 @@ class Places:
     SceneGraph.terrain_classes. clearance: (P,) metres to the nearest cell not of this terrain.
     embedding: (P, D) image embedding (mean of whole-image embeddings of images that saw the place).
     id: (P,) stable ids (default 0..P-1).
+    room: (P,) metres to the nearest obstacle (terra.graph.room, at most ROOM_REACH), what robot
+    widths are checked against; NaN where unknown (a bundle written before it was recorded).
     """
 
     position: np.ndarray
@@ -80,9 +82,14 @@ class Places:
     clearance: np.ndarray
     embedding: np.ndarray
     id: np.ndarray = field(default_factory=_no_ids)
+    room: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.id = node_ids(self.id, len(self), "places")
+        if self.room is None:
+            self.room = np.full(len(self), np.nan)
+        elif len(self.room) != len(self):
+            raise ValueError(f"places: {len(self.room)} room values for {len(self)} places")
 
     def __len__(self) -> int:
         return int(self.position.shape[0])

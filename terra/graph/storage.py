@@ -48,6 +48,7 @@ GRAPH_FORMAT = 2  # 2: stable node ids (1: ids were the indices; still read)
 READABLE_FORMATS = (1, 2)
 GRAPH_JSON = "graph/scene_graph.json"
 PLACE_IDS, OBJECT_IDS, REGION_IDS = "graph/place_id", "graph/object_id", "graph/region_id_"
+PLACE_ROOM = "graph/place_room"  # (P,) float32 metres to the nearest obstacle (terra.graph.room)
 EDGE_GEOMETRY = "graph/place_edge_geometry"  # (E, 5) float32: EDGE_GEOMETRY_COLUMNS (terra.graph.ground)
 GROUND_FILES = "graph/ground_"  # the ground layers (terra.graph.ground.GROUND_FILES)
 SPARK_HEADER = {"project_name": "main", "version": {"major": 1, "minor": 1, "patch": 3}}
@@ -301,6 +302,9 @@ def write_scene_graph(writer: BundleWriter, sg: SceneGraph, info: dict[str, Any]
     writer.put_array("graph/place_embedding", np.asarray(sg.places.embedding, dtype=np.float32).reshape(-1, dim))
     writer.put_array("graph/terrain_embedding", np.asarray(sg.terrain_embeddings, dtype=np.float32))
     writer.put_array(PLACE_IDS, sg.places.id)
+    room = np.asarray(sg.places.room, dtype=np.float32)
+    if len(room) and np.isfinite(room).all():  # unknown (read from an older bundle): not written
+        writer.put_array(PLACE_ROOM, room)
     if sg.has_edge_geometry:
         writer.put_array(EDGE_GEOMETRY, _recorded_columns(np.asarray(sg.place_edge_geometry, dtype=np.float32)))
     writer.put_array(OBJECT_IDS, sg.objects.id)
@@ -435,7 +439,18 @@ def _places(layer: Layer, terrain_count: int, bundle: Bundle, dim: int, where: s
         clearance=np.array([a.distance for a in items], dtype=np.float64),
         embedding=_embedding(bundle, "graph/place_embedding", len(items), dim),
         id=layer.ids,
+        room=_room(bundle, len(items)),
     )
+
+
+def _room(bundle: Bundle, places: int) -> np.ndarray | None:
+    """Each place's room (metres), None (unknown) in a bundle written before it was recorded."""
+    from terra.npy import ArraySpec
+
+    if not bundle.has(PLACE_ROOM):
+        return None
+    spec = ArraySpec(("float32",), (places,), finite=True, low=0.0, high=1e6, what="metres to the nearest obstacle")
+    return np.asarray(bundle.array(PLACE_ROOM, spec), dtype=np.float64)
 
 
 def _objects(layer: Layer, places: Layer, where: str) -> Objects:

@@ -50,6 +50,7 @@ import numpy as np
 from terra.errors import TerraError
 from terra.graph import raster
 from terra.graph.config import BuildConfig
+from terra.graph.grid import TerrainGrid
 from terra.graph.ground import (
     GroundLayers,
     as_ground_terrain,
@@ -82,6 +83,7 @@ from terra.graph.pipeline import (
 )
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
+from terra.graph.room import obstacle_points, place_room
 from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED, SceneGraph
 from terra.mapping.semantic_map import FusionRows, MetricSemanticMap, terrain_winners
 from terra.progress import StageTimer
@@ -558,6 +560,7 @@ class _Rebuilt:
     places: TerrainPlaceSet
     links: PlaceLinks
     take: np.ndarray
+    room: np.ndarray  # (P,) metres to the nearest obstacle of each place (terra.graph.room)
     layers: list[GroundLayers] = field(default_factory=list)  # each crop's ground geometry
 
 
@@ -574,6 +577,7 @@ def _rebuilt_places(
     x, y = np.ascontiguousarray(msm.points[:, 0]), np.ascontiguousarray(msm.points[:, 1])
     parts: list[tuple[TerrainPlaceSet, PlaceLinks, np.ndarray]] = []
     layers: list[GroundLayers] = []
+    rooms: list[np.ndarray] = []  # each part's places' room (terra.graph.room), on its crop's grid
     for k, (x0, y0, x1, y1) in enumerate(zone.crops, start=1):
         inside = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1))
         points = msm.points[inside]
@@ -589,20 +593,11 @@ def _rebuilt_places(
         crop_layers = grid_layers(points, ground, grid) if ground is not None and config.ground.layers else None
         if crop_layers is not None:
             layers.append(crop_layers)
-        barrier = gvd_barrier(crop_layers, config, lidar_only=digest is None)
-        places, traversable, _ = terrain_places(grid, terrains, config, barrier=barrier)
-        places = with_gap_places(places, traversable, grid, crop_layers, config)
-        if len(places.position):
-            links = with_level_links(
-                place_links(places, traversable, grid, config, barrier),
-                places,
-                traversable,
-                grid,
-                crop_layers,
-                config,
-            )
-            places, links = with_level_routes(places, links, grid, crop_layers, config)
+        built = _crop_places(points, grid, crop_layers, terrains, digest is None, config)
+        if built is not None:
+            places, links, room = built
             parts.append((places, links, zone.part(places.position) == k))
+            rooms.append(room)
     offsets = np.cumsum([0] + [len(p.position) for p, _, _ in parts])
     places = TerrainPlaceSet(
         np.vstack([np.zeros((0, 3))] + [p.position for p, _, _ in parts]),
@@ -618,7 +613,28 @@ def _rebuilt_places(
         0,
     )
     take = np.concatenate([np.zeros(0, dtype=bool)] + [t for _, _, t in parts])
-    return _Rebuilt(places, links, take, layers)
+    return _Rebuilt(places, links, take, np.concatenate([np.zeros(0), *rooms]), layers)
+
+
+def _crop_places(
+    points: np.ndarray,
+    grid: TerrainGrid,
+    layers: GroundLayers | None,
+    terrains: list[int],
+    lidar_only: bool,
+    config: BuildConfig,
+) -> tuple[TerrainPlaceSet, PlaceLinks, np.ndarray] | None:
+    """The places, links and room (terra.graph.room) a full build gives on one crop's `points`
+    (N, 3) and `grid`, by the same functions; None where it has no place."""
+    barrier = gvd_barrier(layers, config, lidar_only=lidar_only)
+    places, traversable, _ = terrain_places(grid, terrains, config, barrier=barrier)
+    places = with_gap_places(places, traversable, grid, layers, config)
+    if not len(places.position):
+        return None
+    links = place_links(places, traversable, grid, config, barrier)
+    links = with_level_links(links, places, traversable, grid, layers, config)
+    places, links = with_level_routes(places, links, grid, layers, config)
+    return places, links, place_room(places.position, obstacle_points(points, grid, config.grid.obstacle_height))
 
 
 @dataclass
@@ -629,6 +645,7 @@ class _Merged:
     terrain: np.ndarray
     clearance: np.ndarray
     old_index: np.ndarray  # (P,) index in the old graph, -1 for new places
+    room: np.ndarray  # (P,) metres (terra.graph.room; NaN for kept places of a graph without it)
 
 
 def _merge(old: SceneGraph, crop: _Rebuilt, zone: TileZone, config: BuildConfig) -> tuple[_Merged, PlaceLinks, int]:
@@ -642,6 +659,7 @@ def _merge(old: SceneGraph, crop: _Rebuilt, zone: TileZone, config: BuildConfig)
         np.concatenate([old.places.terrain[keep], new_places.terrain[take]]).astype(np.int64),
         np.concatenate([old.places.clearance[keep], new_places.clearance[take]]),
         np.concatenate([keep, np.full(len(take), -1)]).astype(np.int64),
+        np.concatenate([np.asarray(old.places.room, dtype=np.float64)[keep], crop.room[take]]),
     )
     old_to = _index_map(len(old.places), keep, 0)
     new_to = _index_map(len(new_places.position), take, len(keep))
@@ -841,6 +859,6 @@ def _graph(
 ) -> SceneGraph:
     """The updated SceneGraph with the old graph's ids carried and its saved objects relinked."""
     places = TerrainPlaceSet(merged.position, merged.terrain, merged.clearance, *_no_edges())
-    graph = scene_graph(msm, places, embedding, links, levels, config)
+    graph = scene_graph(msm, places, embedding, links, levels, config, merged.room)
     graph = replace(graph, next_id=dict(old.next_id))
     return with_previous_ids(graph, old, config.grid.cell_size / 2)

@@ -173,8 +173,12 @@ class CostGraph:
 
 
 def _wide_enough(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
-    """(P,) bool: places whose passage (twice their clearance, metres) is at least the robot's width."""
-    return 2.0 * np.asarray(graph.places.clearance, dtype=np.float64) >= robot.min_width
+    """(P,) bool: places whose passage is at least the robot's width: twice their room (metres to
+    the nearest obstacle, terra.graph.room), or of their clearance where the graph does not record
+    the room (a bundle written before it was)."""
+    room = np.asarray(graph.places.room, dtype=np.float64)
+    half = np.where(np.isfinite(room), room, np.asarray(graph.places.clearance, dtype=np.float64))
+    return 2.0 * half >= robot.min_width
 
 
 def _edge_geometry(graph: SceneGraph, robot: RobotProfile) -> np.ndarray:
