@@ -21,7 +21,7 @@ crosses, metres; its steepest rise and fall in the direction of travel, degrees)
 
   so an edge at the profile's limit costs (1 + slope_cost) times a level one (a ratio is 0 for a
   level edge, and for a limit of 0 only a level edge is legal);
-- places whose room (metres from the nearest obstacle point, terra.graph.room) is below
+- places whose room (metres from the nearest obstacle, terra.graph.room) is below
   min_width / 2 are removed (their clearance, half the width of their terrain around them, where
   the graph does not record the room);
 - `terrain_costs` and `forbidden_terrain` act as terrain penalties and forbidden terrains under

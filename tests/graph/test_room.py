@@ -29,14 +29,14 @@ def grid_with(blocked_cells: list[tuple[int, int]], shape=(20, 30), origin=(-2.0
 
 def test_obstacle_points_are_those_that_block_cells():
     """Blocked cell (row 10, col 10: x 2.0 .. 2.4, y 5.0 .. 5.4 m) on ground 0.5 m high, the band
-    0.3 .. 2.0 m above it: of a point at 0.9 m, one at 0.6 m (0.1 m above the ground: no), one at
-    2.7 m (a branch overhead: no), one at 1.0 m in a free cell (no) and one outside the grid, only
-    the first is an obstacle point; a window of a larger grid (its offset) finds the same."""
+    0.3 .. 2.0 m above it: its centre, and of a point at 0.9 m, one at 0.6 m (0.1 m above the
+    ground: no), one at 2.7 m (a branch overhead: no), one at 1.0 m in a free cell (no) and one
+    outside the grid, only the first; a window of a larger grid (its offset) finds the same."""
     points = np.array([[2.1, 5.1, 0.9], [2.3, 5.3, 0.6], [2.2, 5.2, 2.7], [3.0, 5.1, 1.0], [50.0, 5.1, 1.0]])
     for offset in ((0, 0), (2, 3)):
         grid = grid_with([(10 - offset[0], 10 - offset[1])], origin=(-2.0, 1.0), offset=offset)
         grid.ground[:] = 0.5
-        np.testing.assert_array_equal(obstacle_points(points, grid, (0.3, 2.0)), [[2.1, 5.1]])
+        np.testing.assert_allclose(obstacle_points(points, grid, (0.3, 2.0)), [[2.2, 5.2], [2.1, 5.1]], atol=1e-12)
         assert len(obstacle_points(points, grid, None)) == 0
 
 
