@@ -119,11 +119,18 @@ def place_info(graph: SceneGraph, place: int) -> NodeInfo:
             "position": _r(graph.places.position[place]),
             "terrain": graph.terrain_classes[int(graph.places.terrain[place])],
             "clearance": round(float(graph.places.clearance[place]), 4),
+            "room": _room(graph, place),
             "neighbors": neighbours,
             "regions": _ancestors(graph, place),
             "objects": objects,
         },
     )
+
+
+def _room(graph: SceneGraph, place: int) -> float | None:
+    """Metres from the place to the nearest obstacle (terra.graph.room), None where not recorded."""
+    room = float(np.asarray(graph.places.room)[place])
+    return round(room, 4) if np.isfinite(room) else None
 
 
 def region_info(graph: SceneGraph, level: int, region: int) -> NodeInfo:

@@ -35,6 +35,10 @@ def test_place_lookup_by_short_and_numeric_id(lot):
     assert sorted(n["place"] for n in info["neighbors"]) == [1, 8, 10, 17]
     assert all(n["weight"] == pytest.approx(5.0) for n in info["neighbors"])
     assert info["regions"] == [{"id": "R1", "level": 1, "index": 1}] and info["objects"] == []
+    assert info["room"] is None  # a hand-made graph records no room
+    graph.places.room = np.full(len(graph.places), 1.25)
+    assert node_info(graph, "p9").to_json()["room"] == 1.25
+    graph.places.room = np.full(len(graph.places), np.nan)
     assert node_info(graph, str(node_symbol("p", 9))).to_json() == info
     assert parse_node(node_symbol("S", 3)) == ("S", 3)
 
