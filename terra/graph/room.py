@@ -15,7 +15,8 @@ cells gave: the points alone read too much, on the simulated LiDAR-only campus 3
 they let a wheelchair through stood nearer a true object than its half width (a far object's
 points lie tens of centimetres apart, and its far side is never seen); the cells' squares alone,
 too little (a place whose cell touches a bollard's cell at a corner reads 0.28 m, and stands 0.64 m
-from it).
+from it). An incremental update (terra.graph.update) reads the room of its new places on its
+crops, whose context (`update.context_margin`, 8 m) reaches beyond `ROOM_REACH`.
 """
 
 from __future__ import annotations
