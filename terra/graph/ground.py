@@ -60,9 +60,9 @@ it crosses whose step and whose neighbours' steps read at most `CROSS_STEP` (a p
 a curb takes the curb for a slope; the step is the step column's business) and whose
 neighbourhood holds ground in at least `CROSS_CELLS` of its nine cells (a plane through three
 cells in a near line is no plane), away from obstacles (an object's foot tilted the planes
-beside a bench 10 degrees on ground 0.5 degrees steep). A contour
-across a 13 degree hillside climbs 6 degrees along the edge and tips a wheelchair 11.5 degrees
-sideways; the profile's `max_cross_slope` refuses it.
+beside a bench 10 degrees on ground 0.5 degrees steep). A contour across a 13 degree hillside
+climbs 6 degrees along the edge and tips a wheelchair 11.5 degrees sideways; the profile's
+`max_cross_slope` refuses it.
 """
 
 from __future__ import annotations
@@ -658,9 +658,8 @@ def edge_geometry(
     cells along it hold no ground), the longest stretch of it over cells of the grid that hold no
     ground (m), and the steepest slope across it (degrees, >= 0) of the planes of the cells it
     crosses that neither hold a step nor lie beside one or an obstacle, on enough ground (module
-    docstring). With
-    `unseen_ends`, an end whose cell (inside the layers' grid) holds no ground steps by the
-    difference between its place's height and the first ground along the edge
+    docstring). With `unseen_ends`, an end whose cell (inside the layers' grid) holds no ground
+    steps by the difference between its place's height and the first ground along the edge
     (`_unseen_end_steps`); callers whose `position` carries no heights pass False."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     E = len(edges)
@@ -737,7 +736,7 @@ def _steepest_across(
     level[level] = _plane_across_holds(layers, cells)[inverse]
     edge = samples.edge[level]
     across = np.abs((layers.gradient[samples.at[level]] * normal[edge]).sum(axis=1))
-    return _steepest_along(edge, across, edges)[:, 0]
+    return _steepest_along(edge, across, edges)[:, 0]  # its "rise": the largest per edge
 
 
 def _plane_across_holds(layers: GroundLayers, flat: np.ndarray) -> np.ndarray:
