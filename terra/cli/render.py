@@ -417,7 +417,8 @@ def render_node(info: NodeInfo) -> str:
         regions = " < ".join(r["id"] for r in f["regions"]) or "none"
         lines = [
             f"place {info.id}: {f['terrain']} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) m, "
-            f"clearance {f['clearance']:.2f} m",
+            f"clearance {f['clearance']:.2f} m"
+            + ("" if f.get("room") is None else f", {f['room']:.2f} m from the nearest obstacle"),
             f"  regions: {regions}",
             "  neighbours: "
             + (", ".join(f"p{n['place']} ({n['weight']:.1f} m, {n['kind']})" for n in f["neighbors"]) or "none"),

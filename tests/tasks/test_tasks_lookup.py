@@ -38,6 +38,9 @@ def test_place_lookup_by_short_and_numeric_id(lot):
     assert info["room"] is None  # a hand-made graph records no room
     graph.places.room = np.full(len(graph.places), 1.25)
     assert node_info(graph, "p9").to_json()["room"] == 1.25
+    from terra.cli.render import render_node
+
+    assert "1.25 m from the nearest obstacle" in render_node(node_info(graph, "p9"))
     graph.places.room = np.full(len(graph.places), np.nan)
     assert node_info(graph, str(node_symbol("p", 9))).to_json() == info
     assert parse_node(node_symbol("S", 3)) == ("S", 3)
