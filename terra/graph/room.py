@@ -12,10 +12,10 @@ blocked cell, or a map point that blocked one (in the grid's obstacle height ban
 ground), whichever is nearer (`obstacle_points`), up to `ROOM_REACH`. Robot profiles check their
 width against it (terra.tasks.robot). Beside an obstacle it reads no more than the clearance the
 cells gave: the points alone read too much, on the simulated LiDAR-only campus 37 of 52 places
-they let a wheelchair through stood nearer a true object than its half width (a far object's
-points lie tens of centimetres apart, and its far side is never seen); the cells' squares alone,
-too little (a place whose cell touches a bollard's cell at a corner reads 0.28 m, and stands 0.64 m
-from it). An incremental update (terra.graph.update) reads the room of its new places on its
+they let a wheelchair through stood nearer a true object's box than its half width (a far
+object's points lie tens of centimetres apart, and its far side is never seen); the cells'
+squares alone, too little (a place whose cell touches a bollard's cell at a corner reads 0.28 m,
+and stands 0.64 m from it). An incremental update (terra.graph.update) reads the room of its new places on its
 crops, whose context (`update.context_margin`, 8 m) reaches beyond `ROOM_REACH`.
 """
 
@@ -45,7 +45,7 @@ def obstacle_points(points: np.ndarray, grid: TerrainGrid, band: tuple[float, fl
         height = p[:, 2] - grid.ground[rows, cols]
         keep = inside & grid.blocked[rows, cols] & (height >= band[0]) & (height <= band[1])
         out.append(p[keep, :2])
-    return np.vstack(out) if out else np.zeros((0, 2))
+    return np.vstack(out)
 
 
 def place_room(position: np.ndarray, obstacles: np.ndarray, reach: float = ROOM_REACH) -> np.ndarray:
