@@ -447,6 +447,7 @@ def build_scene_graph(
     with timer.stage("edge ground, level routes"):
         places, links = with_level_routes(places, links, grid, layers, config)
         _count_places(counts, places.terrain[len(places.position) - places.route_places :])
+    with timer.stage("place room"):
         room = place_room(places.position, obstacle_points(msm.points, grid, config.grid.obstacle_height))
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)

@@ -33,7 +33,9 @@ EDGE_KINDS = (EDGE_GVD, EDGE_CROSS_TERRAIN, EDGE_BRIDGE, EDGE_LEVEL_ROUTE)
 # (degrees), the longest stretch of it over ground the map never observed (m), the steepest slope
 # of the ground across it (degrees, either side: a wheel on the low side tips the robot).
 EDGE_GEOMETRY_COLUMNS = ("step_m", "rise_deg", "fall_deg", "unobserved_m", "cross_deg")
-# The columns of an edge's geometry read from its second place to its first: rise and fall swap.
+# The columns of an edge's geometry read from its first place to its second, and from its second
+# to its first: rise and fall swap.
+EDGE_GEOMETRY_FORWARDS = list(range(len(EDGE_GEOMETRY_COLUMNS)))
 EDGE_GEOMETRY_REVERSED = [0, 2, 1, 3, 4]
 MAX_NODE_ID = (1 << 56) - 1  # a NodeSymbol keeps 56 bits for the index
 

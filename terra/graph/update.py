@@ -84,7 +84,13 @@ from terra.graph.pipeline import (
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
 from terra.graph.room import obstacle_points, place_room
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED, SceneGraph
+from terra.graph.scene_graph import (
+    EDGE_BRIDGE,
+    EDGE_GEOMETRY_COLUMNS,
+    EDGE_GEOMETRY_FORWARDS,
+    EDGE_GEOMETRY_REVERSED,
+    SceneGraph,
+)
 from terra.mapping.semantic_map import FusionRows, MetricSemanticMap, terrain_winners
 from terra.progress import StageTimer
 
@@ -782,8 +788,7 @@ def _edge_geometry(old: SceneGraph, merged: _Merged, links: PlaceLinks, layers: 
     count = len(old.places)
     keys = old.place_edges[:, 0] * count + old.place_edges[:, 1]
     order = np.argsort(keys)
-    forwards = list(range(len(EDGE_GEOMETRY_COLUMNS)))
-    for first, second, columns in ((0, 1, forwards), (1, 0, EDGE_GEOMETRY_REVERSED)):
+    for first, second, columns in ((0, 1, EDGE_GEOMETRY_FORWARDS), (1, 0, EDGE_GEOMETRY_REVERSED)):
         wanted = ends[both, first] * count + ends[both, second]
         at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
         hit = keys[order][at] == wanted

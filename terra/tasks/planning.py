@@ -56,7 +56,13 @@ from typing import Any, Generic, Protocol, TypeVar
 import numpy as np
 
 from terra.errors import NoPathError, TerraError
-from terra.graph.scene_graph import EDGE_BRIDGE, EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED, SceneGraph
+from terra.graph.scene_graph import (
+    EDGE_BRIDGE,
+    EDGE_GEOMETRY_COLUMNS,
+    EDGE_GEOMETRY_FORWARDS,
+    EDGE_GEOMETRY_REVERSED,
+    SceneGraph,
+)
 from terra.tasks.astar import astar
 from terra.tasks.config import DEFAULT_PENALTY
 from terra.tasks.robot import RobotProfile
@@ -342,8 +348,7 @@ def path_ground(graph: SceneGraph, places: np.ndarray) -> PathGround | None:
     a, b = np.asarray(places[:-1], dtype=np.int64), np.asarray(places[1:], dtype=np.int64)
     geometry = np.asarray(graph.place_edge_geometry, dtype=np.float64)
     rows = np.zeros((len(a), len(EDGE_GEOMETRY_COLUMNS)))
-    forwards = list(range(len(EDGE_GEOMETRY_COLUMNS)))
-    for wanted, columns in ((b * n + a, EDGE_GEOMETRY_REVERSED), (a * n + b, forwards)):  # forwards wins
+    for wanted, columns in ((b * n + a, EDGE_GEOMETRY_REVERSED), (a * n + b, EDGE_GEOMETRY_FORWARDS)):  # forwards wins
         at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
         hit = keys[order][at] == wanted
         rows[hit] = geometry[order[at[hit]]][:, columns]
