@@ -286,14 +286,50 @@ def test_the_rebuilt_part_has_the_places_of_a_full_build(updates):
     def east(graph):
         keep = ~_west(graph)
         order = np.lexsort(graph.places.position[keep].T[::-1])
-        return graph.places.position[keep][order], graph.places.terrain[keep][order]
+        return graph.places.position[keep][order], graph.places.terrain[keep][order], graph.places.room[keep][order]
 
     np.testing.assert_allclose(east(inc)[0], east(full)[0], atol=1e-9)
     np.testing.assert_array_equal(east(inc)[1], east(full)[1])
+    # The room read on the crop is the full build's (the crop reaches 8 m beyond, the room 3 m).
+    np.testing.assert_allclose(east(inc)[2], east(full)[2], atol=1e-9)
     # One connected graph, as the full build's.
     import scipy.sparse.csgraph as csgraph
 
     assert csgraph.connected_components(inc.place_adjacency(), directed=False)[0] == 1
+
+
+def test_the_room_read_on_a_crop_is_the_full_builds(text_embedder):
+    """A pole (0.3 m square, 0.2 to 1.5 m up, points without terrain) comes into the east part:
+    the update reads the room of the rebuilt places on its crop, as a full build on the whole map
+    does (the crop reaches beyond the room's 3 m), and some places read less than 3 m."""
+    from tests.tasks.test_tasks_synthetic import make_map
+
+    config = BuildConfig.model_validate({"update": UPDATE})
+    before = two_part_map(text_embedder, "grass", 15.0)
+    after = two_part_map(text_embedder, "grass", 15.0)
+    side = np.arange(-0.15, 0.151, 0.05)
+    xs, ys, zs = np.meshgrid(78.0 + side, 2.5 + side, np.arange(0.2, 1.51, 0.1), indexing="ij")
+    pole = np.column_stack([xs.ravel(), ys.ravel(), zs.ravel()])
+    points = np.vstack([after.points, pole])
+    with_pole = make_map(points, [{}] * len(points), after.bank, after.terrain_embeddings)
+    with_pole.terrain_votes = np.vstack([after.terrain_votes, np.zeros((len(pole), after.terrain_votes.shape[1]))])
+    with_pole.terrain_votes = with_pole.terrain_votes.astype(np.uint16)
+    for msm in (before, with_pole):
+        msm.points = msm.points + np.float32(0.05)
+    updater = GraphUpdater(config)
+    updater.update(before)
+    update = updater.update(with_pole)
+    assert update.update.kind == "incremental"
+    full = build_scene_graph(with_pole, config).graph
+
+    def east_room(graph):
+        keep = ~_west(graph)
+        order = np.lexsort(graph.places.position[keep].T[::-1])
+        return graph.places.position[keep][order], graph.places.room[keep][order]
+
+    np.testing.assert_allclose(east_room(update.graph)[0], east_room(full)[0], atol=1e-9)
+    np.testing.assert_allclose(east_room(update.graph)[1], east_room(full)[1], atol=1e-9)
+    assert east_room(full)[1].min() < 3.0
 
 
 def test_kept_edges_keep_their_ground_geometry_and_new_ones_get_theirs(updates):
