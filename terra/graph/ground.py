@@ -34,7 +34,9 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   with small steps. Where a neighbour holds no ground (the road in a curb's own LiDAR shadow),
   the difference between the nearest observed cells up to four cells away on each side,
   less the slope over the cells between: the one read just beyond those two cells, else the
-  cell's gradient (a plane fitted on a curb's face takes the curb for a slope). Within two cells
+  cell's gradient (a plane fitted on a curb's face takes the curb for a slope); where the cell
+  across the gap holds both levels (a curb's face runs through it), it reads the step and the cell
+  before the gap does not. Within two cells
   of a blocked cell, where an object's lowest points pass for ground, read only along an axis
   clear of blocked cells, and across a gap from heights that are not blocked (`grid_layers`);
 - roughness: the standard deviation of the cell's ground point heights, less what the plane's
@@ -305,6 +307,9 @@ STEEPEST_FIT = 1.0
 # the step, is no slope across an edge (edge_geometry's cross slope).
 CROSS_STEP = 0.05
 CROSS_CELLS = 6  # of the 9 cells of a neighbourhood with ground, for its plane to tell a slope across
+# metres: a cell across a gap whose height lies this far inside the heights on its two sides stands
+# on the step (its points are of both levels), which it reads itself (_bridge_gaps).
+STRADDLE = 0.02
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
 BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
@@ -623,8 +628,15 @@ def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> 
     as `steps_at` reads a cell's own sides), else the cell's own (`rise` (m,), metres per cell): a
     curb's low side lies in its own LiDAR shadow (the road within a few decimetres of it holds no
     point when seen from the walk), which left every curb seen from its top unknown, and the plane
-    fitted at a cell on the curb's face takes the curb for a slope."""
+    fitted at a cell on the curb's face takes the curb for a slope.
+
+    A side whose nearest observed cell lies across a gap and stands on the step itself (its height
+    between the cell's and the next observed height beyond it, more than `STRADDLE` from each:
+    the cell holds both levels, a curb's face) is read as level with the cell: that cell reads the
+    step, and the gap lies before it. Read here too, the step landed on the cell at the gap's edge,
+    80 cm from a simulated curb, and on every edge running along that cell."""
     centre, m = around.shape[1] // 2, len(around)
+    middle = around[:, centre]
     sides = []
     for sign in (-1, 1):
         value, distance, beyond = np.full(m, np.nan), np.zeros(m), np.full(m, np.nan)
@@ -636,12 +648,35 @@ def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> 
                 np.where(found, k, distance),
                 np.where(found, w, beyond),
             )
-        sides.append((value, distance, np.abs(beyond - value)))
+        on_step = (distance > 1) & _straddles(value, middle, _next_observed(around, sign, distance))
+        sides.append(
+            (
+                np.where(on_step, middle, value),
+                np.where(on_step, 0, distance),
+                np.where(on_step, np.nan, np.abs(beyond - value)),
+            )
+        )
     (before, db, out_b), (after, da, out_a) = sides
     outer, known = _side_slope(out_b, out_a)
     slope = np.where(known, outer, rise)
     bridged = np.maximum(np.abs(after - before) - (da + db) * slope, 0.0)
     return np.where(np.isfinite(before) & np.isfinite(after) & np.isfinite(slope), bridged, np.nan)
+
+
+def _next_observed(around: np.ndarray, sign: int, distance: np.ndarray) -> np.ndarray:
+    """(m,) metres: the first observed height of `around` (m, 2 reach + 1) more than `distance`
+    (m,) cells from the middle on the side `sign` (-1, 1), NaN where none within reach."""
+    centre = around.shape[1] // 2
+    out = np.full(len(around), np.nan)
+    for k in range(centre, 0, -1):  # the nearest wins
+        v = around[:, centre + sign * k]
+        out = np.where((k > distance) & np.isfinite(v), v, out)
+    return out
+
+
+def _straddles(value: np.ndarray, a: np.ndarray, b: np.ndarray, margin: float = STRADDLE) -> np.ndarray:
+    """(m,) bool: `value` lies between `a` and `b` (metres), more than `margin` from each."""
+    return ((value - a) * (b - value) > 0) & (np.minimum(np.abs(value - a), np.abs(b - value)) > margin)
 
 
 def edge_geometry(

@@ -455,6 +455,23 @@ def test_a_step_reads_across_three_cells_of_shadow():
     assert np.isnan(axis_step(wider, axis=1, rise=np.zeros_like(wider))[0, 3])
 
 
+def test_a_step_read_across_a_gap_stays_on_the_cell_that_holds_it():
+    """A curb whose face runs through a cell (its points of both levels: 0.40 m between the walk's
+    0.51 and the road's 0.36), with a cell without ground on each side of it: that cell reads the
+    curb across both gaps (0.15 m); the walk's cell and the road's cell beyond the gaps are level
+    with their own neighbours and read no step, since the cell between them stands on it. Before,
+    each read the step across its gap (0.11 and 0.04 m), 80 cm from the curb on the simulated
+    LiDAR-only tiny world."""
+    n = np.nan
+    h = np.array([[0.51, 0.51, 0.51, 0.51, n, 0.40, n, 0.36, 0.36, 0.36]])
+    step = axis_step(h, axis=1, rise=np.zeros_like(h))
+    assert step[0, 5] == pytest.approx(0.15)
+    assert step[0, 3] == pytest.approx(0.0) and step[0, 7] == pytest.approx(0.0)
+    # A height within 2 cm of one side is that side's ground, not the step's face: read as before.
+    near_road = np.array([[0.51, 0.51, 0.51, 0.51, n, 0.37, n, 0.36, 0.36, 0.36]])
+    assert axis_step(near_road, axis=1, rise=np.zeros_like(h))[0, 3] == pytest.approx(0.14)
+
+
 def curb_before_a_wall(rise: float, slope: float = 0.0) -> np.ndarray:
     """(12, 30) metres: the step layer of grid_layers on 0.4 m cells, of a road whose curb (`rise`
     metres) runs along x at y = 2.2 m, halfway across row 5 (whose points are of both levels), on
