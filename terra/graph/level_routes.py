@@ -12,7 +12,8 @@ robot's profile judges as it judges any edge (the graph stays the same for every
 Rule (`level_routes`):
 - Pieces: connected components of the graph restricted to level edges (step at most `max_step`
   metres, rise and fall at most `max_slope` degrees, at most `max_unobserved` metres of unobserved
-  ground in one stretch) between places with at least `clearance` metres of room.
+  ground in one stretch) between places with at least `clearance` metres of room (terra.graph.room:
+  the distance to the nearest obstacle, which a hole in the scan beside a place does not bound).
 - Level cells: observed cells of the ground layers, not blocked, whose slope is at most
   `max_slope` and whose step is at most `max_step` or unknown. A step is unknown where no ground
   lies within the step layer's reach on either side along both axes: ground far from the sensor,
@@ -123,7 +124,7 @@ class LevelRoutes:
 def level_routes(
     position: np.ndarray,
     terrain: np.ndarray,
-    clearance: np.ndarray,
+    room: np.ndarray,
     edges: np.ndarray,
     geometry: np.ndarray,
     grid: TerrainGrid,
@@ -131,13 +132,13 @@ def level_routes(
     rule: RouteRule,
 ) -> LevelRoutes:
     """The routes that join the pieces of the graph of places (`position` (P, 3) metres, `terrain`
-    (P,), `clearance` (P,) metres) and `edges` (E, 2) with their ground `geometry` (E, 5)
+    (P,), `room` (P,) metres, terra.graph.room) and `edges` (E, 2) with their ground `geometry` (E, 5)
     (terra.graph.ground.edge_geometry) over the level ground of `layers` (module docstring)."""
     position = np.asarray(position, dtype=np.float64)
-    piece = _pieces(len(position), edges, geometry, clearance, rule)
+    piece = _pieces(len(position), edges, geometry, room, rule)
     blocks = RouteBlocks.of(grid, layers, rule)
     entry = blocks.entries(position, layers, rule)
-    source = np.flatnonzero((entry >= 0) & (clearance >= rule.clearance))
+    source = np.flatnonzero((entry >= 0) & (room >= rule.clearance))
     if len(np.unique(piece[source])) < 2:
         return LevelRoutes.none()
     largest = np.bincount(piece[source]).argmax()
@@ -178,11 +179,11 @@ def _level(geometry: np.ndarray, rule: RouteRule) -> np.ndarray:
     return level & ~(g[:, 3] > rule.max_unobserved) & ~(g[:, 4] > rule.max_slope)
 
 
-def _pieces(n: int, edges: np.ndarray, geometry: np.ndarray, clearance: np.ndarray, rule: RouteRule) -> np.ndarray:
+def _pieces(n: int, edges: np.ndarray, geometry: np.ndarray, room: np.ndarray, rule: RouteRule) -> np.ndarray:
     """(P,) piece of every place: components of the graph over level edges between places with room."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     level = _level(geometry, rule)
-    level &= (clearance[edges[:, 0]] >= rule.clearance) & (clearance[edges[:, 1]] >= rule.clearance)
+    level &= (room[edges[:, 0]] >= rule.clearance) & (room[edges[:, 1]] >= rule.clearance)
     kept = edges[level]
     graph = sp.coo_matrix((np.ones(len(kept)), (kept[:, 0], kept[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)[1]

@@ -444,11 +444,12 @@ def build_scene_graph(
         links = with_level_links(
             place_links(places, traversable, grid, config, barrier), places, traversable, grid, layers, config
         )
-    with timer.stage("edge ground, level routes"):
-        places, links = with_level_routes(places, links, grid, layers, config)
-        _count_places(counts, places.terrain[len(places.position) - places.route_places :])
     with timer.stage("place room"):
-        room = place_room(places.position, obstacle_points(msm.points, grid, config.grid.obstacle_height))
+        obstacles = obstacle_points(msm.points, grid, config.grid.obstacle_height)
+        room = place_room(places.position, obstacles)
+    with timer.stage("edge ground, level routes"):
+        places, links, room = with_level_routes(places, links, grid, layers, config, room, obstacles)
+        _count_places(counts, places.terrain[len(places.position) - places.route_places :])
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
     with timer.stage(f"regions ({config.regions.method})"):
@@ -498,19 +499,27 @@ def with_level_links(
 
 
 def with_level_routes(
-    places: TerrainPlaceSet, links: PlaceLinks, grid: TerrainGrid, layers: GroundLayers | None, config: BuildConfig
-) -> tuple[TerrainPlaceSet, PlaceLinks]:
+    places: TerrainPlaceSet,
+    links: PlaceLinks,
+    grid: TerrainGrid,
+    layers: GroundLayers | None,
+    config: BuildConfig,
+    room: np.ndarray,
+    obstacles: np.ndarray,
+) -> tuple[TerrainPlaceSet, PlaceLinks, np.ndarray]:
     """`places` and `links` with every edge's ground geometry, and the places and edges of the
     routes that join the pieces of the graph over level ground (terra.graph.level_routes)
-    appended; unchanged without ground layers, and without routes with
-    `linking.level_route_length` None."""
+    appended, with the places' `room` (P,) metres (terra.graph.room) extended to the new ones
+    from the `obstacles` (M, 2) (map-frame x, y, metres; `obstacle_points`); unchanged without
+    ground layers, and without routes with `linking.level_route_length` None. The routes take
+    their sources by the room, not the clearance: a hole in the scan beside a place is no wall."""
     if layers is None or len(places.position) < 2:
-        return places, links
+        return places, links, room
     geometry = edge_geometry(layers, places.position, links.edges)
     links = replace(links, geometry=geometry)
     lk = config.linking
     if lk.level_route_length is None:
-        return places, links
+        return places, links, room
     rule = RouteRule(
         lk.level_route_max_step,
         lk.level_route_max_slope,
@@ -518,7 +527,7 @@ def with_level_routes(
         lk.level_route_clearance,
         lk.level_route_length,
     )
-    new = level_routes(places.position, places.terrain, places.clearance, links.edges, geometry, grid, layers, rule)
+    new = level_routes(places.position, places.terrain, room, links.edges, geometry, grid, layers, rule)
     places = replace(
         places,
         position=np.vstack([places.position, new.position]),
@@ -533,7 +542,7 @@ def with_level_routes(
         kind=np.concatenate([links.kind, np.full(len(new.edges), EDGE_LEVEL_ROUTE, dtype=links.kind.dtype)]),
         geometry=np.vstack([geometry, new.geometry]),
     )
-    return places, links
+    return places, links, np.concatenate([room, place_room(new.position, obstacles)])
 
 
 def no_places_reason(lidar_only: bool) -> str:

@@ -10,7 +10,9 @@ although the nearest object stood metres away.
 The room is the distance (metres, in x, y) from the place to the nearest obstacle: the centre of a
 blocked cell, or a map point that blocked one (in the grid's obstacle height band above the local
 ground), whichever is nearer (`obstacle_points`), up to `ROOM_REACH`. Robot profiles check their
-width against it (terra.tasks.robot). Beside an obstacle it reads no more than the clearance the
+width against it (terra.tasks.robot), and the level routes (terra.graph.level_routes) join only
+places with room for the wheelchair (`linking.level_route_clearance`): computed before them, it
+is extended to the places they add. Beside an obstacle it reads no more than the clearance the
 cells gave: the points alone read too much, on the simulated LiDAR-only campus 37 of 52 places
 they let a wheelchair through stood nearer a true object's box than its half width (a far
 object's points lie tens of centimetres apart, and its far side is never seen); the cells'

@@ -639,8 +639,8 @@ def _crop_places(
         return None
     links = place_links(places, traversable, grid, config, barrier)
     links = with_level_links(links, places, traversable, grid, layers, config)
-    places, links = with_level_routes(places, links, grid, layers, config)
-    return places, links, place_room(places.position, obstacle_points(points, grid, config.grid.obstacle_height))
+    obstacles = obstacle_points(points, grid, config.grid.obstacle_height)
+    return with_level_routes(places, links, grid, layers, config, place_room(places.position, obstacles), obstacles)
 
 
 @dataclass
