@@ -329,3 +329,28 @@ def test_a_street_without_a_cut_gets_no_route_and_no_wheelchair_path():
         plan_path(graph, start, goal, robot=ROBOTS["wheelchair"])
     legged = plan_path(graph, start, goal, robot=ROBOTS["legged"])  # 20 cm: the curb is a step it takes
     assert legged.ground is not None and legged.ground.max_step_m > 0.05
+
+
+@pytest.mark.parametrize(
+    ("curb", "before_only", "level"), [(0.0, False, True), (0.15, False, False), (0.0, True, False)]
+)
+def test_a_stretch_without_ground_on_a_slope_both_sides_share_is_level(curb, before_only, level):
+    """Ground falling 1 degree along x (1.75 cm a metre) with no ground over x 4..8 m: its two
+    sides differ by 7 cm across the stretch, all of it the slope both share, so a route along it
+    is level; a 15 cm curb in the stretch is not. Where only the ground before the stretch slopes
+    and the ground beyond is level, 8 cm lower (a ramp meeting a curb hidden in the stretch looks
+    so), no slope is shared and it explains nothing: refused."""
+    H, W = 10, 30
+    grade = np.tan(np.radians(1.0))
+    x = (np.arange(W) + 0.5) * 0.4
+    observed = np.broadcast_to((x < 4.0) | (x > 8.0), (H, W)).copy()
+    grid, layers = flat_layers((H, W), observed, np.zeros((H, W), bool))
+    cx = x[layers.cells % W]
+    beyond = cx > 8.0
+    layers.height[:] = -grade * cx - np.where(beyond, curb, 0.0)
+    layers.gradient[:, 0] = -grade
+    if before_only:
+        layers.height[beyond] = -grade * 8.4
+        layers.gradient[beyond, 0] = 0.0
+    chain = np.array([[1.0, 2.0], [11.0, 2.0]])
+    assert level_along(layers, chain, RULE) == level
