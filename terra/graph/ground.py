@@ -727,10 +727,11 @@ def edge_geometry(
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
         z = np.asarray(position, dtype=np.float64)[:, 2]
-        largest = np.fmax(largest, _unseen_end_steps(layers, at, flat, starts, samples, z[edges]))
         profile = EdgeProfile(edge[clear], travelled[clear], height[clear[heights]], along[clear])
         ends = EdgeEnds(starts, samples, length)
         past = _ground_past_unseen_ends(layers, a, unit, ends, known, flat)
+        beyond = past.ends_beyond(length)
+        largest = np.fmax(largest, _unseen_end_steps(layers, at, flat, ends, z[edges], beyond))
         profile = profile.with_place_ends(known, along, ends, z[edges], past)
         largest = np.fmax(largest, steps_across_gaps(profile, E, layers.cell_size, baseline))
     out = np.column_stack([largest, np.degrees(np.arctan(rise)), unobserved, np.degrees(np.arctan(cross))])
@@ -842,6 +843,14 @@ class EdgeProfile:
     height: np.ndarray
     along: np.ndarray
 
+    def ends_beyond(self, length: np.ndarray) -> np.ndarray:
+        """(E, 2) bool: the edges (of lengths `length` (E,) metres) whose first (last) end this
+        profile, the ground past their ends (_ground_past_unseen_ends), holds ground before (after)."""
+        beyond = np.zeros((len(length), 2), dtype=bool)
+        beyond[self.edge[self.travelled < 0], 0] = True
+        beyond[self.edge[self.travelled > length[self.edge]], 1] = True
+        return beyond
+
     def with_place_ends(
         self, known: np.ndarray, along: np.ndarray, ends: EdgeEnds, z: np.ndarray, past: EdgeProfile
     ) -> EdgeProfile:
@@ -853,9 +862,7 @@ class EdgeProfile:
         only the nearest ground's, one side of the gap it stands in."""
         E = len(ends.starts)
         tail = ends.starts + ends.samples - 1
-        beyond = np.zeros((E, 2), dtype=bool)
-        beyond[past.edge[past.travelled < 0], 0] = True
-        beyond[past.edge[past.travelled > ends.length[past.edge]], 1] = True
+        beyond = past.ends_beyond(ends.length)
         first, last = ~known[ends.starts] & ~beyond[:, 0], ~known[tail] & ~beyond[:, 1]
         index = np.arange(E)
         rows = (
@@ -958,24 +965,30 @@ def steps_across_gaps(
 
 
 def _unseen_end_steps(
-    layers: GroundLayers, at: np.ndarray, flat: np.ndarray, starts: np.ndarray, samples: np.ndarray, z: np.ndarray
+    layers: GroundLayers, at: np.ndarray, flat: np.ndarray, ends: EdgeEnds, z: np.ndarray, beyond: np.ndarray
 ) -> np.ndarray:
     """(E,) metres: for each edge whose first (last) sample's cell lies in the grid but holds no
-    ground, the height difference between its first (last) place, at heights z (E, 2) metres, and
-    the ground of the first observed sample from that end; 0 elsewhere. A place on a curb's low
-    side, in the curb's own LiDAR shadow, takes its height from the nearest ground, and an edge
-    from it to the top whose only observed cells are on the top read level: 14 cm over 1.1 m on the
-    simulated small campus, under a wheelchair's slope limit, where the curb's step was not seen.
+    ground, and whose line finds no ground past that end (`beyond` (E, 2) bool, first and last:
+    EdgeProfile.ends_beyond), the height difference between its first (last) place, at heights z
+    (E, 2) metres, and the ground of the first observed sample from that end; 0 elsewhere. A place
+    on a curb's low side, in the curb's own LiDAR shadow, takes its height from the nearest ground,
+    and an edge from it to the top whose only observed cells are on the top read level: 14 cm over
+    1.1 m on the simulated small campus, under a wheelchair's slope limit, where the curb's step
+    was not seen. Where ground lies past the end, the step across the gap the place stands in is
+    read from it, less what the slope on its two sides explains (steps_across_gaps); the raw
+    difference read slopes as steps: a route's place in a hole between rings on a simulated lawn
+    falling 3 degrees read the lawn's fall to the first ground along its edge as an 8 cm step.
     `at` (S,) the observed cell of each sample (-1: none), `flat` (S,) its grid cell (-1: outside
-    the grid), `starts`/`samples` (E,) each edge's samples."""
+    the grid)."""
+    starts, samples = ends.starts, ends.samples
     index = np.arange(len(at))
     first = np.minimum.reduceat(np.where(at >= 0, index, len(at)), starts)
     last = np.maximum.reduceat(np.where(at >= 0, index, -1), starts)
     seen = first < len(at)
-    ends = starts + samples - 1
+    tail = starts + samples - 1
     out = np.zeros(len(starts))
-    for side, (nearest, end) in enumerate(((first, starts), (last, ends))):
-        unseen = seen & (nearest != end) & (flat[end] >= 0)
+    for side, (nearest, end) in enumerate(((first, starts), (last, tail))):
+        unseen = seen & (nearest != end) & (flat[end] >= 0) & ~beyond[:, side]
         ground = layers.height[at[nearest[unseen]]].astype(np.float64)
         out[unseen] = np.fmax(out[unseen], np.abs(ground - z[unseen, side]))
     return out

@@ -305,6 +305,29 @@ def test_an_edge_to_a_place_in_a_hole_reads_the_ground_past_the_place():
     np.testing.assert_allclose(edge_geometry(layers(0.0, last=10), position, edges)[:, 0], 0.0, atol=1e-6)
 
 
+def test_an_edge_to_a_place_in_a_hole_on_a_slope_reads_no_step():
+    """Ground falling 3 degrees along x (5.2 cm a metre) on a 10 x 10 grid of 0.4 m cells, with no
+    ground over columns 4-6 (x 1.6..2.8 m, a hole between scan rings). A place in the hole (x 2.2
+    m) took the height of the nearest ground beyond it (x 3.0 m); from the first ground along its
+    edge back (x 1.6 m) it lies 7 cm lower, all of it the slope, which the ground on both sides of
+    the hole explains: no step. Read from the place's own height, as an edge whose end has no
+    ground past it is, the 7 cm were a step a wheelchair refused."""
+    shape = (10, 10)
+    col = np.arange(100) % 10
+    cells = np.flatnonzero((col <= 3) | (col >= 7))
+    n = len(cells)
+    grade = np.tan(np.radians(3.0))
+    height = (-grade * (col[cells] + 0.5) * CELL).astype(np.float32)
+    gradient = np.column_stack([np.full(n, -grade), np.zeros(n)]).astype(np.float32)
+    zeros = np.zeros(n, np.float32)
+    layers = GroundLayers(cells, height, gradient, zeros, zeros, shape, np.zeros(2), CELL)
+    position = np.array([[0.6, 2.0, -grade * 0.6], [2.2, 2.0, -grade * 3.0]])
+    step = edge_geometry(layers, position, np.array([[0, 1], [1, 0]]))[:, 0]
+    np.testing.assert_allclose(step, 0.0, atol=0.01)
+    cut = only_cells(layers, col[cells] <= 3)  # nothing past the place: its own height is all there is
+    assert edge_geometry(cut, position, np.array([[0, 1]]))[0, 0] > 0.06
+
+
 def street_beside_a_car(rise: float = 0.15, slope: float = 0.0) -> GroundLayers:
     """A 12 x 4 m grid of 0.4 m cells: a road (y < 2 m) and its raised side (y >= 2 m, `rise`
     metres up), on a ground sloping `slope` metres per metre along y. A car parked at x 4..8 m
