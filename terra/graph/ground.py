@@ -47,7 +47,7 @@ its step is the largest step of the cells it crosses (at least `line_step` where
 the layers' `lines`, the lines of steps of a LiDAR-only ground, `step_lines`), or the step it
 hides: the height difference across a stretch of cells beside an obstacle or without ground,
 between clear ground on both sides, less what the ground's slope on either side explains
-(`steps_across_gaps`; a curb beside a parked car, or in a stretch the sensor never saw; an end
+(`_steps_across_gaps`; a curb beside a parked car, or in a stretch the sensor never saw; an end
 in a cell without ground reads the gap it stands in, to the first ground up to `BEYOND` metres
 past it, `_ground_past_unseen_ends`); its rise (fall) the steepest climb (descent) along its
 direction i -> j over 1 m of travel, from the cells' heights (a slope a wheelchair feels), and at
@@ -733,7 +733,7 @@ def edge_geometry(
         beyond = past.ends_beyond(length)
         largest = np.fmax(largest, _unseen_end_steps(layers, at, flat, ends, z[edges], beyond))
         profile = profile.with_place_ends(known, along, ends, z[edges], past)
-        largest = np.fmax(largest, steps_across_gaps(profile, E, layers.cell_size, baseline))
+        largest = np.fmax(largest, _steps_across_gaps(profile, E, layers.cell_size, baseline))
     out = np.column_stack([largest, np.degrees(np.arctan(rise)), unobserved, np.degrees(np.arctan(cross))])
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
 
@@ -916,28 +916,22 @@ def _ground_past_unseen_ends(
     return EdgeProfile(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
 
 
-def steps_across_gaps(
-    profile: EdgeProfile, edges: int, shortest: float, baseline: float, agreed: bool = False
-) -> np.ndarray:
-    """(E,) metres: the largest step each edge hides across a gap of more than `shortest` metres
-    (a cell, for edges) between two samples of its clear-ground `profile` (cells beside an
-    obstacle, or without ground): the height difference across the gap less what the ground's
-    slope explains over it. The slope (along the edge, signed) of each side is read over
-    `baseline` metres of the profile beside the gap, else (less than half of it) from the gradient
-    at the gap's end; the step is the least any slope between the two sides' leaves (a valley or a
-    ridge hides none, one noisy side makes none up), and is not read where neither side's slope is
-    known. With `agreed`, only the slope both sides share explains height (the gentler of the two
-    where they fall the same way, else none): a 4 degree ramp before a gap explains 11 cm of a 15
-    cm curb hidden in it, which the level top beyond does not (terra.graph.level_routes asks
-    this of the ground it routes over unseen). Why: beside a parked car the step layer reads a
-    curb only along it (grid_layers), and an edge from the road past the car onto the raised side
-    of the curb read level; across the car, 15 cm of height is not what the road's slope explains.
-    The same across ground the sensor never saw: two bridges on the LiDAR-only campus crossed 3.5 m
-    without ground with a 15 cm curb in it, and read level."""
+def _steps_across_gaps(profile: EdgeProfile, edges: int, cell_size: float, baseline: float) -> np.ndarray:
+    """(E,) metres: the largest step each edge hides across a gap of more than a cell between two
+    samples of its clear-ground `profile` (cells beside an obstacle, or without ground): the
+    height difference across the gap less what the ground's slope explains over it. The slope
+    (along the edge, signed) of each side is read over `baseline` metres of the profile beside the
+    gap, else (less than half of it) from the gradient at the gap's end; the step is the least any
+    slope between the two sides' leaves (a valley or a ridge hides none, one noisy side makes none
+    up), and is not read where neither side's slope is known. Why: beside a parked car the step
+    layer reads a curb only along it (grid_layers), and an edge from the road past the car onto
+    the raised side of the curb read level; across the car, 15 cm of height is not what the road's
+    slope explains. The same across ground the sensor never saw: two bridges on the LiDAR-only
+    campus crossed 3.5 m without ground with a 15 cm curb in it, and read level."""
     out = np.zeros(edges)
     p = profile
     run = np.diff(p.travelled)
-    gaps = np.flatnonzero((p.edge[1:] == p.edge[:-1]) & (run > shortest))
+    gaps = np.flatnonzero((p.edge[1:] == p.edge[:-1]) & (run > cell_size))
     if len(gaps) == 0:
         return out
     # Edges laid end to end, far apart (ground past an edge's start lies at negative travel).
@@ -954,9 +948,6 @@ def steps_across_gaps(
         sides.append(np.where(wide, rise / np.where(wide, distance, 1.0), p.along[near]))
     low, high = np.fmin(*sides), np.fmax(*sides)
     read = np.isfinite(low)
-    if agreed:  # one slope: the gentler where both sides fall the same way, else (one unknown) level
-        gentler = np.where(np.abs(low) < np.abs(high), low, high)
-        low = high = np.where(sides[0] * sides[1] > 0, gentler, 0.0)
     first, rise, gap = first[read], (p.height[last] - p.height[first])[read], run[first][read]
     to_low, to_high = rise - gap * low[read], rise - gap * high[read]
     hidden = np.where(to_low * to_high <= 0, 0.0, np.minimum(np.abs(to_low), np.abs(to_high)))
@@ -975,7 +966,7 @@ def _unseen_end_steps(
     and an edge from it to the top whose only observed cells are on the top read level: 14 cm over
     1.1 m on the simulated small campus, under a wheelchair's slope limit, where the curb's step
     was not seen. Where ground lies past the end, the step across the gap the place stands in is
-    read from it, less what the slope on its two sides explains (steps_across_gaps); the raw
+    read from it, less what the slope on its two sides explains (_steps_across_gaps); the raw
     difference read slopes as steps: a route's place in a hole between rings on a simulated lawn
     falling 3 degrees read the lawn's fall to the first ground along its edge as an 8 cm step.
     `at` (S,) the observed cell of each sample (-1: none), `flat` (S,) its grid cell (-1: outside

@@ -65,7 +65,7 @@ from scipy.cluster.hierarchy import DisjointSet
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from terra.graph import raster
-from terra.graph.ground import BRIDGE, SLOPE_BASELINE, EdgeProfile, edge_geometry, steps_across_gaps
+from terra.graph.ground import BRIDGE, edge_geometry
 from terra.graph.gvd import EIGHT
 from terra.graph.scene_graph import EDGE_GEOMETRY_COLUMNS, EDGE_GEOMETRY_REVERSED
 
@@ -415,35 +415,48 @@ def _judge(routes: list[Route], position: np.ndarray, layers: GroundLayers, rule
 def level_along(layers: GroundLayers, chain: np.ndarray, rule: RouteRule) -> bool:
     """Whether the ground along a polyline `chain` (k, 2) (map frame, metres; sampled every half
     cell) is level across each stretch without ground longer than UNSEEN_CELLS cells: the step it
-    hides there (terra.graph.ground.steps_across_gaps, `agreed`: the height difference across it
-    less what the slope both its sides share explains) is at most `rule.max_step`, and it is at
-    most `rule.max_unobserved` long. Across such a stretch the step layer reads nothing. The
-    stretch is measured along the whole polyline: one without ground around a bend is one stretch
-    (a bend in a run of blocks without ground left a leg without any ground, which alone could not
-    be judged), and False where the polyline holds fewer than two samples with ground. Read
-    without the slope, a 2.4 m stretch of a walk falling 0.9 degrees (4.5 cm with the noise of its
-    two sides) refused the only route along it."""
+    hides there, the height difference across it less what the slope both its sides share
+    explains (`_shared_rise`), is at most `rule.max_step`, and it is at most
+    `rule.max_unobserved` long. Across such a stretch the step layer reads nothing. The stretch is
+    measured along the whole polyline: one without ground around a bend is one stretch (a bend in
+    a run of blocks without ground left a leg without any ground, which alone could not be
+    judged), and False where the polyline holds fewer than two samples with ground."""
     spacing = layers.cell_size / 2
     legs = np.diff(chain, axis=0)
-    norm = np.linalg.norm(legs, axis=1)
-    counts = np.maximum(np.ceil(norm / spacing).astype(np.int64), 1)
+    counts = np.maximum(np.ceil(np.linalg.norm(legs, axis=1) / spacing).astype(np.int64), 1)
     leg = np.repeat(np.arange(len(legs)), counts)
     t = (np.arange(len(leg)) - np.repeat(np.cumsum(counts) - counts, counts)) / counts[leg]
     point = np.vstack([chain[leg] + t[:, None] * legs[leg], chain[-1:]])
-    leg = np.append(leg, len(legs) - 1)
     along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(point, axis=0), axis=1))])
     at = layers.lookup(point)
     known = np.flatnonzero(at >= 0)
     if len(known) < 2:
         return False
-    if (np.diff(along[known]) > rule.max_unobserved + spacing).any():
+    gap = np.diff(along[known])
+    across = np.flatnonzero(gap > UNSEEN_CELLS * layers.cell_size + 1e-6)
+    if (gap[across] > rule.max_unobserved + spacing).any():
         return False
-    unit = legs / np.maximum(norm, 1e-9)[:, None]
-    gradient = np.nan_to_num((layers.gradient[at[known]].astype(np.float64) * unit[leg[known]]).sum(axis=1))
+    before, after = known[across], known[across + 1]
     height = layers.height_at(at[known], point[known])
-    profile = EdgeProfile(np.zeros(len(known), np.int64), along[known], height, gradient)
-    hidden = steps_across_gaps(profile, 1, UNSEEN_CELLS * layers.cell_size + 1e-6, SLOPE_BASELINE, agreed=True)
-    return bool(hidden[0] <= rule.max_step)
+    rise = height[across + 1] - height[across]
+    hidden = np.abs(rise - _shared_rise(layers, at[before], at[after], point[after] - point[before]))
+    return bool((hidden <= rule.max_step).all())
+
+
+def _shared_rise(layers: GroundLayers, before: np.ndarray, after: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(m,) metres: the rise over `shift` (m, 2) metres (map frame) that the planes of the observed
+    cells `before` and `after` (m,) on a stretch's two sides agree on: the gentler of their two
+    where both climb or both fall, else 0 (unknown planes are level). Why: across 2.4 m without
+    ground a walk falling 0.9 degrees differed by 4.5 cm with its sides' noise, which read as a
+    step refused the only route along it; a ramp before a stretch (4 degrees, 11 cm of a curb
+    hidden in it) explains nothing where the level top beyond it does not climb with it. From the
+    planes and the stretch's displacement, not a slope along the route: around a bend the route
+    turns and its sides' slopes along it no longer measure the same ground."""
+    gradient = np.nan_to_num(layers.gradient.astype(np.float64))
+    first = (gradient[before] * shift).sum(axis=1)
+    second = (gradient[after] * shift).sum(axis=1)
+    gentler = np.where(np.abs(first) < np.abs(second), first, second)
+    return np.where(first * second > 0, gentler, 0.0)
 
 
 class RouteBuilder:

@@ -354,3 +354,22 @@ def test_a_stretch_without_ground_on_a_slope_both_sides_share_is_level(curb, bef
         layers.gradient[beyond, 0] = 0.0
     chain = np.array([[1.0, 2.0], [11.0, 2.0]])
     assert level_along(layers, chain, RULE) == level
+
+
+def test_a_stretch_without_ground_around_a_bend_is_judged_on_the_ground_it_crosses():
+    """Ground falling 1.5 degrees along x, with no ground over x 4..7.2 m for y < 3.2 m; a route
+    east along y = 2 m to x = 6.4 m, then north: its stretch without ground runs 2.4 m east and
+    1.2 m north, and falls 6.3 cm, all of it the slope both its sides' planes share. Its sides'
+    slopes along the route (east before it, north after) would not agree on any of it."""
+    H, W = 20, 30
+    grade = np.tan(np.radians(1.5))
+    rows, cols = np.indices((H, W))
+    x, y = (cols + 0.5) * 0.4, (rows + 0.5) * 0.4
+    observed = ~((x > 4.0) & (x < 7.2) & (y < 3.2))
+    grid, layers = flat_layers((H, W), observed, np.zeros((H, W), bool))
+    layers.height[:] = -grade * x.ravel()[layers.cells]
+    layers.gradient[:, 0] = -grade
+    chain = np.array([[1.0, 2.0], [6.4, 2.0], [6.4, 6.0]])
+    assert level_along(layers, chain, RULE)
+    layers.height[y.ravel()[layers.cells] > 3.2] -= 0.15  # a curb along y = 3.2 m, where the stretch ends
+    assert not level_along(layers, chain, RULE)
