@@ -12,6 +12,7 @@ from terra.graph.grid import TerrainGrid
 from terra.graph.ground import GroundLayers, grid_layers
 from terra.graph.level_routes import HOLE, RouteBlocks, RouteRule, level_along, level_routes
 from terra.graph.pipeline import build_scene_graph, terrain_grid
+from terra.graph.room import ROOM_REACH
 from terra.graph.scene_graph import EDGE_LEVEL_ROUTE
 from terra.graph.storage import scene_graph_to_spark_json
 from terra.schemas import EdgeTerra
@@ -309,6 +310,8 @@ def test_a_built_street_without_gap_places_is_crossed_by_a_route():
     assert chair.ground is not None and chair.ground.max_step_m <= 0.05
     # The places of a route count with their terrain; the stored edges name their kind.
     assert sum(build.stats.places_per_terrain.values()) == len(graph.places)
+    # The room, read before the routes, is extended to their places: nothing stands on the street.
+    assert len(graph.places.room) == len(graph.places) and np.all(graph.places.room == ROOM_REACH)
     stored = scene_graph_to_spark_json(graph)["edges"]
     kinds = {e["info"]["metadata"]["terra"]["kind"] for e in stored if e["info"]["metadata"]}
     assert "level_route" in kinds and EdgeTerra.model_validate({"kind": "level_route"}).kind == "level_route"
