@@ -311,7 +311,8 @@ def test_a_built_street_without_gap_places_is_crossed_by_a_route():
     # The places of a route count with their terrain; the stored edges name their kind.
     assert sum(build.stats.places_per_terrain.values()) == len(graph.places)
     # The room, read before the routes, is extended to their places: nothing stands on the street.
-    assert len(graph.places.room) == len(graph.places) and np.all(graph.places.room == ROOM_REACH)
+    room = graph.places.room
+    assert room is not None and len(room) == len(graph.places) and np.all(room == ROOM_REACH)
     stored = scene_graph_to_spark_json(graph)["edges"]
     kinds = {e["info"]["metadata"]["terra"]["kind"] for e in stored if e["info"]["metadata"]}
     assert "level_route" in kinds and EdgeTerra.model_validate({"kind": "level_route"}).kind == "level_route"
