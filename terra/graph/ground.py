@@ -694,8 +694,9 @@ def edge_geometry(
     ground (m), and the steepest slope across it (degrees, >= 0) of the planes of the cells it
     crosses that neither hold a step nor lie beside one or an obstacle, on enough ground (module
     docstring). With `unseen_ends`, an end whose cell (inside the layers' grid) holds no ground
-    steps by the difference between its place's height and the first ground along the edge
-    (`_unseen_end_steps`); callers whose `position` carries no heights pass False."""
+    steps across the gap it stands in, to the ground past it (`_ground_past_unseen_ends`), or
+    where none lies there by the difference between its place's height and the first ground along
+    the edge (`_unseen_end_steps`); callers whose `position` carries no heights pass False."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     E = len(edges)
     if E == 0:

@@ -444,11 +444,10 @@ def build_scene_graph(
         links = with_level_links(
             place_links(places, traversable, grid, config, barrier), places, traversable, grid, layers, config
         )
-    with timer.stage("place room"):
+    with timer.stage("obstacle points"):
         obstacles = obstacle_points(msm.points, grid, config.grid.obstacle_height)
-        room = place_room(places.position, obstacles)
-    with timer.stage("edge ground, level routes"):
-        places, links, room = with_level_routes(places, links, grid, layers, config, room, obstacles)
+    with timer.stage("edge ground, place room, level routes"):
+        places, links, room = with_level_routes(places, links, grid, layers, config, obstacles)
         _count_places(counts, places.terrain[len(places.position) - places.route_places :])
     with timer.stage("place embeddings"):
         embedding, sources = place_embeddings(msm, places.position, places.terrain, config.embedding.max_range)
@@ -504,15 +503,16 @@ def with_level_routes(
     grid: TerrainGrid,
     layers: GroundLayers | None,
     config: BuildConfig,
-    room: np.ndarray,
     obstacles: np.ndarray,
 ) -> tuple[TerrainPlaceSet, PlaceLinks, np.ndarray]:
     """`places` and `links` with every edge's ground geometry, and the places and edges of the
     routes that join the pieces of the graph over level ground (terra.graph.level_routes)
-    appended, with the places' `room` (P,) metres (terra.graph.room) extended to the new ones
-    from the `obstacles` (M, 2) (map-frame x, y, metres; `obstacle_points`); unchanged without
-    ground layers, and without routes with `linking.level_route_length` None. The routes take
-    their sources by the room, not the clearance: a hole in the scan beside a place is no wall."""
+    appended, and every place's room (P,) metres (terra.graph.room) from the `obstacles` (M, 2)
+    (map-frame x, y, metres; `obstacle_points`); no geometry and no routes without ground layers,
+    and no routes with `linking.level_route_length` None. The room is read before the routes,
+    which take their sources by it, not by the clearance: a hole in the scan beside a place is no
+    wall."""
+    room = place_room(places.position, obstacles)
     if layers is None or len(places.position) < 2:
         return places, links, room
     geometry = edge_geometry(layers, places.position, links.edges)

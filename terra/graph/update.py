@@ -83,7 +83,7 @@ from terra.graph.pipeline import (
 )
 from terra.graph.regions import build_levels
 from terra.graph.results import BuildStats, EdgeCounts, EmbeddingSources
-from terra.graph.room import obstacle_points, place_room
+from terra.graph.room import obstacle_points
 from terra.graph.scene_graph import (
     EDGE_BRIDGE,
     EDGE_GEOMETRY_COLUMNS,
@@ -639,8 +639,9 @@ def _crop_places(
         return None
     links = place_links(places, traversable, grid, config, barrier)
     links = with_level_links(links, places, traversable, grid, layers, config)
-    obstacles = obstacle_points(points, grid, config.grid.obstacle_height)
-    return with_level_routes(places, links, grid, layers, config, place_room(places.position, obstacles), obstacles)
+    return with_level_routes(
+        places, links, grid, layers, config, obstacle_points(points, grid, config.grid.obstacle_height)
+    )
 
 
 @dataclass
