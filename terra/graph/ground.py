@@ -889,8 +889,9 @@ class EdgeEnds:
 def _ground_past_unseen_ends(
     layers: GroundLayers, a: np.ndarray, unit: np.ndarray, ends: EdgeEnds, known: np.ndarray, flat: np.ndarray
 ) -> EdgeProfile:
-    """The first ground on each edge's line past an end whose cell lies in the grid but holds no
-    ground, looked for every half cell up to `BEYOND` metres on (rows travelled < 0 before the
+    """The first clear ground (not beside an obstacle, `near_obstacle`) on each edge's line past
+    an end whose cell lies in the grid but holds no ground, looked for every half cell up to
+    `BEYOND` metres on (rows travelled < 0 before the
     start, > the edge's length past its end). Edges run from `a` (E, 2) along `unit` (E, 2); `known`
     (S,) and `flat` (S,) say which samples' cells hold ground and are in the grid. Why: a place in
     a cell without ground takes the nearest ground's height, and may stand across a curb from it.
@@ -898,7 +899,9 @@ def _ground_past_unseen_ends(
     the road's height, and their edges from the road read level; with places on ground scanned in
     sparse rings (tried, benchmarks/RESULTS.md), edges from a curb's top to places on the road
     below, in holes between the rings, read level too. The ground just past the place tells; 1 m
-    of it was too little between sparse rings."""
+    of it was too little between sparse rings. Beside an obstacle the lowest points may be the
+    object's: a car's sill 35 cm up past a place in a curb's shadow made its edge to the curb's top
+    read level on the simulated LiDAR-only small world."""
     step = layers.cell_size / 2
     reach = np.arange(1, int(np.ceil(BEYOND / step)) + 1) * step
     tail = ends.starts + ends.samples - 1
@@ -908,8 +911,11 @@ def _ground_past_unseen_ends(
         origin = a[todo] + base * ends.length[todo, None] * unit[todo]
         point = origin[:, None, :] + sign * reach[None, :, None] * unit[todo, None, :]
         at = layers.observed_index(layers.flat_cells(point.reshape(-1, 2))).reshape(len(todo), len(reach))
-        found = (at >= 0).any(axis=1)
-        k = np.argmax(at >= 0, axis=1)[found]
+        ground = at >= 0
+        if layers.near_obstacle is not None:  # clear ground only, as along the edge (_slope_samples)
+            ground &= ~layers.near_obstacle[np.maximum(at, 0)]
+        found = ground.any(axis=1)
+        k = np.argmax(ground, axis=1)[found]
         cell, todo = at[found, k], todo[found]
         along = (layers.gradient[cell] * unit[todo]).sum(axis=1)
         height = layers.height_at(cell, point[found, k])

@@ -305,6 +305,27 @@ def test_an_edge_to_a_place_in_a_hole_reads_the_ground_past_the_place():
     np.testing.assert_allclose(edge_geometry(layers(0.0, last=10), position, edges)[:, 0], 0.0, atol=1e-6)
 
 
+def test_the_ground_past_a_place_in_a_hole_is_clear_ground():
+    """A place in a hole (column 5, x 2.2 m) at the road's height (0) below a curb's top (columns
+    0-3, 0.15 m), with an object's foot past it: column 7 holds 'ground' at the top's height but
+    lies beside a blocked cell, and columns 8-9 hold none. Read past the place, the object's foot
+    made the edge from the top level; it is no clear ground, as along an edge (the step layer and
+    the slopes leave such cells out), and with none past the place within 2 m the place's own
+    height tells: 0.15 m."""
+    shape = (10, 10)
+    col = np.arange(100) % 10
+    cells = np.flatnonzero((col <= 3) | (col == 7))
+    n = len(cells)
+    zeros = np.zeros(n, np.float32)
+    height, gradient = np.full(n, 0.15, np.float32), np.zeros((n, 2), np.float32)
+    layers = GroundLayers(cells, height, gradient, zeros, zeros, shape, np.zeros(2), CELL)
+    layers.near_obstacle = col[cells] == 7
+    position = np.array([[0.6, 2.0, 0.15], [2.2, 2.0, 0.0]])
+    np.testing.assert_allclose(edge_geometry(layers, position, np.array([[0, 1], [1, 0]]))[:, 0], 0.15, atol=1e-6)
+    layers.near_obstacle = np.zeros(n, dtype=bool)  # clear ground at the top's height past it: level
+    np.testing.assert_allclose(edge_geometry(layers, position, np.array([[0, 1]]))[:, 0], 0.0, atol=1e-6)
+
+
 def test_an_edge_to_a_place_in_a_hole_on_a_slope_reads_no_step():
     """Ground falling 3 degrees along x (5.2 cm a metre) on a 10 x 10 grid of 0.4 m cells, with no
     ground over columns 4-6 (x 1.6..2.8 m, a hole between scan rings). A place in the hole (x 2.2
