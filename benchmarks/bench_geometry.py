@@ -142,7 +142,8 @@ ROAD, SIDEWALK = 40, 48  # SemanticKITTI ids
 
 def steps_on_labelled_road(sequence: Path, cell_size: float = 0.4) -> dict[str, Any]:
     """The step layer (terra.graph.ground.ground_layers on segment_ground's ground, one scan at a
-    time, cells of `cell_size` metres) on real labelled scans, where the labels say what it should
+    time, its steps across gaps on their high edges as a build leaves them, held_across_gaps;
+    cells of `cell_size` metres) on real labelled scans, where the labels say what it should
     read: cells whose ground points are all road with no other labelled ground within two cells
     (a road's interior: no step there), and road cells beside a sidewalk cell (where curbs are).
     Per scan: the cells, the 50th/90th/99th percentiles of their step (metres) and the share
@@ -151,7 +152,7 @@ def steps_on_labelled_road(sequence: Path, cell_size: float = 0.4) -> dict[str, 
 
     from terra.eval.ground_segmentation import labelled_scans, read_labelled_scan
     from terra.graph.grid import GridFrame
-    from terra.graph.ground import ground_layers, segment_ground
+    from terra.graph.ground import ground_layers, held_across_gaps, segment_ground
 
     _, pairs = labelled_scans(sequence)
     rows = []
@@ -162,7 +163,8 @@ def steps_on_labelled_road(sequence: Path, cell_size: float = 0.4) -> dict[str, 
         low = xy.min(axis=0) - 2 * cell_size
         size = np.ceil((xy.max(axis=0) + 2 * cell_size - low) / cell_size).astype(int)
         shape = (int(size[1]), int(size[0]))
-        layers = ground_layers(points[ground], GridFrame((float(low[0]), float(low[1])), shape, cell_size))
+        frame = GridFrame((float(low[0]), float(low[1])), shape, cell_size)
+        layers = held_across_gaps(ground_layers(points[ground], frame))  # as a build leaves it
         cell = np.floor((xy - low) / cell_size).astype(np.int64)
         flat = cell[:, 1] * shape[1] + cell[:, 0]
         road = np.bincount(flat, labels == ROAD, shape[0] * shape[1]) == np.bincount(flat, None, shape[0] * shape[1])

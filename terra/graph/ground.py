@@ -36,7 +36,9 @@ Layers (`ground_layers`), per cell, from the ground points in it:
   less the slope over the cells between: the one read just beyond those two cells, else the
   cell's gradient (a plane fitted on a curb's face takes the curb for a slope); where the cell
   across the gap holds both levels (a curb's face runs through it), it reads the step and the cell
-  before the gap does not. Within two cells
+  before the gap does not; where the ground across the gap is the higher and its cell holds the
+  step, the cell on the low edge reads only its other side (`held_across_gaps`: a curb's shadow
+  lies behind its top). Within two cells
   of a blocked cell, where an object's lowest points pass for ground, read only along an axis
   clear of blocked cells, and across a gap from heights that are not blocked (`grid_layers`);
 - roughness: the standard deviation of the cell's ground point heights, less what the plane's
@@ -229,6 +231,9 @@ class GroundLayers:
     # an edge over one climbs at least `line_step` metres (edge_geometry). None: no lines.
     lines: np.ndarray | None = None
     line_step: float = 0.0
+    # (n,) float32 metres, in memory only: the step with a step across a gap read on both of its
+    # edges, before `held_across_gaps` left it to the high edge; None where that changed nothing.
+    step_both_sides: np.ndarray | None = None
 
     @property
     def slope(self) -> np.ndarray:
@@ -1081,13 +1086,108 @@ def beside_obstacles(layers: GroundLayers, blocked: np.ndarray, beside: int = BE
     """`layers` (of the ground points alone, `ground_layers`) with the steps within `beside` cells
     of a `blocked` (H, W) bool cell of their grid read again clear of the blocked cells, and
     those cells flagged `near_obstacle` (`grid_layers`); in place, and returned. The only part of
-    the layers that needs the terrain grid: the rest is computed beside it (terra.graph.pipeline)."""
+    the layers that needs the terrain grid: the rest is computed beside it (terra.graph.pipeline).
+    Last, a step read across a gap is left to the gap's high side where that holds it
+    (`held_across_gaps`): it needs every cell's final step, those beside obstacles included."""
     if beside > 0 and blocked.any():
         near = raster.grown(blocked, beside)
         layers.near_obstacle = near.ravel()[layers.cells]
         index = np.flatnonzero(layers.near_obstacle)
         layers.step[index] = steps_clear_of(layers, blocked, index)
+    return held_across_gaps(layers)
+
+
+def held_across_gaps(layers: GroundLayers) -> GroundLayers:
+    """`layers` with the step a cell reads across a gap on its side (a neighbour without ground,
+    the ground beyond it higher) replaced by what it reads on its other side alone, where the
+    cell across the gap (the nearest observed one, within BRIDGE cells) reads a step at least as
+    large, less STRADDLE: that cell holds it, and the step lies at the gap's high edge. Why: a
+    curb seen from its top hides the road within a metre of it (its LiDAR shadow); the step layer
+    read the curb on both edges of the shadow, and road cells up to 1.6 m from a simulated curb
+    read 15 cm, closed every level route past a road place there and took the place's edges with
+    them. Left as they are: a cell that holds both levels itself (its height between its two
+    sides', `_straddles`); a cell beside an obstacle (its read is `steps_clear_of`'s); a gap the
+    far side does not hold (a curb's top beside a car, read only along the curb: the road's edge
+    is then all that reads it). The read on both sides is kept in memory (`step_both_sides`):
+    the lines of steps that split a LiDAR-only ground's GVD are drawn from it (`step_lines`), so
+    the GVD still keeps out of the shadow. In place, and returned."""
+    index = _beside_gaps(layers)
+    if len(index) == 0:
+        return layers
+    m, reach = len(index), BRIDGE + 1
+    reads, released = [], np.zeros(m, dtype=bool)
+    for axis in (0, 1):  # rows (y), then columns (x)
+        at = _axis_cells(layers, index, axis, reach)
+        height = np.where(at >= 0, layers.height[np.maximum(at, 0)], np.nan).astype(np.float64)
+        level = np.abs(layers.gradient[index, 1 - axis].astype(np.float64) * layers.cell_size)
+        read = steps_at(height, (np.arange(m), np.full(m, reach)), level)
+        for sign in (-1, 1):
+            held, own = _held_across(layers, height, at, read, level, sign)
+            read = np.where(held, own, read)
+            released |= held
+        reads.append(read)
+    layers.step_both_sides = layers.step.copy()
+    layers.step[index[released]] = np.fmax(*reads)[released].astype(np.float32)
     return layers
+
+
+def _beside_gaps(layers: GroundLayers) -> np.ndarray:
+    """(m,) the observed cells (indices into the layers) that read a step, are not beside an
+    obstacle and have a 4-neighbour in the grid without ground: the only cells a step across a
+    gap can be read on."""
+    todo = np.nan_to_num(layers.step, nan=0.0) > 0
+    if layers.near_obstacle is not None:
+        todo &= ~layers.near_obstacle
+    index = np.flatnonzero(todo)
+    H, W = layers.shape
+    rows, cols = np.divmod(layers.cells[index], W)
+    gap = np.zeros(len(index), dtype=bool)
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        r, c = rows + dr, cols + dc
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        gap |= inside & (layers.observed_index(np.where(inside, r * W + c, -1)) < 0)
+    return index[gap]
+
+
+def _axis_cells(layers: GroundLayers, index: np.ndarray, axis: int, reach: int) -> np.ndarray:
+    """(m, 2 reach + 1) int64: the observed cells (indices into the layers, -1 for none or
+    outside the grid) from `reach` cells before to `reach` cells after each observed cell
+    `index` (m,) along the grid's `axis` (0: rows, 1: columns)."""
+    H, W = layers.shape
+    rows, cols = np.divmod(layers.cells[index], W)
+    taps = np.arange(-reach, reach + 1)
+    r, c = np.broadcast_arrays(rows[:, None] + (taps if axis == 0 else 0), cols[:, None] + (taps if axis == 1 else 0))
+    inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+    return layers.observed_index(np.where(inside, r * W + c, -1).ravel()).reshape(r.shape)
+
+
+def _held_across(
+    layers: GroundLayers, height: np.ndarray, at: np.ndarray, read: np.ndarray, level: np.ndarray, sign: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(m,) bool and (m,) metres: which cells' step `read` (m,) (along one axis, from the heights
+    `height` (m, 2 reach + 1) of the cells `at` (same shape) around each) the cell across a gap
+    on the side `sign` (-1, 1) holds (`held_across_gaps`), and what each reads on its other side
+    alone: the height difference to its neighbour there less the slope beyond it (that
+    neighbour's difference to the next, else |rise| `level` (m,), metres per cell)."""
+    m, centre = len(read), height.shape[1] // 2
+    middle, near, near2 = height[:, centre], height[:, centre - sign], height[:, centre - 2 * sign]
+    distance = np.zeros(m, dtype=np.int64)
+    for k in range(BRIDGE, 1, -1):  # the nearest observed cell across the gap wins
+        distance = np.where(np.isfinite(height[:, centre + sign * k]), k, distance)
+    pick = np.arange(m)
+    far, far_at = height[pick, centre + sign * distance], at[pick, centre + sign * distance]
+    far_step = np.where(far_at >= 0, layers.step[np.maximum(far_at, 0)], np.nan)
+    with np.errstate(invalid="ignore"):  # NaN compares False: no gap, no far cell, nothing held
+        held = (
+            (distance > 0)
+            & np.isnan(height[:, centre + sign])
+            & np.isfinite(near)
+            & (far > middle)
+            & ~_straddles(middle, near, far)
+            & (far_step >= read - STRADDLE)
+        )
+    outer = np.where(np.isfinite(near2), np.abs(near - near2), level)
+    return held, np.maximum(np.abs(middle - near) - outer, 0.0)
 
 
 def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -1137,9 +1237,12 @@ def step_lines(
     metres, with gaps of up to 2 x `close` cells between them filled (a binary closing: a curb
     reads its step unevenly along its length, and its LiDAR shadow holds no ground, so its cells
     come as two broken rows), in 8-connected lines of at least `min_cells` cells (a curb, the foot
-    of a low wall; a lone cell is a stone or a stray height, no line a robot meets)."""
+    of a low wall; a lone cell is a stone or a stray height, no line a robot meets). Drawn from the
+    step read on both edges of a gap (`step_both_sides`, where `held_across_gaps` set it): a line on
+    both edges of a curb's shadow, closed across it, keeps the GVD out of the shadow."""
+    step = layers.step if layers.step_both_sides is None else layers.step_both_sides
     out = np.zeros(layers.shape[0] * layers.shape[1], dtype=bool)
-    out[layers.cells[np.nan_to_num(layers.step, nan=0.0) > min_step]] = True
+    out[layers.cells[np.nan_to_num(step, nan=0.0) > min_step]] = True
     out = out.reshape(layers.shape)
     if close > 0:  # padded: a closing erodes from outside the grid too
         padded = ndimage.binary_closing(np.pad(out, close), EIGHT, iterations=close)

@@ -516,6 +516,58 @@ def test_a_step_read_across_a_gap_stays_on_the_cell_that_holds_it():
     assert axis_step(near_road, axis=1, rise=np.zeros_like(h))[0, 3] == pytest.approx(0.14)
 
 
+def curb_over_its_shadow(car: bool = False) -> GroundLayers:
+    """grid_layers on 0.4 m cells (12 x 30) of a curb seen from its top: its top 0.15 m up for y
+    >= 2.8 m (rows 7-11), the road at 0 for y < 1.6 m (rows 0-3), and no point between (rows 4-6,
+    the curb's LiDAR shadow; the curb runs at y = 2.8 m). With `car`, a car (blocked cells, no
+    ground) stands on the top at rows 9-10, x 4..8 m (columns 10-19)."""
+    from terra.graph.grid import TerrainGrid
+
+    rng = np.random.default_rng(11)
+    xy = uniform(rng, [0, 0], [12, 4.8], 40000)
+    xy = xy[(xy[:, 1] < 1.6) | (xy[:, 1] >= 2.8)]
+    shape = (12, 30)
+    blocked = np.zeros(shape, dtype=bool)
+    if car:
+        blocked[9:11, 10:20] = True
+        rows, cols = (xy[:, 1] // CELL).astype(int), (xy[:, 0] // CELL).astype(int)
+        xy = xy[~blocked[rows, cols]]
+    z = np.where(xy[:, 1] >= 2.8, 0.15, 0.0)
+    grid = TerrainGrid(np.zeros(shape, np.int16), np.zeros(shape, np.float32), blocked, np.zeros(2), CELL)
+    return grid_layers(np.column_stack([xy, z]), np.ones(len(xy), dtype=bool), grid)
+
+
+def test_a_step_across_a_shadow_is_held_by_its_high_edge():
+    """A curb over its shadow (`curb_over_its_shadow`): the top's edge (row 7) reads the curb
+    across the shadow, 0.15 m; the road's edge (row 3), 1.2 m from the curb, reads only its own
+    side, 0: before, it read the curb too, and closed the level routes past road places there.
+    The lines of steps keep both edges (the GVD keeps out of the shadow), and an edge from the road
+    up to the top still reads the curb; an edge along the road's edge reads none."""
+    layers = curb_over_its_shadow()
+    step = layers.as_grid(layers.step)
+    np.testing.assert_allclose(step[7, 2:-2], 0.15, atol=0.01)
+    np.testing.assert_allclose(step[3, 2:-2], 0.0, atol=0.01)
+    assert layers.step_both_sides is not None
+    np.testing.assert_allclose(layers.as_grid(layers.step_both_sides)[3, 2:-2], 0.15, atol=0.01)
+    lines = step_lines(layers, 0.05)
+    assert lines[3, 2:-2].all() and lines[7, 2:-2].all() and not lines[[0, 1, 10, 11]].any()
+    position = np.array([[6.2, 0.6, 0.0], [6.2, 4.2, 0.15], [1.0, 1.4, 0.0], [11.0, 1.4, 0.0]])
+    geometry = edge_geometry(layers, position, np.array([[0, 1], [2, 3]]))
+    assert geometry[0, 0] == pytest.approx(0.15, abs=0.01) and geometry[1, 0] == pytest.approx(0.0, abs=0.01)
+
+
+def test_a_step_across_a_shadow_stays_on_the_low_edge_where_the_high_edge_does_not_hold_it():
+    """The same curb with a car on its top two rows up from the top's edge: there the top's edge
+    reads the curb only along its length (clear of the car), 0, and the road's edge, across the
+    shadow, keeps the whole curb (0.15 m); away from the car, the top's edge holds it."""
+    layers = curb_over_its_shadow(car=True)
+    step = layers.as_grid(layers.step)
+    np.testing.assert_allclose(step[7, 11:19], 0.0, atol=0.01)
+    np.testing.assert_allclose(step[3, 11:19], 0.15, atol=0.01)
+    np.testing.assert_allclose(step[3, 2:6], 0.0, atol=0.01)
+    np.testing.assert_allclose(step[7, 2:6], 0.15, atol=0.01)
+
+
 def curb_before_a_wall(rise: float, slope: float = 0.0) -> np.ndarray:
     """(12, 30) metres: the step layer of grid_layers on 0.4 m cells, of a road whose curb (`rise`
     metres) runs along x at y = 2.2 m, halfway across row 5 (whose points are of both levels), on
