@@ -29,6 +29,7 @@ from terra.graph.ground import (
     edge_geometry,
     ground_layers,
     has_terrain_votes,
+    heights_in_gaps,
     points_ground,
     step_lines,
 )
@@ -126,10 +127,13 @@ def terrain_places(
     config: BuildConfig,
     show_progress: bool = False,
     barrier: np.ndarray | None = None,
+    layers: GroundLayers | None = None,
 ) -> tuple[TerrainPlaceSet, np.ndarray, PlaceCounts]:
     """Places and GVD edges of every terrain in `terrains`, the union of the cleaned terrain masks
     (traversable cells), and per-terrain counters. `barrier` (H, W) bool: cells no terrain's GVD
-    runs over (`gvd_barrier`); they stay traversable, so links may still cross them."""
+    runs over (`gvd_barrier`); they stay traversable, so links may still cross them. A place
+    stands at its cell's ground height (the grid's), or with `layers`, where its cell holds no
+    ground, at the ground across the gap it stands in (terra.graph.ground.heights_in_gaps)."""
     s = grid.cell_size
     positions, terrain_ids, clearances, edges, weights = [], [], [], [], []
     traversable = np.zeros(grid.shape, dtype=bool)
@@ -148,6 +152,8 @@ def terrain_places(
         cp = _mask_places(mask & ~barrier if barrier is not None else mask, config, s, tile_stats)
         xy = grid.cell_centres(cp.cells)
         z = grid.ground_at(cp.cells)
+        if layers is not None:
+            z = heights_in_gaps(layers, xy, z)
         positions.append(np.column_stack([xy, z]))
         terrain_ids.append(np.full(len(cp.cells), t, dtype=np.int64))
         clearances.append(cp.clearance * s)
@@ -435,7 +441,7 @@ def build_scene_graph(
     grid, grid_stats, layers = _grid_and_layers(msm, ground, names, terrains, config, timer)
     with timer.stage("GVD places"):
         barrier = gvd_barrier(layers, config, lidar_only)
-        places, traversable, counts = terrain_places(grid, terrains, config, show_progress, barrier)
+        places, traversable, counts = terrain_places(grid, terrains, config, show_progress, barrier, layers)
         places = with_gap_places(places, traversable, grid, layers, config)
         _count_places(counts, places.terrain[len(places.position) - places.gap_places :])
     if len(places.position) == 0:

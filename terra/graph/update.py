@@ -633,7 +633,7 @@ def _crop_places(
     """The places, links and room (terra.graph.room) a full build gives on one crop's `points`
     (N, 3) and `grid`, by the same functions; None where it has no place."""
     barrier = gvd_barrier(layers, config, lidar_only=lidar_only)
-    places, traversable, _ = terrain_places(grid, terrains, config, barrier=barrier)
+    places, traversable, _ = terrain_places(grid, terrains, config, barrier=barrier, layers=layers)
     places = with_gap_places(places, traversable, grid, layers, config)
     if not len(places.position):
         return None

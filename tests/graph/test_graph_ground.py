@@ -568,6 +568,21 @@ def test_a_step_across_a_shadow_stays_on_the_low_edge_where_the_high_edge_does_n
     np.testing.assert_allclose(step[7, 2:6], 0.15, atol=0.01)
 
 
+def test_a_place_in_a_curbs_shadow_stands_at_the_road():
+    """On the curb over its shadow (rows 4-6 without ground, the top 0.15 m up from row 7, the road
+    at 0 to row 3), a place in row 6 beside the top (nearest ground: the top, one cell up; the road
+    three cells down) stands at the road's height, the shadow's low level; a place on observed
+    ground keeps its height, and one with no ground within four cells along any axis keeps the
+    height it had."""
+    from terra.graph.ground import heights_in_gaps
+
+    layers = curb_over_its_shadow()
+    xy = np.array([[6.2, 2.6], [6.2, 4.2], [6.2, 0.6]])  # row 6 (the shadow), row 10 (top), row 1 (road)
+    np.testing.assert_allclose(heights_in_gaps(layers, xy, np.array([0.15, 0.2, 0.3])), [0.0, 0.2, 0.3], atol=0.01)
+    bare = only_cells(layers, layers.cells // 30 <= 3)  # only the road: nothing within reach of row 10
+    np.testing.assert_allclose(heights_in_gaps(bare, xy[1:2], np.array([0.15])), [0.15])
+
+
 def curb_before_a_wall(rise: float, slope: float = 0.0) -> np.ndarray:
     """(12, 30) metres: the step layer of grid_layers on 0.4 m cells, of a road whose curb (`rise`
     metres) runs along x at y = 2.2 m, halfway across row 5 (whose points are of both levels), on
