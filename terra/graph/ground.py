@@ -231,9 +231,11 @@ class GroundLayers:
     # an edge over one climbs at least `line_step` metres (edge_geometry). None: no lines.
     lines: np.ndarray | None = None
     line_step: float = 0.0
-    # (n,) float32 metres, in memory only: the step with a step across a gap read on both of its
-    # edges, before `held_across_gaps` left it to the high edge; None where that changed nothing.
-    step_both_sides: np.ndarray | None = None
+    # In memory only: the cells (indices into the layers) whose step across a gap is left to the
+    # gap's high edge (held_across_gaps), and the step (metres) each read before; None: none. Kept
+    # for the cells alone: a copy of the whole step layer costs 4 bytes a cell on a kilometre map.
+    held_cells: np.ndarray | None = None
+    held_step: np.ndarray | None = None
 
     @property
     def slope(self) -> np.ndarray:
@@ -1108,8 +1110,8 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     them. Left as they are: a cell that holds both levels itself (its height between its two
     sides', `_straddles`); a cell beside an obstacle (its read is `steps_clear_of`'s); a gap the
     far side does not hold (a curb's top beside a car, read only along the curb: the road's edge
-    is then all that reads it). The read on both sides is kept in memory (`step_both_sides`):
-    the lines of steps that split a LiDAR-only ground's GVD are drawn from it (`step_lines`), so
+    is then all that reads it). The read on both sides is kept in memory (`held_cells`,
+    `held_step`): the lines of steps that split a LiDAR-only ground's GVD are drawn from it (`step_lines`), so
     the GVD still keeps out of the shadow. In place, and returned."""
     index = _beside_gaps(layers)
     if len(index) == 0:
@@ -1126,7 +1128,7 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
             read = np.where(held, own, read)
             released |= held
         reads.append(read)
-    layers.step_both_sides = layers.step.copy()
+    layers.held_cells, layers.held_step = index[released], layers.step[index[released]].copy()
     layers.step[index[released]] = np.fmax(*reads)[released].astype(np.float32)
     return layers
 
@@ -1270,12 +1272,15 @@ def step_lines(
     metres, with gaps of up to 2 x `close` cells between them filled (a binary closing: a curb
     reads its step unevenly along its length, and its LiDAR shadow holds no ground, so its cells
     come as two broken rows), in 8-connected lines of at least `min_cells` cells (a curb, the foot
-    of a low wall; a lone cell is a stone or a stray height, no line a robot meets). Drawn from the
-    step read on both edges of a gap (`step_both_sides`, where `held_across_gaps` set it): a line on
-    both edges of a curb's shadow, closed across it, keeps the GVD out of the shadow."""
-    step = layers.step if layers.step_both_sides is None else layers.step_both_sides
+    of a low wall; a lone cell is a stone or a stray height, no line a robot meets). A cell whose
+    step across a gap its high edge holds counts with the step it read before, instead of its own
+    (`held_cells`, `held_step`: `held_across_gaps`): lines on both edges of a curb's shadow, closed across it,
+    keep the GVD out of the shadow."""
+    stepped = np.nan_to_num(layers.step, nan=0.0) > min_step
+    if layers.held_cells is not None and layers.held_step is not None:
+        stepped[layers.held_cells] = layers.held_step > min_step
     out = np.zeros(layers.shape[0] * layers.shape[1], dtype=bool)
-    out[layers.cells[np.nan_to_num(step, nan=0.0) > min_step]] = True
+    out[layers.cells[stepped]] = True
     out = out.reshape(layers.shape)
     if close > 0:  # padded: a closing erodes from outside the grid too
         padded = ndimage.binary_closing(np.pad(out, close), EIGHT, iterations=close)
