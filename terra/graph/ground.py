@@ -898,9 +898,9 @@ def _ground_past_unseen_ends(
 ) -> EdgeProfile:
     """The first clear ground (not beside an obstacle, `near_obstacle`) on each edge's line past
     an end whose cell lies in the grid but holds no ground, looked for every half cell up to
-    `BEYOND` metres on (rows travelled < 0 before the
-    start, > the edge's length past its end). Edges run from `a` (E, 2) along `unit` (E, 2); `known`
-    (S,) and `flat` (S,) say which samples' cells hold ground and are in the grid. Why: a place in
+    `BEYOND` metres on (rows travelled < 0 before the start, > the edge's length past its end).
+    Edges run from `a` (E, 2) along `unit` (E, 2); `known` (S,) and `flat` (S,) say which samples'
+    cells hold ground and are in the grid. Why: a place in
     a cell without ground takes the nearest ground's height, and may stand across a curb from it.
     On the simulated camera campus two places at a curb's top edge, in cells without points, took
     the road's height, and their edges from the road read level; with places on ground scanned in
@@ -1110,9 +1110,9 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     them. Left as they are: a cell that holds both levels itself (its height between its two
     sides', `_straddles`); a cell beside an obstacle (its read is `steps_clear_of`'s); a gap the
     far side does not hold (a curb's top beside a car, read only along the curb: the road's edge
-    is then all that reads it). The read on both sides is kept in memory (`held_cells`,
-    `held_step`): the lines of steps that split a LiDAR-only ground's GVD are drawn from it (`step_lines`), so
-    the GVD still keeps out of the shadow. In place, and returned."""
+    is then all that reads it). The read on both edges is kept in memory for the cells that gave
+    it up (`held_cells`, `held_step`): the lines of steps that split a LiDAR-only ground's GVD are
+    drawn from it (`step_lines`), so the GVD still keeps out of the shadow. In place, and returned."""
     index = _beside_gaps(layers)
     if len(index) == 0:
         return layers
@@ -1273,9 +1273,9 @@ def step_lines(
     reads its step unevenly along its length, and its LiDAR shadow holds no ground, so its cells
     come as two broken rows), in 8-connected lines of at least `min_cells` cells (a curb, the foot
     of a low wall; a lone cell is a stone or a stray height, no line a robot meets). A cell whose
-    step across a gap its high edge holds counts with the step it read before, instead of its own
-    (`held_cells`, `held_step`: `held_across_gaps`): lines on both edges of a curb's shadow, closed across it,
-    keep the GVD out of the shadow."""
+    step across a gap its high edge holds counts with the step it read before, not its own
+    (`held_cells`, `held_step`: `held_across_gaps`): lines on both edges of a curb's shadow,
+    closed across it, keep the GVD out of the shadow."""
     stepped = np.nan_to_num(layers.step, nan=0.0) > min_step
     if layers.held_cells is not None and layers.held_step is not None:
         stepped[layers.held_cells] = layers.held_step > min_step
