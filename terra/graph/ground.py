@@ -1101,9 +1101,10 @@ def beside_obstacles(layers: GroundLayers, blocked: np.ndarray, beside: int = BE
 
 def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     """`layers` with the step a cell reads across a gap on its side (a neighbour without ground,
-    the ground beyond it higher) replaced by what it reads on its other side alone, where the
-    cell across the gap (the nearest observed one, within BRIDGE cells) reads a step at least as
-    large, less STRADDLE: that cell holds it, and the step lies at the gap's high edge. Why: a
+    the ground beyond it higher) replaced by what it reads on its other side alone (at most what
+    it read: the cell gives a read up, it takes none on), where the cell across the gap (the
+    nearest observed one, within BRIDGE cells) reads a step at least as large, less STRADDLE: that
+    cell holds it, and the step lies at the gap's high edge. Why: a
     curb seen from its top hides the road within a metre of it (its LiDAR shadow); the step layer
     read the curb on both edges of the shadow, and road cells up to 1.6 m from a simulated curb
     read 15 cm, closed every level route past a road place there and took the place's edges with
@@ -1128,8 +1129,9 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
             read = np.where(held, own, read)
             released |= held
         reads.append(read)
-    layers.held_cells, layers.held_step = index[released], layers.step[index[released]].copy()
-    layers.step[index[released]] = np.fmax(*reads)[released].astype(np.float32)
+    before = layers.step[index[released]].copy()
+    layers.step[index[released]] = np.fmin(np.fmax(*reads)[released], before).astype(np.float32)
+    layers.held_cells, layers.held_step = index[released], before
     return layers
 
 
