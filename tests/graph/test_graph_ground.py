@@ -21,6 +21,7 @@ from terra.graph.ground import (
     edge_geometry,
     grid_layers,
     ground_layers,
+    heights_in_gaps,
     segment_ground,
     step_lines,
 )
@@ -576,8 +577,6 @@ def test_a_place_in_a_curbs_shadow_stands_at_the_road():
     three cells down) stands at the road's height, the shadow's low level; a place on observed
     ground keeps its height, and one with no ground within four cells along any axis keeps the
     height it had."""
-    from terra.graph.ground import heights_in_gaps
-
     layers = curb_over_its_shadow()
     xy = np.array([[6.2, 2.6], [6.2, 4.2], [6.2, 0.6]])  # row 6 (the shadow), row 10 (top), row 1 (road)
     np.testing.assert_allclose(heights_in_gaps(layers, xy, np.array([0.15, 0.2, 0.3])), [0.0, 0.2, 0.3], atol=0.01)
