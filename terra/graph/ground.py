@@ -1120,7 +1120,7 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     m, reach = len(index), BRIDGE + 1
     reads, released = [], np.zeros(m, dtype=bool)
     for axis in (0, 1):  # rows (y), then columns (x)
-        at = _axis_cells(layers, index, axis, reach)
+        at = _axis_cells(layers, layers.cells[index], axis, reach)
         height = np.where(at >= 0, layers.height[np.maximum(at, 0)], np.nan).astype(np.float64)
         level = np.abs(layers.gradient[index, 1 - axis].astype(np.float64) * layers.cell_size)
         read = steps_at(height, (np.arange(m), np.full(m, reach)), level)
@@ -1151,17 +1151,12 @@ def heights_in_gaps(layers: GroundLayers, xy: np.ndarray, z: np.ndarray) -> np.n
     todo = np.flatnonzero((flat >= 0) & (layers.observed_index(flat) < 0))
     if len(todo) == 0:
         return z
-    H, W = layers.shape
-    rows, cols = np.divmod(flat[todo], W)
-    lowest = np.full(len(todo), np.nan)
-    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        nearest = np.full(len(todo), np.nan)
-        for k in range(BRIDGE, 0, -1):  # the nearest wins
-            r, c = rows + dr * k, cols + dc * k
-            inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-            at = layers.observed_index(np.where(inside, r * W + c, -1))
-            nearest = np.where(at >= 0, layers.height[np.maximum(at, 0)], nearest)
-        lowest = np.fmin(lowest, nearest)
+    pick, lowest = np.arange(len(todo)), np.full(len(todo), np.nan)
+    for axis in (0, 1):
+        at = _axis_cells(layers, flat[todo], axis, BRIDGE)
+        height = np.where(at >= 0, layers.height[np.maximum(at, 0)], np.nan).astype(np.float64)
+        for sign in (-1, 1):  # NaN where no ground lies within BRIDGE cells on that side
+            lowest = np.fmin(lowest, height[pick, BRIDGE + sign * _nearest_observed(height, sign)])
     found = np.isfinite(lowest)
     z[todo[found]] = lowest[found]
     return z
@@ -1186,12 +1181,12 @@ def _beside_gaps(layers: GroundLayers) -> np.ndarray:
     return index[gap]
 
 
-def _axis_cells(layers: GroundLayers, index: np.ndarray, axis: int, reach: int) -> np.ndarray:
+def _axis_cells(layers: GroundLayers, flat: np.ndarray, axis: int, reach: int) -> np.ndarray:
     """(m, 2 reach + 1) int64: the observed cells (indices into the layers, -1 for none or
-    outside the grid) from `reach` cells before to `reach` cells after each observed cell
-    `index` (m,) along the grid's `axis` (0: rows, 1: columns)."""
+    outside the grid) from `reach` cells before to `reach` cells after each grid cell `flat` (m,)
+    (row * W + col, inside the grid) along the grid's `axis` (0: rows, 1: columns)."""
     H, W = layers.shape
-    rows, cols = np.divmod(layers.cells[index], W)
+    rows, cols = np.divmod(flat, W)
     taps = np.arange(-reach, reach + 1)
     r, c = np.broadcast_arrays(rows[:, None] + (taps if axis == 0 else 0), cols[:, None] + (taps if axis == 1 else 0))
     inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
@@ -1206,18 +1201,14 @@ def _held_across(
     on the side `sign` (-1, 1) holds (`held_across_gaps`), and what each reads on its other side
     alone: the height difference to its neighbour there less the slope beyond it (that
     neighbour's difference to the next, else |rise| `level` (m,), metres per cell)."""
-    m, centre = len(read), height.shape[1] // 2
+    centre, pick = height.shape[1] // 2, np.arange(len(read))
     middle, near, near2 = height[:, centre], height[:, centre - sign], height[:, centre - 2 * sign]
-    distance = np.zeros(m, dtype=np.int64)
-    for k in range(BRIDGE, 1, -1):  # the nearest observed cell across the gap wins
-        distance = np.where(np.isfinite(height[:, centre + sign * k]), k, distance)
-    pick = np.arange(m)
+    distance = _nearest_observed(height, sign)  # more than 1: a gap lies between
     far, far_at = height[pick, centre + sign * distance], at[pick, centre + sign * distance]
     far_step = np.where(far_at >= 0, layers.step[np.maximum(far_at, 0)], np.nan)
     with np.errstate(invalid="ignore"):  # NaN compares False: no gap, no far cell, nothing held
         held = (
-            (distance > 0)
-            & np.isnan(height[:, centre + sign])
+            (distance > 1)
             & np.isfinite(near)
             & (far > middle)
             & ~_straddles(middle, near, far)
@@ -1225,6 +1216,17 @@ def _held_across(
         )
     outer = np.where(np.isfinite(near2), np.abs(near - near2), level)
     return held, np.maximum(np.abs(middle - near) - outer, 0.0)
+
+
+def _nearest_observed(height: np.ndarray, sign: int) -> np.ndarray:
+    """(m,) int64: how many cells from the middle of each row of `height` (m, 2 reach + 1), metres
+    (NaN: no ground), its nearest observed cell lies on the side `sign` (-1, 1), within BRIDGE
+    cells (reach >= BRIDGE); 0 where none does (the middle itself)."""
+    centre = height.shape[1] // 2
+    distance = np.zeros(len(height), dtype=np.int64)
+    for k in range(BRIDGE, 0, -1):  # the nearest wins
+        distance = np.where(np.isfinite(height[:, centre + sign * k]), k, distance)
+    return distance
 
 
 def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray) -> np.ndarray:
