@@ -452,8 +452,8 @@ def _shared_rise(layers: GroundLayers, before: np.ndarray, after: np.ndarray, sh
     hidden in it) explains nothing where the level top beyond it does not climb with it. From the
     planes and the stretch's displacement, not a slope along the route: around a bend the route
     turns and its sides' slopes along it no longer measure the same ground."""
-    first = (np.nan_to_num(layers.gradient[before].astype(np.float64)) * shift).sum(axis=1)
-    second = (np.nan_to_num(layers.gradient[after].astype(np.float64)) * shift).sum(axis=1)
+    first = (np.nan_to_num(layers.fitted_gradient(before)) * shift).sum(axis=1)
+    second = (np.nan_to_num(layers.fitted_gradient(after)) * shift).sum(axis=1)
     gentler = np.where(np.abs(first) < np.abs(second), first, second)
     return np.where(first * second > 0, gentler, 0.0)
 

@@ -747,6 +747,34 @@ def test_a_curb_read_as_a_ramp_at_an_edges_end_reads_its_cells_slope():
     assert geometry[1, 2] == pytest.approx(planes, abs=0.01) and geometry[1, 1] == 0.0
 
 
+def level_cells(W: int = 30, rows: int = 5) -> GroundLayers:
+    """Hand-made layers: `rows` x W observed cells of level ground at z = 0, no step."""
+    cells = np.arange(rows * W)
+    zeros = np.zeros(len(cells), np.float32)
+    return GroundLayers(
+        cells, zeros.copy(), np.zeros((len(cells), 2), np.float32), zeros, zeros, (rows, W), np.zeros(2), CELL
+    )
+
+
+def test_a_plane_steeper_than_a_fit_holds_is_no_slope_of_an_edge():
+    """Level ground whose cell (2, 15) fitted a plane 80 degrees steep (beside a bench on the
+    simulated LiDAR-only campus: cells nearly in a line), its height the mean (ground_layers keeps
+    it). An edge over it read a 70 degree rise and cut a place off; such a plane is no slope
+    (`fitted_gradient`), and the edge reads level, nor is a point's height carried along it. A plane
+    of 42 degrees, under STEEPEST_FIT, is still the ground's slope along the edge."""
+    layers = level_cells()
+    layers.gradient[2 * 30 + 15] = [5.4, 1.5]
+    position = np.array([[4.0, 1.0, 0.0], [10.0, 1.0, 0.0]])
+    edges = np.array([[0, 1], [1, 0]])
+    geometry = edge_geometry(layers, position, edges)
+    assert np.all(geometry[:, :3] == 0.0)
+    assert np.isnan(layers.fitted_gradient(np.array([2 * 30 + 15]))).all()
+    assert layers.height_at(np.array([2 * 30 + 15]), np.array([[6.3, 1.1]]))[0] == 0.0
+    layers.gradient[2 * 30 + 15] = [0.9, 0.0]
+    steep = edge_geometry(layers, position, edges)
+    assert steep[0, 1] == pytest.approx(np.degrees(np.arctan(0.9)), abs=0.01) and steep[1, 2] == steep[0, 1]
+
+
 def test_a_map_of_bare_points_builds_places_on_the_ground():
     points, truth = street()
     build = build_scene_graph(points_map(points))
