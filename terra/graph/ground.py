@@ -1121,10 +1121,12 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     curb seen from its top hides the road within a metre of it (its LiDAR shadow); the step layer
     read the curb on both edges of the shadow, and road cells up to 1.6 m from a simulated curb
     read 15 cm, closed every level route past a road place there and took the place's edges with
-    them. Left as they are: a cell that holds both levels itself (its height between its two
-    sides', `_straddles`); a cell beside an obstacle (its read is `steps_clear_of`'s); a gap the
-    far side does not hold (a curb's top beside a car, read only along the curb: the road's edge
-    is then all that reads it). The read on both edges is kept in memory for the cells that gave
+    them. A cell beside an obstacle (its read `steps_clear_of`'s) gives its read up only to a far
+    cell clear of obstacles: on the simulated LiDAR-only campus a road place 1 m from a curb, beside
+    an object, read the curb across the shadow and was cut off. Left as they are: a cell that holds
+    both levels itself (its height between its two sides', `_straddles`); a gap the far side does
+    not hold (a curb's top beside a car, read only along the curb: the road's edge is then all
+    that reads it). The read on both edges is kept in memory for the cells that gave
     it up (`held_cells`, `held_step`): the lines of steps that split a LiDAR-only ground's GVD are
     drawn from it (`step_lines`), so the GVD still keeps out of the shadow. In place, and returned."""
     index = _beside_gaps(layers)
@@ -1177,13 +1179,10 @@ def heights_in_gaps(layers: GroundLayers, xy: np.ndarray, z: np.ndarray) -> np.n
 
 def _beside_gaps(layers: GroundLayers) -> np.ndarray:
     """(m,) the observed cells (indices into the layers) that read a step of more than STRADDLE
-    metres (less is one level's noise, as `_straddles` takes it), are not beside an obstacle and
-    have a 4-neighbour in the grid without ground: the cells a step across a gap is read on. (On
-    the campus map 4 % of the cells with any step: the rule takes 13 ms there, not 215.)"""
-    todo = np.nan_to_num(layers.step, nan=0.0) > STRADDLE
-    if layers.near_obstacle is not None:
-        todo &= ~layers.near_obstacle
-    index = np.flatnonzero(todo)
+    metres (less is one level's noise, as `_straddles` takes it) and have a 4-neighbour in the grid
+    without ground: the cells a step across a gap is read on. (On
+    the campus map 5 % of the cells with any step: the rule takes 22 ms there, not 215.)"""
+    index = np.flatnonzero(np.nan_to_num(layers.step, nan=0.0) > STRADDLE)
     H, W = layers.shape
     rows, cols = np.divmod(layers.cells[index], W)
     gap = np.zeros(len(index), dtype=bool)
@@ -1219,6 +1218,9 @@ def _held_across(
     distance = _nearest_observed(height, sign)  # more than 1: a gap lies between
     far, far_at = height[pick, centre + sign * distance], at[pick, centre + sign * distance]
     far_step = np.where(far_at >= 0, layers.step[np.maximum(far_at, 0)], np.nan)
+    if layers.near_obstacle is not None:  # a cell beside an obstacle gives its read to clear ground only
+        beside = layers.near_obstacle[at[:, centre]] & layers.near_obstacle[np.maximum(far_at, 0)]
+        far_step = np.where(beside, np.nan, far_step)
     with np.errstate(invalid="ignore"):  # NaN compares False: no gap, no far cell, nothing held
         held = (
             (distance > 1)

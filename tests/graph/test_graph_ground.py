@@ -517,11 +517,12 @@ def test_a_step_read_across_a_gap_stays_on_the_cell_that_holds_it():
     assert axis_step(near_road, axis=1, rise=np.zeros_like(h))[0, 3] == pytest.approx(0.14)
 
 
-def curb_over_its_shadow(car: bool = False) -> GroundLayers:
+def curb_over_its_shadow(car: bool = False, bench: bool = False) -> GroundLayers:
     """grid_layers on 0.4 m cells (12 x 30) of a curb seen from its top: its top 0.15 m up for y
     >= 2.8 m (rows 7-11), the road at 0 for y < 1.6 m (rows 0-3), and no point between (rows 4-6,
     the curb's LiDAR shadow; the curb runs at y = 2.8 m). With `car`, a car (blocked cells, no
-    ground) stands on the top at rows 9-10, x 4..8 m (columns 10-19)."""
+    ground) stands on the top at rows 9-10, x 4..8 m (columns 10-19); with `bench`, a bench on the
+    road at rows 0-1, x 4..5.2 m (columns 10-12), two rows from the road's edge."""
     from terra.graph.grid import TerrainGrid
 
     rng = np.random.default_rng(11)
@@ -531,6 +532,9 @@ def curb_over_its_shadow(car: bool = False) -> GroundLayers:
     blocked = np.zeros(shape, dtype=bool)
     if car:
         blocked[9:11, 10:20] = True
+    if bench:
+        blocked[0:2, 10:13] = True
+    if car or bench:
         rows, cols = (xy[:, 1] // CELL).astype(int), (xy[:, 0] // CELL).astype(int)
         xy = xy[~blocked[rows, cols]]
     z = np.where(xy[:, 1] >= 2.8, 0.15, 0.0)
@@ -569,6 +573,22 @@ def test_a_step_across_a_shadow_stays_on_the_low_edge_where_the_high_edge_does_n
     np.testing.assert_allclose(step[3, 11:19], 0.15, atol=0.01)
     np.testing.assert_allclose(step[3, 2:6], 0.0, atol=0.01)
     np.testing.assert_allclose(step[7, 2:6], 0.15, atol=0.01)
+
+
+def test_a_step_across_a_shadow_beside_an_obstacle_is_held_by_clear_ground():
+    """The curb over its shadow with a bench on the road two rows from the road's edge: the road's
+    edge beside it (row 3, columns 8-14, within BESIDE cells of the bench) reads the curb across the
+    shadow as the rest of the edge does, and the top's edge, clear of obstacles, holds it there too
+    (on the simulated LiDAR-only campus a road place 1 m from a curb, beside an object, read the
+    curb and was cut off). With the car on the top two rows up as well, the top's edge above the
+    car's columns is beside an obstacle itself, and the road's edge keeps its read there."""
+    layers = curb_over_its_shadow(bench=True)
+    assert layers.near_obstacle is not None and layers.as_grid(layers.near_obstacle)[3, 8:15].all()
+    step = layers.as_grid(layers.step)
+    np.testing.assert_allclose(step[3, 2:-2], 0.0, atol=0.01)
+    np.testing.assert_allclose(step[7, 2:-2], 0.15, atol=0.01)
+    both = curb_over_its_shadow(car=True, bench=True)  # columns 10-12 read along the road alone
+    np.testing.assert_allclose(both.as_grid(both.step)[3, [8, 9, 13, 14]], 0.15, atol=0.01)
 
 
 def test_a_place_in_a_curbs_shadow_stands_at_the_road():
