@@ -1126,9 +1126,9 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     an object, read the curb across the shadow and was cut off. Left as they are: a cell that holds
     both levels itself (its height between its two sides', `_straddles`); a gap the far side does
     not hold (a curb's top beside a car, read only along the curb: the road's edge is then all
-    that reads it). The read on both edges is kept in memory for the cells that gave
-    it up (`held_cells`, `held_step`): the lines of steps that split a LiDAR-only ground's GVD are
-    drawn from it (`step_lines`), so the GVD still keeps out of the shadow. In place, and returned."""
+    that reads it). The read on both edges is kept in memory for the cells that gave it up
+    (`held_cells`, `held_step`): the lines of steps that split a LiDAR-only ground's GVD are drawn
+    from it (`step_lines`), so the GVD still keeps out of the shadow. In place, and returned."""
     index = _beside_gaps(layers)
     if len(index) == 0:
         return layers
@@ -1180,8 +1180,9 @@ def heights_in_gaps(layers: GroundLayers, xy: np.ndarray, z: np.ndarray) -> np.n
 def _beside_gaps(layers: GroundLayers) -> np.ndarray:
     """(m,) the observed cells (indices into the layers) that read a step of more than STRADDLE
     metres (less is one level's noise, as `_straddles` takes it) and have a 4-neighbour in the grid
-    without ground: the cells a step across a gap is read on. (On
-    the campus map 5 % of the cells with any step: the rule takes 22 ms there, not 215.)"""
+    without ground: the cells a step across a gap is read on, those beside an obstacle included
+    (`_held_across` asks more of them). (On the campus map 5 % of the cells with any step: the rule
+    takes 22 ms there, not 215.)"""
     index = np.flatnonzero(np.nan_to_num(layers.step, nan=0.0) > STRADDLE)
     H, W = layers.shape
     rows, cols = np.divmod(layers.cells[index], W)
@@ -1210,9 +1211,10 @@ def _held_across(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(m,) bool and (m,) metres: which cells' step `read` (m,) (along one axis, from the heights
     `height` (m, 2 reach + 1) of the cells `at` (same shape) around each) the cell across a gap
-    on the side `sign` (-1, 1) holds (`held_across_gaps`), and what each reads on its other side
-    alone: the height difference to its neighbour there less the slope beyond it (that
-    neighbour's difference to the next, else |rise| `level` (m,), metres per cell)."""
+    on the side `sign` (-1, 1) holds (`held_across_gaps`; where both lie beside an obstacle, none),
+    and what each reads on its other side alone: the height difference to its neighbour there less
+    the slope beyond it (that neighbour's difference to the next, else |rise| `level` (m,), metres
+    per cell)."""
     centre, pick = height.shape[1] // 2, np.arange(len(read))
     middle, near, near2 = height[:, centre], height[:, centre - sign], height[:, centre - 2 * sign]
     distance = _nearest_observed(height, sign)  # more than 1: a gap lies between
