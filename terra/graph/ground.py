@@ -1135,8 +1135,7 @@ def held_across_gaps(layers: GroundLayers) -> GroundLayers:
     m, reach = len(index), BRIDGE + 1
     reads, released = [], np.zeros(m, dtype=bool)
     for axis in (0, 1):  # rows (y), then columns (x)
-        at = _axis_cells(layers, layers.cells[index], axis, reach)
-        height = np.where(at >= 0, layers.height[np.maximum(at, 0)], np.nan).astype(np.float64)
+        at, height = _axis_ground(layers, layers.cells[index], axis, reach)
         level = np.abs(layers.gradient[index, 1 - axis].astype(np.float64) * layers.cell_size)
         read = steps_at(height, (np.arange(m), np.full(m, reach)), level)
         for sign in (-1, 1):
@@ -1168,8 +1167,7 @@ def heights_in_gaps(layers: GroundLayers, xy: np.ndarray, z: np.ndarray) -> np.n
         return z
     pick, lowest = np.arange(len(todo)), np.full(len(todo), np.nan)
     for axis in (0, 1):
-        at = _axis_cells(layers, flat[todo], axis, BRIDGE)
-        height = np.where(at >= 0, layers.height[np.maximum(at, 0)], np.nan).astype(np.float64)
+        _, height = _axis_ground(layers, flat[todo], axis, BRIDGE)
         for sign in (-1, 1):  # NaN where no ground lies within BRIDGE cells on that side
             lowest = np.fmin(lowest, height[pick, BRIDGE + sign * _nearest_observed(height, sign)])
     found = np.isfinite(lowest)
@@ -1194,16 +1192,18 @@ def _beside_gaps(layers: GroundLayers) -> np.ndarray:
     return index[gap]
 
 
-def _axis_cells(layers: GroundLayers, flat: np.ndarray, axis: int, reach: int) -> np.ndarray:
-    """(m, 2 reach + 1) int64: the observed cells (indices into the layers, -1 for none or
-    outside the grid) from `reach` cells before to `reach` cells after each grid cell `flat` (m,)
-    (row * W + col, inside the grid) along the grid's `axis` (0: rows, 1: columns)."""
+def _axis_ground(layers: GroundLayers, flat: np.ndarray, axis: int, reach: int) -> tuple[np.ndarray, np.ndarray]:
+    """(m, 2 reach + 1) int64 and float64 twice: the observed cells (indices into the layers, -1
+    for none or outside the grid) from `reach` cells before to `reach` cells after each grid cell
+    `flat` (m,) (row * W + col, inside the grid) along the grid's `axis` (0: rows, 1: columns), and
+    their heights (metres, NaN for none)."""
     H, W = layers.shape
     rows, cols = np.divmod(flat, W)
     taps = np.arange(-reach, reach + 1)
     r, c = np.broadcast_arrays(rows[:, None] + (taps if axis == 0 else 0), cols[:, None] + (taps if axis == 1 else 0))
     inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-    return layers.observed_index(np.where(inside, r * W + c, -1).ravel()).reshape(r.shape)
+    at = layers.observed_index(np.where(inside, r * W + c, -1).ravel()).reshape(r.shape)
+    return at, np.where(at >= 0, layers.height[np.maximum(at, 0)], np.nan).astype(np.float64)
 
 
 def _held_across(
