@@ -5,11 +5,12 @@ Simulates `--preset` with `sim.geometry` on (and `--relief` for the smooth hills
 frames), maps it (`terra map`, labels backend), builds it (`terra build`), draws `--pairs` random
 start-goal place pairs and plans each with the wheelchair profile. Each path is judged on the true
 ground raster (terra.datasets.ground_truth.neighbour_geometry: the step and slope of every move
-between 4-neighbour cells): a path crosses a true step above the profile's limit or a true slope
-above it (expected: 0). Independently, the true raster is searched for legal routes: cells farther
+between 4-neighbour cells; `neighbour_side_slope`: the ground's tilt across it): a path crosses a
+true step above the profile's limit, a true slope above it, or a true side slope above its side
+slope limit (`max_cross_slope`) (expected: 0 each). Independently, the true raster is searched for legal routes: cells farther
 than the profile's half width from every object (the exact distance from the cell's centre to the
 box), not water and not within the half width of a true step above the limit (the wheels would
-meet it), joined where the move's true step and slope are within the limits
+meet it), joined where the move's true step, slope and side slope are within the limits
 (scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
 The same again over the ground the map's cameras labelled only (`with_labelled_ground`: a legal
@@ -17,9 +18,9 @@ route on labelled ground; missed; on a LiDAR-only map, its ground): a camera map
 labelled terrain (the paper's rule), so a route that needs ground only the LiDAR saw (beside and
 behind a forward camera) is none its graph could give; the figure tells those misses from the graph's.
 The all-pairs share once more over labelled ground that is level in every direction (`level`): a
-true move is judged by its own slope, so a contour across the steep hill's flank is a legal route
-there, while the graph's routes keep to ground no steeper than the limit in any direction (a
-wheelchair tipped sideways by 12 degrees is no safer than one climbing them).
+stricter judge, no steeper than the slope limit along or across any axis move nor in between (a
+move along x across a flank whose fall line runs 45 degrees off the axes climbs and tips by less
+than the flank's own slope).
 Pairs are drawn among the places inside the world's square: the sensor sees ground past its edge,
 where the truth says nothing (counted: places beyond the world, paths that leave it).
 Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
@@ -52,7 +53,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster, path_geometry
+from terra.datasets.ground_truth import NEIGHBOURS, TerrainRaster, neighbour_side_slope, path_geometry
 from terra.sim.world import World
 from terra.tasks.robot import RobotProfile
 
@@ -62,19 +63,21 @@ RESULTS = Path(__file__).resolve().parent / "results"  # curbs-<preset>.json
 @dataclass
 class TrueGround:
     """The true per-cell geometry of a world: raster, step and slope (H, W, 4) of each move
-    (NEIGHBOURS order), legal (H, W, 4) moves for the robot, edge (H, W) cells whose centre lies
+    (NEIGHBOURS order), side (H, W, 4) degrees: the tilt across each move, legal (H, W, 4) moves for the robot, edge (H, W) cells whose centre lies
     within the robot's half width of a step above its limit (its wheels would meet the step),
     free (H, W) cells (clear of objects by the half width, not water, not edge), the component
     (H, W) int of each free cell (-1: not free), the masks of what the world has where, and
     labelled_component: the same components over the ground the cameras labelled (with_labelled_ground);
     level (H, W) cells whose ground is no steeper than the robot's slope limit in any direction
-    (the per-move slopes of `legal` let a path cross a slope steeper than the limit along its
-    contour, in moves that each climb less), and level_labelled_component: the components over
+    (the per-move slopes and side slopes of `legal` let a path cross a slope steeper than the limit
+    whose fall line runs between the axes, in moves that each climb and tilt less), and
+    level_labelled_component: the components over
     labelled cells that are level."""
 
     raster: TerrainRaster
     step: np.ndarray
     slope: np.ndarray
+    side: np.ndarray
     legal: np.ndarray
     edge: np.ndarray
     free: np.ndarray
@@ -95,6 +98,7 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     raster = world.ground_truth().terrain
     assert raster is not None and world.ground.steps is not None
     step, slope = raster.neighbour_geometry()
+    side = neighbour_side_slope(slope)
     xs = raster.origin[0] + (np.arange(raster.classes.shape[1]) + 0.5) * raster.resolution
     ys = raster.origin[1] + (np.arange(raster.classes.shape[0]) + 0.5) * raster.resolution
     gx, gy = np.meshgrid(xs, ys)
@@ -103,13 +107,14 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     free = (clearance > robot.min_width / 2) & (raster.classes != class_id("water")) & ~edge
     limit = min(robot.max_slope_up, robot.max_slope_down)
     legal = (np.nan_to_num(step, nan=np.inf) <= robot.max_step) & (np.nan_to_num(slope, nan=np.inf) <= limit)
+    legal &= np.nan_to_num(side, nan=np.inf) <= robot.cross_limit
     component = _components(free, legal)
     dz_dy, dz_dx = np.gradient(raster.ground_height, raster.resolution)
     level = np.degrees(np.arctan(np.nan_to_num(np.hypot(dz_dx, dz_dy)))) <= limit
     stairs = np.isfinite(world.stairs_tops(gx, gy))
     st = world.ground.steps
     features = {"curb_cut": st.curb_cut, "stairs": stairs, "ramp": st.ramp, "hill": st.hill}
-    return TrueGround(raster, step, slope, legal, edge, free, component, features, level=level)
+    return TrueGround(raster, step, slope, side, legal, edge, free, component, features, level=level)
 
 
 def object_distance(world: World, xs: np.ndarray, ys: np.ndarray, reach: float) -> np.ndarray:
@@ -179,13 +184,13 @@ def _components(free: np.ndarray, legal: np.ndarray) -> np.ndarray:
 
 
 def judge_path(truth: TrueGround, waypoints: np.ndarray) -> dict[str, Any]:
-    """The largest true step (m) and slope (degrees) of the cell moves a path makes
+    """The largest true step (m), slope and side slope (degrees) of the cell moves a path makes
     (terra.datasets.ground_truth.path_geometry), whether it passes within the robot's half width of
     a step above its limit (truth.edge), and which features (truth.features) it passes over."""
-    found = path_geometry(truth.raster, truth.step, truth.slope, waypoints)
+    found = path_geometry(truth.raster, truth.step, truth.slope, waypoints, truth.side)
     over = {name: int(mask[found.rows, found.cols].any()) for name, mask in truth.features.items()}
     beside = bool(truth.edge[found.rows, found.cols].any())
-    return {"step": found.step, "slope": found.slope, "beside_step": beside} | over
+    return {"step": found.step, "slope": found.slope, "side": found.side_slope, "beside_step": beside} | over
 
 
 def simulate_map_build(
@@ -230,11 +235,11 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     in_world = np.flatnonzero(inside)
     rng = np.random.default_rng(seed)
     counts: dict[str, Any] = {"pairs": pairs, "wheelchair_paths": 0, "over_step_limit": 0, "over_slope_limit": 0}
-    counts["within_half_width_of_a_step_over_the_limit"] = 0
+    counts |= {"over_side_slope_limit": 0, "within_half_width_of_a_step_over_the_limit": 0}
     counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
     counts |= {"legal_route_on_labelled_ground": 0, "labelled_legal_route_missed": 0}
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
-    worst = {"step_m": 0.0, "slope_deg": 0.0}
+    worst = {"step_m": 0.0, "slope_deg": 0.0, "side_deg": 0.0}
     counts |= {"free_paths": 0, "free_paths_over_step_limit": 0, "free_paths_over_stairs": 0}
     counts |= {"places_beyond_the_world": int((~inside).sum()), "paths_leaving_the_world": 0}
     for _ in range(pairs):
@@ -257,8 +262,9 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         judged = judge_path(truth, plan.waypoints)
         counts["over_step_limit"] += bool(judged["step"] > chair.max_step + 1e-9)
         counts["over_slope_limit"] += bool(judged["slope"] > chair.max_slope_up + 1e-9)
+        counts["over_side_slope_limit"] += bool(judged["side"] > chair.cross_limit + 1e-9)
         counts["within_half_width_of_a_step_over_the_limit"] += judged["beside_step"]
-        worst = {"step_m": max(worst["step_m"], judged["step"]), "slope_deg": max(worst["slope_deg"], judged["slope"])}
+        worst = {k: max(v, judged[k.split("_")[0]]) for k, v in worst.items()}
         for name in truth.features:
             counts[f"paths_over_{name}"] += judged[name]
     counts |= all_pairs_missed(cost_graph, place_component)
@@ -269,6 +275,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         counts |= {f"{k}_on_labelled_level_ground": v for k, v in all_pairs_missed(cost_graph, level).items()}
     counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
     counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
+    counts["steepest_true_side_slope_on_a_path_deg"] = round(worst["side_deg"], 2)
     return counts
 
 

@@ -14,6 +14,7 @@ Files (all in the map frame, metres, radians):
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -115,25 +116,56 @@ def neighbour_geometry(height: np.ndarray, resolution: float) -> tuple[np.ndarra
     return step, slope
 
 
+def neighbour_side_slope(slope: np.ndarray) -> np.ndarray:
+    """The side slope of each move of `neighbour_geometry` (slope (H, W, 4) degrees, NEIGHBOURS
+    order): (H, W, 4) degrees, the ground's tilt across the direction of travel, which tips a robot
+    sideways (a profile's `max_cross_slope`). A cell's tilt across a move along x is the mean of its
+    moves' slopes to its -y and +y neighbours (the smooth part of each: a curb beside the move is a
+    step, no tilt), and across a move along y that of its -x and +x moves; a move takes the larger
+    tilt of its two cells. NaN where the neighbour lies outside the raster; a cell with one
+    neighbour across takes that one's slope."""
+    slope = np.asarray(slope, dtype=np.float64)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a raster one cell wide has no slope across
+        across_y = np.nanmean(slope[..., [1, 3]], axis=-1)  # tilt across a move along x
+        across_x = np.nanmean(slope[..., [0, 2]], axis=-1)
+    side = np.full(slope.shape, np.nan)
+    side[:, :-1, 0] = np.fmax(across_y[:, :-1], across_y[:, 1:])
+    side[:, 1:, 2] = side[:, :-1, 0]
+    side[:-1, :, 1] = np.fmax(across_x[:-1, :], across_x[1:, :])
+    side[1:, :, 3] = side[:-1, :, 1]
+    return side
+
+
 @dataclass
 class PathGeometry:
     """What a path meets on a true ground raster: its largest step (metres) and steepest slope
     (degrees) over the cell moves it makes, the two cells (row, col) of the move with the largest
-    step, and the cells (rows, cols) (k,) it passes, in order."""
+    step, the cells (rows, cols) (k,) it passes, in order, and its steepest side slope (degrees;
+    NaN where not judged)."""
 
     step: float
     slope: float
     step_cells: tuple[tuple[int, int], tuple[int, int]]
     rows: np.ndarray
     cols: np.ndarray
+    side_slope: float = float("nan")
 
 
-def path_geometry(raster: TerrainRaster, step: np.ndarray, slope: np.ndarray, waypoints: np.ndarray) -> PathGeometry:
+def path_geometry(
+    raster: TerrainRaster,
+    step: np.ndarray,
+    slope: np.ndarray,
+    waypoints: np.ndarray,
+    side: np.ndarray | None = None,
+) -> PathGeometry:
     """The true geometry of a path of straight segments between `waypoints` (n, 2+) (map frame,
-    metres) on `raster`, whose moves' step and slope (H, W, 4) come from `neighbour_geometry`. The
-    path is sampled every quarter cell; a move between cells that share only a corner takes the
-    better of its two detours through a neighbour (a robot may pass either side of the corner);
-    unknown moves (off the raster) count as 0."""
+    metres) on `raster`, whose moves' step and slope (H, W, 4) come from `neighbour_geometry` (and
+    side slope (H, W, 4) degrees from `neighbour_side_slope`, when given). The path is sampled
+    every quarter cell; a move between cells that share only a corner takes the better of its two
+    detours through a neighbour (a robot may pass either side of the corner); unknown moves (off
+    the raster) count as 0."""
+    tilt = np.zeros_like(slope) if side is None else side
     xy = np.asarray(waypoints, dtype=np.float64)[:, :2]
     pieces = [xy[:1]]
     for a, b in zip(xy[:-1], xy[1:]):
@@ -142,7 +174,7 @@ def path_geometry(raster: TerrainRaster, step: np.ndarray, slope: np.ndarray, wa
     rows, cols, _ = raster.cell_of(np.vstack(pieces))
     keep = np.concatenate([[True], (np.diff(rows) != 0) | (np.diff(cols) != 0)])
     rows, cols = rows[keep], cols[keep]
-    worst = (0.0, 0.0)
+    worst = (0.0, 0.0, 0.0)
     step_cells = ((int(rows[0]), int(cols[0])), (int(rows[0]), int(cols[0])))
     for r0, c0, r1, c1 in zip(rows[:-1], cols[:-1], rows[1:], cols[1:]):
         dr, dc = int(r1 - r0), int(c1 - c0)
@@ -153,15 +185,14 @@ def path_geometry(raster: TerrainRaster, step: np.ndarray, slope: np.ndarray, wa
         options = []
         for moves in detours:
             k = [NEIGHBOURS.index((mr, mc)) for _, _, mr, mc in moves]
-            pairs = [(step[r, c, j], slope[r, c, j]) for (r, c, _, _), j in zip(moves, k)]
-            options.append(
-                (max(float(np.nan_to_num(p[0])) for p in pairs), max(float(np.nan_to_num(p[1])) for p in pairs))
-            )
-        best = min(options, key=lambda v: v[0] + v[1] / 90.0)
+            found = np.array([(step[r, c, j], slope[r, c, j], tilt[r, c, j]) for (r, c, _, _), j in zip(moves, k)])
+            options.append(tuple(np.nan_to_num(found).max(axis=0)))
+        best = min(options, key=lambda v: v[0] + (v[1] + v[2]) / 90.0)
         if best[0] > worst[0]:
             step_cells = ((int(r0), int(c0)), (int(r1), int(c1)))
-        worst = (max(worst[0], best[0]), max(worst[1], best[1]))
-    return PathGeometry(worst[0], worst[1], step_cells, rows, cols)
+        worst = tuple(max(w, b) for w, b in zip(worst, best))
+    side_slope = float("nan") if side is None else float(worst[2])
+    return PathGeometry(float(worst[0]), float(worst[1]), step_cells, rows, cols, side_slope)
 
 
 def cell_slope(height: np.ndarray, resolution: float) -> np.ndarray:

@@ -4,7 +4,7 @@ truth of steps and slopes, against hand-worked geometry."""
 import numpy as np
 import pytest
 
-from terra.datasets.ground_truth import NEIGHBOURS, cell_slope, neighbour_geometry
+from terra.datasets.ground_truth import NEIGHBOURS, cell_slope, neighbour_geometry, neighbour_side_slope
 from terra.sim.classes import class_id
 from terra.sim.config import SimConfig
 from terra.sim.presets import generate_world
@@ -31,6 +31,23 @@ def test_truth_of_a_curb_a_ramp_and_stairs_on_hand_rasters():
     step, slope = neighbour_geometry(stairs, RES)
     np.testing.assert_allclose(step[0, :7, 0], [0, 0.15, 0, 0.15, 0.15, 0, 0])
     np.testing.assert_allclose(slope[0, :7, 0], 0.0)
+
+
+def test_side_slope_is_the_tilt_across_each_move_and_no_curb_beside_it():
+    rows, cols = np.mgrid[0:5, 0:6].astype(np.float64)
+    tilt = np.radians(10.0)
+    side_hill = rows * RES * np.tan(tilt)  # climbs along +y only
+    side = neighbour_side_slope(neighbour_geometry(side_hill, RES)[1])
+    np.testing.assert_allclose(side[:, :5, 0], 10.0)  # a contour along x tips the robot 10 degrees
+    np.testing.assert_allclose(side[:, 1:, 2], 10.0)
+    np.testing.assert_allclose(side[:4, :, 1], 0.0, atol=1e-9)  # straight up the hill: no tilt
+    assert np.all(np.isnan(side[:, 5, 0])) and np.all(np.isnan(side[0, :, 3]))  # off the raster
+    oblique = (rows + cols) * RES * np.tan(tilt) / np.sqrt(2)  # the same 10 degrees, 45 degrees off the axes
+    side = neighbour_side_slope(neighbour_geometry(oblique, RES)[1])
+    np.testing.assert_allclose(side[:, :5, 0], np.degrees(np.arctan(np.tan(tilt) / np.sqrt(2))))
+    curb = np.where(rows >= 3, 0.15, 0.0)  # a curb along x between rows 2 and 3
+    side = neighbour_side_slope(neighbour_geometry(curb, RES)[1])
+    np.testing.assert_allclose(side[:, :5, 0], 0.0)  # along the curb's foot and top: level
 
 
 @pytest.fixture(scope="module")

@@ -43,13 +43,13 @@ def test_ground_layers_read_the_curb_and_the_cut(curb_map):
 
 
 def test_wheelchair_plans_stay_within_its_limits_on_the_true_ground(curb_map):
-    """Every plan keeps to 8 degrees on the true ground; a true step above 5 cm is crossed only
+    """Every plan keeps to 8 degrees on the true ground, along and across its moves; a true step above 5 cm is crossed only
     where the map holds no ground one cell beyond it on a side (the lot's south curb, which the
     parked cars hide from the drive: a step is unknown there and constrains nothing,
     terra.graph.ground)."""
     from terra.bundle import Bundle
     from terra.config import TerraConfig
-    from terra.datasets.ground_truth import path_geometry
+    from terra.datasets.ground_truth import neighbour_side_slope, path_geometry
     from terra.errors import NoPathError
     from terra.graph.pipeline import build_scene_graph
     from terra.graph.storage import load_scene_graph
@@ -62,6 +62,7 @@ def test_wheelchair_plans_stay_within_its_limits_on_the_true_ground(curb_map):
     raster = generate_world("tiny", 0, TerraConfig.read(curb_map[0]).sim).ground_truth().terrain
     assert raster is not None
     step, slope = raster.neighbour_geometry()
+    side = neighbour_side_slope(slope)
     graph = load_scene_graph(Bundle(curb_map[1]))
     layers = build_scene_graph(load_map(Bundle(curb_map[1]), max_ids=False)).ground
     assert layers is not None
@@ -76,8 +77,8 @@ def test_wheelchair_plans_stay_within_its_limits_on_the_true_ground(curb_map):
         except NoPathError:
             continue
         planned += 1
-        found = path_geometry(raster, step, slope, plan.waypoints)
-        assert found.slope <= chair.max_slope_up
+        found = path_geometry(raster, step, slope, plan.waypoints, side)
+        assert found.slope <= chair.max_slope_up and found.side_slope <= chair.cross_limit
         if found.step > chair.max_step:
             cells = np.array(found.step_cells, dtype=np.float64)[:, ::-1]  # (col, row) of both cells
             low, high = raster.origin + (cells + 0.5) * raster.resolution
