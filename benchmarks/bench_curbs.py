@@ -7,11 +7,11 @@ start-goal place pairs and plans each with the wheelchair profile. Each path is 
 ground raster (terra.datasets.ground_truth.neighbour_geometry: the step and slope of every move
 between 4-neighbour cells; `neighbour_side_slope`: the ground's tilt across it): a path crosses a
 true step above the profile's limit, a true slope above it, or a true side slope above its side
-slope limit (`max_cross_slope`) (expected: 0 each). Independently, the true raster is searched for legal routes: cells farther
-than the profile's half width from every object (the exact distance from the cell's centre to the
-box), not water and not within the half width of a true step above the limit (the wheels would
-meet it), joined where the move's true step, slope and side slope are within the limits
-(scipy.sparse.csgraph connected components); a pair whose places lie in one
+slope limit (`max_cross_slope`) (expected: 0 each). Independently, the true raster is searched for
+legal routes: cells farther than the profile's half width from every object (the exact distance
+from the cell's centre to the box), not water and not within the half width of a true step above
+the limit (the wheels would meet it), joined where the move's true step, slope and side slope are
+within the limits (scipy.sparse.csgraph connected components); a pair whose places lie in one
 component has a legal route, and one that got no path is a legal route missed (expected: 0).
 The same again over the ground the map's cameras labelled only (`with_labelled_ground`: a legal
 route on labelled ground; missed; on a LiDAR-only map, its ground): a camera map's places stand on
@@ -63,8 +63,9 @@ RESULTS = Path(__file__).resolve().parent / "results"  # curbs-<preset>.json
 @dataclass
 class TrueGround:
     """The true per-cell geometry of a world: raster, step and slope (H, W, 4) of each move
-    (NEIGHBOURS order), side (H, W, 4) degrees: the tilt across each move, legal (H, W, 4) moves for the robot, edge (H, W) cells whose centre lies
-    within the robot's half width of a step above its limit (its wheels would meet the step),
+    (NEIGHBOURS order), side (H, W, 4) degrees: the tilt across each move, legal (H, W, 4) moves
+    for the robot, edge (H, W) cells whose centre lies within the robot's half width of a step
+    above its limit (its wheels would meet the step),
     free (H, W) cells (clear of objects by the half width, not water, not edge), the component
     (H, W) int of each free cell (-1: not free), the masks of what the world has where, and
     labelled_component: the same components over the ground the cameras labelled (with_labelled_ground);

@@ -43,9 +43,9 @@ def test_ground_layers_read_the_curb_and_the_cut(curb_map):
 
 
 def test_wheelchair_plans_stay_within_its_limits_on_the_true_ground(curb_map):
-    """Every plan keeps to 8 degrees on the true ground, along and across its moves; a true step above 5 cm is crossed only
-    where the map holds no ground one cell beyond it on a side (the lot's south curb, which the
-    parked cars hide from the drive: a step is unknown there and constrains nothing,
+    """Every plan keeps to 8 degrees on the true ground, along and across its moves; a true step
+    above 5 cm is crossed only where the map holds no ground one cell beyond it on a side (the
+    lot's south curb, which the parked cars hide from the drive: a step is unknown there and constrains nothing,
     terra.graph.ground)."""
     from terra.bundle import Bundle
     from terra.config import TerraConfig
