@@ -23,8 +23,11 @@ move along x across a flank whose fall line runs 45 degrees off the axes climbs 
 than the flank's own slope).
 Pairs are drawn among the places inside the world's square: the sensor sees ground past its edge,
 where the truth says nothing (counted: places beyond the world, paths that leave it).
-Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp beside stairs,
-paths over the steep hill, and the same pairs planned without a profile (over steps, over stairs).
+Beyond the sampled pairs, every place edge the wheelchair may take is judged as a path of its own
+(`legal_edges_judged`: over a step, a slope or a side slope; expected 0 each): a plan uses only
+those edges. Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp
+beside stairs, paths over the steep hill, and the same pairs planned without a profile (over
+steps, over stairs).
 
 Usage:
   python benchmarks/bench_curbs.py [--preset tiny] [--seed 0] [--frames 0] [--relief 0.3]
@@ -274,10 +277,39 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         level = truth.level_labelled_component[rows, cols]
         level = np.where(inside, level, -1)
         counts |= {f"{k}_on_labelled_level_ground": v for k, v in all_pairs_missed(cost_graph, level).items()}
+    counts |= legal_edges_judged(graph, cost_graph, truth, chair)
     counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
     counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
     counts["steepest_true_side_slope_on_a_path_deg"] = round(worst["side_deg"], 2)
     return counts
+
+
+def legal_edges_judged(graph, cost_graph, truth: TrueGround, robot: RobotProfile) -> dict[str, Any]:
+    """Every place edge the robot may take (either way: in its cost graph) whose two places lie in
+    the world, judged as a path of its own on the true ground (`judge_path`): how many cross a true
+    step, slope or side slope above the robot's limits (expected: 0; a path uses only these
+    edges, so this bounds every plan, not only the sampled pairs) and the worst few by step."""
+    src = np.repeat(np.arange(len(cost_graph.indptr) - 1), np.diff(cost_graph.indptr))
+    pairs = np.unique(np.sort(np.column_stack([src, cost_graph.indices]), axis=1), axis=0)
+    position = np.asarray(graph.places.position, dtype=np.float64)
+    inside = truth.raster.cell_of(position)[2]
+    pairs = pairs[inside[pairs[:, 0]] & inside[pairs[:, 1]]]
+    over = {"step": 0, "slope": 0, "side": 0}
+    worst: list[tuple[float, int, int]] = []
+    for a, b in pairs:
+        judged = judge_path(truth, position[[a, b]])
+        over["step"] += bool(judged["step"] > robot.max_step + 1e-9)
+        over["slope"] += bool(judged["slope"] > max(robot.max_slope_up, robot.max_slope_down) + 1e-9)
+        over["side"] += bool(judged["side"] > robot.cross_limit + 1e-9)
+        if judged["step"] > robot.max_step + 1e-9:
+            worst.append((round(judged["step"], 3), int(a), int(b)))
+    return {
+        "legal_edges": len(pairs),
+        "legal_edges_over_step_limit": over["step"],
+        "legal_edges_over_slope_limit": over["slope"],
+        "legal_edges_over_side_slope_limit": over["side"],
+        "legal_edges_over_step_limit_worst": [list(w) for w in sorted(worst, reverse=True)[:5]],
+    }
 
 
 def all_pairs_missed(cost_graph, place_component: np.ndarray) -> dict[str, Any]:
