@@ -176,7 +176,12 @@ class GvdSection(Section):
         description="junctions joined by a GVD path shorter than this times their clearance become one node",
     )
     max_deviation: float = Field(
-        default=3.75, gt=0.0, description="metres; a GVD path is split where it strays further than this from its chord"
+        default=3.75,
+        gt=0.0,
+        description=(
+            "metres; a GVD path is split where it strays further than this from its chord (and wherever its chord "
+            "crosses a blocked cell)"
+        ),
     )
     max_distance: float = Field(
         default=10.0, gt=0.0, description="metres; paths with a longer chord are split near their middle"

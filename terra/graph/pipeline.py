@@ -149,7 +149,7 @@ def terrain_places(
             counts.per_terrain[t] = 0
             del mask  # before the next terrain's mask: one full-grid mask at a time
             continue
-        cp = _mask_places(mask & ~barrier if barrier is not None else mask, config, s, tile_stats)
+        cp = _mask_places(mask & ~barrier if barrier is not None else mask, config, s, tile_stats, grid.blocked)
         xy = grid.cell_centres(cp.cells)
         z = grid.ground_at(cp.cells)
         if layers is not None:
@@ -175,8 +175,11 @@ def terrain_places(
     return place_set, traversable, counts
 
 
-def _mask_places(mask: np.ndarray, config: BuildConfig, cell_size: float, tile_stats: TiledGvdStats) -> CellPlaces:
-    """The places of one terrain mask (extract_places with `build.gvd`, in cells of `cell_size` m)."""
+def _mask_places(
+    mask: np.ndarray, config: BuildConfig, cell_size: float, tile_stats: TiledGvdStats, obstacles: np.ndarray
+) -> CellPlaces:
+    """The places of one terrain mask (extract_places with `build.gvd`, in cells of `cell_size` m),
+    no edge's straight segment across an `obstacles` (H, W) cell (the grid's blocked cells)."""
     g, s = config.gvd, cell_size
     return extract_places(
         mask,
@@ -189,6 +192,7 @@ def _mask_places(mask: np.ndarray, config: BuildConfig, cell_size: float, tile_s
         max_deviation=g.max_deviation / s,
         max_distance=g.max_distance / s,
         cover_radius=g.cover_radius / s if g.cover_radius is not None else np.inf,
+        obstacles=obstacles,
     )
 
 

@@ -7,7 +7,7 @@ import pytest
 from scipy import ndimage
 
 from terra.graph.gvd import brushfire, gvd
-from terra.graph.places import extract_places, split_path
+from terra.graph.places import chord_blocked, extract_places, split_path
 from terra.graph.skeleton import prune_spurs, skeleton_graph
 from terra.graph.thinning import thin
 from tests.graph.fixtures import label_parts
@@ -156,6 +156,39 @@ def test_split_path_follows_the_max_distance_and_max_deviation_rules():
     ell = np.vstack([np.stack([np.arange(40), np.zeros(40, int)], 1), np.stack([np.full(41, 40), np.arange(41)], 1)])
     cuts = split_path(ell, max_deviation=3.0, max_distance=1000.0)
     assert cuts == [40]
+
+
+def test_a_chord_across_an_obstacle_is_split_whatever_its_deviation():
+    # A path along row 10 bowing 4 rows round a bench (rows 9-11, cols 18-22): the chord from end
+    # to end runs through the bench, well within max_deviation of the path.
+    cols = np.arange(41)
+    rows = 10 + np.clip(8 - np.abs(cols - 20), 0, 4)
+    path = np.column_stack([rows, cols])
+    bench = np.zeros((30, 50), bool)
+    bench[9:12, 18:23] = True
+    assert not bench[path[:, 0], path[:, 1]].any()  # the path itself goes round it
+    assert split_path(path, max_deviation=9.4, max_distance=100.0) == []
+    cuts = split_path(path, max_deviation=9.4, max_distance=100.0, obstacles=bench)
+    assert cuts
+    ends = [0, *cuts, len(path) - 1]
+    pieces = zip(path[ends[:-1]].astype(float), path[ends[1:]].astype(float))
+    assert not any(chord_blocked(bench, a, b) for a, b in pieces)
+    assert chord_blocked(bench, np.array([10.0, 0.0]), np.array([10.0, 40.0]))
+
+
+def test_no_place_edge_runs_through_an_obstacle_the_gvd_goes_round():
+    """A 13-cell corridor with a bench 3 cells wide beside its centre line: the GVD bows round it
+    within max_deviation, so without the obstacle rule one chord ran straight through the bench."""
+    free = corridor(width=13, length=80)
+    bench = np.zeros_like(free)
+    bench[10:13, 40:46] = True  # rows 10-12 of the corridor's 5-17, off its centre row 11
+    plain = extract_places(free & ~bench, **{**PARAMS, "max_distance": 100.0})
+    chords = [(plain.cells[i].astype(float), plain.cells[j].astype(float)) for i, j in plain.edges]
+    assert any(chord_blocked(bench, a, b) for a, b in chords)
+    places = extract_places(free & ~bench, **{**PARAMS, "max_distance": 100.0}, obstacles=bench)
+    chords = [(places.cells[i].astype(float), places.cells[j].astype(float)) for i, j in places.edges]
+    assert not any(chord_blocked(bench, a, b) for a, b in chords)
+    assert len(places.cells) > len(plain.cells)
 
 
 def test_a_small_plaza_off_a_road_gets_a_place():
