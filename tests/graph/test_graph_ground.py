@@ -716,6 +716,24 @@ def test_an_edge_slope_leaves_out_the_cells_beside_an_obstacle():
     assert edge_geometry(layers, position, np.array([[0, 1]]))[0, 4] == 0.0
 
 
+def test_a_gap_before_ground_beside_an_obstacle_all_along_reads_its_step():
+    """A road (0 m) up to x = 4.4, no ground to x = 5.6 (the curb's shadow), the curb's top (15
+    cm) beyond, every cell of it beside an obstacle and reading no step (beside an obstacle a cell
+    reads its step along an axis clear of blocked cells: along the curb, grid_layers). An edge from
+    a place in the gap on the road's level to the top has no clear sample at all: the step across
+    the gap is read on the ground beside the obstacle rather than not at all (the simulated
+    LiDAR-only small site, seed 1: a 15 cm curb read 0.5 cm)."""
+    rng = np.random.default_rng(7)
+    xy = uniform(rng, [0, 0], [12, 10], 40000)
+    xy = xy[(xy[:, 0] < 4.4) | (xy[:, 0] >= 5.6)]
+    layers = ground_layers(np.column_stack([xy, np.where(xy[:, 0] < 5.0, 0.0, 0.15)]), flat_frame(12, 10))
+    centres = layers.centres(np.arange(len(layers.cells)))
+    layers.near_obstacle = centres[:, 0] > 5.0
+    layers.step[layers.near_obstacle] = 0.0
+    position = np.array([[5.0, 5.0, 0.0], [8.0, 5.0, 0.15]])
+    assert edge_geometry(layers, position, np.array([[0, 1]]))[0, 0] == pytest.approx(0.15, abs=0.01)
+
+
 def test_an_edge_clear_of_obstacles_at_one_end_only_reads_its_slope_beside_them():
     """A curb 14 cm high at x = 10 (level ground on each side) with a planter along its foot: every
     cell from x = 5 on lies beside an obstacle. An edge from x = 3 on the top to x = 14 below has
