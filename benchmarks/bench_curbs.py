@@ -25,9 +25,10 @@ Pairs are drawn among the places inside the world's square: the sensor sees grou
 where the truth says nothing (counted: places beyond the world, paths that leave it).
 Beyond the sampled pairs, every place edge the wheelchair may take is judged as a path of its own
 (`legal_edges_judged`: over a step, a slope or a side slope; expected 0 each): a plan uses only
-those edges. Also counted: paths through a curb cut, paths over a stairs tread, paths on the ramp
-beside stairs, paths over the steep hill, and the same pairs planned without a profile (over
-steps, over stairs).
+those edges. Paths and edges that pass a cell whose centre lies inside an object's box are counted
+too (`through_an_object`; trees' crowns and street lights' arms left out). Also counted: paths
+through a curb cut, paths over a stairs tread, paths on the ramp beside stairs, paths over the
+steep hill, and the same pairs planned without a profile (over steps, over stairs).
 
 Usage:
   python benchmarks/bench_curbs.py [--preset tiny] [--seed 0] [--frames 0] [--relief 0.3]
@@ -89,6 +90,9 @@ class TrueGround:
     features: dict[str, np.ndarray]
     labelled_component: np.ndarray | None = None
     level: np.ndarray | None = None
+    # (H, W) metres from each cell centre to the nearest object standing on its whole box, not
+    # OVERHANGING: the boxes a path must not enter (0 inside one)
+    standing_clearance: np.ndarray | None = None
     level_labelled_component: np.ndarray | None = None
 
 
@@ -107,6 +111,7 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     ys = raster.origin[1] + (np.arange(raster.classes.shape[0]) + 0.5) * raster.resolution
     gx, gy = np.meshgrid(xs, ys)
     clearance = object_distance(world, xs, ys, reach=robot.min_width)
+    standing = object_distance(world, xs, ys, reach=raster.resolution, skip=GROUND_PAINT + OVERHANGING)
     edge = _near_steps(step, robot.max_step, robot.min_width / 2, raster.resolution)
     free = (clearance > robot.min_width / 2) & (raster.classes != class_id("water")) & ~edge
     limit = min(robot.max_slope_up, robot.max_slope_down)
@@ -118,18 +123,27 @@ def true_ground(world: World, robot: RobotProfile) -> TrueGround:
     stairs = np.isfinite(world.stairs_tops(gx, gy))
     st = world.ground.steps
     features = {"curb_cut": st.curb_cut, "stairs": stairs, "ramp": st.ramp, "hill": st.hill}
-    return TrueGround(raster, step, slope, side, legal, edge, free, component, features, level=level)
+    return TrueGround(
+        raster, step, slope, side, legal, edge, free, component, features, level=level, standing_clearance=standing
+    )
 
 
-def object_distance(world: World, xs: np.ndarray, ys: np.ndarray, reach: float) -> np.ndarray:
+GROUND_PAINT = ("crosswalk", "stairs")  # boxes that are ground: judged by their steps
+OVERHANGING = ("tree", "street light")  # boxes of a crown or an arm, high above a pole or a trunk
+
+
+def object_distance(
+    world: World, xs: np.ndarray, ys: np.ndarray, reach: float, skip: tuple[str, ...] = GROUND_PAINT
+) -> np.ndarray:
     """(H, W) metres from each cell centre (xs (W,), ys (H,), map frame) to the nearest object's
-    footprint (its box seen from above; crosswalk paint and stairs treads are ground, judged by
-    their steps), exact: a distance transform of the cells whose centre lies in a box would read a
-    cell beside a car's side as a whole cell clear of it. Beyond `reach` metres of every box: inf."""
+    footprint (its box seen from above; the classes `skip` left out: crosswalk paint and stairs
+    treads are ground, judged by their steps), exact: a distance transform of the cells whose
+    centre lies in a box would read a cell beside a car's side as a whole cell clear of it. Beyond
+    `reach` metres of every box: inf."""
     distance = np.full((len(ys), len(xs)), np.inf)
     res = xs[1] - xs[0] if len(xs) > 1 else 1.0
     for box in world.objects:
-        if box.class_name in ("crosswalk", "stairs"):
+        if box.class_name in skip:
             continue
         half = np.hypot(box.size[0], box.size[1]) / 2 + reach
         cols = slice(*np.searchsorted(xs, [box.center[0] - half - res, box.center[0] + half + res]))
@@ -190,11 +204,16 @@ def _components(free: np.ndarray, legal: np.ndarray) -> np.ndarray:
 def judge_path(truth: TrueGround, waypoints: np.ndarray) -> dict[str, Any]:
     """The largest true step (m), slope and side slope (degrees) of the cell moves a path makes
     (terra.datasets.ground_truth.path_geometry), whether it passes within the robot's half width of
-    a step above its limit (truth.edge), and which features (truth.features) it passes over."""
+    a step above its limit (truth.edge), whether it passes a cell whose centre lies inside the box
+    of an object standing on all of it (truth.standing_clearance 0: not a tree's crown nor a street
+    light's arm, which a robot passes under), and which features (truth.features) it passes over."""
     found = path_geometry(truth.raster, truth.step, truth.slope, waypoints, truth.side)
     over = {name: int(mask[found.rows, found.cols].any()) for name, mask in truth.features.items()}
     beside = bool(truth.edge[found.rows, found.cols].any())
-    return {"step": found.step, "slope": found.slope, "side": found.side_slope, "beside_step": beside} | over
+    standing = truth.standing_clearance
+    inside = bool(standing is not None and (standing[found.rows, found.cols] == 0).any())
+    judged = {"step": found.step, "slope": found.slope, "side": found.side_slope, "beside_step": beside}
+    return judged | {"through_an_object": inside} | over
 
 
 def simulate_map_build(
@@ -239,7 +258,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     in_world = np.flatnonzero(inside)
     rng = np.random.default_rng(seed)
     counts: dict[str, Any] = {"pairs": pairs, "wheelchair_paths": 0, "over_step_limit": 0, "over_slope_limit": 0}
-    counts |= {"over_side_slope_limit": 0, "within_half_width_of_a_step_over_the_limit": 0}
+    counts |= {"over_side_slope_limit": 0, "within_half_width_of_a_step_over_the_limit": 0, "through_an_object": 0}
     counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
     counts |= {"legal_route_on_labelled_ground": 0, "labelled_legal_route_missed": 0}
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
@@ -268,6 +287,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         counts["over_slope_limit"] += bool(judged["slope"] > chair.max_slope_up + 1e-9)
         counts["over_side_slope_limit"] += bool(judged["side"] > chair.cross_limit + 1e-9)
         counts["within_half_width_of_a_step_over_the_limit"] += judged["beside_step"]
+        counts["through_an_object"] += judged["through_an_object"]
         worst = {k: max(v, judged[k.split("_")[0]]) for k, v in worst.items()}
         for name in truth.features:
             counts[f"paths_over_{name}"] += judged[name]
@@ -294,13 +314,14 @@ def legal_edges_judged(graph, cost_graph, truth: TrueGround, robot: RobotProfile
     position = np.asarray(graph.places.position, dtype=np.float64)
     inside = truth.raster.cell_of(position)[2]
     pairs = pairs[inside[pairs[:, 0]] & inside[pairs[:, 1]]]
-    over = {"step": 0, "slope": 0, "side": 0}
+    over = {"step": 0, "slope": 0, "side": 0, "through_an_object": 0}
     worst: list[tuple[float, int, int]] = []
     for a, b in pairs:
         judged = judge_path(truth, position[[a, b]])
         over["step"] += bool(judged["step"] > robot.max_step + 1e-9)
         over["slope"] += bool(judged["slope"] > max(robot.max_slope_up, robot.max_slope_down) + 1e-9)
         over["side"] += bool(judged["side"] > robot.cross_limit + 1e-9)
+        over["through_an_object"] += judged["through_an_object"]
         if judged["step"] > robot.max_step + 1e-9:
             worst.append((round(judged["step"], 3), int(a), int(b)))
     return {
@@ -308,6 +329,7 @@ def legal_edges_judged(graph, cost_graph, truth: TrueGround, robot: RobotProfile
         "legal_edges_over_step_limit": over["step"],
         "legal_edges_over_slope_limit": over["slope"],
         "legal_edges_over_side_slope_limit": over["side"],
+        "legal_edges_through_an_object": over["through_an_object"],
         "legal_edges_over_step_limit_worst": [list(w) for w in sorted(worst, reverse=True)[:5]],
     }
 
