@@ -6,9 +6,9 @@ than `max_distance` (the reference's max_deviation / max_distance rule). A chord
 obstacle cell is split at its point of largest deviation too, whatever the deviation: a place edge
 is the straight segment a robot drives, and the GVD that curves around a bench or a building's
 corner within 3.75 m of its chord gave edges through them (on the simulated small site, 15 edges
-the wheelchair could take ran through picnic tables, benches, a bicycle rack and a building). Every patch of the
-terrain that has no GVD node gets one place at its cell of largest clearance, so no patch is
-dropped silently.
+the wheelchair could take ran through picnic tables, benches, a bicycle rack and a building).
+Every patch of the terrain that has no GVD node gets one place at its cell of largest clearance,
+so no patch is dropped silently.
 
 Two rules keep the places where the terrain is:
 - Pockets: spur pruning removes the short GVD branches that run into corners, but also the branch
