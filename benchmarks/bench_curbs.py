@@ -262,7 +262,7 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
     counts |= {"legal_route_on_truth": 0, "legal_route_missed": 0, "place_off_the_legal_truth_grid": 0}
     counts |= {"legal_route_on_labelled_ground": 0, "labelled_legal_route_missed": 0}
     counts |= {f"paths_over_{name}": 0 for name in truth.features}
-    worst = {"step_m": 0.0, "slope_deg": 0.0, "side_deg": 0.0}
+    worst = {"step": 0.0, "slope": 0.0, "side": 0.0}
     counts |= {"free_paths": 0, "free_paths_over_step_limit": 0, "free_paths_over_stairs": 0}
     counts |= {"places_beyond_the_world": int((~inside).sum()), "paths_leaving_the_world": 0}
     for _ in range(pairs):
@@ -283,12 +283,13 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         # a path whose waypoints lie in the square stays in it (straight segments)
         counts["paths_leaving_the_world"] += bool(not truth.raster.cell_of(plan.waypoints)[2].all())
         judged = judge_path(truth, plan.waypoints)
-        counts["over_step_limit"] += bool(judged["step"] > chair.max_step + 1e-9)
-        counts["over_slope_limit"] += bool(judged["slope"] > chair.max_slope_up + 1e-9)
-        counts["over_side_slope_limit"] += bool(judged["side"] > chair.cross_limit + 1e-9)
+        over = over_limits(judged, chair)
+        counts["over_step_limit"] += over["step"]
+        counts["over_slope_limit"] += over["slope"]
+        counts["over_side_slope_limit"] += over["side"]
         counts["within_half_width_of_a_step_over_the_limit"] += judged["beside_step"]
-        counts["through_an_object"] += judged["through_an_object"]
-        worst = {k: max(v, judged[k.split("_")[0]]) for k, v in worst.items()}
+        counts["through_an_object"] += over["through_an_object"]
+        worst = {k: max(v, judged[k]) for k, v in worst.items()}
         for name in truth.features:
             counts[f"paths_over_{name}"] += judged[name]
     counts |= all_pairs_missed(cost_graph, place_component)
@@ -298,10 +299,22 @@ def wheelchair_pairs(graph, truth: TrueGround, pairs: int, seed: int = 0) -> dic
         level = np.where(inside, level, -1)
         counts |= {f"{k}_on_labelled_level_ground": v for k, v in all_pairs_missed(cost_graph, level).items()}
     counts |= legal_edges_judged(graph, cost_graph, truth, chair)
-    counts["largest_true_step_on_a_path_m"] = round(worst["step_m"], 4)
-    counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope_deg"], 2)
-    counts["steepest_true_side_slope_on_a_path_deg"] = round(worst["side_deg"], 2)
+    counts["largest_true_step_on_a_path_m"] = round(worst["step"], 4)
+    counts["steepest_true_slope_on_a_path_deg"] = round(worst["slope"], 2)
+    counts["steepest_true_side_slope_on_a_path_deg"] = round(worst["side"], 2)
     return counts
+
+
+def over_limits(judged: dict[str, Any], robot: RobotProfile) -> dict[str, bool]:
+    """What a path judged by `judge_path` breaks of `robot`'s limits: a step above its step limit,
+    a slope above the steeper of its climb and descent limits (the true slope is unsigned), a side
+    slope above its side slope limit, and an object entered."""
+    return {
+        "step": bool(judged["step"] > robot.max_step + 1e-9),
+        "slope": bool(judged["slope"] > max(robot.max_slope_up, robot.max_slope_down) + 1e-9),
+        "side": bool(judged["side"] > robot.cross_limit + 1e-9),
+        "through_an_object": bool(judged["through_an_object"]),
+    }
 
 
 def legal_edges_judged(graph, cost_graph, truth: TrueGround, robot: RobotProfile) -> dict[str, Any]:
@@ -318,11 +331,9 @@ def legal_edges_judged(graph, cost_graph, truth: TrueGround, robot: RobotProfile
     worst: list[tuple[float, int, int]] = []
     for a, b in pairs:
         judged = judge_path(truth, position[[a, b]])
-        over["step"] += bool(judged["step"] > robot.max_step + 1e-9)
-        over["slope"] += bool(judged["slope"] > max(robot.max_slope_up, robot.max_slope_down) + 1e-9)
-        over["side"] += bool(judged["side"] > robot.cross_limit + 1e-9)
-        over["through_an_object"] += judged["through_an_object"]
-        if judged["step"] > robot.max_step + 1e-9:
+        this = over_limits(judged, robot)
+        over = {k: v + this[k] for k, v in over.items()}
+        if this["step"]:
             worst.append((round(judged["step"], 3), int(a), int(b)))
     return {
         "legal_edges": len(pairs),

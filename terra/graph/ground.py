@@ -749,7 +749,7 @@ def edge_geometry(
     largest = np.fmax.reduceat(step, starts)
     if unseen_ends:
         z = np.asarray(position, dtype=np.float64)[:, 2]
-        profile = _gap_profile(edge, travelled, height, along, clear, heights)
+        profile = _gap_profile(edge, travelled, height, along, clear, heights, E)
         ends = EdgeEnds(starts, samples, length)
         past = _ground_past_unseen_ends(layers, a, unit, ends, known, flat)
         beyond = past.ends_beyond(length)
@@ -767,14 +767,15 @@ def _gap_profile(
     along: np.ndarray,
     clear: np.ndarray,
     heights: np.ndarray,
+    edges: int,
 ) -> EdgeProfile:
-    """The ground along each edge that its gaps' steps are read on (`_steps_across_gaps`): its
+    """The ground along each of the `edges` edges that its gaps' steps are read on (`_steps_across_gaps`): its
     `clear` (S,) samples (`_slope_samples`) or, on an edge with none, every sample its slope is
     read on (`heights` (S,), whose ground `height` (h,) metres holds): a curb whose top lies beside
     a bench all along reads across the gap before it rather than not at all (on the simulated
     LiDAR-only small site, seed 1, a 15 cm curb read 0.5 cm). `edge` (S,) each sample's edge,
     `travelled` (S,) metres from its start, `along` (S,) the gradient along it."""
-    read = clear | (heights & (np.bincount(edge[clear], minlength=int(edge.max(initial=-1)) + 1) == 0)[edge])
+    read = clear | (heights & (np.bincount(edge[clear], minlength=edges) == 0)[edge])
     return EdgeProfile(edge[read], travelled[read], height[read[heights]], along[read])
 
 
