@@ -600,13 +600,16 @@ def axis_step(height: np.ndarray, axis: int, rise: np.ndarray | None = None) -> 
     return np.moveaxis(steps_at(h, at, level).reshape(h.shape), -1, axis)
 
 
-def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None = None) -> np.ndarray:
+def steps_at(
+    h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None = None, past: np.ndarray | None = None
+) -> np.ndarray:
     """(m,) metres: `axis_step` along the last axis of heights h (..., n) (metres, NaN where
     unobserved) at the cells `at` (index arrays (m,), one per axis of h), with `level` (m,) the
     cells' |rise| (metres per cell) or None. The layers keep only observed cells (28 % of the campus
     grid's): reading each one's five heights along the axis at once costs less than passes over
     the whole raster, and the heights up to `BRIDGE` + 1 cells away only for the cells beside a
-    gap (`_bridge_gaps`)."""
+    gap (`_bridge_gaps`), which asks whether the cell across a gap stands on the step of the
+    heights `past` (shaped as h; h itself by default)."""
     reach, n = BRIDGE + 1, h.shape[-1]
     # float64 (the layers store float32), padded with `reach` unobserved cells at both ends of the
     # axis: the heights around the cells are one gather, without clipping and masking at the ends.
@@ -625,8 +628,11 @@ def steps_at(h: np.ndarray, at: tuple[np.ndarray, ...], level: np.ndarray | None
     step = np.where(np.isfinite(jump), np.maximum(jump - 2.0 * outer, 0.0), np.nan)
     if level is not None:
         gaps = np.flatnonzero(np.isfinite(middle) & np.isnan(step))
-        around = flat[centre[gaps, None] + np.arange(-reach, reach + 1)]
-        step[gaps] = _bridge_gaps(around, level[gaps])
+        window = centre[gaps, None] + np.arange(-reach, reach + 1)
+        around = flat[window]
+        if past is not None:  # padded is no longer needed: it now holds the heights `past`
+            padded[..., reach : n + reach] = past
+        step[gaps] = _bridge_gaps(around, level[gaps], past=flat[window])
     return step
 
 
@@ -639,7 +645,9 @@ def _side_slope(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.n
     return total / np.maximum(count, 1), known_before | known_after
 
 
-def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> np.ndarray:
+def _bridge_gaps(
+    around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE, past: np.ndarray | None = None
+) -> np.ndarray:
     """(m,) metres: the step of observed cells whose step is unknown because a neighbour holds no
     ground (NaN where it stays unknown), from their heights `around` (m, 2 reach + 1) along the
     axis (the cell in the middle, reach > bridge): the height difference between the nearest
@@ -655,7 +663,10 @@ def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> 
     between the cell's and the next observed height beyond it, more than `STRADDLE` from each:
     the cell holds both levels, a curb's face) is read as level with the cell: that cell reads the
     step, and the gap lies before it. Read here too, the step landed on the cell at the gap's edge,
-    80 cm from a simulated curb, and on every edge running along that cell."""
+    80 cm from a simulated curb, and on every edge running along that cell. The height beyond it
+    is read from `past` (shaped as around; around itself by default): `steps_clear_of` bridges to
+    no blocked cell, yet the lowest points of one still tell whether the cell before it stands on
+    a step (a simulated curb top 1.6 m from a place, beside a parked car, read 9 cm without)."""
     centre, m = around.shape[1] // 2, len(around)
     middle = around[:, centre]
     sides = []
@@ -669,7 +680,8 @@ def _bridge_gaps(around: np.ndarray, rise: np.ndarray, bridge: int = BRIDGE) -> 
                 np.where(found, k, distance),
                 np.where(found, w, beyond),
             )
-        on_step = (distance > 1) & _straddles(value, middle, _next_observed(around, sign, distance))
+        further = _next_observed(around if past is None else past, sign, distance)
+        on_step = (distance > 1) & _straddles(value, middle, further)
         sides.append(
             (
                 np.where(on_step, middle, value),
@@ -1120,14 +1132,20 @@ def grid_layers(points: np.ndarray, ground: np.ndarray, grid: TerrainGrid, besid
 def beside_obstacles(layers: GroundLayers, blocked: np.ndarray, beside: int = BESIDE) -> GroundLayers:
     """`layers` (of the ground points alone, `ground_layers`) with the steps within `beside` cells
     of a `blocked` (H, W) bool cell of their grid read again clear of the blocked cells, and
-    those cells flagged `near_obstacle` (`grid_layers`); in place, and returned. The only part of
+    those cells flagged `near_obstacle` (`grid_layers`); in place, and returned. The steps of the
+    cells up to BRIDGE + 1 cells from one are read again too, clear of the blocked cells
+    (`steps_clear_of`): a clear cell read a wall's foot (its lowest returns, 17 cm up) across a
+    gap of two cells, and a simulated place 1.2 m from the wall was cut off. The only part of
     the layers that needs the terrain grid: the rest is computed beside it (terra.graph.pipeline).
     Last, a step read across a gap is left to the gap's high side where that holds it
     (`held_across_gaps`): it needs every cell's final step, those beside obstacles included."""
     if beside > 0 and blocked.any():
         near = raster.grown(blocked, beside)
         layers.near_obstacle = near.ravel()[layers.cells]
-        index = np.flatnonzero(layers.near_obstacle)
+        # Beyond `beside` cells too, as far as a step read across a gap reaches (BRIDGE cells, and
+        # the slope one further): a blocked cell's lowest points are no ground to bridge to.
+        reach = raster.grown(blocked, max(beside, BRIDGE + 1))
+        index = np.flatnonzero(reach.ravel()[layers.cells])
         layers.step[index] = steps_clear_of(layers, blocked, index)
     return held_across_gaps(layers)
 
@@ -1273,7 +1291,9 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
     without ground from heights further out that are not blocked either; along an axis where
     the cell, its two neighbours and the next cell on one side only are clear, the jump between
     the neighbours less twice the slope on that side; where only the cell and its two neighbours
-    are, the larger of their two height differences less the smaller; NaN where no axis is clear."""
+    are, the larger of their two height differences less the smaller; NaN where no axis is clear.
+    Whether a cell across a gap stands on a step (`_bridge_gaps`) is read with the blocked cells'
+    heights too."""
     H, W = layers.shape
     flat = layers.cells[index]
     rows, cols = flat // W, flat % W
@@ -1289,9 +1309,10 @@ def steps_clear_of(layers: GroundLayers, blocked: np.ndarray, index: np.ndarray)
         free = inside & ~blocked[r, c]
         clear = free[:, inner].all(axis=1)
         at = np.minimum(np.searchsorted(layers.cells, r * W + c), len(layers.cells) - 1)
-        height = np.where(free & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
+        ground = np.where(inside & (layers.cells[at] == r * W + c), layers.height[at], np.nan)
+        height = np.where(free, ground, np.nan)
         level = np.abs(gradient.astype(np.float64) * layers.cell_size)
-        step = steps_at(height, (np.arange(len(index)), np.full(len(index), reach)), level)
+        step = steps_at(height, (np.arange(len(index)), np.full(len(index), reach)), level, past=ground)
         # With an obstacle two cells away on one side only, the jump across the cell less the slope
         # of the clear side (a curb through a cell holding both its levels, a wall beyond it);
         # with obstacles on both sides, the cell and its two neighbours: the larger of the two

@@ -15,6 +15,7 @@ from terra.graph import pipeline
 from terra.graph.config import BuildConfig
 from terra.graph.grid import GridFrame
 from terra.graph.ground import (
+    BESIDE,
     GroundLayers,
     axis_step,
     despike,
@@ -602,6 +603,59 @@ def test_a_place_in_a_curbs_shadow_stands_at_the_road():
     np.testing.assert_allclose(heights_in_gaps(layers, xy, np.array([0.15, 0.2, 0.3])), [0.0, 0.2, 0.3], atol=0.01)
     bare = only_cells(layers, layers.cells // 30 <= 3)  # only the road: nothing within reach of row 10
     np.testing.assert_allclose(heights_in_gaps(bare, xy[1:2], np.array([0.15])), [0.15])
+
+
+def level_ground_before(
+    blocked_rows: slice,
+    blocked_height: float,
+    face: float | None = None,
+    car_cols: slice | None = None,
+    gap: tuple[float, float] = (1.6, 2.8),
+) -> np.ndarray:
+    """(16, 30) metres: the step layer of grid_layers on 0.4 m cells of ground with no point over
+    y in `gap` (metres; rows 4-6 by default), level at 0 elsewhere, except that the cells of
+    `blocked_rows` (in the columns `car_cols`, all by default) are blocked and their ground points
+    stand at `blocked_height` (an object's lowest returns), and with `face`, rows 7-15 stand 0.15 m
+    up and row 3's points are of both levels, `face` the share of them at the top (a curb's face)."""
+    from terra.graph.grid import TerrainGrid
+
+    rng = np.random.default_rng(5)
+    xy = uniform(rng, [0, 0], [12, 6.4], 50000)
+    xy = xy[(xy[:, 1] < gap[0]) | (xy[:, 1] >= gap[1])]
+    shape = (16, 30)
+    blocked = np.zeros(shape, dtype=bool)
+    blocked[blocked_rows, car_cols if car_cols is not None else slice(None)] = True
+    rows, cols = (xy[:, 1] // CELL).astype(int), (xy[:, 0] // CELL).astype(int)
+    z = np.where(blocked[rows, cols], blocked_height, 0.0)
+    if face is not None:
+        z = np.where(rows >= 7, 0.15, z)
+        on_face = (rows == 3) & (rng.uniform(size=len(xy)) < face)
+        z = np.where(on_face, 0.15, z)
+    grid = TerrainGrid(np.zeros(shape, np.int16), np.zeros(shape, np.float32), blocked, np.zeros(2), CELL)
+    layers = grid_layers(np.column_stack([xy, z]), np.ones(len(xy), dtype=bool), grid)
+    return layers.as_grid(layers.step)
+
+
+def test_a_step_across_a_gap_is_not_read_up_to_a_blocked_cell():
+    """Level ground, no point in rows 8-9, and a wall in rows 10-11 whose lowest returns, 0.17 m
+    up, pass for ground: row 7, three rows from the wall (beyond BESIDE), read the wall's foot
+    across the gap as a 0.17 m step (a simulated place 1.2 m from a wall was cut off). It reads
+    none, nor does the ground past the wall."""
+    assert BESIDE < 3
+    step = level_ground_before(slice(10, 12), 0.17, gap=(3.2, 4.0))
+    np.testing.assert_allclose(step[7, 2:-2], 0.0, atol=0.01)
+    np.testing.assert_allclose(step[[0, 1, 14, 15], 2:-2], 0.0, atol=0.01)
+
+
+def test_a_blocked_cell_still_tells_that_the_cell_before_it_holds_a_step():
+    """A curb's top (rows 7-15, 0.15 m) over a shadow (rows 4-6), its face in row 3 (half of its
+    points at each level), the road (rows 0-2) at 0 and a car on the road in row 2 (columns 10-19)
+    whose lowest returns read the road: the top's edge (row 7), 1.6 m from the curb, reads no step
+    beside the car either (the face stands on the step: the car's cell beyond it is lower; read
+    without it, 7 cm), and away from the car the face reads the whole curb."""
+    step = level_ground_before(slice(2, 3), 0.0, face=0.5, car_cols=slice(10, 20))
+    np.testing.assert_allclose(step[7, 2:-2], 0.0, atol=0.01)
+    np.testing.assert_allclose(step[3, 2:6], 0.15, atol=0.015)
 
 
 def curb_before_a_wall(rise: float, slope: float = 0.0) -> np.ndarray:
