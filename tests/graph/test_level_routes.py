@@ -10,7 +10,16 @@ from terra.errors import NoPathError
 from terra.graph.config import BuildConfig
 from terra.graph.grid import TerrainGrid
 from terra.graph.ground import GroundLayers, grid_layers
-from terra.graph.level_routes import HOLE, RouteBlocks, RouteRule, level_along, level_routes
+from terra.graph.level_routes import (
+    HOLE,
+    Route,
+    RouteBlocks,
+    RouteRule,
+    _lines_open,
+    _refined,
+    level_along,
+    level_routes,
+)
 from terra.graph.pipeline import build_scene_graph, terrain_grid
 from terra.graph.room import ROOM_REACH
 from terra.graph.scene_graph import EDGE_LEVEL_ROUTE
@@ -377,3 +386,38 @@ def test_a_stretch_without_ground_around_a_bend_is_judged_on_the_ground_it_cross
     assert level_along(layers, chain, RULE)
     layers.height[y.ravel()[layers.cells] > 3.2] -= 0.15  # a curb along y = 3.2 m, where the stretch ends
     assert not level_along(layers, chain, RULE)
+
+
+def test_a_leg_that_is_not_level_is_split_over_its_own_blocks():
+    """A route's polyline over open blocks (all of a level grid but one bad cell) judged with legs
+    that are not level: each is replaced by legs over the same path points spanning at most half
+    as many (9 points: 0-8 becomes 0-4-8), each straight and open (the bad cell's blocks are
+    closed: no leg runs across them); level legs, and legs between neighbouring points, stay."""
+    H, W = 12, 40
+    bad = np.zeros((H, W), bool)
+    bad[8, 20] = True  # at x 8.0..8.4, y 3.2..3.6: its block and the ring around it closed
+    grid, layers = flat_layers((H, W), np.ones((H, W), bool), bad)
+    blocks = RouteBlocks.of(grid, layers, RULE)
+    path = np.column_stack([0.4 + 0.8 * np.arange(9), np.full(9, 1.2)])  # block centres along y = 1.2 m
+    flat, steep = np.zeros(5, np.float32), np.array([0.08, 0, 0, 0, 0], np.float32)
+    one_leg = Route((0, 1), np.zeros((0, 3)), np.zeros(0, np.int64), 9, np.array([steep]), path)
+    split = _refined(blocks, layers, one_leg, RULE)
+    assert split is not None and split.index.tolist() == [4]
+    np.testing.assert_allclose(split.xyz, [[path[4, 0], path[4, 1], 0.0]])
+    second = Route((0, 1), split.xyz, split.index, 9, np.array([flat, steep]), path)
+    finer = _refined(blocks, layers, second, RULE)
+    assert finer is not None and finer.index.tolist() == [4, 6]
+    assert (
+        _refined(blocks, layers, Route((0, 1), split.xyz, split.index, 9, np.array([flat, flat]), path), RULE) is None
+    )
+    neighbours = Route((0, 1), np.zeros((0, 3)), np.zeros(0, np.int64), 2, np.array([steep]), path[:2])
+    assert _refined(blocks, layers, neighbours, RULE) is None
+    # A path bending north past the bad cell's closed blocks: no new leg crosses them.
+    bend = np.array([[6.0, 1.2], [6.8, 1.2], [7.6, 1.2], [8.4, 1.2], [9.2, 1.2], [9.2, 2.0], [9.2, 2.8], [9.2, 4.4]])
+    around = Route((0, 1), np.zeros((0, 3)), np.zeros(0, np.int64), len(bend), np.array([steep]), bend)
+    finer = _refined(blocks, layers, around, RULE)
+    assert finer is not None
+    vertices = bend[[0, *finer.index.tolist(), len(bend) - 1]]
+    assert np.all(np.diff([0, *finer.index.tolist(), len(bend) - 1]) <= 4)
+    for a, b in zip(vertices[:-1], vertices[1:], strict=True):
+        assert _lines_open(blocks, a, b[None])[0]
