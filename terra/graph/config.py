@@ -107,7 +107,10 @@ class GridSection(Section):
     )
     obstacle_height: tuple[float, float] | None = Field(
         default=(0.3, 2.0),
-        description="non-terrain points this many metres above the local ground block a cell (None = never)",
+        description=(
+            "points this many metres above the local ground block a cell: points without a terrain class above the "
+            "terrain points' height, and any point above the segmented ground's (None = never)"
+        ),
     )
     obstacle_min_points: int = Field(default=2, ge=1, description="points in the height band needed to block a cell")
     object_extent: float | None = Field(

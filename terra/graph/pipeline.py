@@ -26,6 +26,7 @@ from terra.graph.ground import (
     GroundLayers,
     as_ground_terrain,
     beside_obstacles,
+    block_above_ground,
     edge_geometry,
     ground_layers,
     has_terrain_votes,
@@ -613,6 +614,8 @@ def _grid_and_layers(
         return grid, grid_stats, None
     with timer.stage("ground layers"):
         layers = beside.result() if beside is not None else _layers_on_frame(msm.points, ground, frame, section)
+        gc = config.grid
+        block_above_ground(grid, msm.points, layers, gc.obstacle_height, gc.obstacle_min_points)
         return grid, grid_stats, beside_obstacles(layers, grid.blocked)
 
 

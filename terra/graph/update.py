@@ -596,7 +596,10 @@ def _rebuilt_places(
         if not (crop_terrain >= 0).any():
             continue
         grid = terrain_grid(points, crop_terrain, config)
-        crop_layers = grid_layers(points, ground, grid) if ground is not None and config.ground.layers else None
+        crop_layers = None
+        if ground is not None and config.ground.layers:
+            gc = config.grid
+            crop_layers = grid_layers(points, ground, grid, band=gc.obstacle_height, min_points=gc.obstacle_min_points)
         if crop_layers is not None:
             layers.append(crop_layers)
         built = _crop_places(points, grid, crop_layers, terrains, digest is None, config)

@@ -18,6 +18,7 @@ from terra.graph.ground import (
     BESIDE,
     GroundLayers,
     axis_step,
+    block_above_ground,
     despike,
     edge_geometry,
     grid_layers,
@@ -1014,3 +1015,60 @@ def test_text_queries_on_a_lidar_only_map_are_refused(lidar_only_bundle, capsys,
     assert run([argv[0], str(lidar_only_bundle), *argv[1:]]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "the map has no image embeddings" in err
+
+
+def lattice(x: float, y: float, nx: int, ny: int) -> np.ndarray:
+    """(nx ny, 2) the corners (metres) of nx x ny cells of CELL from (x, y)."""
+    return np.stack(np.meshgrid(x + CELL * np.arange(nx), y + CELL * np.arange(ny)), axis=-1).reshape(-1, 2)
+
+
+def table_on_a_walk(seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (N, 3) of a level walk (x 0..8, y 0..6 m, at 0) with a picnic table's top (x 3.2..5.2,
+    y 2..3.6 m, 0.75 m up, two points a 0.4 m cell) and a tree's crown (x 6..8, y 4..6 m: points
+    1.9, 1.97 and 3.0 m up, one each a cell); their terrain (N,) (the walk, 0, also on the table's top:
+    the camera's mask bleeds onto it; the crown none, -1) and which are ground (N,) bool."""
+    rng = np.random.default_rng(seed)
+    walk = np.column_stack([uniform(rng, [0, 0], [8, 6], 12000), np.zeros(12000)])
+    cells = lattice(3.2, 2.0, 5, 4)
+    top = np.column_stack(
+        [np.repeat(cells, 2, axis=0) + rng.uniform(0.05, 0.35, (2 * len(cells), 2)), np.full(2 * len(cells), 0.75)]
+    )
+    crown_cells = lattice(6.0, 4.0, 5, 5) + CELL / 2
+    crown = np.vstack([np.column_stack([crown_cells, np.full(len(crown_cells), h)]) for h in (1.9, 1.97, 3.0)])
+    points = np.vstack([walk, top, crown])
+    terrain = np.concatenate([np.zeros(len(walk) + len(top), np.int16), np.full(len(crown), -1, np.int16)])
+    ground = np.arange(len(points)) < len(walk)
+    return points, terrain, ground
+
+
+def test_a_table_its_terrain_mask_bleeds_onto_is_blocked_over_the_segmented_ground():
+    """The table's top points carry the walk's terrain, so the grid's own rule (points without a
+    terrain class above the terrain points' height) blocks none of its cells, only the crown's;
+    measured above the segmented ground (0), the top stands 0.75 m up, two points a cell: its
+    4 x 5 cells are blocked too and lose their label. The crown's cells (two points in the band,
+    its lowest leaves, and one above) are none of the segmented ground's rule's, nor is any cell
+    of the walk."""
+    from terra.graph.pipeline import terrain_grid
+
+    points, terrain, ground = table_on_a_walk()
+    grid = terrain_grid(points, terrain, BuildConfig())
+    rows, cols, _ = grid.cell_of(points[points[:, 2] == 0.75])  # the cells of the table's top
+    table = np.zeros(grid.shape, dtype=bool)
+    table[rows, cols] = True
+    rows, cols, _ = grid.cell_of(points[points[:, 2] == 3.0])
+    crown = np.zeros(grid.shape, dtype=bool)
+    crown[rows, cols] = True
+    assert table.sum() == 20 and crown.sum() == 25
+    np.testing.assert_array_equal(grid.blocked, crown)
+    layers = grid_layers(points, ground, grid)
+    np.testing.assert_array_equal(grid.blocked, crown | table)
+    assert (grid.label[table] == -1).all() and (grid.label[~table & ~crown & (grid.label >= 0)] == 0).all()
+    assert layers.near_obstacle is not None and layers.as_grid(layers.near_obstacle)[table].all()
+    fresh = terrain_grid(points, terrain, BuildConfig())
+    fresh.blocked[:] = False
+    assert block_above_ground(fresh, points, layers) == 20
+    np.testing.assert_array_equal(fresh.blocked, table)
+    # Two points a cell are needed (min_points 3: none), and a band of None blocks nothing.
+    again = terrain_grid(points, terrain, BuildConfig())
+    assert block_above_ground(again, points, layers, min_points=3) == 0
+    assert block_above_ground(again, points, layers, band=None) == 0
