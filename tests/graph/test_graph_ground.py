@@ -659,6 +659,24 @@ def test_a_blocked_cell_still_tells_that_the_cell_before_it_holds_a_step():
     np.testing.assert_allclose(step[3, 2:6], 0.15, atol=0.015)
 
 
+def test_a_place_in_a_hole_on_a_curbs_top_stands_on_the_top():
+    """A curb's top (rows 7-11, 0.15 m up) over its shadow (rows 4-6) with one cell of the top's
+    edge (row 7, column 15) without ground: its neighbours along the row both hold the top, so it is
+    a hole in the top, not shadow, and a place there stands on the top (the lowest ground within
+    reach, the road four rows down, put it at 0; on the simulated LiDAR-only small site such a
+    place beside an obstacle, no ground past it, had an edge down to the road over no ground that
+    read no step); a place in the shadow stands at the road, as before, and the edge down from the
+    hole reads the curb."""
+    layers = curb_over_its_shadow()
+    keep = layers.cells != 7 * 30 + 15
+    holed = only_cells(layers, keep)
+    xy = np.array([[6.2, 2.6], [6.2, 3.0]])  # (row 6: the shadow), (row 7, column 15: the hole)
+    z = heights_in_gaps(holed, xy, np.array([0.3, 0.3]))
+    np.testing.assert_allclose(z, [0.0, 0.15], atol=0.01)
+    position = np.array([[6.2, 3.0, z[1]], [6.2, 1.8, 0.0]])  # down to row 4: no ground between
+    assert edge_geometry(holed, position, np.array([[0, 1]]))[0, 0] >= 0.1
+
+
 def curb_before_a_wall(rise: float, slope: float = 0.0) -> np.ndarray:
     """(12, 30) metres: the step layer of grid_layers on 0.4 m cells, of a road whose curb (`rise`
     metres) runs along x at y = 2.2 m, halfway across row 5 (whose points are of both levels), on
