@@ -383,14 +383,26 @@ def wheelchair_on_map(bundle: Path, preset: str, seed: int, sim_config: Path | N
     } | result
 
 
+def _layers_on_grid_of(module: Any) -> Any:
+    """The `layers_on_grid` of a ground module, or for an older one, its `beside_obstacles` (the
+    grid's blocked cells as they are), or today's where it has neither."""
+    if hasattr(module, "layers_on_grid"):
+        return module.layers_on_grid
+    if not hasattr(module, "beside_obstacles"):
+        from terra.graph.ground import layers_on_grid
+
+        return layers_on_grid
+    return lambda layers, grid, points, **_: module.beside_obstacles(layers, grid.blocked)
+
+
 def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dict[str, Any]:
     """build_scene_graph seconds with the ground layers off, on, on without level routes, and on
     with the layers after the terrain grid instead of beside it on a second thread, the runs
     alternating (one of each per round, the order turning), best of `repeat` wall and CPU
     (process) seconds: on a loaded 2-core machine the wall time of one run moves by a third. `before`: a ground.py of
     another commit (`git show REV:terra/graph/ground.py > FILE`) whose segmentation and layers
-    (points_ground, ground_layers, and beside_obstacles where it has one) run one more
-    configuration, "on_before", in the same process."""
+    (points_ground, ground_layers, and layers_on_grid or, older, beside_obstacles where it has
+    one) run one more configuration, "on_before", in the same process."""
     import importlib.util
 
     from terra.bundle import Bundle
@@ -421,7 +433,7 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
         for name in names[round_ % len(names) :] + names[: round_ % len(names)]:
             module, config = runs[name]
             pipeline.points_ground, pipeline.ground_layers = module.points_ground, module.ground_layers
-            pipeline.beside_obstacles = getattr(module, "beside_obstacles", ground.beside_obstacles)
+            pipeline.layers_on_grid = _layers_on_grid_of(module)
             wall, cpu = time.perf_counter(), time.process_time()
             build = pipeline.build_scene_graph(msm, config)
             wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
@@ -431,7 +443,7 @@ def build_time(map_bundle: Path, repeat: int, before: Path | None = None) -> dic
             if name == "on":
                 out["places"] = len(build.graph.places)
     pipeline.points_ground, pipeline.ground_layers = ground.points_ground, ground.ground_layers
-    pipeline.beside_obstacles = ground.beside_obstacles
+    pipeline.layers_on_grid = ground.layers_on_grid
     for name, values in seconds.items():
         best = np.min(np.array(values), axis=0)
         out[name] = {"wall_s": round(float(best[0]), 3), "cpu_s": round(float(best[1]), 3)}

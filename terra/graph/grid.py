@@ -15,6 +15,9 @@ from scipy import ndimage
 from terra.graph import raster
 from terra.graph.gvd import EIGHT, component_sizes, label_components
 
+OBSTACLE_BAND = (0.3, 2.0)  # metres above the ground a point blocks its cell in (build.grid.obstacle_height's default)
+OBSTACLE_MIN_POINTS = 2  # such points a cell needs to be blocked (build.grid.obstacle_min_points's default)
+
 
 @dataclass
 class TerrainGrid:
@@ -161,8 +164,8 @@ def build_terrain_grid(
     points: np.ndarray,
     terrain: np.ndarray,
     cell_size: float = 0.4,
-    obstacle_height: tuple[float, float] | None = (0.3, 2.0),
-    obstacle_min_points: int = 2,
+    obstacle_height: tuple[float, float] | None = OBSTACLE_BAND,
+    obstacle_min_points: int = OBSTACLE_MIN_POINTS,
     support_radius: float = 1.6,
     min_support: float = 0.6,
     margin_cells: int = 4,

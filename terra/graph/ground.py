@@ -79,7 +79,7 @@ import numpy as np
 from scipy import ndimage
 
 from terra.graph import raster
-from terra.graph.grid import GridFrame, TerrainGrid
+from terra.graph.grid import OBSTACLE_BAND, OBSTACLE_MIN_POINTS, GridFrame, TerrainGrid
 from terra.graph.gvd import EIGHT, component_sizes, label_components
 from terra.graph.scene_graph import EDGE_GEOMETRY_COLUMNS
 from terra.graph.storage import GROUND_FILES  # prefix of the layer arrays in a bundle
@@ -333,8 +333,6 @@ CROSS_CELLS = 6  # of the 9 cells of a neighbourhood with ground, for its plane 
 STRADDLE = 0.02
 SPIKE = 0.03  # metres a cell may stand above or below all its neighbours before `despike` replaces it
 BESIDE = 2  # cells next to a blocked cell whose step is unknown (grid_layers)
-OBSTACLE_BAND = (0.3, 2.0)  # metres above the ground a point blocks its cell in (build.grid.obstacle_height's default)
-OBSTACLE_MIN_POINTS = 2  # such points a cell needs to be blocked (build.grid.obstacle_min_points's default)
 POINT_CHUNK = 1 << 22  # map points read at once by `block_above_ground`
 SLOPE_BASELINE = 1.0  # metres of travel an edge's rise and fall are measured over
 BEYOND = 2.0  # metres past an edge's end without ground its line is read for ground (_ground_past_unseen_ends)
@@ -1137,7 +1135,21 @@ def grid_layers(
     where neither axis is: in a blocked cell the lowest points of an object (a car's sill, a
     planter's rim) pass for ground and read as steps of a few centimetres, while a curb in the gap
     between two cars parked nose to it is read across the curb, clear of both cars."""
-    layers = ground_layers(np.asarray(points)[ground], grid.frame)
+    return layers_on_grid(ground_layers(np.asarray(points)[ground], grid.frame), grid, points, beside, band, min_points)
+
+
+def layers_on_grid(
+    layers: GroundLayers,
+    grid: TerrainGrid,
+    points: np.ndarray,
+    beside: int = BESIDE,
+    band: tuple[float, float] | None = OBSTACLE_BAND,
+    min_points: int = OBSTACLE_MIN_POINTS,
+) -> GroundLayers:
+    """`layers` (`ground_layers` on the frame of `grid`) with what they take of the grid, the one
+    path of the full build and the incremental update: first the grid's cells whose map points
+    (N, 3+) stand in the obstacle `band` above that ground are blocked (`block_above_ground`, in
+    place), then the steps beside its blocked cells are read again (`beside_obstacles`)."""
     block_above_ground(grid, points, layers, band, min_points)
     return beside_obstacles(layers, grid.blocked, beside)
 

@@ -25,12 +25,11 @@ from terra.graph.grid_links import GridPathRules, link_pieces_on_grid
 from terra.graph.ground import (
     GroundLayers,
     as_ground_terrain,
-    beside_obstacles,
-    block_above_ground,
     edge_geometry,
     ground_layers,
     has_terrain_votes,
     heights_in_gaps,
+    layers_on_grid,
     points_ground,
     step_lines,
 )
@@ -596,7 +595,7 @@ def _grid_and_layers(
 ) -> tuple[TerrainGrid, TiledGridStats, GroundLayers | None]:
     """The terrain grid of the map points whose terrain is one of `terrains`, how it was tiled, and
     with `build.ground.layers` the ground layers on it (None without). The layers need of the grid
-    only its frame, known before it, and its blocked cells (`beside_obstacles`, at the end): the
+    only its frame, known before it, and its blocked cells (`layers_on_grid`, at the end): the
     ground's segmentation (unless `ground` (N,) bool gives it, as for a LiDAR-only map, whose grid
     is built on it) and the layers run on a second thread while the grid is built, and on two cores
     add to a build's wall time only what outlasts the grid."""
@@ -615,8 +614,8 @@ def _grid_and_layers(
     with timer.stage("ground layers"):
         layers = beside.result() if beside is not None else _layers_on_frame(msm.points, ground, frame, section)
         gc = config.grid
-        block_above_ground(grid, msm.points, layers, gc.obstacle_height, gc.obstacle_min_points)
-        return grid, grid_stats, beside_obstacles(layers, grid.blocked)
+        layers = layers_on_grid(layers, grid, msm.points, band=gc.obstacle_height, min_points=gc.obstacle_min_points)
+        return grid, grid_stats, layers
 
 
 def _point_terrain(msm: MetricSemanticMap, names: list[str], terrains: list[int], config: BuildConfig) -> np.ndarray:

@@ -41,6 +41,8 @@ import numpy as np
 
 from terra.graph import raster
 from terra.graph.grid import (
+    OBSTACLE_BAND,
+    OBSTACLE_MIN_POINTS,
     GridFrame,
     TerrainGrid,
     build_terrain_grid,
@@ -66,8 +68,8 @@ def build_terrain_grid_tiled(
     points: np.ndarray,
     terrain: np.ndarray,
     cell_size: float = 0.4,
-    obstacle_height: tuple[float, float] | None = (0.3, 2.0),
-    obstacle_min_points: int = 2,
+    obstacle_height: tuple[float, float] | None = OBSTACLE_BAND,
+    obstacle_min_points: int = OBSTACLE_MIN_POINTS,
     support_radius: float = 1.6,
     min_support: float = 0.6,
     fill_radius: float = 0.0,

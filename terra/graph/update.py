@@ -600,7 +600,6 @@ def _rebuilt_places(
         if ground is not None and config.ground.layers:
             gc = config.grid
             crop_layers = grid_layers(points, ground, grid, band=gc.obstacle_height, min_points=gc.obstacle_min_points)
-        if crop_layers is not None:
             layers.append(crop_layers)
         built = _crop_places(points, grid, crop_layers, terrains, digest is None, config)
         if built is not None:
